@@ -1,0 +1,174 @@
+/*
+ * fit.h — the MATPHOT fit engine (paper §2–4, design.md §5).
+ *
+ * A star is E · PRF(x − X, y − Y) with PRF = PSF ∗ DRF sampled on detector
+ * pixels.  A discrete PSF table (OVERSAMP os) is shifted to the star with the
+ * separable damped sinc of paper §3.1 at the table's own sampling, weighted by
+ * the DRF's subpixel QE and block-summed to detector pixels; its position
+ * derivatives come from the five-point formula of paper §3.2 on the shifted
+ * table.  The analytic mode integrates a Gaussian over pixels with erf.
+ * Stars and a sky model are fitted together by Levenberg–Marquardt with
+ * weights 1/(m_i + RON²) from the current model.
+ *
+ * Coordinates are 1-based FITS pixel coordinates (centre of the first pixel
+ * at 1.0); fluxes are electrons for a PRF volume of one (design.md §3).
+ * Errors: 0 on success, nonzero with one line in err (MP_ERRLEN bytes).
+ */
+#ifndef MATPHOT_FIT_H
+#define MATPHOT_FIT_H
+
+#include "io/io.h"
+
+/* ---- PSF ---------------------------------------------------------------- */
+
+typedef enum { MP_PSF_TABLE, MP_PSF_GAUSS } mp_psf_kind;
+
+typedef struct {
+    mp_psf_kind kind;
+    int nx, ny;        /* table size (odd), elements */
+    int os;            /* OVERSAMP: table elements per detector pixel */
+    double *t;         /* nx*ny, row-major, star at element ((nx-1)/2,(ny-1)/2) */
+    double sum;        /* fraction of the star's light the table holds */
+    double sigma;      /* MP_PSF_GAUSS: sigma [detector px] */
+} mp_psf;
+
+/* mp_psf_read: a PSF table from FITS (extended names work).  OVERSAMP
+ * defaults to 1.  Errors: even size, all-zero, NaN, sum > 1.01, OVERSAMP
+ * outside 1..8.  Negative elements are a warning written to warn (may be
+ * NULL).  normalize rescales the table to sum 1. */
+int mp_psf_read(const char *name, int normalize, mp_psf *p, char *warn, char *err);
+
+/* mp_psf_gauss_table: a table of an (exactly pixel-integrated) Gaussian of
+ * the given FWHM [detector px], OVERSAMP os, half-size radius [detector px]. */
+int mp_psf_gauss_table(double fwhm, int os, double radius, mp_psf *p, char *err);
+
+/* mp_psf_gauss: the analytic pixel-integrated Gaussian of the given FWHM. */
+void mp_psf_gauss(double fwhm, mp_psf *p);
+
+/* mp_psf_rebin: block-sum a table to OVERSAMP os/factor (factor divides os;
+ * the result keeps the star at the centre of its central element only for odd
+ * factor — for even factor the star sits (factor-1)/2 input elements off,
+ * reported in *shift_px in detector pixels, both axes). */
+int mp_psf_rebin(const mp_psf *in, int factor, mp_psf *out, double *shift_px, char *err);
+
+void mp_psf_free(mp_psf *p);
+
+/* ---- DRF ---------------------------------------------------------------- */
+
+/* Detector response: k×k subpixel QE of one pixel (k divides the PSF's os),
+ * or, with k == 0, a uniform detector of efficiency volume. */
+typedef struct {
+    int k;
+    double *qe;        /* k*k, row-major, (0,0) at the pixel's low x,y corner */
+    double volume;     /* mean QE = PRF volume for a full PSF */
+} mp_drf;
+
+int mp_drf_read(const char *name, int psf_os, mp_drf *d, char *err);
+void mp_drf_uniform(double volume, mp_drf *d);
+void mp_drf_free(mp_drf *d);
+
+/* ---- Shifting and derivatives (paper §3) ---------------------------------- */
+
+/* mp_damped_sinc: sinc(d)·exp(−(d/3.25)²), paper eq. (dampedsinc). */
+double mp_damped_sinc(double d);
+
+/* mp_shift_table: out(i,j) = in(i+dx, j+dy) by the separable damped sinc of
+ * half-width hw (hw=10: 21 taps); |dx|,|dy| ≤ 0.5 in table elements; outside
+ * the table counts as zero.  tmp holds nx*ny doubles. */
+void mp_shift_table(const double *in, int nx, int ny, double dx, double dy,
+                    int hw, double *out, double *tmp);
+
+/* mp_five_point: first derivative along x (axis 0) or y (axis 1) per table
+ * element by (f[i-2] − 8f[i-1] + 8f[i+1] − f[i+2])/12, zero outside. */
+void mp_five_point(const double *in, int nx, int ny, int axis, double *out);
+
+/* ---- PRF on detector pixels ---------------------------------------------- */
+
+/* What makes a model PRF, and which of its parts are used. */
+typedef struct {
+    const mp_psf *psf;
+    const mp_drf *drf;     /* NULL: perfect detector */
+    int sinc_hw;           /* damped-sinc half-width, 10 = 21 taps */
+} mp_prf_model;
+
+/* Scratch space for mp_prf_render (one per thread). */
+typedef struct {
+    size_t n;
+    double *a, *b, *c, *d;
+} mp_prf_work;
+
+void mp_prf_work_free(mp_prf_work *w);
+
+/* mp_prf_box: the detector box [*x0, *x0+*w) × [*y0, *y0+*h) (1-based) that
+ * the PRF of a star at (x,y) covers. */
+void mp_prf_box(const mp_prf_model *m, double x, double y,
+                long *x0, long *y0, int *w, int *h);
+
+/* mp_prf_render: the PRF (volume V·sum, not normalised) of a star at (x,y)
+ * on the box of mp_prf_box, and its derivatives ∂/∂x, ∂/∂y (may be NULL).
+ * Arrays are w*h, row-major. */
+int mp_prf_render(const mp_prf_model *m, double x, double y,
+                  double *prf, double *dprf_dx, double *dprf_dy, mp_prf_work *w);
+
+/* ---- Performance model (paper §2) ----------------------------------------- */
+
+typedef struct {
+    double volume;     /* V = Σ PRF */
+    double sharp;      /* Σ (PRF/V)² */
+    double beta;       /* 1/Σ PRF²  [px²] */
+    double lscale;     /* L = 1/sqrt(4π sharp) [px] */
+} mp_prf_stats;
+
+void mp_prf_stats_of(const double *prf, size_t n, mp_prf_stats *s);
+
+/* mp_perf_model: the paper's predicted σ_E [e-] (eq. practical-snr) and σ_X
+ * [px] (eq. practical-astrometric-model) for intensity E on sky B [e-/px],
+ * read noise ron [e-], N pixels in the fit. */
+void mp_perf_model(const mp_prf_stats *s, double E, double B, double ron, double npix,
+                   double *sigma_e, double *sigma_x);
+
+/* mp_crlb: the Cramér–Rao bound of (E, X, Y, B) for one star on a constant
+ * sky: invert F_jk = Σ ∂m/∂p_j ∂m/∂p_k / (m + ron²) with m = B + E·prf.
+ * sd receives the four standard deviations.  Nonzero if F is singular. */
+int mp_crlb(const double *prf, const double *dx, const double *dy, size_t n,
+            double E, double B, double ron, double sd[4]);
+
+/* ---- The fit --------------------------------------------------------------- */
+
+enum {
+    MP_FLAG_SATURATED = 1, MP_FLAG_SPLIT = 2, MP_FLAG_EDGE = 4,
+    MP_FLAG_NOCONV = 8, MP_FLAG_MERGED = 16, MP_FLAG_MASKED = 32
+};
+
+typedef struct {
+    int sky_order;     /* 0 constant, 1 plane */
+    double fitrad;     /* radius fitted around each star [px]; NaN: whole frame */
+    double tol;        /* converged when every |step| < tol·σ */
+    int maxiter;
+    int fit_sky;       /* 0: sky fixed at the start value */
+} mp_fit_opts;
+
+void mp_fit_opts_default(mp_fit_opts *o);
+
+/* One star: start values in, fitted values out. */
+typedef struct {
+    double x, y, flux;              /* in/out */
+    double ex, ey, eflux;           /* 1σ from the covariance */
+    double sky, esky;               /* fitted sky at the star and its error */
+    double chi2;                    /* reduced χ² of its group */
+    int dof, niter, flags;
+    mp_prf_stats st;                /* of the PRF at the fitted position */
+    double fluxerr_model, poserr_model;
+} mp_star;
+
+/* mp_fit_group: fit n stars (one group) with their sky on frame f.
+ * sky0 is the starting sky level (NaN: estimated from the fitted pixels).
+ * Never leaves NaN or inf in stars: a star that fails is flagged
+ * MP_FLAG_NOCONV and keeps finite values. */
+int mp_fit_group(const mp_frame *f, const mp_prf_model *m, const mp_fit_opts *o,
+                 double sky0, mp_star *stars, int n, char *err);
+
+/* The `matphot fit` task. */
+int mp_task_fit(int argc, char **argv);
+
+#endif

@@ -1,0 +1,113 @@
+/*
+ * io.h — the one place where matphot reads and writes FITS images and opens
+ * output files.  Every stage uses it; no stage calls cfitsio for images itself.
+ *
+ * Conventions (design.md §3):
+ *   - Image names are cfitsio extended file names: "f.fits", "f.fits[1]",
+ *     "f.fits[SCI]", "f.fits[1:512,1:512]", "psf.fits[DRF]".
+ *   - Pixels are held as double, row-major: pix[(y-1)*nx + (x-1)] is the pixel
+ *     whose centre is at the 1-based coordinate (x, y).
+ *   - Every function that can fail returns 0 on success and nonzero on
+ *     failure, and then writes one line (no trailing newline) into err, of at
+ *     most MP_ERRLEN bytes, naming the file or parameter and what is wrong.
+ *     The caller prefixes "matphot <task>: " and prints it.
+ */
+#ifndef MATPHOT_IO_H
+#define MATPHOT_IO_H
+
+#include <stddef.h>
+#include <stdint.h>
+#include <stdio.h>
+
+#define MP_ERRLEN 512
+
+/* A 2-D image with its primary header kept as text (80-char cards, as
+ * fits_hdr2str gives it) so that WCSLIB and keyword look-ups need no
+ * second read. */
+typedef struct {
+    long nx, ny;
+    double *pix;     /* nx*ny values; NaN where the file has NaN/blank */
+    char *hdr;       /* nkeys 80-character cards, not NUL-separated */
+    int nkeys;
+} mp_image;
+
+/* mp_image_read: read a 2-D image (any HDU/section through the extended
+ * name).  Errors: file missing or unreadable, corrupt or truncated FITS, no
+ * image in the HDU, more than two non-degenerate axes (a cube without a
+ * section), unsupported BITPIX. */
+int mp_image_read(const char *name, mp_image *im, char *err);
+
+/* mp_image_free: release what mp_image_read allocated; safe on a zeroed or
+ * already freed image. */
+void mp_image_free(mp_image *im);
+
+/* mp_header_double / mp_header_string: look a keyword up in im->hdr.
+ * Return 0 when found and parsed, 1 when absent, 2 when present but not of
+ * that type. */
+int mp_header_double(const mp_image *im, const char *key, double *value);
+int mp_header_string(const mp_image *im, const char *key, char *value, size_t len);
+
+/* One header keyword to write with an image. */
+typedef struct {
+    const char *key;
+    double value;          /* used when str is NULL */
+    const char *str;       /* string value, or NULL */
+    const char *comment;
+} mp_card;
+
+/* mp_image_write: write pix (nx*ny, row-major as above) as a BITPIX -32 or
+ * -64 primary image with the given cards, atomically (temporary name in the
+ * same directory, renamed at the end; removed on failure). */
+int mp_image_write(const char *path, const double *pix, long nx, long ny,
+                   int bitpix, const mp_card *cards, int ncards, char *err);
+
+/* Detector parameters (datapars.par).  NaN means "take it from the header
+ * keyword, else the default": GAIN (1 e-/ADU), RDNOISE (0 e-), SATURATE
+ * (none), EXPTIME (1 s). */
+typedef struct {
+    double gain, rdnoise, saturate, exptime;
+} mp_datapars;
+
+/* Mask bits of mp_frame.mask. */
+enum {
+    MP_MASK_BAD = 1,       /* NaN, blank or masked: carries no weight */
+    MP_MASK_SATURATED = 2  /* at or above SATURATE: carries no weight */
+};
+
+/* A frame ready to fit: pixels in electrons (ADU × gain), a mask, and the
+ * detector numbers actually in force (already resolved from datapars and
+ * header). saturate is in ADU as in the header; INFINITY when none. */
+typedef struct {
+    mp_image im;           /* pix in electrons; bad pixels hold 0.0 */
+    uint8_t *mask;         /* nx*ny, MP_MASK_* bits */
+    double gain, rdnoise, saturate, exptime;
+    long nbad, nsat;       /* counts of masked and saturated pixels */
+} mp_frame;
+
+/* mp_frame_read: read an image and prepare it for fitting.  Errors as
+ * mp_image_read, plus non-positive gain, negative read noise. */
+int mp_frame_read(const char *name, const mp_datapars *dp, mp_frame *f, char *err);
+void mp_frame_free(mp_frame *f);
+
+/* An output file written atomically: data go to a temporary file beside the
+ * final one, renamed on commit and removed on abort, so a failed run leaves
+ * no partial output.  A path of "-" or NULL means stdout (no renaming). */
+typedef struct {
+    FILE *fp;
+    int is_stdout;
+    char *final_path;
+    char *tmp_path;
+} mp_outfile;
+
+int mp_out_open(mp_outfile *o, const char *path, char *err);
+int mp_out_commit(mp_outfile *o, char *err);   /* flush, close, rename */
+void mp_out_abort(mp_outfile *o);              /* close, unlink temporary */
+
+/* mp_tmp_name: the temporary name used for path (caller frees). */
+char *mp_tmp_name(const char *path);
+
+/* mp_open_input: open a file for reading, "-" meaning stdin. */
+FILE *mp_open_input(const char *path, char *err);
+void mp_close_input(FILE *fp);
+
+#endif

@@ -1,0 +1,94 @@
+/*
+ * params.h — IRAF parameter files and the one command-line parser every
+ * matphot task uses (design.md §3, anchors.md §1.2).
+ *
+ * A .par line is  name,type,mode,value,min,max,"prompt"  with type one of
+ * b (bool yes/no), i (int), r (real), s (string), f (file name); a value, min
+ * or max may be INDEF or empty.  A string/file min may hold an enumeration
+ * "a|b|c" of allowed values.  Lines starting with # are comments.
+ *
+ * A task's defaults are the compiled-in copy of params/<task>.par.  On the
+ * command line (mp_params_cmdline):
+ *   - a bare word fills the next mode-"a" (query) parameter in file order,
+ *     as IRAF does (e.g. `matphot fit frame.fits frame.coo`);
+ *   - name=value sets a parameter;
+ *   - @file.par loads an edited parameter file (values only; its names must
+ *     be the task's);
+ *   - an unknown name, a value of the wrong type or outside [min,max], or a
+ *     missing query parameter is an error naming the parameter, its value
+ *     and the allowed range.
+ * A positional "@frames.lis" is not a .par file: it is kept as the value of
+ * its parameter, and mp_params_list expands it.
+ *
+ * Errors: functions return 0 on success, nonzero on failure with one line in
+ * err (MP_ERRLEN bytes), e.g. "fitrad: -3 is outside [0, 1000]".
+ */
+#ifndef MATPHOT_PARAMS_H
+#define MATPHOT_PARAMS_H
+
+#include <stddef.h>
+#include <stdio.h>
+
+typedef enum { MP_PAR_BOOL, MP_PAR_INT, MP_PAR_REAL, MP_PAR_STRING, MP_PAR_FILE } mp_par_type;
+
+typedef struct {
+    char *name;
+    mp_par_type type;
+    char *mode;      /* "a", "h", "q", "l", ... as written */
+    char *value;     /* text as written; "INDEF" or "" when undefined */
+    char *min, *max; /* text, "" when absent */
+    char *prompt;
+    int set;         /* 1 when given on the command line or in an @file */
+} mp_par;
+
+typedef struct {
+    char task[32];
+    mp_par *p;
+    size_t n;
+} mp_parset;
+
+/* mp_params_defaults: the compiled-in defaults of task (params/<task>.par).
+ * Error when there is no such task. */
+int mp_params_defaults(const char *task, mp_parset *ps, char *err);
+
+/* mp_params_parse_text: parse .par text (used for defaults and files);
+ * origin names the file in errors. */
+int mp_params_parse_text(const char *text, const char *origin, mp_parset *ps, char *err);
+
+/* mp_params_load_file: apply the values of a .par file to ps. */
+int mp_params_load_file(mp_parset *ps, const char *path, char *err);
+
+/* mp_params_cmdline: apply argv[0..argc-1] (the words after the task name)
+ * to ps, then check every value and that every query parameter is set. */
+int mp_params_cmdline(mp_parset *ps, int argc, char **argv, char *err);
+
+/* mp_params_set: set one value (checked). */
+int mp_params_set(mp_parset *ps, const char *name, const char *value, char *err);
+
+/* mp_params_write: write ps as a .par file. */
+void mp_params_write(const mp_parset *ps, FILE *fp);
+
+/* mp_params_tasks: NULL-terminated list of tasks that have defaults. */
+const char *const *mp_params_tasks(void);
+
+/* Typed access.  Asking for a name the set lacks is a programming error and
+ * returns nonzero.  INDEF reals come back as NaN, INDEF ints as
+ * MP_PAR_INDEF_INT, INDEF or empty strings as "". */
+#define MP_PAR_INDEF_INT (-2147483647 - 1)
+int mp_par_bool(const mp_parset *ps, const char *name, int *v);
+int mp_par_int(const mp_parset *ps, const char *name, int *v);
+int mp_par_real(const mp_parset *ps, const char *name, double *v);
+const char *mp_par_string(const mp_parset *ps, const char *name);
+
+void mp_params_free(mp_parset *ps);
+
+/* mp_params_list: expand an IRAF list argument: "@file" gives its
+ * non-empty, non-comment lines; anything else gives itself.  The caller
+ * frees with mp_list_free. */
+int mp_params_list(const char *arg, char ***items, size_t *n, char *err);
+void mp_list_free(char **items, size_t n);
+
+/* The "matphot params TASK" task: print the defaults of TASK. */
+int mp_task_params(int argc, char **argv);
+
+#endif

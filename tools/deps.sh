@@ -1,0 +1,16 @@
+#!/bin/sh
+# Install the Debian packages matphot needs, only those that are missing.
+set -e
+PKGS="gcc clang make pkg-config libcfitsio-dev wcslib-dev libcsv-dev liblapacke-dev
+libopenblas-dev libomp-dev libcmocka-dev gnuplot-nox python3-astropy valgrind"
+missing=""
+for p in $PKGS; do
+  dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q 'install ok installed' \
+    || missing="$missing $p"
+done
+[ -z "$missing" ] && exit 0
+echo "deps: installing$missing" >&2
+SUDO=""; [ "$(id -u)" -ne 0 ] && SUDO=sudo
+export DEBIAN_FRONTEND=noninteractive
+$SUDO apt-get update -qq
+$SUDO apt-get install -y -qq --no-install-recommends $missing >/dev/null
