@@ -1,0 +1,10 @@
+#!/bin/sh
+# make bench: fit throughput as medians of repeated runs (ratios against an
+# in-run baseline; the machines are shared, so absolute numbers are noisy).
+set -e
+B=${BUILD:-build}
+mkdir -p "$B/bench"
+${CC:-cc} -std=c17 -Wall -Wextra -Werror -O2 -fopenmp -D_XOPEN_SOURCE=700 -I. \
+  $(pkg-config --cflags wcslib) -o "$B/bench/bench_fit" tests/bench/bench_fit.c \
+  "$B/libmatphot.a" -lcfitsio $(pkg-config --libs wcslib) -lcsv -llapacke -lopenblas -lm
+OMP_NUM_THREADS=1 "$B/bench/bench_fit" "${BENCH_N:-400}" "${BENCH_REPS:-7}"
