@@ -1,0 +1,183 @@
+/*
+ * cmdline.c — applying a task's command line to its parameters: bare words
+ * fill the query parameters in file order, name=value and name+/name- set
+ * any parameter, @file.par loads an edited parameter file (IRAF's rules,
+ * anchors.md §1.2).  Also the start-up helper every task calls.
+ */
+#include <stdlib.h>
+#include <string.h>
+
+#include "params/internal.h"
+
+int mp_params_load_file(mp_parset *ps, const char *path, char *err)
+{
+    char *text;
+    int *lines;
+    mp_parset f;
+    int rc = 0;
+    if (mpp_read_file(path, &text, err))
+        return 1;
+    rc = mpp_parse(text, path, &f, &lines, err);
+    free(text);
+    if (rc)
+        return 1;
+    /* Only the values count; ps's own types and ranges check them. */
+    for (size_t i = 0; i < f.n && !rc; i++) {
+        const mp_par *q = &f.p[i];
+        const mp_par *p = mpp_find(ps, q->name);
+        if (q->type == MP_PAR_PSET || (p && p->type == MP_PAR_PSET))
+            continue;
+        if (mp_params_set(ps, q->name, q->value, err)) {
+            mpp_err_prefix(err, "%s:%d: ", path, lines[i]);
+            rc = 1;
+        }
+    }
+    free(lines);
+    mp_params_free(&f);
+    return rc;
+}
+
+/* Length of the parameter name at the start of w (letters, digits, _), or 0. */
+static size_t name_len(const char *w)
+{
+    size_t k = 0;
+    if (!((w[0] >= 'A' && w[0] <= 'Z') || (w[0] >= 'a' && w[0] <= 'z') || w[0] == '_'))
+        return 0;
+    while ((w[k] >= 'A' && w[k] <= 'Z') || (w[k] >= 'a' && w[k] <= 'z')
+           || (w[k] >= '0' && w[k] <= '9') || w[k] == '_')
+        k++;
+    return k;
+}
+
+static int is_parfile(const char *w)
+{
+    size_t n = strlen(w);
+    return w[0] == '@' && n > 5 && !strcmp(w + n - 4, ".par");
+}
+
+int mpp_apply(mp_parset *ps, int argc, char **argv, int check_required, char *err)
+{
+    size_t next = 0;        /* the next query parameter a bare word may fill */
+    for (int i = 0; i < argc; i++) {
+        const char *w = argv[i];
+        size_t k = name_len(w);
+        if (is_parfile(w)) {
+            if (mp_params_load_file(ps, w + 1, err))
+                return 1;
+            continue;
+        }
+        if (k > 0 && w[k] == '=') {
+            char name[128];
+            if (k >= sizeof name) {
+                mpp_errf(err, "%.40s...: unknown parameter of task %s", w, ps->task);
+                return 1;
+            }
+            memcpy(name, w, k);
+            name[k] = '\0';
+            if (mp_params_set(ps, name, w + k + 1, err))
+                return 1;
+            continue;
+        }
+        if (k > 0 && (w[k] == '+' || w[k] == '-') && w[k + 1] == '\0') {
+            char name[128];
+            const mp_par *p;
+            if (k < sizeof name) {
+                memcpy(name, w, k);
+                name[k] = '\0';
+                if ((p = mpp_find(ps, name)) && p->type == MP_PAR_BOOL) {
+                    if (mp_params_set(ps, name, w[k] == '+' ? "yes" : "no", err))
+                        return 1;
+                    continue;
+                }
+            }
+        }
+        /* A bare word: the next query parameter not named on the line. */
+        while (next < ps->n && (!mpp_is_query(&ps->p[next]) || ps->p[next].set))
+            next++;
+        if (next == ps->n) {
+            char names[MP_ERRLEN] = "";
+            size_t len = 0;
+            for (size_t j = 0; j < ps->n && len < sizeof names; j++)
+                if (mpp_is_query(&ps->p[j]))
+                    len += (size_t)snprintf(names + len, sizeof names - len, " %s",
+                                            ps->p[j].name);
+            mpp_errf(err, "'%s': unexpected argument (task %s takes %s%s)", w, ps->task,
+                     names[0] ? "only" : "no positional arguments", names);
+            return 1;
+        }
+        if (mp_params_set(ps, ps->p[next].name, w, err))
+            return 1;
+        next++;
+    }
+    if (check_required)
+        for (size_t j = 0; j < ps->n; j++)
+            if (mpp_required(&ps->p[j])) {
+                mpp_errf(err, "%s: required (query) parameter not given", ps->p[j].name);
+                return 1;
+            }
+    return 0;
+}
+
+int mp_params_cmdline(mp_parset *ps, int argc, char **argv, char *err)
+{
+    return mpp_apply(ps, argc, argv, 1, err);
+}
+
+/* "usage: matphot fit image coords [name=value ...] [@file.par]" */
+static void print_usage_line(const mp_parset *ps, FILE *fp)
+{
+    fprintf(fp, "usage: matphot %s", ps->task);
+    for (size_t j = 0; j < ps->n; j++)
+        if (mpp_is_query(&ps->p[j]))
+            fprintf(fp, mpp_required(&ps->p[j]) ? " %s" : " [%s]", ps->p[j].name);
+    fprintf(fp, " [name=value ...] [@file.par]\n");
+}
+
+int mp_task_begin(const char *task, int argc, char **argv, mp_parset *ps)
+{
+    char err[MP_ERRLEN];
+    int words = argc > 1 ? argc - 1 : 0;
+    if (mp_params_defaults(task, ps, err)) {
+        fprintf(stderr, "matphot %s: %s\n", task, err);
+        return 1;
+    }
+    if (words == 0) {
+        for (size_t j = 0; j < ps->n; j++)
+            if (mpp_required(&ps->p[j])) {
+                print_usage_line(ps, stderr);
+                mp_params_free(ps);
+                return 2;
+            }
+    }
+    if (mp_params_cmdline(ps, words, argv + 1, err)) {
+        fprintf(stderr, "matphot %s: %s\n", task, err);
+        mp_params_free(ps);
+        return 1;
+    }
+    return 0;
+}
+
+int mp_task_usage(const char *task, FILE *fp)
+{
+    mp_parset ps;
+    char err[MP_ERRLEN];
+    int w = 4;
+    if (mp_params_defaults(task, &ps, err))
+        return 1;
+    print_usage_line(&ps, fp);
+    for (size_t j = 0; j < ps.n; j++)
+        if ((int)strlen(ps.p[j].name) > w)
+            w = (int)strlen(ps.p[j].name);
+    fprintf(fp, "parameters (`matphot params %s > my.par` writes them as a .par file):\n", task);
+    for (size_t j = 0; j < ps.n; j++) {
+        const mp_par *p = &ps.p[j];
+        if (p->type == MP_PAR_PSET) {
+            fprintf(fp, "  %-*s  (parameter set) %s\n", w, p->name, p->prompt);
+            continue;
+        }
+        fprintf(fp, "  %-*s  %-10s %s\n", w, p->name,
+                mpp_required(p) ? "(required)" : p->value, p->prompt);
+    }
+    mp_params_free(&ps);
+    return 0;
+}

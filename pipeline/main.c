@@ -1,0 +1,86 @@
+/*
+ * main.c — the matphot executable: `matphot TASK args...` runs one task
+ * (design.md §1).  One binary keeps tool names off the user's PATH and gives
+ * every task the same parameter handling (params/params.h).
+ *
+ * A task is int f(int argc, char **argv) with argv[0] the task name and
+ * argv[1..] its words; it returns the exit status (0, 1 error, 2 usage) and
+ * normally starts with mp_task_begin.  Adding a task is one line in tasks[].
+ */
+#include <stdio.h>
+#include <string.h>
+
+#include "fit/fit.h"
+#include "params/params.h"
+#include "sim/sim.h"
+
+#ifndef MATPHOT_VERSION
+#define MATPHOT_VERSION "0.1.0"
+#endif
+
+typedef int (*task_fn)(int argc, char **argv);
+
+static const struct {
+    const char *name;
+    task_fn run;
+    const char *what;
+} tasks[] = {
+    { "fit", mp_task_fit, "fit stars and sky with a discrete or analytic PSF (MATPHOT)" },
+    { "sim", mp_task_sim, "simulate a frame of stars with exact pixel-integrated PRFs" },
+    { "params", mp_task_params, "print a task's parameters as a .par file (no TASK: list them)" },
+};
+
+#define NTASKS (sizeof tasks / sizeof tasks[0])
+
+static void usage(FILE *fp)
+{
+    fprintf(fp,
+            "usage: matphot TASK [words] [name=value ...] [@file.par]\n"
+            "       matphot TASK --help | matphot --help | matphot --version\n"
+            "Crowded-field stellar photometry with the MATPHOT algorithm.\n"
+            "\n"
+            "tasks:\n");
+    for (size_t i = 0; i < NTASKS; i++)
+        fprintf(fp, "  %-8s %s\n", tasks[i].name, tasks[i].what);
+    fprintf(fp,
+            "\n"
+            "Bare words fill a task's query parameters in order; name=value sets any\n"
+            "parameter; `matphot params fit > my.par` writes fit's defaults, and\n"
+            "`matphot fit img.fits img.coo @my.par fitrad=4` uses them.\n");
+}
+
+static int is_help(const char *s)
+{
+    return !strcmp(s, "-h") || !strcmp(s, "--help");
+}
+
+int main(int argc, char **argv)
+{
+    if (argc < 2) {
+        usage(stderr);
+        return 2;
+    }
+    if (is_help(argv[1])) {
+        usage(stdout);
+        return 0;
+    }
+    if (!strcmp(argv[1], "--version") || !strcmp(argv[1], "-V")) {
+        printf("matphot %s\n", MATPHOT_VERSION);
+        return 0;
+    }
+    for (size_t i = 0; i < NTASKS; i++) {
+        if (strcmp(argv[1], tasks[i].name))
+            continue;
+        /* `matphot TASK --help` is answered here from the task's .par, so
+         * every task has it without code of its own. */
+        if (argc == 3 && is_help(argv[2]) && strcmp(tasks[i].name, "params")) {
+            printf("matphot %s: %s\n", tasks[i].name, tasks[i].what);
+            if (mp_task_usage(tasks[i].name, stdout))
+                printf("usage: matphot %s ...\n", tasks[i].name);
+            return 0;
+        }
+        return tasks[i].run(argc - 1, argv + 1);
+    }
+    fprintf(stderr, "matphot: unknown task '%s' (matphot --help lists the tasks)\n", argv[1]);
+    return 2;
+}
