@@ -30,6 +30,10 @@ typedef struct {
     double *t;         /* nx*ny, row-major, star at element ((nx-1)/2,(ny-1)/2) */
     double sum;        /* fraction of the star's light the table holds */
     double sigma;      /* MP_PSF_GAUSS: sigma [detector px] */
+    double offset;     /* where the star sits from the centre of the central
+                        * element, both axes [detector px]: 0 for a table as
+                        * design.md §3 defines it, nonzero after an even
+                        * block-sum (mp_psf_rebin) */
 } mp_psf;
 
 /* mp_psf_read: a PSF table from FITS (extended names work).  OVERSAMP
@@ -45,11 +49,11 @@ int mp_psf_gauss_table(double fwhm, int os, double radius, mp_psf *p, char *err)
 /* mp_psf_gauss: the analytic pixel-integrated Gaussian of the given FWHM. */
 void mp_psf_gauss(double fwhm, mp_psf *p);
 
-/* mp_psf_rebin: block-sum a table to OVERSAMP os/factor (factor divides os;
- * the result keeps the star at the centre of its central element only for odd
- * factor — for even factor the star sits (factor-1)/2 input elements off,
- * reported in *shift_px in detector pixels, both axes). */
-int mp_psf_rebin(const mp_psf *in, int factor, mp_psf *out, double *shift_px, char *err);
+/* mp_psf_rebin: block-sum a table to OVERSAMP os/factor (factor divides os).
+ * For odd factor the star stays at the centre of the central element; for
+ * even factor it sits half an input element above it, which out->offset
+ * records (the renderer accounts for it, so fitted positions stay true). */
+int mp_psf_rebin(const mp_psf *in, int factor, mp_psf *out, char *err);
 
 void mp_psf_free(mp_psf *p);
 

@@ -73,7 +73,7 @@ void mp_prf_box(const mp_prf_model *m, double x, double y,
         *w = *h = 2 * r + 1;
         return;
     }
-    axis_geom ax = table_axis(p->nx, p->os, x), ay = table_axis(p->ny, p->os, y);
+    axis_geom ax = table_axis(p->nx, p->os, x - p->offset), ay = table_axis(p->ny, p->os, y - p->offset);
     *x0 = ax.p0;
     *y0 = ay.p0;
     *w = ax.w;
@@ -165,7 +165,8 @@ static int render_table(const mp_prf_model *m, double x, double y,
     size_t nt = (size_t)nx * ny;
     if (work_reserve(w, nt))
         return 1;
-    axis_geom ax = table_axis(nx, os, x), ay = table_axis(ny, os, y);
+    /* The central element sits at the star minus the table's offset. */
+    axis_geom ax = table_axis(nx, os, x - p->offset), ay = table_axis(ny, os, y - p->offset);
     int hw = m->sinc_hw > 0 ? m->sinc_hw : 0;
     double *S = w->a;
     mp_shift_table(p->t, nx, ny, ax.delta, ay.delta, hw, S, w->b);

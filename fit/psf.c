@@ -139,7 +139,7 @@ void mp_psf_gauss(double fwhm, mp_psf *p)
     p->sum = 1.0;
 }
 
-int mp_psf_rebin(const mp_psf *in, int factor, mp_psf *out, double *shift_px, char *err)
+int mp_psf_rebin(const mp_psf *in, int factor, mp_psf *out, char *err)
 {
     memset(out, 0, sizeof *out);
     if (in->kind != MP_PSF_TABLE || factor < 1 || in->os % factor) {
@@ -173,7 +173,6 @@ int mp_psf_rebin(const mp_psf *in, int factor, mp_psf *out, double *shift_px, ch
     out->os = in->os / f;
     out->sum = in->sum;
     out->sigma = in->sigma;
-    if (shift_px)
-        *shift_px = (f % 2) ? 0.0 : 0.5 / in->os;
+    out->offset = in->offset + ((f % 2) ? 0.0 : 0.5 / in->os);
     return 0;
 }

@@ -40,6 +40,20 @@ static int setup_of(const mp_parset *ps, fit_setup *s, char *err)
             return 1;
         if (warn[0])
             fprintf(stderr, "matphot fit: warning: %s\n", warn);
+        int os = MP_PAR_INDEF_INT;
+        mp_par_int(ps, "psfos", &os);
+        if (os != MP_PAR_INDEF_INT && os != s->psf.os) {
+            mp_psf coarse;
+            if (s->psf.os % os) {
+                snprintf(err, MP_ERRLEN, "psfos: %d does not divide the table's OVERSAMP %d",
+                         os, s->psf.os);
+                return 1;
+            }
+            if (mp_psf_rebin(&s->psf, s->psf.os / os, &coarse, err))
+                return 1;
+            mp_psf_free(&s->psf);
+            s->psf = coarse;
+        }
     } else {
         double fwhm;
         mp_par_real(ps, "fwhm", &fwhm);
