@@ -13,6 +13,10 @@
  * i.e. "#", the 1-based index right-aligned in 4, a space, the name
  * left-aligned in 22, a space, the description left-aligned in 58, a space,
  * and the unit in brackets (omitted when there is none).
+ * (That is SExtractor's "# %3d %-22.22s %-58.58s [%s]", which differs only
+ * from column 1000 on: "# 1000 ..."; matphot never truncates a name or
+ * description.)  Values: each column's format, one blank between columns,
+ * NaN as "nan"; CSV: a header row of quoted names, NaN as an empty field.
  *
  * Errors: functions return 0 on success, nonzero on failure with one line in
  * err (MP_ERRLEN bytes) naming the file and what is wrong (line number for
@@ -22,6 +26,8 @@
 #define MATPHOT_CATALOG_H
 
 #include <stddef.h>
+
+#include "io/io.h"   /* MP_ERRLEN (added: callers size err with it) */
 
 typedef struct {
     char name[32];
@@ -44,7 +50,8 @@ void mp_table_free(mp_table *t);
 
 /* mp_table_add_col: add a column (values NaN in existing rows) and return its
  * index, or the existing index if the name is already there; -1 when out of
- * memory. */
+ * memory (and, added: when name is empty or longer than 31 characters).
+ * Description, unit and format come from the registry of known names. */
 int mp_table_add_col(mp_table *t, const char *name);
 
 /* mp_table_col: index of a column, -1 when absent. */
@@ -61,7 +68,11 @@ static inline void mp_table_set(mp_table *t, size_t row, int col, double x)
 
 /* mp_table_read: read an ASCII_HEAD table or a CSV table with a header row
  * (told apart by the first line); path "-" is stdin.  Errors: missing file,
- * empty file, no header, text in a number, wrong number of fields. */
+ * empty file, no header, text in a number, wrong number of fields.
+ * (Added:) t need not be initialised: it is set up by the call and left
+ * empty on failure, so mp_table_free(t) is always safe afterwards.  "nan",
+ * "NaN", "INDEF" and empty CSV fields read as NaN; blank lines, CRLF line
+ * ends and lines of any length are accepted. */
 int mp_table_read(const char *path, mp_table *t, char *err);
 
 /* mp_table_write: write atomically (see mp_outfile); path "-" or NULL is

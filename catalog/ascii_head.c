@@ -1,0 +1,281 @@
+/*
+ * ascii_head.c — SExtractor's ASCII_HEAD catalogue format (anchors.md §2.2):
+ * one "#" line per column, then one whitespace-separated row per object.
+ *
+ * Writing follows SExtractor's catout.c byte for byte ("# %3d %-22.22s
+ * %-58.58s [%s]"), except that names and descriptions are never truncated:
+ * a cut name would no longer be the column.  Reading takes any SExtractor
+ * ASCII_HEAD file: blank lines, CRLF, any line length, "#" comment lines,
+ * and vector columns (an index gap), which get astropy's names NAME,
+ * NAME_1, NAME_2, ...
+ */
+#include <ctype.h>
+#include <errno.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "catalog/table_priv.h"
+#include "io/io.h"
+
+/* Longest piece of an offending value quoted back in a message. */
+#define QUOTE_MAX 40
+
+static char *skip_blanks(char *p)
+{
+    while (*p == ' ' || *p == '\t')
+        p++;
+    return p;
+}
+
+static char *skip_word(char *p)
+{
+    while (*p && *p != ' ' && *p != '\t')
+        p++;
+    return p;
+}
+
+static void rtrim(char *s)
+{
+    size_t n = strlen(s);
+    while (n > 0 && (s[n - 1] == ' ' || s[n - 1] == '\t'))
+        s[--n] = '\0';
+}
+
+/* Copy at most size-1 bytes of src[0..n) into dst. */
+static void copy_trunc(char *dst, size_t size, const char *src, size_t n)
+{
+    if (n >= size)
+        n = size - 1;
+    memcpy(dst, src, n);
+    dst[n] = '\0';
+}
+
+/* A column definition parsed from a "#" line. */
+typedef struct {
+    long index;
+    char *name;            /* points into the line */
+    char desc[64], unit[24];
+} coldef;
+
+/* parse_def: "#  <index> <NAME> <description> [<unit>]" → 1; any other "#"
+ * line is a comment → 0.  Modifies the line (NUL after the name). */
+static int parse_def(char *line, coldef *d)
+{
+    char *p = skip_blanks(line);
+    if (*p != '#')
+        return 0;
+    p = skip_blanks(p + 1);
+    if (!isdigit((unsigned char)*p))
+        return 0;
+    char *end;
+    errno = 0;
+    d->index = strtol(p, &end, 10);
+    if (errno || (*end != ' ' && *end != '\t'))
+        return 0;
+    p = skip_blanks(end);
+    if (!*p)
+        return 0;
+    d->name = p;
+    p = skip_word(p);
+    char *rest = *p ? p + 1 : p;
+    *p = '\0';
+
+    rest = skip_blanks(rest);
+    rtrim(rest);
+    d->unit[0] = '\0';
+    size_t n = strlen(rest);
+    if (n > 0 && rest[n - 1] == ']') {
+        /* The unit is the last bracketed word, after a blank (or alone). */
+        char *open = strrchr(rest, '[');
+        if (open && (open == rest || open[-1] == ' ' || open[-1] == '\t')) {
+            copy_trunc(d->unit, sizeof d->unit, open + 1,
+                       (size_t)(rest + n - 1 - (open + 1)));
+            *open = '\0';
+            rtrim(rest);
+        }
+    }
+    copy_trunc(d->desc, sizeof d->desc, rest, strlen(rest));
+    return 1;
+}
+
+/* Add a column read from the file: the registry's format, and the file's
+ * description and unit where it gives them (so a SExtractor catalogue keeps
+ * its [count]). */
+static int add_def(mp_table *t, const char *name, const coldef *d,
+                   const char *fname, long lineno, char *err)
+{
+    if (strlen(name) >= sizeof t->cols[0].name) {
+        snprintf(err, MP_ERRLEN, "%s:%ld: column name '%.*s...' is too long",
+                 fname, lineno, QUOTE_MAX, name);
+        return 1;
+    }
+    if (mp_table_col(t, name) >= 0) {
+        snprintf(err, MP_ERRLEN, "%s:%ld: column %s defined twice", fname, lineno, name);
+        return 1;
+    }
+    int c = mp_table_add_col(t, name);
+    if (c < 0) {
+        snprintf(err, MP_ERRLEN, "%s: out of memory", fname);
+        return 1;
+    }
+    if (d->desc[0])
+        strcpy(t->cols[c].desc, d->desc);
+    if (d->unit[0])
+        strcpy(t->cols[c].unit, d->unit);
+    return 0;
+}
+
+/* One header line: add its column, and the hidden elements of a vector
+ * column before it when the index jumps. */
+static int header_line(mp_table *t, coldef *d, long *expect,
+                       const char *fname, long lineno, char *err)
+{
+    if (d->index < *expect) {
+        snprintf(err, MP_ERRLEN, "%s:%ld: column %ld (%s) listed after column %ld",
+                 fname, lineno, d->index, d->name, *expect - 1);
+        return 1;
+    }
+    if (d->index > *expect) {
+        if (t->ncol == 0) {
+            snprintf(err, MP_ERRLEN, "%s:%ld: first column is numbered %ld, not 1",
+                     fname, lineno, d->index);
+            return 1;
+        }
+        /* The previous column is a vector of index - expect + 1 elements. */
+        coldef prev = {0};
+        const mp_col *pc = &t->cols[t->ncol - 1];
+        char base[sizeof pc->name];
+        strcpy(base, pc->name);
+        strcpy(prev.desc, pc->desc);
+        strcpy(prev.unit, pc->unit);
+        for (long k = 1; *expect < d->index; k++, (*expect)++) {
+            char name[64];
+            snprintf(name, sizeof name, "%s_%ld", base, k);
+            if (add_def(t, name, &prev, fname, lineno, err))
+                return 1;
+        }
+    }
+    if (add_def(t, d->name, d, fname, lineno, err))
+        return 1;
+    (*expect)++;
+    return 0;
+}
+
+/* One data row: exactly ncol values. */
+static int data_line(mp_table *t, char *line, const char *fname, long lineno, char *err)
+{
+    size_t n = 0;
+    for (char *p = skip_blanks(line); *p; p = skip_blanks(skip_word(p)))
+        n++;
+    if (n != t->ncol) {
+        snprintf(err, MP_ERRLEN, "%s:%ld: %zu field%s, header has %zu column%s",
+                 fname, lineno, n, n == 1 ? "" : "s", t->ncol, t->ncol == 1 ? "" : "s");
+        return 1;
+    }
+    long r = mp_table_add_row(t);
+    if (r < 0) {
+        snprintf(err, MP_ERRLEN, "%s: out of memory", fname);
+        return 1;
+    }
+    size_t c = 0;
+    for (char *p = skip_blanks(line); *p; c++) {
+        char *e = skip_word(p);
+        char save = *e;
+        *e = '\0';
+        double x;
+        if (mp_parse_value(p, &x) != 0) {
+            size_t len = strlen(p);
+            snprintf(err, MP_ERRLEN, "%s:%ld: '%.*s%s' in column %s is not a number",
+                     fname, lineno, QUOTE_MAX, p, len > QUOTE_MAX ? "..." : "",
+                     t->cols[c].name);
+            return 1;
+        }
+        mp_table_set(t, (size_t)r, (int)c, x);
+        *e = save;
+        p = skip_blanks(e);
+    }
+    return 0;
+}
+
+int mp_ascii_head_read(mp_lines *L, mp_table *t, char *err)
+{
+    int in_header = 1;
+    long expect = 1;
+    int r;
+    while ((r = mp_lines_next(L, err)) == 1) {
+        char *p = skip_blanks(L->line);
+        if (*p == '\0')
+            continue;
+        if (*p == '#') {
+            /* After the data have begun, "#" lines are comments. */
+            coldef d;
+            if (in_header && parse_def(L->line, &d)
+                && header_line(t, &d, &expect, L->name, L->lineno, err))
+                return 1;
+            continue;
+        }
+        if (in_header) {
+            in_header = 0;
+            if (t->ncol == 0) {
+                snprintf(err, MP_ERRLEN, "%s:%ld: data before any column definition "
+                         "(\"#   1 NAME  description  [unit]\")", L->name, L->lineno);
+                return 1;
+            }
+        }
+        if (data_line(t, L->line, L->name, L->lineno, err))
+            return 1;
+    }
+    if (r < 0)
+        return 1;
+    if (t->ncol == 0) {
+        snprintf(err, MP_ERRLEN, "%s: header has no column definitions", L->name);
+        return 1;
+    }
+    return 0;
+}
+
+/* A name that the reader would split or take for a comment. */
+static int bad_name(const char *s)
+{
+    if (!*s)
+        return 1;
+    for (; *s; s++)
+        if (isspace((unsigned char)*s) || !isprint((unsigned char)*s))
+            return 1;
+    return 0;
+}
+
+int mp_ascii_head_write(FILE *fp, const char *name, const mp_table *t, char *err)
+{
+    if (t->ncol == 0) {
+        snprintf(err, MP_ERRLEN, "%s: table has no columns to write", name);
+        return 1;
+    }
+    for (size_t c = 0; c < t->ncol; c++)
+        if (bad_name(t->cols[c].name)) {
+            snprintf(err, MP_ERRLEN, "%s: column name '%s' cannot be written in "
+                     "ASCII_HEAD (blank or unprintable characters)", name, t->cols[c].name);
+            return 1;
+        }
+
+    for (size_t c = 0; c < t->ncol; c++) {
+        const mp_col *k = &t->cols[c];
+        /* SExtractor's catout.c layout; unit-less lines keep the padding. */
+        fprintf(fp, "# %3zu %-22s %-58s", c + 1, k->name, k->desc);
+        if (k->unit[0])
+            fprintf(fp, " [%s]", k->unit);
+        fputc('\n', fp);
+    }
+
+    char buf[512];
+    for (size_t r = 0; r < t->nrow; r++) {
+        for (size_t c = 0; c < t->ncol; c++) {
+            if (c)
+                fputc(' ', fp);   /* a separator even when a value overflows its width */
+            mp_format_value(&t->cols[c], mp_table_get(t, r, (int)c), buf, sizeof buf);
+            fputs(buf, fp);
+        }
+        fputc('\n', fp);
+    }
+    return 0;
+}

@@ -1,0 +1,151 @@
+/*
+ * columns.c — the registry of known columns (design.md §4 plus the
+ * simulator's truth columns) and the value parsing/printing shared by the
+ * formats.
+ *
+ * Names, descriptions and units follow SExtractor (src/param.h) where the
+ * column means the same thing; fluxes are in electrons, so their unit is
+ * [electron] where SExtractor says [count].  Print formats keep full useful
+ * precision: positions to 1e-5 pixel, fluxes to 7 significant digits
+ * (SExtractor's %12.7g).  Integer columns use "%N.0f" because values are
+ * held as doubles; that never overflows, whatever the value.
+ */
+#include <math.h>
+#include <stdlib.h>
+#include <string.h>
+#include <strings.h>
+
+#include "catalog/table_priv.h"
+
+#define PIX  "pixel"
+#define ELEC "electron"
+
+static const mp_col registry[] = {
+    /* find */
+    {"NUMBER",         "Running object number",                      "",   "%10.0f", 1},
+    {"X_IMAGE",        "Object position along x",                    PIX,  "%11.5f", 0},
+    {"Y_IMAGE",        "Object position along y",                    PIX,  "%11.5f", 0},
+    {"FLUX",           "First flux estimate from detection",         ELEC, "%12.7g", 0},
+    {"FLUX_MAX",       "Peak flux above background",                 ELEC, "%12.7g", 0},
+    {"BACKGROUND",     "Background at centroid position",            ELEC, "%12.7g", 0},
+    {"SHARPNESS",      "Sharpness statistic from detection (DAOFIND)", "", "%9.5f",  0},
+    {"ROUNDNESS",      "Roundness statistic from detection (DAOFIND)", "", "%9.5f",  0},
+    /* group */
+    {"GROUP_ID",       "Group number",                               "",   "%10.0f", 1},
+    {"GROUP_SIZE",     "Number of stars in the group",               "",   "%5.0f",  1},
+    /* fit */
+    {"XPSF_IMAGE",     "X coordinate from PSF-fitting",              PIX,  "%11.5f", 0},
+    {"YPSF_IMAGE",     "Y coordinate from PSF-fitting",              PIX,  "%11.5f", 0},
+    {"ERRX_PSF",       "RMS error of X coordinate from PSF-fitting", PIX,  "%12.7g", 0},
+    {"ERRY_PSF",       "RMS error of Y coordinate from PSF-fitting", PIX,  "%12.7g", 0},
+    {"FLUX_PSF",       "Flux from PSF-fitting",                      ELEC, "%12.7g", 0},
+    {"FLUXERR_PSF",    "RMS flux error for PSF-fitting",             ELEC, "%12.7g", 0},
+    {"MAG_PSF",        "Magnitude from PSF-fitting",                 "mag", "%9.5f", 0},
+    {"MAGERR_PSF",     "RMS magnitude error from PSF-fitting",       "mag", "%10.6f", 0},
+    {"ALPHAPSF_J2000", "Right ascension of the fitted PSF (J2000)",  "deg", "%11.7f", 0},
+    {"DELTAPSF_J2000", "Declination of the fitted PSF (J2000)",      "deg", "%+11.7f", 0},
+    {"SKY_PSF",        "Sky from PSF-fitting at the star position",  ELEC, "%12.7g", 0},
+    {"SKYERR_PSF",     "RMS sky error from PSF-fitting",             ELEC, "%12.7g", 0},
+    {"CHI2_PSF",       "Reduced chi2 from PSF-fitting",              "",   "%10.6g", 0},
+    {"DOF_PSF",        "Degrees of freedom of the group fit",        "",   "%8.0f",  1},
+    {"NITER_PSF",      "Number of iterations for PSF-fitting",       "",   "%3.0f",  1},
+    {"BETA_PSF",       "Effective background area of the PRF",       "pixel**2", "%12.7g", 0},
+    {"SHARP_PRF",      "Sharpness of the PRF",                       "",   "%12.7g", 0},
+    {"LSCALE_PRF",     "Critical-sampling scale length of the PRF",  PIX,  "%12.7g", 0},
+    {"VOLUME_PRF",     "Volume of the PRF (mean detector efficiency)", "", "%12.7g", 0},
+    {"FLUXERR_MODEL",  "RMS flux error predicted by the performance model", ELEC, "%12.7g", 0},
+    {"POSERR_MODEL",   "RMS position error predicted by the performance model", PIX, "%12.7g", 0},
+    {"FLAGS",          "Extraction flags",                           "",   "%3.0f",  1},
+    /* sim: the truth, to full double precision so that tests of the
+     * fitter compare against what was simulated, not a rounded copy */
+    {"FLUX_TRUE",      "True flux (simulation)",                     ELEC, "%17.10g", 0},
+    {"MAG_TRUE",       "True magnitude (simulation)",                "mag", "%12.8f", 0},
+    {"SKY_TRUE",       "True sky level (simulation)",                ELEC, "%17.10g", 0},
+};
+
+/* Unknown columns: no description or unit, 10 significant digits. */
+static const char generic_fmt[] = "%16.10g";
+
+size_t mp_col_registry_count(void)
+{
+    return sizeof registry / sizeof registry[0];
+}
+
+const mp_col *mp_col_registry_at(size_t i)
+{
+    return i < mp_col_registry_count() ? &registry[i] : NULL;
+}
+
+const mp_col *mp_col_registry_find(const char *name)
+{
+    for (size_t i = 0; i < mp_col_registry_count(); i++)
+        if (strcmp(registry[i].name, name) == 0)
+            return &registry[i];
+    return NULL;
+}
+
+int mp_col_describe(const char *name, mp_col *c)
+{
+    if (!name || !*name || strlen(name) >= sizeof c->name)
+        return 1;
+    const mp_col *k = mp_col_registry_find(name);
+    if (k) {
+        *c = *k;
+        return 0;
+    }
+    memset(c, 0, sizeof *c);
+    strcpy(c->name, name);
+    strcpy(c->fmt, generic_fmt);
+    return 0;
+}
+
+int mp_parse_value(const char *s, double *x)
+{
+    while (*s == ' ' || *s == '\t')
+        s++;
+    if (strncasecmp(s, "INDEF", 5) == 0) {   /* IRAF's missing value */
+        const char *e = s + 5;
+        while (*e == ' ' || *e == '\t')
+            e++;
+        if (*e == '\0') {
+            *x = NAN;
+            return 0;
+        }
+        return 1;
+    }
+    /* strtod itself takes "nan" and "NaN" in any case, and "inf". */
+    char *end;
+    double v = strtod(s, &end);
+    if (end == s)
+        return 1;
+    while (*end == ' ' || *end == '\t')
+        end++;
+    if (*end != '\0')
+        return 1;
+    *x = isnan(v) ? NAN : v;   /* drop the sign of "-nan" */
+    return 0;
+}
+
+/* Field width of a printf format like "%+11.7f" (0 when none). */
+static int fmt_width(const char *fmt)
+{
+    const char *p = strchr(fmt, '%');
+    if (!p)
+        return 0;
+    p++;
+    while (*p && strchr("-+ #0", *p))
+        p++;
+    return atoi(p);
+}
+
+int mp_format_value(const mp_col *c, double x, char *buf, size_t len)
+{
+    /* %f of a huge value is long: callers give room for 330+ chars. */
+    int n;
+    if (isnan(x))
+        n = snprintf(buf, len, "%*s", fmt_width(c->fmt), "nan");
+    else
+        /* An integer column never prints "-0". */
+        n = snprintf(buf, len, c->fmt, c->is_int && x == 0 ? 0.0 : x);
+    return n;
+}

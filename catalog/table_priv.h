@@ -1,0 +1,64 @@
+/*
+ * table_priv.h — private to catalog/: the column registry and the per-format
+ * readers and writers that table_io.c dispatches to.  Other folders use
+ * catalog/catalog.h only.
+ */
+#ifndef MATPHOT_TABLE_PRIV_H
+#define MATPHOT_TABLE_PRIV_H
+
+#include <stdio.h>
+#include <sys/types.h>
+
+#include "catalog/catalog.h"
+
+/* mp_col_registry_find: the built-in description of a known column name
+ * (design.md §4 and the simulator's truth columns), NULL when unknown. */
+const mp_col *mp_col_registry_find(const char *name);
+
+/* mp_col_registry_count / mp_col_registry_at: walk the registry (tests). */
+size_t mp_col_registry_count(void);
+const mp_col *mp_col_registry_at(size_t i);
+
+/* mp_col_describe: fill c for name: the registry entry when known, else a
+ * generic float column with no description or unit.  Nonzero when the name
+ * is empty or does not fit in mp_col.name. */
+int mp_col_describe(const char *name, mp_col *c);
+
+/* mp_parse_value: a table value: a decimal number, or "nan"/"NaN"/"INDEF"
+ * (any case) for a missing one.  Surrounding blanks are allowed; nothing
+ * else.  Returns 0 on success. */
+int mp_parse_value(const char *s, double *x);
+
+/* mp_format_value: print x with the column's format into buf (NUL
+ * terminated); NaN is "nan" right-aligned in the format's width, so that
+ * "%+11.7f" never gives "+nan".  Returns the length. */
+int mp_format_value(const mp_col *c, double x, char *buf, size_t len);
+
+/* A line source that lets table_io.c look at the first line (to tell the
+ * format) before handing the stream to a reader: `line` holds the pending
+ * line when `pending` is set. */
+typedef struct {
+    FILE *fp;
+    const char *name;     /* for messages: the path, or "stdin" */
+    char *line;           /* getline buffer */
+    size_t cap;
+    ssize_t len;          /* length of line, without the stripped newline */
+    long lineno;          /* 1-based number of the line in `line` */
+    int pending;          /* `line` was peeked and not yet consumed */
+} mp_lines;
+
+/* mp_lines_next: the next line with its "\n" or "\r\n" stripped; 1 when
+ * one is returned, 0 at end of file, -1 on a read error (err set). */
+int mp_lines_next(mp_lines *L, char *err);
+
+/* Readers: read the stream after table_io.c peeked at its first non-blank
+ * line (left pending in L) into an empty table t. */
+int mp_ascii_head_read(mp_lines *L, mp_table *t, char *err);
+int mp_csv_read(mp_lines *L, mp_table *t, char *err);
+
+/* Writers: write t to fp; nonzero (err set, naming `name`) when t cannot be
+ * written in that format. Stream errors are found by the caller at commit. */
+int mp_ascii_head_write(FILE *fp, const char *name, const mp_table *t, char *err);
+int mp_csv_write(FILE *fp, const char *name, const mp_table *t, char *err);
+
+#endif

@@ -1,0 +1,736 @@
+/*
+ * test_catalog.c — catalog/: the table model, the column registry, and the
+ * ASCII_HEAD and CSV formats (round trips, SExtractor's exact header layout,
+ * malformed input, atomic output).
+ *
+ * With MP_SAMPLE_OUT=path set, also writes a sample of every registry
+ * column to path (ASCII_HEAD) and path.csv for tests/e2e/astropy_sextractor.sh.
+ */
+#include <stdarg.h>
+#include <stddef.h>
+#include <stdint.h>
+#include <setjmp.h>
+#include <cmocka.h>
+
+#include <dirent.h>
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/stat.h>
+#include <unistd.h>
+
+#include "catalog/catalog.h"
+#include "catalog/table_priv.h"
+#include "io/io.h"
+
+/* ---- helpers ---------------------------------------------------------- */
+
+typedef struct {
+    char dir[256];
+} fixture;
+
+static int setup(void **state)
+{
+    fixture *f = calloc(1, sizeof *f);
+    if (!f)
+        return -1;
+    const char *tmp = getenv("TMPDIR");
+    snprintf(f->dir, sizeof f->dir, "%s/test_catalog.XXXXXX", tmp && *tmp ? tmp : "/tmp");
+    if (!mkdtemp(f->dir)) {
+        free(f);
+        return -1;
+    }
+    *state = f;
+    return 0;
+}
+
+static int teardown(void **state)
+{
+    fixture *f = *state;
+    DIR *d = opendir(f->dir);
+    if (d) {
+        struct dirent *e;
+        char p[600];
+        while ((e = readdir(d)) != NULL) {
+            if (strcmp(e->d_name, ".") == 0 || strcmp(e->d_name, "..") == 0)
+                continue;
+            snprintf(p, sizeof p, "%s/%s", f->dir, e->d_name);
+            unlink(p);
+        }
+        closedir(d);
+    }
+    rmdir(f->dir);
+    free(f);
+    return 0;
+}
+
+static void path_in(const fixture *f, const char *name, char *out, size_t n)
+{
+    snprintf(out, n, "%s/%s", f->dir, name);
+}
+
+static void write_text(const char *path, const char *text, size_t len)
+{
+    FILE *fp = fopen(path, "wb");
+    assert_non_null(fp);
+    assert_int_equal(fwrite(text, 1, len, fp), len);
+    assert_int_equal(fclose(fp), 0);
+}
+
+/* Whole file into a NUL-terminated buffer (caller frees). */
+static char *slurp(const char *path)
+{
+    FILE *fp = fopen(path, "rb");
+    assert_non_null(fp);
+    fseek(fp, 0, SEEK_END);
+    long n = ftell(fp);
+    fseek(fp, 0, SEEK_SET);
+    char *s = malloc((size_t)n + 1);
+    assert_non_null(s);
+    assert_int_equal(fread(s, 1, (size_t)n, fp), (size_t)n);
+    s[n] = '\0';
+    fclose(fp);
+    return s;
+}
+
+static int count_entries(const char *dir)
+{
+    DIR *d = opendir(dir);
+    assert_non_null(d);
+    int n = 0;
+    struct dirent *e;
+    while ((e = readdir(d)) != NULL)
+        if (strcmp(e->d_name, ".") && strcmp(e->d_name, ".."))
+            n++;
+    closedir(d);
+    return n;
+}
+
+/* Expect mp_table_read of path to fail with exactly msg. */
+static void expect_read_error(const char *path, const char *msg)
+{
+    mp_table t;
+    char err[MP_ERRLEN] = "";
+    assert_int_not_equal(mp_table_read(path, &t, err), 0);
+    assert_string_equal(err, msg);
+    assert_int_equal(t.ncol, 0);      /* left empty on failure */
+    assert_int_equal(t.nrow, 0);
+    mp_table_free(&t);
+}
+
+/* The precision a column's print format keeps: half a unit of its last
+ * printed digit ("%11.5f" → 5e-6 absolute, "%12.7g" → 5e-7 relative). */
+static int close_enough(const mp_col *c, double want, double got)
+{
+    if (isnan(want))
+        return isnan(got);
+    if (c->is_int)
+        return want == got;
+    const char *dot = strchr(c->fmt, '.');
+    int prec = dot ? atoi(dot + 1) : 6;
+    char conv = c->fmt[strlen(c->fmt) - 1];
+    double tol = conv == 'f' ? 0.5 * pow(10, -prec) * (1 + 1e-9) + 1e-12 * fabs(want)
+                             : 0.5 * pow(10, 1 - prec) * fabs(want) * (1 + 1e-9);
+    return fabs(want - got) <= tol;
+}
+
+/* A table holding every registry column and a few rows of awkward values. */
+static void sample_table(mp_table *t)
+{
+    mp_table_init(t);
+    size_t n = mp_col_registry_count();
+    for (size_t i = 0; i < n; i++)
+        assert_int_equal(mp_table_add_col(t, mp_col_registry_at(i)->name), (int)i);
+    for (size_t r = 0; r < 4; r++) {
+        assert_int_equal(mp_table_add_row(t), (long)r);
+        for (size_t c = 0; c < n; c++) {
+            const mp_col *k = &t->cols[c];
+            double x;
+            if (k->is_int)
+                /* r = 3: larger than any int, still printed exactly */
+                x = r == 3 ? 12345678901.0 : (double)(c * 10 + r);
+            else if (strcmp(k->name, "DELTAPSF_J2000") == 0)
+                x = -89.1234567 + 30.0 * (double)r;
+            else if (strstr(k->name, "IMAGE"))
+                x = 1.0 + 1234.567891234 * (double)(r + 1) / 7.0;
+            else if (strstr(k->name, "MAG"))
+                x = -15.0 + 1.23456789 * (double)r;
+            else
+                x = pow(10.0, (double)r * 2.3 - 1.7) * (1.0 + 0.0123456789 * (double)c);
+            if (r == 2 && c % 5 == 1)
+                x = NAN;                 /* missing values survive too */
+            mp_table_set(t, r, (int)c, x);
+        }
+    }
+}
+
+static void compare_tables(const mp_table *a, const mp_table *b)
+{
+    assert_int_equal(b->ncol, a->ncol);
+    assert_int_equal(b->nrow, a->nrow);
+    for (size_t c = 0; c < a->ncol; c++) {
+        assert_string_equal(b->cols[c].name, a->cols[c].name);
+        assert_string_equal(b->cols[c].desc, a->cols[c].desc);
+        assert_string_equal(b->cols[c].unit, a->cols[c].unit);
+        for (size_t r = 0; r < a->nrow; r++) {
+            double want = mp_table_get(a, r, (int)c), got = mp_table_get(b, r, (int)c);
+            if (!close_enough(&a->cols[c], want, got))
+                fail_msg("%s row %zu: wrote %.17g, read %.17g (format %s)",
+                         a->cols[c].name, r, want, got, a->cols[c].fmt);
+        }
+    }
+}
+
+/* ---- the model -------------------------------------------------------- */
+
+static void test_table_model(void **state)
+{
+    (void)state;
+    mp_table t;
+    mp_table_init(&t);
+    assert_int_equal(mp_table_col(&t, "X_IMAGE"), -1);
+    int x = mp_table_add_col(&t, "X_IMAGE");
+    assert_int_equal(x, 0);
+    assert_int_equal(mp_table_add_col(&t, "X_IMAGE"), 0);   /* existing */
+    assert_int_equal(mp_table_add_col(&t, ""), -1);
+    assert_int_equal(mp_table_add_col(&t, "A_NAME_THAT_IS_FAR_TOO_LONG_FOR_IT"), -1);
+
+    /* Many rows: amortised growth keeps earlier values. */
+    for (long r = 0; r < 100000; r++) {
+        assert_int_equal(mp_table_add_row(&t), r);
+        mp_table_set(&t, (size_t)r, x, (double)r + 0.25);
+    }
+    /* A column added later is NaN in existing rows; old values stay. */
+    int f = mp_table_add_col(&t, "FLAGS");
+    assert_int_equal(f, 1);
+    assert_true(t.cols[1].is_int);
+    for (size_t r = 0; r < t.nrow; r++) {
+        assert_true(isnan(mp_table_get(&t, r, f)));
+        assert_true(mp_table_get(&t, r, x) == (double)r + 0.25);
+    }
+    long r = mp_table_add_row(&t);
+    assert_true(isnan(mp_table_get(&t, (size_t)r, x)));
+    assert_int_equal(mp_table_col(&t, "FLAGS"), 1);
+
+    /* Unknown names get a generic description. */
+    int u = mp_table_add_col(&t, "MY_COLUMN");
+    assert_string_equal(t.cols[u].desc, "");
+    assert_string_equal(t.cols[u].unit, "");
+    assert_false(t.cols[u].is_int);
+    mp_table_free(&t);
+    mp_table_free(&t);   /* safe twice */
+}
+
+static void test_registry(void **state)
+{
+    (void)state;
+    static const char *const design[] = {
+        "NUMBER", "X_IMAGE", "Y_IMAGE", "FLUX_MAX", "BACKGROUND", "SHARPNESS",
+        "ROUNDNESS", "GROUP_ID", "GROUP_SIZE", "XPSF_IMAGE", "YPSF_IMAGE",
+        "ERRX_PSF", "ERRY_PSF", "FLUX_PSF", "FLUXERR_PSF", "MAG_PSF", "MAGERR_PSF",
+        "ALPHAPSF_J2000", "DELTAPSF_J2000", "SKY_PSF", "SKYERR_PSF", "CHI2_PSF",
+        "DOF_PSF", "NITER_PSF", "BETA_PSF", "SHARP_PRF", "LSCALE_PRF", "VOLUME_PRF",
+        "FLUXERR_MODEL", "POSERR_MODEL", "FLAGS", "FLUX_TRUE", "MAG_TRUE",
+        "SKY_TRUE", "FLUX",
+    };
+    for (size_t i = 0; i < sizeof design / sizeof design[0]; i++)
+        if (!mp_col_registry_find(design[i]))
+            fail_msg("%s missing from the registry", design[i]);
+    for (size_t i = 0; i < mp_col_registry_count(); i++) {
+        const mp_col *c = mp_col_registry_at(i);
+        assert_true(strlen(c->name) <= 22);   /* SExtractor's name field */
+        assert_true(strlen(c->desc) <= 58);   /* ... and description field */
+        assert_true(c->desc[0] != '\0');
+        assert_non_null(strchr(c->fmt, '%'));
+    }
+    /* SExtractor's wording and our units. */
+    const mp_col *c = mp_col_registry_find("FLUX_PSF");
+    assert_string_equal(c->desc, "Flux from PSF-fitting");
+    assert_string_equal(c->unit, "electron");
+    assert_string_equal(mp_col_registry_find("XPSF_IMAGE")->desc, "X coordinate from PSF-fitting");
+    assert_string_equal(mp_col_registry_find("X_IMAGE")->desc, "Object position along x");
+    assert_string_equal(mp_col_registry_find("BACKGROUND")->desc, "Background at centroid position");
+    assert_string_equal(mp_col_registry_find("FLUX_MAX")->desc, "Peak flux above background");
+    assert_string_equal(mp_col_registry_find("FLAGS")->desc, "Extraction flags");
+    assert_string_equal(mp_col_registry_find("NUMBER")->desc, "Running object number");
+    assert_string_equal(mp_col_registry_find("MAG_PSF")->unit, "mag");
+    assert_string_equal(mp_col_registry_find("ALPHAPSF_J2000")->unit, "deg");
+    assert_string_equal(mp_col_registry_find("BETA_PSF")->unit, "pixel**2");
+    assert_string_equal(mp_col_registry_find("CHI2_PSF")->unit, "");
+    assert_null(mp_col_registry_find("NO_SUCH_COLUMN"));
+}
+
+static void test_parse_value(void **state)
+{
+    (void)state;
+    double x;
+    assert_int_equal(mp_parse_value("  1.5e3 ", &x), 0);
+    assert_true(x == 1500.0);
+    assert_int_equal(mp_parse_value("-42", &x), 0);
+    assert_true(x == -42.0);
+    assert_int_equal(mp_parse_value("nan", &x), 0);
+    assert_true(isnan(x));
+    assert_int_equal(mp_parse_value("NaN", &x), 0);
+    assert_true(isnan(x));
+    assert_int_equal(mp_parse_value("INDEF", &x), 0);
+    assert_true(isnan(x));
+    assert_int_equal(mp_parse_value("-nan", &x), 0);
+    assert_true(isnan(x) && !signbit(x));
+    assert_int_not_equal(mp_parse_value("abc", &x), 0);
+    assert_int_not_equal(mp_parse_value("1.5x", &x), 0);
+    assert_int_not_equal(mp_parse_value("", &x), 0);
+    assert_int_not_equal(mp_parse_value("INDEFX", &x), 0);
+}
+
+static void test_format_parse(void **state)
+{
+    (void)state;
+    mp_table_format f;
+    assert_int_equal(mp_table_format_parse("ascii_head", &f), 0);
+    assert_int_equal(f, MP_TAB_ASCII_HEAD);
+    assert_int_equal(mp_table_format_parse("CSV", &f), 0);
+    assert_int_equal(f, MP_TAB_CSV);
+    assert_int_equal(mp_table_format_parse("ASCII_Head", &f), 0);
+    assert_int_equal(f, MP_TAB_ASCII_HEAD);
+    assert_int_not_equal(mp_table_format_parse("fits", &f), 0);
+    assert_int_not_equal(mp_table_format_parse("", &f), 0);
+}
+
+/* ---- ASCII_HEAD layout ------------------------------------------------- */
+
+static void test_header_bytes(void **state)
+{
+    fixture *f = *state;
+    char path[512], err[MP_ERRLEN];
+    path_in(f, "head.cat", path, sizeof path);
+
+    mp_table t;
+    mp_table_init(&t);
+    mp_table_add_col(&t, "NUMBER");
+    mp_table_add_col(&t, "XPSF_IMAGE");
+    mp_table_add_col(&t, "YPSF_IMAGE");
+    int fl = mp_table_add_col(&t, "FLUX_PSF");
+    strcpy(t.cols[fl].unit, "count");   /* as SExtractor, for the anchor */
+    long r = mp_table_add_row(&t);
+    mp_table_set(&t, (size_t)r, 0, 1);
+    mp_table_set(&t, (size_t)r, 1, 12.25);
+    mp_table_set(&t, (size_t)r, 2, NAN);
+    mp_table_set(&t, (size_t)r, 3, 1234.5);
+    assert_int_equal(mp_table_write(path, &t, MP_TAB_ASCII_HEAD, err), 0);
+    mp_table_free(&t);
+
+    /* anchors.md §2.2, copied byte for byte (SExtractor catout.c). */
+    const char *want =
+        "#   1 NUMBER                 Running object number                                     \n"
+        "#   2 XPSF_IMAGE             X coordinate from PSF-fitting                              [pixel]\n"
+        "#   3 YPSF_IMAGE             Y coordinate from PSF-fitting                              [pixel]\n"
+        "#   4 FLUX_PSF               Flux from PSF-fitting                                      [count]\n"
+        "         1    12.25000         nan       1234.5\n";
+    char *got = slurp(path);
+    assert_string_equal(got, want);
+    free(got);
+}
+
+/* ---- round trips -------------------------------------------------------- */
+
+static void round_trip(fixture *f, mp_table_format fmt, const char *name)
+{
+    char path[512], err[MP_ERRLEN] = "";
+    path_in(f, name, path, sizeof path);
+    mp_table a, b;
+    sample_table(&a);
+    if (mp_table_write(path, &a, fmt, err) != 0)
+        fail_msg("write: %s", err);
+    if (mp_table_read(path, &b, err) != 0)
+        fail_msg("read: %s", err);
+    if (fmt == MP_TAB_CSV) {
+        /* CSV carries no descriptions: they come back from the registry. */
+        for (size_t c = 0; c < b.ncol; c++)
+            assert_string_equal(b.cols[c].fmt, a.cols[c].fmt);
+    }
+    compare_tables(&a, &b);
+    mp_table_free(&a);
+    mp_table_free(&b);
+    assert_int_equal(count_entries(f->dir), 1);   /* no temporary left */
+}
+
+static void test_round_trip_ascii(void **state) { round_trip(*state, MP_TAB_ASCII_HEAD, "rt.cat"); }
+static void test_round_trip_csv(void **state) { round_trip(*state, MP_TAB_CSV, "rt.csv"); }
+
+static void test_positions_precision(void **state)
+{
+    fixture *f = *state;
+    char path[512], err[MP_ERRLEN];
+    const char *names[] = {"rt.cat", "rt.csv"};
+    for (int k = 0; k < 2; k++) {
+        path_in(f, names[k], path, sizeof path);
+        mp_table a, b;
+        mp_table_init(&a);
+        int x = mp_table_add_col(&a, "XPSF_IMAGE");
+        for (int i = 0; i < 1000; i++) {
+            long r = mp_table_add_row(&a);
+            mp_table_set(&a, (size_t)r, x, 0.5 + 4095.0 * i / 999.0 + 1e-3 * sin(i));
+        }
+        assert_int_equal(mp_table_write(path, &a, k ? MP_TAB_CSV : MP_TAB_ASCII_HEAD, err), 0);
+        assert_int_equal(mp_table_read(path, &b, err), 0);
+        for (size_t r = 0; r < a.nrow; r++)
+            assert_true(fabs(mp_table_get(&a, r, x) - mp_table_get(&b, r, x)) <= 1e-5);
+        mp_table_free(&a);
+        mp_table_free(&b);
+    }
+}
+
+static void test_stdin(void **state)
+{
+    fixture *f = *state;
+    char path[512], err[MP_ERRLEN];
+    path_in(f, "in.cat", path, sizeof path);
+    const char *text = "#   1 NUMBER  Running object number\n"
+                       "#   2 X_IMAGE Object position along x [pixel]\n"
+                       "1 10.5\n2 20.5\n";
+    write_text(path, text, strlen(text));
+    assert_non_null(freopen(path, "r", stdin));
+    mp_table t;
+    assert_int_equal(mp_table_read("-", &t, err), 0);
+    assert_int_equal(t.nrow, 2);
+    assert_true(mp_table_get(&t, 1, 1) == 20.5);
+    mp_table_free(&t);
+}
+
+/* ---- accepted inputs --------------------------------------------------- */
+
+static void test_crlf_and_blank_lines(void **state)
+{
+    fixture *f = *state;
+    char path[512], err[MP_ERRLEN];
+    path_in(f, "crlf.cat", path, sizeof path);
+    const char *text =
+        "\r\n"
+        "#   1 NUMBER                 Running object number                                     \r\n"
+        "#   2 X_IMAGE                Object position along x                                    [pixel]\r\n"
+        "# a comment that is not a column\r\n"
+        "#   3 FLUX_MAX               Peak flux above background                                 [count]\r\n"
+        "\r\n"
+        "         1   100.1234   1.234567e+04\r\n"
+        "   \t  \r\n"
+        "         2   nan   INDEF\r\n"
+        "# a comment among the data\r\n"
+        "\n"
+        "         3   -5.5   NaN";          /* no final line end */
+    write_text(path, text, strlen(text));
+    mp_table t;
+    if (mp_table_read(path, &t, err) != 0)
+        fail_msg("%s", err);
+    assert_int_equal(t.ncol, 3);
+    assert_int_equal(t.nrow, 3);
+    assert_string_equal(t.cols[1].name, "X_IMAGE");
+    assert_string_equal(t.cols[1].unit, "pixel");
+    assert_string_equal(t.cols[2].desc, "Peak flux above background");
+    assert_string_equal(t.cols[2].unit, "count");   /* the file's unit is kept */
+    assert_true(mp_table_get(&t, 0, 1) == 100.1234);
+    assert_true(mp_table_get(&t, 0, 2) == 12345.67);
+    assert_true(isnan(mp_table_get(&t, 1, 1)));
+    assert_true(isnan(mp_table_get(&t, 1, 2)));
+    assert_true(mp_table_get(&t, 2, 1) == -5.5);
+    assert_true(isnan(mp_table_get(&t, 2, 2)));
+    mp_table_free(&t);
+
+    /* The same as CSV with CRLF and blank lines. */
+    path_in(f, "crlf.csv", path, sizeof path);
+    const char *csv = "\r\nNUMBER,X_IMAGE\r\n\r\n1,2.5\r\n  \r\n2,\r\n";
+    write_text(path, csv, strlen(csv));
+    if (mp_table_read(path, &t, err) != 0)
+        fail_msg("%s", err);
+    assert_int_equal(t.nrow, 2);
+    assert_true(mp_table_get(&t, 0, 1) == 2.5);
+    assert_true(isnan(mp_table_get(&t, 1, 1)));
+    mp_table_free(&t);
+}
+
+static void test_long_lines(void **state)
+{
+    fixture *f = *state;
+    char path[512], err[MP_ERRLEN];
+
+    /* 10 000 columns: the header and the ~110 kB row both read whole. */
+    enum { NC = 10000 };
+    size_t cap = (size_t)NC * 100 + 1000;
+    char *text = malloc(cap);
+    assert_non_null(text);
+    size_t n = 0;
+    for (int c = 0; c < NC; c++)
+        n += (size_t)snprintf(text + n, cap - n, "# %3d C%d  column %d\n", c + 1, c, c);
+    for (int c = 0; c < NC; c++)
+        n += (size_t)snprintf(text + n, cap - n, "%s%.6f", c ? " " : "", c + 0.123456);
+    n += (size_t)snprintf(text + n, cap - n, "\n");
+    path_in(f, "wide.cat", path, sizeof path);
+    write_text(path, text, n);
+    mp_table t;
+    if (mp_table_read(path, &t, err) != 0)
+        fail_msg("%s", err);
+    assert_int_equal(t.ncol, NC);
+    assert_int_equal(t.nrow, 1);
+    assert_true(mp_table_get(&t, 0, NC - 1) == NC - 1 + 0.123456);
+    mp_table_free(&t);
+
+    /* A 100 kB comment and a value padded by 100 kB of blanks. */
+    n = 0;
+    n += (size_t)snprintf(text + n, cap - n, "#   1 FLUX  a flux\n#");
+    memset(text + n, 'x', 100000);
+    n += 100000;
+    text[n++] = '\n';
+    memset(text + n, ' ', 100000);
+    n += 100000;
+    n += (size_t)snprintf(text + n, cap - n, "42\n");
+    write_text(path, text, n);
+    if (mp_table_read(path, &t, err) != 0)
+        fail_msg("%s", err);
+    assert_int_equal(t.nrow, 1);
+    assert_true(mp_table_get(&t, 0, 0) == 42.0);
+    mp_table_free(&t);
+
+    /* And a 100 kB CSV row. */
+    n = (size_t)snprintf(text, cap, "A,B\n");
+    memset(text + n, ' ', 100000);
+    n += 100000;
+    n += (size_t)snprintf(text + n, cap - n, "1,2\n");
+    path_in(f, "long.csv", path, sizeof path);
+    write_text(path, text, n);
+    if (mp_table_read(path, &t, err) != 0)
+        fail_msg("%s", err);
+    assert_true(mp_table_get(&t, 0, 1) == 2.0);
+    mp_table_free(&t);
+    free(text);
+}
+
+static void test_sextractor_vectors(void **state)
+{
+    fixture *f = *state;
+    char path[512], err[MP_ERRLEN];
+    path_in(f, "sex.cat", path, sizeof path);
+    /* As SExtractor writes it, with MAG_APER(3) taking columns 3-5. */
+    const char *text =
+        "#   1 NUMBER                 Running object number                                     \n"
+        "#   2 FLUX_PSF               Flux from PSF-fitting                                      [count]\n"
+        "#   3 MAG_APER               Fixed aperture magnitude vector                            [mag]\n"
+        "#   6 FLAGS                  Extraction flags                                          \n"
+        "         1   1234.567  -7.7290 -7.8000 -7.8500   0\n"
+        "         2   9.999e+05 -14.9999 99.0000 99.0000   3\n";
+    write_text(path, text, strlen(text));
+    mp_table t;
+    if (mp_table_read(path, &t, err) != 0)
+        fail_msg("%s", err);
+    assert_int_equal(t.ncol, 6);
+    assert_string_equal(t.cols[2].name, "MAG_APER");
+    assert_string_equal(t.cols[3].name, "MAG_APER_1");
+    assert_string_equal(t.cols[4].name, "MAG_APER_2");
+    assert_string_equal(t.cols[4].unit, "mag");
+    assert_string_equal(t.cols[5].name, "FLAGS");
+    assert_true(mp_table_get(&t, 1, 1) == 9.999e5);
+    assert_true(mp_table_get(&t, 1, 5) == 3);
+    mp_table_free(&t);
+}
+
+static void test_csv_quoted_header(void **state)
+{
+    fixture *f = *state;
+    char path[512], err[MP_ERRLEN];
+    path_in(f, "q.csv", path, sizeof path);
+    const char *text = "\xEF\xBB\xBF\"NUMBER\", \"X_IMAGE\" ,\"A,B\",\"SAY \"\"HI\"\"\"\n"
+                       "1,\"2.5\",NaN,INDEF\n"
+                       "2,,\"\",nan\n";
+    write_text(path, text, strlen(text));
+    mp_table t;
+    if (mp_table_read(path, &t, err) != 0)
+        fail_msg("%s", err);
+    assert_int_equal(t.ncol, 4);
+    assert_string_equal(t.cols[0].name, "NUMBER");
+    assert_string_equal(t.cols[1].name, "X_IMAGE");
+    assert_string_equal(t.cols[1].unit, "pixel");   /* known: registry's */
+    assert_string_equal(t.cols[2].name, "A,B");
+    assert_string_equal(t.cols[3].name, "SAY \"HI\"");
+    assert_true(mp_table_get(&t, 0, 1) == 2.5);
+    for (int c = 1; c < 4; c++)
+        assert_true(isnan(mp_table_get(&t, 1, c)));
+
+    /* Such names survive a CSV round trip but cannot be ASCII_HEAD columns. */
+    char out[512];
+    path_in(f, "q2.csv", out, sizeof out);
+    assert_int_equal(mp_table_write(out, &t, MP_TAB_CSV, err), 0);
+    mp_table u;
+    assert_int_equal(mp_table_read(out, &u, err), 0);
+    assert_string_equal(u.cols[3].name, "SAY \"HI\"");
+    mp_table_free(&u);
+    path_in(f, "q.cat", out, sizeof out);
+    assert_int_not_equal(mp_table_write(out, &t, MP_TAB_ASCII_HEAD, err), 0);
+    assert_non_null(strstr(err, "SAY"));
+    assert_int_equal(access(out, F_OK), -1);
+    mp_table_free(&t);
+}
+
+/* ---- rejected inputs --------------------------------------------------- */
+
+static void test_errors(void **state)
+{
+    fixture *f = *state;
+    char path[512], msg[1024];
+
+    /* Text in a number, with the line number (blank line counted). */
+    path_in(f, "stars.coo", path, sizeof path);
+    const char *t1 = "#   1 NUMBER   Running object number\n"
+                     "#   2 X_IMAGE  Object position along x  [pixel]\n"
+                     "\n"
+                     "1 2.0\n"
+                     "2 abc\n";
+    write_text(path, t1, strlen(t1));
+    snprintf(msg, sizeof msg, "%s:5: 'abc' in column X_IMAGE is not a number", path);
+    expect_read_error(path, msg);
+
+    /* Wrong field count. */
+    const char *t2 = "#   1 NUMBER   Running object number\n"
+                     "#   2 X_IMAGE  Object position along x  [pixel]\n"
+                     "1 2.0 3.0\n";
+    write_text(path, t2, strlen(t2));
+    snprintf(msg, sizeof msg, "%s:3: 3 fields, header has 2 columns", path);
+    expect_read_error(path, msg);
+
+    /* The same in CSV. */
+    path_in(f, "stars.csv", path, sizeof path);
+    const char *t3 = "NUMBER,X_IMAGE\n1,2\n2,x1\n";
+    write_text(path, t3, strlen(t3));
+    snprintf(msg, sizeof msg, "%s:3: 'x1' in column X_IMAGE is not a number", path);
+    expect_read_error(path, msg);
+    const char *t4 = "NUMBER,X_IMAGE\n1,2\n\n2\n";
+    write_text(path, t4, strlen(t4));
+    snprintf(msg, sizeof msg, "%s:4: 1 field, header has 2 columns", path);
+    expect_read_error(path, msg);
+
+    /* Missing header: numbers where the names should be. */
+    const char *t5 = "1.0 2.0 3.0\n4.0 5.0 6.0\n";
+    write_text(path, t5, strlen(t5));
+    snprintf(msg, sizeof msg, "%s:1: no header row: '1.0 2.0 3.0' is a number, "
+             "not a column name", path);
+    expect_read_error(path, msg);
+    const char *t6 = "1,2,3\n";
+    write_text(path, t6, strlen(t6));
+    snprintf(msg, sizeof msg, "%s:1: no header row: '1' is a number, not a column name", path);
+    expect_read_error(path, msg);
+    const char *t7 = "# made by hand\n1 2 3\n";
+    write_text(path, t7, strlen(t7));
+    snprintf(msg, sizeof msg, "%s:2: data before any column definition "
+             "(\"#   1 NAME  description  [unit]\")", path);
+    expect_read_error(path, msg);
+
+    /* A header with no columns. */
+    const char *t8 = "# nothing here\n#\n";
+    write_text(path, t8, strlen(t8));
+    snprintf(msg, sizeof msg, "%s: header has no column definitions", path);
+    expect_read_error(path, msg);
+
+    /* Empty, or blank only. */
+    write_text(path, "", 0);
+    snprintf(msg, sizeof msg, "%s: empty file", path);
+    expect_read_error(path, msg);
+    write_text(path, "\n  \r\n\n", 6);
+    expect_read_error(path, msg);
+
+    /* Missing. */
+    path_in(f, "missing.coo", path, sizeof path);
+    snprintf(msg, sizeof msg, "%s: cannot open: No such file or directory", path);
+    expect_read_error(path, msg);
+
+    /* Duplicate and out-of-order columns. */
+    path_in(f, "dup.cat", path, sizeof path);
+    const char *t9 = "#   1 NUMBER  n\n#   2 NUMBER  n\n";
+    write_text(path, t9, strlen(t9));
+    snprintf(msg, sizeof msg, "%s:2: column NUMBER defined twice", path);
+    expect_read_error(path, msg);
+    const char *t10 = "#   2 NUMBER  n\n";
+    write_text(path, t10, strlen(t10));
+    snprintf(msg, sizeof msg, "%s:1: first column is numbered 2, not 1", path);
+    expect_read_error(path, msg);
+    const char *t11 = "NUMBER,X,NUMBER\n";
+    write_text(path, t11, strlen(t11));
+    snprintf(msg, sizeof msg, "%s:1: column NUMBER appears twice", path);
+    expect_read_error(path, msg);
+}
+
+/* ---- atomic output ----------------------------------------------------- */
+
+static void test_atomic_write(void **state)
+{
+    fixture *f = *state;
+    char path[512], err[MP_ERRLEN];
+    mp_table t;
+    sample_table(&t);
+
+    /* Into a directory that does not exist: an error naming the path. */
+    path_in(f, "no_such_dir/out.cat", path, sizeof path);
+    assert_int_not_equal(mp_table_write(path, &t, MP_TAB_ASCII_HEAD, err), 0);
+    assert_non_null(strstr(err, path));
+    assert_int_equal(count_entries(f->dir), 0);
+
+    /* A write refused after the output was opened (a name ASCII_HEAD
+     * cannot hold) leaves the older file as it was and no temporary. */
+    path_in(f, "out.cat", path, sizeof path);
+    write_text(path, "old\n", 4);
+    int bad = mp_table_add_col(&t, "NOT A NAME");
+    assert_true(bad >= 0);
+    assert_int_not_equal(mp_table_write(path, &t, MP_TAB_ASCII_HEAD, err), 0);
+    assert_non_null(strstr(err, path));
+    char *got = slurp(path);
+    assert_string_equal(got, "old\n");
+    free(got);
+    assert_int_equal(count_entries(f->dir), 1);
+
+    /* A table without columns is refused the same way. */
+    mp_table e;
+    mp_table_init(&e);
+    assert_int_not_equal(mp_table_write(path, &e, MP_TAB_CSV, err), 0);
+    assert_int_equal(count_entries(f->dir), 1);
+    mp_table_free(&e);
+    mp_table_free(&t);
+}
+
+/* ---- sample for the astropy e2e check --------------------------------- */
+
+static void test_sample_out(void **state)
+{
+    (void)state;
+    const char *out = getenv("MP_SAMPLE_OUT");
+    if (!out || !*out)
+        skip();
+    char err[MP_ERRLEN], csv[1024];
+    mp_table t;
+    sample_table(&t);
+    if (mp_table_write(out, &t, MP_TAB_ASCII_HEAD, err) != 0)
+        fail_msg("%s", err);
+    snprintf(csv, sizeof csv, "%s.csv", out);
+    if (mp_table_write(csv, &t, MP_TAB_CSV, err) != 0)
+        fail_msg("%s", err);
+    mp_table_free(&t);
+}
+
+int main(void)
+{
+    const struct CMUnitTest tests[] = {
+        cmocka_unit_test(test_table_model),
+        cmocka_unit_test(test_registry),
+        cmocka_unit_test(test_parse_value),
+        cmocka_unit_test(test_format_parse),
+        cmocka_unit_test_setup_teardown(test_header_bytes, setup, teardown),
+        cmocka_unit_test_setup_teardown(test_round_trip_ascii, setup, teardown),
+        cmocka_unit_test_setup_teardown(test_round_trip_csv, setup, teardown),
+        cmocka_unit_test_setup_teardown(test_positions_precision, setup, teardown),
+        cmocka_unit_test_setup_teardown(test_stdin, setup, teardown),
+        cmocka_unit_test_setup_teardown(test_crlf_and_blank_lines, setup, teardown),
+        cmocka_unit_test_setup_teardown(test_long_lines, setup, teardown),
+        cmocka_unit_test_setup_teardown(test_sextractor_vectors, setup, teardown),
+        cmocka_unit_test_setup_teardown(test_csv_quoted_header, setup, teardown),
+        cmocka_unit_test_setup_teardown(test_errors, setup, teardown),
+        cmocka_unit_test_setup_teardown(test_atomic_write, setup, teardown),
+        cmocka_unit_test(test_sample_out),
+    };
+    return cmocka_run_group_tests(tests, NULL, NULL);
+}
