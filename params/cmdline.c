@@ -21,17 +21,24 @@ int mp_params_load_file(mp_parset *ps, const char *path, char *err)
     free(text);
     if (rc)
         return 1;
-    /* Only the values count; ps's own types and ranges check them. */
+    /* Only the values count; ps's own types and ranges check them.  A file
+     * gives new defaults, not command-line words: an empty query value in it
+     * (what `matphot params TASK` writes) leaves the parameter to the
+     * command line, and nothing it sets counts as named on the line. */
     for (size_t i = 0; i < f.n && !rc; i++) {
         const mp_par *q = &f.p[i];
         const mp_par *p = mpp_find(ps, q->name);
         if (q->type == MP_PAR_PSET || (p && p->type == MP_PAR_PSET))
+            continue;
+        if (p && mpp_is_query(p) && mpp_undefined(q->value))
             continue;
         if (mp_params_set(ps, q->name, q->value, err)) {
             mpp_err_prefix(err, "%s:%d: ", path, lines[i]);
             rc = 1;
         }
     }
+    for (size_t i = 0; i < ps->n; i++)
+        ps->p[i].set = 0;
     free(lines);
     mp_params_free(&f);
     return rc;
@@ -58,14 +65,16 @@ static int is_parfile(const char *w)
 int mpp_apply(mp_parset *ps, int argc, char **argv, int check_required, char *err)
 {
     size_t next = 0;        /* the next query parameter a bare word may fill */
+    /* Parameter files first, wherever they stand: they replace the defaults,
+     * and every other word on the line then overrides them. */
+    for (int i = 0; i < argc; i++)
+        if (is_parfile(argv[i]) && mp_params_load_file(ps, argv[i] + 1, err))
+            return 1;
     for (int i = 0; i < argc; i++) {
         const char *w = argv[i];
         size_t k = name_len(w);
-        if (is_parfile(w)) {
-            if (mp_params_load_file(ps, w + 1, err))
-                return 1;
+        if (is_parfile(w))
             continue;
-        }
         if (k > 0 && w[k] == '=') {
             char name[128];
             if (k >= sizeof name) {

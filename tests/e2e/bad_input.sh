@@ -1,0 +1,70 @@
+#!/bin/sh
+# bad_input.sh — every bad-input class of design.md §3 through the real
+# binary: exit status 1, exactly one stderr line "matphot fit: ..." naming
+# the file or parameter, and no output file (nor a temporary) left behind.
+M=${MATPHOT:-./matphot}
+[ -x "$M" ] || { echo "bad_input: $M not built"; exit 77; }
+T=$(mktemp -d "${TMPDIR:-/tmp}/bad_input.XXXXXX") || exit 1
+trap 'rm -rf "$T"' EXIT INT TERM
+fails=0
+no() { echo "FAIL: $*"; fails=$((fails + 1)); }
+
+"$M" sim "$T/ok.fits" seed=5 >/dev/null || { echo "sim failed"; exit 1; }
+# A good PSF table: sim writes none, so make one from the frame's own header
+# machinery: a 1x1 "table" is legal but tiny; use the truth-free Gaussian
+# mode for the fits that need no table.
+cp "$T/ok.fits" "$T/trunc.fits"
+head -c 5000 "$T/ok.fits" >"$T/trunc.fits"
+printf 'SIMPLE  = this is not FITS at all\n' >"$T/text.fits"
+head -c 2880 "$T/ok.fits" >"$T/hdronly.fits"
+
+# bad TEXT WORD -- args...: expect exit 1, one line starting
+# "matphot fit: " that contains WORD, and no out.fit nor temporaries.
+bad() {
+    what=$1 word=$2
+    shift 3
+    rm -f "$T/out.fit" "$T"/.out.fit.tmp.* 2>/dev/null
+    "$M" fit "$@" output="$T/out.fit" >"$T/stdout" 2>"$T/err"
+    rc=$?
+    [ "$rc" -eq 1 ] || no "$what: exit $rc, want 1"
+    [ "$(wc -l <"$T/err")" -eq 1 ] || no "$what: want one stderr line, got: $(cat "$T/err")"
+    grep -q "^matphot fit: " "$T/err" || no "$what: no 'matphot fit: ' prefix: $(cat "$T/err")"
+    grep -qF -- "$word" "$T/err" || no "$what: message does not name '$word': $(cat "$T/err")"
+    [ ! -e "$T/out.fit" ] || no "$what: left an output file"
+    [ -z "$(ls -A "$T" | grep '\.tmp\.')" ] || no "$what: left a temporary file"
+}
+
+bad "missing image"     nosuch.fits   -- "$T/nosuch.fits" "$T/ok.truth"
+bad "truncated FITS"    trunc.fits    -- "$T/trunc.fits" "$T/ok.truth"
+bad "not FITS"          text.fits     -- "$T/text.fits" "$T/ok.truth"
+bad "header only"       hdronly.fits  -- "$T/hdronly.fits" "$T/ok.truth"
+bad "missing table"     nosuch.coo    -- "$T/ok.fits" "$T/nosuch.coo"
+bad "unknown parameter" fitradius     -- "$T/ok.fits" "$T/ok.truth" fitradius=3
+bad "out of range"      fitrad        -- "$T/ok.fits" "$T/ok.truth" fitrad=-3
+bad "not a number"      maxiter       -- "$T/ok.fits" "$T/ok.truth" maxiter=ten
+bad "bad enumeration"   skymodel      -- "$T/ok.fits" "$T/ok.truth" skymodel=quadric
+bad "missing psf"       nopsf.fits    -- "$T/ok.fits" "$T/ok.truth" psf="$T/nopsf.fits"
+
+# Tables: text in a number, no position columns, an empty file, CRLF is fine.
+sed '$ s/30\.[0-9]*/abc/' "$T/ok.truth" >"$T/text.coo"
+bad "text in a number"  text.coo      -- "$T/ok.fits" "$T/text.coo"
+printf '#   1 NUMBER                 Running object number\n         1\n' >"$T/nocol.coo"
+bad "missing columns"   nocol.coo     -- "$T/ok.fits" "$T/nocol.coo"
+: >"$T/empty.coo"
+bad "empty table"       empty.coo     -- "$T/ok.fits" "$T/empty.coo"
+sed 's/$/\r/' "$T/ok.truth" >"$T/crlf.coo"
+"$M" fit "$T/ok.fits" "$T/crlf.coo" >/dev/null 2>"$T/err" || no "CRLF table refused: $(cat "$T/err")"
+
+# PSF tables: even size, NaN, sum above 1 (made with sim's noiseless frames
+# as a stand-in table: a 4x4 frame is even, a frame of a star sums far above 1).
+"$M" sim "$T/even.fits" nx=4 ny=4 noise=no sky=0 fwhm=1 >/dev/null 2>&1
+bad "even PSF"          even.fits     -- "$T/ok.fits" "$T/ok.truth" psf="$T/even.fits"
+"$M" sim "$T/big.fits" nx=15 ny=15 noise=no sky=0 fwhm=2 magmin=-10 magmax=-10 >/dev/null 2>&1
+bad "PSF sum above 1"   big.fits      -- "$T/ok.fits" "$T/ok.truth" psf="$T/big.fits"
+
+# An output directory that cannot be written.
+rm -f "$T/err"
+"$M" fit "$T/ok.fits" "$T/ok.truth" output="$T/nodir/out.fit" >/dev/null 2>"$T/err"
+[ $? -eq 1 ] && grep -q "nodir/out.fit" "$T/err" || no "unwritable output: $(cat "$T/err")"
+
+[ "$fails" -eq 0 ]
