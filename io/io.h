@@ -23,7 +23,9 @@
 
 /* A 2-D image with its primary header kept as text (80-char cards, as
  * fits_hdr2str gives it) so that WCSLIB and keyword look-ups need no
- * second read. */
+ * second read.  (Added:) for an extension it is that HDU's own header;
+ * primary-header keywords are not inherited.  An IRAF-style plane index
+ * in a section, "cube.fits[*,*,2]", is accepted as cfitsio's [*,*,2:2]. */
 typedef struct {
     long nx, ny;
     double *pix;     /* nx*ny values; NaN where the file has NaN/blank */
@@ -47,7 +49,9 @@ void mp_image_free(mp_image *im);
 int mp_header_double(const mp_image *im, const char *key, double *value);
 int mp_header_string(const mp_image *im, const char *key, char *value, size_t len);
 
-/* One header keyword to write with an image. */
+/* One header keyword to write with an image.  (Added:) a non-finite value
+ * has no FITS form and leaves the card out; integral values are written
+ * as integers. */
 typedef struct {
     const char *key;
     double value;          /* used when str is NULL */

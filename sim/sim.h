@@ -43,7 +43,10 @@ void mp_sim_snap(const mp_sim_prf *p, double *x, double *y);
 
 /* mp_sim_add_star: add flux·PRF (expected electrons, noiseless) to img.
  * MP_SIM_TABLE requires (x,y) on the grid (see mp_sim_snap); returns
- * nonzero otherwise. */
+ * nonzero otherwise.  (Added:) also nonzero, drawing nothing, for an
+ * invalid PRF (sigma <= 0, even table size, dk not dividing tos, negative
+ * volume), a non-finite position or flux, or no memory.  Light falling
+ * outside the image is dropped. */
 int mp_sim_add_star(const mp_sim_prf *p, double x, double y, double flux,
                     double *img, long nx, long ny);
 

@@ -1,0 +1,153 @@
+/* image_read.c — mp_image_read and mp_image_free (io.h). */
+#include "io/io.h"
+
+#include <math.h>
+#include <stdint.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <fitsio.h>
+
+#include "io/fitserr.h"
+#include "io/section.h"
+
+/* Keep a malloc'd copy of the HDU's header so callers free one way only. */
+static int copy_header(fitsfile *fp, mp_image *im, int *status)
+{
+    char *h = NULL;
+    int nkeys = 0;
+    if (fits_hdr2str(fp, 0, NULL, 0, &h, &nkeys, status))
+        return *status;
+    size_t n = (size_t)nkeys * 80;
+    im->hdr = malloc(n + 1);
+    if (!im->hdr) {
+        fits_free_memory(h, status);
+        return *status = MEMORY_ALLOCATION;
+    }
+    memcpy(im->hdr, h, n);
+    im->hdr[n] = '\0';
+    im->nkeys = nkeys;
+    fits_free_memory(h, status);
+    return *status;
+}
+
+int mp_image_read(const char *name, mp_image *im, char *err)
+{
+    memset(im, 0, sizeof *im);
+    if (!name || !*name) {
+        snprintf(err, MP_ERRLEN, "(no name): no image file given");
+        return 1;
+    }
+    char *cname = mp_section_name(name);
+    if (!cname) {
+        snprintf(err, MP_ERRLEN, "%s: out of memory", name);
+        return 1;
+    }
+    fitsfile *fp = NULL;
+    int status = 0;
+    fits_open_image(&fp, cname, READONLY, &status);
+    free(cname);
+    if (status) {
+        mp_fits_error(name, "open", status, err);
+        return 1;
+    }
+
+    int bitpix = 0, naxis = 0;
+    long naxes[9] = {0};
+    fits_get_img_type(fp, &bitpix, &status);
+    fits_get_img_dim(fp, &naxis, &status);
+    if (status) {
+        mp_fits_error(name, "read", status, err);
+        goto fail;
+    }
+    if (bitpix != 8 && bitpix != 16 && bitpix != 32 && bitpix != 64 &&
+        bitpix != -32 && bitpix != -64) {
+        snprintf(err, MP_ERRLEN, "%s: unsupported BITPIX %d", name, bitpix);
+        goto fail;
+    }
+    if (naxis == 0) {
+        snprintf(err, MP_ERRLEN, "%s: no image here (NAXIS = 0); "
+                 "name an image extension like %s[1]", name, name);
+        goto fail;
+    }
+    if (naxis > 9) {
+        snprintf(err, MP_ERRLEN, "%s: %d-D image; matphot reads 2-D images", name, naxis);
+        goto fail;
+    }
+    fits_get_img_size(fp, naxis, naxes, &status);
+    if (status) {
+        mp_fits_error(name, "read", status, err);
+        goto fail;
+    }
+    for (int k = 2; k < naxis; k++) {
+        if (naxes[k] != 1) {
+            /* Suggest the plane syntax after the HDU part of the name
+             * ("f.fits[SCI][*,*,1]"), dropping a section already there. */
+            const char *b = strrchr(name, '[');
+            int blen = b && strchr(b, ',') ? (int)(b - name) : (int)strlen(name);
+            char extra[40] = "";
+            for (int j = 3; j < naxis; j++)
+                strcat(extra, ",1");
+            snprintf(err, MP_ERRLEN,
+                     "%s: %d-D image; give a 2-D section like %.*s[*,*,1%s]",
+                     name, naxis, blen, name, extra);
+            goto fail;
+        }
+    }
+    long nx = naxes[0], ny = naxis > 1 ? naxes[1] : 1;
+    if (nx < 1 || ny < 1) {
+        snprintf(err, MP_ERRLEN, "%s: empty image (%ld x %ld)", name, nx, ny);
+        goto fail;
+    }
+    if ((uint64_t)nx > SIZE_MAX / sizeof(double) / (uint64_t)ny) {
+        snprintf(err, MP_ERRLEN, "%s: image too large (%ld x %ld)", name, nx, ny);
+        goto fail;
+    }
+    im->nx = nx;
+    im->ny = ny;
+    im->pix = malloc((size_t)nx * (size_t)ny * sizeof(double));
+    if (!im->pix) {
+        snprintf(err, MP_ERRLEN, "%s: out of memory for %ld x %ld pixels", name, nx, ny);
+        goto fail;
+    }
+    /* BLANK pixels of integer images and NaN of float images both come
+     * back as NaN, so callers test one thing. */
+    long fpix[9] = {1, 1, 1, 1, 1, 1, 1, 1, 1};
+    double nulval = NAN;
+    int anynul = 0;
+    fits_read_pix(fp, TDOUBLE, fpix, (LONGLONG)nx * ny, &nulval, im->pix, &anynul, &status);
+    if (status) {
+        mp_fits_error(name, "read", status, err);
+        goto fail;
+    }
+    if (copy_header(fp, im, &status)) {
+        mp_fits_error(name, "read the header of", status, err);
+        goto fail;
+    }
+    fits_close_file(fp, &status);
+    if (status) {
+        mp_fits_error(name, "close", status, err);
+        mp_image_free(im);
+        return 1;
+    }
+    return 0;
+
+fail:
+    status = 0;
+    fits_close_file(fp, &status);
+    fits_clear_errmsg();
+    mp_image_free(im);
+    return 1;
+}
+
+void mp_image_free(mp_image *im)
+{
+    if (!im)
+        return;
+    free(im->pix);
+    free(im->hdr);
+    im->pix = NULL;
+    im->hdr = NULL;
+    im->nx = im->ny = 0;
+    im->nkeys = 0;
+}

@@ -1,0 +1,134 @@
+/* outfile.c — atomic output files and "-" inputs (io.h). */
+#include "io/io.h"
+
+#include <errno.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <unistd.h>
+
+char *mp_tmp_name(const char *path)
+{
+    /* "<dir>/.<base>.tmp.<pid>": same directory so rename() is atomic,
+     * hidden so a directory listing during a run stays clean, pid so two
+     * runs writing the same output do not share a temporary. */
+    const char *slash = strrchr(path, '/');
+    size_t dlen = slash ? (size_t)(slash - path) + 1 : 0;
+    const char *base = path + dlen;
+    char pid[32];
+    snprintf(pid, sizeof pid, ".tmp.%ld", (long)getpid());
+    size_t n = dlen + 1 + strlen(base) + strlen(pid) + 1;
+    char *t = malloc(n);
+    if (!t)
+        return NULL;
+    memcpy(t, path, dlen);
+    snprintf(t + dlen, n - dlen, ".%s%s", base, pid);
+    return t;
+}
+
+static void reset(mp_outfile *o)
+{
+    free(o->final_path);
+    free(o->tmp_path);
+    memset(o, 0, sizeof *o);
+}
+
+int mp_out_open(mp_outfile *o, const char *path, char *err)
+{
+    memset(o, 0, sizeof *o);
+    if (!path || strcmp(path, "-") == 0) {
+        o->fp = stdout;
+        o->is_stdout = 1;
+        return 0;
+    }
+    if (!*path) {
+        snprintf(err, MP_ERRLEN, "(no name): no output file name given");
+        return 1;
+    }
+    o->final_path = strdup(path);
+    o->tmp_path = mp_tmp_name(path);
+    if (!o->final_path || !o->tmp_path) {
+        snprintf(err, MP_ERRLEN, "%s: out of memory", path);
+        reset(o);
+        return 1;
+    }
+    o->fp = fopen(o->tmp_path, "w");
+    if (!o->fp) {
+        snprintf(err, MP_ERRLEN, "%s: cannot create: %s", path, strerror(errno));
+        reset(o);
+        return 1;
+    }
+    return 0;
+}
+
+int mp_out_commit(mp_outfile *o, char *err)
+{
+    if (!o->fp) {
+        snprintf(err, MP_ERRLEN, "%s: output is not open",
+                 o->final_path ? o->final_path : "(output)");
+        return 1;
+    }
+    if (o->is_stdout) {
+        int bad = fflush(stdout) != 0 || ferror(stdout);
+        if (bad)
+            snprintf(err, MP_ERRLEN, "(stdout): write error: %s", strerror(errno));
+        memset(o, 0, sizeof *o);
+        return bad;
+    }
+    /* A full disk often shows only at flush or close: check both before
+     * the temporary may replace an older good file. */
+    int bad = ferror(o->fp) || fflush(o->fp) != 0;
+    int e = errno;
+    if (fclose(o->fp) != 0 && !bad) {
+        bad = 1;
+        e = errno;
+    }
+    o->fp = NULL;
+    if (bad) {
+        snprintf(err, MP_ERRLEN, "%s: write error: %s", o->final_path, strerror(e));
+        unlink(o->tmp_path);
+        reset(o);
+        return 1;
+    }
+    if (rename(o->tmp_path, o->final_path) != 0) {
+        snprintf(err, MP_ERRLEN, "%s: cannot rename the temporary file into place: %s",
+                 o->final_path, strerror(errno));
+        unlink(o->tmp_path);
+        reset(o);
+        return 1;
+    }
+    reset(o);
+    return 0;
+}
+
+void mp_out_abort(mp_outfile *o)
+{
+    if (!o)
+        return;
+    if (o->is_stdout) {
+        fflush(stdout);
+        memset(o, 0, sizeof *o);
+        return;
+    }
+    if (o->fp)
+        fclose(o->fp);
+    if (o->tmp_path)
+        unlink(o->tmp_path);
+    reset(o);
+}
+
+FILE *mp_open_input(const char *path, char *err)
+{
+    if (!path || strcmp(path, "-") == 0)
+        return stdin;
+    FILE *fp = fopen(path, "r");
+    if (!fp)
+        snprintf(err, MP_ERRLEN, "%s: cannot open: %s", path, strerror(errno));
+    return fp;
+}
+
+void mp_close_input(FILE *fp)
+{
+    if (fp && fp != stdin)
+        fclose(fp);
+}

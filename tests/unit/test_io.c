@@ -1,0 +1,538 @@
+/* test_io.c — io/: image read/write round trips, sections and HDUs,
+ * header look-ups, frames (gain, NaN and saturation masks), the errors for
+ * bad files, and atomic output files.  Fixtures live in a mkdtemp
+ * directory under $TMPDIR, removed at the end. */
+#include <math.h>
+#include <setjmp.h>
+#include <stdarg.h>
+#include <stddef.h>
+#include <stdint.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/stat.h>
+#include <unistd.h>
+
+#include <cmocka.h>
+#include <fitsio.h>
+
+#include "io/io.h"
+
+typedef struct {
+    char dir[512];
+    char path[640];
+} scratch;
+
+static int setup(void **state)
+{
+    scratch *s = calloc(1, sizeof *s);
+    if (!s)
+        return -1;
+    const char *tmp = getenv("TMPDIR");
+    snprintf(s->dir, sizeof s->dir, "%s/test_io.XXXXXX", tmp && *tmp ? tmp : "/tmp");
+    if (!mkdtemp(s->dir)) {
+        free(s);
+        return -1;
+    }
+    *state = s;
+    return 0;
+}
+
+static int teardown(void **state)
+{
+    scratch *s = *state;
+    char cmd[600];
+    snprintf(cmd, sizeof cmd, "rm -rf '%s'", s->dir);
+    int rc = system(cmd);
+    free(s);
+    return rc == 0 ? 0 : -1;
+}
+
+static const char *in_dir(scratch *s, const char *name)
+{
+    snprintf(s->path, sizeof s->path, "%s/%s", s->dir, name);
+    return s->path;
+}
+
+static int exists(const char *path)
+{
+    struct stat sb;
+    return stat(path, &sb) == 0;
+}
+
+/* Number of entries in the scratch directory (to spot leftover temporaries). */
+static int count_files(const scratch *s)
+{
+    char cmd[600];
+    snprintf(cmd, sizeof cmd, "ls -A '%s' | wc -l", s->dir);
+    FILE *p = popen(cmd, "r");
+    int n = -1;
+    if (p) {
+        if (fscanf(p, "%d", &n) != 1)
+            n = -1;
+        pclose(p);
+    }
+    return n;
+}
+
+/* A 7×5 test pattern: value 100·y + x, so every pixel says where it is. */
+enum { NX = 7, NY = 5 };
+static void pattern(double *pix)
+{
+    for (int y = 1; y <= NY; y++)
+        for (int x = 1; x <= NX; x++)
+            pix[(y - 1) * NX + (x - 1)] = 100.0 * y + x;
+}
+
+/* Write an image with cfitsio directly (for layouts mp_image_write does
+ * not make: integer BITPIX with BLANK, cubes, extensions). */
+static void write_raw(const char *path, int bitpix, int naxis, const long *naxes,
+                      const double *pix, int blank, const char *extname)
+{
+    fitsfile *fp;
+    int st = 0;
+    char name[700];
+    snprintf(name, sizeof name, "!%s", path);
+    fits_create_file(&fp, name, &st);
+    long n = 1;
+    for (int k = 0; k < naxis; k++)
+        n *= naxes[k];
+    if (extname) {
+        fits_create_img(fp, 8, 0, NULL, &st);      /* empty primary */
+        fits_create_img(fp, bitpix, naxis, (long *)naxes, &st);
+        fits_update_key_str(fp, "EXTNAME", extname, NULL, &st);
+    } else {
+        fits_create_img(fp, bitpix, naxis, (long *)naxes, &st);
+    }
+    if (blank) {
+        long b = -999;
+        fits_update_key_lng(fp, "BLANK", b, NULL, &st);
+        fits_set_imgnull(fp, b, &st);
+    }
+    long fpix[9] = {1, 1, 1, 1, 1, 1, 1, 1, 1};
+    /* NaN marks blank pixels; integer images hold the BLANK value there. */
+    double *v = malloc((size_t)n * sizeof *v);
+    assert_non_null(v);
+    for (long i = 0; i < n; i++)
+        v[i] = blank && isnan(pix[i]) ? -999.0 : pix[i];
+    fits_write_pix(fp, TDOUBLE, fpix, n, v, &st);
+    free(v);
+    fits_close_file(fp, &st);
+    assert_int_equal(st, 0);
+}
+
+/* ---------- round trip, header ---------- */
+
+static void test_round_trip(void **state)
+{
+    scratch *s = *state;
+    double pix[NX * NY];
+    pattern(pix);
+    pix[3] = NAN;
+    const mp_card cards[] = {
+        {"GAIN", 2.5, NULL, "[e-/ADU]"},
+        {"RDNOISE", 4, NULL, "[e-]"},
+        {"SKY", 0.1, NULL, NULL},
+        {"OBJECT", 0, "it's a test", NULL},
+        {"SATURATE", INFINITY, NULL, "not finite: left out"},
+    };
+    const char *path = in_dir(s, "rt.fits");
+    char err[MP_ERRLEN];
+    assert_int_equal(mp_image_write(path, pix, NX, NY, -64, cards, 5, err), 0);
+    assert_int_equal(count_files(s), 1);      /* no temporary left */
+
+    mp_image im;
+    assert_int_equal(mp_image_read(path, &im, err), 0);
+    assert_int_equal(im.nx, NX);
+    assert_int_equal(im.ny, NY);
+    for (int i = 0; i < NX * NY; i++)
+        assert_true(i == 3 ? isnan(im.pix[i]) : im.pix[i] == pix[i]);
+    double v;
+    assert_int_equal(mp_header_double(&im, "GAIN", &v), 0);
+    assert_true(v == 2.5);
+    assert_int_equal(mp_header_double(&im, "RDNOISE", &v), 0);
+    assert_true(v == 4);
+    assert_int_equal(mp_header_double(&im, "SKY", &v), 0);
+    assert_true(v == 0.1);                        /* exact: shortest round trip */
+    assert_int_equal(mp_header_double(&im, "gain", &v), 0);   /* case-blind */
+    assert_int_equal(mp_header_double(&im, "SATURATE", &v), 1);
+    assert_int_equal(mp_header_double(&im, "NOSUCH", &v), 1);
+    assert_int_equal(mp_header_double(&im, "OBJECT", &v), 2);
+    char str[32];
+    assert_int_equal(mp_header_string(&im, "OBJECT", str, sizeof str), 0);
+    assert_string_equal(str, "it's a test");
+    assert_int_equal(mp_header_string(&im, "GAIN", str, sizeof str), 2);
+    mp_image_free(&im);
+    mp_image_free(&im);                           /* safe twice */
+
+    /* BITPIX -32: values as float. */
+    assert_int_equal(mp_image_write(path, pix, NX, NY, -32, NULL, 0, err), 0);
+    assert_int_equal(mp_image_read(path, &im, err), 0);
+    for (int i = 0; i < NX * NY; i++)
+        assert_true(i == 3 ? isnan(im.pix[i]) : im.pix[i] == (double)(float)pix[i]);
+    mp_image_free(&im);
+    /* Other BITPIX values are refused. */
+    assert_int_not_equal(mp_image_write(path, pix, NX, NY, 16, NULL, 0, err), 0);
+}
+
+static void test_header_parsing(void **state)
+{
+    (void)state;
+    /* Hand-made cards: D exponent, HIERARCH, undefined value, comment slash,
+     * quotes and trailing blanks, logical. */
+    const char *cards[] = {
+        "EXPTIME =               1.5D+2 / exposure",
+        "HIERARCH ESO DET OUT1 GAIN = 2.25 / e-/ADU",
+        "UNDEF   =                      / nothing",
+        "FILTER  = 'V       '           / band",
+        "QUOTE   = 'O''Hara'",
+        "FLAG    =                    T",
+        "GAIN    = 3.0",
+    };
+    int n = (int)(sizeof cards / sizeof cards[0]);
+    char *hdr = malloc((size_t)n * 80 + 1);
+    assert_non_null(hdr);
+    for (int k = 0; k < n; k++)
+        snprintf(hdr + k * 80, 81, "%-80s", cards[k]);
+    mp_image im = {.hdr = hdr, .nkeys = n};
+    double v;
+    char s[16];
+    assert_int_equal(mp_header_double(&im, "EXPTIME", &v), 0);
+    assert_true(v == 150.0);
+    assert_int_equal(mp_header_double(&im, "ESO DET OUT1 GAIN", &v), 0);
+    assert_true(v == 2.25);
+    assert_int_equal(mp_header_double(&im, "UNDEF", &v), 2);
+    assert_int_equal(mp_header_string(&im, "FILTER", s, sizeof s), 0);
+    assert_string_equal(s, "V");
+    assert_int_equal(mp_header_string(&im, "QUOTE", s, sizeof s), 0);
+    assert_string_equal(s, "O'Hara");
+    assert_int_equal(mp_header_string(&im, "QUOTE", s, 3), 0);   /* truncated */
+    assert_string_equal(s, "O'");
+    assert_int_equal(mp_header_double(&im, "FLAG", &v), 2);
+    /* "GAIN" must not match the HIERARCH card that ends in GAIN. */
+    assert_int_equal(mp_header_double(&im, "GAIN", &v), 0);
+    assert_true(v == 3.0);
+    free(hdr);
+}
+
+/* ---------- sections, HDUs, integer images ---------- */
+
+static void test_sections_and_hdus(void **state)
+{
+    scratch *s = *state;
+    double pix[NX * NY];
+    pattern(pix);
+    char err[MP_ERRLEN], name[700];
+    const char *path = in_dir(s, "sec.fits");
+    assert_int_equal(mp_image_write(path, pix, NX, NY, -64, NULL, 0, err), 0);
+
+    mp_image im;
+    snprintf(name, sizeof name, "%s[2:5,3:7]", path);
+    /* NY is 5: rows 3..7 run off the image, an error naming the file. */
+    assert_int_not_equal(mp_image_read(name, &im, err), 0);
+    assert_non_null(strstr(err, "sec.fits"));
+    snprintf(name, sizeof name, "%s[2:5,2:4]", path);
+    assert_int_equal(mp_image_read(name, &im, err), 0);
+    assert_int_equal(im.nx, 4);
+    assert_int_equal(im.ny, 3);
+    for (int y = 1; y <= 3; y++)
+        for (int x = 1; x <= 4; x++)
+            assert_true(im.pix[(y - 1) * 4 + (x - 1)] == 100.0 * (y + 1) + (x + 1));
+    mp_image_free(&im);
+
+    /* A taller image so that [2:5,3:7] as in the brief fits. */
+    enum { TX = 8, TY = 9 };
+    double tall[TX * TY];
+    for (int i = 0; i < TX * TY; i++)
+        tall[i] = 100.0 * (i / TX + 1) + (i % TX + 1);
+    const char *tpath = in_dir(s, "f.fits");
+    assert_int_equal(mp_image_write(tpath, tall, TX, TY, -32, NULL, 0, err), 0);
+    snprintf(name, sizeof name, "%s[2:5,3:7]", tpath);
+    assert_int_equal(mp_image_read(name, &im, err), 0);
+    assert_int_equal(im.nx, 4);
+    assert_int_equal(im.ny, 5);
+    for (int y = 1; y <= 5; y++)
+        for (int x = 1; x <= 4; x++)
+            assert_true(im.pix[(y - 1) * 4 + (x - 1)] == 100.0 * (y + 2) + (x + 1));
+    mp_image_free(&im);
+
+    /* An image extension by name and number; integer pixels with BLANK
+     * come back as NaN. */
+    const char *mef = in_dir(s, "mef.fits");
+    long ax[2] = {NX, NY};
+    double ipix[NX * NY];
+    pattern(ipix);
+    ipix[10] = NAN;
+    write_raw(mef, 16, 2, ax, ipix, 1, "SCI");
+    const char *names[] = {"%s[SCI]", "%s[1]", "%s"};
+    for (int k = 0; k < 3; k++) {
+        snprintf(name, sizeof name, names[k], mef);
+        assert_int_equal(mp_image_read(name, &im, err), 0);
+        assert_int_equal(im.nx, NX);
+        assert_true(isnan(im.pix[10]));
+        assert_true(im.pix[11] == ipix[11]);
+        char ext[16];
+        assert_int_equal(mp_header_string(&im, "EXTNAME", ext, sizeof ext), 0);
+        assert_string_equal(ext, "SCI");
+        mp_image_free(&im);
+    }
+    snprintf(name, sizeof name, "%s[3]", mef);
+    assert_int_not_equal(mp_image_read(name, &im, err), 0);
+    assert_non_null(strstr(err, "mef.fits"));
+    snprintf(name, sizeof name, "%s[ERR]", mef);
+    assert_int_not_equal(mp_image_read(name, &im, err), 0);
+    assert_non_null(strstr(err, "no such HDU"));
+}
+
+/* ---------- bad inputs ---------- */
+
+static void expect_read_error(const char *name, const char *file, const char *words)
+{
+    mp_image im;
+    char err[MP_ERRLEN] = "";
+    assert_int_not_equal(mp_image_read(name, &im, err), 0);
+    if (!strstr(err, file) || (words && !strstr(err, words)))
+        print_error("unexpected message: %s\n", err);
+    assert_non_null(strstr(err, file));
+    if (words)
+        assert_non_null(strstr(err, words));
+    assert_null(strchr(err, '\n'));              /* one line */
+    assert_null(im.pix);
+    assert_null(im.hdr);
+}
+
+static void test_bad_inputs(void **state)
+{
+    scratch *s = *state;
+    char err[MP_ERRLEN], name[700];
+    expect_read_error(in_dir(s, "missing.fits"), "missing.fits", "No such file");
+
+    /* A text file. */
+    const char *txt = in_dir(s, "notes.txt");
+    FILE *fp = fopen(txt, "w");
+    assert_non_null(fp);
+    fputs("this is not a FITS file\n", fp);
+    fclose(fp);
+    expect_read_error(txt, "notes.txt", "not a FITS file");
+
+    /* An empty file. */
+    const char *empty = in_dir(s, "empty.fits");
+    fp = fopen(empty, "w");
+    assert_non_null(fp);
+    fclose(fp);
+    expect_read_error(empty, "empty.fits", "empty");
+
+    /* A valid FITS file cut in the data, and one cut in the header. */
+    double big[100 * 100];
+    for (int i = 0; i < 100 * 100; i++)
+        big[i] = i;
+    const char *cut = in_dir(s, "cut.fits");
+    assert_int_equal(mp_image_write(cut, big, 100, 100, -32, NULL, 0, err), 0);
+    assert_int_equal(truncate(cut, 2880 + 20000), 0);
+    expect_read_error(cut, "cut.fits", "truncated");
+    assert_int_equal(truncate(cut, 1000), 0);
+    expect_read_error(cut, "cut.fits", "truncated or corrupt");
+
+    /* A cube: refused with the section hint; a plane of it reads. */
+    const char *cube = in_dir(s, "cube.fits");
+    long ax[3] = {NX, NY, 3};
+    double cpix[NX * NY * 3];
+    for (int i = 0; i < NX * NY * 3; i++)
+        cpix[i] = i;
+    write_raw(cube, -32, 3, ax, cpix, 0, NULL);
+    expect_read_error(cube, "cube.fits", "3-D image; give a 2-D section like");
+    mp_image im;
+    snprintf(name, sizeof name, "%s[*,*,2]", cube);
+    assert_int_equal(mp_image_read(name, &im, err), 0);
+    assert_int_equal(im.nx, NX);
+    assert_int_equal(im.ny, NY);
+    assert_true(im.pix[0] == NX * NY);
+    mp_image_free(&im);
+    /* Degenerate extra axes are fine. */
+    long ax1[3] = {NX, NY, 1};
+    write_raw(cube, -32, 3, ax1, cpix, 0, NULL);
+    assert_int_equal(mp_image_read(cube, &im, err), 0);
+    mp_image_free(&im);
+
+    /* A directory, a bad section. */
+    expect_read_error(s->dir, "test_io.", "directory");
+    snprintf(name, sizeof name, "%s[1:2,x]", cube);
+    expect_read_error(name, "cube.fits", NULL);
+
+    /* Writing into a missing directory fails, names the file, leaves
+     * nothing. */
+    const char *nodir = in_dir(s, "no/such/dir/out.fits");
+    assert_int_not_equal(mp_image_write(nodir, big, 10, 10, -32, NULL, 0, err), 0);
+    assert_non_null(strstr(err, "out.fits"));
+    assert_non_null(strstr(err, "No such file"));
+}
+
+/* ---------- frames ---------- */
+
+static void test_frame(void **state)
+{
+    scratch *s = *state;
+    double pix[NX * NY];
+    pattern(pix);
+    pix[0] = NAN;
+    pix[NX * NY - 1] = 1200;         /* above SATURATE */
+    pix[NX * NY - 2] = 1000;         /* at SATURATE: saturated too */
+    const mp_card cards[] = {
+        {"GAIN", 2.0, NULL, NULL}, {"RDNOISE", 5.0, NULL, NULL},
+        {"SATURATE", 1000.0, NULL, NULL}, {"EXPTIME", 30.0, NULL, NULL},
+    };
+    const char *path = in_dir(s, "frame.fits");
+    char err[MP_ERRLEN];
+    assert_int_equal(mp_image_write(path, pix, NX, NY, -32, cards, 4, err), 0);
+
+    mp_frame f;
+    const mp_datapars none = {NAN, NAN, NAN, NAN};
+    assert_int_equal(mp_frame_read(path, &none, &f, err), 0);
+    assert_true(f.gain == 2.0 && f.rdnoise == 5.0 && f.saturate == 1000.0 && f.exptime == 30.0);
+    assert_int_equal(f.nbad, 1);
+    assert_int_equal(f.nsat, 2);
+    assert_int_equal(f.mask[0], MP_MASK_BAD);
+    assert_true(f.im.pix[0] == 0.0);
+    assert_int_equal(f.mask[NX * NY - 1], MP_MASK_SATURATED);
+    assert_int_equal(f.mask[NX * NY - 2], MP_MASK_SATURATED);
+    assert_int_equal(f.mask[1], 0);
+    for (int i = 1; i < NX * NY; i++)
+        assert_true(f.im.pix[i] == 2.0 * pix[i]);      /* electrons */
+    mp_frame_free(&f);
+    mp_frame_free(&f);
+
+    /* datapars wins over the header; NULL datapars means all from header. */
+    const mp_datapars dp = {4.0, 1.0, NAN, 2.0};
+    assert_int_equal(mp_frame_read(path, &dp, &f, err), 0);
+    assert_true(f.gain == 4.0 && f.rdnoise == 1.0 && f.saturate == 1000.0 && f.exptime == 2.0);
+    assert_true(f.im.pix[5] == 4.0 * pix[5]);
+    mp_frame_free(&f);
+    assert_int_equal(mp_frame_read(path, NULL, &f, err), 0);
+    assert_true(f.gain == 2.0);
+    mp_frame_free(&f);
+
+    /* No keywords: the defaults. */
+    const char *bare = in_dir(s, "bare.fits");
+    assert_int_equal(mp_image_write(bare, pix, NX, NY, -32, NULL, 0, err), 0);
+    assert_int_equal(mp_frame_read(bare, &none, &f, err), 0);
+    assert_true(f.gain == 1.0 && f.rdnoise == 0.0 && isinf(f.saturate) && f.exptime == 1.0);
+    assert_int_equal(f.nsat, 0);
+    mp_frame_free(&f);
+
+    /* Bad detector numbers, named. */
+    const mp_datapars badgain = {0.0, NAN, NAN, NAN};
+    assert_int_not_equal(mp_frame_read(path, &badgain, &f, err), 0);
+    assert_true(strncmp(err, "gain: ", 6) == 0);
+    assert_null(f.mask);
+    const mp_datapars badron = {NAN, -1.0, NAN, NAN};
+    assert_int_not_equal(mp_frame_read(path, &badron, &f, err), 0);
+    assert_true(strncmp(err, "rdnoise: ", 9) == 0);
+    const mp_card neg[] = {{"GAIN", -2.0, NULL, NULL}};
+    const char *negp = in_dir(s, "neg.fits");
+    assert_int_equal(mp_image_write(negp, pix, NX, NY, -32, neg, 1, err), 0);
+    assert_int_not_equal(mp_frame_read(negp, &none, &f, err), 0);
+    assert_non_null(strstr(err, "neg.fits"));
+    assert_non_null(strstr(err, "GAIN"));
+    const mp_card text[] = {{"RDNOISE", 0, "high", NULL}};
+    assert_int_equal(mp_image_write(negp, pix, NX, NY, -32, text, 1, err), 0);
+    assert_int_not_equal(mp_frame_read(negp, &none, &f, err), 0);
+    assert_non_null(strstr(err, "RDNOISE"));
+    /* Read errors pass through. */
+    assert_int_not_equal(mp_frame_read(in_dir(s, "nope.fits"), &none, &f, err), 0);
+    assert_non_null(strstr(err, "nope.fits"));
+}
+
+/* ---------- output files ---------- */
+
+static void test_outfile(void **state)
+{
+    scratch *s = *state;
+    char err[MP_ERRLEN];
+    char path[700];
+    snprintf(path, sizeof path, "%s/out.txt", s->dir);
+
+    char *tmp = mp_tmp_name(path);
+    assert_non_null(tmp);
+    char want[800];
+    snprintf(want, sizeof want, "%s/.out.txt.tmp.%ld", s->dir, (long)getpid());
+    assert_string_equal(tmp, want);
+    char *bare = mp_tmp_name("x.fits");
+    snprintf(want, sizeof want, ".x.fits.tmp.%ld", (long)getpid());
+    assert_string_equal(bare, want);
+    free(bare);
+
+    /* Abort: neither the output nor the temporary remains. */
+    mp_outfile o;
+    assert_int_equal(mp_out_open(&o, path, err), 0);
+    assert_false(o.is_stdout);
+    fputs("partial\n", o.fp);
+    assert_true(exists(tmp));
+    assert_false(exists(path));
+    mp_out_abort(&o);
+    assert_false(exists(tmp));
+    assert_false(exists(path));
+    mp_out_abort(&o);                      /* safe on a spent outfile */
+
+    /* Commit: the temporary becomes the output. */
+    assert_int_equal(mp_out_open(&o, path, err), 0);
+    fputs("complete\n", o.fp);
+    assert_int_equal(mp_out_commit(&o, err), 0);
+    assert_false(exists(tmp));
+    FILE *fp = mp_open_input(path, err);
+    assert_non_null(fp);
+    char line[32] = "";
+    assert_non_null(fgets(line, sizeof line, fp));
+    assert_string_equal(line, "complete\n");
+    mp_close_input(fp);
+
+    /* A second commit replaces the first atomically. */
+    assert_int_equal(mp_out_open(&o, path, err), 0);
+    fputs("second\n", o.fp);
+    fp = fopen(path, "r");                 /* the old file is still whole */
+    assert_non_null(fgets(line, sizeof line, fp));
+    assert_string_equal(line, "complete\n");
+    fclose(fp);
+    assert_int_equal(mp_out_commit(&o, err), 0);
+    fp = fopen(path, "r");
+    assert_non_null(fgets(line, sizeof line, fp));
+    assert_string_equal(line, "second\n");
+    fclose(fp);
+    free(tmp);
+
+    /* Cannot create: names the file and the reason. */
+    char nodir[800];
+    snprintf(nodir, sizeof nodir, "%s/missing/out.txt", s->dir);
+    assert_int_not_equal(mp_out_open(&o, nodir, err), 0);
+    assert_non_null(strstr(err, nodir));
+    assert_non_null(strstr(err, "No such file or directory"));
+    assert_null(o.fp);
+
+    /* "-" and NULL are stdout / stdin. */
+    assert_int_equal(mp_out_open(&o, "-", err), 0);
+    assert_true(o.is_stdout && o.fp == stdout);
+    assert_int_equal(mp_out_commit(&o, err), 0);
+    assert_int_equal(mp_out_open(&o, NULL, err), 0);
+    assert_true(o.is_stdout);
+    mp_out_abort(&o);
+    assert_true(mp_open_input("-", err) == stdin);
+    mp_close_input(stdin);                 /* a no-op: stdin stays open */
+    assert_int_equal(fileno(stdin), 0);
+
+    /* Missing input: NULL and a message. */
+    assert_null(mp_open_input(in_dir(s, "absent.txt"), err));
+    assert_non_null(strstr(err, "absent.txt"));
+    assert_int_equal(count_files(s), 1);   /* only out.txt */
+}
+
+int main(void)
+{
+    const struct CMUnitTest tests[] = {
+        cmocka_unit_test_setup_teardown(test_round_trip, setup, teardown),
+        cmocka_unit_test(test_header_parsing),
+        cmocka_unit_test_setup_teardown(test_sections_and_hdus, setup, teardown),
+        cmocka_unit_test_setup_teardown(test_bad_inputs, setup, teardown),
+        cmocka_unit_test_setup_teardown(test_frame, setup, teardown),
+        cmocka_unit_test_setup_teardown(test_outfile, setup, teardown),
+    };
+    return cmocka_run_group_tests(tests, NULL, NULL);
+}
