@@ -16,9 +16,9 @@
 
 /* Everything the task needs from its parameters, checked. */
 typedef struct {
-    const char *output, *psf, *drf;
+    const char *output, *psf, *drf, *psfout;
     char *truth;                      /* owned */
-    int nx, ny, crowded, nstars, noise;
+    int nx, ny, crowded, nstars, noise, psfos;
     double magmin, magmax, sky, rdnoise, gain, fwhm, volume, saturate;
     uint64_t seed;
 } sim_config;
@@ -68,6 +68,7 @@ static int read_config(const mp_parset *ps, sim_config *c, char *err)
     c->output = mp_par_string(ps, "output");
     c->psf = mp_par_string(ps, "psf");
     c->drf = mp_par_string(ps, "drf");
+    c->psfout = mp_par_string(ps, "psfout");
     const char *truth = mp_par_string(ps, "truth");
     const char *mode = mp_par_string(ps, "mode");
     if (!c->output || !c->psf || !c->drf || !truth || !mode) {
@@ -84,8 +85,12 @@ static int read_config(const mp_parset *ps, sim_config *c, char *err)
         need_real(ps, "magmin", &c->magmin, err) || need_real(ps, "magmax", &c->magmax, err) ||
         need_real(ps, "sky", &c->sky, err) || need_real(ps, "rdnoise", &c->rdnoise, err) ||
         need_real(ps, "gain", &c->gain, err) || need_real(ps, "fwhm", &c->fwhm, err) ||
-        need_real(ps, "volume", &c->volume, err))
+        need_real(ps, "volume", &c->volume, err) || need_int(ps, "psfos", &c->psfos, err))
         return 1;
+    if (c->psfout && *c->psfout && *c->psf) {
+        snprintf(err, MP_ERRLEN, "psfout: only the analytic Gaussian (no psf=) can be written");
+        return 1;
+    }
     if (mp_par_real(ps, "saturate", &c->saturate) || mp_par_int(ps, "seed", &seed)) {
         snprintf(err, MP_ERRLEN, "sim.par: saturate or seed is missing from the defaults");
         return 1;
@@ -204,6 +209,31 @@ static int write_frame(const sim_config *c, const mp_sim_prf *prf, double volume
     return mp_image_write(c->output, adu, c->nx, c->ny, c->noise ? -32 : -64, cards, nc, err);
 }
 
+/* The Gaussian as a PSF table (design.md §3): OVERSAMP os, odd size, each
+ * element the integral over its subpixel — drawn as a star of width σ·os at
+ * the centre of a fine frame, so it is exact like every simulated star. */
+static int write_psf(const sim_config *c, const mp_sim_prf *prf, char *err)
+{
+    int os = c->psfos, h = (int)ceil(4.0 * c->fwhm * os), n = 2 * h + 1;
+    mp_sim_prf fine = *prf;
+    fine.sigma = prf->sigma * os;
+    fine.volume = 1.0;
+    double *t = calloc((size_t)n * n, sizeof *t);
+    if (!t) {
+        snprintf(err, MP_ERRLEN, "%s: out of memory", c->psfout);
+        return 1;
+    }
+    int rc = mp_sim_add_star(&fine, h + 1.0, h + 1.0, 1.0, t, n, n);
+    if (rc)
+        snprintf(err, MP_ERRLEN, "%s: cannot draw the PSF", c->psfout);
+    mp_card cards[2] = {{"OVERSAMP", os, NULL, "table elements per detector pixel"},
+                        {"FWHM", c->fwhm, NULL, "[pixel] Gaussian FWHM"}};
+    if (!rc)
+        rc = mp_image_write(c->psfout, t, n, n, -64, cards, 2, err);
+    free(t);
+    return rc;
+}
+
 static int run(const sim_config *c, char *err)
 {
     mp_sim_prf prf = {.kind = MP_SIM_GAUSS, .volume = c->volume,
@@ -256,6 +286,11 @@ static int run(const sim_config *c, char *err)
         goto done;
     if (mp_table_write(c->truth, &t, MP_TAB_ASCII_HEAD, err)) {
         remove(c->output);           /* no frame without its truth */
+        goto done;
+    }
+    if (c->psfout && *c->psfout && write_psf(c, &prf, err)) {
+        remove(c->output);
+        remove(c->truth);
         goto done;
     }
     rc = 0;
