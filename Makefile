@@ -23,7 +23,7 @@ PARFILES := $(wildcard params/*.par)
 UNITSRC := $(wildcard tests/unit/test_*.c)
 UNITBIN := $(patsubst tests/unit/%.c,$(BUILD)/tests/%,$(UNITSRC))
 
-.PHONY: all deps test unit e2e validate bench run clean sanitize
+.PHONY: all deps test unit e2e validate bench run clean sanitize valgrind
 
 all: matphot
 
@@ -70,6 +70,9 @@ test: deps
 sanitize:
 	$(MAKE) BUILD=build-san CC=clang OPT='-O1 -g' \
 	  SAN='-fsanitize=address,undefined -fno-omit-frame-pointer -fno-sanitize-recover=all' unit e2e
+
+valgrind: all
+	MATPHOT=tests/valgrind_matphot.sh sh tests/run_e2e.sh
 
 validate: deps all
 	@sh tests/validate/run.sh

@@ -103,6 +103,18 @@ int mp_image_read(const char *name, mp_image *im, char *err)
         snprintf(err, MP_ERRLEN, "%s: image too large (%ld x %ld)", name, nx, ny);
         goto fail;
     }
+    /* A file cut short inside its data: say so before reading, since
+     * cfitsio would otherwise convert bytes past the end of the file. */
+    LONGLONG hstart, dstart, dend;
+    fits_get_hduaddrll(fp, &hstart, &dstart, &dend, &status);
+    LONGLONG nbytes = (LONGLONG)nx * ny * (bitpix < 0 ? -bitpix : bitpix) / 8;
+    for (int k = 2; k < naxis; k++)
+        nbytes *= naxes[k];
+    if (!status && dstart + nbytes > fp->Fptr->logfilesize) {
+        snprintf(err, MP_ERRLEN, "%s: truncated FITS file (the data end before the header says)",
+                 name);
+        goto fail;
+    }
     im->nx = nx;
     im->ny = ny;
     im->pix = malloc((size_t)nx * (size_t)ny * sizeof(double));
