@@ -17,6 +17,7 @@
 #ifndef MATPHOT_FIT_H
 #define MATPHOT_FIT_H
 
+#include "catalog/catalog.h"
 #include "io/io.h"
 
 /* ---- PSF ---------------------------------------------------------------- */
@@ -171,6 +172,45 @@ typedef struct {
  * MP_FLAG_NOCONV and keeps finite values. */
 int mp_fit_group(const mp_frame *f, const mp_prf_model *m, const mp_fit_opts *o,
                  double sky0, mp_star *stars, int n, char *err);
+
+/* ---- A whole frame ------------------------------------------------------- */
+
+/* How every star of a table is fitted on a frame (ALLSTAR's practice,
+ * anchors.md §1.6): groups by GROUP_ID fitted simultaneously with their own
+ * sky, the light of all other stars subtracted first (from the previous
+ * pass), close pairs merged, insignificant stars rejected. */
+typedef struct {
+    mp_fit_opts fit;
+    double magzero;    /* MAG_PSF = −2.5 log10(FLUX_PSF) + magzero */
+    double mergerad;   /* merge stars closer than this [px]; NaN: 0.4 FWHM
+                        * of the PSF; 0: never.  Pairs closer than twice the
+                        * error of their separation are merged too. */
+    double minsnr;     /* reject stars with FLUX_PSF/FLUXERR_PSF below this */
+    int passes;        /* fits of every group; from the 2nd on, neighbours'
+                        * light comes from the previous pass */
+} mp_frame_opts;
+
+void mp_frame_opts_default(mp_frame_opts *o);
+
+/* What a frame fit did, for the run report. */
+typedef struct {
+    long nstars, ngroups, merged, rejected, noconv;
+    long iterations;   /* summed over groups and passes */
+} mp_frame_report;
+
+/* mp_fit_table: fit every star of t on f — rows carry X_IMAGE/Y_IMAGE or
+ * XPSF_IMAGE/YPSF_IMAGE, optional GROUP_ID (else each star alone, or all in
+ * one group when fit.fitrad is NaN), optional start FLUX_PSF or FLUX and
+ * SKY_PSF or BACKGROUND — and add the fit's columns of design.md §4.
+ * Merged and rejected stars leave the table (the survivor of a merge has
+ * flag 16).  rep may be NULL. */
+int mp_fit_table(const mp_frame *f, const mp_prf_model *m, const mp_frame_opts *o,
+                 mp_table *t, mp_frame_report *rep, char *err);
+
+/* mp_fit_residual: res = data − Σ E·PRF over the stars of a fitted table
+ * (electrons; NaN where masked).  res holds nx*ny. */
+int mp_fit_residual(const mp_frame *f, const mp_prf_model *m, const mp_table *t,
+                    double *res, char *err);
 
 /* The `matphot fit` task. */
 int mp_task_fit(int argc, char **argv);

@@ -5,9 +5,9 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <time.h>
 #include "catalog/catalog.h"
 #include "fit/fit.h"
-#include "fit/fit_frame.h"
 #include "params/params.h"
 
 /* What the task's parameters say, resolved once for every image. */
@@ -16,9 +16,8 @@ typedef struct {
     mp_drf drf;
     int have_drf;
     mp_prf_model model;
-    mp_fit_opts opts;
+    mp_frame_opts opts;
     mp_datapars dp;
-    double magzero;
     mp_table_format fmt;
 } fit_setup;
 
@@ -68,19 +67,20 @@ static int setup_of(const mp_parset *ps, fit_setup *s, char *err)
     } else {
         mp_drf_uniform(vol, &s->drf);
     }
-    mp_fit_opts_default(&s->opts);
-    double fitrad;
-    mp_par_real(ps, "fitrad", &fitrad);
-    s->opts.fitrad = fitrad;                  /* INDEF (NaN): whole image */
-    s->opts.sky_order = strcmp(mp_par_string(ps, "skymodel"), "plane") == 0;
-    mp_par_real(ps, "tol", &s->opts.tol);
-    mp_par_int(ps, "maxiter", &s->opts.maxiter);
+    mp_frame_opts_default(&s->opts);
+    mp_par_real(ps, "fitrad", &s->opts.fit.fitrad);   /* INDEF (NaN): whole image */
+    s->opts.fit.sky_order = strcmp(mp_par_string(ps, "skymodel"), "plane") == 0;
+    mp_par_real(ps, "tol", &s->opts.fit.tol);
+    mp_par_int(ps, "maxiter", &s->opts.fit.maxiter);
+    mp_par_real(ps, "mergerad", &s->opts.mergerad);
+    mp_par_real(ps, "minsnr", &s->opts.minsnr);
+    mp_par_int(ps, "passes", &s->opts.passes);
     int hw = 10;
     mp_par_int(ps, "sinchw", &hw);
     s->model.psf = &s->psf;
     s->model.drf = &s->drf;
     s->model.sinc_hw = hw;
-    mp_par_real(ps, "magzero", &s->magzero);
+    mp_par_real(ps, "magzero", &s->opts.magzero);
     mp_par_real(ps, "gain", &s->dp.gain);
     mp_par_real(ps, "rdnoise", &s->dp.rdnoise);
     mp_par_real(ps, "saturate", &s->dp.saturate);
@@ -154,10 +154,17 @@ static int fit_one(const fit_setup *s, const char *image, const char *coords,
     if (mp_table_read(coords, &t, err))
         goto done;
     char e[MP_ERRLEN];
-    if (mp_fit_table(&f, &s->model, &s->opts, &t, s->magzero, e)) {
+    mp_frame_report rep;
+    struct timespec t0, t1;
+    clock_gettime(CLOCK_MONOTONIC, &t0);
+    if (mp_fit_table(&f, &s->model, &s->opts, &t, &rep, e)) {
         snprintf(err, MP_ERRLEN, "%.200s: %.300s", coords, e);
         goto done;
     }
+    clock_gettime(CLOCK_MONOTONIC, &t1);
+    fprintf(stderr, "matphot fit: %s: %ld stars in %ld groups, %ld merged, %ld rejected, "
+            "%ld not converged, %.2f s\n", image, rep.nstars, rep.ngroups, rep.merged,
+            rep.rejected, rep.noconv, (double)(t1.tv_sec - t0.tv_sec) + 1e-9 * (t1.tv_nsec - t0.tv_nsec));
     if (residual && residual[0]) {
         res = malloc((size_t)f.im.nx * f.im.ny * sizeof *res);
         if (!res) {
