@@ -19,6 +19,7 @@
 
 #include "catalog/catalog.h"
 #include "io/io.h"
+#include "params/params.h"
 
 /* ---- PSF ---------------------------------------------------------------- */
 
@@ -211,6 +212,26 @@ int mp_fit_table(const mp_frame *f, const mp_prf_model *m, const mp_frame_opts *
  * (electrons; NaN where masked).  res holds nx*ny. */
 int mp_fit_residual(const mp_frame *f, const mp_prf_model *m, const mp_table *t,
                     double *res, char *err);
+
+/* ---- From parameters ------------------------------------------------------ */
+
+/* What fit.par's parameters (psf, psfnorm, psfos, drf, volume, fwhm, fitrad,
+ * skymodel, sinchw, tol, maxiter, mergerad, minsnr, passes, magzero, format
+ * and datapars) say, resolved once for every image.  The pipeline's .par
+ * holds the same names, so both tasks read them here. */
+typedef struct {
+    mp_psf psf;
+    mp_drf drf;
+    mp_prf_model model;     /* points into psf and drf: do not copy the struct */
+    mp_frame_opts opts;
+    mp_datapars dp;
+    mp_table_format fmt;
+} mp_fit_setup;
+
+/* mp_fit_setup_read: read the PSF (and DRF) files and the options; warns on
+ * stderr when the PSF table is too coarse for the data (paper §5.4). */
+int mp_fit_setup_read(const mp_parset *ps, mp_fit_setup *s, char *err);
+void mp_fit_setup_free(mp_fit_setup *s);
 
 /* The `matphot fit` task. */
 int mp_task_fit(int argc, char **argv);

@@ -10,114 +10,6 @@
 #include "fit/fit.h"
 #include "params/params.h"
 
-/* What the task's parameters say, resolved once for every image. */
-typedef struct {
-    mp_psf psf;
-    mp_drf drf;
-    int have_drf;
-    mp_prf_model model;
-    mp_frame_opts opts;
-    mp_datapars dp;
-    mp_table_format fmt;
-} fit_setup;
-
-static void setup_free(fit_setup *s)
-{
-    mp_psf_free(&s->psf);
-    mp_drf_free(&s->drf);
-}
-
-static int setup_of(const mp_parset *ps, fit_setup *s, char *err)
-{
-    memset(s, 0, sizeof *s);
-    const char *psf = mp_par_string(ps, "psf");
-    int norm = 0;
-    mp_par_bool(ps, "psfnorm", &norm);
-    char warn[MP_ERRLEN];
-    if (psf[0]) {
-        if (mp_psf_read(psf, norm, &s->psf, warn, err))
-            return 1;
-        if (warn[0])
-            fprintf(stderr, "matphot fit: warning: %s\n", warn);
-        int os = MP_PAR_INDEF_INT;
-        mp_par_int(ps, "psfos", &os);
-        if (os != MP_PAR_INDEF_INT && os != s->psf.os) {
-            mp_psf coarse;
-            if (s->psf.os % os) {
-                snprintf(err, MP_ERRLEN, "psfos: %d does not divide the table's OVERSAMP %d",
-                         os, s->psf.os);
-                return 1;
-            }
-            if (mp_psf_rebin(&s->psf, s->psf.os / os, &coarse, err))
-                return 1;
-            mp_psf_free(&s->psf);
-            s->psf = coarse;
-        }
-    } else {
-        double fwhm;
-        mp_par_real(ps, "fwhm", &fwhm);
-        mp_psf_gauss(fwhm, &s->psf);
-    }
-    const char *drf = mp_par_string(ps, "drf");
-    double vol = 1.0;
-    mp_par_real(ps, "volume", &vol);
-    if (drf[0]) {
-        if (mp_drf_read(drf, s->psf.os, &s->drf, err))
-            return 1;
-    } else {
-        mp_drf_uniform(vol, &s->drf);
-    }
-    mp_frame_opts_default(&s->opts);
-    mp_par_real(ps, "fitrad", &s->opts.fit.fitrad);   /* INDEF (NaN): whole image */
-    s->opts.fit.sky_order = strcmp(mp_par_string(ps, "skymodel"), "plane") == 0;
-    mp_par_real(ps, "tol", &s->opts.fit.tol);
-    mp_par_int(ps, "maxiter", &s->opts.fit.maxiter);
-    mp_par_real(ps, "mergerad", &s->opts.mergerad);
-    mp_par_real(ps, "minsnr", &s->opts.minsnr);
-    mp_par_int(ps, "passes", &s->opts.passes);
-    int hw = 10;
-    mp_par_int(ps, "sinchw", &hw);
-    s->model.psf = &s->psf;
-    s->model.drf = &s->drf;
-    s->model.sinc_hw = hw;
-    mp_par_real(ps, "magzero", &s->opts.magzero);
-    mp_par_real(ps, "gain", &s->dp.gain);
-    mp_par_real(ps, "rdnoise", &s->dp.rdnoise);
-    mp_par_real(ps, "saturate", &s->dp.saturate);
-    mp_par_real(ps, "exptime", &s->dp.exptime);
-    if (mp_table_format_parse(mp_par_string(ps, "format"), &s->fmt)) {
-        snprintf(err, MP_ERRLEN, "format: unknown table format '%s'", mp_par_string(ps, "format"));
-        return 1;
-    }
-    return 0;
-}
-
-/* Paper §5.4: a discrete PSF needs β ≥ 21 in its own (super)pixels, or
- * bright stars alias.  β·V² = 1/sharpness keeps the test independent of
- * the detector's efficiency. */
-static void warn_undersampled(const fit_setup *s)
-{
-    if (s->psf.kind != MP_PSF_TABLE)
-        return;
-    long x0, y0;
-    int w, h;
-    mp_prf_box(&s->model, 1000.0, 1000.0, &x0, &y0, &w, &h);
-    double *p = malloc((size_t)w * h * sizeof *p);
-    mp_prf_work wk = {0};
-    if (p && !mp_prf_render(&s->model, 1000.0, 1000.0, p, NULL, NULL, &wk)) {
-        mp_prf_stats st;
-        mp_prf_stats_of(p, (size_t)w * h, &st);
-        double b = st.sharp > 0 ? 1.0 / st.sharp : 0.0, bs = b * s->psf.os * s->psf.os;
-        if (b < 21.0 && bs < 21.0)
-            fprintf(stderr, "matphot fit: warning: PSF undersampled: beta = %.1f px^2 < 21, "
-                    "and its OVERSAMP %d gives %.1f < 21 table px^2; bright stars will alias "
-                    "(use a table supersampled %dx or more)\n",
-                    b, s->psf.os, bs, (int)ceil(sqrt(21.0 / b)));
-    }
-    free(p);
-    mp_prf_work_free(&wk);
-}
-
 /* image.fits → image<ext>; "-" stays "-". */
 static char *named_after(const char *image, const char *ext)
 {
@@ -140,7 +32,7 @@ static char *named_after(const char *image, const char *ext)
 }
 
 /* Fit one image with one coordinate table; write the table and residual. */
-static int fit_one(const fit_setup *s, const char *image, const char *coords,
+static int fit_one(const mp_fit_setup *s, const char *image, const char *coords,
                    const char *output, const char *residual, char *err)
 {
     mp_frame f;
@@ -207,13 +99,12 @@ int mp_task_fit(int argc, char **argv)
     if (b)
         return b;
     char err[MP_ERRLEN] = "";
-    fit_setup s;
+    mp_fit_setup s;
     char **im = NULL, **co = NULL, **out = NULL, **rs = NULL;
     size_t nim = 0, nco = 0, nout = 0, nrs = 0;
     int rc = 1;
-    if (setup_of(&ps, &s, err))
+    if (mp_fit_setup_read(&ps, &s, err))
         goto done;
-    warn_undersampled(&s);
     if (expand(mp_par_string(&ps, "image"), &im, &nim, err) ||
         expand(mp_par_string(&ps, "coords"), &co, &nco, err) ||
         expand(mp_par_string(&ps, "output"), &out, &nout, err) ||
@@ -247,7 +138,7 @@ done:
     mp_list_free(co, nco);
     mp_list_free(out, nout);
     mp_list_free(rs, nrs);
-    setup_free(&s);
+    mp_fit_setup_free(&s);
     mp_params_free(&ps);
     return rc;
 }
