@@ -10,27 +10,6 @@
 #include "fit/fit.h"
 #include "params/params.h"
 
-/* image.fits → image<ext>; "-" stays "-". */
-static char *named_after(const char *image, const char *ext)
-{
-    const char *br = strchr(image, '[');
-    size_t n = br ? (size_t)(br - image) : strlen(image);
-    const char *dot = NULL;
-    for (size_t i = 0; i < n; i++)
-        if (image[i] == '.')
-            dot = image + i;
-        else if (image[i] == '/')
-            dot = NULL;
-    if (dot && (strncmp(dot, ".fits", 5) == 0 || strncmp(dot, ".fit", 4) == 0 || strncmp(dot, ".fts", 4) == 0))
-        n = (size_t)(dot - image);
-    char *s = malloc(n + strlen(ext) + 1);
-    if (s) {
-        memcpy(s, image, n);
-        strcpy(s + n, ext);
-    }
-    return s;
-}
-
 /* Fit one image with one coordinate table; write the table and residual. */
 static int fit_one(const mp_fit_setup *s, const char *image, const char *coords,
                    const char *output, const char *residual, char *err)
@@ -119,7 +98,7 @@ int mp_task_fit(int argc, char **argv)
         char *named = NULL;
         const char *o = nout ? out[i] : "-";
         if (!nout && nim > 1) {
-            if (!(named = named_after(im[i], ".fit"))) {
+            if (!(named = mp_name_after(im[i], ".fit"))) {
                 snprintf(err, MP_ERRLEN, "out of memory");
                 goto done;
             }

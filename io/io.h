@@ -110,6 +110,12 @@ void mp_out_abort(mp_outfile *o);              /* close, unlink temporary */
 /* mp_tmp_name: the temporary name used for path (caller frees). */
 char *mp_tmp_name(const char *path);
 
+/* mp_name_after: an output named after an image, as DAOPHOT and IRAF name
+ * theirs: the image name without its [extension or section] and without a
+ * .fits/.fit/.fts ending, then ext ("f.fits[1]", ".coo" → "f.coo").  The
+ * caller frees; NULL when out of memory. */
+char *mp_name_after(const char *image, const char *ext);
+
 /* mp_open_input: open a file for reading, "-" meaning stdin. */
 FILE *mp_open_input(const char *path, char *err);
 void mp_close_input(FILE *fp);

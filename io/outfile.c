@@ -132,3 +132,23 @@ void mp_close_input(FILE *fp)
     if (fp && fp != stdin)
         fclose(fp);
 }
+
+char *mp_name_after(const char *image, const char *ext)
+{
+    const char *br = strchr(image, '[');
+    size_t n = br ? (size_t)(br - image) : strlen(image);
+    static const char *const endings[] = {".fits", ".fit", ".fts"};
+    for (int i = 0; i < 3; i++) {
+        size_t e = strlen(endings[i]);
+        if (n > e && strncmp(image + n - e, endings[i], e) == 0) {
+            n -= e;
+            break;
+        }
+    }
+    char *s = malloc(n + strlen(ext) + 1);
+    if (s) {
+        memcpy(s, image, n);
+        strcpy(s + n, ext);
+    }
+    return s;
+}

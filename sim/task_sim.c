@@ -41,27 +41,6 @@ static int need_real(const mp_parset *ps, const char *name, double *v, char *err
     return 0;
 }
 
-/* The default truth name: output with .fits (or .fit) replaced by .truth,
- * else .truth appended. */
-static char *truth_name(const char *output)
-{
-    size_t n = strlen(output);
-    char *t = malloc(n + 7);
-    if (!t)
-        return NULL;
-    strcpy(t, output);
-    const char *ext[] = {".fits", ".fit", ".fts"};
-    for (int i = 0; i < 3; i++) {
-        size_t e = strlen(ext[i]);
-        if (n > e && strcmp(t + n - e, ext[i]) == 0) {
-            t[n - e] = '\0';
-            break;
-        }
-    }
-    strcat(t, ".truth");
-    return t;
-}
-
 static int read_config(const mp_parset *ps, sim_config *c, char *err)
 {
     memset(c, 0, sizeof *c);
@@ -131,7 +110,7 @@ static int read_config(const mp_parset *ps, sim_config *c, char *err)
                  "give one of them");
         return 1;
     }
-    c->truth = *truth ? strdup(truth) : truth_name(c->output);
+    c->truth = *truth ? strdup(truth) : mp_name_after(c->output, ".truth");
     if (!c->truth) {
         snprintf(err, MP_ERRLEN, "truth: out of memory");
         return 1;
