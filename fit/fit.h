@@ -116,6 +116,11 @@ void mp_prf_box(const mp_prf_model *m, double x, double y,
 int mp_prf_render(const mp_prf_model *m, double x, double y,
                   double *prf, double *dprf_dx, double *dprf_dy, mp_prf_work *w);
 
+/* mp_prf_fwhm: the PRF's equivalent FWHM, 2.3548·L at a pixel centre (L,
+ * the critical-sampling scale length, is the σ of a Gaussian of the same
+ * sharpness, paper §2.4.2); what find's kernel and the merge radius use. */
+double mp_prf_fwhm(const mp_prf_model *m);
+
 /* ---- Performance model (paper §2) ----------------------------------------- */
 
 typedef struct {

@@ -73,9 +73,7 @@ static int paint(const mp_prf_model *m, const mp_star *s, double sign, double *i
     return 0;
 }
 
-/* The PSF's equivalent FWHM: 2.3548 L (L, the critical-sampling scale
- * length, is the σ of a Gaussian with the same sharpness, paper §2.4.2). */
-static double psf_fwhm(const mp_prf_model *m)
+double mp_prf_fwhm(const mp_prf_model *m)
 {
     long x0, y0;
     int w, h;
@@ -403,7 +401,7 @@ int mp_fit_table(const mp_frame *f, const mp_prf_model *m, const mp_frame_opts *
     gs[ng] = n;
     rep->nstars = (long)n;
     rep->ngroups = (long)ng;
-    double mergerad = isfinite(o->mergerad) ? o->mergerad : 0.4 * psf_fwhm(m);
+    double mergerad = isfinite(o->mergerad) ? o->mergerad : 0.4 * mp_prf_fwhm(m);
     int passes = o->passes < 1 ? 1 : o->passes;
     if (ng <= 1)
         passes = 1;                 /* nobody else's light to subtract */
