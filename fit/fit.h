@@ -38,11 +38,14 @@ typedef struct {
                         * block-sum (mp_psf_rebin) */
 } mp_psf;
 
-/* mp_psf_read: a PSF table from FITS (extended names work).  OVERSAMP
- * defaults to 1.  Errors: even size, all-zero, NaN, sum > 1.01, OVERSAMP
+/* mp_psf_read: a PSF table from FITS (extended names work: an even-sized
+ * table can be cut to odd size around its peak with a section).  OVERSAMP
+ * comes from the header; when the header has none, from oversamp (> 0),
+ * else 1 (oversamp ≤ 0).  Errors: even size, all-zero, NaN, sum > 1.01, OVERSAMP
  * outside 1..8.  Negative elements are a warning written to warn (may be
  * NULL).  normalize rescales the table to sum 1. */
-int mp_psf_read(const char *name, int normalize, mp_psf *p, char *warn, char *err);
+int mp_psf_read(const char *name, int normalize, int oversamp, mp_psf *p, char *warn,
+                char *err);
 
 /* mp_psf_gauss_table: a table of an (exactly pixel-integrated) Gaussian of
  * the given FWHM [detector px], OVERSAMP os, half-size radius [detector px]. */
@@ -120,6 +123,17 @@ int mp_prf_render(const mp_prf_model *m, double x, double y,
  * the critical-sampling scale length, is the σ of a Gaussian of the same
  * sharpness, paper §2.4.2); what find's kernel and the merge radius use. */
 double mp_prf_fwhm(const mp_prf_model *m);
+
+/* mp_prf_render_window: as mp_prf_render, on the part of the star's box
+ * inside the window [wx0, wx0+ww) × [wy0, wy0+wh) only — the box rendered
+ * comes back in *x0, *y0, *w, *h (w or h 0 when they do not meet).  The
+ * values are those of the full render: only the table elements that land
+ * in the window (and the taps they need) are shifted, so a fit pays for
+ * its fitting region, not for the PSF's wings. */
+int mp_prf_render_window(const mp_prf_model *m, double x, double y,
+                         long wx0, long wy0, long ww, long wh,
+                         long *x0, long *y0, int *w, int *h,
+                         double *prf, double *dprf_dx, double *dprf_dy, mp_prf_work *work);
 
 /* ---- Performance model (paper §2) ----------------------------------------- */
 

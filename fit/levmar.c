@@ -74,7 +74,8 @@ static double pixel(const group *G, long x, long y)
     return G->f->im.pix[(size_t)(y - 1) * G->f->im.nx + (size_t)(x - 1)];
 }
 
-/* Render every star of parameter vector p into r. */
+/* Render every star of parameter vector p into r, on the group's box only:
+ * the fit pays for its fitting region, not for the PSF's wings. */
 static int render_all(group *G, const double *p, rstar *r)
 {
     for (int k = 0; k < G->n; k++) {
@@ -82,13 +83,10 @@ static int render_all(group *G, const double *p, rstar *r)
         long x0, y0;
         int w, h;
         mp_prf_box(G->m, x, y, &x0, &y0, &w, &h);
-        if ((size_t)w * h > G->cap)
+        if ((size_t)(w < G->bw ? w : G->bw) * (size_t)(h < G->bh ? h : G->bh) > G->cap)
             return 1;
-        r[k].x0 = x0;
-        r[k].y0 = y0;
-        r[k].w = w;
-        r[k].h = h;
-        if (mp_prf_render(G->m, x, y, r[k].prf, r[k].dx, r[k].dy, &G->work))
+        if (mp_prf_render_window(G->m, x, y, G->bx0, G->by0, G->bw, G->bh, &r[k].x0, &r[k].y0,
+                                 &r[k].w, &r[k].h, r[k].prf, r[k].dx, r[k].dy, &G->work))
             return 1;
     }
     return 0;
@@ -383,9 +381,12 @@ static int alloc_stars(group *G)
 {
     long x0, y0;
     int w, h;
-    /* The box can grow by one pixel a side as a star moves within a pixel. */
+    /* The box can grow by one pixel a side as a star moves within a pixel;
+     * it is cut to the group's box. */
     mp_prf_box(G->m, 0.0, 0.0, &x0, &y0, &w, &h);
-    G->cap = (size_t)(w + 2) * (h + 2);
+    w = w + 2 < G->bw ? w + 2 : G->bw;
+    h = h + 2 < G->bh ? h + 2 : G->bh;
+    G->cap = (size_t)w * h;
     G->cur = calloc((size_t)G->n, sizeof *G->cur);
     G->trial = calloc((size_t)G->n, sizeof *G->trial);
     if (!G->cur || !G->trial)
@@ -426,6 +427,25 @@ static double start_flux(const group *G, const rstar *r, double sky)
             q += r->prf[t];
         }
     return q > 0 && s > 0 ? s / q : 1.0;
+}
+
+static int prf_stats_full(group *G, double x, double y, mp_prf_stats *st)
+{
+    long x0, y0;
+    int w, h;
+    if (!isfinite(x) || !isfinite(y)) {
+        memset(st, 0, sizeof *st);
+        return 0;
+    }
+    mp_prf_box(G->m, x, y, &x0, &y0, &w, &h);
+    double *p = malloc((size_t)w * h * sizeof *p);
+    if (!p || mp_prf_render(G->m, x, y, p, NULL, NULL, &G->work)) {
+        free(p);
+        return 1;
+    }
+    mp_prf_stats_of(p, (size_t)w * h, st);
+    free(p);
+    return 0;
 }
 
 static int all_finite(const double *v, int n)
@@ -569,7 +589,9 @@ int mp_fit_group(const mp_frame *f, const mp_prf_model *m, const mp_fit_opts *o,
         for (int a = 0; a < G.nsky; a++)
             for (int b = 0; b < G.nsky; b++)
                 vs += c[a] * c[b] * G.M[(size_t)(3 * n + a) * np + 3 * n + b];
-        mp_prf_stats_of(G.cur[k].prf, (size_t)G.cur[k].w * G.cur[k].h, &s->st);
+        /* The performance model wants the whole PRF, not the fitted window. */
+        if (prf_stats_full(&G, out[0], out[1], &s->st))
+            goto nomem;
         double se, sx;
         double E = out[2] > 1.0 ? out[2] : 1.0;
         mp_perf_model(&s->st, E, skyv > 0 ? skyv : 0.0, f->rdnoise, (double)G.npix, &se, &sx);

@@ -108,22 +108,37 @@ static double dens(double a, double sigma)
     return exp(-0.5 * z * z) / (sigma * sqrt(2.0 * M_PI));
 }
 
-static int render_gauss(const mp_prf_model *m, double x, double y,
+/* A detector box [x0, x0+w) × [y0, y0+h), 1-based. */
+typedef struct { long x0, y0, w, h; } box;
+
+/* The part of box a inside box b (possibly empty). */
+static box box_and(box a, const box *b)
+{
+    if (!b)
+        return a;
+    long x1 = a.x0 + a.w, y1 = a.y0 + a.h;
+    long bx1 = b->x0 + b->w, by1 = b->y0 + b->h;
+    box r = {a.x0 > b->x0 ? a.x0 : b->x0, a.y0 > b->y0 ? a.y0 : b->y0, 0, 0};
+    r.w = (x1 < bx1 ? x1 : bx1) - r.x0;
+    r.h = (y1 < by1 ? y1 : by1) - r.y0;
+    if (r.w < 0 || r.h < 0)
+        r.w = r.h = 0;
+    return r;
+}
+
+static int render_gauss(const mp_prf_model *m, double x, double y, box bx,
                         double *prf, double *ddx, double *ddy, mp_prf_work *w)
 {
     const mp_psf *p = m->psf;
-    long x0, y0;
-    int bw, bh;
-    mp_prf_box(m, x, y, &x0, &y0, &bw, &bh);
     /* With a DRF the pixel is cut into k×k cells, each integrated exactly. */
     int k = (m->drf && m->drf->k) ? m->drf->k : 1;
-    size_t nx = (size_t)bw * k, ny = (size_t)bh * k;
-    if (work_reserve(w, 2 * (nx + ny)))
+    size_t nx = (size_t)bx.w * k, ny = (size_t)bx.h * k;
+    if (work_reserve(w, 2 * (nx + ny) + 1))
         return 1;
     double *ex = w->a, *dex = w->a + nx, *ey = w->b, *dey = w->b + ny;
     for (int pass = 0; pass < 2; pass++) {
         double c = pass ? y : x;
-        long o = pass ? y0 : x0;
+        long o = pass ? bx.y0 : bx.x0;
         size_t n = pass ? ny : nx;
         double *e = pass ? ey : ex, *de = pass ? dey : dex;
         for (size_t i = 0; i < n; i++) {
@@ -136,8 +151,8 @@ static int render_gauss(const mp_prf_model *m, double x, double y,
         }
     }
     double vol = (m->drf && m->drf->k == 0) ? m->drf->volume : 1.0;
-    for (int j = 0; j < bh; j++)
-        for (int i = 0; i < bw; i++) {
+    for (long j = 0; j < bx.h; j++)
+        for (long i = 0; i < bx.w; i++) {
             double v = 0, gx = 0, gy = 0;
             for (int sy = 0; sy < k; sy++)
                 for (int sx = 0; sx < k; sx++) {
@@ -147,7 +162,7 @@ static int render_gauss(const mp_prf_model *m, double x, double y,
                     gx += q * dex[ix] * ey[iy];
                     gy += q * ex[ix] * dey[iy];
                 }
-            size_t o = (size_t)j * bw + i;
+            size_t o = (size_t)j * bx.w + i;
             prf[o] = v;
             if (ddx)
                 ddx[o] = gx;
@@ -157,61 +172,150 @@ static int render_gauss(const mp_prf_model *m, double x, double y,
     return 0;
 }
 
-static int render_table(const mp_prf_model *m, double x, double y,
+/* Damped-sinc weights for taps −hw..hw (paper eq. dampedsinc). */
+static void weights(double shift, int hw, double *wt)
+{
+    for (int k = -hw; k <= hw; k++)
+        wt[k + hw] = mp_damped_sinc((double)k - shift);
+}
+
+static int render_table(const mp_prf_model *m, double x, double y, box bx,
                         double *prf, double *ddx, double *ddy, mp_prf_work *w)
 {
     const mp_psf *p = m->psf;
     int os = p->os, nx = p->nx, ny = p->ny;
-    size_t nt = (size_t)nx * ny;
-    if (work_reserve(w, nt))
+    if (work_reserve(w, (size_t)nx * ny))
         return 1;
     /* The central element sits at the star minus the table's offset. */
     axis_geom ax = table_axis(nx, os, x - p->offset), ay = table_axis(ny, os, y - p->offset);
-    int hw = m->sinc_hw > 0 ? m->sinc_hw : 0;
-    double *S = w->a;
-    mp_shift_table(p->t, nx, ny, ax.delta, ay.delta, hw, S, w->b);
-    int want_d = ddx || ddy;
-    if (want_d) {
-        mp_five_point(S, nx, ny, 0, w->c);
-        mp_five_point(S, nx, ny, 1, w->d);
-    }
-    size_t nb = (size_t)ax.w * ay.w;
+    int hw = m->sinc_hw > 0 ? (m->sinc_hw < 64 ? m->sinc_hw : 64) : 0;
+    size_t nb = (size_t)bx.w * bx.h;
     memset(prf, 0, nb * sizeof *prf);
     if (ddx)
         memset(ddx, 0, nb * sizeof *ddx);
     if (ddy)
         memset(ddy, 0, nb * sizeof *ddy);
-    /* Block-sum: table element (mi, mj) lies in fine (gi, gj) = (mi − n0x, mj − n0y),
-     * i.e. pixel offset floor(g/os) − (p0 − 1), subpixel g mod os. */
-    long gx0 = -ax.n0, gy0 = -ay.n0;
-    long pbx = (ax.p0 - 1) * (long)os, pby = (ay.p0 - 1) * (long)os;
-    for (int mj = 0; mj < ny; mj++) {
-        long fj = gy0 + mj - pby;          /* fine index within the box, ≥ 0 */
-        int bj = (int)(fj / os), sy = (int)(fj % os);
+    if (nb == 0)
+        return 0;
+    /* Table elements that land in the box: fine g = os(p − 1) + s ↔ m = g + n0.
+     * Only they are block-summed; the shift needs 2 more on each side for the
+     * five-point derivative, and the x-pass hw more rows for the y-pass. */
+    long mi0 = (bx.x0 - 1) * os + ax.n0, mi1 = mi0 + bx.w * os;
+    long mj0 = (bx.y0 - 1) * os + ay.n0, mj1 = mj0 + bx.h * os;
+    mi0 = mi0 < 0 ? 0 : mi0;
+    mj0 = mj0 < 0 ? 0 : mj0;
+    mi1 = mi1 > nx ? nx : mi1;
+    mj1 = mj1 > ny ? ny : mj1;
+    if (mi0 >= mi1 || mj0 >= mj1)
+        return 0;
+    long si0 = mi0 - 2 < 0 ? 0 : mi0 - 2, si1 = mi1 + 2 > nx ? nx : mi1 + 2;
+    long sj0 = mj0 - 2 < 0 ? 0 : mj0 - 2, sj1 = mj1 + 2 > ny ? ny : mj1 + 2;
+    long tj0 = sj0 - hw < 0 ? 0 : sj0 - hw, tj1 = sj1 + hw > ny ? ny : sj1 + hw;
+    double *S = w->a, *tmp = w->b;          /* both laid out with stride nx */
+    double wt[2 * 64 + 1];
+    /* x-pass (skipped for a zero shift, where the sinc is the identity) */
+    if (ax.delta != 0.0 && hw > 0) {
+        weights(ax.delta, hw, wt);
+        for (long j = tj0; j < tj1; j++) {
+            const double *src = p->t + (size_t)j * nx;
+            for (long i = si0; i < si1; i++) {
+                long k0 = i - hw < 0 ? -i : -hw, k1 = i + hw > nx - 1 ? nx - 1 - i : hw;
+                double sum = 0.0;
+                for (long k = k0; k <= k1; k++)
+                    sum += src[i + k] * wt[k + hw];
+                tmp[(size_t)j * nx + i] = sum;
+            }
+        }
+    } else {
+        for (long j = tj0; j < tj1; j++)
+            memcpy(tmp + (size_t)j * nx + si0, p->t + (size_t)j * nx + si0,
+                   (size_t)(si1 - si0) * sizeof *tmp);
+    }
+    /* y-pass */
+    if (ay.delta != 0.0 && hw > 0) {
+        weights(ay.delta, hw, wt);
+        for (long j = sj0; j < sj1; j++) {
+            long k0 = j - hw < 0 ? -j : -hw, k1 = j + hw > ny - 1 ? ny - 1 - j : hw;
+            double *dst = S + (size_t)j * nx;
+            for (long i = si0; i < si1; i++)
+                dst[i] = 0.0;
+            for (long k = k0; k <= k1; k++) {
+                const double *src = tmp + (size_t)(j + k) * nx;
+                double c = wt[k + hw];
+                for (long i = si0; i < si1; i++)
+                    dst[i] += src[i] * c;
+            }
+        }
+    } else {
+        for (long j = sj0; j < sj1; j++)
+            memcpy(S + (size_t)j * nx + si0, tmp + (size_t)j * nx + si0,
+                   (size_t)(si1 - si0) * sizeof *S);
+    }
+    /* Block-sum, and the five-point derivatives (paper §3.2) on the shifted
+     * table, zero beyond its edge.  The table index moves by −os per +1 px of
+     * the star, hence the factor −os. */
+    for (long mj = mj0; mj < mj1; mj++) {
+        long fj = mj - ay.n0 - (bx.y0 - 1) * os;     /* fine row within the box */
+        long bj = fj / os;
+        int sy = (int)(fj % os);
         const double *Sr = S + (size_t)mj * nx;
-        double *pr = prf + (size_t)bj * ax.w;
-        for (int mi = 0; mi < nx; mi++) {
-            long fi = gx0 + mi - pbx;
-            int bi = (int)(fi / os), sx = (int)(fi % os);
+        for (long mi = mi0; mi < mi1; mi++) {
+            long fi = mi - ax.n0 - (bx.x0 - 1) * os;
+            long bi = fi / os;
+            int sx = (int)(fi % os);
             double q = drf_weight(m->drf, os, sx, sy);
-            pr[bi] += q * Sr[mi];
-            if (want_d) {
-                size_t t = (size_t)mj * nx + mi;
-                /* The table index moves by −os per +1 px of the star. */
-                if (ddx)
-                    ddx[(size_t)bj * ax.w + bi] -= q * os * w->c[t];
-                if (ddy)
-                    ddy[(size_t)bj * ax.w + bi] -= q * os * w->d[t];
+            size_t o = (size_t)bj * bx.w + (size_t)bi;
+            prf[o] += q * Sr[mi];
+            if (ddx) {
+                double f2 = mi >= 2 ? Sr[mi - 2] : 0.0, f1 = mi >= 1 ? Sr[mi - 1] : 0.0;
+                double g1 = mi + 1 < nx ? Sr[mi + 1] : 0.0, g2 = mi + 2 < nx ? Sr[mi + 2] : 0.0;
+                ddx[o] -= q * os * (f2 - 8.0 * f1 + 8.0 * g1 - g2) / 12.0;
+            }
+            if (ddy) {
+                double f2 = mj >= 2 ? S[(size_t)(mj - 2) * nx + mi] : 0.0;
+                double f1 = mj >= 1 ? S[(size_t)(mj - 1) * nx + mi] : 0.0;
+                double g1 = mj + 1 < ny ? S[(size_t)(mj + 1) * nx + mi] : 0.0;
+                double g2 = mj + 2 < ny ? S[(size_t)(mj + 2) * nx + mi] : 0.0;
+                ddy[o] -= q * os * (f2 - 8.0 * f1 + 8.0 * g1 - g2) / 12.0;
             }
         }
     }
     return 0;
 }
 
+static int render(const mp_prf_model *m, double x, double y, box bx,
+                  double *prf, double *ddx, double *ddy, mp_prf_work *w)
+{
+    if (m->psf->kind == MP_PSF_GAUSS)
+        return render_gauss(m, x, y, bx, prf, ddx, ddy, w);
+    return render_table(m, x, y, bx, prf, ddx, ddy, w);
+}
+
 int mp_prf_render(const mp_prf_model *m, double x, double y,
                   double *prf, double *dprf_dx, double *dprf_dy, mp_prf_work *w)
 {
-    if (m->psf->kind == MP_PSF_GAUSS)
-        return render_gauss(m, x, y, prf, dprf_dx, dprf_dy, w);
-    return render_table(m, x, y, prf, dprf_dx, dprf_dy, w);
+    box b;
+    int bw, bh;
+    mp_prf_box(m, x, y, &b.x0, &b.y0, &bw, &bh);
+    b.w = bw;
+    b.h = bh;
+    return render(m, x, y, b, prf, dprf_dx, dprf_dy, w);
+}
+
+int mp_prf_render_window(const mp_prf_model *m, double x, double y,
+                         long wx0, long wy0, long ww, long wh,
+                         long *x0, long *y0, int *w, int *h,
+                         double *prf, double *dprf_dx, double *dprf_dy, mp_prf_work *work)
+{
+    box b, win = {wx0, wy0, ww, wh};
+    int bw, bh;
+    mp_prf_box(m, x, y, &b.x0, &b.y0, &bw, &bh);
+    b.w = bw;
+    b.h = bh;
+    b = box_and(b, &win);
+    *x0 = b.x0;
+    *y0 = b.y0;
+    *w = (int)b.w;
+    *h = (int)b.h;
+    return render(m, x, y, b, prf, dprf_dx, dprf_dy, work);
 }

@@ -21,7 +21,8 @@ static double table_sum(const double *t, size_t n)
     return s;
 }
 
-int mp_psf_read(const char *name, int normalize, mp_psf *p, char *warn, char *err)
+int mp_psf_read(const char *name, int normalize, int oversamp, mp_psf *p, char *warn,
+                char *err)
 {
     memset(p, 0, sizeof *p);
     if (warn)
@@ -30,7 +31,7 @@ int mp_psf_read(const char *name, int normalize, mp_psf *p, char *warn, char *er
     if (mp_image_read(name, &im, err))
         return 1;
     int rc = 1;
-    double os = 1.0;
+    double os = oversamp > 0 ? oversamp : 1.0;
     int hk = mp_header_double(&im, "OVERSAMP", &os);
     if (hk == 2 || (hk == 0 && (os != floor(os) || os < 1 || os > 8))) {
         snprintf(err, MP_ERRLEN, "%s: OVERSAMP must be an integer 1..8", name);

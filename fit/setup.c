@@ -46,7 +46,9 @@ int mp_fit_setup_read(const mp_parset *ps, mp_fit_setup *s, char *err)
     mp_par_bool(ps, "psfnorm", &norm);
     char warn[MP_ERRLEN];
     if (psf[0]) {
-        if (mp_psf_read(psf, norm, &s->psf, warn, err))
+        int hos = MP_PAR_INDEF_INT;
+        mp_par_int(ps, "oversamp", &hos);
+        if (mp_psf_read(psf, norm, hos == MP_PAR_INDEF_INT ? 0 : hos, &s->psf, warn, err))
             return 1;
         if (warn[0])
             fprintf(stderr, "matphot fit: warning: %s\n", warn);

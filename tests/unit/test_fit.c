@@ -384,6 +384,49 @@ static void test_rebin_keeps_position(void **state)
     mp_psf_free(&r2);
 }
 
+/* A windowed render is the full render cut to the window, exactly: the
+ * window only saves the shifting of table elements that fall outside it. */
+static void test_window_render_is_exact(void **state)
+{
+    (void)state;
+    char err[MP_ERRLEN];
+    mp_psf tab, gau;
+    assert_int_equal(mp_psf_gauss_table(2.5, 4, 10.0, &tab, err), 0);
+    mp_psf_gauss(2.5, &gau);
+    double qe[4] = {0.9, 0.8, 1.0, 0.7};
+    mp_drf d = {2, qe, 0.85};
+    mp_prf_model ms[3] = {{&tab, &d, 10}, {&tab, NULL, 10}, {&gau, NULL, 10}};
+    mp_prf_work w = {0};
+    for (int c = 0; c < 3; c++) {
+        double x = 40.37, y = 39.81;
+        long x0, y0, wx0, wy0;
+        int bw, bh, ww, wh;
+        mp_prf_box(&ms[c], x, y, &x0, &y0, &bw, &bh);
+        size_t nb = (size_t)bw * bh;
+        double *full = malloc(3 * nb * sizeof *full), *part = malloc(3 * nb * sizeof *part);
+        assert_non_null(full);
+        assert_non_null(part);
+        assert_int_equal(mp_prf_render(&ms[c], x, y, full, full + nb, full + 2 * nb, &w), 0);
+        assert_int_equal(mp_prf_render_window(&ms[c], x, y, 37, 36, 7, 9, &wx0, &wy0, &ww, &wh,
+                                               part, part + nb, part + 2 * nb, &w), 0);
+        assert_int_equal(wx0, 37);
+        assert_int_equal(wy0, 36);
+        assert_int_equal(ww, 7);
+        assert_int_equal(wh, 9);
+        for (int j = 0; j < wh; j++)
+            for (int i = 0; i < ww; i++) {
+                size_t f = (size_t)(wy0 + j - y0) * bw + (size_t)(wx0 + i - x0);
+                size_t p = (size_t)j * ww + i;
+                for (int a = 0; a < 3; a++)
+                    assert_true(fabs(full[a * nb + f] - part[a * nb + p]) <= 1e-15);
+            }
+        free(full);
+        free(part);
+    }
+    mp_prf_work_free(&w);
+    mp_psf_free(&tab);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
@@ -394,6 +437,7 @@ int main(void)
         cmocka_unit_test(test_no_nan_on_empty_frames),
         cmocka_unit_test(test_gate_drf_recovers_flux),
         cmocka_unit_test(test_rebin_keeps_position),
+        cmocka_unit_test(test_window_render_is_exact),
     };
     return cmocka_run_group_tests_name("fit", tests, NULL, NULL);
 }
