@@ -44,6 +44,9 @@ static const mp_col registry[] = {
     {"MAGERR_PSF",     "RMS magnitude error from PSF-fitting",       "mag", "%10.6f", 0},
     {"ALPHAPSF_J2000", "Right ascension of the fitted PSF (J2000)",  "deg", "%11.7f", 0},
     {"DELTAPSF_J2000", "Declination of the fitted PSF (J2000)",      "deg", "%+11.7f", 0},
+    /* catalog: sky position of the detection (catalog/wcs.c) */
+    {"ALPHA_J2000",    "Right ascension of barycenter (J2000)",      "deg", "%11.7f", 0},
+    {"DELTA_J2000",    "Declination of barycenter (J2000)",          "deg", "%+11.7f", 0},
     {"SKY_PSF",        "Sky from PSF-fitting at the star position",  ELEC, "%12.7g", 0},
     {"SKYERR_PSF",     "RMS sky error from PSF-fitting",             ELEC, "%12.7g", 0},
     {"CHI2_PSF",       "Reduced chi2 from PSF-fitting",              "",   "%10.6g", 0},

@@ -3,6 +3,8 @@
  * atomically through io/io.h's mp_outfile.
  */
 #include <errno.h>
+#include <stdint.h>
+#include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 #include <strings.h>
@@ -45,6 +47,36 @@ static int is_blank(const char *s)
     return 1;
 }
 
+/* Read all of fp into a malloc'd buffer (for FITS on stdin, which cannot
+ * be rewound). */
+static int slurp(FILE *fp, const char *name, char **buf, size_t *len, char *err)
+{
+    size_t cap = 1 << 16, n = 0;
+    char *b = malloc(cap);
+    for (;;) {
+        if (!b) {
+            snprintf(err, MP_ERRLEN, "%s: out of memory", name);
+            return 1;
+        }
+        n += fread(b + n, 1, cap - n, fp);
+        if (n < cap)
+            break;
+        char *nb = cap <= SIZE_MAX / 2 ? realloc(b, cap * 2) : NULL;
+        if (!nb)
+            free(b);
+        b = nb;
+        cap *= 2;
+    }
+    if (ferror(fp)) {
+        snprintf(err, MP_ERRLEN, "%s: read error: %s", name, errno ? strerror(errno) : "I/O error");
+        free(b);
+        return 1;
+    }
+    *buf = b;
+    *len = n;
+    return 0;
+}
+
 int mp_table_read(const char *path, mp_table *t, char *err)
 {
     mp_table_init(t);
@@ -52,7 +84,33 @@ int mp_table_read(const char *path, mp_table *t, char *err)
     FILE *fp = mp_open_input(is_stdin ? "-" : path, err);
     if (!fp)
         return 1;
-    mp_lines L = {.fp = fp, .name = is_stdin ? "stdin" : path};
+    const char *name = is_stdin ? "stdin" : path;
+
+    /* (Added) FITS tables start with "SIMPLE  =".  A first 'S' has the
+     * stream read into memory, where cfitsio reads a FITS table from; text
+     * starting with S (a CSV header) is then read from that copy. */
+    char *mem = NULL;
+    size_t mlen = 0;
+    int c0 = getc(fp);
+    if (c0 != EOF)
+        ungetc(c0, fp);
+    if (c0 == 'S') {
+        int bad = slurp(fp, name, &mem, &mlen, err);
+        mp_close_input(fp);
+        if (bad)
+            return 1;
+        if (mlen >= 9 && memcmp(mem, "SIMPLE  =", 9) == 0) {
+            int frc = mp_table_read_fits(name, mem, mlen, t, err);
+            free(mem);
+            return frc;
+        }
+        if (!(fp = fmemopen(mem, mlen, "r"))) {
+            snprintf(err, MP_ERRLEN, "%s: %s", name, strerror(errno));
+            free(mem);
+            return 1;
+        }
+    }
+    mp_lines L = {.fp = fp, .name = name};
 
     /* The first non-blank line tells the format: "#" starts ASCII_HEAD's
      * column definitions, anything else is a CSV header row. */
@@ -75,7 +133,12 @@ int mp_table_read(const char *path, mp_table *t, char *err)
         rc = *p == '#' ? mp_ascii_head_read(&L, t, err) : mp_csv_read(&L, t, err);
     }
     free(L.line);
-    mp_close_input(fp);
+    if (mem) {
+        fclose(fp);
+        free(mem);
+    } else {
+        mp_close_input(fp);
+    }
     if (rc)
         mp_table_free(t);
     return rc;
@@ -83,6 +146,11 @@ int mp_table_read(const char *path, mp_table *t, char *err)
 
 int mp_table_write(const char *path, const mp_table *t, mp_table_format fmt, char *err)
 {
+    /* FITS is written by cfitsio to a named file, atomically on its own. */
+    if (fmt == MP_TAB_FITS || fmt == MP_TAB_LDAC) {
+        mp_ldac_head minimal = {0};
+        return mp_table_write_fits(path, t, fmt == MP_TAB_LDAC ? &minimal : NULL, err);
+    }
     int is_stdout = !path || strcmp(path, "-") == 0;
     const char *name = is_stdout ? "stdout" : path;
     mp_outfile o;
@@ -112,6 +180,15 @@ int mp_table_format_parse(const char *s, mp_table_format *fmt)
     }
     if (strcasecmp(s, "csv") == 0) {
         *fmt = MP_TAB_CSV;
+        return 0;
+    }
+    /* SExtractor's CATALOG_TYPE names work too. */
+    if (strcasecmp(s, "fits") == 0 || strcasecmp(s, "fits_1.0") == 0) {
+        *fmt = MP_TAB_FITS;
+        return 0;
+    }
+    if (strcasecmp(s, "ldac") == 0 || strcasecmp(s, "fits_ldac") == 0) {
+        *fmt = MP_TAB_LDAC;
         return 0;
     }
     return 1;

@@ -33,6 +33,7 @@ want_units = {
     'SKY_TRUE': u.electron,
     'MAG_PSF': u.mag, 'MAGERR_PSF': u.mag, 'MAG_TRUE': u.mag,
     'ALPHAPSF_J2000': u.deg, 'DELTAPSF_J2000': u.deg,
+    'ALPHA_J2000': u.deg, 'DELTA_J2000': u.deg,
     'BETA_PSF': u.pix ** 2,
 }
 no_unit = ['NUMBER', 'SHARPNESS', 'ROUNDNESS', 'GROUP_ID', 'GROUP_SIZE', 'CHI2_PSF',
@@ -40,7 +41,7 @@ no_unit = ['NUMBER', 'SHARPNESS', 'ROUNDNESS', 'GROUP_ID', 'GROUP_SIZE', 'CHI2_P
 names = ['NUMBER', 'X_IMAGE', 'Y_IMAGE', 'FLUX', 'FLUX_MAX', 'BACKGROUND', 'SHARPNESS',
          'ROUNDNESS', 'GROUP_ID', 'GROUP_SIZE', 'XPSF_IMAGE', 'YPSF_IMAGE', 'ERRX_PSF',
          'ERRY_PSF', 'FLUX_PSF', 'FLUXERR_PSF', 'MAG_PSF', 'MAGERR_PSF', 'ALPHAPSF_J2000',
-         'DELTAPSF_J2000', 'SKY_PSF', 'SKYERR_PSF', 'CHI2_PSF', 'DOF_PSF', 'NITER_PSF',
+         'DELTAPSF_J2000', 'ALPHA_J2000', 'DELTA_J2000', 'SKY_PSF', 'SKYERR_PSF', 'CHI2_PSF', 'DOF_PSF', 'NITER_PSF',
          'BETA_PSF', 'SHARP_PRF', 'LSCALE_PRF', 'VOLUME_PRF', 'FLUXERR_MODEL',
          'POSERR_MODEL', 'FLAGS', 'FLUX_TRUE', 'MAG_TRUE', 'SKY_TRUE']
 bad = []

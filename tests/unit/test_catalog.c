@@ -293,7 +293,9 @@ static void test_format_parse(void **state)
     assert_int_equal(f, MP_TAB_CSV);
     assert_int_equal(mp_table_format_parse("ASCII_Head", &f), 0);
     assert_int_equal(f, MP_TAB_ASCII_HEAD);
-    assert_int_not_equal(mp_table_format_parse("fits", &f), 0);
+    assert_int_equal(mp_table_format_parse("fits", &f), 0);
+    assert_int_equal(f, MP_TAB_FITS);
+    assert_int_not_equal(mp_table_format_parse("votable", &f), 0);
     assert_int_not_equal(mp_table_format_parse("", &f), 0);
 }
 
