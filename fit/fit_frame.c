@@ -166,7 +166,7 @@ static int fit_one_group(const mp_frame *f, const mp_prf_model *m, const mp_fram
         s[k] = st[k].s;
         s[k].x -= dx;
         s[k].y -= dy;
-        alive[k] = 1;
+        alive[k] = st[k].alive;     /* merged or rejected in an earlier pass: stays out */
     }
     /* Each round removes a star or ends, so n + 1 rounds suffice. */
     for (int round = 0; round <= n; round++) {
@@ -274,7 +274,7 @@ static int fit_group_local(const mp_frame *f, const mp_prf_model *m, const mp_fr
         }
     if (all)
         for (int k = 0; k < n; k++)
-            if (paint(m, &st[k].s, +1.0, L.im.pix, x0, y0, w, h, &wk, &buf, &cap)) {
+            if (st[k].alive && paint(m, &st[k].s, +1.0, L.im.pix, x0, y0, w, h, &wk, &buf, &cap)) {
                 snprintf(err, MP_ERRLEN, "out of memory");
                 goto done;
             }

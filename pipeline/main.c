@@ -10,8 +10,11 @@
 #include <stdio.h>
 #include <string.h>
 
+#include "find/find.h"
 #include "fit/fit.h"
+#include "group/group.h"
 #include "params/params.h"
+#include "pipeline/pipeline.h"
 #include "sim/sim.h"
 
 #ifndef MATPHOT_VERSION
@@ -25,7 +28,11 @@ static const struct {
     task_fn run;
     const char *what;
 } tasks[] = {
+    { "find", mp_task_find, "sky background map and DAOFIND-style star detection" },
+    { "group", mp_task_group, "group stars whose PSFs reach each other's fitting regions (DAOPHOT GROUP)" },
     { "fit", mp_task_fit, "fit stars and sky with a discrete or analytic PSF (MATPHOT)" },
+    { "catalog", mp_task_catalog, "final catalogue: magnitudes, sky positions, FITS/LDAC, DS9 regions" },
+    { "pipeline", mp_task_pipeline, "find, group and fit in rounds on the residual, then the catalogue" },
     { "sim", mp_task_sim, "simulate a frame of stars with exact pixel-integrated PRFs" },
     { "params", mp_task_params, "print a task's parameters as a .par file (no TASK: list them)" },
 };

@@ -1,0 +1,124 @@
+/* convolve.c — the lowered-kernel amplitude h of every pixel (DAOFIND's
+ * convolved image, Stetson 1987).  Where the footprint is whole and clean
+ * (almost everywhere) h is one fixed zero-sum kernel applied row by row;
+ * near masked pixels and the image edge the kernel is lowered and
+ * normalised again over the good pixels, pixel by pixel. */
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "find/find_priv.h"
+
+/* h at one pixel from its good taps only. */
+static double h_slow(const mp_frame *f, const mp_bkg *b, const mpf_kernel *k, long px, long py)
+{
+    long nx = f->im.nx, ny = f->im.ny;
+    int n = 0;
+    double sg = 0.0, sgg = 0.0, sd = 0.0, sgd = 0.0;
+    for (int t = 0; t < k->n; t++) {
+        long x = px + k->dx[t], y = py + k->dy[t];
+        if (x < 0 || x >= nx || y < 0 || y >= ny)
+            continue;
+        size_t i = (size_t)y * (size_t)nx + (size_t)x;
+        if (mpf_bad(f, i))
+            continue;
+        double g = k->g[t], d = f->im.pix[i] - b->sky[i];
+        n++;
+        sg += g;
+        sgg += g * g;
+        sd += d;
+        sgd += g * d;
+    }
+    if (n < k->nmin)
+        return MPF_NO_H;
+    double denom = sgg - sg * sg / n;
+    if (!(denom > 1e-12 * k->denom))
+        return MPF_NO_H;
+    return (sgd - sg * sd / n) / denom;
+}
+
+/* o[x] += w·(p[x] − s[x]) for x in [0, n): one tap over one row; restrict
+ * lets the compiler vectorise it. */
+static void tap_row(double *restrict o, const double *restrict p, const double *restrict s,
+                    double w, long n)
+{
+#pragma omp simd
+    for (long x = 0; x < n; x++)
+        o[x] += w * (p[x] - s[x]);
+}
+
+static int any_bad(const mp_frame *f)
+{
+    size_t n = (size_t)f->im.nx * (size_t)f->im.ny;
+    for (size_t i = 0; i < n; i++)
+        if (mpf_bad(f, i))
+            return 1;
+    return 0;
+}
+
+int mpf_convolve(const mp_frame *f, const mp_bkg *b, const mpf_kernel *k, double *h,
+                 char *err)
+{
+    long nx = f->im.nx, ny = f->im.ny, nh = k->nh;
+    int bad = any_bad(f), nomem = 0;
+#pragma omp parallel
+    {
+        /* near[x]: a bad pixel lies in the (2nh+1)² box around (x, y). */
+        unsigned char *colbad = bad ? malloc((size_t)nx) : NULL;
+        unsigned char *near = bad ? malloc((size_t)nx) : NULL;
+        if (bad && (!colbad || !near)) {
+#pragma omp atomic write
+            nomem = 1;
+        }
+#pragma omp for schedule(static)
+        for (long y = 0; y < ny; y++) {
+            double *o = h + (size_t)y * (size_t)nx;
+            if (bad && (!colbad || !near))
+                continue;
+            long x0 = nh, x1 = nx - nh;     /* whole footprints: [x0, x1) */
+            if (y < nh || y >= ny - nh || x1 <= x0) {
+                for (long x = 0; x < nx; x++)
+                    o[x] = h_slow(f, b, k, x, y);
+                continue;
+            }
+            for (long x = x0; x < x1; x++)
+                o[x] = 0.0;
+            for (int t = 0; t < k->n; t++) {
+                size_t off = (size_t)(y + k->dy[t]) * (size_t)nx;
+                tap_row(o + x0, f->im.pix + off + k->dx[t] + x0, b->sky + off + k->dx[t] + x0,
+                        k->kl[t], x1 - x0);
+            }
+            for (long x = 0; x < x0; x++)
+                o[x] = h_slow(f, b, k, x, y);
+            for (long x = x1; x < nx; x++)
+                o[x] = h_slow(f, b, k, x, y);
+            if (!bad)
+                continue;
+            memset(colbad, 0, (size_t)nx);
+            for (long j = y - nh; j <= y + nh; j++)
+                for (long x = 0; x < nx; x++)
+                    colbad[x] |= (unsigned char)mpf_bad(f, (size_t)j * (size_t)nx + (size_t)x);
+            long run = 0;    /* bad columns in [x - nh, x + nh] */
+            for (long x = 0; x < nh && x < nx; x++)
+                run += colbad[x];
+            for (long x = 0; x < nx; x++) {
+                if (x + nh < nx)
+                    run += colbad[x + nh];
+                if (x - nh - 1 >= 0)
+                    run -= colbad[x - nh - 1];
+                near[x] = run > 0;
+            }
+            for (long x = x0; x < x1; x++)
+                if (near[x])
+                    o[x] = h_slow(f, b, k, x, y);
+        }
+        free(colbad);
+        free(near);
+    }
+    if (nomem) {
+        snprintf(err, MP_ERRLEN, "out of memory for the convolution");
+        return 1;
+    }
+    return 0;
+}

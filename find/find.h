@@ -1,0 +1,174 @@
+/*
+ * find.h — the sky background and noise map, DAOFIND-style star detection,
+ * and the `matphot find` task (design.md §1–4; anchors.md §1.1, §1.3, §2).
+ *
+ * Conventions:
+ *   - Frames are mp_frame (io/io.h): pixels in electrons, row-major,
+ *     pix[(y-1)*nx + (x-1)] centred on the 1-based coordinate (x, y).
+ *   - Pixels with MP_MASK_BAD carry no weight anywhere.  Pixels with
+ *     MP_MASK_SATURATED are left out of the background, but keep their
+ *     (clipped) values for detection, so a saturated star is still found,
+ *     once (see mp_find_stars).
+ *   - Output positions are FITS/IRAF/SExtractor: 1-based, centre of the
+ *     first pixel at (1.0, 1.0).
+ *   - Functions that can fail return 0 on success, nonzero on failure with
+ *     one line in err (MP_ERRLEN bytes) naming the parameter or what is
+ *     wrong; the task prefixes "matphot find: <image>: ".
+ *   - No global mutable state; the work is split over rows with OpenMP.
+ */
+#ifndef MATPHOT_FIND_H
+#define MATPHOT_FIND_H
+
+#include "catalog/catalog.h"
+#include "io/io.h"
+
+/* ---- Background ----------------------------------------------------------- */
+
+/* Per-pixel sky and sky-noise maps, electrons, nx*ny, row-major as the
+ * frame. */
+typedef struct {
+    long nx, ny;
+    double *sky, *rms;
+} mp_bkg;
+
+/*
+ * mp_bkg_estimate: the background map of f, as SExtractor makes it
+ * (anchors.md §2.1: BACK_SIZE, BACK_FILTERSIZE).
+ *
+ *   mesh    box size [pixel] (SExtractor BACK_SIZE, ≥ 1).  The frame is cut
+ *           into max(1, round(nx/mesh)) × max(1, round(ny/mesh)) boxes of
+ *           equal size (±1 pixel), so there is no thin leftover box at the
+ *           far edge; a frame smaller than a mesh is one box.
+ *   filter  median filter over filter × filter boxes (SExtractor
+ *           BACK_FILTERSIZE; odd, ≥ 1; 1 = none).
+ *
+ * In each box the good pixels (neither MP_MASK_BAD nor MP_MASK_SATURATED)
+ * are clipped iteratively at median ± 3σ until the kept set stops
+ * changing.  The sky is SExtractor's mode 2.5·median − 1.5·mean, or the
+ * median when |mean − median| > 0.3σ (a skewed, crowded box: SExtractor's
+ * back.c does the same).  The median of tied (integer) values is
+ * interpolated within the tied value's bin, as SExtractor's histogram
+ * median is, so integer ADU do not quantise the sky.  The rms is the
+ * clipped standard deviation divided by the shrink factor of ±3σ clipping
+ * to convergence on Gaussian noise (0.9846…), so that it estimates the true
+ * σ and thresholds in σ mean what they say.  The mode, not the mean: on a
+ * Poisson sky of B e- with read noise RON it lies ≈ 0.42·B/(B + RON²) e-
+ * below the mean (under half an electron); the sampling error of one box of
+ * n pixels is ≈ 2.14σ/√n.
+ *
+ * A box with fewer good pixels than half its area is filled with the mean
+ * of its valid neighbours (SExtractor's rule).  The median filter shrinks
+ * its window symmetrically at the grid's edges (SExtractor truncates it),
+ * so a sky gradient is kept exactly rather than bent at the borders.  The
+ * box values are then interpolated to every pixel by a bicubic natural
+ * spline through the box centres (SExtractor's), continued linearly
+ * beyond the outermost centres; rms is clamped at ≥ 0.
+ *
+ * A constant frame gives a flat map (sky = the constant, rms = 0).  A
+ * frame with no good pixel at all gives a flat map with sky = rms = 0 (not
+ * an error: detection then simply finds nothing).
+ * Errors: mesh < 1, filter < 1 or even, out of memory.
+ * On failure b holds nothing to free.
+ */
+int mp_bkg_estimate(const mp_frame *f, int mesh, int filter, mp_bkg *b, char *err);
+
+/* mp_bkg_free: release the maps; safe on a zeroed or freed mp_bkg. */
+void mp_bkg_free(mp_bkg *b);
+
+/* ---- Detection ------------------------------------------------------------ */
+
+/* Detection options (IRAF findpars, anchors.md §1.3).  A NaN limit means
+ * "no limit". */
+typedef struct {
+    double fwhm;       /* FWHM of the Gaussian kernel [pixel] (datapars.fwhmpsf) */
+    double threshold;  /* threshold in σ of the kernel amplitude (4.0) */
+    double nsigma;     /* kernel radius in Gaussian σ, at least 2 px (1.5) */
+    double sharplo, sharphi;  /* sharpness limits (0.2, 1.0) */
+    double roundlo, roundhi;  /* roundness limits (−1.0, 1.0) */
+} mp_find_opts;
+
+/* mp_find_opts_default: DAOPHOT's findpars defaults (fwhm 3.0, the
+ * design's usual PSF): threshold 4, nsigma 1.5, sharpness 0.2..1.0,
+ * roundness −1..1. */
+void mp_find_opts_default(mp_find_opts *o);
+
+/* FLAGS bits of a detection (the design.md §4 bits). */
+enum {
+    MP_FIND_SATURATED = 1,  /* a saturated star (detected as its plateau) */
+    MP_FIND_EDGE = 4,       /* the kernel footprint crosses the image edge */
+    MP_FIND_MASKED = 32     /* masked (bad) pixels inside the footprint */
+};
+
+/*
+ * mp_find_stars: detect stars on f with sky map b and append one row per
+ * star to t (columns created when missing):
+ *
+ *   NUMBER      running number, continuing after the largest already in t
+ *   X_IMAGE, Y_IMAGE  centroid, 1-based [pixel]
+ *   FLUX_MAX    brightest pixel above background within 1 px of the peak
+ *               (of the plateau for a saturated star) [electron]
+ *   BACKGROUND  sky map at the centroid's pixel [electron]
+ *   SHARPNESS   DAOFIND's: (peak pixel − mean of the other footprint
+ *               pixels) / convolved height
+ *   ROUNDNESS   DAOFIND's "ground": 2(hx − hy)/(hx + hy) from the heights
+ *               of the 1-D Gaussian fits to the x and y marginals (the
+ *               symmetry-based "sround" is not computed)
+ *   FLUX        first flux estimate [electron]: the convolved height divided
+ *               by the kernel's response to a unit-flux, pixel-integrated
+ *               Gaussian of fwhm at the measured centroid — exact for an
+ *               isolated star of the kernel's shape
+ *   FLAGS       MP_FIND_* bits
+ *
+ * Rows come in raster order of their peak pixels (y, then x), as DAOFIND's.
+ *
+ * Algorithm (DAOFIND; Stetson 1987, PASP 99, 191; anchors.md §1.1):
+ *   1. Kernel: K = exp(−r²/2σ²), σ = fwhm/2.35482, on the pixels with
+ *      r ≤ max(2, nsigma·σ) (DAOPHOT); the lowered kernel is
+ *      (K − mean K)/Σ(K − mean K)², so the convolution h of the
+ *      background-subtracted image is the least-squares amplitude of a
+ *      Gaussian star (plus any constant) centred on the pixel.
+ *   2. Masked pixels and pixels outside the image have zero weight: the
+ *      kernel is lowered and normalised again over the good pixels of that
+ *      footprint.  A footprint needs at least half its pixels good.
+ *   3. Threshold: the noise of h is σ_h = rms·relerr, relerr =
+ *      1/sqrt(Σ_good (K − mean_good K)²), rms the noise map at the pixel
+ *      (DAOFIND's sky σ made local); a pixel is a candidate when
+ *      h ≥ threshold·σ_h and h exceeds roundoff (1e-10·(1 + |sky|), which
+ *      matters only on noiseless frames, where rms = 0).
+ *   4. A candidate must be the maximum of h over its footprint (ties go to
+ *      the first in raster order).
+ *   5. Centroid: Gaussian fits (sky, height, shift) to the x and y marginal
+ *      sums of the footprint box with DAOFIND's triangular weights,
+ *      iterated to convergence (DAOFIND takes one step); a star whose fit
+ *      has height ≤ 0 or moves more than the box half-width is rejected.
+ *      Masked pixels leave the marginal sums (each becomes a weighted mean
+ *      over its good pixels, with the kernel profile averaged alike).
+ *   6. Cuts: sharplo ≤ SHARPNESS ≤ sharphi, roundlo ≤ ROUNDNESS ≤ roundhi.
+ *      (A star of the kernel's FWHM has SHARPNESS ≈ 0.47 for FWHM 3; its
+ *      noise at 10σ is ≈ 0.12, so DAOPHOT's sharplo = 0.2 costs ~1 % of
+ *      10σ stars, more of fainter ones.)
+ *
+ * On white noise h is nearly uncorrelated beyond one pixel (the lowering
+ * makes ρ ≈ 0.08 at lag 1, −0.34 at lag 2 for FWHM 3), so the false
+ * detections before cuts number ≈ Npix·Q(threshold): ~33 per 1024² at 4σ.
+ *
+ * Saturation: each 8-connected region of MP_MASK_SATURATED pixels is one
+ * star at the region's centroid with FLAGS 1 (no shape cuts; SHARPNESS and
+ * ROUNDNESS 0, not measured; FLUX from the plateau's area, assuming a
+ * Gaussian of fwhm clipped at the saturated level).  Ordinary candidates
+ * with a saturated pixel within their footprint are dropped, so a flat
+ * top or its rim never splits into several stars.
+ *
+ * No value written is NaN or infinite.  Errors: fwhm ≤ 0, nsigma ≤ 0,
+ * threshold < 0 or not finite, b not the frame's size, out of memory
+ * (t may then hold some new columns but no new rows).
+ */
+int mp_find_stars(const mp_frame *f, const mp_bkg *b, const mp_find_opts *o,
+                  mp_table *t, char *err);
+
+/* The `matphot find` task: IMAGE → table (params/find.par).  argv[0] is
+ * "find".  Returns the exit status: 0, 1 (error, one line on stderr),
+ * 2 (usage). */
+int mp_task_find(int argc, char **argv);
+
+#endif

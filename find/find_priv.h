@@ -1,0 +1,128 @@
+/*
+ * find_priv.h — what the files of find/ share among themselves (not for
+ * other folders: they call find/find.h).
+ */
+#ifndef MATPHOT_FIND_PRIV_H
+#define MATPHOT_FIND_PRIV_H
+
+#include <math.h>
+#include <stddef.h>
+#include <stdint.h>
+
+#include "find/find.h"
+
+/* ---- mesh_stats.c --------------------------------------------------------- */
+
+/* mpf_mesh_stats: sort the finite values v[0..n) in place and return
+ * SExtractor's clipped mode and the clipped rms divided by shrink
+ * (mpf_clip_shrink(3)); work holds 2n; nonzero when n == 0. */
+int mpf_mesh_stats(double *v, size_t n, double shrink, uint64_t *work, double *mode,
+                   double *rms);
+
+/* mpf_clip_shrink: the factor by which iterated ±k·σ clipping about the
+ * median shrinks the σ of Gaussian noise at convergence (0.9846 for k = 3). */
+double mpf_clip_shrink(double k);
+
+/* mpf_median_small: median of v[0..n) (n ≥ 1), sorting v in place. */
+double mpf_median_small(double *v, size_t n);
+
+/* ---- spline.c ------------------------------------------------------------- */
+
+/* mpf_spline_init: second derivatives d2[0..n) of the natural cubic spline
+ * through (x[i], y[i]), x strictly increasing; work holds n doubles.  With
+ * n ≤ 2 the spline is the constant or the line through the points. */
+void mpf_spline_init(const double *x, const double *y, int n, double *d2, double *work);
+
+/* mpf_spline_eval: the spline at t; continued linearly (with its end
+ * slope) outside [x[0], x[n-1]].  *k is an interval hint (start at 0): a
+ * sequence of increasing t costs O(n + count) in all. */
+double mpf_spline_eval(const double *x, const double *y, const double *d2, int n,
+                       double t, int *k);
+
+/* mpf_spline_row: out[t] = the spline at t = 0, 1, …, count − 1. */
+void mpf_spline_row(const double *x, const double *y, const double *d2, int n,
+                    double *out, long count);
+
+/* ---- kernel.c ------------------------------------------------------------- */
+
+/* Largest kernel box half-width [pixel]. */
+#define MPF_MAX_HALF 256
+
+/* The DAOFIND kernel: taps (dx[t], dy[t]) with r ≤ radius, in raster
+ * order, Gaussian values g[t]; over the full footprint its mean gbar and
+ * denom = Σ (g − gbar)², and the lowered, normalised weights
+ * kl[t] = (g[t] − gbar)/denom; relerr = 1/sqrt(denom). */
+typedef struct {
+    double sigma, radius;
+    int nh;                  /* box half-width: floor(radius) */
+    int n;                   /* taps */
+    int *dx, *dy;
+    double *g, *kl;
+    double gbar, denom, relerr;
+    int nmin;                /* good taps a footprint needs: ceil(n/2) */
+} mpf_kernel;
+
+int mpf_kernel_make(double fwhm, double nsigma, mpf_kernel *k, char *err);
+void mpf_kernel_free(mpf_kernel *k);
+
+/* mpf_kernel_response: Σ_t w[t]·P_t with P the pixel-integrated Gaussian
+ * of unit flux and the kernel's σ centred at (ox, oy) from the central
+ * pixel's centre; w = kl (or the footprint's own lowered weights). */
+double mpf_kernel_response(const mpf_kernel *k, const double *w, double ox, double oy);
+
+/* One footprint on a frame: which taps are usable. */
+typedef struct {
+    int ngood;               /* taps inside the image and not MP_MASK_BAD */
+    int edge, masked, sat;   /* some tap outside / bad / saturated */
+    double gbar, denom;      /* of the good taps (denom 0 when < 2 good) */
+} mpf_foot;
+
+/* mpf_footprint: the footprint of the kernel centred on pixel (px, py)
+ * (0-based); when w is not NULL, w[t] receives the lowered weights over
+ * the good taps ((g − gbar)/denom, 0 for unusable taps). */
+void mpf_footprint(const mp_frame *f, const mpf_kernel *k, long px, long py,
+                   mpf_foot *fp, double *w);
+
+/* ---- convolve.c ----------------------------------------------------------- */
+
+/* Value of h where the footprint has too few good pixels. */
+#define MPF_NO_H (-HUGE_VAL)
+
+/* mpf_convolve: h[nx*ny], the lowered-kernel amplitude of every pixel of
+ * the background-subtracted frame (MPF_NO_H where undefined). */
+int mpf_convolve(const mp_frame *f, const mp_bkg *b, const mpf_kernel *k, double *h,
+                 char *err);
+
+/* ---- centroid.c ----------------------------------------------------------- */
+
+typedef struct {
+    double x, y;             /* 1-based centroid */
+    double flux_max, background, sharp, round, flux;
+    int flags;
+    int ok;                  /* passed the fits (shape cuts not yet applied) */
+} mpf_star;
+
+/* mpf_measure: centroid, sharpness, roundness and fluxes of the candidate
+ * at pixel (px, py) (0-based) whose convolved height is h; w is scratch of
+ * k->n doubles. */
+void mpf_measure(const mp_frame *f, const mp_bkg *b, const mpf_kernel *k,
+                 long px, long py, double h, double *w, mpf_star *s);
+
+/* mpf_measure_plateau: a saturated star from the pixels idx[0..n) of one
+ * connected saturated region. */
+void mpf_measure_plateau(const mp_frame *f, const mp_bkg *b, const mpf_kernel *k,
+                         const long *idx, size_t n, mpf_star *s);
+
+/* Bad for detection: MP_MASK_BAD, or not a finite number in a frame built
+ * without a mask (saturated pixels keep their values). */
+static inline int mpf_bad(const mp_frame *f, size_t i)
+{
+    return (f->mask && (f->mask[i] & MP_MASK_BAD)) || !isfinite(f->im.pix[i]);
+}
+
+static inline int mpf_sat(const mp_frame *f, size_t i)
+{
+    return f->mask && (f->mask[i] & MP_MASK_SATURATED) && !mpf_bad(f, i);
+}
+
+#endif

@@ -1,0 +1,186 @@
+/* task_find.c — the `matphot find` task: IMAGE → table of detections
+ * (params/find.par).  IMAGE may be an @list (IRAF); outputs are then
+ * output=@list or named after each image (frame.fits → frame.coo, DAOFIND's
+ * extension). */
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "catalog/catalog.h"
+#include "find/find.h"
+#include "io/io.h"
+#include "params/params.h"
+
+typedef struct {
+    mp_find_opts opts;
+    int mesh, filter;
+    mp_datapars dp;
+    mp_table_format fmt;
+} find_setup;
+
+static int need_real(const mp_parset *ps, const char *name, double *v, char *err)
+{
+    if (mp_par_real(ps, name, v) || !isfinite(*v)) {
+        snprintf(err, MP_ERRLEN, "%s: INDEF is not allowed; give a number", name);
+        return 1;
+    }
+    return 0;
+}
+
+static int need_int(const mp_parset *ps, const char *name, int *v, char *err)
+{
+    if (mp_par_int(ps, name, v) || *v == MP_PAR_INDEF_INT) {
+        snprintf(err, MP_ERRLEN, "%s: INDEF is not allowed; give a number", name);
+        return 1;
+    }
+    return 0;
+}
+
+/* A shape limit; INDEF (NaN) means none. */
+static double limit(const mp_parset *ps, const char *name)
+{
+    double v = NAN;
+    mp_par_real(ps, name, &v);
+    return v;
+}
+
+static int setup_of(const mp_parset *ps, find_setup *s, char *err)
+{
+    memset(s, 0, sizeof *s);
+    mp_find_opts_default(&s->opts);
+    if (need_real(ps, "fwhm", &s->opts.fwhm, err) ||
+        need_real(ps, "threshold", &s->opts.threshold, err) ||
+        need_real(ps, "nsigma", &s->opts.nsigma, err) ||
+        need_int(ps, "mesh", &s->mesh, err) || need_int(ps, "filter", &s->filter, err))
+        return 1;
+    s->opts.sharplo = limit(ps, "sharplo");
+    s->opts.sharphi = limit(ps, "sharphi");
+    s->opts.roundlo = limit(ps, "roundlo");
+    s->opts.roundhi = limit(ps, "roundhi");
+    if (s->filter % 2 == 0) {
+        snprintf(err, MP_ERRLEN, "filter: %d must be odd (a window centred on each mesh)",
+                 s->filter);
+        return 1;
+    }
+    const char *fmt = mp_par_string(ps, "format");
+    if (!fmt || mp_table_format_parse(fmt, &s->fmt)) {
+        snprintf(err, MP_ERRLEN, "format: unknown table format '%s'", fmt ? fmt : "");
+        return 1;
+    }
+    s->dp = (mp_datapars){NAN, NAN, NAN, NAN};
+    mp_par_real(ps, "gain", &s->dp.gain);
+    mp_par_real(ps, "rdnoise", &s->dp.rdnoise);
+    mp_par_real(ps, "saturate", &s->dp.saturate);
+    mp_par_real(ps, "exptime", &s->dp.exptime);
+    return 0;
+}
+
+/* image.fits → image<ext> (section and extension dropped). */
+static char *named_after(const char *image, const char *ext)
+{
+    const char *br = strchr(image, '[');
+    size_t n = br ? (size_t)(br - image) : strlen(image);
+    const char *dot = NULL;
+    for (size_t i = 0; i < n; i++)
+        if (image[i] == '.')
+            dot = image + i;
+        else if (image[i] == '/')
+            dot = NULL;
+    if (dot && (strncmp(dot, ".fits", 5) == 0 || strncmp(dot, ".fit", 4) == 0 ||
+                strncmp(dot, ".fts", 4) == 0))
+        n = (size_t)(dot - image);
+    char *s = malloc(n + strlen(ext) + 1);
+    if (s) {
+        memcpy(s, image, n);
+        strcpy(s + n, ext);
+    }
+    return s;
+}
+
+static int find_one(const find_setup *s, const char *image, const char *output, char *err)
+{
+    mp_frame f;
+    mp_bkg b = {0};
+    mp_table t;
+    mp_table_init(&t);
+    char e[MP_ERRLEN];
+    int rc = 1;
+    if (mp_frame_read(image, &s->dp, &f, err))
+        goto done;
+    if (mp_bkg_estimate(&f, s->mesh, s->filter, &b, e) ||
+        mp_find_stars(&f, &b, &s->opts, &t, e)) {
+        snprintf(err, MP_ERRLEN, "%.200s: %.300s", image, e);
+        goto done;
+    }
+    if (f.nbad == f.im.nx * f.im.ny)
+        fprintf(stderr, "matphot find: warning: %s: no good pixel; no stars found\n", image);
+    if (mp_table_write(output, &t, s->fmt, err))
+        goto done;
+    rc = 0;
+done:
+    mp_table_free(&t);
+    mp_bkg_free(&b);
+    mp_frame_free(&f);
+    return rc;
+}
+
+static int expand(const char *arg, char ***v, size_t *n, char *err)
+{
+    if (!arg || !arg[0]) {
+        *v = NULL;
+        *n = 0;
+        return 0;
+    }
+    return mp_params_list(arg, v, n, err);
+}
+
+int mp_task_find(int argc, char **argv)
+{
+    mp_parset ps;
+    int b = mp_task_begin("find", argc, argv, &ps);
+    if (b)
+        return b;
+    char err[MP_ERRLEN] = "";
+    find_setup s;
+    char **im = NULL, **out = NULL;
+    size_t nim = 0, nout = 0;
+    int rc = 1;
+    if (setup_of(&ps, &s, err))
+        goto done;
+    if (expand(mp_par_string(&ps, "image"), &im, &nim, err) ||
+        expand(mp_par_string(&ps, "output"), &out, &nout, err))
+        goto done;
+    if (nim == 0) {
+        snprintf(err, MP_ERRLEN, "image: no image named");
+        goto done;
+    }
+    if (nout && nout != nim) {
+        snprintf(err, MP_ERRLEN, "output: %zu outputs for %zu images: lists must pair "
+                 "line by line", nout, nim);
+        goto done;
+    }
+    for (size_t i = 0; i < nim; i++) {
+        char *named = NULL;
+        const char *o = nout ? out[i] : "-";
+        if (!nout && nim > 1) {
+            if (!(named = named_after(im[i], ".coo"))) {
+                snprintf(err, MP_ERRLEN, "out of memory");
+                goto done;
+            }
+            o = named;
+        }
+        int r = find_one(&s, im[i], o, err);
+        free(named);
+        if (r)
+            goto done;
+    }
+    rc = 0;
+done:
+    if (rc)
+        fprintf(stderr, "matphot find: %s\n", err);
+    mp_list_free(im, nim);
+    mp_list_free(out, nout);
+    mp_params_free(&ps);
+    return rc;
+}

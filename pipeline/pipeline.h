@@ -1,0 +1,39 @@
+/*
+ * pipeline.h — the staged reduction of one frame (design.md §1):
+ * find → group → fit → find on the residual → merge → group → fit … until
+ * nothing new is found or niter rounds are done, then the catalog.  Files
+ * are named after the image: root.coo, root.grp, root.fit, root.res.fits,
+ * root.cat.
+ */
+#ifndef MATPHOT_PIPELINE_H
+#define MATPHOT_PIPELINE_H
+
+#include "find/find.h"
+#include "fit/fit.h"
+#include "group/group.h"
+
+typedef struct {
+    mp_fit_setup fit;        /* PSF, model, fit options, datapars */
+    mp_find_opts find;
+    int mesh, filter;        /* background mesh and filter */
+    mp_group_opts group;
+    int niter;
+    double matchrad;         /* [px]; NaN: 1 FWHM */
+    mp_table_format catfmt;
+} mp_pipeline_opts;
+
+/* Seconds and counts of every stage, for the report on stderr. */
+typedef struct {
+    double t_read, t_bkg, t_find, t_group, t_fit, t_write;
+    int rounds;
+    long found, added, fitted, merged, rejected, noconv;
+} mp_pipeline_report;
+
+/* mp_pipeline_run: reduce one image; root names the outputs. */
+int mp_pipeline_run(const char *image, const char *root, const mp_pipeline_opts *o,
+                    mp_pipeline_report *rep, char *err);
+
+/* The `matphot pipeline` task. */
+int mp_task_pipeline(int argc, char **argv);
+
+#endif

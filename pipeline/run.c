@@ -1,0 +1,350 @@
+/* run.c — the pipeline of one frame: find → group → fit, then rounds of
+ * find on the residual → add the new stars → group → fit (DAOPHOT's
+ * practice, anchors.md §1.1), then the catalog. */
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <time.h>
+#include "pipeline/pipeline.h"
+
+static double now(void)
+{
+    struct timespec t;
+    clock_gettime(CLOCK_MONOTONIC, &t);
+    return (double)t.tv_sec + 1e-9 * (double)t.tv_nsec;
+}
+
+/* root + ext, written atomically in format fmt. */
+static int write_named(const char *root, const char *ext, const mp_table *t,
+                       mp_table_format fmt, char *err)
+{
+    size_t n = strlen(root) + strlen(ext) + 1;
+    char *path = malloc(n);
+    if (!path) {
+        snprintf(err, MP_ERRLEN, "out of memory");
+        return 1;
+    }
+    snprintf(path, n, "%s%s", root, ext);
+    int rc = mp_table_write(path, t, fmt, err);
+    free(path);
+    return rc;
+}
+
+/* Position of a row: the fitted one when there is one. */
+static void row_xy(const mp_table *t, size_t r, double *x, double *y)
+{
+    int fx = mp_table_col(t, "XPSF_IMAGE"), fy = mp_table_col(t, "YPSF_IMAGE");
+    int cx = mp_table_col(t, "X_IMAGE"), cy = mp_table_col(t, "Y_IMAGE");
+    *x = fx >= 0 ? mp_table_get(t, r, fx) : NAN;
+    *y = fy >= 0 ? mp_table_get(t, r, fy) : NAN;
+    if (!isfinite(*x) || !isfinite(*y)) {
+        *x = cx >= 0 ? mp_table_get(t, r, cx) : NAN;
+        *y = cy >= 0 ? mp_table_get(t, r, cy) : NAN;
+    }
+}
+
+/* before = NUMBER and position of every row of t. */
+static int positions_of(const mp_table *t, mp_table *before)
+{
+    mp_table_free(before);
+    mp_table_init(before);
+    int n = mp_table_add_col(before, "NUMBER"), x = mp_table_add_col(before, "X_IMAGE"),
+        y = mp_table_add_col(before, "Y_IMAGE"), tn = mp_table_col(t, "NUMBER");
+    if (n < 0 || x < 0 || y < 0)
+        return 1;
+    for (size_t r = 0; r < t->nrow; r++) {
+        long row = mp_table_add_row(before);
+        if (row < 0)
+            return 1;
+        double px, py;
+        row_xy(t, r, &px, &py);
+        mp_table_set(before, (size_t)row, n, tn >= 0 ? mp_table_get(t, r, tn) : (double)r);
+        mp_table_set(before, (size_t)row, x, px);
+        mp_table_set(before, (size_t)row, y, py);
+    }
+    return 0;
+}
+
+/* Known stars on a grid of cells matchrad wide, so each new detection is
+ * compared with its neighbourhood only. */
+typedef struct {
+    long nx, ny;
+    double cell;
+    long *head, *next;   /* per cell: first row; per row: next row in its cell */
+} star_grid;
+
+static long cell_of(const star_grid *g, double x, double y)
+{
+    long i = (long)floor(x / g->cell), j = (long)floor(y / g->cell);
+    i = i < 0 ? 0 : (i >= g->nx ? g->nx - 1 : i);
+    j = j < 0 ? 0 : (j >= g->ny ? g->ny - 1 : j);
+    return j * g->nx + i;
+}
+
+static int grid_build(star_grid *g, const mp_table *t, long fnx, long fny, double cell)
+{
+    g->cell = cell > 0.5 ? cell : 0.5;
+    g->nx = (long)(fnx / g->cell) + 2;
+    g->ny = (long)(fny / g->cell) + 2;
+    g->head = malloc((size_t)(g->nx * g->ny) * sizeof *g->head);
+    g->next = malloc((t->nrow ? t->nrow : 1) * sizeof *g->next);
+    if (!g->head || !g->next)
+        return 1;
+    for (long i = 0; i < g->nx * g->ny; i++)
+        g->head[i] = -1;
+    for (size_t r = 0; r < t->nrow; r++) {
+        double x, y;
+        row_xy(t, r, &x, &y);
+        if (!isfinite(x) || !isfinite(y)) {
+            g->next[r] = -1;
+            continue;
+        }
+        long c = cell_of(g, x, y);
+        g->next[r] = g->head[c];
+        g->head[c] = (long)r;
+    }
+    return 0;
+}
+
+static int grid_near(const star_grid *g, const mp_table *t, double x, double y, double r)
+{
+    long ci = (long)floor(x / g->cell), cj = (long)floor(y / g->cell);
+    for (long j = cj - 1; j <= cj + 1; j++)
+        for (long i = ci - 1; i <= ci + 1; i++) {
+            if (i < 0 || j < 0 || i >= g->nx || j >= g->ny)
+                continue;
+            for (long k = g->head[j * g->nx + i]; k >= 0; k = g->next[k]) {
+                double sx, sy;
+                row_xy(t, (size_t)k, &sx, &sy);
+                if (hypot(sx - x, sy - y) < r)
+                    return 1;
+            }
+        }
+    return 0;
+}
+
+/* Append the detections of found that are not within matchrad of a star of
+ * t, numbered on from t's largest NUMBER; their fit starts from find's
+ * position and flux.  Returns the number added, −1 when out of memory. */
+static long add_new_stars(mp_table *t, const mp_table *gone, const mp_table *found, long fnx,
+                          long fny, double matchrad)
+{
+    star_grid g = {0}, gg = {0};
+    long added = -1;
+    if (grid_build(&g, t, fnx, fny, matchrad) || grid_build(&gg, gone, fnx, fny, matchrad))
+        goto done;
+    int cnum = mp_table_add_col(t, "NUMBER");
+    if (cnum < 0)
+        goto done;
+    double maxnum = 0;
+    for (size_t r = 0; r < t->nrow; r++)
+        if (mp_table_get(t, r, cnum) > maxnum)
+            maxnum = mp_table_get(t, r, cnum);
+    added = 0;
+    int fx = mp_table_col(found, "X_IMAGE"), fy = mp_table_col(found, "Y_IMAGE");
+    for (size_t r = 0; r < found->nrow && fx >= 0 && fy >= 0; r++) {
+        double x = mp_table_get(found, r, fx), y = mp_table_get(found, r, fy);
+        if (!isfinite(x) || !isfinite(y) || grid_near(&g, t, x, y, matchrad) ||
+            grid_near(&gg, gone, x, y, matchrad))
+            continue;
+        /* The grid holds the stars known before this round only: two
+         * detections of one residual peak are find's business, not ours. */
+        long row = mp_table_add_row(t);
+        if (row < 0) {
+            added = -1;
+            goto done;
+        }
+        for (size_t c = 0; c < found->ncol; c++) {
+            int tc = mp_table_add_col(t, found->cols[c].name);
+            if (tc < 0) {
+                added = -1;
+                goto done;
+            }
+            mp_table_set(t, (size_t)row, tc, mp_table_get(found, r, (int)c));
+        }
+        const char *pairs[3][2] = {{"XPSF_IMAGE", "X_IMAGE"}, {"YPSF_IMAGE", "Y_IMAGE"},
+                                   {"FLUX_PSF", "FLUX"}};
+        for (int p = 0; p < 3; p++) {
+            int to = mp_table_col(t, pairs[p][0]), from = mp_table_col(found, pairs[p][1]);
+            if (to >= 0)
+                mp_table_set(t, (size_t)row, to, from >= 0 ? mp_table_get(found, r, from) : NAN);
+        }
+        int sky = mp_table_col(t, "SKY_PSF");
+        if (sky >= 0)
+            mp_table_set(t, (size_t)row, sky, NAN);
+        mp_table_set(t, (size_t)row, cnum, maxnum + (double)++added);
+    }
+done:
+    free(g.head);
+    free(g.next);
+    free(gg.head);
+    free(gg.next);
+    return added;
+}
+
+/* Remember where the stars the fit merged away or rejected were, so a
+ * residual peak they leave is not found and added again every round.
+ * before holds NUMBER, X_IMAGE, Y_IMAGE of every row given to the fit. */
+static int note_gone(mp_table *gone, const mp_table *before, const mp_table *after)
+{
+    int bn = mp_table_col(before, "NUMBER"), an = mp_table_col(after, "NUMBER");
+    int gx = mp_table_add_col(gone, "X_IMAGE"), gy = mp_table_add_col(gone, "Y_IMAGE");
+    if (bn < 0 || an < 0 || gx < 0 || gy < 0)
+        return 0;
+    /* NUMBERs of after are a subsequence of before's (the fit keeps the
+     * order of the rows it keeps). */
+    size_t j = 0;
+    for (size_t i = 0; i < before->nrow; i++) {
+        if (j < after->nrow && mp_table_get(after, j, an) == mp_table_get(before, i, bn)) {
+            j++;
+            continue;
+        }
+        double x, y;
+        row_xy(before, i, &x, &y);
+        long r = mp_table_add_row(gone);
+        if (r < 0)
+            return 1;
+        mp_table_set(gone, (size_t)r, gx, x);
+        mp_table_set(gone, (size_t)r, gy, y);
+    }
+    return 0;
+}
+
+int mp_pipeline_run(const char *image, const char *root, const mp_pipeline_opts *o,
+                    mp_pipeline_report *rep, char *err)
+{
+    memset(rep, 0, sizeof *rep);
+    mp_frame f, R;
+    memset(&f, 0, sizeof f);
+    mp_bkg bkg;
+    memset(&bkg, 0, sizeof bkg);
+    mp_table t, found, gone, before;
+    mp_table_init(&t);
+    mp_table_init(&found);
+    mp_table_init(&gone);
+    mp_table_init(&before);
+    double *res = NULL;
+    int rc = 1;
+    double t0 = now();
+    const mp_prf_model *m = &o->fit.model;
+    if (mp_frame_read(image, &o->fit.dp, &f, err))
+        goto done;
+    rep->t_read = now() - t0;
+
+    t0 = now();
+    if (mp_bkg_estimate(&f, o->mesh, o->filter, &bkg, err))
+        goto done;
+    rep->t_bkg = now() - t0;
+
+    t0 = now();
+    if (mp_find_stars(&f, &bkg, &o->find, &t, err))
+        goto done;
+    rep->t_find += now() - t0;
+    rep->found = (long)t.nrow;
+    if (write_named(root, ".coo", &t, o->fit.fmt, err))
+        goto done;
+    fprintf(stderr, "matphot pipeline: %s: %zu stars found\n", image, t.nrow);
+
+    double fwhm = mp_prf_fwhm(m);
+    double matchrad = isfinite(o->matchrad) ? o->matchrad : fwhm;
+    size_t npix = (size_t)f.im.nx * f.im.ny;
+    if (!(res = malloc(npix * sizeof *res))) {
+        snprintf(err, MP_ERRLEN, "%s: out of memory for the residual", image);
+        goto done;
+    }
+    for (int round = 1; round <= o->niter; round++) {
+        rep->rounds = round;
+        t0 = now();
+        if (mp_group_table(&t, &o->group, err))
+            goto done;
+        rep->t_group += now() - t0;
+        if (write_named(root, ".grp", &t, o->fit.fmt, err))
+            goto done;
+
+        t0 = now();
+        mp_frame_report fr;
+        if (positions_of(&t, &before)) {
+            snprintf(err, MP_ERRLEN, "out of memory");
+            goto done;
+        }
+        if (mp_fit_table(&f, m, &o->fit.opts, &t, &fr, err))
+            goto done;
+        if (note_gone(&gone, &before, &t)) {
+            snprintf(err, MP_ERRLEN, "out of memory");
+            goto done;
+        }
+        if (mp_fit_residual(&f, m, &t, res, err))
+            goto done;
+        rep->t_fit += now() - t0;
+        rep->merged += fr.merged;
+        rep->rejected += fr.rejected;
+        rep->noconv = fr.noconv;
+        rep->fitted = (long)t.nrow;
+        fprintf(stderr, "matphot pipeline: %s: round %d: %ld stars fitted in %ld groups "
+                "(%ld merged, %ld rejected), %.2f s\n", image, round, fr.nstars - fr.merged - fr.rejected,
+                fr.ngroups, fr.merged, fr.rejected, now() - t0);
+        if (round == o->niter)
+            break;
+
+        /* The residual keeps the sky: find on it with the frame's own
+         * background and noise maps. */
+        t0 = now();
+        R = f;
+        R.im.pix = res;
+        mp_table_free(&found);
+        mp_table_init(&found);
+        for (size_t i = 0; i < npix; i++)
+            if (!isfinite(res[i]))
+                res[i] = 0.0;
+        int frc = mp_find_stars(&R, &bkg, &o->find, &found, err);
+        rep->t_find += now() - t0;
+        if (frc)
+            goto done;
+        long added = add_new_stars(&t, &gone, &found, f.im.nx, f.im.ny, matchrad);
+        if (added < 0) {
+            snprintf(err, MP_ERRLEN, "out of memory");
+            goto done;
+        }
+        rep->added += added;
+        fprintf(stderr, "matphot pipeline: %s: round %d: %ld new stars on the residual\n",
+                image, round, added);
+        if (added == 0) {
+            /* Nothing new: the last fit stands, its residual is current. */
+            break;
+        }
+    }
+
+    t0 = now();
+    if (write_named(root, ".fit", &t, o->fit.fmt, err))
+        goto done;
+    for (size_t i = 0; i < npix; i++)
+        res[i] = (f.mask[i] & MP_MASK_BAD) ? NAN : res[i] / f.gain;
+    {
+        size_t n = strlen(root) + 10;
+        char *path = malloc(n);
+        if (!path) {
+            snprintf(err, MP_ERRLEN, "out of memory");
+            goto done;
+        }
+        snprintf(path, n, "%s.res.fits", root);
+        mp_card cards[2] = {{"GAIN", f.gain, NULL, "e-/ADU"}, {"RDNOISE", f.rdnoise, NULL, "e-"}};
+        int wrc = mp_image_write(path, res, f.im.nx, f.im.ny, -32, cards, 2, err);
+        free(path);
+        if (wrc)
+            goto done;
+    }
+    if (write_named(root, ".cat", &t, o->catfmt, err))
+        goto done;
+    rep->t_write = now() - t0;
+    rc = 0;
+done:
+    free(res);
+    mp_table_free(&t);
+    mp_table_free(&found);
+    mp_table_free(&gone);
+    mp_table_free(&before);
+    mp_bkg_free(&bkg);
+    mp_frame_free(&f);
+    return rc;
+}

@@ -1,0 +1,91 @@
+/* task_pipeline.c — the `matphot pipeline` task: parameters → options, one
+ * run per image (an @list gives one run each), the report on stderr. */
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include "pipeline/pipeline.h"
+
+static int opts_read(const mp_parset *ps, mp_pipeline_opts *o, char *err)
+{
+    memset(o, 0, sizeof *o);
+    if (mp_fit_setup_read(ps, &o->fit, err))
+        return 1;
+    mp_find_opts_default(&o->find);
+    o->find.fwhm = mp_prf_fwhm(&o->fit.model);   /* the PSF's own width */
+    mp_par_real(ps, "threshold", &o->find.threshold);
+    mp_par_real(ps, "nsigma", &o->find.nsigma);
+    mp_par_real(ps, "sharplo", &o->find.sharplo);
+    mp_par_real(ps, "sharphi", &o->find.sharphi);
+    mp_par_real(ps, "roundlo", &o->find.roundlo);
+    mp_par_real(ps, "roundhi", &o->find.roundhi);
+    mp_par_int(ps, "mesh", &o->mesh);
+    mp_par_int(ps, "filter", &o->filter);
+    mp_group_opts_default(&o->group);
+    o->group.fitrad = o->fit.opts.fit.fitrad;
+    double psfrad;
+    mp_par_real(ps, "psfrad", &psfrad);
+    o->group.psfrad = isfinite(psfrad) ? psfrad : 2.0 * o->find.fwhm;
+    mp_par_int(ps, "maxgroup", &o->group.maxgroup);
+    mp_par_int(ps, "niter", &o->niter);
+    mp_par_real(ps, "matchrad", &o->matchrad);
+    if (mp_table_format_parse(mp_par_string(ps, "catformat"), &o->catfmt)) {
+        snprintf(err, MP_ERRLEN, "catformat: unknown table format '%s'", mp_par_string(ps, "catformat"));
+        return 1;
+    }
+    if (!isfinite(o->fit.opts.fit.fitrad)) {
+        snprintf(err, MP_ERRLEN, "fitrad: INDEF (whole image) is for single-star frames; "
+                 "the pipeline fits groups within a radius");
+        return 1;
+    }
+    return 0;
+}
+
+int mp_task_pipeline(int argc, char **argv)
+{
+    mp_parset ps;
+    int b = mp_task_begin("pipeline", argc, argv, &ps);
+    if (b)
+        return b;
+    char err[MP_ERRLEN] = "";
+    mp_pipeline_opts o;
+    char **im = NULL;
+    size_t nim = 0;
+    int rc = 1;
+    if (opts_read(&ps, &o, err))
+        goto done;
+    if (mp_params_list(mp_par_string(&ps, "image"), &im, &nim, err))
+        goto done;
+    const char *root = mp_par_string(&ps, "root");
+    if (root[0] && nim > 1) {
+        snprintf(err, MP_ERRLEN, "root: one root for %zu images; leave it empty so each "
+                 "output is named after its image", nim);
+        goto done;
+    }
+    for (size_t i = 0; i < nim; i++) {
+        char *named = root[0] ? NULL : mp_name_after(im[i], "");
+        if (!root[0] && !named) {
+            snprintf(err, MP_ERRLEN, "out of memory");
+            goto done;
+        }
+        mp_pipeline_report r;
+        int prc = mp_pipeline_run(im[i], root[0] ? root : named, &o, &r, err);
+        if (!prc)
+            fprintf(stderr, "matphot pipeline: %s: %ld found, %ld added in %d rounds, %ld in the "
+                    "catalog (%ld merged, %ld rejected, %ld not converged); seconds: read %.2f, "
+                    "background %.2f, find %.2f, group %.2f, fit %.2f, write %.2f\n",
+                    im[i], r.found, r.added, r.rounds, r.fitted, r.merged, r.rejected, r.noconv,
+                    r.t_read, r.t_bkg, r.t_find, r.t_group, r.t_fit, r.t_write);
+        free(named);
+        if (prc)
+            goto done;
+    }
+    rc = 0;
+done:
+    if (rc)
+        fprintf(stderr, "matphot pipeline: %s\n", err);
+    mp_list_free(im, nim);
+    mp_fit_setup_free(&o.fit);
+    mp_params_free(&ps);
+    return rc;
+}
