@@ -3,7 +3,7 @@
  * find → group → fit → find on the residual → merge → group → fit … until
  * nothing new is found or niter rounds are done, then the catalog.  Files
  * are named after the image: root.coo, root.grp, root.fit, root.res.fits,
- * root.cat.
+ * root.cat (with sky positions when the frame has a WCS) and root.reg.
  */
 #ifndef MATPHOT_PIPELINE_H
 #define MATPHOT_PIPELINE_H
@@ -20,6 +20,7 @@ typedef struct {
     int niter;
     double matchrad;         /* [px]; NaN: 1 FWHM */
     mp_table_format catfmt;
+    int regions;             /* also write root.reg (DS9) */
 } mp_pipeline_opts;
 
 /* Seconds and counts of every stage, for the report on stderr. */

@@ -211,6 +211,48 @@ static int note_gone(mp_table *gone, const mp_table *before, const mp_table *aft
     return 0;
 }
 
+/* Does the header have a CTYPE1 card (a WCS to try)? */
+static int has_wcs(const mp_image *im)
+{
+    for (int k = 0; k < im->nkeys; k++)
+        if (memcmp(im->hdr + (size_t)k * 80, "CTYPE1", 6) == 0)
+            return 1;
+    return 0;
+}
+
+/* root.cat (sky positions when the frame has a WCS; FITS_LDAC carries the
+ * frame's header as SExtractor's does) and the DS9 regions root.reg. */
+static int write_catalog(const char *root, const mp_frame *f, mp_table *t,
+                         const mp_pipeline_opts *o, char *err)
+{
+    char e[MP_ERRLEN];
+    if (has_wcs(&f->im) && mp_table_add_sky(t, &f->im, e))
+        fprintf(stderr, "matphot pipeline: warning: no sky positions: %s\n", e);
+    size_t n = strlen(root) + 8;
+    char *path = malloc(n);
+    if (!path) {
+        snprintf(err, MP_ERRLEN, "out of memory");
+        return 1;
+    }
+    int rc;
+    if (o->catfmt == MP_TAB_LDAC) {
+        mp_card extra[2] = {{"SEXGAIN", f->gain, NULL, "gain [e-/ADU]"},
+                            {"EXPTIME", f->exptime, NULL, "exposure time [s]"}};
+        mp_ldac_head h = {f->im.hdr, f->im.nkeys, extra, 2};
+        snprintf(path, n, "%s.cat", root);
+        rc = mp_table_write_fits(path, t, &h, err);
+    } else {
+        rc = write_named(root, ".cat", t, o->catfmt, err);
+    }
+    if (!rc && o->regions) {
+        mp_region_opts ro = {3.0, 0, 1};
+        snprintf(path, n, "%s.reg", root);
+        rc = mp_regions_write(path, t, &ro, NULL, err);
+    }
+    free(path);
+    return rc;
+}
+
 int mp_pipeline_run(const char *image, const char *root, const mp_pipeline_opts *o,
                     mp_pipeline_report *rep, char *err)
 {
@@ -297,7 +339,13 @@ int mp_pipeline_run(const char *image, const char *root, const mp_pipeline_opts 
         for (size_t i = 0; i < npix; i++)
             if (!isfinite(res[i]))
                 res[i] = 0.0;
-        int frc = mp_find_stars(&R, &bkg, &o->find, &found, err);
+        /* A star half-hidden by a neighbour's fit leaves a lopsided residual
+         * peak: relax the roundness limits there (the fit then keeps or
+         * rejects what was found, by its significance). */
+        mp_find_opts ro = o->find;
+        ro.roundlo = fmin(ro.roundlo, -2.0);
+        ro.roundhi = fmax(ro.roundhi, 2.0);
+        int frc = mp_find_stars(&R, &bkg, &ro, &found, err);
         rep->t_find += now() - t0;
         if (frc)
             goto done;
@@ -334,7 +382,7 @@ int mp_pipeline_run(const char *image, const char *root, const mp_pipeline_opts 
         if (wrc)
             goto done;
     }
-    if (write_named(root, ".cat", &t, o->catfmt, err))
+    if (write_catalog(root, &f, &t, o, err))
         goto done;
     rep->t_write = now() - t0;
     rc = 0;

@@ -29,6 +29,7 @@ static int opts_read(const mp_parset *ps, mp_pipeline_opts *o, char *err)
     mp_par_int(ps, "maxgroup", &o->group.maxgroup);
     mp_par_int(ps, "niter", &o->niter);
     mp_par_real(ps, "matchrad", &o->matchrad);
+    mp_par_bool(ps, "regions", &o->regions);
     if (mp_table_format_parse(mp_par_string(ps, "catformat"), &o->catfmt)) {
         snprintf(err, MP_ERRLEN, "catformat: unknown table format '%s'", mp_par_string(ps, "catformat"));
         return 1;

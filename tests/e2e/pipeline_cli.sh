@@ -1,0 +1,51 @@
+#!/bin/sh
+# pipeline_cli.sh — the staged reduction through the real binary: the
+# shell-pipe chain find | group | fit | catalog equals the same chain through
+# files, and `matphot pipeline` writes its files named after the image,
+# recovers the simulated stars (all at S/N > 20: every one expected; 2 % of
+# them may be lost to blends closer than the merge radius) and handles
+# @lists.
+M=${MATPHOT:-./matphot}
+[ -x "$M" ] || { echo "pipeline_cli: $M not built"; exit 77; }
+T=$(mktemp -d "${TMPDIR:-/tmp}/pipeline_cli.XXXXXX") || exit 1
+trap 'rm -rf "$T"' EXIT INT TERM
+fails=0
+no() { echo "FAIL: $*"; fails=$((fails + 1)); }
+
+"$M" sim "$T/f.fits" mode=crowded nx=200 ny=200 nstars=120 fwhm=2.5 magmin=-13 magmax=-9 \
+    seed=21 psfout="$T/psf.fits" psfos=2 || no "sim"
+P="psf=$T/psf.fits"
+
+# The same four stages through pipes and through files.
+"$M" find "$T/f.fits" fwhm=2.5 | "$M" group - | "$M" fit "$T/f.fits" - "$P" 2>/dev/null |
+    "$M" catalog - image="$T/f.fits" >"$T/pipe.cat" || no "pipe chain"
+"$M" find "$T/f.fits" fwhm=2.5 output="$T/f.coo" || no "find to a file"
+"$M" group "$T/f.coo" output="$T/f.grp" || no "group to a file"
+"$M" fit "$T/f.fits" "$T/f.grp" "$P" output="$T/f.fit" 2>/dev/null || no "fit to a file"
+"$M" catalog "$T/f.fit" image="$T/f.fits" output="$T/file.cat" || no "catalog to a file"
+cmp -s "$T/pipe.cat" "$T/file.cat" || no "pipe and file chains differ"
+
+# The pipeline: its files, and the stars found against the truth.
+"$M" pipeline "$T/f.fits" "$P" 2>"$T/log" || no "pipeline: $(cat "$T/log")"
+for e in coo grp fit res.fits cat reg; do
+    [ -s "$T/f.$e" ] || no "pipeline wrote no f.$e"
+done
+grep -q "seconds: read" "$T/log" || no "pipeline printed no stage times"
+awk -v out="$T/match" '
+  FNR == 1 { file++ }
+  /^#/ { c[file, $3] = $2; next }
+  file == 1 { n1++; x[n1] = $(c[1, "XPSF_IMAGE"]); y[n1] = $(c[1, "YPSF_IMAGE"]); next }
+  { n2++; tx = $(c[2, "X_IMAGE"]); ty = $(c[2, "Y_IMAGE"]); hit = 0
+    for (i = 1; i <= n1; i++) if ((x[i] - tx)^2 + (y[i] - ty)^2 < 1) { hit = 1; break }
+    m += hit }
+  END { printf "%d %d %d\n", m, n2, n1 > out; exit !(m >= 0.98 * n2 && n1 <= n2 + 3) }
+' "$T/f.cat" "$T/f.truth" || no "pipeline recovered too few stars or too many (matched, truth, catalog): $(cat "$T/match")"
+
+# @lists: one run per image, outputs named after each.
+cp "$T/f.fits" "$T/g.fits"
+printf '%s\n%s\n' "$T/f.fits" "$T/g.fits" >"$T/im.lis"
+rm -f "$T/f.cat" "$T/g.cat"
+"$M" pipeline @"$T/im.lis" "$P" niter=1 2>/dev/null || no "pipeline @list"
+[ -s "$T/f.cat" ] && [ -s "$T/g.cat" ] || no "@list outputs not named after the images"
+
+[ "$fails" -eq 0 ]
