@@ -224,6 +224,11 @@ static int append(mp_table *t, const ordered *o, size_t n, char *err)
 int mp_find_stars(const mp_frame *f, const mp_bkg *b, const mp_find_opts *o,
                   mp_table *t, char *err)
 {
+    mp_find_opts def;
+    if (!o) {
+        mp_find_opts_default(&def);
+        o = &def;
+    }
     if (!(o->threshold >= 0.0) || !isfinite(o->threshold)) {
         snprintf(err, MP_ERRLEN, "threshold: %g must be a number of sigma >= 0", o->threshold);
         return 1;

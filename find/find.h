@@ -130,9 +130,11 @@ enum {
  *   2. Masked pixels and pixels outside the image have zero weight: the
  *      kernel is lowered and normalised again over the good pixels of that
  *      footprint.  A footprint needs at least half its pixels good.
- *   3. Threshold: the noise of h is σ_h = rms·relerr, relerr =
- *      1/sqrt(Σ_good (K − mean_good K)²), rms the noise map at the pixel
- *      (DAOFIND's sky σ made local); a pixel is a candidate when
+ *   3. Threshold: h = Σ w·d with weights w = (K − K̄)/Σ(K − K̄)², so on
+ *      independent pixel noise of σ its noise is σ_h = σ·sqrt(Σ w²) =
+ *      σ·relerr, relerr = 1/sqrt(Σ_good (K − mean_good K)²) (IRAF's and
+ *      photutils' "relerr"; 1.285 for FWHM 3); σ is the rms map at the
+ *      pixel (DAOFIND's one sky σ made local); a pixel is a candidate when
  *      h ≥ threshold·σ_h and h exceeds roundoff (1e-10·(1 + |sky|), which
  *      matters only on noiseless frames, where rms = 0).
  *   4. A candidate must be the maximum of h over its footprint (ties go to
@@ -159,6 +161,7 @@ enum {
  * with a saturated pixel within their footprint are dropped, so a flat
  * top or its rim never splits into several stars.
  *
+ * o NULL means mp_find_opts_default.
  * No value written is NaN or infinite.  Errors: fwhm ≤ 0, nsigma ≤ 0,
  * threshold < 0 or not finite, b not the frame's size, out of memory
  * (t may then hold some new columns but no new rows).

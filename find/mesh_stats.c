@@ -35,8 +35,8 @@ static double double_of(uint64_t u)
 
 /* LSD radix sort of finite doubles, 8 bits a pass; a pass whose byte is
  * the same for every value (the sign and exponent of a sky, mostly) is
- * skipped.  Some ten times faster than qsort for a mesh of 4096, which
- * is what the background's speed is made of. */
+ * skipped.  Several times faster than qsort on a mesh of 4096 values, and
+ * sorting is most of the background's time. */
 static void radix_sort(double *v, size_t n, uint64_t *work)
 {
     uint64_t *a = work, *b = work + n;
