@@ -24,5 +24,5 @@ awk -v t0="$t0" -v t1="$t1" '
   END {
     printf "matphot sample: %d stars in the catalog, %d of %d true stars recovered, %.2f s\n", n, k, nt, t1 - t0
     printf "  median |MAG_PSF - MAG_TRUE| / MAGERR_PSF = %.3f (0.674 for Gaussian errors)\n", median(r, k)
-    print  "  files: data/out/sample.{coo,grp,fit,res.fits,cat,reg}"
+    print  "  files: data/out/sample.{coo,grp,fit,res.fits,cat,reg,report}"
   }' data/out/sample.cat data/sample.truth

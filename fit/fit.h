@@ -232,6 +232,33 @@ int mp_fit_table(const mp_frame *f, const mp_prf_model *m, const mp_frame_opts *
 int mp_fit_residual(const mp_frame *f, const mp_prf_model *m, const mp_table *t,
                     double *res, char *err);
 
+/* ---- The run report ------------------------------------------------------ */
+
+/* What a run reports (design: every fit and pipeline run ends with it, on
+ * stderr and in root.report): seconds per stage (0 for stages not run), the
+ * counts of the frame fit, the achieved error against the predicted one, and
+ * the model parts used and left out. */
+typedef struct {
+    const char *image;
+    double t_read, t_bkg, t_find, t_group, t_fit, t_write;
+    long nstars, ngroups, iterations, merged, rejected, noconv;
+    double chi2_median;        /* of CHI2_PSF */
+    double errratio_median;    /* of FLUXERR_PSF / FLUXERR_MODEL */
+    double poserr_median;      /* of ERRX_PSF / POSERR_MODEL */
+    char used[512], left[512];
+} mp_run_report;
+
+/* mp_report_from_table: the medians, from a fitted table. */
+void mp_report_from_table(const mp_table *t, mp_run_report *r);
+
+/* mp_report_parts: which parts of the model a run used and left out. */
+void mp_report_parts(const mp_prf_model *m, const mp_frame_opts *o, const mp_frame_report *fr,
+                     mp_run_report *r);
+
+/* mp_report_write: the report on stderr (lines prefixed "matphot TASK: ")
+ * and, when path is given, in that file (atomically). */
+int mp_report_write(const char *path, const char *task, const mp_run_report *r, char *err);
+
 /* ---- From parameters ------------------------------------------------------ */
 
 /* What fit.par's parameters (psf, psfnorm, psfos, drf, volume, fwhm, fitrad,

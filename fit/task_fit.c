@@ -20,22 +20,25 @@ static int fit_one(const mp_fit_setup *s, const char *image, const char *coords,
     mp_table_init(&t);
     int rc = 1;
     double *res = NULL;
+    char *report = NULL;
+    mp_run_report run;
+    memset(&run, 0, sizeof run);
+    run.image = image;
+    double t0 = mp_seconds();
     if (mp_frame_read(image, &s->dp, &f, err))
         goto done;
     if (mp_table_read(coords, &t, err))
         goto done;
+    run.t_read = mp_seconds() - t0;
     char e[MP_ERRLEN];
     mp_frame_report rep;
-    struct timespec t0, t1;
-    clock_gettime(CLOCK_MONOTONIC, &t0);
+    t0 = mp_seconds();
     if (mp_fit_table(&f, &s->model, &s->opts, &t, &rep, e)) {
         snprintf(err, MP_ERRLEN, "%.200s: %.300s", coords, e);
         goto done;
     }
-    clock_gettime(CLOCK_MONOTONIC, &t1);
-    fprintf(stderr, "matphot fit: %s: %ld stars in %ld groups, %ld merged, %ld rejected, "
-            "%ld not converged, %.2f s\n", image, rep.nstars, rep.ngroups, rep.merged,
-            rep.rejected, rep.noconv, (double)(t1.tv_sec - t0.tv_sec) + 1e-9 * (t1.tv_nsec - t0.tv_nsec));
+    run.t_fit = mp_seconds() - t0;
+    t0 = mp_seconds();
     if (residual && residual[0]) {
         res = malloc((size_t)f.im.nx * f.im.ny * sizeof *res);
         if (!res) {
@@ -52,8 +55,25 @@ static int fit_one(const mp_fit_setup *s, const char *image, const char *coords,
     }
     if (mp_table_write(output, &t, s->fmt, err))
         goto done;
+    run.t_write = mp_seconds() - t0;
+    run.nstars = (long)t.nrow;
+    run.ngroups = rep.ngroups;
+    run.iterations = rep.iterations;
+    run.merged = rep.merged;
+    run.rejected = rep.rejected;
+    run.noconv = rep.noconv;
+    mp_report_from_table(&t, &run);
+    mp_report_parts(&s->model, &s->opts, &rep, &run);
+    /* Beside a named output, as frame.report; a piped run reports on stderr. */
+    if (output && output[0] && strcmp(output, "-") != 0 && !(report = mp_name_after(output, ".report"))) {
+        snprintf(err, MP_ERRLEN, "out of memory");
+        goto done;
+    }
+    if (mp_report_write(report, "fit", &run, err))
+        goto done;
     rc = 0;
 done:
+    free(report);
     free(res);
     mp_table_free(&t);
     mp_frame_free(&f);

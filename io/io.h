@@ -110,11 +110,32 @@ void mp_out_abort(mp_outfile *o);              /* close, unlink temporary */
 /* mp_tmp_name: the temporary name used for path (caller frees). */
 char *mp_tmp_name(const char *path);
 
+/* Interrupted runs (io/cleanup.c).  The writers above (and the FITS table
+ * writer) register each temporary before creating it and unregister it
+ * once renamed or removed.  mp_cleanup_install, called once by main(),
+ * installs a handler for SIGINT, SIGTERM, SIGHUP and SIGQUIT (not for a
+ * signal already ignored, as under nohup) that unlinks every registered
+ * temporary, then dies of the signal: an interrupted run leaves no
+ * half-written file.  The registry is the one documented piece of global
+ * mutable state: a fixed array of lock-free atomic pointers, so the handler
+ * is async-signal-safe.  mp_tmp_register returns nonzero when it is full
+ * or out of memory (the write may go on unprotected); mp_tmp_live counts
+ * the registered names (for tests); mp_tmp_unlink_all is what the handler
+ * does. */
+int mp_tmp_register(const char *path);
+void mp_tmp_unregister(const char *path);
+int mp_tmp_live(void);
+void mp_tmp_unlink_all(void);
+int mp_cleanup_install(void);
+
 /* mp_name_after: an output named after an image, as DAOPHOT and IRAF name
  * theirs: the image name without its [extension or section] and without a
  * .fits/.fit/.fts ending, then ext ("f.fits[1]", ".coo" → "f.coo").  The
  * caller frees; NULL when out of memory. */
 char *mp_name_after(const char *image, const char *ext);
+
+/* mp_seconds: monotonic wall-clock seconds (differences only). */
+double mp_seconds(void);
 
 /* mp_open_input: open a file for reading, "-" meaning stdin. */
 FILE *mp_open_input(const char *path, char *err);

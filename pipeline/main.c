@@ -13,6 +13,7 @@
 #include "find/find.h"
 #include "fit/fit.h"
 #include "group/group.h"
+#include "io/io.h"
 #include "params/params.h"
 #include "pipeline/pipeline.h"
 #include "sim/sim.h"
@@ -63,6 +64,9 @@ static int is_help(const char *s)
 
 int main(int argc, char **argv)
 {
+    /* An interrupted run (SIGINT, SIGTERM, SIGHUP, SIGQUIT) removes the
+     * temporaries of the outputs it was writing (io/cleanup.c). */
+    (void)mp_cleanup_install();
     if (argc < 2) {
         usage(stderr);
         return 2;

@@ -3,7 +3,8 @@
  * find → group → fit → find on the residual → merge → group → fit … until
  * nothing new is found or niter rounds are done, then the catalog.  Files
  * are named after the image: root.coo, root.grp, root.fit, root.res.fits,
- * root.cat (with sky positions when the frame has a WCS) and root.reg.
+ * root.cat (with sky positions when the frame has a WCS), root.reg and the
+ * run report root.report (also on stderr).
  */
 #ifndef MATPHOT_PIPELINE_H
 #define MATPHOT_PIPELINE_H
@@ -28,6 +29,7 @@ typedef struct {
     double t_read, t_bkg, t_find, t_group, t_fit, t_write;
     int rounds;
     long found, added, fitted, merged, rejected, noconv;
+    long ngroups, iterations;     /* of the last round; summed over rounds */
 } mp_pipeline_report;
 
 /* mp_pipeline_run: reduce one image; root names the outputs. */

@@ -10,9 +10,7 @@
 
 static double now(void)
 {
-    struct timespec t;
-    clock_gettime(CLOCK_MONOTONIC, &t);
-    return (double)t.tv_sec + 1e-9 * (double)t.tv_nsec;
+    return mp_seconds();
 }
 
 /* root + ext, written atomically in format fmt. */
@@ -322,6 +320,8 @@ int mp_pipeline_run(const char *image, const char *root, const mp_pipeline_opts 
         rep->merged += fr.merged;
         rep->rejected += fr.rejected;
         rep->noconv = fr.noconv;
+        rep->iterations += fr.iterations;
+        rep->ngroups = fr.ngroups;
         rep->fitted = (long)t.nrow;
         fprintf(stderr, "matphot pipeline: %s: round %d: %ld stars fitted in %ld groups "
                 "(%ld merged, %ld rejected), %.2f s\n", image, round, fr.nstars - fr.merged - fr.rejected,
@@ -385,6 +385,38 @@ int mp_pipeline_run(const char *image, const char *root, const mp_pipeline_opts 
     if (write_catalog(root, &f, &t, o, err))
         goto done;
     rep->t_write = now() - t0;
+    /* The run report: stage seconds, counts, error against prediction, parts. */
+    {
+        mp_run_report run;
+        memset(&run, 0, sizeof run);
+        run.image = image;
+        run.t_read = rep->t_read;
+        run.t_bkg = rep->t_bkg;
+        run.t_find = rep->t_find;
+        run.t_group = rep->t_group;
+        run.t_fit = rep->t_fit;
+        run.t_write = rep->t_write;
+        run.nstars = (long)t.nrow;
+        run.ngroups = rep->ngroups;
+        run.iterations = rep->iterations;
+        run.merged = rep->merged;
+        run.rejected = rep->rejected;
+        run.noconv = rep->noconv;
+        mp_report_from_table(&t, &run);
+        mp_frame_report last = {.nstars = (long)t.nrow, .ngroups = rep->ngroups};
+        mp_report_parts(m, &o->fit.opts, &last, &run);
+        size_t n = strlen(root) + 8;
+        char *path = malloc(n);
+        if (!path) {
+            snprintf(err, MP_ERRLEN, "out of memory");
+            goto done;
+        }
+        snprintf(path, n, "%s.report", root);
+        int wrc = mp_report_write(path, "pipeline", &run, err);
+        free(path);
+        if (wrc)
+            goto done;
+    }
     rc = 0;
 done:
     free(res);

@@ -71,12 +71,6 @@ int mp_task_pipeline(int argc, char **argv)
         }
         mp_pipeline_report r;
         int prc = mp_pipeline_run(im[i], root[0] ? root : named, &o, &r, err);
-        if (!prc)
-            fprintf(stderr, "matphot pipeline: %s: %ld found, %ld added in %d rounds, %ld in the "
-                    "catalog (%ld merged, %ld rejected, %ld not converged); seconds: read %.2f, "
-                    "background %.2f, find %.2f, group %.2f, fit %.2f, write %.2f\n",
-                    im[i], r.found, r.added, r.rounds, r.fitted, r.merged, r.rejected, r.noconv,
-                    r.t_read, r.t_bkg, r.t_find, r.t_group, r.t_fit, r.t_write);
         free(named);
         if (prc)
             goto done;

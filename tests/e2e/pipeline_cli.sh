@@ -27,7 +27,7 @@ cmp -s "$T/pipe.cat" "$T/file.cat" || no "pipe and file chains differ"
 
 # The pipeline: its files, and the stars found against the truth.
 "$M" pipeline "$T/f.fits" "$P" 2>"$T/log" || no "pipeline: $(cat "$T/log")"
-for e in coo grp fit res.fits cat reg; do
+for e in coo grp fit res.fits cat reg report; do
     [ -s "$T/f.$e" ] || no "pipeline wrote no f.$e"
 done
 grep -q "seconds: read" "$T/log" || no "pipeline printed no stage times"

@@ -1,0 +1,125 @@
+/* report.c — the short run report every fit and pipeline run ends with
+ * (stderr and root.report): seconds per stage, what was fitted, the achieved
+ * error against the predicted one, and which parts of the model were used. */
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include "fit/fit.h"
+
+static int cmp_d(const void *a, const void *b)
+{
+    double x = *(const double *)a, y = *(const double *)b;
+    return (x > y) - (x < y);
+}
+
+/* Median of f(row) over rows where it is finite; NaN when none. */
+static double median_of(const mp_table *t, int a, int b, int ratio)
+{
+    if (a < 0 || (ratio && b < 0))
+        return NAN;
+    double *v = malloc((t->nrow ? t->nrow : 1) * sizeof *v);
+    if (!v)
+        return NAN;
+    size_t n = 0;
+    for (size_t r = 0; r < t->nrow; r++) {
+        double x = mp_table_get(t, r, a);
+        if (ratio) {
+            double y = mp_table_get(t, r, b);
+            x = y > 0 ? x / y : NAN;
+        }
+        if (isfinite(x))
+            v[n++] = x;
+    }
+    double m = NAN;
+    if (n) {
+        qsort(v, n, sizeof *v, cmp_d);
+        m = n % 2 ? v[n / 2] : 0.5 * (v[n / 2 - 1] + v[n / 2]);
+    }
+    free(v);
+    return m;
+}
+
+void mp_report_from_table(const mp_table *t, mp_run_report *r)
+{
+    r->chi2_median = median_of(t, mp_table_col(t, "CHI2_PSF"), -1, 0);
+    r->errratio_median = median_of(t, mp_table_col(t, "FLUXERR_PSF"),
+                                   mp_table_col(t, "FLUXERR_MODEL"), 1);
+    r->poserr_median = median_of(t, mp_table_col(t, "ERRX_PSF"),
+                                 mp_table_col(t, "POSERR_MODEL"), 1);
+}
+
+void mp_report_parts(const mp_prf_model *m, const mp_frame_opts *o, const mp_frame_report *fr,
+                     mp_run_report *r)
+{
+    const mp_psf *p = m->psf;
+    char *u = r->used, *l = r->left;
+    size_t nu = sizeof r->used, nl = sizeof r->left;
+    int ku = 0, kl = 0;
+#define ADD(buf, k, n, ...) (k += snprintf(buf + k, (size_t)k < n ? n - (size_t)k : 0, __VA_ARGS__))
+    u[0] = l[0] = '\0';
+    if (o->fit.fit_sky)
+        ADD(u, ku, nu, "sky %s; ", o->fit.sky_order ? "plane" : "constant");
+    else
+        ADD(l, kl, nl, "sky (held fixed); ");
+    if (!o->fit.fit_sky || !o->fit.sky_order)
+        ADD(l, kl, nl, "sky plane; ");
+    if (m->drf && m->drf->k)
+        ADD(u, ku, nu, "DRF %dx%d map (V = %.4g); ", m->drf->k, m->drf->k, m->drf->volume);
+    else if (m->drf && m->drf->volume != 1.0)
+        ADD(u, ku, nu, "uniform detector V = %.4g; ", m->drf->volume);
+    else
+        ADD(l, kl, nl, "DRF (perfect detector); ");
+    if (p->kind == MP_PSF_GAUSS) {
+        ADD(u, ku, nu, "analytic Gaussian PSF; ");
+        ADD(l, kl, nl, "sinc shift and supersampling (analytic PSF); ");
+    } else {
+        if (m->sinc_hw > 0)
+            ADD(u, ku, nu, "damped-sinc shift (%d taps); ", 2 * m->sinc_hw + 1);
+        else
+            ADD(l, kl, nl, "sinc shift (nearest table element); ");
+        if (p->os > 1)
+            ADD(u, ku, nu, "supersampled table x%d; ", p->os);
+        else
+            ADD(l, kl, nl, "supersampling (x1 table); ");
+    }
+    if (fr && fr->ngroups < fr->nstars)
+        ADD(u, ku, nu, "group coupling (%ld groups for %ld stars); ", fr->ngroups, fr->nstars);
+    else
+        ADD(l, kl, nl, "group coupling (every star alone); ");
+#undef ADD
+    if (ku > 1 && (size_t)ku < nu)
+        u[ku - 2] = '\0';
+    if (kl > 1 && (size_t)kl < nl)
+        l[kl - 2] = '\0';
+}
+
+static void report_lines(FILE *fp, const char *prefix, const mp_run_report *r)
+{
+    fprintf(fp, "%s%s: run report\n", prefix, r->image);
+    fprintf(fp, "%s  seconds: read %.3f, background %.3f, find %.3f, group %.3f, fit %.3f, "
+            "write %.3f, total %.3f\n", prefix, r->t_read, r->t_bkg, r->t_find, r->t_group,
+            r->t_fit, r->t_write, r->t_read + r->t_bkg + r->t_find + r->t_group + r->t_fit + r->t_write);
+    fprintf(fp, "%s  stars: %ld fitted in %ld groups, %ld iterations, %ld merged, %ld rejected, "
+            "%ld not converged\n", prefix, r->nstars, r->ngroups, r->iterations, r->merged,
+            r->rejected, r->noconv);
+    fprintf(fp, "%s  error: median chi2/dof %.4f, median FLUXERR_PSF/FLUXERR_MODEL %.4f, "
+            "median ERRX_PSF/POSERR_MODEL %.4f\n", prefix, r->chi2_median, r->errratio_median,
+            r->poserr_median);
+    fprintf(fp, "%s  model parts used: %s\n", prefix, r->used[0] ? r->used : "-");
+    fprintf(fp, "%s  model parts left out: %s\n", prefix, r->left[0] ? r->left : "-");
+}
+
+int mp_report_write(const char *path, const char *task, const mp_run_report *r, char *err)
+{
+    char prefix[64];
+    snprintf(prefix, sizeof prefix, "matphot %s: ", task);
+    report_lines(stderr, prefix, r);
+    if (!path || !path[0])
+        return 0;
+    mp_outfile o;
+    if (mp_out_open(&o, path, err))
+        return 1;
+    report_lines(o.fp, "", r);
+    return mp_out_commit(&o, err);
+}
