@@ -246,6 +246,8 @@ typedef struct {
     double errratio_median;    /* of FLUXERR_PSF / FLUXERR_MODEL */
     double poserr_median;      /* of ERRX_PSF / POSERR_MODEL */
     char used[512], left[512];
+    const char *decisions;     /* economy decisions, "; "-separated (may be NULL) */
+    int ndecisions;
 } mp_run_report;
 
 /* mp_report_from_table: the medians, from a fitted table. */
@@ -272,6 +274,8 @@ typedef struct {
     mp_frame_opts opts;
     mp_datapars dp;
     mp_table_format fmt;
+    char decisions[1024];   /* economy decisions and their reasons */
+    int ndecisions;
 } mp_fit_setup;
 
 /* mp_fit_setup_read: read the PSF (and DRF) files and the options; warns on

@@ -108,6 +108,8 @@ static void report_lines(FILE *fp, const char *prefix, const mp_run_report *r)
             r->poserr_median);
     fprintf(fp, "%s  model parts used: %s\n", prefix, r->used[0] ? r->used : "-");
     fprintf(fp, "%s  model parts left out: %s\n", prefix, r->left[0] ? r->left : "-");
+    fprintf(fp, "%s  economy: %d decisions%s%s\n", prefix, r->ndecisions,
+            r->ndecisions ? ": " : "", r->ndecisions && r->decisions ? r->decisions : "");
 }
 
 int mp_report_write(const char *path, const char *task, const mp_run_report *r, char *err)

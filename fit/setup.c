@@ -38,6 +38,72 @@ static void warn_undersampled(const mp_fit_setup *s)
     mp_prf_work_free(&wk);
 }
 
+/* Note one economy decision and its reason for the run report. */
+static void decide(mp_fit_setup *s, const char *what)
+{
+    size_t k = strlen(s->decisions);
+    snprintf(s->decisions + k, sizeof s->decisions - k, "%s%s", k ? "; " : "", what);
+    s->ndecisions++;
+}
+
+/* 1/sharpness of the PRF at a pixel centre: β·V², the paper's β for V = 1. */
+static double beta_normalised(const mp_prf_model *m)
+{
+    long x0, y0;
+    int w, h;
+    mp_prf_box(m, 1000.0, 1000.0, &x0, &y0, &w, &h);
+    double *p = malloc((size_t)w * h * sizeof *p);
+    mp_prf_work wk = {0};
+    double b = 0.0;
+    if (p && !mp_prf_render(m, 1000.0, 1000.0, p, NULL, NULL, &wk)) {
+        mp_prf_stats st;
+        mp_prf_stats_of(p, (size_t)w * h, &st);
+        b = st.sharp > 0 ? 1.0 / st.sharp : 0.0;
+    }
+    free(p);
+    mp_prf_work_free(&wk);
+    return b;
+}
+
+/* economy=yes: leave out what cannot change the answer (issue 5).
+ *  - A DRF map whose subpixels are all equal is the scalar V.
+ *  - A supersampled table is block-summed to detector sampling when the
+ *    data are oversampled (β·V² ≥ 21 px², paper §5.4: 1× tables are then on
+ *    the CRLB, validate cases 2 and 3) and no DRF map needs the subpixels;
+ *    unless the user asked for a sampling with psfos. */
+static int economize(mp_fit_setup *s, int psfos_given, char *err)
+{
+    char why[256];
+    if (s->drf.k > 0) {
+        int uniform = 1;
+        for (int i = 1; i < s->drf.k * s->drf.k; i++)
+            uniform &= s->drf.qe[i] == s->drf.qe[0];
+        if (uniform) {
+            double v = s->drf.qe[0];
+            snprintf(why, sizeof why, "DRF: the %dx%d map is uniform, used as the scalar V = %.6g",
+                     s->drf.k, s->drf.k, v);
+            mp_drf_free(&s->drf);
+            mp_drf_uniform(v, &s->drf);
+            decide(s, why);
+        }
+    }
+    if (s->psf.kind == MP_PSF_TABLE && s->psf.os > 1 && !psfos_given && s->drf.k == 0) {
+        double b = beta_normalised(&s->model);
+        if (b >= 21.0) {
+            mp_psf coarse;
+            int os = s->psf.os;
+            if (mp_psf_rebin(&s->psf, os, &coarse, err))
+                return 1;
+            mp_psf_free(&s->psf);
+            s->psf = coarse;
+            snprintf(why, sizeof why, "supersampling: beta = %.1f px^2 >= 21 at detector sampling "
+                     "(paper 5.4), the x%d table block-summed to x1", b, os);
+            decide(s, why);
+        }
+    }
+    return 0;
+}
+
 int mp_fit_setup_read(const mp_parset *ps, mp_fit_setup *s, char *err)
 {
     memset(s, 0, sizeof *s);
@@ -102,6 +168,12 @@ int mp_fit_setup_read(const mp_parset *ps, mp_fit_setup *s, char *err)
         snprintf(err, MP_ERRLEN, "format: unknown table format '%s'", mp_par_string(ps, "format"));
         return 1;
     }
+    int economy = 1;
+    mp_par_bool(ps, "economy", &economy);
+    int psfos = MP_PAR_INDEF_INT;
+    mp_par_int(ps, "psfos", &psfos);
+    if (economy && economize(s, psfos != MP_PAR_INDEF_INT, err))
+        return 1;
     warn_undersampled(s);
     return 0;
 }

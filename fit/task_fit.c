@@ -64,6 +64,8 @@ static int fit_one(const mp_fit_setup *s, const char *image, const char *coords,
     run.noconv = rep.noconv;
     mp_report_from_table(&t, &run);
     mp_report_parts(&s->model, &s->opts, &rep, &run);
+    run.decisions = s->decisions;
+    run.ndecisions = s->ndecisions;
     /* Beside a named output, as frame.report; a piped run reports on stderr. */
     if (output && output[0] && strcmp(output, "-") != 0 && !(report = mp_name_after(output, ".report"))) {
         snprintf(err, MP_ERRLEN, "out of memory");

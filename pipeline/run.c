@@ -405,6 +405,8 @@ int mp_pipeline_run(const char *image, const char *root, const mp_pipeline_opts 
         mp_report_from_table(&t, &run);
         mp_frame_report last = {.nstars = (long)t.nrow, .ngroups = rep->ngroups};
         mp_report_parts(m, &o->fit.opts, &last, &run);
+        run.decisions = o->fit.decisions;
+        run.ndecisions = o->fit.ndecisions;
         size_t n = strlen(root) + 8;
         char *path = malloc(n);
         if (!path) {
