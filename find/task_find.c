@@ -125,16 +125,6 @@ done:
     return rc;
 }
 
-static int expand(const char *arg, char ***v, size_t *n, char *err)
-{
-    if (!arg || !arg[0]) {
-        *v = NULL;
-        *n = 0;
-        return 0;
-    }
-    return mp_params_list(arg, v, n, err);
-}
-
 int mp_task_find(int argc, char **argv)
 {
     mp_parset ps;
@@ -148,8 +138,8 @@ int mp_task_find(int argc, char **argv)
     int rc = 1;
     if (setup_of(&ps, &s, err))
         goto done;
-    if (expand(mp_par_string(&ps, "image"), &im, &nim, err) ||
-        expand(mp_par_string(&ps, "output"), &out, &nout, err))
+    if (mp_params_list(mp_par_string(&ps, "image"), &im, &nim, err) ||
+        mp_params_list(mp_par_string(&ps, "output"), &out, &nout, err))
         goto done;
     if (nim == 0) {
         snprintf(err, MP_ERRLEN, "image: no image named");

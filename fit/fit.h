@@ -146,6 +146,10 @@ typedef struct {
 
 void mp_prf_stats_of(const double *prf, size_t n, mp_prf_stats *s);
 
+/* mp_prf_stats_at: the statistics of the whole PRF of a star at (x, y); w
+ * may be NULL.  Nonzero (and s zeroed) when out of memory. */
+int mp_prf_stats_at(const mp_prf_model *m, double x, double y, mp_prf_stats *s, mp_prf_work *w);
+
 /* mp_perf_model: the paper's predicted σ_E [e-] (eq. practical-snr) and σ_X
  * [px] (eq. practical-astrometric-model) for intensity E on sky B [e-/px],
  * read noise ron [e-], N pixels in the fit. */

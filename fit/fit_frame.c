@@ -75,20 +75,10 @@ static int paint(const mp_prf_model *m, const mp_star *s, double sign, double *i
 
 double mp_prf_fwhm(const mp_prf_model *m)
 {
-    long x0, y0;
-    int w, h;
-    mp_prf_box(m, 100.0, 100.0, &x0, &y0, &w, &h);
-    double *p = malloc((size_t)w * h * sizeof *p);
-    mp_prf_work wk = {0};
-    double fwhm = 3.0;
-    if (p && !mp_prf_render(m, 100.0, 100.0, p, NULL, NULL, &wk)) {
-        mp_prf_stats st;
-        mp_prf_stats_of(p, (size_t)w * h, &st);
-        fwhm = 2.0 * sqrt(2.0 * log(2.0)) * st.lscale;
-    }
-    free(p);
-    mp_prf_work_free(&wk);
-    return fwhm;
+    mp_prf_stats st;
+    if (mp_prf_stats_at(m, 100.0, 100.0, &st, NULL) || !(st.lscale > 0))
+        return 3.0;      /* out of memory: DAOPHOT's usual FWHM keeps find and merge going */
+    return 2.0 * sqrt(2.0 * log(2.0)) * st.lscale;
 }
 
 /* Merge the closest pair of the group that is closer than mergerad or not

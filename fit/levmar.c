@@ -293,6 +293,30 @@ static int cmp_double(const void *a, const void *b)
     return (x > y) - (x < y);
 }
 
+/* Whole-frame fits have no fitting radius: flag a star whose PRF footprint
+ * (mp_prf_box) holds a masked (32) or saturated (1) pixel or crosses the
+ * frame's edge (4).  Without this a whole-frame fit never set 32 or 1 and
+ * set 4 only for a centre off the frame (found by tests/unit/test_stiff_fit.c). */
+static void flag_footprint(const group *G, mp_star *s)
+{
+    const mp_frame *f = G->f;
+    long nx = f->im.nx, ny = f->im.ny, x0, y0;
+    int w, h;
+    mp_prf_box(G->m, s->x, s->y, &x0, &y0, &w, &h);
+    if (x0 < 1 || y0 < 1 || x0 + w - 1 > nx || y0 + h - 1 > ny)
+        s->flags |= MP_FLAG_EDGE;
+    if (!f->mask)
+        return;
+    for (long Y = y0 > 1 ? y0 : 1; Y <= y0 + h - 1 && Y <= ny; Y++)
+        for (long X = x0 > 1 ? x0 : 1; X <= x0 + w - 1 && X <= nx; X++) {
+            uint8_t mk = f->mask[(size_t)(Y - 1) * nx + (size_t)(X - 1)];
+            if (mk & MP_MASK_BAD)
+                s->flags |= MP_FLAG_MASKED;
+            if (mk & MP_MASK_SATURATED)
+                s->flags |= MP_FLAG_SATURATED;
+        }
+}
+
 /* Choose the fitted pixels and set the flags that depend on them. */
 static int select_pixels(group *G, const mp_fit_opts *o, mp_star *st)
 {
@@ -355,6 +379,8 @@ static int select_pixels(group *G, const mp_fit_opts *o, mp_star *st)
         double rr = whole ? 0.0 : r;
         if (st[k].x - rr < 0.5 || st[k].y - rr < 0.5 || st[k].x + rr > nx + 0.5 || st[k].y + rr > ny + 0.5)
             st[k].flags |= MP_FLAG_EDGE;
+        if (whole)
+            flag_footprint(G, &st[k]);
     }
     G->xc = G->bx0 + 0.5 * (G->bw - 1);
     G->yc = G->by0 + 0.5 * (G->bh - 1);
@@ -427,25 +453,6 @@ static double start_flux(const group *G, const rstar *r, double sky)
             q += r->prf[t];
         }
     return q > 0 && s > 0 ? s / q : 1.0;
-}
-
-static int prf_stats_full(group *G, double x, double y, mp_prf_stats *st)
-{
-    long x0, y0;
-    int w, h;
-    if (!isfinite(x) || !isfinite(y)) {
-        memset(st, 0, sizeof *st);
-        return 0;
-    }
-    mp_prf_box(G->m, x, y, &x0, &y0, &w, &h);
-    double *p = malloc((size_t)w * h * sizeof *p);
-    if (!p || mp_prf_render(G->m, x, y, p, NULL, NULL, &G->work)) {
-        free(p);
-        return 1;
-    }
-    mp_prf_stats_of(p, (size_t)w * h, st);
-    free(p);
-    return 0;
 }
 
 static int all_finite(const double *v, int n)
@@ -590,7 +597,9 @@ int mp_fit_group(const mp_frame *f, const mp_prf_model *m, const mp_fit_opts *o,
             for (int b = 0; b < G.nsky; b++)
                 vs += c[a] * c[b] * G.M[(size_t)(3 * n + a) * np + 3 * n + b];
         /* The performance model wants the whole PRF, not the fitted window. */
-        if (prf_stats_full(&G, out[0], out[1], &s->st))
+        if (!isfinite(out[0]) || !isfinite(out[1]))
+            memset(&s->st, 0, sizeof s->st);
+        else if (mp_prf_stats_at(G.m, out[0], out[1], &s->st, &G.work))
             goto nomem;
         double se, sx;
         double E = out[2] > 1.0 ? out[2] : 1.0;

@@ -2,6 +2,8 @@
  * exact Cramér–Rao bound it approximates (design.md §6). */
 #include <lapacke.h>
 #include <math.h>
+#include <stdlib.h>
+#include <string.h>
 #include "fit/fit.h"
 
 void mp_prf_stats_of(const double *prf, size_t n, mp_prf_stats *s)
@@ -15,6 +17,22 @@ void mp_prf_stats_of(const double *prf, size_t n, mp_prf_stats *s)
     s->beta = q > 0 ? 1.0 / q : 0.0;                   /* eq. (beta) */
     s->sharp = v > 0 ? q / (v * v) : 0.0;              /* eq. (sharpness) */
     s->lscale = s->sharp > 0 ? 1.0 / sqrt(4.0 * M_PI * s->sharp) : 0.0; /* eq. (cssl) */
+}
+
+int mp_prf_stats_at(const mp_prf_model *m, double x, double y, mp_prf_stats *s, mp_prf_work *w)
+{
+    memset(s, 0, sizeof *s);
+    long x0, y0;
+    int bw, bh;
+    mp_prf_box(m, x, y, &x0, &y0, &bw, &bh);
+    mp_prf_work own = {0};
+    double *p = malloc((size_t)bw * bh * sizeof *p);
+    int rc = !p || mp_prf_render(m, x, y, p, NULL, NULL, w ? w : &own);
+    if (!rc)
+        mp_prf_stats_of(p, (size_t)bw * bh, s);
+    free(p);
+    mp_prf_work_free(&own);
+    return rc;
 }
 
 void mp_perf_model(const mp_prf_stats *s, double E, double B, double ron, double npix,

@@ -17,25 +17,15 @@ void mp_fit_setup_free(mp_fit_setup *s)
  * the detector's efficiency. */
 static void warn_undersampled(const mp_fit_setup *s)
 {
-    if (s->psf.kind != MP_PSF_TABLE)
+    mp_prf_stats st;
+    if (s->psf.kind != MP_PSF_TABLE || mp_prf_stats_at(&s->model, 1000.0, 1000.0, &st, NULL))
         return;
-    long x0, y0;
-    int w, h;
-    mp_prf_box(&s->model, 1000.0, 1000.0, &x0, &y0, &w, &h);
-    double *p = malloc((size_t)w * h * sizeof *p);
-    mp_prf_work wk = {0};
-    if (p && !mp_prf_render(&s->model, 1000.0, 1000.0, p, NULL, NULL, &wk)) {
-        mp_prf_stats st;
-        mp_prf_stats_of(p, (size_t)w * h, &st);
-        double b = st.sharp > 0 ? 1.0 / st.sharp : 0.0, bs = b * s->psf.os * s->psf.os;
-        if (b < 21.0 && bs < 21.0)
-            fprintf(stderr, "matphot fit: warning: PSF undersampled: beta = %.1f px^2 < 21, "
-                    "and its OVERSAMP %d gives %.1f < 21 table px^2; bright stars will alias "
-                    "(use a table supersampled %dx or more)\n",
-                    b, s->psf.os, bs, (int)ceil(sqrt(21.0 / b)));
-    }
-    free(p);
-    mp_prf_work_free(&wk);
+    double b = st.sharp > 0 ? 1.0 / st.sharp : 0.0, bs = b * s->psf.os * s->psf.os;
+    if (b < 21.0 && bs < 21.0)
+        fprintf(stderr, "matphot fit: warning: PSF undersampled: beta = %.1f px^2 < 21, "
+                "and its OVERSAMP %d gives %.1f < 21 table px^2; bright stars will alias "
+                "(use a table supersampled %dx or more)\n",
+                b, s->psf.os, bs, (int)ceil(sqrt(21.0 / b)));
 }
 
 /* Note one economy decision and its reason for the run report. */
@@ -49,20 +39,10 @@ static void decide(mp_fit_setup *s, const char *what)
 /* 1/sharpness of the PRF at a pixel centre: β·V², the paper's β for V = 1. */
 static double beta_normalised(const mp_prf_model *m)
 {
-    long x0, y0;
-    int w, h;
-    mp_prf_box(m, 1000.0, 1000.0, &x0, &y0, &w, &h);
-    double *p = malloc((size_t)w * h * sizeof *p);
-    mp_prf_work wk = {0};
-    double b = 0.0;
-    if (p && !mp_prf_render(m, 1000.0, 1000.0, p, NULL, NULL, &wk)) {
-        mp_prf_stats st;
-        mp_prf_stats_of(p, (size_t)w * h, &st);
-        b = st.sharp > 0 ? 1.0 / st.sharp : 0.0;
-    }
-    free(p);
-    mp_prf_work_free(&wk);
-    return b;
+    mp_prf_stats st;
+    if (mp_prf_stats_at(m, 1000.0, 1000.0, &st, NULL) || !(st.sharp > 0))
+        return 0.0;
+    return 1.0 / st.sharp;
 }
 
 /* economy=yes: leave out what cannot change the answer (issue 5).

@@ -82,17 +82,6 @@ done:
     return rc;
 }
 
-/* Expand a list argument; a single word stands for itself. */
-static int expand(const char *arg, char ***v, size_t *n, char *err)
-{
-    if (!arg || !arg[0]) {
-        *v = NULL;
-        *n = 0;
-        return 0;
-    }
-    return mp_params_list(arg, v, n, err);
-}
-
 int mp_task_fit(int argc, char **argv)
 {
     mp_parset ps;
@@ -106,10 +95,10 @@ int mp_task_fit(int argc, char **argv)
     int rc = 1;
     if (mp_fit_setup_read(&ps, &s, err))
         goto done;
-    if (expand(mp_par_string(&ps, "image"), &im, &nim, err) ||
-        expand(mp_par_string(&ps, "coords"), &co, &nco, err) ||
-        expand(mp_par_string(&ps, "output"), &out, &nout, err) ||
-        expand(mp_par_string(&ps, "residual"), &rs, &nrs, err))
+    if (mp_params_list(mp_par_string(&ps, "image"), &im, &nim, err) ||
+        mp_params_list(mp_par_string(&ps, "coords"), &co, &nco, err) ||
+        mp_params_list(mp_par_string(&ps, "output"), &out, &nout, err) ||
+        mp_params_list(mp_par_string(&ps, "residual"), &rs, &nrs, err))
         goto done;
     if (nco != nim || (nout && nout != nim) || (nrs && nrs != nim)) {
         snprintf(err, MP_ERRLEN, "coords: %zu coordinate tables, output %zu, residual %zu "

@@ -22,6 +22,8 @@ int mp_params_list(const char *arg, char ***items, size_t *n, char *err)
     size_t k = 0;
     *items = NULL;
     *n = 0;
+    if (!arg || !arg[0])
+        return 0;                    /* nothing given: an empty list */
     if (arg[0] != '@') {
         if (!(v = malloc(sizeof *v)) || !(v[0] = strdup(arg))) {
             free(v);

@@ -109,7 +109,8 @@ const char *mp_par_string(const mp_parset *ps, const char *name);
 void mp_params_free(mp_parset *ps);
 
 /* mp_params_list: expand an IRAF list argument: "@file" gives its
- * non-empty, non-comment lines; anything else gives itself.  The caller
+ * non-empty, non-comment lines; an empty or NULL argument gives no items;
+ * anything else gives itself.  The caller
  * frees with mp_list_free. */
 int mp_params_list(const char *arg, char ***items, size_t *n, char *err);
 void mp_list_free(char **items, size_t n);
