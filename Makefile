@@ -23,7 +23,7 @@ PARFILES := $(wildcard params/*.par)
 UNITSRC := $(wildcard tests/unit/test_*.c)
 UNITBIN := $(patsubst tests/unit/%.c,$(BUILD)/tests/%,$(UNITSRC))
 
-.PHONY: all deps test unit e2e validate bench run clean sanitize valgrind
+.PHONY: all deps test unit e2e validate bench run clean sanitize valgrind fuzz fuzz-run
 
 all: matphot
 
@@ -82,6 +82,34 @@ bench: deps all
 
 run: deps all
 	@sh data/run_sample.sh
+
+# Fuzzing (tests/fuzz/): every tests/fuzz/fuzz_*.c is a libFuzzer target,
+# built with clang and ASan+UBSan into build-fuzz/ and run for FUZZ_SECONDS
+# on its seed corpus tests/fuzz/corpus/NAME (read only) plus a working
+# corpus build-fuzz/corpus/NAME; crashing inputs land in build-fuzz/.
+FUZZ_SECONDS ?= 60
+FUZZSRC := $(wildcard tests/fuzz/fuzz_*.c)
+FUZZBIN := $(patsubst tests/fuzz/%.c,$(BUILD)/fuzz/%,$(FUZZSRC))
+
+fuzz:
+	$(MAKE) BUILD=build-fuzz CC=clang OPT='-O1 -g' \
+	  SAN='-fsanitize=fuzzer-no-link,address,undefined -fno-omit-frame-pointer -fno-sanitize-recover=all' \
+	  FUZZ_SECONDS=$(FUZZ_SECONDS) fuzz-run
+
+$(BUILD)/fuzz/%: tests/fuzz/%.c tests/fuzz/fuzz_bodies.h $(BUILD)/libmatphot.a
+	@mkdir -p $(dir $@)
+	$(CC) $(CPPFLAGS) $(CFLAGS) -fsanitize=fuzzer -o $@ $< $(BUILD)/libmatphot.a $(LDFLAGS) -fsanitize=fuzzer $(LDLIBS)
+
+fuzz-run: $(FUZZBIN)
+	@set -e; for b in $(FUZZBIN); do n=$${b##*/fuzz_}; \
+	  mkdir -p $(BUILD)/corpus/$$n $(BUILD)/artifacts; \
+	  echo "== fuzz $$n ($(FUZZ_SECONDS) s)"; \
+	  ASAN_OPTIONS=detect_leaks=1:allocator_may_return_null=1 $$b -max_total_time=$(FUZZ_SECONDS) -timeout=20 -rss_limit_mb=3072 -malloc_limit_mb=5000 \
+	    -print_final_stats=1 -artifact_prefix=$(BUILD)/artifacts/$$n- \
+	    $(BUILD)/corpus/$$n tests/fuzz/corpus/$$n 2>$(BUILD)/fuzz-$$n.log \
+	    || { tail -n 60 $(BUILD)/fuzz-$$n.log; exit 1; }; \
+	  grep -E '^(stat::number_of_executed_units|stat::new_units_added|Done)' $(BUILD)/fuzz-$$n.log; \
+	done
 
 clean:
 	rm -rf build build-san matphot

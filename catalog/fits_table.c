@@ -282,6 +282,7 @@ int mp_table_write_fits(const char *path, const mp_table *t, const mp_ldac_head 
     /* The disk-file driver takes the name literally (no extended-name
      * parsing of brackets in the user's path). */
     unlink(tmp);
+    (void)mp_tmp_register(tmp);   /* an interrupt removes it (io/cleanup.c) */
     errno = 0;
     fitsfile *fp = NULL;
     int status = 0;
@@ -311,6 +312,7 @@ int mp_table_write_fits(const char *path, const mp_table *t, const mp_ldac_head 
     }
     rc = 0;
 done:
+    mp_tmp_unregister(tmp);
     free(tmp);
     free(cards);
     free(spec);
@@ -375,6 +377,8 @@ static int add_fits_col(fitsfile *fp, int fc, int code, mp_table *t, const char 
     if (fits_read_key_str(fp, key, unit, NULL, &st))
         unit[0] = '\0';
     fits_clear_errmsg();
+    if (!val[0] || strspn(val, " ") == strlen(val))
+        snprintf(val, sizeof val, "COL%d", fc);   /* unnamed (found by tests/fuzz) */
     if (strlen(val) >= sizeof t->cols[0].name) {
         snprintf(err, MP_ERRLEN, "%s: column name '%.40s...' is too long (at most %zu characters)",
                  name, val, sizeof t->cols[0].name - 1);
@@ -410,14 +414,28 @@ int mp_table_read_fits(const char *name, const void *mem, size_t len, mp_table *
     mp_table_init(t);
     fitsfile *fp = NULL;
     int status = 0;
-    void *mbuf = (void *)mem;
-    size_t msize = len;
-    if (mem)
+    /* cfitsio reads whole 2880-byte records, and its memory driver does
+     * not stop at the end of the bytes: give it a copy padded with zeros to
+     * a whole record (found by tests/fuzz: a heap over-read). */
+    size_t msize = mem ? (len / 2880 + 1) * 2880 : 0;
+    void *mbuf = mem ? calloc(msize, 1) : NULL;
+    if (mem && !mbuf) {
+        snprintf(err, MP_ERRLEN, "%s: out of memory", name);
+        return 1;
+    }
+    if (mem) {
+        memcpy(mbuf, mem, len);
         fits_open_memfile(&fp, name, READONLY, &mbuf, &msize, 0, NULL, &status);
-    else
+    } else {
         fits_open_file(&fp, name, READONLY, &status);
+    }
     if (status) {
         fits_message(name, "cannot open as FITS", status, err);
+        if (fp) {   /* cfitsio may fail with fp set: see io/image_read.c */
+            int s2 = 0;
+            fits_close_file(fp, &s2);
+        }
+        free(mbuf);
         return 1;
     }
     int rc = 1, ncol = 0, *fcol = NULL;
@@ -433,6 +451,23 @@ int mp_table_read_fits(const char *name, const void *mem, size_t len, mp_table *
     fits_get_num_rowsll(fp, &nrow, &status);
     if (status)
         goto fits_fail;
+    /* A table whose rows end past the end of the bytes: cfitsio's memory
+     * driver would read beyond the buffer (found by tests/fuzz), and a
+     * header claiming 10^12 rows would ask for terabytes.  Say so first. */
+    {
+        LONGLONG hstart, dstart, dend, width = 0;
+        fits_get_hduaddrll(fp, &hstart, &dstart, &dend, &status);
+        fits_read_key_lnglng(fp, "NAXIS1", &width, NULL, &status);
+        if (status)
+            goto fits_fail;
+        LONGLONG avail = (mem ? (LONGLONG)len : fp->Fptr->logfilesize) - dstart;
+        /* (A row of no bytes counts as one: rows cannot outnumber bytes.) */
+        if (width < 0 || nrow < 0 || nrow > avail / (width > 0 ? width : 1)) {
+            snprintf(err, MP_ERRLEN, "%s: truncated FITS table (%lld rows of %lld bytes "
+                     "do not fit in the file)", name, (long long)nrow, (long long)width);
+            goto done;
+        }
+    }
     fcol = malloc((size_t)(ncol > 0 ? ncol : 1) * sizeof *fcol);
     if (!fcol || (uint64_t)nrow > SIZE_MAX / sizeof *buf ||
         !(buf = malloc((size_t)(nrow > 0 ? nrow : 1) * sizeof *buf))) {
@@ -480,6 +515,7 @@ done:
     status = 0;
     fits_close_file(fp, &status);
     fits_clear_errmsg();
+    free(mbuf);
     free(fcol);
     free(buf);
     if (rc)

@@ -2,6 +2,7 @@
  * table.c — the in-memory table: named columns, rows of doubles stored row
  * by row (v[row*ncol + col]) so that a stage fills one star at a time.
  */
+#include <ctype.h>
 #include <limits.h>
 #include <math.h>
 #include <stdint.h>
@@ -102,4 +103,12 @@ long mp_table_add_row(mp_table *t)
     for (size_t c = 0; c < t->ncol; c++)
         t->v[t->nrow * t->ncol + c] = NAN;
     return (long)t->nrow++;
+}
+
+int mp_col_name_bad(const char *name)
+{
+    for (const char *p = name; *p; p++)
+        if (!isgraph((unsigned char)*p) || (unsigned char)*p > 0x7e)
+            return 1;
+    return 0;
 }

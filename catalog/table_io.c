@@ -77,6 +77,16 @@ static int slurp(FILE *fp, const char *name, char **buf, size_t *len, char *err)
     return 0;
 }
 
+/* Messages quote the file's text, which may hold a newline (inside a CSV
+ * quote) or other control characters: keep the message one printable
+ * line (found by tests/fuzz). */
+static void one_line(char *err)
+{
+    for (char *p = err; *p; p++)
+        if ((unsigned char)*p < 0x20 || *p == 0x7f)
+            *p = '?';
+}
+
 int mp_table_read(const char *path, mp_table *t, char *err)
 {
     mp_table_init(t);
@@ -101,6 +111,8 @@ int mp_table_read(const char *path, mp_table *t, char *err)
             return 1;
         if (mlen >= 9 && memcmp(mem, "SIMPLE  =", 9) == 0) {
             int frc = mp_table_read_fits(name, mem, mlen, t, err);
+            if (frc)
+                one_line(err);
             free(mem);
             return frc;
         }
@@ -139,8 +151,10 @@ int mp_table_read(const char *path, mp_table *t, char *err)
     } else {
         mp_close_input(fp);
     }
-    if (rc)
+    if (rc) {
         mp_table_free(t);
+        one_line(err);
+    }
     return rc;
 }
 

@@ -24,6 +24,12 @@ const mp_col *mp_col_registry_at(size_t i);
  * is empty or does not fit in mp_col.name. */
 int mp_col_describe(const char *name, mp_col *c);
 
+/* mp_col_name_bad: nonzero when a name holds a blank, a control or a
+ * non-ASCII character, which ASCII_HEAD cannot write back; its reader
+ * refuses such names (found by tests/fuzz).  CSV and FITS keep them, as
+ * their own formats can (the ASCII_HEAD writer then says why it cannot). */
+int mp_col_name_bad(const char *name);
+
 /* mp_parse_value: a table value: a decimal number, or "nan"/"NaN"/"INDEF"
  * (any case) for a missing one.  Surrounding blanks are allowed; nothing
  * else.  Returns 0 on success. */

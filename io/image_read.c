@@ -49,6 +49,13 @@ int mp_image_read(const char *name, mp_image *im, char *err)
     free(cname);
     if (status) {
         mp_fits_error(name, "open", status, err);
+        /* cfitsio 4.2 can fail inside the header parse with the file
+         * already open and fp set (a card without "= "): close it, or the
+         * descriptor and its buffers leak (found by tests/fuzz). */
+        if (fp) {
+            int s2 = 0;
+            fits_close_file(fp, &s2);
+        }
         return 1;
     }
 

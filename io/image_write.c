@@ -65,6 +65,7 @@ int mp_image_write(const char *path, const double *pix, long nx, long ny,
     /* The disk-file driver takes the name literally: no extended-name
      * parsing of brackets in user paths. */
     unlink(tmp);
+    (void)mp_tmp_register(tmp);   /* an interrupt removes it (cleanup.c) */
     errno = 0;
     fitsfile *fp = NULL;
     int status = 0;
@@ -75,6 +76,7 @@ int mp_image_write(const char *path, const double *pix, long nx, long ny,
         fits_clear_errmsg();
         snprintf(err, MP_ERRLEN, "%s: cannot create: %s", path,
                  e ? strerror(e) : "cfitsio could not create the file");
+        mp_tmp_unregister(tmp);
         free(tmp);
         return 1;
     }
@@ -85,6 +87,7 @@ int mp_image_write(const char *path, const double *pix, long nx, long ny,
     if (status) {
         mp_fits_error(path, "write", status, err);
         unlink(tmp);
+        mp_tmp_unregister(tmp);
         free(tmp);
         return 1;
     }
@@ -92,9 +95,11 @@ int mp_image_write(const char *path, const double *pix, long nx, long ny,
         snprintf(err, MP_ERRLEN, "%s: cannot rename the temporary file into place: %s",
                  path, strerror(errno));
         unlink(tmp);
+        mp_tmp_unregister(tmp);
         free(tmp);
         return 1;
     }
+    mp_tmp_unregister(tmp);
     free(tmp);
     return 0;
 }

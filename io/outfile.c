@@ -28,6 +28,7 @@ char *mp_tmp_name(const char *path)
 
 static void reset(mp_outfile *o)
 {
+    mp_tmp_unregister(o->tmp_path);
     free(o->final_path);
     free(o->tmp_path);
     memset(o, 0, sizeof *o);
@@ -52,6 +53,7 @@ int mp_out_open(mp_outfile *o, const char *path, char *err)
         reset(o);
         return 1;
     }
+    (void)mp_tmp_register(o->tmp_path);   /* before it exists: see cleanup.c */
     o->fp = fopen(o->tmp_path, "w");
     if (!o->fp) {
         snprintf(err, MP_ERRLEN, "%s: cannot create: %s", path, strerror(errno));

@@ -308,6 +308,14 @@ static void put_quoted(const char *s, FILE *fp)
     fputc('"', fp);
 }
 
+/* A field that would not read back unquoted: a comma or a quote in it,
+ * blanks at its ends (the parser trims them). */
+static int needs_quotes(const char *s)
+{
+    size_t n = strlen(s);
+    return n && (is_blank(s[0]) || is_blank(s[n - 1]) || strpbrk(s, ",\"\\"));
+}
+
 void mp_params_write(const mp_parset *ps, FILE *fp)
 {
     for (size_t i = 0; i < ps->n; i++) {
@@ -320,17 +328,17 @@ void mp_params_write(const mp_parset *ps, FILE *fp)
             fprintf(fp, "# parameter set %s (its parameters follow; name=value sets them too)\n",
                     p->name);
         fprintf(fp, "%s,%s,%s,", p->name, mpp_type_name(p->type), p->mode);
-        if (text)
+        if (text || needs_quotes(p->value))
             put_quoted(p->value, fp);
         else
             fputs(p->value, fp);
         fputc(',', fp);
-        if (text && p->min[0])
+        if ((text && p->min[0]) || needs_quotes(p->min))
             put_quoted(p->min, fp);
         else
             fputs(p->min, fp);
         fputc(',', fp);
-        if (text && p->max[0])
+        if ((text && p->max[0]) || needs_quotes(p->max))
             put_quoted(p->max, fp);
         else
             fputs(p->max, fp);

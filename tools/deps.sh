@@ -2,7 +2,8 @@
 # Install the Debian packages matphot needs, only those that are missing.
 set -e
 PKGS="gcc clang make pkg-config libcfitsio-dev wcslib-dev libcsv-dev liblapacke-dev
-libopenblas-dev libomp-dev libcmocka-dev gnuplot-nox python3-astropy valgrind"
+libopenblas-dev libomp-dev libcmocka-dev gnuplot-nox python3-astropy valgrind
+libclang-rt-14-dev"
 missing=""
 for p in $PKGS; do
   dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q 'install ok installed' \

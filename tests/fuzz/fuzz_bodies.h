@@ -1,0 +1,245 @@
+/*
+ * fuzz_bodies.h — what each fuzz target does with one input, shared by the
+ * libFuzzer targets (tests/fuzz/fuzz_*.c, `make fuzz`) and by the unit test
+ * that replays the seed corpora and every input that once crashed
+ * (tests/unit/test_fuzz_replay.c, tests/fuzz/regressions/).
+ *
+ * Each body returns 0 when the input was handled: accepted, or refused with
+ * one non-empty error line.  A crash, a sanitizer report, a leak, or a
+ * broken contract (an error without a message, a table or .par file that
+ * does not read back as it was written) is a finding; the bodies call
+ * abort() for a broken contract so libFuzzer keeps the input.
+ *
+ * File-based readers get the bytes through a temporary file (one per
+ * process, reused, in $TMPDIR): that is the path users take.
+ */
+#ifndef MATPHOT_FUZZ_BODIES_H
+#define MATPHOT_FUZZ_BODIES_H
+
+#include <math.h>
+#include <stdint.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <unistd.h>
+
+#include "catalog/catalog.h"
+#include "fit/fit.h"
+#include "io/io.h"
+#include "params/params.h"
+
+/* Abort with a message: a contract broken by this input. */
+static inline void fuzz_fail(const char *what, const char *detail)
+{
+    fprintf(stderr, "fuzz: contract broken: %s: %s\n", what, detail ? detail : "");
+    abort();
+}
+
+/* Every refusal must say why, in one line. */
+static inline void fuzz_check_err(const char *what, const char *err)
+{
+    if (!err[0])
+        fuzz_fail(what, "failed without a message");
+    if (strchr(err, '\n'))
+        fuzz_fail(what, "message of more than one line");
+}
+
+/* The per-process temporary file: "<TMPDIR>/mp_fuzz_<tag>_<pid><ext>". */
+static inline const char *fuzz_tmp_path(const char *tag, const char *ext, char *buf, size_t len)
+{
+    const char *dir = getenv("TMPDIR");
+    snprintf(buf, len, "%s/mp_fuzz_%s_%ld%s", dir && *dir ? dir : "/tmp", tag,
+             (long)getpid(), ext);
+    return buf;
+}
+
+static inline int fuzz_write_file(const char *path, const uint8_t *data, size_t size)
+{
+    FILE *fp = fopen(path, "wb");
+    if (!fp)
+        return 1;
+    int bad = size && fwrite(data, 1, size, fp) != size;
+    bad |= fclose(fp) != 0;
+    return bad;
+}
+
+/* ---- .par text (mp_params_parse_text) ------------------------------------ */
+
+/* Parse; what parses must write and parse back to the same parameters
+ * (params.h's promise for mp_params_write). */
+static inline int fuzz_params_body(const uint8_t *data, size_t size)
+{
+    char *text = malloc(size + 1);
+    if (!text)
+        return 0;
+    memcpy(text, data, size);
+    text[size] = '\0';
+    char err[MP_ERRLEN] = "";
+    mp_parset ps;
+    int rc = mp_params_parse_text(text, "fuzz.par", &ps, err);
+    free(text);
+    if (rc) {
+        fuzz_check_err("mp_params_parse_text", err);
+        return 0;
+    }
+    char *buf = NULL;
+    size_t blen = 0;
+    FILE *mem = open_memstream(&buf, &blen);
+    if (!mem) {
+        mp_params_free(&ps);
+        return 0;
+    }
+    mp_params_write(&ps, mem);
+    fclose(mem);
+    mp_parset back;
+    err[0] = '\0';
+    if (mp_params_parse_text(buf, "fuzz.par", &back, err)) {
+        fprintf(stderr, "written:\n%s\n", buf);
+        fuzz_fail("mp_params_write output does not parse back", err);
+    }
+    if (back.n != ps.n)
+        fuzz_fail("round trip", "parameter count changed");
+    for (size_t i = 0; i < ps.n; i++) {
+        const mp_par *a = &ps.p[i], *b = &back.p[i];
+        if (strcmp(a->name, b->name) || a->type != b->type || strcmp(a->value, b->value) ||
+            strcmp(a->min, b->min) || strcmp(a->max, b->max) || strcmp(a->prompt, b->prompt) ||
+            strcmp(a->mode, b->mode))
+            fuzz_fail("round trip changed parameter", a->name);
+    }
+    /* Typed access never crashes, whatever the value. */
+    for (size_t i = 0; i < ps.n; i++) {
+        int iv;
+        double rv;
+        (void)mp_par_bool(&ps, ps.p[i].name, &iv);
+        (void)mp_par_int(&ps, ps.p[i].name, &iv);
+        (void)mp_par_real(&ps, ps.p[i].name, &rv);
+        (void)mp_par_string(&ps, ps.p[i].name);
+    }
+    mp_params_free(&back);
+    mp_params_free(&ps);
+    free(buf);
+    return 0;
+}
+
+/* ---- tables (mp_table_read: ASCII_HEAD, CSV, FITS) ----------------------- */
+
+/* The first character of the first non-blank line, seen as mp_table_read
+ * sees lines: C strings (a NUL ends the line's text), a UTF-8 BOM skipped
+ * on line 1, blanks and a final CR ignored. */
+static inline int fuzz_first_char(const uint8_t *d, size_t n)
+{
+    size_t i = 0;
+    for (int line = 1; i < n; line++) {
+        size_t j = i;
+        if (line == 1 && n - j >= 3 && memcmp(d + j, "\xEF\xBB\xBF", 3) == 0)
+            j += 3;
+        while (j < n && (d[j] == ' ' || d[j] == '\t'))
+            j++;
+        if (j < n && d[j] != '\n' && d[j] != '\0' && !(d[j] == '\r' && (j + 1 == n || d[j + 1] == '\n')))
+            return d[j];
+        while (i < n && d[i] != '\n')
+            i++;
+        i++;
+    }
+    return -1;
+}
+
+/* Read a table from the bytes; what reads must write in its own format
+ * (ASCII_HEAD, CSV or FITS, told as mp_table_read tells them) and read back
+ * with the same columns and rows.  FITS bytes are also read straight from
+ * memory (mp_table_read_fits). */
+static inline int fuzz_table_body(const uint8_t *data, size_t size)
+{
+    char path[256], out[256], err[MP_ERRLEN] = "";
+    fuzz_tmp_path("table", ".tab", path, sizeof path);
+    fuzz_tmp_path("table", ".out", out, sizeof out);
+    if (fuzz_write_file(path, data, size))
+        return 0;
+    mp_table t;
+    int rc = mp_table_read(path, &t, err);
+    if (rc) {
+        fuzz_check_err("mp_table_read", err);
+    } else {
+        mp_table_format fmt = size >= 9 && memcmp(data, "SIMPLE  =", 9) == 0 ? MP_TAB_FITS
+                              : fuzz_first_char(data, size) == '#'         ? MP_TAB_ASCII_HEAD
+                                                                           : MP_TAB_CSV;
+        err[0] = '\0';
+        if (mp_table_write(out, &t, fmt, err))
+            fuzz_fail("mp_table_write of a table that was read", err);
+        mp_table back;
+        if (mp_table_read(out, &back, err)) {
+            if (t.ncol == 0)
+                ;   /* a table without columns writes nothing to read */
+            else
+                fuzz_fail("written table does not read back", err);
+        } else if (back.ncol != t.ncol || back.nrow != t.nrow) {
+            fuzz_fail("round trip", "columns or rows changed");
+        }
+        mp_table_free(&back);
+        unlink(out);
+    }
+    mp_table_free(&t);
+    if (size >= 9 && memcmp(data, "SIMPLE  =", 9) == 0) {
+        err[0] = '\0';
+        if (mp_table_read_fits("fuzz.fits", data, size, &t, err))
+            fuzz_check_err("mp_table_read_fits", err);
+        mp_table_free(&t);
+    }
+    unlink(path);
+    return 0;
+}
+
+/* ---- PSF and DRF files (mp_psf_read, mp_drf_read) ------------------------- */
+
+/* The bytes as a FITS file read as a PSF table (with and without
+ * normalisation) and as a DRF; a PSF that loads is rendered once at an
+ * arbitrary position, which must give finite values. */
+static inline int fuzz_psf_body(const uint8_t *data, size_t size)
+{
+    char path[256], err[MP_ERRLEN] = "", warn[MP_ERRLEN] = "";
+    fuzz_tmp_path("psf", ".fits", path, sizeof path);
+    if (fuzz_write_file(path, data, size))
+        return 0;
+    for (int norm = 0; norm < 2; norm++) {
+        mp_psf p;
+        err[0] = '\0';
+        if (mp_psf_read(path, norm, 0, &p, warn, err)) {
+            fuzz_check_err("mp_psf_read", err);
+            continue;
+        }
+        if (!(p.sum > 0) || !isfinite(p.sum) || p.nx % 2 == 0 || p.ny % 2 == 0 || p.os < 1)
+            fuzz_fail("mp_psf_read", "accepted a table it promises to refuse");
+        /* Render a small PSF: a fuzzed 1000x1000 table would only be slow. */
+        if ((size_t)p.nx * (size_t)p.ny <= 4096) {
+            mp_prf_model m = {&p, NULL, 10};
+            long x0, y0;
+            int w, h;
+            mp_prf_box(&m, 20.3, 17.8, &x0, &y0, &w, &h);
+            size_t n = (size_t)w * (size_t)h;
+            double *prf = malloc(3 * n * sizeof *prf);
+            mp_prf_work work = {0};
+            if (prf && mp_prf_render(&m, 20.3, 17.8, prf, prf + n, prf + 2 * n, &work) == 0)
+                for (size_t i = 0; i < 3 * n; i++)
+                    if (!isfinite(prf[i]))
+                        fuzz_fail("mp_prf_render", "non-finite PRF from an accepted table");
+            free(prf);
+            mp_prf_work_free(&work);
+        }
+        mp_psf_free(&p);
+    }
+    for (int os = 1; os <= 4; os++) {
+        mp_drf d;
+        err[0] = '\0';
+        if (mp_drf_read(path, os, &d, err)) {
+            fuzz_check_err("mp_drf_read", err);
+            continue;
+        }
+        if (!(d.volume > 0 && d.volume <= 1) || d.k < 1 || os % d.k)
+            fuzz_fail("mp_drf_read", "accepted a DRF it promises to refuse");
+        mp_drf_free(&d);
+    }
+    unlink(path);
+    return 0;
+}
+
+#endif
