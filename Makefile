@@ -28,7 +28,7 @@ UNITBIN := $(patsubst tests/unit/%.c,$(BUILD)/tests/%,$(UNITSRC))
 all: matphot
 
 matphot: $(BUILD)/matphot
-	cp $< $@
+	cp $< $@.tmp && mv -f $@.tmp $@
 
 $(BUILD)/matphot: $(BUILD)/pipeline/main.o $(BUILD)/libmatphot.a
 	$(CC) $(LDFLAGS) -o $@ $^ $(LDLIBS)

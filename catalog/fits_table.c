@@ -412,6 +412,12 @@ static int add_fits_col(fitsfile *fp, int fc, int code, mp_table *t, const char 
 int mp_table_read_fits(const char *name, const void *mem, size_t len, mp_table *t, char *err)
 {
     mp_table_init(t);
+    char badkey[9];
+    if (mem ? mp_fits_guard_mem(mem, len, badkey) : mp_fits_guard_file(name, badkey)) {
+        snprintf(err, MP_ERRLEN, "%s: malformed header card %s (its value is not a "
+                 "well-formed quoted string)", name, badkey);
+        return 1;
+    }
     fitsfile *fp = NULL;
     int status = 0;
     /* cfitsio reads whole 2880-byte records, and its memory driver does

@@ -45,6 +45,13 @@ int mp_image_read(const char *name, mp_image *im, char *err)
     }
     fitsfile *fp = NULL;
     int status = 0;
+    char badkey[9];
+    if (mp_fits_guard_file(cname, badkey)) {
+        snprintf(err, MP_ERRLEN, "%s: malformed header card %s (its value is not a "
+                 "well-formed quoted string)", name, badkey);
+        free(cname);
+        return 1;
+    }
     fits_open_image(&fp, cname, READONLY, &status);
     free(cname);
     if (status) {

@@ -134,6 +134,16 @@ int mp_cleanup_install(void);
  * caller frees; NULL when out of memory. */
 char *mp_name_after(const char *image, const char *ext);
 
+/* mp_fits_guard_file / mp_fits_guard_mem: walk the headers of a FITS file
+ * (plain files only: compressed files, URLs and stdin are left alone) or
+ * of bytes in memory, before cfitsio parses them, and return 1 with the
+ * keyword in badkey (9 bytes) when a structural string keyword (XTENSION,
+ * EXTNAME, TFORMn, TTYPEn, TUNITn, TDISPn, TDIMn) has a value that is not a
+ * well-formed quoted string: cfitsio 4.2.0 overflows a buffer and aborts
+ * on such a card.  0 otherwise. */
+int mp_fits_guard_file(const char *name, char *badkey);
+int mp_fits_guard_mem(const void *b, size_t n, char *badkey);
+
 /* mp_seconds: monotonic wall-clock seconds (differences only). */
 double mp_seconds(void);
 

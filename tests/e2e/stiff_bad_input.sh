@@ -5,6 +5,7 @@
 # output file nor temporary left behind.  (bad_input.sh covers fit in more
 # depth; this covers the same classes for the other tasks.)
 M=${MATPHOT:-./matphot}
+case $M in /*) ;; *) M=$(pwd)/$M ;; esac   # the tests run the binary from a temporary directory
 [ -x "$M" ] || { echo "stiff_bad_input: $M not built"; exit 77; }
 T=$(mktemp -d "${TMPDIR:-/tmp}/stiff_bad.XXXXXX") || exit 1
 trap 'rm -rf "$T"' EXIT INT TERM

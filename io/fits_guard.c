@@ -1,0 +1,181 @@
+/* fits_guard.c — a pre-flight walk over a FITS file's headers before
+ * cfitsio parses them.  cfitsio 4.2.0 overflows a 70-byte buffer (and glibc
+ * aborts the process) on a table keyword whose value is not a quoted
+ * string, e.g. "TTYPE2  =" followed by 70 bytes of garbage (found by
+ * tests/fuzz).  Only the string-valued structural keywords are checked;
+ * everything else is left to cfitsio.  The walk reads header records only:
+ * data areas are skipped by their size, computed as FITS 4.0 §4.4.1.1 and
+ * §7.3.1 define it (|BITPIX|/8 · GCOUNT · (PCOUNT + Π NAXISn)). */
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include "io/io.h"
+
+/* Is the value of an 80-byte card a well-formed string (FITS 4.0 §4.2.1)? */
+static int string_ok(const unsigned char *c)
+{
+    int i = 9;
+    while (i < 80 && c[i] == ' ')
+        i++;
+    if (i == 80 || c[i] != '\'')
+        return 0;
+    for (i++; i < 80; i++) {
+        if (c[i] != '\'')
+            continue;
+        if (i + 1 < 80 && c[i + 1] == '\'') {
+            i++;
+            continue;
+        }
+        for (i++; i < 80 && c[i] == ' '; i++)
+            ;
+        return i == 80 || c[i] == '/';
+    }
+    return 0;
+}
+
+static long long card_int(const unsigned char *c)
+{
+    char v[72];
+    memcpy(v, c + 10, 70);
+    v[70] = '\0';
+    return strtoll(v, NULL, 10);
+}
+
+/* What one header record of cards tells; 1 when END was seen. */
+typedef struct { long long bitpix, naxis, n[1000], pcount, gcount; } hdu_sizes;
+
+static int scan_record(const unsigned char *r, hdu_sizes *h, char *bad)
+{
+    static const char *const strings[] = {"XTENSION", "EXTNAME", "TFORM", "TTYPE", "TUNIT",
+                                          "TDISP", "TDIM"};
+    for (int k = 0; k < 36; k++) {
+        const unsigned char *c = r + 80 * k;
+        if (memcmp(c, "END     ", 8) == 0)
+            return 1;
+        if (c[8] != '=')
+            continue;
+        for (size_t s = 0; s < sizeof strings / sizeof strings[0]; s++)
+            if (strncmp((const char *)c, strings[s], strlen(strings[s])) == 0 && !string_ok(c)) {
+                memcpy(bad, c, 8);
+                bad[8] = '\0';
+                for (int i = 7; i >= 0 && bad[i] == ' '; i--)
+                    bad[i] = '\0';
+                return -1;
+            }
+        if (memcmp(c, "BITPIX  ", 8) == 0)
+            h->bitpix = card_int(c);
+        else if (memcmp(c, "PCOUNT  ", 8) == 0)
+            h->pcount = card_int(c);
+        else if (memcmp(c, "GCOUNT  ", 8) == 0)
+            h->gcount = card_int(c);
+        else if (memcmp(c, "NAXIS", 5) == 0) {
+            char d[4] = {(char)c[5], (char)c[6], (char)c[7], 0};
+            if (d[0] == ' ')
+                h->naxis = card_int(c);
+            else {
+                long j = strtol(d, NULL, 10);
+                if (j >= 1 && j < 1000)
+                    h->n[j] = card_int(c);
+            }
+        }
+    }
+    return 0;
+}
+
+/* Bytes of the data area after a header, padded to records; -1 if absurd. */
+static long long data_bytes(const hdu_sizes *h)
+{
+    if (h->naxis <= 0)
+        return 0;
+    if (h->naxis >= 1000)
+        return -1;
+    long long n = 1;
+    for (long long j = 1; j <= h->naxis; j++) {
+        if (h->n[j] < 0 || (h->n[j] && n > (1LL << 60) / h->n[j]))
+            return -1;
+        n *= h->n[j];
+    }
+    long long b = (h->bitpix < 0 ? -h->bitpix : h->bitpix) / 8;
+    long long g = h->gcount > 0 ? h->gcount : 1;
+    long long bytes = b * g * (h->pcount + n);
+    return (bytes + 2879) / 2880 * 2880;
+}
+
+/* Walk records from get(ctx, offset, record) until the bytes end. */
+typedef int (*record_fn)(void *ctx, long long off, unsigned char *rec);
+
+static int walk(record_fn get, void *ctx, char *bad)
+{
+    unsigned char rec[2880];
+    long long off = 0;
+    for (int hdu = 0; hdu < 10000; hdu++) {
+        hdu_sizes h;
+        memset(&h, 0, sizeof h);
+        int end = 0;
+        while (!end) {
+            if (get(ctx, off, rec))
+                return 0;                 /* the bytes end: cfitsio says the rest */
+            off += 2880;
+            end = scan_record(rec, &h, bad);
+            if (end < 0)
+                return 1;
+        }
+        long long d = data_bytes(&h);
+        if (d < 0)
+            return 0;
+        off += d;
+    }
+    return 0;
+}
+
+typedef struct { const unsigned char *b; size_t n; } mem_ctx;
+
+static int mem_record(void *ctx, long long off, unsigned char *rec)
+{
+    const mem_ctx *m = ctx;
+    if (off < 0 || (size_t)off >= m->n)
+        return 1;
+    size_t k = m->n - (size_t)off < 2880 ? m->n - (size_t)off : 2880;
+    memcpy(rec, m->b + off, k);
+    memset(rec + k, ' ', 2880 - k);
+    return 0;
+}
+
+static int file_record(void *ctx, long long off, unsigned char *rec)
+{
+    FILE *fp = ctx;
+    if (fseeko(fp, (off_t)off, SEEK_SET))
+        return 1;
+    size_t k = fread(rec, 1, 2880, fp);
+    if (k == 0)
+        return 1;
+    memset(rec + k, ' ', 2880 - k);
+    return 0;
+}
+
+int mp_fits_guard_mem(const void *b, size_t n, char *badkey)
+{
+    mem_ctx m = {b, n};
+    return walk(mem_record, &m, badkey);
+}
+
+int mp_fits_guard_file(const char *name, char *badkey)
+{
+    /* The file part of a cfitsio extended name; URLs, stdin and compressed
+     * files are left to cfitsio. */
+    char path[4096];
+    size_t n = strcspn(name, "[");
+    if (n == 0 || n >= sizeof path || strstr(name, "://") || strcmp(name, "-") == 0)
+        return 0;
+    memcpy(path, name, n);
+    path[n] = '\0';
+    FILE *fp = fopen(path, "rb");
+    if (!fp)
+        return 0;
+    unsigned char magic[2] = {0, 0};
+    int rc = 0;
+    if (fread(magic, 1, 2, fp) == 2 && !(magic[0] == 0x1f && magic[1] == 0x8b))
+        rc = walk(file_record, fp, badkey);
+    fclose(fp);
+    return rc;
+}
