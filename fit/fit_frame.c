@@ -118,8 +118,11 @@ static int merge_one(mp_star *s, int *alive, int n, double mergerad)
     return 1;
 }
 
-/* Reject the least significant star below minsnr; 1 if one was. */
-static int reject_one(const mp_star *s, int *alive, int n, double minsnr)
+/* Reject the least significant star below minsnr; 1 if one was.  A star
+ * rejected beside a neighbour (within 2·mergerad) was most likely half of
+ * an unresolved blend whose light the neighbour now carries: flag that
+ * neighbour merged (16), as if the pair had been merged. */
+static int reject_one(mp_star *s, int *alive, int n, double minsnr, double mergerad)
 {
     int worst = -1;
     double wsnr = minsnr;
@@ -135,6 +138,17 @@ static int reject_one(const mp_star *s, int *alive, int n, double minsnr)
     if (worst < 0)
         return 0;
     alive[worst] = 0;
+    int near = -1;
+    double best = 2.0 * mergerad;
+    for (int i = 0; i < n; i++) {
+        double d = hypot(s[i].x - s[worst].x, s[i].y - s[worst].y);
+        if (alive[i] && d < best) {
+            best = d;
+            near = i;
+        }
+    }
+    if (near >= 0)
+        s[near].flags |= MP_FLAG_MERGED;
     return 1;
 }
 
@@ -181,7 +195,7 @@ static int fit_one_group(const mp_frame *f, const mp_prf_model *m, const mp_fram
             rep->merged++;
             continue;
         }
-        if (o->minsnr > 0 && reject_one(s, alive, n, o->minsnr)) {
+        if (o->minsnr > 0 && reject_one(s, alive, n, o->minsnr, mergerad)) {
             rep->rejected++;
             continue;
         }
