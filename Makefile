@@ -78,6 +78,7 @@ validate: deps all
 	@sh tests/validate/run.sh
 
 bench: deps all
+	@sh tools/deps.sh bench
 	@sh tests/bench/run.sh
 
 run: deps all

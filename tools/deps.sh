@@ -4,6 +4,9 @@ set -e
 PKGS="gcc clang make pkg-config libcfitsio-dev wcslib-dev libcsv-dev liblapacke-dev
 libopenblas-dev libomp-dev libcmocka-dev gnuplot-nox python3-astropy valgrind
 libclang-rt-14-dev"
+# `make bench` also compares with IRAF DAOPHOT: `sh tools/deps.sh bench`.
+BENCH_PKGS="iraf iraf-noao time"
+[ "${1:-}" = bench ] && PKGS="$PKGS $BENCH_PKGS"
 missing=""
 for p in $PKGS; do
   dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q 'install ok installed' \
