@@ -1,0 +1,322 @@
+#!/bin/sh
+# compare_daophot.sh -- matphot against IRAF DAOPHOT on the same simulated
+# frames: wall and CPU time (median of interleaved runs), completeness
+# overall / per magnitude / per nearest-neighbour separation, false
+# detections and photometric scatter.  Writes tests/bench/daophot/REPORT.md
+# and prints a short summary.
+#
+# Run from the top of the tree with ./matphot and build/libmatphot.a built
+# (the helper tests/bench/daophot/compare.c is compiled against it):
+#     sh tests/bench/compare_daophot.sh
+# Environment:
+#     CC=cc, BUILD=build   compiler of the helper, where libmatphot.a is
+#     FRAMES="A B C"   which frames (A: 512^2 1000 stars FWHM 3; B: 1024^2
+#                      5000 stars FWHM 2.5; C: 512^2 3000 stars FWHM 3)
+#     REPS=3           timed runs per tool and frame (interleaved)
+#     NITER=3          detection rounds of both (matphot niter; DAOPHOT
+#                      daofind on the allstar residual + phot + pfmerge +
+#                      allstar, NITER-1 times)
+#     MATPHOT_THREADS=1  OMP_NUM_THREADS of matphot (IRAF uses one core)
+#     DAO_CLEAN=2      rounds of DAOPHOT's PSF cleaning (nstar on the PSF
+#                      star groups, substar of the neighbours, psf again)
+#     REPORT=tests/bench/daophot/REPORT.md   where the report goes
+#     KEEP=1           keep the work directory (printed)
+# Without IRAF (irafcl from the Debian packages iraf + iraf-noao) it prints
+# a skip line and exits 0.
+set -u
+
+say() { echo "compare_daophot: $*"; }
+die() { echo "compare_daophot: $*" >&2; exit 1; }
+
+[ -x ./matphot ] || die "./matphot not found: run make at the top of the tree first"
+[ -f tests/bench/daophot/compare.c ] || die "run from the top of the tree"
+LIBMP=${BUILD:-build}/libmatphot.a
+[ -f "$LIBMP" ] || die "$LIBMP not found: run make at the top of the tree first"
+if ! command -v irafcl >/dev/null 2>&1; then
+  say "SKIP: IRAF DAOPHOT not installed (apt-get install iraf iraf-noao)"
+  exit 0
+fi
+
+FRAMES=${FRAMES:-A B C}
+REPS=${REPS:-3}
+NITER=${NITER:-3}
+MATPHOT_THREADS=${MATPHOT_THREADS:-1}
+DAO_CLEAN=${DAO_CLEAN:-2}
+REPORT=${REPORT:-tests/bench/daophot/REPORT.md}
+TOP=$(pwd)
+
+W=$(mktemp -d "${TMPDIR:-/tmp}/cmpdao.XXXXXX") || die "mktemp failed"
+cleanup() { if [ "${KEEP:-0}" = 1 ]; then say "work directory kept: $W"; else rm -rf "$W"; fi; }
+trap cleanup EXIT
+trap 'exit 130' INT TERM
+
+# A snapshot of the binary: others may rebuild ./matphot while this runs.
+cp ./matphot "$W/matphot" || die "cannot copy ./matphot"
+MP="$W/matphot"
+
+# The helper (tests/bench/daophot/compare.c): PSF-star selection, matching
+# to the truth, statistics and the report.
+CMP="$W/compare"
+# shellcheck disable=SC2046
+${CC:-cc} -std=c17 -Wall -Wextra -Werror -O2 -D_XOPEN_SOURCE=700 -I. $(pkg-config --cflags wcslib) \
+  -o "$CMP" tests/bench/daophot/compare.c tests/bench/daophot/report.c \
+  "$LIBMP" -lcfitsio $(pkg-config --libs wcslib) -lcsv -llapacke -lopenblas -lm -fopenmp \
+  || die "cannot build tests/bench/daophot/compare.c"
+
+# timed OUT CMD...: run CMD, append "wall user sys" to OUT.  /usr/bin/time
+# when there is one (Debian package time), else date + the shell's times.
+cpu_children() { times > "$1"; }
+cpu_children_read() { awk 'NR==2 { n=split($0,a," "); t=0;
+  for (i=1;i<=n;i++) { s=a[i]; sub(/s$/,"",s); m=index(s,"m");
+    t+= (m ? substr(s,1,m-1)*60 + substr(s,m+1) : s) } print t }' "$1"; }
+timed() {
+  out=$1; shift
+  if [ -x /usr/bin/time ]; then
+    /usr/bin/time -f '%e %U %S' -o "$out.t" "$@"; rc=$?
+    tail -n 1 "$out.t" >> "$out"; rm -f "$out.t"
+  else
+    # times must run in this shell (not in $(...)) to see its children
+    t0=$(date +%s.%N); cpu_children "$out.c0" >/dev/null
+    "$@"; rc=$?
+    t1=$(date +%s.%N); cpu_children "$out.c1" >/dev/null
+    c0=$(cpu_children_read "$out.c0"); c1=$(cpu_children_read "$out.c1")
+    rm -f "$out.c0" "$out.c1"
+    echo "$t0 $t1 $c0 $c1" | awk '{ printf "%.2f %.2f 0\n", $2-$1, $4-$3 }' >> "$out"
+  fi
+  return $rc
+}
+
+# ---------------------------------------------------------------- IRAF CL
+# cl_head DIR FWHM SIGMA RON GAIN VARORDER: the common top of every CL script.  The
+# script given to irafcl -f replaces login.cl, so it sets home/uparm itself
+# (a fresh uparm$ per run: nothing learned from earlier runs) and must end
+# in logout; the last line it prints is CL_OK, the check that every task
+# ran (a failing task ends the CL before it, with exit status 0).
+cl_head() {
+  fw=$2; fitrad=$2
+  psfrad=$(awk -v f="$fw" 'BEGIN { printf "%.2f", 4*f }')
+  cat <<EOF
+set home = "$1/h/"
+set uparm = "home\$uparm/"
+set imdir = "home\$imdir/"
+set cache = "home\$cache/"
+set userid = "bench"
+set imtype = "fits"
+set clobber = yes
+stty vt220
+clpackage
+noao
+digiphot
+daophot
+daophot.verify = no
+daophot.update = no
+daophot.verbose = no
+datapars.fwhmpsf = $fw
+datapars.sigma = $3
+datapars.readnoise = $4
+datapars.epadu = $5
+datapars.datamin = INDEF
+datapars.datamax = INDEF
+findpars.threshold = 4.0
+findpars.nsigma = 1.5
+centerpars.calgorithm = "none"
+fitskypars.salgorithm = "mode"
+fitskypars.annulus = 10.0
+fitskypars.dannulus = 10.0
+photpars.apertures = "$fitrad"
+photpars.zmag = 0.0
+daopars.function = "gauss"
+daopars.varorder = $6
+daopars.psfrad = $psfrad
+daopars.fitrad = $fitrad
+daopars.fitsky = yes
+daopars.sannulus = $fitrad
+daopars.wsannulus = 11.0
+daopars.maxgroup = 60
+EOF
+}
+
+# run_cl DIR NAME: irafcl -f DIR/NAME.cl, no stdin, log in DIR/NAME.log.
+run_cl() {
+  ( cd "$1" && rm -rf h && mkdir -p h/uparm h/imdir h/cache &&
+    HOME="$1/h" timed "$1/times.$2" timeout 3600 irafcl -f "$2.cl" \
+      </dev/null >"$2.log" 2>&1 )
+  if ! grep -q '^CL_OK' "$1/$2.log" || grep -q 'ERROR' "$1/$2.log"; then
+    echo "compare_daophot: IRAF DAOPHOT step $2 failed in $1; its CL log:" >&2
+    sed 's/^/    /' "$1/$2.log" | tail -n 30 >&2
+    exit 1
+  fi
+}
+
+# dao_run DIR IMG FWHM SIGMA RON GAIN VARORDER: the DAOPHOT chain on
+# DIR/IMG.fits, with DIR/pst.coo the PSF-star coordinates.  Four CL runs,
+# timed apart: find (daofind + phot), psf (phot of the PSF stars + psf;
+# with a look-up table (VARORDER >= 0) then DAO_CLEAN rounds of nstar on the
+# PSF star groups, substar of their neighbours and psf on that image: the
+# daoref.ms recipe for a PSF free of neighbours), als1 (allstar), refind
+# (NITER-1 rounds of daofind on the allstar residual, phot on the frame,
+# pfmerge + prenumber, allstar).
+dao_run() {
+  d=$1; im=$2; vo=$7
+  { cl_head "$d" "$3" "$4" "$5" "$6" "$vo"
+    cat <<EOF
+daofind ("$im.fits", output="$im.coo", starmap="", skymap="", interactive=no, verify=no, verbose=no)
+phot ("$im.fits", coords="$im.coo", output="$im.mag", interactive=no, verify=no, verbose=no)
+print ("CL_OK")
+logout
+EOF
+  } > "$d/find.cl"
+  { cl_head "$d" "$3" "$4" "$5" "$6" "$vo"
+    cat <<EOF
+phot ("$im.fits", coords="pst.coo", output="$im.pmag", interactive=no, verify=no, verbose=no)
+EOF
+    c=0; src=$im.fits; nc=$DAO_CLEAN; [ "$vo" -lt 0 ] && nc=0
+    while [ "$c" -lt "$nc" ]; do
+      cat <<EOF
+psf ("$src", "$im.mag", "$im.pmag", "$im.dpsf_$c", "$im.pst_$c", "$im.psg_$c", matchbyid=no, interactive=no, showplots=no, plotfile="", verify=no, verbose=no)
+nstar ("$im.fits", "$im.psg_$c", "$im.dpsf_$c", "$im.nst_$c", "$im.nrj_$c", verify=no, verbose=no)
+substar ("$im.fits", "$im.nst_$c", "$im.pst_$c", "$im.dpsf_$c", "$im.cln_$c", verify=no, verbose=no)
+EOF
+      src=$im.cln_$c.fits; c=$((c + 1))
+    done
+    cat <<EOF
+psf ("$src", "$im.mag", "$im.pmag", "$im.dpsf", "$im.pst", "$im.psg", matchbyid=no, interactive=no, showplots=no, plotfile="", verify=no, verbose=no)
+print ("CL_OK")
+logout
+EOF
+  } > "$d/psf.cl"
+  { cl_head "$d" "$3" "$4" "$5" "$6" "$vo"
+    cat <<EOF
+allstar ("$im.fits", "$im.mag", "$im.dpsf", "$im.als1", "$im.arj1", "$im.sub1", verify=no, verbose=no)
+print ("CL_OK")
+logout
+EOF
+  } > "$d/als1.cl"
+  { cl_head "$d" "$3" "$4" "$5" "$6" "$vo"
+    k=1
+    while [ "$k" -lt "$NITER" ]; do
+      n=$((k + 1))
+      cat <<EOF
+daofind ("$im.sub$k.fits", output="$im.coo$n", starmap="", skymap="", interactive=no, verify=no, verbose=no)
+phot ("$im.fits", coords="$im.coo$n", output="$im.mag$n", interactive=no, verify=no, verbose=no)
+pfmerge ("$im.als$k,$im.mag$n", "$im.mrg$n", verbose=no)
+prenumber ("$im.mrg$n")
+allstar ("$im.fits", "$im.mrg$n", "$im.dpsf", "$im.als$n", "$im.arj$n", "$im.sub$n", verify=no, verbose=no)
+EOF
+      k=$n
+    done
+    echo 'print ("CL_OK")'
+    echo 'logout'
+  } > "$d/refind.cl"
+  for s in find psf als1; do run_cl "$d" $s; done
+  [ "$NITER" -gt 1 ] && run_cl "$d" refind
+  [ -s "$d/$im.als$NITER" ] || die "DAOPHOT wrote no $d/$im.als$NITER"
+  return 0
+}
+
+# ---------------------------------------------------------------- frames
+# name nx ny nstars fwhm seed description
+frame_spec() {
+  case $1 in
+    A) echo "512 512 1000 3.0 1 512x512, 1000 stars, FWHM 3 px";;
+    B) echo "1024 1024 5000 2.5 2 1024x1024, 5000 stars, FWHM 2.5 px";;
+    C) echo "512 512 3000 3.0 3 512x512, 3000 stars, FWHM 3 px (dense: many blends)";;
+    *) die "unknown frame $1 (A, B or C)";;
+  esac
+}
+MAGMIN=-13; MAGMAX=-7; SKY=100; RON=3; GAIN=1
+
+HOSTN=$(uname -n 2>/dev/null || echo "?")
+NCPU=$(nproc 2>/dev/null || echo "?")
+LOAD=$(cut -d' ' -f1-3 /proc/loadavg 2>/dev/null || echo "?")
+IRAFV=$(irafcl -v 2>/dev/null | head -n 1)
+MPV=$("$MP" --version 2>/dev/null | head -n 1)
+GITV=$(git rev-parse --short HEAD 2>/dev/null || echo "?")
+git diff --quiet HEAD 2>/dev/null || GITV="$GITV + uncommitted changes"
+MPSUM=$(sha256sum "$MP" 2>/dev/null | cut -c1-12)
+MPV="$MPV (tree $GITV, ./matphot sha256 $MPSUM...)"
+{
+  printf 'date\t%s\n' "$(date -u '+%Y-%m-%d %H:%M UTC')"
+  printf 'host\t%s\n' "$HOSTN"; printf 'ncpu\t%s\n' "$NCPU"; printf 'load\t%s\n' "$LOAD"
+  printf 'iraf\tIRAF %s (Debian iraf %s)\n' "$IRAFV" \
+    "$(dpkg-query -W -f='${Version}' iraf 2>/dev/null || echo '?')"
+  printf 'matphot\t%s\n' "$MPV"; printf 'reps\t%s\n' "$REPS"; printf 'niter\t%s\n' "$NITER"
+  printf 'threads\t%s\n' "$MATPHOT_THREADS"; printf 'clean\t%s\n' "$DAO_CLEAN"
+} > "$W/meta.tsv"
+: > "$W/frames.tsv"
+: > "$W/runs.tsv"
+: > "$W/commands.txt"
+
+for F in $FRAMES; do
+  set -- $(frame_spec "$F")
+  nx=$1; ny=$2; ns=$3; fw=$4; seed=$5; shift 5; desc="$*"
+  FD="$W/$F"; mkdir -p "$FD/cat"
+  simcmd="matphot sim $F.fits nx=$nx ny=$ny mode=crowded nstars=$ns fwhm=$fw magmin=$MAGMIN magmax=$MAGMAX sky=$SKY rdnoise=$RON gain=$GAIN seed=$seed psfout=$F.psf.fits psfos=2"
+  say "frame $F: $desc"
+  ( cd "$FD" && "$MP" ${simcmd#matphot } >sim.log 2>&1 ) || { cat "$FD/sim.log" >&2; die "sim of frame $F failed"; }
+  sigma=$(awk -v s=$SKY -v r=$RON -v g=$GAIN 'BEGIN { printf "%.3f", sqrt(s*g + r*r)/g }')
+  # PSF stars for DAOPHOT: the 25 least contaminated bright stars (truth)
+  psfrad=$(awk -v f="$fw" 'BEGIN { printf "%.2f", 4*f }')
+  "$CMP" pststars "$FD/$F.truth" "$fw" "$psfrad" "$nx" "$ny" 25 "$FD/pst.coo" 2>"$FD/pst.log" \
+    || { cat "$FD/pst.log" >&2; die "PSF star selection failed"; }
+  printf '%s\t%s\t%s\t%s\t%s\t%s\n' "$F" "$fw" "$MAGMIN" "$MAGMAX" "$desc" "$simcmd" >> "$W/frames.tsv"
+  mpcmd="matphot pipeline $F.fits psf=$F.psf.fits fitrad=$fw threshold=4 niter=$NITER"
+  mpdcmd="matphot pipeline $F.fits psf=$F.psf.fits threshold=4 niter=$NITER"
+  {
+    echo "# frame $F"
+    echo "$simcmd"
+    echo "OMP_NUM_THREADS=$MATPHOT_THREADS $mpcmd    # matphot, fitrad = FWHM (as DAOPHOT)"
+    echo "OMP_NUM_THREADS=$MATPHOT_THREADS $mpdcmd    # matphot, default fitrad"
+    echo "irafcl -f find.cl; irafcl -f psf.cl; irafcl -f als1.cl; irafcl -f refind.cl   # DAOPHOT, varorder 0 (sigma=$sigma, fitrad=$fw, psfrad=$psfrad)"
+    echo "irafcl -f find.cl; irafcl -f psf.cl; irafcl -f als1.cl; irafcl -f refind.cl   # the same with varorder -1 (analytic PSF)"
+  } >> "$W/commands.txt"
+
+  r=1
+  while [ "$r" -le "$REPS" ]; do
+    # matphot, fitrad = FWHM
+    RD="$FD/r$r"; mkdir -p "$RD/mp" "$RD/mpd" "$RD/dao" "$RD/daoa"
+    # interleaved: matphot, DAOPHOT, matphot default, DAOPHOT analytic PSF
+    for v in mp dao mpd daoa; do
+      case $v in
+      mp|mpd)
+        ln -sf "$FD/$F.fits" "$RD/$v/$F.fits"
+        if [ $v = mp ]; then cmd=$mpcmd; else cmd=$mpdcmd; fi
+        ( cd "$RD/$v" && OMP_NUM_THREADS=$MATPHOT_THREADS \
+            timed "$RD/$v/times" "$MP" ${cmd#matphot } psf="$FD/$F.psf.fits" >run.log 2>&1 ) \
+          || { tail -n 20 "$RD/$v/run.log" >&2; die "matphot pipeline failed on frame $F"; }
+        printf '%s\t%s\t%s\t%s\n' "$F" "$v" "$r" "$(tail -n 1 "$RD/$v/times")" >> "$W/runs.tsv";;
+      dao|daoa)
+        if [ $v = dao ]; then vo=0; else vo=-1; fi
+        cp "$FD/$F.fits" "$FD/pst.coo" "$RD/$v/"
+        dao_run "$RD/$v" "$F" "$fw" "$sigma" "$RON" "$GAIN" "$vo"
+        for s in find psf als1 refind; do
+          [ -f "$RD/$v/times.$s" ] &&
+            printf '%s\t%s_%s\t%s\t%s\n' "$F" "$v" "$s" "$r" "$(tail -n 1 "$RD/$v/times.$s")" >> "$W/runs.tsv"
+        done;;
+      esac
+    done
+    say "frame $F run $r/$REPS: $(awk -v f="$F" -v r="$r" '$1==f && $3==r { printf "%s %.1fs  ", $2, $5+$6 }' "$W/runs.tsv")(CPU)"
+    if [ "$r" = 1 ]; then
+      cp "$RD/mp/$F.cat" "$FD/cat/mp.cat"
+      cp "$RD/mpd/$F.cat" "$FD/cat/mpd.cat"
+      cp "$RD/dao/$F.als1" "$FD/cat/dao1.als"
+      cp "$RD/dao/$F.als$NITER" "$FD/cat/dao.als"
+      cp "$RD/daoa/$F.als$NITER" "$FD/cat/daoa.als"
+    else
+      rm -f "$RD"/dao*/*.sub*.fits "$RD"/dao*/*.cln*.fits "$RD"/mp*/*.res.fits
+    fi
+    r=$((r + 1))
+  done
+  { cat "$RD/dao/find.cl"
+    for s in psf als1 refind; do
+      [ -f "$RD/dao/$s.cl" ] || continue
+      echo "# ---- $s.cl: the same lines up to daopars.maxgroup, then"
+      sed -n '/^daopars.maxgroup/,$p' "$RD/dao/$s.cl" | sed 1d
+    done; } | sed "s#$W/#WORKDIR/#g" > "$W/example.cl"
+done
+
+"$CMP" stats "$W" "$W/stats.tsv" || die "matching failed"
+mkdir -p "$(dirname "$REPORT")"
+"$CMP" report "$W/stats.tsv" "$REPORT" || die "report failed"
+say "report written to $REPORT"
+exit 0

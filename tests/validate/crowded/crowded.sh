@@ -1,0 +1,201 @@
+#!/bin/sh
+# crowded.sh — the crowded-field case of `make validate` (issue 3, "the
+# staged reduction"); tests/validate/run.sh calls it after the paper's
+# experiments.  Builds tests/validate/crowded/crowded.c with run.sh's flags,
+# simulates the frame (fixed seed), reduces it with `matphot pipeline` three
+# ways (constant sky, plane sky, constant sky with the economy off so the 2×
+# table is kept), matches each catalog to the truth and writes
+# validate/CROWDED.md with validate/crowded_*.png.  Work files go to
+# $BUILD/validate/crowded/.  Exit 0 unless a build or a program failed.
+set -u
+cd "$(dirname "$0")/../../.." || exit 1
+BUILD=${BUILD:-build}
+CC=${CC:-cc}
+MATPHOT=${MATPHOT:-./matphot}
+LIB="$BUILD/libmatphot.a"
+OUT="$BUILD/validate/crowded"
+REP=validate/CROWDED.md
+if [ ! -f "$LIB" ] || [ ! -x "$MATPHOT" ]; then
+    echo "crowded: $LIB or $MATPHOT is missing (run make all first)" >&2
+    exit 1
+fi
+mkdir -p "$OUT" validate || exit 1
+CFLAGS="-std=c17 -Wall -Wextra -Werror -O2 -fopenmp -D_XOPEN_SOURCE=700 -I. -I/usr/include/wcslib"
+LIBS="-fopenmp $LIB -lcfitsio -lwcs -lcsv -llapacke -lopenblas -lm"
+# shellcheck disable=SC2086
+$CC $CFLAGS -o "$OUT/crowded" tests/validate/crowded/crowded.c $LIBS ||
+    { echo "crowded: build failed" >&2; exit 1; }
+OPENBLAS_NUM_THREADS=1
+export OPENBLAS_NUM_THREADS
+# CPU time of each run (the stage seconds of the run report are wall clock,
+# which a loaded machine stretches).
+# timed LOG CMD...: run CMD with its output in LOG, and (with /usr/bin/time)
+# a last line "cpu WALL USER SYS".
+timed() {
+    log=$1
+    shift
+    if [ -x /usr/bin/time ]; then
+        /usr/bin/time -f 'cpu %e %U %S' "$@" > "$log" 2>&1
+    else
+        "$@" > "$log" 2>&1
+    fi
+}
+LOAD0=$(cut -d' ' -f1-3 /proc/loadavg 2>/dev/null || echo '?')
+
+t0=$(date +%s)
+rm -f "$OUT"/*.cat "$OUT"/*.report "$OUT"/*.md "$OUT"/*.dat "$OUT"/*.log "$OUT"/*.failed "$OUT"/*.wall "$OUT"/*.cmd "$OUT"/*.cpu
+"$OUT/crowded" sim "$OUT" > "$OUT/sim.log" || { cat "$OUT/sim.log"; exit 1; }
+cat "$OUT/sim.log"
+
+# root | label | extra pipeline parameters (everything else: the defaults)
+RUNS="const|constant sky|skymodel=constant
+plane|plane sky|skymodel=plane
+x2|constant sky, economy off (2x table kept)|skymodel=constant economy-"
+
+rc=0
+echo "$RUNS" | while IFS='|' read -r root label extra; do
+    # shellcheck disable=SC2086
+    echo "$MATPHOT pipeline $OUT/frame.fits psf=$OUT/psf.fits root=$OUT/$root $extra" \
+        > "$OUT/$root.cmd"
+    s=$(date +%s)
+    # shellcheck disable=SC2086
+    timed "$OUT/$root.log" "$MATPHOT" pipeline "$OUT/frame.fits" psf="$OUT/psf.fits" \
+        root="$OUT/$root" $extra
+    prc=$?
+    e=$(date +%s)
+    echo "$((e - s))" > "$OUT/$root.wall"
+    # CPU seconds (user + sys) from /usr/bin/time's last line of the log
+    tail -n 1 "$OUT/$root.log" | awk '/^cpu /{printf "%.1f\n", $3 + $4}' > "$OUT/$root.cpu"
+    if [ $prc -ne 0 ]; then
+        echo "crowded: pipeline failed ($label), see $OUT/$root.log" >&2
+        tail -n 3 "$OUT/$root.log" >&2
+        echo fail > "$OUT/$root.failed"
+        continue
+    fi
+    "$OUT/crowded" match "$OUT" "$root" "$label" || echo fail > "$OUT/$root.failed"
+done
+for f in "$OUT"/*.failed; do
+    [ -e "$f" ] && rc=1
+done
+
+# Figures (gnuplot; skipped with a line in the report when it is missing).
+FIG=""
+if command -v gnuplot > /dev/null 2>&1 && [ -f "$OUT/const_cmag.dat" ]; then
+    gnuplot <<EOF 2> "$OUT/gnuplot.log" && FIG=yes
+set terminal pngcairo size 900,380 font ',9'
+set output 'validate/crowded_completeness.png'
+set multiplot layout 1,2
+set title 'Completeness against true magnitude'
+set xlabel 'true magnitude (0 mag = 1 e-)'
+set ylabel 'fraction found (1 px match)'
+set yrange [0:1.05]
+set xrange [-16.5:-5.5]
+set key bottom left
+set grid
+plot '$OUT/const_cmag.dat' u 1:2:3 w yerrorlines t 'constant sky', \
+     '$OUT/plane_cmag.dat' u (\$1+0.08):2:3 w yerrorlines t 'plane sky', \
+     '$OUT/x2_cmag.dat' u (\$1+0.16):2:3 w yerrorlines t 'economy off (x2)'
+set title 'Close pairs: both members found'
+set xlabel 'pair separation [FWHM]'
+set ylabel 'fraction of pairs'
+set xrange [0.5:2.0]
+set key bottom right
+plot '$OUT/const_csep.dat' u 3:4:5 w yerrorlines t 'both, constant sky', \
+     '$OUT/plane_csep.dat' u (\$3+0.02):4:5 w yerrorlines t 'both, plane sky', \
+     '$OUT/x2_csep.dat' u (\$3+0.04):4:5 w yerrorlines t 'both, economy off', \
+     '$OUT/const_csep.dat' u 3:6:7 w yerrorlines dt 2 t 'merged (one found), constant'
+unset multiplot
+set terminal pngcairo size 1200,380 font ',9'
+set output 'validate/crowded_errors.png'
+set multiplot layout 1,3
+set xrange [-14.5:-5.5]
+set yrange [0.6:1.6]
+set key top left
+set xlabel 'true magnitude'
+set title 'Field stars: error over the performance model'
+set ylabel 'median ratio (1 = paper model, isolated star)'
+plot 1 lc rgb 'gray' notitle, \
+     '$OUT/const_err.dat' u 1:3 w lp t 'phot, constant', \
+     '$OUT/const_err.dat' u 1:4 w lp t 'astro, constant', \
+     '$OUT/plane_err.dat' u 1:3 w lp t 'phot, plane', \
+     '$OUT/plane_err.dat' u 1:4 w lp t 'astro, plane'
+set title 'Field stars: robust sigma of normalised errors'
+set ylabel 'IQR/1.349 of error / fit sigma'
+plot 1 lc rgb 'gray' notitle, \
+     '$OUT/const_err.dat' u 1:5 w lp t '(E-Et)/sE, constant', \
+     '$OUT/const_err.dat' u 1:6 w lp t '(X-Xt)/sX, constant', \
+     '$OUT/plane_err.dat' u 1:5 w lp t '(E-Et)/sE, plane', \
+     '$OUT/plane_err.dat' u 1:6 w lp t '(X-Xt)/sX, plane'
+set title 'Pairs found as two: error over the model'
+set xlabel 'pair separation [FWHM]'
+set ylabel 'median ratio (both members)'
+set xrange [0.5:2.0]
+set yrange [0.5:*]
+set key top right
+plot 1 lc rgb 'gray' notitle, \
+     '$OUT/const_csep.dat' u 3:9 w lp t 'phot, constant', \
+     '$OUT/const_csep.dat' u 3:10 w lp t 'astro, constant', \
+     '$OUT/plane_csep.dat' u 3:9 w lp t 'phot, plane', \
+     '$OUT/plane_csep.dat' u 3:10 w lp t 'astro, plane'
+unset multiplot
+EOF
+fi
+
+t1=$(date +%s)
+LOAD1=$(cut -d' ' -f1-3 /proc/loadavg 2>/dev/null || echo '?')
+{
+    echo "# matphot validation: the crowded field"
+    echo
+    echo "Generated $(date -u '+%Y-%m-%d %H:%M UTC') by \`tests/validate/crowded/crowded.sh\` ($((t1 - t0)) s wall in all; $(nproc 2>/dev/null || echo '?') processors)."
+    echo "Reproduce: \`make validate\`, or \`VALIDATE_ONLY=crowded sh tests/validate/run.sh\` for this part alone.  Back to [REPORT.md](REPORT.md)."
+    echo
+    echo "## The scene"
+    echo
+    echo "\`$OUT/crowded sim\` (tests/validate/crowded/crowded.c, seed 20261122, xoshiro256** of sim/sim.h):"
+    echo
+    echo "- 1024×1024 px, Gaussian PSF FWHM 3 px, drawn with **MP_SIM_GAUSS** (exact pixel integration by erf, positions continuous — not snapped to a table grid).  The PSF handed to the pipeline is the **2× table of the same Gaussian** (\`psf.fits\`, 49×49 elements, OVERSAMP 2, built like sim/task_sim.c's write_psf: the Gaussian of σ·2 drawn at the centre of a fine frame), so the fit's model is exact up to the table's finite sampling and the damped-sinc shift."
+    echo "- 5000 stars: 4580 field stars uniform over the frame, mag uniform in [−14, −6]; **200 close pairs** (primary uniform in [10.5, 1014.5]², mag uniform in [−14, −8]; companion at a separation uniform in 0.5–2 FWHM = 1.5–6 px at a uniform angle, 0–2 mag fainter); 20 bright stars, mag uniform in [−16.5, −15.5], all of which saturate.  0 mag = 1 e−."
+    echo "- Sky: a plane from 100 e− at pixel (1,1) to 150 e− at (1024,1024) (25 e− across x, 25 e− across y); Poisson noise, read noise 3 e−; gain 1; pixels above **SATURATE = 60000 ADU** clipped to it (the SATURATE card is in the header)."
+    echo "- Truth: \`$OUT/truth.dat\` (ASCII_HEAD; KIND 0 field, 1 primary, 2 companion, 3 bright; SAT_SELF: the star alone on its sky reaches SATURATE)."
+    echo
+    sed 's/^crowded: /- Simulated: /' "$OUT/sim.log"
+    echo
+    echo "## Runs"
+    echo
+    echo "Pipeline parameters: the defaults of \`matphot params pipeline\` (threshold 4, fitrad 5, niter 3, passes 2, minsnr 2, mergerad 0.4 FWHM, matchrad 1 FWHM, mesh 64, economy yes, ...) except the ones named.  Commands:"
+    echo
+    echo '```'
+    cat "$OUT"/const.cmd "$OUT"/plane.cmd "$OUT"/x2.cmd 2>/dev/null
+    echo '```'
+    echo
+    echo "Matching: each true star to the nearest catalog entry (XPSF_IMAGE, YPSF_IMAGE) within 1 px, one-to-one, closest pairs first.  A *false detection* is a catalog entry with no true star within 1 px.  Errors are over the paper's performance model (FLUXERR_MODEL, POSERR_MODEL: an isolated star on the local sky, so crowding shows as ratios above 1) and normalised by the fit's own errors."
+    echo
+    echo "| run | entries | matched | false | completeness (all 5000) | pairs both found, by separation 0.5–0.75 / 0.75–1 / 1–1.5 / 1.5–2 FWHM | field phot/model | field astro/model | rσ (E−Et)/σE | rσ (X−Xt)/σX | saturated found, flag 1 | fit s (wall) | total s (wall) | CPU s (user+sys) |"
+    echo "|---|---:|---:|---:|---:|---|---:|---:|---:|---:|---|---:|---:|---:|"
+    for r in const plane x2; do
+        if [ -f "$OUT/${r}_row.md" ]; then
+            c=$(cat "$OUT/$r.cpu" 2>/dev/null)
+            echo "$(cat "$OUT/${r}_row.md") ${c:-?} |"
+        else
+            echo "| $r | failed | | | | | | | | | | | | |"
+        fi
+    done
+    echo
+    echo "The stage seconds are the run reports' (wall clock); load average (1, 5, 15 min) before the runs: $LOAD0, after: $LOAD1 — on a shared machine the wall times stretch, the CPU times much less."
+    echo
+    if [ -n "$FIG" ]; then
+        echo "![completeness](crowded_completeness.png)"
+        echo
+        echo "![errors](crowded_errors.png)"
+    else
+        echo "(No figures: gnuplot is missing or failed.)"
+    fi
+    echo
+    echo "## Results per run"
+    echo
+    for r in const plane x2; do
+        if [ -f "$OUT/$r.md" ]; then cat "$OUT/$r.md"; else echo "### $r: failed (see $OUT/$r.log)"; echo; fi
+    done
+} > "$REP.tmp" && mv "$REP.tmp" "$REP"
+echo "crowded: wrote $REP ($((t1 - t0)) s)"
+exit $rc
