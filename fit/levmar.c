@@ -217,6 +217,15 @@ static void normal_equations(group *G, const double *p, const rstar *r)
     for (int a = 0; a < np; a++)           /* mirror the upper triangle */
         for (int b = 0; b < a; b++)
             G->A[(size_t)a * np + b] = G->A[(size_t)b * np + a];
+    /* Without a fitted sky the sky slot is held fixed: the slot gets a unit,
+     * uncoupled row, so the step solves the star block only. */
+    if (!G->nsky) {
+        int s = 3 * n;
+        for (int a = 0; a < np; a++)
+            G->A[(size_t)a * np + s] = G->A[(size_t)s * np + a] = 0.0;
+        G->A[(size_t)s * np + s] = 1.0;
+        G->g[s] = 0.0;
+    }
 }
 
 /* Solve (A + λ diag A) δ = g by Cholesky; nonzero when not positive definite. */
@@ -505,18 +514,10 @@ int mp_fit_group(const mp_frame *f, const mp_prf_model *m, const mp_fit_opts *o,
         if (!(isfinite(G.p[3 * k]) && G.p[3 * k] > 0))
             G.p[3 * k] = start_flux(&G, &G.cur[k], sky);
 
-    /* Without a fitted sky the sky slot is held fixed: solve only the star
-     * block by giving the slot a unit, uncoupled row. */
     int np = G.np;
     model_of(&G, G.p, G.cur);
     variance_of(&G);
     normal_equations(&G, G.p, G.cur);
-    if (!G.nsky) {
-        for (int a = 0; a < np; a++)
-            G.A[(size_t)a * np + 3 * n] = G.A[(size_t)(3 * n) * np + a] = 0.0;
-        G.A[(size_t)(3 * n) * np + 3 * n] = 1.0;
-        G.g[3 * n] = 0.0;
-    }
     double chi2 = chi2_with(&G, G.var);
     double lambda = 1e-3;
     int converged = 0, iter = 0, trials = 0;
@@ -566,12 +567,6 @@ int mp_fit_group(const mp_frame *f, const mp_prf_model *m, const mp_fit_opts *o,
         lambda = lambda / 10.0 > 1e-7 ? lambda / 10.0 : 1e-7;
         variance_of(&G);
         normal_equations(&G, G.p, G.cur);
-        if (!G.nsky) {
-            for (int a = 0; a < np; a++)
-                G.A[(size_t)a * np + 3 * n] = G.A[(size_t)(3 * n) * np + a] = 0.0;
-            G.A[(size_t)(3 * n) * np + 3 * n] = 1.0;
-            G.g[3 * n] = 0.0;
-        }
         chi2 = chi2_with(&G, G.var);
         if (small) {
             converged = 1;
