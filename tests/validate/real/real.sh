@@ -33,6 +33,22 @@ $CC $CFLAGS -o "$OUT/real" tests/validate/real/real.c $LIBS ||
 OPENBLAS_NUM_THREADS=1
 export OPENBLAS_NUM_THREADS
 REAL="$OUT/real"
+# timed LOG CMD...: run CMD with its output in LOG, and (with /usr/bin/time)
+# a last line "cpu WALL USER SYS"; cpu_of LOG: "W s wall, C s CPU".
+timed() {
+    log=$1
+    shift
+    if [ -x /usr/bin/time ]; then
+        /usr/bin/time -f 'cpu %e %U %S' "$@" > "$log" 2>&1
+    else
+        "$@" > "$log" 2>&1
+    fi
+}
+cpu_of() {
+    tail -n 1 "$1" | awk '/^cpu /{printf "%.0f s wall, %.0f s CPU (user+sys)", $2, $3 + $4; f=1}
+                          END{if (!f) printf "CPU time not measured"}'
+}
+LOAD0=$(cut -d' ' -f1-3 /proc/loadavg 2>/dev/null || echo '?')
 rc=0
 t0=$(date +%s)
 rm -f "$OUT"/*.cat "$OUT"/*.report "$OUT"/*.md "$OUT"/*.dat "$OUT"/*.log "$OUT"/*.txt "$OUT"/*.cmd
@@ -91,12 +107,12 @@ if [ -f "$TF" ] && [ -f "$TP" ]; then
         PSFNOTE="the whole table: section [2:582,2:582] (581×581 elements, ±72 px; odd and centred on the peak at file element (292,292))"
     else
         SEC="[132:452,132:452]"
-        PSFNOTE="the section [132:452,132:452] (321×321 elements = ±40 detector px, centred on the peak at file element (292,292)); the whole table ([2:582,2:582], ±72 px) is \`TUC_PSF=full\`"
+        PSFNOTE="the section [132:452,132:452] (321×321 elements = ±40 detector px, centred on the peak at file element (292,292)); the whole table ([2:582,2:582], ±72 px) is \`TUC_PSF=full\`: when this script was written (2026-11-22, 2 processors at load ≈ 7) a run with it had not finished its first fit round after 28 min wall, 11 min CPU, so it is not the default"
     fi
     set -- "$TF[SCI]" root="$OUT/tuc" psf="$TP$SEC" oversamp=4 gain=1 rdnoise=4.71 saturate=151553.98
     echo "$MATPHOT pipeline $*" > "$OUT/tuc.cmd"
     s=$(date +%s)
-    "$MATPHOT" pipeline "$@" > "$OUT/tuc.log" 2>&1
+    timed "$OUT/tuc.log" "$MATPHOT" pipeline "$@"
     prc=$?
     e=$(date +%s)
     if [ $prc -ne 0 ]; then
@@ -108,7 +124,7 @@ if [ -f "$TF" ] && [ -f "$TP" ]; then
         set -- $("$REAL" noise "$OUT/tuc.res.fits" "$OUT/tuc.cat")
         stamps "$TF[SCI]" "$OUT/tuc.res.fits" 207 207 100 validate/real_47tuc_stamp.png "47 Tuc (ACS/HRC F606W)" || rc=1
         {
-        echo "Command ($((e - s)) s wall):"
+        echo "Command ($(cpu_of "$OUT/tuc.log")):"
         echo
         echo '```'
         cat "$OUT/tuc.cmd"
@@ -126,7 +142,7 @@ if [ -f "$TF" ] && [ -f "$TP" ]; then
         echo "Progress lines:"
         echo
         echo '```'
-        grep -v "run report\|^matphot pipeline:   " "$OUT/tuc.log"
+        grep -v "run report\|^matphot pipeline:   \|^cpu " "$OUT/tuc.log"
         echo '```'
         echo
         cat "$OUT/tuc_summary.md"
@@ -161,7 +177,7 @@ if [ -f "$GF" ] && [ -f "$GP" ] && [ -f "$GC" ]; then
     set -- "$GF" root="$OUT/glimpse" psf="$GP" oversamp=4 gain="$GAIN"
     echo "$MATPHOT pipeline $*" > "$OUT/glimpse.cmd"
     s=$(date +%s)
-    "$MATPHOT" pipeline "$@" > "$OUT/glimpse.log" 2>&1
+    timed "$OUT/glimpse.log" "$MATPHOT" pipeline "$@"
     prc=$?
     e=$(date +%s)
     if [ $prc -ne 0 ]; then
@@ -198,7 +214,7 @@ unset multiplot
 EOF
         fi
         {
-        echo "Command ($((e - s)) s wall):"
+        echo "Command ($(cpu_of "$OUT/glimpse.log")):"
         echo
         echo '```'
         cat "$OUT/glimpse.cmd"
@@ -216,7 +232,7 @@ EOF
         echo "Progress lines:"
         echo
         echo '```'
-        grep -v "run report\|^matphot pipeline:   " "$OUT/glimpse.log"
+        grep -v "run report\|^matphot pipeline:   \|^cpu " "$OUT/glimpse.log"
         echo '```'
         echo
         cat "$OUT/glimpse_summary.md"
@@ -246,7 +262,7 @@ else
 fi
 
 t1=$(date +%s)
-echo "Total: $((t1 - t0)) s wall for this page." >> "$REP.tmp"
+echo "Total: $((t1 - t0)) s wall for this page; load average (1, 5, 15 min) before: $LOAD0, after: $(cut -d' ' -f1-3 /proc/loadavg 2>/dev/null || echo '?') on $(nproc 2>/dev/null || echo '?') processors (the run reports' stage seconds are wall clock, which a loaded machine stretches)." >> "$REP.tmp"
 mv "$REP.tmp" "$REP"
 [ -f "$OUT/tuc.report" ] && echo "real: 47 Tuc: $(seconds "$OUT/tuc")"
 [ -f "$OUT/glimpse_cmp.txt" ] && echo "real: $(cat "$OUT/glimpse_cmp.txt")"
