@@ -12,18 +12,24 @@
 #   SWEEP_N_ISOLATED=...   stars per scene (also _CROWDED, _UNDERSAMPLED, _UGLY)
 #   SWEEP_REPS=3           timing repeats (median)
 #   SWEEP_PSF=...          the Tiny Tim x4 table (default ../shared/data/real/...)
+#   SWEEP_OUT=bench        where REPORT.md and the PNGs go
 #
 # IRAF DAOPHOT: when bench/daophot_points.txt exists (written by the DAOPHOT
 # comparison; lines "scene cpu_s_per_star phot_ratio astro_ratio", '#'
 # comments), each scene's table and plot get DAOPHOT's point; otherwise the
-# report and the plots say that there is none.
+# report and the plots say that there is none.  The file is read when the
+# report is written, so whatever writes it must run before this script.  To
+# run another program on the same pixels: $BUILD/bench/sweep/sweep -s SCENE
+# [-n N] -w DIR writes DIR/SCENE.fits (single-star scenes as a mosaic of
+# their 60x60 frames), DIR/SCENE.truth (positions, fluxes, CRLB, start
+# positions) and DIR/SCENE_psf.fits.
 # Exit status: 0 when every scene ran (or was skipped for a missing input).
 set -u
 cd "$(dirname "$0")/../../.." || exit 1
 B=${BUILD:-build}
 CC=${CC:-cc}
 W="$B/bench/sweep"
-OUT=bench
+OUT=${SWEEP_OUT:-bench}
 LIB="$B/libmatphot.a"
 PSF=${SWEEP_PSF:-../shared/data/real/hst_acs_hrc_47tuc/tinytim_acs_hrc_f606w_x512y512_sub4.fits}
 DAO="$OUT/daophot_points.txt"
@@ -38,7 +44,8 @@ rm -f "$W"/*.md "$W"/*.gp "$W"/*.dat "$W"/*.log
 $CC -std=c17 -Wall -Wextra -Werror -O2 -fopenmp -D_XOPEN_SOURCE=700 -I. \
     $(pkg-config --cflags wcslib) -o "$W/sweep" tests/bench/sweep/sweep.c \
     tests/bench/sweep/scenes.c tests/bench/sweep/run.c tests/bench/sweep/stats.c \
-    tests/bench/sweep/report.c "$LIB" -lcfitsio $(pkg-config --libs wcslib) -lcsv \
+    tests/bench/sweep/report.c tests/bench/sweep/export.c "$LIB" -lcfitsio \
+    $(pkg-config --libs wcslib) -lcsv \
     -llapacke -lopenblas -lm || { echo "sweep: build failed" >&2; exit 1; }
 
 if [ "${BENCH_QUICK:-0}" = 1 ]; then
@@ -67,7 +74,7 @@ scene() {  # scene NAME N
 load0=$(cut -d' ' -f1-3 /proc/loadavg 2>/dev/null)
 t0=$(date +%s)
 echo "sweep: error against run time, $MODE; two lanes, one thread each (logs in $W)"
-# Two lanes of about equal CPU: the crowded frame alone, the single-star
+# Two lanes: the crowded frame alone (about two thirds of the CPU), the single-star
 # scenes together.
 ( scene crowded "$N_CRO" ) &
 lane1=$!
@@ -79,7 +86,8 @@ wait $lane2 || rc=1
 t1=$(date +%s)
 load1=$(cut -d' ' -f1-3 /proc/loadavg 2>/dev/null)
 
-plots="gnuplot $(gnuplot --version 2>/dev/null | head -n 1)"
+plots="$(gnuplot --version 2>/dev/null | head -n 1)"
+rm -f "$OUT/isolated.png" "$OUT/crowded.png" "$OUT/undersampled.png" "$OUT/ugly.png"
 if command -v gnuplot >/dev/null 2>&1; then
     for g in "$W"/*.gp; do
         [ -f "$g" ] || continue
@@ -90,13 +98,20 @@ else
 fi
 
 cpu=$(grep -m1 'model name' /proc/cpuinfo 2>/dev/null | sed 's/.*: //')
+cpu_of() {  # CPU seconds of a scene from its log ("... done in W s wall, C s CPU")
+    sed -n 's/.* wall, \([0-9.]*\) s CPU$/\1/p' "$W/$1.log" 2>/dev/null | tail -n 1
+}
+cpu1=$(cpu_of crowded)
+cpu2=$(awk -v a="$(cpu_of isolated)" -v b="$(cpu_of undersampled)" -v c="$(cpu_of ugly)" \
+    'BEGIN { printf "%.0f", a + b + c }')
 {
     echo "# matphot bench: error against run time"
     echo
     echo "Generated $(date -u '+%Y-%m-%d %H:%M UTC') by \`make bench\` (tests/bench/sweep/run.sh, $MODE)"
-    echo "on $(nproc 2>/dev/null || echo '?') cores ($cpu); load average $load0 at the start, $load1 at the end"
+    echo "on $(getconf _NPROCESSORS_ONLN 2>/dev/null || echo '?') cores ($cpu); load average $load0 at the start, $load1 at the end"
     echo "(the machine is shared: CPU seconds are less disturbed than wall time, but not immune)."
-    echo "$((t1 - t0)) s wall for the four scenes in two parallel lanes; plots: $plots."
+    echo "$((t1 - t0)) s wall for the four scenes in two parallel lanes (CPU: crowded ${cpu1:-?} s;"
+    echo "isolated + undersampled + ugly $cpu2 s — an idle 2-core machine needs about the larger); plots: $plots."
     echo
     echo "For every cost knob of the fit (fit.par's \`sinchw\`, the table's supersampling, \`fitrad\`,"
     echo "\`tol\`, \`maxiter\`; group.par's \`maxgroup\` on the crowded frame), swept one at a time around"
@@ -112,8 +127,10 @@ cpu=$(grep -m1 'model name' /proc/cpuinfo 2>/dev/null | sed 's/.*: //')
         if [ -f "$W/${s}_sum.md" ]; then cat "$W/${s}_sum.md"; else echo "| $s | failed | | | | | |"; fi
     done
     echo
-    echo "*Shortest safe sinchw*: the shortest damped-sinc half-width whose ratios for those stars stay"
-    echo "within max(0.01, 2σ) of the default kernel's on the same stars (paired bootstrap σ)."
+    echo "*Shortest safe sinchw*: the shortest damped-sinc half-width shown to change neither ratio of"
+    echo "those stars by more than 0.03 against the default kernel (|Δ| + 2σ ≤ 0.03 on the same stars,"
+    echo "paired-bootstrap σ; an equivalence test, so noise is no proof of safety), at the default's"
+    echo "table sampling, and not beating the bound.  Phot / astro: the error ratios over the CRLB."
     echo
     echo "## Method"
     echo
@@ -147,5 +164,7 @@ cpu=$(grep -m1 'model name' /proc/cpuinfo 2>/dev/null | sed 's/.*: //')
         [ -f "$W/$s.md" ] && cat "$W/$s.md"
     done
 } > "$OUT/REPORT.md.tmp" && mv "$OUT/REPORT.md.tmp" "$OUT/REPORT.md"
-echo "sweep: wrote $OUT/REPORT.md and $(ls "$OUT"/*.png 2>/dev/null | wc -l) PNGs in $((t1 - t0)) s"
+npng=0
+for s in isolated crowded undersampled ugly; do [ -f "$OUT/$s.png" ] && npng=$((npng + 1)); done
+echo "sweep: wrote $OUT/REPORT.md and $npng PNGs in $((t1 - t0)) s"
 exit $rc

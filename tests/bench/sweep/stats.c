@@ -200,7 +200,8 @@ int sw_stats(const sw_scene *sc, sw_result *res, int nres, int idef, uint64_t se
  * SW_PEPS better — differences far below the sampling uncertainty do not
  * put an otherwise dominated setting on the front.  Settings that flag or
  * lose more than SW_FLAGMAX more of the stars than the default are not
- * usable (a not-converged flag on most stars), so they are on no front. */
+ * usable (a not-converged flag on most stars), nor are settings that beat
+ * the bound (sw_beats); they are on no front. */
 static int dominates(const sw_result *j, const sw_result *i, int w)
 {
     double yj[2] = {j->sub[0].ph, j->sub[0].as}, yi[2] = {i->sub[0].ph, i->sub[0].as};
@@ -216,7 +217,17 @@ static int dominates(const sw_result *j, const sw_result *i, int w)
 
 int sw_usable(const sw_result *r, const sw_result *def)
 {
-    return r->fflag + r->flost <= def->fflag + def->flost + SW_FLAGMAX;
+    return r->fflag + r->flost <= def->fflag + def->flost + SW_FLAGMAX && !sw_beats(r, 0);
+}
+
+/* No unbiased estimator beats the CRLB: a ratio more than 3σ of sampling
+ * below 1 means a bias toward the truth (e.g. positions pulled to the
+ * table grid on which the simulated stars sit), not a better fit. */
+int sw_beats(const sw_result *r, int sub)
+{
+    const sw_sub *u = &r->sub[sub];
+    return u->n > 0 && (u->ph < 1.0 - 3.0 * 1.166 / sqrt((double)u->n) ||
+                        u->as < 1.0 - 3.0 * 0.721 / sqrt((double)u->n));
 }
 
 void sw_pareto(sw_result *res, int nres)

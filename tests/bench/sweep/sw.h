@@ -26,6 +26,7 @@
 #define SW_PSFRAD 10.0           /* group.par's psfrad; radius of the Gaussian tables */
 #define SW_PEPS 0.005            /* ratio differences the Pareto fronts ignore */
 #define SW_FLAGMAX 0.05          /* more flagged or lost than the default: not usable */
+#define SW_SAFE 0.03             /* a change shown (2σ) to be below this is safe */
 
 typedef enum { SW_SINGLE, SW_CROWDED } sw_kind;
 
@@ -102,6 +103,9 @@ typedef struct {
 int sw_scene_build(sw_scene *sc, const char *name, int n, const char *realpath, char *err);
 void sw_scene_free(sw_scene *sc);
 
+/* export.c: DIR/SCENE.fits, SCENE.truth, SCENE_psf.fits */
+int sw_export(const char *dir, const sw_scene *sc, char *err);
+
 /* run.c */
 int sw_run(const sw_scene *sc, const sw_setting *st, int k0, int k1, sw_result *r, int record,
            double *cpu, char *err);
@@ -111,6 +115,7 @@ void sw_result_free(sw_result *r);
 double sw_median(double *v, size_t n);          /* reorders v */
 int sw_stats(const sw_scene *sc, sw_result *res, int nres, int idef, uint64_t seed);
 int sw_usable(const sw_result *r, const sw_result *def);
+int sw_beats(const sw_result *r, int sub);
 void sw_pareto(sw_result *res, int nres);
 
 /* report.c */

@@ -2,15 +2,14 @@
  * sweep.c — error against run time for one scene (issue 5).
  *
  *   sweep -s SCENE [-n N] [-r REPS] [-o WORKDIR] [-g PNGDIR] [-p TINYTIM_X4.fits]
- *         [-d DAOPHOT_POINTS] [-k KNOBS] [-q]
+ *         [-d DAOPHOT_POINTS] [-k KNOBS] [-w DIR] [-q]
  *
  * SCENE: isolated, crowded, undersampled, ugly.  The knobs of fit.par and
  * group.par are swept one at a time around their defaults (read from the
  * compiled-in params/fit.par and params/group.par; the supersampling
  * default is what economy=yes picks): sinchw, the table's sampling, fitrad,
  * tol, maxiter and, on the crowded scene, maxgroup; then the "economy"
- * combination of the cheapest value of every knob that stays within 2 % of
- * the default.  Every setting fits the same stars; its CPU seconds are the
+ * combination of the cheapest harmless value of every knob (economy()).  Every setting fits the same stars; its CPU seconds are the
  * median of REPS repeats (interleaved over the settings).  Writes
  * WORKDIR/SCENE.md (the report's section), WORKDIR/SCENE*.dat, WORKDIR/SCENE.gp
  * (gnuplot script writing PNGDIR/SCENE.png).  Exit 0 on success (also when
@@ -43,9 +42,10 @@ static double cpu_total(void)
 static void usage(FILE *fp)
 {
     fprintf(fp, "usage: sweep -s isolated|crowded|undersampled|ugly [-n N] [-r REPS] [-o WORKDIR]\n"
-                "             [-g PNGDIR] [-p TINYTIM_X4.fits] [-d DAOPHOT_POINTS] [-k KNOBS] [-q]\n"
+                "             [-g PNGDIR] [-p TINYTIM_X4.fits] [-d DAOPHOT_POINTS] [-k KNOBS] [-w DIR] [-q]\n"
                 "  -k KNOBS  comma list of knobs to sweep (sinchw,os,fitrad,tol,maxiter,maxgroup;\n"
-                "            default all)\n");
+                "            default all; none: only the default)\n"
+                "  -w DIR    write the scene (frame or mosaic, truth, PSF) to DIR and stop\n");
 }
 
 /* fit.par's and group.par's defaults. */
@@ -232,69 +232,118 @@ static int run_block(const sw_scene *sc, sw_result *res, int i0, int i1, int rep
     return 0;
 }
 
-/* The economy combination: per knob, the cheapest value at least 3 % cheaper
- * than the default that stays within 2 % of the default's ratios over all
- * stars and within 3 % over the bright ones, with at most 1 % more stars
- * flagged or lost.  0: none found. */
-static int pick_economy(const sw_scene *sc, const sw_result *res, int nres, sw_setting *e,
-                        char *why, size_t nwhy)
+/* One knob's value applied to a setting. */
+static void apply(sw_setting *e, const sw_setting *b)
+{
+    if (!strcmp(b->knob, "sinchw"))
+        e->hw = b->hw;
+    else if (!strcmp(b->knob, "os"))
+        e->tab = b->tab;
+    else if (!strcmp(b->knob, "fitrad"))
+        e->fitrad = b->fitrad;
+    else if (!strcmp(b->knob, "tol"))
+        e->tol = b->tol;
+    else if (!strcmp(b->knob, "maxiter"))
+        e->maxiter = b->maxiter;
+    else
+        e->maxgroup = b->maxgroup;
+}
+
+/* Harmless against the default, shown with 2σ margins: |Δ| + 2σ within
+ * SW_SAFE for both ratios on all stars and 2·SW_SAFE on the bright ones, not
+ * beating the bound, at most 1 % more stars flagged or lost. */
+static int harmless(const sw_result *r, const sw_result *d)
+{
+    const sw_sub *a = &r->sub[0], *b = &r->sub[2];
+    return fabs(a->dph) + 2.0 * a->udph <= SW_SAFE && fabs(a->das) + 2.0 * a->udas <= SW_SAFE &&
+           (b->n == 0 || (fabs(b->dph) + 2.0 * b->udph <= 2.0 * SW_SAFE &&
+                          fabs(b->das) + 2.0 * b->udas <= 2.0 * SW_SAFE)) &&
+           !sw_beats(r, 0) && r->fflag + r->flost <= d->fflag + d->flost + 0.01;
+}
+
+/* The economy combination, greedily: per knob the cheapest harmless value
+ * at least 3 % cheaper than the default; then, biggest saving first, each is
+ * added to the combination only if the combination stays harmless (knobs
+ * interact: checked by fitting every star once more).  Returns the number
+ * of knobs kept, -1 on error. */
+static int economy(const sw_scene *sc, const sw_result *res, int nres, sw_setting *e, char *why,
+                   size_t nwhy, char *err)
 {
     static const char *const knobs[] = {"sinchw", "os", "fitrad", "tol", "maxiter", "maxgroup"};
+    enum { NK = sizeof knobs / sizeof *knobs };
     const sw_result *d = &res[0];
-    *e = d->s;
-    e->is_default = 0;
-    e->is_econ = 1;
-    snprintf(e->knob, sizeof e->knob, "economy");
-    why[0] = 0;
-    int npick = 0;
-    size_t lw = 0;
-    for (size_t k = 0; k < sizeof knobs / sizeof *knobs; k++) {
+    int cand[NK], nc = 0;
+    for (int k = 0; k < NK; k++) {
         int best = -1;
         for (int i = 1; i < nres; i++) {
             const sw_result *r = &res[i];
-            if (strcmp(r->s.knob, knobs[k]) || r->s.is_econ)
-                continue;
-            if (!(r->cpu_star < 0.97 * d->cpu_star))
-                continue;
-            if (!(r->sub[0].dph <= 0.02 && r->sub[0].das <= 0.02))
-                continue;
-            if (r->sub[2].n > 0 && !(r->sub[2].dph <= 0.03 && r->sub[2].das <= 0.03))
-                continue;
-            if (r->fflag + r->flost > d->fflag + d->flost + 0.01)
+            if (strcmp(r->s.knob, knobs[k]) || r->s.is_econ || !(r->cpu_star < 0.97 * d->cpu_star) ||
+                !harmless(r, d))
                 continue;
             if (best < 0 || r->cpu_star < res[best].cpu_star)
                 best = i;
         }
-        if (best < 0)
-            continue;
-        const sw_setting *b = &res[best].s;
-        if (!strcmp(knobs[k], "sinchw"))
-            e->hw = b->hw;
-        else if (!strcmp(knobs[k], "os"))
-            e->tab = b->tab;
-        else if (!strcmp(knobs[k], "fitrad"))
-            e->fitrad = b->fitrad;
-        else if (!strcmp(knobs[k], "tol"))
-            e->tol = b->tol;
-        else if (!strcmp(knobs[k], "maxiter"))
-            e->maxiter = b->maxiter;
-        else
-            e->maxgroup = b->maxgroup;
-        lw += (size_t)snprintf(why + lw, lw < nwhy ? nwhy - lw : 0, "%s%s=%s", npick ? ", " : "",
-                               knobs[k], b->value);
-        if (lw >= nwhy)
-            lw = nwhy - 1;
-        npick++;
+        if (best >= 0)
+            cand[nc++] = best;
     }
-    (void)sc;
-    snprintf(e->value, sizeof e->value, "%d knobs", npick);
-    return npick;
+    for (int a = 1; a < nc; a++)            /* biggest saving first */
+        for (int c = a; c > 0 && res[cand[c]].cpu_star < res[cand[c - 1]].cpu_star; c--) {
+            int t = cand[c];
+            cand[c] = cand[c - 1];
+            cand[c - 1] = t;
+        }
+    *e = d->s;
+    e->is_default = 0;
+    e->is_econ = 1;
+    snprintf(e->knob, sizeof e->knob, "economy");
+    char kept[256] = "", dropped[256] = "";
+    int nk = 0, nd = 0;
+    for (int c = 0; c < nc; c++) {
+        const sw_setting *b = &res[cand[c]].s;
+        int ok = 1;
+        if (nk > 0) {                       /* one knob alone was measured already */
+            sw_result pair[2];
+            memset(pair, 0, sizeof pair);
+            pair[0] = *d;                   /* shares the default's arrays, read only */
+            pair[1].s = *e;
+            apply(&pair[1].s, b);
+            double cpu;
+            if (sw_run(sc, &pair[1].s, 0, sc->n, &pair[1], 1, &cpu, err)) {
+                sw_result_free(&pair[1]);
+                return -1;
+            }
+            if (sw_stats(sc, pair, 2, 0, sc->seed + 77)) {
+                sw_result_free(&pair[1]);
+                snprintf(err, MP_ERRLEN, "out of memory for the statistics");
+                return -1;
+            }
+            ok = harmless(&pair[1], d);
+            sw_result_free(&pair[1]);
+        }
+        char *dst = ok ? kept : dropped;
+        size_t l = strlen(dst);
+        snprintf(dst + l, sizeof kept - l, "%s%s=%s", (ok ? nk : nd) ? ", " : "", b->knob, b->value);
+        if (ok) {
+            apply(e, b);
+            nk++;
+        } else {
+            nd++;
+        }
+    }
+    if (nk == 0)
+        snprintf(why, nwhy, "no knob value is cheaper than the default at no cost in error");
+    else if (nd)
+        snprintf(why, nwhy, "%s (dropped, harmful in combination: %s)", kept, dropped);
+    else
+        snprintf(why, nwhy, "%s", kept);
+    snprintf(e->value, sizeof e->value, "%d knobs", nk);
+    return nk;
 }
 
 int main(int argc, char **argv)
 {
     const char *scene = NULL, *work = ".", *pngdir = ".", *real = DEFAULT_REAL, *dao = NULL;
-    const char *only = NULL;
+    const char *only = NULL, *exportdir = NULL;
     int n = 0, reps = 3, verbose = 1;
     for (int i = 1; i < argc; i++) {
         const char *a = argv[i];
@@ -316,6 +365,7 @@ int main(int argc, char **argv)
         case 'p': real = v; break;
         case 'd': dao = v; break;
         case 'k': only = v; break;
+        case 'w': exportdir = v; break;
         default: usage(stderr); return 2;
         }
         i++;
@@ -348,6 +398,15 @@ int main(int argc, char **argv)
         sw_scene_free(&sc);
         return rc;
     }
+    if (exportdir) {             /* for running another program on the same scene */
+        int rc = sw_export(exportdir, &sc, err);
+        if (rc)
+            fprintf(stderr, "sweep: %s\n", err);
+        else if (verbose)
+            fprintf(stderr, "sweep: wrote %s/%s.fits, .truth, _psf.fits\n", exportdir, sc.name);
+        sw_scene_free(&sc);
+        return rc;
+    }
     def.tab = sc.def_tab;
     def.is_default = 1;
     snprintf(def.knob, sizeof def.knob, "default");
@@ -375,11 +434,11 @@ int main(int argc, char **argv)
     char why[512];
     sw_setting econ;
     int iecon = -1;
-    if (pick_economy(&sc, res, nres, &econ, why, sizeof why) && nres < SW_MAXSET) {
-        int dup = 0;
-        for (int i = 0; i < nres; i++)
-            dup |= same(&res[i].s, &econ);
-        if (!dup) {
+    int nk = economy(&sc, res, nres, &econ, why, sizeof why, err);
+    if (nk < 0)
+        goto fail;
+    if (nk > 0 && nres < SW_MAXSET) {
+        {
             /* Timed interleaved with a re-run of the default, and scaled to
              * the default's CPU of the first phase (the load may differ). */
             sw_result pair[2];
@@ -400,12 +459,7 @@ int main(int argc, char **argv)
                 snprintf(err, MP_ERRLEN, "out of memory for the statistics");
                 goto fail;
             }
-        } else {
-            snprintf(why + strlen(why), sizeof why - strlen(why),
-                     " (already one of the single-knob settings)");
         }
-    } else if (!why[0]) {
-        snprintf(why, sizeof why, "no knob value is cheaper than the default at no cost in error");
     }
     sw_pareto(res, nres);
     if (sw_write(work, pngdir, &sc, res, nres, rows, nrows, iecon, why, dao, reps,
