@@ -203,6 +203,21 @@ static int do_summary(const char *catpath)
     for (long i = 0; i < n; i++)
         v[i] = mp_table_get(&t, (size_t)i, cgs);
     double gmax = quant(v, n, 1.0), gmed = median(v, n);
+    /* Fits gone astray: huge reduced chi2, or a fitted position far from
+     * the detection. */
+    int cx0 = mp_table_col(&t, "X_IMAGE"), cy0 = mp_table_col(&t, "Y_IMAGE");
+    int cxp = mp_table_col(&t, "XPSF_IMAGE"), cyp = mp_table_col(&t, "YPSF_IMAGE");
+    long nchi10 = 0, nchi1e4 = 0, nmoved = 0, nnan = 0;
+    for (long i = 0; i < n; i++) {
+        double c = mp_table_get(&t, (size_t)i, cchi);
+        nchi10 += c > 10;
+        nchi1e4 += c > 1e4;
+        nnan += !isfinite(c) || !isfinite(mp_table_get(&t, (size_t)i, cf));
+        if (cx0 >= 0 && cy0 >= 0 && cxp >= 0 && cyp >= 0 &&
+            hypot(mp_table_get(&t, (size_t)i, cxp) - mp_table_get(&t, (size_t)i, cx0),
+                  mp_table_get(&t, (size_t)i, cyp) - mp_table_get(&t, (size_t)i, cy0)) > 3.0)
+            nmoved++;
+    }
     long bits[6] = {0}, nsky = 0;
     for (long i = 0; i < n; i++) {
         int fl = (int)mp_table_get(&t, (size_t)i, cfl);
@@ -216,6 +231,9 @@ static int do_summary(const char *catpath)
            "FLUXERR_PSF/FLUXERR_MODEL %.3f; median ERRX_PSF/POSERR_MODEL %.3f; median "
            "S/N (FLUX_PSF/FLUXERR_PSF) %.1f; GROUP_SIZE median %.0f, largest %.0f.\n",
            n, chi, chq1, chq3, fr, pr, snr, gmed, gmax);
+    printf("- Fits gone astray: CHI2_PSF > 10 for %ld stars, > 1e4 for %ld; fitted position more "
+           "than 3 px from the detection (X_IMAGE, Y_IMAGE) for %ld; CHI2_PSF or FLUX_PSF not "
+           "finite for %ld.\n", nchi10, nchi1e4, nmoved, nnan);
     printf("- FLAGS: saturated (1) %ld, split group (2) %ld, edge (4) %ld, not converged (8) "
            "%ld, merged (16) %ld, masked pixels (32) %ld.\n", bits[0], bits[1], bits[2],
            bits[3], bits[4], bits[5]);
