@@ -67,10 +67,7 @@ static int setup_of(const mp_parset *ps, cat_setup *s, char *err)
     s->radius = 3.0;
     mp_par_real(ps, "magzero", &s->magzero);
     mp_par_real(ps, "regradius", &s->radius);
-    s->dp.gain = s->dp.rdnoise = s->dp.saturate = s->dp.exptime = NAN;
-    mp_par_real(ps, "gain", &s->dp.gain);
-    mp_par_real(ps, "rdnoise", &s->dp.rdnoise);
-    mp_par_real(ps, "exptime", &s->dp.exptime);
+    mp_datapars_read(ps, &s->dp);
     return 0;
 }
 

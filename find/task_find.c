@@ -68,11 +68,7 @@ static int setup_of(const mp_parset *ps, find_setup *s, char *err)
         snprintf(err, MP_ERRLEN, "format: unknown table format '%s'", fmt ? fmt : "");
         return 1;
     }
-    s->dp = (mp_datapars){NAN, NAN, NAN, NAN};
-    mp_par_real(ps, "gain", &s->dp.gain);
-    mp_par_real(ps, "rdnoise", &s->dp.rdnoise);
-    mp_par_real(ps, "saturate", &s->dp.saturate);
-    mp_par_real(ps, "exptime", &s->dp.exptime);
+    mp_datapars_read(ps, &s->dp);
     return 0;
 }
 

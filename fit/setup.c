@@ -140,10 +140,7 @@ int mp_fit_setup_read(const mp_parset *ps, mp_fit_setup *s, char *err)
     s->model.drf = &s->drf;
     s->model.sinc_hw = hw;
     mp_par_real(ps, "magzero", &s->opts.magzero);
-    mp_par_real(ps, "gain", &s->dp.gain);
-    mp_par_real(ps, "rdnoise", &s->dp.rdnoise);
-    mp_par_real(ps, "saturate", &s->dp.saturate);
-    mp_par_real(ps, "exptime", &s->dp.exptime);
+    mp_datapars_read(ps, &s->dp);
     if (mp_table_format_parse(mp_par_string(ps, "format"), &s->fmt)) {
         snprintf(err, MP_ERRLEN, "format: unknown table format '%s'", mp_par_string(ps, "format"));
         return 1;

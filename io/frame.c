@@ -1,6 +1,7 @@
 /* frame.c — mp_frame_read (io.h): an image in electrons with its mask and
  * the detector numbers in force. */
 #include "io/io.h"
+#include "params/params.h"
 
 #include <math.h>
 #include <stdio.h>
@@ -37,10 +38,71 @@ static int resolve(const char *name, const mp_image *im, double dp, const char *
     }
 }
 
+void mp_datapars_read(const mp_parset *ps, mp_datapars *dp)
+{
+    *dp = (mp_datapars){NAN, NAN, NAN, NAN, "", 0, 0};
+    mp_par_real(ps, "gain", &dp->gain);
+    mp_par_real(ps, "rdnoise", &dp->rdnoise);
+    mp_par_real(ps, "saturate", &dp->saturate);
+    mp_par_real(ps, "exptime", &dp->exptime);
+    /* Tasks without the DQ parameters (older @files) simply have none. */
+    const char *dq = mp_par_string(ps, "dqmask");
+    snprintf(dp->dqmask, sizeof dp->dqmask, "%s", dq ? dq : "");
+    int v = 0;
+    if (!mp_par_int(ps, "dqsat", &v) && v > 0)
+        dp->dqsat = v;
+    v = 0;
+    if (!mp_par_int(ps, "dqbad", &v) && v > 0)
+        dp->dqbad = v;
+}
+
+/* The DQ image's name: "[EXT]" is an extension of the frame's own file
+ * (the frame's own extension and section dropped).  Caller frees. */
+static char *dq_name(const char *image, const char *dq)
+{
+    size_t n = dq[0] == '[' ? strcspn(image, "[") : 0;
+    char *s = malloc(n + strlen(dq) + 1);
+    if (s) {
+        memcpy(s, image, n);
+        strcpy(s + n, dq);
+    }
+    return s;
+}
+
+/* Apply the DQ image's bits to the mask (before any other masking, so the
+ * counts stay those of the final mask). */
+static int apply_dq(const char *name, const mp_datapars *dp, mp_frame *f, char *err)
+{
+    char *dqn = dq_name(name, dp->dqmask);
+    if (!dqn) {
+        snprintf(err, MP_ERRLEN, "%s: out of memory", name);
+        return 1;
+    }
+    mp_image dq;
+    int rc = mp_image_read(dqn, &dq, err), got = !rc;
+    if (!rc && (dq.nx != f->im.nx || dq.ny != f->im.ny)) {
+        snprintf(err, MP_ERRLEN, "dqmask: %s is %ldx%ld, the frame %s is %ldx%ld", dqn,
+                 dq.nx, dq.ny, name, f->im.nx, f->im.ny);
+        rc = 1;
+    }
+    for (size_t i = 0, n = (size_t)f->im.nx * (size_t)f->im.ny; !rc && i < n; i++) {
+        double v = dq.pix[i];
+        long bits = isfinite(v) && v >= 0 && v < 2147483648.0 ? (long)v : 0;
+        if (bits & dp->dqbad)
+            f->mask[i] |= MP_MASK_BAD;
+        else if (bits & dp->dqsat)
+            f->mask[i] |= MP_MASK_SATURATED;
+    }
+    if (got)
+        mp_image_free(&dq);
+    free(dqn);
+    return rc;
+}
+
 int mp_frame_read(const char *name, const mp_datapars *dp, mp_frame *f, char *err)
 {
     memset(f, 0, sizeof *f);
-    const mp_datapars none = {NAN, NAN, NAN, NAN};
+    const mp_datapars none = {NAN, NAN, NAN, NAN, "", 0, 0};
     if (!dp)
         dp = &none;
     if (mp_image_read(name, &f->im, err))
@@ -78,19 +140,20 @@ int mp_frame_read(const char *name, const mp_datapars *dp, mp_frame *f, char *er
         snprintf(err, MP_ERRLEN, "%s: out of memory for the mask", name);
         goto fail;
     }
+    if (dp->dqmask[0] && (dp->dqsat || dp->dqbad) && apply_dq(name, dp, f, err))
+        goto fail;
     for (size_t i = 0; i < n; i++) {
         double adu = f->im.pix[i];
-        if (!isfinite(adu)) {
+        if (!isfinite(adu) || (f->mask[i] & MP_MASK_BAD)) {
             f->mask[i] = MP_MASK_BAD;
             f->im.pix[i] = 0.0;
             f->nbad++;
             continue;
         }
         /* Saturation is judged in ADU, as SATURATE is given. */
-        if (adu >= f->saturate) {
+        if (adu >= f->saturate)
             f->mask[i] = MP_MASK_SATURATED;
-            f->nsat++;
-        }
+        f->nsat += f->mask[i] == MP_MASK_SATURATED;
         f->im.pix[i] = adu * f->gain;
     }
     return 0;

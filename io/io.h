@@ -70,7 +70,19 @@ int mp_image_write(const char *path, const double *pix, long nx, long ny,
  * (none), EXPTIME (1 s). */
 typedef struct {
     double gain, rdnoise, saturate, exptime;
+    /* Optional data-quality image (HST DQ, SExtractor flag map): dqmask is
+     * a file name or, starting with '[', an extension of the frame's own
+     * file ("[DQ]"); pixels with a bit of dqbad set carry no weight, with
+     * a bit of dqsat set count as saturated.  "": none. */
+    char dqmask[1024];
+    long dqsat, dqbad;
 } mp_datapars;
+
+struct mp_parset_s;
+/* mp_datapars_read: the datapars parameters (gain, rdnoise, saturate,
+ * exptime, dqmask, dqsat, dqbad) of a task's parameter set; INDEF reals
+ * come back NaN (take the header's). */
+void mp_datapars_read(const struct mp_parset_s *ps, mp_datapars *dp);
 
 /* Mask bits of mp_frame.mask. */
 enum {

@@ -59,7 +59,7 @@ typedef struct {
     int set;         /* 1 when given on the command line or in an @file */
 } mp_par;
 
-typedef struct {
+typedef struct mp_parset_s {
     char task[32];
     mp_par *p;
     size_t n;

@@ -369,6 +369,68 @@ static void test_bad_inputs(void **state)
 
 /* ---------- frames ---------- */
 
+/* A frame with a DQ plane (HST layout: SCI and DQ image extensions): the
+ * dqbad bits carry no weight, the dqsat bits count as saturated, other bits
+ * and dqmask="" change nothing; a DQ plane of another shape is refused. */
+static void test_frame_dq(void **state)
+{
+    scratch *s = *state;
+    double pix[NX * NY], dq[NX * NY] = {0};
+    pattern(pix);
+    dq[3] = 256;          /* full well */
+    dq[4] = 2048 + 4;     /* A/D saturation and an informational bit */
+    dq[5] = 4;            /* informational only */
+    dq[6] = 16;           /* hot pixel */
+    const char *path = in_dir(s, "mef.fits");
+    char name[700];
+    snprintf(name, sizeof name, "!%s", path);
+    fitsfile *fp;
+    int st = 0;
+    long ax[2] = {NX, NY}, fpix[2] = {1, 1};
+    fits_create_file(&fp, name, &st);
+    fits_create_img(fp, 8, 0, NULL, &st);
+    fits_create_img(fp, DOUBLE_IMG, 2, ax, &st);
+    fits_update_key_str(fp, "EXTNAME", "SCI", NULL, &st);
+    fits_write_pix(fp, TDOUBLE, fpix, NX * NY, pix, &st);
+    fits_create_img(fp, SHORT_IMG, 2, ax, &st);
+    fits_update_key_str(fp, "EXTNAME", "DQ", NULL, &st);
+    fits_write_pix(fp, TDOUBLE, fpix, NX * NY, dq, &st);
+    fits_close_file(fp, &st);
+    assert_int_equal(st, 0);
+
+    char sci[720], err[MP_ERRLEN];
+    snprintf(sci, sizeof sci, "%s[SCI]", path);
+    mp_frame f;
+    mp_datapars dp = {NAN, NAN, NAN, NAN, "[DQ]", 2304, 16};
+    assert_int_equal(mp_frame_read(sci, &dp, &f, err), 0);
+    assert_int_equal(f.nsat, 2);
+    assert_int_equal(f.nbad, 1);
+    assert_int_equal(f.mask[3], MP_MASK_SATURATED);
+    assert_int_equal(f.mask[4], MP_MASK_SATURATED);
+    assert_int_equal(f.mask[5], 0);
+    assert_int_equal(f.mask[6], MP_MASK_BAD);
+    assert_true(f.im.pix[6] == 0.0);
+    mp_frame_free(&f);
+    /* A file name works as well as [EXT]. */
+    snprintf(dp.dqmask, sizeof dp.dqmask, "%s[DQ]", path);
+    assert_int_equal(mp_frame_read(sci, &dp, &f, err), 0);
+    assert_int_equal(f.nsat + f.nbad, 3);
+    mp_frame_free(&f);
+    /* No DQ: nothing masked. */
+    dp.dqmask[0] = 0;
+    assert_int_equal(mp_frame_read(sci, &dp, &f, err), 0);
+    assert_int_equal(f.nsat + f.nbad, 0);
+    mp_frame_free(&f);
+    /* Wrong shape and a missing extension: one line naming what. */
+    snprintf(dp.dqmask, sizeof dp.dqmask, "%s[SCI][1:4,1:4]", path);
+    assert_int_not_equal(mp_frame_read(sci, &dp, &f, err), 0);
+    assert_non_null(strstr(err, "dqmask"));
+    assert_null(f.mask);
+    snprintf(dp.dqmask, sizeof dp.dqmask, "[NOPE]");
+    assert_int_not_equal(mp_frame_read(sci, &dp, &f, err), 0);
+    assert_non_null(strstr(err, "NOPE"));
+}
+
 static void test_frame(void **state)
 {
     scratch *s = *state;
@@ -386,7 +448,7 @@ static void test_frame(void **state)
     assert_int_equal(mp_image_write(path, pix, NX, NY, -32, cards, 4, err), 0);
 
     mp_frame f;
-    const mp_datapars none = {NAN, NAN, NAN, NAN};
+    const mp_datapars none = {NAN, NAN, NAN, NAN, "", 0, 0};
     assert_int_equal(mp_frame_read(path, &none, &f, err), 0);
     assert_true(f.gain == 2.0 && f.rdnoise == 5.0 && f.saturate == 1000.0 && f.exptime == 30.0);
     assert_int_equal(f.nbad, 1);
@@ -402,7 +464,7 @@ static void test_frame(void **state)
     mp_frame_free(&f);
 
     /* datapars wins over the header; NULL datapars means all from header. */
-    const mp_datapars dp = {4.0, 1.0, NAN, 2.0};
+    const mp_datapars dp = {4.0, 1.0, NAN, 2.0, "", 0, 0};
     assert_int_equal(mp_frame_read(path, &dp, &f, err), 0);
     assert_true(f.gain == 4.0 && f.rdnoise == 1.0 && f.saturate == 1000.0 && f.exptime == 2.0);
     assert_true(f.im.pix[5] == 4.0 * pix[5]);
@@ -420,11 +482,11 @@ static void test_frame(void **state)
     mp_frame_free(&f);
 
     /* Bad detector numbers, named. */
-    const mp_datapars badgain = {0.0, NAN, NAN, NAN};
+    const mp_datapars badgain = {0.0, NAN, NAN, NAN, "", 0, 0};
     assert_int_not_equal(mp_frame_read(path, &badgain, &f, err), 0);
     assert_true(strncmp(err, "gain: ", 6) == 0);
     assert_null(f.mask);
-    const mp_datapars badron = {NAN, -1.0, NAN, NAN};
+    const mp_datapars badron = {NAN, -1.0, NAN, NAN, "", 0, 0};
     assert_int_not_equal(mp_frame_read(path, &badron, &f, err), 0);
     assert_true(strncmp(err, "rdnoise: ", 9) == 0);
     const mp_card neg[] = {{"GAIN", -2.0, NULL, NULL}};
@@ -532,6 +594,7 @@ int main(void)
         cmocka_unit_test_setup_teardown(test_sections_and_hdus, setup, teardown),
         cmocka_unit_test_setup_teardown(test_bad_inputs, setup, teardown),
         cmocka_unit_test_setup_teardown(test_frame, setup, teardown),
+        cmocka_unit_test_setup_teardown(test_frame_dq, setup, teardown),
         cmocka_unit_test_setup_teardown(test_outfile, setup, teardown),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);

@@ -109,7 +109,7 @@ if [ -f "$TF" ] && [ -f "$TP" ]; then
         SEC="[132:452,132:452]"
         PSFNOTE="the section [132:452,132:452] (321×321 elements = ±40 detector px, centred on the peak at file element (292,292)); the whole table ([2:582,2:582], ±72 px) is \`TUC_PSF=full\`: when this script was written (2026-11-22, 2 processors at load ≈ 7) a run with it had not finished its first fit round after 28 min wall, 11 min CPU, so it is not the default"
     fi
-    set -- "$TF[SCI]" root="$OUT/tuc" psf="$TP$SEC" oversamp=4 gain=1 rdnoise=4.71 saturate=151553.98
+    set -- "$TF[SCI]" root="$OUT/tuc" psf="$TP$SEC" oversamp=4 gain=1 rdnoise=4.71 saturate=151553.98 dqmask="[DQ]" dqsat=2304
     echo "$MATPHOT pipeline $*" > "$OUT/tuc.cmd"
     s=$(date +%s)
     timed "$OUT/tuc.log" "$MATPHOT" pipeline "$@"
