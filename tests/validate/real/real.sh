@@ -130,7 +130,7 @@ if [ -f "$TF" ] && [ -f "$TP" ]; then
         cat "$OUT/tuc.cmd"
         echo '```'
         echo
-        echo "- Frame: \`j8bt06nyq_flt_sip_crop512.fits[SCI]\`, 512×512, electrons, so **gain=1**; **rdnoise=4.71** e− (READNSEC); no SATURATE card and DQ-plane saturation is not supported yet, so **saturate=151553.98** e− (the SCI header's GOODMAX, which with gain 1 is in ADU = e−).  No DQ mask: cosmic rays and DQ-flagged pixels are fitted as data."
+        echo "- Frame: \`j8bt06nyq_flt_sip_crop512.fits[SCI]\`, 512×512, electrons, so **gain=1**; **rdnoise=4.71** e− (READNSEC); no SATURATE card: saturation from the DQ plane, **dqmask=[DQ] dqsat=2304** (bits 256 full well + 2048 A/D, MANIFEST), and **saturate=151553.98** e− (the SCI header's GOODMAX, which with gain 1 is in ADU = e−).  Other DQ bits are not masked: cosmic rays (a single exposure) are fitted as data."
         echo "- PSF: \`tinytim_acs_hrc_f606w_x512y512_sub4.fits\` (Tiny Tim 7.5, 4× supersampled, no OVERSAMP card → **oversamp=4**; the file is 582×582, even), $PSFNOTE.  Tiny Tim's charge-diffusion kernel is not applied to the sub4 table (MANIFEST), so the model PSF is somewhat sharper than the data's."
         echo
         echo "Run report (\`tuc.report\`):"
