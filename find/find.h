@@ -72,6 +72,23 @@ typedef struct {
  */
 int mp_bkg_estimate(const mp_frame *f, int mesh, int filter, mp_bkg *b, char *err);
 
+/*
+ * mp_bkg_noise_from_model: replace b's rms map by the noise the fitted
+ * model predicts, for detection on a fit's residual.  res (nx*ny,
+ * electrons) is data − stars with the sky kept; the stars' model is
+ * f->im.pix − res.  The map is k·sqrt(sky + stars + RON²): Poisson noise
+ * of everything in the pixel, so a faint star between bright ones meets
+ * the sky's noise and a residual on a bright star meets that star's photon
+ * noise; the mesh rms of a crowded frame instead averages star light into
+ * one number per box.  k is the robust σ (1.4826·MAD) of the residual
+ * normalised by that model over the good pixels: 1 for Poisson data in
+ * electrons, and it absorbs a wrong gain or extra (correlated, mosaic)
+ * noise.  *scale receives k (NaN, and rms left as it was, when fewer than
+ * 10 good pixels).  b->sky is used as the sky.  Errors: out of memory.
+ */
+int mp_bkg_noise_from_model(mp_bkg *b, const mp_frame *f, const double *res, double *scale,
+                            char *err);
+
 /* mp_bkg_free: release the maps; safe on a zeroed or freed mp_bkg. */
 void mp_bkg_free(mp_bkg *b);
 

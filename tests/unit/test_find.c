@@ -780,6 +780,71 @@ static void test_append_and_errors(void **state)
     frame_drop(&f);
 }
 
+
+/* ---------- the residual's noise map from the model ---------- */
+
+/* A Poisson frame of sky + bright stars, residual = data − the exact stars:
+ * the normalised residual's robust σ is 1 (k within Z_TOL standard errors:
+ * the MAD's σ estimate has a relative error 1.166/sqrt(n)), and the map is
+ * k·sqrt(sky + stars + RON²) pixel by pixel.  With every deviation doubled
+ * k is 2.  Masked pixels are left out of k. */
+static void test_noise_from_model(void **state)
+{
+    (void)state;
+    const long nx = 200, ny = 200;
+    const double sky = 100.0, ron = 3.0;
+    mp_frame f;
+    frame_make(&f, nx, ny, ron);
+    double *stars = calloc((size_t)(nx * ny), sizeof *stars), *res = malloc((size_t)(nx * ny) * sizeof *res);
+    assert_non_null(stars);
+    assert_non_null(res);
+    mp_sim_prf p = gauss_prf(3.0);
+    mp_rng r;
+    mp_rng_seed(&r, 4242);
+    for (int k = 0; k < 40; k++)
+        assert_int_equal(mp_sim_add_star(&p, 10 + 180 * mp_rng_uniform(&r), 10 + 180 * mp_rng_uniform(&r),
+                                         1e5, stars, nx, ny), 0);
+    for (long i = 0; i < nx * ny; i++)
+        f.im.pix[i] = sky + stars[i];
+    mp_sim_add_noise(&r, f.im.pix, nx * ny, ron);
+    for (long i = 0; i < 100; i++)
+        f.mask[i * 7] = MP_MASK_BAD;   /* left out of k */
+    mp_bkg b;
+    char err[MP_ERRLEN];
+    double k, tol = Z_TOL * 1.166 / sqrt((double)(nx * ny));
+    for (int scale = 1; scale <= 2; scale++) {
+        for (long i = 0; i < nx * ny; i++) {
+            double dev = f.im.pix[i] - sky - stars[i];
+            res[i] = sky + scale * dev;
+            f.im.pix[i] = res[i] + stars[i];
+        }
+        assert_int_equal(mp_bkg_estimate(&f, 64, 3, &b, err), 0);
+        for (long i = 0; i < nx * ny; i++)
+            b.sky[i] = sky;
+        assert_int_equal(mp_bkg_noise_from_model(&b, &f, res, &k, err), 0);
+        assert_true(fabs(k / scale - 1.0) < tol);
+        for (long i = 0; i < nx * ny; i += 97)
+            assert_true(fabs(b.rms[i] - k * sqrt(sky + stars[i] + ron * ron)) < 1e-9 * b.rms[i]);
+        mp_bkg_free(&b);
+        /* back to the unscaled deviations for the next round */
+        for (long i = 0; i < nx * ny; i++) {
+            double dev = (f.im.pix[i] - sky - stars[i]) / scale;
+            f.im.pix[i] = sky + stars[i] + dev;
+        }
+    }
+    /* No good pixel: k is NaN and the map is untouched. */
+    memset(f.mask, MP_MASK_BAD, (size_t)(nx * ny));
+    assert_int_equal(mp_bkg_estimate(&f, 64, 3, &b, err), 0);
+    double before = b.rms[123];
+    assert_int_equal(mp_bkg_noise_from_model(&b, &f, res, &k, err), 0);
+    assert_true(isnan(k));
+    assert_true(b.rms[123] == before);
+    mp_bkg_free(&b);
+    free(stars);
+    free(res);
+    frame_drop(&f);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
@@ -792,6 +857,7 @@ int main(void)
         cmocka_unit_test(test_isolated_stars),
         cmocka_unit_test(test_completeness),
         cmocka_unit_test(test_saturated_star),
+        cmocka_unit_test(test_noise_from_model),
         cmocka_unit_test(test_nan_columns),
         cmocka_unit_test(test_append_and_errors),
     };
