@@ -79,6 +79,12 @@ typedef struct {
     int nflag, nfail_rc;
     double shift_px;         /* offset of the fitted table (mp_psf.offset) */
     double tab_sum;          /* light held by the fitted table */
+    /* Table truths: noiseless fits at the 16 x4-grid phases of a pixel
+     * (model adequacy, issue 2): per bin, the mean and worst position bias
+     * in CRLB sigmas and the astro/CRLB ratio that bias alone implies. */
+    int have_nb;
+    double nb_x[VT_NBIN], nb_xmax[VT_NBIN], nb_y[VT_NBIN], nb_ymax[VT_NBIN];
+    double nb_ratio[VT_NBIN], nb_u;      /* nb_u: 1-sigma Monte Carlo of the ratio */
     int ran, skipped;
     uint64_t seed0;          /* seed of star 0; star k uses seed0 + k */
     char note[1536];
