@@ -20,6 +20,44 @@ static double fwhm_to_sigma(double fwhm)
     return fwhm / (2.0 * sqrt(2.0 * log(2.0)));
 }
 
+/* Band-limit an n×n table (n odd, OVERSAMP os) in place to |f| ≤ fc
+ * cycles per detector pixel along each axis: periodic convolution of every
+ * row, then every column, with the Dirichlet kernel of the kept DFT
+ * frequencies |u| ≤ U = floor(fc·n/os), i.e. the ideal low-pass of the
+ * table's DFT.  Nonzero when out of memory. */
+static int band_limit(double *t, int n, int os, double fc)
+{
+    int U = (int)floor(fc * n / os);
+    double *d = malloc((size_t)n * sizeof *d), *line = malloc((size_t)n * sizeof *line);
+    if (!d || !line) {
+        free(d);
+        free(line);
+        return 1;
+    }
+    /* D[k] = (1/n) Σ_{|u|≤U} cos(2πuk/n) */
+    for (int k = 0; k < n; k++) {
+        double v = 1.0;
+        for (int u = 1; u <= U; u++)
+            v += 2.0 * cos(2.0 * M_PI * u * k / n);
+        d[k] = v / n;
+    }
+    for (int axis = 0; axis < 2; axis++)
+        for (int r = 0; r < n; r++) {
+            size_t step = axis ? (size_t)n : 1, base = axis ? (size_t)r : (size_t)r * n;
+            for (int i = 0; i < n; i++) {
+                double v = 0.0;
+                for (int k = 0; k < n; k++)
+                    v += t[base + step * (size_t)((i - k + n) % n)] * d[k];
+                line[i] = v;
+            }
+            for (int i = 0; i < n; i++)
+                t[base + step * (size_t)i] = line[i];
+        }
+    free(d);
+    free(line);
+    return 0;
+}
+
 int vt_inputs_load(vt_inputs *in, const char *realpath, char *err)
 {
     memset(in, 0, sizeof *in);
@@ -92,6 +130,29 @@ int vt_inputs_load(vt_inputs *in, const char *realpath, char *err)
     if (mp_psf_rebin(&in->real4, 2, &in->real2, err))
         return 1;
     in->shift2 = in->real2.offset;
+    /* Case 7's truth: the same table without its power above 1 cycle/px,
+     * the x2 table's Nyquist frequency.  HST's optics pass nothing above
+     * D/λ ≈ 0.6–0.7 cycle per HRC pixel across F606W, so that power is
+     * not the telescope's (tests/unit/test_table_sampling.c: it is what
+     * biases x2 fits at half-element phases). */
+    size_t nt = (size_t)in->real4.nx * (size_t)in->real4.ny;
+    in->real4bl = in->real4;
+    in->real4bl.t = malloc(nt * sizeof *in->real4bl.t);
+    if (!in->real4bl.t) {
+        snprintf(err, MP_ERRLEN, "out of memory");
+        return 1;
+    }
+    memcpy(in->real4bl.t, in->real4.t, nt * sizeof *in->real4bl.t);
+    if (band_limit(in->real4bl.t, in->real4bl.nx, 4, 1.0)) {
+        snprintf(err, MP_ERRLEN, "out of memory");
+        return 1;
+    }
+    double rem = 0.0;
+    for (size_t i = 0; i < nt; i++)
+        rem += (in->real4.t[i] - in->real4bl.t[i]) * (in->real4.t[i] - in->real4bl.t[i]);
+    in->bl_removed = rem;
+    if (mp_psf_rebin(&in->real4bl, 2, &in->real2bl, err))
+        return 1;
     in->have_real = 1;
     return 0;
 }
@@ -100,6 +161,8 @@ void vt_inputs_free(vt_inputs *in)
 {
     mp_psf_free(&in->real4);
     mp_psf_free(&in->real2);
+    mp_psf_free(&in->real4bl);
+    mp_psf_free(&in->real2bl);
 }
 
 /* The biggest negative side lobe of the 1x FWHM 1.5 table shifted by half a
@@ -365,22 +428,24 @@ int vt_run_case(const vt_case *c, const vt_inputs *in, int n, int seedset, int v
     mp_prf_model fit = {0}, truth = {0};
     fit.sinc_hw = truth.sinc_hw = 10;
     if (c->real) {
+        /* The x2 case's truth is the band-limited table (vt_inputs_load). */
+        const mp_psf *t4 = c->fit == VT_FIT_REAL2 ? &in->real4bl : &in->real4;
         sp.kind = MP_SIM_TABLE;
-        sp.tab = in->real4.t;
-        sp.tnx = in->real4.nx;
-        sp.tny = in->real4.ny;
-        sp.tos = in->real4.os;
+        sp.tab = t4->t;
+        sp.tnx = t4->nx;
+        sp.tny = t4->ny;
+        sp.tos = t4->os;
         sp.volume = 1.0;
         if (c->gate_drf) {
             sp.drf = in->gate_qe;
             sp.dk = 4;
             truth.drf = &in->gate;
         }
-        truth.psf = &in->real4;
+        truth.psf = t4;
         if (c->fit == VT_FIT_REAL2) {
             /* The x2 table's star sits in->shift2 px from its central element;
              * the engine accounts for mp_psf.offset, so positions are true. */
-            fit.psf = &in->real2;
+            fit.psf = &in->real2bl;
         } else {
             fit.psf = &in->real4;
         }

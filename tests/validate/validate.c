@@ -53,8 +53,8 @@ static const vt_case CASES[] = {
      "Figs. 13–14 — on the model at all brightnesses",
      13.62, 6, 0, 2.35482, 1.0, 0, 100.0, -15, -6, 0, VT_FIT_GTABLE, 2, VT_EXPECT_CRLB, 0.0},
     {"7_ugly_psf", "7 ugly PSF (Tiny Tim ACS/HRC)",
-     "Tiny Tim ACS/HRC F606W ×4 table truth (block-summed on its grid); fitted with the table "
-     "block-summed to ×2",
+     "Tiny Tim ACS/HRC F606W ×4 table truth, band-limited to 1 cycle/px (block-summed on its "
+     "grid); fitted with that table block-summed to ×2",
      "Figs. 16–18 (NGST PSF, β ≈ 31.25) — on the model; χ² distributed as χ²(3596)",
      31.25, 7, 1, 0.0, 1.0, 0, 100.0, -15, -6, 0, VT_FIT_REAL2, 2, VT_EXPECT_CRLB, 0.0},
     {"8a_ugly_det_m13", "8a ugly detector, −13 mag",

@@ -96,6 +96,8 @@ typedef struct {
     mp_psf real4;            /* cropped 161x161, OVERSAMP 4 (kind 0 if absent) */
     mp_psf real2;            /* block-summed to x2 */
     double shift2;           /* real2.offset [px] */
+    mp_psf real4bl, real2bl; /* real4 band-limited to 1 cycle/px, and x2 */
+    double bl_removed;       /* Σ (real4 − real4bl)² */
     double gate_qe[16];
     mp_drf gate;             /* k = 4, the array above */
     int have_real;
