@@ -76,18 +76,23 @@ int mp_bkg_estimate(const mp_frame *f, int mesh, int filter, mp_bkg *b, char *er
  * mp_bkg_noise_from_model: replace b's rms map by the noise the fitted
  * model predicts, for detection on a fit's residual.  res (nx*ny,
  * electrons) is data − stars with the sky kept; the stars' model is
- * f->im.pix − res.  The map is k·sqrt(sky + stars + RON²): Poisson noise
- * of everything in the pixel, so a faint star between bright ones meets
- * the sky's noise and a residual on a bright star meets that star's photon
- * noise; the mesh rms of a crowded frame instead averages star light into
- * one number per box.  k is the robust σ (1.4826·MAD) of the residual
- * normalised by that model over the good pixels: 1 for Poisson data in
- * electrons, and it absorbs a wrong gain or extra (correlated, mosaic)
- * noise.  *scale receives k (NaN, and rms left as it was, when fewer than
- * 10 good pixels).  b->sky is used as the sky.  Errors: out of memory.
+ * M = f->im.pix − res.  The map is sqrt(k²(sky + M + RON²) + ε²M²):
+ * Poisson noise of everything in the pixel, so a faint star between bright
+ * ones meets the sky's noise and a residual on a bright star meets that
+ * star's photon noise (the mesh rms of a crowded frame instead averages
+ * star light into one number per box), plus a profile error ε·M as
+ * DAOPHOT's proferr (anchors.md §1.3), here measured, so that where the
+ * PSF does not match the data its residual is not taken for new stars.
+ * k is the robust σ (1.4826·MAD) of the residual normalised by the Poisson
+ * model over good pixels where M is below its own noise (1 for Poisson
+ * data in electrons; it absorbs a wrong gain or extra, correlated noise);
+ * ε makes that robust σ 1 over the pixels where M is above it, and is 0
+ * unless their excess is significant (3 sampling σ).  *scale receives k
+ * (NaN, and rms left as it was, with fewer than 10 such pixels), *proferr
+ * ε.  b->sky is used as the sky.  Errors: out of memory.
  */
 int mp_bkg_noise_from_model(mp_bkg *b, const mp_frame *f, const double *res, double *scale,
-                            char *err);
+                            double *proferr, char *err);
 
 /* mp_bkg_free: release the maps; safe on a zeroed or freed mp_bkg. */
 void mp_bkg_free(mp_bkg *b);

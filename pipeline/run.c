@@ -334,7 +334,9 @@ int mp_pipeline_run(const char *image, const char *root, const mp_pipeline_opts 
          * fitted model: in a crowded frame the first map's boxes average
          * star light into the rms (frame C of the DAOPHOT comparison:
          * 13.4 e- against the sky's 10.4), which hides faint stars in the
-         * gaps and still under-states the noise on bright stars. */
+         * gaps and under-states the noise on bright stars, all the more
+         * when the PSF does not match them (GLIMPSE: spurious companions
+         * at 0.7 FWHM taking 15-40 % of bright stars' light). */
         t0 = now();
         R = f;
         R.im.pix = res;
@@ -344,9 +346,9 @@ int mp_pipeline_run(const char *image, const char *root, const mp_pipeline_opts 
             if (!isfinite(res[i]))
                 res[i] = 0.0;
         mp_bkg_free(&bkg);
-        double kscale;
+        double kscale, proferr;
         if (mp_bkg_estimate(&R, o->mesh, o->filter, &bkg, err) ||
-            mp_bkg_noise_from_model(&bkg, &f, res, &kscale, err))
+            mp_bkg_noise_from_model(&bkg, &f, res, &kscale, &proferr, err))
             goto done;
         /* A star half-hidden by a neighbour's fit leaves a lopsided residual
          * peak: relax the roundness limits there (the fit then keeps or
@@ -365,7 +367,8 @@ int mp_pipeline_run(const char *image, const char *root, const mp_pipeline_opts 
         }
         rep->added += added;
         fprintf(stderr, "matphot pipeline: %s: round %d: %ld new stars on the residual "
-                "(noise: %.3f x the Poisson model)\n", image, round, added, kscale);
+                "(noise: %.3f x Poisson, profile error %.1f %%)\n", image, round, added, kscale,
+                100.0 * proferr);
         if (added == 0) {
             /* Nothing new: the last fit stands, its residual is current. */
             break;
