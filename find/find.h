@@ -86,8 +86,8 @@ int mp_bkg_estimate(const mp_frame *f, int mesh, int filter, mp_bkg *b, char *er
  * k is the robust σ (1.4826·MAD) of the residual normalised by the Poisson
  * model over good pixels where M is below its own noise (1 for Poisson
  * data in electrons; it absorbs a wrong gain or extra, correlated noise);
- * ε makes that robust σ 1 over the pixels where M is above it, and is 0
- * unless their excess is significant (3 sampling σ).  *scale receives k
+ * ε makes that robust σ 1 over the pixels where M is above 3 of k's σ,
+ * and is 0 unless their excess is significant (3 sampling σ).  *scale receives k
  * (NaN, and rms left as it was, with fewer than 10 such pixels), *proferr
  * ε.  b->sky is used as the sky.  Errors: out of memory.
  */

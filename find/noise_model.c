@@ -67,46 +67,55 @@ int mp_bkg_noise_from_model(mp_bkg *b, const mp_frame *f, const double *res, dou
     }
     all.r = buf, all.p = buf + cap, all.m = buf + 2 * cap, all.z = buf + 3 * cap;
     star.r = buf + 4 * cap, star.p = buf + 5 * cap, star.m = buf + 6 * cap, star.z = buf + 7 * cap;
+    /* The pixels where the stars' light is below its Poisson noise measure
+     * k (a profile error cannot show there). */
     for (size_t i = 0; i < npix; i += step) {
         double v = poisson_var(b, f, res, i), m = fmax(f->im.pix[i] - res[i], 0.0);
-        if (f->mask[i] || !(v > 0) || !isfinite(res[i]))
+        if (f->mask[i] || !(v > 0) || !isfinite(res[i]) || m * m > v)
             continue;
-        samples *s = m * m > v ? &star : &all;   /* star light above its own noise */
-        s->r[s->n] = res[i] - b->sky[i];
-        s->p[s->n] = v;
-        s->m[s->n] = m;
-        s->n++;
+        all.r[all.n] = res[i] - b->sky[i];
+        all.p[all.n] = v;
+        all.m[all.n] = m;
+        all.n++;
     }
-    /* k from the pixels where the stars' light is below its noise (a
-     * profile error cannot show there); then the profile error ε (DAOPHOT's
-     * proferr, here measured) that makes the normalised residual's robust σ
-     * 1 where the stars' light dominates: 0 for an exact PSF. */
-    if (all.n >= 10) {
-        double k = normalised_sigma(&all, 1.0, 0.0);
-        if (k > 0 && isfinite(k)) {
-            *scale = k;
-            double eps = 0.0;
-            /* Only a significant excess: the robust σ's own sampling error
-             * is 1.166/√n (3 of them: false alarm ~1e-3). */
-            if (star.n >= 10 &&
-                normalised_sigma(&star, k, 0.0) > 1.0 + 3.0 * 1.166 / sqrt((double)star.n)) {
-                double lo = 0.0, hi = 1.0;
-                if (normalised_sigma(&star, k, hi) > 1.0)
-                    lo = hi;                       /* worse than 100 %: cap */
-                for (int it = 0; it < 30 && hi - lo > 1e-4; it++) {
-                    double mid = 0.5 * (lo + hi);
-                    if (normalised_sigma(&star, k, mid) > 1.0)
-                        lo = mid;
-                    else
-                        hi = mid;
-                }
-                eps = 0.5 * (lo + hi);
-            }
-            *proferr = eps;
-            for (size_t i = 0; i < npix; i++) {
-                double m = fmax(f->im.pix[i] - res[i], 0.0);
-                b->rms[i] = sqrt(k * k * poisson_var(b, f, res, i) + eps * eps * m * m);
-            }
+    double k = all.n >= 10 ? normalised_sigma(&all, 1.0, 0.0) : NAN;
+    /* Those where it is above 3 k-scaled σ measure ε (where a profile error
+     * shows, above the noise that k describes). */
+    for (size_t i = 0; k > 0 && i < npix; i += step) {
+        double v = poisson_var(b, f, res, i), m = fmax(f->im.pix[i] - res[i], 0.0);
+        if (f->mask[i] || !(v > 0) || !isfinite(res[i]) || m * m <= 9.0 * k * k * v)
+            continue;
+        star.r[star.n] = res[i] - b->sky[i];
+        star.p[star.n] = v;
+        star.m[star.n] = m;
+        star.n++;
+    }
+    /* ε: the profile error (DAOPHOT's proferr, here measured) that makes
+     * the normalised residual's robust σ 1 where the stars' light
+     * dominates; 0 for an exact PSF.  Only a significant excess counts:
+     * the robust σ's own sampling error is 1.166/√n (3 of them: false
+     * alarm ~1e-3). */
+    double eps = 0.0;
+    if (k > 0 && isfinite(k) && star.n >= 10 &&
+        normalised_sigma(&star, k, 0.0) > 1.0 + 3.0 * 1.166 / sqrt((double)star.n)) {
+        double lo = 0.0, hi = 1.0;
+        if (normalised_sigma(&star, k, hi) > 1.0)
+            lo = hi;                       /* worse than 100 %: cap */
+        for (int it = 0; it < 30 && hi - lo > 1e-4; it++) {
+            double mid = 0.5 * (lo + hi);
+            if (normalised_sigma(&star, k, mid) > 1.0)
+                lo = mid;
+            else
+                hi = mid;
+        }
+        eps = 0.5 * (lo + hi);
+    }
+    if (k > 0 && isfinite(k)) {
+        *scale = k;
+        *proferr = eps;
+        for (size_t i = 0; i < npix; i++) {
+            double m = fmax(f->im.pix[i] - res[i], 0.0);
+            b->rms[i] = sqrt(k * k * poisson_var(b, f, res, i) + eps * eps * m * m);
         }
     }
     free(buf);
