@@ -84,15 +84,17 @@ int mp_bkg_estimate(const mp_frame *f, int mesh, int filter, mp_bkg *b, char *er
  * DAOPHOT's proferr (anchors.md §1.3), here measured, so that where the
  * PSF does not match the data its residual is not taken for new stars.
  * k is the robust σ (1.4826·MAD) of the residual normalised by the Poisson
- * model over good pixels where M is below its own noise (1 for Poisson
- * data in electrons; it absorbs a wrong gain or extra, correlated noise);
+ * model, summed over block × block pixels (block ≥ 1, about the detection
+ * kernel's size) where M is below its own noise: 1 for Poisson data in
+ * electrons; it absorbs a wrong gain, extra noise, and noise correlated
+ * between neighbouring pixels (resampled mosaics), as detection sees it;
  * ε makes that robust σ 1 over the pixels where M is above 3 of k's σ,
  * and is 0 unless their excess is significant (3 sampling σ).  *scale receives k
  * (NaN, and rms left as it was, with fewer than 10 such pixels), *proferr
  * ε.  b->sky is used as the sky.  Errors: out of memory.
  */
-int mp_bkg_noise_from_model(mp_bkg *b, const mp_frame *f, const double *res, double *scale,
-                            double *proferr, char *err);
+int mp_bkg_noise_from_model(mp_bkg *b, const mp_frame *f, const double *res, int block,
+                            double *scale, double *proferr, char *err);
 
 /* mp_bkg_free: release the maps; safe on a zeroed or freed mp_bkg. */
 void mp_bkg_free(mp_bkg *b);

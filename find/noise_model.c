@@ -50,12 +50,14 @@ static double normalised_sigma(samples *s, double k, double eps)
     return robust_sigma(s->z, s->n);
 }
 
-int mp_bkg_noise_from_model(mp_bkg *b, const mp_frame *f, const double *res, double *scale,
-                            double *proferr, char *err)
+int mp_bkg_noise_from_model(mp_bkg *b, const mp_frame *f, const double *res, int block,
+                            double *scale, double *proferr, char *err)
 {
     *scale = NAN;
     *proferr = 0.0;
     size_t npix = (size_t)f->im.nx * (size_t)f->im.ny;
+    if (block < 1)
+        block = 1;
     /* A regular subsample keeps the sorts cheap on large frames; 2·10⁵
      * pixels pin k to ~0.3 % (the MAD's relative error 1.166/√n). */
     size_t step = npix / 200000 + 1, cap = npix / step + 1;
@@ -67,17 +69,34 @@ int mp_bkg_noise_from_model(mp_bkg *b, const mp_frame *f, const double *res, dou
     }
     all.r = buf, all.p = buf + cap, all.m = buf + 2 * cap, all.z = buf + 3 * cap;
     star.r = buf + 4 * cap, star.p = buf + 5 * cap, star.m = buf + 6 * cap, star.z = buf + 7 * cap;
-    /* The pixels where the stars' light is below its Poisson noise measure
-     * k (a profile error cannot show there). */
-    for (size_t i = 0; i < npix; i += step) {
-        double v = poisson_var(b, f, res, i), m = fmax(f->im.pix[i] - res[i], 0.0);
-        if (f->mask[i] || !(v > 0) || !isfinite(res[i]) || m * m > v)
-            continue;
-        all.r[all.n] = res[i] - b->sky[i];
-        all.p[all.n] = v;
-        all.m[all.n] = m;
-        all.n++;
-    }
+    /* k from block × block sums over blocks where the stars' light is
+     * below its Poisson noise in every pixel (a profile error cannot show
+     * there).  Blocks of about the detection kernel's size make k describe
+     * the noise at the scale detection works on: resampled (mosaic) frames
+     * have correlated noise, which a pixel's rms under-states there. */
+    long nx = f->im.nx, ny = f->im.ny, nbx = nx / block, nby = ny / block;
+    size_t bstep = (size_t)nbx * (size_t)nby / cap + 1, nb = 0;
+    for (long by = 0; by < nby; by++)
+        for (long bx = 0; bx < nbx; bx++, nb++) {
+            if (nb % bstep)
+                continue;
+            double sr = 0.0, sp = 0.0;
+            int ok = 1;
+            for (long y = by * block; ok && y < (by + 1) * block; y++)
+                for (long x = bx * block; ok && x < (bx + 1) * block; x++) {
+                    size_t i = (size_t)y * (size_t)nx + (size_t)x;
+                    double v = poisson_var(b, f, res, i), m = fmax(f->im.pix[i] - res[i], 0.0);
+                    ok = !f->mask[i] && v > 0 && isfinite(res[i]) && m * m <= v;
+                    sr += res[i] - b->sky[i];
+                    sp += v;
+                }
+            if (!ok)
+                continue;
+            all.r[all.n] = sr;
+            all.p[all.n] = sp;
+            all.m[all.n] = 0.0;
+            all.n++;
+        }
     double k = all.n >= 10 ? normalised_sigma(&all, 1.0, 0.0) : NAN;
     /* Those where it is above 3 k-scaled σ measure ε (where a profile error
      * shows, above the noise that k describes). */

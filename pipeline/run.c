@@ -348,7 +348,8 @@ int mp_pipeline_run(const char *image, const char *root, const mp_pipeline_opts 
         mp_bkg_free(&bkg);
         double kscale, proferr;
         if (mp_bkg_estimate(&R, o->mesh, o->filter, &bkg, err) ||
-            mp_bkg_noise_from_model(&bkg, &f, res, &kscale, &proferr, err))
+            mp_bkg_noise_from_model(&bkg, &f, res, (int)lround(fmax(1.0, fwhm)), &kscale,
+                                    &proferr, err))
             goto done;
         /* A star half-hidden by a neighbour's fit leaves a lopsided residual
          * peak: relax the roundness limits there (the fit then keeps or

@@ -791,17 +791,25 @@ static void test_append_and_errors(void **state)
  * sqrt(k²(sky + M + RON²) + ε²M²) pixel by pixel.  Masked pixels are left
  * out. */
 static void noise_frame(mp_frame *f, const double *stars, double *res, double sky, double scale,
-                        double eps, uint64_t seed)
+                        double eps, int corr, uint64_t seed)
 {
-    long n = f->im.nx * f->im.ny;
+    long nx = f->im.nx, n = f->im.nx * f->im.ny;
     mp_rng r;
     mp_rng_seed(&r, seed);
     for (long i = 0; i < n; i++)
         f->im.pix[i] = sky + stars[i];
     mp_sim_add_noise(&r, f->im.pix, n, f->rdnoise);
+    for (long i = 0; i < n; i++)
+        res[i] = scale * (f->im.pix[i] - sky - stars[i]) + eps * stars[i] * mp_rng_normal(&r);
+    /* corr: each deviation the half-sum of a 2×2 box of white ones (a
+     * resampled frame): the pixel variance is kept, and a 3×3 sum holds
+     * the white deviations of a 4×4 patch with weights (1,2,2,1)⊗(1,2,2,1)/2,
+     * variance Σw² = 10²/4 = 25 of them instead of 9. */
+    if (corr)
+        for (long i = 0; i < n - nx - 1; i++)
+            res[i] = 0.5 * (res[i] + res[i + 1] + res[i + nx] + res[i + nx + 1]);
     for (long i = 0; i < n; i++) {
-        double dev = scale * (f->im.pix[i] - sky - stars[i]) + eps * stars[i] * mp_rng_normal(&r);
-        res[i] = sky + dev;
+        res[i] += sky;
         f->im.pix[i] = res[i] + stars[i];
     }
 }
@@ -827,17 +835,21 @@ static void test_noise_from_model(void **state)
     mp_bkg b;
     char err[MP_ERRLEN];
     double k, eps;
-    const struct { double scale, eps; } cs[] = {{1.0, 0.0}, {2.0, 0.0}, {1.0, 0.05}};
-    for (int c = 0; c < 3; c++) {
-        noise_frame(&f, stars, res, sky, cs[c].scale, cs[c].eps, 7 + (uint64_t)c);
+    /* k expected: the scale, or 5/3 of it for the 2×2-correlated noise
+     * seen in 3×3 sums (sqrt(25/9)). */
+    const struct { double scale, eps; int corr; double k; } cs[] = {
+        {1.0, 0.0, 0, 1.0}, {2.0, 0.0, 0, 2.0}, {1.0, 0.05, 0, 1.0}, {1.0, 0.0, 1, 5.0 / 3.0}};
+    for (int c = 0; c < 4; c++) {
+        noise_frame(&f, stars, res, sky, cs[c].scale, cs[c].eps, cs[c].corr, 7 + (uint64_t)c);
         long nstar = 0;
         for (long i = 0; i < nx * ny; i++)
             nstar += stars[i] * stars[i] > sky + stars[i] + ron * ron;
         assert_int_equal(mp_bkg_estimate(&f, 64, 3, &b, err), 0);
         for (long i = 0; i < nx * ny; i++)
             b.sky[i] = sky;
-        assert_int_equal(mp_bkg_noise_from_model(&b, &f, res, &k, &eps, err), 0);
-        assert_true(fabs(k / cs[c].scale - 1.0) < Z_TOL * 1.166 / sqrt((double)(nx * ny - nstar)));
+        assert_int_equal(mp_bkg_noise_from_model(&b, &f, res, 3, &k, &eps, err), 0);
+        /* k from 3×3 sums: at most (nx·ny − nstar)/9 of them */
+        assert_true(fabs(k / cs[c].k - 1.0) < Z_TOL * 1.166 / sqrt((double)(nx * ny - nstar) / 9.0));
         if (cs[c].eps == 0.0)
             assert_true(eps == 0.0);   /* false alarm ~1e-3 per case, fixed seeds */
         else   /* ε's relative error ≈ (1.166/√nstar)·(total/profile variance): a few %
@@ -853,7 +865,7 @@ static void test_noise_from_model(void **state)
     memset(f.mask, MP_MASK_BAD, (size_t)(nx * ny));
     assert_int_equal(mp_bkg_estimate(&f, 64, 3, &b, err), 0);
     double before = b.rms[123];
-    assert_int_equal(mp_bkg_noise_from_model(&b, &f, res, &k, &eps, err), 0);
+    assert_int_equal(mp_bkg_noise_from_model(&b, &f, res, 3, &k, &eps, err), 0);
     assert_true(isnan(k));
     assert_true(b.rms[123] == before);
     mp_bkg_free(&b);
