@@ -374,25 +374,26 @@ static double step_sigmas(const group *G)
  * 0.003 σ, 99th percentile 0.2 σ, largest 0.26 σ; faint stars, whose
  * weight sits in the wings, have the largest).  On steps this small the
  * model is otherwise quadratic to high accuracy, so a step below
- * LM_RESOLVE_SIGMAS (undamped) that raises D means the fit is as close as
- * D can tell: it has converged. */
+ * LM_RESOLVE_SIGMAS (undamped) that cannot lower D even when damped means
+ * the fit is as close as D can tell: it has converged. */
 #define LM_RESOLVE_SIGMAS 0.5
 
 /* Levenberg–Marquardt from G->p at the current sky order.  A step is taken
  * only when it lowers D.  Converged (*converged = 1) when a step taken is
- * below tol·σ in every parameter, or when a step below LM_RESOLVE_SIGMAS
- * is refused; not converged (the state is the best one reached) after
- * maxiter steps or when the damping blows up first.  A damped step is
- * scaled back by 1 + λ before either test, so a large λ cannot fake
- * convergence with a step it shrank.  Accepted steps are added to *iter.
+ * below tol·σ in every parameter (scaled back by 1 + λ, so damping cannot
+ * fake it), or when the first, least damped step tried from the current
+ * state was already below LM_RESOLVE_SIGMAS and it took 1000× more damping
+ * to lower D, or that did not help either.  Not converged when the damping
+ * blows up (λ > 1e8) from a larger step, or after maxiter steps; the state
+ * is then the best one reached.  Accepted steps are added to *iter.
  * Nonzero: out of memory. */
 static int levmar(group *G, const mp_fit_opts *o, int *iter, int *converged)
 {
     model_of(G, G->p, G->cur);
     variance_of(G);
     normal_equations(G, G->p, G->cur);
-    double D = deviance_of(G), lambda = 1e-3;
-    int it = 0, trials = 0, np = G->np;
+    double D = deviance_of(G), lambda = 1e-3, zfirst = INFINITY, lfirst = lambda;
+    int it = 0, trials = 0, np = G->np, fresh = 1;
     *converged = 0;
     while (it < o->maxiter && trials < 4 * o->maxiter) {
         trials++;
@@ -403,7 +404,12 @@ static int levmar(group *G, const mp_fit_opts *o, int *iter, int *converged)
             continue;
         }
         int cut = bound_step(G);
-        double z = cut ? INFINITY : step_sigmas(G) * (1.0 + lambda);
+        double z = cut ? INFINITY : step_sigmas(G);
+        if (fresh) {
+            zfirst = z * (1.0 + lambda);
+            lfirst = lambda;
+        }
+        fresh = 0;
         for (int a = 0; a < np; a++)
             G->pt[a] = G->p[a] + G->step[a];
         if (render_all(G, G->pt, G->trial))
@@ -412,16 +418,21 @@ static int levmar(group *G, const mp_fit_opts *o, int *iter, int *converged)
         double Dt = deviance_of(G);
         if (!(Dt < D)) {
             model_of(G, G->p, G->cur);
-            if (z < LM_RESOLVE_SIGMAS) {
-                *converged = 1;
+            lambda *= 10.0;
+            if (zfirst < LM_RESOLVE_SIGMAS && lambda > 1e3 * lfirst) {
+                *converged = 1;      /* damped 1000×: nothing left D can see */
                 break;
             }
-            lambda *= 10.0;
             if (lambda > 1e8)
                 break;
             continue;
         }
         it++;
+        /* Taken: converged when the step, undamped, was below tol, or when
+         * only 1000× damping made progress from a state whose undamped step
+         * was within D's resolution (creeping on D's noise floor). */
+        int done = z * (1.0 + lambda) < o->tol ||
+                   (zfirst < LM_RESOLVE_SIGMAS && lambda > 1e3 * lfirst * (1.0 - 1e-9));
         double *tp = G->p;
         G->p = G->pt;
         G->pt = tp;
@@ -429,10 +440,11 @@ static int levmar(group *G, const mp_fit_opts *o, int *iter, int *converged)
         G->cur = G->trial;
         G->trial = tr;
         D = Dt;
+        fresh = 1;
         lambda = lambda / 10.0 > 1e-7 ? lambda / 10.0 : 1e-7;
         variance_of(G);
         normal_equations(G, G->p, G->cur);
-        if (z < o->tol) {
+        if (done) {
             *converged = 1;
             break;
         }
