@@ -69,13 +69,16 @@ void mp_report_parts(const mp_prf_model *m, const mp_frame_opts *o, const mp_fra
     } else if (o->fit.sky_order == MP_SKY_AUTO) {
         for (int k = 0; k <= MP_SKY_MAXORDER; k++)
             top = ng[k] ? k : top;
-        if (ng[0] + ng[1] + ng[2])
+        if (ng[0] + ng[1] + ng[2]) {
             snprintf(r->sky, sizeof r->sky, "sky: constant in %ld groups, plane in %ld, "
                      "quadratic in %ld (score test, p < %g)", ng[0], ng[1], ng[2], MP_SKY_ALPHA);
-        else
+            ADD(u, ku, nu, "sky per group (highest order %s); ", order[top]);
+        } else {                 /* the caller has no counts: say what was possible */
             snprintf(r->sky, sizeof r->sky, "sky: order chosen per group (score test, p < %g)",
                      MP_SKY_ALPHA);
-        ADD(u, ku, nu, "sky up to %s (per group); ", order[top]);
+            ADD(u, ku, nu, "sky per group (constant, plane or quadratic); ");
+            top = MP_SKY_MAXORDER;
+        }
     } else {
         top = o->fit.sky_order < 0 ? 0 : (o->fit.sky_order > 2 ? 2 : o->fit.sky_order);
         ADD(u, ku, nu, "sky %s; ", order[top]);
