@@ -12,6 +12,7 @@
 #include <string.h>
 #include "fit/fit.h"
 #include "group/group.h"
+#include "params/params.h"
 #include "sim/sim.h"
 
 static double fwhm_to_sigma(double fwhm)
@@ -444,6 +445,42 @@ static void test_quadratic_sky_recovered(void **state)
     frame_drop(&f);
 }
 
+/* fit.par's skymodel: auto is the default and chooses per group under
+ * economy=yes; economy=no forces every part on (quadratic); an explicit
+ * order is honoured either way.  The run report counts the per-group
+ * choices as one more economy decision. */
+static void test_skymodel_parameter(void **state)
+{
+    (void)state;
+    static const struct {
+        const char *sky, *eco;
+        int order;
+    } cases[] = {{NULL, NULL, MP_SKY_AUTO}, {"auto", "no", 2}, {"constant", "no", 0},
+                 {"plane", "yes", 1}, {"quadratic", "yes", 2}, {"constant", "yes", 0}};
+    for (size_t c = 0; c < sizeof cases / sizeof cases[0]; c++) {
+        char err[MP_ERRLEN];
+        mp_parset ps;
+        assert_int_equal(mp_params_defaults("fit", &ps, err), 0);
+        if (cases[c].sky)
+            assert_int_equal(mp_params_set(&ps, "skymodel", cases[c].sky, err), 0);
+        if (cases[c].eco)
+            assert_int_equal(mp_params_set(&ps, "economy", cases[c].eco, err), 0);
+        mp_fit_setup s;
+        assert_int_equal(mp_fit_setup_read(&ps, &s, err), 0);
+        assert_int_equal(s.opts.fit.sky_order, cases[c].order);
+        mp_run_report r;
+        memset(&r, 0, sizeof r);
+        mp_frame_report fr = {.nstars = 10, .ngroups = 6, .sky_groups = {3, 2, 1}};
+        mp_report_parts(&s.model, &s.opts, &fr, &r);
+        if (cases[c].order == MP_SKY_AUTO)
+            assert_non_null(strstr(r.sky, "constant in 3 groups, plane in 2, quadratic in 1"));
+        else
+            assert_int_equal(r.sky[0], '\0');
+        mp_fit_setup_free(&s);
+        mp_params_free(&ps);
+    }
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
@@ -455,6 +492,7 @@ int main(void)
         cmocka_unit_test(test_curved_sky_picks_quadratic),
         cmocka_unit_test(test_explicit_order_honoured),
         cmocka_unit_test(test_quadratic_sky_recovered),
+        cmocka_unit_test(test_skymodel_parameter),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }
