@@ -128,8 +128,8 @@ static void sky_basis(const group *G, double x, double y, double c[6])
 
 static double sky_at(const group *G, const double *p, double x, double y)
 {
-    if (!G->nsky)
-        return p[3 * G->n];      /* fixed sky is kept in the first sky slot */
+    if (G->nsky <= 1)
+        return p[3 * G->n];      /* constant, or fixed (kept in the first sky slot) */
     double c[6], s = 0.0;
     sky_basis(G, x, y, c);
     for (int a = 0; a < G->nsky; a++)
@@ -150,9 +150,14 @@ static int clip(const group *G, const rstar *r, int *i0, int *i1, int *j0, int *
 
 static void model_of(group *G, const double *p, const rstar *r)
 {
-    for (int j = 0; j < G->bh; j++)
-        for (int i = 0; i < G->bw; i++)
-            G->mod[(size_t)j * G->bw + i] = sky_at(G, p, (double)(G->bx0 + i), (double)(G->by0 + j));
+    size_t nb = (size_t)G->bw * G->bh;
+    if (G->nsky <= 1)
+        for (size_t o = 0; o < nb; o++)
+            G->mod[o] = p[3 * G->n];
+    else
+        for (int j = 0; j < G->bh; j++)
+            for (int i = 0; i < G->bw; i++)
+                G->mod[(size_t)j * G->bw + i] = sky_at(G, p, (double)(G->bx0 + i), (double)(G->by0 + j));
     for (int k = 0; k < G->n; k++) {
         int i0, i1, j0, j1;
         if (!clip(G, &r[k], &i0, &i1, &j0, &j1))
@@ -244,8 +249,9 @@ static void normal_equations(group *G, const double *p, const rstar *r)
                 continue;
             double w = 1.0 / G->var[o];
             double res = pixel(G, G->bx0 + i, G->by0 + j) - G->mod[o];
-            double c[6];
-            sky_basis(G, (double)(G->bx0 + i), (double)(G->by0 + j), c);
+            double c[6] = {1.0};
+            if (G->nsky > 1)
+                sky_basis(G, (double)(G->bx0 + i), (double)(G->by0 + j), c);
             for (int a = 0; a < G->nsky; a++) {
                 G->g[s0 + a] += w * c[a] * res;
                 for (int b = a; b < G->nsky; b++)
@@ -266,8 +272,9 @@ static void normal_equations(group *G, const double *p, const rstar *r)
                 double w = 1.0 / G->var[o];
                 double res = pixel(G, G->bx0 + i, G->by0 + j) - G->mod[o];
                 double jk[3] = {r[k].prf[t], Ek * r[k].dx[t], Ek * r[k].dy[t]};
-                double c[6];
-                sky_basis(G, (double)(G->bx0 + i), (double)(G->by0 + j), c);
+                double c[6] = {1.0};
+                if (G->nsky > 1)
+                    sky_basis(G, (double)(G->bx0 + i), (double)(G->by0 + j), c);
                 for (int a = 0; a < 3; a++) {
                     G->g[3 * k + a] += w * jk[a] * res;
                     for (int b = 0; b < G->nsky; b++)
@@ -514,11 +521,16 @@ double mp_chi2_sf(int k, double x)
  * sky.  S is divided by the dispersion φ = max(1, χ²/dof) of those pixels,
  * as quasi-likelihood tests are.  Returns the p-value (1 without enough
  * pixels or with a singular matrix: no evidence). */
-static double sky_score_pvalue(const group *G, int next)
+typedef struct {
+    double A[36], g[6], chi2;   /* Σ c cᵀ/V, Σ c (d − m)/V, Σ (d − m)²/V */
+    size_t m;                   /* pixels read */
+} sky_sums;
+
+/* The sums of the score test over the pixels the stars do not dominate,
+ * for all six sky terms at once (the tests take their sub-blocks). */
+static void sky_score_sums(const group *G, sky_sums *S)
 {
-    int n0 = G->nsky;
-    double A[36] = {0}, g[6] = {0}, A0[36], M[36], x[12], chi2 = 0.0;
-    size_t m = 0;
+    memset(S, 0, sizeof *S);
     for (int j = 0; j < G->bh; j++)
         for (int i = 0; i < G->bw; i++) {
             size_t o = (size_t)j * G->bw + i;
@@ -529,26 +541,40 @@ static double sky_score_pvalue(const group *G, int next)
             if (star * star > v)
                 continue;
             sky_basis(G, X, Y, c);
-            double r = pixel(G, G->bx0 + i, G->by0 + j) - G->mod[o];
-            for (int a = 0; a < next; a++) {
-                g[a] += c[a] * r / v;
-                for (int b = 0; b < next; b++)
-                    A[a * next + b] += c[a] * c[b] / v;
+            double w = 1.0 / v, r = pixel(G, G->bx0 + i, G->by0 + j) - G->mod[o];
+            for (int a = 0; a < 6; a++) {
+                double wc = w * c[a];
+                S->g[a] += wc * r;
+                for (int b = a; b < 6; b++)
+                    S->A[a * 6 + b] += wc * c[b];
             }
-            chi2 += r * r / v;
-            m++;
+            S->chi2 += w * r * r;
+            S->m++;
         }
-    if (m <= (size_t)(2 * next))
+    for (int a = 0; a < 6; a++)
+        for (int b = 0; b < a; b++)
+            S->A[a * 6 + b] = S->A[b * 6 + a];
+}
+
+/* The p-value of the sky terms [n0, next) from the sums (1 without enough
+ * pixels or with a singular matrix: no evidence). */
+static double sky_score_pvalue(const sky_sums *S, int n0, int next)
+{
+    double A1[36], A0[36], M[36], x[12];
+    if (S->m <= (size_t)(2 * next))
         return 1.0;
-    for (int a = 0; a < n0; a++)
-        for (int b = 0; b < n0; b++)
-            A0[a * n0 + b] = A[a * next + b];
-    double s1 = inverse_quad_form(A, g, next, M, x), s0 = inverse_quad_form(A0, g, n0, M, x);
+    for (int a = 0; a < next; a++)
+        for (int b = 0; b < next; b++) {
+            A1[a * next + b] = S->A[a * 6 + b];
+            if (a < n0 && b < n0)
+                A0[a * n0 + b] = S->A[a * 6 + b];
+        }
+    double s1 = inverse_quad_form(A1, S->g, next, M, x), s0 = inverse_quad_form(A0, S->g, n0, M, x);
     if (!isfinite(s0) || !isfinite(s1))
         return 1.0;
-    double phi = chi2 / (double)(m - (size_t)n0);
-    double S = (s1 > s0 ? s1 - s0 : 0.0) / (phi > 1.0 ? phi : 1.0);
-    return mp_chi2_sf(next - n0, S);
+    double phi = S->chi2 / (double)(S->m - (size_t)n0);
+    double T = (s1 > s0 ? s1 - s0 : 0.0) / (phi > 1.0 ? phi : 1.0);
+    return mp_chi2_sf(next - n0, T);
 }
 
 /* Covariance = A⁻¹ into G->M.  Cholesky first; when A is singular or
@@ -800,10 +826,12 @@ static int first_order(const mp_fit_opts *o)
  * 2·MP_SKY_ALPHA; from a plane, the three quadratic terms (χ²(3)). */
 static int higher_order(const group *G, int order)
 {
-    int to = -1;
-    if (order == 0 && sky_score_pvalue(G, nsky_of(1)) < MP_SKY_ALPHA)
+    sky_sums S;
+    sky_score_sums(G, &S);
+    int n0 = nsky_of(order), to = -1;
+    if (order == 0 && sky_score_pvalue(&S, n0, nsky_of(1)) < MP_SKY_ALPHA)
         to = 1;
-    else if (order <= 1 && sky_score_pvalue(G, nsky_of(2)) < MP_SKY_ALPHA)
+    else if (order <= 1 && sky_score_pvalue(&S, n0, nsky_of(2)) < MP_SKY_ALPHA)
         to = 2;
     return to >= 0 && G->npix > (size_t)(3 * G->n + nsky_of(to)) ? to : -1;
 }
