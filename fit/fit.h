@@ -8,7 +8,9 @@
  * derivatives come from the five-point formula of paper §3.2 on the shifted
  * table.  The analytic mode integrates a Gaussian over pixels with erf.
  * Stars and a sky model are fitted together by Levenberg–Marquardt with
- * weights 1/(m_i + RON²) from the current model.
+ * weights 1/(m_i + RON²) from the current model; a step is taken only when
+ * it lowers one fixed objective, the quasi-likelihood deviance whose
+ * minimum is where those weighted normal equations balance (levmar.c).
  *
  * Coordinates are 1-based FITS pixel coordinates (centre of the first pixel
  * at 1.0); fluxes are electrons for a PRF volume of one (design.md §3).
@@ -162,6 +164,10 @@ void mp_perf_model(const mp_prf_stats *s, double E, double B, double ron, double
 int mp_crlb(const double *prf, const double *dx, const double *dy, size_t n,
             double E, double B, double ron, double sd[4]);
 
+/* mp_chi2_sf: P(χ²(k) > x), the χ² survival function for integer k ≥ 1
+ * (closed form); the sky-order test's p-value. */
+double mp_chi2_sf(int k, double x);
+
 /* ---- The fit --------------------------------------------------------------- */
 
 enum {
@@ -169,8 +175,16 @@ enum {
     MP_FLAG_NOCONV = 8, MP_FLAG_MERGED = 16, MP_FLAG_MASKED = 32
 };
 
+/* Sky models: a polynomial in the group box's coordinates scaled to
+ * [-1, 1] (u, v), order 0: 1; 1: 1, u, v; 2: also u² − 1/3, uv, v² − 1/3.
+ * MP_SKY_AUTO: the order is chosen per group from the data — constant,
+ * then higher when a score test of the extra terms at the lower-order fit
+ * is significant at p < MP_SKY_ALPHA (levmar.c). */
+enum { MP_SKY_AUTO = -1, MP_SKY_MAXORDER = 2 };
+#define MP_SKY_ALPHA 1e-3
+
 typedef struct {
-    int sky_order;     /* 0 constant, 1 plane */
+    int sky_order;     /* MP_SKY_AUTO, or 0 constant, 1 plane, 2 quadratic */
     double fitrad;     /* radius fitted around each star [px]; NaN: whole frame */
     double tol;        /* converged when every |step| < tol·σ */
     int maxiter;
@@ -186,14 +200,18 @@ typedef struct {
     double sky, esky;               /* fitted sky at the star and its error */
     double chi2;                    /* reduced χ² of its group */
     int dof, niter, flags;
+    int sky_order;                  /* the order the group's sky was fitted with */
     mp_prf_stats st;                /* of the PRF at the fitted position */
     double fluxerr_model, poserr_model;
 } mp_star;
 
 /* mp_fit_group: fit n stars (one group) with their sky on frame f.
  * sky0 is the starting sky level (NaN: estimated from the fitted pixels).
- * Never leaves NaN or inf in stars: a star that fails is flagged
- * MP_FLAG_NOCONV and keeps finite values. */
+ * Never leaves NaN or inf in stars: a fit that does not meet tol within
+ * maxiter (or stalls before it) keeps the best state it reached and flags
+ * every star MP_FLAG_NOCONV; a star without finite values keeps its start.
+ * stars[k].sky_order tells the sky order used (o->sky_order, or the one
+ * chosen under MP_SKY_AUTO). */
 int mp_fit_group(const mp_frame *f, const mp_prf_model *m, const mp_fit_opts *o,
                  double sky0, mp_star *stars, int n, char *err);
 
@@ -220,6 +238,7 @@ void mp_frame_opts_default(mp_frame_opts *o);
 typedef struct {
     long nstars, ngroups, merged, rejected, noconv;
     long iterations;   /* summed over groups and passes */
+    long sky_groups[MP_SKY_MAXORDER + 1];  /* groups of the last pass by sky order */
 } mp_frame_report;
 
 /* mp_fit_table: fit every star of t on f — rows carry X_IMAGE/Y_IMAGE or
@@ -252,6 +271,8 @@ typedef struct {
     char used[512], left[512];
     const char *decisions;     /* economy decisions, "; "-separated (may be NULL) */
     int ndecisions;
+    char sky[192];             /* skymodel=auto: the per-group sky orders (one more
+                                * decision; mp_report_parts fills it) */
 } mp_run_report;
 
 /* mp_report_from_table: the medians, from a fitted table. */

@@ -201,6 +201,12 @@ static int fit_one_group(const mp_frame *f, const mp_prf_model *m, const mp_fram
         }
         break;
     }
+    for (int k = 0; k < n; k++)
+        if (alive[k]) {          /* the group's sky order, counted once */
+            int so = s[k].sky_order;
+            rep->sky_groups[so > 0 && so <= MP_SKY_MAXORDER ? so : 0]++;
+            break;
+        }
     for (int k = 0; k < n; k++) {
         st[k].s = s[k];
         st[k].s.x += dx;
@@ -436,6 +442,8 @@ int mp_fit_table(const mp_frame *f, const mp_prf_model *m, const mp_frame_opts *
                 pr.rejected += r.rejected;
                 pr.noconv += r.noconv;
                 pr.iterations += r.iterations;
+                for (int o = 0; o <= MP_SKY_MAXORDER; o++)
+                    pr.sky_groups[o] += r.sky_groups[o];
             }
         }
         if (failed) {
@@ -446,6 +454,7 @@ int mp_fit_table(const mp_frame *f, const mp_prf_model *m, const mp_frame_opts *
         rep->rejected += pr.rejected;
         rep->iterations += pr.iterations;
         rep->noconv = pr.noconv;
+        memcpy(rep->sky_groups, pr.sky_groups, sizeof rep->sky_groups);
     }
     rc = write_columns(t, st, n, o->magzero, err);
 done:

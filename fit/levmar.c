@@ -1,9 +1,20 @@
 /* levmar.c — fitting a group of stars and its sky by Levenberg–Marquardt
- * (design.md §5).  Weights are 1/(m_i + RON²) from the current model and
- * are held fixed within each step, so the fixed point solves the unbiased
- * estimating equation Σ (d − m)/σ² ∂m/∂p = 0 rather than minimising a χ²
- * whose weights move with the parameters (which would bias faint fluxes
- * by about β/2 electrons). */
+ * (design.md §5).
+ *
+ * The answer is the root of the unbiased estimating equation
+ * Σ (d − m)/V(m) ∂m/∂p = 0 with the variance function V(m) = max(m, 0) + RON²
+ * from the model, not the data (minimising a χ² whose weights move with the
+ * parameters would bias faint fluxes by about β/2 electrons).  That root is
+ * the minimum of one fixed objective, the quasi-likelihood deviance
+ * D = 2 Σ ∫_d^m (t − d)/V(t) dt (McCullagh & Nelder, Generalized Linear
+ * Models, §9.2: its gradient is −2× the estimating equation, its expected
+ * Hessian 2 JᵀV⁻¹J, the normal matrix).  A step is accepted only when it
+ * lowers D: comparing χ² under weights refreshed after every step follows
+ * no fixed objective, and on a large crowded group with sky and fluxes
+ * nearly degenerate it walked off (sky −5.7e5 e⁻, fluxes 10⁷× the truth).
+ * Steps are also bounded (positions 1 px, fluxes ×10 up, sky a few σ of a
+ * pixel), and a fit that stalls or runs out of iterations before its steps
+ * are below tol·σ keeps its best (last accepted) state and is flagged. */
 #include <lapacke.h>
 #include <math.h>
 #include <stdio.h>
@@ -13,7 +24,7 @@
 
 void mp_fit_opts_default(mp_fit_opts *o)
 {
-    o->sky_order = 0;
+    o->sky_order = MP_SKY_AUTO;
     o->fitrad = NAN;
     o->tol = 1e-3;
     o->maxiter = 50;
@@ -31,10 +42,12 @@ typedef struct {
 typedef struct {
     const mp_frame *f;
     const mp_prf_model *m;
-    int n, nsky, np;
+    int n, nsky, np;            /* nsky sky terms fitted (0: sky held fixed) */
+    int npmax;                  /* parameters the arrays hold: 3n + 6 */
     long bx0, by0;              /* group box, 1-based, and size */
     int bw, bh;
-    double xc, yc;              /* sky-plane reference point */
+    double xc, yc, hx, hy;      /* sky basis: u = (x − xc)/hx, v = (y − yc)/hy */
+    double ron2;                /* RON², at least 1e-2 so V > 0 */
     uint8_t *sel;               /* bw*bh: pixel fitted */
     size_t npix;
     double *mod, *var;          /* bw*bh */
@@ -92,13 +105,35 @@ static int render_all(group *G, const double *p, rstar *r)
     return 0;
 }
 
+/* Sky terms of order 0, 1, 2: 1, 3, 6. */
+static int nsky_of(int order)
+{
+    return order <= 0 ? 1 : (order == 1 ? 3 : 6);
+}
+
+/* The sky basis at (x, y): 1, u, v, u² − 1/3, uv, v² − 1/3, with u, v the
+ * offsets from the box centre scaled to [−1, 1].  Scaled and centred (u²
+ * has mean about 1/3 over the box) so the normal equations stay well
+ * conditioned and one bound fits every coefficient's step. */
+static void sky_basis(const group *G, double x, double y, double c[6])
+{
+    double u = (x - G->xc) / G->hx, v = (y - G->yc) / G->hy;
+    c[0] = 1.0;
+    c[1] = u;
+    c[2] = v;
+    c[3] = u * u - 1.0 / 3.0;
+    c[4] = u * v;
+    c[5] = v * v - 1.0 / 3.0;
+}
+
 static double sky_at(const group *G, const double *p, double x, double y)
 {
-    if (!G->nsky)
-        return p[3 * G->n];      /* fixed sky is kept in the first sky slot */
-    double s = p[3 * G->n];
-    if (G->nsky == 3)
-        s += p[3 * G->n + 1] * (x - G->xc) + p[3 * G->n + 2] * (y - G->yc);
+    if (G->nsky <= 1)
+        return p[3 * G->n];      /* constant, or fixed (kept in the first sky slot) */
+    double c[6], s = 0.0;
+    sky_basis(G, x, y, c);
+    for (int a = 0; a < G->nsky; a++)
+        s += p[3 * G->n + a] * c[a];
     return s;
 }
 
@@ -115,9 +150,14 @@ static int clip(const group *G, const rstar *r, int *i0, int *i1, int *j0, int *
 
 static void model_of(group *G, const double *p, const rstar *r)
 {
-    for (int j = 0; j < G->bh; j++)
-        for (int i = 0; i < G->bw; i++)
-            G->mod[(size_t)j * G->bw + i] = sky_at(G, p, (double)(G->bx0 + i), (double)(G->by0 + j));
+    size_t nb = (size_t)G->bw * G->bh;
+    if (G->nsky <= 1)
+        for (size_t o = 0; o < nb; o++)
+            G->mod[o] = p[3 * G->n];
+    else
+        for (int j = 0; j < G->bh; j++)
+            for (int i = 0; i < G->bw; i++)
+                G->mod[(size_t)j * G->bw + i] = sky_at(G, p, (double)(G->bx0 + i), (double)(G->by0 + j));
     for (int k = 0; k < G->n; k++) {
         int i0, i1, j0, j1;
         if (!clip(G, &r[k], &i0, &i1, &j0, &j1))
@@ -132,16 +172,52 @@ static void model_of(group *G, const double *p, const rstar *r)
     }
 }
 
-/* Weights from the model: σ² = m + RON², floored so a zero model with no
- * read noise cannot give an infinite weight. */
+/* Weights from the model: σ² = V(m) = max(m, 0) + RON², RON² at least
+ * 1e-2 so a zero model with no read noise cannot give an infinite weight. */
 static void variance_of(group *G)
 {
-    double ron2 = G->f->rdnoise * G->f->rdnoise;
     size_t nb = (size_t)G->bw * G->bh;
-    for (size_t i = 0; i < nb; i++) {
-        double v = (G->mod[i] > 0 ? G->mod[i] : 0.0) + ron2;
-        G->var[i] = v > 1e-2 ? v : 1e-2;
+    for (size_t i = 0; i < nb; i++)
+        G->var[i] = (G->mod[i] > 0 ? G->mod[i] : 0.0) + G->ron2;
+}
+
+/* ∫_a^b (t − d)/V(t) dt for 0 ≤ a ≤ b, where V(t) = t + r. */
+static double dev_positive(double a, double b, double d, double r)
+{
+    return (b - a) - (d + r) * log1p((b - a) / (a + r));
+}
+
+/* One pixel's deviance 2 ∫_d^m (t − d)/V(t) dt, V(t) = max(t, 0) + r: zero
+ * at m = d and growing on both sides, whatever the sign of d.  For m, d ≥ 0
+ * it is the Poisson deviance of d + r about m + r, written with log1p so
+ * it keeps its precision near m = d, where the fit ends. */
+static double pixel_deviance(double m, double d, double r)
+{
+    if (m >= 0.0 && d >= 0.0) {
+        double x = (m - d) / (d + r);
+        return 2.0 * (d + r) * (x - log1p(x));
     }
+    double lo = m < d ? m : d, hi = m < d ? d : m, s = 0.0;
+    if (lo < 0.0) {              /* V = r below zero: a parabola */
+        double b = hi < 0.0 ? hi : 0.0;
+        s += (b - lo) * (0.5 * (lo + b) - d) / r;
+    }
+    if (hi > 0.0)
+        s += dev_positive(lo > 0.0 ? lo : 0.0, hi, d, r);
+    return 2.0 * (m >= d ? s : -s);
+}
+
+/* The objective every step must lower (see the top of the file). */
+static double deviance_of(const group *G)
+{
+    double D = 0.0;
+    for (int j = 0; j < G->bh; j++)
+        for (int i = 0; i < G->bw; i++) {
+            size_t o = (size_t)j * G->bw + i;
+            if (G->sel[o])
+                D += pixel_deviance(G->mod[o], pixel(G, G->bx0 + i, G->by0 + j), G->ron2);
+        }
+    return D;
 }
 
 static double chi2_with(const group *G, const double *var)
@@ -173,7 +249,9 @@ static void normal_equations(group *G, const double *p, const rstar *r)
                 continue;
             double w = 1.0 / G->var[o];
             double res = pixel(G, G->bx0 + i, G->by0 + j) - G->mod[o];
-            double c[3] = {1.0, G->bx0 + i - G->xc, G->by0 + j - G->yc};
+            double c[6] = {1.0};
+            if (G->nsky > 1)
+                sky_basis(G, (double)(G->bx0 + i), (double)(G->by0 + j), c);
             for (int a = 0; a < G->nsky; a++) {
                 G->g[s0 + a] += w * c[a] * res;
                 for (int b = a; b < G->nsky; b++)
@@ -194,7 +272,9 @@ static void normal_equations(group *G, const double *p, const rstar *r)
                 double w = 1.0 / G->var[o];
                 double res = pixel(G, G->bx0 + i, G->by0 + j) - G->mod[o];
                 double jk[3] = {r[k].prf[t], Ek * r[k].dx[t], Ek * r[k].dy[t]};
-                double c[3] = {1.0, G->bx0 + i - G->xc, G->by0 + j - G->yc};
+                double c[6] = {1.0};
+                if (G->nsky > 1)
+                    sky_basis(G, (double)(G->bx0 + i), (double)(G->by0 + j), c);
                 for (int a = 0; a < 3; a++) {
                     G->g[3 * k + a] += w * jk[a] * res;
                     for (int b = 0; b < G->nsky; b++)
@@ -239,6 +319,262 @@ static int lm_step(group *G, double lambda)
     }
     memcpy(G->step, G->g, (size_t)np * sizeof *G->step);
     return LAPACKE_dposv(LAPACK_ROW_MAJOR, 'U', np, 1, G->M, np, G->step, 1) != 0;
+}
+
+/* Cut the step to what one iteration may do, so a step the local
+ * linearisation cannot vouch for is not even tried: positions by at most
+ * 1 px (DAOPHOT does the same: a start far off cannot fling a star across
+ * the group); a flux by at most ×10 up and 90 % down, plus 3 of its σ so
+ * faint stars can cross zero (a start of 1 e⁻ reaches 10⁶ e⁻ in five
+ * steps); each sky coefficient (the basis is scaled to ±1 on the box) by
+ * 3 σ of a sky pixel or half the sky, whichever is larger.  Returns 1 when
+ * something was cut. */
+static int bound_step(group *G)
+{
+    int n = G->n, np = G->np, cut = 0;
+    for (int k = 0; k < n; k++) {
+        double E = fabs(G->p[3 * k]), aee = G->A[(size_t)(3 * k) * np + 3 * k];
+        double se = aee > 0 ? 3.0 / sqrt(aee) : INFINITY;
+        double lim[3][2] = {{-(0.9 * E + se), 9.0 * E + se}, {-1.0, 1.0}, {-1.0, 1.0}};
+        for (int a = 0; a < 3; a++) {
+            double *d = &G->step[3 * k + a];
+            if (*d < lim[a][0] || *d > lim[a][1]) {
+                *d = *d < lim[a][0] ? lim[a][0] : lim[a][1];
+                cut = 1;
+            }
+        }
+    }
+    if (G->nsky) {
+        double B = G->p[3 * n];
+        double lim = fmax(3.0 * sqrt((B > 0 ? B : 0.0) + G->ron2), 0.5 * fabs(B));
+        for (int a = 0; a < G->nsky; a++) {
+            double *d = &G->step[3 * n + a];
+            if (fabs(*d) > lim) {
+                *d = *d > 0 ? lim : -lim;
+                cut = 1;
+            }
+        }
+    }
+    return cut;
+}
+
+/* The largest step of a fitted parameter in units of its σ, 1/sqrt(A_aa)
+ * (the conditional σ; the fit's stopping rule compares it with tol). */
+static double step_sigmas(const group *G)
+{
+    int np = G->np, npar = 3 * G->n + G->nsky;
+    double z = 0.0;
+    for (int a = 0; a < npar; a++) {
+        double d = G->A[(size_t)a * np + a];
+        double v = d > 0 ? fabs(G->step[a]) * sqrt(d) : 0.0;
+        z = v > z ? v : z;
+    }
+    return z;
+}
+
+/* The resolution of D [σ]: the position derivatives are the five-point
+ * formula on the shifted table (paper §3.2), not the exact derivatives of
+ * the rendered model, so the root the normal equations point to lies a
+ * little off D's own minimum, and within that distance a step can raise D
+ * although the quadratic model says it should not (measured on 600
+ * single-star fits, FWHM 3 px, 1× table, at the first refused step: median
+ * 0.003 σ, 99th percentile 0.2 σ, largest 0.26 σ; faint stars, whose
+ * weight sits in the wings, have the largest).  On steps this small the
+ * model is otherwise quadratic to high accuracy, so a step below
+ * LM_RESOLVE_SIGMAS (undamped) that cannot lower D even when damped means
+ * the fit is as close as D can tell: it has converged. */
+#define LM_RESOLVE_SIGMAS 0.5
+
+/* Levenberg–Marquardt from G->p at the current sky order.  A step is taken
+ * only when it lowers D.  Converged (*converged = 1) when a step taken is
+ * below tol·σ in every parameter (scaled back by 1 + λ, so damping cannot
+ * fake it), or when the first, least damped step tried from the current
+ * state was already below LM_RESOLVE_SIGMAS and it took 1000× more damping
+ * to lower D, or that did not help either.  Not converged when the damping
+ * blows up (λ > 1e8) from a larger step, or after maxiter steps; the state
+ * is then the best one reached.  Accepted steps are added to *iter.
+ * Nonzero: out of memory. */
+static int levmar(group *G, const mp_fit_opts *o, int *iter, int *converged)
+{
+    model_of(G, G->p, G->cur);
+    variance_of(G);
+    normal_equations(G, G->p, G->cur);
+    double D = deviance_of(G), lambda = 1e-3, zfirst = INFINITY, lfirst = lambda;
+    int it = 0, trials = 0, np = G->np, fresh = 1;
+    *converged = 0;
+    while (it < o->maxiter && trials < 4 * o->maxiter) {
+        trials++;
+        if (lm_step(G, lambda)) {
+            lambda *= 10.0;
+            if (lambda > 1e12)
+                break;
+            continue;
+        }
+        int cut = bound_step(G);
+        double z = cut ? INFINITY : step_sigmas(G);
+        if (fresh) {
+            zfirst = z * (1.0 + lambda);
+            lfirst = lambda;
+        }
+        fresh = 0;
+        for (int a = 0; a < np; a++)
+            G->pt[a] = G->p[a] + G->step[a];
+        if (render_all(G, G->pt, G->trial))
+            return 1;
+        model_of(G, G->pt, G->trial);
+        double Dt = deviance_of(G);
+        if (!(Dt < D)) {
+            model_of(G, G->p, G->cur);
+            lambda *= 10.0;
+            if (zfirst < LM_RESOLVE_SIGMAS && lambda > 1e3 * lfirst) {
+                *converged = 1;      /* damped 1000×: nothing left D can see */
+                break;
+            }
+            if (lambda > 1e8)
+                break;
+            continue;
+        }
+        it++;
+        /* Taken: converged when the step, undamped, was below tol, or when
+         * only 1000× damping made progress from a state whose undamped step
+         * was within D's resolution (creeping on D's noise floor). */
+        int done = z * (1.0 + lambda) < o->tol ||
+                   (zfirst < LM_RESOLVE_SIGMAS && lambda > 1e3 * lfirst * (1.0 - 1e-9));
+        double *tp = G->p;
+        G->p = G->pt;
+        G->pt = tp;
+        rstar *tr = G->cur;
+        G->cur = G->trial;
+        G->trial = tr;
+        D = Dt;
+        fresh = 1;
+        lambda = lambda / 10.0 > 1e-7 ? lambda / 10.0 : 1e-7;
+        variance_of(G);
+        normal_equations(G, G->p, G->cur);
+        if (done) {
+            *converged = 1;
+            break;
+        }
+    }
+    *iter += it;
+    return 0;
+}
+
+/* gᵀA⁻¹g for the np×np matrix A (row stride np), by Cholesky of the
+ * equilibrated D⁻¹AD⁻¹ (D² = diag A) in M; x (np) is scratch.  NaN when A
+ * is not positive definite. */
+static double inverse_quad_form(const double *A, const double *g, int np, double *M, double *x)
+{
+    for (int a = 0; a < np; a++) {
+        double d = A[(size_t)a * np + a];
+        if (!(d > 0))
+            return NAN;
+    }
+    for (int a = 0; a < np; a++)
+        for (int b = 0; b < np; b++)
+            M[(size_t)a * np + b] = A[(size_t)a * np + b] /
+                                    sqrt(A[(size_t)a * np + a] * A[(size_t)b * np + b]);
+    for (int a = 0; a < np; a++)
+        x[a] = g[a] / sqrt(A[(size_t)a * np + a]);
+    double *y = x + np;
+    memcpy(y, x, (size_t)np * sizeof *y);
+    if (LAPACKE_dposv(LAPACK_ROW_MAJOR, 'U', np, 1, M, np, y, 1) != 0)
+        return NAN;
+    double q = 0.0;
+    for (int a = 0; a < np; a++)
+        q += x[a] * y[a];
+    return q;
+}
+
+double mp_chi2_sf(int k, double x)
+{
+    if (k < 1)
+        return NAN;
+    if (!(x > 0))
+        return 1.0;
+    double h = 0.5 * x, e = exp(-h);
+    if (k % 2 == 0) {            /* e^{−x/2} Σ_{j<k/2} (x/2)^j / j! */
+        double t = 1.0, s = 1.0;
+        for (int j = 1; j < k / 2; j++)
+            s += (t *= h / j);
+        return e * s;
+    }
+    /* erfc(√(x/2)) + e^{−x/2} Σ_{j=1}^{(k−1)/2} (x/2)^{j−1/2} / Γ(j + 1/2) */
+    double t = sqrt(h) / (0.5 * sqrt(M_PI)), s = 0.0;
+    for (int j = 1; j <= (k - 1) / 2; j++) {
+        s += t;
+        t *= h / (j + 0.5);
+    }
+    return erfc(sqrt(h)) + e * s;
+}
+
+/* The score (Lagrange-multiplier) test of the sky terms [nsky, next) at the
+ * current fit (Rao 1948), in the quasi-likelihood form: with the gradient
+ * g = Σ c (d − m)/V and the Fisher information I = Σ c cᵀ/V of the sky
+ * basis c, S = gᵀI⁻¹g (all next terms) − gᵀI⁻¹g (the current nsky), the
+ * efficient score of the extra terms in the metric of their covariance.
+ * Under a sky of the current order S ~ χ²(next − nsky).  The stars are held
+ * at their fitted values and the test reads only the pixels their light
+ * does not dominate (star model below the pixel's σ): residuals of a PSF
+ * that does not quite fit a bright core (paper §5.4) are concentrated and
+ * large, and a smooth polynomial would partly absorb them, but they are not
+ * sky.  S is divided by the dispersion φ = max(1, χ²/dof) of those pixels,
+ * as quasi-likelihood tests are.  Returns the p-value (1 without enough
+ * pixels or with a singular matrix: no evidence). */
+typedef struct {
+    double A[36], g[6], chi2;   /* Σ c cᵀ/V, Σ c (d − m)/V, Σ (d − m)²/V */
+    size_t m;                   /* pixels read */
+} sky_sums;
+
+/* The sums of the score test over the pixels the stars do not dominate,
+ * for all six sky terms at once (the tests take their sub-blocks). */
+static void sky_score_sums(const group *G, sky_sums *S)
+{
+    memset(S, 0, sizeof *S);
+    for (int j = 0; j < G->bh; j++)
+        for (int i = 0; i < G->bw; i++) {
+            size_t o = (size_t)j * G->bw + i;
+            if (!G->sel[o])
+                continue;
+            double X = (double)(G->bx0 + i), Y = (double)(G->by0 + j), c[6];
+            double star = G->mod[o] - sky_at(G, G->p, X, Y), v = G->var[o];
+            if (star * star > v)
+                continue;
+            sky_basis(G, X, Y, c);
+            double w = 1.0 / v, r = pixel(G, G->bx0 + i, G->by0 + j) - G->mod[o];
+            for (int a = 0; a < 6; a++) {
+                double wc = w * c[a];
+                S->g[a] += wc * r;
+                for (int b = a; b < 6; b++)
+                    S->A[a * 6 + b] += wc * c[b];
+            }
+            S->chi2 += w * r * r;
+            S->m++;
+        }
+    for (int a = 0; a < 6; a++)
+        for (int b = 0; b < a; b++)
+            S->A[a * 6 + b] = S->A[b * 6 + a];
+}
+
+/* The p-value of the sky terms [n0, next) from the sums (1 without enough
+ * pixels or with a singular matrix: no evidence). */
+static double sky_score_pvalue(const sky_sums *S, int n0, int next)
+{
+    double A1[36], A0[36], M[36], x[12];
+    if (S->m <= (size_t)(2 * next))
+        return 1.0;
+    for (int a = 0; a < next; a++)
+        for (int b = 0; b < next; b++) {
+            A1[a * next + b] = S->A[a * 6 + b];
+            if (a < n0 && b < n0)
+                A0[a * n0 + b] = S->A[a * 6 + b];
+        }
+    double s1 = inverse_quad_form(A1, S->g, next, M, x), s0 = inverse_quad_form(A0, S->g, n0, M, x);
+    if (!isfinite(s0) || !isfinite(s1))
+        return 1.0;
+    double phi = S->chi2 / (double)(S->m - (size_t)n0);
+    double T = (s1 > s0 ? s1 - s0 : 0.0) / (phi > 1.0 ? phi : 1.0);
+    return mp_chi2_sf(next - n0, T);
 }
 
 /* Covariance = A⁻¹ into G->M.  Cholesky first; when A is singular or
@@ -393,6 +729,8 @@ static int select_pixels(group *G, const mp_fit_opts *o, mp_star *st)
     }
     G->xc = G->bx0 + 0.5 * (G->bw - 1);
     G->yc = G->by0 + 0.5 * (G->bh - 1);
+    G->hx = G->bw > 2 ? 0.5 * (G->bw - 1) : 1.0;
+    G->hy = G->bh > 2 ? 0.5 * (G->bh - 1) : 1.0;
     return 0;
 }
 
@@ -436,7 +774,8 @@ static int alloc_stars(group *G)
                 return 1;
         }
     }
-    size_t np = (size_t)G->np;
+    /* Room for the quadratic sky whatever the order: the order may rise. */
+    size_t np = (size_t)G->npmax;
     G->p = malloc(np * sizeof *G->p);
     G->pt = malloc(np * sizeof *G->pt);
     G->A = malloc(np * np * sizeof *G->A);
@@ -472,6 +811,31 @@ static int all_finite(const double *v, int n)
     return 1;
 }
 
+/* The sky order to fit first: the one asked for, or constant under auto. */
+static int first_order(const mp_fit_opts *o)
+{
+    if (o->sky_order == MP_SKY_AUTO)
+        return 0;
+    return o->sky_order < 0 ? 0 : (o->sky_order > MP_SKY_MAXORDER ? MP_SKY_MAXORDER : o->sky_order);
+}
+
+/* MP_SKY_AUTO, at a converged fit of order 0 or 1: the higher order the
+ * data ask for, or -1.  From constant, the plane's two terms (χ²(2)) and
+ * the quadratic's five (χ²(5), a curved sky the plane test cannot see)
+ * are tested, so a flat sky leaves constant with probability at most
+ * 2·MP_SKY_ALPHA; from a plane, the three quadratic terms (χ²(3)). */
+static int higher_order(const group *G, int order)
+{
+    sky_sums S;
+    sky_score_sums(G, &S);
+    int n0 = nsky_of(order), to = -1;
+    if (order == 0 && sky_score_pvalue(&S, n0, nsky_of(1)) < MP_SKY_ALPHA)
+        to = 1;
+    else if (order <= 1 && sky_score_pvalue(&S, n0, nsky_of(2)) < MP_SKY_ALPHA)
+        to = 2;
+    return to >= 0 && G->npix > (size_t)(3 * G->n + nsky_of(to)) ? to : -1;
+}
+
 int mp_fit_group(const mp_frame *f, const mp_prf_model *m, const mp_fit_opts *o,
                  double sky0, mp_star *stars, int n, char *err)
 {
@@ -480,20 +844,23 @@ int mp_fit_group(const mp_frame *f, const mp_prf_model *m, const mp_fit_opts *o,
     G.f = f;
     G.m = m;
     G.n = n;
-    G.nsky = o->fit_sky ? (o->sky_order >= 1 ? 3 : 1) : 0;
+    int order = first_order(o);
+    G.nsky = o->fit_sky ? nsky_of(order) : 0;
     G.np = 3 * n + (G.nsky ? G.nsky : 1);   /* a fixed sky still has a slot */
-    int npar = 3 * n + G.nsky;
+    G.npmax = 3 * n + nsky_of(MP_SKY_MAXORDER);
+    G.ron2 = f->rdnoise * f->rdnoise > 1e-2 ? f->rdnoise * f->rdnoise : 1e-2;
     int rc = 1;
     for (int k = 0; k < n; k++) {
         stars[k].flags = 0;
         stars[k].niter = 0;
+        stars[k].sky_order = order;
     }
     int sp = select_pixels(&G, o, stars);
     if (sp == 2 || alloc_stars(&G)) {
         snprintf(err, MP_ERRLEN, "fit: out of memory for a group of %d stars", n);
         goto done;
     }
-    if (sp == 1 || G.npix <= (size_t)npar) {
+    if (sp == 1 || G.npix <= (size_t)(3 * n + G.nsky)) {
         for (int k = 0; k < n; k++)
             stars[k].flags |= MP_FLAG_NOCONV | MP_FLAG_EDGE;
         rc = 0;
@@ -506,7 +873,7 @@ int mp_fit_group(const mp_frame *f, const mp_prf_model *m, const mp_fit_opts *o,
         G.p[3 * k + 2] = stars[k].y;
     }
     G.p[3 * n] = sky;
-    for (int a = 3 * n + 1; a < G.np; a++)
+    for (int a = 3 * n + 1; a < G.npmax; a++)
         G.p[a] = 0.0;
     if (render_all(&G, G.p, G.cur))
         goto nomem;
@@ -514,65 +881,24 @@ int mp_fit_group(const mp_frame *f, const mp_prf_model *m, const mp_fit_opts *o,
         if (!(isfinite(G.p[3 * k]) && G.p[3 * k] > 0))
             G.p[3 * k] = start_flux(&G, &G.cur[k], sky);
 
-    int np = G.np;
-    model_of(&G, G.p, G.cur);
-    variance_of(&G);
-    normal_equations(&G, G.p, G.cur);
-    double chi2 = chi2_with(&G, G.var);
-    double lambda = 1e-3;
-    int converged = 0, iter = 0, trials = 0;
-    while (iter < o->maxiter && trials < 4 * o->maxiter) {
-        trials++;
-        if (lm_step(&G, lambda)) {
-            lambda *= 10.0;
-            if (lambda > 1e12)
-                break;
-            continue;
-        }
-        /* Positions move at most one pixel a step (DAOPHOT does the same):
-         * a start far off cannot fling a star across the group. */
-        for (int k = 0; k < n; k++)
-            for (int a = 1; a <= 2; a++) {
-                double *s = &G.step[3 * k + a];
-                *s = *s > 1.0 ? 1.0 : (*s < -1.0 ? -1.0 : *s);
-            }
-        for (int a = 0; a < np; a++)
-            G.pt[a] = G.p[a] + G.step[a];
-        if (render_all(&G, G.pt, G.trial))
-            goto nomem;
-        model_of(&G, G.pt, G.trial);
-        double chi2t = chi2_with(&G, G.var);
-        if (!(chi2t <= chi2 * (1.0 + 1e-12))) {
-            model_of(&G, G.p, G.cur);
-            lambda *= 10.0;
-            if (lambda > 1e8) {
-                converged = 1;   /* no downhill step left at machine precision */
-                break;
-            }
-            continue;
-        }
-        iter++;
-        int small = 1;
-        for (int a = 0; a < npar; a++) {
-            double d = G.A[(size_t)a * np + a];
-            if (d > 0 && fabs(G.step[a]) * sqrt(d) > o->tol)
-                small = 0;
-        }
-        double *tp = G.p;
-        G.p = G.pt;
-        G.pt = tp;
-        rstar *tr = G.cur;
-        G.cur = G.trial;
-        G.trial = tr;
-        lambda = lambda / 10.0 > 1e-7 ? lambda / 10.0 : 1e-7;
-        variance_of(&G);
-        normal_equations(&G, G.p, G.cur);
-        chi2 = chi2_with(&G, G.var);
-        if (small) {
-            converged = 1;
+    int converged = 0, iter = 0;
+    if (levmar(&G, o, &iter, &converged))
+        goto nomem;
+    /* The sky order from the data: raise it while the score test at the
+     * converged lower-order fit says the extra terms are needed, and go on
+     * from the current state (the new terms start at zero, so the model
+     * does not change). */
+    while (o->fit_sky && o->sky_order == MP_SKY_AUTO && converged && order < MP_SKY_MAXORDER) {
+        int to = higher_order(&G, order);
+        if (to < 0)
             break;
-        }
+        order = to;
+        G.nsky = nsky_of(order);
+        G.np = 3 * n + G.nsky;
+        if (levmar(&G, o, &iter, &converged))
+            goto nomem;
     }
+    int np = G.np, npar = 3 * n + G.nsky;
 
     int cv = covariance(&G);
     if (cv == 2)
@@ -586,8 +912,8 @@ int mp_fit_group(const mp_frame *f, const mp_prf_model *m, const mp_fit_opts *o,
                          sqrt(G.M[(size_t)(3 * k + 2) * np + 3 * k + 2]),
                          sqrt(G.M[(size_t)(3 * k) * np + 3 * k])};
         double skyv = sky_at(&G, G.p, out[0], out[1]);
-        double c[3] = {1.0, out[0] - G.xc, out[1] - G.yc};
-        double vs = 0.0;
+        double c[6], vs = 0.0;
+        sky_basis(&G, out[0], out[1], c);
         for (int a = 0; a < G.nsky; a++)
             for (int b = 0; b < G.nsky; b++)
                 vs += c[a] * c[b] * G.M[(size_t)(3 * n + a) * np + 3 * n + b];
@@ -618,6 +944,7 @@ int mp_fit_group(const mp_frame *f, const mp_prf_model *m, const mp_fit_opts *o,
         s->chi2 = dof > 0 ? chi2f / dof : 0.0;
         s->dof = dof;
         s->niter = iter;
+        s->sky_order = order;
         s->fluxerr_model = isfinite(se) ? se : 0.0;
         s->poserr_model = isfinite(sx) ? sx : 0.0;
     }

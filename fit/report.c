@@ -57,13 +57,35 @@ void mp_report_parts(const mp_prf_model *m, const mp_frame_opts *o, const mp_fra
     size_t nu = sizeof r->used, nl = sizeof r->left;
     int ku = 0, kl = 0;
 #define ADD(buf, k, n, ...) (k += snprintf(buf + k, (size_t)k < n ? n - (size_t)k : 0, __VA_ARGS__))
-    u[0] = l[0] = '\0';
-    if (o->fit.fit_sky)
-        ADD(u, ku, nu, "sky %s; ", o->fit.sky_order ? "plane" : "constant");
-    else
+    static const char *const order[] = {"constant", "plane", "quadratic"};
+    u[0] = l[0] = r->sky[0] = '\0';
+    long ng[MP_SKY_MAXORDER + 1] = {0};
+    if (fr)
+        memcpy(ng, fr->sky_groups, sizeof ng);
+    int top = 0;                 /* highest sky order fitted */
+    if (!o->fit.fit_sky) {
         ADD(l, kl, nl, "sky (held fixed); ");
-    if (!o->fit.fit_sky || !o->fit.sky_order)
-        ADD(l, kl, nl, "sky plane; ");
+        top = -1;
+    } else if (o->fit.sky_order == MP_SKY_AUTO) {
+        for (int k = 0; k <= MP_SKY_MAXORDER; k++)
+            top = ng[k] ? k : top;
+        if (ng[0] + ng[1] + ng[2]) {
+            snprintf(r->sky, sizeof r->sky, "sky: constant in %ld groups, plane in %ld, "
+                     "quadratic in %ld (score test, p < %g)", ng[0], ng[1], ng[2], MP_SKY_ALPHA);
+            ADD(u, ku, nu, "sky per group (highest order %s); ", order[top]);
+        } else {                 /* the caller has no counts: say what was possible */
+            snprintf(r->sky, sizeof r->sky, "sky: order chosen per group (score test, p < %g)",
+                     MP_SKY_ALPHA);
+            ADD(u, ku, nu, "sky per group (constant, plane or quadratic); ");
+            top = MP_SKY_MAXORDER;
+        }
+    } else {
+        top = o->fit.sky_order < 0 ? 0 : (o->fit.sky_order > 2 ? 2 : o->fit.sky_order);
+        ADD(u, ku, nu, "sky %s; ", order[top]);
+    }
+    for (int k = top + 1; k <= MP_SKY_MAXORDER; k++)
+        if (k > 0)
+            ADD(l, kl, nl, "sky %s; ", order[k]);
     if (m->drf && m->drf->k)
         ADD(u, ku, nu, "DRF %dx%d map (V = %.4g); ", m->drf->k, m->drf->k, m->drf->volume);
     else if (m->drf && m->drf->volume != 1.0)
@@ -108,8 +130,10 @@ static void report_lines(FILE *fp, const char *prefix, const mp_run_report *r)
             r->poserr_median);
     fprintf(fp, "%s  model parts used: %s\n", prefix, r->used[0] ? r->used : "-");
     fprintf(fp, "%s  model parts left out: %s\n", prefix, r->left[0] ? r->left : "-");
-    fprintf(fp, "%s  economy: %d decisions%s%s\n", prefix, r->ndecisions,
-            r->ndecisions ? ": " : "", r->ndecisions && r->decisions ? r->decisions : "");
+    int nd = r->ndecisions + (r->sky[0] != '\0');
+    const char *d = r->ndecisions && r->decisions ? r->decisions : "";
+    fprintf(fp, "%s  economy: %d decisions%s%s%s%s\n", prefix, nd, nd ? ": " : "", d,
+            d[0] && r->sky[0] ? "; " : "", r->sky);
 }
 
 int mp_report_write(const char *path, const char *task, const mp_run_report *r, char *err)
