@@ -33,6 +33,7 @@
 /* (1.2")² in sr, and MJy → mJy: the MANIFEST's conversion. */
 #define PIXSR 3.385e-11
 #define MATCH_R 2.0            /* [px] */
+#define BLEND_R 1.5            /* [px]: ≈ 1 FWHM of IRAC ch2 (1.72″) on 1.2″ pixels */
 #define OUTLIER 5.0            /* robust σ */
 
 static int cmp_d(const void *a, const void *b)
@@ -432,6 +433,30 @@ static int do_glimpse(const char *catpath, const char *csv, double gain, const c
     double lscale = median(v, k);
     memcpy(v, lr, sizeof(double) * (size_t)k);
     double lrs = rsigma(v, k);
+    /* The same with our fluxes summed within BLEND_R of the shifted
+     * GLIMPSE position: pairs closer than GLIMPSE's resolution are one
+     * source in its catalog. */
+    int kb = 0, nblend = 0;
+    for (int i = 0; i < ng; i++) {
+        if (m[i] < 0)
+            continue;
+        double fsum = 0.0;
+        int nin = 0;
+        for (long j = 0; j < nc; j++)
+            if (hypot(mp_table_get(&t, (size_t)j, cx) - (g[i].x + sx),
+                      mp_table_get(&t, (size_t)j, cy) - (g[i].y + sy)) <= BLEND_R) {
+                fsum += mp_table_get(&t, (size_t)j, cf);
+                nin++;
+            }
+        if (nin == 0)   /* the match itself lies between BLEND_R and MATCH_R */
+            fsum = mp_table_get(&t, (size_t)m[i], cf);
+        nblend += nin > 1;
+        v[kb++] = log(fsum / gain * PIXSR * 1e9 / g[i].f);
+    }
+    double bscale = median(v, kb);
+    for (int i = 0; i < kb; i++)
+        v[i] -= bscale;
+    double brs = rsigma(v, kb);
     /* Expected scatter from the two catalogs' own errors. */
     k = 0;
     for (int i = 0; i < ng; i++)
@@ -473,6 +498,10 @@ static int do_glimpse(const char *catpath, const char *csv, double gain, const c
             "**%.4f**; scatter: robust σ of ln(ratio) **%.4f** (%.3f mag); expected from the "
             "two catalogs' quoted errors (median, in quadrature) %.4f, GLIMPSE's df4_5/f4_5 "
             "alone %.4f.\n", PIXSR, exp(lscale), lrs, 1.0857 * lrs, experr, gerr);
+    fprintf(md, "- **Blends**: %d of the matched GLIMPSE stars have more than one of our stars "
+            "within %.1f px (≈ 1 FWHM, GLIMPSE's resolution); with our fluxes summed there the "
+            "flux scale is **%.4f** and the robust σ of ln(ratio) **%.4f** (%.3f mag).\n",
+            nblend, BLEND_R, exp(bscale), brs, 1.0857 * brs);
     fprintf(md, "\nOutliers (> %.0f robust σ: position in either axis after the shift, or "
             "ln flux ratio after the scale):\n\n| x_fits | y_fits | f4_5 [mJy] | ours [mJy] "
             "(after scale) | dx, dy [px] | flux σ | FLAGS | CHI2_PSF | why |\n"
@@ -516,8 +545,9 @@ static int do_glimpse(const char *catpath, const char *csv, double gain, const c
     fclose(ff);
     fclose(md);
     printf("glimpse: %d/%d matched; shift (%+.3f, %+.3f) px; pos rsigma (%.3f, %.3f) px; "
-           "flux scale %.4f, ln-ratio rsigma %.4f; outliers %d pos, %d flux\n", nm, ng, sx, sy,
-           rsx, rsy, exp(lscale), lrs, npos_out, nflux_out);
+           "flux scale %.4f, ln-ratio rsigma %.4f; outliers %d pos, %d flux; blends %d: "
+           "summed within %.1f px, scale %.4f, rsigma %.4f\n", nm, ng, sx, sy,
+           rsx, rsy, exp(lscale), lrs, npos_out, nflux_out, nblend, BLEND_R, exp(bscale), brs);
     free(g);
     free(m);
     free(dx);
