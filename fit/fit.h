@@ -83,6 +83,11 @@ void mp_drf_free(mp_drf *d);
 /* mp_damped_sinc: sinc(d)·exp(−(d/3.25)²), paper eq. (dampedsinc). */
 double mp_damped_sinc(double d);
 
+/* mp_shift_on_grid: nonzero when a shift of delta table elements is the
+ * identity to double precision (|delta| ≤ DBL_EPSILON/2), so the damped-sinc
+ * pass is skipped (mp_shift_table, mp_prf_render). */
+int mp_shift_on_grid(double delta);
+
 /* mp_shift_table: out(i,j) = in(i+dx, j+dy) by the separable damped sinc of
  * half-width hw (hw=10: 21 taps); |dx|,|dy| ≤ 0.5 in table elements; outside
  * the table counts as zero.  tmp holds nx*ny doubles. */
@@ -106,6 +111,8 @@ typedef struct {
 typedef struct {
     size_t n;
     double *a, *b, *c, *d;
+    long nshift, nskip;    /* table renders: axes shifted, and of those skipped
+                            * because the shift is on the grid (mp_shift_on_grid) */
 } mp_prf_work;
 
 void mp_prf_work_free(mp_prf_work *w);
@@ -136,6 +143,40 @@ int mp_prf_render_window(const mp_prf_model *m, double x, double y,
                          long wx0, long wy0, long ww, long wh,
                          long *x0, long *y0, int *w, int *h,
                          double *prf, double *dprf_dx, double *dprf_dy, mp_prf_work *work);
+
+/* ---- Interpolation effort per star (fit/sinc_choice.c, issue 5) ---------- */
+
+/* The damped sinc's error for every half-width below the model's sinc_hw,
+ * measured once per PSF: δP_h = PRF(h) − PRF(sinc_hw) squared per pixel, at
+ * a 4×4 grid of subpixel phases, with the full PRF P. */
+typedef struct {
+    int hwmax;         /* the model's sinc_hw (the user's sinchw) */
+    int nph;           /* phases (0 when nothing can be shortened) */
+    size_t npix;       /* pixels stored per phase */
+    double *p;         /* nph × npix */
+    double *d2;        /* hwmax × nph × npix */
+} mp_sinc_choice;
+
+int mp_sinc_choice_build(const mp_prf_model *m, mp_sinc_choice *c, char *err);
+void mp_sinc_choice_free(mp_sinc_choice *c);
+
+/* mp_sinc_choice_bound: q = E·max_phase sqrt(Σ δP_h²/(E P + B + ron²)), a
+ * bound on |bias|/σ_CRLB of the star's flux, position and sky alike from
+ * using half-width hw instead of sinc_hw (0 for hw ≥ sinc_hw). */
+double mp_sinc_choice_bound(const mp_sinc_choice *c, int hw, double E, double B, double ron);
+
+/* mp_sinc_choice_hw: the shortest half-width whose bound is ≤ frac for a
+ * star of E electrons on sky B [e-/px] with read noise ron [e-]; sinc_hw
+ * when none is. */
+int mp_sinc_choice_hw(const mp_sinc_choice *c, double E, double B, double ron, double frac);
+
+/* The same per star in O(sinc_hw): mp_sinc_choice_limits fills emax[h]
+ * (h < sinc_hw), the largest flux whose bound at half-width h is ≤ frac on
+ * sky B (once per sky level); mp_sinc_choice_pick returns the shortest h
+ * with E ≤ emax[h], else hwmax. */
+int mp_sinc_choice_limits(const mp_sinc_choice *c, double B, double ron, double frac,
+                          double *emax);
+int mp_sinc_choice_pick(const double *emax, int hwmax, double E);
 
 /* ---- Performance model (paper §2) ----------------------------------------- */
 

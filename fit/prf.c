@@ -21,7 +21,10 @@ static int work_reserve(mp_prf_work *w, size_t n)
 {
     if (w->n >= n)
         return 0;
+    long nshift = w->nshift, nskip = w->nskip;    /* the counts outlive a regrowth */
     mp_prf_work_free(w);
+    w->nshift = nshift;
+    w->nskip = nskip;
     w->a = malloc(n * sizeof *w->a);
     w->b = malloc(n * sizeof *w->b);
     w->c = malloc(n * sizeof *w->c);
@@ -213,8 +216,11 @@ static int render_table(const mp_prf_model *m, double x, double y, box bx,
     long tj0 = sj0 - hw < 0 ? 0 : sj0 - hw, tj1 = sj1 + hw > ny ? ny : sj1 + hw;
     double *S = w->a, *tmp = w->b;          /* both laid out with stride nx */
     double wt[2 * 64 + 1];
-    /* x-pass (skipped for a zero shift, where the sinc is the identity) */
-    if (ax.delta != 0.0 && hw > 0) {
+    /* x-pass (skipped for a shift on the grid, where the sinc is the
+     * identity: mp_shift_on_grid; counted in the work for the report) */
+    w->nshift += 2;
+    w->nskip += (mp_shift_on_grid(ax.delta) || hw == 0) + (mp_shift_on_grid(ay.delta) || hw == 0);
+    if (!mp_shift_on_grid(ax.delta) && hw > 0) {
         weights(ax.delta, hw, wt);
         for (long j = tj0; j < tj1; j++) {
             const double *src = p->t + (size_t)j * nx;
@@ -232,7 +238,7 @@ static int render_table(const mp_prf_model *m, double x, double y, box bx,
                    (size_t)(si1 - si0) * sizeof *tmp);
     }
     /* y-pass */
-    if (ay.delta != 0.0 && hw > 0) {
+    if (!mp_shift_on_grid(ay.delta) && hw > 0) {
         weights(ay.delta, hw, wt);
         for (long j = sj0; j < sj1; j++) {
             long k0 = j - hw < 0 ? -j : -hw, k1 = j + hw > ny - 1 ? ny - 1 - j : hw;

@@ -45,7 +45,8 @@ static double beta_normalised(const mp_prf_model *m)
     return 1.0 / st.sharp;
 }
 
-/* economy=yes: leave out what cannot change the answer (issue 5).
+/* economy=yes: leave out what cannot change the answer (issue 5); every
+ * decision, to drop a part or to keep it, is logged with its reason.
  *  - A DRF map whose subpixels are all equal is the scalar V.
  *  - A supersampled table is block-summed to detector sampling when the
  *    data are oversampled (β·V² ≥ 21 px², paper §5.4: 1× tables are then on
@@ -56,31 +57,52 @@ static int economize(mp_fit_setup *s, int psfos_given, char *err)
     char why[256];
     if (s->drf.k > 0) {
         int uniform = 1;
-        for (int i = 1; i < s->drf.k * s->drf.k; i++)
+        double lo = s->drf.qe[0], hi = s->drf.qe[0];
+        for (int i = 1; i < s->drf.k * s->drf.k; i++) {
             uniform &= s->drf.qe[i] == s->drf.qe[0];
+            lo = s->drf.qe[i] < lo ? s->drf.qe[i] : lo;
+            hi = s->drf.qe[i] > hi ? s->drf.qe[i] : hi;
+        }
         if (uniform) {
             double v = s->drf.qe[0];
             snprintf(why, sizeof why, "DRF: the %dx%d map is uniform, used as the scalar V = %.6g",
                      s->drf.k, s->drf.k, v);
             mp_drf_free(&s->drf);
             mp_drf_uniform(v, &s->drf);
-            decide(s, why);
+        } else {
+            snprintf(why, sizeof why, "DRF: the %dx%d map varies (QE %.3g to %.3g), kept",
+                     s->drf.k, s->drf.k, lo, hi);
         }
+        decide(s, why);
     }
-    if (s->psf.kind == MP_PSF_TABLE && s->psf.os > 1 && !psfos_given && s->drf.k == 0) {
-        double b = beta_normalised(&s->model);
-        if (b >= 21.0) {
-            mp_psf coarse;
-            int os = s->psf.os;
-            if (mp_psf_rebin(&s->psf, os, &coarse, err))
-                return 1;
-            mp_psf_free(&s->psf);
-            s->psf = coarse;
-            snprintf(why, sizeof why, "supersampling: beta = %.1f px^2 >= 21 at detector sampling "
-                     "(paper 5.4), the x%d table block-summed to x1", b, os);
-            decide(s, why);
-        }
+    if (s->psf.kind != MP_PSF_TABLE || s->psf.os <= 1)
+        return 0;
+    int os = s->psf.os;
+    if (psfos_given) {
+        snprintf(why, sizeof why, "supersampling: psfos given, the x%d table used as asked", os);
+        decide(s, why);
+        return 0;
     }
+    if (s->drf.k > 0) {
+        snprintf(why, sizeof why, "supersampling: the %dx%d DRF map needs the x%d subpixels, kept",
+                 s->drf.k, s->drf.k, os);
+        decide(s, why);
+        return 0;
+    }
+    double b = beta_normalised(&s->model);
+    if (b >= 21.0) {
+        mp_psf coarse;
+        if (mp_psf_rebin(&s->psf, os, &coarse, err))
+            return 1;
+        mp_psf_free(&s->psf);
+        s->psf = coarse;
+        snprintf(why, sizeof why, "supersampling: beta = %.1f px^2 >= 21 at detector sampling "
+                 "(paper 5.4), the x%d table block-summed to x1", b, os);
+    } else {
+        snprintf(why, sizeof why, "supersampling: beta = %.1f px^2 < 21 at detector sampling "
+                 "(paper 5.4), the x%d table kept", b, os);
+    }
+    decide(s, why);
     return 0;
 }
 
@@ -168,6 +190,8 @@ int mp_fit_setup_read(const mp_parset *ps, mp_fit_setup *s, char *err)
     mp_par_int(ps, "psfos", &psfos);
     if (economy && economize(s, psfos != MP_PAR_INDEF_INT, err))
         return 1;
+    if (!economy)
+        decide(s, "economy=no: every part of the model forced on");
     warn_undersampled(s);
     return 0;
 }

@@ -74,7 +74,10 @@ static int run_single(const sw_scene *sc, const mp_prf_model *m, const sw_settin
     mp_frame f;
     frame_init(&f, sc, mask);
     mp_fit_opts o;
-    mp_fit_opts_default(&o);
+    if (st->fopts)
+        o = st->fopts->fit;
+    else
+        mp_fit_opts_default(&o);
     o.fitrad = st->fitrad;
     o.tol = st->tol;
     o.maxiter = st->maxiter;
@@ -88,7 +91,12 @@ static int run_single(const sw_scene *sc, const mp_prf_model *m, const sw_settin
         s.x = sc->t[k].x0;
         s.y = sc->t[k].y0;
         s.flux = NAN;
-        if (mp_fit_group(&f, m, &o, NAN, &s, 1, err)) {
+        mp_prf_model mk = *m;
+        if (st->choice)
+            mk.sinc_hw = mp_sinc_choice_pick(st->emax, st->choice->hwmax, sc->t[k].e);
+        if (record)
+            r->hwsum += mk.sinc_hw;
+        if (mp_fit_group(&f, &mk, &o, NAN, &s, 1, err)) {
             rc = 1;
             break;
         }
@@ -145,7 +153,10 @@ static int run_crowded(const sw_scene *sc, const mp_prf_model *m, const sw_setti
     mp_frame f;
     frame_init(&f, sc, mask);
     mp_frame_opts fo;
-    mp_frame_opts_default(&fo);
+    if (st->fopts)
+        fo = *st->fopts;
+    else
+        mp_frame_opts_default(&fo);
     fo.fit.fitrad = st->fitrad;
     fo.fit.tol = st->tol;
     fo.fit.maxiter = st->maxiter;
@@ -196,7 +207,8 @@ int sw_run(const sw_scene *sc, const sw_setting *st, int k0, int k1, sw_result *
         snprintf(err, MP_ERRLEN, "out of memory");
         return 1;
     }
-    mp_prf_model m = {&sc->tab[st->tab], NULL, st->hw};
-    return sc->kind == SW_CROWDED ? run_crowded(sc, &m, st, r, record, cpu, err)
-                                  : run_single(sc, &m, st, k0, k1, r, record, cpu, err);
+    mp_prf_model m = {&sc->tab[st->tab], sc->drf.k > 0 ? &sc->drf : NULL, st->hw};
+    const mp_prf_model *pm = st->model ? st->model : &m;
+    return sc->kind == SW_CROWDED ? run_crowded(sc, pm, st, r, record, cpu, err)
+                                  : run_single(sc, pm, st, k0, k1, r, record, cpu, err);
 }

@@ -14,8 +14,8 @@
 #   SWEEP_PSF=...          the Tiny Tim x4 table (default ../shared/data/real/...)
 #   SWEEP_OUT=bench        where REPORT.md and the PNGs go
 #
-# IRAF DAOPHOT: when bench/daophot_points.txt exists (written by the DAOPHOT
-# comparison; lines "scene cpu_s_per_star phot_ratio astro_ratio", '#'
+# IRAF DAOPHOT: tests/bench/daophot/points.sh (run first, unless
+# BENCH_DAOPHOT=0) writes bench/daophot_points.txt (lines "scene cpu_s_per_star phot_ratio astro_ratio", '#'
 # comments), each scene's table and plot get DAOPHOT's point; otherwise the
 # report and the plots say that there is none.  The file is read when the
 # report is written, so whatever writes it must run before this script.  To
@@ -44,7 +44,7 @@ rm -f "$W"/*.md "$W"/*.gp "$W"/*.dat "$W"/*.log
 $CC -std=c17 -Wall -Wextra -Werror -O2 -fopenmp -D_XOPEN_SOURCE=700 -I. \
     $(pkg-config --cflags wcslib) -o "$W/sweep" tests/bench/sweep/sweep.c \
     tests/bench/sweep/scenes.c tests/bench/sweep/run.c tests/bench/sweep/stats.c \
-    tests/bench/sweep/report.c tests/bench/sweep/export.c "$LIB" -lcfitsio \
+    tests/bench/sweep/report.c tests/bench/sweep/export.c tests/bench/sweep/econ.c "$LIB" -lcfitsio \
     $(pkg-config --libs wcslib) -lcsv \
     -llapacke -lopenblas -lm || { echo "sweep: build failed" >&2; exit 1; }
 
@@ -70,6 +70,13 @@ scene() {  # scene NAME N
     [ $rc -eq 0 ] || { cat "$W/$1.log" >&2; echo "sweep: $1 failed (exit $rc)" >&2; }
     return $rc
 }
+
+# IRAF DAOPHOT's point on the same scenes (skips with a line without IRAF;
+# BENCH_DAOPHOT=0: keep the existing $DAO).
+if [ "${BENCH_DAOPHOT:-1}" = 1 ]; then
+    N_isolated=$N_ISO N_crowded=$N_CRO N_undersampled=$N_UND N_ugly=$N_UGL OUT="$DAO" \
+        sh tests/bench/daophot/points.sh || echo "sweep: DAOPHOT points failed" >&2
+fi
 
 load0=$(cut -d' ' -f1-3 /proc/loadavg 2>/dev/null)
 t0=$(date +%s)
@@ -153,9 +160,19 @@ cpu2=$(awk -v a="$(cpu_of isolated)" -v b="$(cpu_of undersampled)" -v c="$(cpu_o
     echo "  interleaved (alternating order), divided by the number of stars."
     echo "- Defaults: read from the compiled-in params/fit.par and params/group.par; the supersampling is"
     echo "  what \`economy=yes\` picks (fit/setup.c: block-sum to ×1 when β·V² ≥ 21 px² at detector sampling)."
-    echo "- IRAF DAOPHOT: the point comes from $DAO (\`scene cpu_s_per_star phot_ratio astro_ratio\`)"
+    echo "- IRAF DAOPHOT: the point comes from $DAO (\`scene cpu_s_per_star phot_ratio astro_ratio\`),"
+    echo "  written by tests/bench/daophot/points.sh on the same pixels (\`sweep -w\`): phot at the sweep's"
+    echo "  start positions, a PSF built by DAOPHOT's psf from 25 of the scene's bright uncontaminated stars"
+    echo "  (Gaussian + look-up table, varorder 0, fitrad = FWHM, psfrad = 4 FWHM), then allstar; CPU ="
+    echo "  allstar's (user + sys, an empty irafcl run subtracted, median of the repeats) per star, the PSF"
+    echo "  build not counted (matphot is given its PSF); ratios as above over the stars allstar kept, after"
+    echo "  DAOPHOT's aperture correction (median Δmag of the stars brighter than −12 removed)"
     if [ -f "$DAO" ]; then
-        echo "  — present for this run."
+        echo "  — present for this run:"
+        echo
+        echo '```'
+        cat "$DAO"
+        echo '```'
     else
         echo "  — absent for this run, so the tables and plots mark the place without a point."
     fi
@@ -164,6 +181,9 @@ cpu2=$(awk -v a="$(cpu_of isolated)" -v b="$(cpu_of undersampled)" -v c="$(cpu_o
         [ -f "$W/$s.md" ] && cat "$W/$s.md"
     done
 } > "$OUT/REPORT.md.tmp" && mv "$OUT/REPORT.md.tmp" "$OUT/REPORT.md"
+# economy=yes against economy=no on the four scenes and two more (gradient
+# sky, gate-structure DRF): the section "Economy" of the report.
+ECON_N=${ECON_N:-$N_ISO} ECON_N_CROWDED=${ECON_N_CROWDED:-$N_CRO} sh tests/bench/sweep/econ.sh || rc=1
 npng=0
 for s in isolated crowded undersampled ugly; do [ -f "$OUT/$s.png" ] && npng=$((npng + 1)); done
 echo "sweep: wrote $OUT/REPORT.md and $npng PNGs in $((t1 - t0)) s"

@@ -187,6 +187,7 @@ void sw_scene_free(sw_scene *sc)
 {
     for (int k = 0; k < SW_MAXTAB; k++)
         mp_psf_free(&sc->tab[k]);
+    mp_drf_free(&sc->drf);
     free(sc->img);
     free(sc->t);
     memset(sc, 0, sizeof *sc);
@@ -208,7 +209,7 @@ static int add_rebins(sw_scene *sc, char *err)
      * sampling (fit/setup.c). */
     sc->beta_norm = beta_norm(&sc->tab[0]);
     sc->def_tab = 0;
-    if (os > 1 && sc->beta_norm >= 21.0)
+    if (os > 1 && sc->beta_norm >= 21.0 && sc->drf.k == 0)
         for (int k = 0; k < sc->ntab; k++)
             if (sc->tab[k].os == 1)
                 sc->def_tab = k;
@@ -239,8 +240,8 @@ static int build_single(sw_scene *sc, const mp_sim_prf *sp, const mp_prf_model *
         t->y0 = t->y + 0.5 * mp_rng_uniform(&r) - 0.25;
         t->e = pow(10.0, -0.4 * t->mag);
         double *img = sc->img + (size_t)k * SW_NPIX;
-        for (int i = 0; i < SW_NPIX; i++)
-            img[i] = SW_SKY;
+        for (int i = 0; i < SW_NPIX; i++)    /* sky: a plane through SW_SKY at the centre */
+            img[i] = SW_SKY + sc->gx * (i % SW_NX + 1 - 30.5) + sc->gy * (i / SW_NX + 1 - 30.5);
         if (mp_sim_add_star(sp, t->x, t->y, t->e, img, SW_NX, SW_NX)) {
             snprintf(err, MP_ERRLEN, "%s: the simulator refused star %d", sc->name, k);
             rc = 1;
@@ -315,7 +316,9 @@ int sw_scene_build(sw_scene *sc, const char *name, int n, const char *realpath, 
     mp_psf gauss;
     memset(&gauss, 0, sizeof gauss);
     mp_prf_model truth = {NULL, NULL, 10};
-    if (!strcmp(name, "isolated") || !strcmp(name, "undersampled") || !strcmp(name, "crowded")) {
+    int gradient = !strcmp(name, "gradient");
+    if (!strcmp(name, "isolated") || !strcmp(name, "undersampled") || !strcmp(name, "crowded") ||
+        gradient) {
         int under = !strcmp(name, "undersampled");
         sc->kind = strcmp(name, "crowded") ? SW_SINGLE : SW_CROWDED;
         sc->name = sc->kind == SW_CROWDED ? "crowded" : (under ? "undersampled" : "isolated");
@@ -337,12 +340,28 @@ int sw_scene_build(sw_scene *sc, const char *name, int n, const char *realpath, 
                  "truth: Gaussian FWHM %.2f px integrated exactly over pixels (sim.h); fitted "
                  "table: mp_psf_gauss_table(FWHM %.2f, x2, radius %.0f px = group.par's psfrad)", sc->fwhm,
                  sc->fwhm, SW_PSFRAD);
-    } else if (!strcmp(name, "ugly")) {
+        if (gradient) {
+            /* A sky plane: 1.5 and 1.0 e-/px per px in x and y (100 ± 75 e-/px
+             * over the frame), what a constant sky cannot absorb. */
+            sc->name = "gradient";
+            sc->seed = 5050000000ULL;
+            sc->gx = 1.5;
+            sc->gy = 1.0;
+            sc->title = "60x60 single-star frames, Gaussian FWHM 3 px, 2x table, sky plane "
+                        "1.5 / 1.0 e-/px per px in x / y";
+            size_t l = strlen(sc->note);
+            snprintf(sc->note + l, sizeof sc->note - l, "; sky 100 + 1.5 (x - 30.5) + 1.0 (y - 30.5) "
+                     "e-/px (the CRLB is that of a constant sky of 100 e-/px)");
+        }
+    } else if (!strcmp(name, "ugly") || !strcmp(name, "gate")) {
+        int gate = !strcmp(name, "gate");
         sc->kind = SW_SINGLE;
-        sc->name = "ugly";
-        sc->seed = 3030000000ULL;
-        sc->title = "60x60 single-star frames, Tiny Tim ACS/HRC F606W x4 table as truth on its "
-                    "own grid";
+        sc->name = gate ? "gate" : "ugly";
+        sc->seed = gate ? 6060000000ULL : 3030000000ULL;
+        sc->title = gate ? "60x60 single-star frames, Tiny Tim ACS/HRC F606W x4 table as truth on "
+                           "its own grid, gate-structure DRF 4x4 (paper 5.7, validate case 8)"
+                         : "60x60 single-star frames, Tiny Tim ACS/HRC F606W x4 table as truth on "
+                           "its own grid";
         char note[1024];
         int rc = load_real(realpath, &sc->tab[0], note, sizeof note, err);
         if (rc < 0)
@@ -359,8 +378,28 @@ int sw_scene_build(sw_scene *sc, const char *name, int n, const char *realpath, 
         sp.tny = sc->tab[0].ny;
         sp.tos = sc->tab[0].os;
         truth.psf = &sc->tab[0];   /* on-grid positions: the shift is zero */
+        if (gate) {
+            /* Paper §5.7's gate structure: first row and column of the 4x4
+             * subpixels dead, the rest QE 1 (V = 9/16), as validate case 8. */
+            sc->drf.qe = malloc(16 * sizeof *sc->drf.qe);
+            if (!sc->drf.qe) {
+                snprintf(err, MP_ERRLEN, "out of memory");
+                return 1;
+            }
+            sc->drf.k = 4;
+            sc->drf.volume = 0.5625;
+            for (int j = 0; j < 4; j++)
+                for (int i = 0; i < 4; i++)
+                    sc->drf.qe[j * 4 + i] = (i == 0 || j == 0) ? 0.0 : 1.0;
+            sp.drf = sc->drf.qe;
+            sp.dk = 4;
+            truth.drf = &sc->drf;
+            size_t l = strlen(sc->note);
+            snprintf(sc->note + l, sizeof sc->note - l, "; gate DRF 4x4, first row and column dead");
+        }
     } else {
-        snprintf(err, MP_ERRLEN, "unknown scene '%s' (isolated, crowded, undersampled, ugly)", name);
+        snprintf(err, MP_ERRLEN, "unknown scene '%s' (isolated, crowded, undersampled, ugly, "
+                 "gradient, gate)", name);
         return 1;
     }
     if (add_rebins(sc, err))

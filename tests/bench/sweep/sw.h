@@ -50,6 +50,8 @@ typedef struct {
     int ntab;
     int def_tab;                 /* what fit.par's economy=yes uses */
     double beta_norm;            /* 1/sharpness of the given table at detector sampling */
+    mp_drf drf;                  /* the detector's DRF map (k = 0: perfect detector) */
+    double gx, gy;               /* sky gradient [e-/px per px] about the frame's centre */
     /* Frames: single: n frames of SW_NPIX; crowded: one fnx x fny frame. */
     long fnx, fny;
     double *img;
@@ -67,6 +69,16 @@ typedef struct {
     int maxiter;
     int maxgroup;                /* crowded only */
     int is_default, is_econ;
+    /* economy=yes/no mode (-e): the model and options of an mp_fit_setup
+     * read from fit.par (NULL: tab[tab], the scene's DRF, sinchw hw and
+     * mp_frame_opts_default with fitrad, tol, maxiter above). */
+    const mp_prf_model *model;
+    const mp_frame_opts *fopts;
+    /* Per-star kernel length (single-star scenes): each star fitted with
+     * mp_sinc_choice_hw(choice, E, SW_SKY, SW_RON, frac), E its true flux. */
+    const mp_sinc_choice *choice;
+    double frac;
+    double emax[65];             /* mp_sinc_choice_limits at SW_SKY, SW_RON, frac */
 } sw_setting;
 
 /* Per-subset statistics (all, faint, bright). */
@@ -87,6 +99,7 @@ typedef struct {
     double cpu_star;             /* median over repeats / n [s] */
     double cpu_spread;           /* (max - min) / median over the repeats */
     long iters;                  /* summed iterations (first repeat) */
+    long hwsum;                  /* per-star kernel: summed half-widths (first repeat) */
     double fflag, fnoconv, flost, fsplit;
     sw_sub sub[3];
     int par_ph, par_as, par_joint;  /* on the Pareto front */
@@ -123,5 +136,12 @@ int sw_write(const char *dir, const char *pngdir, const sw_scene *sc, const sw_r
              int nres, const sw_row *rows, int nrows, int iecon, const char *econ_why,
              const char *daofile, int nrep, double wall, double cpu, char *err);
 int sw_write_skip(const char *dir, const char *name, const char *why, char *err);
+
+/* sweep.c: settings [i0, i1) fitted reps times, interleaved; CPU medians */
+int sw_run_block(const sw_scene *sc, sw_result *res, int i0, int i1, int reps, int verbose,
+                 char *err);
+
+/* econ.c: economy=yes against economy=no (-e): WORKDIR/SCENE_econ.md */
+int sw_econ(const sw_scene *sc, const char *work, int reps, int verbose, char *err);
 
 #endif

@@ -2,9 +2,10 @@
  * sweep.c — error against run time for one scene (issue 5).
  *
  *   sweep -s SCENE [-n N] [-r REPS] [-o WORKDIR] [-g PNGDIR] [-p TINYTIM_X4.fits]
- *         [-d DAOPHOT_POINTS] [-k KNOBS] [-w DIR] [-q]
+ *         [-d DAOPHOT_POINTS] [-k KNOBS] [-w DIR] [-e] [-q]
  *
- * SCENE: isolated, crowded, undersampled, ugly.  The knobs of fit.par and
+ * -e: only economy=yes against economy=no (econ.c; also the scenes
+ * gradient and gate).  SCENE: isolated, crowded, undersampled, ugly.  The knobs of fit.par and
  * group.par are swept one at a time around their defaults (read from the
  * compiled-in params/fit.par and params/group.par; the supersampling
  * default is what economy=yes picks): sinchw, the table's sampling, fitrad,
@@ -41,8 +42,10 @@ static double cpu_total(void)
 
 static void usage(FILE *fp)
 {
-    fprintf(fp, "usage: sweep -s isolated|crowded|undersampled|ugly [-n N] [-r REPS] [-o WORKDIR]\n"
-                "             [-g PNGDIR] [-p TINYTIM_X4.fits] [-d DAOPHOT_POINTS] [-k KNOBS] [-w DIR] [-q]\n"
+    fprintf(fp, "usage: sweep -s isolated|crowded|undersampled|ugly|gradient|gate [-n N] [-r REPS]\n"
+                "             [-o WORKDIR] [-g PNGDIR] [-p TINYTIM_X4.fits] [-d DAOPHOT_POINTS]\n"
+                "             [-k KNOBS] [-w DIR] [-e] [-q]\n"
+                "  -e        economy=yes against economy=no only (WORKDIR/SCENE_econ.md)\n"
                 "  -k KNOBS  comma list of knobs to sweep (sinchw,os,fitrad,tol,maxiter,maxgroup;\n"
                 "            default all; none: only the default)\n"
                 "  -w DIR    write the scene (frame or mosaic, truth, PSF) to DIR and stop\n");
@@ -194,8 +197,8 @@ static int cmp_d(const void *a, const void *b)
 /* Run settings [i0, i1) reps times.  The machine is shared, so the
  * settings are interleaved finely: single-star scenes every SW_CHUNK stars,
  * the crowded frame every repeat, in alternating order. */
-static int run_block(const sw_scene *sc, sw_result *res, int i0, int i1, int reps, int verbose,
-                     char *err)
+int sw_run_block(const sw_scene *sc, sw_result *res, int i0, int i1, int reps, int verbose,
+                 char *err)
 {
     int nchunk = sc->kind == SW_SINGLE ? (sc->n + SW_CHUNK - 1) / SW_CHUNK : 1;
     for (int rep = 0; rep < reps; rep++) {
@@ -204,7 +207,7 @@ static int run_block(const sw_scene *sc, sw_result *res, int i0, int i1, int rep
             res[i].cpu[rep] = 0.0;
             res[i].nrep = rep + 1;
             if (rep == 0)
-                res[i].iters = 0;
+                res[i].iters = res[i].hwsum = 0;
         }
         for (int c = 0; c < nchunk; c++) {
             int k0 = c * SW_CHUNK, k1 = k0 + SW_CHUNK < sc->n ? k0 + SW_CHUNK : sc->n;
@@ -344,12 +347,16 @@ int main(int argc, char **argv)
 {
     const char *scene = NULL, *work = ".", *pngdir = ".", *real = DEFAULT_REAL, *dao = NULL;
     const char *only = NULL, *exportdir = NULL;
-    int n = 0, reps = 3, verbose = 1;
+    int n = 0, reps = 3, verbose = 1, econ_mode = 0;
     for (int i = 1; i < argc; i++) {
         const char *a = argv[i];
         const char *v = i + 1 < argc ? argv[i + 1] : NULL;
         if (!strcmp(a, "-q")) {
             verbose = 0;
+            continue;
+        }
+        if (!strcmp(a, "-e")) {
+            econ_mode = 1;
             continue;
         }
         if (!v || a[0] != '-' || strlen(a) != 2) {
@@ -407,6 +414,16 @@ int main(int argc, char **argv)
         sw_scene_free(&sc);
         return rc;
     }
+    if (econ_mode) {             /* economy=yes against economy=no only */
+        int rc = sw_econ(&sc, work, reps, verbose, err);
+        if (rc)
+            fprintf(stderr, "sweep: %s: %s\n", scene, err);
+        else if (verbose)
+            fprintf(stderr, "sweep: %-12s economy done in %.1f s wall, %.1f s CPU\n", sc.name,
+                    wall_now() - w0, cpu_total());
+        sw_scene_free(&sc);
+        return rc;
+    }
     def.tab = sc.def_tab;
     def.is_default = 1;
     snprintf(def.knob, sizeof def.knob, "default");
@@ -425,7 +442,7 @@ int main(int argc, char **argv)
     }
     int nres = 0, nrows = 0, rc = 1;
     build_settings(&sc, &def, res, &nres, rows, &nrows, only);
-    if (run_block(&sc, res, 0, nres, reps, verbose, err))
+    if (sw_run_block(&sc, res, 0, nres, reps, verbose, err))
         goto fail;
     if (sw_stats(&sc, res, nres, 0, sc.seed + 99)) {
         snprintf(err, MP_ERRLEN, "out of memory for the statistics");
@@ -445,7 +462,7 @@ int main(int argc, char **argv)
             memset(pair, 0, sizeof pair);
             pair[0].s = res[0].s;
             pair[1].s = econ;
-            int prc = run_block(&sc, pair, 0, 2, reps, verbose, err);
+            int prc = sw_run_block(&sc, pair, 0, 2, reps, verbose, err);
             sw_result_free(&pair[0]);
             if (prc) {
                 sw_result_free(&pair[1]);

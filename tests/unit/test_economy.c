@@ -1,0 +1,458 @@
+/* test_economy.c — economy=yes's decisions flip where theory puts them
+ * (issue 5): a uniform DRF map becomes the scalar V and a gate-structure
+ * map is kept; a supersampled table is block-summed to x1 exactly when
+ * β·V² ≥ 21 px² (paper §5.4) and kept below; psfos and economy=no are
+ * honoured; every decision is logged with its reason and counted.  And the
+ * shift skipped on the table's grid equals the full kernel to ≤ 1e-15.
+ * All deterministic (no noise): no false-failure rate to state. */
+#include <setjmp.h>
+#include <stdarg.h>
+#include <stddef.h>
+#include <cmocka.h>
+#include <float.h>
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <unistd.h>
+#include "fit/fit.h"
+
+typedef struct {
+    char dir[256];
+    char psf[320], drf[320];
+} files;
+
+static int setup_dir(void **state)
+{
+    files *f = calloc(1, sizeof *f);
+    if (!f)
+        return -1;
+    snprintf(f->dir, sizeof f->dir, "%s/test_economy.XXXXXX",
+             getenv("TMPDIR") ? getenv("TMPDIR") : "/tmp");
+    if (!mkdtemp(f->dir)) {
+        free(f);
+        return -1;
+    }
+    snprintf(f->psf, sizeof f->psf, "%s/psf.fits", f->dir);
+    snprintf(f->drf, sizeof f->drf, "%s/drf.fits", f->dir);
+    *state = f;
+    return 0;
+}
+
+static int teardown_dir(void **state)
+{
+    files *f = *state;
+    unlink(f->psf);
+    unlink(f->drf);
+    rmdir(f->dir);
+    free(f);
+    return 0;
+}
+
+/* A Gaussian x os table of the given FWHM written to f->psf. */
+static void write_psf(const files *f, double fwhm, int os)
+{
+    char err[MP_ERRLEN];
+    mp_psf p;
+    assert_int_equal(mp_psf_gauss_table(fwhm, os, 10.0, &p, err), 0);
+    mp_card c[] = {{"OVERSAMP", os, NULL, "table elements per detector pixel"}};
+    assert_int_equal(mp_image_write(f->psf, p.t, p.nx, p.ny, -64, c, 1, err), 0);
+    mp_psf_free(&p);
+}
+
+static void write_drf(const files *f, const double *qe, int k)
+{
+    char err[MP_ERRLEN];
+    assert_int_equal(mp_image_write(f->drf, qe, k, k, -64, NULL, 0, err), 0);
+}
+
+/* fit.par's defaults with psf (and drf) and name=value pairs (NULL-ended). */
+static void setup_with(const files *f, int with_drf, mp_fit_setup *s, ...)
+{
+    char err[MP_ERRLEN];
+    mp_parset ps;
+    assert_int_equal(mp_params_defaults("fit", &ps, err), 0);
+    assert_int_equal(mp_params_set(&ps, "psf", f->psf, err), 0);
+    if (with_drf)
+        assert_int_equal(mp_params_set(&ps, "drf", f->drf, err), 0);
+    va_list ap;
+    va_start(ap, s);
+    for (const char *k; (k = va_arg(ap, const char *));)
+        assert_int_equal(mp_params_set(&ps, k, va_arg(ap, const char *), err), 0);
+    va_end(ap);
+    int rc = mp_fit_setup_read(&ps, s, err);
+    mp_params_free(&ps);
+    if (rc)
+        fail_msg("mp_fit_setup_read: %s", err);
+}
+
+/* The decisions string holds ndecisions "; "-separated items. */
+static void assert_counted(const mp_fit_setup *s)
+{
+    int n = s->decisions[0] ? 1 : 0;
+    for (const char *p = s->decisions; (p = strstr(p, "; ")); p += 2)
+        n++;
+    assert_int_equal(n, s->ndecisions);
+}
+
+/* β·V² of a table's PRF at a pixel centre, measured independently of
+ * fit/setup.c (full render, performance-model statistics). */
+static double beta_of(const mp_psf *p)
+{
+    mp_prf_model m = {p, NULL, 10};
+    mp_prf_stats st;
+    assert_int_equal(mp_prf_stats_at(&m, 1000.0, 1000.0, &st, NULL), 0);
+    return 1.0 / st.sharp;
+}
+
+static void test_uniform_drf_becomes_scalar(void **state)
+{
+    files *f = *state;
+    double qe[16];
+    for (int i = 0; i < 16; i++)
+        qe[i] = 0.8;
+    write_psf(f, 1.5, 4);         /* undersampled: the table stays x4 */
+    write_drf(f, qe, 4);
+    mp_fit_setup s;
+    setup_with(f, 1, &s, (const char *)NULL);
+    assert_int_equal(s.drf.k, 0);
+    assert_true(s.drf.volume == 0.8);
+    assert_non_null(strstr(s.decisions, "DRF: the 4x4 map is uniform, used as the scalar V = 0.8"));
+    /* With the map gone, the x4 table is judged by β alone: kept. */
+    assert_int_equal(s.psf.os, 4);
+    assert_non_null(strstr(s.decisions, "the x4 table kept"));
+    assert_int_equal(s.ndecisions, 2);
+    assert_counted(&s);
+    mp_fit_setup_free(&s);
+
+    /* economy=no: the map stays a map. */
+    setup_with(f, 1, &s, "economy", "no", (const char *)NULL);
+    assert_int_equal(s.drf.k, 4);
+    assert_int_equal(s.psf.os, 4);
+    assert_string_equal(s.decisions, "economy=no: every part of the model forced on");
+    assert_int_equal(s.ndecisions, 1);
+    mp_fit_setup_free(&s);
+}
+
+static void test_gate_drf_kept(void **state)
+{
+    files *f = *state;
+    double qe[16];
+    for (int j = 0; j < 4; j++)    /* paper §5.7's gate structure */
+        for (int i = 0; i < 4; i++)
+            qe[j * 4 + i] = (i == 0 || j == 0) ? 0.0 : 1.0;
+    write_psf(f, 4.0, 4);          /* β ≥ 21, yet the map needs the x4 subpixels */
+    write_drf(f, qe, 4);
+    mp_fit_setup s;
+    setup_with(f, 1, &s, (const char *)NULL);
+    assert_int_equal(s.drf.k, 4);
+    assert_int_equal(s.psf.os, 4);
+    assert_non_null(strstr(s.decisions, "DRF: the 4x4 map varies (QE 0 to 1), kept"));
+    assert_non_null(strstr(s.decisions, "DRF map needs the x4 subpixels, kept"));
+    assert_counted(&s);
+    mp_fit_setup_free(&s);
+}
+
+/* The threshold itself: FWHM 2.9 and 3.1 px straddle β·V² = 21 (4π(σ² +
+ * 1/12) ≈ 20.1 and 22.8); the decision must follow the measured β. */
+static void test_supersampling_flips_at_21(void **state)
+{
+    files *f = *state;
+    const double fwhms[] = {1.5, 2.9, 3.1, 4.0};
+    const int rebinned[] = {0, 0, 1, 1};
+    for (int i = 0; i < 4; i++) {
+        write_psf(f, fwhms[i], 2);
+        mp_fit_setup s, n;
+        setup_with(f, 0, &s, (const char *)NULL);
+        setup_with(f, 0, &n, "economy", "no", (const char *)NULL);
+        double b = beta_of(&n.psf);
+        assert_int_equal(b >= 21.0, rebinned[i]);
+        assert_int_equal(n.psf.os, 2);
+        assert_int_equal(s.psf.os, rebinned[i] ? 1 : 2);
+        assert_non_null(strstr(s.decisions, rebinned[i] ? "block-summed to x1" : "x2 table kept"));
+        assert_int_equal(s.ndecisions, 1);
+        assert_counted(&s);
+        mp_fit_setup_free(&s);
+        mp_fit_setup_free(&n);
+    }
+}
+
+static void test_psfos_honoured(void **state)
+{
+    files *f = *state;
+    write_psf(f, 4.0, 2);
+    mp_fit_setup s;
+    setup_with(f, 0, &s, "psfos", "2", (const char *)NULL);
+    assert_int_equal(s.psf.os, 2);
+    assert_string_equal(s.decisions, "supersampling: psfos given, the x2 table used as asked");
+    mp_fit_setup_free(&s);
+}
+
+/* The run report prints the decisions and their count. */
+static void test_report_prints_decisions(void **state)
+{
+    files *f = *state;
+    write_psf(f, 4.0, 2);
+    mp_fit_setup s;
+    setup_with(f, 0, &s, (const char *)NULL);
+    mp_run_report r;
+    memset(&r, 0, sizeof r);
+    r.image = "x.fits";
+    r.decisions = s.decisions;
+    r.ndecisions = s.ndecisions;
+    char path[400], err[MP_ERRLEN], line[2048];
+    snprintf(path, sizeof path, "%s/r.report", f->dir);
+    assert_int_equal(mp_report_write(path, "fit", &r, err), 0);
+    FILE *fp = fopen(path, "r");
+    assert_non_null(fp);
+    int found = 0;
+    while (fgets(line, sizeof line, fp))
+        found |= strstr(line, "economy: 1 decisions: supersampling: beta = ") != NULL &&
+                 strstr(line, ">= 21") != NULL;
+    fclose(fp);
+    unlink(path);
+    assert_true(found);
+    mp_fit_setup_free(&s);
+}
+
+/* On the grid the pass is skipped; the full kernel there (weights
+ * ds(k) = sin(πk)/(πk)·damp, ~1e-17 off zero in floating point) gives the
+ * same table to ≤ 1e-15 of its peak, as mp_shift_on_grid's bound says. */
+static void test_grid_shift_skipped_exactly(void **state)
+{
+    (void)state;
+    char err[MP_ERRLEN];
+    mp_psf p;
+    assert_int_equal(mp_psf_gauss_table(2.0, 2, 10.0, &p, err), 0);
+    size_t n = (size_t)p.nx * p.ny;
+    double *skip = malloc(n * sizeof *skip), *tmp = malloc(n * sizeof *tmp);
+    double *full = malloc(n * sizeof *full);
+    assert_non_null(skip);
+    assert_non_null(tmp);
+    assert_non_null(full);
+    double peak = 0.0;
+    for (size_t i = 0; i < n; i++)
+        peak = p.t[i] > peak ? p.t[i] : peak;
+    const double ds[] = {0.0, 0.5 * DBL_EPSILON, -0.5 * DBL_EPSILON};
+    for (int c = 0; c < 3; c++) {
+        assert_true(mp_shift_on_grid(ds[c]));
+        mp_shift_table(p.t, p.nx, p.ny, ds[c], ds[c], 10, skip, tmp);
+        /* The full kernel, by hand, along x then y. */
+        int hw = 10;
+        double w[21];
+        for (int k = -hw; k <= hw; k++)
+            w[k + hw] = mp_damped_sinc((double)k - ds[c]);
+        for (int j = 0; j < p.ny; j++)
+            for (int i = 0; i < p.nx; i++) {
+                double s = 0.0;
+                for (int k = -hw; k <= hw; k++)
+                    if (i + k >= 0 && i + k < p.nx)
+                        s += p.t[(size_t)j * p.nx + i + k] * w[k + hw];
+                tmp[(size_t)j * p.nx + i] = s;
+            }
+        for (int j = 0; j < p.ny; j++)
+            for (int i = 0; i < p.nx; i++) {
+                double s = 0.0;
+                for (int k = -hw; k <= hw; k++)
+                    if (j + k >= 0 && j + k < p.ny)
+                        s += tmp[(size_t)(j + k) * p.nx + i] * w[k + hw];
+                full[(size_t)j * p.nx + i] = s;
+            }
+        double worst = 0.0;
+        for (size_t i = 0; i < n; i++) {
+            if (c == 0)
+                assert_true(skip[i] == p.t[i]);      /* the skip is the table itself */
+            double d = fabs(skip[i] - full[i]);
+            worst = d > worst ? d : worst;
+        }
+        assert_true(worst <= 1e-15 * peak);
+    }
+    /* Just off the grid the kernel runs. */
+    assert_false(mp_shift_on_grid(DBL_EPSILON));
+    assert_false(mp_shift_on_grid(1e-9));
+    free(skip);
+    free(tmp);
+    free(full);
+    mp_psf_free(&p);
+}
+
+/* mp_prf_render counts the axes it shifts and those on the grid it skips:
+ * a x1 table star at an integer position is on the grid in both axes, one
+ * a quarter pixel off in x is not in x. */
+static void test_render_counts_grid_skips(void **state)
+{
+    (void)state;
+    char err[MP_ERRLEN];
+    mp_psf p;
+    assert_int_equal(mp_psf_gauss_table(3.0, 1, 10.0, &p, err), 0);
+    mp_prf_model m = {&p, NULL, 10};
+    long x0, y0;
+    int w, h;
+    mp_prf_box(&m, 30.0, 30.0, &x0, &y0, &w, &h);
+    double *v = malloc((size_t)(w + 2) * (h + 2) * sizeof *v);
+    assert_non_null(v);
+    mp_prf_work wk = {0};
+    assert_int_equal(mp_prf_render(&m, 30.0, 30.0, v, NULL, NULL, &wk), 0);
+    assert_int_equal(wk.nshift, 2);
+    assert_int_equal(wk.nskip, 2);
+    /* On the grid, the rendered PRF is the table itself. */
+    assert_int_equal(w, p.nx);
+    assert_int_equal(h, p.ny);
+    for (int i = 0; i < w * h; i++)
+        assert_true(v[i] == p.t[i]);
+    assert_int_equal(mp_prf_render(&m, 30.25, 30.0, v, NULL, NULL, &wk), 0);
+    assert_int_equal(wk.nshift, 4);
+    assert_int_equal(wk.nskip, 3);
+    mp_prf_work_free(&wk);
+    free(v);
+    mp_psf_free(&p);
+}
+
+/* Solve the 4x4 system A x = b by Gaussian elimination with pivoting. */
+static void solve4(double A[16], double b[4], double x[4])
+{
+    for (int c = 0; c < 4; c++) {
+        int piv = c;
+        for (int r = c + 1; r < 4; r++)
+            if (fabs(A[r * 4 + c]) > fabs(A[piv * 4 + c]))
+                piv = r;
+        for (int k = 0; k < 4; k++) {
+            double t = A[c * 4 + k];
+            A[c * 4 + k] = A[piv * 4 + k];
+            A[piv * 4 + k] = t;
+        }
+        double t = b[c];
+        b[c] = b[piv];
+        b[piv] = t;
+        for (int r = c + 1; r < 4; r++) {
+            double f = A[r * 4 + c] / A[c * 4 + c];
+            for (int k = c; k < 4; k++)
+                A[r * 4 + k] -= f * A[c * 4 + k];
+            b[r] -= f * b[c];
+        }
+    }
+    for (int r = 3; r >= 0; r--) {
+        double s = b[r];
+        for (int k = r + 1; k < 4; k++)
+            s -= A[r * 4 + k] * x[k];
+        x[r] = s / A[r * 4 + r];
+    }
+}
+
+/* The linearised bias of (E, X, Y, B) over their CRLB σ from fitting with
+ * half-width hw a star of E electrons at (x, y) rendered with the full
+ * kernel: Δθ = F⁻¹ Gᵀ W r, r = E (P_hw − P).  Returns max_j |Δθ_j|/σ_j and
+ * the bound's value at this very phase in *q. */
+static double bias_over_sigma(const mp_prf_model *m, int hw, double x, double y, double E,
+                              double B, double ron, double *q)
+{
+    long x0, y0;
+    int w, h;
+    mp_prf_box(m, x, y, &x0, &y0, &w, &h);
+    size_t n = (size_t)w * h;
+    double *P = malloc(n * sizeof *P), *dx = malloc(n * sizeof *dx), *dy = malloc(n * sizeof *dy);
+    double *Ph = malloc(n * sizeof *Ph);
+    assert_non_null(P);
+    assert_non_null(dx);
+    assert_non_null(dy);
+    assert_non_null(Ph);
+    mp_prf_work wk = {0};
+    mp_prf_model mh = *m;
+    mh.sinc_hw = hw;
+    assert_int_equal(mp_prf_render(m, x, y, P, dx, dy, &wk), 0);
+    assert_int_equal(mp_prf_render(&mh, x, y, Ph, NULL, NULL, &wk), 0);
+    double F[16] = {0}, rhs[4] = {0}, s2 = 0.0;
+    for (size_t i = 0; i < n; i++) {
+        double v = E * P[i] + B + ron * ron;
+        double g[4] = {P[i], E * dx[i], E * dy[i], 1.0}, r = E * (Ph[i] - P[i]);
+        for (int a = 0; a < 4; a++) {
+            rhs[a] += g[a] * r / v;
+            for (int b = 0; b < 4; b++)
+                F[a * 4 + b] += g[a] * g[b] / v;
+        }
+        s2 += r * r / v;
+    }
+    double sd[4], d[4];
+    assert_int_equal(mp_crlb(P, dx, dy, n, E, B, ron, sd), 0);
+    solve4(F, rhs, d);
+    double worst = 0.0;
+    for (int a = 0; a < 4; a++)
+        worst = fmax(worst, fabs(d[a]) / sd[a]);
+    *q = sqrt(s2);
+    mp_prf_work_free(&wk);
+    free(P);
+    free(dx);
+    free(dy);
+    free(Ph);
+    return worst;
+}
+
+/* Interpolation effort per star: a bright star keeps the full kernel, a
+ * faint one gets a shorter one, the choice never shortens with E, and the
+ * bias it causes — computed directly, at grid and off-grid phases — stays
+ * within frac of the photon noise and within the Cauchy–Schwarz bound. */
+static void test_sinc_choice(void **state)
+{
+    (void)state;
+    char err[MP_ERRLEN];
+    mp_psf p;
+    assert_int_equal(mp_psf_gauss_table(3.0, 1, 10.0, &p, err), 0);
+    mp_prf_model m = {&p, NULL, 10};
+    mp_sinc_choice c;
+    assert_int_equal(mp_sinc_choice_build(&m, &c, err), 0);
+    const double B = 100.0, ron = 3.0, frac = 0.1;
+    double Ebright = pow(10.0, 0.4 * 15.0), Efaint = pow(10.0, 0.4 * 6.0);
+    assert_int_equal(mp_sinc_choice_hw(&c, Ebright, B, ron, frac), 10);
+    int hf = mp_sinc_choice_hw(&c, Efaint, B, ron, frac);
+    assert_true(hf < 10);
+    int prev = 0;
+    for (double mag = -6.0; mag >= -15.0; mag -= 0.5) {
+        int hw = mp_sinc_choice_hw(&c, pow(10.0, -0.4 * mag), B, ron, frac);
+        assert_true(hw >= prev);
+        prev = hw;
+    }
+    /* The fast path picks what the reference does (a flux on a limit may
+     * go either way: skip those within 1e-6 of one). */
+    double emax[10];
+    assert_int_equal(mp_sinc_choice_limits(&c, B, ron, frac, emax), 10);
+    for (double mag = -16.0; mag <= -4.0; mag += 0.05) {
+        double E = pow(10.0, -0.4 * mag);
+        int near = 0;
+        for (int h = 0; h < 10; h++)
+            near |= isfinite(emax[h]) && fabs(E / emax[h] - 1.0) < 1e-6;
+        if (!near)
+            assert_int_equal(mp_sinc_choice_pick(emax, 10, E), mp_sinc_choice_hw(&c, E, B, ron, frac));
+    }
+    const double ph[][2] = {{0.5, 0.5}, {0.25, 0.0}, {0.13, 0.61}, {0.37, 0.88}, {0.5, 0.01}};
+    for (size_t k = 0; k < sizeof ph / sizeof *ph; k++)
+        for (int s = 0; s < 2; s++) {
+            double E = s ? Ebright / 30.0 : Efaint;
+            int hw = mp_sinc_choice_hw(&c, E, B, ron, frac), hs = hw > 0 ? hw - 1 : 0;
+            double q, qs;
+            double bias = bias_over_sigma(&m, hw, 1000.0 + ph[k][0], 1000.0 + ph[k][1], E, B, ron, &q);
+            assert_true(bias <= q * (1.0 + 1e-9) + 1e-12);      /* Cauchy–Schwarz */
+            assert_true(bias <= frac);
+            /* The next shorter kernel is over the bound at the worst grid phase. */
+            double bs = bias_over_sigma(&m, hs, 1000.5, 1000.5, E, B, ron, &qs);
+            assert_true(bs <= qs * (1.0 + 1e-9) + 1e-12);
+            if (hw > 0)
+                assert_true(mp_sinc_choice_bound(&c, hs, E, B, ron) > frac);
+        }
+    mp_sinc_choice_free(&c);
+    mp_psf_free(&p);
+}
+
+int main(void)
+{
+    const struct CMUnitTest tests[] = {
+        cmocka_unit_test_setup_teardown(test_uniform_drf_becomes_scalar, setup_dir, teardown_dir),
+        cmocka_unit_test_setup_teardown(test_gate_drf_kept, setup_dir, teardown_dir),
+        cmocka_unit_test_setup_teardown(test_supersampling_flips_at_21, setup_dir, teardown_dir),
+        cmocka_unit_test_setup_teardown(test_psfos_honoured, setup_dir, teardown_dir),
+        cmocka_unit_test_setup_teardown(test_report_prints_decisions, setup_dir, teardown_dir),
+        cmocka_unit_test(test_grid_shift_skipped_exactly),
+        cmocka_unit_test(test_render_counts_grid_skips),
+        cmocka_unit_test(test_sinc_choice),
+    };
+    return cmocka_run_group_tests(tests, NULL, NULL);
+}
