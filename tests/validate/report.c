@@ -382,7 +382,9 @@ int vt_write_report(const char *dir, vt_result *res, int nres, const vt_inputs *
             "Poisson + Gaussian noise (sim.h; Gaussian truths integrated exactly over pixels).\n",
             VT_RON);
     fprintf(fp, "- Fit: one `mp_fit_group` per frame with `mp_fit_opts_default` (whole frame, "
-            "constant sky, 4 parameters, 3596 dof), start = truth + U(−0.25, 0.25) px per axis, "
+            "sky order from the data as users get it: constant — 4 parameters, 3596 dof — "
+            "unless the score test finds a plane or quadratic at p < 1e-3, ~0.1 %% of flat-sky "
+            "frames), start = truth + U(−0.25, 0.25) px per axis, "
             "start flux estimated by the engine, start sky the frame median.  CPU = "
             "CLOCK_THREAD_CPUTIME_ID around the call.\n");
     fprintf(fp, "- Predictions at the truth, per star: the exact pixel-integrated truth PRF "
