@@ -110,6 +110,8 @@ static void report_lines(FILE *fp, const char *prefix, const mp_run_report *r)
     fprintf(fp, "%s  model parts left out: %s\n", prefix, r->left[0] ? r->left : "-");
     fprintf(fp, "%s  economy: %d decisions%s%s\n", prefix, r->ndecisions,
             r->ndecisions ? ": " : "", r->ndecisions && r->decisions ? r->decisions : "");
+    fprintf(fp, "%s  work: %ld group fits, %ld left out (neighbours' light unchanged), "
+            "%ld star paints cropped\n", prefix, r->fits, r->kept, r->cropped);
 }
 
 int mp_report_write(const char *path, const char *task, const mp_run_report *r, char *err)
