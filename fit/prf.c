@@ -216,14 +216,21 @@ static int render_table(const mp_prf_model *m, double x, double y, box bx,
     /* x-pass (skipped for a zero shift, where the sinc is the identity) */
     if (ax.delta != 0.0 && hw > 0) {
         weights(ax.delta, hw, wt);
+        /* Tap by tap over the row, so the inner loop runs over contiguous
+         * elements (it vectorises); each element still sums its taps in
+         * the order k = −hw..hw, so the values are those of a per-element
+         * sum, bit for bit. */
         for (long j = tj0; j < tj1; j++) {
             const double *src = p->t + (size_t)j * nx;
-            for (long i = si0; i < si1; i++) {
-                long k0 = i - hw < 0 ? -i : -hw, k1 = i + hw > nx - 1 ? nx - 1 - i : hw;
-                double sum = 0.0;
-                for (long k = k0; k <= k1; k++)
-                    sum += src[i + k] * wt[k + hw];
-                tmp[(size_t)j * nx + i] = sum;
+            double *dst = tmp + (size_t)j * nx;
+            for (long i = si0; i < si1; i++)
+                dst[i] = 0.0;
+            for (long k = -hw; k <= hw; k++) {
+                long ia = si0 > -k ? si0 : -k, ib = si1 < nx - k ? si1 : nx - k;
+                double c = wt[k + hw];
+#pragma omp simd
+                for (long i = ia; i < ib; i++)
+                    dst[i] += src[i + k] * c;
             }
         }
     } else {
@@ -242,6 +249,7 @@ static int render_table(const mp_prf_model *m, double x, double y, box bx,
             for (long k = k0; k <= k1; k++) {
                 const double *src = tmp + (size_t)(j + k) * nx;
                 double c = wt[k + hw];
+#pragma omp simd
                 for (long i = si0; i < si1; i++)
                     dst[i] += src[i] * c;
             }
