@@ -479,13 +479,19 @@ static int fit_group_local(const mp_frame *f, const mp_prf_model *m, const mp_fr
             snprintf(err, MP_ERRLEN, "out of memory");
             goto done;
         }
-        int any = 0;
+        /* The group's pixels are its members' regions, and its sky is
+         * shared: the bound is on the sum over the members (overlaps
+         * counted twice: conservative). */
+        double q2 = 0.0;
         for (int k = 0; k < n; k++)
             act[k] = 0;
-        for (int k = 0; k < n && !any; k++)
-            if (st[k].alive)
-                any = !(st[k].sw <= side && light_change(f, m, crop, &st[k], r, all, tmp, &wk, &buf,
-                                                         &cap, &nomem) < o->refittol);
+        for (int k = 0; k < n && q2 < o->refittol * o->refittol; k++)
+            if (st[k].alive) {
+                double q = st[k].sw <= side ? light_change(f, m, crop, &st[k], r, all, tmp, &wk,
+                                                           &buf, &cap, &nomem) : INFINITY;
+                q2 += q * q;
+            }
+        int any = !(q2 < o->refittol * o->refittol);
         if (nomem) {
             snprintf(err, MP_ERRLEN, "out of memory");
             goto done;
