@@ -177,6 +177,33 @@ int mp_sinc_choice_hw(const mp_sinc_choice *c, double E, double B, double ron, d
 int mp_sinc_choice_limits(const mp_sinc_choice *c, double B, double ron, double frac,
                           double *emax);
 int mp_sinc_choice_pick(const double *emax, int hwmax, double E);
+/* mp_prf_envelope: env[r] (r = 0..*nr−1, detector px) bounds |PRF| of one
+ * detector pixel whose centre lies r px or more from the star, at any
+ * subpixel phase (the PRF of unit flux; for a table, measured on renders
+ * at ¼-px phases with a factor 2 of slack).  *nr is the first radius past
+ * which the PRF box holds nothing.  env is malloc'ed (caller frees); NULL
+ * when out of memory.  It is what a neighbour's light is cropped by: a
+ * star of flux E puts less than E·env[r] on every pixel beyond r. */
+double *mp_prf_envelope(const mp_prf_model *m, int *nr);
+
+/* Where a star's light is worth rendering (economy): out to the radius
+ * where it falls below frac·σ of a sky pixel, σ² = RON² + sky, by the
+ * envelope. */
+typedef struct {
+    double *env;        /* mp_prf_envelope; NULL: the whole box */
+    int nr;
+    double frac, ron2;
+} mp_prf_crop;
+
+/* mp_prf_crop_init: the crop of model m for read noise ron [e-]; frac 0
+ * gives no crop.  Nonzero when out of memory. */
+int mp_prf_crop_init(const mp_prf_model *m, double frac, double ron, mp_prf_crop *c);
+void mp_prf_crop_free(mp_prf_crop *c);
+
+/* mp_prf_crop_radius: the radius [px] beyond which a star of flux E on sky
+ * puts less than frac·σ on any pixel; INFINITY (c NULL, no envelope, or
+ * never below): its whole box. */
+double mp_prf_crop_radius(const mp_prf_crop *c, double E, double sky);
 
 /* ---- Performance model (paper §2) ----------------------------------------- */
 
@@ -230,6 +257,8 @@ typedef struct {
     double tol;        /* converged when every |step| < tol·σ */
     int maxiter;
     int fit_sky;       /* 0: sky fixed at the start value */
+    const mp_prf_crop *crop;   /* economy: each star rendered out to its
+                                * crop radius only (NULL: its whole box) */
 } mp_fit_opts;
 
 void mp_fit_opts_default(mp_fit_opts *o);
@@ -271,6 +300,17 @@ typedef struct {
     double minsnr;     /* reject stars with FLUX_PSF/FLUXERR_PSF below this */
     int passes;        /* fits of every group; from the 2nd on, neighbours'
                         * light comes from the previous pass */
+    double cropfrac;   /* economy: a star's light is painted (neighbour
+                        * subtraction, residual) out to the radius where it
+                        * falls below cropfrac·σ of a sky pixel; 0: its
+                        * whole PSF table (economy=no) */
+    double refittol;   /* economy: a group is not refitted when, for each
+                        * member, the light of all other stars on its
+                        * fitting region changed by less than refittol in
+                        * √Σ(Δ/σ)² since its last fit (that bounds the
+                        * change of its fitted parameters to refittol of
+                        * their σ); 0: refit every group every pass
+                        * (economy=no) */
 } mp_frame_opts;
 
 void mp_frame_opts_default(mp_frame_opts *o);
@@ -280,7 +320,18 @@ typedef struct {
     long nstars, ngroups, merged, rejected, noconv;
     long iterations;   /* summed over groups and passes */
     long sky_groups[MP_SKY_MAXORDER + 1];  /* groups of the last pass by sky order */
+    long fits;         /* group fits done, over passes (and rounds) */
+    long kept;         /* group fits left out: no star's surroundings changed */
+    long cropped;      /* stars painted with a cropped PSF */
 } mp_frame_report;
+
+/* What every star's fit saw, so a later pass or pipeline round can tell
+ * whether refitting it could change anything (economy, fit_frame.c). */
+typedef struct mp_fit_memory mp_fit_memory;
+
+/* mp_fit_memory_new: an empty memory; NULL when out of memory. */
+mp_fit_memory *mp_fit_memory_new(void);
+void mp_fit_memory_free(mp_fit_memory *mem);
 
 /* mp_fit_table: fit every star of t on f — rows carry X_IMAGE/Y_IMAGE or
  * XPSF_IMAGE/YPSF_IMAGE, optional GROUP_ID (else each star alone, or all in
@@ -291,10 +342,20 @@ typedef struct {
 int mp_fit_table(const mp_frame *f, const mp_prf_model *m, const mp_frame_opts *o,
                  mp_table *t, mp_frame_report *rep, char *err);
 
+/* mp_fit_table_mem: as mp_fit_table, remembering across calls (the rounds
+ * of the pipeline, on the same frame and table growing by new rows) what
+ * every star was fitted against, keyed by the table's NUMBER column: a
+ * star whose surroundings (the light of all other stars on its fitting
+ * region) have not changed beyond o->refittol keeps its fit.  mem NULL:
+ * mp_fit_table. */
+int mp_fit_table_mem(const mp_frame *f, const mp_prf_model *m, const mp_frame_opts *o,
+                     mp_table *t, mp_fit_memory *mem, mp_frame_report *rep, char *err);
+
 /* mp_fit_residual: res = data − Σ E·PRF over the stars of a fitted table
- * (electrons; NaN where masked).  res holds nx*ny. */
+ * (electrons; NaN where masked).  res holds nx*ny.  cropfrac as in
+ * mp_frame_opts (0: every star's whole PSF). */
 int mp_fit_residual(const mp_frame *f, const mp_prf_model *m, const mp_table *t,
-                    double *res, char *err);
+                    double cropfrac, double *res, char *err);
 
 /* ---- The run report ------------------------------------------------------ */
 
@@ -314,6 +375,8 @@ typedef struct {
     int ndecisions;
     char sky[192];             /* skymodel=auto: the per-group sky orders (one more
                                 * decision; mp_report_parts fills it) */
+    long fits, kept, cropped;  /* what the economy decisions did: group fits
+                                * done and left out, star paints cropped */
 } mp_run_report;
 
 /* mp_report_from_table: the medians, from a fitted table. */

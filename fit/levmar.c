@@ -29,6 +29,7 @@ void mp_fit_opts_default(mp_fit_opts *o)
     o->tol = 1e-3;
     o->maxiter = 50;
     o->fit_sky = 1;
+    o->crop = NULL;
 }
 
 /* One star's rendered PRF and derivatives on its box. */
@@ -42,6 +43,8 @@ typedef struct {
 typedef struct {
     const mp_frame *f;
     const mp_prf_model *m;
+    const mp_prf_crop *crop;    /* NULL: every star on its whole box */
+    double crop_min;            /* never cropped inside its fitting region */
     int n, nsky, np;            /* nsky sky terms fitted (0: sky held fixed) */
     int npmax;                  /* parameters the arrays hold: 3n + 6 */
     long bx0, by0;              /* group box, 1-based, and size */
@@ -98,7 +101,22 @@ static int render_all(group *G, const double *p, rstar *r)
         mp_prf_box(G->m, x, y, &x0, &y0, &w, &h);
         if ((size_t)(w < G->bw ? w : G->bw) * (size_t)(h < G->bh ? h : G->bh) > G->cap)
             return 1;
-        if (mp_prf_render_window(G->m, x, y, G->bx0, G->by0, G->bw, G->bh, &r[k].x0, &r[k].y0,
+        /* Economy: only out to where the star's light is below a fraction
+         * of the noise (fit_frame.c subtracts neighbours the same way). */
+        long wx0 = G->bx0, wy0 = G->by0, wx1 = G->bx0 + G->bw, wy1 = G->by0 + G->bh;
+        double rad = mp_prf_crop_radius(G->crop, p[3 * k], p[3 * G->n]);
+        if (isfinite(rad)) {
+            rad = rad > G->crop_min ? rad : G->crop_min;
+            long a = (long)ceil(x - rad), b = (long)ceil(y - rad);
+            long c = (long)floor(x + rad) + 1, d = (long)floor(y + rad) + 1;
+            wx0 = a > wx0 ? a : wx0;
+            wy0 = b > wy0 ? b : wy0;
+            wx1 = c < wx1 ? c : wx1;
+            wy1 = d < wy1 ? d : wy1;
+            wx1 = wx1 > wx0 ? wx1 : wx0;
+            wy1 = wy1 > wy0 ? wy1 : wy0;
+        }
+        if (mp_prf_render_window(G->m, x, y, wx0, wy0, wx1 - wx0, wy1 - wy0, &r[k].x0, &r[k].y0,
                                  &r[k].w, &r[k].h, r[k].prf, r[k].dx, r[k].dy, &G->work))
             return 1;
     }
@@ -843,6 +861,8 @@ int mp_fit_group(const mp_frame *f, const mp_prf_model *m, const mp_fit_opts *o,
     memset(&G, 0, sizeof G);
     G.f = f;
     G.m = m;
+    G.crop = isfinite(o->fitrad) ? o->crop : NULL;
+    G.crop_min = o->fitrad + 1.0;
     G.n = n;
     int order = first_order(o);
     G.nsky = o->fit_sky ? nsky_of(order) : 0;

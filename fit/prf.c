@@ -222,14 +222,21 @@ static int render_table(const mp_prf_model *m, double x, double y, box bx,
     w->nskip += (mp_shift_on_grid(ax.delta) || hw == 0) + (mp_shift_on_grid(ay.delta) || hw == 0);
     if (!mp_shift_on_grid(ax.delta) && hw > 0) {
         weights(ax.delta, hw, wt);
+        /* Tap by tap over the row, so the inner loop runs over contiguous
+         * elements (it vectorises); each element still sums its taps in
+         * the order k = −hw..hw, so the values are those of a per-element
+         * sum, bit for bit. */
         for (long j = tj0; j < tj1; j++) {
             const double *src = p->t + (size_t)j * nx;
-            for (long i = si0; i < si1; i++) {
-                long k0 = i - hw < 0 ? -i : -hw, k1 = i + hw > nx - 1 ? nx - 1 - i : hw;
-                double sum = 0.0;
-                for (long k = k0; k <= k1; k++)
-                    sum += src[i + k] * wt[k + hw];
-                tmp[(size_t)j * nx + i] = sum;
+            double *dst = tmp + (size_t)j * nx;
+            for (long i = si0; i < si1; i++)
+                dst[i] = 0.0;
+            for (long k = -hw; k <= hw; k++) {
+                long ia = si0 > -k ? si0 : -k, ib = si1 < nx - k ? si1 : nx - k;
+                double c = wt[k + hw];
+#pragma omp simd
+                for (long i = ia; i < ib; i++)
+                    dst[i] += src[i + k] * c;
             }
         }
     } else {
@@ -248,6 +255,7 @@ static int render_table(const mp_prf_model *m, double x, double y, box bx,
             for (long k = k0; k <= k1; k++) {
                 const double *src = tmp + (size_t)(j + k) * nx;
                 double c = wt[k + hw];
+#pragma omp simd
                 for (long i = si0; i < si1; i++)
                     dst[i] += src[i] * c;
             }
@@ -324,4 +332,119 @@ int mp_prf_render_window(const mp_prf_model *m, double x, double y,
     *w = (int)b.w;
     *h = (int)b.h;
     return render(m, x, y, b, prf, dprf_dx, dprf_dy, work);
+}
+
+/* The largest QE a subpixel can have relative to a perfect detector. */
+static double drf_max(const mp_drf *d)
+{
+    if (!d)
+        return 1.0;
+    if (d->k == 0)
+        return d->volume > 1.0 ? d->volume : 1.0;
+    double q = 1.0;
+    for (int i = 0; i < d->k * d->k; i++)
+        q = d->qe[i] > q ? d->qe[i] : q;
+    return q;
+}
+
+double *mp_prf_envelope(const mp_prf_model *m, int *nr)
+{
+    const mp_psf *p = m->psf;
+    if (p->kind == MP_PSF_GAUSS) {
+        double qmax = drf_max(m->drf);
+        /* A pixel's integral is at most the density at its nearest point,
+         * which lies within √½ px of its centre. */
+        double s = p->sigma;
+        int n = (int)ceil(M_SQRT2 * gauss_halfbox(s)) + 2;
+        double *env = malloc((size_t)n * sizeof *env);
+        if (!env)
+            return NULL;
+        for (int r = 0; r < n; r++) {
+            double rho = r - M_SQRT1_2 > 0 ? r - M_SQRT1_2 : 0.0;
+            env[r] = qmax * exp(-0.5 * rho * rho / (s * s)) / (2.0 * M_PI * s * s);
+        }
+        *nr = n;
+        return env;
+    }
+    /* Table: measured.  The PRF is rendered at 5×5 subpixel phases (steps
+     * of ¼ px) and the largest |value| kept per whole-pixel distance bin;
+     * env[r] is twice the largest beyond r − 1 px.  The slack covers the
+     * phases between the grid's (a quarter pixel moves a pixel's distance
+     * by a quarter pixel, and the value by far less than 2× where it
+     * matters); the sinc shift's ringing (paper §3.1) is in the renders, so
+     * it is bounded too — a worst-case bound on it from the taps alone
+     * would be orders of magnitude above what a smooth table rings. */
+    long x0, y0;
+    int bw, bh;
+    mp_prf_box(m, 100.0, 100.0, &x0, &y0, &bw, &bh);
+    int nb = (int)ceil(hypot(bw, bh)) + 2, n = nb + 2;
+    size_t cap = (size_t)(bw + 2) * (bh + 2);
+    double *bin = calloc((size_t)nb, sizeof *bin), *env = malloc((size_t)n * sizeof *env);
+    double *prf = malloc(cap * sizeof *prf);
+    mp_prf_work w = {0};
+    int bad = !bin || !env || !prf;
+    for (int sy = 0; sy <= 4 && !bad; sy++)
+        for (int sx = 0; sx <= 4 && !bad; sx++) {
+            double x = 100.0 - 0.5 + 0.25 * sx, y = 100.0 - 0.5 + 0.25 * sy;
+            mp_prf_box(m, x, y, &x0, &y0, &bw, &bh);
+            if ((size_t)bw * bh > cap || mp_prf_render(m, x, y, prf, NULL, NULL, &w)) {
+                bad = 1;
+                break;
+            }
+            for (int j = 0; j < bh; j++)
+                for (int i = 0; i < bw; i++) {
+                    int b = (int)hypot(x0 + i - x, y0 + j - y);
+                    double v = fabs(prf[(size_t)j * bw + i]);
+                    b = b < nb ? b : nb - 1;
+                    bin[b] = v > bin[b] ? v : bin[b];
+                }
+        }
+    mp_prf_work_free(&w);
+    free(prf);
+    if (bad) {
+        free(bin);
+        free(env);
+        return NULL;
+    }
+    for (int b = nb - 2; b >= 0; b--)       /* suffix maximum: beyond b */
+        bin[b] = bin[b + 1] > bin[b] ? bin[b + 1] : bin[b];
+    for (int r = 0; r < n; r++) {
+        int b = r - 1 < 0 ? 0 : r - 1;
+        env[r] = b < nb ? 2.0 * bin[b] : 0.0;
+    }
+    free(bin);
+    *nr = n;
+    return env;
+}
+
+int mp_prf_crop_init(const mp_prf_model *m, double frac, double ron, mp_prf_crop *c)
+{
+    memset(c, 0, sizeof *c);
+    c->frac = frac;
+    c->ron2 = ron * ron;
+    if (!(frac > 0))
+        return 0;
+    return !(c->env = mp_prf_envelope(m, &c->nr));
+}
+
+void mp_prf_crop_free(mp_prf_crop *c)
+{
+    if (!c)
+        return;
+    free(c->env);
+    memset(c, 0, sizeof *c);
+}
+
+double mp_prf_crop_radius(const mp_prf_crop *c, double E, double sky)
+{
+    if (!c || !c->env || !(c->frac > 0))
+        return INFINITY;
+    double b = isfinite(sky) && sky > 0 ? sky : 0.0;
+    double level = c->frac * sqrt(c->ron2 + b) / fabs(E);
+    if (!(level > 0))
+        return INFINITY;
+    for (int r = 0; r < c->nr; r++)
+        if (c->env[r] < level)
+            return (double)r;
+    return INFINITY;
 }

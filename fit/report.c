@@ -134,6 +134,8 @@ static void report_lines(FILE *fp, const char *prefix, const mp_run_report *r)
     const char *d = r->ndecisions && r->decisions ? r->decisions : "";
     fprintf(fp, "%s  economy: %d decisions%s%s%s%s\n", prefix, nd, nd ? ": " : "", d,
             d[0] && r->sky[0] ? "; " : "", r->sky);
+    fprintf(fp, "%s  work: %ld group fits, %ld left out (neighbours' light unchanged), "
+            "%ld star paints cropped\n", prefix, r->fits, r->kept, r->cropped);
 }
 
 int mp_report_write(const char *path, const char *task, const mp_run_report *r, char *err)

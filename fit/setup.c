@@ -190,8 +190,20 @@ int mp_fit_setup_read(const mp_parset *ps, mp_fit_setup *s, char *err)
     mp_par_int(ps, "psfos", &psfos);
     if (economy && economize(s, psfos != MP_PAR_INDEF_INT, err))
         return 1;
-    if (!economy)
+    if (economy) {
+        char why[256];
+        snprintf(why, sizeof why, "neighbour light: painted out to where it falls below %.2g of a "
+                 "sky pixel's sigma (residual too)", s->opts.cropfrac);
+        decide(s, why);
+        snprintf(why, sizeof why, "refits: a group is refitted only when its members or its "
+                 "neighbours' light changed (sqrt(sum (dlight/sigma)^2) >= %.2g, which bounds "
+                 "every parameter's change to that many sigma)", s->opts.refittol);
+        decide(s, why);
+    } else {
         decide(s, "economy=no: every part of the model forced on");
+        s->opts.cropfrac = 0.0;     /* economy=no: the full work, to compare */
+        s->opts.refittol = 0.0;
+    }
     warn_undersampled(s);
     return 0;
 }

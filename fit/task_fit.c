@@ -45,7 +45,7 @@ static int fit_one(const mp_fit_setup *s, const char *image, const char *coords,
             snprintf(err, MP_ERRLEN, "%s: out of memory for the residual", residual);
             goto done;
         }
-        if (mp_fit_residual(&f, &s->model, &t, res, err))
+        if (mp_fit_residual(&f, &s->model, &t, s->opts.cropfrac, res, err))
             goto done;
         for (long i = 0; i < f.im.nx * f.im.ny; i++)
             res[i] /= f.gain;                   /* back to ADU, as the input */
@@ -62,6 +62,9 @@ static int fit_one(const mp_fit_setup *s, const char *image, const char *coords,
     run.merged = rep.merged;
     run.rejected = rep.rejected;
     run.noconv = rep.noconv;
+    run.fits = rep.fits;
+    run.kept = rep.kept;
+    run.cropped = rep.cropped;
     mp_report_from_table(&t, &run);
     mp_report_parts(&s->model, &s->opts, &rep, &run);
     run.decisions = s->decisions;

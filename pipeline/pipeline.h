@@ -30,6 +30,8 @@ typedef struct {
     int rounds;
     long found, added, fitted, merged, rejected, noconv;
     long ngroups, iterations;     /* of the last round; summed over rounds */
+    long fits, kept, cropped;     /* group fits done and left out, star paints
+                                   * cropped (economy), summed over rounds */
 } mp_pipeline_report;
 
 /* mp_pipeline_run: reduce one image; root names the outputs. */

@@ -266,7 +266,14 @@ int mp_pipeline_run(const char *image, const char *root, const mp_pipeline_opts 
     mp_table_init(&before);
     double *res = NULL;
     int rc = 1;
+    /* What every group was fitted against, so a round refits only the
+     * groups the new stars (or their neighbours' changes) reach. */
+    mp_fit_memory *mem = mp_fit_memory_new();
     double t0 = now();
+    if (!mem) {
+        snprintf(err, MP_ERRLEN, "out of memory");
+        return 1;
+    }
     const mp_prf_model *m = &o->fit.model;
     if (mp_frame_read(image, &o->fit.dp, &f, err))
         goto done;
@@ -308,24 +315,28 @@ int mp_pipeline_run(const char *image, const char *root, const mp_pipeline_opts 
             snprintf(err, MP_ERRLEN, "out of memory");
             goto done;
         }
-        if (mp_fit_table(&f, m, &o->fit.opts, &t, &fr, err))
+        if (mp_fit_table_mem(&f, m, &o->fit.opts, &t, mem, &fr, err))
             goto done;
         if (note_gone(&gone, &before, &t)) {
             snprintf(err, MP_ERRLEN, "out of memory");
             goto done;
         }
-        if (mp_fit_residual(&f, m, &t, res, err))
+        if (mp_fit_residual(&f, m, &t, o->fit.opts.cropfrac, res, err))
             goto done;
         rep->t_fit += now() - t0;
         rep->merged += fr.merged;
         rep->rejected += fr.rejected;
         rep->noconv = fr.noconv;
         rep->iterations += fr.iterations;
+        rep->fits += fr.fits;
+        rep->kept += fr.kept;
+        rep->cropped += fr.cropped;
         rep->ngroups = fr.ngroups;
         rep->fitted = (long)t.nrow;
         fprintf(stderr, "matphot pipeline: %s: round %d: %ld stars fitted in %ld groups "
-                "(%ld merged, %ld rejected), %.2f s\n", image, round, fr.nstars - fr.merged - fr.rejected,
-                fr.ngroups, fr.merged, fr.rejected, now() - t0);
+                "(%ld merged, %ld rejected; %ld group fits, %ld kept), %.2f s\n", image, round,
+                fr.nstars - fr.merged - fr.rejected, fr.ngroups, fr.merged, fr.rejected, fr.fits,
+                fr.kept, now() - t0);
         if (round == o->niter)
             break;
 
@@ -415,6 +426,9 @@ int mp_pipeline_run(const char *image, const char *root, const mp_pipeline_opts 
         run.merged = rep->merged;
         run.rejected = rep->rejected;
         run.noconv = rep->noconv;
+        run.fits = rep->fits;
+        run.kept = rep->kept;
+        run.cropped = rep->cropped;
         mp_report_from_table(&t, &run);
         mp_frame_report last = {.nstars = (long)t.nrow, .ngroups = rep->ngroups};
         mp_report_parts(m, &o->fit.opts, &last, &run);
@@ -434,6 +448,7 @@ int mp_pipeline_run(const char *image, const char *root, const mp_pipeline_opts 
     }
     rc = 0;
 done:
+    mp_fit_memory_free(mem);
     free(res);
     mp_table_free(&t);
     mp_table_free(&found);

@@ -1,0 +1,264 @@
+/* test_fit_economy.c — the economy decisions of the frame fit (issue 5):
+ * a group whose surroundings did not change is not refitted (in a later
+ * pass, or in a later call with the pipeline's memory) and its result is
+ * the one a full refit gives, within the stated bound; a group whose
+ * neighbour changed is refitted; economy=no (refittol 0) refits every
+ * group every pass; and the PRF envelope that crops painted light bounds
+ * the rendered PRF.  Frames are simulated with sim/ (exact Gaussian pixel
+ * integrals), fixed seeds. */
+#include <setjmp.h>
+#include <stdarg.h>
+#include <stddef.h>
+#include <cmocka.h>
+#include <stdio.h>
+
+#include "tests/unit/stiff_common.h"
+
+#define FWHM 3.0
+#define NS 6
+
+/* Two groups 50 px apart (far beyond the Gaussian's 7.5σ + 1 px box), and
+ * a sixth star near the second that the first call does not know of. */
+static const double SX[NS] = {30.0, 33.5, 28.0, 31.0, 34.2, 27.0};
+static const double SY[NS] = {30.0, 31.0, 34.0, 80.0, 78.5, 83.0};
+static const double SE[NS] = {3e4, 1e4, 5e3, 2e4, 8e3, 6e3};
+static const double SG[NS] = {1, 1, 1, 2, 2, 2};
+
+/* A frame with the first n stars: sky 100, read noise 3. */
+static void frame6(mp_frame *f, int n)
+{
+    sf_frame_make(f, 60, 110, 3.0);
+    mp_rng r;
+    mp_rng_seed(&r, 501);
+    sf_render(f, 100.0, FWHM, SX, SY, SE, n, &r, 3.0);
+}
+
+/* The start table of the first n stars, with their GROUP_ID and a start
+ * flux 20 % off (as find's would be). */
+static void table_n(mp_table *t, int n)
+{
+    double E[NS];
+    for (int k = 0; k < n; k++)
+        E[k] = 1.2 * SE[k];
+    sf_table(t, SX, SY, E, n, 0);
+    int cg = mp_table_add_col(t, "GROUP_ID");
+    assert_true(cg >= 0);
+    for (int k = 0; k < n; k++)
+        mp_table_set(t, (size_t)k, cg, SG[k]);
+}
+
+/* Add star k as a new row (the pipeline's next round): NUMBER k+1, find's
+ * position and flux in the fitted columns, as add_new_stars does. */
+static void add_row(mp_table *t, int k)
+{
+    long r = mp_table_add_row(t);
+    assert_true(r >= 0);
+    const char *c[5] = {"NUMBER", "X_IMAGE", "Y_IMAGE", "GROUP_ID", "FLUX"};
+    double v[5] = {k + 1, SX[k], SY[k], SG[k], 1.2 * SE[k]};
+    for (int i = 0; i < 5; i++)
+        mp_table_set(t, (size_t)r, mp_table_col(t, c[i]), v[i]);
+    const char *d[4] = {"XPSF_IMAGE", "YPSF_IMAGE", "FLUX_PSF", "SKY_PSF"};
+    double w[4] = {SX[k], SY[k], 1.2 * SE[k], NAN};
+    for (int i = 0; i < 4; i++)
+        mp_table_set(t, (size_t)r, mp_table_col(t, d[i]), w[i]);
+}
+
+static double get(const mp_table *t, size_t r, const char *c)
+{
+    return mp_table_get(t, r, mp_table_col(t, c));
+}
+
+/* Within one call: groups that cannot see each other are fitted once; the
+ * second pass finds no change and keeps both (2 fits, 2 kept), and the
+ * result is what the full two passes give within the economy's bound,
+ * 0.1 σ (the 2nd pass of an isolated group restarts from its own
+ * converged fit and moves by ~0.01 σ: weights follow the model). */
+static void test_second_pass_kept_when_isolated(void **state)
+{
+    (void)state;
+    char err[MP_ERRLEN];
+    mp_psf p;
+    mp_psf_gauss(FWHM, &p);
+    mp_prf_model m = {&p, NULL, 10};
+    mp_frame f;
+    frame6(&f, 5);     /* every star of the frame in the table */
+    mp_frame_opts eco, full;
+    mp_frame_opts_default(&eco);
+    full = eco;
+    full.refittol = 0.0;
+    full.cropfrac = 0.0;
+    mp_table a, b;
+    table_n(&a, 5);
+    table_n(&b, 5);
+    mp_frame_report ra, rb;
+    assert_int_equal(mp_fit_table(&f, &m, &eco, &a, &ra, err), 0);
+    assert_int_equal(mp_fit_table(&f, &m, &full, &b, &rb, err), 0);
+    print_message("economy: %ld fits, %ld kept; full: %ld fits, %ld kept\n", ra.fits, ra.kept,
+                  rb.fits, rb.kept);
+    assert_int_equal(ra.fits, 2);
+    assert_int_equal(ra.kept, 2);
+    assert_int_equal(rb.fits, 4);     /* economy=no: every group, every pass */
+    assert_int_equal(rb.kept, 0);
+    assert_int_equal(a.nrow, b.nrow);
+    for (size_t i = 0; i < a.nrow; i++) {
+        double s = get(&b, i, "FLUXERR_PSF");
+        print_message("star %zu: economy %.3f full %.3f (%.4f sigma)\n", i, get(&a, i, "FLUX_PSF"),
+                      get(&b, i, "FLUX_PSF"), (get(&a, i, "FLUX_PSF") - get(&b, i, "FLUX_PSF")) / s);
+        assert_true(fabs(get(&a, i, "FLUX_PSF") - get(&b, i, "FLUX_PSF")) < 0.1 * s);
+    }
+    mp_table_free(&a);
+    mp_table_free(&b);
+    sf_frame_drop(&f);
+}
+
+/* Across calls (the pipeline's rounds): a new star joins group 2; group 1,
+ * 50 px away, is not refitted (its fit is kept bit for bit), group 2 is.
+ * Against a full refit of the same table, group 1 differs by less than the
+ * refit tolerance bound (0.1 σ; nothing changed around it, so in fact by
+ * the convergence tolerance). */
+static void test_round_refits_only_touched_group(void **state)
+{
+    (void)state;
+    char err[MP_ERRLEN];
+    mp_psf p;
+    mp_psf_gauss(FWHM, &p);
+    mp_prf_model m = {&p, NULL, 10};
+    mp_frame f;
+    frame6(&f, NS);
+    mp_frame_opts eco, full;
+    mp_frame_opts_default(&eco);
+    full = eco;
+    full.refittol = 0.0;
+    mp_fit_memory *mem = mp_fit_memory_new();
+    assert_non_null(mem);
+    mp_table t;
+    table_n(&t, 5);
+    mp_frame_report r1, r2, r3;
+    assert_int_equal(mp_fit_table_mem(&f, &m, &eco, &t, mem, &r1, err), 0);
+    double before[3];
+    for (int k = 0; k < 3; k++)
+        before[k] = get(&t, (size_t)k, "FLUX_PSF");
+    add_row(&t, 5);
+    mp_table u;                       /* the same table for the full refit */
+    mp_table_init(&u);
+    for (size_t c = 0; c < t.ncol; c++)
+        assert_true(mp_table_add_col(&u, t.cols[c].name) >= 0);
+    for (size_t r = 0; r < t.nrow; r++) {
+        assert_true(mp_table_add_row(&u) >= 0);
+        for (size_t c = 0; c < t.ncol; c++)
+            mp_table_set(&u, r, (int)c, mp_table_get(&t, r, (int)c));
+    }
+    assert_int_equal(mp_fit_table_mem(&f, &m, &eco, &t, mem, &r2, err), 0);
+    assert_int_equal(mp_fit_table(&f, &m, &full, &u, &r3, err), 0);
+    print_message("round 2: economy %ld fits, %ld kept; full %ld fits, %ld kept\n", r2.fits,
+                  r2.kept, r3.fits, r3.kept);
+    /* pass 1: group 2 refitted (a new member), group 1 kept; pass 2:
+     * group 2 refitted only if group 1 changed around it, which it did not. */
+    assert_int_equal(r2.fits, 1);
+    assert_int_equal(r2.kept, 3);
+    assert_int_equal(r3.fits, 4);
+    assert_int_equal(t.nrow, 6);
+    for (int k = 0; k < 3; k++) {
+        assert_true(get(&t, (size_t)k, "FLUX_PSF") == before[k]);
+        double s = get(&u, (size_t)k, "FLUXERR_PSF");
+        assert_true(fabs(get(&t, (size_t)k, "FLUX_PSF") - get(&u, (size_t)k, "FLUX_PSF")) < 0.1 * s);
+        assert_true(get(&t, (size_t)k, "FLUXERR_PSF") > 0);   /* errors came back too */
+    }
+    /* The new star was fitted: near its true flux (5σ of its error). */
+    double s5 = get(&t, 5, "FLUXERR_PSF");
+    assert_true(s5 > 0 && fabs(get(&t, 5, "FLUX_PSF") - SE[5]) < 5 * s5);
+    mp_fit_memory_free(mem);
+    mp_table_free(&t);
+    mp_table_free(&u);
+    sf_frame_drop(&f);
+}
+
+/* Two groups 7 px apart (given separate GROUP_IDs, so each sees the other
+ * as neighbour light): the first pass subtracts each with its start flux,
+ * 20 % off; the fit changes that light by far more than 0.1 σ in the other
+ * group's fitting region, so both are refitted in pass 2 (4 fits). */
+static void test_changed_neighbour_refitted(void **state)
+{
+    (void)state;
+    char err[MP_ERRLEN];
+    mp_psf p;
+    mp_psf_gauss(FWHM, &p);
+    mp_prf_model m = {&p, NULL, 10};
+    const double x[2] = {25.0, 32.0}, y[2] = {30.0, 30.0}, E[2] = {4e4, 4e4};
+    mp_frame f;
+    sf_frame_make(&f, 60, 60, 3.0);
+    mp_rng r;
+    mp_rng_seed(&r, 502);
+    sf_render(&f, 100.0, FWHM, x, y, E, 2, &r, 3.0);
+    double E0[2] = {1.2 * E[0], 0.8 * E[1]};
+    mp_table t;
+    sf_table(&t, x, y, E0, 2, 0);
+    int cg = mp_table_add_col(&t, "GROUP_ID");
+    mp_table_set(&t, 0, cg, 1);
+    mp_table_set(&t, 1, cg, 2);
+    mp_frame_opts o;
+    mp_frame_opts_default(&o);
+    mp_frame_report rep;
+    assert_int_equal(mp_fit_table(&f, &m, &o, &t, &rep, err), 0);
+    print_message("neighbours 7 px apart: %ld fits, %ld kept\n", rep.fits, rep.kept);
+    assert_int_equal(rep.fits, 4);
+    assert_int_equal(rep.kept, 0);
+    mp_table_free(&t);
+    sf_frame_drop(&f);
+}
+
+/* The envelope bounds the PRF: for stars at 40 random subpixel positions
+ * (seeded), every rendered pixel at distance ≥ r from the star is at most
+ * env[r] — for the analytic Gaussian and for a 2× table (whose sinc
+ * shift rings).  A bound, so no tolerance. */
+static void test_envelope_bounds_prf(void **state)
+{
+    (void)state;
+    char err[MP_ERRLEN];
+    mp_psf g, t;
+    mp_psf_gauss(FWHM, &g);
+    assert_int_equal(mp_psf_gauss_table(FWHM, 2, 12.0, &t, err), 0);
+    const mp_psf *ps[2] = {&g, &t};
+    mp_rng rng;
+    mp_rng_seed(&rng, 503);
+    for (int c = 0; c < 2; c++) {
+        mp_prf_model m = {ps[c], NULL, 10};
+        int nr;
+        double *env = mp_prf_envelope(&m, &nr);
+        assert_non_null(env);
+        for (int r = 1; r < nr; r++)
+            assert_true(env[r] <= env[r - 1]);
+        mp_prf_work w = {0};
+        for (int s = 0; s < 40; s++) {
+            double x = 50.0 + mp_rng_uniform(&rng), y = 50.0 + mp_rng_uniform(&rng);
+            long x0, y0;
+            int bw, bh;
+            mp_prf_box(&m, x, y, &x0, &y0, &bw, &bh);
+            double *prf = malloc((size_t)bw * bh * sizeof *prf);
+            assert_non_null(prf);
+            assert_int_equal(mp_prf_render(&m, x, y, prf, NULL, NULL, &w), 0);
+            for (int j = 0; j < bh; j++)
+                for (int i = 0; i < bw; i++) {
+                    double d = hypot(x0 + i - x, y0 + j - y);
+                    int r = (int)floor(d);
+                    double v = fabs(prf[(size_t)j * bw + i]);
+                    assert_true(r >= nr ? v == 0.0 : v <= env[r]);
+                }
+            free(prf);
+        }
+        mp_prf_work_free(&w);
+        free(env);
+    }
+    mp_psf_free(&t);
+}
+
+int main(void)
+{
+    const struct CMUnitTest tests[] = {
+        cmocka_unit_test(test_second_pass_kept_when_isolated),
+        cmocka_unit_test(test_round_refits_only_touched_group),
+        cmocka_unit_test(test_changed_neighbour_refitted),
+        cmocka_unit_test(test_envelope_bounds_prf),
+    };
+    return cmocka_run_group_tests(tests, NULL, NULL);
+}
