@@ -48,10 +48,10 @@ static double beta_normalised(const mp_prf_model *m)
 /* economy=yes: leave out what cannot change the answer (issue 5); every
  * decision, to drop a part or to keep it, is logged with its reason.
  *  - A DRF map whose subpixels are all equal is the scalar V.
- *  - A supersampled table is block-summed to detector sampling when the
- *    data are oversampled (β·V² ≥ 21 px², paper §5.4: 1× tables are then on
- *    the CRLB, validate cases 2 and 3) and no DRF map needs the subpixels;
- *    unless the user asked for a sampling with psfos. */
+ *  - A supersampled table is block-summed to the coarsest sampling s at
+ *    which β·V²·s² ≥ 21 px² (paper §5.4; s = 1 when the data are
+ *    oversampled, validate cases 2 and 3) when no DRF map needs the
+ *    subpixels, unless the user asked for a sampling with psfos. */
 static int economize(mp_fit_setup *s, int psfos_given, char *err)
 {
     char why[256];
@@ -89,18 +89,29 @@ static int economize(mp_fit_setup *s, int psfos_given, char *err)
         decide(s, why);
         return 0;
     }
+    /* The coarsest sampling s (a divisor of the table's) at which the
+     * table holds β·s² ≥ 21 px² (paper §5.4: 1× tables are on the CRLB
+     * from β = 21 on, and a 2× table of an undersampled PSF, β·4 ≥ 21, is;
+     * validate cases 2, 5, 6b). */
     double b = beta_normalised(&s->model);
-    if (b >= 21.0) {
+    int want = os;
+    for (int k = 1; k < os; k++)
+        if (os % k == 0 && b * k * k >= 21.0) {
+            want = k;
+            break;
+        }
+    if (want < os) {
         mp_psf coarse;
-        if (mp_psf_rebin(&s->psf, os, &coarse, err))
+        if (mp_psf_rebin(&s->psf, os / want, &coarse, err))
             return 1;
         mp_psf_free(&s->psf);
         s->psf = coarse;
-        snprintf(why, sizeof why, "supersampling: beta = %.1f px^2 >= 21 at detector sampling "
-                 "(paper 5.4), the x%d table block-summed to x1", b, os);
+        snprintf(why, sizeof why, "supersampling: beta = %.1f px^2 at detector sampling, "
+                 "%.1f >= 21 at x%d (paper 5.4), the x%d table block-summed to x%d", b,
+                 b * want * want, want, os, want);
     } else {
         snprintf(why, sizeof why, "supersampling: beta = %.1f px^2 < 21 at detector sampling "
-                 "(paper 5.4), the x%d table kept", b, os);
+                 "(paper 5.4) and no coarser sampling reaches 21, the x%d table kept", b, os);
     }
     decide(s, why);
     return 0;

@@ -27,7 +27,7 @@ fit() {  # fit NAME IMAGE TRUTH ARGS...
     "$M" fit "$@" skymodel=constant output="$T/$n.fit" 2>"$T/$n.err" || no "fit $n"
 }
 fit wyes "$T/w.fits" "$T/w.truth" psf="$T/w2.fits"
-has "$T/wyes.err" 'economy: [0-9]* decisions: supersampling: beta = 3[0-9.]* px^2 >= 21.*x2 table block-summed to x1' \
+has "$T/wyes.err" 'economy: [0-9]* decisions: supersampling: beta = 3[0-9.]* px^2 at detector sampling.*x2 table block-summed to x1' \
     "FWHM 4 x2 table not block-summed"
 has "$T/wyes.err" 'left out:.*supersampling (x1 table)' "x1 not listed as left out"
 grep -q 'economy: [0-9]* decisions: supersampling' "$T/wyes.report" || no "decision not in root.report"

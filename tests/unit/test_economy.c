@@ -118,9 +118,10 @@ static void test_uniform_drf_becomes_scalar(void **state)
     assert_int_equal(s.drf.k, 0);
     assert_true(s.drf.volume == 0.8);
     assert_non_null(strstr(s.decisions, "DRF: the 4x4 map is uniform, used as the scalar V = 0.8"));
-    /* With the map gone, the x4 table is judged by β alone: kept. */
-    assert_int_equal(s.psf.os, 4);
-    assert_non_null(strstr(s.decisions, "the x4 table kept"));
+    /* With the map gone, the x4 table is judged by β alone: β ≈ 6.2 px² at
+     * detector sampling, 24.7 ≥ 21 at x2 — block-summed to x2, not x1. */
+    assert_int_equal(s.psf.os, 2);
+    assert_non_null(strstr(s.decisions, "the x4 table block-summed to x2"));
     assert_int_equal(s.ndecisions, 2 + 2);   /* + the neighbour crop and refit rules */
     assert_counted(&s);
     mp_fit_setup_free(&s);
