@@ -149,7 +149,7 @@ int mp_prf_render_window(const mp_prf_model *m, double x, double y,
 /* The damped sinc's error for every half-width below the model's sinc_hw,
  * measured once per PSF: δP_h = PRF(h) − PRF(sinc_hw) squared per pixel, at
  * a 4×4 grid of subpixel phases, with the full PRF P. */
-typedef struct {
+typedef struct mp_sinc_choice_s {
     int hwmax;         /* the model's sinc_hw (the user's sinchw) */
     int nph;           /* phases (0 when nothing can be shortened) */
     size_t npix;       /* pixels stored per phase */
@@ -311,6 +311,11 @@ typedef struct {
                         * change of its fitted parameters to refittol of
                         * their σ); 0: refit every group every pass
                         * (economy=no) */
+    const struct mp_sinc_choice_s *sinc;  /* economy: each group fitted with
+                        * the shortest sinc half-width whose bias stays below
+                        * sincfrac of its brightest star's σ (fit/sinc_choice.c);
+                        * NULL: the model's sinc_hw for all */
+    double sincfrac;
 } mp_frame_opts;
 
 void mp_frame_opts_default(mp_frame_opts *o);
@@ -321,6 +326,8 @@ typedef struct {
     long iterations;   /* summed over groups and passes */
     long sky_groups[MP_SKY_MAXORDER + 1];  /* groups of the last pass by sky order */
     long fits;         /* group fits done, over passes (and rounds) */
+    long kshort;       /* of them, with a sinc kernel shorter than sinchw */
+    double khw;        /* summed half-width of the group fits */
     long kept;         /* group fits left out: no star's surroundings changed */
     long cropped;      /* stars painted with a cropped PSF */
 } mp_frame_report;
@@ -377,6 +384,8 @@ typedef struct {
                                 * decision; mp_report_parts fills it) */
     long fits, kept, cropped;  /* what the economy decisions did: group fits
                                 * done and left out, star paints cropped */
+    long kshort;               /* group fits with a shorter sinc kernel */
+    double khw;                /* half-width summed over all group fits */
 } mp_run_report;
 
 /* mp_report_from_table: the medians, from a fitted table. */
@@ -403,7 +412,8 @@ typedef struct {
     mp_frame_opts opts;
     mp_datapars dp;
     mp_table_format fmt;
-    char decisions[1024];   /* economy decisions and their reasons */
+    mp_sinc_choice sinc;    /* economy: per-group kernel length (opts.sinc) */
+    char decisions[2048];   /* economy decisions and their reasons */
     int ndecisions;
 } mp_fit_setup;
 

@@ -19,6 +19,8 @@ void mp_frame_opts_default(mp_frame_opts *o)
     o->passes = 2;
     o->cropfrac = 0.02;
     o->refittol = 0.1;
+    o->sinc = NULL;
+    o->sincfrac = 0.1;
 }
 
 /* Column of a table by the first name present, -1 if none. */
@@ -190,7 +192,7 @@ static int reject_one(mp_star *s, int *alive, int n, double minsnr, double merge
  * stable.  Local copies of the stars move in the frame's coordinates
  * shifted by (dx, dy). */
 static int fit_one_group(const mp_frame *f, const mp_prf_model *m, const mp_frame_opts *o,
-                         double mergerad, star_state *st, int n, double dx, double dy,
+                         double mergerad, const double *emax, star_state *st, int n, double dx, double dy,
                          mp_frame_report *rep, char *err)
 {
     mp_star *s = malloc((size_t)n * sizeof *s), *live = malloc((size_t)n * sizeof *live);
@@ -217,7 +219,18 @@ static int fit_one_group(const mp_frame *f, const mp_prf_model *m, const mp_fram
         if (nl == 0)
             break;
         double sky0 = nl == 1 ? live[0].sky : NAN;
-        if (mp_fit_group(f, m, &o->fit, sky0, live, nl, err))
+        /* Economy: the kernel the group's brightest star needs (o->sinc:
+         * emax[h], the largest flux half-width h serves). */
+        mp_prf_model mh = *m;
+        if (o->sinc && emax) {
+            double e = 0.0;
+            for (int k = 0; k < nl; k++)
+                e = isfinite(live[k].flux) && live[k].flux > e ? live[k].flux : e;
+            mh.sinc_hw = mp_sinc_choice_pick(emax, o->sinc->hwmax, e > 0 ? e : INFINITY);
+        }
+        rep->khw += mh.sinc_hw;
+        rep->kshort += mh.sinc_hw < m->sinc_hw;
+        if (mp_fit_group(f, &mh, &o->fit, sky0, live, nl, err))
             goto done;
         rep->iterations += live[0].niter;
         for (int k = 0; k < nl; k++) {
@@ -451,7 +464,8 @@ static int remember_patches(const mp_frame *f, const mp_prf_model *m, const crop
  * was fitted (light_change); rep counts group fits (fits) and groups left
  * alone (kept).  With economy, every survivor's patch is remembered. */
 static int fit_group_local(const mp_frame *f, const mp_prf_model *m, const mp_frame_opts *o,
-                           double mergerad, const double *all, const crop_rule *crop,
+                           double mergerad, const double *emax, const double *all,
+                           const crop_rule *crop,
                            star_state *st, int n, int may_keep, int economy,
                            mp_frame_report *rep, char *err)
 {
@@ -518,7 +532,7 @@ static int fit_group_local(const mp_frame *f, const mp_prf_model *m, const mp_fr
     long x0, y0, w, h;
     group_window(f, sub, nact, r, &x0, &y0, &w, &h);
     if (w == 0 || h == 0 || (!all && x0 == 1 && y0 == 1 && w == f->im.nx && h == f->im.ny)) {
-        rc = fit_one_group(f, m, o, mergerad, sub, nact, 0.0, 0.0, rep, err);
+        rc = fit_one_group(f, m, o, mergerad, emax, sub, nact, 0.0, 0.0, rep, err);
     } else {
         L.im.nx = w;
         L.im.ny = h;
@@ -543,7 +557,7 @@ static int fit_group_local(const mp_frame *f, const mp_prf_model *m, const mp_fr
                     snprintf(err, MP_ERRLEN, "out of memory");
                     goto done;
                 }
-        rc = fit_one_group(&L, m, o, mergerad, sub, nact, (double)(x0 - 1), (double)(y0 - 1), rep,
+        rc = fit_one_group(&L, m, o, mergerad, emax, sub, nact, (double)(x0 - 1), (double)(y0 - 1), rep,
                            err);
     }
     if (!rc && economy && all && isfinite(r) &&
@@ -719,6 +733,32 @@ int mp_fit_table(const mp_frame *f, const mp_prf_model *m, const mp_frame_opts *
     return mp_fit_table_mem(f, m, o, t, NULL, rep, err);
 }
 
+static int cmp_double(const void *a, const void *b)
+{
+    double x = *(const double *)a, y = *(const double *)b;
+    return (x > y) - (x < y);
+}
+
+/* Median of the finite, positive start skies of the stars [e-]; 0 when
+ * none (the kernel choice's safe side: less sky, less noise). */
+static double median_sky(const star_state *st, size_t n)
+{
+    double *v = malloc((n ? n : 1) * sizeof *v);
+    size_t k = 0;
+    if (!v)
+        return 0.0;
+    for (size_t i = 0; i < n; i++)
+        if (isfinite(st[i].s.sky) && st[i].s.sky > 0)
+            v[k++] = st[i].s.sky;
+    double med = 0.0;
+    if (k) {
+        qsort(v, k, sizeof *v, cmp_double);
+        med = v[k / 2];
+    }
+    free(v);
+    return med;
+}
+
 int mp_fit_table_mem(const mp_frame *f, const mp_prf_model *m, const mp_frame_opts *o,
                      mp_table *t, mp_fit_memory *mem, mp_frame_report *rep, char *err)
 {
@@ -738,7 +778,7 @@ int mp_fit_table_mem(const mp_frame *f, const mp_prf_model *m, const mp_frame_op
     size_t n = t->nrow;
     star_state *st = calloc(n ? n : 1, sizeof *st);
     size_t *gs = malloc((n + 1) * sizeof *gs);
-    double *all = NULL;
+    double *all = NULL, *emax = NULL;
     crop_rule crop = {0};
     int rc = 1;
     if (!st || !gs || crop_init(f, m, o->cropfrac, &crop)) {
@@ -773,6 +813,16 @@ int mp_fit_table_mem(const mp_frame *f, const mp_prf_model *m, const mp_frame_op
     rep->nstars = (long)n;
     rep->ngroups = (long)ng;
     double mergerad = isfinite(o->mergerad) ? o->mergerad : 0.4 * mp_prf_fwhm(m);
+    /* Economy: the largest flux each shorter kernel serves, on the frame's
+     * median start sky (0, the safe side, when no star has one). */
+    if (o->sinc && o->sinc->hwmax > 0) {
+        if (!(emax = malloc((size_t)o->sinc->hwmax * sizeof *emax))) {
+            snprintf(err, MP_ERRLEN, "out of memory");
+            goto done;
+        }
+        double bsky = median_sky(st, n);
+        mp_sinc_choice_limits(o->sinc, bsky, f->rdnoise, o->sincfrac, emax);
+    }
     int passes = o->passes < 1 ? 1 : o->passes;
     if (ng <= 1)
         passes = 1;                 /* nobody else's light to subtract */
@@ -797,7 +847,7 @@ int mp_fit_table_mem(const mp_frame *f, const mp_prf_model *m, const mp_frame_op
             char e[MP_ERRLEN];
             mp_frame_report r = {0};
             int k = (int)(gs[g + 1] - gs[g]);
-            if (fit_group_local(f, m, o, mergerad, all, &crop, st + gs[g], k, economy, economy,
+            if (fit_group_local(f, m, o, mergerad, emax, all, &crop, st + gs[g], k, economy, economy,
                                 &r, e)) {
                 failed++;
 #pragma omp critical(fit_table_error)
@@ -809,6 +859,8 @@ int mp_fit_table_mem(const mp_frame *f, const mp_prf_model *m, const mp_frame_op
                 pr.rejected += r.rejected;
                 pr.iterations += r.iterations;
                 pr.fits += r.fits;
+                pr.kshort += r.kshort;
+                pr.khw += r.khw;
                 pr.kept += r.kept;
             }
         }
@@ -820,6 +872,8 @@ int mp_fit_table_mem(const mp_frame *f, const mp_prf_model *m, const mp_frame_op
         rep->rejected += pr.rejected;
         rep->iterations += pr.iterations;
         rep->fits += pr.fits;
+        rep->kshort += pr.kshort;
+        rep->khw += pr.khw;
         rep->kept += pr.kept;
         /* No group refitted: every later pass would see the same light. */
         if (economy && pr.fits == 0) {
@@ -847,6 +901,7 @@ done:
     for (size_t i = 0; st && i < n; i++)
         free(st[i].seen);
     free(all);
+    free(emax);
     free(st);
     free(gs);
     free(crop.env);

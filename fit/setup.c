@@ -10,6 +10,7 @@ void mp_fit_setup_free(mp_fit_setup *s)
 {
     mp_psf_free(&s->psf);
     mp_drf_free(&s->drf);
+    mp_sinc_choice_free(&s->sinc);
 }
 
 /* Paper §5.4: a discrete PSF needs β ≥ 21 in its own (super)pixels, or
@@ -203,6 +204,17 @@ int mp_fit_setup_read(const mp_parset *ps, mp_fit_setup *s, char *err)
         return 1;
     if (economy) {
         char why[256];
+        /* The kernel choice is measured on the model as it now stands (after
+         * any block-summing above). */
+        if (mp_sinc_choice_build(&s->model, &s->sinc, err))
+            return 1;
+        if (s->sinc.nph > 0) {
+            s->opts.sinc = &s->sinc;
+            snprintf(why, sizeof why, "sinc kernel: per group, the shortest half-width <= %d "
+                     "whose bias stays below %.2g of its brightest star's sigma "
+                     "(fit/sinc_choice.c)", s->sinc.hwmax, s->opts.sincfrac);
+            decide(s, why);
+        }
         snprintf(why, sizeof why, "neighbour light: painted out to where it falls below %.2g of a "
                  "sky pixel's sigma (residual too)", s->opts.cropfrac);
         decide(s, why);

@@ -32,6 +32,8 @@ typedef struct {
     long ngroups, iterations;     /* of the last round; summed over rounds */
     long fits, kept, cropped;     /* group fits done and left out, star paints
                                    * cropped (economy), summed over rounds */
+    long kshort;                  /* group fits with a shorter sinc kernel */
+    double khw;                   /* their half-widths summed over all group fits */
 } mp_pipeline_report;
 
 /* mp_pipeline_run: reduce one image; root names the outputs. */

@@ -331,6 +331,8 @@ int mp_pipeline_run(const char *image, const char *root, const mp_pipeline_opts 
         rep->fits += fr.fits;
         rep->kept += fr.kept;
         rep->cropped += fr.cropped;
+        rep->kshort += fr.kshort;
+        rep->khw += fr.khw;
         rep->ngroups = fr.ngroups;
         rep->fitted = (long)t.nrow;
         fprintf(stderr, "matphot pipeline: %s: round %d: %ld stars fitted in %ld groups "
@@ -429,6 +431,8 @@ int mp_pipeline_run(const char *image, const char *root, const mp_pipeline_opts 
         run.fits = rep->fits;
         run.kept = rep->kept;
         run.cropped = rep->cropped;
+        run.kshort = rep->kshort;
+        run.khw = rep->khw;
         mp_report_from_table(&t, &run);
         mp_frame_report last = {.nstars = (long)t.nrow, .ngroups = rep->ngroups};
         mp_report_parts(m, &o->fit.opts, &last, &run);

@@ -122,7 +122,7 @@ static void test_uniform_drf_becomes_scalar(void **state)
      * detector sampling, 24.7 ≥ 21 at x2 — block-summed to x2, not x1. */
     assert_int_equal(s.psf.os, 2);
     assert_non_null(strstr(s.decisions, "the x4 table block-summed to x2"));
-    assert_int_equal(s.ndecisions, 2 + 2);   /* + the neighbour crop and refit rules */
+    assert_int_equal(s.ndecisions, 2 + 3);   /* + the neighbour crop, refit and kernel rules */
     assert_counted(&s);
     mp_fit_setup_free(&s);
 
@@ -171,7 +171,7 @@ static void test_supersampling_flips_at_21(void **state)
         assert_int_equal(n.psf.os, 2);
         assert_int_equal(s.psf.os, rebinned[i] ? 1 : 2);
         assert_non_null(strstr(s.decisions, rebinned[i] ? "block-summed to x1" : "x2 table kept"));
-        assert_int_equal(s.ndecisions, 1 + 2);   /* + the neighbour crop and refit rules */
+        assert_int_equal(s.ndecisions, 1 + 3);   /* + the neighbour crop, refit and kernel rules */
         assert_counted(&s);
         mp_fit_setup_free(&s);
         mp_fit_setup_free(&n);
@@ -209,7 +209,7 @@ static void test_report_prints_decisions(void **state)
     assert_non_null(fp);
     int found = 0;
     while (fgets(line, sizeof line, fp))
-        found |= strstr(line, "economy: 3 decisions: supersampling: beta = ") != NULL &&
+        found |= strstr(line, "economy: 4 decisions: supersampling: beta = ") != NULL &&
                  strstr(line, ">= 21") != NULL;
     fclose(fp);
     unlink(path);

@@ -252,6 +252,52 @@ static void test_envelope_bounds_prf(void **state)
     mp_psf_free(&t);
 }
 
+/* The kernel length per group (economy, fit/sinc_choice.c): on a 1x table
+ * of FWHM 3 the groups of these 5e3–3e4 e- stars get a kernel shorter than
+ * sinchw 10, counted in the report, and the fluxes differ from the full
+ * kernel's by at most the choice's bound, 0.1 of their σ (+ 0.02 σ for the
+ * two fits' convergence, tol 1e-3 σ each, and the error estimate's own
+ * spread). */
+static void test_short_kernel_per_group(void **state)
+{
+    (void)state;
+    char err[MP_ERRLEN];
+    mp_psf p;
+    assert_int_equal(mp_psf_gauss_table(FWHM, 1, 15.0, &p, err), 0);
+    mp_prf_model m = {&p, NULL, 10};
+    mp_sinc_choice c;
+    assert_int_equal(mp_sinc_choice_build(&m, &c, err), 0);
+    mp_frame f;
+    frame6(&f, 5);
+    mp_frame_opts eco, full;
+    mp_frame_opts_default(&eco);
+    full = eco;
+    eco.sinc = &c;
+    mp_table a, b;
+    table_n(&a, 5);
+    table_n(&b, 5);
+    mp_frame_report ra, rb;
+    assert_int_equal(mp_fit_table(&f, &m, &eco, &a, &ra, err), 0);
+    assert_int_equal(mp_fit_table(&f, &m, &full, &b, &rb, err), 0);
+    print_message("short kernels: %ld of %ld group fits, mean half-width %.1f\n", ra.kshort,
+                  ra.fits, ra.khw / (double)ra.fits);
+    assert_true(ra.kshort >= 1);
+    assert_true(ra.khw < 10.0 * (double)ra.fits);
+    assert_int_equal(rb.kshort, 0);
+    assert_int_equal(a.nrow, b.nrow);
+    for (size_t i = 0; i < a.nrow; i++) {
+        double s = get(&b, i, "FLUXERR_PSF");
+        assert_true(fabs(get(&a, i, "FLUX_PSF") - get(&b, i, "FLUX_PSF")) < 0.12 * s);
+        assert_true(fabs(get(&a, i, "XPSF_IMAGE") - get(&b, i, "XPSF_IMAGE")) <
+                    0.12 * get(&b, i, "ERRX_PSF"));
+    }
+    mp_table_free(&a);
+    mp_table_free(&b);
+    mp_sinc_choice_free(&c);
+    mp_psf_free(&p);
+    sf_frame_drop(&f);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
@@ -259,6 +305,7 @@ int main(void)
         cmocka_unit_test(test_round_refits_only_touched_group),
         cmocka_unit_test(test_changed_neighbour_refitted),
         cmocka_unit_test(test_envelope_bounds_prf),
+        cmocka_unit_test(test_short_kernel_per_group),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }
