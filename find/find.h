@@ -85,7 +85,8 @@ int mp_bkg_estimate(const mp_frame *f, int mesh, int filter, mp_bkg *b, char *er
  * PSF does not match the data its residual is not taken for new stars.
  * k is the robust σ (1.4826·MAD) of the residual normalised by the Poisson
  * model, summed over block × block pixels (block ≥ 1, about the detection
- * kernel's size) where M is below its own noise: 1 for Poisson data in
+ * kernel's size) where M is below its own noise (or, when fewer than a
+ * quarter of the blocks are, the quarter with the least): 1 for Poisson data in
  * electrons; it absorbs a wrong gain, extra noise, and noise correlated
  * between neighbouring pixels (resampled mosaics), as detection sees it;
  * ε makes that robust σ 1 over the pixels where M is above 3 of k's σ,

@@ -12,6 +12,14 @@ static int cmp_double(const void *a, const void *b)
     return (x > y) - (x < y);
 }
 
+/* The q-quantile (0..1, nearest rank) of v[0..n-1], n > 0 (reorders v). */
+static double quantile_of(double *v, size_t n, double q)
+{
+    qsort(v, n, sizeof *v, cmp_double);
+    size_t i = (size_t)(q * (double)(n - 1) + 0.5);
+    return v[i < n ? i : n - 1];
+}
+
 /* Median of v[0..n-1] (reorders v). */
 static double median_of(double *v, size_t n)
 {
@@ -80,23 +88,39 @@ int mp_bkg_noise_from_model(mp_bkg *b, const mp_frame *f, const double *res, int
         for (long bx = 0; bx < nbx; bx++, nb++) {
             if (nb % bstep)
                 continue;
-            double sr = 0.0, sp = 0.0;
+            double sr = 0.0, sp = 0.0, sm = 0.0;
             int ok = 1;
             for (long y = by * block; ok && y < (by + 1) * block; y++)
                 for (long x = bx * block; ok && x < (bx + 1) * block; x++) {
                     size_t i = (size_t)y * (size_t)nx + (size_t)x;
-                    double v = poisson_var(b, f, res, i), m = fmax(f->im.pix[i] - res[i], 0.0);
-                    ok = !f->mask[i] && v > 0 && isfinite(res[i]) && m * m <= v;
+                    double v = poisson_var(b, f, res, i);
+                    ok = !f->mask[i] && v > 0 && isfinite(res[i]);
                     sr += res[i] - b->sky[i];
                     sp += v;
+                    sm += fmax(f->im.pix[i] - res[i], 0.0);
                 }
             if (!ok)
                 continue;
             all.r[all.n] = sr;
             all.p[all.n] = sp;
-            all.m[all.n] = 0.0;
+            all.m[all.n] = sm / sqrt(sp);   /* star light over its noise */
             all.n++;
         }
+    /* The blocks whose star light is below its noise; in a field so
+     * crowded that fewer than a quarter are, the quarter with the least
+     * (47 Tuc's core: star light everywhere). */
+    if (all.n >= 10) {
+        memcpy(all.z, all.m, all.n * sizeof *all.z);
+        double q25 = quantile_of(all.z, all.n, 0.25), cut = q25 > 1.0 ? q25 : 1.0;
+        size_t kept = 0;
+        for (size_t i = 0; i < all.n; i++)
+            if (all.m[i] <= cut) {
+                all.r[kept] = all.r[i];
+                all.p[kept] = all.p[i];
+                all.m[kept++] = 0.0;
+            }
+        all.n = kept;
+    }
     double k = all.n >= 10 ? normalised_sigma(&all, 1.0, 0.0) : NAN;
     /* Those where it is above 3 k-scaled σ measure ε (where a profile error
      * shows, above the noise that k describes). */

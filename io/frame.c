@@ -57,14 +57,23 @@ void mp_datapars_read(const mp_parset *ps, mp_datapars *dp)
 }
 
 /* The DQ image's name: "[EXT]" is an extension of the frame's own file
- * (the frame's own extension and section dropped).  Caller frees. */
+ * (the frame's own extension dropped), and a section of the frame
+ * ("[1:128,1:128]", any bracket group with a ':') applies to the DQ image
+ * too, so the two stay pixel for pixel.  Caller frees. */
 static char *dq_name(const char *image, const char *dq)
 {
-    size_t n = dq[0] == '[' ? strcspn(image, "[") : 0;
-    char *s = malloc(n + strlen(dq) + 1);
-    if (s) {
-        memcpy(s, image, n);
-        strcpy(s + n, dq);
+    size_t n = dq[0] == '[' ? strcspn(image, "[") : 0, len = strlen(image);
+    char *s = malloc(n + strlen(dq) + len + 1);
+    if (!s)
+        return NULL;
+    memcpy(s, image, n);
+    strcpy(s + n, dq);
+    for (const char *g = strchr(image, '['); g; g = strchr(g + 1, '[')) {
+        const char *e = strchr(g, ']');
+        if (!e)
+            break;
+        if (memchr(g, ':', (size_t)(e - g)))
+            strncat(s, g, (size_t)(e - g + 1));
     }
     return s;
 }

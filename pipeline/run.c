@@ -380,9 +380,13 @@ int mp_pipeline_run(const char *image, const char *root, const mp_pipeline_opts 
             goto done;
         }
         rep->added += added;
-        fprintf(stderr, "matphot pipeline: %s: round %d: %ld new stars on the residual "
-                "(noise: %.3f x Poisson, profile error %.1f %%)\n", image, round, added, kscale,
-                100.0 * proferr);
+        if (isfinite(kscale))
+            fprintf(stderr, "matphot pipeline: %s: round %d: %ld new stars on the residual "
+                    "(noise: %.3f x Poisson, profile error %.1f %%)\n", image, round, added,
+                    kscale, 100.0 * proferr);
+        else
+            fprintf(stderr, "matphot pipeline: %s: round %d: %ld new stars on the residual "
+                    "(noise: the residual's mesh map)\n", image, round, added);
         if (added == 0) {
             /* Nothing new: the last fit stands, its residual is current. */
             break;

@@ -411,6 +411,15 @@ static void test_frame_dq(void **state)
     assert_int_equal(f.mask[6], MP_MASK_BAD);
     assert_true(f.im.pix[6] == 0.0);
     mp_frame_free(&f);
+    /* A section of the frame applies to the DQ plane too: x 1..5 of row 1
+     * holds the two saturated pixels (x = 4, 5), not the hot one (x = 7). */
+    snprintf(sci, sizeof sci, "%s[SCI][1:5,1:2]", path);
+    assert_int_equal(mp_frame_read(sci, &dp, &f, err), 0);
+    assert_int_equal(f.nsat, 2);
+    assert_int_equal(f.nbad, 0);
+    assert_int_equal(f.mask[3], MP_MASK_SATURATED);
+    mp_frame_free(&f);
+    snprintf(sci, sizeof sci, "%s[SCI]", path);
     /* A file name works as well as [EXT]. */
     snprintf(dp.dqmask, sizeof dp.dqmask, "%s[DQ]", path);
     assert_int_equal(mp_frame_read(sci, &dp, &f, err), 0);
