@@ -33,6 +33,7 @@ typedef struct {
     long fits, kept, cropped;     /* group fits done and left out, star paints
                                    * cropped (economy), summed over rounds */
     long kshort;                  /* group fits with a shorter sinc kernel */
+    long sky_groups[MP_SKY_MAXORDER + 1];  /* last round's groups by sky order */
     double khw;                   /* their half-widths summed over all group fits */
 } mp_pipeline_report;
 

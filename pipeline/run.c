@@ -332,6 +332,7 @@ int mp_pipeline_run(const char *image, const char *root, const mp_pipeline_opts 
         rep->kept += fr.kept;
         rep->cropped += fr.cropped;
         rep->kshort += fr.kshort;
+        memcpy(rep->sky_groups, fr.sky_groups, sizeof rep->sky_groups);
         rep->khw += fr.khw;
         rep->ngroups = fr.ngroups;
         rep->fitted = (long)t.nrow;
@@ -439,6 +440,7 @@ int mp_pipeline_run(const char *image, const char *root, const mp_pipeline_opts 
         run.khw = rep->khw;
         mp_report_from_table(&t, &run);
         mp_frame_report last = {.nstars = (long)t.nrow, .ngroups = rep->ngroups};
+        memcpy(last.sky_groups, rep->sky_groups, sizeof last.sky_groups);
         mp_report_parts(m, &o->fit.opts, &last, &run);
         run.decisions = o->fit.decisions;
         run.ndecisions = o->fit.ndecisions;

@@ -31,6 +31,9 @@ for e in coo grp fit res.fits cat reg report; do
     [ -s "$T/f.$e" ] || no "pipeline wrote no f.$e"
 done
 grep -q "seconds: read" "$T/log" || no "pipeline printed no stage times"
+# skymodel=auto: the report counts the groups by the order the data chose
+grep -q "sky: constant in [1-9][0-9]* groups, plane in [0-9]*, quadratic in [0-9]*" "$T/f.report" ||
+    no "pipeline report has no per-group sky orders"
 awk -v out="$T/match" '
   FNR == 1 { file++ }
   /^#/ { c[file, $3] = $2; next }
