@@ -405,7 +405,7 @@ static double step_sigmas(const group *G)
 
 /* Levenberg–Marquardt from G->p at the current sky order.  A step is taken
  * only when it lowers D.  Converged (*converged = 1) when a step taken is
- * below tol·σ in every parameter (scaled back by 1 + λ, so damping cannot
+ * below tol·σ·√φ in every parameter (φ the dispersion, below) (scaled back by 1 + λ, so damping cannot
  * fake it), or when the first, least damped step tried from the current
  * state was already below LM_RESOLVE_SIGMAS and it took 1000× more damping
  * to lower D, or that did not help either.  Not converged when the damping
@@ -419,6 +419,13 @@ static int levmar(group *G, const mp_fit_opts *o, int *iter, int *converged)
     normal_equations(G, G->p, G->cur);
     double D = deviance_of(G), lambda = 1e-3, zfirst = INFINITY, lfirst = lambda;
     int it = 0, trials = 0, np = G->np, fresh = 1;
+    /* Steps are judged in σ of the data as they scatter: the quasi-
+     * likelihood dispersion φ = D/dof (McCullagh & Nelder §9.2.4) scales
+     * every σ by √φ when the model misses the data (a PSF sharper than the
+     * stars, χ²/dof ≫ 1); φ is floored at 1, so a model that fits keeps
+     * the Fisher σ. */
+    double dof = (double)G->npix - (double)(3 * G->n + G->nsky);
+    double rphi = 1.0 / sqrt(fmax(1.0, dof > 0 ? D / dof : 1.0));
     *converged = 0;
     while (it < o->maxiter && trials < 4 * o->maxiter) {
         trials++;
@@ -429,7 +436,7 @@ static int levmar(group *G, const mp_fit_opts *o, int *iter, int *converged)
             continue;
         }
         int cut = bound_step(G);
-        double z = cut ? INFINITY : step_sigmas(G);
+        double z = cut ? INFINITY : step_sigmas(G) * rphi;
         if (fresh) {
             zfirst = z * (1.0 + lambda);
             lfirst = lambda;
@@ -465,6 +472,7 @@ static int levmar(group *G, const mp_fit_opts *o, int *iter, int *converged)
         G->cur = G->trial;
         G->trial = tr;
         D = Dt;
+        rphi = 1.0 / sqrt(fmax(1.0, dof > 0 ? D / dof : 1.0));
         fresh = 1;
         lambda = lambda / 10.0 > 1e-7 ? lambda / 10.0 : 1e-7;
         variance_of(G);
