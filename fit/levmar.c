@@ -802,8 +802,8 @@ static int alloc_stars(group *G)
     }
     /* Room for the quadratic sky whatever the order: the order may rise. */
     size_t np = (size_t)G->npmax;
-    G->p = malloc(np * sizeof *G->p);
-    G->pt = malloc(np * sizeof *G->pt);
+    G->p = calloc(np, sizeof *G->p);
+    G->pt = calloc(np, sizeof *G->pt);
     G->A = malloc(np * np * sizeof *G->A);
     G->M = malloc(np * np * sizeof *G->M);
     G->g = malloc(np * sizeof *G->g);
@@ -920,6 +920,10 @@ int mp_fit_group(const mp_frame *f, const mp_prf_model *m, const mp_fit_opts *o,
         int to = higher_order(&G, order);
         if (to < 0)
             break;
+        /* The new terms start at zero (the buffers swap with the trial
+         * state, whose slots past the old order were never written). */
+        for (int a = 3 * n + G.nsky; a < 3 * n + nsky_of(to); a++)
+            G.p[a] = 0.0;
         order = to;
         G.nsky = nsky_of(order);
         G.np = 3 * n + G.nsky;
