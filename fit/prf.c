@@ -223,7 +223,7 @@ static int render_table(const mp_prf_model *m, double x, double y, box bx,
     if (!mp_shift_on_grid(ax.delta) && hw > 0) {
         weights(ax.delta, hw, wt);
         /* Tap by tap over the row, so the inner loop runs over contiguous
-         * elements (it vectorises); each element still sums its taps in
+         * elements (the compiler vectorises it); each element sums its taps in
          * the order k = −hw..hw, so the values are those of a per-element
          * sum, bit for bit. */
         for (long j = tj0; j < tj1; j++) {
@@ -234,7 +234,6 @@ static int render_table(const mp_prf_model *m, double x, double y, box bx,
             for (long k = -hw; k <= hw; k++) {
                 long ia = si0 > -k ? si0 : -k, ib = si1 < nx - k ? si1 : nx - k;
                 double c = wt[k + hw];
-#pragma omp simd
                 for (long i = ia; i < ib; i++)
                     dst[i] += src[i + k] * c;
             }
@@ -255,7 +254,6 @@ static int render_table(const mp_prf_model *m, double x, double y, box bx,
             for (long k = k0; k <= k1; k++) {
                 const double *src = tmp + (size_t)(j + k) * nx;
                 double c = wt[k + hw];
-#pragma omp simd
                 for (long i = si0; i < si1; i++)
                     dst[i] += src[i] * c;
             }
