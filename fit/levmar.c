@@ -50,6 +50,8 @@ typedef struct {
     long bx0, by0;              /* group box, 1-based, and size */
     int bw, bh;
     double xc, yc, hx, hy;      /* sky basis: u = (x − xc)/hx, v = (y − yc)/hy */
+    double dlo, dhi, emax;      /* data range over the fitted pixels, and the
+                                 * largest flux any star may take there */
     double ron2;                /* RON², at least 1e-2 so V > 0 */
     uint8_t *sel;               /* bw*bh: pixel fitted */
     size_t npix;
@@ -358,6 +360,31 @@ static int bound_step(group *G)
             double *d = &G->step[3 * k + a];
             if (*d < lim[a][0] || *d > lim[a][1]) {
                 *d = *d < lim[a][0] ? lim[a][0] : lim[a][1];
+                cut = 1;
+            }
+        }
+    }
+    /* Absolute bounds, whatever D does: a flux beyond emax or a sky outside
+     * the data's range is no answer but a walk along a degenerate direction
+     * (a table with negative wings lets huge fluxes trade against a huge
+     * negative sky: GLIMPSE's IRAC PSF, sky −2.8e13, fluxes 1e17). */
+    for (int k = 0; k < n; k++) {
+        double *d = &G->step[3 * k], E = G->p[3 * k];
+        if (fabs(E + *d) > G->emax) {
+            *d = (E + *d > 0 ? G->emax : -G->emax) - E;
+            cut = 1;
+        }
+    }
+    if (G->nsky) {
+        double B0 = G->p[3 * n], lo = G->dlo - 10.0 * sqrt(fmax(G->dlo, 0.0) + G->ron2);
+        if (B0 + G->step[3 * n] < lo || B0 + G->step[3 * n] > G->dhi) {
+            G->step[3 * n] = (B0 + G->step[3 * n] < lo ? lo : G->dhi) - B0;
+            cut = 1;
+        }
+        for (int a = 1; a < G->nsky; a++) {
+            double *d = &G->step[3 * n + a], c = G->p[3 * n + a], span = G->dhi - lo;
+            if (fabs(c + *d) > span) {
+                *d = (c + *d > 0 ? span : -span) - c;
                 cut = 1;
             }
         }
@@ -811,6 +838,31 @@ static int alloc_stars(group *G)
     return !G->p || !G->pt || !G->A || !G->M || !G->g || !G->step;
 }
 
+/* The data's range over the fitted pixels and the largest flux a star may
+ * take: 1000 times all the light above the lowest pixel, over the smallest
+ * fraction (1 %) of a PSF a fitted star keeps inside its window. */
+static void data_range(group *G)
+{
+    double lo = INFINITY, hi = -INFINITY, sum = 0.0;
+    for (int j = 0; j < G->bh; j++)
+        for (int i = 0; i < G->bw; i++)
+            if (G->sel && G->sel[(size_t)j * G->bw + i]) {
+                double d = pixel(G, G->bx0 + i, G->by0 + j);
+                lo = d < lo ? d : lo;
+                hi = d > hi ? d : hi;
+                sum += d;
+            }
+    if (!isfinite(lo)) {
+        G->dlo = -INFINITY;
+        G->dhi = G->emax = INFINITY;
+        return;
+    }
+    G->dlo = lo;
+    G->dhi = hi;
+    double above = sum - lo * (double)G->npix;
+    G->emax = 1e5 * (above > 1.0 ? above : 1.0);
+}
+
 /* First flux guess: data above the sky over the star's box, over the PRF. */
 static double start_flux(const group *G, const rstar *r, double sky)
 {
@@ -884,6 +936,7 @@ int mp_fit_group(const mp_frame *f, const mp_prf_model *m, const mp_fit_opts *o,
         stars[k].sky_order = order;
     }
     int sp = select_pixels(&G, o, stars);
+    data_range(&G);
     if (sp == 2 || alloc_stars(&G)) {
         snprintf(err, MP_ERRLEN, "fit: out of memory for a group of %d stars", n);
         goto done;
