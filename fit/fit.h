@@ -326,8 +326,9 @@ typedef struct {
     long iterations;   /* summed over groups and passes */
     long sky_groups[MP_SKY_MAXORDER + 1];  /* groups of the last pass by sky order */
     long fits;         /* group fits done, over passes (and rounds) */
+    long kcalls;       /* LM fits of groups (a group refits after a merge) */
     long kshort;       /* of them, with a sinc kernel shorter than sinchw */
-    double khw;        /* summed half-width of the group fits */
+    double khw;        /* their half-widths, summed */
     long kept;         /* group fits left out: no star's surroundings changed */
     long cropped;      /* stars painted with a cropped PSF */
 } mp_frame_report;
@@ -384,8 +385,9 @@ typedef struct {
                                 * decision; mp_report_parts fills it) */
     long fits, kept, cropped;  /* what the economy decisions did: group fits
                                 * done and left out, star paints cropped */
-    long kshort;               /* group fits with a shorter sinc kernel */
-    double khw;                /* half-width summed over all group fits */
+    long kcalls, kshort;       /* LM fits of groups, and of them with a shorter
+                                * sinc kernel */
+    double khw;                /* their half-widths, summed */
 } mp_run_report;
 
 /* mp_report_from_table: the medians, from a fitted table. */

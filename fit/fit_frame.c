@@ -228,6 +228,7 @@ static int fit_one_group(const mp_frame *f, const mp_prf_model *m, const mp_fram
                 e = isfinite(live[k].flux) && live[k].flux > e ? live[k].flux : e;
             mh.sinc_hw = mp_sinc_choice_pick(emax, o->sinc->hwmax, e > 0 ? e : INFINITY);
         }
+        rep->kcalls++;
         rep->khw += mh.sinc_hw;
         rep->kshort += mh.sinc_hw < m->sinc_hw;
         if (mp_fit_group(f, &mh, &o->fit, sky0, live, nl, err))
@@ -859,6 +860,7 @@ int mp_fit_table_mem(const mp_frame *f, const mp_prf_model *m, const mp_frame_op
                 pr.rejected += r.rejected;
                 pr.iterations += r.iterations;
                 pr.fits += r.fits;
+                pr.kcalls += r.kcalls;
                 pr.kshort += r.kshort;
                 pr.khw += r.khw;
                 pr.kept += r.kept;
@@ -872,6 +874,7 @@ int mp_fit_table_mem(const mp_frame *f, const mp_prf_model *m, const mp_frame_op
         rep->rejected += pr.rejected;
         rep->iterations += pr.iterations;
         rep->fits += pr.fits;
+        rep->kcalls += pr.kcalls;
         rep->kshort += pr.kshort;
         rep->khw += pr.khw;
         rep->kept += pr.kept;

@@ -135,9 +135,9 @@ static void report_lines(FILE *fp, const char *prefix, const mp_run_report *r)
     fprintf(fp, "%s  economy: %d decisions%s%s%s%s\n", prefix, nd, nd ? ": " : "", d,
             d[0] && r->sky[0] ? "; " : "", r->sky);
     fprintf(fp, "%s  work: %ld group fits, %ld left out (neighbours' light unchanged), "
-            "%ld star paints cropped; %ld group fits with a shorter sinc kernel (mean "
-            "half-width %.1f)\n", prefix, r->fits, r->kept, r->cropped, r->kshort,
-            r->fits > 0 ? r->khw / (double)r->fits : 0.0);
+            "%ld star paints cropped; %ld of %ld LM fits with a shorter sinc kernel (mean "
+            "half-width %.1f)\n", prefix, r->fits, r->kept, r->cropped, r->kshort, r->kcalls,
+            r->kcalls > 0 ? r->khw / (double)r->kcalls : 0.0);
 }
 
 int mp_report_write(const char *path, const char *task, const mp_run_report *r, char *err)

@@ -65,6 +65,7 @@ static int fit_one(const mp_fit_setup *s, const char *image, const char *coords,
     run.fits = rep.fits;
     run.kept = rep.kept;
     run.cropped = rep.cropped;
+    run.kcalls = rep.kcalls;
     run.kshort = rep.kshort;
     run.khw = rep.khw;
     mp_report_from_table(&t, &run);

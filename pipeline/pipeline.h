@@ -32,7 +32,7 @@ typedef struct {
     long ngroups, iterations;     /* of the last round; summed over rounds */
     long fits, kept, cropped;     /* group fits done and left out, star paints
                                    * cropped (economy), summed over rounds */
-    long kshort;                  /* group fits with a shorter sinc kernel */
+    long kcalls, kshort;          /* LM fits of groups; with a shorter sinc kernel */
     long sky_groups[MP_SKY_MAXORDER + 1];  /* last round's groups by sky order */
     double khw;                   /* their half-widths summed over all group fits */
 } mp_pipeline_report;

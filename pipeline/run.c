@@ -331,6 +331,7 @@ int mp_pipeline_run(const char *image, const char *root, const mp_pipeline_opts 
         rep->fits += fr.fits;
         rep->kept += fr.kept;
         rep->cropped += fr.cropped;
+        rep->kcalls += fr.kcalls;
         rep->kshort += fr.kshort;
         memcpy(rep->sky_groups, fr.sky_groups, sizeof rep->sky_groups);
         rep->khw += fr.khw;
@@ -436,6 +437,7 @@ int mp_pipeline_run(const char *image, const char *root, const mp_pipeline_opts 
         run.fits = rep->fits;
         run.kept = rep->kept;
         run.cropped = rep->cropped;
+        run.kcalls = rep->kcalls;
         run.kshort = rep->kshort;
         run.khw = rep->khw;
         mp_report_from_table(&t, &run);
