@@ -430,6 +430,14 @@ static double step_sigmas(const group *G)
  * the fit is as close as D can tell: it has converged. */
 #define LM_RESOLVE_SIGMAS 0.5
 
+/* The quasi-likelihood dispersion φ = D/dof of deviance D, floored at 1
+ * (a model that fits keeps the Fisher σ). */
+static double dispersion(const group *G, double D)
+{
+    double dof = (double)G->npix - (double)(3 * G->n + G->nsky);
+    return dof > 0 && D / dof > 1.0 ? D / dof : 1.0;
+}
+
 /* Levenberg–Marquardt from G->p at the current sky order.  A step is taken
  * only when it lowers D.  Converged (*converged = 1) when a step taken is
  * below tol·σ·√φ in every parameter (φ the dispersion, below) (scaled back by 1 + λ, so damping cannot
@@ -451,8 +459,7 @@ static int levmar(group *G, const mp_fit_opts *o, int *iter, int *converged)
      * every σ by √φ when the model misses the data (a PSF sharper than the
      * stars, χ²/dof ≫ 1); φ is floored at 1, so a model that fits keeps
      * the Fisher σ. */
-    double dof = (double)G->npix - (double)(3 * G->n + G->nsky);
-    double rphi = 1.0 / sqrt(fmax(1.0, dof > 0 ? D / dof : 1.0));
+    double rphi = 1.0 / sqrt(dispersion(G, D));
     *converged = 0;
     while (it < o->maxiter && trials < 4 * o->maxiter) {
         trials++;
@@ -499,7 +506,7 @@ static int levmar(group *G, const mp_fit_opts *o, int *iter, int *converged)
         G->cur = G->trial;
         G->trial = tr;
         D = Dt;
-        rphi = 1.0 / sqrt(fmax(1.0, dof > 0 ? D / dof : 1.0));
+        rphi = 1.0 / sqrt(dispersion(G, D));
         fresh = 1;
         lambda = lambda / 10.0 > 1e-7 ? lambda / 10.0 : 1e-7;
         variance_of(G);

@@ -92,25 +92,12 @@ timed() {
 # (a fresh uparm$ per run: nothing learned from earlier runs) and must end
 # in logout; the last line it prints is CL_OK, the check that every task
 # ran (a failing task ends the CL before it, with exit status 0).
+. tests/bench/daophot/cl_env.sh
 cl_head() {
   fw=$2; fitrad=$2
   psfrad=$(awk -v f="$fw" 'BEGIN { printf "%.2f", 4*f }')
+  cl_env "$1"
   cat <<EOF
-set home = "$1/h/"
-set uparm = "home\$uparm/"
-set imdir = "home\$imdir/"
-set cache = "home\$cache/"
-set userid = "bench"
-set imtype = "fits"
-set clobber = yes
-stty vt220
-clpackage
-noao
-digiphot
-daophot
-daophot.verify = no
-daophot.update = no
-daophot.verbose = no
 datapars.fwhmpsf = $fw
 datapars.sigma = $3
 datapars.readnoise = $4

@@ -48,24 +48,11 @@ W=$(mktemp -d "${TMPDIR:-/tmp}/daopoints.XXXXXX") || exit 1
 trap '[ "${KEEP:-0}" = 1 ] && say "kept $W" || rm -rf "$W"' EXIT
 trap 'exit 130' INT TERM
 
+. tests/bench/daophot/cl_env.sh
 cl_head() {  # cl_head DIR FWHM
     fw=$2
+    cl_env "$1"
     cat <<EOF
-set home = "$1/h/"
-set uparm = "home\$uparm/"
-set imdir = "home\$imdir/"
-set cache = "home\$cache/"
-set userid = "bench"
-set imtype = "fits"
-set clobber = yes
-stty vt220
-clpackage
-noao
-digiphot
-daophot
-daophot.verify = no
-daophot.update = no
-daophot.verbose = no
 datapars.fwhmpsf = $fw
 datapars.sigma = 10.44
 datapars.readnoise = 3.0
