@@ -8,7 +8,8 @@ CSTD    := -std=c17
 WARN    := -Wall -Wextra -Werror
 OPT     ?= -O2 -g
 SAN     ?=
-CPPFLAGS += -D_XOPEN_SOURCE=700 -I. $(shell pkg-config --cflags wcslib 2>/dev/null)
+CPPFLAGS += -D_XOPEN_SOURCE=700 -I. $(shell pkg-config --cflags wcslib 2>/dev/null) \
+            $(shell pkg-config --cflags openblas 2>/dev/null)
 CFLAGS  += $(CSTD) $(WARN) $(OPT) -fopenmp $(SAN)
 LDLIBS  += -lcfitsio $(shell pkg-config --libs wcslib 2>/dev/null || echo -lwcs) \
            -lcsv -llapacke -lopenblas -lm

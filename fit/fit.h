@@ -263,6 +263,11 @@ typedef struct {
 
 void mp_fit_opts_default(mp_fit_opts *o);
 
+/* OpenBLAS to one thread, for the process: call once at the start of a
+ * program that fits (the fits are threaded over groups; OpenBLAS's own
+ * threads only spin beside them, fit/blas_threads.c). */
+void mp_blas_single_thread(void);
+
 /* One star: start values in, fitted values out. */
 typedef struct {
     double x, y, flux;              /* in/out */

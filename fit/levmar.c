@@ -2,8 +2,13 @@
  * (design.md §5).
  *
  * The answer is the root of the unbiased estimating equation
- * Σ (d − m)/V(m) ∂m/∂p = 0 with the variance function V(m) = max(m, 0) + RON²
- * from the model, not the data (minimising a χ² whose weights move with the
+ * Σ (d − m)/V(m) ∂m/∂p = 0 with the variance function V(m) = max(m, S) + RON²
+ * from the model, not the data (S, the lowest sky the group's stars were
+ * found on, or 0: no pixel carries less light than the sky, and a model
+ * dipping below it
+ * — a table's negative wings, a neighbour over-subtracted — must not weigh
+ * a pixel at 1/RON², which with RON = 0 made one negative pixel outweigh a
+ * star; minimising a χ² whose weights move with the
  * parameters would bias faint fluxes by about β/2 electrons).  That root is
  * the minimum of one fixed objective, the quasi-likelihood deviance
  * D = 2 Σ ∫_d^m (t − d)/V(t) dt (McCullagh & Nelder, Generalized Linear
@@ -53,6 +58,7 @@ typedef struct {
     double dlo, dhi, emax;      /* data range over the fitted pixels, and the
                                  * largest flux any star may take there */
     double ron2;                /* RON², at least 1e-2 so V > 0 */
+    double vfloor;              /* S of V(m) = max(m, S) + RON², ≥ 0 */
     uint8_t *sel;               /* bw*bh: pixel fitted */
     size_t npix;
     double *mod, *var;          /* bw*bh */
@@ -192,13 +198,14 @@ static void model_of(group *G, const double *p, const rstar *r)
     }
 }
 
-/* Weights from the model: σ² = V(m) = max(m, 0) + RON², RON² at least
- * 1e-2 so a zero model with no read noise cannot give an infinite weight. */
+/* Weights from the model: σ² = V(m) = max(m, S) + RON², RON² at least
+ * 1e-2 so a zero model and sky with no read noise cannot give an infinite
+ * weight. */
 static void variance_of(group *G)
 {
     size_t nb = (size_t)G->bw * G->bh;
     for (size_t i = 0; i < nb; i++)
-        G->var[i] = (G->mod[i] > 0 ? G->mod[i] : 0.0) + G->ron2;
+        G->var[i] = (G->mod[i] > G->vfloor ? G->mod[i] : G->vfloor) + G->ron2;
 }
 
 /* ∫_a^b (t − d)/V(t) dt for 0 ≤ a ≤ b, where V(t) = t + r. */
@@ -207,24 +214,25 @@ static double dev_positive(double a, double b, double d, double r)
     return (b - a) - (d + r) * log1p((b - a) / (a + r));
 }
 
-/* One pixel's deviance 2 ∫_d^m (t − d)/V(t) dt, V(t) = max(t, 0) + r: zero
- * at m = d and growing on both sides, whatever the sign of d.  For m, d ≥ 0
- * it is the Poisson deviance of d + r about m + r, written with log1p so
- * it keeps its precision near m = d, where the fit ends. */
-static double pixel_deviance(double m, double d, double r)
+/* One pixel's deviance 2 ∫_d^m (t − d)/V(t) dt, V(t) = max(t, s) + r with
+ * s ≥ 0: zero at m = d and growing on both sides, whatever the sign of d.
+ * For m, d ≥ s it is the Poisson deviance of d + r about m + r, written
+ * with log1p so it keeps its precision near m = d, where the fit ends;
+ * below s, V is constant and the deviance a parabola. */
+static double pixel_deviance(double m, double d, double s, double r)
 {
-    if (m >= 0.0 && d >= 0.0) {
+    if (m >= s && d >= s) {
         double x = (m - d) / (d + r);
         return 2.0 * (d + r) * (x - log1p(x));
     }
-    double lo = m < d ? m : d, hi = m < d ? d : m, s = 0.0;
-    if (lo < 0.0) {              /* V = r below zero: a parabola */
-        double b = hi < 0.0 ? hi : 0.0;
-        s += (b - lo) * (0.5 * (lo + b) - d) / r;
+    double lo = m < d ? m : d, hi = m < d ? d : m, sum = 0.0;
+    if (lo < s) {
+        double b = hi < s ? hi : s;
+        sum += (b - lo) * (0.5 * (lo + b) - d) / (s + r);
     }
-    if (hi > 0.0)
-        s += dev_positive(lo > 0.0 ? lo : 0.0, hi, d, r);
-    return 2.0 * (m >= d ? s : -s);
+    if (hi > s)
+        sum += dev_positive(lo > s ? lo : s, hi, d, r);
+    return 2.0 * (m >= d ? sum : -sum);
 }
 
 /* The objective every step must lower (see the top of the file). */
@@ -235,7 +243,8 @@ static double deviance_of(const group *G)
         for (int i = 0; i < G->bw; i++) {
             size_t o = (size_t)j * G->bw + i;
             if (G->sel[o])
-                D += pixel_deviance(G->mod[o], pixel(G, G->bx0 + i, G->by0 + j), G->ron2);
+                D += pixel_deviance(G->mod[o], pixel(G, G->bx0 + i, G->by0 + j), G->vfloor,
+                                     G->ron2);
         }
     return D;
 }
@@ -896,6 +905,20 @@ static int all_finite(const double *v, int n)
     return 1;
 }
 
+/* S of the variance function: the lowest sky the members were found on
+ * (find's BACKGROUND, an earlier fit's SKY_PSF), the star light of a
+ * crowded group left out, so it errs low; 0 when no member has one (a
+ * group's own median is no floor: in a crowded group it sits well above
+ * the sky, and a floor above the sky reweights every sky pixel). */
+static double variance_floor(const mp_star *st, int n)
+{
+    double s = INFINITY;
+    for (int k = 0; k < n; k++)
+        if (isfinite(st[k].sky) && st[k].sky < s)
+            s = st[k].sky;
+    return isfinite(s) && s > 0 ? s : 0.0;
+}
+
 /* The sky order to fit first: the one asked for, or constant under auto. */
 static int first_order(const mp_fit_opts *o)
 {
@@ -955,6 +978,7 @@ int mp_fit_group(const mp_frame *f, const mp_prf_model *m, const mp_fit_opts *o,
         goto finish_flagged;
     }
     double sky = isfinite(sky0) ? sky0 : start_sky(&G);
+    G.vfloor = variance_floor(stars, n);
     for (int k = 0; k < n; k++) {
         G.p[3 * k] = stars[k].flux;
         G.p[3 * k + 1] = stars[k].x;

@@ -67,6 +67,7 @@ int main(int argc, char **argv)
     /* An interrupted run (SIGINT, SIGTERM, SIGHUP, SIGQUIT) removes the
      * temporaries of the outputs it was writing (io/cleanup.c). */
     (void)mp_cleanup_install();
+    mp_blas_single_thread();
     if (argc < 2) {
         usage(stderr);
         return 2;

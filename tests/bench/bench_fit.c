@@ -53,6 +53,7 @@ static double run(const mp_prf_model *m, double **frames, const double *truth, i
 int main(int argc, char **argv)
 {
     int n = argc > 1 ? atoi(argv[1]) : 400, reps = argc > 2 ? atoi(argv[2]) : 7;
+    mp_blas_single_thread();
     if (n < 1 || reps < 1)
         return 2;
     char err[MP_ERRLEN];

@@ -112,6 +112,7 @@ int main(int argc, char **argv)
 {
     int n = DEFAULT_N, verbose = 1, seedset = 0;
     const char *list = NULL, *dir = "validate", *real = DEFAULT_REAL;
+    mp_blas_single_thread();
     for (int i = 1; i < argc; i++) {
         const char *a = argv[i];
         if (!strcmp(a, "-selftest") || !strcmp(a, "--selftest")) {

@@ -348,6 +348,7 @@ int main(int argc, char **argv)
     const char *scene = NULL, *work = ".", *pngdir = ".", *real = DEFAULT_REAL, *dao = NULL;
     const char *only = NULL, *exportdir = NULL;
     int n = 0, reps = 3, verbose = 1, econ_mode = 0;
+    mp_blas_single_thread();
     for (int i = 1; i < argc; i++) {
         const char *a = argv[i];
         const char *v = i + 1 < argc ? argv[i + 1] : NULL;
