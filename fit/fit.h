@@ -247,9 +247,13 @@ enum {
  * [-1, 1] (u, v), order 0: 1; 1: 1, u, v; 2: also u² − 1/3, uv, v² − 1/3.
  * MP_SKY_AUTO: the order is chosen per group from the data — constant,
  * then higher when a score test of the extra terms at the lower-order fit
- * is significant at p < MP_SKY_ALPHA (levmar.c). */
+ * (over the fitted pixels and the background around them) is significant
+ * at p < MP_SKY_ALPHA (levmar.c). */
 enum { MP_SKY_AUTO = -1, MP_SKY_MAXORDER = 2 };
 #define MP_SKY_ALPHA 1e-3
+/* The test also reads the background out to this many fitrad from the
+ * group's stars (levmar.c ring_sums); a group's frame must hold it. */
+#define MP_SKY_TEST_RADIUS 2.0
 
 typedef struct {
     int sky_order;     /* MP_SKY_AUTO, or 0 constant, 1 plane, 2 quadratic */

@@ -531,7 +531,9 @@ static int fit_group_local(const mp_frame *f, const mp_prf_model *m, const mp_fr
     }
     rep->fits++;
     long x0, y0, w, h;
-    group_window(f, sub, nact, r, &x0, &y0, &w, &h);
+    /* The sky-order test reads the background around the group too. */
+    double rw = o->fit.sky_order == MP_SKY_AUTO && o->fit.fit_sky ? MP_SKY_TEST_RADIUS * r : r;
+    group_window(f, sub, nact, rw, &x0, &y0, &w, &h);
     if (w == 0 || h == 0 || (!all && x0 == 1 && y0 == 1 && w == f->im.nx && h == f->im.ny)) {
         rc = fit_one_group(f, m, o, mergerad, emax, sub, nact, 0.0, 0.0, rep, err);
     } else {
