@@ -8,7 +8,9 @@
  * derivatives come from the five-point formula of paper §3.2 on the shifted
  * table.  The analytic mode integrates a Gaussian over pixels with erf.
  * Stars and a sky model are fitted together by Levenberg–Marquardt with
- * weights 1/(m_i + RON²) from the current model; a step is taken only when
+ * weights 1/(max(m_i, S) + RON²) from the current model (S the sky the
+ * stars were found on: a model below the sky, from a table's negative
+ * wings, weighs a pixel as the sky does); a step is taken only when
  * it lowers one fixed objective, the quasi-likelihood deviance whose
  * minimum is where those weighted normal equations balance (levmar.c).
  *

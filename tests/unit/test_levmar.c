@@ -380,6 +380,56 @@ static void test_gradient_picks_plane(void **state)
     assert_true(c[2] < k);
 }
 
+/* The fitrad-5 frames: 41² px, one star of flux E (Gaussian FWHM 3) at
+ * (*x, *y) = 21 ± 0.5 px from seed, sky 100 + g·(1.5 (x − 21) +
+ * 1.0 (y − 21)), Poisson and RON noise.  f is made here; frame_drop it. */
+enum { F5_NPX = 41 };
+
+static void fitrad5_frame(mp_frame *f, uint64_t seed, double E, double g, double ron, double *x,
+                          double *y)
+{
+    frame_make(f, F5_NPX, ron);
+    mp_sim_prf sp = {.kind = MP_SIM_GAUSS, .sigma = fwhm_to_sigma(3.0), .volume = 1.0};
+    mp_rng r;
+    mp_rng_seed(&r, seed);
+    *x = 20.5 + mp_rng_uniform(&r);
+    *y = 20.5 + mp_rng_uniform(&r);
+    for (long j = 0; j < F5_NPX; j++)
+        for (long i = 0; i < F5_NPX; i++)
+            f->im.pix[j * F5_NPX + i] = 100.0 + g * (1.5 * (double)(i - 20) + 1.0 * (double)(j - 20));
+    assert_int_equal(mp_sim_add_star(&sp, *x, *y, E, f->im.pix, F5_NPX, F5_NPX), 0);
+    mp_sim_add_noise(&r, f->im.pix, F5_NPX * F5_NPX, ron);
+}
+
+/* The star of f fitted from (x, y) with fitrad 5, sky order `order`, its
+ * sky field `sky`; asserts it converged. */
+static mp_star fitrad5_fit(const mp_frame *f, double x, double y, int order, double sky)
+{
+    mp_psf gau;
+    mp_psf_gauss(3.0, &gau);
+    mp_prf_model m = {&gau, NULL, 10};
+    mp_fit_opts o;
+    mp_fit_opts_default(&o);
+    o.fitrad = 5.0;
+    o.sky_order = order;
+    mp_star st = {.x = x, .y = y, .flux = NAN, .sky = sky};
+    char err[MP_ERRLEN];
+    assert_int_equal(mp_fit_group(f, &m, &o, NAN, &st, 1, err), 0);
+    assert_false(st.flags & MP_FLAG_NOCONV);
+    return st;
+}
+
+/* fitrad5_frame with RON 3, fitted from 0.1 px off, sky field unknown. */
+static mp_star fitrad5_star(uint64_t seed, double E, double g, int order)
+{
+    mp_frame f;
+    double x, y;
+    fitrad5_frame(&f, seed, E, g, 3.0, &x, &y);
+    mp_star st = fitrad5_fit(&f, x + 0.1, y - 0.1, order, NAN);
+    frame_drop(&f);
+    return st;
+}
+
 /* A gradient under a bright star is seen in the background around it.
  * The bench's gradient scene (1.5 and 1.0 e⁻/px per px, sky 100, RON 3,
  * fitrad 5) with a star of 10⁶ e⁻: inside its 5-px window almost no pixel
@@ -396,30 +446,10 @@ static void test_gradient_picks_plane(void **state)
 static void test_gradient_under_bright_star_seen(void **state)
 {
     (void)state;
-    enum { NS = 30, NPX = 41 };
-    mp_frame f;
-    frame_make(&f, NPX, 3.0);
-    mp_sim_prf sp = {.kind = MP_SIM_GAUSS, .sigma = fwhm_to_sigma(3.0), .volume = 1.0};
-    mp_psf gau;
-    mp_psf_gauss(3.0, &gau);
-    mp_prf_model m = {&gau, NULL, 10};
-    mp_fit_opts o;
-    mp_fit_opts_default(&o);
-    o.fitrad = 5.0;
+    enum { NS = 30 };
     int constant[2] = {0, 0};
     for (int s = 0; s < 2 * NS; s++) {
-        mp_rng r;
-        mp_rng_seed(&r, 8080000000ULL + (uint64_t)s);
-        double x = 20.5 + mp_rng_uniform(&r), y = 20.5 + mp_rng_uniform(&r), g = s < NS ? 1.0 : 0.0;
-        for (long j = 0; j < NPX; j++)
-            for (long i = 0; i < NPX; i++)
-                f.im.pix[j * NPX + i] = 100.0 + g * (1.5 * (double)(i + 1 - 21) + 1.0 * (double)(j + 1 - 21));
-        assert_int_equal(mp_sim_add_star(&sp, x, y, 1e6, f.im.pix, NPX, NPX), 0);
-        mp_sim_add_noise(&r, f.im.pix, NPX * NPX, 3.0);
-        mp_star st = {.x = x + 0.1, .y = y - 0.1, .flux = NAN, .sky = NAN};
-        char err[MP_ERRLEN];
-        assert_int_equal(mp_fit_group(&f, &m, &o, NAN, &st, 1, err), 0);
-        assert_false(st.flags & MP_FLAG_NOCONV);
+        mp_star st = fitrad5_star(8080000000ULL + (uint64_t)s, 1e6, s < NS ? 1.0 : 0.0, MP_SKY_AUTO);
         constant[s < NS ? 0 : 1] += st.sky_order == 0;
     }
     int k = 0;
@@ -427,45 +457,22 @@ static void test_gradient_under_bright_star_seen(void **state)
         k++;
     assert_int_equal(constant[0], 0);
     assert_true(NS - constant[1] < k);
-    frame_drop(&f);
 }
 
 /* A star whose wings fill its window: 10⁷ e⁻, FWHM 3, fitrad 5, sky 100.
  * Its lowest fitted pixel is about 400 e⁻ above the sky, so a lower bound
  * on the sky at 10 σ below the lowest pixel (an absolute bound against
  * runaways) held the sky near 300 and the fit ended flagged 8 (the bench's
- * ugly scene: 6 % of its stars).  The fit must converge with the sky
- * within 5 of its σ of the truth (false failure 6e-7 per frame, 10
- * frames). */
+ * ugly scene: 6 % of its stars).  The fit must converge (fitrad5_star
+ * asserts it) with the sky within 5 of its σ of the truth (false failure
+ * 6e-7 per frame, 10 frames). */
 static void test_bright_star_sky_free(void **state)
 {
     (void)state;
-    enum { NS = 10, NPX = 41 };
-    mp_frame f;
-    frame_make(&f, NPX, 3.0);
-    mp_sim_prf sp = {.kind = MP_SIM_GAUSS, .sigma = fwhm_to_sigma(3.0), .volume = 1.0};
-    mp_psf gau;
-    mp_psf_gauss(3.0, &gau);
-    mp_prf_model m = {&gau, NULL, 10};
-    mp_fit_opts o;
-    mp_fit_opts_default(&o);
-    o.fitrad = 5.0;
-    o.sky_order = 0;
-    for (int s = 0; s < NS; s++) {
-        mp_rng r;
-        mp_rng_seed(&r, 9090000000ULL + (uint64_t)s);
-        double x = 20.5 + mp_rng_uniform(&r), y = 20.5 + mp_rng_uniform(&r);
-        for (long i = 0; i < NPX * NPX; i++)
-            f.im.pix[i] = 100.0;
-        assert_int_equal(mp_sim_add_star(&sp, x, y, 1e7, f.im.pix, NPX, NPX), 0);
-        mp_sim_add_noise(&r, f.im.pix, NPX * NPX, 3.0);
-        mp_star st = {.x = x + 0.1, .y = y - 0.1, .flux = NAN, .sky = NAN};
-        char err[MP_ERRLEN];
-        assert_int_equal(mp_fit_group(&f, &m, &o, NAN, &st, 1, err), 0);
-        assert_false(st.flags & MP_FLAG_NOCONV);
+    for (int s = 0; s < 10; s++) {
+        mp_star st = fitrad5_star(9090000000ULL + (uint64_t)s, 1e7, 0.0, 0);
         assert_true(fabs(st.sky - 100.0) < 5.0 * st.esky);
     }
-    frame_drop(&f);
 }
 
 /* A bowl of 0.05 e⁻/px² (20 e⁻ from centre to corner): the plane test sees
@@ -538,7 +545,7 @@ static void test_quadratic_sky_recovered(void **state)
  * the GLIMPSE frame), fitted with fitrad 5 and a quadratic sky, which can
  * bend below zero under the patch.  With V(m) = max(m, 0) + RON², every
  * pixel the model reached below zero weighed 1/0.01 against a sky pixel's
- * 1/100, so the fit chased the patch: here flux 1815 for 19923 and flag 8
+ * 1/100, so the fit chased the patch: here flux 6430 for 20030 and flag 8
  * (on GLIMPSE, fluxes of 10⁸).  With V(m) = max(m, S) + RON², S the sky
  * the star was found on (its sky field), the patch is four 60σ outliers
  * of ordinary weight: the fit converges and its flux stays within a
@@ -548,34 +555,17 @@ static void test_quadratic_sky_recovered(void **state)
 static void test_negative_pixels_weigh_as_sky(void **state)
 {
     (void)state;
-    enum { NPX = 41 };
     mp_frame f;
-    frame_make(&f, NPX, 0.0);
-    mp_sim_prf sp = {.kind = MP_SIM_GAUSS, .sigma = fwhm_to_sigma(3.0), .volume = 1.0};
-    mp_psf gau;
-    mp_psf_gauss(3.0, &gau);
-    mp_prf_model m = {&gau, NULL, 10};
-    mp_rng r;
-    mp_rng_seed(&r, 7070000000ULL);
-    for (long i = 0; i < NPX * NPX; i++)
-        f.im.pix[i] = 100.0;
-    assert_int_equal(mp_sim_add_star(&sp, 21.2, 20.7, 2e4, f.im.pix, NPX, NPX), 0);
-    mp_sim_add_noise(&r, f.im.pix, NPX * NPX, 0.0);
+    double x, y;
+    fitrad5_frame(&f, 7070000000ULL, 2e4, 0.0, 0.0, &x, &y);
     static const long patch[4][2] = {{24, 21}, {25, 21}, {24, 22}, {25, 22}};
     for (int k = 0; k < 4; k++)
-        f.im.pix[(patch[k][1] - 1) * NPX + patch[k][0] - 1] = -500.0;
-    mp_fit_opts o;
-    mp_fit_opts_default(&o);
-    o.sky_order = 2;
-    o.fitrad = 5.0;
-    char err[MP_ERRLEN];
+        f.im.pix[(patch[k][1] - 1) * F5_NPX + patch[k][0] - 1] = -500.0;
     mp_star st[2];
     for (int masked = 0; masked < 2; masked++) {
         for (int k = 0; k < 4; k++)
-            f.mask[(patch[k][1] - 1) * NPX + patch[k][0] - 1] = masked ? MP_MASK_BAD : 0;
-        st[masked] = (mp_star){.x = 21.0, .y = 21.0, .flux = NAN, .sky = 100.0};
-        assert_int_equal(mp_fit_group(&f, &m, &o, NAN, &st[masked], 1, err), 0);
-        assert_false(st[masked].flags & MP_FLAG_NOCONV);
+            f.mask[(patch[k][1] - 1) * F5_NPX + patch[k][0] - 1] = masked ? MP_MASK_BAD : 0;
+        st[masked] = fitrad5_fit(&f, 21.0, 21.0, 2, 100.0);
     }
     assert_true(st[0].flux > 0.5 * st[1].flux && st[0].flux < 2.0 * st[1].flux);
     frame_drop(&f);
