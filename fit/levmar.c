@@ -59,6 +59,7 @@ typedef struct {
                                  * largest flux any star may take there */
     double ron2;                /* RON², at least 1e-2 so V > 0 */
     double vfloor;              /* S of V(m) = max(m, S) + RON², ≥ 0 */
+    double sknown;              /* the sky the stars were found on, or NaN */
     uint8_t *sel;               /* bw*bh: pixel fitted */
     size_t npix;
     double *mod, *var;          /* bw*bh */
@@ -350,6 +351,43 @@ static int lm_step(group *G, double lambda)
     return LAPACKE_dposv(LAPACK_ROW_MAJOR, 'U', np, 1, G->M, np, G->step, 1) != 0;
 }
 
+/* The sky's lower bound (bound_step, sky_in_bounds): 10 σ below the sky
+ * the stars were found on.  Not the lowest pixel: a bright star's wings
+ * can fill its window, so its lowest pixel sits far above the sky (Tiny
+ * Tim, 10⁶ e⁻, fitrad 5: 140 e⁻ over a sky of 100; a sky held there was
+ * flag 8 for 6 % of the bench's ugly scene); and a neighbour painted out
+ * with too much light leaves data far below the sky, which a bound from
+ * the data lets the sky follow (GLIMPSE near its hollow saturated cores:
+ * −7·10⁴ e⁻, the group's fluxes to 10⁹, and on through the next rounds
+ * until every residual pixel was off).  Without a known sky, one data
+ * range below the lowest pixel. */
+static double sky_floor(const group *G)
+{
+    double base = isfinite(G->sknown) ? G->sknown : G->dlo - (G->dhi - G->dlo);
+    return base - 10.0 * sqrt(fmax(base, 0.0) + G->ron2);
+}
+
+/* Whether a plane or quadratic sky p stays within [sky_floor, dhi] on every
+ * fitted pixel.  Bounding its coefficients one by one does not: on
+ * GLIMPSE's nebula a quadratic reached −5.5·10⁴ e⁻ under a group whose
+ * fluxes went to 10⁹ (the table's negative wings trading against it), each
+ * coefficient within its own bound.  A trial step outside is refused as
+ * one that raises D is. */
+static int sky_in_bounds(const group *G, const double *p)
+{
+    if (G->nsky <= 1)
+        return 1;                /* the constant: bound_step */
+    double lo = sky_floor(G);
+    for (int j = 0; j < G->bh; j++)
+        for (int i = 0; i < G->bw; i++)
+            if (G->sel[(size_t)j * G->bw + i]) {
+                double b = sky_at(G, p, (double)(G->bx0 + i), (double)(G->by0 + j));
+                if (b < lo || b > G->dhi)
+                    return 0;
+            }
+    return 1;
+}
+
 /* Cut the step to what one iteration may do, so a step the local
  * linearisation cannot vouch for is not even tried: positions by at most
  * 1 px (DAOPHOT does the same: a start far off cannot fling a star across
@@ -385,13 +423,7 @@ static int bound_step(group *G)
         }
     }
     if (G->nsky) {
-        /* Not just 10 σ below the lowest pixel: a bright star's wings can
-         * fill its window, so its lowest pixel sits far above the sky
-         * (Tiny Tim, 10⁶ e⁻, fitrad 5: 140 e⁻ over a sky of 100, and the
-         * sky stuck on this bound was flag 8 for 6 % of the bench's ugly
-         * scene); one data range below it still stops a walk to −10¹³. */
-        double B0 = G->p[3 * n];
-        double lo = G->dlo - fmax(10.0 * sqrt(fmax(G->dlo, 0.0) + G->ron2), G->dhi - G->dlo);
+        double B0 = G->p[3 * n], lo = sky_floor(G);
         if (B0 + G->step[3 * n] < lo || B0 + G->step[3 * n] > G->dhi) {
             G->step[3 * n] = (B0 + G->step[3 * n] < lo ? lo : G->dhi) - B0;
             cut = 1;
@@ -496,7 +528,7 @@ static int levmar(group *G, const mp_fit_opts *o, int *iter, int *converged)
         if (render_all(G, G->pt, G->trial))
             return 1;
         model_of(G, G->pt, G->trial);
-        double Dt = deviance_of(G);
+        double Dt = sky_in_bounds(G, G->pt) ? deviance_of(G) : INFINITY;
         if (!(Dt < D)) {
             model_of(G, G->p, G->cur);
             lambda *= 10.0;
@@ -1028,18 +1060,16 @@ static int all_finite(const double *v, int n)
     return 1;
 }
 
-/* S of the variance function: the lowest sky the members were found on
- * (find's BACKGROUND, an earlier fit's SKY_PSF), the star light of a
- * crowded group left out, so it errs low; 0 when no member has one (a
- * group's own median is no floor: in a crowded group it sits well above
- * the sky, and a floor above the sky reweights every sky pixel). */
-static double variance_floor(const mp_star *st, int n)
+/* The lowest sky the members were found on (find's BACKGROUND, an earlier
+ * fit's SKY_PSF), the star light of a crowded group left out, so it errs
+ * low; NaN when no member has one. */
+static double known_sky(const mp_star *st, int n)
 {
     double s = INFINITY;
     for (int k = 0; k < n; k++)
         if (isfinite(st[k].sky) && st[k].sky < s)
             s = st[k].sky;
-    return isfinite(s) && s > 0 ? s : 0.0;
+    return isfinite(s) ? s : NAN;
 }
 
 /* The sky order to fit first: the one asked for, or constant under auto. */
@@ -1107,7 +1137,11 @@ int mp_fit_group(const mp_frame *f, const mp_prf_model *m, const mp_fit_opts *o,
         goto finish_flagged;
     }
     double sky = isfinite(sky0) ? sky0 : start_sky(&G);
-    G.vfloor = variance_floor(stars, n);
+    /* S of the variance function, and the sky's lower bound: a group's own
+     * median is neither (in a crowded group it sits well above the sky,
+     * and a floor above the sky reweights every sky pixel). */
+    G.sknown = known_sky(stars, n);
+    G.vfloor = G.sknown > 0 ? G.sknown : 0.0;
     for (int k = 0; k < n; k++) {
         G.p[3 * k] = stars[k].flux;
         G.p[3 * k + 1] = stars[k].x;
