@@ -716,10 +716,21 @@ static int ring_sums(group *G, double fitrad, sky_sums *S)
     mp_prf_model mr = *G->m;
     mr.sinc_hw = mr.sinc_hw < 2 ? mr.sinc_hw : 2;
     for (int k = 0; k < G->n; k++) {
-        long sx, sy;
+        long sx, sy, kx0, ky0, kx1, ky1;    /* the ring's part within R of star k */
         int sw, sh;
-        if (mp_prf_render_window(&mr, G->p[3 * k + 1], G->p[3 * k + 2], x0, y0, w, h, &sx, &sy, &sw,
-                                 &sh, buf, NULL, NULL, &G->work))
+        double xk = G->p[3 * k + 1], yk = G->p[3 * k + 2];
+        kx0 = (long)floor(xk - R);
+        ky0 = (long)floor(yk - R);
+        kx1 = (long)ceil(xk + R) + 1;
+        ky1 = (long)ceil(yk + R) + 1;
+        kx0 = kx0 < x0 ? x0 : kx0;
+        ky0 = ky0 < y0 ? y0 : ky0;
+        kx1 = kx1 > x1 ? x1 : kx1;
+        ky1 = ky1 > y1 ? y1 : ky1;
+        if (kx1 <= kx0 || ky1 <= ky0)
+            continue;
+        if (mp_prf_render_window(&mr, xk, yk, kx0, ky0, kx1 - kx0, ky1 - ky0, &sx, &sy, &sw, &sh, buf,
+                                 NULL, NULL, &G->work))
             goto done;
         for (int j = 0; j < sh; j++)
             for (int i = 0; i < sw; i++)
@@ -1081,10 +1092,11 @@ static int first_order(const mp_fit_opts *o)
 }
 
 /* MP_SKY_AUTO, at a converged fit of order 0 or 1: the higher order the
- * data ask for in *to, or -1; nonzero when out of memory.  From constant, the plane's two terms (χ²(2)) and
- * the quadratic's five (χ²(5), a curved sky the plane test cannot see)
- * are tested, so a flat sky leaves constant with probability at most
- * 2·MP_SKY_ALPHA; from a plane, the three quadratic terms (χ²(3)). */
+ * data ask for in *to, or -1; nonzero when out of memory.  From constant,
+ * the plane's two terms (χ²(2)) and the quadratic's five (χ²(5), a curved
+ * sky the plane test cannot see) are tested, so a flat sky leaves
+ * constant with probability at most 2·MP_SKY_ALPHA; from a plane, the
+ * three quadratic terms (χ²(3)). */
 static int higher_order(group *G, int order, double fitrad, int *to)
 {
     sky_sums S;
