@@ -55,6 +55,7 @@ typedef struct {
     cell *c;
     int bx;                  /* bits of the column part of a key */
     mp_uf uf;                /* over sorted positions */
+    size_t work;             /* cell pairs + distance tests + unions */
 } grid;
 
 static void grid_free(grid *g)
@@ -200,13 +201,15 @@ static void link_within(grid *g, const cell *a, double c2)
 {
     if (a->clique) {
         for (size_t s = a->start + 1; s < a->end; s++)
-            mp_uf_union(&g->uf, a->start, s);
+            g->work += 1 + (size_t)mp_uf_union(&g->uf, a->start, s);
         return;
     }
     for (size_t s = a->start; s < a->end; s++)
-        for (size_t t = s + 1; t < a->end; t++)
+        for (size_t t = s + 1; t < a->end; t++) {
+            g->work++;
             if (mp_close(g->x[s], g->y[s], g->x[t], g->y[t], c2))
-                mp_uf_union(&g->uf, s, t);
+                g->work += (size_t)mp_uf_union(&g->uf, s, t);
+        }
 }
 
 /* Whether two cells' bounding boxes are at least crit apart, by the same
@@ -223,18 +226,21 @@ static int boxes_apart(const cell *a, const cell *b, double c2)
 /* Link the stars of two different cells. */
 static void link_between(grid *g, const cell *a, const cell *b, double c2)
 {
+    g->work++;
     if (boxes_apart(a, b, c2))
         return;
     int cliques = a->clique && b->clique;
     if (cliques && mp_uf_find(&g->uf, a->start) == mp_uf_find(&g->uf, b->start))
         return;
     for (size_t s = a->start; s < a->end; s++)
-        for (size_t t = b->start; t < b->end; t++)
+        for (size_t t = b->start; t < b->end; t++) {
+            g->work++;
             if (mp_close(g->x[s], g->y[s], g->x[t], g->y[t], c2)) {
-                mp_uf_union(&g->uf, s, t);
+                g->work += (size_t)mp_uf_union(&g->uf, s, t);
                 if (cliques)
                     return;       /* one close pair joins two cliques */
             }
+        }
 }
 
 /* Compare every cell with the cells after it in its 5×5 neighbourhood. */
@@ -259,8 +265,11 @@ static void sweep(grid *g, double c2)
     }
 }
 
-int mp_grid_link(const double *x, const double *y, size_t n, double crit, size_t *label)
+int mp_grid_link(const double *x, const double *y, size_t n, double crit, size_t *label,
+                 size_t *work)
 {
+    if (work)
+        *work = 0;
     if (n == 0)
         return 0;
     grid g;
@@ -275,6 +284,8 @@ int mp_grid_link(const double *x, const double *y, size_t n, double crit, size_t
     sweep(&g, c2);
     for (size_t p = 0; p < n; p++)
         label[g.row[p]] = g.row[mp_uf_find(&g.uf, p)];
+    if (work)
+        *work = g.work;
     grid_free(&g);
     return 0;
 }

@@ -161,7 +161,7 @@ int mp_group_table(mp_table *t, const mp_group_opts *o, char *err)
         w.x[i] = mp_table_get(t, i, cx);
         w.y[i] = mp_table_get(t, i, cy);
     }
-    if (mp_grid_link(w.x, w.y, n, o->psfrad + o->fitrad, w.label))
+    if (mp_grid_link(w.x, w.y, n, o->psfrad + o->fitrad, w.label, NULL))
         goto oom;
     for (size_t i = 0; i < n; i++)
         w.count[w.label[i]]++;

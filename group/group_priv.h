@@ -43,8 +43,12 @@ static inline int mp_close(double xa, double ya, double xb, double yb, double c2
 /* mp_grid_link: label the n points (x, y) (finite) by connected component
  * of the relation mp_close(·, ·, crit²) (crit finite, > 0): label[i] = the
  * row of one member of i's component, the same for all its members.
+ * When work is not NULL it receives the operations done after the sort:
+ * cell pairs compared + distance tests + unions — a machine-independent
+ * measure of cost, so a test can check linearity without a clock.
  * Nonzero when out of memory. */
-int mp_grid_link(const double *x, const double *y, size_t n, double crit, size_t *label);
+int mp_grid_link(const double *x, const double *y, size_t n, double crit, size_t *label,
+                 size_t *work);
 
 /* ---- split.c ----------------------------------------------------------- */
 
