@@ -335,6 +335,8 @@ int mp_pipeline_run(const char *image, const char *root, const mp_pipeline_opts 
         rep->kshort += fr.kshort;
         memcpy(rep->sky_groups, fr.sky_groups, sizeof rep->sky_groups);
         rep->khw += fr.khw;
+        rep->kbounds += fr.kbounds;
+        rep->envelopes += fr.envelopes;
         rep->ngroups = fr.ngroups;
         rep->fitted = (long)t.nrow;
         fprintf(stderr, "matphot pipeline: %s: round %d: %ld stars fitted in %ld groups "
@@ -440,6 +442,8 @@ int mp_pipeline_run(const char *image, const char *root, const mp_pipeline_opts 
         run.kcalls = rep->kcalls;
         run.kshort = rep->kshort;
         run.khw = rep->khw;
+        run.kbounds = rep->kbounds;
+        run.envelopes = rep->envelopes;
         mp_report_from_table(&t, &run);
         mp_frame_report last = {.nstars = (long)t.nrow, .ngroups = rep->ngroups};
         memcpy(last.sky_groups, rep->sky_groups, sizeof last.sky_groups);
