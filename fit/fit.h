@@ -143,6 +143,10 @@ int mp_sinc_choice_hw(const mp_sinc_choice *c, double E, double B, double ron, d
  * with E ≤ emax[h], else hwmax. */
 int mp_sinc_choice_limits(const mp_sinc_choice *c, double B, double ron, double frac,
                           double *emax);
+/* Bound evaluations mp_sinc_choice_limits spends per half-width, at most
+ * (two ends, 60 halvings): a frame with fewer groups than this evaluates
+ * the bound per group instead (fit_frame.c). */
+#define MP_SINC_LIMITS_EVALS 62
 int mp_sinc_choice_pick(const double *emax, int hwmax, double E);
 /* mp_prf_envelope: env[r] (r = 0..*nr−1, detector px) bounds |PRF| of one
  * detector pixel whose centre lies r px or more from the star, at any
@@ -305,6 +309,10 @@ typedef struct {
     long kcalls;       /* LM fits of groups (a group refits after a merge) */
     long kshort;       /* of them, with a sinc kernel shorter than sinchw */
     double khw;        /* their half-widths, summed */
+    long kbounds;      /* the kernel choice's cost: bound evaluations
+                        * (mp_sinc_choice_bound), each nph × npix terms */
+    long envelopes;    /* crop envelopes built (mp_prf_envelope: 25 PSF
+                        * renders each); 0 when the frame is one group */
     long kept;         /* group fits left out: no star's surroundings changed */
     long cropped;      /* stars painted with a cropped PSF */
 } mp_frame_report;
@@ -364,6 +372,8 @@ typedef struct {
     long kcalls, kshort;       /* LM fits of groups, and of them with a shorter
                                 * sinc kernel */
     double khw;                /* their half-widths, summed */
+    long kbounds, envelopes;   /* economy's own cost: kernel-bound evaluations
+                                * and crop envelopes built (mp_frame_report) */
 } mp_run_report;
 
 /* mp_report_from_table: the medians, from a fitted table. */
