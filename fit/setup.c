@@ -9,6 +9,7 @@
 void mp_fit_setup_free(mp_fit_setup *s)
 {
     mp_psf_free(&s->psf);
+    mp_psf_field_free(&s->field);
     mp_drf_free(&s->drf);
     mp_sinc_choice_free(&s->sinc);
 }
@@ -27,6 +28,26 @@ static void warn_undersampled(const mp_fit_setup *s)
                 "and its OVERSAMP %d gives %.1f < 21 table px^2; bright stars will alias "
                 "(use a table supersampled %dx or more)\n",
                 b, s->psf.os, bs, (int)ceil(sqrt(21.0 / b)));
+}
+
+/* Block-sum the table and the field alike by factor (the block-sum is
+ * linear, so the rebinned field evaluated anywhere is the rebinned table
+ * of the field there). */
+static int rebin_both(mp_fit_setup *s, int factor, char *err)
+{
+    mp_psf coarse;
+    mp_psf_field fc;
+    if (mp_psf_rebin(&s->psf, factor, &coarse, err))
+        return 1;
+    if (mp_psf_field_rebin(&s->field, factor, &fc, err)) {
+        mp_psf_free(&coarse);
+        return 1;
+    }
+    mp_psf_free(&s->psf);
+    mp_psf_field_free(&s->field);
+    s->psf = coarse;
+    s->field = fc;
+    return 0;
 }
 
 /* Note one economy decision and its reason for the run report. */
@@ -102,11 +123,8 @@ static int economize(mp_fit_setup *s, int psfos_given, char *err)
             break;
         }
     if (want < os) {
-        mp_psf coarse;
-        if (mp_psf_rebin(&s->psf, os / want, &coarse, err))
+        if (rebin_both(s, os / want, err))
             return 1;
-        mp_psf_free(&s->psf);
-        s->psf = coarse;
         snprintf(why, sizeof why, "supersampling: beta = %.1f px^2 at detector sampling, "
                  "%.1f >= 21 at x%d (paper 5.4), the x%d table block-summed to x%d", b,
                  b * want * want, want, os, want);
@@ -132,6 +150,20 @@ static int sky_order_of(const char *v, int economy)
     return economy ? MP_SKY_AUTO : 2;
 }
 
+/* The PSF file (psf/psf.h's layout, any order): the field, and the table
+ * at its origin, which is what the PSF-wide measurements below (β, the
+ * coarsest sampling, the sinc kernel's error) are taken on; the fit then
+ * evaluates the field at every star (psf.field, set last). */
+static int read_psf(mp_fit_setup *s, const char *name, int norm, int os, char *warn, char *err)
+{
+    if (mp_psf_field_read(name, norm, os, &s->field, NULL, NULL, warn, err))
+        return 1;
+    if (mp_psf_field_eval(&s->field, s->field.x0, s->field.y0, &s->psf, err))
+        return 1;
+    s->psf.sum = s->field.sum;
+    return 0;
+}
+
 int mp_fit_setup_read(const mp_parset *ps, mp_fit_setup *s, char *err)
 {
     memset(s, 0, sizeof *s);
@@ -142,23 +174,20 @@ int mp_fit_setup_read(const mp_parset *ps, mp_fit_setup *s, char *err)
     if (psf[0]) {
         int hos = MP_PAR_INDEF_INT;
         mp_par_int(ps, "oversamp", &hos);
-        if (mp_psf_read(psf, norm, hos == MP_PAR_INDEF_INT ? 0 : hos, &s->psf, warn, err))
+        if (read_psf(s, psf, norm, hos == MP_PAR_INDEF_INT ? 0 : hos, warn, err))
             return 1;
         if (warn[0])
             fprintf(stderr, "matphot fit: warning: %s\n", warn);
         int os = MP_PAR_INDEF_INT;
         mp_par_int(ps, "psfos", &os);
         if (os != MP_PAR_INDEF_INT && os != s->psf.os) {
-            mp_psf coarse;
             if (s->psf.os % os) {
                 snprintf(err, MP_ERRLEN, "psfos: %d does not divide the table's OVERSAMP %d",
                          os, s->psf.os);
                 return 1;
             }
-            if (mp_psf_rebin(&s->psf, s->psf.os / os, &coarse, err))
+            if (rebin_both(s, s->psf.os / os, err))
                 return 1;
-            mp_psf_free(&s->psf);
-            s->psf = coarse;
         }
     } else {
         double fwhm;
@@ -228,5 +257,13 @@ int mp_fit_setup_read(const mp_parset *ps, mp_fit_setup *s, char *err)
         s->opts.refittol = 0.0;
     }
     warn_undersampled(s);
+    if (s->field.order > 0) {
+        s->psf.field = &s->field;
+        char why[256];
+        snprintf(why, sizeof why, "variable PSF: order %d, each star's table evaluated at its "
+                 "own position; sampling and sinc kernel from the table at the origin (%.1f, %.1f)",
+                 s->field.order, s->field.x0, s->field.y0);
+        decide(s, why);
+    }
     return 0;
 }

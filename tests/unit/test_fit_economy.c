@@ -298,6 +298,74 @@ static void test_short_kernel_per_group(void **state)
     sf_frame_drop(&f);
 }
 
+/* Economy's own cost is bounded by counts (issue 10.3; never a time): a
+ * whole-frame fit (fitrad INDEF, the paper's setup: one 60×60 frame, one
+ * star) builds no crop envelope (nobody else's light to crop) and spends at
+ * most hwmax kernel-bound evaluations per LM fit, where the per-frame
+ * limits table took MP_SINC_LIMITS_EVALS·hwmax = 620; and a frame of more
+ * groups than MP_SINC_LIMITS_EVALS builds the limits once, so the choice
+ * never costs more than min(LM fits, MP_SINC_LIMITS_EVALS)·hwmax
+ * evaluations.  The kernel a lone star gets is the one mp_sinc_choice_hw
+ * gives for its start flux on the safe side (sky 0).  Deterministic given
+ * the seeds. */
+static void test_whole_frame_overhead_counted(void **state)
+{
+    (void)state;
+    char err[MP_ERRLEN];
+    mp_psf p;
+    assert_int_equal(mp_psf_gauss_table(FWHM, 1, 15.0, &p, err), 0);
+    mp_prf_model m = {&p, NULL, 10};
+    mp_sinc_choice c;
+    assert_int_equal(mp_sinc_choice_build(&m, &c, err), 0);
+    mp_frame_opts eco;
+    mp_frame_opts_default(&eco);
+    eco.sinc = &c;
+    eco.fit.fitrad = NAN;
+    /* One star, whole frame. */
+    mp_frame f;
+    sf_frame_make(&f, 60, 60, 3.0);
+    mp_rng r;
+    mp_rng_seed(&r, 77);
+    double x = 30.3, y = 29.8, E = 2e4, E0 = 1.2 * E;
+    sf_render(&f, 100.0, FWHM, &x, &y, &E, 1, &r, 3.0);
+    mp_table t;
+    sf_table(&t, &x, &y, &E0, 1, 0);
+    mp_frame_report rep;
+    assert_int_equal(mp_fit_table(&f, &m, &eco, &t, &rep, err), 0);
+    assert_int_equal(rep.envelopes, 0);
+    assert_int_equal(rep.kcalls, 1);
+    int hw = mp_sinc_choice_hw(&c, E0, 0.0, 3.0, eco.sincfrac);
+    assert_true(hw < c.hwmax);                  /* a decision was taken... */
+    assert_int_equal((int)rep.khw, hw);         /* ...the one the bound gives */
+    assert_int_equal(rep.kbounds, hw + 1);      /* at hw + 1 evaluations */
+    assert_true(rep.kbounds <= (long)c.hwmax * rep.kcalls);
+    mp_table_free(&t);
+    sf_frame_drop(&f);
+    /* 70 lone stars 20 px apart, fitrad 5: 70 groups > 62, limits once. */
+    enum { NX = 10, NY = 7, NN = NX * NY };
+    double xs[NN], ys[NN], es[NN], e0[NN];
+    for (int k = 0; k < NN; k++) {
+        xs[k] = 10.0 + 20.0 * (k % NX) + 0.1 * (k % 3);
+        ys[k] = 10.0 + 20.0 * (k / NX) - 0.1 * (k % 5);
+        es[k] = 3e3 * (1 + k % 7);
+        e0[k] = 1.2 * es[k];
+    }
+    sf_frame_make(&f, 20 * NX, 20 * NY, 3.0);
+    sf_render(&f, 100.0, FWHM, xs, ys, es, NN, &r, 3.0);
+    sf_table(&t, xs, ys, e0, NN, 0);
+    eco.fit.fitrad = 5.0;
+    assert_int_equal(mp_fit_table(&f, &m, &eco, &t, &rep, err), 0);
+    print_message("70 groups: %ld LM fits, %ld bound evaluations, %ld envelopes\n", rep.kcalls,
+                  rep.kbounds, rep.envelopes);
+    assert_int_equal(rep.ngroups, NN);
+    assert_int_equal(rep.kbounds, (long)c.hwmax * MP_SINC_LIMITS_EVALS);
+    assert_int_equal(rep.envelopes, 1);
+    mp_table_free(&t);
+    sf_frame_drop(&f);
+    mp_sinc_choice_free(&c);
+    mp_psf_free(&p);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
@@ -306,6 +374,7 @@ int main(void)
         cmocka_unit_test(test_changed_neighbour_refitted),
         cmocka_unit_test(test_envelope_bounds_prf),
         cmocka_unit_test(test_short_kernel_per_group),
+        cmocka_unit_test(test_whole_frame_overhead_counted),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }
