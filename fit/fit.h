@@ -24,47 +24,9 @@
 #include "catalog/catalog.h"
 #include "io/io.h"
 #include "params/params.h"
+#include "psf/psf.h"
 
-/* ---- PSF ---------------------------------------------------------------- */
-
-typedef enum { MP_PSF_TABLE, MP_PSF_GAUSS } mp_psf_kind;
-
-typedef struct {
-    mp_psf_kind kind;
-    int nx, ny;        /* table size (odd), elements */
-    int os;            /* OVERSAMP: table elements per detector pixel */
-    double *t;         /* nx*ny, row-major, star at element ((nx-1)/2,(ny-1)/2) */
-    double sum;        /* fraction of the star's light the table holds */
-    double sigma;      /* MP_PSF_GAUSS: sigma [detector px] */
-    double offset;     /* where the star sits from the centre of the central
-                        * element, both axes [detector px]: 0 for a table as
-                        * design.md §3 defines it, nonzero after an even
-                        * block-sum (mp_psf_rebin) */
-} mp_psf;
-
-/* mp_psf_read: a PSF table from FITS (extended names work: an even-sized
- * table can be cut to odd size around its peak with a section).  OVERSAMP
- * comes from the header; when the header has none, from oversamp (> 0),
- * else 1 (oversamp ≤ 0).  Errors: even size, all-zero, NaN, sum > 1.01, OVERSAMP
- * outside 1..8.  Negative elements are a warning written to warn (may be
- * NULL).  normalize rescales the table to sum 1. */
-int mp_psf_read(const char *name, int normalize, int oversamp, mp_psf *p, char *warn,
-                char *err);
-
-/* mp_psf_gauss_table: a table of an (exactly pixel-integrated) Gaussian of
- * the given FWHM [detector px], OVERSAMP os, half-size radius [detector px]. */
-int mp_psf_gauss_table(double fwhm, int os, double radius, mp_psf *p, char *err);
-
-/* mp_psf_gauss: the analytic pixel-integrated Gaussian of the given FWHM. */
-void mp_psf_gauss(double fwhm, mp_psf *p);
-
-/* mp_psf_rebin: block-sum a table to OVERSAMP os/factor (factor divides os).
- * For odd factor the star stays at the centre of the central element; for
- * even factor it sits half an input element above it, which out->offset
- * records (the renderer accounts for it, so fitted positions stay true). */
-int mp_psf_rebin(const mp_psf *in, int factor, mp_psf *out, char *err);
-
-void mp_psf_free(mp_psf *p);
+/* ---- PSF: the table model lives in psf/psf.h ------------------------------ */
 
 /* ---- DRF ---------------------------------------------------------------- */
 
@@ -104,7 +66,8 @@ void mp_five_point(const double *in, int nx, int ny, int axis, double *out);
 
 /* What makes a model PRF, and which of its parts are used. */
 typedef struct {
-    const mp_psf *psf;
+    const mp_psf *psf;     /* the PSF; a variable one (psf->field) is
+                            * evaluated at each star in every render */
     const mp_drf *drf;     /* NULL: perfect detector */
     int sinc_hw;           /* damped-sinc half-width, 10 = 21 taps */
 } mp_prf_model;
@@ -113,6 +76,8 @@ typedef struct {
 typedef struct {
     size_t n;
     double *a, *b, *c, *d;
+    size_t ne;
+    double *e;             /* the star's own table, when the model has a field */
     long nshift, nskip;    /* table renders: axes shifted, and of those skipped
                             * because the shift is on the grid (mp_shift_on_grid) */
 } mp_prf_work;
@@ -196,7 +161,8 @@ int mp_sinc_choice_pick(const double *emax, int hwmax, double E);
  * model points into psf: build in place, do not copy. */
 typedef struct mp_ss_level_s {
     int os;                /* its OVERSAMP */
-    mp_psf psf;
+    mp_psf psf;            /* psf.field: field, when the PSF varies */
+    mp_psf_field field;    /* the given field block-summed alike (order 0: unused) */
     mp_prf_model model;    /* the given model with psf swapped in */
     mp_sinc_choice bound;
     mp_sinc_choice sinc;
@@ -470,6 +436,7 @@ int mp_report_write(const char *path, const char *task, const mp_run_report *r, 
  * holds the same names, so both tasks read them here. */
 typedef struct {
     mp_psf psf;
+    mp_psf_field field;     /* the PSF file as read (order 0: a copy of psf) */
     mp_drf drf;
     mp_prf_model model;     /* points into psf and drf: do not copy the struct */
     mp_frame_opts opts;

@@ -180,7 +180,11 @@ static int paint(const mp_prf_model *m, const mp_star *s, double sign, double ra
 double mp_prf_fwhm(const mp_prf_model *m)
 {
     mp_prf_stats st;
-    if (mp_prf_stats_at(m, 100.0, 100.0, &st, NULL) || !(st.lscale > 0))
+    /* A variable PSF: its FWHM at the field's origin. */
+    const mp_psf_field *fd = m->psf->field;
+    int var = fd && fd->order > 0;
+    double cx = var ? round(fd->x0) : 100.0, cy = var ? round(fd->y0) : 100.0;
+    if (mp_prf_stats_at(m, cx, cy, &st, NULL) || !(st.lscale > 0))
         return 3.0;      /* out of memory: DAOPHOT's usual FWHM keeps find and merge going */
     return 2.0 * sqrt(2.0 * log(2.0)) * st.lscale;
 }

@@ -9,6 +9,7 @@
 void mp_fit_setup_free(mp_fit_setup *s)
 {
     mp_psf_free(&s->psf);
+    mp_psf_field_free(&s->field);
     mp_drf_free(&s->drf);
     mp_sinc_choice_free(&s->sinc);
     for (int l = 0; l < MP_SS_MAXLEVELS; l++)
@@ -29,6 +30,26 @@ static void warn_undersampled(const mp_fit_setup *s)
                 "and its OVERSAMP %d gives %.1f < 21 table px^2; bright stars will alias "
                 "(use a table supersampled %dx or more)\n",
                 b, s->psf.os, bs, (int)ceil(sqrt(21.0 / b)));
+}
+
+/* Block-sum the table and the field alike by factor (the block-sum is
+ * linear, so the rebinned field evaluated anywhere is the rebinned table
+ * of the field there). */
+static int rebin_both(mp_fit_setup *s, int factor, char *err)
+{
+    mp_psf coarse;
+    mp_psf_field fc;
+    if (mp_psf_rebin(&s->psf, factor, &coarse, err))
+        return 1;
+    if (mp_psf_field_rebin(&s->field, factor, &fc, err)) {
+        mp_psf_free(&coarse);
+        return 1;
+    }
+    mp_psf_free(&s->psf);
+    mp_psf_field_free(&s->field);
+    s->psf = coarse;
+    s->field = fc;
+    return 0;
 }
 
 /* Note one economy decision and its reason for the run report. */
@@ -143,6 +164,20 @@ static int sky_order_of(const char *v, int economy)
     return economy ? MP_SKY_AUTO : 2;
 }
 
+/* The PSF file (psf/psf.h's layout, any order): the field, and the table
+ * at its origin, which is what the PSF-wide measurements below (β, the
+ * coarsest sampling, the sinc kernel's error) are taken on; the fit then
+ * evaluates the field at every star (psf.field, set last). */
+static int read_psf(mp_fit_setup *s, const char *name, int norm, int os, char *warn, char *err)
+{
+    if (mp_psf_field_read(name, norm, os, &s->field, NULL, NULL, warn, err))
+        return 1;
+    if (mp_psf_field_eval(&s->field, s->field.x0, s->field.y0, &s->psf, err))
+        return 1;
+    s->psf.sum = s->field.sum;
+    return 0;
+}
+
 int mp_fit_setup_read(const mp_parset *ps, mp_fit_setup *s, char *err)
 {
     memset(s, 0, sizeof *s);
@@ -153,23 +188,20 @@ int mp_fit_setup_read(const mp_parset *ps, mp_fit_setup *s, char *err)
     if (psf[0]) {
         int hos = MP_PAR_INDEF_INT;
         mp_par_int(ps, "oversamp", &hos);
-        if (mp_psf_read(psf, norm, hos == MP_PAR_INDEF_INT ? 0 : hos, &s->psf, warn, err))
+        if (read_psf(s, psf, norm, hos == MP_PAR_INDEF_INT ? 0 : hos, warn, err))
             return 1;
         if (warn[0])
             fprintf(stderr, "matphot fit: warning: %s\n", warn);
         int os = MP_PAR_INDEF_INT;
         mp_par_int(ps, "psfos", &os);
         if (os != MP_PAR_INDEF_INT && os != s->psf.os) {
-            mp_psf coarse;
             if (s->psf.os % os) {
                 snprintf(err, MP_ERRLEN, "psfos: %d does not divide the table's OVERSAMP %d",
                          os, s->psf.os);
                 return 1;
             }
-            if (mp_psf_rebin(&s->psf, s->psf.os / os, &coarse, err))
+            if (rebin_both(s, s->psf.os / os, err))
                 return 1;
-            mp_psf_free(&s->psf);
-            s->psf = coarse;
         }
     } else {
         double fwhm;
@@ -239,5 +271,20 @@ int mp_fit_setup_read(const mp_parset *ps, mp_fit_setup *s, char *err)
         s->opts.refittol = 0.0;
     }
     warn_undersampled(s);
+    if (s->field.order > 0) {
+        s->psf.field = &s->field;
+        /* Each coarser sampling evaluates its own block-summed field. */
+        for (int l = 0; l < s->opts.nss; l++) {
+            mp_ss_level *lv = &s->ss[l];
+            if (mp_psf_field_rebin(&s->field, s->psf.os / lv->os, &lv->field, err))
+                return 1;
+            lv->psf.field = &lv->field;
+        }
+        char why[256];
+        snprintf(why, sizeof why, "variable PSF: order %d, each star's table evaluated at its "
+                 "own position; sampling and sinc kernel from the table at the origin (%.1f, %.1f)",
+                 s->field.order, s->field.x0, s->field.y0);
+        decide(s, why);
+    }
     return 0;
 }

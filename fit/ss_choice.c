@@ -28,6 +28,7 @@ void mp_ss_level_free(mp_ss_level *lv)
     if (!lv)
         return;
     mp_psf_free(&lv->psf);
+    mp_psf_field_free(&lv->field);
     mp_sinc_choice_free(&lv->bound);
     mp_sinc_choice_free(&lv->sinc);
     memset(lv, 0, sizeof *lv);
