@@ -106,6 +106,7 @@ static void report_counts(const mp_pipeline_report *rep, const mp_table *t, mp_r
     run->kshort = rep->kshort;
     run->khw = rep->khw;
     run->kbounds = rep->kbounds;
+    run->kcoarse = rep->kcoarse;
     run->envelopes = rep->envelopes;
 }
 

@@ -34,6 +34,7 @@ typedef struct {
                                    * cropped (economy), summed over rounds */
     long kcalls, kshort;          /* LM fits of groups; with a shorter sinc kernel */
     long kbounds, envelopes;      /* economy's own cost (mp_frame_report) */
+    long kcoarse;                 /* LM fits with a coarser table */
     long sky_groups[MP_SKY_MAXORDER + 1];  /* last round's groups by sky order */
     double khw;                   /* their half-widths summed over all group fits */
 } mp_pipeline_report;

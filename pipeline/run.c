@@ -109,6 +109,7 @@ static void count_fit(mp_pipeline_report *rep, const mp_frame_report *fr, size_t
     memcpy(rep->sky_groups, fr->sky_groups, sizeof rep->sky_groups);
     rep->khw += fr->khw;
     rep->kbounds += fr->kbounds;
+    rep->kcoarse += fr->kcoarse;
     rep->envelopes += fr->envelopes;
     rep->ngroups = fr->ngroups;
     rep->fitted = (long)nrow;
