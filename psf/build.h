@@ -69,7 +69,11 @@ typedef struct {
     int nstar;           /* stars used */
     char why[256];       /* why this order (PSFORDWH) */
     char osw[160];       /* why this OVERSAMP */
-    double psum_err;     /* error of sum (0: not measured) */
+    double sum_err;      /* error of sum (0: not measured) */
+    int ngrowth;         /* stars the sum was measured on */
+    double *info;        /* nx*ny: each element's information Σ_k Σ_p W
+                          * from the last step (its variance is about
+                          * 1/(os⁴·info)); NULL before a build */
 } mp_epsf;
 
 void mp_epsf_free(mp_epsf *e);
@@ -139,6 +143,11 @@ int mp_epsf_order_test(const mp_epsf_star *s, size_t n, const mp_epsf *e, double
  * star of E electrons on sky B. */
 double mp_epsf_oversamp_error(const mp_epsf *e, int os_coarse, double E, double B, double ron);
 
+/* mp_epsf_noise_error: the same measure for the table's own statistical
+ * error (each element's variance from e->info): what the coarser table's
+ * aliasing is compared with when it exceeds the star's noise. */
+double mp_epsf_noise_error(const mp_epsf *e, double E, double B, double ron);
+
 /* mp_epsf_rebin: e block-summed to OVERSAMP e->os/factor (planes re-sampled
  * so the star stays at the centre of the central element). */
 int mp_epsf_rebin(const mp_epsf *e, int factor, mp_epsf *out, char *err);
@@ -147,12 +156,53 @@ int mp_epsf_rebin(const mp_epsf *e, int factor, mp_epsf *out, char *err);
 
 /* mp_epsf_growth: the fraction of a star's light inside the table, by the
  * curve of growth of the brightest used stars (DAOPHOT's aperture
- * correction): the flux fitted with the table (of sum 1) against the light
- * in a circular aperture of radius rbig (sky from the annulus rbig..rbig+4
- * px), on each star's cut-out; e->sum is set to the median ratio when that
- * is below 1 by more than twice its error, else 1.  Returns 0 always
- * (fewer than 3 measurable stars: sum 1, said in e->why). */
-int mp_epsf_growth(const mp_epsf_star *s, size_t n, double rbig, mp_epsf *e);
+ * correction): each star's flux fitted with the table (of sum 1) against
+ * the light in a circular aperture of radius rbig on img (sky: the clipped
+ * mode of the annulus rbig..rbig+4 px), img being the frame, or with
+ * residual set data less every fitted star (then the star's own model,
+ * from e, is put back).  e->sum is set to the median ratio when that is
+ * below 1 by more than twice its error, else 1; e->sum_err its error.
+ * Nonzero only on out of memory (fewer than 3 measurable stars: sum 1). */
+int mp_epsf_growth(const mp_frame *f, const double *img, int residual, const mp_epsf_star *s,
+                   size_t n, double rbig, mp_epsf *e, char *err);
+
+/* ---- From a frame (psf/frame_build.c): what `matphot psf` and the
+ * pipeline run ---------------------------------------------------------- */
+
+/* What a build decided, for the run report. */
+typedef struct {
+    size_t nsel, nused;      /* PSF stars given or selected, and used */
+    double oserr[5];         /* oversamp_error of OVERSAMP 1..4 (index) for the
+                              * brightest star (0 where not measured) */
+    double chi2;             /* median reduced χ² of the PSF stars' fits */
+    double ptest[3];         /* order test p-values 0→1, 1→2 (NaN: not run) */
+    char what[512];          /* one line: stars, OVERSAMP, order, sum, why */
+} mp_epsf_report;
+
+/* mp_epsf_pass: one pass of the build on frame f: cut-outs of the n stars
+ * (x, y, start flux: NaN for "measure it") from img — the frame's pixels
+ * (residual 0), or data less every fitted star of `fitted` (residual 1: each
+ * PSF star's own fitted light, the rows of `fitted` within 1 px, put back
+ * with model m) — then the table: at o->os, or with o->os 0 built at ×4 and
+ * taken to the coarsest OVERSAMP whose aliasing error for the brightest
+ * star is below 1 σ of its noise; of order o->order, or with −1 from e's
+ * order (0 when e is empty) raised while mp_epsf_order_test rejects the
+ * lower order at o->alpha; then PSFSUM by the growth curve out to
+ * 2·psfrad.  e may hold the previous pass's table (its OVERSAMP and order
+ * are kept as the start).  Errors: no usable PSF star, a star off the
+ * frame, out of memory. */
+int mp_epsf_pass(const mp_frame *f, const double *img, int residual, const mp_table *fitted,
+                 const mp_prf_model *m, const double *x, const double *y, const double *flux,
+                 size_t n, const mp_epsf_opts *o, mp_epsf *e, mp_epsf_report *rep,
+                 mp_psf_star **stars, char *err);
+
+/* mp_epsf_field: e as the PSF file's field (planes scaled to e->sum, why,
+ * nstar) for mp_psf_field_write and the fit. */
+int mp_epsf_field(const mp_epsf *e, mp_psf_field *fld, char *err);
+
+/* mp_epsf_model: the fit's model of field fld: *tab its table at the
+ * origin, pointing at fld when the order is above 0. */
+int mp_epsf_model(const mp_psf_field *fld, mp_psf *tab, mp_prf_model *m, char *err);
 
 /* The `matphot psf` task (params/psf.par). */
 int mp_task_psf(int argc, char **argv);

@@ -19,6 +19,7 @@ typedef struct {
     mp_prf_work pw;
     mp_psf tab;
     double chi2;           /* Σ W ρ² of the last step */
+    double ridge;          /* added to each element's normal equations */
     int steps;             /* steps taken by the last mp_epsf_sirt_run */
 } mp_epsf_sirt;
 

@@ -61,6 +61,19 @@ static double annulus_sky(const mp_epsf_star *s, double r0, double r1, double *b
     return fabs(mean - med) < 1e-12 ? med : 2.5 * med - 1.5 * mean;
 }
 
+/* A start flux where none was given: the light above the sky within r. */
+static double start_flux(const mp_epsf_star *s, double r)
+{
+    double xs = s->x - (double)(s->x0 - 1), ys = s->y - (double)(s->y0 - 1), sum = 0;
+    for (long j = 1; j <= s->f.im.ny; j++)
+        for (long i = 1; i <= s->f.im.nx; i++) {
+            size_t o = (size_t)(j - 1) * s->f.im.nx + (size_t)(i - 1);
+            if (!s->f.mask[o] && hypot(i - xs, j - ys) <= r)
+                sum += s->f.im.pix[o] - s->sky;
+        }
+    return sum > 1.0 ? sum : 1.0;
+}
+
 static int cut_one(const mp_frame *f, const double *img, double x, double y, double psfrad,
                    mp_epsf_star *s)
 {
@@ -133,6 +146,10 @@ int mp_epsf_cutouts(const mp_frame *f, const double *img, const double *x, const
         free(buf);
         if (isfinite(b))
             s->sky = b;
+        if (!isfinite(s->sky))
+            s->sky = 0.0;
+        if (!(s->flux > 0))
+            s->flux = start_flux(s, 0.5 * psfrad);
     }
     return 0;
 }

@@ -129,6 +129,10 @@ static int wls(const mp_epsf_sirt *w, size_t el, const size_t *idx, size_t m, co
                int nt, double *c)
 {
     double A[36] = {0};
+    /* A little ridge (1e-2 of the best-measured element's weight): an
+     * element that a few pixels barely reach is not moved by their noise. */
+    for (int a = 0; a < nt; a++)
+        A[a * nt + a] = w->ridge;
     for (int t = 0; t < nt; t++)
         c[t] = 0.0;
     for (size_t q = 0; q < m; q++) {
@@ -184,6 +188,39 @@ static void combine_element(const mp_epsf_sirt *w, size_t el, const mp_epsf_star
             c[t] = 0.0;
 }
 
+/* The update filtered by the kernel whose transfer vanishes at k/os
+ * cycles per element (k = 1..os−1): the os-element box (odd os), or for
+ * even os the box convolved with [½, ½] so that it is centred
+ * (os = 4: ½ 1 1 1 ½, /4).  Those are the frequencies that block-summing
+ * to detector pixels cannot see: however unevenly the stars sample the
+ * phases (the per-element weights then vary with period os), no step
+ * adds what the data cannot constrain — the dotted, multi-peaked tables
+ * of anchors.md §3.2 — while everything the pixels see is still fitted. */
+static void null_filter(double *u, int nx, int ny, int os, double *tmp)
+{
+    if (os < 2)
+        return;
+    double k[9];
+    int h = os / 2;
+    for (int i = -h; i <= h; i++)
+        k[i + h] = (os % 2 == 0 && (i == -h || i == h)) ? 0.5 / os : 1.0 / os;
+    for (int pass = 0; pass < 2; pass++) {
+        const double *src = pass ? tmp : u;
+        double *dst = pass ? u : tmp;
+        for (int j = 0; j < ny; j++)
+            for (int i = 0; i < nx; i++) {
+                double v = 0;
+                for (int q = -h; q <= h; q++) {
+                    int a = pass ? j + q : i + q;
+                    if (a < 0 || a >= (pass ? ny : nx))
+                        continue;
+                    v += k[q + h] * (pass ? src[(size_t)a * nx + i] : src[(size_t)j * nx + a]);
+                }
+                dst[(size_t)j * nx + i] = v;
+            }
+    }
+}
+
 int mp_epsf_sirt_run(mp_epsf_sirt *w, const mp_epsf_star *s, size_t n, const mp_epsf_opts *o,
                      mp_epsf *e, char *err)
 {
@@ -192,12 +229,22 @@ int mp_epsf_sirt_run(mp_epsf_sirt *w, const mp_epsf_star *s, size_t n, const mp_
     double *terms = malloc(n * 6 * sizeof *terms);
     double *dev = malloc(2 * (n + 1) * sizeof *dev);
     size_t *idx = malloc((n + 1) * sizeof *idx);
-    if (!terms || !dev || !idx) {
+    double *upd = malloc((size_t)nt * nel * sizeof *upd);
+    if (!terms || !dev || !idx || !upd) {
         snprintf(err, MP_ERRLEN, "psf build: out of memory");
         goto done;
     }
     for (size_t k = 0; k < n; k++)
         mp_epsf_terms(e, s[k].x, s[k].y, terms + k * 6);
+    /* Elements beyond psfrad (less the half pixel a block reaches) hold
+     * nothing: the table is defined on the disc its stars' pixels cover,
+     * the light beyond is PSFSUM's (growth.c). */
+    double rmax = (o->psfrad - 0.5) * e->os;
+    for (int j = 0; j < e->ny; j++)
+        for (int i = 0; i < e->nx; i++)
+            if (hypot(i - (e->nx - 1) / 2, j - (e->ny - 1) / 2) > rmax)
+                for (int t = 0; t < nt; t++)
+                    e->planes[(size_t)t * nel + (size_t)j * e->nx + i] = 0.0;
     double prev = INFINITY;
     double step = 1.0 / ((double)e->os * e->os);
     w->steps = 0;
@@ -214,11 +261,29 @@ int mp_epsf_sirt_run(mp_epsf_sirt *w, const mp_epsf_star *s, size_t n, const mp_
         if (it == o->sirt || prev - chi2 < 1.0)
             break;
         prev = chi2;
+        double hmax = 0;
         for (size_t el = 0; el < nel; el++) {
+            double h = 0;
+            for (size_t k = 0; k < n; k++)
+                if (s[k].used)
+                    h += w->H[k * nel + el];
+            hmax = h > hmax ? h : hmax;
+        }
+        w->ridge = 1e-2 * hmax;
+        memset(upd, 0, (size_t)nt * nel * sizeof *upd);
+        for (size_t el = 0; el < nel; el++) {
+            int i = (int)(el % (size_t)e->nx), j = (int)(el / (size_t)e->nx);
+            if (hypot(i - (e->nx - 1) / 2, j - (e->ny - 1) / 2) > rmax)
+                continue;
             double c[6];
             combine_element(w, el, s, n, terms, nt, idx, dev, c);
             for (int t = 0; t < nt; t++)
-                e->planes[(size_t)t * nel + el] += step * c[t];
+                upd[(size_t)t * nel + el] = c[t];
+        }
+        for (int t = 0; t < nt; t++) {
+            null_filter(upd + (size_t)t * nel, e->nx, e->ny, e->os, w->tmp);
+            for (size_t el = 0; el < nel; el++)
+                e->planes[(size_t)t * nel + el] += step * upd[(size_t)t * nel + el];
         }
         w->steps++;
     }
@@ -227,5 +292,6 @@ done:
     free(terms);
     free(dev);
     free(idx);
+    free(upd);
     return rc;
 }
