@@ -230,10 +230,8 @@ static int psf_stars(run_state *s, char *err)
     mp_epsf_opts po = s->o->psfb;
     int rc = mp_epsf_select(&s->f, &s->t, &po, idx, &s->np, err);
     if (!rc && s->np == 0) {
-        snprintf(err, MP_ERRLEN, "%s: no usable PSF star among %zu detections (none bright, "
-                 "unsaturated, unmasked, star-like and without a brighter neighbour within "
-                 "%.1f px); give psf= or psf=gauss", s->image, s->t.nrow, po.psfrad);
-        rc = 1;
+        free(idx);
+        return 0;
     }
     if (!rc) {
         s->px = malloc(s->np * sizeof *s->px);
@@ -268,6 +266,16 @@ static int build_psf(run_state *s, int pass, char *err)
     po.ys = s->f.im.ny > 1 ? 0.5 * (double)s->f.im.ny : 1.0;
     if (pass == 1 && psf_stars(s, err))
         return 1;
+    /* A frame with no star fit to shape a PSF (an empty or tiny frame, a
+     * crowd of saturated stars) is still reduced: with the Gaussian of
+     * fwhm, as psf=gauss, said on stderr and in the report. */
+    if (s->np == 0) {
+        if (pass == 1 && s->t.nrow > 0)
+            fprintf(stderr, "matphot pipeline: %s: warning: no usable PSF star among %zu "
+                    "detections; fitting with the Gaussian of fwhm (psf=gauss)\n", s->image,
+                    s->t.nrow);
+        return 0;
+    }
     mp_epsf_report rep;
     memset(&rep, 0, sizeof rep);
     char e2[MP_ERRLEN];

@@ -255,8 +255,6 @@ int mp_epsf_sirt_run(mp_epsf_sirt *w, const mp_epsf_star *s, size_t n, const mp_
                                          &chi2, err))
                 goto done;
         w->chi2 = chi2;
-        if (getenv("MP_EPSF_DEBUG"))
-            fprintf(stderr, "sirt step %d chi2 %.6g\n", it, chi2);
         /* A step that no longer lowers χ² by one fits only noise. */
         if (it == o->sirt || prev - chi2 < 1.0)
             break;

@@ -213,18 +213,6 @@ static void test_recovers_constant_table(void **state)
     truth_table(0.0, 0.0, rad, &truth);
     assert_int_equal(mp_epsf_table(&e, o.x0, o.y0, &built, err), 0);
     assert_int_equal(mp_psf_gauss_table(2.6, BOS, rad, &start, err), 0);
-    if (getenv("MP_EPSF_DEBUG")) {
-        int c = (truth.nx - 1) / 2;
-        printf("truth %dx%d built %dx%d\n", truth.nx, truth.ny, built.nx, built.ny);
-        for (int j = c - 3; j <= c + 3; j++) {
-            for (int i = c - 3; i <= c + 3; i++)
-                printf(" %7.4f/%7.4f", truth.t[j * truth.nx + i], built.t[(j - 1) * built.nx + i - 1]);
-            printf("\n");
-        }
-        for (int k = 0; k < 5; k++)
-            printf("star %d true %.3f %.3f %.0f fit %.3f %.3f %.0f used %d\n", k, ts[k].x, ts[k].y,
-                   ts[k].f, s[k].x, s[k].y, s[k].flux, s[k].used);
-    }
     int np;
     double c_built = prf_chi2(&built, &truth, ts, 1.0, &np);
     double c_start = prf_chi2(&start, &truth, ts, 1.0, &np);
