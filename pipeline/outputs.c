@@ -105,6 +105,9 @@ static void report_counts(const mp_pipeline_report *rep, const mp_table *t, mp_r
     run->kcalls = rep->kcalls;
     run->kshort = rep->kshort;
     run->khw = rep->khw;
+    run->kbounds = rep->kbounds;
+    run->kcoarse = rep->kcoarse;
+    run->envelopes = rep->envelopes;
 }
 
 int mp_pl_write_report(const char *image, const char *root, const mp_pipeline_opts *o,

@@ -87,8 +87,11 @@ static int find_stars(run_state *s, char *err)
         return 1;
     s->rep->t_find += mp_seconds() - t0;
     s->rep->found = (long)s->t.nrow;
+    /* Written first: a failed write is the run's only stderr line. */
+    if (mp_pl_write_named(s->root, ".coo", &s->t, s->o->fit.fmt, err))
+        return 1;
     fprintf(stderr, "matphot pipeline: %s: %zu stars found\n", s->image, s->t.nrow);
-    return mp_pl_write_named(s->root, ".coo", &s->t, s->o->fit.fmt, err);
+    return 0;
 }
 
 /* One round's frame-fit counts added to the run's. */
@@ -105,6 +108,9 @@ static void count_fit(mp_pipeline_report *rep, const mp_frame_report *fr, size_t
     rep->kshort += fr->kshort;
     memcpy(rep->sky_groups, fr->sky_groups, sizeof rep->sky_groups);
     rep->khw += fr->khw;
+    rep->kbounds += fr->kbounds;
+    rep->kcoarse += fr->kcoarse;
+    rep->envelopes += fr->envelopes;
     rep->ngroups = fr->ngroups;
     rep->fitted = (long)nrow;
 }
