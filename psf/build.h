@@ -71,9 +71,6 @@ typedef struct {
     char osw[160];       /* why this OVERSAMP */
     double sum_err;      /* error of sum (0: not measured) */
     int ngrowth;         /* stars the sum was measured on */
-    double *info;        /* nx*ny: each element's information Σ_k Σ_p W
-                          * from the last step (its variance is about
-                          * 1/(os⁴·info)); NULL before a build */
 } mp_epsf;
 
 void mp_epsf_free(mp_epsf *e);
@@ -143,10 +140,11 @@ int mp_epsf_order_test(const mp_epsf_star *s, size_t n, const mp_epsf *e, double
  * star of E electrons on sky B. */
 double mp_epsf_oversamp_error(const mp_epsf *e, int os_coarse, double E, double B, double ron);
 
-/* mp_epsf_noise_error: the same measure for the table's own statistical
- * error (each element's variance from e->info): what the coarser table's
- * aliasing is compared with when it exceeds the star's noise. */
-double mp_epsf_noise_error(const mp_epsf *e, double E, double B, double ron);
+/* mp_epsf_oversamp_noise: the same measure of a noise table (the
+ * difference of two half builds, halved: a draw of the table's own
+ * error), weighted by the noise of a star of e's PRF. */
+double mp_epsf_oversamp_noise(const mp_epsf *noise, const mp_epsf *e, int os_coarse, double E,
+                              double B, double ron);
 
 /* mp_epsf_rebin: e block-summed to OVERSAMP e->os/factor (planes re-sampled
  * so the star stays at the centre of the central element). */
