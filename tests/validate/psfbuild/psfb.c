@@ -13,6 +13,9 @@
  *   psfb match DIR ROOT    errors over the bound per magnitude bin
  *       (median |ΔE|/(0.6745 σ_E), median Δr/(1.1774 σ_X): 1 on the
  *       bound) and completeness, from DIR/ROOT.cat; one line per bin.
+ *   psfb resid FRAME RES CAT R RON   the normalised residual near the
+ *       stars (within R px of each catalog star), as issue 11 compares it
+ *       with DAOPHOT's on 47 Tuc.
  *   psfb cmp BUILT TRUE    the built PSF against the true one as the fit
  *       sees them: PRFs at 16 phases, rms and largest pixel difference
  *       over the peak; and element by element when the samplings agree.
@@ -341,8 +344,58 @@ static int do_cmp(const char *built, const char *truth)
     return 0;
 }
 
+/* The normalised residual near the stars: z = (res − median res)/σ with
+ * σ² = max(data, 0) + RON² (the data's own Poisson and read noise), over
+ * the pixels within r px of a catalog star (XPSF/YPSF_IMAGE); robust σ
+ * (IQR/1.349) and the median |z|.  FRAME and RES in electrons. */
+static int do_resid(const char *frame, const char *res, const char *cat, double r, double ron)
+{
+    char err[MP_ERRLEN];
+    mp_image f, q;
+    memset(&f, 0, sizeof f);
+    memset(&q, 0, sizeof q);
+    mp_table t;
+    mp_table_init(&t);
+    if (mp_image_read(frame, &f, err) || mp_image_read(res, &q, err) || mp_table_read(cat, &t, err))
+        return fprintf(stderr, "psfb: %s\n", err), 1;
+    long n = f.nx * f.ny;
+    char *near = calloc((size_t)n, 1);
+    double *v = malloc(sizeof(double) * n), *z = malloc(sizeof(double) * n);
+    int cx = mp_table_col(&t, "XPSF_IMAGE"), cy = mp_table_col(&t, "YPSF_IMAGE");
+    for (size_t k = 0; k < t.nrow; k++) {
+        double x = mp_table_get(&t, k, cx), y = mp_table_get(&t, k, cy);
+        for (long j = (long)floor(y - r); j <= (long)ceil(y + r); j++)
+            for (long i = (long)floor(x - r); i <= (long)ceil(x + r); i++)
+                if (i >= 1 && j >= 1 && i <= f.nx && j <= f.ny && hypot(i - x, j - y) <= r)
+                    near[(j - 1) * f.nx + i - 1] = 1;
+    }
+    long m = 0;
+    for (long i = 0; i < n; i++)
+        if (isfinite(q.pix[i]))
+            v[m++] = q.pix[i];
+    double med = median(v, (int)m);
+    long nz = 0;
+    for (long i = 0; i < n; i++)
+        if (near[i] && isfinite(q.pix[i]) && isfinite(f.pix[i]))
+            z[nz++] = (q.pix[i] - med) / sqrt(fmax(f.pix[i], 0.0) + ron * ron);
+    qsort(z, (size_t)nz, sizeof *z, cmpd);
+    double iqr = nz ? z[3 * nz / 4] - z[nz / 4] : NAN;
+    for (long i = 0; i < nz; i++)
+        z[i] = fabs(z[i]);
+    printf("psfb resid: %s: %ld pixels within %.1f px of %zu stars: robust sigma of the "
+           "normalised residual %.3f, median |z| %.3f (sky of the residual %.2f)\n", res, nz, r,
+           t.nrow, iqr / 1.349, median(z, (int)nz), med);
+    free(near), free(v), free(z);
+    mp_image_free(&f);
+    mp_image_free(&q);
+    mp_table_free(&t);
+    return 0;
+}
+
 int main(int argc, char **argv)
 {
+    if (argc == 7 && !strcmp(argv[1], "resid"))
+        return do_resid(argv[2], argv[3], argv[4], atof(argv[5]), atof(argv[6])) ? 1 : 0;
     if (argc == 4 && !strcmp(argv[1], "sim"))
         return do_sim(argv[2], argv[3]) ? 1 : 0;
     if (argc == 4 && !strcmp(argv[1], "match"))
@@ -350,6 +403,6 @@ int main(int argc, char **argv)
     if (argc == 4 && !strcmp(argv[1], "cmp"))
         return do_cmp(argv[2], argv[3]) ? 1 : 0;
     fprintf(stderr, "usage: psfb sim DIR segmented|variable | psfb match DIR ROOT | "
-            "psfb cmp BUILT.fits TRUE.fits\n");
+            "psfb cmp BUILT.fits TRUE.fits | psfb resid FRAME RES CAT R RON\n");
     return 2;
 }
