@@ -134,10 +134,10 @@ static int half_difference(mp_epsf_star *s, size_t n, const mp_epsf_opts *o, con
     return rc;
 }
 
-/* OVERSAMP auto: built at ×4, then the coarsest of ×1, ×2 whose aliasing
- * error for the brightest PSF star is below 1 σ of its noise.  The error
- * measured on the built table holds its noise too; the same measure of a
- * draw of that noise (half_difference) is taken off in quadrature. */
+/* OVERSAMP auto: built at ×4 and smoothed as its noise needs (the
+ * Wiener filter of a measured draw of that noise, half_difference); then
+ * the coarsest of ×1, ×2 whose aliasing error on that table, for the
+ * brightest PSF star, is below 1 σ of its noise, else ×4. */
 static int choose_os(mp_epsf_star *s, size_t n, const mp_epsf_opts *o, const mp_frame *f,
                      mp_epsf *e, mp_epsf_report *rep, char *err)
 {
@@ -147,23 +147,29 @@ static int choose_os(mp_epsf_star *s, size_t n, const mp_epsf_opts *o, const mp_
     brightest(s, n, &E, &B);
     mp_epsf noise;
     memset(&noise, 0, sizeof noise);
-    int have_noise = count_used_stars(s, n) >= 6 && half_difference(s, n, o, e, &noise, err) == 0;
+    if (count_used_stars(s, n) >= 6 && half_difference(s, n, o, e, &noise, err) == 0 &&
+        mp_epsf_wiener_measure(e, &noise, e->wiener, MP_EPSF_NWBIN) == 0 &&
+        mp_epsf_wiener_apply(e, e->wiener, MP_EPSF_NWBIN) == 0) {
+        e->have_wiener = 1;
+        mp_epsf_normalise(e, o->fwhm);
+    }
+    mp_epsf_free(&noise);
     int pick = 4;
-    double qn[3] = {0, 0, 0};
     for (int os = 2; os >= 1; os /= 2) {
-        double q = mp_epsf_oversamp_error(e, os, E, B, f->rdnoise);
-        qn[os] = have_noise ? mp_epsf_oversamp_noise(&noise, e, os, E, B, f->rdnoise) : 0.0;
-        rep->oserr[os] = sqrt(fmax(q * q - qn[os] * qn[os], 0.0));
+        rep->oserr[os] = mp_epsf_oversamp_error(e, os, E, B, f->rdnoise);
         if (rep->oserr[os] < 1.0)
             pick = os;
         else
             break;
     }
-    mp_epsf_free(&noise);
+    int band = 0;
+    while (band < MP_EPSF_NWBIN && e->wiener[band] >= 0.5)
+        band++;
     snprintf(rep->what + strlen(rep->what), sizeof rep->what - strlen(rep->what),
-             "OVERSAMP %d (aliasing error for the brightest star, %.3g e-, its noise's share "
-             "taken off: x2 %.2g, x1 %.2g sigma (noise's share %.2g, %.2g); the coarsest below 1); ",
-             pick, E, rep->oserr[2], rep->oserr[1], qn[2], qn[1]);
+             "OVERSAMP %d (aliasing error for the brightest star, %.3g e-, of the x4 table "
+             "smoothed as its noise needs (S/N > 1 out to %.2f cycles/px%s): x2 %.2g, x1 %.2g "
+             "sigma; the coarsest below 1); ", pick, E, band * MP_EPSF_WBIN,
+             e->have_wiener ? "" : ", not measured", rep->oserr[2], rep->oserr[1]);
     if (pick < 4) {
         mp_epsf c;
         if (mp_epsf_rebin(e, 4 / pick, &c, err))
@@ -241,6 +247,15 @@ int mp_epsf_pass(const mp_frame *f, const double *img, int residual, const mp_ta
         snprintf(e->why, sizeof e->why, "order %d as given (varorder=%d)", o->order, o->order);
     } else if (choose_order(s, n, o, e, rep, err)) {
         goto done;
+    }
+    /* Smoothed as the noise needs (the first pass's measured filter): the
+     * iteration adds back some of what the filter took. */
+    if (e->have_wiener) {
+        if (mp_epsf_wiener_apply(e, e->wiener, MP_EPSF_NWBIN)) {
+            snprintf(err, MP_ERRLEN, "psf build: out of memory");
+            goto done;
+        }
+        mp_epsf_normalise(e, o->fwhm);
     }
     /* The light beyond the table only once the neighbours are gone: in a
      * crowded frame they fill the big aperture. */

@@ -138,9 +138,3 @@ double mp_epsf_oversamp_error(const mp_epsf *e, int os_coarse, double E, double 
 {
     return alias_q(e, e, os_coarse, E, B, ron);
 }
-
-double mp_epsf_oversamp_noise(const mp_epsf *noise, const mp_epsf *e, int os_coarse, double E,
-                              double B, double ron)
-{
-    return alias_q(noise, e, os_coarse, E, B, ron);
-}
