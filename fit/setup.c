@@ -169,10 +169,27 @@ static int sky_order_of(const char *v, int economy)
  * at its origin, which is what the PSF-wide measurements below (β, the
  * coarsest sampling, the sinc kernel's error) are taken on; the fit then
  * evaluates the field at every star (psf.field, set last). */
-static int read_psf(mp_fit_setup *s, const char *name, int norm, int os, char *warn, char *err)
+static int read_psf(mp_fit_setup *s, const char *name, int norm, int os, const char *kspec,
+                    char *warn, char *err)
 {
     if (mp_psf_field_read(name, norm, os, &s->field, NULL, NULL, warn, err))
         return 1;
+    if (kspec[0]) {
+        /* Folded into the supersampled table: exact (psf/kernel.c). */
+        mp_psf k;
+        if (mp_psf_kernel_read(kspec, name, &k, err))
+            return 1;
+        int rc = mp_psf_field_fold_kernel(&s->field, &k, err);
+        char why[256];
+        snprintf(why, sizeof why, "detector kernel: %dx%d (sum %.6g) from %s folded into the x%d "
+                 "table (exact: it commutes with the shift, the DRF and the block-sum)", k.nx,
+                 k.ny, k.sum, strcmp(kspec, "header") ? kspec : "the PSF file's header",
+                 s->field.os);
+        mp_psf_free(&k);
+        if (rc)
+            return 1;
+        decide(s, why);
+    }
     if (mp_psf_field_eval(&s->field, s->field.x0, s->field.y0, &s->psf, err))
         return 1;
     s->psf.sum = s->field.sum;
@@ -189,7 +206,9 @@ int mp_fit_setup_read(const mp_parset *ps, mp_fit_setup *s, char *err)
     if (psf[0]) {
         int hos = MP_PAR_INDEF_INT;
         mp_par_int(ps, "oversamp", &hos);
-        if (read_psf(s, psf, norm, hos == MP_PAR_INDEF_INT ? 0 : hos, warn, err))
+        const char *kspec = mp_par_string(ps, "psfkernel");
+        if (read_psf(s, psf, norm, hos == MP_PAR_INDEF_INT ? 0 : hos, kspec ? kspec : "", warn,
+                     err))
             return 1;
         if (warn[0])
             fprintf(stderr, "matphot fit: warning: %s\n", warn);
@@ -205,6 +224,12 @@ int mp_fit_setup_read(const mp_parset *ps, mp_fit_setup *s, char *err)
                 return 1;
         }
     } else {
+        const char *kspec = mp_par_string(ps, "psfkernel");
+        if (kspec && kspec[0]) {
+            snprintf(err, MP_ERRLEN, "psfkernel: %s: a detector kernel needs a PSF table (psf=)",
+                     kspec);
+            return 1;
+        }
         double fwhm;
         mp_par_real(ps, "fwhm", &fwhm);
         mp_psf_gauss(fwhm, &s->psf);

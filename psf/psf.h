@@ -159,4 +159,20 @@ int mp_psf_field_write(const char *path, const mp_psf_field *f, const mp_psf_sta
 
 void mp_psf_field_free(mp_psf_field *f);
 
+/* ---- A detector-level kernel (psf/kernel.c) ------------------------------ */
+
+/* mp_psf_kernel_read: the kernel spec names — "header": Tiny Tim's kernel
+ * in the COMMENT cards of psfname's header ("…convolve it with the
+ * following kernel", one card a row); else a FITS image (odd sizes ≤ 99)
+ * — as an OVERSAMP-1 table k (sum kept as given, k->sum).  It acts on
+ * detector pixels, after the block-sum. */
+int mp_psf_kernel_read(const char *spec, const char *psfname, mp_psf *k, char *err);
+
+/* mp_psf_field_fold_kernel: every plane convolved with k placed at
+ * whole-pixel steps (os elements) and padded by os·r a side, so that the
+ * renderer's block-summed PRF of the folded field is exactly the unfolded
+ * PRF convolved with k on detector pixels, at every shift and for any DRF
+ * (kernel.c says why); f->sum scales by k's sum. */
+int mp_psf_field_fold_kernel(mp_psf_field *f, const mp_psf *k, char *err);
+
 #endif
