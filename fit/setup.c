@@ -203,7 +203,9 @@ int mp_fit_setup_read(const mp_parset *ps, mp_fit_setup *s, char *err)
     int norm = 0;
     mp_par_bool(ps, "psfnorm", &norm);
     char warn[MP_ERRLEN];
-    if (psf[0]) {
+    /* psf=gauss names the analytic mode (the pipeline builds a PSF from
+     * the frame when psf is empty). */
+    if (psf[0] && strcmp(psf, "gauss") != 0) {
         int hos = MP_PAR_INDEF_INT;
         mp_par_int(ps, "oversamp", &hos);
         const char *kspec = mp_par_string(ps, "psfkernel");
