@@ -244,7 +244,52 @@ static int open_image(const char *name, fitsfile **fp, int *naxis, long naxes[3]
     return 0;
 }
 
-enum { FMT_NONE, FMT_PSFEX };
+enum { FMT_NONE, FMT_PSFEX, FMT_WEBBPSF, FMT_GRID, FMT_STDPSF };
+
+static int has_key(fitsfile *fp, const char *key)
+{
+    char card[FLEN_CARD];
+    int st = 0;
+    fits_read_card(fp, key, card, &st);
+    fits_clear_errmsg();
+    return st == 0;
+}
+
+/* An image HDU of another program, by its keywords: a grid (DET_YX0 of
+ * WebbPSF's GriddedPSFModel, NXPSFS of STDPSF) or a WebbPSF table
+ * (DET_SAMP). */
+static int image_format(fitsfile *fp, int naxis)
+{
+    if (naxis == 3 && has_key(fp, "DET_YX0"))
+        return FMT_GRID;
+    if (naxis == 3 && has_key(fp, "NXPSFS"))
+        return FMT_STDPSF;
+    if (naxis == 2 && has_key(fp, "DET_SAMP"))
+        return FMT_WEBBPSF;
+    return FMT_NONE;
+}
+
+/* The first table's sum: positive, ≤ 1.01 unless normalize, which divides
+ * every plane by it. */
+static int check_sum(const char *name, mp_psf_field *f, int normalize, char *err)
+{
+    size_t plane = (size_t)f->nx * f->ny;
+    double s = 0.0;
+    for (size_t i = 0; i < plane; i++)
+        s += f->planes[i];
+    if (!(s > 0) || (!normalize && s > 1.01)) {
+        snprintf(err, MP_ERRLEN, "%s: PSF table sums to %.6g; it must hold the fraction of the "
+                 "star's light, 0 < sum <= 1.01 (psfnorm=yes rescales)", name, s);
+        return 1;
+    }
+    if (normalize) {
+        for (size_t i = 0; i < plane * f->nterms; i++)
+            f->planes[i] /= s;
+        s = 1.0;
+    }
+    f->sum = s;
+    return 0;
+}
 
 /* Which other program's PSF file fp holds: from the HDU it is on, or, on
  * an empty primary HDU, the first HDU that is one.  fp is left there. */
@@ -325,6 +370,21 @@ int mp_psf_field_read(const char *name, int normalize, int oversamp, mp_psf_fiel
             return rc;
         }
     }
+    int img = fp ? image_format(fp, naxis) : FMT_NONE;
+    if (img != FMT_NONE) {
+        rc = img == FMT_WEBBPSF ? webbpsf_read(fp, name, naxes[0], naxes[1], f, warn, err)
+                                : grid_read(fp, name, img == FMT_STDPSF, naxes, f, warn, err);
+        if (!rc)
+            rc = check_sum(name, f, normalize, err);
+        int s = 0;
+        fits_close_file(fp, &s);
+        fits_clear_errmsg();
+        if (!rc)
+            rc = check_range(name, f, err);
+        if (rc)
+            mp_psf_field_free(f);
+        return rc;
+    }
     int cube = fp && naxis == 3 && naxes[2] > 1;
     if (!cube) {
         /* A 2-D table (or anything else: mp_psf_read names what is wrong). */
@@ -401,6 +461,10 @@ static void write_stars(fitsfile *fp, const mp_psf_star *s, int n, int *status)
 int mp_psf_field_write(const char *path, const mp_psf_field *f, const mp_psf_star *stars,
                        int nstars, char *err)
 {
+    if (f->order == MP_PSF_GRID) {
+        snprintf(err, MP_ERRLEN, "%s: a gridded PSF has no form in matphot's PSF file", path);
+        return 1;
+    }
     char *tmp = mp_tmp_name(path);
     if (!tmp) {
         snprintf(err, MP_ERRLEN, "%s: out of memory", path);

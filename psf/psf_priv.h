@@ -26,6 +26,18 @@ int psf_has_column(fitsfile *fp, const char *col);
  * normalised to sum 1. */
 int psfex_read(fitsfile *fp, const char *name, mp_psf_field *f, char *warn, char *err);
 
+/* webbpsf_read: a WebbPSF/STPSF table (the HDU fp is on, nx × ny, its
+ * OVERSAMP keyword); an even table padded to odd size, offset 0.5/os. */
+int webbpsf_read(fitsfile *fp, const char *name, long nx, long ny, mp_psf_field *f, char *warn,
+                 char *err);
+
+/* grid_read: a cube of PSFs on a grid of detector positions — WebbPSF's
+ * GriddedPSFModel (DET_YXn '(y, x)', 0-based; OVERSAMP) or, stdpsf set,
+ * Anderson's STDPSF (NXPSFS, NYPSFS, IPSFXnn, JPSFYnn; ePSFs sampled at
+ * whole pixels into ×1 tables). */
+int grid_read(fitsfile *fp, const char *name, int stdpsf, const long naxes[3], mp_psf_field *f,
+              char *warn, char *err);
+
 /* psf_lanczos3: the Lanczos-3 kernel sinc(x)·sinc(x/3) for |x| < 3, else 0. */
 double psf_lanczos3(double x);
 

@@ -263,7 +263,8 @@ static inline int fuzz_psf_field_body(const uint8_t *data, size_t size)
             continue;
         }
         if (!(f.sum > 0) || !isfinite(f.sum) || f.nx % 2 == 0 || f.ny % 2 == 0 || f.os < 1 ||
-            f.os > 8 || f.nterms != mp_psf_nterms(f.order) ||
+            f.os > 8 ||
+            f.nterms != (f.order == MP_PSF_GRID ? f.ngx * f.ngy : mp_psf_nterms(f.order)) ||
             (f.order > 0 && !(f.xscale > 0 && f.yscale > 0)) || (ns > 0) != (st != NULL))
             fuzz_fail("mp_psf_field_read", "accepted a file it promises to refuse");
         if ((size_t)f.nx * (size_t)f.ny <= 4096) {

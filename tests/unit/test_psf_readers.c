@@ -17,6 +17,9 @@
 #define LEGACY REAL "decam_legacypipe_tc4/c4d_170316_062107_ooi_z_ls9-psfex.fits"
 #define DES REAL "psfex_des/DECam_00154912_12_psfcat.psf"
 #define TINYTIM REAL "hst_acs_hrc_47tuc/tinytim_acs_hrc_f606w_x512y512_sub4.fits"
+#define WEBBPSF REAL "webbpsf_wfirst/webbpsf_wfirst_wfi_sca01_z087_psf.fits"
+#define NIRCAM REAL "psf_format_mocks/nircam_nrca1_f200w_fovp101_samp4_npsf4_mock.fits"
+#define STDPSF REAL "psf_format_mocks/STDPSF_WFC3UV_F814W_mock.fits"
 
 static int have(const char *path)
 {
@@ -352,6 +355,157 @@ static void test_kernel_fold_is_exact(void **state)
     mp_psf_field_free(&f);
 }
 
+/* ---- WebbPSF and gridded PSFs ------------------------------------------------ */
+
+/* The WebbPSF file's OVERSAMP HDU (180² at ×4, even: padded, offset
+ * 0.125 px) rendered for a star at a pixel centre is its DET_SAMP HDU
+ * (WebbPSF block-sums OVERSAMP into it): the central element then sits
+ * on the fine grid, no sinc shift is made, and the two agree to rounding. */
+static void test_webbpsf(void **state)
+{
+    (void)state;
+    if (!have(WEBBPSF))
+        skip();
+    char err[MP_ERRLEN], warn[MP_ERRLEN];
+    mp_psf_field f;
+    assert_int_equal(mp_psf_field_read(WEBBPSF, 0, 0, &f, NULL, NULL, warn, err), 0);
+    assert_int_equal(f.os, 4);
+    assert_int_equal(f.nx, 181);
+    assert_true(f.offset == 0.125);
+    assert_non_null(strstr(warn, "padded to 181x181"));
+    mp_psf t, det;
+    assert_int_equal(mp_psf_field_eval(&f, 0, 0, &t, err), 0);
+    assert_int_equal(mp_psf_read(WEBBPSF "[DET_SAMP]", 0, 0, &det, NULL, err), 0);
+    assert_int_equal(det.nx, 45);
+    mp_prf_model m = {&t, NULL, 10};
+    long x0, y0;
+    int w, h;
+    const double X = 50.0, Y = 60.0;
+    mp_prf_box(&m, X, Y, &x0, &y0, &w, &h);
+    double *prf = calloc((size_t)w * h, sizeof *prf);
+    mp_prf_work wk = {0};
+    assert_non_null(prf);
+    assert_int_equal(mp_prf_render(&m, X, Y, prf, NULL, NULL, &wk), 0);
+    assert_int_equal(wk.nskip, 2);      /* both axes on the grid: no shift */
+    double dmax = 0.0, peak = 0.0;
+    for (int j = 0; j < 45; j++)
+        for (int i = 0; i < 45; i++) {
+            long px = (long)X - 22 + i, py = (long)Y - 22 + j;
+            double v = det.t[j * 45 + i], r = 0.0;
+            if (px >= x0 && px < x0 + w && py >= y0 && py < y0 + h)
+                r = prf[(py - y0) * w + (px - x0)];
+            dmax = fmax(dmax, fabs(r - v));
+            peak = fmax(peak, v);
+        }
+    print_message("WebbPSF: rendered vs DET_SAMP: largest difference %.3g of the peak\n",
+                  dmax / peak);
+    assert_true(dmax < 1e-12 * peak);
+    free(prf);
+    mp_prf_work_free(&wk);
+    mp_psf_free(&t);
+    mp_psf_free(&det);
+    mp_psf_field_free(&f);
+}
+
+/* A raw table of a cube, by an independent read. */
+static double *raw_plane(const char *path, int k, long *nx, long *ny)
+{
+    fitsfile *fp;
+    int st = 0, naxis;
+    long ax[3];
+    fits_open_file(&fp, path, READONLY, &st);
+    fits_get_img_dim(fp, &naxis, &st);
+    fits_get_img_size(fp, 3, ax, &st);
+    double *v = malloc((size_t)(ax[0] * ax[1]) * sizeof *v);
+    assert_non_null(v);
+    long f1[3] = {1, 1, k + 1};
+    fits_read_pix(fp, TDOUBLE, f1, ax[0] * ax[1], NULL, v, NULL, &st);
+    fits_close_file(fp, &st);
+    assert_int_equal(st, 0);
+    *nx = ax[0], *ny = ax[1];
+    return v;
+}
+
+/* WebbPSF's GriddedPSFModel mock (header real, pixels fake): the grid
+ * from DET_YXn ('(y, x)', 0-based), each table at its own grid point, the
+ * mean of all four at the middle. */
+static void test_grid_webbpsf_mock(void **state)
+{
+    (void)state;
+    if (!have(NIRCAM))
+        skip();
+    char err[MP_ERRLEN], warn[MP_ERRLEN];
+    mp_psf_field f;
+    assert_int_equal(mp_psf_field_read(NIRCAM, 1, 0, &f, NULL, NULL, warn, err), 0);
+    assert_int_equal(f.order, MP_PSF_GRID);
+    assert_int_equal(f.ngx, 2);
+    assert_int_equal(f.ngy, 2);
+    assert_true(f.gx[0] == 1.0 && f.gx[1] == 2048.0 && f.gy[0] == 1.0 && f.gy[1] == 2048.0);
+    assert_int_equal(f.os, 4);
+    long nx, ny;
+    double *p0 = raw_plane(NIRCAM, 0, &nx, &ny), s0 = 0.0;
+    for (long i = 0; i < nx * ny; i++)
+        s0 += p0[i];
+    /* DET_YX1 = (2047, 0): x = 1, y = 2048 (1-based). */
+    const double gxs[4] = {1, 1, 2048, 2048}, gys[4] = {1, 2048, 1, 2048};
+    double *mid = calloc((size_t)(nx * ny), sizeof *mid);
+    assert_non_null(mid);
+    for (int k = 0; k < 4; k++) {
+        long a, b;
+        double *pk = raw_plane(NIRCAM, k, &a, &b);
+        mp_psf t;
+        assert_int_equal(mp_psf_field_eval(&f, gxs[k], gys[k], &t, err), 0);
+        for (long i = 0; i < nx * ny; i++) {
+            assert_true(fabs(t.t[i] - pk[i] / s0) < 1e-15);
+            mid[i] += 0.25 * pk[i] / s0;
+        }
+        mp_psf_free(&t);
+        free(pk);
+    }
+    mp_psf t;
+    assert_int_equal(mp_psf_field_eval(&f, 1024.5, 1024.5, &t, err), 0);
+    for (long i = 0; i < nx * ny; i++)
+        assert_true(fabs(t.t[i] - mid[i]) < 1e-15);
+    mp_psf_free(&t);
+    /* Outside the grid: the edge's table, not an extrapolation. */
+    assert_int_equal(mp_psf_field_eval(&f, -500.0, 1.0, &t, err), 0);
+    for (long i = 0; i < nx * ny; i++)
+        assert_true(fabs(t.t[i] - p0[i] / s0) < 1e-15);
+    mp_psf_free(&t);
+    free(mid);
+    free(p0);
+    mp_psf_field_free(&f);
+}
+
+/* Anderson's STDPSF mock (header real, pixels fake): 7×8 grid from
+ * NXPSFS/IPSFXnn, table k = j·NXPSFS + i; the ePSF's whole-pixel samples
+ * (here its central one, the mock is 5×5 at ×4). */
+static void test_grid_stdpsf_mock(void **state)
+{
+    (void)state;
+    if (!have(STDPSF))
+        skip();
+    char err[MP_ERRLEN], warn[MP_ERRLEN];
+    mp_psf_field f;
+    assert_int_equal(mp_psf_field_read(STDPSF, 0, 0, &f, NULL, NULL, warn, err), 0);
+    assert_int_equal(f.order, MP_PSF_GRID);
+    assert_int_equal(f.ngx, 7);
+    assert_int_equal(f.ngy, 8);
+    assert_int_equal(f.os, 1);
+    assert_int_equal(f.nx, 1);
+    assert_non_null(strstr(warn, "sampled at whole pixels"));
+    for (int k = 0; k < 56; k += 13) {
+        long nx, ny;
+        double *pk = raw_plane(STDPSF, k, &nx, &ny);
+        mp_psf t;
+        assert_int_equal(mp_psf_field_eval(&f, f.gx[k % 7], f.gy[k / 7], &t, err), 0);
+        assert_true(fabs(t.t[0] - pk[(ny / 2) * nx + nx / 2]) < 1e-15);
+        mp_psf_free(&t);
+        free(pk);
+    }
+    mp_psf_field_free(&f);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
@@ -360,6 +514,9 @@ int main(void)
         cmocka_unit_test(test_psfex_synthetic),
         cmocka_unit_test(test_kernel_tinytim_header),
         cmocka_unit_test(test_kernel_fold_is_exact),
+        cmocka_unit_test(test_webbpsf),
+        cmocka_unit_test(test_grid_webbpsf_mock),
+        cmocka_unit_test(test_grid_stdpsf_mock),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }
