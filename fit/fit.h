@@ -148,6 +148,37 @@ int mp_sinc_choice_limits(const mp_sinc_choice *c, double B, double ron, double 
  * the bound per group instead (fit_frame.c). */
 #define MP_SINC_LIMITS_EVALS 62
 int mp_sinc_choice_pick(const double *emax, int hwmax, double E);
+/* ---- Supersampling per star (fit/ss_choice.c, issue 10) ----------------- */
+
+/* A coarser sampling of the model's table (block-summed by factor), with
+ * its error measured once per PSF: bound holds δP² = (PRF(coarse) −
+ * PRF(given))² and the given P at a 4×4 grid of subpixel phases, in the
+ * mp_sinc_choice layout with hwmax 1, so
+ *     q(E) = mp_sinc_choice_bound(&bound, 0, E, B, ron)
+ * = E·max_phase sqrt(Σ δP²/(E P + B + ron²)) bounds |bias|/σ_CRLB of a
+ * star's flux, position and sky from fitting it with the coarse table
+ * (linearised).  sinc is the coarse model's own kernel-length table.
+ * model points into psf: build in place, do not copy. */
+typedef struct mp_ss_level_s {
+    int os;                /* its OVERSAMP */
+    mp_psf psf;            /* psf.field: field, when the PSF varies */
+    mp_psf_field field;    /* the given field block-summed alike (order 0: unused) */
+    mp_prf_model model;    /* the given model with psf swapped in */
+    mp_sinc_choice bound;
+    mp_sinc_choice sinc;
+} mp_ss_level;
+
+/* mp_ss_level_build: the level of m's table block-summed by factor
+ * (dividing its OVERSAMP). */
+int mp_ss_level_build(const mp_prf_model *m, int factor, mp_ss_level *lv, char *err);
+void mp_ss_level_free(mp_ss_level *lv);
+
+/* mp_ss_level_emax: the largest flux whose bound is ≤ frac on sky B with
+ * read noise ron (0: none; INFINITY: every flux). */
+double mp_ss_level_emax(const mp_ss_level *lv, double B, double ron, double frac);
+
+#define MP_SS_MAXLEVELS 3
+
 /* mp_prf_envelope: env[r] (r = 0..*nr−1, detector px) bounds |PRF| of one
  * detector pixel whose centre lies r px or more from the star, at any
  * subpixel phase (the PRF of unit flux; for a table, measured on renders
@@ -291,6 +322,14 @@ typedef struct {
                         * change of its fitted parameters to refittol of
                         * their σ); 0: refit every group every pass
                         * (economy=no) */
+    const struct mp_ss_level_s *ss;  /* economy: nss coarser samplings of the
+                        * model's table, coarsest first; each group is fitted
+                        * with the coarsest whose bias bound at its brightest
+                        * star is ≤ ssfrac of that star's σ (fit/ss_choice.c),
+                        * else with the model's table (neighbours are painted
+                        * with the model's table) */
+    int nss;
+    double ssfrac;
     const struct mp_sinc_choice_s *sinc;  /* economy: each group fitted with
                         * the shortest sinc half-width whose bias stays below
                         * sincfrac of its brightest star's σ (fit/sinc_choice.c);
@@ -311,6 +350,7 @@ typedef struct {
     double khw;        /* their half-widths, summed */
     long kbounds;      /* the kernel choice's cost: bound evaluations
                         * (mp_sinc_choice_bound), each nph × npix terms */
+    long kcoarse;      /* LM fits with a coarser table (opts ss) */
     long envelopes;    /* crop envelopes built (mp_prf_envelope: 25 PSF
                         * renders each); 0 when the frame is one group */
     long kept;         /* group fits left out: no star's surroundings changed */
@@ -372,6 +412,7 @@ typedef struct {
     long kcalls, kshort;       /* LM fits of groups, and of them with a shorter
                                 * sinc kernel */
     double khw;                /* their half-widths, summed */
+    long kcoarse;              /* LM fits with a coarser table */
     long kbounds, envelopes;   /* economy's own cost: kernel-bound evaluations
                                 * and crop envelopes built (mp_frame_report) */
 } mp_run_report;
@@ -402,6 +443,7 @@ typedef struct {
     mp_datapars dp;
     mp_table_format fmt;
     mp_sinc_choice sinc;    /* economy: per-group kernel length (opts.sinc) */
+    mp_ss_level ss[MP_SS_MAXLEVELS];   /* economy: coarser samplings (opts.ss) */
     char decisions[2048];   /* economy decisions and their reasons */
     int ndecisions;
 } mp_fit_setup;

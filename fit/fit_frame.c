@@ -21,6 +21,9 @@ void mp_frame_opts_default(mp_frame_opts *o)
     o->refittol = 0.1;
     o->sinc = NULL;
     o->sincfrac = 0.1;
+    o->ss = NULL;
+    o->nss = 0;
+    o->ssfrac = 0.1;
 }
 
 /* Column of a table by the first name present, -1 if none. */
@@ -64,12 +67,49 @@ typedef mp_prf_crop crop_rule;
  * min(groups, MP_SINC_LIMITS_EVALS) · hwmax per pass. */
 typedef struct {
     const mp_sinc_choice *c;   /* NULL: every group with the model's sinc_hw */
-    const double *emax;        /* the limits, or NULL: evaluate per group */
+    double *emax;              /* the limits, or NULL: evaluate per group */
     double sky, ron, frac;
 } kernel_rule;
 
+/* The same bound chooses the table (fit/ss_choice.c: a coarser sampling
+ * is one bound table with hwmax 1): level[l] says whether ss[l] serves a
+ * flux, kern[l] is the kernel choice of ss[l]'s model, kern[nss] that of
+ * the model as given. */
+typedef struct {
+    const mp_ss_level *ss;
+    int nss;
+    kernel_rule level[MP_SS_MAXLEVELS], kern[MP_SS_MAXLEVELS + 1];
+} frame_rules;
+
+/* A rule on the frame's sky; the limits table when the frame has more
+ * groups than it costs evaluations.  Nonzero when out of memory. */
+static int rule_init(kernel_rule *k, const mp_sinc_choice *c, double sky, double ron, double frac,
+                     size_t ng, long *evals)
+{
+    memset(k, 0, sizeof *k);
+    if (!c || c->hwmax <= 0 || !c->d2)
+        return 0;
+    *k = (kernel_rule){c, NULL, sky, ron, frac};
+    if (ng <= MP_SINC_LIMITS_EVALS)
+        return 0;
+    if (!(k->emax = malloc((size_t)c->hwmax * sizeof *k->emax)))
+        return 1;
+    mp_sinc_choice_limits(c, sky, ron, frac, k->emax);
+    *evals += (long)c->hwmax * MP_SINC_LIMITS_EVALS;
+    return 0;
+}
+
+static void rules_free(frame_rules *R)
+{
+    for (int l = 0; l < MP_SS_MAXLEVELS; l++)
+        free(R->level[l].emax);
+    for (int l = 0; l <= MP_SS_MAXLEVELS; l++)
+        free(R->kern[l].emax);
+}
+
 /* The half-width for a group whose brightest star has flux e (≤ 0 or NaN:
- * unknown, the full kernel); *evals counts bound evaluations. */
+ * unknown, the full kernel); *evals counts bound evaluations.  For a
+ * level rule (hwmax 1): 0 when the coarse table serves e, else 1. */
 static int kernel_for(const kernel_rule *k, int hwfull, double e, long *evals)
 {
     if (!k->c)
@@ -260,7 +300,7 @@ static int reject_low(mp_star *s, int *alive, int n, double minsnr, double merge
  * stable.  Local copies of the stars move in the frame's coordinates
  * shifted by (dx, dy). */
 static int fit_one_group(const mp_frame *f, const mp_prf_model *m, const mp_frame_opts *o,
-                         double mergerad, const kernel_rule *kr, star_state *st, int n, double dx, double dy,
+                         double mergerad, const frame_rules *R, star_state *st, int n, double dx, double dy,
                          mp_frame_report *rep, char *err)
 {
     mp_star *s = malloc((size_t)n * sizeof *s), *live = malloc((size_t)n * sizeof *live);
@@ -287,14 +327,17 @@ static int fit_one_group(const mp_frame *f, const mp_prf_model *m, const mp_fram
         if (nl == 0)
             break;
         double sky0 = nl == 1 ? live[0].sky : NAN;
-        /* Economy: the kernel the group's brightest star needs. */
-        mp_prf_model mh = *m;
-        if (kr->c) {
-            double e = 0.0;
-            for (int k = 0; k < nl; k++)
-                e = isfinite(live[k].flux) && live[k].flux > e ? live[k].flux : e;
-            mh.sinc_hw = kernel_for(kr, m->sinc_hw, e, &rep->kbounds);
-        }
+        /* Economy: the coarsest table and the shortest kernel the
+         * group's brightest star allows. */
+        double e = 0.0;
+        for (int k = 0; k < nl; k++)
+            e = isfinite(live[k].flux) && live[k].flux > e ? live[k].flux : e;
+        int l = 0;
+        while (l < R->nss && kernel_for(&R->level[l], 1, e, &rep->kbounds) != 0)
+            l++;
+        mp_prf_model mh = l < R->nss ? R->ss[l].model : *m;
+        mh.sinc_hw = kernel_for(&R->kern[l], mh.sinc_hw, e, &rep->kbounds);
+        rep->kcoarse += l < R->nss;
         rep->kcalls++;
         rep->khw += mh.sinc_hw;
         rep->kshort += mh.sinc_hw < m->sinc_hw;
@@ -536,7 +579,7 @@ static int remember_patches(const mp_frame *f, const mp_prf_model *m, const crop
  * was fitted (light_change); rep counts group fits (fits) and groups left
  * alone (kept).  With economy, every survivor's patch is remembered. */
 static int fit_group_local(const mp_frame *f, const mp_prf_model *m, const mp_frame_opts *o,
-                           double mergerad, const kernel_rule *kr, const double *all,
+                           double mergerad, const frame_rules *R, const double *all,
                            const crop_rule *crop,
                            star_state *st, int n, int may_keep, int economy,
                            mp_frame_report *rep, char *err)
@@ -606,7 +649,7 @@ static int fit_group_local(const mp_frame *f, const mp_prf_model *m, const mp_fr
     double rw = o->fit.sky_order == MP_SKY_AUTO && o->fit.fit_sky ? MP_SKY_TEST_RADIUS * r : r;
     group_window(f, sub, nact, rw, &x0, &y0, &w, &h);
     if (w == 0 || h == 0 || (!all && x0 == 1 && y0 == 1 && w == f->im.nx && h == f->im.ny)) {
-        rc = fit_one_group(f, m, o, mergerad, kr, sub, nact, 0.0, 0.0, rep, err);
+        rc = fit_one_group(f, m, o, mergerad, R, sub, nact, 0.0, 0.0, rep, err);
     } else {
         L.im.nx = w;
         L.im.ny = h;
@@ -631,7 +674,7 @@ static int fit_group_local(const mp_frame *f, const mp_prf_model *m, const mp_fr
                     snprintf(err, MP_ERRLEN, "out of memory");
                     goto done;
                 }
-        rc = fit_one_group(&L, m, o, mergerad, kr, sub, nact, (double)(x0 - 1), (double)(y0 - 1), rep,
+        rc = fit_one_group(&L, m, o, mergerad, R, sub, nact, (double)(x0 - 1), (double)(y0 - 1), rep,
                            err);
     }
     if (!rc && economy && all && isfinite(r) &&
@@ -852,7 +895,9 @@ int mp_fit_table_mem(const mp_frame *f, const mp_prf_model *m, const mp_frame_op
     size_t n = t->nrow;
     star_state *st = calloc(n ? n : 1, sizeof *st);
     size_t *gs = malloc((n + 1) * sizeof *gs);
-    double *all = NULL, *emax = NULL;
+    double *all = NULL;
+    frame_rules R;
+    memset(&R, 0, sizeof R);
     crop_rule crop = {0};
     int rc = 1;
     if (!st || !gs) {
@@ -883,24 +928,22 @@ int mp_fit_table_mem(const mp_frame *f, const mp_prf_model *m, const mp_frame_op
     rep->nstars = (long)n;
     rep->ngroups = (long)ng;
     double mergerad = isfinite(o->mergerad) ? o->mergerad : 0.4 * mp_prf_fwhm(m);
-    /* Economy: the kernel choice on the frame's median start sky (0, the
-     * safe side, when no star has one); the limits table only when it is
-     * cheaper than each group's own evaluation (kernel_rule). */
-    kernel_rule kr = {0};
-    if (o->sinc && o->sinc->hwmax > 0 && o->sinc->d2) {
-        kr.c = o->sinc;
-        kr.sky = median_sky(st, n);
-        kr.ron = f->rdnoise;
-        kr.frac = o->sincfrac;
-    }
-    if (kr.c && ng > MP_SINC_LIMITS_EVALS) {
-        if (!(emax = malloc((size_t)o->sinc->hwmax * sizeof *emax))) {
-            snprintf(err, MP_ERRLEN, "out of memory");
-            goto done;
-        }
-        mp_sinc_choice_limits(o->sinc, kr.sky, kr.ron, kr.frac, emax);
-        kr.emax = emax;
-        rep->kbounds += (long)o->sinc->hwmax * MP_SINC_LIMITS_EVALS;
+    /* Economy: the table and kernel choices on the frame's median start
+     * sky (0, the safe side, when no star has one); the limits tables only
+     * when cheaper than each group's own evaluation (rule_init). */
+    double bsky = o->sinc || o->nss ? median_sky(st, n) : 0.0;
+    R.ss = o->ss;
+    R.nss = o->ss ? (o->nss < MP_SS_MAXLEVELS ? o->nss : MP_SS_MAXLEVELS) : 0;
+    int nomem = rule_init(&R.kern[R.nss], o->sinc, bsky, f->rdnoise, o->sincfrac, ng,
+                          &rep->kbounds);
+    for (int l = 0; l < R.nss; l++)
+        nomem |= rule_init(&R.level[l], &R.ss[l].bound, bsky, f->rdnoise, o->ssfrac, ng,
+                           &rep->kbounds) ||
+                 rule_init(&R.kern[l], o->sinc ? &R.ss[l].sinc : NULL, bsky, f->rdnoise,
+                           o->sincfrac, ng, &rep->kbounds);
+    if (nomem) {
+        snprintf(err, MP_ERRLEN, "out of memory");
+        goto done;
     }
     int passes = o->passes < 1 ? 1 : o->passes;
     /* One group (a whole-frame fit, or one star): nobody else's light to
@@ -941,7 +984,7 @@ int mp_fit_table_mem(const mp_frame *f, const mp_prf_model *m, const mp_frame_op
             char e[MP_ERRLEN];
             mp_frame_report r = {0};
             int k = (int)(gs[g + 1] - gs[g]);
-            if (fit_group_local(f, m, o, mergerad, &kr, all, &crop, st + gs[g], k, economy, economy,
+            if (fit_group_local(f, m, o, mergerad, &R, all, &crop, st + gs[g], k, economy, economy,
                                 &r, e)) {
                 failed++;
 #pragma omp critical(fit_table_error)
@@ -958,6 +1001,7 @@ int mp_fit_table_mem(const mp_frame *f, const mp_prf_model *m, const mp_frame_op
                 pr.khw += r.khw;
                 pr.kept += r.kept;
                 pr.kbounds += r.kbounds;
+                pr.kcoarse += r.kcoarse;
             }
         }
         if (failed) {
@@ -973,6 +1017,7 @@ int mp_fit_table_mem(const mp_frame *f, const mp_prf_model *m, const mp_frame_op
         rep->khw += pr.khw;
         rep->kept += pr.kept;
         rep->kbounds += pr.kbounds;
+        rep->kcoarse += pr.kcoarse;
         /* No group refitted: every later pass would see the same light. */
         if (economy && pr.fits == 0) {
             rep->kept += (long)ng * (passes - pass - 1);
@@ -999,7 +1044,7 @@ done:
     for (size_t i = 0; st && i < n; i++)
         free(st[i].seen);
     free(all);
-    free(emax);
+    rules_free(&R);
     free(st);
     free(gs);
     free(crop.env);

@@ -12,6 +12,8 @@ void mp_fit_setup_free(mp_fit_setup *s)
     mp_psf_field_free(&s->field);
     mp_drf_free(&s->drf);
     mp_sinc_choice_free(&s->sinc);
+    for (int l = 0; l < MP_SS_MAXLEVELS; l++)
+        mp_ss_level_free(&s->ss[l]);
 }
 
 /* Paper §5.4: a discrete PSF needs β ≥ 21 in its own (super)pixels, or
@@ -67,12 +69,46 @@ static double beta_normalised(const mp_prf_model *m)
     return 1.0 / st.sharp;
 }
 
+/* The coarser samplings of a supersampled table (every divisor k of its
+ * OVERSAMP, coarsest first), each with its error measured on this PSF
+ * (fit/ss_choice.c); the frame fit uses, per group, the coarsest whose bias
+ * bound at the group's brightest star is ≤ ssfrac of its σ.  The decision
+ * names each level's flux limit with no sky and 1 e- read noise (the safe
+ * side: a frame's own sky and noise only raise it). */
+static int supersampling_levels(mp_fit_setup *s, char *err)
+{
+    char why[512];
+    int os = s->psf.os, n = 0, k = snprintf(why, sizeof why, "supersampling: per group, the "
+                                            "coarsest table whose bias bound stays below %.2g of "
+                                            "its brightest star's sigma (fit/ss_choice.c):",
+                                            s->opts.ssfrac);
+    for (int c = 1; c < os && n < MP_SS_MAXLEVELS; c++) {
+        if (os % c)
+            continue;
+        mp_ss_level *lv = &s->ss[n];
+        if (mp_ss_level_build(&s->model, os / c, lv, err))
+            return 1;
+        lv->os = c;
+        n++;
+        double e = mp_ss_level_emax(lv, 0.0, 1.0, s->opts.ssfrac);
+        if (k < (int)sizeof why)
+            k += snprintf(why + k, sizeof why - (size_t)k, " x%d to E = %.3g e-,", c, e);
+    }
+    if (k < (int)sizeof why)
+        snprintf(why + k, sizeof why - (size_t)k, " the x%d table above (beta = %.1f px^2 at "
+                 "detector sampling)", os, beta_normalised(&s->model));
+    s->opts.ss = s->ss;
+    s->opts.nss = n;
+    decide(s, why);
+    return 0;
+}
+
 /* economy=yes: leave out what cannot change the answer (issue 5); every
  * decision, to drop a part or to keep it, is logged with its reason.
  *  - A DRF map whose subpixels are all equal is the scalar V.
- *  - A supersampled table is block-summed to the coarsest sampling s at
- *    which β·V²·s² ≥ 21 px² (paper §5.4; s = 1 when the data are
- *    oversampled, validate cases 2 and 3) when no DRF map needs the
+ *  - A supersampled table is offered per group at every coarser sampling
+ *    whose error, measured on this PSF, is provably small for the group's
+ *    brightest star (supersampling_levels), when no DRF map needs the
  *    subpixels, unless the user asked for a sampling with psfos. */
 static int economize(mp_fit_setup *s, int psfos_given, char *err)
 {
@@ -111,29 +147,7 @@ static int economize(mp_fit_setup *s, int psfos_given, char *err)
         decide(s, why);
         return 0;
     }
-    /* The coarsest sampling s (a divisor of the table's) at which the
-     * table holds β·s² ≥ 21 px² (paper §5.4: 1× tables are on the CRLB
-     * from β = 21 on, and a 2× table of an undersampled PSF, β·4 ≥ 21, is;
-     * validate cases 2, 5, 6b). */
-    double b = beta_normalised(&s->model);
-    int want = os;
-    for (int k = 1; k < os; k++)
-        if (os % k == 0 && b * k * k >= 21.0) {
-            want = k;
-            break;
-        }
-    if (want < os) {
-        if (rebin_both(s, os / want, err))
-            return 1;
-        snprintf(why, sizeof why, "supersampling: beta = %.1f px^2 at detector sampling, "
-                 "%.1f >= 21 at x%d (paper 5.4), the x%d table block-summed to x%d", b,
-                 b * want * want, want, os, want);
-    } else {
-        snprintf(why, sizeof why, "supersampling: beta = %.1f px^2 < 21 at detector sampling "
-                 "(paper 5.4) and no coarser sampling reaches 21, the x%d table kept", b, os);
-    }
-    decide(s, why);
-    return 0;
+    return supersampling_levels(s, err);
 }
 
 /* skymodel: an explicit order is honoured; auto chooses per group from the
@@ -154,10 +168,27 @@ static int sky_order_of(const char *v, int economy)
  * at its origin, which is what the PSF-wide measurements below (β, the
  * coarsest sampling, the sinc kernel's error) are taken on; the fit then
  * evaluates the field at every star (psf.field, set last). */
-static int read_psf(mp_fit_setup *s, const char *name, int norm, int os, char *warn, char *err)
+static int read_psf(mp_fit_setup *s, const char *name, int norm, int os, const char *kspec,
+                    char *warn, char *err)
 {
     if (mp_psf_field_read(name, norm, os, &s->field, NULL, NULL, warn, err))
         return 1;
+    if (kspec[0]) {
+        /* Folded into the supersampled table: exact (psf/kernel.c). */
+        mp_psf k;
+        if (mp_psf_kernel_read(kspec, name, &k, err))
+            return 1;
+        int rc = mp_psf_field_fold_kernel(&s->field, &k, err);
+        char why[256];
+        snprintf(why, sizeof why, "detector kernel: %dx%d (sum %.6g) from %s folded into the x%d "
+                 "table (exact: it commutes with the shift, the DRF and the block-sum)", k.nx,
+                 k.ny, k.sum, strcmp(kspec, "header") ? kspec : "the PSF file's header",
+                 s->field.os);
+        mp_psf_free(&k);
+        if (rc)
+            return 1;
+        decide(s, why);
+    }
     if (mp_psf_field_eval(&s->field, s->field.x0, s->field.y0, &s->psf, err))
         return 1;
     s->psf.sum = s->field.sum;
@@ -171,10 +202,14 @@ int mp_fit_setup_read(const mp_parset *ps, mp_fit_setup *s, char *err)
     int norm = 0;
     mp_par_bool(ps, "psfnorm", &norm);
     char warn[MP_ERRLEN];
-    if (psf[0]) {
+    /* psf=gauss names the analytic mode (the pipeline builds a PSF from
+     * the frame when psf is empty). */
+    if (psf[0] && strcmp(psf, "gauss") != 0) {
         int hos = MP_PAR_INDEF_INT;
         mp_par_int(ps, "oversamp", &hos);
-        if (read_psf(s, psf, norm, hos == MP_PAR_INDEF_INT ? 0 : hos, warn, err))
+        const char *kspec = mp_par_string(ps, "psfkernel");
+        if (read_psf(s, psf, norm, hos == MP_PAR_INDEF_INT ? 0 : hos, kspec ? kspec : "", warn,
+                     err))
             return 1;
         if (warn[0])
             fprintf(stderr, "matphot fit: warning: %s\n", warn);
@@ -190,6 +225,12 @@ int mp_fit_setup_read(const mp_parset *ps, mp_fit_setup *s, char *err)
                 return 1;
         }
     } else {
+        const char *kspec = mp_par_string(ps, "psfkernel");
+        if (kspec && kspec[0]) {
+            snprintf(err, MP_ERRLEN, "psfkernel: %s: a detector kernel needs a PSF table (psf=)",
+                     kspec);
+            return 1;
+        }
         double fwhm;
         mp_par_real(ps, "fwhm", &fwhm);
         mp_psf_gauss(fwhm, &s->psf);
@@ -259,6 +300,13 @@ int mp_fit_setup_read(const mp_parset *ps, mp_fit_setup *s, char *err)
     warn_undersampled(s);
     if (s->field.order > 0) {
         s->psf.field = &s->field;
+        /* Each coarser sampling evaluates its own block-summed field. */
+        for (int l = 0; l < s->opts.nss; l++) {
+            mp_ss_level *lv = &s->ss[l];
+            if (mp_psf_field_rebin(&s->field, s->psf.os / lv->os, &lv->field, err))
+                return 1;
+            lv->psf.field = &lv->field;
+        }
         char why[256];
         snprintf(why, sizeof why, "variable PSF: order %d, each star's table evaluated at its "
                  "own position; sampling and sinc kernel from the table at the origin (%.1f, %.1f)",

@@ -12,6 +12,7 @@
 #include "find/find.h"
 #include "fit/fit.h"
 #include "group/group.h"
+#include "psf/build.h"
 
 typedef struct {
     mp_fit_setup fit;        /* PSF, model, fit options, datapars */
@@ -22,6 +23,11 @@ typedef struct {
     double matchrad;         /* [px]; NaN: 1 FWHM */
     mp_table_format catfmt;
     int regions;             /* also write root.reg (DS9) */
+    int build_psf;           /* psf="" : build root.psf.fits from the frame
+                              * before the first round and once after it */
+    mp_epsf_opts psfb;       /* how (psf.par's names: varorder, maxnpsf) */
+    mp_parset *ps;           /* the task's parameters: the fit is set up
+                              * again from them with psf=root.psf.fits */
 } mp_pipeline_opts;
 
 /* Seconds and counts of every stage, for the report on stderr. */
@@ -35,6 +41,7 @@ typedef struct {
                                    * cropped (economy), summed over rounds */
     long kcalls, kshort;          /* LM fits of groups; with a shorter sinc kernel */
     long kbounds, envelopes;      /* economy's own cost (mp_frame_report) */
+    long kcoarse;                 /* LM fits with a coarser table */
     long sky_groups[MP_SKY_MAXORDER + 1];  /* last round's groups by sky order */
     double khw;                   /* their half-widths summed over all group fits */
 } mp_pipeline_report;

@@ -61,8 +61,10 @@ int mp_pl_write_catalog(const char *root, const mp_frame *f, mp_table *t,
 int mp_pl_write_residual(const char *root, const mp_frame *f, double *res, char *err);
 
 /* mp_pl_write_report: the run report of a finished run (stderr and
- * root.report) from the pipeline's counts and the final table. */
-int mp_pl_write_report(const char *image, const char *root, const mp_pipeline_opts *o,
-                       const mp_pipeline_report *rep, const mp_table *t, char *err);
+ * root.report) from the pipeline's counts and the final table; fit is the
+ * setup the last round used (the task's, or one from the built PSF). */
+int mp_pl_write_report(const char *image, const char *root,
+                       const mp_fit_setup *fit, const mp_pipeline_report *rep, const mp_table *t,
+                       char *err);
 
 #endif
