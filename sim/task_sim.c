@@ -18,8 +18,8 @@
 typedef struct {
     const char *output, *psf, *drf, *psfout;
     char *truth;                      /* owned */
-    int nx, ny, crowded, nstars, noise, psfos;
-    double magmin, magmax, sky, rdnoise, gain, fwhm, volume, saturate;
+    int nx, ny, crowded, nstars, noise, psfos, segmented;
+    double magmin, magmax, sky, rdnoise, gain, fwhm, volume, saturate, lod, band;
     uint64_t seed;
 } sim_config;
 
@@ -64,10 +64,17 @@ static int read_config(const mp_parset *ps, sim_config *c, char *err)
         need_real(ps, "magmin", &c->magmin, err) || need_real(ps, "magmax", &c->magmax, err) ||
         need_real(ps, "sky", &c->sky, err) || need_real(ps, "rdnoise", &c->rdnoise, err) ||
         need_real(ps, "gain", &c->gain, err) || need_real(ps, "fwhm", &c->fwhm, err) ||
-        need_real(ps, "volume", &c->volume, err) || need_int(ps, "psfos", &c->psfos, err))
+        need_real(ps, "volume", &c->volume, err) || need_int(ps, "psfos", &c->psfos, err) ||
+        need_real(ps, "lod", &c->lod, err) || need_real(ps, "band", &c->band, err))
         return 1;
-    if (c->psfout && *c->psfout && *c->psf) {
-        snprintf(err, MP_ERRLEN, "psfout: only the analytic Gaussian (no psf=) can be written");
+    const char *pupil = mp_par_string(ps, "pupil");
+    c->segmented = pupil && strcmp(pupil, "segmented") == 0;
+    if (!pupil || (!c->segmented && strcmp(pupil, "gaussian") != 0)) {
+        snprintf(err, MP_ERRLEN, "pupil: '%s' is not gaussian or segmented", pupil ? pupil : "");
+        return 1;
+    }
+    if (c->segmented && *c->psf) {
+        snprintf(err, MP_ERRLEN, "pupil: segmented draws its own PSF; give no psf=");
         return 1;
     }
     if (mp_par_real(ps, "saturate", &c->saturate) || mp_par_int(ps, "seed", &seed)) {
@@ -180,7 +187,8 @@ static int write_frame(const sim_config *c, const mp_sim_prf *prf, double volume
     if (prf->kind == MP_SIM_GAUSS)
         cards[nc++] = (mp_card){"FWHM", c->fwhm, NULL, "[pixel] simulated Gaussian PSF FWHM"};
     else
-        cards[nc++] = (mp_card){"PSF", 0, c->psf, "simulated PSF table"};
+        cards[nc++] = (mp_card){"PSF", 0, c->segmented ? "segmented mirror" : c->psf,
+                                "simulated PSF table"};
     if (*c->drf)
         cards[nc++] = (mp_card){"DRF", 0, c->drf, "simulated detector response"};
     cards[nc++] = (mp_card){"VOLUME", volume, NULL, "PRF volume (mean detector QE)"};
@@ -188,11 +196,44 @@ static int write_frame(const sim_config *c, const mp_sim_prf *prf, double volume
     return mp_image_write(c->output, adu, c->nx, c->ny, c->noise ? -32 : -64, cards, nc, err);
 }
 
+/* A table star's table block-summed by an odd factor to OVERSAMP psfos
+ * (the star stays at the centre of the central element), written to
+ * psfout: what the fit is given, exactly the sums the simulator draws. */
+static int write_table_psf(const sim_config *c, const mp_sim_prf *prf, char *err)
+{
+    int f = prf->tos / c->psfos;
+    if (prf->tos % c->psfos || f % 2 == 0) {
+        snprintf(err, MP_ERRLEN, "psfos: %d must divide the table's OVERSAMP %d by an odd factor",
+                 c->psfos, prf->tos);
+        return 1;
+    }
+    int cx = (prf->tnx - 1) / 2, cy = (prf->tny - 1) / 2, hx = (cx + f / 2) / f, hy = (cy + f / 2) / f;
+    int nx = 2 * hx + 1, ny = 2 * hy + 1;
+    double *t = calloc((size_t)nx * ny, sizeof *t);
+    if (!t) {
+        snprintf(err, MP_ERRLEN, "%s: out of memory", c->psfout);
+        return 1;
+    }
+    for (int j = 0; j < prf->tny; j++)
+        for (int i = 0; i < prf->tnx; i++) {
+            int I = (int)floor((double)(i - cx + f / 2) / f) + hx;
+            int J = (int)floor((double)(j - cy + f / 2) / f) + hy;
+            if (I >= 0 && I < nx && J >= 0 && J < ny)
+                t[(size_t)J * nx + I] += prf->tab[(size_t)j * prf->tnx + i];
+        }
+    mp_card cards[1] = {{"OVERSAMP", c->psfos, NULL, "table elements per detector pixel"}};
+    int rc = mp_image_write(c->psfout, t, nx, ny, -64, cards, 1, err);
+    free(t);
+    return rc;
+}
+
 /* The Gaussian as a PSF table (design.md §3): OVERSAMP os, odd size, each
  * element the integral over its subpixel — drawn as a star of width σ·os at
  * the centre of a fine frame, so it is exact like every simulated star. */
 static int write_psf(const sim_config *c, const mp_sim_prf *prf, char *err)
 {
+    if (prf->kind == MP_SIM_TABLE)
+        return write_table_psf(c, prf, err);
     int os = c->psfos, h = (int)ceil(4.0 * c->fwhm * os), n = 2 * h + 1;
     mp_sim_prf fine = *prf;
     fine.sigma = prf->sigma * os;
@@ -225,8 +266,20 @@ static int run(const sim_config *c, char *err)
     int rc = 1;
     double volume = c->volume;
 
+    double *seg = NULL;
     if (*c->psf && sim_load_psf(c->psf, &in, &prf, err))
         goto done;
+    if (c->segmented) {
+        /* The segmented mirror's table at psfos, drawn as any table star. */
+        int n;
+        char e[256];
+        if (mp_sim_segmented_psf(c->lod, c->band, c->psfos, 20.0, &seg, &n, e)) {
+            snprintf(err, MP_ERRLEN, "pupil: %s", e);
+            goto done;
+        }
+        prf = (mp_sim_prf){.kind = MP_SIM_TABLE, .tab = seg, .tnx = n, .tny = n,
+                           .tos = c->psfos, .volume = c->volume};
+    }
     if (*c->drf) {
         if (sim_load_drf(c->drf, &in, &prf, err))
             goto done;
@@ -274,6 +327,7 @@ static int run(const sim_config *c, char *err)
     }
     rc = 0;
 done:
+    free(seg);
     free(img);
     mp_table_free(&t);
     sim_inputs_free(&in);
