@@ -34,6 +34,7 @@ typedef struct {
 typedef struct {
     double t_read, t_bkg, t_find, t_group, t_fit, t_write;
     int rounds;
+    long screened;                /* candidates deep detection's screen dropped */
     long found, added, fitted, merged, rejected, noconv;
     long ngroups, iterations;     /* of the last round; summed over rounds */
     long fits, kept, cropped;     /* group fits done and left out, star paints

@@ -88,6 +88,24 @@ static int read_frame(run_state *s, char *err)
     return 0;
 }
 
+/* Deep detection: candidates from find (threshold, well below the cut)
+ * screened by a linear fit on data (the frame or the residual) before the
+ * full fit judges them by minsnr.  (Leaving the candidates within 1.5
+ * FWHM of a fitted star unscreened, for blends, found 9 more stars of
+ * 5000 at 3x the fit's time: not done.) */
+static int screen(run_state *s, const mp_frame *on, const double *data, mp_table *cand)
+{
+    double cut = s->o->fit.opts.minsnr - MP_PL_SCREEN_SLACK;
+    if (!(cut > 0) || cand->nrow == 0)
+        return 0;
+    long n = mp_pl_prescreen(on, &s->bkg, data, &s->o->fit.model, s->o->fit.opts.fit.fitrad,
+                             cut, cand);
+    if (n < 0)
+        return 1;
+    s->rep->screened += n;
+    return 0;
+}
+
 /* Sky and noise maps, the first detection, root.coo. */
 static int find_stars(run_state *s, char *err)
 {
@@ -98,12 +116,17 @@ static int find_stars(run_state *s, char *err)
     t0 = mp_seconds();
     if (mp_find_stars(&s->f, &s->bkg, &s->o->find, &s->t, err))
         return 1;
+    if (screen(s, &s->f, s->f.im.pix, &s->t))
+        return oom(err);
+    mp_pl_drop_unset(&s->t);
     s->rep->t_find += mp_seconds() - t0;
     s->rep->found = (long)s->t.nrow;
     /* Written first: a failed write is the run's only stderr line. */
     if (mp_pl_write_named(s->root, ".coo", &s->t, s->o->fit.fmt, err))
         return 1;
-    fprintf(stderr, "matphot pipeline: %s: %zu stars found\n", s->image, s->t.nrow);
+    fprintf(stderr, "matphot pipeline: %s: %zu stars found (%ld candidates below the screen's "
+            "S/N %g)\n", s->image, s->t.nrow, s->rep->screened,
+            s->o->fit.opts.minsnr - MP_PL_SCREEN_SLACK);
     return 0;
 }
 
@@ -191,6 +214,8 @@ static int find_on_residual(run_state *s, int round, long *added, char *err)
     ro.roundlo = fmin(ro.roundlo, -2.0);
     ro.roundhi = fmax(ro.roundhi, 2.0);
     int frc = mp_find_stars(&R, &s->bkg, &ro, &s->found, err);
+    if (!frc && screen(s, &R, s->res, &s->found))
+        return oom(err);
     s->rep->t_find += mp_seconds() - t0;
     if (frc)
         return 1;
