@@ -36,6 +36,7 @@ static const struct {
     { "fit", mp_task_fit, "fit stars and sky with a discrete or analytic PSF (MATPHOT)" },
     { "catalog", mp_task_catalog, "final catalogue: magnitudes, sky positions, FITS/LDAC, DS9 regions" },
     { "pipeline", mp_task_pipeline, "find, group and fit in rounds on the residual, then the catalogue" },
+    { "fakes", mp_task_fakes, "artificial stars: completeness, bias and errors of the pipeline" },
     { "sim", mp_task_sim, "simulate a frame of stars with exact pixel-integrated PRFs" },
     { "params", mp_task_params, "print a task's parameters as a .par file (no TASK: list them)" },
 };
