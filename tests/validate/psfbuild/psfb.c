@@ -20,7 +20,7 @@
  *       sees them: PRFs at 16 phases, rms and largest pixel difference
  *       over the peak; and element by element when the samplings agree.
  *
- * Scenes (fixed seeds): 512×512 px, 1500 stars uniform in position,
+ * Scenes (fixed seeds): 256×256 px, 400 stars uniform in position,
  * magnitudes uniform in [−14, −8] (0 mag = 1 e−), sky 100 e−, RON 3 e−.
  *   segmented: sim/segmented.c's 18-hexagon mirror, λ/D = 2 px at the
  *     blue end of a 50 % band (undersampled, ugly: issue 11's third case).
@@ -38,10 +38,10 @@
 #include "io/io.h"
 #include "sim/sim.h"
 
-#define NX 512
-#define NSTAR 1500
+#define NX 256
+#define NSTAR 400
 #define TOS 5
-#define RAD 12.0
+#define RAD 8.0
 #define SKY 100.0
 #define RON 3.0
 
