@@ -102,11 +102,18 @@ void mp_five_point(const double *in, int nx, int ny, int axis, double *out);
 
 /* ---- PRF on detector pixels ---------------------------------------------- */
 
+struct mp_prf_cache_s;
+
 /* What makes a model PRF, and which of its parts are used. */
 typedef struct {
     const mp_psf *psf;
     const mp_drf *drf;     /* NULL: perfect detector */
     int sinc_hw;           /* damped-sinc half-width, 10 = 21 taps */
+    const struct mp_prf_cache_s *cache;  /* economy: the PRF drawn from a grid
+                           * of phases (fit/prf_cache.c) when it was built for
+                           * this psf and drf; NULL: rendered exactly */
+    double cache_emax;     /* the largest flux the cache serves within its
+                            * bound (mp_prf_cache_limit; mp_prf_for_flux) */
 } mp_prf_model;
 
 /* Scratch space for mp_prf_render (one per thread). */
@@ -206,6 +213,68 @@ void mp_prf_crop_free(mp_prf_crop *c);
  * puts less than frac·σ on any pixel; INFINITY (c NULL, no envelope, or
  * never below): its whole box. */
 double mp_prf_crop_radius(const mp_prf_crop *c, double E, double sky);
+
+/* ---- The PRF from a grid of subpixel phases (fit/prf_cache.c, issue 12) --- */
+
+/* The exact PRF (full sinc_hw) rendered once on a grid of phases, G per
+ * pixel, kept per alignment branch (1/os px wide, Gb = G/os intervals,
+ * nodes −1..Gb+1 with the branch's alignment); a star's PRF is the
+ * tensor-product cubic (Catmull-Rom) interpolation between the 4×4 nodes
+ * around its phase, its derivatives those of the interpolant.  The error
+ * this adds, δP, is measured at the centre of each of the G² cells. */
+typedef struct mp_prf_cache_s {
+    int G;                 /* phases per pixel (os·gb); 0: no cache */
+    int os, gb;            /* the table's OVERSAMP; intervals per branch */
+    double offset;         /* the table's offset (mp_psf) */
+    long ux0, uy0;         /* union box relative to the reference pixel */
+    int uw, uh;
+    size_t npix;           /* uw*uh */
+    double *img;           /* (os(gb+3))² planes of npix */
+    int nph;               /* measured phases (G²) */
+    float *p, *d2;         /* nph × npix: exact PRF and δP² at cell centres */
+    const mp_psf *psf;     /* what it was built from (mp_prf_cache_usable) */
+    const mp_drf *drf;
+} mp_prf_cache;
+
+/* mp_prf_cache_build: the grid of model m (its full sinc_hw; m->cache is
+ * ignored), at least G phases per pixel.  An analytic PSF, or a grid that
+ * would take more than 256 MB, gets an empty cache (c->G = 0).
+ * Nonzero with err when out of memory. */
+int mp_prf_cache_build(const mp_prf_model *m, int G, mp_prf_cache *c, char *err);
+
+/* The grid economy=yes builds by default (fit/setup.c; parameter phasegrid). */
+#define MP_PRF_CACHE_G 16
+void mp_prf_cache_free(mp_prf_cache *c);
+
+/* mp_prf_cache_bound: q = E·max_cell sqrt(Σ δP²/(E P + B + ron²)), the bound
+ * on |bias|/σ_CRLB of a star's flux, position and sky from drawing its PRF
+ * from the grid (the argument of fit/sinc_choice.c); INFINITY without a grid. */
+double mp_prf_cache_bound(const mp_prf_cache *c, double E, double B, double ron);
+
+/* mp_prf_cache_limit: the largest flux whose bound is ≤ frac on sky B
+ * (0 when none, INFINITY when all). */
+double mp_prf_cache_limit(const mp_prf_cache *c, double B, double ron, double frac);
+
+/* mp_prf_render_branch: as mp_prf_render_window without derivatives, the
+ * table aligned (its element nearest the star, and so the box) as for a
+ * star at (xr, yr), then shifted to (x, y) — for the phase grid, whose
+ * renders must stay on one side of the points where the natural alignment
+ * jumps (every 1/OVERSAMP px), so that they are smooth in the phase. */
+int mp_prf_render_branch(const mp_prf_model *m, double x, double y, double xr, double yr,
+                         long wx0, long wy0, long ww, long wh, long *x0, long *y0, int *w,
+                         int *h, double *prf, mp_prf_work *work);
+
+/* mp_prf_cache_usable: nonzero when m->cache was built for m's psf and drf. */
+int mp_prf_cache_usable(const mp_prf_model *m);
+
+/* mp_prf_cache_render: the interpolated PRF (and derivatives, may be NULL)
+ * on the box [x0, x0+w) × [y0, y0+h); nonzero when m has no usable cache. */
+int mp_prf_cache_render(const mp_prf_model *m, double x, double y, long x0, long y0, int w,
+                        int h, double *prf, double *ddx, double *ddy);
+
+/* mp_prf_for_flux: m for a star of flux E: without its cache when E is
+ * beyond m->cache_emax (the exact render then). */
+mp_prf_model mp_prf_for_flux(const mp_prf_model *m, double E);
 
 /* ---- Performance model (paper §2) ----------------------------------------- */
 
@@ -339,6 +408,7 @@ typedef struct {
     long fits;         /* group fits done, over passes (and rounds) */
     long kcalls;       /* LM fits of groups (a group refits after a merge) */
     long kshort;       /* of them, with a sinc kernel shorter than sinchw */
+    long kcache;       /* of them, with the PRF from the phase grid */
     double khw;        /* their half-widths, summed */
     long kept;         /* group fits left out: no star's surroundings changed */
     long cropped;      /* stars painted with a cropped PSF */
@@ -398,6 +468,7 @@ typedef struct {
                                 * done and left out, star paints cropped */
     long kcalls, kshort;       /* LM fits of groups, and of them with a shorter
                                 * sinc kernel */
+    long kcache;               /* LM fits with the PRF from the phase grid */
     double khw;                /* their half-widths, summed */
 } mp_run_report;
 
@@ -426,6 +497,7 @@ typedef struct {
     mp_datapars dp;
     mp_table_format fmt;
     mp_sinc_choice sinc;    /* economy: per-group kernel length (opts.sinc) */
+    mp_prf_cache cache;     /* economy: the PRF from a grid of phases (model.cache) */
     char decisions[2048];   /* economy decisions and their reasons */
     int ndecisions;
 } mp_fit_setup;

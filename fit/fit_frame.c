@@ -71,6 +71,8 @@ static int paint(const mp_prf_model *m, const mp_star *s, double sign, double ra
 {
     if (!isfinite(s->flux) || !isfinite(s->x) || !isfinite(s->y) || s->flux == 0.0)
         return 0;
+    mp_prf_model mf = mp_prf_for_flux(m, s->flux);  /* the phase grid within its bound */
+    m = &mf;
     long wx0 = x0, wy0 = y0, wx1 = x0 + w, wy1 = y0 + h;   /* [wx0, wx1) */
     if (isfinite(rad)) {
         /* pixels whose centres lie within rad on either axis */
@@ -227,6 +229,13 @@ static int fit_one_group(const mp_frame *f, const mp_prf_model *m, const mp_fram
             for (int k = 0; k < nl; k++)
                 e = isfinite(live[k].flux) && live[k].flux > e ? live[k].flux : e;
             mh.sinc_hw = mp_sinc_choice_pick(emax, o->sinc->hwmax, e > 0 ? e : INFINITY);
+        }
+        if (m->cache) {     /* economy: the phase grid when its bound allows */
+            double e = 0.0;
+            for (int k = 0; k < nl; k++)
+                e = isfinite(live[k].flux) && fabs(live[k].flux) > e ? fabs(live[k].flux) : e;
+            mh = mp_prf_for_flux(&mh, e > 0 ? e : INFINITY);
+            rep->kcache += mp_prf_cache_usable(&mh);
         }
         rep->kcalls++;
         rep->khw += mh.sinc_hw;
@@ -826,6 +835,12 @@ int mp_fit_table_mem(const mp_frame *f, const mp_prf_model *m, const mp_frame_op
         double bsky = median_sky(st, n);
         mp_sinc_choice_limits(o->sinc, bsky, f->rdnoise, o->sincfrac, emax);
     }
+    /* Economy: the largest flux the phase grid serves within the same
+     * bound, on the same sky (mp_prf_for_flux picks per group and star). */
+    mp_prf_model mc = *m;
+    if (m->cache)
+        mc.cache_emax = mp_prf_cache_limit(m->cache, median_sky(st, n), f->rdnoise, o->sincfrac);
+    m = &mc;
     int passes = o->passes < 1 ? 1 : o->passes;
     if (ng <= 1)
         passes = 1;                 /* nobody else's light to subtract */
@@ -864,6 +879,7 @@ int mp_fit_table_mem(const mp_frame *f, const mp_prf_model *m, const mp_frame_op
                 pr.fits += r.fits;
                 pr.kcalls += r.kcalls;
                 pr.kshort += r.kshort;
+                pr.kcache += r.kcache;
                 pr.khw += r.khw;
                 pr.kept += r.kept;
             }
@@ -878,6 +894,7 @@ int mp_fit_table_mem(const mp_frame *f, const mp_prf_model *m, const mp_frame_op
         rep->fits += pr.fits;
         rep->kcalls += pr.kcalls;
         rep->kshort += pr.kshort;
+        rep->kcache += pr.kcache;
         rep->khw += pr.khw;
         rep->kept += pr.kept;
         /* No group refitted: every later pass would see the same light. */

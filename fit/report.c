@@ -136,8 +136,9 @@ static void report_lines(FILE *fp, const char *prefix, const mp_run_report *r)
             d[0] && r->sky[0] ? "; " : "", r->sky);
     fprintf(fp, "%s  work: %ld group fits, %ld left out (neighbours' light unchanged), "
             "%ld star paints cropped; %ld of %ld LM fits with a shorter sinc kernel (mean "
-            "half-width %.1f)\n", prefix, r->fits, r->kept, r->cropped, r->kshort, r->kcalls,
-            r->kcalls > 0 ? r->khw / (double)r->kcalls : 0.0);
+            "half-width %.1f), %ld with the PRF from the phase grid\n", prefix, r->fits, r->kept,
+            r->cropped, r->kshort, r->kcalls, r->kcalls > 0 ? r->khw / (double)r->kcalls : 0.0,
+            r->kcache);
 }
 
 int mp_report_write(const char *path, const char *task, const mp_run_report *r, char *err)

@@ -11,6 +11,7 @@ void mp_fit_setup_free(mp_fit_setup *s)
     mp_psf_free(&s->psf);
     mp_drf_free(&s->drf);
     mp_sinc_choice_free(&s->sinc);
+    mp_prf_cache_free(&s->cache);
 }
 
 /* Paper §5.4: a discrete PSF needs β ≥ 21 in its own (super)pixels, or
@@ -213,6 +214,20 @@ int mp_fit_setup_read(const mp_parset *ps, mp_fit_setup *s, char *err)
             snprintf(why, sizeof why, "sinc kernel: per group, the shortest half-width <= %d "
                      "whose bias stays below %.2g of its brightest star's sigma "
                      "(fit/sinc_choice.c)", s->sinc.hwmax, s->opts.sincfrac);
+            decide(s, why);
+        }
+        /* The phase grid, built from the model as it now stands (exact,
+         * full kernel), last: nothing above renders through it. */
+        int grid = MP_PRF_CACHE_G;
+        mp_par_int(ps, "phasegrid", &grid);
+        if (grid > 0 && mp_prf_cache_build(&s->model, grid, &s->cache, err))
+            return 1;
+        if (s->cache.G > 0) {
+            s->model.cache = &s->cache;
+            snprintf(why, sizeof why, "PRF from a grid of %dx%d subpixel phases (cubic "
+                     "interpolation) for groups whose brightest star's bias bound stays below "
+                     "%.2g sigma, exact renders for the others (fit/prf_cache.c)",
+                     s->cache.G, s->cache.G, s->opts.sincfrac);
             decide(s, why);
         }
         snprintf(why, sizeof why, "neighbour light: painted out to where it falls below %.2g of a "

@@ -67,6 +67,7 @@ static int fit_one(const mp_fit_setup *s, const char *image, const char *coords,
     run.cropped = rep.cropped;
     run.kcalls = rep.kcalls;
     run.kshort = rep.kshort;
+    run.kcache = rep.kcache;
     run.khw = rep.khw;
     mp_report_from_table(&t, &run);
     mp_report_parts(&s->model, &s->opts, &rep, &run);

@@ -333,6 +333,7 @@ int mp_pipeline_run(const char *image, const char *root, const mp_pipeline_opts 
         rep->cropped += fr.cropped;
         rep->kcalls += fr.kcalls;
         rep->kshort += fr.kshort;
+        rep->kcache += fr.kcache;
         memcpy(rep->sky_groups, fr.sky_groups, sizeof rep->sky_groups);
         rep->khw += fr.khw;
         rep->ngroups = fr.ngroups;
@@ -439,6 +440,7 @@ int mp_pipeline_run(const char *image, const char *root, const mp_pipeline_opts 
         run.cropped = rep->cropped;
         run.kcalls = rep->kcalls;
         run.kshort = rep->kshort;
+        run.kcache = rep->kcache;
         run.khw = rep->khw;
         mp_report_from_table(&t, &run);
         mp_frame_report last = {.nstars = (long)t.nrow, .ngroups = rep->ngroups};
