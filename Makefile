@@ -16,7 +16,7 @@ LDLIBS  += -lcfitsio $(shell pkg-config --libs wcslib 2>/dev/null || echo -lwcs)
 LDFLAGS += -fopenmp $(SAN)
 
 # Library code: every .c under these folders except the tests.
-MODULES := io params catalog fit find group sim pipeline
+MODULES := io params catalog psf fit find group sim pipeline
 LIBSRC  := $(filter-out pipeline/main.c,$(foreach m,$(MODULES),$(wildcard $(m)/*.c)))
 LIBOBJ  := $(patsubst %.c,$(BUILD)/%.o,$(LIBSRC))
 PARFILES := $(wildcard params/*.par)

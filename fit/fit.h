@@ -24,47 +24,9 @@
 #include "catalog/catalog.h"
 #include "io/io.h"
 #include "params/params.h"
+#include "psf/psf.h"
 
-/* ---- PSF ---------------------------------------------------------------- */
-
-typedef enum { MP_PSF_TABLE, MP_PSF_GAUSS } mp_psf_kind;
-
-typedef struct {
-    mp_psf_kind kind;
-    int nx, ny;        /* table size (odd), elements */
-    int os;            /* OVERSAMP: table elements per detector pixel */
-    double *t;         /* nx*ny, row-major, star at element ((nx-1)/2,(ny-1)/2) */
-    double sum;        /* fraction of the star's light the table holds */
-    double sigma;      /* MP_PSF_GAUSS: sigma [detector px] */
-    double offset;     /* where the star sits from the centre of the central
-                        * element, both axes [detector px]: 0 for a table as
-                        * design.md §3 defines it, nonzero after an even
-                        * block-sum (mp_psf_rebin) */
-} mp_psf;
-
-/* mp_psf_read: a PSF table from FITS (extended names work: an even-sized
- * table can be cut to odd size around its peak with a section).  OVERSAMP
- * comes from the header; when the header has none, from oversamp (> 0),
- * else 1 (oversamp ≤ 0).  Errors: even size, all-zero, NaN, sum > 1.01, OVERSAMP
- * outside 1..8.  Negative elements are a warning written to warn (may be
- * NULL).  normalize rescales the table to sum 1. */
-int mp_psf_read(const char *name, int normalize, int oversamp, mp_psf *p, char *warn,
-                char *err);
-
-/* mp_psf_gauss_table: a table of an (exactly pixel-integrated) Gaussian of
- * the given FWHM [detector px], OVERSAMP os, half-size radius [detector px]. */
-int mp_psf_gauss_table(double fwhm, int os, double radius, mp_psf *p, char *err);
-
-/* mp_psf_gauss: the analytic pixel-integrated Gaussian of the given FWHM. */
-void mp_psf_gauss(double fwhm, mp_psf *p);
-
-/* mp_psf_rebin: block-sum a table to OVERSAMP os/factor (factor divides os).
- * For odd factor the star stays at the centre of the central element; for
- * even factor it sits half an input element above it, which out->offset
- * records (the renderer accounts for it, so fitted positions stay true). */
-int mp_psf_rebin(const mp_psf *in, int factor, mp_psf *out, char *err);
-
-void mp_psf_free(mp_psf *p);
+/* ---- PSF: the table model lives in psf/psf.h ------------------------------ */
 
 /* ---- DRF ---------------------------------------------------------------- */
 
@@ -106,7 +68,8 @@ struct mp_prf_cache_s;
 
 /* What makes a model PRF, and which of its parts are used. */
 typedef struct {
-    const mp_psf *psf;
+    const mp_psf *psf;     /* the PSF; a variable one (psf->field) is
+                            * evaluated at each star in every render */
     const mp_drf *drf;     /* NULL: perfect detector */
     int sinc_hw;           /* damped-sinc half-width, 10 = 21 taps */
     const struct mp_prf_cache_s *cache;  /* economy: the PRF drawn from a grid
@@ -120,6 +83,8 @@ typedef struct {
 typedef struct {
     size_t n;
     double *a, *b, *c, *d;
+    size_t ne;
+    double *e;             /* the star's own table, when the model has a field */
     long nshift, nskip;    /* table renders: axes shifted, and of those skipped
                             * because the shift is on the grid (mp_shift_on_grid) */
 } mp_prf_work;
@@ -185,7 +150,42 @@ int mp_sinc_choice_hw(const mp_sinc_choice *c, double E, double B, double ron, d
  * with E ≤ emax[h], else hwmax. */
 int mp_sinc_choice_limits(const mp_sinc_choice *c, double B, double ron, double frac,
                           double *emax);
+/* Bound evaluations mp_sinc_choice_limits spends per half-width, at most
+ * (two ends, 60 halvings): a frame with fewer groups than this evaluates
+ * the bound per group instead (fit_frame.c). */
+#define MP_SINC_LIMITS_EVALS 62
 int mp_sinc_choice_pick(const double *emax, int hwmax, double E);
+/* ---- Supersampling per star (fit/ss_choice.c, issue 10) ----------------- */
+
+/* A coarser sampling of the model's table (block-summed by factor), with
+ * its error measured once per PSF: bound holds δP² = (PRF(coarse) −
+ * PRF(given))² and the given P at a 4×4 grid of subpixel phases, in the
+ * mp_sinc_choice layout with hwmax 1, so
+ *     q(E) = mp_sinc_choice_bound(&bound, 0, E, B, ron)
+ * = E·max_phase sqrt(Σ δP²/(E P + B + ron²)) bounds |bias|/σ_CRLB of a
+ * star's flux, position and sky from fitting it with the coarse table
+ * (linearised).  sinc is the coarse model's own kernel-length table.
+ * model points into psf: build in place, do not copy. */
+typedef struct mp_ss_level_s {
+    int os;                /* its OVERSAMP */
+    mp_psf psf;            /* psf.field: field, when the PSF varies */
+    mp_psf_field field;    /* the given field block-summed alike (order 0: unused) */
+    mp_prf_model model;    /* the given model with psf swapped in */
+    mp_sinc_choice bound;
+    mp_sinc_choice sinc;
+} mp_ss_level;
+
+/* mp_ss_level_build: the level of m's table block-summed by factor
+ * (dividing its OVERSAMP). */
+int mp_ss_level_build(const mp_prf_model *m, int factor, mp_ss_level *lv, char *err);
+void mp_ss_level_free(mp_ss_level *lv);
+
+/* mp_ss_level_emax: the largest flux whose bound is ≤ frac on sky B with
+ * read noise ron (0: none; INFINITY: every flux). */
+double mp_ss_level_emax(const mp_ss_level *lv, double B, double ron, double frac);
+
+#define MP_SS_MAXLEVELS 3
+
 /* mp_prf_envelope: env[r] (r = 0..*nr−1, detector px) bounds |PRF| of one
  * detector pixel whose centre lies r px or more from the star, at any
  * subpixel phase (the PRF of unit flux; for a table, measured on renders
@@ -264,7 +264,8 @@ int mp_prf_render_branch(const mp_prf_model *m, double x, double y, double xr, d
                          long wx0, long wy0, long ww, long wh, long *x0, long *y0, int *w,
                          int *h, double *prf, mp_prf_work *work);
 
-/* mp_prf_cache_usable: nonzero when m->cache was built for m's psf and drf. */
+/* mp_prf_cache_usable: nonzero when m->cache was built for m's psf and drf
+ * and the PSF does not vary (psf->field NULL). */
 int mp_prf_cache_usable(const mp_prf_model *m);
 
 /* mp_prf_cache_render: the interpolated PRF (and derivatives, may be NULL)
@@ -391,6 +392,14 @@ typedef struct {
                         * change of its fitted parameters to refittol of
                         * their σ); 0: refit every group every pass
                         * (economy=no) */
+    const struct mp_ss_level_s *ss;  /* economy: nss coarser samplings of the
+                        * model's table, coarsest first; each group is fitted
+                        * with the coarsest whose bias bound at its brightest
+                        * star is ≤ ssfrac of that star's σ (fit/ss_choice.c),
+                        * else with the model's table (neighbours are painted
+                        * with the model's table) */
+    int nss;
+    double ssfrac;
     const struct mp_sinc_choice_s *sinc;  /* economy: each group fitted with
                         * the shortest sinc half-width whose bias stays below
                         * sincfrac of its brightest star's σ (fit/sinc_choice.c);
@@ -410,6 +419,11 @@ typedef struct {
     long kshort;       /* of them, with a sinc kernel shorter than sinchw */
     long kcache;       /* of them, with the PRF from the phase grid */
     double khw;        /* their half-widths, summed */
+    long kbounds;      /* the kernel choice's cost: bound evaluations
+                        * (mp_sinc_choice_bound), each nph × npix terms */
+    long kcoarse;      /* LM fits with a coarser table (opts ss) */
+    long envelopes;    /* crop envelopes built (mp_prf_envelope: 25 PSF
+                        * renders each); 0 when the frame is one group */
     long kept;         /* group fits left out: no star's surroundings changed */
     long cropped;      /* stars painted with a cropped PSF */
 } mp_frame_report;
@@ -470,6 +484,9 @@ typedef struct {
                                 * sinc kernel */
     long kcache;               /* LM fits with the PRF from the phase grid */
     double khw;                /* their half-widths, summed */
+    long kcoarse;              /* LM fits with a coarser table */
+    long kbounds, envelopes;   /* economy's own cost: kernel-bound evaluations
+                                * and crop envelopes built (mp_frame_report) */
 } mp_run_report;
 
 /* mp_report_from_table: the medians, from a fitted table. */
@@ -491,13 +508,16 @@ int mp_report_write(const char *path, const char *task, const mp_run_report *r, 
  * holds the same names, so both tasks read them here. */
 typedef struct {
     mp_psf psf;
+    mp_psf_field field;     /* the PSF file as read (order 0: a copy of psf) */
     mp_drf drf;
     mp_prf_model model;     /* points into psf and drf: do not copy the struct */
     mp_frame_opts opts;
     mp_datapars dp;
     mp_table_format fmt;
     mp_sinc_choice sinc;    /* economy: per-group kernel length (opts.sinc) */
+    mp_ss_level ss[MP_SS_MAXLEVELS];   /* economy: coarser samplings (opts.ss) */
     mp_prf_cache cache;     /* economy: the PRF from a grid of phases (model.cache) */
+    mp_prf_cache sscache[MP_SS_MAXLEVELS];  /* the same for ss[l].model */
     char decisions[2048];   /* economy decisions and their reasons */
     int ndecisions;
 } mp_fit_setup;

@@ -21,6 +21,9 @@ void mp_frame_opts_default(mp_frame_opts *o)
     o->refittol = 0.1;
     o->sinc = NULL;
     o->sincfrac = 0.1;
+    o->ss = NULL;
+    o->nss = 0;
+    o->ssfrac = 0.1;
 }
 
 /* Column of a table by the first name present, -1 if none. */
@@ -54,6 +57,73 @@ static int cmp_group(const void *a, const void *b)
 }
 
 typedef mp_prf_crop crop_rule;
+
+/* Economy's kernel choice on one frame (fit/sinc_choice.c): each group gets
+ * the shortest half-width whose bound at its brightest star is ≤ frac on
+ * the frame's sky.  With many groups the flux limits of every half-width
+ * are found once (emax, MP_SINC_LIMITS_EVALS bound evaluations each);
+ * with few, each group evaluates the bound itself (≤ hwmax evaluations),
+ * so the choice never costs more bound evaluations than
+ * min(groups, MP_SINC_LIMITS_EVALS) · hwmax per pass. */
+typedef struct {
+    const mp_sinc_choice *c;   /* NULL: every group with the model's sinc_hw */
+    double *emax;              /* the limits, or NULL: evaluate per group */
+    double sky, ron, frac;
+} kernel_rule;
+
+/* The same bound chooses the table (fit/ss_choice.c: a coarser sampling
+ * is one bound table with hwmax 1): level[l] says whether ss[l] serves a
+ * flux, kern[l] is the kernel choice of ss[l]'s model, kern[nss] that of
+ * the model as given. */
+typedef struct {
+    const mp_ss_level *ss;
+    int nss;
+    kernel_rule level[MP_SS_MAXLEVELS], kern[MP_SS_MAXLEVELS + 1];
+    double cemax[MP_SS_MAXLEVELS + 1];   /* the phase grid's flux limit of
+                                          * ss[l]'s model, cemax[nss] the given's */
+} frame_rules;
+
+/* A rule on the frame's sky; the limits table when the frame has more
+ * groups than it costs evaluations.  Nonzero when out of memory. */
+static int rule_init(kernel_rule *k, const mp_sinc_choice *c, double sky, double ron, double frac,
+                     size_t ng, long *evals)
+{
+    memset(k, 0, sizeof *k);
+    if (!c || c->hwmax <= 0 || !c->d2)
+        return 0;
+    *k = (kernel_rule){c, NULL, sky, ron, frac};
+    if (ng <= MP_SINC_LIMITS_EVALS)
+        return 0;
+    if (!(k->emax = malloc((size_t)c->hwmax * sizeof *k->emax)))
+        return 1;
+    mp_sinc_choice_limits(c, sky, ron, frac, k->emax);
+    *evals += (long)c->hwmax * MP_SINC_LIMITS_EVALS;
+    return 0;
+}
+
+static void rules_free(frame_rules *R)
+{
+    for (int l = 0; l < MP_SS_MAXLEVELS; l++)
+        free(R->level[l].emax);
+    for (int l = 0; l <= MP_SS_MAXLEVELS; l++)
+        free(R->kern[l].emax);
+}
+
+/* The half-width for a group whose brightest star has flux e (≤ 0 or NaN:
+ * unknown, the full kernel); *evals counts bound evaluations.  For a
+ * level rule (hwmax 1): 0 when the coarse table serves e, else 1. */
+static int kernel_for(const kernel_rule *k, int hwfull, double e, long *evals)
+{
+    if (!k->c)
+        return hwfull;
+    if (k->emax)
+        return mp_sinc_choice_pick(k->emax, k->c->hwmax, e > 0 ? e : INFINITY);
+    if (!(e > 0))
+        return k->c->hwmax;
+    int hw = mp_sinc_choice_hw(k->c, e, k->sky, k->ron, k->frac);
+    *evals += hw < k->c->hwmax ? hw + 1 : k->c->hwmax;
+    return hw;
+}
 
 static double crop_radius(const crop_rule *c, const mp_star *s)
 {
@@ -114,7 +184,11 @@ static int paint(const mp_prf_model *m, const mp_star *s, double sign, double ra
 double mp_prf_fwhm(const mp_prf_model *m)
 {
     mp_prf_stats st;
-    if (mp_prf_stats_at(m, 100.0, 100.0, &st, NULL) || !(st.lscale > 0))
+    /* A variable PSF: its FWHM at the field's origin. */
+    const mp_psf_field *fd = m->psf->field;
+    int var = fd && fd->order > 0;
+    double cx = var ? round(fd->x0) : 100.0, cy = var ? round(fd->y0) : 100.0;
+    if (mp_prf_stats_at(m, cx, cy, &st, NULL) || !(st.lscale > 0))
         return 3.0;      /* out of memory: DAOPHOT's usual FWHM keeps find and merge going */
     return 2.0 * sqrt(2.0 * log(2.0)) * st.lscale;
 }
@@ -194,7 +268,7 @@ static int reject_one(mp_star *s, int *alive, int n, double minsnr, double merge
  * stable.  Local copies of the stars move in the frame's coordinates
  * shifted by (dx, dy). */
 static int fit_one_group(const mp_frame *f, const mp_prf_model *m, const mp_frame_opts *o,
-                         double mergerad, const double *emax, star_state *st, int n, double dx, double dy,
+                         double mergerad, const frame_rules *R, star_state *st, int n, double dx, double dy,
                          mp_frame_report *rep, char *err)
 {
     mp_star *s = malloc((size_t)n * sizeof *s), *live = malloc((size_t)n * sizeof *live);
@@ -221,19 +295,19 @@ static int fit_one_group(const mp_frame *f, const mp_prf_model *m, const mp_fram
         if (nl == 0)
             break;
         double sky0 = nl == 1 ? live[0].sky : NAN;
-        /* Economy: the kernel the group's brightest star needs (o->sinc:
-         * emax[h], the largest flux half-width h serves). */
-        mp_prf_model mh = *m;
-        if (o->sinc && emax) {
-            double e = 0.0;
-            for (int k = 0; k < nl; k++)
-                e = isfinite(live[k].flux) && live[k].flux > e ? live[k].flux : e;
-            mh.sinc_hw = mp_sinc_choice_pick(emax, o->sinc->hwmax, e > 0 ? e : INFINITY);
-        }
-        if (m->cache) {     /* economy: the phase grid when its bound allows */
-            double e = 0.0;
-            for (int k = 0; k < nl; k++)
-                e = isfinite(live[k].flux) && fabs(live[k].flux) > e ? fabs(live[k].flux) : e;
+        /* Economy: the coarsest table and the shortest kernel the
+         * group's brightest star allows. */
+        double e = 0.0;
+        for (int k = 0; k < nl; k++)
+            e = isfinite(live[k].flux) && live[k].flux > e ? live[k].flux : e;
+        int l = 0;
+        while (l < R->nss && kernel_for(&R->level[l], 1, e, &rep->kbounds) != 0)
+            l++;
+        mp_prf_model mh = l < R->nss ? R->ss[l].model : *m;
+        mh.sinc_hw = kernel_for(&R->kern[l], mh.sinc_hw, e, &rep->kbounds);
+        rep->kcoarse += l < R->nss;
+        if (mh.cache) {     /* economy: the phase grid when its bound allows */
+            mh.cache_emax = R->cemax[l];
             mh = mp_prf_for_flux(&mh, e > 0 ? e : INFINITY);
             rep->kcache += mp_prf_cache_usable(&mh);
         }
@@ -474,7 +548,7 @@ static int remember_patches(const mp_frame *f, const mp_prf_model *m, const crop
  * was fitted (light_change); rep counts group fits (fits) and groups left
  * alone (kept).  With economy, every survivor's patch is remembered. */
 static int fit_group_local(const mp_frame *f, const mp_prf_model *m, const mp_frame_opts *o,
-                           double mergerad, const double *emax, const double *all,
+                           double mergerad, const frame_rules *R, const double *all,
                            const crop_rule *crop,
                            star_state *st, int n, int may_keep, int economy,
                            mp_frame_report *rep, char *err)
@@ -544,7 +618,7 @@ static int fit_group_local(const mp_frame *f, const mp_prf_model *m, const mp_fr
     double rw = o->fit.sky_order == MP_SKY_AUTO && o->fit.fit_sky ? MP_SKY_TEST_RADIUS * r : r;
     group_window(f, sub, nact, rw, &x0, &y0, &w, &h);
     if (w == 0 || h == 0 || (!all && x0 == 1 && y0 == 1 && w == f->im.nx && h == f->im.ny)) {
-        rc = fit_one_group(f, m, o, mergerad, emax, sub, nact, 0.0, 0.0, rep, err);
+        rc = fit_one_group(f, m, o, mergerad, R, sub, nact, 0.0, 0.0, rep, err);
     } else {
         L.im.nx = w;
         L.im.ny = h;
@@ -569,7 +643,7 @@ static int fit_group_local(const mp_frame *f, const mp_prf_model *m, const mp_fr
                     snprintf(err, MP_ERRLEN, "out of memory");
                     goto done;
                 }
-        rc = fit_one_group(&L, m, o, mergerad, emax, sub, nact, (double)(x0 - 1), (double)(y0 - 1), rep,
+        rc = fit_one_group(&L, m, o, mergerad, R, sub, nact, (double)(x0 - 1), (double)(y0 - 1), rep,
                            err);
     }
     if (!rc && economy && all && isfinite(r) &&
@@ -790,17 +864,15 @@ int mp_fit_table_mem(const mp_frame *f, const mp_prf_model *m, const mp_frame_op
     size_t n = t->nrow;
     star_state *st = calloc(n ? n : 1, sizeof *st);
     size_t *gs = malloc((n + 1) * sizeof *gs);
-    double *all = NULL, *emax = NULL;
+    double *all = NULL;
+    frame_rules R;
+    memset(&R, 0, sizeof R);
     crop_rule crop = {0};
     int rc = 1;
-    if (!st || !gs || crop_init(f, m, o->cropfrac, &crop)) {
+    if (!st || !gs) {
         snprintf(err, MP_ERRLEN, "out of memory");
         goto done;
     }
-    /* The group fits render each star as far as it is subtracted. */
-    mp_frame_opts oc = *o;
-    oc.fit.crop = crop.env ? &crop : NULL;
-    o = &oc;
     for (size_t i = 0; i < n; i++) {
         st[i].row = (long)i;
         st[i].alive = 1;
@@ -825,25 +897,51 @@ int mp_fit_table_mem(const mp_frame *f, const mp_prf_model *m, const mp_frame_op
     rep->nstars = (long)n;
     rep->ngroups = (long)ng;
     double mergerad = isfinite(o->mergerad) ? o->mergerad : 0.4 * mp_prf_fwhm(m);
-    /* Economy: the largest flux each shorter kernel serves, on the frame's
-     * median start sky (0, the safe side, when no star has one). */
-    if (o->sinc && o->sinc->hwmax > 0) {
-        if (!(emax = malloc((size_t)o->sinc->hwmax * sizeof *emax))) {
-            snprintf(err, MP_ERRLEN, "out of memory");
-            goto done;
-        }
-        double bsky = median_sky(st, n);
-        mp_sinc_choice_limits(o->sinc, bsky, f->rdnoise, o->sincfrac, emax);
+    /* Economy: the table and kernel choices on the frame's median start
+     * sky (0, the safe side, when no star has one); the limits tables only
+     * when cheaper than each group's own evaluation (rule_init). */
+    double bsky = o->sinc || o->nss ? median_sky(st, n) : 0.0;
+    R.ss = o->ss;
+    R.nss = o->ss ? (o->nss < MP_SS_MAXLEVELS ? o->nss : MP_SS_MAXLEVELS) : 0;
+    int nomem = rule_init(&R.kern[R.nss], o->sinc, bsky, f->rdnoise, o->sincfrac, ng,
+                          &rep->kbounds);
+    for (int l = 0; l < R.nss; l++)
+        nomem |= rule_init(&R.level[l], &R.ss[l].bound, bsky, f->rdnoise, o->ssfrac, ng,
+                           &rep->kbounds) ||
+                 rule_init(&R.kern[l], o->sinc ? &R.ss[l].sinc : NULL, bsky, f->rdnoise,
+                           o->sincfrac, ng, &rep->kbounds);
+    /* Economy: the largest flux each model's phase grid serves within the
+     * kernel's bound, on the same sky (mp_prf_for_flux picks per group and
+     * per painted star). */
+    double csky = m->cache ? median_sky(st, n) : 0.0;
+    for (int l = 0; l <= R.nss; l++) {
+        const mp_prf_model *ml = l < R.nss ? &R.ss[l].model : m;
+        R.cemax[l] = ml->cache ? mp_prf_cache_limit(ml->cache, csky, f->rdnoise, o->sincfrac) : 0;
     }
-    /* Economy: the largest flux the phase grid serves within the same
-     * bound, on the same sky (mp_prf_for_flux picks per group and star). */
     mp_prf_model mc = *m;
-    if (m->cache)
-        mc.cache_emax = mp_prf_cache_limit(m->cache, median_sky(st, n), f->rdnoise, o->sincfrac);
+    mc.cache_emax = R.cemax[R.nss];
     m = &mc;
+    if (nomem) {
+        snprintf(err, MP_ERRLEN, "out of memory");
+        goto done;
+    }
     int passes = o->passes < 1 ? 1 : o->passes;
-    if (ng <= 1)
-        passes = 1;                 /* nobody else's light to subtract */
+    /* One group (a whole-frame fit, or one star): nobody else's light to
+     * subtract, so neither the neighbours' model nor its crop envelope is
+     * built (economy's crop would cost a PSF render per ¼-px phase per
+     * frame and save nothing). */
+    int alone = ng <= 1;
+    if (alone)
+        passes = 1;
+    if (!alone && crop_init(f, m, o->cropfrac, &crop)) {
+        snprintf(err, MP_ERRLEN, "out of memory");
+        goto done;
+    }
+    rep->envelopes += crop.env != NULL;
+    /* The group fits render each star as far as it is subtracted. */
+    mp_frame_opts oc = *o;
+    oc.fit.crop = crop.env ? &crop : NULL;
+    o = &oc;
     /* Economy: a star refitted only when its surroundings changed
      * (o->refittol); never in whole-frame fits. */
     int economy = o->refittol > 0 && !whole && ng > 1;
@@ -853,7 +951,8 @@ int mp_fit_table_mem(const mp_frame *f, const mp_prf_model *m, const mp_frame_op
         /* Neighbours are subtracted with the latest values; in the first
          * pass only those with a start flux (find's FLUX) can be. */
         free(all);
-        if (!(all = all_stars(f, m, st, n, &crop, &rep->cropped))) {
+        all = NULL;
+        if (!alone && !(all = all_stars(f, m, st, n, &crop, &rep->cropped))) {
             snprintf(err, MP_ERRLEN, "out of memory for the model image");
             goto done;
         }
@@ -865,7 +964,7 @@ int mp_fit_table_mem(const mp_frame *f, const mp_prf_model *m, const mp_frame_op
             char e[MP_ERRLEN];
             mp_frame_report r = {0};
             int k = (int)(gs[g + 1] - gs[g]);
-            if (fit_group_local(f, m, o, mergerad, emax, all, &crop, st + gs[g], k, economy, economy,
+            if (fit_group_local(f, m, o, mergerad, &R, all, &crop, st + gs[g], k, economy, economy,
                                 &r, e)) {
                 failed++;
 #pragma omp critical(fit_table_error)
@@ -879,9 +978,11 @@ int mp_fit_table_mem(const mp_frame *f, const mp_prf_model *m, const mp_frame_op
                 pr.fits += r.fits;
                 pr.kcalls += r.kcalls;
                 pr.kshort += r.kshort;
-                pr.kcache += r.kcache;
                 pr.khw += r.khw;
                 pr.kept += r.kept;
+                pr.kbounds += r.kbounds;
+                pr.kcoarse += r.kcoarse;
+                pr.kcache += r.kcache;
             }
         }
         if (failed) {
@@ -894,9 +995,11 @@ int mp_fit_table_mem(const mp_frame *f, const mp_prf_model *m, const mp_frame_op
         rep->fits += pr.fits;
         rep->kcalls += pr.kcalls;
         rep->kshort += pr.kshort;
-        rep->kcache += pr.kcache;
         rep->khw += pr.khw;
         rep->kept += pr.kept;
+        rep->kbounds += pr.kbounds;
+        rep->kcoarse += pr.kcoarse;
+        rep->kcache += pr.kcache;
         /* No group refitted: every later pass would see the same light. */
         if (economy && pr.fits == 0) {
             rep->kept += (long)ng * (passes - pass - 1);
@@ -923,7 +1026,7 @@ done:
     for (size_t i = 0; st && i < n; i++)
         free(st[i].seen);
     free(all);
-    free(emax);
+    rules_free(&R);
     free(st);
     free(gs);
     free(crop.env);

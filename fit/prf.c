@@ -14,6 +14,7 @@ void mp_prf_work_free(mp_prf_work *w)
     free(w->b);
     free(w->c);
     free(w->d);
+    free(w->e);
     memset(w, 0, sizeof *w);
 }
 
@@ -22,7 +23,12 @@ static int work_reserve(mp_prf_work *w, size_t n)
     if (w->n >= n)
         return 0;
     long nshift = w->nshift, nskip = w->nskip;    /* the counts outlive a regrowth */
-    mp_prf_work_free(w);
+    free(w->a);
+    free(w->b);
+    free(w->c);
+    free(w->d);
+    w->a = w->b = w->c = w->d = NULL;
+    w->n = 0;
     w->nshift = nshift;
     w->nskip = nskip;
     w->a = malloc(n * sizeof *w->a);
@@ -35,6 +41,31 @@ static int work_reserve(mp_prf_work *w, size_t n)
     }
     w->n = n;
     return 0;
+}
+
+/* The table a star at (x, y) is shifted from: the model's, or, with a
+ * field, the field evaluated at the star on the elements the shift reads
+ * (rows [j0, j1), columns [i0, i1)); NULL when out of memory or when the
+ * field's geometry is not the table's. */
+static const double *star_table(const mp_prf_model *m, double x, double y, long i0, long i1,
+                                long j0, long j1, mp_prf_work *w)
+{
+    const mp_psf *p = m->psf;
+    const mp_psf_field *f = p->field;
+    if (!f)
+        return p->t;
+    if (f->nx != p->nx || f->ny != p->ny || f->os != p->os)
+        return NULL;
+    size_t n = (size_t)p->nx * p->ny;
+    if (w->ne < n) {
+        free(w->e);
+        w->ne = 0;
+        if (!(w->e = malloc(n * sizeof *w->e)))
+            return NULL;
+        w->ne = n;
+    }
+    mp_psf_field_eval_rect(f, x, y, i0, i1, j0, j1, w->e);
+    return w->e;
 }
 
 /* Half-size of the analytic Gaussian's box [px]: light beyond it < 1e-12. */
@@ -224,6 +255,10 @@ static int render_table(const mp_prf_model *m, double x, double y, double xr, do
     long sj0 = mj0 - 2 < 0 ? 0 : mj0 - 2, sj1 = mj1 + 2 > ny ? ny : mj1 + 2;
     long tj0 = sj0 - hw < 0 ? 0 : sj0 - hw, tj1 = sj1 + hw > ny ? ny : sj1 + hw;
     double *S = w->a, *tmp = w->b;          /* both laid out with stride nx */
+    const double *T = star_table(m, x, y, si0 - hw < 0 ? 0 : si0 - hw,
+                                 si1 + hw > nx ? nx : si1 + hw, tj0, tj1, w);
+    if (!T)
+        return 1;
     double wt[2 * 64 + 1];
     /* x-pass (skipped for a shift on the grid, where the sinc is the
      * identity: mp_shift_on_grid; counted in the work for the report) */
@@ -236,7 +271,7 @@ static int render_table(const mp_prf_model *m, double x, double y, double xr, do
          * the order k = −hw..hw, so the values are those of a per-element
          * sum, bit for bit. */
         for (long j = tj0; j < tj1; j++) {
-            const double *src = p->t + (size_t)j * nx;
+            const double *src = T + (size_t)j * nx;
             double *dst = tmp + (size_t)j * nx;
             for (long i = si0; i < si1; i++)
                 dst[i] = 0.0;
@@ -249,7 +284,7 @@ static int render_table(const mp_prf_model *m, double x, double y, double xr, do
         }
     } else {
         for (long j = tj0; j < tj1; j++)
-            memcpy(tmp + (size_t)j * nx + si0, p->t + (size_t)j * nx + si0,
+            memcpy(tmp + (size_t)j * nx + si0, T + (size_t)j * nx + si0,
                    (size_t)(si1 - si0) * sizeof *tmp);
     }
     /* y-pass */
@@ -411,22 +446,29 @@ double *mp_prf_envelope(const mp_prf_model *m, int *nr)
     double *prf = malloc(cap * sizeof *prf);
     mp_prf_work w = {0};
     int bad = !bin || !env || !prf;
-    for (int sy = 0; sy <= 4 && !bad; sy++)
-        for (int sx = 0; sx <= 4 && !bad; sx++) {
-            double x = 100.0 - 0.5 + 0.25 * sx, y = 100.0 - 0.5 + 0.25 * sy;
-            mp_prf_box(m, x, y, &x0, &y0, &bw, &bh);
-            if ((size_t)bw * bh > cap || mp_prf_render(m, x, y, prf, NULL, NULL, &w)) {
-                bad = 1;
-                break;
-            }
-            for (int j = 0; j < bh; j++)
-                for (int i = 0; i < bw; i++) {
-                    int b = (int)hypot(x0 + i - x, y0 + j - y);
-                    double v = fabs(prf[(size_t)j * bw + i]);
-                    b = b < nb ? b : nb - 1;
-                    bin[b] = v > bin[b] ? v : bin[b];
-                }
+    /* A variable PSF: the largest over its origin and the eight points
+     * ±POLSCAL/2 from it (PSFEx's and matphot's scale is the PSF stars'
+     * range, so these are the field's corners and edge midpoints). */
+    const mp_psf_field *fd = m->psf->field;
+    int npt = fd && fd->order > 0 ? 9 : 1;
+    for (int pt = 0; pt < npt * 25 && !bad; pt++) {
+        int sx = pt % 5, sy = pt / 5 % 5, q = pt / 25;
+        double cx = npt > 1 ? floor(fd->x0 + (q % 3 - 1) * 0.5 * fd->xscale) : 100.0;
+        double cy = npt > 1 ? floor(fd->y0 + (q / 3 - 1) * 0.5 * fd->yscale) : 100.0;
+        double x = cx - 0.5 + 0.25 * sx, y = cy - 0.5 + 0.25 * sy;
+        mp_prf_box(m, x, y, &x0, &y0, &bw, &bh);
+        if ((size_t)bw * bh > cap || mp_prf_render(m, x, y, prf, NULL, NULL, &w)) {
+            bad = 1;
+            break;
         }
+        for (int j = 0; j < bh; j++)
+            for (int i = 0; i < bw; i++) {
+                int b = (int)hypot(x0 + i - x, y0 + j - y);
+                double v = fabs(prf[(size_t)j * bw + i]);
+                b = b < nb ? b : nb - 1;
+                bin[b] = v > bin[b] ? v : bin[b];
+            }
+    }
     mp_prf_work_free(&w);
     free(prf);
     if (bad) {

@@ -166,7 +166,7 @@ static void interp(const mp_prf_cache *c, double x, double y, long x0, long y0, 
 int mp_prf_cache_usable(const mp_prf_model *m)
 {
     const mp_prf_cache *c = m->cache;
-    return c && c->img && c->psf == m->psf && c->drf == m->drf;
+    return c && c->img && c->psf == m->psf && c->drf == m->drf && !m->psf->field;
 }
 
 int mp_prf_cache_render(const mp_prf_model *m, double x, double y, long x0, long y0, int w,

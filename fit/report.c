@@ -100,7 +100,10 @@ void mp_report_parts(const mp_prf_model *m, const mp_frame_opts *o, const mp_fra
             ADD(u, ku, nu, "damped-sinc shift (%d taps); ", 2 * m->sinc_hw + 1);
         else
             ADD(l, kl, nl, "sinc shift (nearest table element); ");
-        if (p->os > 1)
+        if (p->os > 1 && o->nss > 0)
+            ADD(u, ku, nu, "supersampled table x%d (x%d or finer per group: %ld of %ld LM fits); ",
+                p->os, o->ss[0].os, r->kcoarse, r->kcalls);
+        else if (p->os > 1)
             ADD(u, ku, nu, "supersampled table x%d; ", p->os);
         else
             ADD(l, kl, nl, "supersampling (x1 table); ");
@@ -136,9 +139,11 @@ static void report_lines(FILE *fp, const char *prefix, const mp_run_report *r)
             d[0] && r->sky[0] ? "; " : "", r->sky);
     fprintf(fp, "%s  work: %ld group fits, %ld left out (neighbours' light unchanged), "
             "%ld star paints cropped; %ld of %ld LM fits with a shorter sinc kernel (mean "
-            "half-width %.1f), %ld with the PRF from the phase grid\n", prefix, r->fits, r->kept,
-            r->cropped, r->kshort, r->kcalls, r->kcalls > 0 ? r->khw / (double)r->kcalls : 0.0,
-            r->kcache);
+            "half-width %.1f), %ld with a coarser table, %ld with the PRF from the phase grid; "
+            "economy's own cost: %ld bound evaluations, %ld crop envelopes\n", prefix, r->fits,
+            r->kept, r->cropped, r->kshort, r->kcalls,
+            r->kcalls > 0 ? r->khw / (double)r->kcalls : 0.0, r->kcoarse, r->kcache, r->kbounds,
+            r->envelopes);
 }
 
 int mp_report_write(const char *path, const char *task, const mp_run_report *r, char *err)

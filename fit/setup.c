@@ -9,9 +9,14 @@
 void mp_fit_setup_free(mp_fit_setup *s)
 {
     mp_psf_free(&s->psf);
+    mp_psf_field_free(&s->field);
     mp_drf_free(&s->drf);
     mp_sinc_choice_free(&s->sinc);
     mp_prf_cache_free(&s->cache);
+    for (int l = 0; l < MP_SS_MAXLEVELS; l++)
+        mp_prf_cache_free(&s->sscache[l]);
+    for (int l = 0; l < MP_SS_MAXLEVELS; l++)
+        mp_ss_level_free(&s->ss[l]);
 }
 
 /* Paper §5.4: a discrete PSF needs β ≥ 21 in its own (super)pixels, or
@@ -28,6 +33,26 @@ static void warn_undersampled(const mp_fit_setup *s)
                 "and its OVERSAMP %d gives %.1f < 21 table px^2; bright stars will alias "
                 "(use a table supersampled %dx or more)\n",
                 b, s->psf.os, bs, (int)ceil(sqrt(21.0 / b)));
+}
+
+/* Block-sum the table and the field alike by factor (the block-sum is
+ * linear, so the rebinned field evaluated anywhere is the rebinned table
+ * of the field there). */
+static int rebin_both(mp_fit_setup *s, int factor, char *err)
+{
+    mp_psf coarse;
+    mp_psf_field fc;
+    if (mp_psf_rebin(&s->psf, factor, &coarse, err))
+        return 1;
+    if (mp_psf_field_rebin(&s->field, factor, &fc, err)) {
+        mp_psf_free(&coarse);
+        return 1;
+    }
+    mp_psf_free(&s->psf);
+    mp_psf_field_free(&s->field);
+    s->psf = coarse;
+    s->field = fc;
+    return 0;
 }
 
 /* Note one economy decision and its reason for the run report. */
@@ -47,12 +72,73 @@ static double beta_normalised(const mp_prf_model *m)
     return 1.0 / st.sharp;
 }
 
+/* The coarser samplings of a supersampled table (every divisor k of its
+ * OVERSAMP, coarsest first), each with its error measured on this PSF
+ * (fit/ss_choice.c); the frame fit uses, per group, the coarsest whose bias
+ * bound at the group's brightest star is ≤ ssfrac of its σ.  The decision
+ * names each level's flux limit with no sky and 1 e- read noise (the safe
+ * side: a frame's own sky and noise only raise it). */
+static int supersampling_levels(mp_fit_setup *s, char *err)
+{
+    char why[512];
+    int os = s->psf.os, n = 0, k = snprintf(why, sizeof why, "supersampling: per group, the "
+                                            "coarsest table whose bias bound stays below %.2g of "
+                                            "its brightest star's sigma (fit/ss_choice.c):",
+                                            s->opts.ssfrac);
+    for (int c = 1; c < os && n < MP_SS_MAXLEVELS; c++) {
+        if (os % c)
+            continue;
+        mp_ss_level *lv = &s->ss[n];
+        if (mp_ss_level_build(&s->model, os / c, lv, err))
+            return 1;
+        lv->os = c;
+        n++;
+        double e = mp_ss_level_emax(lv, 0.0, 1.0, s->opts.ssfrac);
+        if (k < (int)sizeof why)
+            k += snprintf(why + k, sizeof why - (size_t)k, " x%d to E = %.3g e-,", c, e);
+    }
+    if (k < (int)sizeof why)
+        snprintf(why + k, sizeof why - (size_t)k, " the x%d table above (beta = %.1f px^2 at "
+                 "detector sampling)", os, beta_normalised(&s->model));
+    s->opts.ss = s->ss;
+    s->opts.nss = n;
+    decide(s, why);
+    return 0;
+}
+
+/* The PRF from a grid of subpixel phases (fit/prf_cache.c), one for the
+ * model as given and one per coarser sampling, built last so that nothing
+ * above renders through them; a variable PSF keeps the exact renders. */
+static int phase_grids(mp_fit_setup *s, const mp_parset *ps, char *err)
+{
+    int grid = MP_PRF_CACHE_G;
+    mp_par_int(ps, "phasegrid", &grid);
+    if (grid <= 0 || s->field.order > 0 || s->psf.kind != MP_PSF_TABLE)
+        return 0;
+    if (mp_prf_cache_build(&s->model, grid, &s->cache, err))
+        return 1;
+    s->model.cache = s->cache.G > 0 ? &s->cache : NULL;
+    for (int l = 0; l < s->opts.nss; l++) {
+        if (mp_prf_cache_build(&s->ss[l].model, grid, &s->sscache[l], err))
+            return 1;
+        s->ss[l].model.cache = s->sscache[l].G > 0 ? &s->sscache[l] : NULL;
+    }
+    if (s->cache.G > 0) {
+        char why[256];
+        snprintf(why, sizeof why, "PRF from a grid of %d subpixel phases per pixel (Catmull-Rom) "
+                 "for groups and stars whose bias bound stays below %.2g sigma, exact renders "
+                 "for brighter ones (fit/prf_cache.c)", s->cache.G, s->opts.sincfrac);
+        decide(s, why);
+    }
+    return 0;
+}
+
 /* economy=yes: leave out what cannot change the answer (issue 5); every
  * decision, to drop a part or to keep it, is logged with its reason.
  *  - A DRF map whose subpixels are all equal is the scalar V.
- *  - A supersampled table is block-summed to the coarsest sampling s at
- *    which β·V²·s² ≥ 21 px² (paper §5.4; s = 1 when the data are
- *    oversampled, validate cases 2 and 3) when no DRF map needs the
+ *  - A supersampled table is offered per group at every coarser sampling
+ *    whose error, measured on this PSF, is provably small for the group's
+ *    brightest star (supersampling_levels), when no DRF map needs the
  *    subpixels, unless the user asked for a sampling with psfos. */
 static int economize(mp_fit_setup *s, int psfos_given, char *err)
 {
@@ -91,32 +177,7 @@ static int economize(mp_fit_setup *s, int psfos_given, char *err)
         decide(s, why);
         return 0;
     }
-    /* The coarsest sampling s (a divisor of the table's) at which the
-     * table holds β·s² ≥ 21 px² (paper §5.4: 1× tables are on the CRLB
-     * from β = 21 on, and a 2× table of an undersampled PSF, β·4 ≥ 21, is;
-     * validate cases 2, 5, 6b). */
-    double b = beta_normalised(&s->model);
-    int want = os;
-    for (int k = 1; k < os; k++)
-        if (os % k == 0 && b * k * k >= 21.0) {
-            want = k;
-            break;
-        }
-    if (want < os) {
-        mp_psf coarse;
-        if (mp_psf_rebin(&s->psf, os / want, &coarse, err))
-            return 1;
-        mp_psf_free(&s->psf);
-        s->psf = coarse;
-        snprintf(why, sizeof why, "supersampling: beta = %.1f px^2 at detector sampling, "
-                 "%.1f >= 21 at x%d (paper 5.4), the x%d table block-summed to x%d", b,
-                 b * want * want, want, os, want);
-    } else {
-        snprintf(why, sizeof why, "supersampling: beta = %.1f px^2 < 21 at detector sampling "
-                 "(paper 5.4) and no coarser sampling reaches 21, the x%d table kept", b, os);
-    }
-    decide(s, why);
-    return 0;
+    return supersampling_levels(s, err);
 }
 
 /* skymodel: an explicit order is honoured; auto chooses per group from the
@@ -133,6 +194,20 @@ static int sky_order_of(const char *v, int economy)
     return economy ? MP_SKY_AUTO : 2;
 }
 
+/* The PSF file (psf/psf.h's layout, any order): the field, and the table
+ * at its origin, which is what the PSF-wide measurements below (β, the
+ * coarsest sampling, the sinc kernel's error) are taken on; the fit then
+ * evaluates the field at every star (psf.field, set last). */
+static int read_psf(mp_fit_setup *s, const char *name, int norm, int os, char *warn, char *err)
+{
+    if (mp_psf_field_read(name, norm, os, &s->field, NULL, NULL, warn, err))
+        return 1;
+    if (mp_psf_field_eval(&s->field, s->field.x0, s->field.y0, &s->psf, err))
+        return 1;
+    s->psf.sum = s->field.sum;
+    return 0;
+}
+
 int mp_fit_setup_read(const mp_parset *ps, mp_fit_setup *s, char *err)
 {
     memset(s, 0, sizeof *s);
@@ -143,23 +218,20 @@ int mp_fit_setup_read(const mp_parset *ps, mp_fit_setup *s, char *err)
     if (psf[0]) {
         int hos = MP_PAR_INDEF_INT;
         mp_par_int(ps, "oversamp", &hos);
-        if (mp_psf_read(psf, norm, hos == MP_PAR_INDEF_INT ? 0 : hos, &s->psf, warn, err))
+        if (read_psf(s, psf, norm, hos == MP_PAR_INDEF_INT ? 0 : hos, warn, err))
             return 1;
         if (warn[0])
             fprintf(stderr, "matphot fit: warning: %s\n", warn);
         int os = MP_PAR_INDEF_INT;
         mp_par_int(ps, "psfos", &os);
         if (os != MP_PAR_INDEF_INT && os != s->psf.os) {
-            mp_psf coarse;
             if (s->psf.os % os) {
                 snprintf(err, MP_ERRLEN, "psfos: %d does not divide the table's OVERSAMP %d",
                          os, s->psf.os);
                 return 1;
             }
-            if (mp_psf_rebin(&s->psf, s->psf.os / os, &coarse, err))
+            if (rebin_both(s, s->psf.os / os, err))
                 return 1;
-            mp_psf_free(&s->psf);
-            s->psf = coarse;
         }
     } else {
         double fwhm;
@@ -216,20 +288,8 @@ int mp_fit_setup_read(const mp_parset *ps, mp_fit_setup *s, char *err)
                      "(fit/sinc_choice.c)", s->sinc.hwmax, s->opts.sincfrac);
             decide(s, why);
         }
-        /* The phase grid, built from the model as it now stands (exact,
-         * full kernel), last: nothing above renders through it. */
-        int grid = MP_PRF_CACHE_G;
-        mp_par_int(ps, "phasegrid", &grid);
-        if (grid > 0 && mp_prf_cache_build(&s->model, grid, &s->cache, err))
+        if (phase_grids(s, ps, err))
             return 1;
-        if (s->cache.G > 0) {
-            s->model.cache = &s->cache;
-            snprintf(why, sizeof why, "PRF from a grid of %dx%d subpixel phases (cubic "
-                     "interpolation) for groups whose brightest star's bias bound stays below "
-                     "%.2g sigma, exact renders for the others (fit/prf_cache.c)",
-                     s->cache.G, s->cache.G, s->opts.sincfrac);
-            decide(s, why);
-        }
         snprintf(why, sizeof why, "neighbour light: painted out to where it falls below %.2g of a "
                  "sky pixel's sigma (residual too)", s->opts.cropfrac);
         decide(s, why);
@@ -243,5 +303,20 @@ int mp_fit_setup_read(const mp_parset *ps, mp_fit_setup *s, char *err)
         s->opts.refittol = 0.0;
     }
     warn_undersampled(s);
+    if (s->field.order > 0) {
+        s->psf.field = &s->field;
+        /* Each coarser sampling evaluates its own block-summed field. */
+        for (int l = 0; l < s->opts.nss; l++) {
+            mp_ss_level *lv = &s->ss[l];
+            if (mp_psf_field_rebin(&s->field, s->psf.os / lv->os, &lv->field, err))
+                return 1;
+            lv->psf.field = &lv->field;
+        }
+        char why[256];
+        snprintf(why, sizeof why, "variable PSF: order %d, each star's table evaluated at its "
+                 "own position; sampling and sinc kernel from the table at the origin (%.1f, %.1f)",
+                 s->field.order, s->field.x0, s->field.y0);
+        decide(s, why);
+    }
     return 0;
 }

@@ -69,6 +69,9 @@ static int fit_one(const mp_fit_setup *s, const char *image, const char *coords,
     run.kshort = rep.kshort;
     run.kcache = rep.kcache;
     run.khw = rep.khw;
+    run.kbounds = rep.kbounds;
+    run.kcoarse = rep.kcoarse;
+    run.envelopes = rep.envelopes;
     mp_report_from_table(&t, &run);
     mp_report_parts(&s->model, &s->opts, &rep, &run);
     run.decisions = s->decisions;

@@ -54,6 +54,18 @@ int mp_sim_add_star(const mp_sim_prf *p, double x, double y, double flux,
  * N(0, ron²). */
 void mp_sim_add_noise(mp_rng *r, double *img, long n, double ron);
 
+/* mp_sim_segmented_psf: the monochromatic PSF of a segmented mirror (18
+ * hexagonal segments in two rings, no centre segment, 2 % gaps; Fraunhofer
+ * diffraction, sim/segmented.c) with λ/D = lod detector px at the blue end
+ * of a flat band [λ, λ(1 + band)] (band 0: monochromatic), as a table of
+ * OVERSAMP os: (2·ceil(radius·os) + 1)² elements, star at the centre of the
+ * central one, each the light of its element (the whole plane sums to 1, so
+ * the table's sum is the fraction it holds).  *tab is malloc'ed (caller
+ * frees), *n its side.  Nonzero with err (256 bytes) on bad arguments or
+ * no memory. */
+int mp_sim_segmented_psf(double lod, double band, int os, double radius, double **tab, int *n,
+                         char *err);
+
 /* The `matphot sim` task. */
 int mp_task_sim(int argc, char **argv);
 

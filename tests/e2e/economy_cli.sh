@@ -1,11 +1,11 @@
 #!/bin/sh
-# economy_cli.sh — economy decisions through the real binary (issue 5): each
-# one reaches the run report (stderr and root.report) with its reason and is
-# counted; a x2 table of FWHM 4 (beta ~ 37 px^2 >= 21) is block-summed to
-# x1, one of FWHM 1.5 (beta ~ 6 px^2 < 21) is kept; psfos is honoured;
-# economy=no drops nothing; and economy's x1 fit equals psfos=1's exactly
-# (the same model reached two ways).  Deterministic: fixed seeds, no
-# tolerance.
+# economy_cli.sh — economy decisions through the real binary (issues 5,
+# 10): each one reaches the run report (stderr and root.report) with its
+# reason and is counted; a x2 table is offered at x1 per group where its
+# measured bias bound allows (fit/ss_choice.c): a faint star of FWHM 4 is
+# fitted at x1 (exactly psfos=1's fit), a bright one keeps x2 (exactly
+# psfos=2's); without a start flux, or for FWHM 1.5, the table as given;
+# economy=no drops nothing.  Deterministic: fixed seeds, no tolerance.
 M=${MATPHOT:-./matphot}
 [ -x "$M" ] || { echo "economy_cli: $M not built"; exit 77; }
 T=$(mktemp -d "${TMPDIR:-/tmp}/economy_cli.XXXXXX") || exit 1
@@ -16,32 +16,48 @@ has() {  # has FILE PATTERN WHAT
     grep -q "$2" "$1" || { no "$3 (report: $(grep 'economy:' "$1"))"; }
 }
 
-"$M" sim "$T/w.fits" seed=21 fwhm=4 psfout="$T/w2.fits" psfos=2 || no "sim wide"
+"$M" sim "$T/w.fits" seed=21 fwhm=4 magmin=-8 magmax=-8 psfout="$T/w2.fits" psfos=2 || no "sim wide"
+"$M" sim "$T/b.fits" seed=23 fwhm=4 magmin=-15 magmax=-15 || no "sim wide bright"
 "$M" sim "$T/n.fits" seed=22 fwhm=1.5 psfout="$T/n2.fits" psfos=2 || no "sim narrow"
+# Start tables with find's FLUX (the truth's, renamed): the table choice is
+# made per group from its brightest star's flux.
+for f in w b; do
+    sed 's/^#   4 FLUX_TRUE             /#   4 FLUX                  /' "$T/$f.truth" > "$T/$f.coo"
+done
 
-fit() {  # fit NAME IMAGE TRUTH ARGS...
+fit() {  # fit NAME IMAGE COORDS ARGS...
     n=$1; shift
     # skymodel fixed: these runs compare the table's sampling alone (the
     # sky order's own decision is test_levmar's; economy=no would force the
     # quadratic sky)
     "$M" fit "$@" skymodel=constant output="$T/$n.fit" 2>"$T/$n.err" || no "fit $n"
 }
-fit wyes "$T/w.fits" "$T/w.truth" psf="$T/w2.fits"
-has "$T/wyes.err" 'economy: [0-9]* decisions: supersampling: beta = 3[0-9.]* px^2 at detector sampling.*x2 table block-summed to x1' \
-    "FWHM 4 x2 table not block-summed"
-has "$T/wyes.err" 'left out:.*supersampling (x1 table)' "x1 not listed as left out"
+# FWHM 4 (beta ~ 37 px^2): x1 serves ~4e5 e- even on no sky; a -8 mag star
+# is fitted with it (the same fit as psfos=1's, the same model reached two
+# ways), a -15 mag one (1e6 e-) keeps x2 (= psfos=2's).
+fit wyes "$T/w.fits" "$T/w.coo" psf="$T/w2.fits"
+has "$T/wyes.err" 'economy: [0-9]* decisions: supersampling: per group, the coarsest table whose bias bound.* x1 to E = [0-9.e+]* e-, the x2 table above (beta = 3[0-9.]* px^2' \
+    "FWHM 4: no per-group supersampling decision"
+has "$T/wyes.err" 'work:.* 1 with a coarser table' "FWHM 4, -8 mag: x1 not used"
 grep -q 'economy: [0-9]* decisions: supersampling' "$T/wyes.report" || no "decision not in root.report"
-fit wos1 "$T/w.fits" "$T/w.truth" psf="$T/w2.fits" psfos=1 economy=no
+fit wos1 "$T/w.fits" "$T/w.coo" psf="$T/w2.fits" psfos=1
 cmp -s "$T/wyes.fit" "$T/wos1.fit" || no "economy's x1 differs from psfos=1"
+fit byes "$T/b.fits" "$T/b.coo" psf="$T/w2.fits"
+has "$T/byes.err" 'work:.* 0 with a coarser table' "FWHM 4, -15 mag: x2 not kept"
+fit bos2 "$T/b.fits" "$T/b.coo" psf="$T/w2.fits" psfos=2
+has "$T/bos2.err" 'economy: [0-9]* decisions: supersampling: psfos given, the x2 table used as asked' "psfos not honoured"
+cmp -s "$T/byes.fit" "$T/bos2.fit" || no "economy's x2 differs from psfos=2"
+# No start flux: the safe side, the table as given (= economy=no's fit).
+fit wtr "$T/w.fits" "$T/w.truth" psf="$T/w2.fits"
+has "$T/wtr.err" 'work:.* 0 with a coarser table' "no start flux, yet a coarser table"
 fit wno "$T/w.fits" "$T/w.truth" psf="$T/w2.fits" economy=no
 has "$T/wno.err" 'economy: [0-9]* decisions: economy=no: every part of the model forced on' "economy=no not reported"
 grep -q 'left out:.*supersampling' "$T/wno.err" && no "economy=no left out the supersampling"
-fit wos2 "$T/w.fits" "$T/w.truth" psf="$T/w2.fits" psfos=2
-has "$T/wos2.err" 'economy: [0-9]* decisions: supersampling: psfos given, the x2 table used as asked' "psfos not honoured"
-cmp -s "$T/wno.fit" "$T/wos2.fit" || no "psfos=2 differs from economy=no"
+cmp -s "$T/wno.fit" "$T/wtr.fit" || no "no start flux: economy=yes changed the fit"
+# FWHM 1.5 (beta ~ 6 px^2): x1 serves no real star.
 fit nyes "$T/n.fits" "$T/n.truth" psf="$T/n2.fits"
-has "$T/nyes.err" 'economy: [0-9]* decisions: supersampling: beta = [0-9.]* px^2 < 21.*x2 table kept' \
-    "FWHM 1.5 x2 table not kept"
+has "$T/nyes.err" 'economy: [0-9]* decisions: supersampling: per group.* x1 to E = [0-9.]* e-,' \
+    "FWHM 1.5: no per-group supersampling decision"
 fit nno "$T/n.fits" "$T/n.truth" psf="$T/n2.fits" economy=no
 cmp -s "$T/nyes.fit" "$T/nno.fit" || no "undersampled: economy=yes changed the fit"
 

@@ -242,4 +242,70 @@ static inline int fuzz_psf_body(const uint8_t *data, size_t size)
     return 0;
 }
 
+/* ---- matphot PSF files (mp_psf_field_read) ---------------------------------- */
+
+/* Read; what is accepted must keep the reader's promises, render finite
+ * PRFs at a few positions, and write and read back to the same planes. */
+static inline int fuzz_psf_field_body(const uint8_t *data, size_t size)
+{
+    char path[256], back[256], err[MP_ERRLEN] = "", warn[MP_ERRLEN] = "";
+    fuzz_tmp_path("psffield", ".fits", path, sizeof path);
+    fuzz_tmp_path("psffield_back", ".fits", back, sizeof back);
+    if (fuzz_write_file(path, data, size))
+        return 0;
+    for (int norm = 0; norm < 2; norm++) {
+        mp_psf_field f;
+        mp_psf_star *st = NULL;
+        int ns = 0;
+        err[0] = '\0';
+        if (mp_psf_field_read(path, norm, 0, &f, &st, &ns, warn, err)) {
+            fuzz_check_err("mp_psf_field_read", err);
+            continue;
+        }
+        if (!(f.sum > 0) || !isfinite(f.sum) || f.nx % 2 == 0 || f.ny % 2 == 0 || f.os < 1 ||
+            f.os > 8 || f.nterms != mp_psf_nterms(f.order) ||
+            (f.order > 0 && !(f.xscale > 0 && f.yscale > 0)) || (ns > 0) != (st != NULL))
+            fuzz_fail("mp_psf_field_read", "accepted a file it promises to refuse");
+        if ((size_t)f.nx * (size_t)f.ny <= 4096) {
+            mp_psf o;
+            if (mp_psf_field_eval(&f, f.x0, f.y0, &o, err) == 0) {
+                o.field = &f;
+                mp_prf_model m = {&o, NULL, 10};
+                long x0, y0;
+                int w, h;
+                mp_prf_box(&m, 20.3, 17.8, &x0, &y0, &w, &h);
+                size_t n = (size_t)w * (size_t)h;
+                double *prf = malloc(3 * n * sizeof *prf);
+                mp_prf_work work = {0};
+                const double xs[2] = {20.3, f.x0 + 0.37 * f.xscale};
+                for (int c = 0; c < 2 && prf; c++)
+                    if (mp_prf_render(&m, xs[c], 17.8, prf, prf + n, prf + 2 * n, &work) == 0)
+                        for (size_t i = 0; i < 3 * n; i++)
+                            if (!isfinite(prf[i]))
+                                fuzz_fail("mp_prf_render", "non-finite PRF from an accepted field");
+                free(prf);
+                mp_prf_work_free(&work);
+                mp_psf_free(&o);
+            }
+        }
+        mp_psf_field g;
+        if (mp_psf_field_write(back, &f, st, ns, err) == 0) {
+            if (mp_psf_field_read(back, 0, 0, &g, NULL, NULL, warn, err))
+                fuzz_fail("mp_psf_field_write output does not read back", err);
+            size_t n = (size_t)f.nx * f.ny * f.nterms;
+            if (g.order != f.order || g.nx != f.nx || g.ny != f.ny || g.os != f.os ||
+                memcmp(g.planes, f.planes, n * sizeof *f.planes))
+                fuzz_fail("round trip", "planes or geometry changed");
+            mp_psf_field_free(&g);
+            unlink(back);
+        } else {
+            fuzz_check_err("mp_psf_field_write", err);
+        }
+        free(st);
+        mp_psf_field_free(&f);
+    }
+    unlink(path);
+    return 0;
+}
+
 #endif

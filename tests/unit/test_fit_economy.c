@@ -298,6 +298,133 @@ static void test_short_kernel_per_group(void **state)
     sf_frame_drop(&f);
 }
 
+/* Economy's own cost is bounded by counts (issue 10.3; never a time): a
+ * whole-frame fit (fitrad INDEF, the paper's setup: one 60×60 frame, one
+ * star) builds no crop envelope (nobody else's light to crop) and spends at
+ * most hwmax kernel-bound evaluations per LM fit, where the per-frame
+ * limits table took MP_SINC_LIMITS_EVALS·hwmax = 620; and a frame of more
+ * groups than MP_SINC_LIMITS_EVALS builds the limits once, so the choice
+ * never costs more than min(LM fits, MP_SINC_LIMITS_EVALS)·hwmax
+ * evaluations.  The kernel a lone star gets is the one mp_sinc_choice_hw
+ * gives for its start flux on the safe side (sky 0).  Deterministic given
+ * the seeds. */
+static void test_whole_frame_overhead_counted(void **state)
+{
+    (void)state;
+    char err[MP_ERRLEN];
+    mp_psf p;
+    assert_int_equal(mp_psf_gauss_table(FWHM, 1, 15.0, &p, err), 0);
+    mp_prf_model m = {&p, NULL, 10};
+    mp_sinc_choice c;
+    assert_int_equal(mp_sinc_choice_build(&m, &c, err), 0);
+    mp_frame_opts eco;
+    mp_frame_opts_default(&eco);
+    eco.sinc = &c;
+    eco.fit.fitrad = NAN;
+    /* One star, whole frame. */
+    mp_frame f;
+    sf_frame_make(&f, 60, 60, 3.0);
+    mp_rng r;
+    mp_rng_seed(&r, 77);
+    double x = 30.3, y = 29.8, E = 2e4, E0 = 1.2 * E;
+    sf_render(&f, 100.0, FWHM, &x, &y, &E, 1, &r, 3.0);
+    mp_table t;
+    sf_table(&t, &x, &y, &E0, 1, 0);
+    mp_frame_report rep;
+    assert_int_equal(mp_fit_table(&f, &m, &eco, &t, &rep, err), 0);
+    assert_int_equal(rep.envelopes, 0);
+    assert_int_equal(rep.kcalls, 1);
+    int hw = mp_sinc_choice_hw(&c, E0, 0.0, 3.0, eco.sincfrac);
+    assert_true(hw < c.hwmax);                  /* a decision was taken... */
+    assert_int_equal((int)rep.khw, hw);         /* ...the one the bound gives */
+    assert_int_equal(rep.kbounds, hw + 1);      /* at hw + 1 evaluations */
+    assert_true(rep.kbounds <= (long)c.hwmax * rep.kcalls);
+    mp_table_free(&t);
+    sf_frame_drop(&f);
+    /* 70 lone stars 20 px apart, fitrad 5: 70 groups > 62, limits once. */
+    enum { NX = 10, NY = 7, NN = NX * NY };
+    double xs[NN], ys[NN], es[NN], e0[NN];
+    for (int k = 0; k < NN; k++) {
+        xs[k] = 10.0 + 20.0 * (k % NX) + 0.1 * (k % 3);
+        ys[k] = 10.0 + 20.0 * (k / NX) - 0.1 * (k % 5);
+        es[k] = 3e3 * (1 + k % 7);
+        e0[k] = 1.2 * es[k];
+    }
+    sf_frame_make(&f, 20 * NX, 20 * NY, 3.0);
+    sf_render(&f, 100.0, FWHM, xs, ys, es, NN, &r, 3.0);
+    sf_table(&t, xs, ys, e0, NN, 0);
+    eco.fit.fitrad = 5.0;
+    assert_int_equal(mp_fit_table(&f, &m, &eco, &t, &rep, err), 0);
+    print_message("70 groups: %ld LM fits, %ld bound evaluations, %ld envelopes\n", rep.kcalls,
+                  rep.kbounds, rep.envelopes);
+    assert_int_equal(rep.ngroups, NN);
+    assert_int_equal(rep.kbounds, (long)c.hwmax * MP_SINC_LIMITS_EVALS);
+    assert_int_equal(rep.envelopes, 1);
+    mp_table_free(&t);
+    sf_frame_drop(&f);
+    mp_sinc_choice_free(&c);
+    mp_psf_free(&p);
+}
+
+/* The supersampling choice per group (issue 10.2, fit/ss_choice.c): on a
+ * Gaussian FWHM 3 x2 table, a faint star's group is fitted with the x1
+ * block-sum (its bound is below 0.1 σ), a bright one's (1e6 e-, far over
+ * the x1 limit of ~1e4 e- on sky 100) with the x2 table, as counted; and
+ * the faint star's fit moves from the x2 fit by less than the bound, 0.1 σ
+ * (+ 0.02 σ for the two fits' convergence).  Seeded frame. */
+static void test_coarse_table_per_group(void **state)
+{
+    (void)state;
+    char err[MP_ERRLEN];
+    mp_psf p;
+    assert_int_equal(mp_psf_gauss_table(FWHM, 2, 15.0, &p, err), 0);
+    mp_prf_model m = {&p, NULL, 10};
+    mp_ss_level lv;
+    assert_int_equal(mp_ss_level_build(&m, 2, &lv, err), 0);
+    lv.os = 1;
+    double lim = mp_ss_level_emax(&lv, 100.0, 3.0, 0.1);
+    double xs[2] = {30.3, 30.6}, ys[2] = {30.2, 79.7}, es[2] = {0.5 * lim, 1e6}, e0[2];
+    for (int k = 0; k < 2; k++)
+        e0[k] = es[k];
+    mp_frame f;
+    sf_frame_make(&f, 60, 110, 3.0);
+    mp_rng r;
+    mp_rng_seed(&r, 91);
+    sf_render(&f, 100.0, FWHM, xs, ys, es, 2, &r, 3.0);
+    mp_frame_opts eco, full;
+    mp_frame_opts_default(&eco);
+    full = eco;
+    eco.ss = &lv;
+    eco.nss = 1;
+    mp_table a, b;
+    sf_table(&a, xs, ys, e0, 2, 0);
+    sf_table(&b, xs, ys, e0, 2, 0);
+    int cs = mp_table_add_col(&a, "SKY_PSF"), cb = mp_table_add_col(&b, "SKY_PSF");
+    for (size_t i = 0; i < 2; i++) {
+        mp_table_set(&a, i, cs, 100.0);
+        mp_table_set(&b, i, cb, 100.0);
+    }
+    mp_frame_report ra, rb;
+    assert_int_equal(mp_fit_table(&f, &m, &eco, &a, &ra, err), 0);
+    assert_int_equal(mp_fit_table(&f, &m, &full, &b, &rb, err), 0);
+    print_message("x1 limit %.3g e-: %ld of %ld LM fits with the x1 table, %ld bound evaluations\n",
+                  lim, ra.kcoarse, ra.kcalls, ra.kbounds);
+    assert_int_equal(ra.ngroups, 2);
+    assert_true(ra.kcalls >= 2);
+    assert_int_equal(ra.kcoarse, ra.kcalls / 2);   /* the faint star's every fit, no other */
+    assert_int_equal(rb.kcoarse, 0);
+    assert_int_equal(a.nrow, 2);
+    double s = get(&b, 0, "FLUXERR_PSF");
+    assert_true(fabs(get(&a, 0, "FLUX_PSF") - get(&b, 0, "FLUX_PSF")) < 0.12 * s);
+    assert_true(fabs(get(&a, 0, "XPSF_IMAGE") - get(&b, 0, "XPSF_IMAGE")) < 0.12 * get(&b, 0, "ERRX_PSF"));
+    assert_true(get(&a, 1, "FLUX_PSF") == get(&b, 1, "FLUX_PSF"));   /* the same x2 fit */
+    mp_table_free(&a);
+    mp_table_free(&b);
+    mp_ss_level_free(&lv);
+    mp_psf_free(&p);
+    sf_frame_drop(&f);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
@@ -306,6 +433,8 @@ int main(void)
         cmocka_unit_test(test_changed_neighbour_refitted),
         cmocka_unit_test(test_envelope_bounds_prf),
         cmocka_unit_test(test_short_kernel_per_group),
+        cmocka_unit_test(test_whole_frame_overhead_counted),
+        cmocka_unit_test(test_coarse_table_per_group),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }

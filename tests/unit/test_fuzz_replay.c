@@ -72,6 +72,11 @@ static void replay(const char *target, body_fn fn, int min_regressions)
 static void test_replay_params(void **state) { (void)state; replay("params", fuzz_params_body, 1); }
 static void test_replay_table(void **state) { (void)state; replay("table", fuzz_table_body, 1); }
 static void test_replay_psf(void **state) { (void)state; replay("psf", fuzz_psf_body, 1); }
+static void test_replay_psf_field(void **state)
+{
+    (void)state;
+    replay("psf_field", fuzz_psf_field_body, 0);
+}
 
 int main(void)
 {
@@ -79,6 +84,7 @@ int main(void)
         cmocka_unit_test(test_replay_params),
         cmocka_unit_test(test_replay_table),
         cmocka_unit_test(test_replay_psf),
+        cmocka_unit_test(test_replay_psf_field),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }

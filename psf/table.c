@@ -1,9 +1,9 @@
-/* psf.c — PSF tables: read from FITS, made from a Gaussian, block-summed. */
+/* table.c — PSF tables: read from FITS, made from a Gaussian, block-summed. */
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
-#include "fit/fit.h"
+#include "psf/psf.h"
 
 void mp_psf_free(mp_psf *p)
 {
@@ -175,5 +175,6 @@ int mp_psf_rebin(const mp_psf *in, int factor, mp_psf *out, char *err)
     out->sum = in->sum;
     out->sigma = in->sigma;
     out->offset = in->offset + ((f % 2) ? 0.0 : 0.5 / in->os);
+    out->field = in->field;
     return 0;
 }

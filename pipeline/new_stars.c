@@ -1,0 +1,188 @@
+/* new_stars.c — the bookkeeping between rounds of the pipeline: which
+ * detections on the residual are new stars (not within matchrad of a known
+ * star, nor of one the fit merged away or rejected), and where the fit's
+ * gone stars were. */
+#include <math.h>
+#include <stdlib.h>
+#include "pipeline/pipeline_priv.h"
+
+/* Position of a row: the fitted one when there is one. */
+static void row_xy(const mp_table *t, size_t r, double *x, double *y)
+{
+    int fx = mp_table_col(t, "XPSF_IMAGE"), fy = mp_table_col(t, "YPSF_IMAGE");
+    int cx = mp_table_col(t, "X_IMAGE"), cy = mp_table_col(t, "Y_IMAGE");
+    *x = fx >= 0 ? mp_table_get(t, r, fx) : NAN;
+    *y = fy >= 0 ? mp_table_get(t, r, fy) : NAN;
+    if (!isfinite(*x) || !isfinite(*y)) {
+        *x = cx >= 0 ? mp_table_get(t, r, cx) : NAN;
+        *y = cy >= 0 ? mp_table_get(t, r, cy) : NAN;
+    }
+}
+
+/* before = NUMBER and position of every row of t. */
+int mp_pl_positions_of(const mp_table *t, mp_table *before)
+{
+    mp_table_free(before);
+    mp_table_init(before);
+    int n = mp_table_add_col(before, "NUMBER"), x = mp_table_add_col(before, "X_IMAGE"),
+        y = mp_table_add_col(before, "Y_IMAGE"), tn = mp_table_col(t, "NUMBER");
+    if (n < 0 || x < 0 || y < 0)
+        return 1;
+    for (size_t r = 0; r < t->nrow; r++) {
+        long row = mp_table_add_row(before);
+        if (row < 0)
+            return 1;
+        double px, py;
+        row_xy(t, r, &px, &py);
+        mp_table_set(before, (size_t)row, n, tn >= 0 ? mp_table_get(t, r, tn) : (double)r);
+        mp_table_set(before, (size_t)row, x, px);
+        mp_table_set(before, (size_t)row, y, py);
+    }
+    return 0;
+}
+
+/* Known stars on a grid of cells matchrad wide, so each new detection is
+ * compared with its neighbourhood only. */
+typedef struct {
+    long nx, ny;
+    double cell;
+    long *head, *next;   /* per cell: first row; per row: next row in its cell */
+} star_grid;
+
+static long cell_of(const star_grid *g, double x, double y)
+{
+    long i = (long)floor(x / g->cell), j = (long)floor(y / g->cell);
+    i = i < 0 ? 0 : (i >= g->nx ? g->nx - 1 : i);
+    j = j < 0 ? 0 : (j >= g->ny ? g->ny - 1 : j);
+    return j * g->nx + i;
+}
+
+static int grid_build(star_grid *g, const mp_table *t, long fnx, long fny, double cell)
+{
+    g->cell = cell > 0.5 ? cell : 0.5;
+    g->nx = (long)(fnx / g->cell) + 2;
+    g->ny = (long)(fny / g->cell) + 2;
+    g->head = malloc((size_t)(g->nx * g->ny) * sizeof *g->head);
+    g->next = malloc((t->nrow ? t->nrow : 1) * sizeof *g->next);
+    if (!g->head || !g->next)
+        return 1;
+    for (long i = 0; i < g->nx * g->ny; i++)
+        g->head[i] = -1;
+    for (size_t r = 0; r < t->nrow; r++) {
+        double x, y;
+        row_xy(t, r, &x, &y);
+        if (!isfinite(x) || !isfinite(y)) {
+            g->next[r] = -1;
+            continue;
+        }
+        long c = cell_of(g, x, y);
+        g->next[r] = g->head[c];
+        g->head[c] = (long)r;
+    }
+    return 0;
+}
+
+static int grid_near(const star_grid *g, const mp_table *t, double x, double y, double r)
+{
+    long ci = (long)floor(x / g->cell), cj = (long)floor(y / g->cell);
+    for (long j = cj - 1; j <= cj + 1; j++)
+        for (long i = ci - 1; i <= ci + 1; i++) {
+            if (i < 0 || j < 0 || i >= g->nx || j >= g->ny)
+                continue;
+            for (long k = g->head[j * g->nx + i]; k >= 0; k = g->next[k]) {
+                double sx, sy;
+                row_xy(t, (size_t)k, &sx, &sy);
+                if (hypot(sx - x, sy - y) < r)
+                    return 1;
+            }
+        }
+    return 0;
+}
+
+/* Append the detections of found that are not within matchrad of a star of
+ * t, numbered on from t's largest NUMBER; their fit starts from find's
+ * position and flux.  Returns the number added, −1 when out of memory. */
+long mp_pl_add_new_stars(mp_table *t, const mp_table *gone, const mp_table *found, long fnx,
+                          long fny, double matchrad)
+{
+    star_grid g = {0}, gg = {0};
+    long added = -1;
+    if (grid_build(&g, t, fnx, fny, matchrad) || grid_build(&gg, gone, fnx, fny, matchrad))
+        goto done;
+    int cnum = mp_table_add_col(t, "NUMBER");
+    if (cnum < 0)
+        goto done;
+    double maxnum = 0;
+    for (size_t r = 0; r < t->nrow; r++)
+        if (mp_table_get(t, r, cnum) > maxnum)
+            maxnum = mp_table_get(t, r, cnum);
+    added = 0;
+    int fx = mp_table_col(found, "X_IMAGE"), fy = mp_table_col(found, "Y_IMAGE");
+    for (size_t r = 0; r < found->nrow && fx >= 0 && fy >= 0; r++) {
+        double x = mp_table_get(found, r, fx), y = mp_table_get(found, r, fy);
+        if (!isfinite(x) || !isfinite(y) || grid_near(&g, t, x, y, matchrad) ||
+            grid_near(&gg, gone, x, y, matchrad))
+            continue;
+        /* The grid holds the stars known before this round only: two
+         * detections of one residual peak are find's business, not ours. */
+        long row = mp_table_add_row(t);
+        if (row < 0) {
+            added = -1;
+            goto done;
+        }
+        for (size_t c = 0; c < found->ncol; c++) {
+            int tc = mp_table_add_col(t, found->cols[c].name);
+            if (tc < 0) {
+                added = -1;
+                goto done;
+            }
+            mp_table_set(t, (size_t)row, tc, mp_table_get(found, r, (int)c));
+        }
+        const char *pairs[3][2] = {{"XPSF_IMAGE", "X_IMAGE"}, {"YPSF_IMAGE", "Y_IMAGE"},
+                                   {"FLUX_PSF", "FLUX"}};
+        for (int p = 0; p < 3; p++) {
+            int to = mp_table_col(t, pairs[p][0]), from = mp_table_col(found, pairs[p][1]);
+            if (to >= 0)
+                mp_table_set(t, (size_t)row, to, from >= 0 ? mp_table_get(found, r, from) : NAN);
+        }
+        int sky = mp_table_col(t, "SKY_PSF");
+        if (sky >= 0)
+            mp_table_set(t, (size_t)row, sky, NAN);
+        mp_table_set(t, (size_t)row, cnum, maxnum + (double)++added);
+    }
+done:
+    free(g.head);
+    free(g.next);
+    free(gg.head);
+    free(gg.next);
+    return added;
+}
+
+/* Remember where the stars the fit merged away or rejected were, so a
+ * residual peak they leave is not found and added again every round.
+ * before holds NUMBER, X_IMAGE, Y_IMAGE of every row given to the fit. */
+int mp_pl_note_gone(mp_table *gone, const mp_table *before, const mp_table *after)
+{
+    int bn = mp_table_col(before, "NUMBER"), an = mp_table_col(after, "NUMBER");
+    int gx = mp_table_add_col(gone, "X_IMAGE"), gy = mp_table_add_col(gone, "Y_IMAGE");
+    if (bn < 0 || an < 0 || gx < 0 || gy < 0)
+        return 0;
+    /* NUMBERs of after are a subsequence of before's (the fit keeps the
+     * order of the rows it keeps). */
+    size_t j = 0;
+    for (size_t i = 0; i < before->nrow; i++) {
+        if (j < after->nrow && mp_table_get(after, j, an) == mp_table_get(before, i, bn)) {
+            j++;
+            continue;
+        }
+        double x, y;
+        row_xy(before, i, &x, &y);
+        long r = mp_table_add_row(gone);
+        if (r < 0)
+            return 1;
+        mp_table_set(gone, (size_t)r, gx, x);
+        mp_table_set(gone, (size_t)r, gy, y);
+    }
+    return 0;
+}
+

@@ -1,0 +1,137 @@
+/* outputs.c — what the pipeline writes for one frame: the intermediate
+ * tables, the residual image, the catalog (with sky positions when the
+ * frame has a WCS) and its DS9 regions, and the run report. */
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include "pipeline/pipeline_priv.h"
+
+/* root + ext, written atomically in format fmt. */
+int mp_pl_write_named(const char *root, const char *ext, const mp_table *t,
+                       mp_table_format fmt, char *err)
+{
+    size_t n = strlen(root) + strlen(ext) + 1;
+    char *path = malloc(n);
+    if (!path) {
+        snprintf(err, MP_ERRLEN, "out of memory");
+        return 1;
+    }
+    snprintf(path, n, "%s%s", root, ext);
+    int rc = mp_table_write(path, t, fmt, err);
+    free(path);
+    return rc;
+}
+
+/* Does the header have a CTYPE1 card (a WCS to try)? */
+static int has_wcs(const mp_image *im)
+{
+    for (int k = 0; k < im->nkeys; k++)
+        if (memcmp(im->hdr + (size_t)k * 80, "CTYPE1", 6) == 0)
+            return 1;
+    return 0;
+}
+
+/* root.cat (sky positions when the frame has a WCS; FITS_LDAC carries the
+ * frame's header as SExtractor's does) and the DS9 regions root.reg. */
+int mp_pl_write_catalog(const char *root, const mp_frame *f, mp_table *t,
+                         const mp_pipeline_opts *o, char *err)
+{
+    char e[MP_ERRLEN];
+    if (has_wcs(&f->im) && mp_table_add_sky(t, &f->im, e))
+        fprintf(stderr, "matphot pipeline: warning: no sky positions: %s\n", e);
+    size_t n = strlen(root) + 8;
+    char *path = malloc(n);
+    if (!path) {
+        snprintf(err, MP_ERRLEN, "out of memory");
+        return 1;
+    }
+    int rc;
+    if (o->catfmt == MP_TAB_LDAC) {
+        mp_card extra[2] = {{"SEXGAIN", f->gain, NULL, "gain [e-/ADU]"},
+                            {"EXPTIME", f->exptime, NULL, "exposure time [s]"}};
+        mp_ldac_head h = {f->im.hdr, f->im.nkeys, extra, 2};
+        snprintf(path, n, "%s.cat", root);
+        rc = mp_table_write_fits(path, t, &h, err);
+    } else {
+        rc = mp_pl_write_named(root, ".cat", t, o->catfmt, err);
+    }
+    if (!rc && o->regions) {
+        mp_region_opts ro = {3.0, 0, 1};
+        snprintf(path, n, "%s.reg", root);
+        rc = mp_regions_write(path, t, &ro, NULL, err);
+    }
+    free(path);
+    return rc;
+}
+
+
+int mp_pl_write_residual(const char *root, const mp_frame *f, double *res, char *err)
+{
+    size_t npix = (size_t)f->im.nx * f->im.ny;
+    for (size_t i = 0; i < npix; i++)
+        res[i] = (f->mask[i] & MP_MASK_BAD) ? NAN : res[i] / f->gain;
+    size_t n = strlen(root) + 10;
+    char *path = malloc(n);
+    if (!path) {
+        snprintf(err, MP_ERRLEN, "out of memory");
+        return 1;
+    }
+    snprintf(path, n, "%s.res.fits", root);
+    mp_card cards[2] = {{"GAIN", f->gain, NULL, "e-/ADU"}, {"RDNOISE", f->rdnoise, NULL, "e-"}};
+    int rc = mp_image_write(path, res, f->im.nx, f->im.ny, -32, cards, 2, err);
+    free(path);
+    return rc;
+}
+
+/* The run report's counts, from the pipeline's. */
+static void report_counts(const mp_pipeline_report *rep, const mp_table *t, mp_run_report *run)
+{
+    run->t_read = rep->t_read;
+    run->t_bkg = rep->t_bkg;
+    run->t_find = rep->t_find;
+    run->t_group = rep->t_group;
+    run->t_fit = rep->t_fit;
+    run->t_write = rep->t_write;
+    run->nstars = (long)t->nrow;
+    run->ngroups = rep->ngroups;
+    run->iterations = rep->iterations;
+    run->merged = rep->merged;
+    run->rejected = rep->rejected;
+    run->noconv = rep->noconv;
+    run->fits = rep->fits;
+    run->kept = rep->kept;
+    run->cropped = rep->cropped;
+    run->kcalls = rep->kcalls;
+    run->kshort = rep->kshort;
+    run->khw = rep->khw;
+    run->kbounds = rep->kbounds;
+    run->kcoarse = rep->kcoarse;
+    run->kcache = rep->kcache;
+    run->envelopes = rep->envelopes;
+}
+
+int mp_pl_write_report(const char *image, const char *root, const mp_pipeline_opts *o,
+                       const mp_pipeline_report *rep, const mp_table *t, char *err)
+{
+    mp_run_report run;
+    memset(&run, 0, sizeof run);
+    run.image = image;
+    report_counts(rep, t, &run);
+    mp_report_from_table(t, &run);
+    mp_frame_report last = {.nstars = (long)t->nrow, .ngroups = rep->ngroups};
+    memcpy(last.sky_groups, rep->sky_groups, sizeof last.sky_groups);
+    mp_report_parts(&o->fit.model, &o->fit.opts, &last, &run);
+    run.decisions = o->fit.decisions;
+    run.ndecisions = o->fit.ndecisions;
+    size_t n = strlen(root) + 8;
+    char *path = malloc(n);
+    if (!path) {
+        snprintf(err, MP_ERRLEN, "out of memory");
+        return 1;
+    }
+    snprintf(path, n, "%s.report", root);
+    int rc = mp_report_write(path, "pipeline", &run, err);
+    free(path);
+    return rc;
+}

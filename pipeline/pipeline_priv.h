@@ -1,0 +1,48 @@
+/*
+ * pipeline_priv.h — private to pipeline/: the bookkeeping between rounds
+ * (new_stars.c) and the files a run writes (outputs.c).
+ */
+#ifndef MATPHOT_PIPELINE_PRIV_H
+#define MATPHOT_PIPELINE_PRIV_H
+
+#include "pipeline/pipeline.h"
+
+/* ---- new_stars.c ------------------------------------------------------- */
+
+/* mp_pl_positions_of: before = NUMBER, X_IMAGE, Y_IMAGE of every row of t
+ * (the fitted position where there is one).  Nonzero when out of memory. */
+int mp_pl_positions_of(const mp_table *t, mp_table *before);
+
+/* mp_pl_note_gone: append to gone the positions (from before) of the rows
+ * the fit merged away or rejected (their NUMBER is in before, not in
+ * after), so a residual peak they leave is not added again every round. */
+int mp_pl_note_gone(mp_table *gone, const mp_table *before, const mp_table *after);
+
+/* mp_pl_add_new_stars: append the detections of found that are not within
+ * matchrad of a star of t or of gone, numbered on from t's largest NUMBER;
+ * their fit starts from find's position and flux.  Returns the number
+ * added, −1 when out of memory.  fnx, fny: the frame's size. */
+long mp_pl_add_new_stars(mp_table *t, const mp_table *gone, const mp_table *found, long fnx,
+                         long fny, double matchrad);
+
+/* ---- outputs.c --------------------------------------------------------- */
+
+/* mp_pl_write_named: t written atomically to root + ext in format fmt. */
+int mp_pl_write_named(const char *root, const char *ext, const mp_table *t,
+                      mp_table_format fmt, char *err);
+
+/* mp_pl_write_catalog: root.cat (sky positions when the frame has a WCS;
+ * FITS_LDAC carries the frame's header) and, with o->regions, root.reg. */
+int mp_pl_write_catalog(const char *root, const mp_frame *f, mp_table *t,
+                        const mp_pipeline_opts *o, char *err);
+
+/* mp_pl_write_residual: root.res.fits from the residual res [e-] (converted
+ * to ADU in place; NaN where the frame is masked bad). */
+int mp_pl_write_residual(const char *root, const mp_frame *f, double *res, char *err);
+
+/* mp_pl_write_report: the run report of a finished run (stderr and
+ * root.report) from the pipeline's counts and the final table. */
+int mp_pl_write_report(const char *image, const char *root, const mp_pipeline_opts *o,
+                       const mp_pipeline_report *rep, const mp_table *t, char *err);
+
+#endif

@@ -1,0 +1,358 @@
+/* field_io.c — matphot's PSF file (psf.h): a 2-D table or a cube of
+ * polynomial planes, read and written atomically. */
+#include <fitsio.h>
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <unistd.h>
+#include "psf/psf.h"
+
+/* Largest cube read: far beyond any PSF (a 1025² ×8 table of 6 planes is
+ * 6.3 M elements), small enough that a forged header cannot ask for more. */
+#define MAX_ELEMENTS (1L << 25)
+
+static void fits_msg(const char *name, const char *what, int status, char *err)
+{
+    char txt[FLEN_STATUS];
+    fits_get_errstatus(status, txt);
+    fits_clear_errmsg();
+    snprintf(err, MP_ERRLEN, "%s: %s: %s", name, what, txt);
+}
+
+/* An optional keyword: 0 found, 1 absent, 2 present but not a number. */
+static int key_double(fitsfile *fp, const char *key, double *v)
+{
+    int status = 0;
+    double x;
+    fits_read_key(fp, TDOUBLE, key, &x, NULL, &status);
+    if (status == KEY_NO_EXIST) {
+        fits_clear_errmsg();
+        return 1;
+    }
+    if (status) {
+        fits_clear_errmsg();
+        return 2;
+    }
+    *v = x;
+    return 0;
+}
+
+/* PSFORDER (else from the number of planes), checked against it. */
+static int cube_order(fitsfile *fp, const char *name, long nt, int *order, char *err)
+{
+    double o;
+    int k = key_double(fp, "PSFORDER", &o);
+    if (k == 1) {
+        *order = nt == 1 ? 0 : nt == 3 ? 1 : nt == 6 ? 2 : -1;
+    } else if (k == 0 && o == floor(o) && o >= 0 && o <= MP_PSF_MAXORDER) {
+        *order = (int)o;
+    } else {
+        snprintf(err, MP_ERRLEN, "%s: PSFORDER must be 0, 1 or 2", name);
+        return 1;
+    }
+    if (*order < 0 || mp_psf_nterms(*order) != nt) {
+        snprintf(err, MP_ERRLEN, "%s: the cube has %ld planes; PSF order %d needs %d "
+                 "(1, 3 or 6 planes for order 0, 1, 2)", name, nt, *order < 0 ? 0 : *order,
+                 mp_psf_nterms(*order < 0 ? 0 : *order));
+        return 1;
+    }
+    return 0;
+}
+
+/* OVERSAMP, POLZERO/POLSCAL, PSFNSTAR, PSFORDWH of a cube. */
+static int cube_keys(fitsfile *fp, const char *name, int oversamp, double *os, double pol[4],
+                     mp_psf_field *f, char *err)
+{
+    *os = oversamp > 0 ? oversamp : 1.0;
+    int k = key_double(fp, "OVERSAMP", os);
+    if (k == 2 || (k == 0 && (*os != floor(*os) || *os < 1 || *os > 8))) {
+        snprintf(err, MP_ERRLEN, "%s: OVERSAMP must be an integer 1..8", name);
+        return 1;
+    }
+    static const char *keys[4] = {"POLZERO1", "POLZERO2", "POLSCAL1", "POLSCAL2"};
+    for (int i = 0; i < 4; i++) {
+        pol[i] = i < 2 ? 0.0 : 1.0;
+        k = key_double(fp, keys[i], &pol[i]);
+        if (f->order > 0 && (k || !isfinite(pol[i]) || (i >= 2 && !(pol[i] > 0)))) {
+            snprintf(err, MP_ERRLEN, "%s: %s %s (a PSF of order %d needs POLZERO1/2 and "
+                     "POLSCAL1/2 > 0)", name, keys[i], k == 1 ? "missing" : "invalid", f->order);
+            return 1;
+        }
+    }
+    double ns;
+    if (key_double(fp, "PSFNSTAR", &ns) == 0 && ns >= 0 && ns < 1e9)
+        f->nstar = (int)ns;
+    int status = 0;
+    char *why = NULL;
+    fits_read_key_longstr(fp, "PSFORDWH", &why, NULL, &status);
+    if (!status && why)
+        snprintf(f->why, sizeof f->why, "%s", why);
+    if (why)
+        fits_free_memory(why, &status);
+    fits_clear_errmsg();
+    return 0;
+}
+
+/* Plane 0 is a table (mp_psf_read's checks); every plane finite. */
+static int cube_check(const char *name, mp_psf_field *f, int normalize, char *warn, char *err)
+{
+    size_t plane = (size_t)f->nx * f->ny, nneg = 0;
+    for (size_t i = 0; i < plane * f->nterms; i++)
+        if (!isfinite(f->planes[i])) {
+            snprintf(err, MP_ERRLEN, "%s: PSF cube holds NaN or infinite values", name);
+            return 1;
+        }
+    double sum = 0.0, peak = 0.0;
+    for (size_t i = 0; i < plane; i++) {
+        sum += f->planes[i];
+        peak = f->planes[i] > peak ? f->planes[i] : peak;
+        nneg += f->planes[i] < 0;
+    }
+    if (!(peak > 0) || !(sum > 0)) {
+        snprintf(err, MP_ERRLEN, "%s: PSF plane 1 (the table at the origin) is zero or "
+                 "negative everywhere", name);
+        return 1;
+    }
+    if (!normalize && sum > 1.01) {
+        snprintf(err, MP_ERRLEN, "%s: PSF table at the origin sums to %.6g > 1.01; it must "
+                 "hold the fraction of the star's light (use psfnorm=yes to rescale)", name, sum);
+        return 1;
+    }
+    if (nneg && warn)
+        snprintf(warn, MP_ERRLEN, "%s: %zu negative PSF elements at the origin", name, nneg);
+    if (normalize) {
+        for (size_t i = 0; i < plane * f->nterms; i++)
+            f->planes[i] /= sum;
+        sum = 1.0;
+    }
+    f->sum = sum;
+    return 0;
+}
+
+/* The optional PSFSTARS extension (absent: *stars NULL, *n 0). */
+static int read_stars(fitsfile *fp, const char *name, mp_psf_star **stars, int *n, char *err)
+{
+    int status = 0;
+    fits_movnam_hdu(fp, BINARY_TBL, "PSFSTARS", 0, &status);
+    if (status == BAD_HDU_NUM) {
+        fits_clear_errmsg();
+        return 0;
+    }
+    static char *cols[4] = {"X_IMAGE", "Y_IMAGE", "FLUX_PSF", "USED"};
+    int cn[4];
+    long nrow = 0;
+    for (int i = 0; i < 4 && !status; i++)
+        fits_get_colnum(fp, CASEINSEN, cols[i], &cn[i], &status);
+    fits_get_num_rows(fp, &nrow, &status);
+    if (status || nrow < 0 || nrow > 10000000) {
+        fits_msg(name, "PSFSTARS extension (X_IMAGE, Y_IMAGE, FLUX_PSF, USED)", status ? status : BAD_ROW_NUM, err);
+        return 1;
+    }
+    if (nrow == 0)
+        return 0;
+    double *v = malloc((size_t)nrow * 3 * sizeof *v);
+    int *u = malloc((size_t)nrow * sizeof *u);
+    *stars = malloc((size_t)nrow * sizeof **stars);
+    if (!v || !u || !*stars) {
+        free(v), free(u), free(*stars), *stars = NULL;
+        snprintf(err, MP_ERRLEN, "%s: out of memory for PSFSTARS", name);
+        return 1;
+    }
+    for (int i = 0; i < 3; i++)
+        fits_read_col(fp, TDOUBLE, cn[i], 1, 1, nrow, NULL, v + i * nrow, NULL, &status);
+    fits_read_col(fp, TINT, cn[3], 1, 1, nrow, NULL, u, NULL, &status);
+    for (long r = 0; r < nrow; r++)
+        (*stars)[r] = (mp_psf_star){v[r], v[nrow + r], v[2 * nrow + r], u[r]};
+    free(v);
+    free(u);
+    if (status) {
+        free(*stars);
+        *stars = NULL;
+        fits_msg(name, "PSFSTARS extension", status, err);
+        return 1;
+    }
+    *n = (int)nrow;
+    return 0;
+}
+
+static int read_cube(fitsfile *fp, const char *name, const long naxes[3], int normalize,
+                     int oversamp, mp_psf_field *f, char *warn, char *err)
+{
+    if (naxes[0] % 2 == 0 || naxes[1] % 2 == 0) {
+        snprintf(err, MP_ERRLEN, "%s: PSF table is %ldx%ld; its sizes must be odd "
+                 "(star at the centre of the central element)", name, naxes[0], naxes[1]);
+        return 1;
+    }
+    if (naxes[0] * naxes[1] > MAX_ELEMENTS / 8) {
+        snprintf(err, MP_ERRLEN, "%s: PSF table of %ldx%ld elements is too large", name,
+                 naxes[0], naxes[1]);
+        return 1;
+    }
+    int order;
+    double os, pol[4];
+    if (cube_order(fp, name, naxes[2], &order, err))
+        return 1;
+    f->order = order;
+    if (cube_keys(fp, name, oversamp, &os, pol, f, err))
+        return 1;
+    int nstar = f->nstar;
+    char why[sizeof f->why];
+    memcpy(why, f->why, sizeof why);
+    if (mp_psf_field_new(order, (int)naxes[0], (int)naxes[1], (int)os, pol[0], pol[1], pol[2],
+                         pol[3], f, err))
+        return 1;
+    f->nstar = nstar;
+    memcpy(f->why, why, sizeof why);
+    int status = 0;
+    long fp1[3] = {1, 1, 1};
+    fits_read_pix(fp, TDOUBLE, fp1, naxes[0] * naxes[1] * naxes[2], NULL, f->planes, NULL,
+                  &status);
+    if (status) {
+        fits_msg(name, "cannot read the PSF cube", status, err);
+        return 1;
+    }
+    return cube_check(name, f, normalize, warn, err);
+}
+
+/* The image's dimensions; 1 when the file does not open as an image here
+ * (mp_psf_read then says why, with io/'s wording). */
+static int open_image(const char *name, fitsfile **fp, int *naxis, long naxes[3])
+{
+    char bad[9];
+    if (mp_fits_guard_file(name, bad))
+        return 1;
+    int status = 0, type = 0;
+    fits_open_file(fp, name, READONLY, &status);
+    fits_get_hdu_type(*fp, &type, &status);
+    if (!status && type != IMAGE_HDU)
+        status = NOT_IMAGE;
+    fits_get_img_dim(*fp, naxis, &status);
+    naxes[0] = naxes[1] = naxes[2] = 1;
+    if (!status && *naxis >= 1 && *naxis <= 3)
+        fits_get_img_size(*fp, *naxis, naxes, &status);
+    if (status) {
+        int s2 = 0;
+        if (*fp)
+            fits_close_file(*fp, &s2);
+        *fp = NULL;
+        fits_clear_errmsg();
+        return 1;
+    }
+    return 0;
+}
+
+int mp_psf_field_read(const char *name, int normalize, int oversamp, mp_psf_field *f,
+                      mp_psf_star **stars, int *nstars, char *warn, char *err)
+{
+    memset(f, 0, sizeof *f);
+    if (stars) {
+        *stars = NULL;
+        *nstars = 0;
+    }
+    if (warn)
+        warn[0] = '\0';
+    fitsfile *fp = NULL;
+    int naxis = 0;
+    long naxes[3];
+    int cube = !open_image(name, &fp, &naxis, naxes) && naxis == 3 && naxes[2] > 1;
+    int rc = 1;
+    if (!cube) {
+        /* A 2-D table (or anything else: mp_psf_read names what is wrong). */
+        mp_psf p;
+        if (!mp_psf_read(name, normalize, oversamp, &p, warn, err)) {
+            rc = mp_psf_field_from_table(&p, f, err);
+            mp_psf_free(&p);
+        }
+        if (!rc && fp && stars)
+            rc = read_stars(fp, name, stars, nstars, err);
+    } else {
+        rc = read_cube(fp, name, naxes, normalize, oversamp, f, warn, err);
+        if (!rc && stars)
+            rc = read_stars(fp, name, stars, nstars, err);
+    }
+    if (fp) {
+        int s = 0;
+        fits_close_file(fp, &s);
+        fits_clear_errmsg();
+    }
+    if (rc)
+        mp_psf_field_free(f);
+    return rc;
+}
+
+/* ---- Writing ---------------------------------------------------------------- */
+
+static void write_keys(fitsfile *fp, const mp_psf_field *f, int *status)
+{
+    int os = f->os, order = f->order;
+    fits_write_key(fp, TINT, "OVERSAMP", &os, "table elements per detector pixel", status);
+    fits_write_key(fp, TINT, "PSFORDER", &order, "polynomial order in (x, y)", status);
+    double v[4] = {f->x0, f->y0, f->xscale, f->yscale};
+    fits_write_key(fp, TDOUBLE, "POLZERO1", &v[0], "origin x [pixel, 1-based]", status);
+    fits_write_key(fp, TDOUBLE, "POLZERO2", &v[1], "origin y [pixel, 1-based]", status);
+    fits_write_key(fp, TDOUBLE, "POLSCAL1", &v[2], "dx = (x - POLZERO1)/POLSCAL1", status);
+    fits_write_key(fp, TDOUBLE, "POLSCAL2", &v[3], "dy = (y - POLZERO2)/POLSCAL2", status);
+    double sum = f->sum;
+    fits_write_key(fp, TDOUBLE, "PSFSUM", &sum, "light fraction of the table at the origin",
+                   status);
+    fits_write_comment(fp, "planes: 1, dx, dx^2, dy, dx*dy, dy^2 (PSFEx order, to PSFORDER)",
+                       status);
+    if (f->nstar > 0)
+        fits_write_key(fp, TINT, "PSFNSTAR", (void *)&f->nstar, "PSF stars used", status);
+    if (f->why[0]) {
+        fits_write_key_longwarn(fp, status);
+        fits_write_key_longstr(fp, "PSFORDWH", f->why, "why this order", status);
+    }
+}
+
+static void write_stars(fitsfile *fp, const mp_psf_star *s, int n, int *status)
+{
+    char *ttype[4] = {"X_IMAGE", "Y_IMAGE", "FLUX_PSF", "USED"};
+    char *tform[4] = {"1D", "1D", "1D", "1J"};
+    char *tunit[4] = {"pixel", "pixel", "electron", ""};
+    fits_create_tbl(fp, BINARY_TBL, 0, 4, ttype, tform, tunit, "PSFSTARS", status);
+    for (int r = 0; r < n && !*status; r++) {
+        double v[3] = {s[r].x, s[r].y, s[r].flux};
+        int u = s[r].used;
+        for (int c = 0; c < 3; c++)
+            fits_write_col(fp, TDOUBLE, c + 1, r + 1, 1, 1, &v[c], status);
+        fits_write_col(fp, TINT, 4, r + 1, 1, 1, &u, status);
+    }
+}
+
+int mp_psf_field_write(const char *path, const mp_psf_field *f, const mp_psf_star *stars,
+                       int nstars, char *err)
+{
+    char *tmp = mp_tmp_name(path);
+    if (!tmp) {
+        snprintf(err, MP_ERRLEN, "%s: out of memory", path);
+        return 1;
+    }
+    (void)mp_tmp_register(tmp);
+    unlink(tmp);
+    fitsfile *fp = NULL;
+    int status = 0;
+    long naxes[3] = {f->nx, f->ny, f->nterms};
+    fits_create_file(&fp, tmp, &status);
+    fits_create_img(fp, DOUBLE_IMG, f->order > 0 ? 3 : 2, naxes, &status);
+    write_keys(fp, f, &status);
+    long fp1[3] = {1, 1, 1};
+    fits_write_pix(fp, TDOUBLE, fp1, naxes[0] * naxes[1] * naxes[2], f->planes, &status);
+    if (stars && nstars > 0)
+        write_stars(fp, stars, nstars, &status);
+    int s2 = 0;
+    if (fp)
+        fits_close_file(fp, status ? &s2 : &status);
+    if (status) {
+        fits_msg(path, "cannot write the PSF file", status, err);
+    } else if (rename(tmp, path)) {
+        snprintf(err, MP_ERRLEN, "%s: cannot rename the temporary file into place", path);
+        status = 1;
+    }
+    if (status)
+        unlink(tmp);
+    mp_tmp_unregister(tmp);
+    free(tmp);
+    return status ? 1 : 0;
+}

@@ -1,0 +1,43 @@
+#!/bin/sh
+# psf_field_cli.sh — matphot's PSF file (psf/psf.h) through `matphot fit`:
+# an order-1 cube whose slope planes are zero fits exactly as its plain 2-D
+# table does (the field evaluated at every star is that table, bit for bit);
+# a sloped one runs and the report says the PSF is evaluated per star; a
+# cube whose planes do not match its PSFORDER stops with one error line,
+# exit 1 and no output.  The fixtures (tests/e2e/fixtures/field_*.fits) hold
+# the table `matphot sim fwhm=2 psfout= psfos=1` writes as plane 1, and 0 or
+# 0.3 times it as the dx plane (POLZERO 30.5, POLSCAL 60).
+M=${MATPHOT:-./matphot}
+[ -x "$M" ] || { echo "psf_field_cli: $M not built"; exit 77; }
+T=$(mktemp -d "${TMPDIR:-/tmp}/psf_field_cli.XXXXXX") || exit 1
+trap 'rm -rf "$T"' EXIT INT TERM
+fails=0
+no() { echo "FAIL: $*"; fails=$((fails + 1)); }
+F=tests/e2e/fixtures
+
+"$M" sim "$T/p0.fits" fwhm=2 psfout="$T/p.fits" psfos=1 >/dev/null 2>&1 || no "sim psfout"
+"$M" sim "$T/a.fits" fwhm=2 mode=crowded nstars=20 seed=5 >/dev/null 2>&1 || no "sim a"
+"$M" fit "$T/a.fits" "$T/a.truth" psf="$T/p.fits" output="$T/a0.fit" 2>/dev/null \
+    || no "fit with the 2-D table"
+"$M" fit "$T/a.fits" "$T/a.truth" psf="$F/field_flat.fits" output="$T/a1.fit" 2>"$T/e1" \
+    || no "fit with the flat order-1 field"
+cmp -s "$T/a0.fit" "$T/a1.fit" || no "a flat order-1 field fits differently from its table"
+"$M" fit "$T/a.fits" "$T/a.truth" psf="$F/field_slope.fits" output="$T/a2.fit" 2>"$T/e2" \
+    || no "fit with the sloped field"
+grep -q "variable PSF: order 1, each star's table evaluated at its own position" "$T/e2" \
+    || no "the report does not say the PSF varies: $(cat "$T/e2")"
+cmp -s "$T/a0.fit" "$T/a2.fit" && no "a sloped field fits as the constant table does"
+
+# A cube of 3 planes that says it is of order 2.
+LC_ALL=C sed 's/PSFORDER=                    1/PSFORDER=                    2/' \
+    "$F/field_flat.fits" >"$T/bad.fits"
+"$M" fit "$T/a.fits" "$T/a.truth" psf="$T/bad.fits" output="$T/bad.fit" 2>"$T/eb"
+rc=$?
+[ "$rc" -eq 1 ] || no "bad cube: exit $rc, not 1"
+[ "$(wc -l <"$T/eb")" -eq 1 ] || no "bad cube: not one error line: $(cat "$T/eb")"
+grep -q "^matphot fit: $T/bad.fits: the cube has 3 planes; PSF order 2 needs 6" "$T/eb" \
+    || no "bad cube: message: $(cat "$T/eb")"
+[ -e "$T/bad.fit" ] && no "bad cube: an output file was left"
+ls -A "$T" | grep -q '\.tmp\.' && no "a temporary file was left"
+
+[ "$fails" -eq 0 ]
