@@ -216,12 +216,12 @@ double mp_prf_crop_radius(const mp_prf_crop *c, double E, double sky);
 
 /* ---- The PRF from a grid of subpixel phases (fit/prf_cache.c, issue 12) --- */
 
-/* The exact PRF (full sinc_hw) rendered once on a grid of phases, G per
- * pixel, kept per alignment branch (1/os px wide, Gb = G/os intervals,
- * nodes −1..Gb+1 with the branch's alignment); a star's PRF is the
- * tensor-product cubic (Catmull-Rom) interpolation between the 4×4 nodes
- * around its phase, its derivatives those of the interpolant.  The error
- * this adds, δP, is measured at the centre of each of the G² cells. */
+/* The exact PRF (full sinc_hw) and its five-point derivatives rendered once
+ * on a grid of phases, G per pixel, kept per alignment branch (1/os px wide,
+ * Gb = G/os intervals, nodes −1..Gb+1 with the branch's alignment); a star's
+ * PRF and derivatives are the tensor-product 4-point Lagrange interpolation
+ * between the 4×4 nodes around its phase.  The error this adds to the PRF,
+ * δP, is measured at the centre of each of the G² cells. */
 typedef struct mp_prf_cache_s {
     int G;                 /* phases per pixel (os·gb); 0: no cache */
     int os, gb;            /* the table's OVERSAMP; intervals per branch */
@@ -229,7 +229,7 @@ typedef struct mp_prf_cache_s {
     long ux0, uy0;         /* union box relative to the reference pixel */
     int uw, uh;
     size_t npix;           /* uw*uh */
-    double *img;           /* (os(gb+3))² planes of npix */
+    float *img;            /* (os(gb+3))² planes of 3 npix: PRF, ∂/∂x, ∂/∂y */
     int nph;               /* measured phases (G²) */
     float *p, *d2;         /* nph × npix: exact PRF and δP² at cell centres */
     const mp_psf *psf;     /* what it was built from (mp_prf_cache_usable) */
@@ -255,14 +255,14 @@ double mp_prf_cache_bound(const mp_prf_cache *c, double E, double B, double ron)
  * (0 when none, INFINITY when all). */
 double mp_prf_cache_limit(const mp_prf_cache *c, double B, double ron, double frac);
 
-/* mp_prf_render_branch: as mp_prf_render_window without derivatives, the
+/* mp_prf_render_branch: as mp_prf_render_window, the
  * table aligned (its element nearest the star, and so the box) as for a
  * star at (xr, yr), then shifted to (x, y) — for the phase grid, whose
  * renders must stay on one side of the points where the natural alignment
  * jumps (every 1/OVERSAMP px), so that they are smooth in the phase. */
 int mp_prf_render_branch(const mp_prf_model *m, double x, double y, double xr, double yr,
                          long wx0, long wy0, long ww, long wh, long *x0, long *y0, int *w,
-                         int *h, double *prf, mp_prf_work *work);
+                         int *h, double *prf, double *ddx, double *ddy, mp_prf_work *work);
 
 /* mp_prf_cache_usable: nonzero when m->cache was built for m's psf and drf
  * and the PSF does not vary (psf->field NULL). */
@@ -517,7 +517,6 @@ typedef struct {
     mp_sinc_choice sinc;    /* economy: per-group kernel length (opts.sinc) */
     mp_ss_level ss[MP_SS_MAXLEVELS];   /* economy: coarser samplings (opts.ss) */
     mp_prf_cache cache;     /* economy: the PRF from a grid of phases (model.cache) */
-    mp_prf_cache sscache[MP_SS_MAXLEVELS];  /* the same for ss[l].model */
     char decisions[2048];   /* economy decisions and their reasons */
     int ndecisions;
 } mp_fit_setup;

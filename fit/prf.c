@@ -351,7 +351,7 @@ static int render(const mp_prf_model *m, double x, double y, box bx,
 
 int mp_prf_render_branch(const mp_prf_model *m, double x, double y, double xr, double yr,
                          long wx0, long wy0, long ww, long wh, long *x0, long *y0, int *w,
-                         int *h, double *prf, mp_prf_work *work)
+                         int *h, double *prf, double *ddx, double *ddy, mp_prf_work *work)
 {
     box b, win = {wx0, wy0, ww, wh};
     int bw, bh;
@@ -364,8 +364,8 @@ int mp_prf_render_branch(const mp_prf_model *m, double x, double y, double xr, d
     *w = (int)b.w;
     *h = (int)b.h;
     if (m->psf->kind != MP_PSF_TABLE)
-        return render(m, x, y, b, prf, NULL, NULL, work);
-    return render_table(m, x, y, xr, yr, b, prf, NULL, NULL, work);
+        return render(m, x, y, b, prf, ddx, ddy, work);
+    return render_table(m, x, y, xr, yr, b, prf, ddx, ddy, work);
 }
 
 int mp_prf_render(const mp_prf_model *m, double x, double y,

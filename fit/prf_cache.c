@@ -4,18 +4,32 @@
  * subpixel phase, yet the exact render shifts the whole supersampled table
  * with the damped sinc for every star at every LM iteration (paper §3.1),
  * which was 60-80 % of a real frame's CPU (bench/REPORT.md's profile).  The
- * PRF is therefore rendered once, exactly, at (G+3)² phases (X, Y) = (a/G,
- * b/G), a, b = −1..G+1, and a star's PRF is the tensor-product cubic
- * (4-point Lagrange) interpolation between the 4×4 phases around its own:
- * 16 contiguous rows combined with fixed weights per star, no shift.  Its
- * position derivatives are those of the interpolant, so the fit's Jacobian
- * is the exact derivative of the model it fits.
+ * PRF is therefore rendered once, exactly, with its five-point position
+ * derivatives (paper §3.2), on a grid of phases, and a star's PRF and
+ * derivatives are the tensor-product cubic (4-point Lagrange) interpolation
+ * between the 4×4 grid phases around its own: 16 contiguous rows combined
+ * with fixed weights per star, no shift.  The derivatives are interpolated,
+ * not taken from the interpolant, so the fit sees the Jacobian of the exact
+ * render and LM stops where it stopped before (with the interpolant's own
+ * derivative it descended the deviance further, linearly when χ²/dof ≫ 1:
+ * 47 Tuc 256², 65 % more iterations and 4× the groups at maxiter).  Nodes
+ * are stored as float (relative rounding 6e-8, inside the measured δP).
+ *
+ * The exact render is not smooth in the phase everywhere: every 1/OVERSAMP
+ * px the table element nearest the star changes, the sinc's shift jumps
+ * from +½ to −½ element and the box's edge pixel gains or loses an element
+ * (8.6e-7 of the light at one pixel of the Tiny Tim ×2 table, 3e-6 at the
+ * box edge: enough to dominate the bound of a 10⁷ e⁻ star).  So the grid is
+ * kept per branch — the stretch of phases between two such points, 1/os px
+ * wide — with its own alignment: Gb intervals a branch, nodes a = −1..Gb+1
+ * rendered with the branch's alignment (mp_prf_render_branch), so that no
+ * stencil straddles a jump; G = os·Gb phases per pixel.
  *
  * What it costs in accuracy, bounded as fit/sinc_choice.c bounds a shorter
  * kernel: with δP the interpolated minus the exact PRF, a fit's bias in any
  * of (E, X, Y, B) is at most q = E·sqrt(Σ δP²/(E P + B + RON²)) of its
  * Cramér–Rao σ.  δP is measured at the centre of every cell of the phase
- * grid in both axes — where the cubic's error peaks —
+ * grid in both axes — where the cubic's error term (f+1)f(f−1)(f−2) peaks —
  * and the worst cell counts; mp_prf_cache_limit turns q ≤ frac into the
  * largest flux served on a given sky, and brighter stars are rendered
  * exactly (fit_frame.c). */
@@ -30,7 +44,7 @@
 #define REF 1000L
 
 /* Largest grid built [bytes]: beyond it the exact render is kept. */
-#define CACHE_MAX_BYTES (256.0 * 1024 * 1024)
+#define CACHE_MAX_BYTES (160.0 * 1024 * 1024)
 
 void mp_prf_cache_free(mp_prf_cache *c)
 {
@@ -98,36 +112,27 @@ static void place(const mp_prf_cache *c, long x0, long y0, int w, int h, const d
                buf + (size_t)j * w, (size_t)w * sizeof *buf);
 }
 
-/* Catmull-Rom weights on nodes −1, 0, 1, 2 at f ∈ [0, 1] (the cubic
- * Hermite spline with central-difference slopes), and their derivatives in
- * f.  Unlike the 4-point Lagrange cubic its slope is continuous from cell to
- * cell, so the deviance the fit descends has no kinks at cell edges (with
- * Lagrange, 47 Tuc 256²: 39 groups not converged against 7 exact, 30 %
- * more iterations); its error is O(h³) against O(h⁴), which the measured
- * bound accounts for. */
-static void weights(double f, double L[4], double dL[4])
+/* 4-point Lagrange weights on nodes −1, 0, 1, 2 at f ∈ [0, 1]. */
+static void weights(double f, double L[4])
 {
-    double f2 = f * f, f3 = f2 * f;
-    L[0] = 0.5 * (-f3 + 2.0 * f2 - f);
-    L[1] = 0.5 * (3.0 * f3 - 5.0 * f2 + 2.0);
-    L[2] = 0.5 * (-3.0 * f3 + 4.0 * f2 + f);
-    L[3] = 0.5 * (f3 - f2);
-    dL[0] = 0.5 * (-3.0 * f2 + 4.0 * f - 1.0);
-    dL[1] = 0.5 * (9.0 * f2 - 10.0 * f);
-    dL[2] = 0.5 * (-9.0 * f2 + 8.0 * f + 1.0);
-    dL[3] = 0.5 * (3.0 * f2 - 2.0 * f);
+    double a = f + 1.0, b = f, c = f - 1.0, d = f - 2.0;
+    L[0] = -b * c * d / 6.0;
+    L[1] = a * c * d / 2.0;
+    L[2] = -a * b * d / 2.0;
+    L[3] = a * b * c / 6.0;
 }
 
 /* The interpolated PRF on box [x0, x0+w) × [y0, y0+h) (1-based), derivatives
- * optional; pixels outside the cached union box are zero. */
+ * optional; pixels outside the cached union box are zero.  Plane pl holds
+ * the PRF at img[3·pl·npix], then ∂/∂x, then ∂/∂y. */
 static void interp(const mp_prf_cache *c, double x, double y, long x0, long y0, int w, int h,
                    double *prf, double *ddx, double *ddy)
 {
     int na = c->gb + 3, NA = c->os * na;
     axis_pos px = axis_of(c, x), py = axis_of(c, y);
-    double Lx[4], dLx[4], Ly[4], dLy[4], G = (double)c->gb * c->os;
-    weights(px.f, Lx, dLx);
-    weights(py.f, Ly, dLy);
+    double Lx[4], Ly[4];
+    weights(px.f, Lx);
+    weights(py.f, Ly);
     size_t nb = (size_t)w * h;
     memset(prf, 0, nb * sizeof *prf);
     if (ddx)
@@ -149,16 +154,20 @@ static void interp(const mp_prf_cache *c, double x, double y, long x0, long y0, 
             for (int ka = 0; ka < 4; ka++) {
                 /* node a − 1 + ka of branch beta is plane beta·na + a + ka */
                 size_t pl = (size_t)(py.beta * na + py.a + kb) * NA + (size_t)(px.beta * na + px.a + ka);
-                const double *src = c->img + pl * c->npix + (size_t)row * c->uw + (size_t)q0;
-                double wv = Ly[kb] * Lx[ka], wx = G * Ly[kb] * dLx[ka], wy = G * dLy[kb] * Lx[ka];
+                const float *sp = c->img + 3 * pl * c->npix + (size_t)row * c->uw + (size_t)q0;
+                double wv = Ly[kb] * Lx[ka];
                 for (long i = i0; i < i1; i++)
-                    pr[i] += wv * src[i];
-                if (gx)
+                    pr[i] += wv * sp[i];
+                if (gx) {
+                    const float *sx = sp + c->npix;
                     for (long i = i0; i < i1; i++)
-                        gx[i] += wx * src[i];
-                if (gy)
+                        gx[i] += wv * sx[i];
+                }
+                if (gy) {
+                    const float *sy = sp + 2 * c->npix;
                     for (long i = i0; i < i1; i++)
-                        gy[i] += wy * src[i];
+                        gy[i] += wv * sy[i];
+                }
             }
     }
 }
@@ -178,10 +187,12 @@ int mp_prf_cache_render(const mp_prf_model *m, double x, double y, long x0, long
     return 0;
 }
 
-/* The nodes: branch (bx, by), node (a − 1, b − 1), aligned as the branch. */
+/* The nodes: branch (bx, by), node (a − 1, b − 1), aligned as the branch;
+ * buf holds 6 npix (three renders, three union-box images). */
 static int render_nodes(const mp_prf_model *m, mp_prf_cache *c, double *buf, mp_prf_work *wk)
 {
     int na = c->gb + 3, NA = c->os * na;
+    size_t np = c->npix;
     for (int Y = 0; Y < NA; Y++)
         for (int X = 0; X < NA; X++) {
             int bx = X / na, by = Y / na, a = X % na, b = Y % na;
@@ -190,9 +201,14 @@ static int render_nodes(const mp_prf_model *m, mp_prf_cache *c, double *buf, mp_
             int w, h;
             if (mp_prf_render_branch(m, x, y, ref_coord(c, bx, 0.5), ref_coord(c, by, 0.5),
                                      REF + c->ux0, REF + c->uy0, c->uw, c->uh, &x0, &y0, &w, &h,
-                                     buf, wk))
+                                     buf, buf + np, buf + 2 * np, wk))
                 return 1;
-            place(c, x0, y0, w, h, buf, c->img + ((size_t)Y * NA + (size_t)X) * c->npix);
+            float *pl = c->img + 3 * ((size_t)Y * NA + (size_t)X) * np;
+            for (int k = 0; k < 3; k++) {
+                place(c, x0, y0, w, h, buf + k * np, buf + (3 + k) * np);
+                for (size_t i = 0; i < np; i++)
+                    pl[k * np + i] = (float)buf[(3 + k) * np + i];
+            }
         }
     return 0;
 }
@@ -237,16 +253,16 @@ int mp_prf_cache_build(const mp_prf_model *m, int G, mp_prf_cache *c, char *err)
     int NA = c->os * (c->gb + 3), ng = c->os * c->gb;
     c->npix = (size_t)c->uw * c->uh;
     c->nph = ng * ng;
-    double bytes = (double)c->npix * ((double)NA * NA * sizeof *c->img +
+    double bytes = (double)c->npix * (3.0 * NA * NA * sizeof *c->img +
                                       2.0 * c->nph * sizeof *c->p);
     if (bytes > CACHE_MAX_BYTES) {
         memset(c, 0, sizeof *c);        /* too big to pay: exact renders */
         return 0;
     }
-    c->img = malloc((size_t)NA * NA * c->npix * sizeof *c->img);
+    c->img = malloc(3 * (size_t)NA * NA * c->npix * sizeof *c->img);
     c->p = malloc((size_t)c->nph * c->npix * sizeof *c->p);
     c->d2 = malloc((size_t)c->nph * c->npix * sizeof *c->d2);
-    double *buf = malloc(3 * c->npix * sizeof *buf);
+    double *buf = malloc(6 * c->npix * sizeof *buf);
     mp_prf_work wk = {0};
     int rc = 1;
     if (!c->img || !c->p || !c->d2 || !buf) {

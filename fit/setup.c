@@ -13,8 +13,7 @@ void mp_fit_setup_free(mp_fit_setup *s)
     mp_drf_free(&s->drf);
     mp_sinc_choice_free(&s->sinc);
     mp_prf_cache_free(&s->cache);
-    for (int l = 0; l < MP_SS_MAXLEVELS; l++)
-        mp_prf_cache_free(&s->sscache[l]);
+
     for (int l = 0; l < MP_SS_MAXLEVELS; l++)
         mp_ss_level_free(&s->ss[l]);
 }
@@ -106,9 +105,11 @@ static int supersampling_levels(mp_fit_setup *s, char *err)
     return 0;
 }
 
-/* The PRF from a grid of subpixel phases (fit/prf_cache.c), one for the
- * model as given and one per coarser sampling, built last so that nothing
- * above renders through them; a variable PSF keeps the exact renders. */
+/* The PRF from a grid of subpixel phases (fit/prf_cache.c) for the model as
+ * given (its finest table, the costliest to render; a coarser sampling's
+ * renders are os² times cheaper and keep the exact render), built last so
+ * that nothing above renders through it; a variable PSF keeps the exact
+ * renders. */
 static int phase_grids(mp_fit_setup *s, const mp_parset *ps, char *err)
 {
     int grid = MP_PRF_CACHE_G;
@@ -118,14 +119,9 @@ static int phase_grids(mp_fit_setup *s, const mp_parset *ps, char *err)
     if (mp_prf_cache_build(&s->model, grid, &s->cache, err))
         return 1;
     s->model.cache = s->cache.G > 0 ? &s->cache : NULL;
-    for (int l = 0; l < s->opts.nss; l++) {
-        if (mp_prf_cache_build(&s->ss[l].model, grid, &s->sscache[l], err))
-            return 1;
-        s->ss[l].model.cache = s->sscache[l].G > 0 ? &s->sscache[l] : NULL;
-    }
     if (s->cache.G > 0) {
         char why[256];
-        snprintf(why, sizeof why, "PRF from a grid of %d subpixel phases per pixel (Catmull-Rom) "
+        snprintf(why, sizeof why, "PRF from a grid of %d subpixel phases per pixel (cubic, five-point derivatives interpolated) "
                  "for groups and stars whose bias bound stays below %.2g sigma, exact renders "
                  "for brighter ones (fit/prf_cache.c)", s->cache.G, s->opts.sincfrac);
         decide(s, why);

@@ -211,7 +211,7 @@ static inline int fuzz_psf_body(const uint8_t *data, size_t size)
             fuzz_fail("mp_psf_read", "accepted a table it promises to refuse");
         /* Render a small PSF: a fuzzed 1000x1000 table would only be slow. */
         if ((size_t)p.nx * (size_t)p.ny <= 4096) {
-            mp_prf_model m = {&p, NULL, 10};
+            mp_prf_model m = {&p, NULL, 10, NULL, 0.0};
             long x0, y0;
             int w, h;
             mp_prf_box(&m, 20.3, 17.8, &x0, &y0, &w, &h);
@@ -270,7 +270,7 @@ static inline int fuzz_psf_field_body(const uint8_t *data, size_t size)
             mp_psf o;
             if (mp_psf_field_eval(&f, f.x0, f.y0, &o, err) == 0) {
                 o.field = &f;
-                mp_prf_model m = {&o, NULL, 10};
+                mp_prf_model m = {&o, NULL, 10, NULL, 0.0};
                 long x0, y0;
                 int w, h;
                 mp_prf_box(&m, 20.3, 17.8, &x0, &y0, &w, &h);

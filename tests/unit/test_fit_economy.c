@@ -79,7 +79,7 @@ static void test_second_pass_kept_when_isolated(void **state)
     char err[MP_ERRLEN];
     mp_psf p;
     mp_psf_gauss(FWHM, &p);
-    mp_prf_model m = {&p, NULL, 10};
+    mp_prf_model m = {&p, NULL, 10, NULL, 0.0};
     mp_frame f;
     frame6(&f, 5);     /* every star of the frame in the table */
     mp_frame_opts eco, full;
@@ -122,7 +122,7 @@ static void test_round_refits_only_touched_group(void **state)
     char err[MP_ERRLEN];
     mp_psf p;
     mp_psf_gauss(FWHM, &p);
-    mp_prf_model m = {&p, NULL, 10};
+    mp_prf_model m = {&p, NULL, 10, NULL, 0.0};
     mp_frame f;
     frame6(&f, NS);
     mp_frame_opts eco, full;
@@ -183,7 +183,7 @@ static void test_changed_neighbour_refitted(void **state)
     char err[MP_ERRLEN];
     mp_psf p;
     mp_psf_gauss(FWHM, &p);
-    mp_prf_model m = {&p, NULL, 10};
+    mp_prf_model m = {&p, NULL, 10, NULL, 0.0};
     const double x[2] = {25.0, 32.0}, y[2] = {30.0, 30.0}, E[2] = {4e4, 4e4};
     mp_frame f;
     sf_frame_make(&f, 60, 60, 3.0);
@@ -222,7 +222,7 @@ static void test_envelope_bounds_prf(void **state)
     mp_rng rng;
     mp_rng_seed(&rng, 503);
     for (int c = 0; c < 2; c++) {
-        mp_prf_model m = {ps[c], NULL, 10};
+        mp_prf_model m = {ps[c], NULL, 10, NULL, 0.0};
         int nr;
         double *env = mp_prf_envelope(&m, &nr);
         assert_non_null(env);
@@ -264,7 +264,7 @@ static void test_short_kernel_per_group(void **state)
     char err[MP_ERRLEN];
     mp_psf p;
     assert_int_equal(mp_psf_gauss_table(FWHM, 1, 15.0, &p, err), 0);
-    mp_prf_model m = {&p, NULL, 10};
+    mp_prf_model m = {&p, NULL, 10, NULL, 0.0};
     mp_sinc_choice c;
     assert_int_equal(mp_sinc_choice_build(&m, &c, err), 0);
     mp_frame f;
@@ -314,7 +314,7 @@ static void test_whole_frame_overhead_counted(void **state)
     char err[MP_ERRLEN];
     mp_psf p;
     assert_int_equal(mp_psf_gauss_table(FWHM, 1, 15.0, &p, err), 0);
-    mp_prf_model m = {&p, NULL, 10};
+    mp_prf_model m = {&p, NULL, 10, NULL, 0.0};
     mp_sinc_choice c;
     assert_int_equal(mp_sinc_choice_build(&m, &c, err), 0);
     mp_frame_opts eco;
@@ -378,7 +378,7 @@ static void test_coarse_table_per_group(void **state)
     char err[MP_ERRLEN];
     mp_psf p;
     assert_int_equal(mp_psf_gauss_table(FWHM, 2, 15.0, &p, err), 0);
-    mp_prf_model m = {&p, NULL, 10};
+    mp_prf_model m = {&p, NULL, 10, NULL, 0.0};
     mp_ss_level lv;
     assert_int_equal(mp_ss_level_build(&m, 2, &lv, err), 0);
     lv.os = 1;

@@ -207,7 +207,7 @@ int sw_run(const sw_scene *sc, const sw_setting *st, int k0, int k1, sw_result *
         snprintf(err, MP_ERRLEN, "out of memory");
         return 1;
     }
-    mp_prf_model m = {&sc->tab[st->tab], sc->drf.k > 0 ? &sc->drf : NULL, st->hw};
+    mp_prf_model m = {&sc->tab[st->tab], sc->drf.k > 0 ? &sc->drf : NULL, st->hw, NULL, 0.0};
     const mp_prf_model *pm = st->model ? st->model : &m;
     return sc->kind == SW_CROWDED ? run_crowded(sc, pm, st, r, record, cpu, err)
                                   : run_single(sc, pm, st, k0, k1, r, record, cpu, err);

@@ -91,7 +91,7 @@ static int load_real(const char *path, mp_psf *p, char *note, size_t nn, char *e
 /* 1/sharpness of the table's PRF at a pixel centre (fit/setup.c's rule). */
 static double beta_norm(const mp_psf *p)
 {
-    mp_prf_model m = {p, NULL, 10};
+    mp_prf_model m = {p, NULL, 10, NULL, 0.0};
     long x0, y0;
     int w, h;
     mp_prf_box(&m, 1000.0, 1000.0, &x0, &y0, &w, &h);
@@ -315,7 +315,7 @@ int sw_scene_build(sw_scene *sc, const char *name, int n, const char *realpath, 
     sp.volume = 1.0;
     mp_psf gauss;
     memset(&gauss, 0, sizeof gauss);
-    mp_prf_model truth = {NULL, NULL, 10};
+    mp_prf_model truth = {NULL, NULL, 10, NULL, 0.0};
     int gradient = !strcmp(name, "gradient");
     if (!strcmp(name, "isolated") || !strcmp(name, "undersampled") || !strcmp(name, "crowded") ||
         gradient) {
