@@ -24,7 +24,7 @@ PARFILES := $(wildcard params/*.par)
 UNITSRC := $(wildcard tests/unit/test_*.c)
 UNITBIN := $(patsubst tests/unit/%.c,$(BUILD)/tests/%,$(UNITSRC))
 
-.PHONY: all deps test unit e2e validate bench run clean sanitize valgrind fuzz fuzz-run
+.PHONY: all deps test unit e2e validate bench run clean sanitize valgrind fuzz fuzz-run test-slurm
 
 all: matphot
 
@@ -81,6 +81,13 @@ validate: deps all
 bench: deps all
 	@sh tools/deps.sh bench
 	@sh tests/bench/run.sh
+
+# A real one-node Slurm cluster (started and stopped by the test, as root):
+# an array job over four frames against the serial run, and a cancelled
+# task resubmitted alone (tests/slurm/run.sh; about a minute).
+test-slurm: deps all
+	@sh tools/deps.sh slurm
+	@sh tests/slurm/run.sh
 
 run: deps all
 	@sh data/run_sample.sh

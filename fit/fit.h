@@ -72,11 +72,6 @@ typedef struct {
                             * evaluated at each star in every render */
     const mp_drf *drf;     /* NULL: perfect detector */
     int sinc_hw;           /* damped-sinc half-width, 10 = 21 taps */
-    const struct mp_prf_cache_s *cache;  /* economy: the PRF drawn from a grid
-                           * of phases (fit/prf_cache.c) when it was built for
-                           * this psf and drf; NULL: rendered exactly */
-    double cache_emax;     /* the largest flux the cache serves within its
-                            * bound (mp_prf_cache_limit; mp_prf_for_flux) */
 } mp_prf_model;
 
 /* Scratch space for mp_prf_render (one per thread). */
@@ -87,6 +82,9 @@ typedef struct {
     double *e;             /* the star's own table, when the model has a field */
     long nshift, nskip;    /* table renders: axes shifted, and of those skipped
                             * because the shift is on the grid (mp_shift_on_grid) */
+    const struct mp_prf_cache_s *grid;  /* economy: renders of the model this
+                            * phase grid was built for are drawn from it
+                            * (fit/prf_cache.c); NULL: exact renders */
 } mp_prf_work;
 
 void mp_prf_work_free(mp_prf_work *w);
@@ -264,18 +262,15 @@ int mp_prf_render_branch(const mp_prf_model *m, double x, double y, double xr, d
                          long wx0, long wy0, long ww, long wh, long *x0, long *y0, int *w,
                          int *h, double *prf, double *ddx, double *ddy, mp_prf_work *work);
 
-/* mp_prf_cache_usable: nonzero when m->cache was built for m's psf and drf
- * and the PSF does not vary (psf->field NULL). */
-int mp_prf_cache_usable(const mp_prf_model *m);
+/* mp_prf_cache_usable: nonzero when c was built for m's psf and drf and the
+ * PSF does not vary (psf->field NULL). */
+int mp_prf_cache_usable(const mp_prf_cache *c, const mp_prf_model *m);
 
 /* mp_prf_cache_render: the interpolated PRF (and derivatives, may be NULL)
- * on the box [x0, x0+w) × [y0, y0+h); nonzero when m has no usable cache. */
-int mp_prf_cache_render(const mp_prf_model *m, double x, double y, long x0, long y0, int w,
-                        int h, double *prf, double *ddx, double *ddy);
-
-/* mp_prf_for_flux: m for a star of flux E: without its cache when E is
- * beyond m->cache_emax (the exact render then). */
-mp_prf_model mp_prf_for_flux(const mp_prf_model *m, double E);
+ * of model m on the box [x0, x0+w) × [y0, y0+h); nonzero when c is not
+ * usable for m. */
+int mp_prf_cache_render(const mp_prf_cache *c, const mp_prf_model *m, double x, double y,
+                        long x0, long y0, int w, int h, double *prf, double *ddx, double *ddy);
 
 /* ---- Performance model (paper §2) ----------------------------------------- */
 
@@ -308,6 +303,18 @@ int mp_crlb(const double *prf, const double *dx, const double *dy, size_t n,
  * (closed form); the sky-order test's p-value. */
 double mp_chi2_sf(int k, double x);
 
+/* The flux limits of economy's bound tables (the sinc kernel's, each
+ * coarser table's) on a given sky, kept across the frames of a run: a
+ * frame's sky is rounded down to a quarter octave (the safe side: less
+ * sky, less noise, lower limits), so an @list of frames pays
+ * MP_SINC_LIMITS_EVALS·hwmax bound evaluations per table and sky level
+ * once, not per frame.  Thread-safe; at most MP_ECON_CACHE_MAX entries
+ * (past that, frames compute their own). */
+typedef struct mp_econ_cache mp_econ_cache;
+#define MP_ECON_CACHE_MAX 64
+mp_econ_cache *mp_econ_cache_new(void);      /* NULL when out of memory */
+void mp_econ_cache_free(mp_econ_cache *c);
+
 /* ---- The fit --------------------------------------------------------------- */
 
 enum {
@@ -335,6 +342,9 @@ typedef struct {
     int fit_sky;       /* 0: sky fixed at the start value */
     const mp_prf_crop *crop;   /* economy: each star rendered out to its
                                 * crop radius only (NULL: its whole box) */
+    const struct mp_prf_cache_s *grid;  /* economy: the group's PRF drawn from
+                                * this phase grid when built for its model
+                                * (fit/prf_cache.c); NULL: exact renders */
 } mp_fit_opts;
 
 void mp_fit_opts_default(mp_fit_opts *o);
@@ -400,11 +410,17 @@ typedef struct {
                         * with the model's table) */
     int nss;
     double ssfrac;
+    mp_econ_cache *cache;  /* economy: the choices' flux limits kept across
+                        * frames (NULL: each frame finds its own) */
     const struct mp_sinc_choice_s *sinc;  /* economy: each group fitted with
                         * the shortest sinc half-width whose bias stays below
                         * sincfrac of its brightest star's σ (fit/sinc_choice.c);
                         * NULL: the model's sinc_hw for all */
     double sincfrac;
+    const struct mp_prf_cache_s *grid;  /* economy: the PRF from a grid of
+                        * phases for groups whose brightest star's bias bound
+                        * stays below sincfrac of its σ (fit/prf_cache.c);
+                        * NULL: exact renders */
 } mp_frame_opts;
 
 void mp_frame_opts_default(mp_frame_opts *o);
@@ -516,7 +532,8 @@ typedef struct {
     mp_table_format fmt;
     mp_sinc_choice sinc;    /* economy: per-group kernel length (opts.sinc) */
     mp_ss_level ss[MP_SS_MAXLEVELS];   /* economy: coarser samplings (opts.ss) */
-    mp_prf_cache cache;     /* economy: the PRF from a grid of phases (model.cache) */
+    mp_econ_cache *cache;   /* economy: their flux limits across frames (opts.cache) */
+    mp_prf_cache phasegrid; /* economy: the PRF from a grid of phases (model.cache) */
     char decisions[2048];   /* economy decisions and their reasons */
     int ndecisions;
 } mp_fit_setup;

@@ -35,6 +35,7 @@ void mp_fit_opts_default(mp_fit_opts *o)
     o->maxiter = 50;
     o->fit_sky = 1;
     o->crop = NULL;
+    o->grid = NULL;
 }
 
 /* One star's rendered PRF and derivatives on its box. */
@@ -1181,6 +1182,7 @@ int mp_fit_group(const mp_frame *f, const mp_prf_model *m, const mp_fit_opts *o,
     G.f = f;
     G.m = m;
     G.crop = isfinite(o->fitrad) ? o->crop : NULL;
+    G.work.grid = o->grid;      /* every render of the group through G.work */
     G.crop_min = o->fitrad + 1.0;
     G.n = n;
     int order = first_order(o);

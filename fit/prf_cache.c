@@ -172,18 +172,17 @@ static void interp(const mp_prf_cache *c, double x, double y, long x0, long y0, 
     }
 }
 
-int mp_prf_cache_usable(const mp_prf_model *m)
+int mp_prf_cache_usable(const mp_prf_cache *c, const mp_prf_model *m)
 {
-    const mp_prf_cache *c = m->cache;
     return c && c->img && c->psf == m->psf && c->drf == m->drf && !m->psf->field;
 }
 
-int mp_prf_cache_render(const mp_prf_model *m, double x, double y, long x0, long y0, int w,
-                        int h, double *prf, double *ddx, double *ddy)
+int mp_prf_cache_render(const mp_prf_cache *c, const mp_prf_model *m, double x, double y,
+                        long x0, long y0, int w, int h, double *prf, double *ddx, double *ddy)
 {
-    if (!mp_prf_cache_usable(m))
+    if (!mp_prf_cache_usable(c, m))
         return 1;
-    interp(m->cache, x, y, x0, y0, w, h, prf, ddx, ddy);
+    interp(c, x, y, x0, y0, w, h, prf, ddx, ddy);
     return 0;
 }
 
@@ -244,8 +243,7 @@ int mp_prf_cache_build(const mp_prf_model *m, int G, mp_prf_cache *c, char *err)
     memset(c, 0, sizeof *c);
     if (m->psf->kind != MP_PSF_TABLE || G < 1)
         return 0;                       /* the analytic Gaussian is rendered exactly */
-    mp_prf_model me = *m;
-    me.cache = NULL;                    /* the nodes are exact renders */
+    mp_prf_model me = *m;               /* the nodes are exact renders (no grid in wk) */
     c->os = m->psf->os;
     c->offset = m->psf->offset;
     c->gb = (G + c->os - 1) / c->os;
@@ -320,12 +318,4 @@ double mp_prf_cache_limit(const mp_prf_cache *c, double B, double ron, double fr
             hi = mid;
     }
     return lo;
-}
-
-mp_prf_model mp_prf_for_flux(const mp_prf_model *m, double E)
-{
-    mp_prf_model r = *m;
-    if (r.cache && !(fabs(E) <= r.cache_emax))
-        r.cache = NULL;
-    return r;
 }

@@ -12,8 +12,8 @@ void mp_fit_setup_free(mp_fit_setup *s)
     mp_psf_field_free(&s->field);
     mp_drf_free(&s->drf);
     mp_sinc_choice_free(&s->sinc);
-    mp_prf_cache_free(&s->cache);
-
+    mp_econ_cache_free(s->cache);
+    mp_prf_cache_free(&s->phasegrid);
     for (int l = 0; l < MP_SS_MAXLEVELS; l++)
         mp_ss_level_free(&s->ss[l]);
 }
@@ -116,14 +116,14 @@ static int phase_grids(mp_fit_setup *s, const mp_parset *ps, char *err)
     mp_par_int(ps, "phasegrid", &grid);
     if (grid <= 0 || s->field.order > 0 || s->psf.kind != MP_PSF_TABLE)
         return 0;
-    if (mp_prf_cache_build(&s->model, grid, &s->cache, err))
+    if (mp_prf_cache_build(&s->model, grid, &s->phasegrid, err))
         return 1;
-    s->model.cache = s->cache.G > 0 ? &s->cache : NULL;
-    if (s->cache.G > 0) {
+    s->opts.grid = s->phasegrid.G > 0 ? &s->phasegrid : NULL;
+    if (s->phasegrid.G > 0) {
         char why[256];
         snprintf(why, sizeof why, "PRF from a grid of %d subpixel phases per pixel (cubic, five-point derivatives interpolated) "
-                 "for groups and stars whose bias bound stays below %.2g sigma, exact renders "
-                 "for brighter ones (fit/prf_cache.c)", s->cache.G, s->opts.sincfrac);
+                 "for groups whose brightest star's bias bound stays below %.2g sigma, exact renders "
+                 "for brighter ones (fit/prf_cache.c)", s->phasegrid.G, s->opts.sincfrac);
         decide(s, why);
     }
     return 0;
@@ -194,10 +194,27 @@ static int sky_order_of(const char *v, int economy)
  * at its origin, which is what the PSF-wide measurements below (β, the
  * coarsest sampling, the sinc kernel's error) are taken on; the fit then
  * evaluates the field at every star (psf.field, set last). */
-static int read_psf(mp_fit_setup *s, const char *name, int norm, int os, char *warn, char *err)
+static int read_psf(mp_fit_setup *s, const char *name, int norm, int os, const char *kspec,
+                    char *warn, char *err)
 {
     if (mp_psf_field_read(name, norm, os, &s->field, NULL, NULL, warn, err))
         return 1;
+    if (kspec[0]) {
+        /* Folded into the supersampled table: exact (psf/kernel.c). */
+        mp_psf k;
+        if (mp_psf_kernel_read(kspec, name, &k, err))
+            return 1;
+        int rc = mp_psf_field_fold_kernel(&s->field, &k, err);
+        char why[256];
+        snprintf(why, sizeof why, "detector kernel: %dx%d (sum %.6g) from %s folded into the x%d "
+                 "table (exact: it commutes with the shift, the DRF and the block-sum)", k.nx,
+                 k.ny, k.sum, strcmp(kspec, "header") ? kspec : "the PSF file's header",
+                 s->field.os);
+        mp_psf_free(&k);
+        if (rc)
+            return 1;
+        decide(s, why);
+    }
     if (mp_psf_field_eval(&s->field, s->field.x0, s->field.y0, &s->psf, err))
         return 1;
     s->psf.sum = s->field.sum;
@@ -211,10 +228,14 @@ int mp_fit_setup_read(const mp_parset *ps, mp_fit_setup *s, char *err)
     int norm = 0;
     mp_par_bool(ps, "psfnorm", &norm);
     char warn[MP_ERRLEN];
-    if (psf[0]) {
+    /* psf=gauss names the analytic mode (the pipeline builds a PSF from
+     * the frame when psf is empty). */
+    if (psf[0] && strcmp(psf, "gauss") != 0) {
         int hos = MP_PAR_INDEF_INT;
         mp_par_int(ps, "oversamp", &hos);
-        if (read_psf(s, psf, norm, hos == MP_PAR_INDEF_INT ? 0 : hos, warn, err))
+        const char *kspec = mp_par_string(ps, "psfkernel");
+        if (read_psf(s, psf, norm, hos == MP_PAR_INDEF_INT ? 0 : hos, kspec ? kspec : "", warn,
+                     err))
             return 1;
         if (warn[0])
             fprintf(stderr, "matphot fit: warning: %s\n", warn);
@@ -230,6 +251,12 @@ int mp_fit_setup_read(const mp_parset *ps, mp_fit_setup *s, char *err)
                 return 1;
         }
     } else {
+        const char *kspec = mp_par_string(ps, "psfkernel");
+        if (kspec && kspec[0]) {
+            snprintf(err, MP_ERRLEN, "psfkernel: %s: a detector kernel needs a PSF table (psf=)",
+                     kspec);
+            return 1;
+        }
         double fwhm;
         mp_par_real(ps, "fwhm", &fwhm);
         mp_psf_gauss(fwhm, &s->psf);
@@ -277,6 +304,10 @@ int mp_fit_setup_read(const mp_parset *ps, mp_fit_setup *s, char *err)
          * any block-summing above). */
         if (mp_sinc_choice_build(&s->model, &s->sinc, err))
             return 1;
+        if (!(s->opts.cache = s->cache = mp_econ_cache_new())) {
+            snprintf(err, MP_ERRLEN, "out of memory");
+            return 1;
+        }
         if (s->sinc.nph > 0) {
             s->opts.sinc = &s->sinc;
             snprintf(why, sizeof why, "sinc kernel: per group, the shortest half-width <= %d "

@@ -20,9 +20,49 @@ void mp_psf_field_free(mp_psf_field *f)
     memset(f, 0, sizeof *f);
 }
 
+/* Where v falls on the ascending grid g[0..n−1]: the cell's low index and
+ * the weight of its high end, clamped to the grid. */
+static void grid_cell(const double *g, int n, double v, int *i, double *w)
+{
+    if (n == 1 || !(v > g[0])) {
+        *i = 0;
+        *w = 0.0;
+        return;
+    }
+    if (v >= g[n - 1]) {
+        *i = n - 2;
+        *w = 1.0;
+        return;
+    }
+    int k = 0;
+    while (k < n - 2 && v >= g[k + 1])
+        k++;
+    *i = k;
+    *w = (v - g[k]) / (g[k + 1] - g[k]);
+}
+
+static void grid_terms(const mp_psf_field *f, double x, double y, double *terms)
+{
+    for (int k = 0; k < f->nterms; k++)
+        terms[k] = 0.0;
+    int i, j;
+    double wx, wy;
+    grid_cell(f->gx, f->ngx, x, &i, &wx);
+    grid_cell(f->gy, f->ngy, y, &j, &wy);
+    int i1 = f->ngx > 1 ? i + 1 : i, j1 = f->ngy > 1 ? j + 1 : j;
+    terms[j * f->ngx + i] += (1 - wx) * (1 - wy);
+    terms[j * f->ngx + i1] += wx * (1 - wy);
+    terms[j1 * f->ngx + i] += (1 - wx) * wy;
+    terms[j1 * f->ngx + i1] += wx * wy;
+}
+
 /* PSFEx order: y power outer, x power inner, total degree ≤ order. */
 void mp_psf_field_terms(const mp_psf_field *f, double x, double y, double *terms)
 {
+    if (f->order == MP_PSF_GRID) {
+        grid_terms(f, x, y, terms);
+        return;
+    }
     double dx = f->order > 0 ? (x - f->x0) / f->xscale : 0.0;
     double dy = f->order > 0 ? (y - f->y0) / f->yscale : 0.0;
     int k = 0;
@@ -51,6 +91,8 @@ void mp_psf_field_eval_rect(const mp_psf_field *f, double x, double y, long i0, 
         for (int k = 1; k < f->nterms; k++) {
             const double *pk = p0 + (size_t)k * plane;
             double ck = c[k];
+            if (ck == 0.0)
+                continue;       /* a grid's far planes */
             for (long i = i0; i < i1; i++)
                 o[i] += ck * pk[i];
         }
@@ -108,6 +150,44 @@ int mp_psf_field_new(int order, int nx, int ny, int os, double x0, double y0, do
     return 0;
 }
 
+int mp_psf_field_new_grid(int ngx, int ngy, const double *gx, const double *gy, int nx, int ny,
+                          int os, mp_psf_field *f, char *err)
+{
+    memset(f, 0, sizeof *f);
+    int ok = ngx >= 1 && ngy >= 1 && ngx <= MP_PSF_MAXGRID && ngy <= MP_PSF_MAXGRID &&
+             ngx * ngy <= MP_PSF_MAXTERMS && nx % 2 && ny % 2 && nx > 0 && ny > 0 && os >= 1 &&
+             os <= 8;
+    for (int i = 0; ok && i < ngx; i++)
+        ok = isfinite(gx[i]) && (i == 0 || gx[i] > gx[i - 1]);
+    for (int j = 0; ok && j < ngy; j++)
+        ok = isfinite(gy[j]) && (j == 0 || gy[j] > gy[j - 1]);
+    if (!ok) {
+        snprintf(err, MP_ERRLEN, "psf grid: bad grid %dx%d (at most %d a side, positions "
+                 "ascending), table %dx%d or OVERSAMP %d", ngx, ngy, MP_PSF_MAXGRID, nx, ny, os);
+        return 1;
+    }
+    f->planes = calloc((size_t)ngx * ngy * nx * ny, sizeof *f->planes);
+    if (!f->planes) {
+        snprintf(err, MP_ERRLEN, "psf grid: out of memory");
+        return 1;
+    }
+    f->order = MP_PSF_GRID;
+    f->nterms = ngx * ngy;
+    f->ngx = ngx;
+    f->ngy = ngy;
+    memcpy(f->gx, gx, (size_t)ngx * sizeof *gx);
+    memcpy(f->gy, gy, (size_t)ngy * sizeof *gy);
+    f->nx = nx;
+    f->ny = ny;
+    f->os = os;
+    /* Centre and span: what the crop envelope's corner points read. */
+    f->x0 = 0.5 * (gx[0] + gx[ngx - 1]);
+    f->y0 = 0.5 * (gy[0] + gy[ngy - 1]);
+    f->xscale = gx[ngx - 1] - gx[0];
+    f->yscale = gy[ngy - 1] - gy[0];
+    return 0;
+}
+
 int mp_psf_field_from_table(const mp_psf *p, mp_psf_field *f, char *err)
 {
     if (p->kind != MP_PSF_TABLE) {
@@ -136,8 +216,12 @@ int mp_psf_field_rebin(const mp_psf_field *in, int factor, mp_psf_field *out, ch
             return 1;
         }
         if (k == 0) {
-            if (mp_psf_field_new(in->order, dst.nx, dst.ny, dst.os, in->x0, in->y0,
-                                 in->xscale, in->yscale, out, err)) {
+            int bad = in->order == MP_PSF_GRID
+                          ? mp_psf_field_new_grid(in->ngx, in->ngy, in->gx, in->gy, dst.nx,
+                                                  dst.ny, dst.os, out, err)
+                          : mp_psf_field_new(in->order, dst.nx, dst.ny, dst.os, in->x0, in->y0,
+                                             in->xscale, in->yscale, out, err);
+            if (bad) {
                 mp_psf_free(&dst);
                 return 1;
             }

@@ -6,13 +6,13 @@
 #include <stdlib.h>
 #include <string.h>
 #include <unistd.h>
-#include "psf/psf.h"
+#include "psf/psf_priv.h"
 
 /* Largest cube read: far beyond any PSF (a 1025² ×8 table of 6 planes is
  * 6.3 M elements), small enough that a forged header cannot ask for more. */
 #define MAX_ELEMENTS (1L << 25)
 
-static void fits_msg(const char *name, const char *what, int status, char *err)
+void psf_fits_msg(const char *name, const char *what, int status, char *err)
 {
     char txt[FLEN_STATUS];
     fits_get_errstatus(status, txt);
@@ -146,7 +146,7 @@ static int read_stars(fitsfile *fp, const char *name, mp_psf_star **stars, int *
         fits_get_colnum(fp, CASEINSEN, cols[i], &cn[i], &status);
     fits_get_num_rows(fp, &nrow, &status);
     if (status || nrow < 0 || nrow > 10000000) {
-        fits_msg(name, "PSFSTARS extension (X_IMAGE, Y_IMAGE, FLUX_PSF, USED)", status ? status : BAD_ROW_NUM, err);
+        psf_fits_msg(name, "PSFSTARS extension (X_IMAGE, Y_IMAGE, FLUX_PSF, USED)", status ? status : BAD_ROW_NUM, err);
         return 1;
     }
     if (nrow == 0)
@@ -169,7 +169,7 @@ static int read_stars(fitsfile *fp, const char *name, mp_psf_star **stars, int *
     if (status) {
         free(*stars);
         *stars = NULL;
-        fits_msg(name, "PSFSTARS extension", status, err);
+        psf_fits_msg(name, "PSFSTARS extension", status, err);
         return 1;
     }
     *n = (int)nrow;
@@ -209,24 +209,26 @@ static int read_cube(fitsfile *fp, const char *name, const long naxes[3], int no
     fits_read_pix(fp, TDOUBLE, fp1, naxes[0] * naxes[1] * naxes[2], NULL, f->planes, NULL,
                   &status);
     if (status) {
-        fits_msg(name, "cannot read the PSF cube", status, err);
+        psf_fits_msg(name, "cannot read the PSF cube", status, err);
         return 1;
     }
     return cube_check(name, f, normalize, warn, err);
 }
 
-/* The image's dimensions; 1 when the file does not open as an image here
- * (mp_psf_read then says why, with io/'s wording). */
+/* The image's dimensions (NAXIS 0 for a table HDU: fp stays open for
+ * other_format); 1 when the file does not open here (mp_psf_read then says
+ * why, with io/'s wording). */
 static int open_image(const char *name, fitsfile **fp, int *naxis, long naxes[3])
 {
     char bad[9];
+    *naxis = 0;
     if (mp_fits_guard_file(name, bad))
         return 1;
     int status = 0, type = 0;
     fits_open_file(fp, name, READONLY, &status);
     fits_get_hdu_type(*fp, &type, &status);
     if (!status && type != IMAGE_HDU)
-        status = NOT_IMAGE;
+        return 0;
     fits_get_img_dim(*fp, naxis, &status);
     naxes[0] = naxes[1] = naxes[2] = 1;
     if (!status && *naxis >= 1 && *naxis <= 3)
@@ -239,6 +241,105 @@ static int open_image(const char *name, fitsfile **fp, int *naxis, long naxes[3]
         fits_clear_errmsg();
         return 1;
     }
+    return 0;
+}
+
+enum { FMT_NONE, FMT_PSFEX, FMT_WEBBPSF, FMT_GRID, FMT_STDPSF };
+
+static int has_key(fitsfile *fp, const char *key)
+{
+    char card[FLEN_CARD];
+    int st = 0;
+    fits_read_card(fp, key, card, &st);
+    fits_clear_errmsg();
+    return st == 0;
+}
+
+/* An image HDU of another program, by its keywords: a grid (DET_YX0 of
+ * WebbPSF's GriddedPSFModel, NXPSFS of STDPSF) or a WebbPSF table
+ * (DET_SAMP). */
+static int image_format(fitsfile *fp, int naxis)
+{
+    if (naxis == 3 && has_key(fp, "DET_YX0"))
+        return FMT_GRID;
+    if (naxis == 3 && has_key(fp, "NXPSFS"))
+        return FMT_STDPSF;
+    if (naxis == 2 && has_key(fp, "DET_SAMP"))
+        return FMT_WEBBPSF;
+    return FMT_NONE;
+}
+
+/* The first table's sum: positive, ≤ 1.01 unless normalize, which divides
+ * every plane by it. */
+static int check_sum(const char *name, mp_psf_field *f, int normalize, char *err)
+{
+    size_t plane = (size_t)f->nx * f->ny;
+    double s = 0.0;
+    for (size_t i = 0; i < plane; i++)
+        s += f->planes[i];
+    if (!(s > 0) || (!normalize && s > 1.01)) {
+        snprintf(err, MP_ERRLEN, "%s: PSF table sums to %.6g; it must hold the fraction of the "
+                 "star's light, 0 < sum <= 1.01 (psfnorm=yes rescales)", name, s);
+        return 1;
+    }
+    if (normalize) {
+        for (size_t i = 0; i < plane * f->nterms; i++)
+            f->planes[i] /= s;
+        s = 1.0;
+    }
+    f->sum = s;
+    return 0;
+}
+
+/* Which other program's PSF file fp holds: from the HDU it is on, or, on
+ * an empty primary HDU, the first HDU that is one.  fp is left there. */
+static int other_format(fitsfile **fp, const char *name)
+{
+    (void)name;
+    int status = 0, nhdu = 0, cur = 0;
+    fits_get_num_hdus(*fp, &nhdu, &status);
+    fits_get_hdu_num(*fp, &cur);
+    for (int h = cur; h <= nhdu && !status; h++) {
+        int type = 0;
+        if (h != cur)
+            fits_movabs_hdu(*fp, h, &type, &status);
+        else
+            fits_get_hdu_type(*fp, &type, &status);
+        if (status)
+            break;
+        if (type != IMAGE_HDU && psf_has_column(*fp, "PSF_MASK"))
+            return FMT_PSFEX;
+        if (h == cur && cur > 1)
+            break;          /* an HDU the name chose: only that one */
+    }
+    fits_clear_errmsg();
+    return FMT_NONE;
+}
+
+static int read_other(int kind, fitsfile *fp, const char *name, mp_psf_field *f, char *warn,
+                      char *err)
+{
+    switch (kind) {
+    case FMT_PSFEX:
+        return psfex_read(fp, name, f, warn, err);
+    default:
+        snprintf(err, MP_ERRLEN, "%s: not a PSF file matphot knows", name);
+        return 1;
+    }
+}
+
+/* Every element finite and within ±1e6 (a table sums to about 1; larger
+ * values are a broken file, and would overflow a render). */
+static int check_range(const char *name, const mp_psf_field *f, char *err)
+{
+    size_t n = (size_t)f->nx * f->ny * f->nterms;
+    for (size_t i = 0; i < n; i++)
+        if (!(fabs(f->planes[i]) <= 1e6)) {
+            snprintf(err, MP_ERRLEN, "%s: PSF element %zu of plane %zu is %g, not a finite "
+                     "number within +-1e6", name, i % ((size_t)f->nx * f->ny),
+                     i / ((size_t)f->nx * f->ny) + 1, f->planes[i]);
+            return 1;
+        }
     return 0;
 }
 
@@ -255,8 +356,36 @@ int mp_psf_field_read(const char *name, int normalize, int oversamp, mp_psf_fiel
     fitsfile *fp = NULL;
     int naxis = 0;
     long naxes[3];
-    int cube = !open_image(name, &fp, &naxis, naxes) && naxis == 3 && naxes[2] > 1;
     int rc = 1;
+    if (!open_image(name, &fp, &naxis, naxes) && naxis == 0) {
+        /* Another program's PSF file, recognised from its content. */
+        int kind = other_format(&fp, name);
+        if (kind) {
+            rc = read_other(kind, fp, name, f, warn, err) || check_range(name, f, err);
+            int s = 0;
+            fits_close_file(fp, &s);
+            fits_clear_errmsg();
+            if (rc)
+                mp_psf_field_free(f);
+            return rc;
+        }
+    }
+    int img = fp ? image_format(fp, naxis) : FMT_NONE;
+    if (img != FMT_NONE) {
+        rc = img == FMT_WEBBPSF ? webbpsf_read(fp, name, naxes[0], naxes[1], f, warn, err)
+                                : grid_read(fp, name, img == FMT_STDPSF, naxes, f, warn, err);
+        if (!rc)
+            rc = check_sum(name, f, normalize, err);
+        int s = 0;
+        fits_close_file(fp, &s);
+        fits_clear_errmsg();
+        if (!rc)
+            rc = check_range(name, f, err);
+        if (rc)
+            mp_psf_field_free(f);
+        return rc;
+    }
+    int cube = fp && naxis == 3 && naxes[2] > 1;
     if (!cube) {
         /* A 2-D table (or anything else: mp_psf_read names what is wrong). */
         mp_psf p;
@@ -276,8 +405,16 @@ int mp_psf_field_read(const char *name, int normalize, int oversamp, mp_psf_fiel
         fits_close_file(fp, &s);
         fits_clear_errmsg();
     }
-    if (rc)
+    if (!rc)
+        rc = check_range(name, f, err);
+    if (rc) {
         mp_psf_field_free(f);
+        if (stars) {
+            free(*stars);
+            *stars = NULL;
+            *nstars = 0;
+        }
+    }
     return rc;
 }
 
@@ -324,6 +461,10 @@ static void write_stars(fitsfile *fp, const mp_psf_star *s, int n, int *status)
 int mp_psf_field_write(const char *path, const mp_psf_field *f, const mp_psf_star *stars,
                        int nstars, char *err)
 {
+    if (f->order == MP_PSF_GRID) {
+        snprintf(err, MP_ERRLEN, "%s: a gridded PSF has no form in matphot's PSF file", path);
+        return 1;
+    }
     char *tmp = mp_tmp_name(path);
     if (!tmp) {
         snprintf(err, MP_ERRLEN, "%s: out of memory", path);
@@ -345,7 +486,7 @@ int mp_psf_field_write(const char *path, const mp_psf_field *f, const mp_psf_sta
     if (fp)
         fits_close_file(fp, status ? &s2 : &status);
     if (status) {
-        fits_msg(path, "cannot write the PSF file", status, err);
+        psf_fits_msg(path, "cannot write the PSF file", status, err);
     } else if (rename(tmp, path)) {
         snprintf(err, MP_ERRLEN, "%s: cannot rename the temporary file into place", path);
         status = 1;

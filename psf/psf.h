@@ -86,13 +86,19 @@ void mp_psf_free(mp_psf *p);
 
 /* ---- A spatially variable table (psf/field.c, psf/field_io.c) ------------- */
 
-enum { MP_PSF_MAXORDER = 2, MP_PSF_MAXTERMS = 6 };
+/* order MP_PSF_GRID: a grid of tables at fiducial positions (WebbPSF's
+ * GriddedPSFModel, Anderson's STDPSF), interpolated bilinearly between the
+ * four around a star (clamped to the grid's edge, never extrapolated);
+ * plane j·ngx + i is the table at (gx[i], gy[j]). */
+enum { MP_PSF_MAXORDER = 2, MP_PSF_GRID = 9, MP_PSF_MAXGRID = 32, MP_PSF_MAXTERMS = 256 };
 
 struct mp_psf_field_s {
-    int order;         /* 0, 1 or 2 */
-    int nterms;        /* (order+1)(order+2)/2 */
-    double x0, y0;     /* origin (1-based pixel x, y): POLZERO1/2 */
-    double xscale, yscale;   /* POLSCAL1/2 (> 0 for order ≥ 1) */
+    int order;         /* 0, 1 or 2; MP_PSF_GRID */
+    int nterms;        /* (order+1)(order+2)/2; a grid's ngx·ngy */
+    double x0, y0;     /* origin (1-based pixel x, y): POLZERO1/2 (a grid's centre) */
+    double xscale, yscale;   /* POLSCAL1/2 (> 0 for order ≥ 1; a grid's span) */
+    int ngx, ngy;      /* MP_PSF_GRID: the grid, positions ascending (1-based px) */
+    double gx[MP_PSF_MAXGRID], gy[MP_PSF_MAXGRID];
     int nx, ny, os;    /* every plane's size and OVERSAMP, as mp_psf */
     double *planes;    /* nterms × ny × nx, term-major, PSFEx order */
     double sum;        /* Σ of plane 0: the table's sum at the origin */
@@ -112,7 +118,8 @@ typedef struct {
 int mp_psf_nterms(int order);
 
 /* mp_psf_field_terms: the values of the order's terms at (x, y) in PSFEx
- * order (1, dx, dx², dy, dx·dy, dy²; order 1: 1, dx, dy). */
+ * order (1, dx, dx², dy, dx·dy, dy²; order 1: 1, dx, dy); for a grid, the
+ * bilinear weight of every plane (at most four nonzero). */
 void mp_psf_field_terms(const mp_psf_field *f, double x, double y, double *terms);
 
 /* mp_psf_field_eval: the table at pixel position (x, y) into out (a
@@ -134,6 +141,11 @@ int mp_psf_field_from_table(const mp_psf *p, mp_psf_field *f, char *err);
 int mp_psf_field_new(int order, int nx, int ny, int os, double x0, double y0, double xs,
                      double ys, mp_psf_field *f, char *err);
 
+/* mp_psf_field_new_grid: a grid field of ngx × ngy tables of nx × ny
+ * elements at the ascending positions gx, gy, planes zeroed. */
+int mp_psf_field_new_grid(int ngx, int ngy, const double *gx, const double *gy, int nx, int ny,
+                          int os, mp_psf_field *f, char *err);
+
 /* mp_psf_field_rebin: every plane block-summed as mp_psf_rebin does.  The
  * block-sum is linear, so the rebinned field evaluated at (x, y) is the
  * rebinned table of the field at (x, y), exactly. */
@@ -146,17 +158,38 @@ int mp_psf_field_rebin(const mp_psf_field *in, int factor, mp_psf_field *out, ch
  * valid table (odd sizes, finite, positive sum ≤ 1.01 unless normalize,
  * which divides every plane by plane 0's sum); every plane finite.  The
  * optional PSFSTARS extension is read into *stars (malloc'ed, *nstars)
- * when stars is not NULL (NULL, 0 when absent). */
+ * when stars is not NULL (NULL, 0 when absent).
+ * Other programs' files are recognised from their content: PSFEx (.psf
+ * and legacypipe's table), WebbPSF/STPSF (the OVERSAMP HDU; an even table
+ * padded to odd size, the half-element offset kept in offset), WebbPSF's
+ * GriddedPSFModel (DET_YXn) and Anderson's STDPSF (NXPSFS, IPSFXnn)
+ * grids; what a conversion costs is written to warn. */
 int mp_psf_field_read(const char *name, int normalize, int oversamp, mp_psf_field *f,
                       mp_psf_star **stars, int *nstars, char *warn, char *err);
 
 /* mp_psf_field_write: write f as matphot's PSF file, atomically (a
  * temporary name beside path, renamed at the end; removed on failure):
- * a 2-D image for order 0, else the cube; the stars (may be NULL, n 0)
+ * a 2-D image for order 0, else the cube (a grid is refused); the stars (may be NULL, n 0)
  * as the PSFSTARS extension. */
 int mp_psf_field_write(const char *path, const mp_psf_field *f, const mp_psf_star *stars,
                        int nstars, char *err);
 
 void mp_psf_field_free(mp_psf_field *f);
+
+/* ---- A detector-level kernel (psf/kernel.c) ------------------------------ */
+
+/* mp_psf_kernel_read: the kernel spec names — "header": Tiny Tim's kernel
+ * in the COMMENT cards of psfname's header ("…convolve it with the
+ * following kernel", one card a row); else a FITS image (odd sizes ≤ 99)
+ * — as an OVERSAMP-1 table k (sum kept as given, k->sum).  It acts on
+ * detector pixels, after the block-sum. */
+int mp_psf_kernel_read(const char *spec, const char *psfname, mp_psf *k, char *err);
+
+/* mp_psf_field_fold_kernel: every plane convolved with k placed at
+ * whole-pixel steps (os elements) and padded by os·r a side, so that the
+ * renderer's block-summed PRF of the folded field is exactly the unfolded
+ * PRF convolved with k on detector pixels, at every shift and for any DRF
+ * (kernel.c says why); f->sum scales by k's sum. */
+int mp_psf_field_fold_kernel(mp_psf_field *f, const mp_psf *k, char *err);
 
 #endif

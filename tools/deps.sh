@@ -6,7 +6,10 @@ libopenblas-dev libomp-dev libcmocka-dev gnuplot-nox python3-astropy valgrind
 libclang-rt-14-dev"
 # `make bench` also compares with IRAF DAOPHOT: `sh tools/deps.sh bench`.
 BENCH_PKGS="iraf iraf-noao time"
+# `make test-slurm` starts a one-node Slurm cluster: `sh tools/deps.sh slurm`.
+SLURM_PKGS="slurm-wlm munge"
 [ "${1:-}" = bench ] && PKGS="$PKGS $BENCH_PKGS"
+[ "${1:-}" = slurm ] && PKGS="$PKGS $SLURM_PKGS"
 missing=""
 for p in $PKGS; do
   dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q 'install ok installed' \

@@ -81,7 +81,7 @@ int main(int argc, char **argv)
         mp_sim_add_star(&sp, truth[2 * s], truth[2 * s + 1], pow(10, -0.4 * mag), frames[s], NP, NP);
         mp_sim_add_noise(&r, frames[s], NP * NP, 3.0);
     }
-    mp_prf_model md = {&tab, NULL, 10, NULL, 0.0}, ma = {&gau, NULL, 10, NULL, 0.0};
+    mp_prf_model md = {&tab, NULL, 10}, ma = {&gau, NULL, 10};
     double *td = malloc((size_t)reps * sizeof *td), *ta = malloc((size_t)reps * sizeof *ta);
     if (!td || !ta)
         return 1;

@@ -39,6 +39,26 @@ rc=$?
 grep -q "^matphot fit: $T/bad.fits: the cube has 3 planes; PSF order 2 needs 6" "$T/eb" \
     || no "bad cube: message: $(cat "$T/eb")"
 [ -e "$T/bad.fit" ] && no "bad cube: an output file was left"
+# A PSFEx model (synthetic, tests/fuzz/corpus/psf_field/psfex_classic.psf:
+# PSF_SAMP 0.8) is read as it is, its resampling cost stated.
+P=tests/fuzz/corpus/psf_field/psfex_classic.psf
+"$M" fit "$T/a.fits" "$T/a.truth" psf="$P" output="$T/px.fit" 2>"$T/ep" || no "fit with a PSFEx file"
+grep -q "^matphot fit: warning: $P: PSFEx PSF_SAMP 0.8 resampled to OVERSAMP 1" "$T/ep" \
+    || no "PSFEx resampling not stated: $(cat "$T/ep")"
+LC_ALL=C sed 's/PSFAXIS3=                    3/PSFAXIS3=                    4/' "$P" >"$T/bad.psf"
+"$M" fit "$T/a.fits" "$T/a.truth" psf="$T/bad.psf" output="$T/badp.fit" 2>"$T/ebp"
+rc=$?
+[ "$rc" -eq 1 ] && [ "$(wc -l <"$T/ebp")" -eq 1 ] && [ ! -e "$T/badp.fit" ] \
+    || no "bad PSFEx file: exit $rc, $(cat "$T/ebp")"
+grep -q "PSFAXIS3 4 does not match degree 1" "$T/ebp" || no "bad PSFEx: $(cat "$T/ebp")"
+
+# psfkernel=header on a PSF whose header has no kernel.
+"$M" fit "$T/a.fits" "$T/a.truth" psf="$T/p.fits" psfkernel=header output="$T/bk.fit" 2>"$T/ebk"
+rc=$?
+[ "$rc" -eq 1 ] && [ "$(wc -l <"$T/ebk")" -eq 1 ] && [ ! -e "$T/bk.fit" ] \
+    || no "psfkernel=header without a kernel: exit $rc, $(cat "$T/ebk")"
+grep -q "no kernel in the header" "$T/ebk" || no "psfkernel message: $(cat "$T/ebk")"
+
 ls -A "$T" | grep -q '\.tmp\.' && no "a temporary file was left"
 
 [ "$fails" -eq 0 ]

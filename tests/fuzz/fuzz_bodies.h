@@ -211,7 +211,7 @@ static inline int fuzz_psf_body(const uint8_t *data, size_t size)
             fuzz_fail("mp_psf_read", "accepted a table it promises to refuse");
         /* Render a small PSF: a fuzzed 1000x1000 table would only be slow. */
         if ((size_t)p.nx * (size_t)p.ny <= 4096) {
-            mp_prf_model m = {&p, NULL, 10, NULL, 0.0};
+            mp_prf_model m = {&p, NULL, 10};
             long x0, y0;
             int w, h;
             mp_prf_box(&m, 20.3, 17.8, &x0, &y0, &w, &h);
@@ -263,14 +263,15 @@ static inline int fuzz_psf_field_body(const uint8_t *data, size_t size)
             continue;
         }
         if (!(f.sum > 0) || !isfinite(f.sum) || f.nx % 2 == 0 || f.ny % 2 == 0 || f.os < 1 ||
-            f.os > 8 || f.nterms != mp_psf_nterms(f.order) ||
+            f.os > 8 ||
+            f.nterms != (f.order == MP_PSF_GRID ? f.ngx * f.ngy : mp_psf_nterms(f.order)) ||
             (f.order > 0 && !(f.xscale > 0 && f.yscale > 0)) || (ns > 0) != (st != NULL))
             fuzz_fail("mp_psf_field_read", "accepted a file it promises to refuse");
         if ((size_t)f.nx * (size_t)f.ny <= 4096) {
             mp_psf o;
             if (mp_psf_field_eval(&f, f.x0, f.y0, &o, err) == 0) {
                 o.field = &f;
-                mp_prf_model m = {&o, NULL, 10, NULL, 0.0};
+                mp_prf_model m = {&o, NULL, 10};
                 long x0, y0;
                 int w, h;
                 mp_prf_box(&m, 20.3, 17.8, &x0, &y0, &w, &h);
@@ -293,9 +294,12 @@ static inline int fuzz_psf_field_body(const uint8_t *data, size_t size)
             if (mp_psf_field_read(back, 0, 0, &g, NULL, NULL, warn, err))
                 fuzz_fail("mp_psf_field_write output does not read back", err);
             size_t n = (size_t)f.nx * f.ny * f.nterms;
-            if (g.order != f.order || g.nx != f.nx || g.ny != f.ny || g.os != f.os ||
-                memcmp(g.planes, f.planes, n * sizeof *f.planes))
-                fuzz_fail("round trip", "planes or geometry changed");
+            if (g.order != f.order || g.nx != f.nx || g.ny != f.ny || g.os != f.os)
+                fuzz_fail("round trip", "geometry changed");
+            /* Values as written (subnormals may come back as zero). */
+            for (size_t i = 0; i < n; i++)
+                if (!(fabs(g.planes[i] - f.planes[i]) <= 1e-300))
+                    fuzz_fail("round trip", "a plane's values changed");
             mp_psf_field_free(&g);
             unlink(back);
         } else {

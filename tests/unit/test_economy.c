@@ -101,7 +101,7 @@ static void assert_counted(const mp_fit_setup *s)
  * fit/setup.c (full render, performance-model statistics). */
 static double beta_of(const mp_psf *p)
 {
-    mp_prf_model m = {p, NULL, 10, NULL, 0.0};
+    mp_prf_model m = {p, NULL, 10};
     mp_prf_stats st;
     assert_int_equal(mp_prf_stats_at(&m, 1000.0, 1000.0, &st, NULL), 0);
     return 1.0 / st.sharp;
@@ -271,7 +271,7 @@ static void test_render_counts_grid_skips(void **state)
     char err[MP_ERRLEN];
     mp_psf p;
     assert_int_equal(mp_psf_gauss_table(3.0, 1, 10.0, &p, err), 0);
-    mp_prf_model m = {&p, NULL, 10, NULL, 0.0};
+    mp_prf_model m = {&p, NULL, 10};
     long x0, y0;
     int w, h;
     mp_prf_box(&m, 30.0, 30.0, &x0, &y0, &w, &h);
@@ -420,7 +420,7 @@ static void test_sinc_choice(void **state)
     char err[MP_ERRLEN];
     mp_psf p;
     assert_int_equal(mp_psf_gauss_table(3.0, 1, 10.0, &p, err), 0);
-    mp_prf_model m = {&p, NULL, 10, NULL, 0.0};
+    mp_prf_model m = {&p, NULL, 10};
     mp_sinc_choice c;
     assert_int_equal(mp_sinc_choice_build(&m, &c, err), 0);
     const double B = 100.0, ron = 3.0, frac = 0.1;

@@ -79,7 +79,7 @@ static void test_second_pass_kept_when_isolated(void **state)
     char err[MP_ERRLEN];
     mp_psf p;
     mp_psf_gauss(FWHM, &p);
-    mp_prf_model m = {&p, NULL, 10, NULL, 0.0};
+    mp_prf_model m = {&p, NULL, 10};
     mp_frame f;
     frame6(&f, 5);     /* every star of the frame in the table */
     mp_frame_opts eco, full;
@@ -122,7 +122,7 @@ static void test_round_refits_only_touched_group(void **state)
     char err[MP_ERRLEN];
     mp_psf p;
     mp_psf_gauss(FWHM, &p);
-    mp_prf_model m = {&p, NULL, 10, NULL, 0.0};
+    mp_prf_model m = {&p, NULL, 10};
     mp_frame f;
     frame6(&f, NS);
     mp_frame_opts eco, full;
@@ -183,7 +183,7 @@ static void test_changed_neighbour_refitted(void **state)
     char err[MP_ERRLEN];
     mp_psf p;
     mp_psf_gauss(FWHM, &p);
-    mp_prf_model m = {&p, NULL, 10, NULL, 0.0};
+    mp_prf_model m = {&p, NULL, 10};
     const double x[2] = {25.0, 32.0}, y[2] = {30.0, 30.0}, E[2] = {4e4, 4e4};
     mp_frame f;
     sf_frame_make(&f, 60, 60, 3.0);
@@ -222,7 +222,7 @@ static void test_envelope_bounds_prf(void **state)
     mp_rng rng;
     mp_rng_seed(&rng, 503);
     for (int c = 0; c < 2; c++) {
-        mp_prf_model m = {ps[c], NULL, 10, NULL, 0.0};
+        mp_prf_model m = {ps[c], NULL, 10};
         int nr;
         double *env = mp_prf_envelope(&m, &nr);
         assert_non_null(env);
@@ -264,7 +264,7 @@ static void test_short_kernel_per_group(void **state)
     char err[MP_ERRLEN];
     mp_psf p;
     assert_int_equal(mp_psf_gauss_table(FWHM, 1, 15.0, &p, err), 0);
-    mp_prf_model m = {&p, NULL, 10, NULL, 0.0};
+    mp_prf_model m = {&p, NULL, 10};
     mp_sinc_choice c;
     assert_int_equal(mp_sinc_choice_build(&m, &c, err), 0);
     mp_frame f;
@@ -305,16 +305,17 @@ static void test_short_kernel_per_group(void **state)
  * limits table took MP_SINC_LIMITS_EVALS·hwmax = 620; and a frame of more
  * groups than MP_SINC_LIMITS_EVALS builds the limits once, so the choice
  * never costs more than min(LM fits, MP_SINC_LIMITS_EVALS)·hwmax
- * evaluations.  The kernel a lone star gets is the one mp_sinc_choice_hw
- * gives for its start flux on the safe side (sky 0).  Deterministic given
- * the seeds. */
+ * evaluations; with the run's cache (mp_econ_cache) only the first frame
+ * of an @list pays.  The kernel a lone star gets is the one
+ * mp_sinc_choice_hw gives for its start flux on the safe side (sky 0).
+ * Deterministic given the seeds. */
 static void test_whole_frame_overhead_counted(void **state)
 {
     (void)state;
     char err[MP_ERRLEN];
     mp_psf p;
     assert_int_equal(mp_psf_gauss_table(FWHM, 1, 15.0, &p, err), 0);
-    mp_prf_model m = {&p, NULL, 10, NULL, 0.0};
+    mp_prf_model m = {&p, NULL, 10};
     mp_sinc_choice c;
     assert_int_equal(mp_sinc_choice_build(&m, &c, err), 0);
     mp_frame_opts eco;
@@ -362,6 +363,22 @@ static void test_whole_frame_overhead_counted(void **state)
     assert_int_equal(rep.envelopes, 1);
     mp_table_free(&t);
     sf_frame_drop(&f);
+    /* With the run's cache (mp_fit_setup's, an @list's frames): the first
+     * frame finds the limits, every later one on the same sky level none. */
+    eco.cache = mp_econ_cache_new();
+    assert_non_null(eco.cache);
+    eco.fit.fitrad = NAN;
+    for (int k = 0; k < 3; k++) {
+        sf_frame_make(&f, 60, 60, 3.0);
+        sf_render(&f, 100.0, FWHM, &x, &y, &E, 1, &r, 3.0);
+        sf_table(&t, &x, &y, &E0, 1, 0);
+        assert_int_equal(mp_fit_table(&f, &m, &eco, &t, &rep, err), 0);
+        assert_int_equal(rep.kbounds, k == 0 ? (long)c.hwmax * MP_SINC_LIMITS_EVALS : 0);
+        assert_int_equal((int)rep.khw, hw);     /* the same choice as without */
+        mp_table_free(&t);
+        sf_frame_drop(&f);
+    }
+    mp_econ_cache_free(eco.cache);
     mp_sinc_choice_free(&c);
     mp_psf_free(&p);
 }
@@ -378,7 +395,7 @@ static void test_coarse_table_per_group(void **state)
     char err[MP_ERRLEN];
     mp_psf p;
     assert_int_equal(mp_psf_gauss_table(FWHM, 2, 15.0, &p, err), 0);
-    mp_prf_model m = {&p, NULL, 10, NULL, 0.0};
+    mp_prf_model m = {&p, NULL, 10};
     mp_ss_level lv;
     assert_int_equal(mp_ss_level_build(&m, 2, &lv, err), 0);
     lv.os = 1;

@@ -201,7 +201,7 @@ static void test_crowded_group_no_runaway(void **state)
     assert_int_equal(mp_psf_gauss_table(3.0, 2, 10.0, &tab2, err), 0);
     assert_int_equal(mp_psf_rebin(&tab2, 2, &tab1, err), 0);
     mp_psf_gauss(3.0, &gau);
-    mp_prf_model mt = {&tab1, NULL, 10, NULL, 0.0}, mg = {&gau, NULL, 10, NULL, 0.0};
+    mp_prf_model mt = {&tab1, NULL, 10}, mg = {&gau, NULL, 10};
     static const int its[] = {50, 100, 50};
     double fl[3][CR_N], ef[CR_N], sk[CR_N], es[CR_N];
     int flags[CR_N];
@@ -268,7 +268,7 @@ static void test_lambda_exit_flagged(void **state)
         assert_int_equal(mp_sim_add_star(&sp, x, y, 1e6, f.im.pix, NP, NP), 0);
         mp_sim_add_noise(&r, f.im.pix, NP * NP, 3.0);
         for (int hw = 0; hw < 2; hw++) {
-            mp_prf_model m = {&tab, NULL, hw ? 10 : 0, NULL, 0.0};
+            mp_prf_model m = {&tab, NULL, hw ? 10 : 0};
             mp_fit_opts o;
             mp_fit_opts_default(&o);
             o.sky_order = 0;
@@ -306,7 +306,7 @@ static mp_star sky_fit(const sky_truth *sk, uint64_t seed, int order, mp_frame *
     mp_sim_prf sp = {.kind = MP_SIM_GAUSS, .sigma = fwhm_to_sigma(3.0), .volume = 1.0};
     mp_psf gau;
     mp_psf_gauss(3.0, &gau);
-    mp_prf_model m = {&gau, NULL, 10, NULL, 0.0};
+    mp_prf_model m = {&gau, NULL, 10};
     mp_rng r;
     mp_rng_seed(&r, seed);
     double x = 20.0 + mp_rng_uniform(&r), y = 20.0 + mp_rng_uniform(&r);
@@ -407,7 +407,7 @@ static mp_star fitrad5_fit(const mp_frame *f, double x, double y, int order, dou
 {
     mp_psf gau;
     mp_psf_gauss(3.0, &gau);
-    mp_prf_model m = {&gau, NULL, 10, NULL, 0.0};
+    mp_prf_model m = {&gau, NULL, 10};
     mp_fit_opts o;
     mp_fit_opts_default(&o);
     o.fitrad = 5.0;

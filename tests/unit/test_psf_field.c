@@ -375,7 +375,7 @@ static void test_linear_variation_fit(void **state)
     mp_psf plain = origin;
     plain.field = NULL;
     origin.field = &f;
-    mp_prf_model m1 = {&origin, NULL, 10, NULL, 0.0}, m0 = {&plain, NULL, 10, NULL, 0.0};
+    mp_prf_model m1 = {&origin, NULL, 10}, m0 = {&plain, NULL, 10};
     double z1[2], z0[2], p1, p0;
     fit_sides(&fr, &m1, tx, ty, E, z1, &p1);
     fit_sides(&fr, &m0, tx, ty, E, z0, &p0);
@@ -407,7 +407,7 @@ static void test_envelope_covers_field(void **state)
     mp_psf plain = origin;
     plain.field = NULL;
     origin.field = &f;
-    mp_prf_model m1 = {&origin, NULL, 10, NULL, 0.0}, m0 = {&plain, NULL, 10, NULL, 0.0};
+    mp_prf_model m1 = {&origin, NULL, 10}, m0 = {&plain, NULL, 10};
     int n1, n0;
     double *e1 = mp_prf_envelope(&m1, &n1), *e0 = mp_prf_envelope(&m0, &n0);
     assert_non_null(e1);

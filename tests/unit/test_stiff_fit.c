@@ -27,7 +27,7 @@ static void test_bright_1e8(void **state)
     char err[MP_ERRLEN];
     mp_psf p;
     mp_psf_gauss(FWHM, &p);
-    mp_prf_model m = {&p, NULL, 10, NULL, 0.0};
+    mp_prf_model m = {&p, NULL, 10};
     mp_frame f;
     sf_frame_make(&f, 60, 60, RON);
     mp_rng r;
@@ -59,7 +59,7 @@ static void test_saturated_wings(void **state)
     const double sat = 65535.0;
     mp_psf p;
     mp_psf_gauss(FWHM, &p);
-    mp_prf_model m = {&p, NULL, 10, NULL, 0.0};
+    mp_prf_model m = {&p, NULL, 10};
     mp_frame f;
     sf_frame_make(&f, 60, 60, RON);
     mp_rng r;
@@ -116,7 +116,7 @@ static void test_faint_and_negative(void **state)
     char err[MP_ERRLEN];
     mp_psf p;
     mp_psf_gauss(FWHM, &p);
-    mp_prf_model m = {&p, NULL, 10, NULL, 0.0};
+    mp_prf_model m = {&p, NULL, 10};
     double beta = 4 * M_PI * pow(FWHM / FWHM_SIGMA, 2);
     double E = 1e-3 * sqrt(beta * (B_SKY + RON * RON));
     int nneg = 0, nkept = 0, nnoconv = 0;
@@ -184,7 +184,7 @@ static void test_close_pairs(void **state)
     char err[MP_ERRLEN];
     mp_psf p;
     mp_psf_gauss(FWHM, &p);
-    mp_prf_model m = {&p, NULL, 10, NULL, 0.0};
+    mp_prf_model m = {&p, NULL, 10};
     const double seps[5] = {0.05, 0.1, 0.25, 0.5, 1.0};
     for (int k = 0; k < 5; k++) {
         double d = seps[k] * FWHM, E[2] = {1e5, 1e5};
@@ -264,7 +264,7 @@ static void test_edges_and_corners(void **state)
     char err[MP_ERRLEN];
     mp_psf p;
     mp_psf_gauss(FWHM, &p);
-    mp_prf_model m = {&p, NULL, 10, NULL, 0.0};
+    mp_prf_model m = {&p, NULL, 10};
     enum { N = 7 };
     const double xs[N] = {1.0, 40.0, 1.2, 20.0, 0.0, -1.5, 40.6};
     const double ys[N] = {1.0, 40.0, 20.0, 40.3, 20.0, 25.0, 0.4};
@@ -304,7 +304,7 @@ static void test_nan_and_masked_column(void **state)
     char err[MP_ERRLEN];
     mp_psf p;
     mp_psf_gauss(FWHM, &p);
-    mp_prf_model m = {&p, NULL, 10, NULL, 0.0};
+    mp_prf_model m = {&p, NULL, 10};
     mp_frame f;
     sf_frame_make(&f, 50, 50, RON);
     mp_rng r;

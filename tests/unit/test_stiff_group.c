@@ -42,7 +42,7 @@ static void test_overlapping_group_solved(void **state)
     char err[MP_ERRLEN];
     mp_psf p;
     mp_psf_gauss(FWHM, &p);
-    mp_prf_model m = {&p, NULL, 10, NULL, 0.0};
+    mp_prf_model m = {&p, NULL, 10};
     const int ns[3] = {50, 100, 200};
     double secs[3];
     for (int c = 0; c < 3; c++) {

@@ -125,7 +125,7 @@ static void test_tiny_and_huge_psf(void **state)
     mp_rng r;
     mp_rng_seed(&r, 31);
     mp_sim_add_noise(&r, f.im.pix, 441, 3.0);
-    mp_prf_model m = {&p, NULL, 10, NULL, 0.0};
+    mp_prf_model m = {&p, NULL, 10};
     mp_fit_opts o;
     mp_fit_opts_default(&o);
     mp_star st = {.x = 11.1, .y = 10.9, .flux = NAN};
@@ -146,7 +146,7 @@ static void test_tiny_and_huge_psf(void **state)
     sf_frame_make(&f, 21, 21, 3.0);
     double x = 11.3, y = 10.8;
     sf_render(&f, 100.0, 3.0, &x, &y, &E, 1, &r, 3.0);
-    mp_prf_model mb = {&big, NULL, 10, NULL, 0.0};
+    mp_prf_model mb = {&big, NULL, 10};
     mp_star sb = {.x = 11.0, .y = 11.0, .flux = NAN};
     assert_int_equal(mp_fit_group(&f, &mb, &o, NAN, &sb, 1, err), 0);
     print_message("81x81 PSF on 21x21: flux %.6g ± %.3g z %.2f flags %d\n", sb.flux, sb.eflux,
@@ -181,7 +181,7 @@ static void test_inefficient_detector(void **state)
     mp_psf_gauss(3.0, &p);
     mp_drf d;
     mp_drf_uniform(1.0 / 9, &d);
-    mp_prf_model m = {&p, &d, 10, NULL, 0.0};
+    mp_prf_model m = {&p, &d, 10};
     mp_sim_prf sp = {.kind = MP_SIM_GAUSS, .sigma = 3.0 / FWHM_SIGMA, .volume = 1.0 / 9};
     double z[NS];
     for (int s = 0; s < NS; s++) {
@@ -223,7 +223,7 @@ static void test_gate_detector(void **state)
     mp_drf d = {4, qe, 0.5625};
     mp_sim_prf sp = {.kind = MP_SIM_TABLE, .tab = tab.t, .tnx = tab.nx, .tny = tab.ny,
                      .tos = 4, .drf = qe, .dk = 4, .volume = 1.0};
-    mp_prf_model m = {&tab, &d, 10, NULL, 0.0};
+    mp_prf_model m = {&tab, &d, 10};
     double z[NS];
     for (int s = 0; s < NS; s++) {
         mp_rng r;

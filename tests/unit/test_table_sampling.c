@@ -169,7 +169,7 @@ static mp_star fit_noiseless(const mp_psf *truth4, const mp_prf_model *m, double
 /* σ_X, σ_Y of the Cramér–Rao bound at the truth (×4 table on its grid). */
 static void crlb_xy(const mp_psf *truth4, double x, double y, double E, double *sx, double *sy)
 {
-    mp_prf_model m = {truth4, NULL, 10, NULL, 0.0};
+    mp_prf_model m = {truth4, NULL, 10};
     mp_prf_work w = {0};
     double *P = malloc(3 * NPIX * sizeof *P);
     assert_non_null(P);
@@ -199,7 +199,7 @@ static void test_rebin_convention_exact(void **state)
     mp_psf t4, t2;
     assert_int_equal(asym_table(&t4), 0);
     assert_int_equal(mp_psf_rebin(&t4, 2, &t2, err), 0);
-    mp_prf_model m4 = {&t4, NULL, 10, NULL, 0.0}, m2 = {&t2, NULL, 10, NULL, 0.0};
+    mp_prf_model m4 = {&t4, NULL, 10}, m2 = {&t2, NULL, 10};
     mp_prf_work w = {0};
     double *P4 = malloc(NPIX * sizeof *P4), *P2 = malloc(NPIX * sizeof *P2);
     double *S = malloc(NPIX * sizeof *S);
@@ -244,7 +244,7 @@ static void test_x2_unbiased_when_band_limited(void **state)
     mp_psf t4, t2;
     assert_int_equal(asym_table(&t4), 0);
     assert_int_equal(mp_psf_rebin(&t4, 2, &t2, err), 0);
-    mp_prf_model m2 = {&t2, NULL, 10, NULL, 0.0};
+    mp_prf_model m2 = {&t2, NULL, 10};
     for (int a = 0; a < 4; a++)
         for (int b = 0; b < 4; b++) {
             double x = grid_pos(a), y = grid_pos(b), sx, sy;
@@ -295,7 +295,7 @@ static int solve4(double A[4][4], double r[4])
  * Returns the X component. */
 static double ls_response_x(const mp_psf *truth4, double x, double y, double E, const double *dm)
 {
-    mp_prf_model m = {truth4, NULL, 10, NULL, 0.0};
+    mp_prf_model m = {truth4, NULL, 10};
     mp_prf_work w = {0};
     double *P = malloc(3 * NPIX * sizeof *P);
     assert_non_null(P);
@@ -348,7 +348,7 @@ static void test_x2_blind_above_its_nyquist(void **state)
     assert_int_equal(mp_psf_rebin(&h4, 2, &h2, err), 0);
     for (int i = 0; i < a2.nx * a2.ny; i++)
         assert_true(fabs(a2.t[i] - h2.t[i]) <= 1e-15);
-    mp_prf_model m2 = {&a2, NULL, 10, NULL, 0.0}, mh4 = {&h4, NULL, 10, NULL, 0.0};
+    mp_prf_model m2 = {&a2, NULL, 10}, mh4 = {&h4, NULL, 10};
     mp_sim_prf sa = sim_of(&a4), sh = sim_of(&h4);
     double *Ia = malloc(NPIX * sizeof *Ia), *Ih = malloc(NPIX * sizeof *Ih);
     assert_non_null(Ia);
@@ -472,7 +472,7 @@ static void test_tinytim_x2_bias_is_aliasing(void **state)
     assert_int_equal(t4.nx, 161);
     assert_int_equal(t4.os, 4);
     assert_int_equal(mp_psf_rebin(&t4, 2, &t2, err), 0);
-    mp_prf_model m2 = {&t2, NULL, 10, NULL, 0.0};
+    mp_prf_model m2 = {&t2, NULL, 10};
     double y = grid_pos(1);           /* δy = 0 */
     double xs[2] = {grid_pos(0), grid_pos(2)};
     double worst = 0.0;
