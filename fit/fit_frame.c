@@ -286,30 +286,20 @@ static int merge_one(mp_star *s, int *alive, int n, double mergerad)
     return 1;
 }
 
-/* Reject the least significant star below minsnr; 1 if one was.  A star
- * rejected beside a neighbour (within 2·mergerad) was most likely half of
- * an unresolved blend whose light the neighbour now carries: flag that
- * neighbour merged (16), as if the pair had been merged. */
-static int reject_one(mp_star *s, int *alive, int n, double minsnr, double mergerad)
+static double snr_of(const mp_star *s)
 {
-    int worst = -1;
-    double wsnr = minsnr;
-    for (int i = 0; i < n; i++) {
-        if (!alive[i])
-            continue;
-        double snr = s[i].eflux > 0 ? s[i].flux / s[i].eflux : (s[i].flux > 0 ? INFINITY : -INFINITY);
-        if (snr < wsnr) {
-            wsnr = snr;
-            worst = i;
-        }
-    }
-    if (worst < 0)
-        return 0;
-    alive[worst] = 0;
+    return s->eflux > 0 ? s->flux / s->eflux : (s->flux > 0 ? INFINITY : -INFINITY);
+}
+
+/* Flag merged (16) the live star nearest to star w within 2·mergerad: a
+ * star rejected beside a neighbour was most likely half of an unresolved
+ * blend whose light the neighbour now carries. */
+static void flag_blend_partner(mp_star *s, const int *alive, int n, int w, double mergerad)
+{
     int near = -1;
     double best = 2.0 * mergerad;
     for (int i = 0; i < n; i++) {
-        double d = hypot(s[i].x - s[worst].x, s[i].y - s[worst].y);
+        double d = hypot(s[i].x - s[w].x, s[i].y - s[w].y);
         if (alive[i] && d < best) {
             best = d;
             near = i;
@@ -317,7 +307,53 @@ static int reject_one(mp_star *s, int *alive, int n, double minsnr, double merge
     }
     if (near >= 0)
         s[near].flags |= MP_FLAG_MERGED;
-    return 1;
+}
+
+/* Reject the stars below minsnr; the number rejected.  Deep detection
+ * hands the fit many candidates below the cut, so they go in one step
+ * rather than one refit each (a 2-sigma find: 9188 rejections, fit 104 s
+ * -> see the commit): a below-cut star goes when no less significant
+ * below-cut star lies within sepind [px] of it.  Beyond sepind (2 FWHM)
+ * their PRFs barely overlap, so removing one leaves the other's S/N as
+ * it was; within it, only the worse goes, and the other is judged again
+ * after the refit (half of a split star may climb above the cut). */
+static int reject_low(mp_star *s, int *alive, int n, double minsnr, double mergerad,
+                      double sepind)
+{
+    int *gone = calloc((size_t)n, sizeof *gone), nr = 0;
+    for (int i = 0; i < n; i++) {
+        if (!alive[i])
+            continue;
+        double si = snr_of(&s[i]);
+        if (!(si < minsnr))
+            continue;
+        int worst = 1;
+        for (int j = 0; j < n && worst; j++) {
+            if (j == i || !alive[j] || hypot(s[i].x - s[j].x, s[i].y - s[j].y) >= sepind)
+                continue;
+            double sj = snr_of(&s[j]);
+            worst = !(sj < si || (sj == si && j < i));
+        }
+        if (!gone) {            /* out of memory: one at a time, as before */
+            if (worst) {
+                alive[i] = 0;
+                flag_blend_partner(s, alive, n, i, mergerad);
+                return 1;
+            }
+            continue;
+        }
+        gone[i] = worst;
+    }
+    for (int i = 0; gone && i < n; i++)
+        if (gone[i]) {
+            alive[i] = 0;
+            nr++;
+        }
+    for (int i = 0; gone && i < n; i++)
+        if (gone[i])
+            flag_blend_partner(s, alive, n, i, mergerad);
+    free(gone);
+    return nr;
 }
 
 /* Fit one group (members st[0..n-1]) on frame f: merge/reject until
@@ -377,8 +413,12 @@ static int fit_one_group(const mp_frame *f, const mp_prf_model *m, const mp_fram
             rep->merged++;
             continue;
         }
-        if (o->minsnr > 0 && reject_one(s, alive, n, o->minsnr, mergerad)) {
-            rep->rejected++;
+        /* 2 FWHM: 5 default merge radii (0.4 FWHM), or from the PSF when
+         * merging is off */
+        double sepind = mergerad > 0 ? 5.0 * mergerad : 2.0 * mp_prf_fwhm(m);
+        int nrej = o->minsnr > 0 ? reject_low(s, alive, n, o->minsnr, mergerad, sepind) : 0;
+        if (nrej > 0) {
+            rep->rejected += nrej;
             continue;
         }
         break;

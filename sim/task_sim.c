@@ -19,7 +19,9 @@ typedef struct {
     const char *output, *psf, *drf, *psfout;
     char *truth;                      /* owned */
     int nx, ny, crowded, nstars, noise, psfos, segmented;
+    int fieldnx, fieldny, x0, y0;     /* the field the frame looks at */
     double magmin, magmax, sky, rdnoise, gain, fwhm, volume, saturate, lod, band;
+    double ra, dec, pixscale;         /* TAN WCS at the field's centre; ra NaN: none */
     uint64_t seed;
 } sim_config;
 
@@ -36,6 +38,32 @@ static int need_real(const mp_parset *ps, const char *name, double *v, char *err
 {
     if (mp_par_real(ps, name, v) || !isfinite(*v)) {
         snprintf(err, MP_ERRLEN, "%s: INDEF is not allowed; give a number", name);
+        return 1;
+    }
+    return 0;
+}
+
+/* The field and its WCS: a frame is a window (x0, y0) on a field of
+ * fieldnx x fieldny whose stars one seed draws, so frames with the same
+ * seed and other offsets overlap on the same stars (and, with ra/dec, on
+ * the sky). */
+static int read_field(const mp_parset *ps, sim_config *c, char *err)
+{
+    if (mp_par_int(ps, "fieldnx", &c->fieldnx) || mp_par_int(ps, "fieldny", &c->fieldny) ||
+        need_int(ps, "x0", &c->x0, err) || need_int(ps, "y0", &c->y0, err) ||
+        mp_par_real(ps, "ra", &c->ra) || mp_par_real(ps, "dec", &c->dec) ||
+        need_real(ps, "pixscale", &c->pixscale, err)) {
+        if (!*err)
+            snprintf(err, MP_ERRLEN, "sim.par: a field parameter is missing from the defaults");
+        return 1;
+    }
+    if (c->fieldnx == MP_PAR_INDEF_INT)
+        c->fieldnx = c->nx;
+    if (c->fieldny == MP_PAR_INDEF_INT)
+        c->fieldny = c->ny;
+    if (isfinite(c->ra) != isfinite(c->dec)) {
+        snprintf(err, MP_ERRLEN, "%s: INDEF while %s is given; a WCS needs both",
+                 isfinite(c->ra) ? "dec" : "ra", isfinite(c->ra) ? "ra" : "dec");
         return 1;
     }
     return 0;
@@ -81,6 +109,8 @@ static int read_config(const mp_parset *ps, sim_config *c, char *err)
         snprintf(err, MP_ERRLEN, "sim.par: saturate or seed is missing from the defaults");
         return 1;
     }
+    if (read_field(ps, c, err))
+        return 1;
     if (mp_par_bool(ps, "noise", &c->noise)) {
         snprintf(err, MP_ERRLEN, "noise: give yes or no");
         return 1;
@@ -150,8 +180,8 @@ static int make_truth(const sim_config *c, const mp_sim_prf *prf, mp_rng *r,
     for (int k = 0; k < n; k++) {
         double x, y;
         if (c->crowded) {
-            x = 0.5 + c->nx * mp_rng_uniform(r);
-            y = 0.5 + c->ny * mp_rng_uniform(r);
+            x = 0.5 + c->fieldnx * mp_rng_uniform(r) - c->x0;   /* in the frame */
+            y = 0.5 + c->fieldny * mp_rng_uniform(r) - c->y0;
         } else {
             x = (c->nx + 1) / 2.0 + mp_rng_uniform(r) - 0.5;
             y = (c->ny + 1) / 2.0 + mp_rng_uniform(r) - 0.5;
@@ -171,10 +201,31 @@ static int make_truth(const sim_config *c, const mp_sim_prf *prf, mp_rng *r,
     return 0;
 }
 
+/* A TAN WCS (ICRS) whose reference point is the field's centre, north up
+ * and east left: 12 cards. */
+static int wcs_cards(const sim_config *c, mp_card *k)
+{
+    double d = c->pixscale / 3600.0;
+    int n = 0;
+    k[n++] = (mp_card){"WCSAXES", 2, NULL, "simulated field's WCS"};
+    k[n++] = (mp_card){"CTYPE1", 0, "RA---TAN", "gnomonic"};
+    k[n++] = (mp_card){"CTYPE2", 0, "DEC--TAN", "gnomonic"};
+    k[n++] = (mp_card){"CRPIX1", (c->fieldnx + 1) / 2.0 - c->x0, NULL, "field centre x"};
+    k[n++] = (mp_card){"CRPIX2", (c->fieldny + 1) / 2.0 - c->y0, NULL, "field centre y"};
+    k[n++] = (mp_card){"CRVAL1", c->ra, NULL, "[deg] RA of the field centre"};
+    k[n++] = (mp_card){"CRVAL2", c->dec, NULL, "[deg] Dec of the field centre"};
+    k[n++] = (mp_card){"CD1_1", -d, NULL, "[deg/pixel] east left"};
+    k[n++] = (mp_card){"CD2_2", d, NULL, "[deg/pixel] north up"};
+    k[n++] = (mp_card){"RADESYS", 0, "ICRS", "reference frame"};
+    k[n++] = (mp_card){"CUNIT1", 0, "deg", "units of CRVAL1, CD1_1"};
+    k[n++] = (mp_card){"CUNIT2", 0, "deg", "units of CRVAL2, CD2_2"};
+    return n;
+}
+
 static int write_frame(const sim_config *c, const mp_sim_prf *prf, double volume,
                        const double *adu, char *err)
 {
-    mp_card cards[12];
+    mp_card cards[24];
     int nc = 0;
     cards[nc++] = (mp_card){"BUNIT", 0, "ADU", "pixel unit"};
     cards[nc++] = (mp_card){"GAIN", c->gain, NULL, "[e-/ADU] gain"};
@@ -193,6 +244,8 @@ static int write_frame(const sim_config *c, const mp_sim_prf *prf, double volume
         cards[nc++] = (mp_card){"DRF", 0, c->drf, "simulated detector response"};
     cards[nc++] = (mp_card){"VOLUME", volume, NULL, "PRF volume (mean detector QE)"};
     cards[nc++] = (mp_card){"ORIGIN", 0, "matphot sim", "simulated frame"};
+    if (isfinite(c->ra))
+        nc += wcs_cards(c, cards + nc);
     return mp_image_write(c->output, adu, c->nx, c->ny, c->noise ? -32 : -64, cards, nc, err);
 }
 
@@ -252,6 +305,23 @@ static int write_psf(const sim_config *c, const mp_sim_prf *prf, char *err)
         rc = mp_image_write(c->psfout, t, n, n, -64, cards, 2, err);
     free(t);
     return rc;
+}
+
+/* The truth lists the stars whose centre is on the frame (1-based pixels
+ * 1..n cover 0.5 .. n + 0.5); a field's other stars still add their light
+ * near the edges. */
+static void keep_on_frame(mp_table *t, int nx, int ny)
+{
+    int cx = mp_table_col(t, "X_IMAGE"), cy = mp_table_col(t, "Y_IMAGE");
+    size_t k = 0;
+    for (size_t i = 0; i < t->nrow; i++) {
+        double x = mp_table_get(t, i, cx), y = mp_table_get(t, i, cy);
+        if (x < 0.5 || x >= nx + 0.5 || y < 0.5 || y >= ny + 0.5)
+            continue;
+        memmove(t->v + k * t->ncol, t->v + i * t->ncol, t->ncol * sizeof *t->v);
+        k++;
+    }
+    t->nrow = k;
 }
 
 static int run(const sim_config *c, char *err)
@@ -316,6 +386,7 @@ static int run(const sim_config *c, char *err)
     }
     if (write_frame(c, &prf, volume, img, err))
         goto done;
+    keep_on_frame(&t, c->nx, c->ny);
     if (mp_table_write(c->truth, &t, MP_TAB_ASCII_HEAD, err)) {
         remove(c->output);           /* no frame without its truth */
         goto done;
