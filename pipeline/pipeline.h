@@ -51,7 +51,18 @@ typedef struct {
 int mp_pipeline_run(const char *image, const char *root, const mp_pipeline_opts *o,
                     mp_pipeline_report *rep, char *err);
 
+/* mp_pipeline_reduce: the same reduction of a frame already in memory
+ * (not modified), with o's PSF (o->build_psf must be 0): t receives the
+ * fitted stars (the table root.fit would hold; initialised here, the
+ * caller frees it).  Nothing is written, nothing printed; safe to call
+ * from several threads at once on different frames (artificial stars,
+ * pipeline/fakes.c). */
+int mp_pipeline_reduce(const mp_frame *f, const mp_pipeline_opts *o, mp_table *t, char *err);
+
 /* The `matphot pipeline` task. */
 int mp_task_pipeline(int argc, char **argv);
+
+/* The `matphot fakes` task: artificial-star tests (pipeline/fakes.c). */
+int mp_task_fakes(int argc, char **argv);
 
 #endif

@@ -29,6 +29,7 @@ typedef struct {
     mp_epsf psf;          /* the PSF built from the frame (build_psf) */
     double *px, *py, *pf; /* its stars */
     size_t np;
+    int quiet;            /* mp_pipeline_reduce: no stderr lines, no files */
 } run_state;
 
 static int oom(char *err)
@@ -95,10 +96,10 @@ static int read_frame(run_state *s, char *err)
  * 5000 at 3x the fit's time: not done.) */
 static int screen(run_state *s, const mp_frame *on, const double *data, mp_table *cand)
 {
-    double cut = s->o->fit.opts.minsnr - MP_PL_SCREEN_SLACK;
+    double cut = s->fit->opts.minsnr - MP_PL_SCREEN_SLACK;
     if (!(cut > 0) || cand->nrow == 0)
         return 0;
-    long n = mp_pl_prescreen(on, &s->bkg, data, &s->o->fit.model, s->o->fit.opts.fit.fitrad,
+    long n = mp_pl_prescreen(on, &s->bkg, data, &s->fit->model, s->fit->opts.fit.fitrad,
                              cut, cand);
     if (n < 0)
         return 1;
@@ -122,6 +123,8 @@ static int find_stars(run_state *s, char *err)
     s->rep->t_find += mp_seconds() - t0;
     s->rep->found = (long)s->t.nrow;
     /* Written first: a failed write is the run's only stderr line. */
+    if (s->quiet)
+        return 0;
     if (mp_pl_write_named(s->root, ".coo", &s->t, s->o->fit.fmt, err))
         return 1;
     fprintf(stderr, "matphot pipeline: %s: %zu stars found (%ld candidates below the screen's "
@@ -160,7 +163,7 @@ static int group_and_fit(run_state *s, int round, char *err)
     if (mp_group_table(&s->t, &o->group, err))
         return 1;
     s->rep->t_group += mp_seconds() - t0;
-    if (mp_pl_write_named(s->root, ".grp", &s->t, o->fit.fmt, err))
+    if (!s->quiet && mp_pl_write_named(s->root, ".grp", &s->t, o->fit.fmt, err))
         return 1;
     t0 = mp_seconds();
     mp_frame_report fr;
@@ -174,7 +177,8 @@ static int group_and_fit(run_state *s, int round, char *err)
         return 1;
     s->rep->t_fit += mp_seconds() - t0;
     count_fit(s->rep, &fr, s->t.nrow);
-    fprintf(stderr, "matphot pipeline: %s: round %d: %ld stars fitted in %ld groups "
+    if (!s->quiet)
+        fprintf(stderr, "matphot pipeline: %s: round %d: %ld stars fitted in %ld groups "
             "(%ld merged, %ld rejected; %ld group fits, %ld kept), %.2f s\n", s->image, round,
             fr.nstars - fr.merged - fr.rejected, fr.ngroups, fr.merged, fr.rejected, fr.fits,
             fr.kept, mp_seconds() - t0);
@@ -225,6 +229,8 @@ static int find_on_residual(run_state *s, int round, long *added, char *err)
     if (*added < 0)
         return oom(err);
     s->rep->added += *added;
+    if (s->quiet)
+        return 0;
     if (isfinite(kscale))
         fprintf(stderr, "matphot pipeline: %s: round %d: %ld new stars on the residual "
                 "(noise: %.3f x Poisson, profile error %.1f %%)\n", s->image, round, *added,
@@ -347,6 +353,29 @@ static int build_psf(run_state *s, int pass, char *err)
     return rc;
 }
 
+/* The rounds: group and fit, find on the residual, until nothing new is
+ * found or niter rounds are done. */
+static int rounds(run_state *s, char *err)
+{
+    const mp_pipeline_opts *o = s->o;
+    int rc = 0;
+    for (int round = 1; !rc && round <= o->niter; round++) {
+        s->rep->rounds = round;
+        long added = 0;
+        rc = group_and_fit(s, round, err);
+        /* DAOPHOT's second pass: the PSF again with every neighbour gone,
+         * and this round fitted again with it. */
+        if (!rc && round == 1 && o->build_psf)
+            rc = build_psf(s, 2, err) || group_and_fit(s, round, err);
+        if (rc || round == o->niter)
+            break;
+        rc = find_on_residual(s, round, &added, err);
+        if (added == 0)
+            break;           /* nothing new: the last fit and residual stand */
+    }
+    return rc;
+}
+
 int mp_pipeline_run(const char *image, const char *root, const mp_pipeline_opts *o,
                     mp_pipeline_report *rep, char *err)
 {
@@ -356,22 +385,36 @@ int mp_pipeline_run(const char *image, const char *root, const mp_pipeline_opts 
         return 1;
     }
     int rc = read_frame(&s, err) || find_stars(&s, err) || (o->build_psf && build_psf(&s, 1, err));
-    for (int round = 1; !rc && round <= o->niter; round++) {
-        rep->rounds = round;
-        long added = 0;
-        rc = group_and_fit(&s, round, err);
-        /* DAOPHOT's second pass: the PSF again with every neighbour gone,
-         * and this round fitted again with it. */
-        if (!rc && round == 1 && o->build_psf)
-            rc = build_psf(&s, 2, err) || group_and_fit(&s, round, err);
-        if (rc || round == o->niter)
-            break;
-        rc = find_on_residual(&s, round, &added, err);
-        if (added == 0)
-            break;           /* nothing new: the last fit and residual stand */
-    }
+    if (!rc)
+        rc = rounds(&s, err);
     if (!rc)
         rc = write_products(&s, err);
+    state_free(&s);
+    return rc;
+}
+
+int mp_pipeline_reduce(const mp_frame *f, const mp_pipeline_opts *o, mp_table *t, char *err)
+{
+    run_state s;
+    mp_pipeline_report rep;
+    mp_table_init(t);
+    if (o->build_psf) {
+        snprintf(err, MP_ERRLEN, "psf: a PSF is needed (the reduction in memory builds none)");
+        return 1;
+    }
+    int rc = state_init(&s, "(in memory)", NULL, o, &rep, err);
+    s.quiet = 1;
+    s.f = *f;                    /* borrowed: not freed below */
+    size_t npix = (size_t)f->im.nx * (size_t)f->im.ny;
+    if (!rc && !(s.res = malloc(npix * sizeof *s.res)))
+        rc = oom(err);
+    if (!rc)
+        rc = find_stars(&s, err) || rounds(&s, err);
+    if (!rc) {
+        *t = s.t;
+        mp_table_init(&s.t);
+    }
+    memset(&s.f, 0, sizeof s.f);
     state_free(&s);
     return rc;
 }
