@@ -265,4 +265,70 @@ int mp_task_catalog(int argc, char **argv);
 
 /* ==== end of FITS / regions / catalog task section ======================= */
 
+/* ==== Survey merge (catalog/merge.c, merge_frame.c, task_merge.c) ========
+ *
+ * Many frames' (or tiles') catalogs merged on the sky into one survey
+ * catalog.  Sky positions are the catalogs' ALPHAPSF_J2000/DELTAPSF_J2000
+ * (else ALPHA_J2000/DELTA_J2000), which `matphot catalog`/`pipeline` write
+ * through WCSLIB from the frame's WCS.  A detection's position error on the
+ * sky (east, north) is its ERRX_PSF/ERRY_PSF carried through its catalog's
+ * own pixel-to-sky Jacobian (a least-squares affine fit of the catalog's
+ * sky positions on its pixel positions), plus syserr in quadrature (the
+ * frames' WCS registration).
+ *
+ * The match rule: a detection and a source are one star when
+ *   Δe²/(σe_d² + σe_s²) + Δn²/(σn_d² + σn_s²) <= nsigma²
+ * (Δ the offsets east and north from the source's current mean, σ_s the
+ * mean's errors) and they are less than maxrad apart.  For one star that
+ * sum is χ² with 2 degrees of freedom, so nsigma = 5 splits a star by
+ * mistake with probability exp(-12.5) = 3.7e-6 per detection.  A frame
+ * gives a source one detection at most (its detections are stars it
+ * resolved); within a frame, pairs are taken in increasing order of that
+ * sum, so the result does not depend on the order of a catalog's rows.
+ * Frames are merged in the order given.  Sources are found through a hash
+ * of cells of 2 maxrad on the unit sphere, so the cost is linear in the
+ * number of detections.
+ *
+ * A source's position is the weighted mean (weights 1/σ², east and north
+ * apart) in the tangent plane at its first detection, with errors
+ * 1/sqrt(Σ 1/σ²); its magnitude the weighted mean of MAG_PSF (weights
+ * 1/MAGERR_PSF²; the catalogs' own zero points: calibrate each with
+ * `matphot catalog magzero=` first), with MAGERR_MEAN = 1/sqrt(Σw) and
+ * MAG_CHI2 the reduced χ² of its magnitudes about the mean (≈ 1 for a
+ * constant star with right errors).  NDET counts its detections; FLAGS ORs
+ * theirs.
+ *
+ * Tables: sources (SOURCE_ID, ALPHA_J2000, DELTA_J2000, ERRRA_ARCSEC,
+ * ERRDEC_ARCSEC, MAG_MEAN, MAGERR_MEAN, MAG_CHI2, NDET, FLAGS) and
+ * detections, one row per detection (SOURCE_ID, FRAME (1-based, in the
+ * order given), NUMBER, XPSF_IMAGE, YPSF_IMAGE, ALPHAPSF_J2000,
+ * DELTAPSF_J2000, ERRRA_ARCSEC, ERRDEC_ARCSEC, MAG_PSF, MAGERR_PSF,
+ * FLUX_PSF, FLUXERR_PSF, FLAGS, SEP_ARCSEC from the source's mean), sorted
+ * by source then frame. */
+typedef struct {
+    double nsigma;     /* match threshold on the normalised separation */
+    double syserr;     /* [arcsec] added in quadrature to every position error */
+    double maxrad;     /* [arcsec] never match farther apart */
+    double pixscale;   /* [arcsec] for a catalog of fewer than 3 stars; NaN: none */
+} mp_merge_opts;
+
+typedef struct mp_merge mp_merge;   /* opaque */
+
+/* mp_merge_new: an empty merge; NULL when out of memory. */
+mp_merge *mp_merge_new(const mp_merge_opts *o);
+
+/* mp_merge_add: the next frame's catalog (name for messages).  Rows
+ * without a finite sky position or position errors are skipped (counted in
+ * *skipped when not NULL).  Errors: a missing column, too few stars for
+ * the pixel scale without pixscale, out of memory. */
+int mp_merge_add(mp_merge *m, const mp_table *cat, const char *name, long *skipped, char *err);
+
+/* mp_merge_tables: the sources and detections tables (see above). */
+int mp_merge_tables(const mp_merge *m, mp_table *sources, mp_table *dets, char *err);
+
+void mp_merge_free(mp_merge *m);
+
+/* The `matphot merge` task. */
+int mp_task_merge(int argc, char **argv);
+
 #endif

@@ -64,6 +64,16 @@ static const mp_col registry[] = {
     {"FLUX_TRUE",      "True flux (simulation)",                     ELEC, "%17.10g", 0},
     {"MAG_TRUE",       "True magnitude (simulation)",                "mag", "%12.8f", 0},
     {"SKY_TRUE",       "True sky level (simulation)",                ELEC, "%17.10g", 0},
+    /* merge: the survey catalog and its detections (catalog/merge.c) */
+    {"SOURCE_ID",      "Source number in the merged survey catalog", "",   "%10.0f", 1},
+    {"FRAME",          "Catalog (frame or tile) of the detection, 1-based", "", "%6.0f", 1},
+    {"NDET",           "Number of detections merged into the source", "",  "%6.0f",  1},
+    {"ERRRA_ARCSEC",   "RMS error of RA*cos(Dec)",                   "arcsec", "%10.6f", 0},
+    {"ERRDEC_ARCSEC",  "RMS error of Dec",                           "arcsec", "%10.6f", 0},
+    {"MAG_MEAN",       "Weighted mean of the detections' MAG_PSF",   "mag", "%9.5f", 0},
+    {"MAGERR_MEAN",    "RMS error of MAG_MEAN",                      "mag", "%10.6f", 0},
+    {"MAG_CHI2",       "Reduced chi2 of the detections' MAG_PSF about the mean", "", "%10.4f", 0},
+    {"SEP_ARCSEC",     "Separation from the source's mean position", "arcsec", "%10.6f", 0},
 };
 
 /* Unknown columns: no description or unit, 10 significant digits. */

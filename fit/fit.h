@@ -238,6 +238,18 @@ int mp_crlb(const double *prf, const double *dx, const double *dy, size_t n,
  * (closed form); the sky-order test's p-value. */
 double mp_chi2_sf(int k, double x);
 
+/* The flux limits of economy's bound tables (the sinc kernel's, each
+ * coarser table's) on a given sky, kept across the frames of a run: a
+ * frame's sky is rounded down to a quarter octave (the safe side: less
+ * sky, less noise, lower limits), so an @list of frames pays
+ * MP_SINC_LIMITS_EVALS·hwmax bound evaluations per table and sky level
+ * once, not per frame.  Thread-safe; at most MP_ECON_CACHE_MAX entries
+ * (past that, frames compute their own). */
+typedef struct mp_econ_cache mp_econ_cache;
+#define MP_ECON_CACHE_MAX 64
+mp_econ_cache *mp_econ_cache_new(void);      /* NULL when out of memory */
+void mp_econ_cache_free(mp_econ_cache *c);
+
 /* ---- The fit --------------------------------------------------------------- */
 
 enum {
@@ -330,6 +342,8 @@ typedef struct {
                         * with the model's table) */
     int nss;
     double ssfrac;
+    mp_econ_cache *cache;  /* economy: the choices' flux limits kept across
+                        * frames (NULL: each frame finds its own) */
     const struct mp_sinc_choice_s *sinc;  /* economy: each group fitted with
                         * the shortest sinc half-width whose bias stays below
                         * sincfrac of its brightest star's σ (fit/sinc_choice.c);
@@ -444,6 +458,7 @@ typedef struct {
     mp_table_format fmt;
     mp_sinc_choice sinc;    /* economy: per-group kernel length (opts.sinc) */
     mp_ss_level ss[MP_SS_MAXLEVELS];   /* economy: coarser samplings (opts.ss) */
+    mp_econ_cache *cache;   /* economy: their flux limits across frames (opts.cache) */
     char decisions[2048];   /* economy decisions and their reasons */
     int ndecisions;
 } mp_fit_setup;

@@ -12,6 +12,7 @@ void mp_fit_setup_free(mp_fit_setup *s)
     mp_psf_field_free(&s->field);
     mp_drf_free(&s->drf);
     mp_sinc_choice_free(&s->sinc);
+    mp_econ_cache_free(s->cache);
     for (int l = 0; l < MP_SS_MAXLEVELS; l++)
         mp_ss_level_free(&s->ss[l]);
 }
@@ -202,7 +203,9 @@ int mp_fit_setup_read(const mp_parset *ps, mp_fit_setup *s, char *err)
     int norm = 0;
     mp_par_bool(ps, "psfnorm", &norm);
     char warn[MP_ERRLEN];
-    if (psf[0]) {
+    /* psf=gauss names the analytic mode (the pipeline builds a PSF from
+     * the frame when psf is empty). */
+    if (psf[0] && strcmp(psf, "gauss") != 0) {
         int hos = MP_PAR_INDEF_INT;
         mp_par_int(ps, "oversamp", &hos);
         const char *kspec = mp_par_string(ps, "psfkernel");
@@ -276,6 +279,10 @@ int mp_fit_setup_read(const mp_parset *ps, mp_fit_setup *s, char *err)
          * any block-summing above). */
         if (mp_sinc_choice_build(&s->model, &s->sinc, err))
             return 1;
+        if (!(s->opts.cache = s->cache = mp_econ_cache_new())) {
+            snprintf(err, MP_ERRLEN, "out of memory");
+            return 1;
+        }
         if (s->sinc.nph > 0) {
             s->opts.sinc = &s->sinc;
             snprintf(why, sizeof why, "sinc kernel: per group, the shortest half-width <= %d "

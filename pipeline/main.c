@@ -16,6 +16,7 @@
 #include "io/io.h"
 #include "params/params.h"
 #include "pipeline/pipeline.h"
+#include "psf/build.h"
 #include "sim/sim.h"
 
 #ifndef MATPHOT_VERSION
@@ -31,9 +32,12 @@ static const struct {
 } tasks[] = {
     { "find", mp_task_find, "sky background map and DAOFIND-style star detection" },
     { "group", mp_task_group, "group stars whose PSFs reach each other's fitting regions (DAOPHOT GROUP)" },
+    { "psf", mp_task_psf, "build the PSF from the frame's stars (effective PSF, spatially variable)" },
     { "fit", mp_task_fit, "fit stars and sky with a discrete or analytic PSF (MATPHOT)" },
     { "catalog", mp_task_catalog, "final catalogue: magnitudes, sky positions, FITS/LDAC, DS9 regions" },
+    { "merge", mp_task_merge, "many frames' catalogues matched on the sky into one survey catalogue" },
     { "pipeline", mp_task_pipeline, "find, group and fit in rounds on the residual, then the catalogue" },
+    { "fakes", mp_task_fakes, "artificial stars: completeness, bias and errors of the pipeline" },
     { "sim", mp_task_sim, "simulate a frame of stars with exact pixel-integrated PRFs" },
     { "params", mp_task_params, "print a task's parameters as a .par file (no TASK: list them)" },
 };

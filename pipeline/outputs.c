@@ -110,8 +110,9 @@ static void report_counts(const mp_pipeline_report *rep, const mp_table *t, mp_r
     run->envelopes = rep->envelopes;
 }
 
-int mp_pl_write_report(const char *image, const char *root, const mp_pipeline_opts *o,
-                       const mp_pipeline_report *rep, const mp_table *t, char *err)
+int mp_pl_write_report(const char *image, const char *root,
+                       const mp_fit_setup *fit, const mp_pipeline_report *rep, const mp_table *t,
+                       char *err)
 {
     mp_run_report run;
     memset(&run, 0, sizeof run);
@@ -120,9 +121,9 @@ int mp_pl_write_report(const char *image, const char *root, const mp_pipeline_op
     mp_report_from_table(t, &run);
     mp_frame_report last = {.nstars = (long)t->nrow, .ngroups = rep->ngroups};
     memcpy(last.sky_groups, rep->sky_groups, sizeof last.sky_groups);
-    mp_report_parts(&o->fit.model, &o->fit.opts, &last, &run);
-    run.decisions = o->fit.decisions;
-    run.ndecisions = o->fit.ndecisions;
+    mp_report_parts(&fit->model, &fit->opts, &last, &run);
+    run.decisions = fit->decisions;
+    run.ndecisions = fit->ndecisions;
     size_t n = strlen(root) + 8;
     char *path = malloc(n);
     if (!path) {

@@ -12,6 +12,7 @@
 #include "find/find.h"
 #include "fit/fit.h"
 #include "group/group.h"
+#include "psf/build.h"
 
 typedef struct {
     mp_fit_setup fit;        /* PSF, model, fit options, datapars */
@@ -22,12 +23,18 @@ typedef struct {
     double matchrad;         /* [px]; NaN: 1 FWHM */
     mp_table_format catfmt;
     int regions;             /* also write root.reg (DS9) */
+    int build_psf;           /* psf="" : build root.psf.fits from the frame
+                              * before the first round and once after it */
+    mp_epsf_opts psfb;       /* how (psf.par's names: varorder, maxnpsf) */
+    mp_parset *ps;           /* the task's parameters: the fit is set up
+                              * again from them with psf=root.psf.fits */
 } mp_pipeline_opts;
 
 /* Seconds and counts of every stage, for the report on stderr. */
 typedef struct {
     double t_read, t_bkg, t_find, t_group, t_fit, t_write;
     int rounds;
+    long screened;                /* candidates deep detection's screen dropped */
     long found, added, fitted, merged, rejected, noconv;
     long ngroups, iterations;     /* of the last round; summed over rounds */
     long fits, kept, cropped;     /* group fits done and left out, star paints
@@ -43,7 +50,18 @@ typedef struct {
 int mp_pipeline_run(const char *image, const char *root, const mp_pipeline_opts *o,
                     mp_pipeline_report *rep, char *err);
 
+/* mp_pipeline_reduce: the same reduction of a frame already in memory
+ * (not modified), with o's PSF (o->build_psf must be 0): t receives the
+ * fitted stars (the table root.fit would hold; initialised here, the
+ * caller frees it).  Nothing is written, nothing printed; safe to call
+ * from several threads at once on different frames (artificial stars,
+ * pipeline/fakes.c). */
+int mp_pipeline_reduce(const mp_frame *f, const mp_pipeline_opts *o, mp_table *t, char *err);
+
 /* The `matphot pipeline` task. */
 int mp_task_pipeline(int argc, char **argv);
+
+/* The `matphot fakes` task: artificial-star tests (pipeline/fakes.c). */
+int mp_task_fakes(int argc, char **argv);
 
 #endif

@@ -7,6 +7,13 @@
 
 #include "pipeline/pipeline.h"
 
+/* ---- task_pipeline.c --------------------------------------------------- */
+
+/* mp_pl_opts_read: the pipeline's options from its parameters (pipeline.par
+ * names; `matphot fakes` has them all too).  Nonzero with err set on a bad
+ * value; o->fit is then to be freed with mp_fit_setup_free all the same. */
+int mp_pl_opts_read(mp_parset *ps, mp_pipeline_opts *o, char *err);
+
 /* ---- new_stars.c ------------------------------------------------------- */
 
 /* mp_pl_positions_of: before = NUMBER, X_IMAGE, Y_IMAGE of every row of t
@@ -25,6 +32,26 @@ int mp_pl_note_gone(mp_table *gone, const mp_table *before, const mp_table *afte
 long mp_pl_add_new_stars(mp_table *t, const mp_table *gone, const mp_table *found, long fnx,
                          long fny, double matchrad);
 
+/* ---- prescreen.c ------------------------------------------------------- */
+
+/* mp_pl_prescreen: deep detection's screen.  For every candidate of found
+ * (X_IMAGE, Y_IMAGE), a linear fit of its flux and a constant sky on the
+ * residual res (data − stars, sky kept) over the pixels within fitrad,
+ * weighted by b's rms map (the fitted model's noise): X_IMAGE set NaN
+ * (so mp_pl_add_new_stars skips it) when its S/N is below snrmin, else
+ * FLUX set to the fitted flux (the fit's start).  Returns the number
+ * dropped, −1 when out of memory.  Threads over candidates (OpenMP). */
+long mp_pl_prescreen(const mp_frame *f, const mp_bkg *b, const double *res,
+                     const mp_prf_model *m, double fitrad, double snrmin, mp_table *found);
+
+/* mp_pl_drop_unset: remove the rows whose X_IMAGE is NaN (the screen's). */
+void mp_pl_drop_unset(mp_table *t);
+
+/* The screen's cut below the fit's minsnr: a star at the cut reaches the
+ * screen's S/N ± 1 (one parameter's σ), so 2 below it passes 97.7 % of
+ * them. */
+#define MP_PL_SCREEN_SLACK 2.0
+
 /* ---- outputs.c --------------------------------------------------------- */
 
 /* mp_pl_write_named: t written atomically to root + ext in format fmt. */
@@ -41,8 +68,10 @@ int mp_pl_write_catalog(const char *root, const mp_frame *f, mp_table *t,
 int mp_pl_write_residual(const char *root, const mp_frame *f, double *res, char *err);
 
 /* mp_pl_write_report: the run report of a finished run (stderr and
- * root.report) from the pipeline's counts and the final table. */
-int mp_pl_write_report(const char *image, const char *root, const mp_pipeline_opts *o,
-                       const mp_pipeline_report *rep, const mp_table *t, char *err);
+ * root.report) from the pipeline's counts and the final table; fit is the
+ * setup the last round used (the task's, or one from the built PSF). */
+int mp_pl_write_report(const char *image, const char *root,
+                       const mp_fit_setup *fit, const mp_pipeline_report *rep, const mp_table *t,
+                       char *err);
 
 #endif

@@ -4,13 +4,28 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
-#include "pipeline/pipeline.h"
+#include "pipeline/pipeline_priv.h"
 
-static int opts_read(const mp_parset *ps, mp_pipeline_opts *o, char *err)
+/* psf="" builds the PSF from the frame (psf/build.h); the find kernel and
+ * the builder's start are the Gaussian of fwhm until it exists. */
+static void psf_build_opts(mp_parset *ps, mp_pipeline_opts *o)
+{
+    o->ps = ps;
+    o->build_psf = mp_par_string(ps, "psf")[0] == '\0';
+    double fwhm = 3.0;
+    mp_par_real(ps, "fwhm", &fwhm);
+    mp_epsf_opts_default(fwhm, 1, 1, &o->psfb);
+    const char *vo = mp_par_string(ps, "varorder");
+    o->psfb.order = !strcmp(vo, "auto") ? -1 : atoi(vo);
+    mp_par_int(ps, "maxnpsf", &o->psfb.maxnpsf);
+}
+
+int mp_pl_opts_read(mp_parset *ps, mp_pipeline_opts *o, char *err)
 {
     memset(o, 0, sizeof *o);
     if (mp_fit_setup_read(ps, &o->fit, err))
         return 1;
+    psf_build_opts(ps, o);
     mp_find_opts_default(&o->find);
     o->find.fwhm = mp_prf_fwhm(&o->fit.model);   /* the PSF's own width */
     mp_par_real(ps, "threshold", &o->find.threshold);
@@ -53,7 +68,7 @@ int mp_task_pipeline(int argc, char **argv)
     char **im = NULL;
     size_t nim = 0;
     int rc = 1;
-    if (opts_read(&ps, &o, err))
+    if (mp_pl_opts_read(&ps, &o, err))
         goto done;
     if (mp_params_list(mp_par_string(&ps, "image"), &im, &nim, err))
         goto done;

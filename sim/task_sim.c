@@ -18,8 +18,10 @@
 typedef struct {
     const char *output, *psf, *drf, *psfout;
     char *truth;                      /* owned */
-    int nx, ny, crowded, nstars, noise, psfos;
-    double magmin, magmax, sky, rdnoise, gain, fwhm, volume, saturate;
+    int nx, ny, crowded, nstars, noise, psfos, segmented;
+    int fieldnx, fieldny, x0, y0;     /* the field the frame looks at */
+    double magmin, magmax, sky, rdnoise, gain, fwhm, volume, saturate, lod, band;
+    double ra, dec, pixscale;         /* TAN WCS at the field's centre; ra NaN: none */
     uint64_t seed;
 } sim_config;
 
@@ -36,6 +38,32 @@ static int need_real(const mp_parset *ps, const char *name, double *v, char *err
 {
     if (mp_par_real(ps, name, v) || !isfinite(*v)) {
         snprintf(err, MP_ERRLEN, "%s: INDEF is not allowed; give a number", name);
+        return 1;
+    }
+    return 0;
+}
+
+/* The field and its WCS: a frame is a window (x0, y0) on a field of
+ * fieldnx x fieldny whose stars one seed draws, so frames with the same
+ * seed and other offsets overlap on the same stars (and, with ra/dec, on
+ * the sky). */
+static int read_field(const mp_parset *ps, sim_config *c, char *err)
+{
+    if (mp_par_int(ps, "fieldnx", &c->fieldnx) || mp_par_int(ps, "fieldny", &c->fieldny) ||
+        need_int(ps, "x0", &c->x0, err) || need_int(ps, "y0", &c->y0, err) ||
+        mp_par_real(ps, "ra", &c->ra) || mp_par_real(ps, "dec", &c->dec) ||
+        need_real(ps, "pixscale", &c->pixscale, err)) {
+        if (!*err)
+            snprintf(err, MP_ERRLEN, "sim.par: a field parameter is missing from the defaults");
+        return 1;
+    }
+    if (c->fieldnx == MP_PAR_INDEF_INT)
+        c->fieldnx = c->nx;
+    if (c->fieldny == MP_PAR_INDEF_INT)
+        c->fieldny = c->ny;
+    if (isfinite(c->ra) != isfinite(c->dec)) {
+        snprintf(err, MP_ERRLEN, "%s: INDEF while %s is given; a WCS needs both",
+                 isfinite(c->ra) ? "dec" : "ra", isfinite(c->ra) ? "ra" : "dec");
         return 1;
     }
     return 0;
@@ -64,16 +92,25 @@ static int read_config(const mp_parset *ps, sim_config *c, char *err)
         need_real(ps, "magmin", &c->magmin, err) || need_real(ps, "magmax", &c->magmax, err) ||
         need_real(ps, "sky", &c->sky, err) || need_real(ps, "rdnoise", &c->rdnoise, err) ||
         need_real(ps, "gain", &c->gain, err) || need_real(ps, "fwhm", &c->fwhm, err) ||
-        need_real(ps, "volume", &c->volume, err) || need_int(ps, "psfos", &c->psfos, err))
+        need_real(ps, "volume", &c->volume, err) || need_int(ps, "psfos", &c->psfos, err) ||
+        need_real(ps, "lod", &c->lod, err) || need_real(ps, "band", &c->band, err))
         return 1;
-    if (c->psfout && *c->psfout && *c->psf) {
-        snprintf(err, MP_ERRLEN, "psfout: only the analytic Gaussian (no psf=) can be written");
+    const char *pupil = mp_par_string(ps, "pupil");
+    c->segmented = pupil && strcmp(pupil, "segmented") == 0;
+    if (!pupil || (!c->segmented && strcmp(pupil, "gaussian") != 0)) {
+        snprintf(err, MP_ERRLEN, "pupil: '%s' is not gaussian or segmented", pupil ? pupil : "");
+        return 1;
+    }
+    if (c->segmented && *c->psf) {
+        snprintf(err, MP_ERRLEN, "pupil: segmented draws its own PSF; give no psf=");
         return 1;
     }
     if (mp_par_real(ps, "saturate", &c->saturate) || mp_par_int(ps, "seed", &seed)) {
         snprintf(err, MP_ERRLEN, "sim.par: saturate or seed is missing from the defaults");
         return 1;
     }
+    if (read_field(ps, c, err))
+        return 1;
     if (mp_par_bool(ps, "noise", &c->noise)) {
         snprintf(err, MP_ERRLEN, "noise: give yes or no");
         return 1;
@@ -143,8 +180,8 @@ static int make_truth(const sim_config *c, const mp_sim_prf *prf, mp_rng *r,
     for (int k = 0; k < n; k++) {
         double x, y;
         if (c->crowded) {
-            x = 0.5 + c->nx * mp_rng_uniform(r);
-            y = 0.5 + c->ny * mp_rng_uniform(r);
+            x = 0.5 + c->fieldnx * mp_rng_uniform(r) - c->x0;   /* in the frame */
+            y = 0.5 + c->fieldny * mp_rng_uniform(r) - c->y0;
         } else {
             x = (c->nx + 1) / 2.0 + mp_rng_uniform(r) - 0.5;
             y = (c->ny + 1) / 2.0 + mp_rng_uniform(r) - 0.5;
@@ -164,10 +201,31 @@ static int make_truth(const sim_config *c, const mp_sim_prf *prf, mp_rng *r,
     return 0;
 }
 
+/* A TAN WCS (ICRS) whose reference point is the field's centre, north up
+ * and east left: 12 cards. */
+static int wcs_cards(const sim_config *c, mp_card *k)
+{
+    double d = c->pixscale / 3600.0;
+    int n = 0;
+    k[n++] = (mp_card){"WCSAXES", 2, NULL, "simulated field's WCS"};
+    k[n++] = (mp_card){"CTYPE1", 0, "RA---TAN", "gnomonic"};
+    k[n++] = (mp_card){"CTYPE2", 0, "DEC--TAN", "gnomonic"};
+    k[n++] = (mp_card){"CRPIX1", (c->fieldnx + 1) / 2.0 - c->x0, NULL, "field centre x"};
+    k[n++] = (mp_card){"CRPIX2", (c->fieldny + 1) / 2.0 - c->y0, NULL, "field centre y"};
+    k[n++] = (mp_card){"CRVAL1", c->ra, NULL, "[deg] RA of the field centre"};
+    k[n++] = (mp_card){"CRVAL2", c->dec, NULL, "[deg] Dec of the field centre"};
+    k[n++] = (mp_card){"CD1_1", -d, NULL, "[deg/pixel] east left"};
+    k[n++] = (mp_card){"CD2_2", d, NULL, "[deg/pixel] north up"};
+    k[n++] = (mp_card){"RADESYS", 0, "ICRS", "reference frame"};
+    k[n++] = (mp_card){"CUNIT1", 0, "deg", "units of CRVAL1, CD1_1"};
+    k[n++] = (mp_card){"CUNIT2", 0, "deg", "units of CRVAL2, CD2_2"};
+    return n;
+}
+
 static int write_frame(const sim_config *c, const mp_sim_prf *prf, double volume,
                        const double *adu, char *err)
 {
-    mp_card cards[12];
+    mp_card cards[24];
     int nc = 0;
     cards[nc++] = (mp_card){"BUNIT", 0, "ADU", "pixel unit"};
     cards[nc++] = (mp_card){"GAIN", c->gain, NULL, "[e-/ADU] gain"};
@@ -180,12 +238,46 @@ static int write_frame(const sim_config *c, const mp_sim_prf *prf, double volume
     if (prf->kind == MP_SIM_GAUSS)
         cards[nc++] = (mp_card){"FWHM", c->fwhm, NULL, "[pixel] simulated Gaussian PSF FWHM"};
     else
-        cards[nc++] = (mp_card){"PSF", 0, c->psf, "simulated PSF table"};
+        cards[nc++] = (mp_card){"PSF", 0, c->segmented ? "segmented mirror" : c->psf,
+                                "simulated PSF table"};
     if (*c->drf)
         cards[nc++] = (mp_card){"DRF", 0, c->drf, "simulated detector response"};
     cards[nc++] = (mp_card){"VOLUME", volume, NULL, "PRF volume (mean detector QE)"};
     cards[nc++] = (mp_card){"ORIGIN", 0, "matphot sim", "simulated frame"};
+    if (isfinite(c->ra))
+        nc += wcs_cards(c, cards + nc);
     return mp_image_write(c->output, adu, c->nx, c->ny, c->noise ? -32 : -64, cards, nc, err);
+}
+
+/* A table star's table block-summed by an odd factor to OVERSAMP psfos
+ * (the star stays at the centre of the central element), written to
+ * psfout: what the fit is given, exactly the sums the simulator draws. */
+static int write_table_psf(const sim_config *c, const mp_sim_prf *prf, char *err)
+{
+    int f = prf->tos / c->psfos;
+    if (prf->tos % c->psfos || f % 2 == 0) {
+        snprintf(err, MP_ERRLEN, "psfos: %d must divide the table's OVERSAMP %d by an odd factor",
+                 c->psfos, prf->tos);
+        return 1;
+    }
+    int cx = (prf->tnx - 1) / 2, cy = (prf->tny - 1) / 2, hx = (cx + f / 2) / f, hy = (cy + f / 2) / f;
+    int nx = 2 * hx + 1, ny = 2 * hy + 1;
+    double *t = calloc((size_t)nx * ny, sizeof *t);
+    if (!t) {
+        snprintf(err, MP_ERRLEN, "%s: out of memory", c->psfout);
+        return 1;
+    }
+    for (int j = 0; j < prf->tny; j++)
+        for (int i = 0; i < prf->tnx; i++) {
+            int I = (int)floor((double)(i - cx + f / 2) / f) + hx;
+            int J = (int)floor((double)(j - cy + f / 2) / f) + hy;
+            if (I >= 0 && I < nx && J >= 0 && J < ny)
+                t[(size_t)J * nx + I] += prf->tab[(size_t)j * prf->tnx + i];
+        }
+    mp_card cards[1] = {{"OVERSAMP", c->psfos, NULL, "table elements per detector pixel"}};
+    int rc = mp_image_write(c->psfout, t, nx, ny, -64, cards, 1, err);
+    free(t);
+    return rc;
 }
 
 /* The Gaussian as a PSF table (design.md §3): OVERSAMP os, odd size, each
@@ -193,6 +285,8 @@ static int write_frame(const sim_config *c, const mp_sim_prf *prf, double volume
  * the centre of a fine frame, so it is exact like every simulated star. */
 static int write_psf(const sim_config *c, const mp_sim_prf *prf, char *err)
 {
+    if (prf->kind == MP_SIM_TABLE)
+        return write_table_psf(c, prf, err);
     int os = c->psfos, h = (int)ceil(4.0 * c->fwhm * os), n = 2 * h + 1;
     mp_sim_prf fine = *prf;
     fine.sigma = prf->sigma * os;
@@ -213,6 +307,23 @@ static int write_psf(const sim_config *c, const mp_sim_prf *prf, char *err)
     return rc;
 }
 
+/* The truth lists the stars whose centre is on the frame (1-based pixels
+ * 1..n cover 0.5 .. n + 0.5); a field's other stars still add their light
+ * near the edges. */
+static void keep_on_frame(mp_table *t, int nx, int ny)
+{
+    int cx = mp_table_col(t, "X_IMAGE"), cy = mp_table_col(t, "Y_IMAGE");
+    size_t k = 0;
+    for (size_t i = 0; i < t->nrow; i++) {
+        double x = mp_table_get(t, i, cx), y = mp_table_get(t, i, cy);
+        if (x < 0.5 || x >= nx + 0.5 || y < 0.5 || y >= ny + 0.5)
+            continue;
+        memmove(t->v + k * t->ncol, t->v + i * t->ncol, t->ncol * sizeof *t->v);
+        k++;
+    }
+    t->nrow = k;
+}
+
 static int run(const sim_config *c, char *err)
 {
     mp_sim_prf prf = {.kind = MP_SIM_GAUSS, .volume = c->volume,
@@ -225,8 +336,20 @@ static int run(const sim_config *c, char *err)
     int rc = 1;
     double volume = c->volume;
 
+    double *seg = NULL;
     if (*c->psf && sim_load_psf(c->psf, &in, &prf, err))
         goto done;
+    if (c->segmented) {
+        /* The segmented mirror's table at psfos, drawn as any table star. */
+        int n;
+        char e[256];
+        if (mp_sim_segmented_psf(c->lod, c->band, c->psfos, 20.0, &seg, &n, e)) {
+            snprintf(err, MP_ERRLEN, "pupil: %s", e);
+            goto done;
+        }
+        prf = (mp_sim_prf){.kind = MP_SIM_TABLE, .tab = seg, .tnx = n, .tny = n,
+                           .tos = c->psfos, .volume = c->volume};
+    }
     if (*c->drf) {
         if (sim_load_drf(c->drf, &in, &prf, err))
             goto done;
@@ -263,6 +386,7 @@ static int run(const sim_config *c, char *err)
     }
     if (write_frame(c, &prf, volume, img, err))
         goto done;
+    keep_on_frame(&t, c->nx, c->ny);
     if (mp_table_write(c->truth, &t, MP_TAB_ASCII_HEAD, err)) {
         remove(c->output);           /* no frame without its truth */
         goto done;
@@ -274,6 +398,7 @@ static int run(const sim_config *c, char *err)
     }
     rc = 0;
 done:
+    free(seg);
     free(img);
     mp_table_free(&t);
     sim_inputs_free(&in);

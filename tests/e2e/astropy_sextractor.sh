@@ -35,15 +35,20 @@ want_units = {
     'ALPHAPSF_J2000': u.deg, 'DELTAPSF_J2000': u.deg,
     'ALPHA_J2000': u.deg, 'DELTA_J2000': u.deg,
     'BETA_PSF': u.pix ** 2,
+    'ERRRA_ARCSEC': u.arcsec, 'ERRDEC_ARCSEC': u.arcsec, 'SEP_ARCSEC': u.arcsec,
+    'MAG_MEAN': u.mag, 'MAGERR_MEAN': u.mag,
 }
 no_unit = ['NUMBER', 'SHARPNESS', 'ROUNDNESS', 'GROUP_ID', 'GROUP_SIZE', 'CHI2_PSF',
-           'DOF_PSF', 'NITER_PSF', 'SHARP_PRF', 'VOLUME_PRF', 'FLAGS']
+           'DOF_PSF', 'NITER_PSF', 'SHARP_PRF', 'VOLUME_PRF', 'FLAGS', 'SOURCE_ID', 'FRAME',
+           'NDET', 'MAG_CHI2']
 names = ['NUMBER', 'X_IMAGE', 'Y_IMAGE', 'FLUX', 'FLUX_MAX', 'BACKGROUND', 'SHARPNESS',
          'ROUNDNESS', 'GROUP_ID', 'GROUP_SIZE', 'XPSF_IMAGE', 'YPSF_IMAGE', 'ERRX_PSF',
          'ERRY_PSF', 'FLUX_PSF', 'FLUXERR_PSF', 'MAG_PSF', 'MAGERR_PSF', 'ALPHAPSF_J2000',
          'DELTAPSF_J2000', 'ALPHA_J2000', 'DELTA_J2000', 'SKY_PSF', 'SKYERR_PSF', 'CHI2_PSF', 'DOF_PSF', 'NITER_PSF',
          'BETA_PSF', 'SHARP_PRF', 'LSCALE_PRF', 'VOLUME_PRF', 'FLUXERR_MODEL',
-         'POSERR_MODEL', 'FLAGS', 'FLUX_TRUE', 'MAG_TRUE', 'SKY_TRUE']
+         'POSERR_MODEL', 'FLAGS', 'FLUX_TRUE', 'MAG_TRUE', 'SKY_TRUE', 'SOURCE_ID', 'FRAME',
+         'NDET', 'ERRRA_ARCSEC', 'ERRDEC_ARCSEC', 'MAG_MEAN', 'MAGERR_MEAN', 'MAG_CHI2',
+         'SEP_ARCSEC']
 bad = []
 
 with warnings.catch_warnings():

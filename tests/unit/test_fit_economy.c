@@ -305,9 +305,10 @@ static void test_short_kernel_per_group(void **state)
  * limits table took MP_SINC_LIMITS_EVALS·hwmax = 620; and a frame of more
  * groups than MP_SINC_LIMITS_EVALS builds the limits once, so the choice
  * never costs more than min(LM fits, MP_SINC_LIMITS_EVALS)·hwmax
- * evaluations.  The kernel a lone star gets is the one mp_sinc_choice_hw
- * gives for its start flux on the safe side (sky 0).  Deterministic given
- * the seeds. */
+ * evaluations; with the run's cache (mp_econ_cache) only the first frame
+ * of an @list pays.  The kernel a lone star gets is the one
+ * mp_sinc_choice_hw gives for its start flux on the safe side (sky 0).
+ * Deterministic given the seeds. */
 static void test_whole_frame_overhead_counted(void **state)
 {
     (void)state;
@@ -362,6 +363,22 @@ static void test_whole_frame_overhead_counted(void **state)
     assert_int_equal(rep.envelopes, 1);
     mp_table_free(&t);
     sf_frame_drop(&f);
+    /* With the run's cache (mp_fit_setup's, an @list's frames): the first
+     * frame finds the limits, every later one on the same sky level none. */
+    eco.cache = mp_econ_cache_new();
+    assert_non_null(eco.cache);
+    eco.fit.fitrad = NAN;
+    for (int k = 0; k < 3; k++) {
+        sf_frame_make(&f, 60, 60, 3.0);
+        sf_render(&f, 100.0, FWHM, &x, &y, &E, 1, &r, 3.0);
+        sf_table(&t, &x, &y, &E0, 1, 0);
+        assert_int_equal(mp_fit_table(&f, &m, &eco, &t, &rep, err), 0);
+        assert_int_equal(rep.kbounds, k == 0 ? (long)c.hwmax * MP_SINC_LIMITS_EVALS : 0);
+        assert_int_equal((int)rep.khw, hw);     /* the same choice as without */
+        mp_table_free(&t);
+        sf_frame_drop(&f);
+    }
+    mp_econ_cache_free(eco.cache);
     mp_sinc_choice_free(&c);
     mp_psf_free(&p);
 }

@@ -40,8 +40,8 @@ static int write_inputs(const sw_scene *sc, const char *work, char *psf, char *d
 }
 
 /* fit.par's defaults with the scene's files and economy=yes|no. */
-static int setup_of(const char *psf, const char *drf, const char *economy, mp_fit_setup *s,
-                    char *err)
+static int setup_of(const char *psf, const char *drf, const char *economy, int whole,
+                    const char *psfos, mp_fit_setup *s, char *err)
 {
     mp_parset ps;
     if (mp_params_defaults("fit", &ps, err))
@@ -49,7 +49,9 @@ static int setup_of(const char *psf, const char *drf, const char *economy, mp_fi
     int rc = mp_params_set(&ps, "psf", psf, err) || mp_params_set(&ps, "psfnorm", "no", err) ||
              (drf[0] && mp_params_set(&ps, "drf", drf, err)) ||
              mp_params_set(&ps, "rdnoise", "3", err) || mp_params_set(&ps, "gain", "1", err) ||
-             mp_params_set(&ps, "economy", economy, err) || mp_fit_setup_read(&ps, s, err);
+             mp_params_set(&ps, "economy", economy, err) ||
+             (whole && mp_params_set(&ps, "fitrad", "INDEF", err)) ||
+             (psfos && mp_params_set(&ps, "psfos", psfos, err)) || mp_fit_setup_read(&ps, s, err);
     mp_params_free(&ps);
     return rc;
 }
@@ -153,10 +155,36 @@ static int write_row(const char *work, const sw_scene *sc, const sw_result *no,
     flag_counts(yes, sc->n, fl[1], sizeof fl[1]);
     fprintf(fp, "- **%s** (%s; %d stars, CPU the median of %d interleaved repeats): "
             "economy=yes — %d decisions: %s; economy=no — %d decisions%s%s.  Stars by flag, "
-            "no / yes: %s / %s\n",
+            "no / yes: %s / %s.  Stars fitted with a coarser table by economy=yes: %ld of %d\n",
             sc->name, sc->title, sc->n, reps, sy->ndecisions, sy->ndecisions ? sy->decisions : "-",
             sn->ndecisions, sn->ndecisions ? ": " : "", sn->ndecisions ? sn->decisions : "",
-            fl[0], fl[1]);
+            fl[0], fl[1], yes->coarse, sc->n);
+    if (ferror(fp) | fclose(fp)) {
+        snprintf(err, MP_ERRLEN, "%.400s: write error", path);
+        return 1;
+    }
+    return 0;
+}
+
+/* The beta >= 21 rule's x1 table against economy=no: WORK/SCENE_old.md. */
+static int write_old(const char *work, const sw_scene *sc, const sw_result *no,
+                     const sw_result *old, char *err)
+{
+    const sw_sub *a = &old->sub[0], *b = &old->sub[2];
+    int same = within(a->dph, a->udph) && within(a->das, a->udas) &&
+               (b->n == 0 || (within(b->dph, b->udph) && within(b->das, b->udas)));
+    char path[1024];
+    snprintf(path, sizeof path, "%s/%s_old.md", work, sc->name);
+    FILE *fp = fopen(path, "w");
+    if (!fp) {
+        snprintf(err, MP_ERRLEN, "%.400s: cannot write", path);
+        return 1;
+    }
+    fprintf(fp, "| %s | %d | %.1f | %.3f / %.3f | %.3f ± %.3f | %+.4f ± %.4f | %.3f ± %.3f | %+.4f ± %.4f "
+            "| %+.4f ± %.4f / %+.4f ± %.4f | %s |\n", sc->name, sc->n, sc->beta_norm,
+            1e3 * no->cpu_star, 1e3 * old->cpu_star, a->ph, a->uph, a->dph, a->udph, a->as, a->uas, a->das, a->udas,
+            b->dph, b->udph, b->das, b->udas,
+            same ? "same within 2σ" : "**differs** (> 2σ)");
     if (ferror(fp) | fclose(fp)) {
         snprintf(err, MP_ERRLEN, "%.400s: write error", path);
         return 1;
@@ -207,7 +235,7 @@ int sw_econ(const sw_scene *sc, const char *work, int reps, int verbose, char *e
     int maxgroup = 0;
     if (write_inputs(sc, work, psf, drf, sizeof psf, err) || group_maxgroup(&maxgroup, err))
         return 1;
-    mp_fit_setup s[2];
+    mp_fit_setup s[3];
     memset(s, 0, sizeof s);
     sw_result res[3];
     memset(res, 0, sizeof res);
@@ -215,12 +243,16 @@ int sw_econ(const sw_scene *sc, const char *work, int reps, int verbose, char *e
     memset(&ch, 0, sizeof ch);
     int rc = 1, nset = 2;
     double tbuild = 0.0;
-    if (setup_of(psf, drf, "no", &s[0], err) || setup_of(psf, drf, "yes", &s[1], err))
+    if (setup_of(psf, drf, "no", sc->whole, NULL, &s[0], err) ||
+        setup_of(psf, drf, "yes", sc->whole, NULL, &s[1], err))
         goto done;
     setting_of(&s[0], "no", maxgroup, &res[0].s);
     setting_of(&s[1], "yes", maxgroup, &res[1].s);
     res[0].s.is_default = 1;
-    if (sc->kind == SW_SINGLE && s[1].psf.kind == MP_PSF_TABLE) {
+    /* The per-star kernel is economy=yes's own since fit_frame.c chooses it
+     * per group (issue 10): the separate setting is kept for the sweep's
+     * old runs only (SW_KERN=1). */
+    if (sc->kind == SW_SINGLE && s[1].psf.kind == MP_PSF_TABLE && getenv("SW_KERN")) {
         /* economy=yes plus the per-star kernel length (fit/sinc_choice.c). */
         double t0 = cpu_now();
         if (mp_sinc_choice_build(&s[1].model, &ch, err))
@@ -235,13 +267,24 @@ int sw_econ(const sw_scene *sc, const char *work, int reps, int verbose, char *e
         res[2].s.frac = SW_KFRAC;
         nset = 3;
     }
+    /* Where paper 5.4's beta >= 21 rule (the economy before issue 10)
+     * block-summed the table for every star, that too: psfos=x1. */
+    int iold = -1;
+    if (nset == 2 && sc->def_tab != 0) {
+        char os[8];
+        snprintf(os, sizeof os, "%d", sc->tab[sc->def_tab].os);
+        if (setup_of(psf, drf, "yes", sc->whole, os, &s[2], err))
+            goto done;
+        setting_of(&s[2], "beta rule", maxgroup, &res[2].s);
+        iold = nset++;
+    }
     if (sw_run_block(sc, res, 0, nset, reps, verbose, err))
         goto done;
     if (sw_stats(sc, res, nset, 0, sc->seed + 55)) {
         snprintf(err, MP_ERRLEN, "out of memory for the statistics");
         goto done;
     }
-    if (nset == 3) {
+    if (nset == 3 && iold < 0) {
         /* The per-star kernel's differences from economy=yes, same stars. */
         sw_sub keep[3], d[3];
         memcpy(keep, res[1].sub, sizeof keep);
@@ -254,12 +297,13 @@ int sw_econ(const sw_scene *sc, const char *work, int reps, int verbose, char *e
         if (write_kern(work, sc, &res[1], &res[2], d, tbuild, err))
             goto done;
     }
-    rc = write_row(work, sc, &res[0], &res[1], &s[1], &s[0], reps, err);
+    rc = write_row(work, sc, &res[0], &res[1], &s[1], &s[0], reps, err) ||
+         (iold >= 0 && write_old(work, sc, &res[0], &res[iold], err));
 done:
     for (int i = 0; i < 3; i++)
         sw_result_free(&res[i]);
     mp_sinc_choice_free(&ch);
-    mp_fit_setup_free(&s[0]);
-    mp_fit_setup_free(&s[1]);
+    for (int i = 0; i < 3; i++)
+        mp_fit_setup_free(&s[i]);
     return rc;
 }

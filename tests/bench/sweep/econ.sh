@@ -19,12 +19,12 @@ PSF=${SWEEP_PSF:-../shared/data/real/hst_acs_hrc_47tuc/tinytim_acs_hrc_f606w_x51
 N=${ECON_N:-2000}
 NC=${ECON_N_CROWDED:-1500}
 REPS=${ECON_REPS:-3}
-SCENES="isolated crowded undersampled ugly gradient gate"
+SCENES="isolated crowded undersampled ugly gradient gate wholeframe segmented"
 [ -x "$W/sweep" ] || { echo "econ: $W/sweep is missing (tests/bench/sweep/run.sh builds it)" >&2; exit 1; }
 OMP_NUM_THREADS=1
 OPENBLAS_NUM_THREADS=1
 export OMP_NUM_THREADS OPENBLAS_NUM_THREADS
-rm -f "$W"/*_econ.md "$W"/*_econ_dec.md "$W"/*_kern.md
+rm -f "$W"/*_econ.md "$W"/*_econ_dec.md "$W"/*_kern.md "$W"/*_old.md
 
 one() {  # one SCENE N
     "$W/sweep" -s "$1" -n "$2" -r "$REPS" -e -o "$W" -p "$PSF" 2> "$W/$1_econ.log"
@@ -35,9 +35,10 @@ one() {  # one SCENE N
 }
 load0=$(cut -d' ' -f1-3 /proc/loadavg 2>/dev/null)
 t0=$(date +%s)
-( one crowded "$NC" && one gate "$N" ) &
+( one crowded "$NC" && one gate "$N" && one wholeframe "$N" ) &
 l1=$!
-( one isolated "$N" && one undersampled "$N" && one ugly "$N" && one gradient "$N" ) &
+( one isolated "$N" && one undersampled "$N" && one ugly "$N" && one gradient "$N" &&
+  one segmented "$N" ) &
 l2=$!
 rc=0
 wait $l1 || rc=1
@@ -57,8 +58,12 @@ S="$W/economy.md"
     echo "the pipeline; the scene's table and DRF map written as FITS files, psfnorm=no, gain 1,"
     echo "rdnoise 3), once with \`economy=yes\` and once with \`economy=no\`, interleaved every 50 stars"
     echo "(the crowded frame: every repeat), one thread, CPU of the fit calls only, median of $REPS"
-    echo "repeats.  The crowded scene is the sweep's (start = truth + U(−0.25, 0.25) px, GROUP_ID from"
-    echo "\`mp_group_table\`, \`mp_fit_table\`); *gradient* and *gate* exist only here."
+    echo "repeats.  Every frame goes through \`mp_fit_table\` as \`matphot fit\` runs it (single-star"
+    echo "scenes: a one-row table with X_IMAGE, Y_IMAGE and FLUX = truth·exp(0.2 N(0,1)), find's"
+    echo "stand-in, from which economy chooses each group's table sampling and kernel).  The crowded"
+    echo "scene is the sweep's (start = truth + U(−0.25, 0.25) px, GROUP_ID from \`mp_group_table\`);"
+    echo "*gradient*, *gate*, *wholeframe* and *segmented* exist only here.  *wholeframe* and"
+    echo "*segmented* fit whole 60×60 frames (\`fitrad=INDEF\`), the paper's setup and issue 10's."
     echo
     echo "| scene | N | CPU ms/star no / yes | saved (repeat spread) | phot no / yes ± σ | Δphot ± σ_pair | astro no / yes ± σ | Δastro ± σ_pair | bright Δphot / Δastro | flagged or lost no / yes | verdict |"
     echo "|---|---:|---|---:|---|---:|---|---:|---|---|---|"
@@ -87,10 +92,28 @@ S="$W/economy.md"
     echo "  100 e−/px)."
     echo "- *gate*: the Tiny Tim ×4 table with paper §5.7's gate-structure DRF (validate case 8): the"
     echo "  DRF map and the ×4 sampling it needs are kept, so both runs are the same model."
+    echo "- *segmented*: a segmented-mirror PSF (sim/segmented.c: 18 hexagons, λ/D = 2 px at the blue end"
+    echo "  of a 50 % band, β = 28 px², β·V² = 24.2), ×6 truth on its own grid, fitted with its ×2 block-sum."
+    echo
+    echo "### The β ≥ 21 rule it replaces (issue 10)"
+    echo
+    echo "Until issue 10, economy=yes block-summed a supersampled table to ×1 for every star when β·V² ≥ 21"
+    echo "px² at detector sampling (paper §5.4, derived for Gaussians).  Now each group gets the coarsest"
+    echo "table whose bias bound on THIS PSF, q = E·max_phase √(Σ δP²/(E·P + B + RON²)) (δP = coarse − given"
+    echo "PRF at 4×4 phases, fit/ss_choice.c), stays below 0.1 σ of its brightest star.  Where the old rule"
+    echo "applied, its ×1 fit (\`psfos=1\`) against economy=no on the same stars, interleaved with the rows"
+    echo "above:"
+    echo
+    echo "| scene | N | β·V² px² | CPU ms/star no / β rule | phot ± σ | Δphot ± σ_pair | astro ± σ | Δastro ± σ_pair | bright Δphot / Δastro | verdict |"
+    echo "|---|---:|---:|---|---|---:|---|---:|---|---|"
+    for s in $SCENES; do
+        [ -f "$W/${s}_old.md" ] && cat "$W/${s}_old.md"
+    done
     echo
     echo "### Interpolation effort per star (fit/sinc_choice.c)"
     echo
-    echo "The single-star scenes once more with economy=yes's model and, per star, the shortest damped-sinc"
+    echo "Since issue 10 economy=yes chooses each group's kernel itself (the rows above include it); this"
+    echo "separate comparison runs only with SW_KERN=1.  The single-star scenes once more with economy=yes's model and, per star, the shortest damped-sinc"
     echo "half-width h ≤ sinchw whose interpolation error is bounded below 0.1 of the star's photon noise:"
     echo "q_h(E) = E·max_phase √(Σ δP_h²/(E·P + B + RON²)) ≤ 0.1, δP_h the PRF rendered with h minus with"
     echo "sinchw, measured once per PSF on a 4×4 grid of subpixel phases.  By Cauchy–Schwarz in the fit's"
@@ -105,7 +128,7 @@ S="$W/economy.md"
     for s in $SCENES; do
         [ -f "$W/${s}_kern.md" ] && { cat "$W/${s}_kern.md"; nk=$((nk + 1)); }
     done
-    [ $nk -eq 0 ] && echo "| (not measured: the sweep binary predates fit/sinc_choice.c) | | | | | | | | | |"
+    [ $nk -eq 0 ] && echo "| (not measured: part of economy=yes above; SW_KERN=1 runs it) | | | | | | | | | |"
     echo
     echo "Decisions per scene (as the run report prints them, \`economy: N decisions: …\`):"
     echo

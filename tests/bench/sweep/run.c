@@ -4,7 +4,8 @@
  * OpenMP and one BLAS thread, so this is the fit's own CPU).
  *
  * Single-star scenes: one mp_fit_group per frame (as tests/validate), for
- * the stars [k0, k1) (the caller interleaves the settings in chunks).
+ * the stars [k0, k1) (the caller interleaves the settings in chunks); in
+ * the economy=yes/no mode one mp_fit_table per frame (run_single_table).
  * Crowded: a table of start values (NUMBER, X_IMAGE, Y_IMAGE, FLUX), grouped
  * by mp_group_table (fitrad of the setting, psfrad 10, maxgroup of the
  * setting; not timed), then mp_fit_table with mp_frame_opts_default and the
@@ -115,6 +116,64 @@ static int run_single(const sw_scene *sc, const mp_prf_model *m, const sw_settin
     return rc;
 }
 
+/* Economy=yes/no mode (st->fopts): each frame through mp_fit_table, the
+ * path of `matphot fit`, with a one-row table (NUMBER, X_IMAGE, Y_IMAGE,
+ * FLUX = f0, find's stand-in), so every economy decision of the frame fit
+ * (table sampling and kernel per group, crop, refits) applies as it does
+ * from the command line. */
+static int run_single_table(const sw_scene *sc, const mp_prf_model *m, const sw_setting *st,
+                            int k0, int k1, sw_result *r, int record, double *cpu, char *err)
+{
+    uint8_t *mask = calloc(SW_NPIX, 1);
+    if (!mask) {
+        snprintf(err, MP_ERRLEN, "out of memory");
+        return 1;
+    }
+    mp_frame f;
+    frame_init(&f, sc, mask);
+    mp_frame_opts fo = *st->fopts;
+    fo.fit.fitrad = st->fitrad;
+    fo.fit.tol = st->tol;
+    fo.fit.maxiter = st->maxiter;
+    static const char *const in[4] = {"NUMBER", "X_IMAGE", "Y_IMAGE", "FLUX"};
+    int rc = 0;
+    double t0 = cpu_now();
+    for (int k = k0; k < k1 && !rc; k++) {
+        f.im.pix = sc->img + (size_t)k * SW_NPIX;
+        mp_table t;
+        mp_table_init(&t);
+        double v[4] = {k + 1, sc->t[k].x0, sc->t[k].y0, sc->t[k].f0};
+        long row = -1;
+        for (int c = 0; c < 4 && !rc; c++)
+            rc = mp_table_add_col(&t, in[c]) < 0;
+        if (!rc && (row = mp_table_add_row(&t)) < 0)
+            rc = 1;
+        for (int c = 0; c < 4 && !rc; c++)
+            mp_table_set(&t, (size_t)row, c, v[c]);
+        if (rc)
+            snprintf(err, MP_ERRLEN, "out of memory");
+        mp_frame_report rep;
+        if (!rc && mp_fit_table(&f, m, &fo, &t, &rep, err))
+            rc = 1;
+        if (!rc && record) {
+            int px = mp_table_col(&t, "XPSF_IMAGE"), py = mp_table_col(&t, "YPSF_IMAGE"),
+                pf = mp_table_col(&t, "FLUX_PSF"), pg = mp_table_col(&t, "FLAGS");
+            int ok = t.nrow == 1 && px >= 0 && py >= 0 && pf >= 0 && pg >= 0;
+            double fl = ok ? mp_table_get(&t, 0, pg) : 0.0;
+            r->x[k] = ok ? mp_table_get(&t, 0, px) : NAN;
+            r->y[k] = ok ? mp_table_get(&t, 0, py) : NAN;
+            r->f[k] = ok ? mp_table_get(&t, 0, pf) : NAN;
+            r->flags[k] = isfinite(fl) ? (int)fl : 0;
+            r->iters += rep.iterations;
+            r->coarse += rep.kcoarse;
+        }
+        mp_table_free(&t);
+    }
+    *cpu = cpu_now() - t0;
+    free(mask);
+    return rc;
+}
+
 static int run_crowded(const sw_scene *sc, const mp_prf_model *m, const sw_setting *st,
                        sw_result *r, int record, double *cpu, char *err)
 {
@@ -209,6 +268,9 @@ int sw_run(const sw_scene *sc, const sw_setting *st, int k0, int k1, sw_result *
     }
     mp_prf_model m = {&sc->tab[st->tab], sc->drf.k > 0 ? &sc->drf : NULL, st->hw};
     const mp_prf_model *pm = st->model ? st->model : &m;
-    return sc->kind == SW_CROWDED ? run_crowded(sc, pm, st, r, record, cpu, err)
-                                  : run_single(sc, pm, st, k0, k1, r, record, cpu, err);
+    if (sc->kind == SW_CROWDED)
+        return run_crowded(sc, pm, st, r, record, cpu, err);
+    if (st->fopts && !st->choice)
+        return run_single_table(sc, pm, st, k0, k1, r, record, cpu, err);
+    return run_single(sc, pm, st, k0, k1, r, record, cpu, err);
 }

@@ -34,7 +34,7 @@ typedef enum { SW_SINGLE, SW_CROWDED } sw_kind;
 typedef struct {
     double mag, e, x, y;         /* truth (x, y 1-based, frame coordinates) */
     double x0, y0;               /* start position of the fit */
-    double f0;                   /* crowded: start flux (find's FLUX stand-in) */
+    double f0;                   /* start flux (find's FLUX stand-in): truth · exp(0.2 N(0,1)) */
     double se, sx;               /* CRLB: sigma_E [e-], sigma_X = sqrt((sx^2+sy^2)/2) [px] */
 } sw_truth;
 
@@ -52,6 +52,7 @@ typedef struct {
     double beta_norm;            /* 1/sharpness of the given table at detector sampling */
     mp_drf drf;                  /* the detector's DRF map (k = 0: perfect detector) */
     double gx, gy;               /* sky gradient [e-/px per px] about the frame's centre */
+    int whole;                   /* economy mode: fitrad=INDEF (the paper's whole-frame fits) */
     /* Frames: single: n frames of SW_NPIX; crowded: one fnx x fny frame. */
     long fnx, fny;
     double *img;
@@ -100,6 +101,7 @@ typedef struct {
     double cpu_spread;           /* (max - min) / median over the repeats */
     long iters;                  /* summed iterations (first repeat) */
     long hwsum;                  /* per-star kernel: summed half-widths (first repeat) */
+    long coarse;                 /* economy mode: LM fits with a coarser table (all repeats) */
     double fflag, fnoconv, flost, fsplit;
     sw_sub sub[3];
     int par_ph, par_as, par_joint;  /* on the Pareto front */

@@ -207,7 +207,7 @@ int sw_run_block(const sw_scene *sc, sw_result *res, int i0, int i1, int reps, i
             res[i].cpu[rep] = 0.0;
             res[i].nrep = rep + 1;
             if (rep == 0)
-                res[i].iters = res[i].hwsum = 0;
+                res[i].iters = res[i].hwsum = res[i].coarse = 0;
         }
         for (int c = 0; c < nchunk; c++) {
             int k0 = c * SW_CHUNK, k1 = k0 + SW_CHUNK < sc->n ? k0 + SW_CHUNK : sc->n;

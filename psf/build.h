@@ -1,0 +1,210 @@
+/*
+ * build.h — the effective PSF built from a frame's stars (`matphot psf`,
+ * issue 11; Anderson & King 2000, anchors.md §4.2; DAOPHOT's psf task).
+ *
+ * The table is what the fit renders: a star of flux F at (X, Y) puts
+ * F·Σ_block S_δ(T) on each detector pixel, S_δ the damped-sinc shift of
+ * paper §3.1 and the block the OVERSAMP² elements of the pixel.  That is
+ * linear in the table T, so the table is solved for directly on the
+ * stars' pixels: each star's centre, flux and sky fitted with the current
+ * table (mp_fit_group), the residual per unit flux back-projected onto the
+ * table grid (the transpose of render: spread over the pixel's block,
+ * shifted back by −δ), combined over the stars robustly (a weighted fit of
+ * the polynomial in position per element, clipped), and added — a
+ * simultaneous iterative reconstruction (SIRT/Landweber) from a smooth
+ * start.  Such an iteration never adds what block-summing cannot see (the
+ * box's null space: the dotted, multi-peaked tables of anchors.md §3.2),
+ * and its early stop, when an iteration's change is below the noise, is
+ * the smoothing the noise needs.  Each element is a polynomial of order 0,
+ * 1 or 2 in the star's position (PSFEx order: 1, dx, dx², dy, dx·dy, dy²).
+ *
+ * Errors: 0 on success, nonzero with one line in err (MP_ERRLEN bytes).
+ */
+#ifndef MATPHOT_PSF_BUILD_H
+#define MATPHOT_PSF_BUILD_H
+
+#include "catalog/catalog.h"
+#include "fit/fit.h"
+#include "io/io.h"
+
+/* One PSF star: a cut-out of the frame around it (neighbours subtracted
+ * when a fitted table was given), and its current fit. */
+typedef struct {
+    mp_frame f;        /* the cut-out; pixels in electrons, own mask */
+    long x0, y0;       /* frame pixel of the cut-out's pixel (1, 1) */
+    double x, y;       /* position, frame coordinates (1-based) */
+    double xf, yf;     /* where it was found (a fit straying > 1 px from it
+                        * rejects the star) */
+    double flux, sky;  /* fitted flux [e-] (for the table's current sum), sky [e-/px] */
+    double chi2;       /* reduced χ² of its last fit */
+    int used;          /* 0: rejected (why in the build's report) */
+} mp_epsf_star;
+
+/* How the table is built. */
+typedef struct {
+    int os;            /* OVERSAMP 1..4; 0: the coarsest whose aliasing
+                        * error is below the noise of the brightest star */
+    double psfrad;     /* table half-size [px] */
+    double fitrad;     /* radius of each star's fit [px] */
+    double fwhm;       /* FWHM of the start (a Gaussian) [px] */
+    int order;         /* 0, 1, 2; -1: auto (mp_epsf_order_test) */
+    double alpha;      /* the order test's false-alarm probability */
+    int maxnpsf;       /* stars used at most (selection) */
+    int outer;         /* star fits per pass (each followed by SIRT steps) */
+    int sirt;          /* largest number of SIRT steps per outer iteration */
+    double x0, y0, xs, ys;   /* polynomial origin and scales [px] */
+} mp_epsf_opts;
+
+/* mp_epsf_opts_default: os auto, psfrad 4·fwhm, fitrad 2·fwhm, order auto,
+ * alpha 1e-3, maxnpsf 100, 5 outer × up to 30 SIRT steps; origin and
+ * scales from nx, ny (the frame's centre and half-sizes, as PSFEx). */
+void mp_epsf_opts_default(double fwhm, long nx, long ny, mp_epsf_opts *o);
+
+/* The built PSF: nterms planes of nx × ny elements, term-major. */
+typedef struct {
+    int order, nterms, nx, ny, os;
+    double x0, y0, xs, ys;
+    double *planes;
+    double sum;          /* fraction of a star's light the table holds (PSFSUM) */
+    int nstar;           /* stars used */
+    char why[256];       /* why this order (PSFORDWH) */
+    char osw[160];       /* why this OVERSAMP */
+    double sum_err;      /* error of sum (0: not measured) */
+    int ngrowth;         /* stars the sum was measured on */
+    double *info;        /* nx*ny: each element's information Σ_k Σ_p W
+                          * from the last step (its variance is about
+                          * 1/(os⁴·info)); NULL before a build */
+} mp_epsf;
+
+void mp_epsf_free(mp_epsf *e);
+
+/* mp_epsf_terms: the polynomial terms of the order at (x, y). */
+void mp_epsf_terms(const mp_epsf *e, double x, double y, double *terms);
+
+/* mp_epsf_table: the table at (x, y) into p (allocated here, MP_PSF_TABLE,
+ * sum = its sum). */
+int mp_epsf_table(const mp_epsf *e, double x, double y, mp_psf *p, char *err);
+
+/* ---- Star selection (psf/select.c; DAOPHOT pstselect) --------------------- */
+
+/* mp_epsf_select: rows of a find table (X_IMAGE, Y_IMAGE, FLUX, FLUX_MAX,
+ * BACKGROUND, SHARPNESS, ROUNDNESS, FLAGS) fit to be PSF stars: FLAGS 0;
+ * no masked or saturated pixel within psfrad; whole fitting region inside
+ * the frame; sharpness and roundness within 3 robust σ of the bright
+ * stars'; no brighter detection within psfrad; S/N ≥ 20 by the find flux;
+ * then the brightest, in turn from each cell of a grid over the frame, so
+ * that they spread over it, up to maxnpsf.  idx receives the rows (at
+ * most maxnpsf), *n their number (0 is not an error here). */
+int mp_epsf_select(const mp_frame *f, const mp_table *found, const mp_epsf_opts *o,
+                   size_t *idx, size_t *n, char *err);
+
+/* ---- Cut-outs (psf/cutout.c) ---------------------------------------------- */
+
+/* mp_epsf_cutouts: a star per (x[k], y[k], flux[k], sky[k]), its cut-out
+ * of img (nx*ny electrons as f's pixels: the frame, or data less every
+ * fitted star) reaching psfrad + 2 px around it, with f's mask and
+ * detector numbers.  Errors: a star whose centre is off the frame (named
+ * by its position), out of memory. */
+int mp_epsf_cutouts(const mp_frame *f, const double *img, const double *x, const double *y,
+                    const double *flux, const double *sky, size_t n, double psfrad,
+                    mp_epsf_star **stars, char *err);
+
+/* mp_epsf_cutout_add: add flux·PRF of model m at frame position (x, y)
+ * to the star's cut-out (a star taken out of a residual put back). */
+int mp_epsf_cutout_add(mp_epsf_star *s, const mp_prf_model *m, double x, double y, double flux,
+                       char *err);
+
+void mp_epsf_stars_free(mp_epsf_star *s, size_t n);
+
+/* ---- The build (psf/epsf_build.c) ----------------------------------------- */
+
+/* mp_epsf_build: build the table of order o->order (0..2) at OVERSAMP os
+ * (1..4) from the stars, starting from e when e->planes is set (its order
+ * may be lower: the missing terms start at 0), else from a Gaussian of
+ * o->fwhm.  Stars' fits are updated; stars whose fit fails or strays are
+ * marked unused.  e->sum stays 1 (mp_epsf_growth sets it).
+ * Errors: fewer usable stars than 2·nterms + 1, out of memory. */
+int mp_epsf_build(mp_epsf_star *s, size_t n, const mp_epsf_opts *o, int os, int order,
+                  mp_epsf *e, char *err);
+
+/* mp_epsf_order_test: is order+1 demanded by the data?  The stars'
+ * normalised residuals (d − model)/σ per pixel offset are regressed on the
+ * next order's new terms of position; the F statistics of the pixels are
+ * summed and compared with their null distribution (normal approximation):
+ * *p the p-value, *stat the standardised sum.  Nonzero only on out of
+ * memory; *p = 1 when too few stars to test (fewer than 3 × the terms + 5). */
+int mp_epsf_order_test(const mp_epsf_star *s, size_t n, const mp_epsf *e, double fitrad,
+                       double *p, double *stat, char *err);
+
+/* mp_epsf_oversamp_error: the largest over ¼-px phases of
+ * E·sqrt(Σ δP²/(E·P + B + ron²)) with δP the difference between the PRF
+ * of table e (at the origin) block-summed to OVERSAMP os_coarse and the
+ * PRF of e itself: the coarser table's bias in units of the noise for a
+ * star of E electrons on sky B. */
+double mp_epsf_oversamp_error(const mp_epsf *e, int os_coarse, double E, double B, double ron);
+
+/* mp_epsf_noise_error: the same measure for the table's own statistical
+ * error (each element's variance from e->info): what the coarser table's
+ * aliasing is compared with when it exceeds the star's noise. */
+double mp_epsf_noise_error(const mp_epsf *e, double E, double B, double ron);
+
+/* mp_epsf_rebin: e block-summed to OVERSAMP e->os/factor (planes re-sampled
+ * so the star stays at the centre of the central element). */
+int mp_epsf_rebin(const mp_epsf *e, int factor, mp_epsf *out, char *err);
+
+/* ---- Total flux (psf/growth.c) -------------------------------------------- */
+
+/* mp_epsf_growth: the fraction of a star's light inside the table, by the
+ * curve of growth of the brightest used stars (DAOPHOT's aperture
+ * correction): each star's flux fitted with the table (of sum 1) against
+ * the light in a circular aperture of radius rbig on img (sky: the clipped
+ * mode of the annulus rbig..rbig+4 px), img being the frame, or with
+ * residual set data less every fitted star (then the star's own model,
+ * from e, is put back).  e->sum is set to the median ratio when that is
+ * below 1 by more than twice its error, else 1; e->sum_err its error.
+ * Nonzero only on out of memory (fewer than 3 measurable stars: sum 1). */
+int mp_epsf_growth(const mp_frame *f, const double *img, int residual, const mp_epsf_star *s,
+                   size_t n, double rbig, mp_epsf *e, char *err);
+
+/* ---- From a frame (psf/frame_build.c): what `matphot psf` and the
+ * pipeline run ---------------------------------------------------------- */
+
+/* What a build decided, for the run report. */
+typedef struct {
+    size_t nsel, nused;      /* PSF stars given or selected, and used */
+    double oserr[5];         /* oversamp_error of OVERSAMP 1..4 (index) for the
+                              * brightest star (0 where not measured) */
+    double chi2;             /* median reduced χ² of the PSF stars' fits */
+    double ptest[3];         /* order test p-values 0→1, 1→2 (NaN: not run) */
+    char what[512];          /* one line: stars, OVERSAMP, order, sum, why */
+} mp_epsf_report;
+
+/* mp_epsf_pass: one pass of the build on frame f: cut-outs of the n stars
+ * (x, y, start flux: NaN for "measure it") from img — the frame's pixels
+ * (residual 0), or data less every fitted star of `fitted` (residual 1: each
+ * PSF star's own fitted light, the rows of `fitted` within 1 px, put back
+ * with model m) — then the table: at o->os, or with o->os 0 built at ×4 and
+ * taken to the coarsest OVERSAMP whose aliasing error for the brightest
+ * star is below 1 σ of its noise; of order o->order, or with −1 from e's
+ * order (0 when e is empty) raised while mp_epsf_order_test rejects the
+ * lower order at o->alpha; then PSFSUM by the growth curve out to
+ * 2·psfrad.  e may hold the previous pass's table (its OVERSAMP and order
+ * are kept as the start).  Errors: no usable PSF star, a star off the
+ * frame, out of memory. */
+int mp_epsf_pass(const mp_frame *f, const double *img, int residual, const mp_table *fitted,
+                 const mp_prf_model *m, const double *x, const double *y, const double *flux,
+                 size_t n, const mp_epsf_opts *o, mp_epsf *e, mp_epsf_report *rep,
+                 mp_psf_star **stars, char *err);
+
+/* mp_epsf_field: e as the PSF file's field (planes scaled to e->sum, why,
+ * nstar) for mp_psf_field_write and the fit. */
+int mp_epsf_field(const mp_epsf *e, mp_psf_field *fld, char *err);
+
+/* mp_epsf_model: the fit's model of field fld: *tab its table at the
+ * origin, pointing at fld when the order is above 0. */
+int mp_epsf_model(const mp_psf_field *fld, mp_psf *tab, mp_prf_model *m, char *err);
+
+/* The `matphot psf` task (params/psf.par). */
+int mp_task_psf(int argc, char **argv);
+
+#endif

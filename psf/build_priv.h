@@ -1,0 +1,46 @@
+/* build_priv.h — what the builder's files share (psf/ only). */
+#ifndef MATPHOT_PSF_BUILD_PRIV_H
+#define MATPHOT_PSF_BUILD_PRIV_H
+
+#include "psf/build.h"
+
+/* The outer radius of a star's sky annulus beyond psfrad r [px]: from
+ * r + 1 to r + max(4, r/2). */
+#define MP_EPSF_ANNULUS(r) ((r) / 2 > 4.0 ? (r) / 2 : 4.0)
+
+/* The SIRT step's work: per star the back-projected residual (G) and its
+ * weight (H) on the table grid, and the scratch of one render. */
+typedef struct {
+    size_t nstar, nel;
+    double *G, *H;         /* nstar × nel */
+    double *a, *b, *tmp;   /* nel each */
+    double *prf;           /* a star's box */
+    size_t nprf;
+    mp_prf_work pw;
+    mp_psf tab;
+    double chi2;           /* Σ W ρ² of the last step */
+    double ridge;          /* added to each element's normal equations */
+    int steps;             /* steps taken by the last mp_epsf_sirt_run */
+} mp_epsf_sirt;
+
+int mp_epsf_sirt_init(mp_epsf_sirt *w, const mp_epsf *e, size_t nstar, char *err);
+void mp_epsf_sirt_free(mp_epsf_sirt *w);
+
+/* mp_epsf_sirt_run: up to o->sirt steps on e's planes from the used stars'
+ * current fits; stops when a step lowers χ² by less than one. */
+int mp_epsf_sirt_run(mp_epsf_sirt *w, const mp_epsf_star *s, size_t n, const mp_epsf_opts *o,
+                     mp_epsf *e, char *err);
+
+/* mp_epsf_normalise: plane 0 to sum 1, the other planes to sum 0 (a
+ * star's flux means the same everywhere), and the windowed centroid of
+ * every plane (Gaussian window of fwhm) to the central element. */
+void mp_epsf_normalise(mp_epsf *e, double fwhm);
+
+/* mp_epsf_median: the median of v[0..n) (reorders v). */
+double mp_epsf_median(double *v, size_t n);
+
+/* mp_epsf_solve: the symmetric positive system A x = b of order m ≤ 6 by
+ * Cholesky (A, b overwritten; x in b); nonzero when not positive. */
+int mp_epsf_solve(double *A, double *b, int m);
+
+#endif

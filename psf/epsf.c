@@ -1,0 +1,81 @@
+/* epsf.c — the built PSF's planes: terms of position, a table at a
+ * position, options, freeing. */
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include "psf/build.h"
+
+void mp_epsf_opts_default(double fwhm, long nx, long ny, mp_epsf_opts *o)
+{
+    memset(o, 0, sizeof *o);
+    o->os = 0;
+    o->fwhm = fwhm;
+    o->psfrad = 4.0 * fwhm;
+    o->fitrad = 2.0 * fwhm;
+    o->order = -1;
+    o->alpha = 1e-3;
+    o->maxnpsf = 100;
+    o->outer = 5;
+    o->sirt = 30;
+    /* PSFEx's origin and scales: the frame's centre, its half-sizes. */
+    o->x0 = 0.5 * (double)(nx + 1);
+    o->y0 = 0.5 * (double)(ny + 1);
+    o->xs = nx > 1 ? 0.5 * (double)nx : 1.0;
+    o->ys = ny > 1 ? 0.5 * (double)ny : 1.0;
+}
+
+void mp_epsf_free(mp_epsf *e)
+{
+    if (!e)
+        return;
+    free(e->planes);
+    free(e->info);
+    memset(e, 0, sizeof *e);
+}
+
+void mp_epsf_terms(const mp_epsf *e, double x, double y, double *t)
+{
+    double dx = (x - e->x0) / e->xs, dy = (y - e->y0) / e->ys;
+    t[0] = 1.0;
+    if (e->order == 1) {
+        t[1] = dx;
+        t[2] = dy;
+    } else if (e->order == 2) {
+        t[1] = dx;
+        t[2] = dx * dx;
+        t[3] = dy;
+        t[4] = dx * dy;
+        t[5] = dy * dy;
+    }
+}
+
+int mp_epsf_table(const mp_epsf *e, double x, double y, mp_psf *p, char *err)
+{
+    size_t nel = (size_t)e->nx * e->ny;
+    if (!p->t || p->nx != e->nx || p->ny != e->ny) {
+        mp_psf_free(p);
+        if (!(p->t = malloc(nel * sizeof *p->t))) {
+            snprintf(err, MP_ERRLEN, "psf build: out of memory");
+            return 1;
+        }
+    }
+    double t[6];
+    mp_epsf_terms(e, x, y, t);
+    double s = 0.0;
+    for (size_t i = 0; i < nel; i++) {
+        double v = 0.0;
+        for (int k = 0; k < e->nterms; k++)
+            v += t[k] * e->planes[(size_t)k * nel + i];
+        p->t[i] = v;
+        s += v;
+    }
+    p->kind = MP_PSF_TABLE;
+    p->nx = e->nx;
+    p->ny = e->ny;
+    p->os = e->os;
+    p->sum = s;
+    p->offset = 0.0;
+    p->sigma = 0.0;
+    return 0;
+}

@@ -1,0 +1,189 @@
+/* epsf_build.c — the effective-PSF iteration (build.h; Anderson & King
+ * 2000): fit every star with the current table, back-project the
+ * residuals onto the table grid, combine them over the stars robustly,
+ * step, and repeat until a step changes χ² by less than the noise. */
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include "psf/build.h"
+#include "psf/build_priv.h"
+
+static int oom(char *err)
+{
+    snprintf(err, MP_ERRLEN, "psf build: out of memory");
+    return 1;
+}
+
+/* The start: a Gaussian of o->fwhm, or e's planes padded to order. */
+static int start_planes(const mp_epsf_opts *o, int os, int order, mp_epsf *e, char *err)
+{
+    int nterms = (order + 1) * (order + 2) / 2;
+    if (e->planes && e->os == os) {
+        if (e->order == order)
+            return 0;
+        size_t nel = (size_t)e->nx * e->ny;
+        double *p = calloc((size_t)nterms * nel, sizeof *p);
+        if (!p)
+            return oom(err);
+        /* Terms keep their meaning across orders: map by powers. */
+        static const int pw[3][6][2] = {
+            {{0, 0}}, {{0, 0}, {1, 0}, {0, 1}},
+            {{0, 0}, {1, 0}, {2, 0}, {0, 1}, {1, 1}, {0, 2}}};
+        for (int a = 0; a < e->nterms; a++)
+            for (int b = 0; b < nterms; b++)
+                if (pw[e->order][a][0] == pw[order][b][0] && pw[e->order][a][1] == pw[order][b][1])
+                    memcpy(p + (size_t)b * nel, e->planes + (size_t)a * nel, nel * sizeof *p);
+        free(e->planes);
+        e->planes = p;
+        e->order = order;
+        e->nterms = nterms;
+        return 0;
+    }
+    mp_psf g;
+    if (mp_psf_gauss_table(o->fwhm, os, o->psfrad, &g, err))
+        return 1;
+    size_t nel = (size_t)g.nx * g.ny;
+    mp_epsf_free(e);
+    if (!(e->planes = calloc((size_t)nterms * nel, sizeof *e->planes))) {
+        mp_psf_free(&g);
+        return oom(err);
+    }
+    for (size_t i = 0; i < nel; i++)
+        e->planes[i] = g.t[i] / g.sum;
+    e->nx = g.nx;
+    e->ny = g.ny;
+    e->os = os;
+    e->order = order;
+    e->nterms = nterms;
+    e->x0 = o->x0;
+    e->y0 = o->y0;
+    e->xs = o->xs;
+    e->ys = o->ys;
+    e->sum = 1.0;
+    mp_psf_free(&g);
+    return 0;
+}
+
+/* Fit one star (centre, flux, constant sky) with its table at its place. */
+static int fit_star(mp_epsf_star *s, const mp_epsf *e, const mp_epsf_opts *o, mp_psf *tab,
+                    char *err)
+{
+    if (mp_epsf_table(e, s->x, s->y, tab, err))
+        return 1;
+    mp_prf_model m = {tab, NULL, 10};
+    mp_fit_opts fo;
+    mp_fit_opts_default(&fo);
+    fo.sky_order = 0;
+    fo.fitrad = o->fitrad;
+    fo.fit_sky = 0;             /* the annulus's (mp_epsf_cutouts) */
+    mp_star st;
+    memset(&st, 0, sizeof st);
+    st.x = s->x - (double)(s->x0 - 1);
+    st.y = s->y - (double)(s->y0 - 1);
+    st.flux = s->flux;
+    char e2[MP_ERRLEN];
+    if (mp_fit_group(&s->f, &m, &fo, s->sky, &st, 1, e2)) {
+        s->used = 0;
+        return 0;
+    }
+    double nx = st.x + (double)(s->x0 - 1), ny = st.y + (double)(s->y0 - 1);
+    /* A fit that strays from where the star was found, or loses its light,
+     * is not a star this table describes. */
+    if (!(st.flux > 0) || !isfinite(nx) || !isfinite(ny) || hypot(nx - s->xf, ny - s->yf) > 1.0 ||
+        (st.flags & (MP_FLAG_NOCONV | MP_FLAG_EDGE))) {
+        s->used = 0;
+        return 0;
+    }
+    s->x = nx;
+    s->y = ny;
+    s->flux = st.flux;
+    s->sky = st.sky;
+    s->chi2 = st.chi2;
+    return 0;
+}
+
+/* Stars whose χ² stands far above the others' (a blend, a cosmic ray the
+ * table cannot be): more than 5 robust σ above the median. */
+static void reject_chi2(mp_epsf_star *s, size_t n, double *tmp)
+{
+    size_t m = 0;
+    for (size_t k = 0; k < n; k++)
+        if (s[k].used)
+            tmp[m++] = s[k].chi2;
+    if (m < 5)
+        return;
+    double med = mp_epsf_median(tmp, m);
+    for (size_t k = 0; k < m; k++)
+        tmp[k] = fabs(tmp[k] - med);
+    double mad = 1.4826 * mp_epsf_median(tmp, m);
+    for (size_t k = 0; k < n; k++)
+        if (s[k].used && s[k].chi2 > med + 5.0 * mad + 0.5)
+            s[k].used = 0;
+}
+
+static size_t count_used(const mp_epsf_star *s, size_t n)
+{
+    size_t m = 0;
+    for (size_t k = 0; k < n; k++)
+        m += s[k].used != 0;
+    return m;
+}
+
+int mp_epsf_build(mp_epsf_star *s, size_t n, const mp_epsf_opts *o, int os, int order,
+                  mp_epsf *e, char *err)
+{
+    if (os < 1 || os > 8 || order < 0 || order > 2) {
+        snprintf(err, MP_ERRLEN, "psf build: oversamp %d or order %d out of range", os, order);
+        return 1;
+    }
+    if (start_planes(o, os, order, e, err))
+        return 1;
+    mp_epsf_sirt w;
+    if (mp_epsf_sirt_init(&w, e, n, err))
+        return 1;
+    mp_psf tab;
+    memset(&tab, 0, sizeof tab);
+    int rc = 1;
+    double *tmp = malloc((n + 1) * sizeof *tmp);
+    if (!tmp) {
+        oom(err);
+        goto done;
+    }
+    for (int it = 0; it < o->outer; it++) {
+        for (size_t k = 0; k < n; k++)
+            if (s[k].used && fit_star(&s[k], e, o, &tab, err))
+                goto done;
+        if (it > 0)
+            reject_chi2(s, n, tmp);
+        size_t m = count_used(s, n);
+        if (m < (size_t)(2 * e->nterms + 1)) {
+            snprintf(err, MP_ERRLEN, "psf build: only %zu usable PSF stars (an order-%d PSF "
+                     "needs %d)", m, order, 2 * e->nterms + 1);
+            goto done;
+        }
+        if (mp_epsf_sirt_run(&w, s, n, o, e, err))
+            goto done;
+        mp_epsf_normalise(e, o->fwhm);
+    }
+    /* The stars' last fit with the final table. */
+    for (size_t k = 0; k < n; k++)
+        if (s[k].used && fit_star(&s[k], e, o, &tab, err))
+            goto done;
+    e->nstar = (int)count_used(s, n);
+    free(e->info);
+    if (!(e->info = calloc(w.nel, sizeof *e->info))) {
+        oom(err);
+        goto done;
+    }
+    for (size_t k = 0; k < n; k++)
+        if (s[k].used)
+            for (size_t i = 0; i < w.nel; i++)
+                e->info[i] += w.H[k * w.nel + i];
+    rc = 0;
+done:
+    free(tmp);
+    mp_psf_free(&tab);
+    mp_epsf_sirt_free(&w);
+    return rc;
+}

@@ -1,0 +1,216 @@
+/* frame_build.c — one pass of the PSF build on a frame (build.h): the
+ * stars' cut-outs, the sampling and order decisions, the total-flux
+ * fraction.  `matphot psf` runs it twice (the second time with every
+ * neighbour fitted and subtracted: DAOPHOT's two passes); the pipeline
+ * before its first round and once after it. */
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include "psf/build_priv.h"
+
+int mp_epsf_field(const mp_epsf *e, mp_psf_field *fld, char *err)
+{
+    if (mp_psf_field_new(e->order, e->nx, e->ny, e->os, e->x0, e->y0, e->xs, e->ys, fld, err))
+        return 1;
+    size_t n = (size_t)e->nterms * e->nx * e->ny;
+    for (size_t i = 0; i < n; i++)
+        fld->planes[i] = e->planes[i] * e->sum;
+    fld->sum = 0.0;
+    for (size_t i = 0; i < (size_t)e->nx * e->ny; i++)
+        fld->sum += fld->planes[i];
+    fld->nstar = e->nstar;
+    snprintf(fld->why, sizeof fld->why, "%s", e->why);
+    return 0;
+}
+
+int mp_epsf_model(const mp_psf_field *fld, mp_psf *tab, mp_prf_model *m, char *err)
+{
+    if (mp_psf_field_eval(fld, fld->x0, fld->y0, tab, err))
+        return 1;
+    tab->field = fld->order > 0 ? fld : NULL;
+    m->psf = tab;
+    m->drf = NULL;
+    m->sinc_hw = 10;
+    return 0;
+}
+
+/* Put back each PSF star's own fitted light: the rows of t within 1 px. */
+static int put_back(mp_epsf_star *s, size_t n, const mp_table *t, const mp_prf_model *m,
+                    char *err)
+{
+    int cx = mp_table_col(t, "XPSF_IMAGE"), cy = mp_table_col(t, "YPSF_IMAGE");
+    int cf = mp_table_col(t, "FLUX_PSF");
+    if (cx < 0 || cy < 0 || cf < 0)
+        return 0;
+    for (size_t k = 0; k < n; k++)
+        for (size_t r = 0; r < t->nrow; r++) {
+            double x = mp_table_get(t, r, cx), y = mp_table_get(t, r, cy);
+            double F = mp_table_get(t, r, cf);
+            if (isfinite(F) && hypot(x - s[k].xf, y - s[k].yf) <= 1.0 &&
+                mp_epsf_cutout_add(&s[k], m, x, y, F, err))
+                return 1;
+        }
+    return 0;
+}
+
+static double median_chi2(const mp_epsf_star *s, size_t n)
+{
+    double *v = malloc((n + 1) * sizeof *v);
+    size_t m = 0;
+    if (!v)
+        return NAN;
+    for (size_t k = 0; k < n; k++)
+        if (s[k].used)
+            v[m++] = s[k].chi2;
+    double med = mp_epsf_median(v, m);
+    free(v);
+    return med;
+}
+
+/* The brightest used star's flux and the median sky: what the sampling
+ * decision is measured for. */
+static void brightest(const mp_epsf_star *s, size_t n, double *E, double *B)
+{
+    *E = 0;
+    *B = 0;
+    double *v = malloc((n + 1) * sizeof *v);
+    size_t m = 0;
+    for (size_t k = 0; k < n; k++)
+        if (s[k].used) {
+            *E = fmax(*E, s[k].flux);
+            if (v)
+                v[m++] = s[k].sky;
+        }
+    if (v && m)
+        *B = fmax(mp_epsf_median(v, m), 0.0);
+    free(v);
+}
+
+/* OVERSAMP auto: built at ×4, then the coarsest of ×1, ×2 whose aliasing
+ * error stays below 1 σ of the brightest star's noise. */
+static int choose_os(mp_epsf_star *s, size_t n, const mp_epsf_opts *o, const mp_frame *f,
+                     mp_epsf *e, mp_epsf_report *rep, char *err)
+{
+    if (mp_epsf_build(s, n, o, 4, 0, e, err))
+        return 1;
+    double E, B;
+    brightest(s, n, &E, &B);
+    int pick = 4;
+    /* "Below the noise": the star's own (1 σ), or the ×4 table's
+     * statistical error when that is larger (then the finer table's extra
+     * detail is noise, not aliasing avoided). */
+    double qn = mp_epsf_noise_error(e, E, B, f->rdnoise), lim = fmax(1.0, qn);
+    for (int os = 2; os >= 1; os /= 2) {
+        rep->oserr[os] = mp_epsf_oversamp_error(e, os, E, B, f->rdnoise);
+        if (rep->oserr[os] < lim)
+            pick = os;
+        else
+            break;
+    }
+    snprintf(rep->what + strlen(rep->what), sizeof rep->what - strlen(rep->what),
+             "OVERSAMP %d (aliasing error for the brightest star, %.3g e-: x1 %.2g, x2 %.2g "
+             "sigma; x4 table's own error %.2g sigma; the coarsest below max(1, that)); ",
+             pick, E, rep->oserr[1], rep->oserr[2], qn);
+    if (pick < 4) {
+        mp_epsf c;
+        if (mp_epsf_rebin(e, 4 / pick, &c, err))
+            return 1;
+        mp_epsf_free(e);
+        *e = c;
+        if (mp_epsf_build(s, n, o, pick, 0, e, err))
+            return 1;
+    }
+    return 0;
+}
+
+/* varorder auto: raise the order while the test rejects the lower one. */
+static int choose_order(mp_epsf_star *s, size_t n, const mp_epsf_opts *o, mp_epsf *e,
+                        mp_epsf_report *rep, char *err)
+{
+    for (;;) {
+        double p, z;
+        if (mp_epsf_order_test(s, n, e, o->fitrad, &p, &z, err))
+            return 1;
+        rep->ptest[e->order] = p;
+        if (e->order >= 2 || !(p < o->alpha))
+            break;
+        int was = e->order;
+        if (mp_epsf_build(s, n, o, e->os, was + 1, e, err))
+            return 1;
+    }
+    size_t l = strlen(e->why);
+    snprintf(e->why + l, sizeof e->why - l, "auto: order %d", e->order);
+    for (int k = 0; k <= e->order && k < 2; k++) {
+        l = strlen(e->why);
+        snprintf(e->why + l, sizeof e->why - l, "%s order %d->%d p=%.2g%s", k ? ";" : " (",
+                 k, k + 1, rep->ptest[k], rep->ptest[k] < o->alpha ? " <" : " >=");
+    }
+    l = strlen(e->why);
+    snprintf(e->why + l, sizeof e->why - l, " alpha %.0e)", o->alpha);
+    return 0;
+}
+
+int mp_epsf_pass(const mp_frame *f, const double *img, int residual, const mp_table *fitted,
+                 const mp_prf_model *m, const double *x, const double *y, const double *flux,
+                 size_t n, const mp_epsf_opts *o, mp_epsf *e, mp_epsf_report *rep,
+                 mp_psf_star **stars, char *err)
+{
+    mp_epsf_star *s = NULL;
+    double *sky = malloc((n + 1) * sizeof *sky);
+    int rc = 1;
+    rep->what[0] = '\0';
+    rep->ptest[0] = rep->ptest[1] = rep->ptest[2] = NAN;
+    if (!sky) {
+        snprintf(err, MP_ERRLEN, "psf build: out of memory");
+        return 1;
+    }
+    for (size_t k = 0; k < n; k++)
+        sky[k] = NAN;
+    if (mp_epsf_cutouts(f, img, x, y, flux, sky, n, o->psfrad, &s, err))
+        goto done;
+    if (residual && fitted && m && put_back(s, n, fitted, m, err))
+        goto done;
+    rep->nsel = n;
+    e->why[0] = '\0';
+    if (!e->planes && o->os == 0) {
+        if (choose_os(s, n, o, f, e, rep, err))
+            goto done;
+    } else {
+        int os = e->planes ? e->os : o->os;
+        snprintf(rep->what, sizeof rep->what, "OVERSAMP %d (%s); ", os,
+                 e->planes ? "as the first pass" : "given");
+        if (mp_epsf_build(s, n, o, os, e->planes ? e->order : 0, e, err))
+            goto done;
+    }
+    if (o->order >= 0) {
+        if (e->order != o->order && mp_epsf_build(s, n, o, e->os, o->order, e, err))
+            goto done;
+        snprintf(e->why, sizeof e->why, "order %d as given (varorder=%d)", o->order, o->order);
+    } else if (choose_order(s, n, o, e, rep, err)) {
+        goto done;
+    }
+    /* The light beyond the table only once the neighbours are gone: in a
+     * crowded frame they fill the big aperture. */
+    if (residual && mp_epsf_growth(f, img, residual, s, n, 2.0 * o->psfrad, e, err))
+        goto done;
+    rep->nused = (size_t)e->nstar;
+    rep->chi2 = median_chi2(s, n);
+    size_t l = strlen(rep->what);
+    snprintf(rep->what + l, sizeof rep->what - l,
+             "%zu of %zu stars used (median chi2 %.2f); %s; PSFSUM %.4f +- %.4f from %d stars",
+             rep->nused, n, rep->chi2, e->why, e->sum, e->sum_err, e->ngrowth);
+    if (stars) {
+        if (!(*stars = malloc((n + 1) * sizeof **stars))) {
+            snprintf(err, MP_ERRLEN, "psf build: out of memory");
+            goto done;
+        }
+        for (size_t k = 0; k < n; k++)
+            (*stars)[k] = (mp_psf_star){s[k].x, s[k].y, s[k].flux * e->sum, s[k].used};
+    }
+    rc = 0;
+done:
+    free(sky);
+    mp_epsf_stars_free(s, n);
+    return rc;
+}

@@ -1,0 +1,295 @@
+/* sirt.c — one step of the table's reconstruction (build.h): each used
+ * star's residual per unit flux, back-projected onto the table grid by
+ * the transpose of the fit's render (fit/prf.c: pixel p holds
+ * Σ_s S_δ(T)[os(p−1) + s + n0], S_δ the damped sinc shift by δ, whose
+ * transpose is the shift by −δ), then combined over the stars element by
+ * element: a weighted fit of the polynomial in position, clipped at 4
+ * robust σ (the robust mean of Anderson & King 2000, §4). */
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include "psf/build_priv.h"
+
+int mp_epsf_sirt_init(mp_epsf_sirt *w, const mp_epsf *e, size_t nstar, char *err)
+{
+    memset(w, 0, sizeof *w);
+    w->nstar = nstar;
+    w->nel = (size_t)e->nx * e->ny;
+    w->G = malloc(nstar * w->nel * sizeof *w->G);
+    w->H = malloc(nstar * w->nel * sizeof *w->H);
+    w->a = malloc(w->nel * sizeof *w->a);
+    w->b = malloc(w->nel * sizeof *w->b);
+    w->tmp = malloc(w->nel * sizeof *w->tmp);
+    if (!w->G || !w->H || !w->a || !w->b || !w->tmp) {
+        mp_epsf_sirt_free(w);
+        snprintf(err, MP_ERRLEN, "psf build: out of memory");
+        return 1;
+    }
+    return 0;
+}
+
+void mp_epsf_sirt_free(mp_epsf_sirt *w)
+{
+    free(w->G);
+    free(w->H);
+    free(w->a);
+    free(w->b);
+    free(w->tmp);
+    free(w->prf);
+    mp_prf_work_free(&w->pw);
+    mp_psf_free(&w->tab);
+    memset(w, 0, sizeof *w);
+}
+
+/* Where the fit's render puts a star at x (cut-out coordinates) on the
+ * table's axis of n elements: fine cell g = os(p−1)+s holds S[g + n0],
+ * S the table shifted by δ (fit/prf.c, table_axis). */
+static void axis_of(int n, int os, double x, long *n0, double *delta)
+{
+    double c0 = (n - 1) / 2 + 0.5 + os * (0.5 - x);
+    *n0 = lround(c0);
+    *delta = c0 - (double)*n0;
+}
+
+/* One star: G = Aᵀ W ρ, H = Aᵀ W (the weight each element gets), with ρ
+ * the residual per unit flux and W = F²/σ² its information; adds Σ r²/σ²
+ * to *chi2. */
+static int backproject(mp_epsf_sirt *w, const mp_epsf_star *s, const mp_epsf *e, double psfrad,
+                       double *G, double *H, double *chi2, char *err)
+{
+    if (mp_epsf_table(e, s->x, s->y, &w->tab, err))
+        return 1;
+    mp_prf_model m = {&w->tab, NULL, 10};
+    double xs = s->x - (double)(s->x0 - 1), ys = s->y - (double)(s->y0 - 1);
+    long bx0, by0;
+    int bw, bh;
+    mp_prf_box(&m, xs, ys, &bx0, &by0, &bw, &bh);
+    size_t nb = (size_t)bw * bh;
+    if (nb > w->nprf) {
+        free(w->prf);
+        if (!(w->prf = malloc(nb * sizeof *w->prf))) {
+            w->nprf = 0;
+            snprintf(err, MP_ERRLEN, "psf build: out of memory");
+            return 1;
+        }
+        w->nprf = nb;
+    }
+    if (mp_prf_render(&m, xs, ys, w->prf, NULL, NULL, &w->pw)) {
+        snprintf(err, MP_ERRLEN, "psf build: out of memory");
+        return 1;
+    }
+    int os = e->os, nx = e->nx, ny = e->ny;
+    long n0x, n0y;
+    double dx, dy;
+    axis_of(nx, os, xs, &n0x, &dx);
+    axis_of(ny, os, ys, &n0y, &dy);
+    memset(w->a, 0, w->nel * sizeof *w->a);
+    memset(H, 0, w->nel * sizeof *H);
+    const mp_frame *f = &s->f;
+    double ron2 = fmax(f->rdnoise * f->rdnoise, 1e-2), F = s->flux, sky = fmax(s->sky, 0.0);
+    for (int j = 0; j < bh; j++) {
+        long py = by0 + j;
+        if (py < 1 || py > f->im.ny)
+            continue;
+        for (int i = 0; i < bw; i++) {
+            long px = bx0 + i;
+            if (px < 1 || px > f->im.nx)
+                continue;
+            size_t o = (size_t)(py - 1) * f->im.nx + (size_t)(px - 1);
+            if (f->mask[o] || (px - xs) * (px - xs) + (py - ys) * (py - ys) > psfrad * psfrad)
+                continue;
+            double mod = F * w->prf[(size_t)j * bw + i];
+            double r = f->im.pix[o] - s->sky - mod;
+            double var = fmax(mod + sky, sky) + ron2;
+            double W = F * F / var, rho = r / F;
+            *chi2 += r * r / var;
+            for (int sy = 0; sy < os; sy++) {
+                long my = os * (py - 1) + sy + n0y;
+                if (my < 0 || my >= ny)
+                    continue;
+                for (int sx = 0; sx < os; sx++) {
+                    long mx = os * (px - 1) + sx + n0x;
+                    if (mx < 0 || mx >= nx)
+                        continue;
+                    w->a[(size_t)my * nx + mx] += W * rho;
+                    H[(size_t)my * nx + mx] += W;
+                }
+            }
+        }
+    }
+    /* The weights only normalise: they need no sub-element shift. */
+    mp_shift_table(w->a, nx, ny, -dx, -dy, 10, G, w->tmp);
+    return 0;
+}
+
+/* Weighted least squares of g_k = G_k/H_k on the terms over the stars in
+ * idx[0..m), weights H_k; c receives the nterms coefficients. */
+static int wls(const mp_epsf_sirt *w, size_t el, const size_t *idx, size_t m, const double *terms,
+               int nt, double *c)
+{
+    double A[36] = {0};
+    /* A little ridge (1e-2 of the best-measured element's weight): an
+     * element that a few pixels barely reach is not moved by their noise. */
+    for (int a = 0; a < nt; a++)
+        A[a * nt + a] = w->ridge;
+    for (int t = 0; t < nt; t++)
+        c[t] = 0.0;
+    for (size_t q = 0; q < m; q++) {
+        size_t k = idx[q];
+        double h = w->H[k * w->nel + el], G = w->G[k * w->nel + el];
+        const double *tk = terms + k * 6;
+        for (int a = 0; a < nt; a++) {
+            c[a] += tk[a] * G;
+            for (int b = 0; b <= a; b++)
+                A[a * nt + b] += h * tk[a] * tk[b];
+        }
+    }
+    for (int a = 0; a < nt; a++)
+        for (int b = a + 1; b < nt; b++)
+            A[a * nt + b] = A[b * nt + a];
+    return mp_epsf_solve(A, c, nt);
+}
+
+/* The update of one element, robust: fit, clip at 4 robust σ, fit again. */
+static void combine_element(const mp_epsf_sirt *w, size_t el, const mp_epsf_star *s, size_t n,
+                            const double *terms, int nt, size_t *idx, double *dev, double *c)
+{
+    size_t m = 0;
+    for (size_t k = 0; k < n; k++)
+        if (s[k].used && w->H[k * w->nel + el] > 0)
+            idx[m++] = k;
+    for (int t = 0; t < nt; t++)
+        c[t] = 0.0;
+    if (m < (size_t)nt || wls(w, el, idx, m, terms, nt, c))
+        return;
+    if (m < 5)
+        return;
+    for (size_t q = 0; q < m; q++) {
+        size_t k = idx[q];
+        double h = w->H[k * w->nel + el], g = w->G[k * w->nel + el] / h, mod = 0;
+        for (int t = 0; t < nt; t++)
+            mod += terms[k * 6 + t] * c[t];
+        dev[q] = fabs(g - mod) * sqrt(h);
+    }
+    double *tmp = dev + n;
+    memcpy(tmp, dev, m * sizeof *dev);
+    double sig = 1.4826 * mp_epsf_median(tmp, m);
+    if (!(sig > 0))
+        return;
+    size_t kept = 0;
+    for (size_t q = 0; q < m; q++)
+        if (dev[q] <= 4.0 * sig)
+            idx[kept++] = idx[q];
+    if (kept == m || kept < (size_t)nt)
+        return;
+    if (wls(w, el, idx, kept, terms, nt, c))
+        for (int t = 0; t < nt; t++)
+            c[t] = 0.0;
+}
+
+/* The update filtered by the kernel whose transfer vanishes at k/os
+ * cycles per element (k = 1..os−1): the os-element box (odd os), or for
+ * even os the box convolved with [½, ½] so that it is centred
+ * (os = 4: ½ 1 1 1 ½, /4).  Those are the frequencies that block-summing
+ * to detector pixels cannot see: however unevenly the stars sample the
+ * phases (the per-element weights then vary with period os), no step
+ * adds what the data cannot constrain — the dotted, multi-peaked tables
+ * of anchors.md §3.2 — while everything the pixels see is still fitted. */
+static void null_filter(double *u, int nx, int ny, int os, double *tmp)
+{
+    if (os < 2)
+        return;
+    double k[9];
+    int h = os / 2;
+    for (int i = -h; i <= h; i++)
+        k[i + h] = (os % 2 == 0 && (i == -h || i == h)) ? 0.5 / os : 1.0 / os;
+    for (int pass = 0; pass < 2; pass++) {
+        const double *src = pass ? tmp : u;
+        double *dst = pass ? u : tmp;
+        for (int j = 0; j < ny; j++)
+            for (int i = 0; i < nx; i++) {
+                double v = 0;
+                for (int q = -h; q <= h; q++) {
+                    int a = pass ? j + q : i + q;
+                    if (a < 0 || a >= (pass ? ny : nx))
+                        continue;
+                    v += k[q + h] * (pass ? src[(size_t)a * nx + i] : src[(size_t)j * nx + a]);
+                }
+                dst[(size_t)j * nx + i] = v;
+            }
+    }
+}
+
+int mp_epsf_sirt_run(mp_epsf_sirt *w, const mp_epsf_star *s, size_t n, const mp_epsf_opts *o,
+                     mp_epsf *e, char *err)
+{
+    int nt = e->nterms, rc = 1;
+    size_t nel = w->nel;
+    double *terms = malloc(n * 6 * sizeof *terms);
+    double *dev = malloc(2 * (n + 1) * sizeof *dev);
+    size_t *idx = malloc((n + 1) * sizeof *idx);
+    double *upd = malloc((size_t)nt * nel * sizeof *upd);
+    if (!terms || !dev || !idx || !upd) {
+        snprintf(err, MP_ERRLEN, "psf build: out of memory");
+        goto done;
+    }
+    for (size_t k = 0; k < n; k++)
+        mp_epsf_terms(e, s[k].x, s[k].y, terms + k * 6);
+    /* Elements beyond psfrad (less the half pixel a block reaches) hold
+     * nothing: the table is defined on the disc its stars' pixels cover,
+     * the light beyond is PSFSUM's (growth.c). */
+    double rmax = (o->psfrad - 0.5) * e->os;
+    for (int j = 0; j < e->ny; j++)
+        for (int i = 0; i < e->nx; i++)
+            if (hypot(i - (e->nx - 1) / 2, j - (e->ny - 1) / 2) > rmax)
+                for (int t = 0; t < nt; t++)
+                    e->planes[(size_t)t * nel + (size_t)j * e->nx + i] = 0.0;
+    double prev = INFINITY;
+    double step = 1.0 / ((double)e->os * e->os);
+    w->steps = 0;
+    for (int it = 0; it <= o->sirt; it++) {
+        double chi2 = 0.0;
+        for (size_t k = 0; k < n; k++)
+            if (s[k].used && backproject(w, &s[k], e, o->psfrad, w->G + k * nel, w->H + k * nel,
+                                         &chi2, err))
+                goto done;
+        w->chi2 = chi2;
+        /* A step that no longer lowers χ² by one fits only noise. */
+        if (it == o->sirt || prev - chi2 < 1.0)
+            break;
+        prev = chi2;
+        double hmax = 0;
+        for (size_t el = 0; el < nel; el++) {
+            double h = 0;
+            for (size_t k = 0; k < n; k++)
+                if (s[k].used)
+                    h += w->H[k * nel + el];
+            hmax = h > hmax ? h : hmax;
+        }
+        w->ridge = 1e-2 * hmax;
+        memset(upd, 0, (size_t)nt * nel * sizeof *upd);
+        for (size_t el = 0; el < nel; el++) {
+            int i = (int)(el % (size_t)e->nx), j = (int)(el / (size_t)e->nx);
+            if (hypot(i - (e->nx - 1) / 2, j - (e->ny - 1) / 2) > rmax)
+                continue;
+            double c[6];
+            combine_element(w, el, s, n, terms, nt, idx, dev, c);
+            for (int t = 0; t < nt; t++)
+                upd[(size_t)t * nel + el] = c[t];
+        }
+        for (int t = 0; t < nt; t++) {
+            null_filter(upd + (size_t)t * nel, e->nx, e->ny, e->os, w->tmp);
+            for (size_t el = 0; el < nel; el++)
+                e->planes[(size_t)t * nel + el] += step * upd[(size_t)t * nel + el];
+        }
+        w->steps++;
+    }
+    rc = 0;
+done:
+    free(terms);
+    free(dev);
+    free(idx);
+    free(upd);
+    return rc;
+}

@@ -1,0 +1,276 @@
+/* task_psf.c — `matphot psf IMAGE [stars=LIST]`: find the stars, pick the
+ * PSF stars (or take the list), build the table, fit every star with it,
+ * rebuild with their neighbours subtracted, write the PSF file. */
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include "find/find.h"
+#include "group/group.h"
+#include "psf/build.h"
+
+typedef struct {
+    mp_epsf_opts o;
+    mp_datapars dp;
+    int passes, mesh, filter;
+    double threshold;
+    const char *image, *stars, *output;
+} psf_task;
+
+static int read_opts(const mp_parset *ps, psf_task *t, char *err)
+{
+    memset(t, 0, sizeof *t);
+    double fwhm = 3.0, psfrad = NAN, fitrad = NAN;
+    int os = MP_PAR_INDEF_INT;
+    mp_par_real(ps, "fwhm", &fwhm);
+    mp_par_real(ps, "psfrad", &psfrad);
+    mp_par_real(ps, "fitrad", &fitrad);
+    mp_par_int(ps, "oversamp", &os);
+    mp_epsf_opts_default(fwhm, 1, 1, &t->o);
+    t->o.os = os == MP_PAR_INDEF_INT ? 0 : os;
+    if (isfinite(psfrad))
+        t->o.psfrad = psfrad;
+    if (isfinite(fitrad))
+        t->o.fitrad = fitrad;
+    t->o.fitrad = fmin(t->o.fitrad, t->o.psfrad);
+    const char *vo = mp_par_string(ps, "varorder");
+    t->o.order = !strcmp(vo, "auto") ? -1 : atoi(vo);
+    mp_par_real(ps, "alpha", &t->o.alpha);
+    mp_par_int(ps, "maxnpsf", &t->o.maxnpsf);
+    mp_par_int(ps, "passes", &t->passes);
+    mp_par_int(ps, "mesh", &t->mesh);
+    mp_par_int(ps, "filter", &t->filter);
+    mp_par_real(ps, "threshold", &t->threshold);
+    mp_datapars_read(ps, &t->dp);
+    t->image = mp_par_string(ps, "image");
+    t->stars = mp_par_string(ps, "stars");
+    t->output = mp_par_string(ps, "output");
+    if (!t->image || !t->image[0]) {
+        snprintf(err, MP_ERRLEN, "image: no image given");
+        return 1;
+    }
+    return 0;
+}
+
+/* The stars given as a list: X_IMAGE/Y_IMAGE (or XPSF_/YPSF_), every one
+ * on the frame. */
+static int stars_from_list(const psf_task *t, const mp_frame *f, double **x, double **y,
+                           double **fl, size_t *n, char *err)
+{
+    mp_table l;
+    mp_table_init(&l);
+    char e2[MP_ERRLEN];
+    if (mp_table_read(t->stars, &l, e2)) {
+        snprintf(err, MP_ERRLEN, "%.500s", e2);
+        return 1;
+    }
+    int cx = mp_table_col(&l, "X_IMAGE"), cy = mp_table_col(&l, "Y_IMAGE");
+    if (cx < 0 || cy < 0) {
+        cx = mp_table_col(&l, "XPSF_IMAGE");
+        cy = mp_table_col(&l, "YPSF_IMAGE");
+    }
+    int cf = mp_table_col(&l, "FLUX_PSF") >= 0 ? mp_table_col(&l, "FLUX_PSF") : mp_table_col(&l, "FLUX");
+    int rc = 1;
+    if (cx < 0 || cy < 0) {
+        snprintf(err, MP_ERRLEN, "%s: no X_IMAGE/Y_IMAGE (or XPSF_IMAGE/YPSF_IMAGE) columns",
+                 t->stars);
+        goto done;
+    }
+    if (l.nrow == 0) {
+        snprintf(err, MP_ERRLEN, "%s: no stars in the list", t->stars);
+        goto done;
+    }
+    *x = malloc(l.nrow * sizeof **x);
+    *y = malloc(l.nrow * sizeof **y);
+    *fl = malloc(l.nrow * sizeof **fl);
+    if (!*x || !*y || !*fl) {
+        snprintf(err, MP_ERRLEN, "out of memory");
+        goto done;
+    }
+    for (size_t r = 0; r < l.nrow; r++) {
+        double X = mp_table_get(&l, r, cx), Y = mp_table_get(&l, r, cy);
+        if (!(X >= 0.5 && X < f->im.nx + 0.5 && Y >= 0.5 && Y < f->im.ny + 0.5)) {
+            snprintf(err, MP_ERRLEN, "%s: row %zu: star at (%g, %g) is outside the %ldx%ld "
+                     "frame %s", t->stars, r + 1, X, Y, f->im.nx, f->im.ny, t->image);
+            goto done;
+        }
+        (*x)[r] = X;
+        (*y)[r] = Y;
+        (*fl)[r] = cf >= 0 ? mp_table_get(&l, r, cf) : NAN;
+    }
+    *n = l.nrow;
+    rc = 0;
+done:
+    mp_table_free(&l);
+    return rc;
+}
+
+/* Every detection fitted with the first pass's table (grouped as the
+ * pipeline groups), and the residual: what the second pass needs. */
+static int fit_all(const mp_frame *f, const psf_task *t, mp_table *found,
+                   const mp_prf_model *m, double *res, char *err)
+{
+    mp_group_opts go;
+    mp_group_opts_default(&go);
+    go.fitrad = t->o.fitrad;
+    go.psfrad = t->o.psfrad;
+    if (mp_group_table(found, &go, err))
+        return 1;
+    mp_frame_opts fo;
+    mp_frame_opts_default(&fo);
+    fo.fit.fitrad = t->o.fitrad;
+    if (mp_fit_table(f, m, &fo, found, NULL, err))
+        return 1;
+    return mp_fit_residual(f, m, found, 0.0, res, err);
+}
+
+/* The find table's rows picked by mp_epsf_select as arrays. */
+static int stars_selected(const psf_task *t, const mp_frame *f, const mp_table *found,
+                          double **x, double **y, double **fl, size_t *n, char *err)
+{
+    size_t *idx = malloc((size_t)(t->o.maxnpsf + 1) * sizeof *idx);
+    if (!idx) {
+        snprintf(err, MP_ERRLEN, "out of memory");
+        return 1;
+    }
+    if (mp_epsf_select(f, found, &t->o, idx, n, err)) {
+        free(idx);
+        return 1;
+    }
+    *x = malloc((*n + 1) * sizeof **x);
+    *y = malloc((*n + 1) * sizeof **y);
+    *fl = malloc((*n + 1) * sizeof **fl);
+    if (!*x || !*y || !*fl) {
+        free(idx);
+        snprintf(err, MP_ERRLEN, "out of memory");
+        return 1;
+    }
+    int cx = mp_table_col(found, "X_IMAGE"), cy = mp_table_col(found, "Y_IMAGE");
+    int cf = mp_table_col(found, "FLUX");
+    for (size_t k = 0; k < *n; k++) {
+        (*x)[k] = mp_table_get(found, idx[k], cx);
+        (*y)[k] = mp_table_get(found, idx[k], cy);
+        (*fl)[k] = mp_table_get(found, idx[k], cf);
+    }
+    free(idx);
+    if (*n == 0) {
+        snprintf(err, MP_ERRLEN, "%s: no usable PSF star among %zu detections (none bright, "
+                 "unsaturated, unmasked, star-like and without a brighter neighbour within "
+                 "psfrad %.1f px)", t->image, found->nrow, t->o.psfrad);
+        return 1;
+    }
+    return 0;
+}
+
+static int run(psf_task *t, char *err)
+{
+    mp_frame f;
+    memset(&f, 0, sizeof f);
+    mp_bkg b;
+    memset(&b, 0, sizeof b);
+    mp_table found;
+    mp_table_init(&found);
+    mp_epsf e;
+    memset(&e, 0, sizeof e);
+    mp_psf_field fld;
+    memset(&fld, 0, sizeof fld);
+    mp_psf tab;
+    memset(&tab, 0, sizeof tab);
+    mp_psf_star *ps = NULL;
+    double *x = NULL, *y = NULL, *fl = NULL, *res = NULL;
+    size_t n = 0;
+    char *named = NULL;
+    int rc = 1;
+    mp_epsf_report rep;
+    memset(&rep, 0, sizeof rep);
+    if (mp_frame_read(t->image, &t->dp, &f, err))
+        goto done;
+    t->o.x0 = 0.5 * (double)(f.im.nx + 1);
+    t->o.y0 = 0.5 * (double)(f.im.ny + 1);
+    t->o.xs = f.im.nx > 1 ? 0.5 * (double)f.im.nx : 1.0;
+    t->o.ys = f.im.ny > 1 ? 0.5 * (double)f.im.ny : 1.0;
+    mp_find_opts fo;
+    mp_find_opts_default(&fo);
+    fo.fwhm = t->o.fwhm;
+    fo.threshold = t->threshold;
+    if (mp_bkg_estimate(&f, t->mesh, t->filter, &b, err) || mp_find_stars(&f, &b, &fo, &found, err))
+        goto done;
+    if (t->stars && t->stars[0] ? stars_from_list(t, &f, &x, &y, &fl, &n, err)
+                                : stars_selected(t, &f, &found, &x, &y, &fl, &n, err))
+        goto done;
+    char e2[MP_ERRLEN];
+    if (mp_epsf_pass(&f, f.im.pix, 0, NULL, NULL, x, y, fl, n, &t->o, &e, &rep, NULL, e2)) {
+        snprintf(err, MP_ERRLEN, "%s: %.400s", t->image, e2);
+        goto done;
+    }
+    fprintf(stderr, "matphot psf: %s: pass 1: %s\n", t->image, rep.what);
+    if (t->passes > 1) {
+        mp_prf_model m;
+        if (mp_epsf_field(&e, &fld, err) || mp_epsf_model(&fld, &tab, &m, err))
+            goto done;
+        if (!(res = malloc((size_t)f.im.nx * f.im.ny * sizeof *res))) {
+            snprintf(err, MP_ERRLEN, "out of memory");
+            goto done;
+        }
+        if (fit_all(&f, t, &found, &m, res, err))
+            goto done;
+        mp_epsf_opts o2 = t->o;
+        o2.order = -1;     /* from the first pass's order, raised if needed */
+        if (t->o.order >= 0)
+            o2.order = t->o.order;
+        if (mp_epsf_pass(&f, res, 1, &found, &m, x, y, fl, n, &o2, &e, &rep, &ps, e2)) {
+            snprintf(err, MP_ERRLEN, "%s: pass 2: %.400s", t->image, e2);
+            goto done;
+        }
+        fprintf(stderr, "matphot psf: %s: pass 2 (neighbours subtracted): %s\n", t->image, rep.what);
+        mp_psf_field_free(&fld);
+        mp_psf_free(&tab);
+    } else if (!(ps = calloc(1, sizeof *ps))) {
+        snprintf(err, MP_ERRLEN, "out of memory");
+        goto done;
+    }
+    if (mp_epsf_field(&e, &fld, err))
+        goto done;
+    const char *out = t->output;
+    if (!out || !out[0]) {
+        if (!(named = mp_name_after(t->image, ".psf.fits"))) {
+            snprintf(err, MP_ERRLEN, "out of memory");
+            goto done;
+        }
+        out = named;
+    }
+    if (mp_psf_field_write(out, &fld, ps, t->passes > 1 ? (int)n : 0, err))
+        goto done;
+    fprintf(stderr, "matphot psf: %s: wrote %s (OVERSAMP %d, %dx%d, order %d, PSFSUM %.4f)\n",
+            t->image, out, fld.os, fld.nx, fld.ny, fld.order, fld.sum);
+    rc = 0;
+done:
+    free(named);
+    free(ps);
+    free(x);
+    free(y);
+    free(fl);
+    free(res);
+    mp_psf_free(&tab);
+    mp_psf_field_free(&fld);
+    mp_epsf_free(&e);
+    mp_table_free(&found);
+    mp_bkg_free(&b);
+    mp_frame_free(&f);
+    return rc;
+}
+
+int mp_task_psf(int argc, char **argv)
+{
+    mp_parset ps;
+    int b = mp_task_begin("psf", argc, argv, &ps);
+    if (b)
+        return b;
+    char err[MP_ERRLEN] = "";
+    psf_task t;
+    int rc = read_opts(&ps, &t, err) || run(&t, err);
+    if (rc)
+        fprintf(stderr, "matphot psf: %s\n", err);
+    mp_params_free(&ps);
+    return rc ? 1 : 0;
+}

@@ -1,0 +1,175 @@
+/* varorder.c — does the data demand the next polynomial order? (build.h)
+ *
+ * With the table of order k built, each used star's normalised residual
+ * z = (d − sky − F·PRF)/σ at every pixel offset p from its nearest pixel
+ * (within fitrad) is regressed over the stars on the terms of order k+1.
+ * Under "order k suffices" the residuals do not depend on position, and
+ * the extra terms' F statistic of pixel p, F_p = (ΔRSS/q)/(RSS/d), is
+ * F(q, d) distributed (q new terms, d = n − terms − ... dof), whatever the
+ * pixel's own noise.  Their sum over P pixels has mean P·d/(d−2) and
+ * variance P·2d²(q+d−2)/(q(d−2)²(d−4)); the standardised sum is referred
+ * to the normal (the sky order's test in fit/levmar.c is a score test of
+ * the same kind).  The pixels' F are nearly independent: each star's
+ * pixels carry independent noise. */
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include "psf/build_priv.h"
+
+/* RSS of the unweighted LS fit of z[idx] on the first nt columns of the
+ * term rows (6 per star). */
+static double rss(const double *z, const double *terms, const size_t *idx, size_t m, int nt)
+{
+    double A[36] = {0}, c[6] = {0};
+    for (size_t q = 0; q < m; q++) {
+        const double *t = terms + idx[q] * 6;
+        for (int a = 0; a < nt; a++) {
+            c[a] += t[a] * z[q];
+            for (int b = 0; b <= a; b++)
+                A[a * nt + b] += t[a] * t[b];
+        }
+    }
+    for (int a = 0; a < nt; a++)
+        for (int b = a + 1; b < nt; b++)
+            A[a * nt + b] = A[b * nt + a];
+    if (mp_epsf_solve(A, c, nt))
+        return NAN;
+    double r = 0;
+    for (size_t q = 0; q < m; q++) {
+        const double *t = terms + idx[q] * 6;
+        double mod = 0;
+        for (int a = 0; a < nt; a++)
+            mod += t[a] * c[a];
+        r += (z[q] - mod) * (z[q] - mod);
+    }
+    return r;
+}
+
+/* z of star k at the pixel offsets of a (2R+1)² square about its nearest
+ * pixel, NaN where not measured. */
+static int residuals(const mp_epsf_star *s, const mp_epsf *e, int R, double fitrad, double *z,
+                     mp_psf *tab, mp_prf_work *w, char *err)
+{
+    int side = 2 * R + 1;
+    for (int i = 0; i < side * side; i++)
+        z[i] = NAN;
+    if (mp_epsf_table(e, s->x, s->y, tab, err))
+        return 1;
+    mp_prf_model m = {tab, NULL, 10};
+    double xs = s->x - (double)(s->x0 - 1), ys = s->y - (double)(s->y0 - 1);
+    long bx0, by0;
+    int bw, bh;
+    mp_prf_box(&m, xs, ys, &bx0, &by0, &bw, &bh);
+    double *prf = malloc((size_t)bw * bh * sizeof *prf);
+    if (!prf || mp_prf_render(&m, xs, ys, prf, NULL, NULL, w)) {
+        free(prf);
+        snprintf(err, MP_ERRLEN, "psf build: out of memory");
+        return 1;
+    }
+    long cx = lround(xs), cy = lround(ys);
+    double ron2 = fmax(s->f.rdnoise * s->f.rdnoise, 1e-2), sky = fmax(s->sky, 0.0);
+    for (int dj = -R; dj <= R; dj++)
+        for (int di = -R; di <= R; di++) {
+            long px = cx + di, py = cy + dj;
+            if (px < 1 || py < 1 || px > s->f.im.nx || py > s->f.im.ny ||
+                hypot(px - xs, py - ys) > fitrad)
+                continue;
+            size_t o = (size_t)(py - 1) * s->f.im.nx + (size_t)(px - 1);
+            long bi = px - bx0, bj = py - by0;
+            if (s->f.mask[o] || bi < 0 || bj < 0 || bi >= bw || bj >= bh)
+                continue;
+            double mod = s->flux * prf[(size_t)bj * bw + bi];
+            z[(dj + R) * side + di + R] = (s->f.im.pix[o] - s->sky - mod) /
+                                          sqrt(fmax(mod + sky, sky) + ron2);
+        }
+    free(prf);
+    return 0;
+}
+
+int mp_epsf_order_test(const mp_epsf_star *s, size_t n, const mp_epsf *e, double fitrad,
+                       double *p, double *stat, char *err)
+{
+    *p = 1.0;
+    *stat = 0.0;
+    if (e->order >= 2)
+        return 0;
+    int nt0 = e->nterms, nt1 = (e->order + 2) * (e->order + 3) / 2, q = nt1 - nt0;
+    int R = (int)ceil(fitrad), side = 2 * R + 1, np = side * side;
+    size_t nu = 0;
+    for (size_t k = 0; k < n; k++)
+        nu += s[k].used != 0;
+    if (nu < (size_t)(3 * nt1 + 5))
+        return 0;
+    double *z = malloc(nu * (size_t)np * sizeof *z);
+    double *terms = malloc(nu * 6 * sizeof *terms);
+    double *zc = malloc((nu + 1) * sizeof *zc);
+    size_t *idx = malloc((nu + 1) * sizeof *idx);
+    mp_psf tab;
+    memset(&tab, 0, sizeof tab);
+    mp_prf_work w;
+    memset(&w, 0, sizeof w);
+    int rc = 1;
+    if (!z || !terms || !zc || !idx) {
+        snprintf(err, MP_ERRLEN, "psf build: out of memory");
+        goto done;
+    }
+    /* The next order's terms, in its own PSFEx order, with the current
+     * order's terms first (as columns 0..nt0−1) so that the reduced model
+     * is the first nt0 columns. */
+    mp_epsf next = *e;
+    next.order = e->order + 1;
+    size_t u = 0;
+    for (size_t k = 0; k < n; k++) {
+        if (!s[k].used)
+            continue;
+        double t1[6], *t = terms + u * 6;
+        mp_epsf_terms(&next, s[k].x, s[k].y, t1);
+        if (next.order == 1) {           /* 1, dx, dy */
+            memcpy(t, t1, 3 * sizeof *t);
+        } else {                         /* 1, dx, dy | dx², dxdy, dy² */
+            t[0] = t1[0];
+            t[1] = t1[1];
+            t[2] = t1[3];
+            t[3] = t1[2];
+            t[4] = t1[4];
+            t[5] = t1[5];
+        }
+        if (residuals(&s[k], e, R, fitrad, z + u * np, &tab, &w, err))
+            goto done;
+        u++;
+    }
+    double sum = 0, mean = 0, var = 0;
+    int npix = 0;
+    for (int pix = 0; pix < np; pix++) {
+        size_t m = 0;
+        for (size_t k = 0; k < nu; k++)
+            if (isfinite(z[k * np + pix])) {
+                zc[m] = z[k * np + pix];
+                idx[m++] = k;
+            }
+        int d = (int)m - nt1;
+        if (d <= 8)
+            continue;
+        double r0 = rss(zc, terms, idx, m, nt0), r1 = rss(zc, terms, idx, m, nt1);
+        if (!isfinite(r0) || !isfinite(r1) || !(r1 > 0))
+            continue;
+        sum += ((r0 - r1) / q) / (r1 / d);
+        mean += (double)d / (d - 2);
+        var += 2.0 * d * d * (q + d - 2.0) / (q * (d - 2.0) * (d - 2.0) * (d - 4.0));
+        npix++;
+    }
+    if (npix > 0 && var > 0) {
+        *stat = (sum - mean) / sqrt(var);
+        *p = 0.5 * erfc(*stat / M_SQRT2);
+    }
+    rc = 0;
+done:
+    free(z);
+    free(terms);
+    free(zc);
+    free(idx);
+    mp_psf_free(&tab);
+    mp_prf_work_free(&w);
+    return rc;
+}

@@ -1,0 +1,51 @@
+#!/bin/sh
+# psf_cli.sh — `matphot psf` through the real binary: a frame simulated
+# with a known table gives a PSF file that `fit` reads (layout of the
+# README: OVERSAMP, PSFORDER, PSFSUM, PSFSTARS); bad input gives one line
+# on stderr naming the file or parameter, exit 1, and no output file:
+# a frame with no usable PSF star, a star list off the frame, a list
+# without positions.
+M=${MATPHOT:-./matphot}
+[ -x "$M" ] || { echo "psf_cli: $M not built"; exit 77; }
+T=$(mktemp -d "${TMPDIR:-/tmp}/psf_cli.XXXXXX") || exit 1
+trap 'rm -rf "$T"' EXIT INT TERM
+fails=0
+no() { echo "FAIL: $*"; fails=$((fails + 1)); }
+
+# bad NAME EXPECT ARGS...: exit 1, exactly one stderr line containing
+# EXPECT and starting "matphot psf: ", no $T/out.psf.fits nor temporary.
+bad() {
+    name=$1 expect=$2; shift 2
+    "$M" psf "$@" output="$T/out.psf.fits" >"$T/o" 2>"$T/e"
+    rc=$?
+    [ "$rc" -eq 1 ] || no "$name: exit $rc, not 1"
+    [ "$(wc -l <"$T/e")" -eq 1 ] || no "$name: $(wc -l <"$T/e") stderr lines: $(cat "$T/e")"
+    grep -q "^matphot psf: .*$expect" "$T/e" || no "$name: stderr lacks '$expect': $(cat "$T/e")"
+    ls "$T" | grep -q 'out\.psf' && no "$name: an output file was left: $(ls "$T")"
+    rm -f "$T"/out.psf*
+}
+
+"$M" sim "$T/f.fits" mode=crowded nx=160 ny=160 nstars=60 fwhm=2.5 magmin=-13 magmax=-10 \
+    seed=5 >/dev/null 2>&1 || no "sim"
+"$M" psf "$T/f.fits" fwhm=2.5 oversamp=2 output="$T/p.fits" 2>"$T/log" || no "psf: $(cat "$T/log")"
+[ -s "$T/p.fits" ] || no "psf wrote no file"
+for k in OVERSAMP PSFORDER PSFSUM PSFNSTAR PSFORDWH PSFSTARS; do
+    grep -q "$k" "$T/p.fits" || no "PSF file lacks $k"
+done
+grep -q "pass 2 (neighbours subtracted)" "$T/log" || no "no second pass reported: $(cat "$T/log")"
+"$M" find "$T/f.fits" fwhm=2.5 output="$T/f.coo" 2>/dev/null || no "find"
+"$M" fit "$T/f.fits" "$T/f.coo" psf="$T/p.fits" output="$T/f.fit" 2>"$T/log" || no "fit with the built PSF: $(cat "$T/log")"
+
+# Only faint stars (S/N < 20): none can shape a PSF.
+"$M" sim "$T/faint.fits" mode=crowded nx=120 ny=120 nstars=20 magmin=-6.5 magmax=-6 \
+    seed=6 >/dev/null 2>&1 || no "sim faint"
+bad "no usable star" "no usable PSF star" "$T/faint.fits"
+# A list whose star lies off the frame, a list without positions.
+printf '#   1 X_IMAGE                Object position along x                                    [pixel]\n#   2 Y_IMAGE                Object position along y                                    [pixel]\n 80.0 80.0\n 500.0 20.0\n' >"$T/off.lis"
+bad "list off the frame" "row 2: star at (500, 20) is outside" "$T/f.fits" stars="$T/off.lis"
+printf '#   1 NUMBER                 Running object number\n 1\n' >"$T/nopos.lis"
+bad "list without positions" "no X_IMAGE/Y_IMAGE" "$T/f.fits" stars="$T/nopos.lis"
+bad "unknown varorder" "varorder" "$T/f.fits" varorder=3
+
+[ "$fails" -eq 0 ] || exit 1
+echo "psf_cli: ok"

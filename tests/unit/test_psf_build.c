@@ -1,0 +1,304 @@
+/* test_psf_build.c — psf/: the effective PSF built from a simulated frame
+ * recovers the table the frame was drawn with, within the noise its stars
+ * predict; a linear change across the frame is recovered and chosen by the
+ * order test, a constant PSF is not given a higher order.
+ *
+ * Frames: sim/ draws each star by exact block-summing of a ×6 table at a
+ * position on its grid (no fitter code), Poisson + read noise, fixed
+ * seeds.  The build runs at ×2; the truth at ×2 is the ×6 table
+ * block-summed by 3 (odd: exact, star still centred). */
+#include <math.h>
+#include <setjmp.h>
+#include <stdarg.h>
+#include <stddef.h>
+#include <stdint.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include <cmocka.h>
+
+#include "fit/fit.h"
+#include "psf/build.h"
+#include "sim/sim.h"
+
+#define NX 240
+#define NSTAR 64
+#define FOS 6       /* the truth's sampling */
+#define BOS 2       /* the build's */
+#define SKY 100.0
+#define RON 3.0
+/* The χ² per pixel of the built PRF against the truth (prf_chi2) is a
+ * mean over 39 pixels that share table elements (each element reaches
+ * several pixels through the sinc, and the two phases share them all), so
+ * it behaves as χ²(ν)/ν with ν well below 39; with ν ≥ 5 a correct build
+ * exceeds 6 with probability < 2e-5 (P(χ²₅ > 30) = 1.5e-5).  Seeds
+ * 12–15 gave 1.0–4.4; the start Gaussian 2876, the table without its
+ * slope 200–350. */
+#define CHI2_TOL 6.0
+
+/* An elliptical core (σ 1.0 × 1.3 px, rotated by the field: ang) and a
+ * wider halo holding 15 % of the light, sampled at ×FOS over ±rad px,
+ * integrated per element by 3×3 midpoints; sum 1 over the table. */
+static void truth_one(double s1, double s2, double rad, double *t, int *n)
+{
+    int h = (int)ceil(rad * FOS), m = 2 * h + 1;
+    double sum = 0;
+    for (int j = 0; j < m; j++)
+        for (int i = 0; i < m; i++) {
+            double v = 0;
+            for (int b = 0; b < 3; b++)
+                for (int a = 0; a < 3; a++) {
+                    double x = (i - h + (a - 1) / 3.0) / FOS, y = (j - h + (b - 1) / 3.0) / FOS;
+                    v += 0.85 * exp(-0.5 * (x * x / (s1 * s1) + y * y / (s2 * s2))) / (s1 * s2) +
+                         0.15 * exp(-0.5 * (x * x + y * y) / 6.25) / 6.25;
+                }
+            t[(size_t)j * m + i] = v;
+            sum += v;
+        }
+    for (int i = 0; i < m * m; i++)
+        t[i] /= sum;
+    *n = m;
+}
+
+/* The truth at column position u (−1..1): the blend (1−w)·A + w·B,
+ * w = (1+u)/2, of cores of σx 1 − grad and 1 + grad: every element
+ * exactly linear in position, as the model (PSFEx, DAOPHOT) has it. */
+static void truth_fine(double grad, double u, double rad, double *t, int *n)
+{
+    int h = (int)ceil(rad * FOS), m = 2 * h + 1;
+    double *b = malloc(sizeof(double) * m * m);
+    assert_non_null(b);
+    truth_one(1.0 - grad, 1.3, rad, t, n);
+    truth_one(1.0 + grad, 1.3, rad, b, n);
+    double w = 0.5 * (1.0 + u);
+    for (int i = 0; i < m * m; i++)
+        t[i] = (1.0 - w) * t[i] + w * b[i];
+    free(b);
+}
+
+typedef struct { double x, y, f; } tstar;
+
+/* A frame of NSTAR stars whose core σx grows linearly with x by grad
+ * (0: constant), fluxes 2e4..4e5 log-uniform, on a grid with jitter so
+ * they do not overlap much. */
+static void make_frame(uint64_t seed, double grad, double rad, mp_frame *f, tstar *ts)
+{
+    mp_rng r;
+    mp_rng_seed(&r, seed);
+    memset(f, 0, sizeof *f);
+    f->im.nx = f->im.ny = NX;
+    f->im.pix = calloc((size_t)NX * NX, sizeof *f->im.pix);
+    f->mask = calloc((size_t)NX * NX, 1);
+    assert_non_null(f->im.pix);
+    assert_non_null(f->mask);
+    f->gain = 1.0;
+    f->rdnoise = RON;
+    f->saturate = INFINITY;
+    f->exptime = 1.0;
+    for (size_t i = 0; i < (size_t)NX * NX; i++)
+        f->im.pix[i] = SKY;
+    int side = 8;
+    double cell = (NX - 2 * rad) / side;
+    double *tab = malloc(sizeof(double) * 200 * 200);
+    assert_non_null(tab);
+    for (int k = 0; k < NSTAR; k++) {
+        double x = rad + (k % side + 0.3 + 0.4 * mp_rng_uniform(&r)) * cell;
+        double y = rad + (k / side + 0.3 + 0.4 * mp_rng_uniform(&r)) * cell;
+        double flux = 2e4 * pow(20.0, mp_rng_uniform(&r));
+        double u = (x - 0.5 * (NX + 1)) / (0.5 * NX);
+        int n;
+        truth_fine(grad, u, rad, tab, &n);
+        mp_sim_prf p = {MP_SIM_TABLE, 0, tab, n, n, FOS, NULL, 0, 1.0};
+        mp_sim_snap(&p, &x, &y);
+        assert_int_equal(mp_sim_add_star(&p, x, y, flux, f->im.pix, NX, NX), 0);
+        ts[k] = (tstar){x, y, flux};
+    }
+    free(tab);
+    mp_sim_add_noise(&r, f->im.pix, (long)NX * NX, RON);
+}
+
+/* The truth at ×BOS at column position u (−1..1). */
+static void truth_table(double grad, double u, double rad, mp_psf *p)
+{
+    double *tab = malloc(sizeof(double) * 200 * 200);
+    assert_non_null(tab);
+    int n;
+    truth_fine(grad, u, rad, tab, &n);
+    mp_psf fine = {MP_PSF_TABLE, n, n, FOS, tab, 1.0, 0, 0, NULL};
+    char err[MP_ERRLEN];
+    assert_int_equal(mp_psf_rebin(&fine, FOS / BOS, p, err), 0);
+    free(tab);
+}
+
+static mp_epsf_star *stars_of(const mp_frame *f, const tstar *ts, const mp_epsf_opts *o)
+{
+    double x[NSTAR], y[NSTAR], fl[NSTAR], sk[NSTAR];
+    for (int k = 0; k < NSTAR; k++) {
+        /* Start a little off, as find would. */
+        x[k] = ts[k].x + 0.2;
+        y[k] = ts[k].y - 0.15;
+        fl[k] = ts[k].f;
+        sk[k] = SKY;
+    }
+    mp_epsf_star *s;
+    char err[MP_ERRLEN];
+    assert_int_equal(mp_epsf_cutouts(f, f->im.pix, x, y, fl, sk, NSTAR, o->psfrad, &s, err), 0);
+    return s;
+}
+
+/* χ² of the built PRF against the true one at a pixel centre and a half-
+ * pixel phase, each pixel's variance the one NSTAR stars predict for an
+ * estimate from the stars at one of BOS² phases:
+ *   var_i = BOS² / Σ_k F_k²/(F_k P_i + SKY + RON²).
+ * Returns χ² per pixel over the pixels within 2.5 px, where the PRF is
+ * well above the sky's noise per star. */
+static double prf_chi2(const mp_psf *built, const mp_psf *truth, const tstar *ts, double vfac,
+                       int *npix)
+{
+    double chi2 = 0;
+    int np = 0;
+    for (int ph = 0; ph < 2; ph++) {
+        double x = 30.0 + 0.5 * ph, y = 30.0 + 0.25 * ph;
+        mp_prf_model mb = {built, NULL, 10}, mt = {truth, NULL, 10};
+        long bx, by, tx, ty;
+        int bw, bh, tw, th;
+        mp_prf_box(&mb, x, y, &bx, &by, &bw, &bh);
+        mp_prf_box(&mt, x, y, &tx, &ty, &tw, &th);
+        double *pb = malloc(sizeof(double) * bw * bh), *pt = malloc(sizeof(double) * tw * th);
+        mp_prf_work w;
+        memset(&w, 0, sizeof w);
+        assert_int_equal(mp_prf_render(&mb, x, y, pb, NULL, NULL, &w), 0);
+        assert_int_equal(mp_prf_render(&mt, x, y, pt, NULL, NULL, &w), 0);
+        for (int j = 0; j < th; j++)
+            for (int i = 0; i < tw; i++) {
+                long px = tx + i, py = ty + j;
+                if (hypot(px - x, py - y) > 2.5)
+                    continue;
+                long bi = px - bx, bj = py - by;
+                assert_true(bi >= 0 && bi < bw && bj >= 0 && bj < bh);
+                double P = pt[(size_t)j * tw + i], info = 0;
+                for (int k = 0; k < NSTAR; k++)
+                    info += ts[k].f * ts[k].f / (ts[k].f * P + SKY + RON * RON);
+                double d = pb[(size_t)bj * bw + bi] - P;
+                chi2 += d * d * info / (BOS * BOS) / vfac;
+                np++;
+            }
+        free(pb);
+        free(pt);
+        mp_prf_work_free(&w);
+    }
+    *npix = np;
+    return chi2 / np;
+}
+
+static void test_recovers_constant_table(void **state)
+{
+    (void)state;
+    const double rad = 6.0;
+    mp_frame f;
+    tstar ts[NSTAR];
+    make_frame(11, 0.0, rad, &f, ts);
+    mp_epsf_opts o;
+    mp_epsf_opts_default(2.6, NX, NX, &o);
+    o.psfrad = rad;
+    o.fitrad = 4.0;
+    mp_epsf_star *s = stars_of(&f, ts, &o);
+    mp_epsf e;
+    memset(&e, 0, sizeof e);
+    char err[MP_ERRLEN];
+    assert_int_equal(mp_epsf_build(s, NSTAR, &o, BOS, 0, &e, err), 0);
+    mp_psf truth, built, start;
+    memset(&built, 0, sizeof built);
+    truth_table(0.0, 0.0, rad, &truth);
+    assert_int_equal(mp_epsf_table(&e, o.x0, o.y0, &built, err), 0);
+    assert_int_equal(mp_psf_gauss_table(2.6, BOS, rad, &start, err), 0);
+    int np;
+    double c_built = prf_chi2(&built, &truth, ts, 1.0, &np);
+    double c_start = prf_chi2(&start, &truth, ts, 1.0, &np);
+    double p;
+    double stat;
+    assert_int_equal(mp_epsf_order_test(s, NSTAR, &e, o.fitrad, &p, &stat, err), 0);
+    printf("# constant: chi2/pix built %.3f start %.1f (%d px), %d stars used; order test p %.3g\n",
+           c_built, c_start, np, e.nstar, p);
+    assert_true(c_built < CHI2_TOL);
+    assert_true(c_start > 30.0);
+    assert_true(p > 1e-3);
+    mp_psf_free(&truth);
+    mp_psf_free(&built);
+    mp_psf_free(&start);
+    mp_epsf_free(&e);
+    mp_epsf_stars_free(s, NSTAR);
+    free(f.im.pix);
+    free(f.mask);
+}
+
+/* σx of the core 0.85 px at the left edge, 1.15 px at the right: the
+ * order test must ask for order 1 (and no more), and the order-1 table at
+ * either side must match the truth there within the noise. */
+static void test_linear_variation(void **state)
+{
+    (void)state;
+    const double rad = 6.0, grad = 0.15;
+    mp_frame f;
+    tstar ts[NSTAR];
+    make_frame(12, grad, rad, &f, ts);
+    mp_epsf_opts o;
+    mp_epsf_opts_default(2.6, NX, NX, &o);
+    o.psfrad = rad;
+    o.fitrad = 4.0;
+    mp_epsf_star *s = stars_of(&f, ts, &o);
+    mp_epsf e;
+    memset(&e, 0, sizeof e);
+    char err[MP_ERRLEN];
+    double p0, p1, st0, st1;
+    assert_int_equal(mp_epsf_build(s, NSTAR, &o, BOS, 0, &e, err), 0);
+    assert_int_equal(mp_epsf_order_test(s, NSTAR, &e, o.fitrad, &p0, &st0, err), 0);
+    assert_int_equal(mp_epsf_build(s, NSTAR, &o, BOS, 1, &e, err), 0);
+    assert_int_equal(mp_epsf_order_test(s, NSTAR, &e, o.fitrad, &p1, &st1, err), 0);
+    printf("# linear: order 0->1 p %.3g (z %.1f), 1->2 p %.3g (z %.1f)\n", p0, st0, p1, st1);
+    assert_true(p0 < 1e-3);
+    assert_true(p1 > 1e-3);
+    for (int side = -1; side <= 1; side += 2) {
+        double u = 0.8 * side, x = 0.5 * (NX + 1) + u * 0.5 * NX;
+        mp_psf truth, built, flat;
+        memset(&built, 0, sizeof built);
+        memset(&flat, 0, sizeof flat);
+        truth_table(grad, u, rad, &truth);
+        assert_int_equal(mp_epsf_table(&e, x, o.y0, &built, err), 0);
+        /* the order-1 table without its slope: what order 0 would give */
+        mp_epsf e0 = e;
+        e0.order = 0;
+        e0.nterms = 1;
+        assert_int_equal(mp_epsf_table(&e0, x, o.y0, &flat, err), 0);
+        int np;
+        /* An order-1 fit's value at u has the variance of the mean times
+         * 1 + u²/⟨u²⟩ (the slope's share), ⟨u²⟩ over the stars. */
+        double u2 = 0;
+        for (int k = 0; k < NSTAR; k++) {
+            double uk = (ts[k].x - 0.5 * (NX + 1)) / (0.5 * NX);
+            u2 += uk * uk / NSTAR;
+        }
+        double vf = 1.0 + u * u / u2;
+        double cb = prf_chi2(&built, &truth, ts, vf, &np), cf = prf_chi2(&flat, &truth, ts, vf, &np);
+        printf("# linear: at u = %+.1f chi2/pix built %.3f, without the slope %.1f\n", u, cb, cf);
+        assert_true(cb < CHI2_TOL);
+        assert_true(cf > 10.0);
+        mp_psf_free(&truth);
+        mp_psf_free(&built);
+        mp_psf_free(&flat);
+    }
+    mp_epsf_free(&e);
+    mp_epsf_stars_free(s, NSTAR);
+    free(f.im.pix);
+    free(f.mask);
+}
+
+int main(void)
+{
+    const struct CMUnitTest tests[] = {
+        cmocka_unit_test(test_recovers_constant_table),
+        cmocka_unit_test(test_linear_variation),
+    };
+    return cmocka_run_group_tests(tests, NULL, NULL);
+}
