@@ -122,7 +122,7 @@ static int find_stars(run_state *s, char *err)
     s->rep->t_find += mp_seconds() - t0;
     s->rep->found = (long)s->t.nrow;
     /* Written first: a failed write is the run's only stderr line. */
-    if (mp_pl_write_named(s->root, ".coo", &s->t, s->o->fit.fmt, err))
+    if (s->root && mp_pl_write_named(s->root, ".coo", &s->t, s->o->fit.fmt, err))
         return 1;
     fprintf(stderr, "matphot pipeline: %s: %zu stars found (%ld candidates below the screen's "
             "S/N %g)\n", s->image, s->t.nrow, s->rep->screened,
@@ -159,7 +159,7 @@ static int group_and_fit(run_state *s, int round, char *err)
     if (mp_group_table(&s->t, &o->group, err))
         return 1;
     s->rep->t_group += mp_seconds() - t0;
-    if (mp_pl_write_named(s->root, ".grp", &s->t, o->fit.fmt, err))
+    if (s->root && mp_pl_write_named(s->root, ".grp", &s->t, o->fit.fmt, err))
         return 1;
     t0 = mp_seconds();
     mp_frame_report fr;
@@ -346,31 +346,45 @@ static int build_psf(run_state *s, int pass, char *err)
     return rc;
 }
 
+/* The frame read, its stars found, then the rounds of group and fit and
+ * find on the residual (with the PSF built from the frame when asked). */
+static int reduce(run_state *s, char *err)
+{
+    const mp_pipeline_opts *o = s->o;
+    int rc = read_frame(s, err) || find_stars(s, err) || (o->build_psf && build_psf(s, 1, err));
+    for (int round = 1; !rc && round <= o->niter; round++) {
+        s->rep->rounds = round;
+        long added = 0;
+        rc = group_and_fit(s, round, err);
+        /* DAOPHOT's second pass: the PSF again with every neighbour gone,
+         * and this round fitted again with it. */
+        if (!rc && round == 1 && o->build_psf)
+            rc = build_psf(s, 2, err) || group_and_fit(s, round, err);
+        if (rc || round == o->niter)
+            break;
+        rc = find_on_residual(s, round, &added, err);
+        if (added == 0)
+            break;           /* nothing new: the last fit and residual stand */
+    }
+    return rc;
+}
+
 int mp_pipeline_run(const char *image, const char *root, const mp_pipeline_opts *o,
                     mp_pipeline_report *rep, char *err)
 {
     run_state s;
-    if (state_init(&s, image, root, o, rep, err)) {
-        state_free(&s);
-        return 1;
-    }
-    int rc = read_frame(&s, err) || find_stars(&s, err) || (o->build_psf && build_psf(&s, 1, err));
-    for (int round = 1; !rc && round <= o->niter; round++) {
-        rep->rounds = round;
-        long added = 0;
-        rc = group_and_fit(&s, round, err);
-        /* DAOPHOT's second pass: the PSF again with every neighbour gone,
-         * and this round fitted again with it. */
-        if (!rc && round == 1 && o->build_psf)
-            rc = build_psf(&s, 2, err) || group_and_fit(&s, round, err);
-        if (rc || round == o->niter)
-            break;
-        rc = find_on_residual(&s, round, &added, err);
-        if (added == 0)
-            break;           /* nothing new: the last fit and residual stand */
-    }
-    if (!rc)
-        rc = write_products(&s, err);
+    int rc = state_init(&s, image, root, o, rep, err) || reduce(&s, err) ||
+             write_products(&s, err);
+    state_free(&s);
+    return rc;
+}
+
+int mp_pl_reduce(const char *image, const mp_pipeline_opts *o, mp_pipeline_report *rep,
+                 mp_pl_done_fn done, void *ctx, char *err)
+{
+    run_state s;
+    int rc = state_init(&s, image, NULL, o, rep, err) || reduce(&s, err) ||
+             done(ctx, &s.f, &s.t, s.res, err);
     state_free(&s);
     return rc;
 }
