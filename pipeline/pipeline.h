@@ -69,12 +69,23 @@ int mp_pipeline_run_tiled(const char *image, const char *root, const mp_pipeline
  * (README, "Frames of any size"); it sets the tiles from maxmem. */
 #define MP_PL_BYTES_PER_PIXEL 60.0
 
-/* mp_pipeline_reduce: mp_pipeline_run or mp_pipeline_run_tiled, as
+/* mp_pipeline_run_any: mp_pipeline_run or mp_pipeline_run_tiled, as
  * o->tilesize, o->maxmem and the frame's size say. */
-int mp_pipeline_reduce(const char *image, const char *root, const mp_pipeline_opts *o,
-                       mp_pipeline_report *rep, char *err);
+int mp_pipeline_run_any(const char *image, const char *root, const mp_pipeline_opts *o,
+                        mp_pipeline_report *rep, char *err);
+
+/* mp_pipeline_reduce: the same reduction of a frame already in memory
+ * (not modified), with o's PSF (o->build_psf must be 0): t receives the
+ * fitted stars (the table root.fit would hold; initialised here, the
+ * caller frees it).  Nothing is written, nothing printed; safe to call
+ * from several threads at once on different frames (artificial stars,
+ * pipeline/fakes.c). */
+int mp_pipeline_reduce(const mp_frame *f, const mp_pipeline_opts *o, mp_table *t, char *err);
 
 /* The `matphot pipeline` task. */
 int mp_task_pipeline(int argc, char **argv);
+
+/* The `matphot fakes` task: artificial-star tests (pipeline/fakes.c). */
+int mp_task_fakes(int argc, char **argv);
 
 #endif

@@ -7,6 +7,13 @@
 
 #include "pipeline/pipeline.h"
 
+/* ---- task_pipeline.c --------------------------------------------------- */
+
+/* mp_pl_opts_read: the pipeline's options from its parameters (pipeline.par
+ * names; `matphot fakes` has them all too).  Nonzero with err set on a bad
+ * value; o->fit is then to be freed with mp_fit_setup_free all the same. */
+int mp_pl_opts_read(mp_parset *ps, mp_pipeline_opts *o, char *err);
+
 /* ---- new_stars.c ------------------------------------------------------- */
 
 /* mp_pl_positions_of: before = NUMBER, X_IMAGE, Y_IMAGE of every row of t

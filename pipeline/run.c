@@ -29,6 +29,7 @@ typedef struct {
     mp_epsf psf;          /* the PSF built from the frame (build_psf) */
     double *px, *py, *pf; /* its stars */
     size_t np;
+    int quiet;            /* mp_pipeline_reduce: no stderr lines, no files */
 } run_state;
 
 static int oom(char *err)
@@ -122,7 +123,9 @@ static int find_stars(run_state *s, char *err)
     s->rep->t_find += mp_seconds() - t0;
     s->rep->found = (long)s->t.nrow;
     /* Written first: a failed write is the run's only stderr line. */
-    if (s->root && mp_pl_write_named(s->root, ".coo", &s->t, s->o->fit.fmt, err))
+    if (s->quiet)
+        return 0;
+    if (mp_pl_write_named(s->root, ".coo", &s->t, s->o->fit.fmt, err))
         return 1;
     fprintf(stderr, "matphot pipeline: %s: %zu stars found (%ld candidates below the screen's "
             "S/N %g)\n", s->image, s->t.nrow, s->rep->screened,
@@ -159,7 +162,7 @@ static int group_and_fit(run_state *s, int round, char *err)
     if (mp_group_table(&s->t, &o->group, err))
         return 1;
     s->rep->t_group += mp_seconds() - t0;
-    if (s->root && mp_pl_write_named(s->root, ".grp", &s->t, o->fit.fmt, err))
+    if (!s->quiet && mp_pl_write_named(s->root, ".grp", &s->t, o->fit.fmt, err))
         return 1;
     t0 = mp_seconds();
     mp_frame_report fr;
@@ -173,7 +176,8 @@ static int group_and_fit(run_state *s, int round, char *err)
         return 1;
     s->rep->t_fit += mp_seconds() - t0;
     count_fit(s->rep, &fr, s->t.nrow);
-    fprintf(stderr, "matphot pipeline: %s: round %d: %ld stars fitted in %ld groups "
+    if (!s->quiet)
+        fprintf(stderr, "matphot pipeline: %s: round %d: %ld stars fitted in %ld groups "
             "(%ld merged, %ld rejected; %ld group fits, %ld kept), %.2f s\n", s->image, round,
             fr.nstars - fr.merged - fr.rejected, fr.ngroups, fr.merged, fr.rejected, fr.fits,
             fr.kept, mp_seconds() - t0);
@@ -224,6 +228,8 @@ static int find_on_residual(run_state *s, int round, long *added, char *err)
     if (*added < 0)
         return oom(err);
     s->rep->added += *added;
+    if (s->quiet)
+        return 0;
     if (isfinite(kscale))
         fprintf(stderr, "matphot pipeline: %s: round %d: %ld new stars on the residual "
                 "(noise: %.3f x Poisson, profile error %.1f %%)\n", s->image, round, *added,
@@ -346,12 +352,12 @@ static int build_psf(run_state *s, int pass, char *err)
     return rc;
 }
 
-/* The frame read, its stars found, then the rounds of group and fit and
- * find on the residual (with the PSF built from the frame when asked). */
-static int reduce(run_state *s, char *err)
+/* The rounds: group and fit, find on the residual, until nothing new is
+ * found or niter rounds are done. */
+static int rounds(run_state *s, char *err)
 {
     const mp_pipeline_opts *o = s->o;
-    int rc = read_frame(s, err) || find_stars(s, err) || (o->build_psf && build_psf(s, 1, err));
+    int rc = 0;
     for (int round = 1; !rc && round <= o->niter; round++) {
         s->rep->rounds = round;
         long added = 0;
@@ -373,8 +379,41 @@ int mp_pipeline_run(const char *image, const char *root, const mp_pipeline_opts 
                     mp_pipeline_report *rep, char *err)
 {
     run_state s;
-    int rc = state_init(&s, image, root, o, rep, err) || reduce(&s, err) ||
-             write_products(&s, err);
+    if (state_init(&s, image, root, o, rep, err)) {
+        state_free(&s);
+        return 1;
+    }
+    int rc = read_frame(&s, err) || find_stars(&s, err) || (o->build_psf && build_psf(&s, 1, err));
+    if (!rc)
+        rc = rounds(&s, err);
+    if (!rc)
+        rc = write_products(&s, err);
+    state_free(&s);
+    return rc;
+}
+
+int mp_pipeline_reduce(const mp_frame *f, const mp_pipeline_opts *o, mp_table *t, char *err)
+{
+    run_state s;
+    mp_pipeline_report rep;
+    mp_table_init(t);
+    if (o->build_psf) {
+        snprintf(err, MP_ERRLEN, "psf: a PSF is needed (the reduction in memory builds none)");
+        return 1;
+    }
+    int rc = state_init(&s, "(in memory)", NULL, o, &rep, err);
+    s.quiet = 1;
+    s.f = *f;                    /* borrowed: not freed below */
+    size_t npix = (size_t)f->im.nx * (size_t)f->im.ny;
+    if (!rc && !(s.res = malloc(npix * sizeof *s.res)))
+        rc = oom(err);
+    if (!rc)
+        rc = find_stars(&s, err) || rounds(&s, err);
+    if (!rc) {
+        *t = s.t;
+        mp_table_init(&s.t);
+    }
+    memset(&s.f, 0, sizeof s.f);
     state_free(&s);
     return rc;
 }
@@ -383,7 +422,10 @@ int mp_pl_reduce(const char *image, const mp_pipeline_opts *o, mp_pipeline_repor
                  mp_pl_done_fn done, void *ctx, char *err)
 {
     run_state s;
-    int rc = state_init(&s, image, NULL, o, rep, err) || reduce(&s, err) ||
+    int rc = state_init(&s, image, NULL, o, rep, err);
+    s.quiet = 1;                 /* no root.coo, root.grp: the tiles' driver writes */
+    if (!rc)
+        rc = read_frame(&s, err) || find_stars(&s, err) || rounds(&s, err) ||
              done(ctx, &s.f, &s.t, s.res, err);
     state_free(&s);
     return rc;

@@ -4,7 +4,7 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
-#include "pipeline/pipeline.h"
+#include "pipeline/pipeline_priv.h"
 
 /* psf="" builds the PSF from the frame (psf/build.h); the find kernel and
  * the builder's start are the Gaussian of fwhm until it exists. */
@@ -20,7 +20,7 @@ static void psf_build_opts(mp_parset *ps, mp_pipeline_opts *o)
     mp_par_int(ps, "maxnpsf", &o->psfb.maxnpsf);
 }
 
-static int opts_read(mp_parset *ps, mp_pipeline_opts *o, char *err)
+int mp_pl_opts_read(mp_parset *ps, mp_pipeline_opts *o, char *err)
 {
     memset(o, 0, sizeof *o);
     if (mp_fit_setup_read(ps, &o->fit, err))
@@ -74,7 +74,7 @@ int mp_task_pipeline(int argc, char **argv)
     char **im = NULL;
     size_t nim = 0;
     int rc = 1;
-    if (opts_read(&ps, &o, err))
+    if (mp_pl_opts_read(&ps, &o, err))
         goto done;
     if (mp_params_list(mp_par_string(&ps, "image"), &im, &nim, err))
         goto done;
@@ -91,7 +91,7 @@ int mp_task_pipeline(int argc, char **argv)
             goto done;
         }
         mp_pipeline_report r;
-        int prc = mp_pipeline_reduce(im[i], root[0] ? root : named, &o, &r, err);
+        int prc = mp_pipeline_run_any(im[i], root[0] ? root : named, &o, &r, err);
         free(named);
         if (prc)
             goto done;

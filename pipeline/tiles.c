@@ -320,8 +320,8 @@ int mp_pipeline_run_tiled(const char *image, const char *root, const mp_pipeline
     return rc;
 }
 
-int mp_pipeline_reduce(const char *image, const char *root, const mp_pipeline_opts *o,
-                       mp_pipeline_report *rep, char *err)
+int mp_pipeline_run_any(const char *image, const char *root, const mp_pipeline_opts *o,
+                        mp_pipeline_report *rep, char *err)
 {
     if (o->tilesize == 0)
         return mp_pipeline_run(image, root, o, rep, err);
