@@ -96,10 +96,10 @@ static int read_frame(run_state *s, char *err)
  * 5000 at 3x the fit's time: not done.) */
 static int screen(run_state *s, const mp_frame *on, const double *data, mp_table *cand)
 {
-    double cut = s->o->fit.opts.minsnr - MP_PL_SCREEN_SLACK;
+    double cut = s->fit->opts.minsnr - MP_PL_SCREEN_SLACK;
     if (!(cut > 0) || cand->nrow == 0)
         return 0;
-    long n = mp_pl_prescreen(on, &s->bkg, data, &s->o->fit.model, s->o->fit.opts.fit.fitrad,
+    long n = mp_pl_prescreen(on, &s->bkg, data, &s->fit->model, s->fit->opts.fit.fitrad,
                              cut, cand);
     if (n < 0)
         return 1;

@@ -60,6 +60,9 @@ typedef struct {
  * scales from nx, ny (the frame's centre and half-sizes, as PSFEx). */
 void mp_epsf_opts_default(double fwhm, long nx, long ny, mp_epsf_opts *o);
 
+/* Bins of the table's noise filter (psf/denoise.c). */
+#define MP_EPSF_NWBIN 40
+
 /* The built PSF: nterms planes of nx × ny elements, term-major. */
 typedef struct {
     int order, nterms, nx, ny, os;
@@ -71,9 +74,9 @@ typedef struct {
     char osw[160];       /* why this OVERSAMP */
     double sum_err;      /* error of sum (0: not measured) */
     int ngrowth;         /* stars the sum was measured on */
-    double *info;        /* nx*ny: each element's information Σ_k Σ_p W
-                          * from the last step (its variance is about
-                          * 1/(os⁴·info)); NULL before a build */
+    double wiener[MP_EPSF_NWBIN];   /* the noise filter per 0.05 cycles/px
+                          * (S/(S+N), measured in the first pass) */
+    int have_wiener;
 } mp_epsf;
 
 void mp_epsf_free(mp_epsf *e);
@@ -142,11 +145,6 @@ int mp_epsf_order_test(const mp_epsf_star *s, size_t n, const mp_epsf *e, double
  * PRF of e itself: the coarser table's bias in units of the noise for a
  * star of E electrons on sky B. */
 double mp_epsf_oversamp_error(const mp_epsf *e, int os_coarse, double E, double B, double ron);
-
-/* mp_epsf_noise_error: the same measure for the table's own statistical
- * error (each element's variance from e->info): what the coarser table's
- * aliasing is compared with when it exceeds the star's noise. */
-double mp_epsf_noise_error(const mp_epsf *e, double E, double B, double ron);
 
 /* mp_epsf_rebin: e block-summed to OVERSAMP e->os/factor (planes re-sampled
  * so the star stays at the centre of the central element). */

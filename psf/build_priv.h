@@ -36,6 +36,19 @@ int mp_epsf_sirt_run(mp_epsf_sirt *w, const mp_epsf_star *s, size_t n, const mp_
  * every plane (Gaussian window of fwhm) to the central element. */
 void mp_epsf_normalise(mp_epsf *e, double fwhm);
 
+/* The Wiener filter of the table (denoise.c): MP_EPSF_NWBIN bins of
+ * MP_EPSF_WBIN cycles per detector pixel (out to 2: the ×4 Nyquist). */
+#define MP_EPSF_WBIN 0.05
+
+/* mp_epsf_wiener_measure: w[b] = S/(S+N) per radial bin from table e and a
+ * draw of its noise (same size and sampling), non-increasing outward.
+ * Nonzero on out of memory. */
+int mp_epsf_wiener_measure(const mp_epsf *e, const mp_epsf *noise, double *w, int nbin);
+
+/* mp_epsf_wiener_apply: every plane of e filtered by w (per cycles per
+ * pixel, so any OVERSAMP).  Nonzero on out of memory. */
+int mp_epsf_wiener_apply(mp_epsf *e, const double *w, int nbin);
+
 /* mp_epsf_median: the median of v[0..n) (reorders v). */
 double mp_epsf_median(double *v, size_t n);
 

@@ -30,7 +30,6 @@ void mp_epsf_free(mp_epsf *e)
     if (!e)
         return;
     free(e->planes);
-    free(e->info);
     memset(e, 0, sizeof *e);
 }
 

@@ -171,15 +171,6 @@ int mp_epsf_build(mp_epsf_star *s, size_t n, const mp_epsf_opts *o, int os, int 
         if (s[k].used && fit_star(&s[k], e, o, &tab, err))
             goto done;
     e->nstar = (int)count_used(s, n);
-    free(e->info);
-    if (!(e->info = calloc(w.nel, sizeof *e->info))) {
-        oom(err);
-        goto done;
-    }
-    for (size_t k = 0; k < n; k++)
-        if (s[k].used)
-            for (size_t i = 0; i < w.nel; i++)
-                e->info[i] += w.H[k * w.nel + i];
     rc = 0;
 done:
     free(tmp);

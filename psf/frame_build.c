@@ -54,6 +54,15 @@ static int put_back(mp_epsf_star *s, size_t n, const mp_table *t, const mp_prf_m
     return 0;
 }
 
+/* Used stars. */
+static size_t count_used_stars(const mp_epsf_star *s, size_t n)
+{
+    size_t m = 0;
+    for (size_t k = 0; k < n; k++)
+        m += s[k].used != 0;
+    return m;
+}
+
 static double median_chi2(const mp_epsf_star *s, size_t n)
 {
     double *v = malloc((n + 1) * sizeof *v);
@@ -87,8 +96,48 @@ static void brightest(const mp_epsf_star *s, size_t n, double *E, double *B)
     free(v);
 }
 
-/* OVERSAMP auto: built at ×4, then the coarsest of ×1, ×2 whose aliasing
- * error stays below 1 σ of the brightest star's noise. */
+/* The table's own error, measured: the stars split in two halves
+ * (alternate ones), each builds its own ×4 table from the start, and half
+ * their difference is a draw of the full table's error (each half has
+ * twice the full table's variance).  noise receives it. */
+static int half_difference(mp_epsf_star *s, size_t n, const mp_epsf_opts *o, const mp_epsf *e,
+                           mp_epsf *noise, char *err)
+{
+    mp_epsf h[2];
+    memset(h, 0, sizeof h);
+    int *keep = malloc((n + 1) * sizeof *keep);
+    if (!keep) {
+        snprintf(err, MP_ERRLEN, "psf build: out of memory");
+        return 1;
+    }
+    int rc = 0;
+    for (int half = 0; half < 2 && !rc; half++) {
+        for (size_t k = 0; k < n; k++) {
+            keep[k] = s[k].used;
+            if ((int)(k % 2) != half)
+                s[k].used = 0;
+        }
+        rc = mp_epsf_build(s, n, o, e->os, 0, &h[half], err);
+        for (size_t k = 0; k < n; k++)
+            s[k].used = keep[k];
+    }
+    if (!rc) {
+        *noise = h[0];
+        h[0].planes = NULL;
+        size_t nel = (size_t)e->nx * e->ny;
+        for (size_t i = 0; i < nel; i++)
+            noise->planes[i] = 0.5 * (noise->planes[i] - h[1].planes[i]);
+    }
+    mp_epsf_free(&h[0]);
+    mp_epsf_free(&h[1]);
+    free(keep);
+    return rc;
+}
+
+/* OVERSAMP auto: built at ×4 and smoothed as its noise needs (the
+ * Wiener filter of a measured draw of that noise, half_difference); then
+ * the coarsest of ×1, ×2 whose aliasing error on that table, for the
+ * brightest PSF star, is below 1 σ of its noise, else ×4. */
 static int choose_os(mp_epsf_star *s, size_t n, const mp_epsf_opts *o, const mp_frame *f,
                      mp_epsf *e, mp_epsf_report *rep, char *err)
 {
@@ -96,22 +145,31 @@ static int choose_os(mp_epsf_star *s, size_t n, const mp_epsf_opts *o, const mp_
         return 1;
     double E, B;
     brightest(s, n, &E, &B);
+    mp_epsf noise;
+    memset(&noise, 0, sizeof noise);
+    if (count_used_stars(s, n) >= 6 && half_difference(s, n, o, e, &noise, err) == 0 &&
+        mp_epsf_wiener_measure(e, &noise, e->wiener, MP_EPSF_NWBIN) == 0 &&
+        mp_epsf_wiener_apply(e, e->wiener, MP_EPSF_NWBIN) == 0) {
+        e->have_wiener = 1;
+        mp_epsf_normalise(e, o->fwhm);
+    }
+    mp_epsf_free(&noise);
     int pick = 4;
-    /* "Below the noise": the star's own (1 σ), or the ×4 table's
-     * statistical error when that is larger (then the finer table's extra
-     * detail is noise, not aliasing avoided). */
-    double qn = mp_epsf_noise_error(e, E, B, f->rdnoise), lim = fmax(1.0, qn);
     for (int os = 2; os >= 1; os /= 2) {
         rep->oserr[os] = mp_epsf_oversamp_error(e, os, E, B, f->rdnoise);
-        if (rep->oserr[os] < lim)
+        if (rep->oserr[os] < 1.0)
             pick = os;
         else
             break;
     }
+    int band = 0;
+    while (band < MP_EPSF_NWBIN && e->wiener[band] >= 0.5)
+        band++;
     snprintf(rep->what + strlen(rep->what), sizeof rep->what - strlen(rep->what),
-             "OVERSAMP %d (aliasing error for the brightest star, %.3g e-: x1 %.2g, x2 %.2g "
-             "sigma; x4 table's own error %.2g sigma; the coarsest below max(1, that)); ",
-             pick, E, rep->oserr[1], rep->oserr[2], qn);
+             "OVERSAMP %d (aliasing error for the brightest star, %.3g e-, of the x4 table "
+             "smoothed as its noise needs (S/N > 1 out to %.2f cycles/px%s): x2 %.2g, x1 %.2g "
+             "sigma; the coarsest below 1); ", pick, E, band * MP_EPSF_WBIN,
+             e->have_wiener ? "" : ", not measured", rep->oserr[2], rep->oserr[1]);
     if (pick < 4) {
         mp_epsf c;
         if (mp_epsf_rebin(e, 4 / pick, &c, err))
@@ -189,6 +247,15 @@ int mp_epsf_pass(const mp_frame *f, const double *img, int residual, const mp_ta
         snprintf(e->why, sizeof e->why, "order %d as given (varorder=%d)", o->order, o->order);
     } else if (choose_order(s, n, o, e, rep, err)) {
         goto done;
+    }
+    /* Smoothed as the noise needs (the first pass's measured filter): the
+     * iteration adds back some of what the filter took. */
+    if (e->have_wiener) {
+        if (mp_epsf_wiener_apply(e, e->wiener, MP_EPSF_NWBIN)) {
+            snprintf(err, MP_ERRLEN, "psf build: out of memory");
+            goto done;
+        }
+        mp_epsf_normalise(e, o->fwhm);
     }
     /* The light beyond the table only once the neighbours are gone: in a
      * crowded frame they fill the big aperture. */

@@ -39,7 +39,6 @@ int mp_epsf_rebin(const mp_epsf *e, int factor, mp_epsf *out, char *err)
             goto done;
         if (!out->planes) {
             *out = *e;
-            out->info = NULL;
             out->nx = o.nx;
             out->ny = o.ny;
             out->os = o.os;
@@ -84,30 +83,36 @@ static int paint(const mp_psf *p, double x, double y, double sign, double *cv, i
     return 0;
 }
 
-double mp_epsf_oversamp_error(const mp_epsf *e, int os_coarse, double E, double B, double ron)
+/* The aliasing measure of table d (its block-sum to os_coarse against
+ * itself), weighted by the noise of a star of E electrons whose PRF is
+ * that of table p. */
+static double alias_q(const mp_epsf *d, const mp_epsf *p, int os_coarse, double E, double B,
+                      double ron)
 {
-    if (os_coarse >= e->os)
+    if (os_coarse >= d->os)
         return 0.0;
     char err[MP_ERRLEN];
     mp_epsf c;
-    mp_psf tf, tc;
+    mp_psf tf, tc, tp;
     memset(&tf, 0, sizeof tf);
     memset(&tc, 0, sizeof tc);
+    memset(&tp, 0, sizeof tp);
     double worst = INFINITY;
-    if (e->os % os_coarse || mp_epsf_rebin(e, e->os / os_coarse, &c, err))
+    if (d->os % os_coarse || mp_epsf_rebin(d, d->os / os_coarse, &c, err))
         return INFINITY;
-    int cw = (int)(e->nx / e->os) + 8;
+    int cw = (int)(d->nx / d->os) + 8;
     double *P = calloc((size_t)cw * cw, sizeof *P), *D = calloc((size_t)cw * cw, sizeof *D);
     mp_prf_work w;
     memset(&w, 0, sizeof w);
-    if (!P || !D || mp_epsf_table(e, e->x0, e->y0, &tf, err) || mp_epsf_table(&c, c.x0, c.y0, &tc, err))
+    if (!P || !D || mp_epsf_table(d, d->x0, d->y0, &tf, err) ||
+        mp_epsf_table(&c, c.x0, c.y0, &tc, err) || mp_epsf_table(p, p->x0, p->y0, &tp, err))
         goto done;
     worst = 0.0;
     for (int ph = 0; ph < 16; ph++) {
         double x = 0.5 * cw + 0.25 * (ph % 4), y = 0.5 * cw + 0.25 * (ph / 4);
         memset(P, 0, (size_t)cw * cw * sizeof *P);
         memset(D, 0, (size_t)cw * cw * sizeof *D);
-        if (paint(&tf, x, y, 1.0, P, cw, &w) || paint(&tf, x, y, -1.0, D, cw, &w) ||
+        if (paint(&tp, x, y, 1.0, P, cw, &w) || paint(&tf, x, y, -1.0, D, cw, &w) ||
             paint(&tc, x, y, 1.0, D, cw, &w)) {
             worst = INFINITY;
             goto done;
@@ -124,52 +129,12 @@ done:
     mp_prf_work_free(&w);
     mp_psf_free(&tf);
     mp_psf_free(&tc);
+    mp_psf_free(&tp);
     mp_epsf_free(&c);
     return worst;
 }
 
-double mp_epsf_noise_error(const mp_epsf *e, double E, double B, double ron)
+double mp_epsf_oversamp_error(const mp_epsf *e, int os_coarse, double E, double B, double ron)
 {
-    if (!e->info)
-        return 0.0;
-    char err[MP_ERRLEN];
-    size_t nel = (size_t)e->nx * e->ny;
-    double os4 = (double)e->os * e->os * e->os * e->os;
-    mp_psf tf, tv;
-    memset(&tf, 0, sizeof tf);
-    memset(&tv, 0, sizeof tv);
-    double worst = INFINITY;
-    int cw = (int)(e->nx / e->os) + 8;
-    double *P = calloc((size_t)cw * cw, sizeof *P), *V = calloc((size_t)cw * cw, sizeof *V);
-    mp_prf_work w;
-    memset(&w, 0, sizeof w);
-    if (!P || !V || mp_epsf_table(e, e->x0, e->y0, &tf, err) || mp_epsf_table(e, e->x0, e->y0, &tv, err))
-        goto done;
-    /* Each element's variance, about 1/(os⁴·info) (the step is c/os² with
-     * c a mean of residuals of weight info), summed over a pixel's block
-     * as the render sums the elements. */
-    for (size_t i = 0; i < nel; i++)
-        tv.t[i] = e->info[i] > 0 ? 1.0 / (os4 * e->info[i]) : 0.0;
-    worst = 0.0;
-    for (int ph = 0; ph < 16; ph++) {
-        double x = 0.5 * cw + 0.25 * (ph % 4), y = 0.5 * cw + 0.25 * (ph / 4);
-        memset(P, 0, (size_t)cw * cw * sizeof *P);
-        memset(V, 0, (size_t)cw * cw * sizeof *V);
-        if (paint(&tf, x, y, 1.0, P, cw, &w) || paint(&tv, x, y, 1.0, V, cw, &w)) {
-            worst = INFINITY;
-            goto done;
-        }
-        double q = 0.0;
-        for (size_t i = 0; i < (size_t)cw * cw; i++)
-            q += fmax(V[i], 0.0) / (fmax(E * P[i], 0.0) + B + ron * ron);
-        q = E * sqrt(q);
-        worst = q > worst ? q : worst;
-    }
-done:
-    free(P);
-    free(V);
-    mp_prf_work_free(&w);
-    mp_psf_free(&tf);
-    mp_psf_free(&tv);
-    return worst;
+    return alias_q(e, e, os_coarse, E, B, ron);
 }

@@ -7,6 +7,9 @@
  * odd sizes, the star at the centre of the central element; its sum is the
  * fraction of the star's light it holds (≤ 1).  The fit (fit/) shifts it
  * to each star; the simulator (sim/) block-sums finer tables itself.
+ * The PSF built from a frame's stars (`matphot psf`) is declared in
+ * psf/build.h: it fits stars with fit/'s engine, which itself includes
+ * this header, so it cannot live here.
  *
  * matphot's PSF file (what `matphot psf` writes and `fit`/`pipeline` read):
  *   primary HDU  2-D image (order 0: one table) or 3-D cube

@@ -61,4 +61,21 @@ has "$T/nyes.err" 'economy: [0-9]* decisions: supersampling: per group.* x1 to E
 fit nno "$T/n.fits" "$T/n.truth" psf="$T/n2.fits" economy=no
 cmp -s "$T/nyes.fit" "$T/nno.fit" || no "undersampled: economy=yes changed the fit"
 
+# A segmented mirror (lambda/D = 2 px at the blue end of a 50 % band, beta
+# ~ 28 px^2, where paper 5.4's rule took it to x1): its x1 table serves
+# only faint stars (~5e3 e- on sky 100), so a -15 mag star keeps x2 and a
+# -7 mag one gets x1.
+"$M" sim "$T/s.fits" pupil=segmented lod=2 band=0.5 psfos=2 psfout="$T/s2.fits" seed=24 \
+    magmin=-15 magmax=-15 || no "sim segmented"
+"$M" sim "$T/f.fits" psf="$T/s2.fits" psfout="$T/s2b.fits" psfos=2 seed=25 magmin=-7 magmax=-7 ||
+    no "sim segmented faint"
+cmp -s "$T/s2.fits" "$T/s2b.fits" || no "psfout of a x2 table at x2 is not the table itself"
+for f in s f; do
+    sed 's/^#   4 FLUX_TRUE             /#   4 FLUX                  /' "$T/$f.truth" > "$T/$f.coo"
+done
+fit syes "$T/s.fits" "$T/s.coo" psf="$T/s2.fits" fitrad=INDEF
+has "$T/syes.err" 'work:.* 0 with a coarser table' "segmented, -15 mag: x2 not kept"
+fit fyes "$T/f.fits" "$T/f.coo" psf="$T/s2.fits" fitrad=INDEF
+has "$T/fyes.err" 'work:.* 1 with a coarser table' "segmented, -7 mag: x1 not used"
+
 [ "$fails" -eq 0 ]

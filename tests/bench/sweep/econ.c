@@ -166,13 +166,14 @@ static int write_row(const char *work, const sw_scene *sc, const sw_result *no,
     return 0;
 }
 
-/* The beta >= 21 rule's x1 table against economy=no: WORK/SCENE_old.md. */
+/* The beta >= 21 rule's x1 table against economy=yes on the same stars
+ * (d: old − yes, paired): WORK/SCENE_old.md. */
 static int write_old(const char *work, const sw_scene *sc, const sw_result *no,
-                     const sw_result *old, char *err)
+                     const sw_result *yes, const sw_result *old, const sw_sub *d, char *err)
 {
-    const sw_sub *a = &old->sub[0], *b = &old->sub[2];
-    int same = within(a->dph, a->udph) && within(a->das, a->udas) &&
-               (b->n == 0 || (within(b->dph, b->udph) && within(b->das, b->udas)));
+    const sw_sub *a = &old->sub[0];
+    int same = within(d[0].dph, d[0].udph) && within(d[0].das, d[0].udas) &&
+               (d[2].n == 0 || (within(d[2].dph, d[2].udph) && within(d[2].das, d[2].udas)));
     char path[1024];
     snprintf(path, sizeof path, "%s/%s_old.md", work, sc->name);
     FILE *fp = fopen(path, "w");
@@ -180,10 +181,10 @@ static int write_old(const char *work, const sw_scene *sc, const sw_result *no,
         snprintf(err, MP_ERRLEN, "%.400s: cannot write", path);
         return 1;
     }
-    fprintf(fp, "| %s | %d | %.1f | %.3f / %.3f | %.3f ± %.3f | %+.4f ± %.4f | %.3f ± %.3f | %+.4f ± %.4f "
-            "| %+.4f ± %.4f / %+.4f ± %.4f | %s |\n", sc->name, sc->n, sc->beta_norm,
-            1e3 * no->cpu_star, 1e3 * old->cpu_star, a->ph, a->uph, a->dph, a->udph, a->as, a->uas, a->das, a->udas,
-            b->dph, b->udph, b->das, b->udas,
+    fprintf(fp, "| %s | %d | %.1f | %.3f / %.3f / %.3f | %.3f ± %.3f | %+.4f ± %.4f | %.3f ± %.3f | "
+            "%+.4f ± %.4f | %+.4f ± %.4f / %+.4f ± %.4f | %s |\n", sc->name, sc->n, sc->beta_norm,
+            1e3 * no->cpu_star, 1e3 * yes->cpu_star, 1e3 * old->cpu_star, a->ph, a->uph, d[0].dph,
+            d[0].udph, a->as, a->uas, d[0].das, d[0].udas, d[2].dph, d[2].udph, d[2].das, d[2].udas,
             same ? "same within 2σ" : "**differs** (> 2σ)");
     if (ferror(fp) | fclose(fp)) {
         snprintf(err, MP_ERRLEN, "%.400s: write error", path);
@@ -297,8 +298,24 @@ int sw_econ(const sw_scene *sc, const char *work, int reps, int verbose, char *e
         if (write_kern(work, sc, &res[1], &res[2], d, tbuild, err))
             goto done;
     }
-    rc = write_row(work, sc, &res[0], &res[1], &s[1], &s[0], reps, err) ||
-         (iold >= 0 && write_old(work, sc, &res[0], &res[iold], err));
+    if (write_row(work, sc, &res[0], &res[1], &s[1], &s[0], reps, err))
+        goto done;
+    if (iold == 2) {
+        /* The rule's differences from economy=yes, same stars. */
+        sw_sub keep[2][3], d[3];
+        memcpy(keep[0], res[1].sub, sizeof keep[0]);
+        memcpy(keep[1], res[2].sub, sizeof keep[1]);
+        if (sw_stats(sc, res + 1, 2, 0, sc->seed + 57)) {
+            snprintf(err, MP_ERRLEN, "out of memory for the statistics");
+            goto done;
+        }
+        memcpy(d, res[2].sub, sizeof d);
+        memcpy(res[1].sub, keep[0], sizeof keep[0]);
+        memcpy(res[2].sub, keep[1], sizeof keep[1]);
+        if (write_old(work, sc, &res[0], &res[1], &res[2], d, err))
+            goto done;
+    }
+    rc = 0;
 done:
     for (int i = 0; i < 3; i++)
         sw_result_free(&res[i]);

@@ -101,10 +101,10 @@ S="$W/economy.md"
     echo "px² at detector sampling (paper §5.4, derived for Gaussians).  Now each group gets the coarsest"
     echo "table whose bias bound on THIS PSF, q = E·max_phase √(Σ δP²/(E·P + B + RON²)) (δP = coarse − given"
     echo "PRF at 4×4 phases, fit/ss_choice.c), stays below 0.1 σ of its brightest star.  Where the old rule"
-    echo "applied, its ×1 fit (\`psfos=1\`) against economy=no on the same stars, interleaved with the rows"
-    echo "above:"
+    echo "applied, its ×1 fit (\`psfos=1\`, interleaved with the rows above) against economy=yes on the same"
+    echo "stars (Δ = β rule − economy=yes ± σ_pair; \"differs\" where the new decision changes the error):"
     echo
-    echo "| scene | N | β·V² px² | CPU ms/star no / β rule | phot ± σ | Δphot ± σ_pair | astro ± σ | Δastro ± σ_pair | bright Δphot / Δastro | verdict |"
+    echo "| scene | N | β·V² px² | CPU ms/star no / yes / β rule | phot ± σ | Δphot ± σ_pair | astro ± σ | Δastro ± σ_pair | bright Δphot / Δastro | verdict |"
     echo "|---|---:|---:|---|---|---:|---|---:|---|---|"
     for s in $SCENES; do
         [ -f "$W/${s}_old.md" ] && cat "$W/${s}_old.md"
