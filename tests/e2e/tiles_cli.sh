@@ -11,7 +11,7 @@
 # seed, no randomness: no false-failure rate.  Also: the residual has the
 # whole frame's size, the catalog its sky positions (the header read
 # through a one-pixel section); maxmem picks tiles for a frame larger than
-# the budget; tiles without a PSF model are refused in one line.
+# the budget (and not for one within it); tiles without a PSF model are refused in one line.
 M=${MATPHOT:-./matphot}
 [ -x "$M" ] || { echo "tiles_cli: $M not built"; exit 77; }
 T=$(mktemp -d "${TMPDIR:-/tmp}/tiles_cli.XXXXXX") || exit 1
@@ -22,7 +22,8 @@ no() { echo "FAIL: $*"; fails=$((fails + 1)); }
 "$M" sim "$T/f.fits" mode=crowded nx=300 ny=300 nstars=450 fwhm=2.5 magmin=-13 magmax=-8 \
     seed=31 psfout="$T/psf.fits" ra=150 dec=2 || no "sim"
 P="psf=$T/psf.fits"
-"$M" pipeline "$T/f.fits" "$P" root="$T/w" tilesize=0 2>"$T/w.log" || no "whole: $(tail -n 1 "$T/w.log")"
+"$M" pipeline "$T/f.fits" "$P" root="$T/w" 2>"$T/w.log" || no "whole: $(tail -n 1 "$T/w.log")"
+grep -q "tiles of" "$T/w.log" && no "the default budget tiled a small frame"
 "$M" pipeline "$T/f.fits" "$P" root="$T/t" tilesize=100 2>"$T/t.log" || no "tiled: $(tail -n 1 "$T/t.log")"
 grep -q "in 3 x 3 tiles of 100" "$T/t.log" || no "tilesize=100 did not make 3 x 3 tiles"
 [ "$(grep -c '^matphot pipeline: tile [0-9]' "$T/t.log")" = 9 ] || no "not 9 tiles reduced"
@@ -56,11 +57,12 @@ for col in 1 2; do
 done
 cat "$T/cmp"
 
-# maxmem: this 0.09-Mpixel frame is ~5 MB whole (60 B/px): a 2 MB budget tiles it.
-"$M" pipeline "$T/f.fits" "$P" root="$T/m" maxmem=2 2>"$T/m.log" || no "maxmem=2: $(tail -n 1 "$T/m.log")"
-grep -q "tiles of" "$T/m.log" || no "maxmem=2 did not choose tiles"
-"$M" pipeline "$T/f.fits" "$P" root="$T/b" 2>"$T/b.log" || no "default maxmem"
-grep -q "tiles of" "$T/b.log" && no "the default budget tiled a small frame"
+# maxmem: a 160 x 160 frame is 1.5 MB whole (60 B/px): a 1 MB budget holds
+# sections of 132 px, cores of 132 less twice the margin (~26): 2 x 2 tiles.
+"$M" sim "$T/g.fits" mode=crowded nx=160 ny=160 nstars=60 fwhm=2.5 magmin=-13 magmax=-9 seed=32 ||
+    no "sim g"
+"$M" pipeline "$T/g.fits" "$P" root="$T/m" maxmem=1 2>"$T/m.log" || no "maxmem=1: $(tail -n 1 "$T/m.log")"
+grep -q "in 2 x 2 tiles of" "$T/m.log" || no "maxmem=1 did not choose 2 x 2 tiles: $(grep tiles "$T/m.log")"
 
 # Tiles need a PSF model: one line, exit 1, nothing written.
 "$M" pipeline "$T/f.fits" root="$T/x" tilesize=100 2>"$T/refused.log"; rc=$?
