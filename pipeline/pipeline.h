@@ -45,6 +45,7 @@ typedef struct {
     long kcalls, kshort;          /* LM fits of groups; with a shorter sinc kernel */
     long kbounds, envelopes;      /* economy's own cost (mp_frame_report) */
     long kcoarse;                 /* LM fits with a coarser table */
+    long kcache;                  /* LM fits with the PRF from the phase grid */
     long sky_groups[MP_SKY_MAXORDER + 1];  /* last round's groups by sky order */
     double khw;                   /* their half-widths summed over all group fits */
 } mp_pipeline_report;

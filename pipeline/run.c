@@ -149,6 +149,7 @@ static void count_fit(mp_pipeline_report *rep, const mp_frame_report *fr, size_t
     rep->khw += fr->khw;
     rep->kbounds += fr->kbounds;
     rep->kcoarse += fr->kcoarse;
+    rep->kcache += fr->kcache;
     rep->envelopes += fr->envelopes;
     rep->ngroups = fr->ngroups;
     rep->fitted = (long)nrow;
