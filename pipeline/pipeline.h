@@ -20,7 +20,7 @@ typedef struct {
     int mesh, filter;        /* background mesh and filter */
     mp_group_opts group;
     int niter;
-    double matchrad;         /* [px]; NaN: 1 FWHM */
+    double matchrad;         /* [px]; NaN: 0.5 FWHM */
     mp_table_format catfmt;
     int regions;             /* also write root.reg (DS9) */
     int build_psf;           /* psf="" : build root.psf.fits from the frame

@@ -29,6 +29,12 @@ grep -q "variable PSF: order 1, each star's table evaluated at its own position"
     || no "the report does not say the PSF varies: $(cat "$T/e2")"
 cmp -s "$T/a0.fit" "$T/a2.fit" && no "a sloped field fits as the constant table does"
 
+# The pipeline with a variable PSF: each star's table at its own position.
+"$M" pipeline "$T/a.fits" psf="$F/field_slope.fits" root="$T/pl" >/dev/null 2>"$T/epl" \
+    || no "pipeline with the sloped field: $(tail -n 3 "$T/epl")"
+grep -q "variable PSF: order 1" "$T/pl.report" || no "pipeline report: no variable PSF"
+[ -s "$T/pl.fit" ] || no "pipeline with the sloped field wrote no fit table"
+
 # A cube of 3 planes that says it is of order 2.
 LC_ALL=C sed 's/PSFORDER=                    1/PSFORDER=                    2/' \
     "$F/field_flat.fits" >"$T/bad.fits"
