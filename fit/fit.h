@@ -64,6 +64,8 @@ void mp_five_point(const double *in, int nx, int ny, int axis, double *out);
 
 /* ---- PRF on detector pixels ---------------------------------------------- */
 
+struct mp_prf_cache_s;
+
 /* What makes a model PRF, and which of its parts are used. */
 typedef struct {
     const mp_psf *psf;     /* the PSF; a variable one (psf->field) is
@@ -80,6 +82,9 @@ typedef struct {
     double *e;             /* the star's own table, when the model has a field */
     long nshift, nskip;    /* table renders: axes shifted, and of those skipped
                             * because the shift is on the grid (mp_shift_on_grid) */
+    const struct mp_prf_cache_s *grid;  /* economy: renders of the model this
+                            * phase grid was built for are drawn from it
+                            * (fit/prf_cache.c); NULL: exact renders */
 } mp_prf_work;
 
 void mp_prf_work_free(mp_prf_work *w);
@@ -207,6 +212,66 @@ void mp_prf_crop_free(mp_prf_crop *c);
  * never below): its whole box. */
 double mp_prf_crop_radius(const mp_prf_crop *c, double E, double sky);
 
+/* ---- The PRF from a grid of subpixel phases (fit/prf_cache.c, issue 12) --- */
+
+/* The exact PRF (full sinc_hw) and its five-point derivatives rendered once
+ * on a grid of phases, G per pixel, kept per alignment branch (1/os px wide,
+ * Gb = G/os intervals, nodes −1..Gb+1 with the branch's alignment); a star's
+ * PRF and derivatives are the tensor-product 4-point Lagrange interpolation
+ * between the 4×4 nodes around its phase.  The error this adds to the PRF,
+ * δP, is measured at the centre of each of the G² cells. */
+typedef struct mp_prf_cache_s {
+    int G;                 /* phases per pixel (os·gb); 0: no cache */
+    int os, gb;            /* the table's OVERSAMP; intervals per branch */
+    double offset;         /* the table's offset (mp_psf) */
+    long ux0, uy0;         /* union box relative to the reference pixel */
+    int uw, uh;
+    size_t npix;           /* uw*uh */
+    float *img;            /* (os(gb+3))² planes of 3 npix: PRF, ∂/∂x, ∂/∂y */
+    int nph;               /* measured phases (G²) */
+    float *p, *d2;         /* nph × npix: exact PRF and δP² at cell centres */
+    const mp_psf *psf;     /* what it was built from (mp_prf_cache_usable) */
+    const mp_drf *drf;
+} mp_prf_cache;
+
+/* mp_prf_cache_build: the grid of model m (its full sinc_hw; m->cache is
+ * ignored), at least G phases per pixel.  An analytic PSF, or a grid that
+ * would take more than 256 MB, gets an empty cache (c->G = 0).
+ * Nonzero with err when out of memory. */
+int mp_prf_cache_build(const mp_prf_model *m, int G, mp_prf_cache *c, char *err);
+
+/* The grid economy=yes builds by default (fit/setup.c; parameter phasegrid). */
+#define MP_PRF_CACHE_G 16
+void mp_prf_cache_free(mp_prf_cache *c);
+
+/* mp_prf_cache_bound: q = E·max_cell sqrt(Σ δP²/(E P + B + ron²)), the bound
+ * on |bias|/σ_CRLB of a star's flux, position and sky from drawing its PRF
+ * from the grid (the argument of fit/sinc_choice.c); INFINITY without a grid. */
+double mp_prf_cache_bound(const mp_prf_cache *c, double E, double B, double ron);
+
+/* mp_prf_cache_limit: the largest flux whose bound is ≤ frac on sky B
+ * (0 when none, INFINITY when all). */
+double mp_prf_cache_limit(const mp_prf_cache *c, double B, double ron, double frac);
+
+/* mp_prf_render_branch: as mp_prf_render_window, the
+ * table aligned (its element nearest the star, and so the box) as for a
+ * star at (xr, yr), then shifted to (x, y) — for the phase grid, whose
+ * renders must stay on one side of the points where the natural alignment
+ * jumps (every 1/OVERSAMP px), so that they are smooth in the phase. */
+int mp_prf_render_branch(const mp_prf_model *m, double x, double y, double xr, double yr,
+                         long wx0, long wy0, long ww, long wh, long *x0, long *y0, int *w,
+                         int *h, double *prf, double *ddx, double *ddy, mp_prf_work *work);
+
+/* mp_prf_cache_usable: nonzero when c was built for m's psf and drf and the
+ * PSF does not vary (psf->field NULL). */
+int mp_prf_cache_usable(const mp_prf_cache *c, const mp_prf_model *m);
+
+/* mp_prf_cache_render: the interpolated PRF (and derivatives, may be NULL)
+ * of model m on the box [x0, x0+w) × [y0, y0+h); nonzero when c is not
+ * usable for m. */
+int mp_prf_cache_render(const mp_prf_cache *c, const mp_prf_model *m, double x, double y,
+                        long x0, long y0, int w, int h, double *prf, double *ddx, double *ddy);
+
 /* ---- Performance model (paper §2) ----------------------------------------- */
 
 typedef struct {
@@ -277,6 +342,9 @@ typedef struct {
     int fit_sky;       /* 0: sky fixed at the start value */
     const mp_prf_crop *crop;   /* economy: each star rendered out to its
                                 * crop radius only (NULL: its whole box) */
+    const struct mp_prf_cache_s *grid;  /* economy: the group's PRF drawn from
+                                * this phase grid when built for its model
+                                * (fit/prf_cache.c); NULL: exact renders */
 } mp_fit_opts;
 
 void mp_fit_opts_default(mp_fit_opts *o);
@@ -349,6 +417,10 @@ typedef struct {
                         * sincfrac of its brightest star's σ (fit/sinc_choice.c);
                         * NULL: the model's sinc_hw for all */
     double sincfrac;
+    const struct mp_prf_cache_s *grid;  /* economy: the PRF from a grid of
+                        * phases for groups whose brightest star's bias bound
+                        * stays below sincfrac of its σ (fit/prf_cache.c);
+                        * NULL: exact renders */
 } mp_frame_opts;
 
 void mp_frame_opts_default(mp_frame_opts *o);
@@ -361,6 +433,7 @@ typedef struct {
     long fits;         /* group fits done, over passes (and rounds) */
     long kcalls;       /* LM fits of groups (a group refits after a merge) */
     long kshort;       /* of them, with a sinc kernel shorter than sinchw */
+    long kcache;       /* of them, with the PRF from the phase grid */
     double khw;        /* their half-widths, summed */
     long kbounds;      /* the kernel choice's cost: bound evaluations
                         * (mp_sinc_choice_bound), each nph × npix terms */
@@ -425,6 +498,7 @@ typedef struct {
                                 * done and left out, star paints cropped */
     long kcalls, kshort;       /* LM fits of groups, and of them with a shorter
                                 * sinc kernel */
+    long kcache;               /* LM fits with the PRF from the phase grid */
     double khw;                /* their half-widths, summed */
     long kcoarse;              /* LM fits with a coarser table */
     long kbounds, envelopes;   /* economy's own cost: kernel-bound evaluations
@@ -459,6 +533,7 @@ typedef struct {
     mp_sinc_choice sinc;    /* economy: per-group kernel length (opts.sinc) */
     mp_ss_level ss[MP_SS_MAXLEVELS];   /* economy: coarser samplings (opts.ss) */
     mp_econ_cache *cache;   /* economy: their flux limits across frames (opts.cache) */
+    mp_prf_cache phasegrid; /* economy: the PRF from a grid of phases (model.cache) */
     char decisions[2048];   /* economy decisions and their reasons */
     int ndecisions;
 } mp_fit_setup;

@@ -21,6 +21,7 @@ void mp_frame_opts_default(mp_frame_opts *o)
     o->refittol = 0.1;
     o->sinc = NULL;
     o->sincfrac = 0.1;
+    o->grid = NULL;
     o->ss = NULL;
     o->nss = 0;
     o->ssfrac = 0.1;
@@ -81,6 +82,7 @@ typedef struct {
     const mp_ss_level *ss;
     int nss;
     kernel_rule level[MP_SS_MAXLEVELS], kern[MP_SS_MAXLEVELS + 1];
+    double gemax;               /* the phase grid's flux limit (o->grid) */
 } frame_rules;
 
 struct mp_econ_cache {
@@ -398,10 +400,15 @@ static int fit_one_group(const mp_frame *f, const mp_prf_model *m, const mp_fram
         mp_prf_model mh = l < R->nss ? R->ss[l].model : *m;
         mh.sinc_hw = kernel_for(&R->kern[l], mh.sinc_hw, e, &rep->kbounds);
         rep->kcoarse += l < R->nss;
+        /* Economy: the phase grid of the table as given, when its bound
+         * allows the brightest star (a star without a flux: the exact render). */
+        mp_fit_opts fo = o->fit;
+        fo.grid = l == R->nss && e > 0 && e <= R->gemax ? o->grid : NULL;
+        rep->kcache += mp_prf_cache_usable(fo.grid, &mh);
         rep->kcalls++;
         rep->khw += mh.sinc_hw;
         rep->kshort += mh.sinc_hw < m->sinc_hw;
-        if (mp_fit_group(f, &mh, &o->fit, sky0, live, nl, err))
+        if (mp_fit_group(f, &mh, &fo, sky0, live, nl, err))
             goto done;
         rep->iterations += live[0].niter;
         for (int k = 0; k < nl; k++) {
@@ -1001,6 +1008,10 @@ int mp_fit_table_mem(const mp_frame *f, const mp_prf_model *m, const mp_frame_op
                            &rep->kbounds) ||
                  rule_init(&R.kern[l], o->sinc ? &R.ss[l].sinc : NULL, bsky, f->rdnoise,
                            o->sincfrac, ng, o->cache, &rep->kbounds);
+    /* Economy: the largest flux the phase grid serves within the kernel's
+     * bound, on the same sky. */
+    R.gemax = o->grid ? mp_prf_cache_limit(o->grid, median_sky(st, n), f->rdnoise, o->sincfrac)
+                      : 0.0;
     if (nomem) {
         snprintf(err, MP_ERRLEN, "out of memory");
         goto done;
@@ -1062,6 +1073,7 @@ int mp_fit_table_mem(const mp_frame *f, const mp_prf_model *m, const mp_frame_op
                 pr.kept += r.kept;
                 pr.kbounds += r.kbounds;
                 pr.kcoarse += r.kcoarse;
+                pr.kcache += r.kcache;
             }
         }
         if (failed) {
@@ -1078,6 +1090,7 @@ int mp_fit_table_mem(const mp_frame *f, const mp_prf_model *m, const mp_frame_op
         rep->kept += pr.kept;
         rep->kbounds += pr.kbounds;
         rep->kcoarse += pr.kcoarse;
+        rep->kcache += pr.kcache;
         /* No group refitted: every later pass would see the same light. */
         if (economy && pr.fits == 0) {
             rep->kept += (long)ng * (passes - pass - 1);

@@ -81,11 +81,11 @@ static int gauss_halfbox(double sigma)
  * |δ| ≤ ½ so that, with S the table shifted by δ, fine g holds S[g + n0]. */
 typedef struct { long n0; double delta; long p0; int w; } axis_geom;
 
-static axis_geom table_axis(int n, int os, double x)
+static axis_geom table_axis_ref(int n, int os, double x, double xref)
 {
     axis_geom a;
     double c0 = (n - 1) / 2 + 0.5 + os * (0.5 - x);
-    a.n0 = lround(c0);
+    a.n0 = lround((n - 1) / 2 + 0.5 + os * (0.5 - xref));
     a.delta = c0 - (double)a.n0;
     /* Table index m ↔ g = m − n0; pixel p = floor(g/os) + 1. */
     long g0 = -a.n0, g1 = (long)(n - 1) - a.n0;
@@ -94,6 +94,11 @@ static axis_geom table_axis(int n, int os, double x)
     a.p0 = p0;
     a.w = (int)(p1 - p0 + 1);
     return a;
+}
+
+static axis_geom table_axis(int n, int os, double x)
+{
+    return table_axis_ref(n, os, x, x);
 }
 
 void mp_prf_box(const mp_prf_model *m, double x, double y,
@@ -213,7 +218,10 @@ static void weights(double shift, int hw, double *wt)
         wt[k + hw] = mp_damped_sinc((double)k - shift);
 }
 
-static int render_table(const mp_prf_model *m, double x, double y, box bx,
+/* The table aligned as for a star at (xr, yr), shifted to (x, y): the
+ * natural render has xr = x, yr = y (|delta| ≤ ½); prf_cache.c renders the
+ * phases just past a branch's ends with its alignment (branch below). */
+static int render_table(const mp_prf_model *m, double x, double y, double xr, double yr, box bx,
                         double *prf, double *ddx, double *ddy, mp_prf_work *w)
 {
     const mp_psf *p = m->psf;
@@ -221,7 +229,8 @@ static int render_table(const mp_prf_model *m, double x, double y, box bx,
     if (work_reserve(w, (size_t)nx * ny))
         return 1;
     /* The central element sits at the star minus the table's offset. */
-    axis_geom ax = table_axis(nx, os, x - p->offset), ay = table_axis(ny, os, y - p->offset);
+    axis_geom ax = table_axis_ref(nx, os, x - p->offset, xr - p->offset);
+    axis_geom ay = table_axis_ref(ny, os, y - p->offset, yr - p->offset);
     int hw = m->sinc_hw > 0 ? (m->sinc_hw < 64 ? m->sinc_hw : 64) : 0;
     size_t nb = (size_t)bx.w * bx.h;
     memset(prf, 0, nb * sizeof *prf);
@@ -335,7 +344,29 @@ static int render(const mp_prf_model *m, double x, double y, box bx,
 {
     if (m->psf->kind == MP_PSF_GAUSS)
         return render_gauss(m, x, y, bx, prf, ddx, ddy, w);
-    return render_table(m, x, y, bx, prf, ddx, ddy, w);
+    if (w && mp_prf_cache_usable(w->grid, m))   /* economy: the phase grid (prf_cache.c) */
+        return mp_prf_cache_render(w->grid, m, x, y, bx.x0, bx.y0, (int)bx.w, (int)bx.h, prf,
+                                   ddx, ddy);
+    return render_table(m, x, y, x, y, bx, prf, ddx, ddy, w);
+}
+
+int mp_prf_render_branch(const mp_prf_model *m, double x, double y, double xr, double yr,
+                         long wx0, long wy0, long ww, long wh, long *x0, long *y0, int *w,
+                         int *h, double *prf, double *ddx, double *ddy, mp_prf_work *work)
+{
+    box b, win = {wx0, wy0, ww, wh};
+    int bw, bh;
+    mp_prf_box(m, xr, yr, &b.x0, &b.y0, &bw, &bh);
+    b.w = bw;
+    b.h = bh;
+    b = box_and(b, &win);
+    *x0 = b.x0;
+    *y0 = b.y0;
+    *w = (int)b.w;
+    *h = (int)b.h;
+    if (m->psf->kind != MP_PSF_TABLE)
+        return render(m, x, y, b, prf, ddx, ddy, work);
+    return render_table(m, x, y, xr, yr, b, prf, ddx, ddy, work);
 }
 
 int mp_prf_render(const mp_prf_model *m, double x, double y,

@@ -13,6 +13,7 @@ void mp_fit_setup_free(mp_fit_setup *s)
     mp_drf_free(&s->drf);
     mp_sinc_choice_free(&s->sinc);
     mp_econ_cache_free(s->cache);
+    mp_prf_cache_free(&s->phasegrid);
     for (int l = 0; l < MP_SS_MAXLEVELS; l++)
         mp_ss_level_free(&s->ss[l]);
 }
@@ -101,6 +102,30 @@ static int supersampling_levels(mp_fit_setup *s, char *err)
     s->opts.ss = s->ss;
     s->opts.nss = n;
     decide(s, why);
+    return 0;
+}
+
+/* The PRF from a grid of subpixel phases (fit/prf_cache.c) for the model as
+ * given (its finest table, the costliest to render; a coarser sampling's
+ * renders are os² times cheaper and keep the exact render), built last so
+ * that nothing above renders through it; a variable PSF keeps the exact
+ * renders. */
+static int phase_grids(mp_fit_setup *s, const mp_parset *ps, char *err)
+{
+    int grid = MP_PRF_CACHE_G;
+    mp_par_int(ps, "phasegrid", &grid);
+    if (grid <= 0 || s->field.order > 0 || s->psf.kind != MP_PSF_TABLE)
+        return 0;
+    if (mp_prf_cache_build(&s->model, grid, &s->phasegrid, err))
+        return 1;
+    s->opts.grid = s->phasegrid.G > 0 ? &s->phasegrid : NULL;
+    if (s->phasegrid.G > 0) {
+        char why[256];
+        snprintf(why, sizeof why, "PRF from a grid of %d subpixel phases per pixel (cubic, five-point derivatives interpolated) "
+                 "for groups whose brightest star's bias bound stays below %.2g sigma, exact renders "
+                 "for brighter ones (fit/prf_cache.c)", s->phasegrid.G, s->opts.sincfrac);
+        decide(s, why);
+    }
     return 0;
 }
 
@@ -290,6 +315,8 @@ int mp_fit_setup_read(const mp_parset *ps, mp_fit_setup *s, char *err)
                      "(fit/sinc_choice.c)", s->sinc.hwmax, s->opts.sincfrac);
             decide(s, why);
         }
+        if (phase_grids(s, ps, err))
+            return 1;
         snprintf(why, sizeof why, "neighbour light: painted out to where it falls below %.2g of a "
                  "sky pixel's sigma (residual too)", s->opts.cropfrac);
         decide(s, why);

@@ -67,6 +67,7 @@ static int fit_one(const mp_fit_setup *s, const char *image, const char *coords,
     run.cropped = rep.cropped;
     run.kcalls = rep.kcalls;
     run.kshort = rep.kshort;
+    run.kcache = rep.kcache;
     run.khw = rep.khw;
     run.kbounds = rep.kbounds;
     run.kcoarse = rep.kcoarse;

@@ -107,6 +107,7 @@ static void report_counts(const mp_pipeline_report *rep, const mp_table *t, mp_r
     run->khw = rep->khw;
     run->kbounds = rep->kbounds;
     run->kcoarse = rep->kcoarse;
+    run->kcache = rep->kcache;
     run->envelopes = rep->envelopes;
 }
 

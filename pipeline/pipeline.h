@@ -20,7 +20,7 @@ typedef struct {
     int mesh, filter;        /* background mesh and filter */
     mp_group_opts group;
     int niter;
-    double matchrad;         /* [px]; NaN: 1 FWHM */
+    double matchrad;         /* [px]; NaN: 0.5 FWHM */
     mp_table_format catfmt;
     int regions;             /* also write root.reg (DS9) */
     int build_psf;           /* psf="" : build root.psf.fits from the frame
@@ -42,6 +42,7 @@ typedef struct {
     long kcalls, kshort;          /* LM fits of groups; with a shorter sinc kernel */
     long kbounds, envelopes;      /* economy's own cost (mp_frame_report) */
     long kcoarse;                 /* LM fits with a coarser table */
+    long kcache;                  /* LM fits with the PRF from the phase grid */
     long sky_groups[MP_SKY_MAXORDER + 1];  /* last round's groups by sky order */
     double khw;                   /* their half-widths summed over all group fits */
 } mp_pipeline_report;

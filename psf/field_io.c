@@ -94,6 +94,20 @@ static int cube_keys(fitsfile *fp, const char *name, int oversamp, double *os, d
     return 0;
 }
 
+/* PSFOFFSE (optional): where the star sits from the centre of the
+ * central element, both axes [detector px] (mp_psf.offset). */
+static int read_offset(fitsfile *fp, const char *name, mp_psf_field *f, char *err)
+{
+    double v = 0.0;
+    int k = key_double(fp, "PSFOFFSE", &v);
+    if (k == 2 || (k == 0 && !(fabs(v) < 1.0))) {
+        snprintf(err, MP_ERRLEN, "%s: PSFOFFSE must be a number of pixels, |v| < 1", name);
+        return 1;
+    }
+    f->offset = k == 0 ? v : 0.0;
+    return 0;
+}
+
 /* Plane 0 is a table (mp_psf_read's checks); every plane finite. */
 static int cube_check(const char *name, mp_psf_field *f, int normalize, char *warn, char *err)
 {
@@ -203,6 +217,8 @@ static int read_cube(fitsfile *fp, const char *name, const long naxes[3], int no
                          pol[3], f, err))
         return 1;
     f->nstar = nstar;
+    if (read_offset(fp, name, f, err))
+        return 1;
     memcpy(f->why, why, sizeof why);
     int status = 0;
     long fp1[3] = {1, 1, 1};
@@ -328,10 +344,15 @@ static int read_other(int kind, fitsfile *fp, const char *name, mp_psf_field *f,
     }
 }
 
-/* Every element finite and within ±1e6 (a table sums to about 1; larger
- * values are a broken file, and would overflow a render). */
+/* The table at the origin holds light (sum ≥ 1e-12), and every element
+ * is finite and within ±1e6 (a table sums to about 1; larger values are a
+ * broken file, and would overflow a render). */
 static int check_range(const char *name, const mp_psf_field *f, char *err)
 {
+    if (!(f->sum >= 1e-12)) {
+        snprintf(err, MP_ERRLEN, "%s: PSF table sums to %g: it holds no light", name, f->sum);
+        return 1;
+    }
     size_t n = (size_t)f->nx * f->ny * f->nterms;
     for (size_t i = 0; i < n; i++)
         if (!(fabs(f->planes[i]) <= 1e6)) {
@@ -392,6 +413,8 @@ int mp_psf_field_read(const char *name, int normalize, int oversamp, mp_psf_fiel
         if (!mp_psf_read(name, normalize, oversamp, &p, warn, err)) {
             rc = mp_psf_field_from_table(&p, f, err);
             mp_psf_free(&p);
+            if (!rc && fp)
+                rc = read_offset(fp, name, f, err);
         }
         if (!rc && fp && stars)
             rc = read_stars(fp, name, stars, nstars, err);
@@ -437,6 +460,11 @@ static void write_keys(fitsfile *fp, const mp_psf_field *f, int *status)
                        status);
     if (f->nstar > 0)
         fits_write_key(fp, TINT, "PSFNSTAR", (void *)&f->nstar, "PSF stars used", status);
+    if (f->offset != 0.0) {
+        double off = f->offset;
+        fits_write_key(fp, TDOUBLE, "PSFOFFSE", &off, "star from the central element's centre "
+                       "[pixel]", status);
+    }
     if (f->why[0]) {
         fits_write_key_longwarn(fp, status);
         fits_write_key_longstr(fp, "PSFORDWH", f->why, "why this order", status);

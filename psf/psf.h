@@ -23,6 +23,9 @@
  *   PSFSUM       fraction of a star's light the table holds at the origin;
  *   PSFORDWH     optional string: why this order;
  *   PSFNSTAR     optional: number of PSF stars used;
+ *   PSFOFFSE     optional: where the star sits from the centre of the
+ *                central element, both axes [detector px] (default 0;
+ *                mp_psf.offset, after an even block-sum or an even table);
  *   PSFSTARS     optional binary-table extension of the PSF stars
  *                (X_IMAGE, Y_IMAGE, FLUX_PSF, USED).
  * A plain 2-D table without these keywords is order 0.

@@ -73,12 +73,12 @@ static int read_keys(fitsfile *fp, const char *name, psfex_keys *k, char *err)
 /* The keys make sense, and say what matphot can evaluate. */
 static int check_keys(const char *name, const psfex_keys *k, char *err)
 {
-    int deg = (int)k->deg;
-    if (k->deg != deg || deg < 0 || deg > MP_PSF_MAXORDER) {
+    if (!(k->deg >= 0 && k->deg <= MP_PSF_MAXORDER && k->deg == floor(k->deg))) {
         snprintf(err, MP_ERRLEN, "%s: PSFEx polynomial degree %g; matphot evaluates 0, 1 or 2",
                  name, k->deg);
         return 1;
     }
+    int deg = (int)k->deg;
     if (k->ax[2] != mp_psf_nterms(deg)) {
         snprintf(err, MP_ERRLEN, "%s: PSFAXIS3 %g does not match degree %d (%d terms)", name,
                  k->ax[2], deg, mp_psf_nterms(deg));

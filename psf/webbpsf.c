@@ -43,6 +43,11 @@ static double *read_cube(fitsfile *fp, const char *name, long nx, long ny, long 
  * as mp_psf_rebin records it).  Both axes even or both odd. */
 static int pad_sizes(const char *name, long nx, long ny, int *mx, int *my, int *pad, char *err)
 {
+    if (nx < 1 || ny < 1 || nx > 4096 || ny > 4096) {
+        snprintf(err, MP_ERRLEN, "%s: PSF of %ldx%ld elements; sizes must be 1..4096", name, nx,
+                 ny);
+        return 1;
+    }
     if (nx % 2 != ny % 2) {
         snprintf(err, MP_ERRLEN, "%s: PSF of %ldx%ld elements: one size odd, one even, so the "
                  "star is not on one element's centre or corner", name, nx, ny);
@@ -204,12 +209,13 @@ int grid_read(fitsfile *fp, const char *name, int stdpsf, const long naxes[3], m
         double o = 4.0;
         fits_read_key(fp, TDOUBLE, "OVERSAMP", &o, NULL, &st);
         fits_clear_errmsg();
-        step = (int)o;
-        if (step < 1 || step > 8 || nx % 2 == 0 || ny % 2 == 0) {
+        if (!(o >= 1 && o <= 8 && o == floor(o)) || nx % 2 == 0 || ny % 2 == 0 || nx > 4096 ||
+            ny > 4096) {
             snprintf(err, MP_ERRLEN, "%s: STDPSF of %ldx%ld elements at %g per pixel: sizes must "
                      "be odd, sampling 1..8", name, nx, ny, o);
             return 1;
         }
+        step = (int)o;
         mx = 2 * (int)(((nx - 1) / 2) / step) + 1;
         my = 2 * (int)(((ny - 1) / 2) / step) + 1;
         pad = 0;

@@ -17,7 +17,8 @@ F=tests/e2e/fixtures
 
 "$M" sim "$T/p0.fits" fwhm=2 psfout="$T/p.fits" psfos=1 >/dev/null 2>&1 || no "sim psfout"
 "$M" sim "$T/a.fits" fwhm=2 mode=crowded nstars=20 seed=5 >/dev/null 2>&1 || no "sim a"
-"$M" fit "$T/a.fits" "$T/a.truth" psf="$T/p.fits" output="$T/a0.fit" 2>/dev/null \
+# phasegrid=0: a variable PSF is rendered exactly, so the plain table is too
+"$M" fit "$T/a.fits" "$T/a.truth" psf="$T/p.fits" phasegrid=0 output="$T/a0.fit" 2>/dev/null \
     || no "fit with the 2-D table"
 "$M" fit "$T/a.fits" "$T/a.truth" psf="$F/field_flat.fits" output="$T/a1.fit" 2>"$T/e1" \
     || no "fit with the flat order-1 field"
@@ -27,6 +28,12 @@ cmp -s "$T/a0.fit" "$T/a1.fit" || no "a flat order-1 field fits differently from
 grep -q "variable PSF: order 1, each star's table evaluated at its own position" "$T/e2" \
     || no "the report does not say the PSF varies: $(cat "$T/e2")"
 cmp -s "$T/a0.fit" "$T/a2.fit" && no "a sloped field fits as the constant table does"
+
+# The pipeline with a variable PSF: each star's table at its own position.
+"$M" pipeline "$T/a.fits" psf="$F/field_slope.fits" root="$T/pl" >/dev/null 2>"$T/epl" \
+    || no "pipeline with the sloped field: $(tail -n 3 "$T/epl")"
+grep -q "variable PSF: order 1" "$T/pl.report" || no "pipeline report: no variable PSF"
+[ -s "$T/pl.fit" ] || no "pipeline with the sloped field wrote no fit table"
 
 # A cube of 3 planes that says it is of order 2.
 LC_ALL=C sed 's/PSFORDER=                    1/PSFORDER=                    2/' \

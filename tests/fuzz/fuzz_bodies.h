@@ -294,7 +294,8 @@ static inline int fuzz_psf_field_body(const uint8_t *data, size_t size)
             if (mp_psf_field_read(back, 0, 0, &g, NULL, NULL, warn, err))
                 fuzz_fail("mp_psf_field_write output does not read back", err);
             size_t n = (size_t)f.nx * f.ny * f.nterms;
-            if (g.order != f.order || g.nx != f.nx || g.ny != f.ny || g.os != f.os)
+            if (g.order != f.order || g.nx != f.nx || g.ny != f.ny || g.os != f.os ||
+                g.offset != f.offset)
                 fuzz_fail("round trip", "geometry changed");
             /* Values as written (subnormals may come back as zero). */
             for (size_t i = 0; i < n; i++)

@@ -128,7 +128,7 @@ static void test_uniform_drf_becomes_scalar(void **state)
     assert_int_equal(s.ss[1].os, 2);
     assert_ptr_equal(s.opts.ss, s.ss);
     assert_non_null(strstr(s.decisions, "supersampling: per group, the coarsest table"));
-    assert_int_equal(s.ndecisions, 2 + 3);   /* + the neighbour crop, refit and kernel rules */
+    assert_int_equal(s.ndecisions, 2 + 4);   /* + the neighbour crop, refit, kernel and phase-grid rules */
     assert_counted(&s);
     mp_fit_setup_free(&s);
 
@@ -192,7 +192,7 @@ static void test_report_prints_decisions(void **state)
     assert_non_null(fp);
     int found = 0;
     while (fgets(line, sizeof line, fp))
-        found |= strstr(line, "economy: 4 decisions: supersampling: per group, the coarsest "
+        found |= strstr(line, "economy: 5 decisions: supersampling: per group, the coarsest "
                               "table whose bias bound") != NULL &&
                  strstr(line, "x1 to E = ") != NULL;
     fclose(fp);

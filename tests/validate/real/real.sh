@@ -89,6 +89,8 @@ echo "# matphot validation: real frames"
 echo
 echo "Generated $(date -u '+%Y-%m-%d %H:%M UTC') by \`tests/validate/real/real.sh\` ($(nproc 2>/dev/null || echo '?') processors).  Reproduce: \`make validate\`, or \`VALIDATE_ONLY=real sh tests/validate/run.sh\` for this part alone.  Data: \`$REALDATA\` (see its MANIFEST.md).  Back to [REPORT.md](REPORT.md)."
 echo
+echo "The PSF files users already have (PSFEx on DECam against Gaia; Tiny Tim with its charge-diffusion kernel on 47 Tuc): [PSF_FILES.md](PSF_FILES.md) (\`sh tests/validate/real/psf_files.sh\`)."
+echo
 echo "Every number below is as measured by one run of the default pipeline; the parameters given on the command lines are the detector values and the PSF, nothing tuned."
 echo
 } > "$REP.tmp"

@@ -1,0 +1,321 @@
+/* prf_cache.c — the PRF drawn from a grid of subpixel phases (issue 12).
+ *
+ * Why: a discrete PSF's PRF depends on the star's position only through its
+ * subpixel phase, yet the exact render shifts the whole supersampled table
+ * with the damped sinc for every star at every LM iteration (paper §3.1),
+ * which was 60-80 % of a real frame's CPU (bench/REPORT.md's profile).  The
+ * PRF is therefore rendered once, exactly, with its five-point position
+ * derivatives (paper §3.2), on a grid of phases, and a star's PRF and
+ * derivatives are the tensor-product cubic (4-point Lagrange) interpolation
+ * between the 4×4 grid phases around its own: 16 contiguous rows combined
+ * with fixed weights per star, no shift.  The derivatives are interpolated,
+ * not taken from the interpolant, so the fit sees the Jacobian of the exact
+ * render and LM stops where it stopped before (with the interpolant's own
+ * derivative it descended the deviance further, linearly when χ²/dof ≫ 1:
+ * 47 Tuc 256², 65 % more iterations and 4× the groups at maxiter).  Nodes
+ * are stored as float (relative rounding 6e-8, inside the measured δP).
+ *
+ * The exact render is not smooth in the phase everywhere: every 1/OVERSAMP
+ * px the table element nearest the star changes, the sinc's shift jumps
+ * from +½ to −½ element and the box's edge pixel gains or loses an element
+ * (8.6e-7 of the light at one pixel of the Tiny Tim ×2 table, 3e-6 at the
+ * box edge: enough to dominate the bound of a 10⁷ e⁻ star).  So the grid is
+ * kept per branch — the stretch of phases between two such points, 1/os px
+ * wide — with its own alignment: Gb intervals a branch, nodes a = −1..Gb+1
+ * rendered with the branch's alignment (mp_prf_render_branch), so that no
+ * stencil straddles a jump; G = os·Gb phases per pixel.
+ *
+ * What it costs in accuracy, bounded as fit/sinc_choice.c bounds a shorter
+ * kernel: with δP the interpolated minus the exact PRF, a fit's bias in any
+ * of (E, X, Y, B) is at most q = E·sqrt(Σ δP²/(E P + B + RON²)) of its
+ * Cramér–Rao σ.  δP is measured at the centre of every cell of the phase
+ * grid in both axes — where the cubic's error term (f+1)f(f−1)(f−2) peaks —
+ * and the worst cell counts; mp_prf_cache_limit turns q ≤ frac into the
+ * largest flux served on a given sky, and brighter stars are rendered
+ * exactly (fit_frame.c). */
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include "fit/fit.h"
+
+/* Where reference stars sit: far from 0 so that every box index is positive
+ * (any position works; the render only sees its phase and box). */
+#define REF 1000L
+
+/* Largest grid built [bytes]: beyond it the exact render is kept. */
+#define CACHE_MAX_BYTES (160.0 * 1024 * 1024)
+
+void mp_prf_cache_free(mp_prf_cache *c)
+{
+    if (!c)
+        return;
+    free(c->img);
+    free(c->p);
+    free(c->d2);
+    memset(c, 0, sizeof *c);
+}
+
+/* One axis of a star at coordinate x: s = (x − offset − ½)·os counts the
+ * alignment jumps, k = ⌊s⌋ is the branch over the whole frame, kq = ⌊k/os⌋
+ * its whole pixels from the reference, beta = k mod os the branch within
+ * the pixel, t ∈ [0, 1) the place within the branch. */
+typedef struct { long kq; int beta, a; double f; } axis_pos;
+
+static axis_pos axis_of(const mp_prf_cache *c, double x)
+{
+    axis_pos r;
+    double s = (x - c->offset - 0.5) * c->os, k = floor(s), t = s - k;
+    long kk = (long)k;
+    r.kq = kk >= 0 ? kk / c->os : -((-kk + c->os - 1) / c->os);
+    r.beta = (int)(kk - r.kq * c->os);
+    double u = t * c->gb;
+    int a = (int)floor(u);
+    r.a = a < 0 ? 0 : (a > c->gb - 1 ? c->gb - 1 : a);
+    r.f = u - r.a;
+    return r;
+}
+
+/* The reference star's coordinate for branch beta at place t (kq = REF). */
+static double ref_coord(const mp_prf_cache *c, int beta, double t)
+{
+    return c->offset + 0.5 + (double)REF + (beta + t) / c->os;
+}
+
+/* The union over the branches of their boxes, relative to pixel REF. */
+static void union_box(const mp_prf_model *m, mp_prf_cache *c)
+{
+    for (int b = 0; b < c->os; b++) {
+        long x0, y0;
+        int w, h;
+        double r = ref_coord(c, b, 0.5);
+        mp_prf_box(m, r, r, &x0, &y0, &w, &h);
+        long xa = x0 - REF, xb = x0 + w - REF, ya = y0 - REF, yb = y0 + h - REF;
+        if (b == 0 || xa < c->ux0)
+            c->ux0 = xa;
+        if (b == 0 || ya < c->uy0)
+            c->uy0 = ya;
+        long ux1 = b == 0 ? xb : (c->ux0 + c->uw > xb ? c->ux0 + c->uw : xb);
+        long uy1 = b == 0 ? yb : (c->uy0 + c->uh > yb ? c->uy0 + c->uh : yb);
+        c->uw = (int)(ux1 - c->ux0);
+        c->uh = (int)(uy1 - c->uy0);
+    }
+}
+
+/* Copy a rendered box into a union-box image (zero elsewhere). */
+static void place(const mp_prf_cache *c, long x0, long y0, int w, int h, const double *buf,
+                  double *img)
+{
+    memset(img, 0, c->npix * sizeof *img);
+    for (int j = 0; j < h; j++)
+        memcpy(img + (size_t)(y0 - REF - c->uy0 + j) * c->uw + (size_t)(x0 - REF - c->ux0),
+               buf + (size_t)j * w, (size_t)w * sizeof *buf);
+}
+
+/* 4-point Lagrange weights on nodes −1, 0, 1, 2 at f ∈ [0, 1]. */
+static void weights(double f, double L[4])
+{
+    double a = f + 1.0, b = f, c = f - 1.0, d = f - 2.0;
+    L[0] = -b * c * d / 6.0;
+    L[1] = a * c * d / 2.0;
+    L[2] = -a * b * d / 2.0;
+    L[3] = a * b * c / 6.0;
+}
+
+/* The interpolated PRF on box [x0, x0+w) × [y0, y0+h) (1-based), derivatives
+ * optional; pixels outside the cached union box are zero.  Plane pl holds
+ * the PRF at img[3·pl·npix], then ∂/∂x, then ∂/∂y. */
+static void interp(const mp_prf_cache *c, double x, double y, long x0, long y0, int w, int h,
+                   double *prf, double *ddx, double *ddy)
+{
+    int na = c->gb + 3, NA = c->os * na;
+    axis_pos px = axis_of(c, x), py = axis_of(c, y);
+    double Lx[4], Ly[4];
+    weights(px.f, Lx);
+    weights(py.f, Ly);
+    size_t nb = (size_t)w * h;
+    memset(prf, 0, nb * sizeof *prf);
+    if (ddx)
+        memset(ddx, 0, nb * sizeof *ddx);
+    if (ddy)
+        memset(ddy, 0, nb * sizeof *ddy);
+    /* Columns of the box inside the union box: i ∈ [i0, i1). */
+    long q0 = x0 - px.kq - c->ux0;
+    long i0 = q0 < 0 ? -q0 : 0, i1 = q0 + w > c->uw ? c->uw - q0 : w;
+    if (i1 <= i0)
+        return;
+    for (int j = 0; j < h; j++) {
+        long row = y0 + j - py.kq - c->uy0;
+        if (row < 0 || row >= c->uh)
+            continue;
+        double *pr = prf + (size_t)j * w, *gx = ddx ? ddx + (size_t)j * w : NULL;
+        double *gy = ddy ? ddy + (size_t)j * w : NULL;
+        for (int kb = 0; kb < 4; kb++)
+            for (int ka = 0; ka < 4; ka++) {
+                /* node a − 1 + ka of branch beta is plane beta·na + a + ka */
+                size_t pl = (size_t)(py.beta * na + py.a + kb) * NA + (size_t)(px.beta * na + px.a + ka);
+                const float *sp = c->img + 3 * pl * c->npix + (size_t)row * c->uw + (size_t)q0;
+                double wv = Ly[kb] * Lx[ka];
+                for (long i = i0; i < i1; i++)
+                    pr[i] += wv * sp[i];
+                if (gx) {
+                    const float *sx = sp + c->npix;
+                    for (long i = i0; i < i1; i++)
+                        gx[i] += wv * sx[i];
+                }
+                if (gy) {
+                    const float *sy = sp + 2 * c->npix;
+                    for (long i = i0; i < i1; i++)
+                        gy[i] += wv * sy[i];
+                }
+            }
+    }
+}
+
+int mp_prf_cache_usable(const mp_prf_cache *c, const mp_prf_model *m)
+{
+    return c && c->img && c->psf == m->psf && c->drf == m->drf && !m->psf->field;
+}
+
+int mp_prf_cache_render(const mp_prf_cache *c, const mp_prf_model *m, double x, double y,
+                        long x0, long y0, int w, int h, double *prf, double *ddx, double *ddy)
+{
+    if (!mp_prf_cache_usable(c, m))
+        return 1;
+    interp(c, x, y, x0, y0, w, h, prf, ddx, ddy);
+    return 0;
+}
+
+/* The nodes: branch (bx, by), node (a − 1, b − 1), aligned as the branch;
+ * buf holds 6 npix (three renders, three union-box images). */
+static int render_nodes(const mp_prf_model *m, mp_prf_cache *c, double *buf, mp_prf_work *wk)
+{
+    int na = c->gb + 3, NA = c->os * na;
+    size_t np = c->npix;
+    for (int Y = 0; Y < NA; Y++)
+        for (int X = 0; X < NA; X++) {
+            int bx = X / na, by = Y / na, a = X % na, b = Y % na;
+            double x = ref_coord(c, bx, (a - 1.0) / c->gb), y = ref_coord(c, by, (b - 1.0) / c->gb);
+            long x0, y0;
+            int w, h;
+            if (mp_prf_render_branch(m, x, y, ref_coord(c, bx, 0.5), ref_coord(c, by, 0.5),
+                                     REF + c->ux0, REF + c->uy0, c->uw, c->uh, &x0, &y0, &w, &h,
+                                     buf, buf + np, buf + 2 * np, wk))
+                return 1;
+            float *pl = c->img + 3 * ((size_t)Y * NA + (size_t)X) * np;
+            for (int k = 0; k < 3; k++) {
+                place(c, x0, y0, w, h, buf + k * np, buf + (3 + k) * np);
+                for (size_t i = 0; i < np; i++)
+                    pl[k * np + i] = (float)buf[(3 + k) * np + i];
+            }
+        }
+    return 0;
+}
+
+/* The error at the centre of every cell of every branch: p (the natural
+ * exact render) and δP² per phase. */
+static int measure(const mp_prf_model *m, mp_prf_cache *c, double *buf, double *ex,
+                   double *cur, mp_prf_work *wk)
+{
+    int ng = c->os * c->gb;
+    for (int ph = 0; ph < c->nph; ph++) {
+        int ix = ph % ng, iy = ph / ng;
+        double x = ref_coord(c, ix / c->gb, (ix % c->gb + 0.5) / c->gb);
+        double y = ref_coord(c, iy / c->gb, (iy % c->gb + 0.5) / c->gb);
+        long x0, y0;
+        int w, h;
+        if (mp_prf_render_window(m, x, y, REF + c->ux0, REF + c->uy0, c->uw, c->uh, &x0, &y0, &w,
+                                 &h, buf, NULL, NULL, wk))
+            return 1;
+        place(c, x0, y0, w, h, buf, ex);
+        interp(c, x, y, REF + c->ux0, REF + c->uy0, c->uw, c->uh, cur, NULL, NULL);
+        float *p = c->p + (size_t)ph * c->npix, *d = c->d2 + (size_t)ph * c->npix;
+        for (size_t i = 0; i < c->npix; i++) {
+            p[i] = (float)ex[i];
+            d[i] = (float)((cur[i] - ex[i]) * (cur[i] - ex[i]));
+        }
+    }
+    return 0;
+}
+
+int mp_prf_cache_build(const mp_prf_model *m, int G, mp_prf_cache *c, char *err)
+{
+    memset(c, 0, sizeof *c);
+    if (m->psf->kind != MP_PSF_TABLE || G < 1)
+        return 0;                       /* the analytic Gaussian is rendered exactly */
+    mp_prf_model me = *m;               /* the nodes are exact renders (no grid in wk) */
+    c->os = m->psf->os;
+    c->offset = m->psf->offset;
+    c->gb = (G + c->os - 1) / c->os;
+    union_box(&me, c);
+    int NA = c->os * (c->gb + 3), ng = c->os * c->gb;
+    c->npix = (size_t)c->uw * c->uh;
+    c->nph = ng * ng;
+    double bytes = (double)c->npix * (3.0 * NA * NA * sizeof *c->img +
+                                      2.0 * c->nph * sizeof *c->p);
+    if (bytes > CACHE_MAX_BYTES) {
+        memset(c, 0, sizeof *c);        /* too big to pay: exact renders */
+        return 0;
+    }
+    c->img = malloc(3 * (size_t)NA * NA * c->npix * sizeof *c->img);
+    c->p = malloc((size_t)c->nph * c->npix * sizeof *c->p);
+    c->d2 = malloc((size_t)c->nph * c->npix * sizeof *c->d2);
+    double *buf = malloc(6 * c->npix * sizeof *buf);
+    mp_prf_work wk = {0};
+    int rc = 1;
+    if (!c->img || !c->p || !c->d2 || !buf) {
+        snprintf(err, MP_ERRLEN, "out of memory for the PRF phase grid (%d x %d phases, %dx%d px)",
+                 NA, NA, c->uw, c->uh);
+        goto done;
+    }
+    c->psf = m->psf;
+    c->drf = m->drf;
+    if (render_nodes(&me, c, buf, &wk) || measure(&me, c, buf, buf + c->npix, buf + 2 * c->npix, &wk)) {
+        snprintf(err, MP_ERRLEN, "out of memory rendering the PRF phase grid");
+        goto done;
+    }
+    c->G = ng;
+    rc = 0;
+done:
+    free(buf);
+    mp_prf_work_free(&wk);
+    if (rc)
+        mp_prf_cache_free(c);
+    return rc;
+}
+
+double mp_prf_cache_bound(const mp_prf_cache *c, double E, double B, double ron)
+{
+    if (!c || !c->d2)
+        return INFINITY;
+    double worst = 0.0, var0 = B + ron * ron;
+    for (int ph = 0; ph < c->nph; ph++) {
+        const float *d = c->d2 + (size_t)ph * c->npix, *p = c->p + (size_t)ph * c->npix;
+        double s = 0.0;
+        for (size_t i = 0; i < c->npix; i++) {
+            double v = E * p[i] + var0;
+            if (v > 0)
+                s += d[i] / v;
+        }
+        worst = s > worst ? s : worst;
+    }
+    return E * sqrt(worst);
+}
+
+/* q(E) increases with E (each term E²δP²/(E P + v) does): bisection in log E. */
+double mp_prf_cache_limit(const mp_prf_cache *c, double B, double ron, double frac)
+{
+    double lo = 1e-3, hi = 1e15;
+    if (!c || !c->d2 || mp_prf_cache_bound(c, lo, B, ron) > frac)
+        return 0.0;
+    if (mp_prf_cache_bound(c, hi, B, ron) <= frac)
+        return INFINITY;
+    for (int it = 0; it < 60; it++) {       /* 60 halvings of 18 decades: < 1e-9 relative */
+        double mid = sqrt(lo * hi);
+        if (mp_prf_cache_bound(c, mid, B, ron) <= frac)
+            lo = mid;
+        else
+            hi = mid;
+    }
+    return lo;
+}
