@@ -63,6 +63,15 @@ void mp_pl_drop_unset(mp_table *t);
  * them. */
 #define MP_PL_SCREEN_SLACK 2.0
 
+/* ---- run.c ------------------------------------------------------------- */
+
+/* mp_pl_reduce: what mp_pipeline_run does to image, writing no file: at the
+ * end done(ctx, frame, stars, residual [e-], err) gets the run's results
+ * (its to modify, not to keep) and its return is the run's.  For tiles. */
+typedef int (*mp_pl_done_fn)(void *ctx, const mp_frame *f, mp_table *t, double *res, char *err);
+int mp_pl_reduce(const char *image, const mp_pipeline_opts *o, mp_pipeline_report *rep,
+                 mp_pl_done_fn done, void *ctx, char *err);
+
 /* ---- split.c ------------------------------------------------------------ */
 
 /* mp_pl_split_candidates: one star or two.  For every star of t (fitted:

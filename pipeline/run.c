@@ -436,3 +436,16 @@ int mp_pipeline_reduce(const mp_frame *f, const mp_pipeline_opts *o, mp_table *t
     state_free(&s);
     return rc;
 }
+
+int mp_pl_reduce(const char *image, const mp_pipeline_opts *o, mp_pipeline_report *rep,
+                 mp_pl_done_fn done, void *ctx, char *err)
+{
+    run_state s;
+    int rc = state_init(&s, image, NULL, o, rep, err);
+    s.quiet = 1;                 /* no root.coo, root.grp: the tiles' driver writes */
+    if (!rc)
+        rc = read_frame(&s, err) || find_stars(&s, err) || rounds(&s, err) ||
+             done(ctx, &s.f, &s.t, s.res, err);
+    state_free(&s);
+    return rc;
+}

@@ -161,7 +161,7 @@ int mp_epsf_rebin(const mp_epsf *e, int factor, mp_epsf *out, char *err);
  * mode of the annulus rbig..rbig+4 px), img being the frame, or with
  * residual set data less every fitted star (then the star's own model,
  * from e, is put back).  e->sum is set to the median ratio when that is
- * below 1 by more than twice its error, else 1; e->sum_err its error.
+ * below 1 by more than 3 times its error, else 1; e->sum_err its error.
  * Nonzero only on out of memory (fewer than 3 measurable stars: sum 1). */
 int mp_epsf_growth(const mp_frame *f, const double *img, int residual, const mp_epsf_star *s,
                    size_t n, double rbig, mp_epsf *e, char *err);
