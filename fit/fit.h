@@ -85,6 +85,8 @@ typedef struct {
     const struct mp_prf_cache_s *grid;  /* economy: renders of the model this
                             * phase grid was built for are drawn from it
                             * (fit/prf_cache.c); NULL: exact renders */
+    double grid_emax;      /* the frame fit's paint of a star (fit_frame.c)
+                            * uses grid only up to this flux, its bound */
 } mp_prf_work;
 
 void mp_prf_work_free(mp_prf_work *w);

@@ -195,12 +195,29 @@ static double crop_radius(const crop_rule *c, const mp_star *s)
  * rad (INFINITY: the whole PRF box).  Only the window's part is rendered.
  * Returns 1 when out of memory; *cut is set when the crop left part of the
  * box out. */
+static int paint_window(const mp_prf_model *m, const mp_star *s, double sign, double rad,
+                        double *img, long x0, long y0, long w, long h, mp_prf_work *wk,
+                        double **buf, size_t *cap, int *cut);
+
 static int paint(const mp_prf_model *m, const mp_star *s, double sign, double rad, double *img,
                  long x0, long y0, long w, long h, mp_prf_work *wk, double **buf, size_t *cap,
                  int *cut)
 {
     if (!isfinite(s->flux) || !isfinite(s->x) || !isfinite(s->y) || s->flux == 0.0)
         return 0;
+    /* Economy: from the phase grid when the star is within its bound. */
+    const struct mp_prf_cache_s *grid = wk->grid;
+    if (grid && !(fabs(s->flux) <= wk->grid_emax))
+        wk->grid = NULL;
+    int rc = paint_window(m, s, sign, rad, img, x0, y0, w, h, wk, buf, cap, cut);
+    wk->grid = grid;
+    return rc;
+}
+
+static int paint_window(const mp_prf_model *m, const mp_star *s, double sign, double rad,
+                        double *img, long x0, long y0, long w, long h, mp_prf_work *wk,
+                        double **buf, size_t *cap, int *cut)
+{
     long wx0 = x0, wy0 = y0, wx1 = x0 + w, wy1 = y0 + h;   /* [wx0, wx1) */
     if (isfinite(rad)) {
         /* pixels whose centres lie within rad on either axis */
@@ -653,6 +670,8 @@ static int fit_group_local(const mp_frame *f, const mp_prf_model *m, const mp_fr
 {
     double r = o->fit.fitrad;
     mp_prf_work wk = {0};
+    wk.grid = o->grid;
+    wk.grid_emax = R->gemax;
     double *buf = NULL, *tmp = NULL;
     size_t cap = 0;
     star_state *sub = malloc((size_t)n * sizeof *sub);
@@ -767,10 +786,13 @@ done:
 /* The model of every live star on the whole frame, each out to its crop
  * radius; *ncut counts the stars cropped. */
 static double *all_stars(const mp_frame *f, const mp_prf_model *m, const star_state *st, size_t n,
-                         const crop_rule *crop, long *ncut)
+                         const crop_rule *crop, const mp_frame_opts *o, const frame_rules *R,
+                         long *ncut)
 {
     double *all = calloc((size_t)f->im.nx * f->im.ny, sizeof *all);
     mp_prf_work wk = {0};
+    wk.grid = o->grid;
+    wk.grid_emax = R->gemax;
     double *buf = NULL;
     size_t cap = 0;
     for (size_t k = 0; all && k < n; k++) {
@@ -1043,7 +1065,7 @@ int mp_fit_table_mem(const mp_frame *f, const mp_prf_model *m, const mp_frame_op
          * pass only those with a start flux (find's FLUX) can be. */
         free(all);
         all = NULL;
-        if (!alone && !(all = all_stars(f, m, st, n, &crop, &rep->cropped))) {
+        if (!alone && !(all = all_stars(f, m, st, n, &crop, o, &R, &rep->cropped))) {
             snprintf(err, MP_ERRLEN, "out of memory for the model image");
             goto done;
         }

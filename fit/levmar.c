@@ -22,6 +22,7 @@
  * are below tol·σ keeps its best (last accepted) state and is flagged. */
 #include <lapacke.h>
 #include <math.h>
+#include <stddef.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -325,19 +326,22 @@ static void normal_equations(group *G, const double *p, const rstar *r)
             continue;
         double Ek = p[3 * k], gk[3] = {0}, sk[3][6] = {{0}};
         for (int j = j0; j < j1; j++) {
-            size_t t = (size_t)(j + G->by0 - r[k].y0) * r[k].w + (size_t)(G->bx0 - r[k].x0);
+            /* The star's row from column i0 on (an offset from its box's
+             * start that is never negative: the pointer stays in the array). */
+            size_t t = (size_t)((ptrdiff_t)(j + G->by0 - r[k].y0) * r[k].w +
+                                (ptrdiff_t)(G->bx0 - r[k].x0) + i0);
             const double *jk[3] = {r[k].prf + t, r[k].dx + t, r[k].dy + t};
             size_t o = (size_t)j * G->bw;
             for (int a = 0; a < 3; a++) {
                 double s = 0.0;
                 for (int i = i0; i < i1; i++)
-                    s += G->wres[o + i] * jk[a][i];
+                    s += G->wres[o + i] * jk[a][i - i0];
                 gk[a] += s;
                 for (int b = 0; b < ns; b++) {
                     const double *cb = G->basis + (size_t)b * nb + o;
                     double u = 0.0;
                     for (int i = i0; i < i1; i++)
-                        u += G->wt[o + i] * jk[a][i] * cb[i];
+                        u += G->wt[o + i] * jk[a][i - i0] * cb[i];
                     sk[a][b] += u;
                 }
             }
@@ -361,8 +365,10 @@ static void normal_equations(group *G, const double *p, const rstar *r)
                 continue;
             double El = p[3 * l], s[3][3] = {{0}};
             for (int j = b0; j < b1; j++) {
-                size_t t = (size_t)(j + G->by0 - r[k].y0) * r[k].w + (size_t)(G->bx0 - r[k].x0);
-                size_t u = (size_t)(j + G->by0 - r[l].y0) * r[l].w + (size_t)(G->bx0 - r[l].x0);
+                size_t t = (size_t)((ptrdiff_t)(j + G->by0 - r[k].y0) * r[k].w +
+                                    (ptrdiff_t)(G->bx0 - r[k].x0) + a0);
+                size_t u = (size_t)((ptrdiff_t)(j + G->by0 - r[l].y0) * r[l].w +
+                                    (ptrdiff_t)(G->bx0 - r[l].x0) + a0);
                 const double *jk[3] = {r[k].prf + t, r[k].dx + t, r[k].dy + t};
                 const double *jl[3] = {r[l].prf + u, r[l].dx + u, r[l].dy + u};
                 const double *w = G->wt + (size_t)j * G->bw;
@@ -370,7 +376,7 @@ static void normal_equations(group *G, const double *p, const rstar *r)
                     for (int b = (l == k ? a : 0); b < 3; b++) {
                         double v = 0.0;
                         for (int i = a0; i < a1; i++)
-                            v += w[i] * jk[a][i] * jl[b][i];
+                            v += w[i] * jk[a][i - a0] * jl[b][i - a0];
                         s[a][b] += v;
                     }
             }

@@ -65,6 +65,23 @@ typedef struct {
 int mp_image_write(const char *path, const double *pix, long nx, long ny,
                    int bitpix, const mp_card *cards, int ncards, char *err);
 
+/* mp_image_size: the size of a 2-D image (extended names and sections as
+ * mp_image_read) without reading its pixels. */
+int mp_image_size(const char *name, long *nx, long *ny, char *err);
+
+/* An image written a rectangle at a time (io/image_stream.c): BITPIX -32,
+ * the numeric cards given (string cards are left out), under a temporary
+ * name that mp_image_out_close renames into place (commit != 0) or
+ * removes; pixels never put read back as 0.  put writes w x h values
+ * (row-major) with their lower-left pixel at (x1, y1), 1-based.  Errors:
+ * cfitsio failures, a rectangle outside the image. */
+typedef struct mp_image_out mp_image_out;
+int mp_image_out_open(const char *path, long nx, long ny, const mp_card *cards, int ncards,
+                      mp_image_out **o, char *err);
+int mp_image_out_put(mp_image_out *o, long x1, long y1, long w, long h, const double *pix,
+                     char *err);
+int mp_image_out_close(mp_image_out *o, int commit, char *err);
+
 /* Detector parameters (datapars.par).  NaN means "take it from the header
  * keyword, else the default": GAIN (1 e-/ADU), RDNOISE (0 e-), SATURATE
  * (none), EXPTIME (1 s). */

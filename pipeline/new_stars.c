@@ -103,7 +103,7 @@ static int grid_near(const star_grid *g, const mp_table *t, double x, double y, 
  * t, numbered on from t's largest NUMBER; their fit starts from find's
  * position and flux.  Returns the number added, −1 when out of memory. */
 long mp_pl_add_new_stars(mp_table *t, const mp_table *gone, const mp_table *found, long fnx,
-                          long fny, double matchrad)
+                          long fny, double matchrad, double closerad, double closesnr)
 {
     star_grid g = {0}, gg = {0};
     long added = -1;
@@ -118,10 +118,15 @@ long mp_pl_add_new_stars(mp_table *t, const mp_table *gone, const mp_table *foun
             maxnum = mp_table_get(t, r, cnum);
     added = 0;
     int fx = mp_table_col(found, "X_IMAGE"), fy = mp_table_col(found, "Y_IMAGE");
+    int fs = mp_table_col(found, MP_PL_SNR_COL);
     for (size_t r = 0; r < found->nrow && fx >= 0 && fy >= 0; r++) {
         double x = mp_table_get(found, r, fx), y = mp_table_get(found, r, fy);
-        if (!isfinite(x) || !isfinite(y) || grid_near(&g, t, x, y, matchrad) ||
-            grid_near(&gg, gone, x, y, matchrad))
+        if (!isfinite(x) || !isfinite(y) || grid_near(&gg, gone, x, y, matchrad))
+            continue;
+        /* Within matchrad of a known star: a second star there only when
+         * it takes away a χ² of closesnr² (and is not on top of it). */
+        if (grid_near(&g, t, x, y, matchrad) &&
+            (fs < 0 || !(mp_table_get(found, r, fs) >= closesnr) || grid_near(&g, t, x, y, closerad)))
             continue;
         /* The grid holds the stars known before this round only: two
          * detections of one residual peak are find's business, not ours. */
@@ -131,6 +136,8 @@ long mp_pl_add_new_stars(mp_table *t, const mp_table *gone, const mp_table *foun
             goto done;
         }
         for (size_t c = 0; c < found->ncol; c++) {
+            if ((int)c == fs)
+                continue;
             int tc = mp_table_add_col(t, found->cols[c].name);
             if (tc < 0) {
                 added = -1;

@@ -20,7 +20,7 @@ typedef struct {
     int mesh, filter;        /* background mesh and filter */
     mp_group_opts group;
     int niter;
-    double matchrad;         /* [px]; NaN: 1 FWHM */
+    double matchrad;         /* [px]; NaN: 0.5 FWHM */
     mp_table_format catfmt;
     int regions;             /* also write root.reg (DS9) */
     int build_psf;           /* psf="" : build root.psf.fits from the frame
@@ -28,6 +28,9 @@ typedef struct {
     mp_epsf_opts psfb;       /* how (psf.par's names: varorder, maxnpsf) */
     mp_parset *ps;           /* the task's parameters: the fit is set up
                               * again from them with psf=root.psf.fits */
+    long tilesize;           /* core of a tile [px]; 0: whole frame; -1: from maxmem */
+    double maxmem;           /* memory budget [MB] that chooses tiles when tilesize = -1 */
+    long tilemargin;         /* [px] read around a core; -1: 2 (fitrad + psfrad) + 2 FWHM */
 } mp_pipeline_opts;
 
 /* Seconds and counts of every stage, for the report on stderr. */
@@ -50,6 +53,27 @@ typedef struct {
 /* mp_pipeline_run: reduce one image; root names the outputs. */
 int mp_pipeline_run(const char *image, const char *root, const mp_pipeline_opts *o,
                     mp_pipeline_report *rep, char *err);
+
+/* mp_pipeline_run_tiled: reduce one image in tiles (pipeline/tiles.c):
+ * cores of tilesize x tilesize pixels, each read through a cfitsio section
+ * with margin pixels more on every side and reduced as a frame of its own;
+ * each star kept once, by the tile whose core holds its fitted position
+ * (ties at the cores' edges settled as tiles.c says); root.fit,
+ * root.res.fits (the cores' residuals), root.cat (+ .reg) and the report
+ * for the whole frame (no root.coo or root.grp).  Needs a PSF model given
+ * (not built from the frame) and no dqmask. */
+int mp_pipeline_run_tiled(const char *image, const char *root, const mp_pipeline_opts *o,
+                          long tilesize, long margin, mp_pipeline_report *rep, char *err);
+
+/* MP_PL_BYTES_PER_PIXEL: peak memory of a whole-frame run per pixel (the
+ * frame, residual, mask, sky and noise maps, the fit's work), measured
+ * (README, "Frames of any size"); it sets the tiles from maxmem. */
+#define MP_PL_BYTES_PER_PIXEL 60.0
+
+/* mp_pipeline_run_any: mp_pipeline_run or mp_pipeline_run_tiled, as
+ * o->tilesize, o->maxmem and the frame's size say. */
+int mp_pipeline_run_any(const char *image, const char *root, const mp_pipeline_opts *o,
+                        mp_pipeline_report *rep, char *err);
 
 /* mp_pipeline_reduce: the same reduction of a frame already in memory
  * (not modified), with o's PSF (o->build_psf must be 0): t receives the

@@ -27,10 +27,15 @@ int mp_pl_note_gone(mp_table *gone, const mp_table *before, const mp_table *afte
 
 /* mp_pl_add_new_stars: append the detections of found that are not within
  * matchrad of a star of t or of gone, numbered on from t's largest NUMBER;
- * their fit starts from find's position and flux.  Returns the number
- * added, −1 when out of memory.  fnx, fny: the frame's size. */
+ * their fit starts from find's position and flux.  A detection within
+ * matchrad of a star of t (not of gone) is added all the same when it lies
+ * at least closerad from every star of t and its screen S/N (column
+ * MP_PL_SNR_COL, prescreen.c) reaches closesnr: the one-or-two test of a
+ * blend (closesnr² is the χ² a second star at that place removes).
+ * Returns the number added, −1 when out of memory.  fnx, fny: the frame's
+ * size. */
 long mp_pl_add_new_stars(mp_table *t, const mp_table *gone, const mp_table *found, long fnx,
-                         long fny, double matchrad);
+                         long fny, double matchrad, double closerad, double closesnr);
 
 /* ---- prescreen.c ------------------------------------------------------- */
 
@@ -39,18 +44,48 @@ long mp_pl_add_new_stars(mp_table *t, const mp_table *gone, const mp_table *foun
  * residual res (data − stars, sky kept) over the pixels within fitrad,
  * weighted by b's rms map (the fitted model's noise): X_IMAGE set NaN
  * (so mp_pl_add_new_stars skips it) when its S/N is below snrmin, else
- * FLUX set to the fitted flux (the fit's start).  Returns the number
+ * FLUX set to the fitted flux (the fit's start); its S/N goes to column
+ * MP_PL_SNR_COL either way.  Returns the number
  * dropped, −1 when out of memory.  Threads over candidates (OpenMP). */
 long mp_pl_prescreen(const mp_frame *f, const mp_bkg *b, const double *res,
                      const mp_prf_model *m, double fitrad, double snrmin, mp_table *found);
 
-/* mp_pl_drop_unset: remove the rows whose X_IMAGE is NaN (the screen's). */
+/* The column mp_pl_prescreen writes each candidate's S/N to (not copied
+ * into the star table). */
+#define MP_PL_SNR_COL "SNR_SCREEN"
+
+/* mp_pl_drop_unset: remove the rows whose X_IMAGE is NaN (the screen's)
+ * and the screen's column MP_PL_SNR_COL. */
 void mp_pl_drop_unset(mp_table *t);
 
 /* The screen's cut below the fit's minsnr: a star at the cut reaches the
  * screen's S/N ± 1 (one parameter's σ), so 2 below it passes 97.7 % of
  * them. */
 #define MP_PL_SCREEN_SLACK 2.0
+
+/* ---- run.c ------------------------------------------------------------- */
+
+/* mp_pl_reduce: what mp_pipeline_run does to image, writing no file: at the
+ * end done(ctx, frame, stars, residual [e-], err) gets the run's results
+ * (its to modify, not to keep) and its return is the run's.  For tiles. */
+typedef int (*mp_pl_done_fn)(void *ctx, const mp_frame *f, mp_table *t, double *res, char *err);
+int mp_pl_reduce(const char *image, const mp_pipeline_opts *o, mp_pipeline_report *rep,
+                 mp_pl_done_fn done, void *ctx, char *err);
+
+/* ---- split.c ------------------------------------------------------------ */
+
+/* mp_pl_split_candidates: one star or two.  For every star of t (fitted:
+ * XPSF_IMAGE, YPSF_IMAGE, FLUX_PSF, FLUXERR_PSF) of S/N ≥ √2·snrmin and
+ * its fitting region inside the frame, the score test of a second star at
+ * 3 rings × 12 places between rmin and rmax [px] from it, on the residual
+ * res weighted by b's rms map over the pixels within fitrad: the place
+ * whose Δχ² (after the first star and the sky readjust) is largest is
+ * appended to found (X_IMAGE, Y_IMAGE, FLUX, MP_PL_SNR_COL = √Δχ²) when
+ * Δχ² ≥ snrmin².  Returns the number appended, −1 when out of memory.
+ * Threads over stars (OpenMP). */
+long mp_pl_split_candidates(const mp_frame *f, const mp_bkg *b, const double *res,
+                            const mp_prf_model *m, const mp_table *t, double fitrad, double rmin,
+                            double rmax, double snrmin, mp_table *found);
 
 /* ---- outputs.c --------------------------------------------------------- */
 

@@ -61,6 +61,9 @@ long mp_pl_prescreen(const mp_frame *f, const mp_bkg *b, const double *res,
     int ff = mp_table_col(found, "FLUX");
     if (fx < 0 || fy < 0 || !(snrmin > 0) || found->nrow == 0)
         return 0;
+    int fs = mp_table_add_col(found, MP_PL_SNR_COL);
+    if (fs < 0)
+        return -1;
     /* the window linear_snr renders: the pixels within fitrad */
     long side = 2 * (long)ceil(fitrad) + 3;
     long dropped = 0, nrow = (long)found->nrow;
@@ -76,6 +79,7 @@ long mp_pl_prescreen(const mp_frame *f, const mp_bkg *b, const double *res,
             if (!prf || !isfinite(x) || !isfinite(y))
                 continue;
             double e, snr = linear_snr(f, b, res, m, x, y, fitrad, prf, &wk, &e);
+            mp_table_set(found, (size_t)r, fs, snr);
             if (isfinite(snr) && snr < snrmin) {
                 mp_table_set(found, (size_t)r, fx, NAN);
                 dropped++;
@@ -89,9 +93,23 @@ long mp_pl_prescreen(const mp_frame *f, const mp_bkg *b, const double *res,
     return failed ? -1 : dropped;
 }
 
+/* Remove column c of t. */
+static void drop_col(mp_table *t, int c)
+{
+    size_t nc = t->ncol - 1;
+    for (size_t r = 0; r < t->nrow; r++)
+        for (size_t j = 0; j < nc; j++)
+            t->v[r * nc + j] = t->v[r * t->ncol + j + (j >= (size_t)c)];
+    memmove(t->cols + c, t->cols + c + 1, (nc - (size_t)c) * sizeof *t->cols);
+    t->ncol = nc;
+}
+
 void mp_pl_drop_unset(mp_table *t)
 {
-    int fx = mp_table_col(t, "X_IMAGE");
+    int fx = mp_table_col(t, "X_IMAGE"), fs = mp_table_col(t, MP_PL_SNR_COL);
+    if (fs >= 0)
+        drop_col(t, fs);
+    fx = mp_table_col(t, "X_IMAGE");
     if (fx < 0)
         return;
     size_t k = 0;

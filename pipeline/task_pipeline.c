@@ -45,6 +45,12 @@ int mp_pl_opts_read(mp_parset *ps, mp_pipeline_opts *o, char *err)
     mp_par_int(ps, "niter", &o->niter);
     mp_par_real(ps, "matchrad", &o->matchrad);
     mp_par_bool(ps, "regions", &o->regions);
+    int ts, tm;
+    mp_par_int(ps, "tilesize", &ts);
+    mp_par_int(ps, "tilemargin", &tm);
+    mp_par_real(ps, "maxmem", &o->maxmem);
+    o->tilesize = ts == MP_PAR_INDEF_INT ? -1 : ts;
+    o->tilemargin = tm == MP_PAR_INDEF_INT ? -1 : tm;
     if (mp_table_format_parse(mp_par_string(ps, "catformat"), &o->catfmt)) {
         snprintf(err, MP_ERRLEN, "catformat: unknown table format '%s'", mp_par_string(ps, "catformat"));
         return 1;
@@ -85,7 +91,7 @@ int mp_task_pipeline(int argc, char **argv)
             goto done;
         }
         mp_pipeline_report r;
-        int prc = mp_pipeline_run(im[i], root[0] ? root : named, &o, &r, err);
+        int prc = mp_pipeline_run_any(im[i], root[0] ? root : named, &o, &r, err);
         free(named);
         if (prc)
             goto done;

@@ -37,7 +37,8 @@ typedef struct {
                         * rejects the star) */
     double flux, sky;  /* fitted flux [e-] (for the table's current sum), sky [e-/px] */
     double chi2;       /* reduced χ² of its last fit */
-    int used;          /* 0: rejected (why in the build's report) */
+    int used;          /* 0: rejected by the last build */
+    int skip;          /* set by the caller: left out of builds */
 } mp_epsf_star;
 
 /* How the table is built. */
@@ -124,8 +125,9 @@ void mp_epsf_stars_free(mp_epsf_star *s, size_t n);
 /* mp_epsf_build: build the table of order o->order (0..2) at OVERSAMP os
  * (1..4) from the stars, starting from e when e->planes is set (its order
  * may be lower: the missing terms start at 0), else from a Gaussian of
- * o->fwhm.  Stars' fits are updated; stars whose fit fails or strays are
- * marked unused.  e->sum stays 1 (mp_epsf_growth sets it).
+ * o->fwhm.  Every star not skipped takes part afresh (one rejected by a
+ * lower order may well fit a higher one); stars' fits are updated, and
+ * those whose fit fails, strays or stands out in χ² are marked unused.  e->sum stays 1 (mp_epsf_growth sets it).
  * Errors: fewer usable stars than 2·nterms + 1, out of memory. */
 int mp_epsf_build(mp_epsf_star *s, size_t n, const mp_epsf_opts *o, int os, int order,
                   mp_epsf *e, char *err);
@@ -159,7 +161,7 @@ int mp_epsf_rebin(const mp_epsf *e, int factor, mp_epsf *out, char *err);
  * mode of the annulus rbig..rbig+4 px), img being the frame, or with
  * residual set data less every fitted star (then the star's own model,
  * from e, is put back).  e->sum is set to the median ratio when that is
- * below 1 by more than twice its error, else 1; e->sum_err its error.
+ * below 1 by more than 3 times its error, else 1; e->sum_err its error.
  * Nonzero only on out of memory (fewer than 3 measurable stars: sum 1). */
 int mp_epsf_growth(const mp_frame *f, const double *img, int residual, const mp_epsf_star *s,
                    size_t n, double rbig, mp_epsf *e, char *err);

@@ -103,22 +103,35 @@ static int fit_star(mp_epsf_star *s, const mp_epsf *e, const mp_epsf_opts *o, mp
     return 0;
 }
 
-/* Stars whose χ² stands far above the others' (a blend, a cosmic ray the
- * table cannot be): more than 5 robust σ above the median. */
+/* Stars whose χ² stands out among stars of their brightness (a blend, a
+ * cosmic ray the table cannot be): while the table is still imperfect the
+ * brightest stars have the largest χ², so the cut is on the residual of
+ * ln χ² about its straight-line trend in ln F, above 5 robust σ. */
 static void reject_chi2(mp_epsf_star *s, size_t n, double *tmp)
 {
+    double sx = 0, sy = 0, sxx = 0, sxy = 0;
     size_t m = 0;
     for (size_t k = 0; k < n; k++)
-        if (s[k].used)
-            tmp[m++] = s[k].chi2;
-    if (m < 5)
+        if (s[k].used && s[k].chi2 > 0 && s[k].flux > 0) {
+            double x = log(s[k].flux), y = log(s[k].chi2);
+            sx += x, sy += y, sxx += x * x, sxy += x * y;
+            m++;
+        }
+    if (m < 8)
         return;
-    double med = mp_epsf_median(tmp, m);
-    for (size_t k = 0; k < m; k++)
-        tmp[k] = fabs(tmp[k] - med);
-    double mad = 1.4826 * mp_epsf_median(tmp, m);
+    double d = m * sxx - sx * sx, b = d > 0 ? (m * sxy - sx * sy) / d : 0.0;
+    double a = (sy - b * sx) / m;
+    size_t q = 0;
     for (size_t k = 0; k < n; k++)
-        if (s[k].used && s[k].chi2 > med + 5.0 * mad + 0.5)
+        if (s[k].used && s[k].chi2 > 0 && s[k].flux > 0)
+            tmp[q++] = log(s[k].chi2) - a - b * log(s[k].flux);
+    double med = mp_epsf_median(tmp, q);
+    for (size_t k = 0; k < q; k++)
+        tmp[k] = fabs(tmp[k] - med);
+    double sig = 1.4826 * mp_epsf_median(tmp, q);
+    for (size_t k = 0; k < n; k++)
+        if (s[k].used && s[k].chi2 > 0 && s[k].flux > 0 &&
+            log(s[k].chi2) - a - b * log(s[k].flux) - med > 5.0 * sig)
             s[k].used = 0;
 }
 
@@ -139,6 +152,8 @@ int mp_epsf_build(mp_epsf_star *s, size_t n, const mp_epsf_opts *o, int os, int 
     }
     if (start_planes(o, os, order, e, err))
         return 1;
+    for (size_t k = 0; k < n; k++)
+        s[k].used = !s[k].skip;
     mp_epsf_sirt w;
     if (mp_epsf_sirt_init(&w, e, n, err))
         return 1;
@@ -154,7 +169,7 @@ int mp_epsf_build(mp_epsf_star *s, size_t n, const mp_epsf_opts *o, int os, int 
         for (size_t k = 0; k < n; k++)
             if (s[k].used && fit_star(&s[k], e, o, &tab, err))
                 goto done;
-        if (it > 0)
+        if (it >= 2)
             reject_chi2(s, n, tmp);
         size_t m = count_used(s, n);
         if (m < (size_t)(2 * e->nterms + 1)) {

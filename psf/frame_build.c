@@ -114,12 +114,13 @@ static int half_difference(mp_epsf_star *s, size_t n, const mp_epsf_opts *o, con
     for (int half = 0; half < 2 && !rc; half++) {
         for (size_t k = 0; k < n; k++) {
             keep[k] = s[k].used;
-            if ((int)(k % 2) != half)
-                s[k].used = 0;
+            s[k].skip = (int)(k % 2) != half;
         }
         rc = mp_epsf_build(s, n, o, e->os, 0, &h[half], err);
-        for (size_t k = 0; k < n; k++)
+        for (size_t k = 0; k < n; k++) {
             s[k].used = keep[k];
+            s[k].skip = 0;
+        }
     }
     if (!rc) {
         *noise = h[0];
@@ -201,8 +202,12 @@ static int choose_order(mp_epsf_star *s, size_t n, const mp_epsf_opts *o, mp_eps
     snprintf(e->why + l, sizeof e->why - l, "auto: order %d", e->order);
     for (int k = 0; k <= e->order && k < 2; k++) {
         l = strlen(e->why);
-        snprintf(e->why + l, sizeof e->why - l, "%s order %d->%d p=%.2g%s", k ? ";" : " (",
-                 k, k + 1, rep->ptest[k], rep->ptest[k] < o->alpha ? " <" : " >=");
+        if (isnan(rep->ptest[k]))      /* raised in the first pass */
+            snprintf(e->why + l, sizeof e->why - l, "%s order %d->%d in the first pass",
+                     k ? ";" : " (", k, k + 1);
+        else
+            snprintf(e->why + l, sizeof e->why - l, "%s order %d->%d p=%.2g%s", k ? ";" : " (",
+                     k, k + 1, rep->ptest[k], rep->ptest[k] < o->alpha ? " <" : " >=");
     }
     l = strlen(e->why);
     snprintf(e->why + l, sizeof e->why - l, " alpha %.0e)", o->alpha);

@@ -122,7 +122,12 @@ int mp_epsf_growth(const mp_frame *f, const double *img, int residual, const mp_
         /* The median's error: 1.2533 × the robust σ / √n. */
         double se = 1.2533 * 1.4826 * mp_epsf_median(v, (size_t)nr) / sqrt((double)nr);
         e->sum_err = se;
-        if (med < 1.0 - 2.0 * se && med > 0.2)
+        /* Only a deficit significant at 3 σ: the big aperture also holds
+         * what the neighbours' fits left and stars too faint to find, which
+         * bias the ratio low in a crowded frame (the variable scene of
+         * validate/PSFBUILD.md: 0.863 ± 0.050 where all the light was
+         * inside the table). */
+        if (med < 1.0 - 3.0 * se && med > 0.2)
             e->sum = med;
     }
     rc = 0;

@@ -129,10 +129,6 @@ static int wls(const mp_epsf_sirt *w, size_t el, const size_t *idx, size_t m, co
                int nt, double *c)
 {
     double A[36] = {0};
-    /* A little ridge (1e-2 of the best-measured element's weight): an
-     * element that a few pixels barely reach is not moved by their noise. */
-    for (int a = 0; a < nt; a++)
-        A[a * nt + a] = w->ridge;
     for (int t = 0; t < nt; t++)
         c[t] = 0.0;
     for (size_t q = 0; q < m; q++) {
@@ -145,9 +141,15 @@ static int wls(const mp_epsf_sirt *w, size_t el, const size_t *idx, size_t m, co
                 A[a * nt + b] += h * tk[a] * tk[b];
         }
     }
-    for (int a = 0; a < nt; a++)
+    /* Marquardt's damping of the diagonal, and a floor (1e-9 of the
+     * best-measured element's weight) that keeps an element few pixels
+     * reach solvable; neither moves the fixed point, only the step. */
+    for (int a = 0; a < nt; a++) {
+        A[a * nt + a] *= 1.0 + 1e-3;
+        A[a * nt + a] += w->ridge;
         for (int b = a + 1; b < nt; b++)
             A[a * nt + b] = A[b * nt + a];
+    }
     return mp_epsf_solve(A, c, nt);
 }
 
@@ -267,7 +269,7 @@ int mp_epsf_sirt_run(mp_epsf_sirt *w, const mp_epsf_star *s, size_t n, const mp_
                     h += w->H[k * nel + el];
             hmax = h > hmax ? h : hmax;
         }
-        w->ridge = 1e-2 * hmax;
+        w->ridge = 1e-9 * hmax;
         memset(upd, 0, (size_t)nt * nel * sizeof *upd);
         for (size_t el = 0; el < nel; el++) {
             int i = (int)(el % (size_t)e->nx), j = (int)(el / (size_t)e->nx);

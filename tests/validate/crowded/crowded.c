@@ -34,6 +34,7 @@
 #include <string.h>
 
 #include "catalog/catalog.h"
+#include "fit/fit.h"
 #include "io/io.h"
 #include "sim/sim.h"
 
@@ -130,6 +131,30 @@ static int write_psf(const char *path, double sigma, char *err)
         rc = mp_image_write(path, t, n, n, -64, cards, 2, err);
     free(t);
     return rc;
+}
+
+/* The S/N of a star at its Cramér–Rao bound, alone on its sky (design.md
+ * §6: E, X, Y, B fitted, the exact pixel-integrated PRF over 15×15 px,
+ * position derivatives by central differences of the exact render). */
+#define BB 15
+static double snr_bound(const mp_sim_prf *prf, double x, double y, double E, double B)
+{
+    double p[BB * BB] = {0}, a[BB * BB] = {0}, b[BB * BB] = {0}, c[BB * BB] = {0},
+           d[BB * BB] = {0}, dx[BB * BB], dy[BB * BB], sd[4];
+    const double h = 1e-3, fx = x - floor(x), fy = y - floor(y);
+    double cx = BB / 2 + 1 + fx, cy = BB / 2 + 1 + fy;
+    mp_sim_add_star(prf, cx, cy, 1.0, p, BB, BB);
+    mp_sim_add_star(prf, cx + h, cy, 1.0, a, BB, BB);
+    mp_sim_add_star(prf, cx - h, cy, 1.0, b, BB, BB);
+    mp_sim_add_star(prf, cx, cy + h, 1.0, c, BB, BB);
+    mp_sim_add_star(prf, cx, cy - h, 1.0, d, BB, BB);
+    for (int i = 0; i < BB * BB; i++) {
+        dx[i] = (a[i] - b[i]) / (2 * h);
+        dy[i] = (c[i] - d[i]) / (2 * h);
+    }
+    if (mp_crlb(p, dx, dy, BB * BB, E, B, RON, sd))
+        return NAN;
+    return E / sd[0];
 }
 
 static int do_sim(const char *dir)
@@ -241,8 +266,9 @@ static int do_sim(const char *dir)
     int cq = add(&t, "SAT_SELF", "%2.0f", 1, "Star alone + sky reaches SATURATE", "");
     int cc = add(&t, "NSATPIX", "%4.0f", 1, "Clipped pixels within 3 px", "");
     int cnn = add(&t, "NN_DIST", "%9.4f", 0, "Distance to the nearest other star", "pixel");
+    int csn = add(&t, "SNR_BOUND", "%10.3f", 0, "S/N at the Cramer-Rao bound, alone on its sky", "");
     if (cn < 0 || cx < 0 || cy < 0 || cf < 0 || cm < 0 || cs < 0 || ck < 0 || cp < 0 ||
-        cd < 0 || cq < 0 || cc < 0 || cnn < 0) {
+        cd < 0 || cq < 0 || cc < 0 || cnn < 0 || csn < 0) {
         fprintf(stderr, "crowded: out of memory\n");
         return 1;
     }
@@ -275,11 +301,12 @@ static int do_sim(const char *dir)
         for (int j = 0; j < n; j++)
             if (j != i)
                 nn = fmin(nn, hypot(s[j].x - s[i].x, s[j].y - s[i].y));
-        double v[12] = {i + 1, s[i].x, s[i].y, s[i].flux, s[i].mag, sky_at(s[i].x, s[i].y),
+        double v[13] = {i + 1, s[i].x, s[i].y, s[i].flux, s[i].mag, sky_at(s[i].x, s[i].y),
                         s[i].kind, s[i].pair, s[i].kind == K_PRIMARY || s[i].kind == K_COMPANION
-                        ? s[i].sep : NAN, satself, ncl, nn};
-        int col[12] = {cn, cx, cy, cf, cm, cs, ck, cp, cd, cq, cc, cnn};
-        for (int j = 0; j < 12; j++)
+                        ? s[i].sep : NAN, satself, ncl, nn,
+                        snr_bound(&prf, s[i].x, s[i].y, s[i].flux, sky_at(s[i].x, s[i].y))};
+        int col[13] = {cn, cx, cy, cf, cm, cs, ck, cp, cd, cq, cc, cnn, csn};
+        for (int j = 0; j < 13; j++)
             mp_table_set(&t, (size_t)row, col[j], v[j]);
     }
     snprintf(path, sizeof path, "%s/truth.dat", dir);
@@ -597,6 +624,49 @@ static int do_match(const char *dir, const char *root, const char *label)
             "bins also collect catalog entries beyond them.  A false entry with a true star "
             "within 2 px is most likely a faint star measured more than 1 px off.)\n\n");
 
+    /* Issue 13: the stars measurable at S/N >= 5 (their bound alone on the
+     * sky) and how many were found; pair members found against field stars
+     * of the same magnitude (each member expected at its 1-mag bin's field
+     * completeness). */
+    int csn = mp_table_col(&tt, "SNR_BOUND");
+    int n5 = 0, f5 = 0;
+    for (int i = 0; csn >= 0 && i < nt; i++)
+        if (mp_table_get(&tt, (size_t)i, csn) >= 5.0) {
+            n5++;
+            f5 += tmatch[i] >= 0;
+        }
+    double pexp[NSBIN] = {0}, pvar[NSBIN] = {0};
+    int pfound[NSBIN] = {0}, pn[NSBIN] = {0};
+    for (int i = 0; i < nt; i++) {
+        int k = (int)mp_table_get(&tt, (size_t)i, tk);
+        if (k != K_PRIMARY && k != K_COMPANION)
+            continue;
+        int b = sbin(mp_table_get(&tt, (size_t)i, td)), mb = mbin(mp_table_get(&tt, (size_t)i, tm));
+        double q = ntf_b[mb] ? (double)nff_b[mb] / ntf_b[mb] : NAN;
+        if (!isfinite(q))
+            continue;
+        pn[b]++;
+        pfound[b] += tmatch[i] >= 0;
+        pexp[b] += q;
+        pvar[b] += q * (1 - q);
+    }
+    fprintf(md, "\n#### Deep detection and blends (issue 13)\n\n");
+    if (csn >= 0)
+        fprintf(md, "- Stars whose S/N at their Cramér–Rao bound (alone on their sky, E, X, Y, B "
+                "fitted; truth column SNR_BOUND) reaches 5: **%d of %d (%.3f)**; of them found: "
+                "**%d (%.3f)**.\n", n5, nt, (double)n5 / nt, f5, n5 ? (double)f5 / n5 : NAN);
+    fprintf(md, "- Pair members found against field stars of the same magnitude (found / "
+            "expected at their 1-mag bin's field completeness; σ from the binomial variance of "
+            "that expectation):\n\n| separation [FWHM] | members | found | expected | ratio ± σ |\n"
+            "|---|---:|---:|---:|---:|\n");
+    double pratio[NSBIN];
+    for (int b = 0; b < NSBIN; b++) {
+        pratio[b] = pexp[b] > 0 ? pfound[b] / pexp[b] : NAN;
+        fprintf(md, "| %.2f–%.2f | %d | %d | %.1f | %.3f ± %.3f |\n", SEPEDGE[b], SEPEDGE[b + 1],
+                pn[b], pfound[b], pexp[b], pratio[b], pexp[b] > 0 ? sqrt(pvar[b]) / pexp[b] : NAN);
+    }
+    fprintf(md, "\n");
+
     /* Pairs against separation. */
     int np_b[NSBIN] = {0}, nboth[NSBIN] = {0}, none[NSBIN] = {0}, nzero[NSBIN] = {0};
     int nonep[NSBIN] = {0};
@@ -875,8 +945,26 @@ static int do_match(const char *dir, const char *root, const char *label)
                 (double)nmatched / nt);
         for (int b = 0; b < NSBIN; b++)
             fprintf(row, " %d/%d", nboth[b], np_b[b]);
-        fprintf(row, " | %.3f | %.3f | %.3f | %.3f | %d/%d, %d | %.1f | %.1f |\n", sall.ph,
-                sall.as, sall.ne_rs, sall.nx_rs, nsat_found, nsat, nsat_f1, sec[4], sec[6]);
+        fprintf(row, " |");
+        for (int b = 0; b < NSBIN; b++)
+            fprintf(row, " %.2f", pratio[b]);
+        fprintf(row, " | %d/%d | %.3f | %.3f | %.3f | %.3f | %d/%d, %d | %.1f | %.1f |\n", f5, n5,
+                sall.ph, sall.as, sall.ne_rs, sall.nx_rs, nsat_found, nsat, nsat_f1, sec[4], sec[6]);
+        fclose(row);
+    }
+
+    /* The issue-13 table's row (ROOT_i13.md), and its last row: the stars
+     * measurable at S/N >= 5 (ROOT_i13b.md). */
+    snprintf(path, sizeof path, "%s/%s_i13.md", dir, root);
+    if ((row = fopen(path, "w"))) {
+        fprintf(row, "| matphot, %s | %.3f | %d | %.3f | %.3f | %.3f |\n", label,
+                (double)nmatched / nt, nfalse, sall.ph, sall.as, sall.ne_rs);
+        fclose(row);
+    }
+    snprintf(path, sizeof path, "%s/%s_i13b.md", dir, root);
+    if ((row = fopen(path, "w"))) {
+        fprintf(row, "| stars with S/N ≥ 5 at their bound | %.3f | — | 1.00 | 1.00 | 1.00 |\n",
+                (double)n5 / nt);
         fclose(row);
     }
 
@@ -885,6 +973,10 @@ static int do_match(const char *dir, const char *root, const char *label)
            label, nc, nmatched, nt, nfalse);
     for (int b = 0; b < NSBIN; b++)
         printf(" %d/%d", nboth[b], np_b[b]);
+    printf("; members/field by sep bin:");
+    for (int b = 0; b < NSBIN; b++)
+        printf(" %.2f", pratio[b]);
+    printf("; S/N>=5 found %d/%d", f5, n5);
     printf("; field phot/model %.3f astro/model %.3f, rsig E %.3f X %.3f; saturated %d/%d "
            "found, %d flag 1\n", sall.ph, sall.as, sall.ne_rs, sall.nx_rs, nsat_found, nsat,
            nsat_f1);
@@ -910,12 +1002,101 @@ static int do_match(const char *dir, const char *root, const char *label)
     return 0;
 }
 
+/* The artificial-star completeness (matphot fakes: FAKES, a .fakes.cat)
+ * beside the field stars' completeness against the truth (ROOT_cmag.dat),
+ * in the same 1-mag bins: fakes and field stars are both uniform over the
+ * frame and in [-14, -6] mag, so the two estimate the same curve.  Writes
+ * ROOT_fakes.dat and ROOT_fakes.md (the table, each bin's difference over
+ * its combined binomial σ, and χ² over the bins with its p-value). */
+static int do_fakes(const char *dir, const char *root, const char *fakes)
+{
+    char err[MP_ERRLEN], path[4096];
+    mp_table ft;
+    if (mp_table_read(fakes, &ft, err)) {
+        fprintf(stderr, "crowded: %s\n", err);
+        return 1;
+    }
+    int fm = need(&ft, "MAG_TRUE", fakes), ff = need(&ft, "FOUND", fakes);
+    if (fm < 0 || ff < 0)
+        return 1;
+    int n_b[NMBIN] = {0}, f_b[NMBIN] = {0};
+    for (size_t r = 0; r < ft.nrow; r++) {
+        int b = mbin(mp_table_get(&ft, r, fm));
+        n_b[b]++;
+        f_b[b] += mp_table_get(&ft, r, ff) == 1;
+    }
+    double tc[NMBIN], te[NMBIN];
+    for (int b = 0; b < NMBIN; b++)
+        tc[b] = te[b] = NAN;
+    snprintf(path, sizeof path, "%s/%s_cmag.dat", dir, root);
+    FILE *in = fopen(path, "r");
+    if (!in) {
+        fprintf(stderr, "crowded: %s: cannot read\n", path);
+        return 1;
+    }
+    char line[512];
+    while (fgets(line, sizeof line, in)) {
+        double m, a, ea, c, ec;
+        if (line[0] != '#' && sscanf(line, "%lf %lf %lf %lf %lf", &m, &a, &ea, &c, &ec) == 5) {
+            int b = mbin(m);
+            tc[b] = c;
+            te[b] = ec;
+        }
+    }
+    fclose(in);
+    snprintf(path, sizeof path, "%s/%s_fakes.dat", dir, root);
+    FILE *dat = fopen(path, "w");
+    snprintf(path, sizeof path, "%s/%s_fakes.md", dir, root);
+    FILE *md = fopen(path, "w");
+    if (!dat || !md) {
+        fprintf(stderr, "crowded: %s: cannot write\n", path);
+        return 1;
+    }
+    fprintf(dat, "# mag completeness_fakes sigma n\n");
+    fprintf(md, "| mag | field stars: completeness ± σ (truth) | fakes | found | completeness ± σ "
+            "(fakes) | difference / σ |\n|---:|---:|---:|---:|---:|---:|\n");
+    double chi2 = 0;
+    int nb = 0, nall = 0, fall = 0;
+    for (int b = 0; b < NMBIN; b++) {
+        nall += n_b[b];
+        fall += f_b[b];
+        if (n_b[b] == 0)
+            continue;
+        double c = (double)f_b[b] / n_b[b], e = sqrt(c * (1 - c) / n_b[b]);
+        fprintf(dat, "%.1f %.5f %.5f %d\n", -16.0 + b, c, e, n_b[b]);
+        /* σ² of the difference: each side's binomial variance at the pooled
+         * estimate (so a bin at 1.000 on both sides still has one) */
+        double nt = isfinite(te[b]) && tc[b] > 0 && tc[b] < 1 ? tc[b] * (1 - tc[b]) / (te[b] * te[b]) : NAN;
+        double pool = isfinite(nt) ? (c * n_b[b] + tc[b] * nt) / (n_b[b] + nt) : c;
+        double v = pool * (1 - pool) * (1.0 / n_b[b] + (isfinite(nt) ? 1.0 / nt : 0));
+        double z = isfinite(tc[b]) && v > 0 ? (c - tc[b]) / sqrt(v) : NAN;
+        if (isfinite(z)) {
+            chi2 += z * z;
+            nb++;
+        }
+        fprintf(md, "| %.0f | %.4f ± %.4f | %d | %d | %.4f ± %.4f | %+.2f |\n", -16.0 + b, tc[b],
+                te[b], n_b[b], f_b[b], c, e, z);
+    }
+    fprintf(md, "\n%d fakes, %d found (%.4f).  Agreement over the %d bins with a defined "
+            "difference: χ² = %.2f for %d degrees of freedom, p = %.3f (the two curves differ "
+            "beyond their sampling error when p < 0.01).\n", nall, fall,
+            nall ? (double)fall / nall : NAN, nb, chi2, nb, nb ? mp_chi2_sf(nb, chi2) : NAN);
+    printf("crowded fakes: %d fakes, %d found; chi2 %.2f / %d bins, p %.3f\n", nall, fall, chi2,
+           nb, nb ? mp_chi2_sf(nb, chi2) : NAN);
+    fclose(dat);
+    fclose(md);
+    mp_table_free(&ft);
+    return 0;
+}
+
 int main(int argc, char **argv)
 {
+    if (argc == 5 && strcmp(argv[1], "fakes") == 0)
+        return do_fakes(argv[2], argv[3], argv[4]) ? 1 : 0;
     if (argc == 3 && strcmp(argv[1], "sim") == 0)
         return do_sim(argv[2]) ? 1 : 0;
     if (argc == 5 && strcmp(argv[1], "match") == 0)
         return do_match(argv[2], argv[3], argv[4]) ? 1 : 0;
-    fprintf(stderr, "usage: crowded sim DIR | crowded match DIR ROOT LABEL\n");
+    fprintf(stderr, "usage: crowded sim DIR | crowded match DIR ROOT LABEL | crowded fakes DIR ROOT FAKES\n");
     return 2;
 }

@@ -43,18 +43,29 @@ timed() {
 LOAD0=$(cut -d' ' -f1-3 /proc/loadavg 2>/dev/null || echo '?')
 
 t0=$(date +%s)
+# REPORT_ONLY=1: match the runs already in $OUT again and rebuild the
+# report (after a change of this script's text), reducing nothing.
+REPORT_ONLY=${REPORT_ONLY:-}
+if [ -z "$REPORT_ONLY" ]; then
 rm -f "$OUT"/*.cat "$OUT"/*.report "$OUT"/*.md "$OUT"/*.dat "$OUT"/*.log "$OUT"/*.failed "$OUT"/*.wall "$OUT"/*.cmd "$OUT"/*.cpu
 "$OUT/crowded" sim "$OUT" > "$OUT/sim.log" || { cat "$OUT/sim.log"; exit 1; }
+fi
 cat "$OUT/sim.log"
 
 # root | label | extra pipeline parameters (everything else: the defaults)
-RUNS="const|constant sky|skymodel=constant
+RUNS="auto|defaults (skymodel auto)|
+old|the cuts before issue 13 (threshold 4, minsnr 2; the blend test then proposes at Δχ² ≥ 4)|threshold=4 minsnr=2
+const|constant sky|skymodel=constant
 plane|plane sky|skymodel=plane
 x2|constant sky, economy off (2x table kept)|skymodel=constant economy-"
 
 rc=0
 echo "$RUNS" | while IFS='|' read -r root label extra; do
     # shellcheck disable=SC2086
+    if [ -n "$REPORT_ONLY" ]; then
+        "$OUT/crowded" match "$OUT" "$root" "$label" || echo fail > "$OUT/$root.failed"
+        continue
+    fi
     echo "$MATPHOT pipeline $OUT/frame.fits psf=$OUT/psf.fits root=$OUT/$root $extra" \
         > "$OUT/$root.cmd"
     s=$(date +%s)
@@ -74,13 +85,34 @@ echo "$RUNS" | while IFS='|' read -r root label extra; do
     fi
     "$OUT/crowded" match "$OUT" "$root" "$label" || echo fail > "$OUT/$root.failed"
 done
+# Artificial stars (matphot fakes, issue 13) on the same frame with the
+# defaults: fakes uniform over the frame and in [-14, -6] mag, as the field
+# stars are, so their completeness estimates the field stars' curve.
+NFAKE=${NFAKE:-2000}
+[ -n "$REPORT_ONLY" ] && NFAKE=$(grep -vc '^#' "$OUT/fk.fakes.cat" 2>/dev/null)
+[ -n "$REPORT_ONLY" ] || echo "$MATPHOT fakes $OUT/frame.fits psf=$OUT/psf.fits nfake=$NFAKE magmin=-14 magmax=-6 root=$OUT/fk" \
+    > "$OUT/fk.cmd"
+frc=0
+if [ -z "$REPORT_ONLY" ]; then
+    timed "$OUT/fk.log" "$MATPHOT" fakes "$OUT/frame.fits" psf="$OUT/psf.fits" nfake="$NFAKE" \
+        magmin=-14 magmax=-6 root="$OUT/fk"
+    frc=$?
+    tail -n 1 "$OUT/fk.log" | awk '/^cpu /{printf "%.1f\n", $3 + $4}' > "$OUT/fk.cpu"
+fi
+if [ $frc -eq 0 ] && [ -f "$OUT/auto_cmag.dat" ]; then
+    "$OUT/crowded" fakes "$OUT" auto "$OUT/fk.fakes.cat" || echo fail > "$OUT/fk.failed"
+else
+    echo "crowded: matphot fakes failed, see $OUT/fk.log" >&2
+    echo fail > "$OUT/fk.failed"
+fi
+
 for f in "$OUT"/*.failed; do
     [ -e "$f" ] && rc=1
 done
 
 # Figures (gnuplot; skipped with a line in the report when it is missing).
 FIG=""
-if command -v gnuplot > /dev/null 2>&1 && [ -f "$OUT/const_cmag.dat" ]; then
+if command -v gnuplot > /dev/null 2>&1 && [ -f "$OUT/const_cmag.dat" ] && [ -f "$OUT/auto_fakes.dat" ]; then
     gnuplot <<EOF 2> "$OUT/gnuplot.log" && FIG=yes
 set terminal pngcairo size 900,380 font ',9'
 set output 'validate/crowded_completeness.png'
@@ -92,15 +124,18 @@ set yrange [0:1.05]
 set xrange [-16.5:-5.5]
 set key bottom left
 set grid
-plot '$OUT/const_cmag.dat' u 1:2:3 w yerrorlines t 'constant sky', \
-     '$OUT/plane_cmag.dat' u (\$1+0.08):2:3 w yerrorlines t 'plane sky', \
-     '$OUT/x2_cmag.dat' u (\$1+0.16):2:3 w yerrorlines t 'economy off (x2)'
+plot '$OUT/auto_cmag.dat' u 1:4:5 w yerrorlines lw 2 t 'field stars vs truth, defaults', \
+     '$OUT/auto_fakes.dat' u (\$1+0.08):2:3 w yerrorlines lw 2 t 'artificial stars (matphot fakes)', \
+     '$OUT/old_cmag.dat' u (\$1+0.16):4:5 w yerrorlines dt 2 t 'field stars, threshold 4 minsnr 2', \
+     '$OUT/x2_cmag.dat' u (\$1+0.24):2:3 w yerrorlines dt 3 t 'all stars, economy off (x2)'
 set title 'Close pairs: both members found'
 set xlabel 'pair separation [FWHM]'
 set ylabel 'fraction of pairs'
 set xrange [0.5:2.0]
 set key bottom right
-plot '$OUT/const_csep.dat' u 3:4:5 w yerrorlines t 'both, constant sky', \
+plot '$OUT/auto_csep.dat' u 3:4:5 w yerrorlines lw 2 t 'both, defaults', \
+     '$OUT/old_csep.dat' u (\$3+0.01):4:5 w yerrorlines dt 2 t 'both, threshold 4 minsnr 2', \
+     '$OUT/const_csep.dat' u 3:4:5 w yerrorlines t 'both, constant sky', \
      '$OUT/plane_csep.dat' u (\$3+0.02):4:5 w yerrorlines t 'both, plane sky', \
      '$OUT/x2_csep.dat' u (\$3+0.04):4:5 w yerrorlines t 'both, economy off', \
      '$OUT/const_csep.dat' u 3:6:7 w yerrorlines dt 2 t 'merged (one found), constant'
@@ -146,7 +181,7 @@ LOAD1=$(cut -d' ' -f1-3 /proc/loadavg 2>/dev/null || echo '?')
 {
     echo "# matphot validation: the crowded field"
     echo
-    echo "Generated $(date -u '+%Y-%m-%d %H:%M UTC') by \`tests/validate/crowded/crowded.sh\` ($((t1 - t0)) s wall in all; $(nproc 2>/dev/null || echo '?') processors)."
+    echo "Generated $(date -u '+%Y-%m-%d %H:%M UTC') by \`tests/validate/crowded/crowded.sh\` ($((t1 - t0)) s wall in all${REPORT_ONLY:+, rebuilt with REPORT_ONLY=1 from the runs made before}; $(nproc 2>/dev/null || echo '?') processors)."
     echo "Reproduce: \`make validate\`, or \`VALIDATE_ONLY=crowded sh tests/validate/run.sh\` for this part alone.  Back to [REPORT.md](REPORT.md)."
     echo
     echo "## The scene"
@@ -162,24 +197,33 @@ LOAD1=$(cut -d' ' -f1-3 /proc/loadavg 2>/dev/null || echo '?')
     echo
     echo "## Runs"
     echo
-    echo "Pipeline parameters: the defaults of \`matphot params pipeline\` (threshold 4, fitrad 5, niter 3, passes 2, minsnr 2, mergerad 0.4 FWHM, matchrad 1 FWHM, mesh 64, economy yes, ...) except the ones named.  Commands:"
+    echo "Pipeline parameters: the defaults of \`matphot params pipeline\` (threshold 2 with the linear screen at S/N minsnr − 2, minsnr 5, fitrad 5, niter 3, passes 2, mergerad 0.4 FWHM, matchrad 1 FWHM, mesh 64, skymodel auto, economy yes, ...) except the ones named.  Commands:"
     echo
     echo '```'
-    cat "$OUT"/const.cmd "$OUT"/plane.cmd "$OUT"/x2.cmd 2>/dev/null
+    cat "$OUT"/auto.cmd "$OUT"/old.cmd "$OUT"/const.cmd "$OUT"/plane.cmd "$OUT"/x2.cmd "$OUT"/fk.cmd 2>/dev/null
     echo '```'
     echo
     echo "Matching: each true star to the nearest catalog entry (XPSF_IMAGE, YPSF_IMAGE) within 1 px, one-to-one, closest pairs first.  A *false detection* is a catalog entry with no true star within 1 px.  Errors are over the paper's performance model (FLUXERR_MODEL, POSERR_MODEL: an isolated star on the local sky, so crowding shows as ratios above 1) and normalised by the fit's own errors."
     echo
-    echo "| run | entries | matched | false | completeness (all 5000) | pairs both found, by separation 0.5–0.75 / 0.75–1 / 1–1.5 / 1.5–2 FWHM | field phot/model | field astro/model | rσ (E−Et)/σE | rσ (X−Xt)/σX | saturated found, flag 1 | fit s (wall) | total s (wall) | CPU s (user+sys) |"
-    echo "|---|---:|---:|---:|---:|---|---:|---:|---:|---:|---|---:|---:|---:|"
-    for r in const plane x2; do
+    echo "| run | entries | matched | false | completeness (all 5000) | pairs both found, by separation 0.5–0.75 / 0.75–1 / 1–1.5 / 1.5–2 FWHM | pair members found / field stars of their magnitude, same bins | stars of bound S/N ≥ 5 found | field phot/model | field astro/model | rσ (E−Et)/σE | rσ (X−Xt)/σX | saturated found, flag 1 | fit s (wall) | total s (wall) | CPU s (user+sys) |"
+    echo "|---|---:|---:|---:|---:|---|---|---:|---:|---:|---:|---:|---|---:|---:|---:|"
+    for r in auto old const plane x2; do
         if [ -f "$OUT/${r}_row.md" ]; then
             c=$(cat "$OUT/$r.cpu" 2>/dev/null)
             echo "$(cat "$OUT/${r}_row.md") ${c:-?} |"
         else
-            echo "| $r | failed | | | | | | | | | | | | |"
+            echo "| $r | failed | | | | | | | | | | | | | | |"
         fi
     done
+    echo
+    echo "### Issue 13's table on this frame"
+    echo
+    echo "The issue's columns for this frame (5000 stars, mag −14…−6; the issue's own frame had 5400 stars and a fainter end).  *phot/model*, *astro/model* are over the paper's performance model of an isolated star (FLUXERR_MODEL, POSERR_MODEL), not the joint Cramér–Rao bound with the neighbours; rσ is the robust σ of (E − E_true)/FLUXERR_PSF; field stars that do not saturate."
+    echo
+    echo "| | completeness | false | phot / model | astro / model | robust σ of (E − E_true)/FLUXERR_PSF |"
+    echo "|---|---:|---:|---:|---:|---:|"
+    echo "| matphot, defaults before issue 13 (constant sky; validate/CROWDED.md of 2026-11-22, commit 199d2d2) | 0.836 | 30 | 1.167 | 1.182 | 1.106 |"
+    cat "$OUT/old_i13.md" "$OUT/auto_i13.md" "$OUT/auto_i13b.md" 2>/dev/null
     echo
     echo "The stage seconds are the run reports' (wall clock); load average (1, 5, 15 min) before the runs: $LOAD0, after: $LOAD1 — on a shared machine the wall times stretch, the CPU times much less."
     echo
@@ -191,9 +235,23 @@ LOAD1=$(cut -d' ' -f1-3 /proc/loadavg 2>/dev/null || echo '?')
         echo "(No figures: gnuplot is missing or failed.)"
     fi
     echo
+    echo "## Artificial stars against the truth (issue 13)"
+    echo
+    if [ -f "$OUT/auto_fakes.md" ]; then
+        echo "\`matphot fakes\` on the same frame with the defaults ($(cat "$OUT/fk.cpu" 2>/dev/null || echo '?') CPU s for $NFAKE fakes and the frame's own reduction): each fake in its own copy of a 64 px box of the frame, found when a fitted star lies within 1 px and nearer it than any star of the frame's own reduction.  Its completeness beside the field stars' measured against the truth (run *defaults*), in the same 1-mag bins (the first figure's left panel draws both):"
+        echo
+        cat "$OUT/auto_fakes.md"
+        echo
+        echo "The fakes' own report (\`fk.fakes.md\`: completeness, bias and error against magnitude and against crowding):"
+        echo
+        sed -e '1,2d' -e '/^!\[fakes\]/d' -e 's/^## /#### /' "$OUT/fk.fakes.md"
+    else
+        echo "(matphot fakes failed: see $OUT/fk.log)"
+    fi
+    echo
     echo "## Results per run"
     echo
-    for r in const plane x2; do
+    for r in auto old const plane x2; do
         if [ -f "$OUT/$r.md" ]; then cat "$OUT/$r.md"; else echo "### $r: failed (see $OUT/$r.log)"; echo; fi
     done
 } > "$REP.tmp" && mv "$REP.tmp" "$REP"

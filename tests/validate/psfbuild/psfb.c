@@ -20,10 +20,11 @@
  *       sees them: PRFs at 16 phases, rms and largest pixel difference
  *       over the peak; and element by element when the samplings agree.
  *
- * Scenes (fixed seeds): 512×512 px, 1500 stars uniform in position,
+ * Scenes (fixed seeds): 256×256 px, 400 stars uniform in position,
  * magnitudes uniform in [−14, −8] (0 mag = 1 e−), sky 100 e−, RON 3 e−.
  *   segmented: sim/segmented.c's 18-hexagon mirror, λ/D = 2 px at the
- *     blue end of a 50 % band (undersampled, ugly: issue 11's third case).
+ *     blue end of a 50 % band (undersampled, ugly: issue 11's third case),
+ *     its ±8 px table normalised to 1 (all of a star's light in the frame).
  *   variable: an elliptical Gaussian whose FWHM runs 3 px × (1 ± 0.15)
  *     across x, stretched by up to 15 % along y at the left and right
  *     edges and along x at the top and bottom (issue 11's second case).
@@ -38,10 +39,10 @@
 #include "io/io.h"
 #include "sim/sim.h"
 
-#define NX 512
-#define NSTAR 1500
+#define NX 256
+#define NSTAR 400
 #define TOS 5
-#define RAD 12.0
+#define RAD 8.0
 #define SKY 100.0
 #define RON 3.0
 
@@ -118,6 +119,15 @@ static int do_sim(const char *dir, const char *kind)
             fprintf(stderr, "psfb: %s\n", err);
             return 1;
         }
+        /* Every star's light drawn: the table (87 % of the mirror's light
+         * within ±RAD) normalised to 1, so that the frame holds the total
+         * flux the truth lists (light the frame never received cannot be
+         * found by a growth curve). */
+        double sum = 0;
+        for (int i = 0; i < n * n; i++)
+            sum += tab[i];
+        for (int i = 0; i < n * n; i++)
+            tab[i] /= sum;
     } else {
         int m = 2 * (int)ceil(RAD * TOS) + 1;
         tab = malloc(sizeof(double) * m * m);
@@ -266,6 +276,82 @@ static int do_match(const char *dir, const char *root)
     return 0;
 }
 
+static void cmp_at(const mp_psf *b, const mp_psf *t, double *rms, double *mx, double *peak);
+
+/* The variable scene: the built field against var_table at 3×3 places. */
+static int do_cmpvar(const char *built)
+{
+    char err[MP_ERRLEN], warn[MP_ERRLEN];
+    mp_psf_field fb;
+    if (mp_psf_field_read(built, 0, 0, &fb, NULL, NULL, warn, err))
+        return fprintf(stderr, "psfb: %s\n", err), 1;
+    int m = 2 * (int)ceil(RAD * TOS) + 1;
+    double *tab = malloc(sizeof(double) * m * m);
+    for (int q = 0; q < 9; q++) {
+        double u = 0.8 * (q % 3 - 1), v = 0.8 * (q / 3 - 1);
+        double x = 0.5 * (NX + 1) + u * 0.5 * NX, y = 0.5 * (NX + 1) + v * 0.5 * NX;
+        int n;
+        var_table(x, y, tab, &n);
+        mp_psf t = {MP_PSF_TABLE, n, n, TOS, tab, 1.0, 0, 0, NULL}, b;
+        memset(&b, 0, sizeof b);
+        if (mp_psf_field_eval(&fb, x, y, &b, err))
+            return fprintf(stderr, "psfb: %s\n", err), 1;
+        double rms, mx, peak;
+        cmp_at(&b, &t, &rms, &mx, &peak);
+        printf("psfb cmpvar: %s (order %d) at u %+.1f v %+.1f: PRF rms %.2f %%, largest %.2f %% "
+               "of the peak\n", built, fb.order, u, v, 100 * rms / peak, 100 * mx / peak);
+        mp_psf_free(&b);
+    }
+    free(tab);
+    mp_psf_field_free(&fb);
+    return 0;
+}
+
+/* The PRFs of two tables at 16 phases on one canvas: rms, largest
+ * difference, the truth's peak. */
+static void cmp_at(const mp_psf *b, const mp_psf *t, double *rms, double *mxo, double *pko)
+{
+    int cw = 2 * (int)RAD + 12;
+    double *P = calloc((size_t)cw * cw, sizeof *P), *Q = calloc((size_t)cw * cw, sizeof *Q);
+    double ss = 0, mx = 0, peak = 0;
+    long np = 0;
+    mp_prf_work w;
+    memset(&w, 0, sizeof w);
+    for (int ph = 0; ph < 16; ph++) {
+        double x = cw / 2 + 0.25 * (ph % 4), y = cw / 2 + 0.25 * (ph / 4);
+        memset(P, 0, (size_t)cw * cw * sizeof *P);
+        memset(Q, 0, (size_t)cw * cw * sizeof *Q);
+        for (int k = 0; k < 2; k++) {
+            mp_prf_model m = {k ? t : b, NULL, 10};
+            long x0, y0;
+            int bw, bh;
+            mp_prf_box(&m, x, y, &x0, &y0, &bw, &bh);
+            double *r = malloc(sizeof(double) * bw * bh);
+            mp_prf_render(&m, x, y, r, NULL, NULL, &w);
+            for (int j = 0; j < bh; j++)
+                for (int i = 0; i < bw; i++) {
+                    long px = x0 + i, py = y0 + j;
+                    if (px >= 1 && px <= cw && py >= 1 && py <= cw)
+                        (k ? Q : P)[(py - 1) * cw + px - 1] += r[j * bw + i];
+                }
+            free(r);
+        }
+        for (int i = 0; i < cw * cw; i++) {
+            double d = P[i] - Q[i];
+            ss += d * d;
+            mx = fmax(mx, fabs(d));
+            peak = fmax(peak, Q[i]);
+            np++;
+        }
+    }
+    *rms = sqrt(ss / np);
+    *mxo = mx;
+    *pko = peak;
+    free(P);
+    free(Q);
+    mp_prf_work_free(&w);
+}
+
 /* The PRFs of two PSF files at 16 phases on one canvas. */
 static int do_cmp(const char *built, const char *truth)
 {
@@ -400,6 +486,8 @@ int main(int argc, char **argv)
         return do_sim(argv[2], argv[3]) ? 1 : 0;
     if (argc == 4 && !strcmp(argv[1], "match"))
         return do_match(argv[2], argv[3]) ? 1 : 0;
+    if (argc == 3 && !strcmp(argv[1], "cmpvar"))
+        return do_cmpvar(argv[2]) ? 1 : 0;
     if (argc == 4 && !strcmp(argv[1], "cmp"))
         return do_cmp(argv[2], argv[3]) ? 1 : 0;
     fprintf(stderr, "usage: psfb sim DIR segmented|variable | psfb match DIR ROOT | "

@@ -1,0 +1,252 @@
+/* split.c — one star or two (issue 13): a score test (Rao's) of a second
+ * star beside each fitted star.  A blend closer than a FWHM leaves no peak
+ * of its own on the residual (a pair 0.5 FWHM apart fitted as one leaves
+ * two faint lobes that find does not take), so the test asks the residual
+ * directly: at trial places on rings around the star, the χ² that a second
+ * star there would take away once the first star's flux, position and the
+ * sky have readjusted,
+ *     Δχ² = (Pᵀ W r)² / (Pᵀ W P),   P, r projected off span{P0, ∂P0/∂x, ∂P0/∂y, 1},
+ * W the inverse variance of the fitted model (the residual's noise map,
+ * with its profile error).  The best place goes to the fit as a candidate
+ * when Δχ² ≥ minsnr²: for a single star, χ²(1) > 25 has probability 6e-7
+ * at one place, ~1e-5 over the rings' ~20 independent places; the fit of
+ * both then keeps the pair only when both reach minsnr and their
+ * separation is significant. */
+#include <math.h>
+#include <stdlib.h>
+#include <string.h>
+#include "pipeline/pipeline_priv.h"
+
+#define NANG 12           /* trial places per ring */
+#define NRING 3
+
+typedef struct {
+    long x0, y0, w, h;    /* the window: pixels within fitrad of the star */
+    double *p0, *dx, *dy, *pt, *wt, *r;
+} split_work;
+
+/* Solve the 4×4 symmetric system G a = b by Gauss–Jordan with partial
+ * pivoting; nonzero when singular. */
+static int solve4(double G[4][4], double b[4], double a[4])
+{
+    double M[4][5];
+    for (int i = 0; i < 4; i++) {
+        memcpy(M[i], G[i], sizeof G[i]);
+        M[i][4] = b[i];
+    }
+    for (int c = 0; c < 4; c++) {
+        int p = c;
+        for (int i = c + 1; i < 4; i++)
+            if (fabs(M[i][c]) > fabs(M[p][c]))
+                p = i;
+        if (!(fabs(M[p][c]) > 1e-300))
+            return 1;
+        for (int j = 0; j < 5; j++) {
+            double t = M[c][j];
+            M[c][j] = M[p][j];
+            M[p][j] = t;
+        }
+        for (int i = 0; i < 4; i++) {
+            if (i == c)
+                continue;
+            double f = M[i][c] / M[c][c];
+            for (int j = c; j < 5; j++)
+                M[i][j] -= f * M[c][j];
+        }
+    }
+    for (int i = 0; i < 4; i++)
+        a[i] = M[i][4] / M[i][i];
+    return 0;
+}
+
+/* Render the PRF of a star at (x, y) (and its derivatives, when dx, dy)
+ * into the window's w×h arrays (zero where the PRF box does not reach). */
+static int render(const mp_prf_model *m, double x, double y, const split_work *s, double *p,
+                  double *dx, double *dy, double *buf, double *bdx, double *bdy, mp_prf_work *wk)
+{
+    long rx0, ry0;
+    int rw, rh;
+    if (mp_prf_render_window(m, x, y, s->x0, s->y0, s->w, s->h, &rx0, &ry0, &rw, &rh, buf,
+                             dx ? bdx : NULL, dy ? bdy : NULL, wk))
+        return 1;
+    size_t n = (size_t)(s->w * s->h);
+    memset(p, 0, n * sizeof *p);
+    if (dx)
+        memset(dx, 0, n * sizeof *dx);
+    if (dy)
+        memset(dy, 0, n * sizeof *dy);
+    for (int j = 0; j < rh; j++)
+        for (int i = 0; i < rw; i++) {
+            size_t k = (size_t)((ry0 + j - s->y0) * s->w + (rx0 + i - s->x0));
+            p[k] = buf[(size_t)j * rw + i];
+            if (dx)
+                dx[k] = bdx[(size_t)j * rw + i];
+            if (dy)
+                dy[k] = bdy[(size_t)j * rw + i];
+        }
+    return 0;
+}
+
+/* The best second star beside the star at (x, y): its place, Δχ² and
+ * linear flux; Δχ² NaN when none could be tried. */
+static double best_second(const mp_frame *f, const mp_bkg *b, const double *res,
+                          const mp_prf_model *m, double x, double y, double fitrad,
+                          const double *rings, split_work *s, double *scratch, mp_prf_work *wk,
+                          double *bx, double *by, double *bflux, double *bpeak)
+{
+    size_t n = (size_t)(s->w * s->h);
+    double *buf = scratch, *bdx = scratch + n, *bdy = scratch + 2 * n;
+    if (render(m, x, y, s, s->p0, s->dx, s->dy, buf, bdx, bdy, wk))
+        return NAN;
+    /* weights: the pixels within fitrad, unmasked, with a noise */
+    for (long j = 0; j < s->h; j++)
+        for (long i = 0; i < s->w; i++) {
+            size_t k = (size_t)(j * s->w + i);
+            long gx = s->x0 + i, gy = s->y0 + j;
+            size_t g = (size_t)(gy - 1) * (size_t)f->im.nx + (size_t)(gx - 1);
+            int ok = hypot((double)gx - x, (double)gy - y) <= fitrad && !f->mask[g] &&
+                     isfinite(res[g]) && b->rms[g] > 0;
+            s->wt[k] = ok ? 1.0 / (b->rms[g] * b->rms[g]) : 0.0;
+            s->r[k] = ok ? res[g] : 0.0;
+        }
+    const double *B[4] = {s->p0, s->dx, s->dy, NULL};
+    double G[4][4] = {{0}}, Br[4] = {0}, a[4];
+    for (size_t k = 0; k < n; k++) {
+        double v[4] = {s->p0[k], s->dx[k], s->dy[k], 1.0};
+        for (int i = 0; i < 4; i++) {
+            Br[i] += s->wt[k] * v[i] * s->r[k];
+            for (int j = 0; j < 4; j++)
+                G[i][j] += s->wt[k] * v[i] * v[j];
+        }
+    }
+    (void)B;
+    double best = NAN;
+    for (int q = 0; q < NRING; q++)
+        for (int t = 0; t < NANG; t++) {
+            double ang = 2.0 * M_PI * (t + 0.5 * (q % 2)) / NANG;
+            double px = x + rings[q] * cos(ang), py = y + rings[q] * sin(ang);
+            if (render(m, px, py, s, s->pt, NULL, NULL, buf, bdx, bdy, wk))
+                return NAN;
+            double c[4] = {0}, pp = 0, pr = 0;
+            for (size_t k = 0; k < n; k++) {
+                double wp = s->wt[k] * s->pt[k];
+                c[0] += wp * s->p0[k];
+                c[1] += wp * s->dx[k];
+                c[2] += wp * s->dy[k];
+                c[3] += wp;
+                pp += wp * s->pt[k];
+                pr += wp * s->r[k];
+            }
+            double G2[4][4];
+            memcpy(G2, G, sizeof G);
+            if (solve4(G2, c, a))
+                continue;
+            double norm = pp, u = pr;
+            for (int i = 0; i < 4; i++) {
+                norm -= c[i] * a[i];
+                u -= a[i] * Br[i];
+            }
+            if (!(norm > 0) || !(u > 0))
+                continue;
+            double d2 = u * u / norm;
+            if (!(d2 <= best)) {
+                best = d2;
+                *bx = px;
+                *by = py;
+                *bflux = u / norm;
+                double pk = 0;
+                for (size_t k = 0; k < n; k++)
+                    pk = fmax(pk, s->pt[k]);
+                *bpeak = *bflux * pk;
+            }
+        }
+    return best;
+}
+
+long mp_pl_split_candidates(const mp_frame *f, const mp_bkg *b, const double *res,
+                            const mp_prf_model *m, const mp_table *t, double fitrad, double rmin,
+                            double rmax, double snrmin, mp_table *found)
+{
+    int tx = mp_table_col(t, "XPSF_IMAGE"), ty = mp_table_col(t, "YPSF_IMAGE");
+    int tf = mp_table_col(t, "FLUX_PSF"), te = mp_table_col(t, "FLUXERR_PSF");
+    if (tx < 0 || ty < 0 || tf < 0 || te < 0 || !(snrmin > 0) || t->nrow == 0)
+        return 0;
+    int fx = mp_table_add_col(found, "X_IMAGE"), fy = mp_table_add_col(found, "Y_IMAGE");
+    int ff = mp_table_add_col(found, "FLUX"), fs = mp_table_add_col(found, MP_PL_SNR_COL);
+    /* find's measures of a candidate the test proposes: its peak and the
+     * sky under it; no shape measured (sharpness, roundness 0), flags 0 */
+    int fm = mp_table_add_col(found, "FLUX_MAX"), fb = mp_table_add_col(found, "BACKGROUND");
+    int fsh = mp_table_add_col(found, "SHARPNESS"), fro = mp_table_add_col(found, "ROUNDNESS");
+    int ffl = mp_table_add_col(found, "FLAGS");
+    if (fx < 0 || fy < 0 || ff < 0 || fs < 0 || fm < 0 || fb < 0 || fsh < 0 || fro < 0 || ffl < 0)
+        return -1;
+    const double rings[NRING] = {rmin, 0.5 * (rmin + rmax), rmax};
+    long side = 2 * (long)ceil(fitrad) + 3, nrow = (long)t->nrow;
+    size_t n = (size_t)(side * side);
+    double *cx = malloc((size_t)nrow * sizeof *cx), *cy = malloc((size_t)nrow * sizeof *cy);
+    double *cf = malloc((size_t)nrow * sizeof *cf), *cs = malloc((size_t)nrow * sizeof *cs);
+    double *cp = malloc((size_t)nrow * sizeof *cp);
+    int failed = !cx || !cy || !cf || !cs || !cp;
+#pragma omp parallel if (!failed) reduction(| : failed)
+    {
+        split_work s;
+        mp_prf_work wk = {0};
+        double *mem = malloc(9 * n * sizeof *mem);
+        failed |= !mem;
+        if (mem) {
+            s.p0 = mem;
+            s.dx = mem + n;
+            s.dy = mem + 2 * n;
+            s.pt = mem + 3 * n;
+            s.wt = mem + 4 * n;
+            s.r = mem + 5 * n;
+        }
+#pragma omp for schedule(dynamic, 32)
+        for (long r = 0; r < nrow; r++) {
+            cs[r] = NAN;
+            double x = mp_table_get(t, (size_t)r, tx), y = mp_table_get(t, (size_t)r, ty);
+            double e = mp_table_get(t, (size_t)r, tf), se = mp_table_get(t, (size_t)r, te);
+            /* two stars of S/N ≥ snrmin make one of S/N ≥ √2·snrmin or so */
+            if (!mem || !isfinite(x) || !isfinite(y) || !(se > 0) || !(e / se >= M_SQRT2 * snrmin))
+                continue;
+            s.x0 = (long)ceil(x - fitrad) - 1;
+            s.y0 = (long)ceil(y - fitrad) - 1;
+            s.w = s.h = side;
+            if (s.x0 < 1 || s.y0 < 1 || s.x0 + side - 1 > f->im.nx || s.y0 + side - 1 > f->im.ny)
+                continue;       /* at the frame's edge: left to find */
+            double d2 = best_second(f, b, res, m, x, y, fitrad, rings, &s, mem + 6 * n, &wk,
+                                    &cx[r], &cy[r], &cf[r], &cp[r]);
+            cs[r] = d2 >= snrmin * snrmin ? sqrt(d2) : NAN;
+        }
+        free(mem);
+        mp_prf_work_free(&wk);
+    }
+    long added = 0;
+    for (long r = 0; !failed && r < nrow; r++) {
+        if (!isfinite(cs[r]))
+            continue;
+        long row = mp_table_add_row(found);
+        if (row < 0) {
+            failed = 1;
+            break;
+        }
+        mp_table_set(found, (size_t)row, fx, cx[r]);
+        mp_table_set(found, (size_t)row, fy, cy[r]);
+        mp_table_set(found, (size_t)row, ff, cf[r]);
+        mp_table_set(found, (size_t)row, fs, cs[r]);
+        long px = lround(cx[r]), py = lround(cy[r]);
+        size_t g = (size_t)(py - 1) * (size_t)f->im.nx + (size_t)(px - 1);
+        mp_table_set(found, (size_t)row, fm, cp[r]);
+        mp_table_set(found, (size_t)row, fb, b->sky[g]);
+        mp_table_set(found, (size_t)row, fsh, 0.0);
+        mp_table_set(found, (size_t)row, fro, 0.0);
+        mp_table_set(found, (size_t)row, ffl, 0.0);
+        added++;
+    }
+    free(cx);
+    free(cy);
+    free(cf);
+    free(cs);
+    free(cp);
+    return failed ? -1 : added;
+}
