@@ -54,7 +54,7 @@ cat "$OUT/sim.log"
 
 # root | label | extra pipeline parameters (everything else: the defaults)
 RUNS="auto|defaults (skymodel auto)|
-old|the cuts before issue 13 (threshold 4, minsnr 2; the blend test then proposes at Δχ² ≥ 4)|threshold=4 minsnr=2
+old|the cuts before issue 13 (threshold 4, minsnr 2; today's blend test, Δχ² ≥ 25)|threshold=4 minsnr=2
 const|constant sky|skymodel=constant
 plane|plane sky|skymodel=plane
 x2|constant sky, economy off (2x table kept)|skymodel=constant economy-"
