@@ -83,6 +83,10 @@ int mp_pl_reduce(const char *image, const mp_pipeline_opts *o, mp_pipeline_repor
  * appended to found (X_IMAGE, Y_IMAGE, FLUX, MP_PL_SNR_COL = √Δχ²) when
  * Δχ² ≥ snrmin².  Returns the number appended, −1 when out of memory.
  * Threads over stars (OpenMP). */
+/* The least √Δχ² at which a second star is proposed, whatever minsnr:
+ * χ²(1) > 25 has probability 6e-7 at one place. */
+#define MP_PL_SPLIT_MINSNR 5.0
+
 long mp_pl_split_candidates(const mp_frame *f, const mp_bkg *b, const double *res,
                             const mp_prf_model *m, const mp_table *t, double fitrad, double rmin,
                             double rmax, double snrmin, mp_table *found);

@@ -15,3 +15,8 @@ sh tests/bench/sweep/run.sh
 # line when IRAF is not installed; `make bench` installs it).  The committed
 # report is tests/bench/daophot/REPORT.md; a bench run writes its own copy.
 REPORT="$B/bench/daophot/REPORT.md" sh tests/bench/compare_daophot.sh
+# The real frames (issue 12): matphot against IRAF DAOPHOT's whole chain on
+# 47 Tuc and GLIMPSE, CPU (median of REAL_REPS interleaved runs), stages,
+# peak RSS and accuracy; skips without IRAF or ../shared/data/real.  The
+# committed report is bench/REAL.md; a bench run writes its own copy.
+REPS=${REAL_REPS:-3} REPORT="$B/bench/REAL.md" sh tests/bench/real/real.sh

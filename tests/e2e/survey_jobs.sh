@@ -12,6 +12,9 @@ TOP=$(pwd)
 T=$(mktemp -d "${TMPDIR:-/tmp}/survey_jobs.XXXXXX") || exit 1
 trap 'rm -rf "$T"' EXIT INT TERM
 fails=0
+# The inner makes must not inherit the outer one's flags (make -s test would
+# silence the commands this script counts).
+unset MAKEFLAGS MFLAGS MAKELEVEL
 no() { echo "FAIL: $*"; fails=$((fails + 1)); }
 
 mkdir "$T/serial" "$T/make" "$T/xargs"

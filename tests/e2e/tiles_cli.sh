@@ -1,7 +1,7 @@
 #!/bin/sh
 # tiles_cli.sh — `matphot pipeline tilesize=N` against the whole frame
-# (pipeline/tiles.c).  A 300 x 300 frame of 450 stars reduced whole and in
-# 3 x 3 tiles of 100 px (each read through a cfitsio section with its
+# (pipeline/tiles.c).  A 240 x 240 frame of 290 stars reduced whole and in
+# 3 x 3 tiles of 80 px (each read through a cfitsio section with its
 # margin): every star of one catalog is in the other (nearest within 1 px),
 # none twice, and the matched stars' positions and magnitudes agree within
 # a fraction of their errors — the tiles fit the same pixels, so they
@@ -19,13 +19,13 @@ trap 'rm -rf "$T"' EXIT INT TERM
 fails=0
 no() { echo "FAIL: $*"; fails=$((fails + 1)); }
 
-"$M" sim "$T/f.fits" mode=crowded nx=300 ny=300 nstars=450 fwhm=2.5 magmin=-13 magmax=-8 \
+"$M" sim "$T/f.fits" mode=crowded nx=240 ny=240 nstars=290 fwhm=2.5 magmin=-13 magmax=-8 \
     seed=31 psfout="$T/psf.fits" ra=150 dec=2 || no "sim"
 P="psf=$T/psf.fits"
 "$M" pipeline "$T/f.fits" "$P" root="$T/w" 2>"$T/w.log" || no "whole: $(tail -n 1 "$T/w.log")"
 grep -q "tiles of" "$T/w.log" && no "the default budget tiled a small frame"
-"$M" pipeline "$T/f.fits" "$P" root="$T/t" tilesize=100 2>"$T/t.log" || no "tiled: $(tail -n 1 "$T/t.log")"
-grep -q "in 3 x 3 tiles of 100" "$T/t.log" || no "tilesize=100 did not make 3 x 3 tiles"
+"$M" pipeline "$T/f.fits" "$P" root="$T/t" tilesize=80 2>"$T/t.log" || no "tiled: $(tail -n 1 "$T/t.log")"
+grep -q "in 3 x 3 tiles of 80" "$T/t.log" || no "tilesize=80 did not make 3 x 3 tiles"
 [ "$(grep -c '^matphot pipeline: tile [0-9]' "$T/t.log")" = 9 ] || no "not 9 tiles reduced"
 for e in fit cat reg report res.fits; do [ -s "$T/t.$e" ] || no "tiled run wrote no t.$e"; done
 [ "$(wc -c <"$T/t.res.fits")" = "$(wc -c <"$T/w.res.fits")" ] || no "tiled residual is not the frame's size"
@@ -65,7 +65,7 @@ cat "$T/cmp"
 grep -q "in 2 x 2 tiles of" "$T/m.log" || no "maxmem=1 did not choose 2 x 2 tiles: $(grep tiles "$T/m.log")"
 
 # Tiles need a PSF model: one line, exit 1, nothing written.
-"$M" pipeline "$T/f.fits" root="$T/x" tilesize=100 2>"$T/refused.log"; rc=$?
+"$M" pipeline "$T/f.fits" root="$T/x" tilesize=80 2>"$T/refused.log"; rc=$?
 [ $rc -eq 1 ] || no "tiles without psf= exited $rc"
 grep -q "^matphot pipeline: tilesize: tiles need a PSF model" "$T/refused.log" || no "message: $(tail -n 1 "$T/refused.log")"
 ls "$T" | grep -q '^x\.' && no "a refused tiled run left files: $(ls "$T" | grep '^x\.')"

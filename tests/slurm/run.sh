@@ -36,7 +36,7 @@ stop() {   # the daemons this test started, by their recorded pids, then the fil
     rm -rf "$D"
 }
 trap stop EXIT
-trap 'exit 1' INT TERM HUP
+trap 'exit 1' INT TERM HUP PIPE
 fails=0
 no() { echo "FAIL: $*"; fails=$((fails + 1)); }
 die() { echo "FAIL: $*"; for f in "$D"/*.log; do echo "== $f"; tail -n 20 "$f"; done; exit 1; }

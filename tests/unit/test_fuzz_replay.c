@@ -75,7 +75,7 @@ static void test_replay_psf(void **state) { (void)state; replay("psf", fuzz_psf_
 static void test_replay_psf_field(void **state)
 {
     (void)state;
-    replay("psf_field", fuzz_psf_field_body, 0);
+    replay("psf_field", fuzz_psf_field_body, 1);
 }
 
 int main(void)

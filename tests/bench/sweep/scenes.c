@@ -205,8 +205,10 @@ static int add_rebins(sw_scene *sc, char *err)
             return 1;
         sc->ntab++;
     }
-    /* fit.par's economy=yes: block-sum to x1 when beta >= 21 at detector
-     * sampling (fit/setup.c). */
+    /* The knob sweep's default table: x1 when beta >= 21 at detector
+     * sampling (paper 5.4), economy=yes's one table before issue 10; it
+     * now chooses per group by a measured bound (fit/ss_choice.c), which
+     * the Economy section (econ.c) measures, beside this rule. */
     sc->beta_norm = beta_norm(&sc->tab[0]);
     sc->def_tab = 0;
     if (os > 1 && sc->beta_norm >= 21.0 && sc->drf.k == 0)
