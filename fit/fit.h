@@ -158,20 +158,26 @@ int mp_sinc_choice_pick(const double *emax, int hwmax, double E);
 /* ---- Supersampling per star (fit/ss_choice.c, issue 10) ----------------- */
 
 /* A coarser sampling of the model's table (block-summed by factor), with
- * its error measured once per PSF: bound holds δP² = (PRF(coarse) −
- * PRF(given))² and the given P at a 4×4 grid of subpixel phases, in the
- * mp_sinc_choice layout with hwmax 1, so
- *     q(E) = mp_sinc_choice_bound(&bound, 0, E, B, ron)
- * = E·max_phase sqrt(Σ δP²/(E P + B + ron²)) bounds |bias|/σ_CRLB of a
- * star's flux, position and sky from fitting it with the coarse table
- * (linearised).  sinc is the coarse model's own kernel-length table.
- * model points into psf: build in place, do not copy. */
+ * its error measured once per PSF: bias holds, at a 4×4 grid of subpixel
+ * phases, the given table's PRF P, ∂P/∂x, ∂P/∂y and δP = PRF(coarse) −
+ * PRF(given) (signed).  A star of flux E is served by the coarse table when
+ * the linearised bias it causes in the fit of (flux, x, y, sky) is ≤ frac
+ * of each parameter's Cramér–Rao σ at every phase, and the part of E·δP the
+ * fit cannot absorb raises χ² by λ ≤ MP_SS_CHI2MAX (fit/ss_choice.c).
+ * sinc is the coarse model's own kernel-length table.  model points into
+ * psf: build in place, do not copy. */
+typedef struct {
+    int nph;               /* phases */
+    size_t npix;           /* pixels stored per phase */
+    double *p, *dx, *dy, *dp;   /* nph × npix each (one allocation, at p) */
+} mp_ss_bias;
+
 typedef struct mp_ss_level_s {
     int os;                /* its OVERSAMP */
     mp_psf psf;            /* psf.field: field, when the PSF varies */
     mp_psf_field field;    /* the given field block-summed alike (order 0: unused) */
     mp_prf_model model;    /* the given model with psf swapped in */
-    mp_sinc_choice bound;
+    mp_ss_bias bias;
     mp_sinc_choice sinc;
 } mp_ss_level;
 
@@ -180,9 +186,25 @@ typedef struct mp_ss_level_s {
 int mp_ss_level_build(const mp_prf_model *m, int factor, mp_ss_level *lv, char *err);
 void mp_ss_level_free(mp_ss_level *lv);
 
-/* mp_ss_level_emax: the largest flux whose bound is ≤ frac on sky B with
- * read noise ron (0: none; INFINITY: every flux). */
+/* mp_ss_level_bias: max over phases and over (flux, x, y, sky) of
+ * |bias|/σ_CRLB from fitting a star of E e- on sky B [e-/px], read noise
+ * ron [e-], with the coarse table (linearised); *chi2 (if not NULL) gets
+ * the worst phase's λ, the χ² the fit cannot absorb. */
+double mp_ss_level_bias(const mp_ss_level *lv, double E, double B, double ron, double *chi2);
+
+/* mp_ss_level_serves: 1 when that bias is ≤ frac and λ ≤ MP_SS_CHI2MAX
+ * (one evaluation of 4×4 normal equations per phase). */
+int mp_ss_level_serves(const mp_ss_level *lv, double E, double B, double ron, double frac);
+#define MP_SS_CHI2MAX 1.0
+
+/* mp_ss_level_emax: a flux below which the level serves every flux on sky
+ * B with read noise ron (0: none; INFINITY: every flux): bisection, then
+ * checked on a log grid of MP_SS_VERIFY fluxes below it and lowered below
+ * the first failure.  Costs at most MP_SS_LIMITS_EVALS evaluations. */
 double mp_ss_level_emax(const mp_ss_level *lv, double B, double ron, double frac);
+#define MP_SS_BISECT 60
+#define MP_SS_VERIFY 30
+#define MP_SS_LIMITS_EVALS (2 + MP_SS_BISECT + MP_SS_VERIFY)
 
 #define MP_SS_MAXLEVELS 3
 
@@ -406,8 +428,9 @@ typedef struct {
                         * (economy=no) */
     const struct mp_ss_level_s *ss;  /* economy: nss coarser samplings of the
                         * model's table, coarsest first; each group is fitted
-                        * with the coarsest whose bias bound at its brightest
-                        * star is ≤ ssfrac of that star's σ (fit/ss_choice.c),
+                        * with the coarsest whose linearised bias at its
+                        * brightest star is ≤ ssfrac of each parameter's σ
+                        * and whose χ² shift is ≤ 1 (fit/ss_choice.c),
                         * else with the model's table (neighbours are painted
                         * with the model's table) */
     int nss;
@@ -437,8 +460,9 @@ typedef struct {
     long kshort;       /* of them, with a sinc kernel shorter than sinchw */
     long kcache;       /* of them, with the PRF from the phase grid */
     double khw;        /* their half-widths, summed */
-    long kbounds;      /* the kernel choice's cost: bound evaluations
-                        * (mp_sinc_choice_bound), each nph × npix terms */
+    long kbounds;      /* the kernel and table choices' cost: bound
+                        * evaluations (mp_sinc_choice_bound,
+                        * mp_ss_level_serves), each nph × npix terms */
     long kcoarse;      /* LM fits with a coarser table (opts ss) */
     long envelopes;    /* crop envelopes built (mp_prf_envelope: 25 PSF
                         * renders each); 0 when the frame is one group */

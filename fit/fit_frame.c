@@ -74,21 +74,29 @@ typedef struct {
     double sky, ron, frac;
 } kernel_rule;
 
-/* The same bound chooses the table (fit/ss_choice.c: a coarser sampling
- * is one bound table with hwmax 1): level[l] says whether ss[l] serves a
- * flux, kern[l] is the kernel choice of ss[l]'s model, kern[nss] that of
- * the model as given. */
+/* The table's choice (fit/ss_choice.c): whether a coarser sampling serves
+ * the group's brightest star, from its flux limit on the frame's sky (found
+ * once, as the kernel's) or, with few groups, evaluated per group. */
+typedef struct {
+    const mp_ss_level *lv;     /* NULL: never serves */
+    double emax;               /* the limit, or NAN: evaluate per group */
+    double sky, ron, frac;
+} level_rule;
+
+/* level[l] says whether ss[l] serves a flux, kern[l] is the kernel choice
+ * of ss[l]'s model, kern[nss] that of the model as given. */
 typedef struct {
     const mp_ss_level *ss;
     int nss;
-    kernel_rule level[MP_SS_MAXLEVELS], kern[MP_SS_MAXLEVELS + 1];
+    level_rule level[MP_SS_MAXLEVELS];
+    kernel_rule kern[MP_SS_MAXLEVELS + 1];
     double gemax;               /* the phase grid's flux limit (o->grid) */
 } frame_rules;
 
 struct mp_econ_cache {
     int n;
     struct {
-        const mp_sinc_choice *c;
+        const void *c;             /* an mp_sinc_choice or an mp_ss_level */
         double sky, ron, frac;
         double *emax;
     } e[MP_ECON_CACHE_MAX];
@@ -106,11 +114,25 @@ void mp_econ_cache_free(mp_econ_cache *c)
     free(c);
 }
 
-/* The cached limits of c on sky level sky (already rounded), computed on a
- * miss; NULL when the cache is full or out of memory. */
-static double *cached_limits(mp_econ_cache *cache, const mp_sinc_choice *c, double sky, double ron,
-                             double frac, long *evals)
+/* The limits of c on sky level sky (already rounded), computed on a miss:
+ * an mp_sinc_choice's hwmax limits, or (level) an mp_ss_level's one; NULL
+ * when the cache is full or out of memory. */
+static void fill_limits(const void *c, int level, double sky, double ron, double frac,
+                        double *emax, long *evals)
 {
+    if (level) {
+        emax[0] = mp_ss_level_emax(c, sky, ron, frac);
+        *evals += MP_SS_LIMITS_EVALS;
+    } else {
+        mp_sinc_choice_limits(c, sky, ron, frac, emax);
+        *evals += (long)((const mp_sinc_choice *)c)->hwmax * MP_SINC_LIMITS_EVALS;
+    }
+}
+
+static double *cached_limits(mp_econ_cache *cache, const void *c, int level, double sky,
+                             double ron, double frac, long *evals)
+{
+    size_t n = level ? 1 : (size_t)((const mp_sinc_choice *)c)->hwmax;
     double *emax = NULL;
 #pragma omp critical(mp_econ_cache)
     {
@@ -119,9 +141,8 @@ static double *cached_limits(mp_econ_cache *cache, const mp_sinc_choice *c, doub
                 cache->e[i].frac == frac)
                 emax = cache->e[i].emax;
         if (!emax && cache->n < MP_ECON_CACHE_MAX &&
-            (emax = malloc((size_t)c->hwmax * sizeof *emax))) {
-            mp_sinc_choice_limits(c, sky, ron, frac, emax);
-            *evals += (long)c->hwmax * MP_SINC_LIMITS_EVALS;
+            (emax = malloc(n * sizeof *emax))) {
+            fill_limits(c, level, sky, ron, frac, emax, evals);
             int i = cache->n++;
             cache->e[i].c = c;
             cache->e[i].sky = sky;
@@ -133,8 +154,14 @@ static double *cached_limits(mp_econ_cache *cache, const mp_sinc_choice *c, doub
     return emax;
 }
 
+/* The run cache's sky level: the sky rounded down to a quarter octave. */
+static double cache_sky(double sky)
+{
+    return sky > 1.0 ? exp2(floor(4.0 * log2(sky)) / 4.0) : 0.0;
+}
+
 /* A rule on the frame's sky: the limits from the run's cache (the sky
- * rounded down to a quarter octave), else the frame's own limits table
+ * rounded down), else the frame's own limits table
  * when the frame has more groups than it costs evaluations, else each
  * group evaluates the bound.  Nonzero when out of memory. */
 static int rule_init(kernel_rule *k, const mp_sinc_choice *c, double sky, double ron, double frac,
@@ -145,8 +172,7 @@ static int rule_init(kernel_rule *k, const mp_sinc_choice *c, double sky, double
         return 0;
     *k = (kernel_rule){c, NULL, 0, sky, ron, frac};
     if (cache) {
-        double q = sky > 1.0 ? exp2(floor(4.0 * log2(sky)) / 4.0) : 0.0;
-        if ((k->emax = cached_limits(cache, c, q, ron, frac, evals)))
+        if ((k->emax = cached_limits(cache, c, 0, cache_sky(sky), ron, frac, evals)))
             return 0;
     }
     if (ng <= MP_SINC_LIMITS_EVALS)
@@ -159,19 +185,48 @@ static int rule_init(kernel_rule *k, const mp_sinc_choice *c, double sky, double
     return 0;
 }
 
+/* The same for a coarser table (lv NULL: a rule that never serves). */
+static int level_init(level_rule *k, const mp_ss_level *lv, double sky, double ron, double frac,
+                      size_t ng, mp_econ_cache *cache, long *evals)
+{
+    *k = (level_rule){lv && lv->bias.p ? lv : NULL, NAN, sky, ron, frac};
+    if (!k->lv)
+        return 0;
+    if (cache) {
+        const double *e = cached_limits(cache, lv, 1, cache_sky(sky), ron, frac, evals);
+        if (e) {
+            k->emax = e[0];
+            return 0;
+        }
+    }
+    if (ng > MP_SS_LIMITS_EVALS) {
+        k->emax = mp_ss_level_emax(lv, sky, ron, frac);
+        *evals += MP_SS_LIMITS_EVALS;
+    }
+    return 0;
+}
+
+/* Whether the level serves a group whose brightest star has flux e (≤ 0
+ * or NaN: unknown, it does not); *evals counts criterion evaluations. */
+static int level_serves(const level_rule *k, double e, long *evals)
+{
+    if (!k->lv || !(e > 0))
+        return 0;
+    if (!isnan(k->emax))
+        return e <= k->emax;
+    ++*evals;
+    return mp_ss_level_serves(k->lv, e, k->sky, k->ron, k->frac);
+}
+
 static void rules_free(frame_rules *R)
 {
-    for (int l = 0; l < MP_SS_MAXLEVELS; l++)
-        if (R->level[l].owned)
-            free(R->level[l].emax);
     for (int l = 0; l <= MP_SS_MAXLEVELS; l++)
         if (R->kern[l].owned)
             free(R->kern[l].emax);
 }
 
 /* The half-width for a group whose brightest star has flux e (≤ 0 or NaN:
- * unknown, the full kernel); *evals counts bound evaluations.  For a
- * level rule (hwmax 1): 0 when the coarse table serves e, else 1. */
+ * unknown, the full kernel); *evals counts bound evaluations. */
 static int kernel_for(const kernel_rule *k, int hwfull, double e, long *evals)
 {
     if (!k->c)
@@ -412,7 +467,7 @@ static int fit_one_group(const mp_frame *f, const mp_prf_model *m, const mp_fram
         for (int k = 0; k < nl; k++)
             e = isfinite(live[k].flux) && live[k].flux > e ? live[k].flux : e;
         int l = 0;
-        while (l < R->nss && kernel_for(&R->level[l], 1, e, &rep->kbounds) != 0)
+        while (l < R->nss && !level_serves(&R->level[l], e, &rep->kbounds))
             l++;
         mp_prf_model mh = l < R->nss ? R->ss[l].model : *m;
         /* The group is fitted on a sub-image offset by (dx, dy): a
@@ -1034,8 +1089,8 @@ int mp_fit_table_mem(const mp_frame *f, const mp_prf_model *m, const mp_frame_op
     int nomem = rule_init(&R.kern[R.nss], o->sinc, bsky, f->rdnoise, o->sincfrac, ng, o->cache,
                           &rep->kbounds);
     for (int l = 0; l < R.nss; l++)
-        nomem |= rule_init(&R.level[l], &R.ss[l].bound, bsky, f->rdnoise, o->ssfrac, ng, o->cache,
-                           &rep->kbounds) ||
+        nomem |= level_init(&R.level[l], &R.ss[l], bsky, f->rdnoise, o->ssfrac, ng, o->cache,
+                            &rep->kbounds) ||
                  rule_init(&R.kern[l], o->sinc ? &R.ss[l].sinc : NULL, bsky, f->rdnoise,
                            o->sincfrac, ng, o->cache, &rep->kbounds);
     /* Economy: the largest flux the phase grid serves within the kernel's

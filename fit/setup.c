@@ -73,16 +73,18 @@ static double beta_normalised(const mp_prf_model *m)
 
 /* The coarser samplings of a supersampled table (every divisor k of its
  * OVERSAMP, coarsest first), each with its error measured on this PSF
- * (fit/ss_choice.c); the frame fit uses, per group, the coarsest whose bias
- * bound at the group's brightest star is ≤ ssfrac of its σ.  The decision
- * names each level's flux limit with no sky and 1 e- read noise (the safe
- * side: a frame's own sky and noise only raise it). */
+ * (fit/ss_choice.c); the frame fit uses, per group, the coarsest whose
+ * linearised bias at the group's brightest star is ≤ ssfrac of each
+ * parameter's σ and whose χ² shift is ≤ 1.  The decision names each
+ * level's flux limit with no sky and 1 e- read noise (the frame's own are
+ * used in the fit). */
 static int supersampling_levels(mp_fit_setup *s, char *err)
 {
     char why[512];
     int os = s->psf.os, n = 0, k = snprintf(why, sizeof why, "supersampling: per group, the "
-                                            "coarsest table whose bias bound stays below %.2g of "
-                                            "its brightest star's sigma (fit/ss_choice.c):",
+                                            "coarsest table whose linearised bias stays below "
+                                            "%.2g of its brightest star's sigma and shifts "
+                                            "chi2 by <= 1 (fit/ss_choice.c):",
                                             s->opts.ssfrac);
     for (int c = 1; c < os && n < MP_SS_MAXLEVELS; c++) {
         if (os % c)

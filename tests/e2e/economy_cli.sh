@@ -2,7 +2,7 @@
 # economy_cli.sh — economy decisions through the real binary (issues 5,
 # 10): each one reaches the run report (stderr and root.report) with its
 # reason and is counted; a x2 table is offered at x1 per group where its
-# measured bias bound allows (fit/ss_choice.c): a faint star of FWHM 4 is
+# measured linearised bias allows (fit/ss_choice.c): a faint star of FWHM 4 is
 # fitted at x1 (exactly psfos=1's fit), a bright one keeps x2 (exactly
 # psfos=2's); without a start flux, or for FWHM 1.5, the table as given;
 # economy=no drops nothing.  Deterministic: fixed seeds, no tolerance.
@@ -17,7 +17,7 @@ has() {  # has FILE PATTERN WHAT
 }
 
 "$M" sim "$T/w.fits" seed=21 fwhm=4 magmin=-8 magmax=-8 psfout="$T/w2.fits" psfos=2 || no "sim wide"
-"$M" sim "$T/b.fits" seed=23 fwhm=4 magmin=-15 magmax=-15 || no "sim wide bright"
+"$M" sim "$T/b.fits" seed=23 fwhm=4 magmin=-18 magmax=-18 || no "sim wide bright"
 "$M" sim "$T/n.fits" seed=22 fwhm=1.5 psfout="$T/n2.fits" psfos=2 || no "sim narrow"
 # Start tables with find's FLUX (the truth's, renamed): the table choice is
 # made per group from its brightest star's flux.
@@ -34,18 +34,18 @@ fit() {  # fit NAME IMAGE COORDS ARGS...
     # given one from the same table reached as a coarser level
     "$M" fit "$@" skymodel=constant phasegrid=0 output="$T/$n.fit" 2>"$T/$n.err" || no "fit $n"
 }
-# FWHM 4 (beta ~ 37 px^2): x1 serves ~4e5 e- even on no sky; a -8 mag star
+# FWHM 4 (beta ~ 37 px^2): x1 serves ~2.5e6 e- even on no sky; a -8 mag star
 # is fitted with it (the same fit as psfos=1's, the same model reached two
-# ways), a -15 mag one (1e6 e-) keeps x2 (= psfos=2's).
+# ways), a -18 mag one (1.6e7 e-) keeps x2 (= psfos=2's).
 fit wyes "$T/w.fits" "$T/w.coo" psf="$T/w2.fits"
-has "$T/wyes.err" 'economy: [0-9]* decisions: supersampling: per group, the coarsest table whose bias bound.* x1 to E = [0-9.e+]* e-, the x2 table above (beta = 3[0-9.]* px^2' \
+has "$T/wyes.err" 'economy: [0-9]* decisions: supersampling: per group, the coarsest table whose linearised bias.* x1 to E = [0-9.e+]* e-, the x2 table above (beta = 3[0-9.]* px^2' \
     "FWHM 4: no per-group supersampling decision"
 has "$T/wyes.err" 'work:.* 1 with a coarser table' "FWHM 4, -8 mag: x1 not used"
 grep -q 'economy: [0-9]* decisions: supersampling' "$T/wyes.report" || no "decision not in root.report"
 fit wos1 "$T/w.fits" "$T/w.coo" psf="$T/w2.fits" psfos=1
 cmp -s "$T/wyes.fit" "$T/wos1.fit" || no "economy's x1 differs from psfos=1"
 fit byes "$T/b.fits" "$T/b.coo" psf="$T/w2.fits"
-has "$T/byes.err" 'work:.* 0 with a coarser table' "FWHM 4, -15 mag: x2 not kept"
+has "$T/byes.err" 'work:.* 0 with a coarser table' "FWHM 4, -18 mag: x2 not kept"
 fit bos2 "$T/b.fits" "$T/b.coo" psf="$T/w2.fits" psfos=2
 has "$T/bos2.err" 'economy: [0-9]* decisions: supersampling: psfos given, the x2 table used as asked' "psfos not honoured"
 cmp -s "$T/byes.fit" "$T/bos2.fit" || no "economy's x2 differs from psfos=2"
@@ -65,7 +65,7 @@ cmp -s "$T/nyes.fit" "$T/nno.fit" || no "undersampled: economy=yes changed the f
 
 # A segmented mirror (lambda/D = 2 px at the blue end of a 50 % band, beta
 # ~ 28 px^2, where paper 5.4's rule took it to x1): its x1 table serves
-# only faint stars (~5e3 e- on sky 100), so a -15 mag star keeps x2 and a
+# only faint stars (~7e4 e- on sky 100), so a -15 mag star keeps x2 and a
 # -7 mag one gets x1.
 "$M" sim "$T/s.fits" pupil=segmented lod=2 band=0.5 psfos=2 psfout="$T/s2.fits" seed=24 \
     magmin=-15 magmax=-15 || no "sim segmented"

@@ -384,11 +384,12 @@ static void test_whole_frame_overhead_counted(void **state)
 }
 
 /* The supersampling choice per group (issue 10.2, fit/ss_choice.c): on a
- * Gaussian FWHM 3 x2 table, a faint star's group is fitted with the x1
- * block-sum (its bound is below 0.1 σ), a bright one's (1e6 e-, far over
- * the x1 limit of ~1e4 e- on sky 100) with the x2 table, as counted; and
- * the faint star's fit moves from the x2 fit by less than the bound, 0.1 σ
- * (+ 0.02 σ for the two fits' convergence).  Seeded frame. */
+ * Gaussian FWHM 3 x2 table, a faint star's group (half the limit) is
+ * fitted with the x1 block-sum (its linearised bias is below 0.1 σ and
+ * its χ² shift below 1), a bright one's (1e6 e-, over the x1 limit of
+ * 2.5e5 e- on sky 100) with the x2 table, as counted; and the faint star's
+ * fit moves from the x2 fit by less than 0.1 σ (+ 0.02 σ for the two
+ * fits' convergence).  Seeded frame. */
 static void test_coarse_table_per_group(void **state)
 {
     (void)state;

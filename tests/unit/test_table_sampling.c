@@ -484,6 +484,17 @@ static void test_tinytim_x2_bias_is_aliasing(void **state)
         worst = fmax(worst, fabs(st.x - xs[k]) / sx);
     }
     assert_true(worst > 0.3);
+    /* The economy's criterion (fit/ss_choice.c) sees it: x2 does not serve
+     * −15 mag on sky 100 (case 7 measured a 1.1 σ bias there). */
+    mp_prf_model m4 = {&t4, NULL, 10};
+    mp_ss_level lv;
+    assert_int_equal(mp_ss_level_build(&m4, 2, &lv, err), 0);
+    double chi2, q = mp_ss_level_bias(&lv, E15, SKY, RON, &chi2);
+    print_message("Tiny Tim x4 -> x2 at 1e6 e-: bias %.2f sigma, chi2 shift %.3g; x2 serves E <= "
+                  "%.3g e-\n", q, chi2, mp_ss_level_emax(&lv, SKY, RON, 0.1));
+    assert_false(mp_ss_level_serves(&lv, E15, SKY, RON, 0.1));
+    assert_true(q > 0.3);
+    mp_ss_level_free(&lv);
     /* The band-limited Tiny Tim table: same test, unbiased. */
     low_pass(t4.t, t4.nx, t4.os, 1.0);
     mp_psf_free(&t2);
