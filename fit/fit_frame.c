@@ -470,6 +470,14 @@ static int fit_one_group(const mp_frame *f, const mp_prf_model *m, const mp_fram
         while (l < R->nss && !level_serves(&R->level[l], e, &rep->kbounds))
             l++;
         mp_prf_model mh = l < R->nss ? R->ss[l].model : *m;
+        /* The group is fitted on a sub-image offset by (dx, dy): a
+         * variable PSF must still be read at each star's frame position. */
+        mp_psf lp;
+        mp_psf_field lf;
+        if (mh.psf->field) {    /* (a constant table keeps its pointer: the cache's key) */
+            mp_psf_local(mh.psf, dx, dy, &lp, &lf);
+            mh.psf = &lp;
+        }
         mh.sinc_hw = kernel_for(&R->kern[l], mh.sinc_hw, e, &rep->kbounds);
         rep->kcoarse += l < R->nss;
         /* Economy: the phase grid of the table as given, when its bound

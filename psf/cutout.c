@@ -158,13 +158,19 @@ int mp_epsf_cutout_add(mp_epsf_star *s, const mp_prf_model *m, double x, double 
                        char *err)
 {
     double xs = x - (double)(s->x0 - 1), ys = y - (double)(s->y0 - 1);
+    /* The star's own table: a field is read at its frame position. */
+    mp_psf lp;
+    mp_psf_field lf;
+    mp_psf_local(m->psf, (double)(s->x0 - 1), (double)(s->y0 - 1), &lp, &lf);
+    mp_prf_model lm = *m;
+    lm.psf = &lp;
     long bx0, by0;
     int bw, bh;
-    mp_prf_box(m, xs, ys, &bx0, &by0, &bw, &bh);
+    mp_prf_box(&lm, xs, ys, &bx0, &by0, &bw, &bh);
     double *prf = malloc((size_t)bw * bh * sizeof *prf);
     mp_prf_work w;
     memset(&w, 0, sizeof w);
-    if (!prf || mp_prf_render(m, xs, ys, prf, NULL, NULL, &w)) {
+    if (!prf || mp_prf_render(&lm, xs, ys, prf, NULL, NULL, &w)) {
         free(prf);
         mp_prf_work_free(&w);
         snprintf(err, MP_ERRLEN, "psf build: out of memory");

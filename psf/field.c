@@ -188,6 +188,21 @@ int mp_psf_field_new_grid(int ngx, int ngy, const double *gx, const double *gy, 
     return 0;
 }
 
+void mp_psf_local(const mp_psf *p, double dx, double dy, mp_psf *out, mp_psf_field *fout)
+{
+    *out = *p;
+    if (!p->field)
+        return;
+    *fout = *p->field;
+    fout->x0 -= dx;
+    fout->y0 -= dy;
+    for (int i = 0; i < fout->ngx; i++)
+        fout->gx[i] -= dx;
+    for (int j = 0; j < fout->ngy; j++)
+        fout->gy[j] -= dy;
+    out->field = fout;
+}
+
 int mp_psf_field_from_table(const mp_psf *p, mp_psf_field *f, char *err)
 {
     if (p->kind != MP_PSF_TABLE) {

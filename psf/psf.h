@@ -139,6 +139,14 @@ int mp_psf_field_eval(const mp_psf_field *f, double x, double y, mp_psf *out, ch
 void mp_psf_field_eval_rect(const mp_psf_field *f, double x, double y, long i0, long i1,
                             long j0, long j1, double *out);
 
+/* mp_psf_local: *out a view of p (sharing p's table and planes; nothing
+ * to free) for a sub-image whose pixel (1, 1) is frame pixel
+ * (1 + dx, 1 + dy): with a field, *fout is a copy of p->field whose origin
+ * (a grid's positions) is moved by (−dx, −dy) and out->field points to it,
+ * so that a star at sub-image (x, y) is rendered with the field at frame
+ * (x + dx, y + dy), where it is.  Without a field, *out is *p. */
+void mp_psf_local(const mp_psf *p, double dx, double dy, mp_psf *out, mp_psf_field *fout);
+
 /* mp_psf_field_from_table: an order-0 field holding a copy of table p. */
 int mp_psf_field_from_table(const mp_psf *p, mp_psf_field *f, char *err);
 

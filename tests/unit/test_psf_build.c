@@ -294,11 +294,86 @@ static void test_linear_variation(void **state)
     free(f.mask);
 }
 
+/* A PSF star put back into its cut-out (the second pass: its fitted light
+ * returned to the residual) must be drawn with the field at its frame
+ * position: the cut-out is a sub-image whose pixel (1, 1) is frame pixel
+ * (x0, y0).  The field widens 2.5 → 3.5 px FWHM along x; the star at
+ * x = 100 of 120 put back into a blank cut-out equals its render on the
+ * whole blank frame to rounding (before the fix the cut-out got the
+ * field at x ≈ 10, the narrow side: a pixel off by 53 % of the peak). */
+static void test_cutout_add_reads_field_at_star(void **state)
+{
+    (void)state;
+    char err[MP_ERRLEN];
+    mp_psf g1, g2;
+    assert_int_equal(mp_psf_gauss_table(2.5, 2, 8.0, &g1, err), 0);
+    assert_int_equal(mp_psf_gauss_table(3.5, 2, 8.0, &g2, err), 0);
+    mp_psf_field fld;
+    assert_int_equal(mp_psf_field_new(1, g1.nx, g1.ny, 2, 60.0, 30.0, 60.0, 30.0, &fld, err), 0);
+    size_t nel = (size_t)g1.nx * g1.ny;
+    for (size_t i = 0; i < nel; i++) {
+        fld.planes[i] = 0.5 * (g1.t[i] + g2.t[i]);
+        fld.planes[nel + i] = 0.5 * (g2.t[i] - g1.t[i]);
+    }
+    mp_psf tab;
+    assert_int_equal(mp_psf_field_eval(&fld, fld.x0, fld.y0, &tab, err), 0);
+    tab.field = &fld;
+    mp_prf_model m = {&tab, NULL, 10};
+    const long nx = 120, ny = 60;
+    mp_frame f;
+    memset(&f, 0, sizeof f);
+    f.im.nx = nx;
+    f.im.ny = ny;
+    f.im.pix = calloc((size_t)nx * ny, sizeof *f.im.pix);
+    f.mask = calloc((size_t)nx * ny, 1);
+    assert_non_null(f.im.pix);
+    assert_non_null(f.mask);
+    f.gain = 1.0;
+    f.rdnoise = RON;
+    f.saturate = INFINITY;
+    const double x = 100.3, y = 29.8, F = 1e4, sky = 0.0;
+    mp_epsf_star *s;
+    assert_int_equal(mp_epsf_cutouts(&f, f.im.pix, &x, &y, &F, &sky, 1, 8.0, &s, err), 0);
+    assert_true(s[0].x0 > 1);        /* a sub-image, not the frame */
+    assert_int_equal(mp_epsf_cutout_add(&s[0], &m, x, y, F, err), 0);
+    long bx0, by0;
+    int bw, bh;
+    mp_prf_box(&m, x, y, &bx0, &by0, &bw, &bh);
+    double *prf = malloc((size_t)bw * bh * sizeof *prf);
+    assert_non_null(prf);
+    mp_prf_work w;
+    memset(&w, 0, sizeof w);
+    assert_int_equal(mp_prf_render(&m, x, y, prf, NULL, NULL, &w), 0);
+    double worst = 0.0, peak = 0.0;
+    for (long j = 0; j < s[0].f.im.ny; j++)
+        for (long i = 0; i < s[0].f.im.nx; i++) {
+            long px = s[0].x0 + i, py = s[0].y0 + j;
+            double want = px >= bx0 && px < bx0 + bw && py >= by0 && py < by0 + bh
+                              ? F * prf[(size_t)(py - by0) * bw + (size_t)(px - bx0)] : 0.0;
+            worst = fmax(worst, fabs(s[0].f.im.pix[(size_t)j * s[0].f.im.nx + i] - want));
+            peak = fmax(peak, want);
+        }
+    print_message("cut-out against frame render: largest difference %.3g of the peak %.3g\n",
+                  worst, peak);
+    assert_true(peak > 0.01 * F);
+    assert_true(worst <= 1e-9 * peak);
+    mp_prf_work_free(&w);
+    free(prf);
+    mp_epsf_stars_free(s, 1);
+    free(f.im.pix);
+    free(f.mask);
+    mp_psf_free(&tab);
+    mp_psf_field_free(&fld);
+    mp_psf_free(&g1);
+    mp_psf_free(&g2);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(test_recovers_constant_table),
         cmocka_unit_test(test_linear_variation),
+        cmocka_unit_test(test_cutout_add_reads_field_at_star),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }

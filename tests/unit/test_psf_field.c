@@ -328,6 +328,38 @@ static void fit_sides(const mp_frame *fr, const mp_prf_model *m, const double *t
     *pos = pmax;
 }
 
+/* The frame of linear_truth's PSF: NGRID² stars of E e- 20 px apart on
+ * B = 100 e-, RON 3 e- (seed fixed); their positions into tx, ty. */
+static void linear_frame(mp_frame *fr, double E, double *tx, double *ty)
+{
+    const double B = 100.0, RON = 3.0;
+    memset(fr, 0, sizeof *fr);
+    fr->im.nx = fr->im.ny = NSIDE;
+    fr->im.pix = calloc((size_t)NSIDE * NSIDE, sizeof *fr->im.pix);
+    fr->mask = calloc((size_t)NSIDE * NSIDE, 1);
+    assert_non_null(fr->im.pix);
+    assert_non_null(fr->mask);
+    fr->gain = 1.0;
+    fr->rdnoise = RON;
+    fr->saturate = INFINITY;
+    fr->exptime = 1.0;
+    mp_rng r;
+    mp_rng_seed(&r, 20261124);
+    for (size_t i = 0; i < (size_t)NSIDE * NSIDE; i++)
+        fr->im.pix[i] = B;
+    for (int k = 0; k < NGRID * NGRID; k++) {
+        tx[k] = 20.0 + 20.0 * (k % NGRID) + mp_rng_uniform(&r) - 0.5;
+        ty[k] = 20.0 + 20.0 * (k / NGRID) + mp_rng_uniform(&r) - 0.5;
+        double a = (tx[k] - 20.0) / 160.0;
+        double s1 = 2.5 / (2.0 * sqrt(2.0 * log(2.0))), s2 = 3.5 / (2.0 * sqrt(2.0 * log(2.0)));
+        mp_sim_prf p1 = {.kind = MP_SIM_GAUSS, .sigma = s1, .volume = 1.0};
+        mp_sim_prf p2 = {.kind = MP_SIM_GAUSS, .sigma = s2, .volume = 1.0};
+        assert_int_equal(mp_sim_add_star(&p1, tx[k], ty[k], (1 - a) * E, fr->im.pix, NSIDE, NSIDE), 0);
+        assert_int_equal(mp_sim_add_star(&p2, tx[k], ty[k], a * E, fr->im.pix, NSIDE, NSIDE), 0);
+    }
+    mp_sim_add_noise(&r, fr->im.pix, (long)NSIDE * NSIDE, RON);
+}
+
 /* A frame whose PSF widens linearly along x, fitted with the true order-1
  * field and with its order-0 table (the field at its origin).  With the
  * field each side's mean flux error is N(0, 1) in units of its standard
@@ -339,34 +371,10 @@ static void fit_sides(const mp_frame *fr, const mp_prf_model *m, const double *t
 static void test_linear_variation_fit(void **state)
 {
     (void)state;
-    const double E = 2e4, B = 100.0, RON = 3.0;
+    const double E = 2e4;
     mp_frame fr;
-    memset(&fr, 0, sizeof fr);
-    fr.im.nx = fr.im.ny = NSIDE;
-    fr.im.pix = calloc((size_t)NSIDE * NSIDE, sizeof *fr.im.pix);
-    fr.mask = calloc((size_t)NSIDE * NSIDE, 1);
-    assert_non_null(fr.im.pix);
-    assert_non_null(fr.mask);
-    fr.gain = 1.0;
-    fr.rdnoise = RON;
-    fr.saturate = INFINITY;
-    fr.exptime = 1.0;
     double tx[NGRID * NGRID], ty[NGRID * NGRID];
-    mp_rng r;
-    mp_rng_seed(&r, 20261124);
-    for (size_t i = 0; i < (size_t)NSIDE * NSIDE; i++)
-        fr.im.pix[i] = B;
-    for (int k = 0; k < NGRID * NGRID; k++) {
-        tx[k] = 20.0 + 20.0 * (k % NGRID) + mp_rng_uniform(&r) - 0.5;
-        ty[k] = 20.0 + 20.0 * (k / NGRID) + mp_rng_uniform(&r) - 0.5;
-        double a = (tx[k] - 20.0) / 160.0;
-        double s1 = 2.5 / (2.0 * sqrt(2.0 * log(2.0))), s2 = 3.5 / (2.0 * sqrt(2.0 * log(2.0)));
-        mp_sim_prf p1 = {.kind = MP_SIM_GAUSS, .sigma = s1, .volume = 1.0};
-        mp_sim_prf p2 = {.kind = MP_SIM_GAUSS, .sigma = s2, .volume = 1.0};
-        assert_int_equal(mp_sim_add_star(&p1, tx[k], ty[k], (1 - a) * E, fr.im.pix, NSIDE, NSIDE), 0);
-        assert_int_equal(mp_sim_add_star(&p2, tx[k], ty[k], a * E, fr.im.pix, NSIDE, NSIDE), 0);
-    }
-    mp_sim_add_noise(&r, fr.im.pix, (long)NSIDE * NSIDE, RON);
+    linear_frame(&fr, E, tx, ty);
     mp_psf_field f;
     linear_truth(&f);
     char err[MP_ERRLEN];
@@ -388,6 +396,71 @@ static void test_linear_variation_fit(void **state)
      * so neither model biases them; 81 |Δx|/σ all below 4.5 (false failure
      * 81 × 7e-6). */
     assert_true(p1 < 4.5);
+    mp_psf_free(&origin);
+    mp_psf_field_free(&f);
+    free(fr.im.pix);
+    free(fr.mask);
+}
+
+/* The frame fitter (mp_fit_table) fits each group on a sub-image cut
+ * around it; a variable PSF must still be read at the star's frame
+ * position, not at its place on the sub-image (which put every star at
+ * the field's lower-left corner: the narrow side, so right-hand stars,
+ * 3.25–3.5 px wide, were fitted with a 2.4 px table).  As
+ * test_linear_variation_fit: each side's mean flux error over its
+ * standard error is N(0, 1) with the right PSF, |z| < 4 fails by chance
+ * 6e-5 per side; before the fix z = −21 (left) and −126 (right). */
+static void test_frame_fit_reads_field_at_star(void **state)
+{
+    (void)state;
+    const double E = 2e4;
+    mp_frame fr;
+    double tx[NGRID * NGRID], ty[NGRID * NGRID];
+    linear_frame(&fr, E, tx, ty);
+    mp_psf_field f;
+    linear_truth(&f);
+    char err[MP_ERRLEN];
+    mp_psf origin;
+    assert_int_equal(mp_psf_field_eval(&f, f.x0, f.y0, &origin, err), 0);
+    origin.field = &f;
+    mp_prf_model m = {&origin, NULL, 10};
+    mp_table t;
+    mp_table_init(&t);
+    const char *c[5] = {"NUMBER", "X_IMAGE", "Y_IMAGE", "GROUP_ID", "FLUX"};
+    int col[5];
+    for (int i = 0; i < 5; i++)
+        assert_true((col[i] = mp_table_add_col(&t, c[i])) >= 0);
+    for (int k = 0; k < NGRID * NGRID; k++) {
+        long r = mp_table_add_row(&t);
+        assert_true(r >= 0);
+        double v[5] = {k + 1, tx[k] + 0.1, ty[k] - 0.1, k + 1, 0.8 * E};
+        for (int i = 0; i < 5; i++)
+            mp_table_set(&t, (size_t)r, col[i], v[i]);
+    }
+    mp_frame_opts o;
+    mp_frame_opts_default(&o);
+    o.fit.sky_order = 0;
+    o.fit.fitrad = 8.0;
+    assert_int_equal(mp_fit_table(&fr, &m, &o, &t, NULL, err), 0);
+    assert_int_equal((int)t.nrow, NGRID * NGRID);
+    int cn = mp_table_col(&t, "NUMBER"), cf = mp_table_col(&t, "FLUX_PSF");
+    int ce = mp_table_col(&t, "FLUXERR_PSF");
+    assert_true(cn >= 0 && cf >= 0 && ce >= 0);
+    double sum[2] = {0, 0};
+    int cnt[2] = {0, 0};
+    for (size_t r = 0; r < t.nrow; r++) {
+        int k = (int)mp_table_get(&t, r, cn) - 1;
+        assert_true(k >= 0 && k < NGRID * NGRID);
+        int side = tx[k] < 60 ? 0 : tx[k] > 140 ? 1 : -1;
+        if (side < 0)
+            continue;
+        sum[side] += (mp_table_get(&t, r, cf) - E) / mp_table_get(&t, r, ce);
+        cnt[side]++;
+    }
+    double z0 = sum[0] / sqrt(cnt[0]), z1 = sum[1] / sqrt(cnt[1]);
+    print_message("frame fit with the field: z = %.2f (left), %.2f (right)\n", z0, z1);
+    assert_true(fabs(z0) < 4.0 && fabs(z1) < 4.0);
+    mp_table_free(&t);
     mp_psf_free(&origin);
     mp_psf_field_free(&f);
     free(fr.im.pix);
@@ -432,6 +505,7 @@ int main(void)
         cmocka_unit_test_setup_teardown(test_write_read_round_trip, setup, teardown),
         cmocka_unit_test_setup_teardown(test_bad_cubes, setup, teardown),
         cmocka_unit_test(test_linear_variation_fit),
+        cmocka_unit_test(test_frame_fit_reads_field_at_star),
         cmocka_unit_test(test_envelope_covers_field),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
