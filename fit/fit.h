@@ -568,6 +568,14 @@ typedef struct {
  * stderr when the PSF table is too coarse for the data (paper §5.4). */
 int mp_fit_setup_read(const mp_parset *ps, mp_fit_setup *s, char *err);
 void mp_fit_setup_free(mp_fit_setup *s);
+/* mp_fit_setup_local: the setup to reduce a sub-image whose pixel (1, 1)
+ * is frame pixel (1 + dx, 1 + dy) with (a tile's section, a fake's box):
+ * s itself when the PSF does not vary; else *out, a view of s (sharing its
+ * tables, DRF and economy state: never pass it to mp_fit_setup_free) whose
+ * field, and each coarser level's, is read at the star's frame position
+ * (mp_psf_local). */
+const mp_fit_setup *mp_fit_setup_local(const mp_fit_setup *s, double dx, double dy,
+                                       mp_fit_setup *out);
 
 /* The `matphot fit` task. */
 int mp_task_fit(int argc, char **argv);

@@ -6,6 +6,25 @@
 #include <string.h>
 #include "fit/fit.h"
 
+const mp_fit_setup *mp_fit_setup_local(const mp_fit_setup *s, double dx, double dy,
+                                       mp_fit_setup *out)
+{
+    if (!s->psf.field)
+        return s;
+    *out = *s;
+    mp_psf_local(&s->psf, dx, dy, &out->psf, &out->field);
+    out->model.psf = &out->psf;
+    for (int l = 0; l < s->opts.nss && s->opts.ss == s->ss; l++) {
+        mp_ss_level *lv = &out->ss[l];
+        if (s->ss[l].psf.field)
+            mp_psf_local(&s->ss[l].psf, dx, dy, &lv->psf, &lv->field);
+        lv->model.psf = &lv->psf;
+    }
+    if (s->opts.ss == s->ss)
+        out->opts.ss = out->ss;
+    return out;
+}
+
 void mp_fit_setup_free(mp_fit_setup *s)
 {
     mp_psf_free(&s->psf);

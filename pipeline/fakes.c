@@ -161,16 +161,26 @@ static int one_fake(const mp_frame *f, const mp_pipeline_opts *o, const mp_fakes
     mp_frame c;
     long x0, y0;
     int rc = cut_box(f, fk->x, fk->y, fo->box, &c, &x0, &y0);
+    /* The box is a frame of its own: a variable PSF read at frame positions. */
+    mp_pipeline_opts *lo = rc || !o->fit.psf.field ? NULL : malloc(sizeof *lo);
+    if (lo) {
+        *lo = *o;
+        mp_fit_setup_local(&o->fit, (double)(x0 - 1), (double)(y0 - 1), &lo->fit);
+    } else if (!rc && o->fit.psf.field) {
+        rc = 1;
+    }
+    const mp_pipeline_opts *ob = lo ? lo : o;
     double E = pow(10.0, -0.4 * (fk->mag - o->fit.opts.magzero));
     if (!rc)
-        rc = inject(&c, &o->fit.model, fk->x - (double)(x0 - 1), fk->y - (double)(y0 - 1), E, &r, wk);
+        rc = inject(&c, &ob->fit.model, fk->x - (double)(x0 - 1), fk->y - (double)(y0 - 1), E, &r, wk);
     if (rc)
         snprintf(err, MP_ERRLEN, "out of memory");
     mp_table t;
     mp_table_init(&t);
-    if (!rc && !(rc = mp_pipeline_reduce(&c, o, &t, err)))
+    if (!rc && !(rc = mp_pipeline_reduce(&c, ob, &t, err)))
         look_for(&t, x0, y0, b, fo->fakerad, fk);
     mp_table_free(&t);
+    free(lo);
     free(c.im.pix);
     free(c.mask);
     return rc;

@@ -246,8 +246,21 @@ static int run_tile(tiling *g, const char *image, long margin, char *err)
     snprintf(sec, n, "%s[%ld:%ld,%ld:%ld]", image, g->sx1, g->sx2, g->sy1, g->sy2);
     fprintf(stderr, "matphot pipeline: tile %ld: %s (core [%ld:%ld,%ld:%ld])\n", g->tile + 1,
             sec, g->cx1, g->cx2, g->cy1, g->cy2);
+    /* The section is a frame of its own: a variable PSF read at frame
+     * positions. */
+    mp_pipeline_opts *lo = g->o->fit.psf.field ? malloc(sizeof *lo) : NULL;
+    if (g->o->fit.psf.field && !lo) {
+        free(sec);
+        snprintf(err, MP_ERRLEN, "out of memory");
+        return 1;
+    }
+    if (lo) {
+        *lo = *g->o;
+        mp_fit_setup_local(&g->o->fit, (double)(g->sx1 - 1), (double)(g->sy1 - 1), &lo->fit);
+    }
     mp_pipeline_report r;
-    int rc = mp_pl_reduce(sec, g->o, &r, tile_done, g, err);
+    int rc = mp_pl_reduce(sec, lo ? lo : g->o, &r, tile_done, g, err);
+    free(lo);
     free(sec);
     add_report(&g->rep, &r);
     return rc;
