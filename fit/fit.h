@@ -202,7 +202,7 @@ int mp_ss_level_serves(const mp_ss_level *lv, double E, double B, double ron, do
  * checked on a log grid of MP_SS_VERIFY fluxes below it and lowered below
  * the first failure.  Costs at most MP_SS_LIMITS_EVALS evaluations. */
 double mp_ss_level_emax(const mp_ss_level *lv, double B, double ron, double frac);
-#define MP_SS_BISECT 60
+#define MP_SS_BISECT 14     /* 18 decades in 14 halvings: E to 0.25 % */
 #define MP_SS_VERIFY 30
 #define MP_SS_LIMITS_EVALS (2 + MP_SS_BISECT + MP_SS_VERIFY)
 
