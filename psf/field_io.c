@@ -443,27 +443,31 @@ int mp_psf_field_read(const char *name, int normalize, int oversamp, mp_psf_fiel
 
 /* ---- Writing ---------------------------------------------------------------- */
 
+/* A double keyword with 17 significant digits, so that it reads back to
+ * the same double (cfitsio's TDOUBLE default writes 15). */
+static void write_exact(fitsfile *fp, const char *key, double v, const char *comment,
+                        int *status)
+{
+    fits_write_key_dbl(fp, key, v, -17, comment, status);
+}
+
 static void write_keys(fitsfile *fp, const mp_psf_field *f, int *status)
 {
     int os = f->os, order = f->order;
     fits_write_key(fp, TINT, "OVERSAMP", &os, "table elements per detector pixel", status);
     fits_write_key(fp, TINT, "PSFORDER", &order, "polynomial order in (x, y)", status);
-    double v[4] = {f->x0, f->y0, f->xscale, f->yscale};
-    fits_write_key(fp, TDOUBLE, "POLZERO1", &v[0], "origin x [pixel, 1-based]", status);
-    fits_write_key(fp, TDOUBLE, "POLZERO2", &v[1], "origin y [pixel, 1-based]", status);
-    fits_write_key(fp, TDOUBLE, "POLSCAL1", &v[2], "dx = (x - POLZERO1)/POLSCAL1", status);
-    fits_write_key(fp, TDOUBLE, "POLSCAL2", &v[3], "dy = (y - POLZERO2)/POLSCAL2", status);
-    double sum = f->sum;
-    fits_write_key(fp, TDOUBLE, "PSFSUM", &sum, "light fraction of the table at the origin",
-                   status);
+    write_exact(fp, "POLZERO1", f->x0, "origin x [pixel, 1-based]", status);
+    write_exact(fp, "POLZERO2", f->y0, "origin y [pixel, 1-based]", status);
+    write_exact(fp, "POLSCAL1", f->xscale, "dx = (x - POLZERO1)/POLSCAL1", status);
+    write_exact(fp, "POLSCAL2", f->yscale, "dy = (y - POLZERO2)/POLSCAL2", status);
+    write_exact(fp, "PSFSUM", f->sum, "light fraction of the table at the origin", status);
     fits_write_comment(fp, "planes: 1, dx, dx^2, dy, dx*dy, dy^2 (PSFEx order, to PSFORDER)",
                        status);
     if (f->nstar > 0)
         fits_write_key(fp, TINT, "PSFNSTAR", (void *)&f->nstar, "PSF stars used", status);
     if (f->offset != 0.0) {
-        double off = f->offset;
-        fits_write_key(fp, TDOUBLE, "PSFOFFSE", &off, "star from the central element's centre "
-                       "[pixel]", status);
+        write_exact(fp, "PSFOFFSE", f->offset, "star from the central element's centre [pixel]",
+                    status);
     }
     if (f->why[0]) {
         fits_write_key_longwarn(fp, status);

@@ -272,19 +272,22 @@ static inline int fuzz_psf_field_body(const uint8_t *data, size_t size)
             if (mp_psf_field_eval(&f, f.x0, f.y0, &o, err) == 0) {
                 o.field = &f;
                 mp_prf_model m = {&o, NULL, 10};
-                long x0, y0;
-                int w, h;
-                mp_prf_box(&m, 20.3, 17.8, &x0, &y0, &w, &h);
-                size_t n = (size_t)w * (size_t)h;
-                double *prf = malloc(3 * n * sizeof *prf);
                 mp_prf_work work = {0};
                 const double xs[2] = {20.3, f.x0 + 0.37 * f.xscale};
-                for (int c = 0; c < 2 && prf; c++)
-                    if (mp_prf_render(&m, xs[c], 17.8, prf, prf + n, prf + 2 * n, &work) == 0)
+                for (int c = 0; c < 2; c++) {
+                    /* The box depends on the position: size the arrays for
+                     * the one rendered. */
+                    long x0, y0;
+                    int w, h;
+                    mp_prf_box(&m, xs[c], 17.8, &x0, &y0, &w, &h);
+                    size_t n = (size_t)w * (size_t)h;
+                    double *prf = malloc(3 * n * sizeof *prf);
+                    if (prf && mp_prf_render(&m, xs[c], 17.8, prf, prf + n, prf + 2 * n, &work) == 0)
                         for (size_t i = 0; i < 3 * n; i++)
                             if (!isfinite(prf[i]))
                                 fuzz_fail("mp_prf_render", "non-finite PRF from an accepted field");
-                free(prf);
+                    free(prf);
+                }
                 mp_prf_work_free(&work);
                 mp_psf_free(&o);
             }
