@@ -265,7 +265,10 @@ static inline int fuzz_psf_field_body(const uint8_t *data, size_t size)
         if (!(f.sum > 0) || !isfinite(f.sum) || f.nx % 2 == 0 || f.ny % 2 == 0 || f.os < 1 ||
             f.os > 8 ||
             f.nterms != (f.order == MP_PSF_GRID ? f.ngx * f.ngy : mp_psf_nterms(f.order)) ||
-            (f.order > 0 && !(f.xscale > 0 && f.yscale > 0)) || (ns > 0) != (st != NULL))
+            (f.order > 0 && f.order != MP_PSF_GRID && !(f.xscale > 0 && f.yscale > 0)) ||
+            /* a grid's span: 0 along an axis with one grid point */
+            (f.order == MP_PSF_GRID && !(f.xscale >= 0 && f.yscale >= 0)) ||
+            (ns > 0) != (st != NULL))
             fuzz_fail("mp_psf_field_read", "accepted a file it promises to refuse");
         if ((size_t)f.nx * (size_t)f.ny <= 4096) {
             mp_psf o;
