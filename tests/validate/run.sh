@@ -57,6 +57,9 @@ fi
 # The PSF built from the frame (issue 11 B): on request (minutes of CPU).
 if [ "$ONLY" = psfbuild ]; then
     BUILD=$BUILD CC=$CC sh tests/validate/psfbuild/psfbuild.sh || { [ $rc -ne 0 ] || rc=1; }
+    # The peers on the same frames (validate/PSFPEERS.md; each skipped
+    # with a line when not installed).
+    BUILD=$BUILD CC=$CC sh tests/validate/psfbuild/peers.sh || { [ $rc -ne 0 ] || rc=1; }
 fi
 if [ "$ONLY" = real ]; then
     BUILD=$BUILD CC=$CC sh tests/validate/real/real.sh || { [ $rc -ne 0 ] || rc=1; }

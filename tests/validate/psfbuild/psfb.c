@@ -10,12 +10,18 @@
  *       position, flux, and each star's Cramér–Rao bound of flux and x
  *       alone on its sky), DIR/true.psf.fits (segmented: the ×5 table;
  *       variable: the table at the frame's centre, for the comparison).
- *   psfb match DIR ROOT    errors over the bound per magnitude bin
+ *   psfb match DIR ROOT [zp]  errors over the bound per magnitude bin
  *       (median |ΔE|/(0.6745 σ_E), median Δr/(1.1774 σ_X): 1 on the
- *       bound) and completeness, from DIR/ROOT.cat; one line per bin.
- *   psfb resid FRAME RES CAT R RON   the normalised residual near the
- *       stars (within R px of each catalog star), as issue 11 compares it
- *       with DAOPHOT's on 47 Tuc.
+ *       bound) and completeness, from DIR/ROOT.cat; one line per bin;
+ *       zp: the fluxes rescaled first by the median E_true/E of the two
+ *       brightest bins (a peer's fluxes on its aperture scale).
+ *   psfb resid FRAME RES CAT R RON [CAT2]   the normalised residual near
+ *       the stars (within R px of each star of CAT, or of CAT and CAT2),
+ *       as issue 11 compares it with DAOPHOT's on 47 Tuc.
+ *   psfb noise SCI ERR RON   a calibrated frame's error plane against the
+ *       noise model (ERR^2 over max(SCI, 0) + RON^2).
+ *   psfb chi2 CAT   median CHI2_PSF by flux, by whether the group holds
+ *       a saturated star, and by group size.
  *   psfb cmp BUILT TRUE    the built PSF against the true one as the fit
  *       sees them: PRFs at 16 phases, rms and largest pixel difference
  *       over the peak; and element by element when the samplings agree.
@@ -199,7 +205,10 @@ static double median(double *v, int n)
     return n % 2 ? v[n / 2] : 0.5 * (v[n / 2 - 1] + v[n / 2]);
 }
 
-static int do_match(const char *dir, const char *root)
+/* zp: the catalog's fluxes times one scale, the median E_true/E of the
+ * matched stars in the two brightest bins (a peer's aperture-scale fluxes
+ * put on the truth's, as an aperture correction would). */
+static int do_match(const char *dir, const char *root, int zp)
 {
     char err[MP_ERRLEN], path[1024];
     mp_table tr, ct;
@@ -221,11 +230,15 @@ static int do_match(const char *dir, const char *root)
     /* Each true star takes the nearest unused catalog star within 1 px,
      * brightest true stars first (they are found first and best). */
     enum { NB = 6 };
-    double *ph[NB], *as[NB];
+    double *ph[NB], *as[NB], *ef[NB], *et[NB];
     int nin[NB] = {0}, nm[NB] = {0};
     for (int b = 0; b < NB; b++) {
         ph[b] = malloc(nt * sizeof(double));
         as[b] = malloc(nt * sizeof(double));
+        ef[b] = malloc(nt * sizeof(double));
+        et[b] = malloc(nt * sizeof(double));
+        if (!ph[b] || !as[b] || !ef[b] || !et[b])
+            return fprintf(stderr, "psfb: out of memory\n"), 1;
     }
     size_t *ord = malloc(nt * sizeof *ord);
     for (size_t i = 0; i < nt; i++)
@@ -255,11 +268,27 @@ static int do_match(const char *dir, const char *root)
         if (best < 0)
             continue;
         used[best] = 1;
-        double dE = mp_table_get(&ct, (size_t)best, cf) - mp_table_get(&tr, i, tf);
-        ph[b][nm[b]] = fabs(dE) / (0.6745 * mp_table_get(&tr, i, te));
+        ef[b][nm[b]] = mp_table_get(&ct, (size_t)best, cf);
+        et[b][nm[b]] = mp_table_get(&tr, i, tf);
+        ph[b][nm[b]] = mp_table_get(&tr, i, te);
         as[b][nm[b]] = bd / (1.1774 * mp_table_get(&tr, i, tq));
         nm[b]++;
     }
+    double scale = 1.0;
+    if (zp) {
+        double *r = malloc((nt + 1) * sizeof *r);
+        int nr = 0;
+        for (int b = 0; b < 2; b++)
+            for (int k = 0; k < nm[b]; k++)
+                if (ef[b][k] > 0)
+                    r[nr++] = et[b][k] / ef[b][k];
+        scale = nr ? median(r, nr) : 1.0;
+        free(r);
+        printf("%s: flux scale %.5f from %d stars\n", root, scale, nr);
+    }
+    for (int b = 0; b < NB; b++)
+        for (int k = 0; k < nm[b]; k++)
+            ph[b][k] = fabs(scale * ef[b][k] - et[b][k]) / (0.6745 * ph[b][k]);
     printf("%s: mag bin | true | found | completeness | phot/CRLB | astro/CRLB\n", root);
     for (int b = 0; b < NB; b++)
         printf("%s: %.0f..%.0f | %d | %d | %.3f | %.3f | %.3f\n", root, b - 14.0, b - 13.0, nin[b],
@@ -268,6 +297,8 @@ static int do_match(const char *dir, const char *root)
     for (int b = 0; b < NB; b++) {
         free(ph[b]);
         free(as[b]);
+        free(ef[b]);
+        free(et[b]);
     }
     free(ord);
     free(used);
@@ -434,27 +465,51 @@ static int do_cmp(const char *built, const char *truth)
  * σ² = max(data, 0) + RON² (the data's own Poisson and read noise), over
  * the pixels within r px of a catalog star (XPSF/YPSF_IMAGE); robust σ
  * (IQR/1.349) and the median |z|.  FRAME and RES in electrons. */
-static int do_resid(const char *frame, const char *res, const char *cat, double r, double ron)
+/* near[] |= the pixels within r px of CAT's stars (XPSF/YPSF_IMAGE). */
+static int mark_near(const char *cat, double r, long nx, long ny, char *near, size_t *nstar, char *err)
+{
+    mp_table t;
+    mp_table_init(&t);
+    if (mp_table_read(cat, &t, err))
+        return 1;
+    int cx = mp_table_col(&t, "XPSF_IMAGE"), cy = mp_table_col(&t, "YPSF_IMAGE");
+    if (cx < 0 || cy < 0) {
+        snprintf(err, MP_ERRLEN, "%s: no XPSF_IMAGE/YPSF_IMAGE column", cat);
+        mp_table_free(&t);
+        return 1;
+    }
+    for (size_t k = 0; k < t.nrow; k++) {
+        double x = mp_table_get(&t, k, cx), y = mp_table_get(&t, k, cy);
+        for (long j = (long)floor(y - r); j <= (long)ceil(y + r); j++)
+            for (long i = (long)floor(x - r); i <= (long)ceil(x + r); i++)
+                if (i >= 1 && j >= 1 && i <= nx && j <= ny && hypot(i - x, j - y) <= r)
+                    near[(j - 1) * nx + i - 1] = 1;
+    }
+    *nstar += t.nrow;
+    mp_table_free(&t);
+    return 0;
+}
+
+static int do_resid(const char *frame, const char *res, const char *cat, double r, double ron,
+                    const char *cat2)
 {
     char err[MP_ERRLEN];
     mp_image f, q;
     memset(&f, 0, sizeof f);
     memset(&q, 0, sizeof q);
-    mp_table t;
-    mp_table_init(&t);
-    if (mp_image_read(frame, &f, err) || mp_image_read(res, &q, err) || mp_table_read(cat, &t, err))
+    if (mp_image_read(frame, &f, err) || mp_image_read(res, &q, err))
         return fprintf(stderr, "psfb: %s\n", err), 1;
+    if (f.nx != q.nx || f.ny != q.ny)
+        return fprintf(stderr, "psfb: %s and %s differ in size\n", frame, res), 1;
     long n = f.nx * f.ny;
     char *near = calloc((size_t)n, 1);
     double *v = malloc(sizeof(double) * n), *z = malloc(sizeof(double) * n);
-    int cx = mp_table_col(&t, "XPSF_IMAGE"), cy = mp_table_col(&t, "YPSF_IMAGE");
-    for (size_t k = 0; k < t.nrow; k++) {
-        double x = mp_table_get(&t, k, cx), y = mp_table_get(&t, k, cy);
-        for (long j = (long)floor(y - r); j <= (long)ceil(y + r); j++)
-            for (long i = (long)floor(x - r); i <= (long)ceil(x + r); i++)
-                if (i >= 1 && j >= 1 && i <= f.nx && j <= f.ny && hypot(i - x, j - y) <= r)
-                    near[(j - 1) * f.nx + i - 1] = 1;
-    }
+    size_t nstar = 0;
+    if (!near || !v || !z)
+        return fprintf(stderr, "psfb: out of memory\n"), 1;
+    if (mark_near(cat, r, f.nx, f.ny, near, &nstar, err) ||
+        (cat2 && mark_near(cat2, r, f.nx, f.ny, near, &nstar, err)))
+        return fprintf(stderr, "psfb: %s\n", err), 1;
     long m = 0;
     for (long i = 0; i < n; i++)
         if (isfinite(q.pix[i]))
@@ -470,27 +525,141 @@ static int do_resid(const char *frame, const char *res, const char *cat, double 
         z[i] = fabs(z[i]);
     printf("psfb resid: %s: %ld pixels within %.1f px of %zu stars: robust sigma of the "
            "normalised residual %.3f, median |z| %.3f (sky of the residual %.2f)\n", res, nz, r,
-           t.nrow, iqr / 1.349, median(z, (int)nz), med);
+           nstar, iqr / 1.349, median(z, (int)nz), med);
     free(near), free(v), free(z);
     mp_image_free(&f);
     mp_image_free(&q);
+    return 0;
+}
+
+/* The noise model against a calibrated frame's error plane: the median
+ * and quartiles of ERR^2 / (max(SCI, 0) + RON^2); and the median excess
+ * ERR^2 - max(SCI, 0) - RON^2 in SCI bins (constant: an additive variance
+ * the calibration carries, an effective read noise; growing as SCI^2: a
+ * flat-field term). */
+static int do_noise(const char *sci, const char *errp, double ron)
+{
+    char err[MP_ERRLEN];
+    mp_image f, e;
+    memset(&f, 0, sizeof f);
+    memset(&e, 0, sizeof e);
+    if (mp_image_read(sci, &f, err) || mp_image_read(errp, &e, err))
+        return fprintf(stderr, "psfb: %s\n", err), 1;
+    long n = f.nx * f.ny, m = 0;
+    double *v = malloc(sizeof(double) * n), *w = malloc(sizeof(double) * n);
+    if (!v || !w || e.nx * e.ny != n)
+        return fprintf(stderr, "psfb: %s: out of memory or not the size of %s\n", errp, sci), 1;
+    for (long i = 0; i < n; i++)
+        if (isfinite(f.pix[i]) && isfinite(e.pix[i]) && e.pix[i] > 0)
+            v[m++] = e.pix[i] * e.pix[i] / (fmax(f.pix[i], 0.0) + ron * ron);
+    double mv = median(v, (int)m);
+    printf("ERR^2 / (max(SCI,0) + RON^2): median %.4f (quartiles %.4f, %.4f) over %ld pixels\n", mv,
+           v[m / 4], v[3 * m / 4], m);
+    static const double lo[] = {-1e30, 300, 1000, 3000, 1e4, 3e4, 1e5};
+    for (int b = 0; b < 6; b++) {
+        long k = 0;
+        for (long i = 0; i < n; i++)
+            if (f.pix[i] >= lo[b] && f.pix[i] < lo[b + 1] && isfinite(e.pix[i]) && e.pix[i] > 0)
+                w[k++] = e.pix[i] * e.pix[i] - fmax(f.pix[i], 0.0) - ron * ron;
+        if (k)
+            printf("SCI %6.0f..%-6.0f %6ld pixels: median ERR^2 - SCI - RON^2 = %.1f e-^2\n",
+                   fmax(lo[b], 0.0), lo[b + 1], k, median(w, (int)k));
+    }
+    free(v), free(w);
+    mp_image_free(&f);
+    mp_image_free(&e);
+    return 0;
+}
+
+/* Median CHI2_PSF of a catalog by FLUX_PSF (factors of 4) and by
+ * GROUP_SIZE, to tell a profile error (grows with the flux) from
+ * neighbours and the noise model (do not). */
+static int do_chi2(const char *cat)
+{
+    char err[MP_ERRLEN];
+    mp_table t;
+    mp_table_init(&t);
+    if (mp_table_read(cat, &t, err))
+        return fprintf(stderr, "psfb: %s\n", err), 1;
+    int cc = mp_table_col(&t, "CHI2_PSF"), cf = mp_table_col(&t, "FLUX_PSF"),
+        cg = mp_table_col(&t, "GROUP_SIZE"), cl = mp_table_col(&t, "FLAGS");
+    if (cc < 0 || cf < 0)
+        return fprintf(stderr, "psfb: %s: no CHI2_PSF/FLUX_PSF\n", cat), 1;
+    double *v = malloc(sizeof(double) * (t.nrow + 1));
+    if (!v)
+        return 1;
+    for (int pass = 0; pass < 2; pass++) {
+        printf(pass ? "E [e-]         stars  median CHI2_PSF  (FLAGS 0 only)\n"
+                    : "E [e-]         stars  median CHI2_PSF  (all)\n");
+        for (double lo = 1e2; lo < 1e7; lo *= 4) {
+            int n = 0;
+            for (size_t k = 0; k < t.nrow; k++) {
+                double E = mp_table_get(&t, k, cf);
+                if (E >= lo && E < 4 * lo && (!pass || cl < 0 || mp_table_get(&t, k, cl) == 0))
+                    v[n++] = mp_table_get(&t, k, cc);
+            }
+            if (n)
+                printf("%8.3g..%-8.3g %5d  %.2f\n", lo, 4 * lo, n, median(v, n));
+        }
+    }
+    int ci = mp_table_col(&t, "GROUP_ID");
+    if (ci >= 0 && cl >= 0) {
+        /* A group's CHI2_PSF is its fit's: one saturated member (FLAGS
+         * 1: its core has no weight, its halo and bleed trail do) sets it
+         * for every star of the group. */
+        printf("groups         stars  median CHI2_PSF\n");
+        for (int with = 0; with < 2; with++) {
+            int n = 0;
+            for (size_t k = 0; k < t.nrow; k++) {
+                int sat = 0;
+                for (size_t q = 0; q < t.nrow && !sat; q++)
+                    sat = mp_table_get(&t, q, ci) == mp_table_get(&t, k, ci) &&
+                          ((long)mp_table_get(&t, q, cl) & 1);
+                if (sat == with)
+                    v[n++] = mp_table_get(&t, k, cc);
+            }
+            if (n)
+                printf("%-14s %5d  %.2f\n", with ? "a saturated" : "no saturated", n, median(v, n));
+        }
+    }
+    if (cg >= 0) {
+        printf("GROUP_SIZE     stars  median CHI2_PSF\n");
+        int lim[] = {1, 2, 5, 10, 20, 1000000};
+        for (int b = 0; b + 1 < 6; b++) {
+            int n = 0;
+            for (size_t k = 0; k < t.nrow; k++) {
+                double g = mp_table_get(&t, k, cg);
+                if (g >= lim[b] && g < lim[b + 1])
+                    v[n++] = mp_table_get(&t, k, cc);
+            }
+            if (n)
+                printf("%4d..%-9d %5d  %.2f\n", lim[b], lim[b + 1] - 1, n, median(v, n));
+        }
+    }
+    free(v);
     mp_table_free(&t);
     return 0;
 }
 
 int main(int argc, char **argv)
 {
-    if (argc == 7 && !strcmp(argv[1], "resid"))
-        return do_resid(argv[2], argv[3], argv[4], atof(argv[5]), atof(argv[6])) ? 1 : 0;
+    if ((argc == 7 || argc == 8) && !strcmp(argv[1], "resid"))
+        return do_resid(argv[2], argv[3], argv[4], atof(argv[5]), atof(argv[6]),
+                        argc == 8 ? argv[7] : NULL) ? 1 : 0;
+    if (argc == 5 && !strcmp(argv[1], "noise"))
+        return do_noise(argv[2], argv[3], atof(argv[4])) ? 1 : 0;
+    if (argc == 3 && !strcmp(argv[1], "chi2"))
+        return do_chi2(argv[2]) ? 1 : 0;
     if (argc == 4 && !strcmp(argv[1], "sim"))
         return do_sim(argv[2], argv[3]) ? 1 : 0;
-    if (argc == 4 && !strcmp(argv[1], "match"))
-        return do_match(argv[2], argv[3]) ? 1 : 0;
+    if ((argc == 4 || (argc == 5 && !strcmp(argv[4], "zp"))) && !strcmp(argv[1], "match"))
+        return do_match(argv[2], argv[3], argc == 5) ? 1 : 0;
     if (argc == 3 && !strcmp(argv[1], "cmpvar"))
         return do_cmpvar(argv[2]) ? 1 : 0;
     if (argc == 4 && !strcmp(argv[1], "cmp"))
         return do_cmp(argv[2], argv[3]) ? 1 : 0;
-    fprintf(stderr, "usage: psfb sim DIR segmented|variable | psfb match DIR ROOT | "
-            "psfb cmp BUILT.fits TRUE.fits | psfb resid FRAME RES CAT R RON\n");
+    fprintf(stderr, "usage: psfb sim DIR segmented|variable | "
+            "psfb match DIR ROOT [zp] | psfb cmp BUILT.fits TRUE.fits | psfb resid FRAME RES CAT R RON [CAT2] | "
+            "psfb noise SCI ERR RON | psfb chi2 CAT\n");
     return 2;
 }

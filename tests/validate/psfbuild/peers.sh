@@ -1,0 +1,220 @@
+#!/bin/sh
+# peers.sh — the peers on psfbuild.sh's simulated frames (issue 11, "What it
+# must show" 1: side by side on the same frames): IRAF DAOPHOT building its
+# own PSF (pstselect, psf, nstar + substar of the PSF stars' neighbours, psf
+# again; allstar; daofind on the allstar residual, phot, pfmerge, allstar)
+# with varorder 0 and 2, and SExtractor + PSFEx (SExtractor → PSFEx with
+# PSFVAR_DEGREES 0 and 2 → SExtractor's PSF fitting), scored by the same
+# code as matphot's rows (psfb match: completeness within 1 px, errors over
+# each star's Cramér–Rao bound per magnitude bin).  Writes
+# validate/PSFPEERS.md (with matphot's rows from psfbuild.sh's runs when
+# they are there).  Each peer is skipped, with a line in the report, when
+# it is not installed.  Work files: $BUILD/validate/psfbuild/.
+#
+#     sh tests/validate/psfbuild/peers.sh      (after make all; psfbuild.sh
+#                                              first for matphot's rows)
+# Environment: SCENES="segmented variable", BUILD, CC.
+set -u
+cd "$(dirname "$0")/../../.." || exit 1
+BUILD=${BUILD:-build}
+CC=${CC:-cc}
+OUT="$BUILD/validate/psfbuild"
+REP=validate/PSFPEERS.md
+SCENES=${SCENES:-segmented variable}
+say() { echo "psfbuild peers: $*"; }
+mkdir -p "$OUT" validate || exit 1
+CFLAGS="-std=c17 -Wall -Wextra -Werror -O2 -fopenmp -D_XOPEN_SOURCE=700 -I. -I/usr/include/wcslib"
+# shellcheck disable=SC2086
+$CC $CFLAGS -o "$OUT/psfb" tests/validate/psfbuild/psfb.c -fopenmp "$BUILD/libmatphot.a" \
+    -lcfitsio -lwcs -lcsv -llapacke -lopenblas -lm || { say "build failed" >&2; exit 1; }
+OUT=$(cd "$OUT" && pwd)
+PSFB="$OUT/psfb"
+HAVE_IRAF=""; command -v irafcl > /dev/null 2>&1 && HAVE_IRAF=yes
+SEX=""
+for s in source-extractor sex; do
+    command -v $s > /dev/null 2>&1 && { SEX=$s; break; }
+done
+HAVE_PSFEX=""; command -v psfex > /dev/null 2>&1 && [ -n "$SEX" ] && HAVE_PSFEX=yes
+. tests/bench/daophot/cl_env.sh
+rc=0
+
+# The scenes' detector and PSF (tests/validate/psfbuild/psfb.c): gain 1,
+# RON 3 e-, sky 100 e-; FWHM about 2 px (segmented, lambda/D = 2 px at the
+# band's blue end) and 3 px (variable, +-15 % across the field).
+fwhm_of() { case $1 in segmented) echo 2.0 ;; *) echo 3.0 ;; esac; }
+
+# ascii_head OUT: "x y flux" lines on stdin → a SExtractor ASCII_HEAD table
+# with psfb match's columns.
+ascii_head() {
+    awk 'BEGIN {
+        printf "#   1 NUMBER                 Running object number\n"
+        printf "#   2 XPSF_IMAGE             X coordinate from PSF-fitting                              [pixel]\n"
+        printf "#   3 YPSF_IMAGE             Y coordinate from PSF-fitting                              [pixel]\n"
+        printf "#   4 FLUX_PSF               Flux from PSF-fitting                                      [count]\n"
+    } NF >= 3 && $3 == $3 + 0 { printf "%10d %12.5f %12.5f %14.6g\n", ++n, $1, $2, $3 }' > "$1"
+}
+
+# dao SCENE VARORDER: IRAF DAOPHOT's chain (tests/bench/real/real.sh's, with
+# psf's function = auto: the frame's shape is not known to be Gaussian).
+dao() {
+    s=$1 vo=$2 d="$OUT/$1/dao$2"
+    fw=$(fwhm_of "$s")
+    rm -rf "$d" && mkdir -p "$d" || return 1
+    # Aperture radius of the PSF stars' photometry (DAOPHOT's magnitude
+    # scale) 1.5 FWHM: a larger one takes in the neighbours' light in
+    # these frames (3 FWHM: fluxes 3x too high).  psfrad 8 px (the
+    # tables' half-width), fitrad 1 FWHM.
+    ap=$(awk -v f="$fw" 'BEGIN { printf "%.2f", 1.5 * f }')
+    dao_head() {
+        cl_env "$d"
+        cat <<EOF
+datapars.fwhmpsf = $fw
+datapars.sigma = 10.44
+datapars.readnoise = 3.0
+datapars.epadu = 1.0
+datapars.datamin = INDEF
+datapars.datamax = INDEF
+findpars.threshold = 4.0
+findpars.nsigma = 1.5
+centerpars.calgorithm = "none"
+fitskypars.salgorithm = "mode"
+fitskypars.annulus = 10.0
+fitskypars.dannulus = 10.0
+photpars.apertures = "$ap"
+photpars.zmag = 0.0
+daopars.function = "auto"
+daopars.varorder = $vo
+daopars.psfrad = 8.0
+daopars.fitrad = $fw
+daopars.fitsky = yes
+daopars.sannulus = $fw
+daopars.wsannulus = 11.0
+daopars.maxgroup = 60
+pstselect.maxnpsf = 60
+EOF
+    }
+    { dao_head; cat <<EOF
+imcopy ("$OUT/$s/frame.fits", "im.fits", verbose=no)
+daofind ("im.fits", output="im.coo", starmap="", skymap="", interactive=no, verify=no, verbose=no)
+phot ("im.fits", coords="im.coo", output="im.mag", interactive=no, verify=no, verbose=no)
+pstselect ("im.fits", "im.mag", "im.pst0", maxnpsf=60, interactive=no, verify=no, verbose=no)
+psf ("im.fits", "im.mag", "im.pst0", "im.dpsf0", "im.pst1", "im.psg1", matchbyid=yes, interactive=no, showplots=no, plotfile="", verify=no, verbose=no)
+nstar ("im.fits", "im.psg1", "im.dpsf0", "im.nst1", "im.nrj1", verify=no, verbose=no)
+substar ("im.fits", "im.nst1", "im.pst1", "im.dpsf0", "im.cln1", verify=no, verbose=no)
+psf ("im.cln1.fits", "im.mag", "im.pst1", "im.dpsf", "im.pst2", "im.psg2", matchbyid=yes, interactive=no, showplots=no, plotfile="", verify=no, verbose=no)
+allstar ("im.fits", "im.mag", "im.dpsf", "im.als1", "im.arj1", "im.sub1", verify=no, verbose=no)
+daofind ("im.sub1.fits", output="im.coo2", starmap="", skymap="", interactive=no, verify=no, verbose=no)
+phot ("im.fits", coords="im.coo2", output="im.mag2", interactive=no, verify=no, verbose=no)
+pfmerge ("im.als1,im.mag2", "im.mrg2", verbose=no)
+prenumber ("im.mrg2")
+allstar ("im.fits", "im.mrg2", "im.dpsf", "im.als2", "im.arj2", "im.sub2", verify=no, verbose=no)
+txdump ("im.als2", "XCENTER,YCENTER,MAG", yes, headers=no, parameters=no, > "als.txt")
+print ("CL_OK")
+logout
+EOF
+    } > "$d/run.cl"
+    ( cd "$d" && mkdir -p h/uparm h/imdir h/cache &&
+      HOME="$d/h" /usr/bin/time -f 'cpu %e %U %S' -o time timeout 1800 irafcl -f run.cl \
+          < /dev/null > run.log 2>&1 )
+    if ! grep -q '^CL_OK' "$d/run.log" || grep -qE 'ERROR|Syntax error' "$d/run.log"; then
+        tail -n 20 "$d/run.log" >&2
+        say "DAOPHOT failed on $s (varorder $vo)" >&2
+        return 1
+    fi
+    # MAG = -2.5 log10(counts) with zmag 0, gain 1: counts are electrons.
+    awk '$3 != "INDEF" { print $1, $2, 10 ^ (-0.4 * $3) }' "$d/als.txt" | ascii_head "$OUT/$s/dao$vo.cat"
+    echo "IRAF DAOPHOT psf (function auto, varorder $vo, 60 stars by pstselect, neighbours subtracted, psf again) + allstar + one refind round; apertures $ap px, psfrad 8, fitrad $fw" > "$OUT/$s/dao$vo.cmd"
+    tail -n 1 "$d/time" > "$OUT/$s/dao$vo.time"
+    grep -h 'function\|Best' "$d/run.log" | head -n 3 > "$OUT/$s/dao$vo.note" || true
+}
+
+# sexpsfex SCENE DEGREE: SExtractor (LDAC with vignets) → PSFEx
+# (PSFVAR_DEGREES DEGREE, PSF_SAMPLING 0 = PSFEx's own choice) →
+# SExtractor's PSF fit (XPSF_IMAGE, YPSF_IMAGE, FLUX_PSF).
+sexpsfex() {
+    s=$1 dg=$2 d="$OUT/$1/psfex$2"
+    fw=$(fwhm_of "$s")
+    rm -rf "$d" && mkdir -p "$d" || return 1
+    # PSFEx normalises its model to the aperture flux FLUX_APER(1): the
+    # radius DAOPHOT's photometry uses (1.5 FWHM).
+    dia=$(awk -v f="$fw" 'BEGIN { printf "%.1f", 3 * f }')
+    printf '%s\n' X_IMAGE Y_IMAGE XWIN_IMAGE YWIN_IMAGE FLUX_APER FLUXERR_APER FLUX_RADIUS \
+        ELONGATION FLAGS SNR_WIN FLUX_MAX 'VIGNET(25,25)' > "$d/pre.param"
+    printf '%s\n' XPSF_IMAGE YPSF_IMAGE FLUX_PSF FLUXERR_PSF FLAGS > "$d/psf.param"
+    common="-GAIN 1 -SATUR_LEVEL 1e9 -FILTER N -DETECT_THRESH 4 -DETECT_MINAREA 3 \
+-BACK_SIZE 64 -PHOT_APERTURES $dia -SEEING_FWHM $fw -PIXEL_SCALE 1 -VERBOSE_TYPE QUIET \
+-CHECKIMAGE_TYPE NONE -WRITE_XML N"
+    (
+        cd "$d" || exit 1
+        # shellcheck disable=SC2086
+        /usr/bin/time -f 'cpu %e %U %S' -o t1 $SEX "$OUT/$s/frame.fits" $common \
+            -PARAMETERS_NAME pre.param -CATALOG_TYPE FITS_LDAC -CATALOG_NAME pre.cat > sex1.log 2>&1 &&
+        /usr/bin/time -f 'cpu %e %U %S' -o t2 psfex pre.cat -PSFVAR_DEGREES "$dg" -PSFVAR_KEYS X_IMAGE,Y_IMAGE \
+            -PSF_SIZE 25,25 -PSF_SAMPLING 0 -PHOTFLUX_KEY 'FLUX_APER(1)' -PHOTFLUXERR_KEY 'FLUXERR_APER(1)' \
+            -CHECKPLOT_TYPE NONE -CHECKIMAGE_TYPE NONE -WRITE_XML N -VERBOSE_TYPE NORMAL > psfex.log 2>&1 &&
+        /usr/bin/time -f 'cpu %e %U %S' -o t3 $SEX "$OUT/$s/frame.fits" $common -PSF_NAME pre.psf \
+            -PARAMETERS_NAME psf.param -CATALOG_TYPE ASCII_HEAD -CATALOG_NAME psf.cat > sex2.log 2>&1
+    ) || { tail -n 5 "$d"/*.log >&2; say "SExtractor/PSFEx failed on $s (degree $dg)" >&2; return 1; }
+    # Rows with no PSF fit (FLUX_PSF 0 or negative) are not stars found.
+    awk '!/^#/ && $3 > 0 { print $1, $2, $3 }' "$d/psf.cat" | ascii_head "$OUT/$s/psfex$dg.cat"
+    echo "SExtractor (4 sigma, no filter, PHOT_APERTURES $dia) -> PSFEx (PSFVAR_DEGREES $dg, PSF_SAMPLING 0, PSF_SIZE 25) -> SExtractor PSF fit" > "$OUT/$s/psfex$dg.cmd"
+    cat "$d/t1" "$d/t2" "$d/t3" | awk '/^cpu/ { w += $2; u += $3; s += $4 } END { print "cpu", w, u, s }' > "$OUT/$s/psfex$dg.time"
+    grep -h 'sampling\|Sampling\|chi2' "$d/psfex.log" | tail -n 2 | tr -s ' ' > "$OUT/$s/psfex$dg.note" || true
+}
+
+for s in $SCENES; do
+    mkdir -p "$OUT/$s" || exit 1
+    [ -f "$OUT/$s/truth.dat" ] || "$PSFB" sim "$OUT/$s" "$s" || exit 1
+    for v in 0 2; do
+        if [ -n "$HAVE_IRAF" ]; then
+            say "$s: DAOPHOT varorder $v"
+            dao "$s" "$v" || rc=1
+        fi
+        if [ -n "$HAVE_PSFEX" ]; then
+            say "$s: SExtractor + PSFEx degree $v"
+            sexpsfex "$s" "$v" || rc=1
+        fi
+    done
+done
+
+# row SCENE ROOT LABEL: the table rows of one catalog, raw and with the
+# flux scale taken out (psfb match ... zp).
+row() {
+    f="$OUT/$1/$2.cat"
+    [ -f "$f" ] || return 0
+    "$PSFB" match "$OUT/$1" "$2" > "$OUT/$1/$2.match" || { rc=1; return 0; }
+    "$PSFB" match "$OUT/$1" "$2" zp > "$OUT/$1/$2.zmatch" || { rc=1; return 0; }
+    t="$OUT/$1/$2.time"; [ -f "$t" ] || t="$OUT/$1/$2.log"
+    cpu=$(awk '/^cpu/ { printf "%.1f", $3 + $4 }' "$t" 2> /dev/null)
+    sc=$(sed -n 's/.*flux scale \([0-9.e+-]*\).*/\1/p' "$OUT/$1/$2.zmatch")
+    echo
+    echo "**$3** — $(cat "$OUT/$1/$2.cmd" 2> /dev/null); CPU ${cpu:-?} s; flux scale (true/measured, median of the two brightest bins) $sc"
+    echo
+    echo '| mag | true | found | completeness | phot/CRLB | astro/CRLB | phot/CRLB, scale removed |'
+    echo '|---|---|---|---|---|---|---|'
+    grep ': -[0-9]' "$OUT/$1/$2.zmatch" > "$OUT/$1/$2.zrows"
+    grep ': -[0-9]' "$OUT/$1/$2.match" | paste -d'|' - "$OUT/$1/$2.zrows" | sed -n 's/^[^:]*: \(-[0-9][^|]*|[^|]*|[^|]*|[^|]*|[^|]*|[^|]*\)|[^:]*: -[^|]*|[^|]*|[^|]*|[^|]*| \([^|]*\) |.*$/| \1 | \2 |/p' | sed 's/  |/ |/g'
+}
+
+{
+    echo "# The PSF from the frame, side by side with IRAF DAOPHOT and SExtractor + PSFEx"
+    echo
+    echo "Generated by \`tests/validate/psfbuild/peers.sh\` (after \`psfbuild.sh\`; both run by \`VALIDATE_ONLY=psfbuild make validate\`) on $(date -u '+%Y-%m-%d %H:%M UTC'), matphot $(git rev-parse --short HEAD 2>/dev/null || echo '?'); IRAF $(irafcl -v 2>/dev/null | head -n 1 || true), $($SEX -v 2>/dev/null || true), $(psfex -v 2>/dev/null || true).  Back to [PSFBUILD.md](PSFBUILD.md), [REPORT.md](REPORT.md)."
+    echo
+    echo "Frames: psfbuild.sh's (tests/validate/psfbuild/psfb.c; 256x256 px, 400 stars, mag -14..-8, sky 100 e-, RON 3 e-, gain 1).  Every program builds its PSF from the frame and finds its own stars; each catalog is scored by the same code (\`psfb match DIR ROOT [zp]\`): each true star takes the nearest unused catalog star within 1 px, brightest first; phot/CRLB = median |E - E_true| / (0.6745 sigma_CRLB(E)), astro/CRLB = median position error / (1.1774 sigma_CRLB(X)) (1 = on the bound).  The peers' fluxes are on their PSF stars' aperture scale (DAOPHOT: photpars.apertures; PSFEx: FLUX_APER(1)), radius 1.5 FWHM; the last column divides out one flux scale per catalog (the median E_true/E over the two brightest bins), which a user would get from an aperture correction, to show the PSF's shape errors apart from its normalisation."
+    for s in $SCENES; do
+        echo
+        echo "## $s"
+        [ -f "$OUT/$s/built.cat" ] && row "$s" built "matphot, its own PSF (no psf=)"
+        [ -f "$OUT/$s/true.cat" ] && row "$s" true "matphot, the true table"
+        [ -f "$OUT/$s/centre.cat" ] && row "$s" centre "matphot, the true table at the frame's centre"
+        for v in 0 2; do
+            if [ -n "$HAVE_IRAF" ]; then row "$s" "dao$v" "IRAF DAOPHOT, varorder $v"
+            else echo; echo "IRAF DAOPHOT varorder $v: skipped (irafcl not installed)"; fi
+            if [ -n "$HAVE_PSFEX" ]; then row "$s" "psfex$v" "SExtractor + PSFEx, PSFVAR_DEGREES $v"
+            else echo; echo "SExtractor + PSFEx degree $v: skipped (source-extractor or psfex not installed)"; fi
+        done
+    done
+} > "$REP.tmp" && mv "$REP.tmp" "$REP"
+say "wrote $REP"
+exit $rc

@@ -1,0 +1,236 @@
+#!/bin/sh
+# psfreal.sh — the PSF built from the frame on real frames (issue 11, "What
+# it must show" 2 and 3), validate/PSFREAL.md:
+#   tuc      47 Tuc ACS/HRC crop [1:256,1:256] with no PSF given: median
+#            CHI2_PSF, its break-down by flux and crowding (why it is not 1),
+#            the noise model against the FLT's own ERR plane, and the
+#            normalised residual near the stars against IRAF DAOPHOT's
+#            (its PSF built from the same pixels: pstselect, psf, nstar +
+#            substar of the neighbours, psf again, allstar, one refind
+#            round) on the same pixels.
+#   glimpse  Spitzer GLIMPSE 4.5 um with no PSF given against the GLIMPSE
+#            catalog, beside validate/REAL.md's run with the IRAC table.
+# DECam with its PSFEx model against Gaia is validate/PSF_FILES.md's
+# (tests/validate/real/psf_files.sh).
+#
+#     sh tests/validate/real/psfreal.sh      (after make all; minutes of CPU)
+# Environment: FRAMES="tuc glimpse", REALDATA=../shared/data/real, BUILD, CC.
+# Skips a frame (a line in the report) when its data are absent, DAOPHOT's
+# rows when irafcl is absent.
+set -u
+cd "$(dirname "$0")/../../.." || exit 1
+BUILD=${BUILD:-build}
+CC=${CC:-cc}
+MATPHOT=${MATPHOT:-./matphot}
+REALDATA=${REALDATA:-../shared/data/real}
+FRAMES=${FRAMES:-tuc glimpse}
+OUT="$BUILD/validate/psfreal"
+REP=validate/PSFREAL.md
+say() { echo "psfreal: $*"; }
+[ -x "$MATPHOT" ] && [ -f "$BUILD/libmatphot.a" ] || { say "run make all first" >&2; exit 1; }
+mkdir -p "$OUT" validate || exit 1
+# Absolute: IRAF runs in its own directory.
+[ -d "$REALDATA" ] && REALDATA=$(cd "$REALDATA" && pwd)
+CFLAGS="-std=c17 -Wall -Wextra -Werror -O2 -fopenmp -D_XOPEN_SOURCE=700 -I. -I/usr/include/wcslib"
+LIBS="-fopenmp $BUILD/libmatphot.a -lcfitsio -lwcs -lcsv -llapacke -lopenblas -lm"
+# shellcheck disable=SC2086
+{ $CC $CFLAGS -o "$OUT/psfb" tests/validate/psfbuild/psfb.c $LIBS &&
+  $CC $CFLAGS -o "$OUT/real" tests/validate/real/real.c $LIBS &&
+  $CC $CFLAGS -o "$OUT/realcmp" tests/bench/real/realcmp.c $LIBS; } || { say "build failed" >&2; exit 1; }
+OUT=$(cd "$OUT" && pwd)
+MP=$(cd "$(dirname "$MATPHOT")" && pwd)/$(basename "$MATPHOT")
+OPENBLAS_NUM_THREADS=1
+export OPENBLAS_NUM_THREADS
+HAVE_IRAF=""; command -v irafcl > /dev/null 2>&1 && HAVE_IRAF=yes
+. tests/bench/daophot/cl_env.sh
+rc=0
+: > "$OUT/report.md"
+
+# timed LOG CMD...: CMD's output in LOG, "cpu WALL USER SYS" its last line.
+timed() { log=$1; shift; /usr/bin/time -f 'cpu %e %U %S' "$@" > "$log" 2>&1; }
+cpu_of() { tail -n 1 "$1" | awk '/^cpu/ { printf "%.0f s wall, %.0f s CPU", $2, $3 + $4 }'; }
+# colq CAT NAME Q: the Q-quantile of column NAME of an ASCII_HEAD table.
+colq() {
+    awk -v n="$2" '/^#/ { if ($3 == n) c = $2; next } c { print $c }' "$1" | sort -g |
+        awk -v q="$3" '{ v[NR] = $1 } END { if (!NR) { print "nan"; exit } i = q * (NR - 1) + 1; print v[int(i)] }'
+}
+
+tuc() {
+    D=$REALDATA/hst_acs_hrc_47tuc
+    F=$D/j8bt06nyq_flt_sip_crop512.fits
+    [ -f "$F" ] || { printf '\n## 47 Tuc\n\nSkipped: %s absent.\n' "$F" >> "$OUT/report.md"; return 0; }
+    SEC='[1:256,1:256]'
+    IMG="${F}[SCI]$SEC"
+    T="$OUT/tuc"
+    mkdir -p "$T"
+    say "47 Tuc: matphot pipeline, no psf="
+    set -- pipeline "$IMG" root="$T/mp" gain=1 rdnoise=4.71 saturate=151553.98 'dqmask=[DQ]' dqsat=2304
+    timed "$T/mp.log" "$MP" "$@" || { tail -n 3 "$T/mp.log" >&2; rc=1; return 0; }
+    # The noise model against the FLT's ERR plane (calacs: Poisson, read
+    # noise, flat field): ERR^2 / (max(SCI, 0) + RON^2) over the pixels.
+    "$OUT/psfb" noise "${F}[SCI]$SEC" "${F}[ERR]$SEC" 4.71 > "$T/noise.txt" || rc=1
+    if [ -n "$HAVE_IRAF" ]; then
+        say "47 Tuc: IRAF DAOPHOT"
+        tuc_dao "$T/dao" "${F}[1]$SEC" || rc=1
+    fi
+    {
+    echo
+    echo "## 47 Tuc, ACS/HRC F606W crop $SEC, no PSF given"
+    echo
+    echo '```'
+    echo "./matphot pipeline '$IMG' root=R gain=1 rdnoise=4.71 saturate=151553.98 'dqmask=[DQ]' dqsat=2304"
+    echo '```'
+    echo
+    echo "$(cpu_of "$T/mp.log").  The frame's units: BUNIT = ELECTRONS (SCI header), so gain = 1; read noise READNSEC = 4.71 e-.  Noise model against the FLT's own ERR plane (the variance calacs propagated; \`psfb noise SCI ERR 4.71\`):"
+    echo
+    echo '```'
+    cat "$T/noise.txt"
+    echo '```'
+    echo
+    echo "The PSF the pipeline built (its report):"
+    echo
+    echo '```'
+    grep -h 'PSF pass\|OVERSAMP\|psf:' "$T/mp.log" | cut -c1-400 | head -n 6
+    echo '```'
+    echo
+    echo "Median CHI2_PSF $(colq "$T/mp.cat" CHI2_PSF 0.5) (quartiles $(colq "$T/mp.cat" CHI2_PSF 0.25), $(colq "$T/mp.cat" CHI2_PSF 0.75)) over $(grep -vc '^#' "$T/mp.cat") stars.  Where it comes from (\`psfb chi2 CAT\`: median CHI2_PSF by flux and by group size; a PSF profile error of a fraction e of the light adds about e^2 E / (4 pi s^2) per pixel-variance near the peak, so it grows with the flux, while neighbours and the noise model do not):"
+    echo
+    echo '```'
+    "$OUT/psfb" chi2 "$T/mp.cat"
+    echo '```'
+    if [ -n "$HAVE_IRAF" ] && [ -f "$T/dao/dao.cat" ]; then
+        echo
+        echo "IRAF DAOPHOT on the same pixels ($(cat "$T/dao/cmd.txt")); $(awk '/^cpu/ { printf "%.0f s wall", $2 }' "$T/dao/time")."
+        echo
+        echo "Normalised residual near the stars, (residual - its median) / sqrt(max(data, 0) + 4.71^2) over the pixels within 3 px of the stars of the catalog named (\`psfb resid FRAME RES CAT 3 4.71\`), robust sigma (IQR/1.349):"
+        echo
+        echo '| residual | pixels near matphot'"'"'s stars | pixels near DAOPHOT'"'"'s stars | pixels near either |'
+        echo '|---|---|---|---|'
+        for r in mp dao; do
+            res="$T/mp.res.fits"; [ $r = dao ] && res="$T/dao/im.sub2.fits"
+            a=$("$OUT/psfb" resid "$IMG" "$res" "$T/mp.cat" 3 4.71 | sed -n 's/.*residual \([0-9.]*\),.*/\1/p')
+            b=$("$OUT/psfb" resid "$IMG" "$res" "$T/dao/dao.cat" 3 4.71 | sed -n 's/.*residual \([0-9.]*\),.*/\1/p')
+            c=$("$OUT/psfb" resid "$IMG" "$res" "$T/mp.cat" 3 4.71 "$T/dao/dao.cat" | sed -n 's/.*residual \([0-9.]*\),.*/\1/p')
+            [ $r = mp ] && n="matphot, its own PSF ($(grep -vc '^#' "$T/mp.cat") stars)" ||
+                n="IRAF DAOPHOT ($(grep -vc '^#' "$T/dao/dao.cat") stars)"
+            echo "| $n | $a | $b | $c |"
+        done
+        echo
+        echo "DAOPHOT's CHI (its ratio of the observed to the expected scatter, about sqrt(chi2/dof)), squared: median $(awk '!/^#/ { print $5 * $5 }' "$T/dao/chi.txt" | sort -g | awk '{ v[NR] = $1 } END { print v[int((NR + 1) / 2)] }') over its stars."
+    fi
+    } >> "$OUT/report.md"
+}
+
+# tuc_dao DIR IMAGE: DAOPHOT's chain on the crop (tests/bench/real/real.sh's,
+# with psf's function = auto).
+tuc_dao() {
+    d=$1 img=$2
+    rm -rf "$d" && mkdir -p "$d/h/uparm" "$d/h/imdir" "$d/h/cache" || return 1
+    # shellcheck disable=SC2046
+    set -- $("$OUT/realcmp" sky "$img" 1 4.71)
+    sig=$2
+    { cl_env "$d"; cat <<EOF
+datapars.fwhmpsf = 2.0
+datapars.sigma = $sig
+datapars.readnoise = 4.71
+datapars.epadu = 1.0
+datapars.datamin = INDEF
+datapars.datamax = 130000.0
+findpars.threshold = 4.0
+findpars.nsigma = 1.5
+centerpars.calgorithm = "none"
+fitskypars.salgorithm = "mode"
+fitskypars.annulus = 10.0
+fitskypars.dannulus = 10.0
+photpars.apertures = "3.0"
+photpars.zmag = 0.0
+daopars.function = "auto"
+daopars.varorder = 0
+daopars.psfrad = 10.0
+daopars.fitrad = 2.0
+daopars.fitsky = yes
+daopars.sannulus = 2.0
+daopars.wsannulus = 11.0
+daopars.maxgroup = 60
+imcopy ("$img", "im.fits", verbose=no)
+daofind ("im.fits", output="im.coo", starmap="", skymap="", interactive=no, verify=no, verbose=no)
+phot ("im.fits", coords="im.coo", output="im.mag", interactive=no, verify=no, verbose=no)
+pstselect ("im.fits", "im.mag", "im.pst0", maxnpsf=25, interactive=no, verify=no, verbose=no)
+psf ("im.fits", "im.mag", "im.pst0", "im.dpsf0", "im.pst1", "im.psg1", matchbyid=yes, interactive=no, showplots=no, plotfile="", verify=no, verbose=no)
+nstar ("im.fits", "im.psg1", "im.dpsf0", "im.nst1", "im.nrj1", verify=no, verbose=no)
+substar ("im.fits", "im.nst1", "im.pst1", "im.dpsf0", "im.cln1", verify=no, verbose=no)
+psf ("im.cln1.fits", "im.mag", "im.pst1", "im.dpsf", "im.pst2", "im.psg2", matchbyid=yes, interactive=no, showplots=no, plotfile="", verify=no, verbose=no)
+allstar ("im.fits", "im.mag", "im.dpsf", "im.als1", "im.arj1", "im.sub1", verify=no, verbose=no)
+daofind ("im.sub1.fits", output="im.coo2", starmap="", skymap="", interactive=no, verify=no, verbose=no)
+phot ("im.fits", coords="im.coo2", output="im.mag2", interactive=no, verify=no, verbose=no)
+pfmerge ("im.als1,im.mag2", "im.mrg2", verbose=no)
+prenumber ("im.mrg2")
+allstar ("im.fits", "im.mrg2", "im.dpsf", "im.als2", "im.arj2", "im.sub2", verify=no, verbose=no)
+txdump ("im.als2", "XCENTER,YCENTER,MAG,MSKY,CHI", yes, headers=no, parameters=no, > "chi.txt")
+print ("CL_OK")
+logout
+EOF
+    } > "$d/run.cl"
+    ( cd "$d" && HOME="$d/h" /usr/bin/time -f 'cpu %e %U %S' -o time timeout 1800 irafcl -f run.cl \
+          < /dev/null > run.log 2>&1 )
+    if ! grep -q '^CL_OK' "$d/run.log" || grep -qE 'ERROR|Syntax error' "$d/run.log"; then
+        tail -n 20 "$d/run.log" >&2
+        say "DAOPHOT failed on 47 Tuc" >&2
+        return 1
+    fi
+    awk '$3 != "INDEF" { printf "%d %s %s %s\n", ++n, $1, $2, 10 ^ (-0.4 * $3) }' "$d/chi.txt" |
+        awk 'BEGIN {
+            print "#   1 NUMBER                 Running object number"
+            print "#   2 XPSF_IMAGE             X coordinate from PSF-fitting                              [pixel]"
+            print "#   3 YPSF_IMAGE             Y coordinate from PSF-fitting                              [pixel]"
+            print "#   4 FLUX_PSF               Flux from PSF-fitting                                      [count]"
+        } { print }' > "$d/dao.cat"
+    echo "datamax 1.3e5 e- (the DQ plane flags the pixels above: A/D saturation 65535 DN x 2.216 = 1.45e5 e- before the flat; GOODMAX would keep saturated pixels), daofind 4 sigma, phot r = 3 px, pstselect 25 stars, psf function auto + look-up table, varorder 0, psfrad 10, fitrad 2, neighbours subtracted and psf again, allstar, one refind round" > "$d/cmd.txt"
+}
+
+glimpse() {
+    D=$REALDATA/spitzer_irac_glimpse
+    IMG=$D/spitzer_example_image.fits
+    CSV=$D/glimpse_catalog_subset.csv
+    [ -f "$IMG" ] && [ -f "$CSV" ] ||
+        { printf '\n## GLIMPSE\n\nSkipped: %s or %s absent.\n' "$IMG" "$CSV" >> "$OUT/report.md"; return 0; }
+    G="$OUT/glimpse"
+    mkdir -p "$G"
+    for p in built table; do
+        say "GLIMPSE: matphot pipeline, PSF $p"
+        set -- pipeline "$IMG" root="$G/$p" gain=31.3065
+        [ $p = table ] && set -- "$@" psf="$D/irac_ch2_flight.fits" oversamp=4
+        echo "./matphot $*" | sed "s|$G/|R_|" > "$G/$p.cmd"
+        timed "$G/$p.log" "$MP" "$@" || { tail -n 3 "$G/$p.log" >&2; rc=1; continue; }
+        "$OUT/real" glimpse "$G/$p.cat" "$CSV" 31.3065 "$G/$p.cmp" > "$G/$p.txt" 2>&1 || rc=1
+    done
+    {
+    echo
+    echo "## Spitzer IRAC 4.5 um GLIMPSE, no PSF given, against the GLIMPSE catalog"
+    echo
+    echo "Gain as validate/REAL.md (GAIN x EXPTIME / FLUXCONV = 31.3065); the comparison is REAL.md's (\`real glimpse CAT CSV GAIN OUT\`): 224 GLIMPSE stars, a constant shift fitted, flux scale = median ratio, scatter = robust sigma of ln(ours / GLIMPSE)."
+    for p in built table; do
+        echo
+        echo "\`$(cat "$G/$p.cmd")\` — $(cpu_of "$G/$p.log")"
+        echo
+        grep -h 'PSF pass 2' "$G/$p.log" | cut -c1-400 | sed 's/^/    /'
+        sed 's/^/    /' "$G/$p.txt" | grep -v '^ *$' | head -n 20
+    done
+    } >> "$OUT/report.md"
+}
+
+for f in $FRAMES; do
+    case $f in
+    tuc) tuc ;;
+    glimpse) glimpse ;;
+    *) say "unknown frame $f" >&2; rc=1 ;;
+    esac
+done
+{
+    echo "# The PSF built from the frame on real frames (issue 11)"
+    echo
+    echo "Generated by \`sh tests/validate/real/psfreal.sh\` on $(date -u '+%Y-%m-%d %H:%M UTC'), matphot $(git rev-parse --short HEAD 2>/dev/null || echo '?'), $(nproc) processors (load $(cut -d' ' -f1-3 /proc/loadavg)).  Data: \`$REALDATA\` (MANIFEST.md).  Back to [REPORT.md](REPORT.md); the simulated frames: [PSFBUILD.md](PSFBUILD.md), [PSFPEERS.md](PSFPEERS.md); DECam with its PSFEx model against Gaia: [PSF_FILES.md](PSF_FILES.md)."
+    cat "$OUT/report.md"
+} > "$REP.tmp" && mv "$REP.tmp" "$REP"
+say "wrote $REP"
+exit $rc
