@@ -66,6 +66,6 @@ if [ "$ONLY" = real ]; then
 fi
 if [ "$ONLY" != paper ] && [ -f validate/REPORT.md ] &&
    ! grep -q '^## The staged reduction' validate/REPORT.md; then
-    printf '\n## The staged reduction\n\nThe crowded field: [CROWDED.md](CROWDED.md) (tests/validate/crowded).  The real frames: REAL.md after VALIDATE_ONLY=real (tests/validate/real).\n' >> validate/REPORT.md
+    printf '\n## The staged reduction\n\nThe crowded field: [CROWDED.md](CROWDED.md) (tests/validate/crowded).  The real frames: REAL.md after VALIDATE_ONLY=real (tests/validate/real).  The PSF built from the frame: [PSFBUILD.md](PSFBUILD.md), beside IRAF DAOPHOT and SExtractor + PSFEx: [PSFPEERS.md](PSFPEERS.md), on real frames: [PSFREAL.md](PSFREAL.md).\n' >> validate/REPORT.md
 fi
 exit $rc

@@ -182,18 +182,18 @@ done
 row() {
     f="$OUT/$1/$2.cat"
     [ -f "$f" ] || return 0
-    "$PSFB" match "$OUT/$1" "$2" > "$OUT/$1/$2.match" || { rc=1; return 0; }
-    "$PSFB" match "$OUT/$1" "$2" zp > "$OUT/$1/$2.zmatch" || { rc=1; return 0; }
+    "$PSFB" match "$OUT/$1" "$2" > "$OUT/$1/$2.peer" || { rc=1; return 0; }
+    "$PSFB" match "$OUT/$1" "$2" zp > "$OUT/$1/$2.zpeer" || { rc=1; return 0; }
     t="$OUT/$1/$2.time"; [ -f "$t" ] || t="$OUT/$1/$2.log"
     cpu=$(awk '/^cpu/ { printf "%.1f", $3 + $4 }' "$t" 2> /dev/null)
-    sc=$(sed -n 's/.*flux scale \([0-9.e+-]*\).*/\1/p' "$OUT/$1/$2.zmatch")
+    sc=$(sed -n 's/.*flux scale \([0-9.e+-]*\).*/\1/p' "$OUT/$1/$2.zpeer")
     echo
     echo "**$3** — $(cat "$OUT/$1/$2.cmd" 2> /dev/null); CPU ${cpu:-?} s; flux scale (true/measured, median of the two brightest bins) $sc"
     echo
     echo '| mag | true | found | completeness | phot/CRLB | astro/CRLB | phot/CRLB, scale removed |'
     echo '|---|---|---|---|---|---|---|'
-    grep ': -[0-9]' "$OUT/$1/$2.zmatch" > "$OUT/$1/$2.zrows"
-    grep ': -[0-9]' "$OUT/$1/$2.match" | paste -d'|' - "$OUT/$1/$2.zrows" | sed -n 's/^[^:]*: \(-[0-9][^|]*|[^|]*|[^|]*|[^|]*|[^|]*|[^|]*\)|[^:]*: -[^|]*|[^|]*|[^|]*|[^|]*| \([^|]*\) |.*$/| \1 | \2 |/p' | sed 's/  |/ |/g'
+    grep ': -[0-9]' "$OUT/$1/$2.zpeer" > "$OUT/$1/$2.zrows"
+    grep ': -[0-9]' "$OUT/$1/$2.peer" | paste -d'|' - "$OUT/$1/$2.zrows" | sed -n 's/^[^:]*: \(-[0-9][^|]*|[^|]*|[^|]*|[^|]*|[^|]*|[^|]*\)|[^:]*: -[^|]*|[^|]*|[^|]*|[^|]*| \([^|]*\) |.*$/| \1 | \2 |/p' | sed 's/  |/ |/g'
 }
 
 {
