@@ -52,7 +52,7 @@ $(BUILD)/params/defaults.o: $(BUILD)/params/defaults.c
 
 $(BUILD)/tests/%: tests/unit/%.c $(BUILD)/libmatphot.a
 	@mkdir -p $(dir $@)
-	$(CC) $(CPPFLAGS) $(CFLAGS) -o $@ $< $(BUILD)/libmatphot.a $(LDFLAGS) $(LDLIBS) -lcmocka
+	$(CC) $(CPPFLAGS) $(CFLAGS) -MMD -MP -o $@ $< $(BUILD)/libmatphot.a $(LDFLAGS) $(LDLIBS) -lcmocka
 
 deps:
 	@sh tools/deps.sh
@@ -123,4 +123,4 @@ fuzz-run: $(FUZZBIN)
 clean:
 	rm -rf build build-san matphot
 
--include $(LIBOBJ:.o=.d) $(BUILD)/pipeline/main.d
+-include $(LIBOBJ:.o=.d) $(BUILD)/pipeline/main.d $(UNITBIN:=.d)
