@@ -300,6 +300,18 @@ int mp_prf_cache_usable(const mp_prf_cache *c, const mp_prf_model *m);
 int mp_prf_cache_render(const mp_prf_cache *c, const mp_prf_model *m, double x, double y,
                         long x0, long y0, int w, int h, double *prf, double *ddx, double *ddy);
 
+/* A row span of detector pixels: [x0, x0 + n) of row y (1-based). */
+typedef struct {
+    long x0, y;
+    int n;
+} mp_span;
+
+/* mp_prf_cache_render_spans: as mp_prf_cache_render, on the pixels of ns
+ * spans only, their values one span after the other (Σ n of each array):
+ * a group fit renders its fitted pixels, not the box around them. */
+int mp_prf_cache_render_spans(const mp_prf_cache *c, const mp_prf_model *m, double x, double y,
+                              const mp_span *sp, int ns, double *prf, double *ddx, double *ddy);
+
 /* ---- Performance model (paper §2) ----------------------------------------- */
 
 typedef struct {
