@@ -40,7 +40,7 @@ static int resolve(const char *name, const mp_image *im, double dp, const char *
 
 void mp_datapars_read(const mp_parset *ps, mp_datapars *dp)
 {
-    *dp = (mp_datapars){NAN, NAN, NAN, NAN, "", 0, 0};
+    *dp = (mp_datapars){NAN, NAN, NAN, NAN, "", 0, 0, 0};
     mp_par_real(ps, "gain", &dp->gain);
     mp_par_real(ps, "rdnoise", &dp->rdnoise);
     mp_par_real(ps, "saturate", &dp->saturate);
@@ -54,6 +54,9 @@ void mp_datapars_read(const mp_parset *ps, mp_datapars *dp)
     v = 0;
     if (!mp_par_int(ps, "dqbad", &v) && v > 0)
         dp->dqbad = v;
+    v = 0;
+    if (!mp_par_int(ps, "satgrow", &v) && v > 0)
+        dp->satgrow = v;
 }
 
 /* The DQ image's name: "[EXT]" is an extension of the frame's own file
@@ -108,10 +111,38 @@ static int apply_dq(const char *name, const mp_datapars *dp, mp_frame *f, char *
     return rc;
 }
 
+/* The saturated pixels grown by g (datapars satgrow): a pixel within g
+ * (in x and in y) of one saturated by SATURATE or the DQ plane is
+ * saturated too, unless it is bad already.  From a copy, so that the
+ * growth does not feed on itself. */
+static int grow_saturated(mp_frame *f, int g, const char *name, char *err)
+{
+    long nx = f->im.nx, ny = f->im.ny, n = nx * ny;
+    uint8_t *m0 = malloc(n > 0 ? (size_t)n : 1);
+    if (!m0) {
+        snprintf(err, MP_ERRLEN, "%s: out of memory for the saturation mask", name);
+        return 1;
+    }
+    memcpy(m0, f->mask, n > 0 ? (size_t)n : 0);
+    for (long y = 0; y < ny; y++)
+        for (long x = 0; x < nx; x++) {
+            if (!(m0[y * nx + x] & MP_MASK_SATURATED))
+                continue;
+            for (long j = y - g > 0 ? y - g : 0; j <= y + g && j < ny; j++)
+                for (long i = x - g > 0 ? x - g : 0; i <= x + g && i < nx; i++)
+                    if (!f->mask[j * nx + i]) {
+                        f->mask[j * nx + i] = MP_MASK_SATURATED;
+                        f->nsat++;
+                    }
+        }
+    free(m0);
+    return 0;
+}
+
 int mp_frame_read(const char *name, const mp_datapars *dp, mp_frame *f, char *err)
 {
     memset(f, 0, sizeof *f);
-    const mp_datapars none = {NAN, NAN, NAN, NAN, "", 0, 0};
+    const mp_datapars none = {NAN, NAN, NAN, NAN, "", 0, 0, 0};
     if (!dp)
         dp = &none;
     if (mp_image_read(name, &f->im, err))
@@ -165,6 +196,8 @@ int mp_frame_read(const char *name, const mp_datapars *dp, mp_frame *f, char *er
         f->nsat += f->mask[i] == MP_MASK_SATURATED;
         f->im.pix[i] = adu * f->gain;
     }
+    if (dp->satgrow > 0 && f->nsat && grow_saturated(f, dp->satgrow, name, err))
+        goto fail;
     return 0;
 
 fail:

@@ -93,11 +93,15 @@ typedef struct {
      * a bit of dqsat set count as saturated.  "": none. */
     char dqmask[1024];
     long dqsat, dqbad;
+    /* satgrow: the pixels within this many (a square of side 2 satgrow
+     * + 1) of a saturated one count as saturated too: the charge next to
+     * a full well spills or is nonlinear, and no DQ plane flags it. */
+    int satgrow;
 } mp_datapars;
 
 struct mp_parset_s;
 /* mp_datapars_read: the datapars parameters (gain, rdnoise, saturate,
- * exptime, dqmask, dqsat, dqbad) of a task's parameter set; INDEF reals
+ * exptime, dqmask, dqsat, dqbad, satgrow) of a task's parameter set; INDEF reals
  * come back NaN (take the header's). */
 void mp_datapars_read(const struct mp_parset_s *ps, mp_datapars *dp);
 

@@ -401,7 +401,7 @@ static void test_frame_dq(void **state)
     char sci[720], err[MP_ERRLEN];
     snprintf(sci, sizeof sci, "%s[SCI]", path);
     mp_frame f;
-    mp_datapars dp = {NAN, NAN, NAN, NAN, "[DQ]", 2304, 16};
+    mp_datapars dp = {NAN, NAN, NAN, NAN, "[DQ]", 2304, 16, 0};
     assert_int_equal(mp_frame_read(sci, &dp, &f, err), 0);
     assert_int_equal(f.nsat, 2);
     assert_int_equal(f.nbad, 1);
@@ -411,6 +411,22 @@ static void test_frame_dq(void **state)
     assert_int_equal(f.mask[6], MP_MASK_BAD);
     assert_true(f.im.pix[6] == 0.0);
     mp_frame_free(&f);
+    /* satgrow = 1: the pixels within one (x and y) of the two saturated
+     * ones, x = 3..6 of rows 1 and 2, are saturated too (6 more); the bad
+     * pixel at x = 7 stays bad and row 3 is untouched. */
+    dp.satgrow = 1;
+    assert_int_equal(mp_frame_read(sci, &dp, &f, err), 0);
+    assert_int_equal(f.nsat, 8);
+    assert_int_equal(f.nbad, 1);
+    for (int x = 3; x <= 6; x++)
+        for (int y = 1; y <= 2; y++)
+            assert_int_equal(f.mask[(y - 1) * NX + x - 1], MP_MASK_SATURATED);
+    assert_int_equal(f.mask[1], 0);
+    assert_int_equal(f.mask[6], MP_MASK_BAD);
+    assert_int_equal(f.mask[NX + 6], 0);
+    assert_int_equal(f.mask[2 * NX + 3], 0);
+    mp_frame_free(&f);
+    dp.satgrow = 0;
     /* A section of the frame applies to the DQ plane too: x 1..5 of row 1
      * holds the two saturated pixels (x = 4, 5), not the hot one (x = 7). */
     snprintf(sci, sizeof sci, "%s[SCI][1:5,1:2]", path);
@@ -457,7 +473,7 @@ static void test_frame(void **state)
     assert_int_equal(mp_image_write(path, pix, NX, NY, -32, cards, 4, err), 0);
 
     mp_frame f;
-    const mp_datapars none = {NAN, NAN, NAN, NAN, "", 0, 0};
+    const mp_datapars none = {NAN, NAN, NAN, NAN, "", 0, 0, 0};
     assert_int_equal(mp_frame_read(path, &none, &f, err), 0);
     assert_true(f.gain == 2.0 && f.rdnoise == 5.0 && f.saturate == 1000.0 && f.exptime == 30.0);
     assert_int_equal(f.nbad, 1);
@@ -473,7 +489,7 @@ static void test_frame(void **state)
     mp_frame_free(&f);
 
     /* datapars wins over the header; NULL datapars means all from header. */
-    const mp_datapars dp = {4.0, 1.0, NAN, 2.0, "", 0, 0};
+    const mp_datapars dp = {4.0, 1.0, NAN, 2.0, "", 0, 0, 0};
     assert_int_equal(mp_frame_read(path, &dp, &f, err), 0);
     assert_true(f.gain == 4.0 && f.rdnoise == 1.0 && f.saturate == 1000.0 && f.exptime == 2.0);
     assert_true(f.im.pix[5] == 4.0 * pix[5]);
@@ -491,11 +507,11 @@ static void test_frame(void **state)
     mp_frame_free(&f);
 
     /* Bad detector numbers, named. */
-    const mp_datapars badgain = {0.0, NAN, NAN, NAN, "", 0, 0};
+    const mp_datapars badgain = {0.0, NAN, NAN, NAN, "", 0, 0, 0};
     assert_int_not_equal(mp_frame_read(path, &badgain, &f, err), 0);
     assert_true(strncmp(err, "gain: ", 6) == 0);
     assert_null(f.mask);
-    const mp_datapars badron = {NAN, -1.0, NAN, NAN, "", 0, 0};
+    const mp_datapars badron = {NAN, -1.0, NAN, NAN, "", 0, 0, 0};
     assert_int_not_equal(mp_frame_read(path, &badron, &f, err), 0);
     assert_true(strncmp(err, "rdnoise: ", 9) == 0);
     const mp_card neg[] = {{"GAIN", -2.0, NULL, NULL}};

@@ -243,6 +243,7 @@ done
     for f in tuc glimpse; do
         if [ -f "$OUT/$f.md" ]; then cat "$OUT/$f.md"; fi
     done
+    cat tests/validate/real/psfreal_notes.md
 } | sed "s|$REALDATA|$REALDATA0|g; s|$OUT/|$BUILD/validate/psfreal/|g" > "$REP.tmp" && mv "$REP.tmp" "$REP"
 say "wrote $REP"
 exit $rc
