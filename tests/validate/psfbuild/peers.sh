@@ -215,6 +215,7 @@ row() {
             else echo; echo "SExtractor + PSFEx degree $v: skipped (source-extractor or psfex not installed)"; fi
         done
     done
+    cat tests/validate/psfbuild/peers_notes.md
 } > "$REP.tmp" && mv "$REP.tmp" "$REP"
 say "wrote $REP"
 exit $rc

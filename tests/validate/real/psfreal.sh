@@ -64,11 +64,15 @@ tuc() {
     IMG="${F}[SCI]$SEC"
     T="$OUT/tuc"
     mkdir -p "$T"
-    say "47 Tuc: matphot pipeline, no psf="
-    set -- pipeline "$IMG" root="$T/mp" gain=1 rdnoise=4.71 saturate=151553.98 'dqmask=[DQ]' dqsat=2304
-    timed "$T/mp.log" "$MP" "$@" || { tail -n 3 "$T/mp.log" >&2; rc=1; return 0; }
-    # The noise model against the FLT's ERR plane (calacs: Poisson, read
-    # noise, flat field): ERR^2 / (max(SCI, 0) + RON^2) over the pixels.
+    # mp: the detector's values only; mpg: and the saturation mask grown
+    # by one pixel (datapars satgrow).
+    for v in mp mpg; do
+        say "47 Tuc: matphot pipeline, no psf= ($v)"
+        set -- pipeline "$IMG" root="$T/$v" gain=1 rdnoise=4.71 saturate=151553.98 'dqmask=[DQ]' dqsat=2304
+        [ $v = mpg ] && set -- "$@" satgrow=1
+        echo "./matphot $*" | sed "s|root=$T/$v|root=R|; s|$REALDATA|$REALDATA0|" > "$T/$v.cmd"
+        timed "$T/$v.log" "$MP" "$@" || { tail -n 3 "$T/$v.log" >&2; rc=1; return 0; }
+    done
     "$OUT/psfb" noise "${F}[SCI]$SEC" "${F}[ERR]$SEC" 4.71 > "$T/noise.txt" || rc=1
     if [ -n "$HAVE_IRAF" ]; then
         say "47 Tuc: IRAF DAOPHOT"
@@ -78,29 +82,29 @@ tuc() {
     echo
     echo "## 47 Tuc, ACS/HRC F606W crop $SEC, no PSF given"
     echo
-    echo "Run $(date -u '+%Y-%m-%d %H:%M UTC'), load $(cut -d' ' -f1-3 /proc/loadavg)."
-    echo
-    echo '```'
-    echo "./matphot pipeline '$IMG' root=R gain=1 rdnoise=4.71 saturate=151553.98 'dqmask=[DQ]' dqsat=2304"
-    echo '```'
-    echo
-    echo "$(cpu_of "$T/mp.log").  The frame's units: BUNIT = ELECTRONS (SCI header), so gain = 1; read noise READNSEC = 4.71 e-.  Noise model against the FLT's own ERR plane (the variance calacs propagated; \`psfb noise SCI ERR 4.71\`):"
+    echo "Run $(date -u '+%Y-%m-%d %H:%M UTC'), load $(cut -d' ' -f1-3 /proc/loadavg).  The frame's units: BUNIT = ELECTRONS (SCI header), so gain = 1; read noise READNSEC = 4.71 e-.  Noise model against the FLT's own ERR plane (the variance calacs propagated; \`psfb noise SCI ERR 4.71\`):"
     echo
     echo '```'
     cat "$T/noise.txt"
     echo '```'
-    echo
-    echo "The PSF the pipeline built (its report):"
-    echo
-    echo '```'
-    grep -h 'PSF pass\|OVERSAMP\|psf:' "$T/mp.log" | cut -c1-400 | head -n 6
-    echo '```'
-    echo
-    echo "Median CHI2_PSF $(colq "$T/mp.cat" CHI2_PSF 0.5) (quartiles $(colq "$T/mp.cat" CHI2_PSF 0.25), $(colq "$T/mp.cat" CHI2_PSF 0.75)) over $(grep -vc '^#' "$T/mp.cat") stars.  Where it comes from (\`psfb chi2 CAT\`: median CHI2_PSF by flux and by group size; a PSF profile error of a fraction e of the light adds about e^2 E / (4 pi s^2) per pixel-variance near the peak, so it grows with the flux, while neighbours and the noise model do not):"
-    echo
-    echo '```'
-    "$OUT/psfb" chi2 "$T/mp.cat"
-    echo '```'
+    for v in mp mpg; do
+        echo
+        echo '```'
+        cat "$T/$v.cmd"
+        echo '```'
+        echo
+        echo "$(cpu_of "$T/$v.log").  The PSF it built (its report):"
+        echo
+        echo '```'
+        grep -h 'PSF pass' "$T/$v.log" | sed 's/^[^:]*: [^:]*: //' | cut -c1-400
+        echo '```'
+        echo
+        echo "Median CHI2_PSF **$(colq "$T/$v.cat" CHI2_PSF 0.5)** (quartiles $(colq "$T/$v.cat" CHI2_PSF 0.25), $(colq "$T/$v.cat" CHI2_PSF 0.75)) over $(grep -vc '^#' "$T/$v.cat") stars.  Where it comes from (\`psfb chi2 CAT\`: by flux, by whether the group holds a saturated star, by group size; a PSF profile error makes CHI2 grow with the flux, neighbours and the noise model do not):"
+        echo
+        echo '```'
+        "$OUT/psfb" chi2 "$T/$v.cat"
+        echo '```'
+    done
     if [ -n "$HAVE_IRAF" ] && [ -f "$T/dao/dao.cat" ]; then
         echo
         echo "IRAF DAOPHOT on the same pixels ($(cat "$T/dao/cmd.txt")); $(awk '/^cpu/ { printf "%.0f s wall", $2 }' "$T/dao/time")."
@@ -109,13 +113,16 @@ tuc() {
         echo
         echo '| residual | pixels near matphot'"'"'s stars | pixels near DAOPHOT'"'"'s stars | pixels near either |'
         echo '|---|---|---|---|'
-        for r in mp dao; do
-            res="$T/mp.res.fits"; [ $r = dao ] && res="$T/dao/im.sub2.fits"
+        for r in mp mpg dao; do
+            res="$T/$r.res.fits"; [ $r = dao ] && res="$T/dao/im.sub2.fits"
             a=$("$OUT/psfb" resid "$IMG" "$res" "$T/mp.cat" 3 4.71 | sed -n 's/.*residual \([0-9.]*\),.*/\1/p')
             b=$("$OUT/psfb" resid "$IMG" "$res" "$T/dao/dao.cat" 3 4.71 | sed -n 's/.*residual \([0-9.]*\),.*/\1/p')
             c=$("$OUT/psfb" resid "$IMG" "$res" "$T/mp.cat" 3 4.71 "$T/dao/dao.cat" | sed -n 's/.*residual \([0-9.]*\),.*/\1/p')
-            [ $r = mp ] && n="matphot, its own PSF ($(grep -vc '^#' "$T/mp.cat") stars)" ||
-                n="IRAF DAOPHOT ($(grep -vc '^#' "$T/dao/dao.cat") stars)"
+            case $r in
+            mp) n="matphot, its own PSF ($(grep -vc '^#' "$T/mp.cat") stars)" ;;
+            mpg) n="matphot, its own PSF, satgrow=1 ($(grep -vc '^#' "$T/mpg.cat") stars)" ;;
+            *) n="IRAF DAOPHOT ($(grep -vc '^#' "$T/dao/dao.cat") stars)" ;;
+            esac
             echo "| $n | $a | $b | $c |"
         done
         echo
