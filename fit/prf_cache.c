@@ -342,7 +342,7 @@ double mp_prf_cache_limit(const mp_prf_cache *c, double B, double ron, double fr
         return 0.0;
     if (mp_prf_cache_bound(c, hi, B, ron) <= frac)
         return INFINITY;
-    for (int it = 0; it < 60; it++) {       /* 60 halvings of 18 decades: < 1e-9 relative */
+    for (int it = 0; it < MP_SINC_LIMITS_EVALS - 2; it++) {  /* 18 decades: E to 0.25 % */
         double mid = sqrt(lo * hi);
         if (mp_prf_cache_bound(c, mid, B, ron) <= frac)
             lo = mid;
