@@ -133,10 +133,9 @@ static double sinc_build_ops(int nx, int ny, int os, int hw)
     return NPH * s;
 }
 
-static econ_cost cost_sinc(const mp_econ_cache *c, double fits, double W)
+/* The kernel choice of table p (the model's, or a coarser level's). */
+static econ_cost cost_sinc(const mp_psf *p, int hw, double fits, double W)
 {
-    const mp_psf *p = &c->psf0;
-    int hw = c->model0.sinc_hw;
     econ_cost k;
     k.build = sinc_build_ops(p->nx, p->ny, p->os, hw);
     k.decide = min_evals(fits, MP_SINC_LIMITS_EVALS) * hw * 3.0 * NPH * box_pixels(p);
@@ -144,7 +143,10 @@ static econ_cost cost_sinc(const mp_econ_cache *c, double fits, double W)
     return k;
 }
 
-static econ_cost cost_level(const mp_econ_cache *c, int l, int with_sinc, double fits, double W)
+/* A coarser level's bias table: what fitting with it saves against the
+ * model's table at the full kernel (its own kernel choice is decided as
+ * the model's is, on its own table: cost_sinc). */
+static econ_cost cost_level(const mp_econ_cache *c, int l, double fits, double W)
 {
     const mp_psf *p = &c->psf0;
     int f = p->os / c->lev_os[l], hw = c->model0.sinc_hw, nx, ny;
@@ -154,11 +156,7 @@ static econ_cost cost_level(const mp_econ_cache *c, int l, int with_sinc, double
     econ_cost k;
     k.build = NPH * (psf_ops(p, hw, 1, INFINITY) + render_ops(nx, ny, os, hw, 0, INFINITY));
     k.decide = min_evals(fits, MP_SS_LIMITS_EVALS) * 22.0 * NPH * npix;
-    if (with_sinc) {
-        k.build += sinc_build_ops(nx, ny, os, hw);
-        k.decide += min_evals(fits, MP_SINC_LIMITS_EVALS) * hw * 3.0 * NPH * npix;
-    }
-    k.save = psf_ops(p, hw, 1, W) - render_ops(nx, ny, os, with_sinc ? 0 : hw, 1, W);
+    k.save = psf_ops(p, hw, 1, W) - render_ops(nx, ny, os, hw, 1, W);
     return k;
 }
 
@@ -194,40 +192,45 @@ static int build_sinc(mp_econ_cache *c, char *err)
     return rc;
 }
 
-/* Level l: the table block-summed, its bias table (fit/ss_choice.c), its
- * own kernel choice when with_sinc, and, for a variable PSF, the field
- * block-summed alike (the fit reads it at each star, fit_frame.c). */
-static int build_level(mp_econ_cache *c, int l, int with_sinc, char *err)
+/* Level l: the table block-summed, its bias table (fit/ss_choice.c) and,
+ * for a variable PSF, the field block-summed alike (the fit reads it at
+ * each star, fit_frame.c). */
+static int build_level(mp_econ_cache *c, int l, char *err)
 {
     mp_ss_level *lv = &c->ss[l];
     int hw = c->model0.sinc_hw;
-    if (!c->lev_state[l]) {
-        int f = c->psf0.os / c->lev_os[l];
-        int rc = mp_ss_level_build(&c->model0, f, 0, lv, err);
-        if (!rc && c->field) {
-            rc = mp_psf_field_rebin(c->field, f, &lv->field, err);
-            lv->psf.field = rc ? NULL : &lv->field;
-        }
-        if (rc) {
-            c->lev_state[l] = ECON_FAILED;
-            return 1;
-        }
-        lv->os = c->lev_os[l];
-        c->lev_state[l] = ECON_BUILT;
-        c->spent += NPH * (psf_ops(&c->psf0, hw, 1, INFINITY) + psf_ops(&lv->psf, hw, 0, INFINITY));
+    if (c->lev_state[l])
+        return c->lev_state[l] < 0;
+    int f = c->psf0.os / c->lev_os[l];
+    int rc = mp_ss_level_build(&c->model0, f, 0, lv, err);
+    if (!rc && c->field) {
+        rc = mp_psf_field_rebin(c->field, f, &lv->field, err);
+        lv->psf.field = rc ? NULL : &lv->field;
     }
-    if (c->lev_state[l] < 0)
+    if (rc) {
+        c->lev_state[l] = ECON_FAILED;
         return 1;
-    if (with_sinc && !lv->sinc.d2 && lv->sinc.hwmax == 0) {
-        /* Measured on the level's table at the origin (field off). */
-        mp_prf_model mo = lv->model;
-        mp_psf po = lv->psf;
-        po.field = NULL;
-        mo.psf = &po;
-        if (mp_sinc_choice_build(&mo, &lv->sinc, err))
-            return 1;
-        c->spent += sinc_build_ops(lv->psf.nx, lv->psf.ny, lv->psf.os, hw);
     }
+    lv->os = c->lev_os[l];
+    c->lev_state[l] = ECON_BUILT;
+    c->spent += NPH * (psf_ops(&c->psf0, hw, 1, INFINITY) + psf_ops(&lv->psf, hw, 0, INFINITY));
+    return 0;
+}
+
+/* Level l's own kernel choice, measured on its table at the origin (field
+ * off), as a run given that table (psfos) would measure it. */
+static int build_level_sinc(mp_econ_cache *c, int l, char *err)
+{
+    mp_ss_level *lv = &c->ss[l];
+    if (lv->sinc.d2 || lv->sinc.hwmax > 0)
+        return 0;
+    mp_prf_model mo = lv->model;
+    mp_psf po = lv->psf;
+    po.field = NULL;
+    mo.psf = &po;
+    if (mp_sinc_choice_build(&mo, &lv->sinc, err))
+        return 1;
+    c->spent += sinc_build_ops(lv->psf.nx, lv->psf.ny, lv->psf.os, c->model0.sinc_hw);
     return 0;
 }
 
@@ -251,18 +254,22 @@ static int choose_locked(mp_econ_cache *c, double fits, double fitrad, mp_frame_
 {
     double W = isfinite(fitrad) ? 2.0 * ceil(fitrad) + 3.0 : INFINITY;
     c->fits_max = fits > c->fits_max ? fits : c->fits_max;
-    int sinc = c->want_sinc && !o->sinc && pays(cost_sinc(c, fits, W), fits);
-    if (sinc) {
+    int hw = c->model0.sinc_hw;
+    if (c->want_sinc && !o->sinc && pays(cost_sinc(&c->psf0, hw, fits, W), fits)) {
         if (build_sinc(c, err))
             return 1;
         o->sinc = c->sinc.nph > 0 ? &c->sinc : NULL;
     }
     /* Coarsest first: a coarser level saves more and costs less than a
-     * finer one, so the levels that pay are a prefix. */
+     * finer one, so the levels that pay are a prefix.  Each level's
+     * kernel choice pays or not on its own table, as the model's does. */
     if (!o->ss && c->nlev > 0) {
         int n = 0;
-        while (n < c->nlev && pays(cost_level(c, n, sinc, fits, W), fits)) {
-            if (build_level(c, n, o->sinc != NULL, err))
+        while (n < c->nlev && pays(cost_level(c, n, fits, W), fits)) {
+            if (build_level(c, n, err))
+                return 1;
+            if (c->want_sinc && pays(cost_sinc(&c->ss[n].psf, hw, fits, W), fits) &&
+                build_level_sinc(c, n, err))
                 return 1;
             n++;
         }

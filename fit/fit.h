@@ -166,7 +166,8 @@ int mp_sinc_choice_pick(const double *emax, int hwmax, double E);
  * the linearised bias it causes in the fit of (flux, x, y, sky) is ≤ frac
  * of each parameter's Cramér–Rao σ at every phase, and the part of E·δP the
  * fit cannot absorb raises χ² by λ ≤ MP_SS_CHI2MAX (fit/ss_choice.c).
- * sinc is the coarse model's own kernel-length table.  model points into
+ * sinc is the coarse model's own kernel-length table (not built: the
+ * full kernel for that level).  model points into
  * psf: build in place, do not copy. */
 typedef struct {
     int nph;               /* phases */

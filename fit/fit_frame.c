@@ -1136,7 +1136,7 @@ int mp_fit_table_mem(const mp_frame *f, const mp_prf_model *m, const mp_frame_op
     for (int l = 0; l < R.nss; l++)
         nomem |= level_init(&R.level[l], &R.ss[l], bsky, f->rdnoise, o->ssfrac, ng, o->cache,
                             runfits, rep) ||
-                 rule_init(&R.kern[l], o->sinc ? &R.ss[l].sinc : NULL, bsky, f->rdnoise,
+                 rule_init(&R.kern[l], R.ss[l].sinc.d2 ? &R.ss[l].sinc : NULL, bsky, f->rdnoise,
                            o->sincfrac, ng, o->cache, runfits, rep);
     /* Economy: the largest flux the phase grid serves within the kernel's
      * bound, on the same sky. */
