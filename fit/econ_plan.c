@@ -16,10 +16,15 @@
  * (render_ops below).  The saving is an upper bound (every star served by
  * the table's cheapest option), so a table that cannot pay is never built;
  * the run report counts what the tables cost and what they saved.  fits is
- * the run's (an @list's stars, mp_frame_opts.fits) or the frame's own,
- * never the history of the run, so a frame's fit does not depend on the
- * frames before it or on the order threads reach it.  Once built, a table
- * is kept for the run. */
+ * the run's (an @list's stars, mp_frame_opts.fits) or the frame's own; in
+ * a sequential run (mp_frame_opts.learn: fit's @list, the pipeline) the
+ * exact-render work its fits have already done counts too, times the
+ * fraction of a render the table saves (mp_econ_learn, after each pass),
+ * so a run whose fits take many iterations and wide windows (real frames
+ * at χ²/dof ≫ 1, crowded groups) builds its tables once they would have
+ * paid — never more than twice the work of knowing its length in advance.  Frames fitted in parallel
+ * (fakes) plan on their count alone, so that no fit depends on the order
+ * threads reach it.  Once built, a table is kept for the run. */
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -174,9 +179,14 @@ static econ_cost cost_grid(const mp_econ_cache *c, double fits, double W)
     return k;
 }
 
-static int pays(econ_cost k, double fits)
+/* learned: the exact-render work already done in a sequential run, of
+ * which the table would have saved the fraction save/full. */
+static int pays(econ_cost k, double fits, double learned, double full)
 {
-    return fits * MP_ECON_RENDERS_PER_FIT * k.save >= k.build + k.decide && k.save > 0;
+    double gain = fits * MP_ECON_RENDERS_PER_FIT * k.save;
+    if (learned > 0 && full > 0)
+        gain += learned * k.save / full;
+    return k.save > 0 && gain >= k.build + k.decide;
 }
 
 /* ---- Building ------------------------------------------------------------ */
@@ -253,9 +263,12 @@ static int choose_locked(mp_econ_cache *c, double fits, double fitrad, mp_frame_
                          char *err)
 {
     double W = isfinite(fitrad) ? 2.0 * ceil(fitrad) + 3.0 : INFINITY;
+    /* What the run has already rendered counts too (a sequential run's own
+     * history: deterministic). */
+    double learned = o->learn ? c->ops_done : 0.0, full = psf_ops(&c->psf0, c->model0.sinc_hw, 1, W);
     c->fits_max = fits > c->fits_max ? fits : c->fits_max;
     int hw = c->model0.sinc_hw;
-    if (c->want_sinc && !o->sinc && pays(cost_sinc(&c->psf0, hw, fits, W), fits)) {
+    if (c->want_sinc && !o->sinc && pays(cost_sinc(&c->psf0, hw, fits, W), fits, learned, full)) {
         if (build_sinc(c, err))
             return 1;
         o->sinc = c->sinc.nph > 0 ? &c->sinc : NULL;
@@ -265,10 +278,10 @@ static int choose_locked(mp_econ_cache *c, double fits, double fitrad, mp_frame_
      * kernel choice pays or not on its own table, as the model's does. */
     if (!o->ss && c->nlev > 0) {
         int n = 0;
-        while (n < c->nlev && pays(cost_level(c, n, fits, W), fits)) {
+        while (n < c->nlev && pays(cost_level(c, n, fits, W), fits, learned, full)) {
             if (build_level(c, n, err))
                 return 1;
-            if (c->want_sinc && pays(cost_sinc(&c->ss[n].psf, hw, fits, W), fits) &&
+            if (c->want_sinc && pays(cost_sinc(&c->ss[n].psf, hw, fits, W), fits, learned, full) &&
                 build_level_sinc(c, n, err))
                 return 1;
             n++;
@@ -276,7 +289,7 @@ static int choose_locked(mp_econ_cache *c, double fits, double fitrad, mp_frame_
         o->ss = n ? c->ss : NULL;
         o->nss = n;
     }
-    if (!o->grid && c->grid_g > 0 && pays(cost_grid(c, fits, W), fits)) {
+    if (!o->grid && c->grid_g > 0 && pays(cost_grid(c, fits, W), fits, learned, full)) {
         if (build_grid(c, err))
             return 1;
         o->grid = c->grid.G > 0 ? &c->grid : NULL;
@@ -300,6 +313,14 @@ int mp_econ_choose(mp_econ_cache *c, double fits, double fitrad, mp_frame_opts *
             *spent = c->spent - before;
     }
     return rc;
+}
+
+void mp_econ_learn(mp_econ_cache *c, double ops)
+{
+    if (!c || !(ops > 0))
+        return;
+#pragma omp critical(mp_econ_cache)
+    c->ops_done += ops;
 }
 
 double mp_econ_render_ops(const mp_prf_model *m, int hw, double fitrad)

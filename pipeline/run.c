@@ -149,6 +149,9 @@ static void count_fit(mp_pipeline_report *rep, const mp_frame_report *fr, size_t
     rep->khw += fr->khw;
     rep->kbounds += fr->kbounds;
     rep->kcoarse += fr->kcoarse;
+    rep->ops_tables += fr->ops_tables;
+    rep->ops_saved += fr->ops_saved;
+    rep->ops_render = fr->ops_render;
     rep->kcache += fr->kcache;
     rep->envelopes += fr->envelopes;
     rep->ngroups = fr->ngroups;
