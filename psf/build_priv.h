@@ -14,6 +14,7 @@ typedef struct {
     size_t nstar, nel;
     double *G, *H;         /* nstar × nel */
     double *a, *b, *tmp;   /* nel each */
+    unsigned char *mask;   /* nstar × nel: MP_EPSF_MASKED, MP_EPSF_HIT */
     double *prf;           /* a star's box */
     size_t nprf;
     mp_prf_work pw;
@@ -23,7 +24,22 @@ typedef struct {
     int steps;             /* steps taken by the last mp_epsf_sirt_run */
 } mp_epsf_sirt;
 
+/* Bits of mp_epsf_sirt.mask per star and element: left out of the
+ * combination (a neighbour's light is there, mp_epsf_sirt_dilate), and
+ * above 4 robust σ of the other stars in the last step. */
+enum { MP_EPSF_MASKED = 1, MP_EPSF_HIT = 2 };
+
 int mp_epsf_sirt_init(mp_epsf_sirt *w, const mp_epsf *e, size_t nstar, char *err);
+
+/* mp_epsf_sirt_dilate: each used star's MP_EPSF_MASKED elements become
+ * those within a square of half-width rd elements of a cluster of its
+ * MP_EPSF_HIT elements (an element hit with at least min(3, os²) − 1 hit
+ * among its 8 neighbours: one pixel's light reaches os² elements, so a
+ * lone hit is noise), and the hits are cleared: what only one star
+ * shows beyond its core, a neighbour too faint to be found, is left out
+ * of that star's share of the table, its wings with it (the 4 σ clip
+ * takes only its core). */
+void mp_epsf_sirt_dilate(mp_epsf_sirt *w, const mp_epsf *e, size_t n, double rd);
 void mp_epsf_sirt_free(mp_epsf_sirt *w);
 
 /* mp_epsf_sirt_run: up to o->sirt steps on e's planes from the used stars'
@@ -48,6 +64,11 @@ int mp_epsf_wiener_measure(const mp_epsf *e, const mp_epsf *noise, double *w, in
 /* mp_epsf_wiener_apply: every plane of e filtered by w (per cycles per
  * pixel, so any OVERSAMP).  Nonzero on out of memory. */
 int mp_epsf_wiener_apply(mp_epsf *e, const double *w, int nbin);
+
+/* mp_epsf_refit: every used star (and its neighbours) fitted again with
+ * table e as it now is (after a filter or a new order), e->nstar the
+ * stars still used: fluxes that go with the table (growth.c). */
+int mp_epsf_refit(mp_epsf_star *s, size_t n, const mp_epsf_opts *o, mp_epsf *e, char *err);
 
 /* mp_epsf_median: the median of v[0..n) (reorders v). */
 double mp_epsf_median(double *v, size_t n);
