@@ -17,7 +17,7 @@
  * the table's cheapest option), so a table that cannot pay is never built;
  * the run report counts what the tables cost and what they saved.  fits is
  * the run's (an @list's stars, mp_frame_opts.fits) or the frame's own; in
- * a sequential run (mp_frame_opts.learn: fit's @list, the pipeline) the
+ * a pipeline frame (mp_frame_opts.learn: its rounds and passes) the
  * exact-render work its fits have already done counts too, times the
  * fraction of a render the table saves (mp_econ_learn, after each pass),
  * so a run whose fits take many iterations and wide windows (real frames
@@ -277,17 +277,22 @@ static int choose_locked(mp_econ_cache *c, double fits, double fitrad, mp_frame_
      * finer one, so the levels that pay are a prefix.  Each level's
      * kernel choice pays or not on its own table, as the model's does. */
     if (!o->ss && c->nlev > 0) {
-        int n = 0;
+        int n = 0, bits = 0;
         while (n < c->nlev && pays(cost_level(c, n, fits, W), fits, learned, full)) {
             if (build_level(c, n, err))
                 return 1;
-            if (c->want_sinc && pays(cost_sinc(&c->ss[n].psf, hw, fits, W), fits, learned, full) &&
-                build_level_sinc(c, n, err))
-                return 1;
+            /* Decided for this frame, like every table: one built for an
+             * earlier frame serves only where this frame's count pays. */
+            if (c->want_sinc && pays(cost_sinc(&c->ss[n].psf, hw, fits, W), fits, learned, full)) {
+                if (build_level_sinc(c, n, err))
+                    return 1;
+                bits |= 1 << n;
+            }
             n++;
         }
         o->ss = n ? c->ss : NULL;
         o->nss = n;
+        o->ss_sinc = bits;
     }
     if (!o->grid && c->grid_g > 0 && pays(cost_grid(c, fits, W), fits, learned, full)) {
         if (build_grid(c, err))
@@ -321,6 +326,14 @@ void mp_econ_learn(mp_econ_cache *c, double ops)
         return;
 #pragma omp critical(mp_econ_cache)
     c->ops_done += ops;
+}
+
+void mp_econ_forget(mp_econ_cache *c)
+{
+    if (!c)
+        return;
+#pragma omp critical(mp_econ_cache)
+    c->ops_done = 0.0;
 }
 
 double mp_econ_render_ops(const mp_prf_model *m, int hw, double fitrad)

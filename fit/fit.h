@@ -463,6 +463,9 @@ typedef struct {
                         * else with the model's table (neighbours are painted
                         * with the model's table) */
     int nss;
+    int ss_sinc;       /* bit l: level l's own kernel choice (ss[l].sinc) is
+                        * used when built (default all; mp_econ_choose sets
+                        * the levels' whose choice pays for this frame) */
     double ssfrac;
     mp_econ_cache *cache;  /* economy: the run's tables, built when they pay
                         * (mp_econ_choose), and the choices' flux limits
@@ -471,10 +474,10 @@ typedef struct {
                         * stars); a frame plans for the larger of this and
                         * its own stars (0: its own) */
     int learn;         /* economy: the LM renders this run has already done
-                        * count toward a table's pay-off too (a sequential
-                        * run: fit's @list, the pipeline's rounds and
-                        * passes); 0 where frames are fitted in parallel
-                        * (fakes), whose counts would depend on timing */
+                        * count toward a table's pay-off too (the pipeline's
+                        * rounds and passes of a frame); 0 where the plan
+                        * knows the run (fit's @list) and where frames are
+                        * fitted in parallel (fakes: timing) */
     double psfdx, psfdy;  /* a sub-image's pixel (1, 1) is the PSF field's
                         * (1 + psfdx, 1 + psfdy) (mp_fit_setup_local): the
                         * run's coarser levels read a variable PSF there */
@@ -514,6 +517,12 @@ int mp_econ_choose(mp_econ_cache *c, double fits, double fitrad, mp_frame_opts *
  * a render the table saves, would have paid for it (at most twice the
  * work of knowing the run's length in advance). */
 void mp_econ_learn(mp_econ_cache *c, double ops);
+
+/* mp_econ_forget: the learned work back to 0, for a run whose every frame
+ * must come out as it would alone (the pipeline: an @list's frame is
+ * byte-identical to its own job's); tables already built stay, used only
+ * where this frame's own count pays for them. */
+void mp_econ_forget(mp_econ_cache *c);
 
 /* The plan's unit: multiply-adds of one LM render (with derivatives) of
  * model m at half-width hw over a fitting window of radius fitrad (NaN:

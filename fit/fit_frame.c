@@ -24,6 +24,7 @@ void mp_frame_opts_default(mp_frame_opts *o)
     o->grid = NULL;
     o->ss = NULL;
     o->nss = 0;
+    o->ss_sinc = ~0;
     o->ssfrac = 0.1;
     o->cache = NULL;
     o->fits = 0.0;
@@ -1087,7 +1088,8 @@ static int rules_setup(frame_rules *R, const mp_frame *f, const mp_frame_opts *o
     for (int l = 0; l < R->nss; l++)
         nomem |= level_init(&R->level[l], &R->ss[l], bsky, f->rdnoise, o->ssfrac, ng, o->cache,
                             runfits, rep) ||
-                 rule_init(&R->kern[l], R->ss[l].sinc.d2 ? &R->ss[l].sinc : NULL, bsky,
+                 rule_init(&R->kern[l],
+                           ((o->ss_sinc >> l) & 1) && R->ss[l].sinc.d2 ? &R->ss[l].sinc : NULL, bsky,
                            f->rdnoise, o->sincfrac, ng, o->cache, runfits, rep);
     /* Economy: the largest flux the phase grid serves within the kernel's
      * bound, on the same sky. */
