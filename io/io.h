@@ -136,7 +136,12 @@ int mp_out_open(mp_outfile *o, const char *path, char *err);
 int mp_out_commit(mp_outfile *o, char *err);   /* flush, close, rename */
 void mp_out_abort(mp_outfile *o);              /* close, unlink temporary */
 
-/* mp_tmp_name: the temporary name used for path (caller frees). */
+/* mp_tmp_name: the temporary name used for path, "<dir>/.<base>.tmp.<host>.<pid>"
+ * (caller frees; NULL when out of memory).  It first removes the
+ * temporaries of the same path that killed runs on this host left behind
+ * (SIGKILL cannot be caught: cleanup.c's handler never ran), those whose
+ * pid no longer exists, so a resubmitted job leaves its directory as a
+ * clean run does. */
 char *mp_tmp_name(const char *path);
 
 /* Interrupted runs (io/cleanup.c).  The writers above (and the FITS table

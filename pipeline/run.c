@@ -74,18 +74,28 @@ static void state_free(run_state *s)
     mp_frame_free(&s->f);
 }
 
-/* The frame, and room for its residual. */
+/* The frame. */
 static int read_frame(run_state *s, char *err)
 {
     double t0 = mp_seconds();
     if (mp_frame_read(s->image, &s->o->fit.dp, &s->f, err))
         return 1;
     s->rep->t_read = mp_seconds() - t0;
-    size_t npix = (size_t)s->f.im.nx * s->f.im.ny;
-    if (!(s->res = malloc(npix * sizeof *s->res))) {
+    return 0;
+}
+
+/* Room for the residual, taken when the first fit needs it (not while the
+ * first detection holds its maps), and lent to the fit for its model of
+ * every star until mp_fit_residual draws the residual into it: the peak
+ * is then the frame, its mask and one more image (issue 14). */
+static int need_residual(run_state *s, char *err)
+{
+    size_t npix = (size_t)s->f.im.nx * (size_t)s->f.im.ny;
+    if (!s->res && !(s->res = malloc((npix ? npix : 1) * sizeof *s->res))) {
         snprintf(err, MP_ERRLEN, "%s: out of memory for the residual", s->image);
         return 1;
     }
+    mp_fit_memory_scratch(s->mem, s->res, npix);
     return 0;
 }
 
@@ -119,6 +129,7 @@ static int find_stars(run_state *s, char *err)
         return 1;
     if (screen(s, &s->f, s->f.im.pix, &s->t))
         return oom(err);
+    mp_bkg_free(&s->bkg);        /* the fit needs no map: memory for its model */
     mp_pl_drop_unset(&s->t);
     s->rep->t_find += mp_seconds() - t0;
     s->rep->found = (long)s->t.nrow;
@@ -169,6 +180,8 @@ static int group_and_fit(run_state *s, int round, char *err)
     mp_frame_report fr;
     if (mp_pl_positions_of(&s->t, &s->before))
         return oom(err);
+    if (need_residual(s, err))
+        return 1;
     if (mp_fit_table_mem(&s->f, &s->fit->model, &s->fit->opts, &s->t, s->mem, &fr, err))
         return 1;
     if (mp_pl_note_gone(&s->gone, &s->before, &s->t))
@@ -246,6 +259,7 @@ static int find_on_residual(run_state *s, int round, long *added, char *err)
                                o->fit.opts.fit.fitrad, 1.05 * mergerad, fmax(matchrad, 1.1 * mergerad),
                                splitsnr, &s->found) < 0)
         return oom(err);
+    mp_bkg_free(&s->bkg);        /* as after the first detection */
     *added = mp_pl_add_new_stars(&s->t, &s->gone, &s->found, s->f.im.nx, s->f.im.ny, matchrad,
                                  mergerad, s->fit->opts.minsnr > 0 ? splitsnr : INFINITY);
     if (*added < 0)
@@ -427,9 +441,6 @@ int mp_pipeline_reduce(const mp_frame *f, const mp_pipeline_opts *o, mp_table *t
     int rc = state_init(&s, "(in memory)", NULL, o, &rep, err);
     s.quiet = 1;
     s.f = *f;                    /* borrowed: not freed below */
-    size_t npix = (size_t)f->im.nx * (size_t)f->im.ny;
-    if (!rc && !(s.res = malloc(npix * sizeof *s.res)))
-        rc = oom(err);
     if (!rc)
         rc = find_stars(&s, err) || rounds(&s, err);
     if (!rc) {
