@@ -72,6 +72,16 @@ typedef int (*mp_pl_done_fn)(void *ctx, const mp_frame *f, mp_table *t, double *
 int mp_pl_reduce(const char *image, const mp_pipeline_opts *o, mp_pipeline_report *rep,
                  mp_pl_done_fn done, void *ctx, char *err);
 
+/* mp_pl_psf_on: the PSF of a frame built as mp_pipeline_run builds it
+ * (find, pass 1, fit, pass 2 with the neighbours subtracted) on section,
+ * a part of the frame whose pixel (1, 1) is frame pixel (1 + offx,
+ * 1 + offy), the frame being fnx x fny: root.psf.fits is written in frame
+ * coordinates (its polynomial's origin and scales the frame's, as a whole
+ * run writes them).  *built = 0 (no file) when the section has no star
+ * fit to shape a PSF.  For tiles. */
+int mp_pl_psf_on(const char *section, const char *root, const mp_pipeline_opts *o, long offx,
+                 long offy, long fnx, long fny, int *built, char *err);
+
 /* ---- split.c ------------------------------------------------------------ */
 
 /* mp_pl_split_candidates: one star or two.  For every star of t (fitted:
