@@ -26,10 +26,14 @@ UNITBIN := $(patsubst tests/unit/%.c,$(BUILD)/tests/%,$(UNITSRC))
 
 .PHONY: all deps test unit e2e validate bench run clean sanitize valgrind fuzz fuzz-run test-slurm
 
+# ./matphot is always the binary of the BUILD this make was asked for
+# (sanitize's e2e runs the ASan one through it): compared, not dated, so a
+# plain `make all` after a clang or sanitize build puts gcc's back.
+.PHONY: matphot
 all: matphot
 
 matphot: $(BUILD)/matphot
-	cp $< $@.tmp && mv -f $@.tmp $@
+	@cmp -s $< $@ || { echo "cp $< $@"; cp $< $@.tmp && mv -f $@.tmp $@; }
 
 $(BUILD)/matphot: $(BUILD)/pipeline/main.o $(BUILD)/libmatphot.a
 	$(CC) $(LDFLAGS) -o $@ $^ $(LDLIBS)
@@ -52,7 +56,7 @@ $(BUILD)/params/defaults.o: $(BUILD)/params/defaults.c
 
 $(BUILD)/tests/%: tests/unit/%.c $(BUILD)/libmatphot.a
 	@mkdir -p $(dir $@)
-	$(CC) $(CPPFLAGS) $(CFLAGS) -o $@ $< $(BUILD)/libmatphot.a $(LDFLAGS) $(LDLIBS) -lcmocka
+	$(CC) $(CPPFLAGS) $(CFLAGS) -MMD -MP -o $@ $< $(BUILD)/libmatphot.a $(LDFLAGS) $(LDLIBS) -lcmocka
 
 deps:
 	@sh tools/deps.sh
@@ -107,7 +111,7 @@ fuzz:
 
 $(BUILD)/fuzz/%: tests/fuzz/%.c tests/fuzz/fuzz_bodies.h $(BUILD)/libmatphot.a
 	@mkdir -p $(dir $@)
-	$(CC) $(CPPFLAGS) $(CFLAGS) -fsanitize=fuzzer -o $@ $< $(BUILD)/libmatphot.a $(LDFLAGS) -fsanitize=fuzzer $(LDLIBS)
+	$(CC) $(CPPFLAGS) $(CFLAGS) -MMD -MP -fsanitize=fuzzer -o $@ $< $(BUILD)/libmatphot.a $(LDFLAGS) -fsanitize=fuzzer $(LDLIBS)
 
 fuzz-run: $(FUZZBIN)
 	@set -e; for b in $(FUZZBIN); do n=$${b##*/fuzz_}; \
@@ -123,4 +127,5 @@ fuzz-run: $(FUZZBIN)
 clean:
 	rm -rf build build-san matphot
 
--include $(LIBOBJ:.o=.d) $(BUILD)/pipeline/main.d
+# Test and fuzz binaries too: a header change rebuilds the tests that include it.
+-include $(LIBOBJ:.o=.d) $(BUILD)/pipeline/main.d $(UNITBIN:=.d) $(FUZZBIN:=.d)

@@ -151,9 +151,11 @@ int mp_sinc_choice_hw(const mp_sinc_choice *c, double E, double B, double ron, d
 int mp_sinc_choice_limits(const mp_sinc_choice *c, double B, double ron, double frac,
                           double *emax);
 /* Bound evaluations mp_sinc_choice_limits spends per half-width, at most
- * (two ends, 60 halvings): a frame with fewer groups than this evaluates
- * the bound per group instead (fit_frame.c). */
-#define MP_SINC_LIMITS_EVALS 62
+ * (two ends, 14 halvings of 18 decades: the limit to 0.25 %, rounded to
+ * the served side, so every flux below it is served): a frame with fewer
+ * groups than this evaluates the bound per group instead (fit_frame.c).
+ * mp_prf_cache_limit spends as many. */
+#define MP_SINC_LIMITS_EVALS 16
 int mp_sinc_choice_pick(const double *emax, int hwmax, double E);
 /* ---- Supersampling per star (fit/ss_choice.c, issue 10) ----------------- */
 
@@ -182,8 +184,10 @@ typedef struct mp_ss_level_s {
 } mp_ss_level;
 
 /* mp_ss_level_build: the level of m's table block-summed by factor
- * (dividing its OVERSAMP). */
-int mp_ss_level_build(const mp_prf_model *m, int factor, mp_ss_level *lv, char *err);
+ * (dividing its OVERSAMP), with its own kernel-length table (lv->sinc)
+ * when with_sinc. */
+int mp_ss_level_build(const mp_prf_model *m, int factor, int with_sinc, mp_ss_level *lv,
+                      char *err);
 void mp_ss_level_free(mp_ss_level *lv);
 
 /* mp_ss_level_bias: max over phases and over (flux, x, y, sky) of
@@ -296,6 +300,18 @@ int mp_prf_cache_usable(const mp_prf_cache *c, const mp_prf_model *m);
 int mp_prf_cache_render(const mp_prf_cache *c, const mp_prf_model *m, double x, double y,
                         long x0, long y0, int w, int h, double *prf, double *ddx, double *ddy);
 
+/* A row span of detector pixels: [x0, x0 + n) of row y (1-based). */
+typedef struct {
+    long x0, y;
+    int n;
+} mp_span;
+
+/* mp_prf_cache_render_spans: as mp_prf_cache_render, on the pixels of ns
+ * spans only, their values one span after the other (Σ n of each array):
+ * a group fit renders its fitted pixels, not the box around them. */
+int mp_prf_cache_render_spans(const mp_prf_cache *c, const mp_prf_model *m, double x, double y,
+                              const mp_span *sp, int ns, double *prf, double *ddx, double *ddy);
+
 /* ---- Performance model (paper §2) ----------------------------------------- */
 
 typedef struct {
@@ -327,15 +343,22 @@ int mp_crlb(const double *prf, const double *dx, const double *dy, size_t n,
  * (closed form); the sky-order test's p-value. */
 double mp_chi2_sf(int k, double x);
 
-/* The flux limits of economy's bound tables (the sinc kernel's, each
- * coarser table's) on a given sky, kept across the frames of a run: a
- * frame's sky is rounded down to a quarter octave (the safe side: less
- * sky, less noise, lower limits), so an @list of frames pays
- * MP_SINC_LIMITS_EVALS·hwmax bound evaluations per table and sky level
- * once, not per frame.  Thread-safe; at most MP_ECON_CACHE_MAX entries
- * (past that, frames compute their own). */
+/* The run's economy state (fit/econ_plan.c): the tables economy may build
+ * and, per sky level, their flux limits.  A table is built only when the
+ * work it can save on the star fits the run expects exceeds the work it
+ * costs — fits · MP_ECON_RENDERS_PER_FIT · (multiply-adds saved per render,
+ * at most) ≥ its build + its decisions — decided before building, and
+ * kept for the run once built.  The limits: a frame's sky is rounded down
+ * to a quarter octave (the safe side: less sky, less noise, lower limits),
+ * so an @list of frames pays MP_SINC_LIMITS_EVALS·hwmax bound evaluations
+ * per table and sky level once, not per frame.  Thread-safe; at most
+ * MP_ECON_CACHE_MAX limit entries (past that, frames compute their own). */
 typedef struct mp_econ_cache mp_econ_cache;
 #define MP_ECON_CACHE_MAX 64
+/* LM renders of a star fit, at least, as the plan counts them: the start
+ * and three trial steps (the median star of the bench's scenes takes 3
+ * iterations, bench/REPORT.md). */
+#define MP_ECON_RENDERS_PER_FIT 4.0
 mp_econ_cache *mp_econ_cache_new(void);      /* NULL when out of memory */
 void mp_econ_cache_free(mp_econ_cache *c);
 
@@ -435,8 +458,15 @@ typedef struct {
                         * with the model's table) */
     int nss;
     double ssfrac;
-    mp_econ_cache *cache;  /* economy: the choices' flux limits kept across
-                        * frames (NULL: each frame finds its own) */
+    mp_econ_cache *cache;  /* economy: the run's tables, built when they pay
+                        * (mp_econ_choose), and the choices' flux limits
+                        * kept across frames (NULL: none) */
+    double fits;       /* economy: star fits the run expects (an @list's
+                        * stars); a frame plans for the larger of this and
+                        * its own stars (0: its own) */
+    double psfdx, psfdy;  /* a sub-image's pixel (1, 1) is the PSF field's
+                        * (1 + psfdx, 1 + psfdy) (mp_fit_setup_local): the
+                        * run's coarser levels read a variable PSF there */
     const struct mp_sinc_choice_s *sinc;  /* economy: each group fitted with
                         * the shortest sinc half-width whose bias stays below
                         * sincfrac of its brightest star's σ (fit/sinc_choice.c);
@@ -449,6 +479,33 @@ typedef struct {
 } mp_frame_opts;
 
 void mp_frame_opts_default(mp_frame_opts *o);
+
+/* mp_econ_offer: what the run may build for model m (kept by pointer: m,
+ * its PSF and field must outlive c): nlev coarser samplings of its table
+ * with OVERSAMP lev_os[] (coarsest first), the sinc kernel choice (sinc
+ * nonzero), the phase grid of grid_g phases per pixel (0: none; never for
+ * a variable PSF).  Measures nothing. */
+int mp_econ_offer(mp_econ_cache *c, const mp_prf_model *m, int nlev, const int *lev_os,
+                  int sinc, int grid_g);
+
+/* mp_econ_choose: point o->sinc, o->ss/o->nss and o->grid (those still
+ * NULL) at the offered tables that pay for `fits` star fits over windows
+ * of radius fitrad (NaN: whole frames), building them on first need.  The
+ * decision depends on fits and the PSF only.  *spent (may be NULL) gets
+ * the multiply-adds this call spent building.  Nonzero with err when a
+ * build fails (out of memory). */
+int mp_econ_choose(mp_econ_cache *c, double fits, double fitrad, mp_frame_opts *o,
+                   double *spent, char *err);
+
+/* The plan's unit: multiply-adds of one LM render (with derivatives) of
+ * model m at half-width hw over a fitting window of radius fitrad (NaN:
+ * its whole box); of one render from the phase grid. */
+double mp_econ_render_ops(const mp_prf_model *m, int hw, double fitrad);
+double mp_econ_grid_render_ops(const mp_prf_model *m, double fitrad);
+
+/* mp_econ_summary: one line for the run report — the tables built and
+ * their cost in renders of the model (ops_render multiply-adds each). */
+void mp_econ_summary(const mp_econ_cache *c, double ops_render, char *buf, size_t n);
 
 /* What a frame fit did, for the run report. */
 typedef struct {
@@ -464,6 +521,12 @@ typedef struct {
                         * evaluations (mp_sinc_choice_bound,
                         * mp_ss_level_serves), each nph × npix terms */
     long kcoarse;      /* LM fits with a coarser table (opts ss) */
+    double ops_tables; /* economy's tables built by this call (mp_econ_choose)
+                        * and its bound evaluations [multiply-adds] */
+    double ops_saved;  /* what the tables saved, counted per LM fit: its
+                        * renders (iterations + 1) × (a render of the
+                        * model as given − the render used) */
+    double ops_render; /* one render of the model as given (the unit) */
     long envelopes;    /* crop envelopes built (mp_prf_envelope: 25 PSF
                         * renders each); 0 when the frame is one group */
     long kept;         /* group fits left out: no star's surroundings changed */
@@ -535,6 +598,8 @@ typedef struct {
     long kcache;               /* LM fits with the PRF from the phase grid */
     double khw;                /* their half-widths, summed */
     long kcoarse;              /* LM fits with a coarser table */
+    double ops_tables, ops_saved, ops_render;  /* mp_frame_report's */
+    const char *tables;        /* economy's tables (mp_econ_summary; may be NULL) */
     long kbounds, envelopes;   /* economy's own cost: kernel-bound evaluations
                                 * and crop envelopes built (mp_frame_report) */
 } mp_run_report;
@@ -564,10 +629,11 @@ typedef struct {
     mp_frame_opts opts;
     mp_datapars dp;
     mp_table_format fmt;
-    mp_sinc_choice sinc;    /* economy: per-group kernel length (opts.sinc) */
-    mp_ss_level ss[MP_SS_MAXLEVELS];   /* economy: coarser samplings (opts.ss) */
-    mp_econ_cache *cache;   /* economy: their flux limits across frames (opts.cache) */
-    mp_prf_cache phasegrid; /* economy: the PRF from a grid of phases (model.cache) */
+    mp_econ_cache *cache;   /* economy: the tables it may build — per-group
+                             * kernel length, coarser samplings, the phase
+                             * grid — built when they pay (opts.cache) */
+    int econ_nlev, econ_os[MP_SS_MAXLEVELS], econ_sinc, econ_grid;  /* what it may
+                             * build (mp_econ_offer's arguments) */
     char decisions[2048];   /* economy decisions and their reasons */
     int ndecisions;
 } mp_fit_setup;

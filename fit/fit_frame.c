@@ -7,7 +7,7 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
-#include "fit/fit.h"
+#include "fit/econ_state.h"
 
 void mp_frame_opts_default(mp_frame_opts *o)
 {
@@ -26,6 +26,8 @@ void mp_frame_opts_default(mp_frame_opts *o)
     o->nss = 0;
     o->ssfrac = 0.1;
     o->cache = NULL;
+    o->fits = 0.0;
+    o->psfdx = o->psfdy = 0.0;
 }
 
 /* Column of a table by the first name present, -1 if none. */
@@ -90,61 +92,66 @@ typedef struct {
     int nss;
     level_rule level[MP_SS_MAXLEVELS];
     kernel_rule kern[MP_SS_MAXLEVELS + 1];
-    double gemax;               /* the phase grid's flux limit (o->grid) */
+    double gemax;               /* the phase grid's flux limit (o->grid); NaN:
+                                 * each group evaluates the bound */
+    double gsky, gron, gfrac;   /* the grid's bound: sky, read noise, fraction */
+    double ops_full;            /* a render of the model as given (economy's unit) */
 } frame_rules;
 
-struct mp_econ_cache {
-    int n;
-    struct {
-        const void *c;             /* an mp_sinc_choice or an mp_ss_level */
-        double sky, ron, frac;
-        double *emax;
-    } e[MP_ECON_CACHE_MAX];
-};
-
-mp_econ_cache *mp_econ_cache_new(void)
+/* Economy's own cost: n bound evaluations of a table of that kind. */
+static void charge(mp_frame_report *r, long n, const void *table, int kind)
 {
-    return calloc(1, sizeof(mp_econ_cache));
+    r->kbounds += n;
+    r->ops_tables += (double)n * mp_econ_eval_ops(table, kind);
 }
 
-void mp_econ_cache_free(mp_econ_cache *c)
+/* Whether the phase grid serves a group whose brightest star has flux e. */
+static int grid_serves(const frame_rules *R, const mp_prf_cache *g, double e,
+                       mp_frame_report *cost)
 {
-    for (int i = 0; c && i < c->n; i++)
-        free(c->e[i].emax);
-    free(c);
+    if (!g || !(e > 0))
+        return 0;
+    if (!isnan(R->gemax))
+        return e <= R->gemax;
+    charge(cost, 1, g, ECON_LIM_GRID);
+    return mp_prf_cache_bound(g, e, R->gsky, R->gron) <= R->gfrac;
 }
 
 /* The limits of c on sky level sky (already rounded), computed on a miss:
- * an mp_sinc_choice's hwmax limits, or (level) an mp_ss_level's one; NULL
- * when the cache is full or out of memory. */
-static void fill_limits(const void *c, int level, double sky, double ron, double frac,
-                        double *emax, long *evals)
+ * an mp_sinc_choice's hwmax limits, an mp_ss_level's one or an
+ * mp_prf_cache's one; NULL when the cache is full or out of memory. */
+static void fill_limits(const void *c, int kind, double sky, double ron, double frac,
+                        double *emax, mp_frame_report *cost)
 {
-    if (level) {
+    if (kind == ECON_LIM_LEVEL) {
         emax[0] = mp_ss_level_emax(c, sky, ron, frac);
-        *evals += MP_SS_LIMITS_EVALS;
+        charge(cost, MP_SS_LIMITS_EVALS, c, kind);
+    } else if (kind == ECON_LIM_GRID) {
+        emax[0] = mp_prf_cache_limit(c, sky, ron, frac);
+        charge(cost, MP_SINC_LIMITS_EVALS, c, kind);
     } else {
         mp_sinc_choice_limits(c, sky, ron, frac, emax);
-        *evals += (long)((const mp_sinc_choice *)c)->hwmax * MP_SINC_LIMITS_EVALS;
+        charge(cost, (long)((const mp_sinc_choice *)c)->hwmax * MP_SINC_LIMITS_EVALS, c, kind);
     }
 }
 
-static double *cached_limits(mp_econ_cache *cache, const void *c, int level, double sky,
-                             double ron, double frac, long *evals)
+static double *cached_limits(mp_econ_cache *cache, const void *c, int kind, double sky,
+                             double ron, double frac, mp_frame_report *cost)
 {
-    size_t n = level ? 1 : (size_t)((const mp_sinc_choice *)c)->hwmax;
+    size_t n = kind != ECON_LIM_SINC ? 1 : (size_t)((const mp_sinc_choice *)c)->hwmax;
     double *emax = NULL;
-#pragma omp critical(mp_econ_cache)
+#pragma omp critical(mp_econ_limits)
     {
         for (int i = 0; i < cache->n && !emax; i++)
-            if (cache->e[i].c == c && cache->e[i].sky == sky && cache->e[i].ron == ron &&
-                cache->e[i].frac == frac)
+            if (cache->e[i].c == c && cache->e[i].kind == kind && cache->e[i].sky == sky &&
+                cache->e[i].ron == ron && cache->e[i].frac == frac)
                 emax = cache->e[i].emax;
         if (!emax && cache->n < MP_ECON_CACHE_MAX &&
             (emax = malloc(n * sizeof *emax))) {
-            fill_limits(c, level, sky, ron, frac, emax, evals);
+            fill_limits(c, kind, sky, ron, frac, emax, cost);
             int i = cache->n++;
             cache->e[i].c = c;
+            cache->e[i].kind = kind;
             cache->e[i].sky = sky;
             cache->e[i].ron = ron;
             cache->e[i].frac = frac;
@@ -161,39 +168,39 @@ static double cache_sky(double sky)
 }
 
 /* A rule on the frame's sky: the limits from the run's cache (the sky
- * rounded down), else the frame's own limits table
- * when the frame has more groups than it costs evaluations, else each
- * group evaluates the bound.  Nonzero when out of memory. */
+ * rounded down) when the run's fits (runfits: its groups, at most) number
+ * more than the limits cost evaluations, else the frame's own limits table
+ * when the frame has that many groups, else each group evaluates the
+ * bound.  Nonzero when out of memory. */
 static int rule_init(kernel_rule *k, const mp_sinc_choice *c, double sky, double ron, double frac,
-                     size_t ng, mp_econ_cache *cache, long *evals)
+                     size_t ng, mp_econ_cache *cache, double runfits, mp_frame_report *cost)
 {
     memset(k, 0, sizeof *k);
     if (!c || c->hwmax <= 0 || !c->d2)
         return 0;
     *k = (kernel_rule){c, NULL, 0, sky, ron, frac};
-    if (cache) {
-        if ((k->emax = cached_limits(cache, c, 0, cache_sky(sky), ron, frac, evals)))
-            return 0;
-    }
+    if (cache && runfits > MP_SINC_LIMITS_EVALS &&
+        (k->emax = cached_limits(cache, c, ECON_LIM_SINC, cache_sky(sky), ron, frac, cost)))
+        return 0;
     if (ng <= MP_SINC_LIMITS_EVALS)
         return 0;
     if (!(k->emax = malloc((size_t)c->hwmax * sizeof *k->emax)))
         return 1;
     k->owned = 1;
     mp_sinc_choice_limits(c, sky, ron, frac, k->emax);
-    *evals += (long)c->hwmax * MP_SINC_LIMITS_EVALS;
+    charge(cost, (long)c->hwmax * MP_SINC_LIMITS_EVALS, c, ECON_LIM_SINC);
     return 0;
 }
 
 /* The same for a coarser table (lv NULL: a rule that never serves). */
 static int level_init(level_rule *k, const mp_ss_level *lv, double sky, double ron, double frac,
-                      size_t ng, mp_econ_cache *cache, long *evals)
+                      size_t ng, mp_econ_cache *cache, double runfits, mp_frame_report *cost)
 {
     *k = (level_rule){lv && lv->bias.p ? lv : NULL, NAN, sky, ron, frac};
     if (!k->lv)
         return 0;
-    if (cache) {
-        const double *e = cached_limits(cache, lv, 1, cache_sky(sky), ron, frac, evals);
+    if (cache && runfits > MP_SS_LIMITS_EVALS) {
+        const double *e = cached_limits(cache, lv, ECON_LIM_LEVEL, cache_sky(sky), ron, frac, cost);
         if (e) {
             k->emax = e[0];
             return 0;
@@ -201,20 +208,40 @@ static int level_init(level_rule *k, const mp_ss_level *lv, double sky, double r
     }
     if (ng > MP_SS_LIMITS_EVALS) {
         k->emax = mp_ss_level_emax(lv, sky, ron, frac);
-        *evals += MP_SS_LIMITS_EVALS;
+        charge(cost, MP_SS_LIMITS_EVALS, lv, ECON_LIM_LEVEL);
     }
     return 0;
 }
 
+/* The phase grid's flux limit on the frame's sky, as the kernel's: from
+ * the run's cache, the frame's own, or NaN: each group evaluates its bound
+ * (and neighbours are painted exactly). */
+static double grid_limit(const mp_prf_cache *g, double sky, double ron, double frac, size_t ng,
+                         mp_econ_cache *cache, double runfits, mp_frame_report *cost)
+{
+    if (!g)
+        return 0.0;
+    if (cache && runfits > MP_SINC_LIMITS_EVALS) {
+        const double *e = cached_limits(cache, g, ECON_LIM_GRID, cache_sky(sky), ron, frac, cost);
+        if (e)
+            return e[0];
+    }
+    if (ng > MP_SINC_LIMITS_EVALS) {
+        charge(cost, MP_SINC_LIMITS_EVALS, g, ECON_LIM_GRID);
+        return mp_prf_cache_limit(g, sky, ron, frac);
+    }
+    return NAN;
+}
+
 /* Whether the level serves a group whose brightest star has flux e (≤ 0
- * or NaN: unknown, it does not); *evals counts criterion evaluations. */
-static int level_serves(const level_rule *k, double e, long *evals)
+ * or NaN: unknown, it does not); cost counts criterion evaluations. */
+static int level_serves(const level_rule *k, double e, mp_frame_report *cost)
 {
     if (!k->lv || !(e > 0))
         return 0;
     if (!isnan(k->emax))
         return e <= k->emax;
-    ++*evals;
+    charge(cost, 1, k->lv, ECON_LIM_LEVEL);
     return mp_ss_level_serves(k->lv, e, k->sky, k->ron, k->frac);
 }
 
@@ -226,8 +253,8 @@ static void rules_free(frame_rules *R)
 }
 
 /* The half-width for a group whose brightest star has flux e (≤ 0 or NaN:
- * unknown, the full kernel); *evals counts bound evaluations. */
-static int kernel_for(const kernel_rule *k, int hwfull, double e, long *evals)
+ * unknown, the full kernel); cost counts bound evaluations. */
+static int kernel_for(const kernel_rule *k, int hwfull, double e, mp_frame_report *cost)
 {
     if (!k->c)
         return hwfull;
@@ -236,7 +263,7 @@ static int kernel_for(const kernel_rule *k, int hwfull, double e, long *evals)
     if (!(e > 0))
         return k->c->hwmax;
     int hw = mp_sinc_choice_hw(k->c, e, k->sky, k->ron, k->frac);
-    *evals += hw < k->c->hwmax ? hw + 1 : k->c->hwmax;
+    charge(cost, hw < k->c->hwmax ? hw + 1 : k->c->hwmax, k->c, ECON_LIM_SINC);
     return hw;
 }
 
@@ -467,30 +494,39 @@ static int fit_one_group(const mp_frame *f, const mp_prf_model *m, const mp_fram
         for (int k = 0; k < nl; k++)
             e = isfinite(live[k].flux) && live[k].flux > e ? live[k].flux : e;
         int l = 0;
-        while (l < R->nss && !level_serves(&R->level[l], e, &rep->kbounds))
+        while (l < R->nss && !level_serves(&R->level[l], e, rep))
             l++;
         mp_prf_model mh = l < R->nss ? R->ss[l].model : *m;
         /* The group is fitted on a sub-image offset by (dx, dy): a
-         * variable PSF must still be read at each star's frame position. */
+         * variable PSF must still be read at each star's frame position
+         * (a run's coarser level also at the sub-frame's, o->psfdx). */
         mp_psf lp;
         mp_psf_field lf;
         if (mh.psf->field) {    /* (a constant table keeps its pointer: the cache's key) */
-            mp_psf_local(mh.psf, dx, dy, &lp, &lf);
+            double ox = l < R->nss ? o->psfdx : 0.0, oy = l < R->nss ? o->psfdy : 0.0;
+            mp_psf_local(mh.psf, dx + ox, dy + oy, &lp, &lf);
             mh.psf = &lp;
         }
-        mh.sinc_hw = kernel_for(&R->kern[l], mh.sinc_hw, e, &rep->kbounds);
+        mh.sinc_hw = kernel_for(&R->kern[l], mh.sinc_hw, e, rep);
         rep->kcoarse += l < R->nss;
         /* Economy: the phase grid of the table as given, when its bound
          * allows the brightest star (a star without a flux: the exact render). */
         mp_fit_opts fo = o->fit;
-        fo.grid = l == R->nss && e > 0 && e <= R->gemax ? o->grid : NULL;
-        rep->kcache += mp_prf_cache_usable(fo.grid, &mh);
+        fo.grid = l == R->nss && grid_serves(R, o->grid, e, rep) ? o->grid : NULL;
+        int cached = mp_prf_cache_usable(fo.grid, &mh);
+        rep->kcache += cached;
         rep->kcalls++;
         rep->khw += mh.sinc_hw;
         rep->kshort += mh.sinc_hw < m->sinc_hw;
         if (mp_fit_group(f, &mh, &fo, sky0, live, nl, err))
             goto done;
         rep->iterations += live[0].niter;
+        /* What economy saved on this fit's renders (the plan's unit). */
+        if (R->ops_full > 0) {
+            double used = cached ? mp_econ_grid_render_ops(m, o->fit.fitrad)
+                                 : mp_econ_render_ops(&mh, mh.sinc_hw, o->fit.fitrad);
+            rep->ops_saved += (live[0].niter + 1.0) * fmax(R->ops_full - used, 0.0) * nl;
+        }
         for (int k = 0; k < nl; k++) {
             int keep = s[map[k]].flags & MP_FLAG_MERGED;
             s[map[k]] = live[k];
@@ -1096,20 +1132,31 @@ int mp_fit_table_mem(const mp_frame *f, const mp_prf_model *m, const mp_frame_op
     /* Economy: the table and kernel choices on the frame's median start
      * sky (0, the safe side, when no star has one); the limits tables only
      * when cheaper than each group's own evaluation (rule_init). */
+    /* Economy: the tables that pay for this run's star fits (the run's
+     * planned count or this frame's stars), built on first need. */
+    mp_frame_opts oe = *o;
+    double runfits = o->fits > (double)n ? o->fits : (double)n;
+    if (mp_econ_choose(o->cache, runfits, o->fit.fitrad, &oe, &rep->ops_tables, err))
+        goto done;
+    o = &oe;
+    R.ops_full = o->cache ? mp_econ_render_ops(m, m->sinc_hw, o->fit.fitrad) : 0.0;
+    rep->ops_render = R.ops_full;
     double bsky = o->sinc || o->nss ? median_sky(st, n) : 0.0;
     R.ss = o->ss;
     R.nss = o->ss ? (o->nss < MP_SS_MAXLEVELS ? o->nss : MP_SS_MAXLEVELS) : 0;
     int nomem = rule_init(&R.kern[R.nss], o->sinc, bsky, f->rdnoise, o->sincfrac, ng, o->cache,
-                          &rep->kbounds);
+                          runfits, rep);
     for (int l = 0; l < R.nss; l++)
         nomem |= level_init(&R.level[l], &R.ss[l], bsky, f->rdnoise, o->ssfrac, ng, o->cache,
-                            &rep->kbounds) ||
+                            runfits, rep) ||
                  rule_init(&R.kern[l], o->sinc ? &R.ss[l].sinc : NULL, bsky, f->rdnoise,
-                           o->sincfrac, ng, o->cache, &rep->kbounds);
+                           o->sincfrac, ng, o->cache, runfits, rep);
     /* Economy: the largest flux the phase grid serves within the kernel's
      * bound, on the same sky. */
-    R.gemax = o->grid ? mp_prf_cache_limit(o->grid, median_sky(st, n), f->rdnoise, o->sincfrac)
-                      : 0.0;
+    R.gsky = o->grid ? median_sky(st, n) : 0.0;
+    R.gron = f->rdnoise;
+    R.gfrac = o->sincfrac;
+    R.gemax = grid_limit(o->grid, R.gsky, f->rdnoise, o->sincfrac, ng, o->cache, runfits, rep);
     if (nomem) {
         snprintf(err, MP_ERRLEN, "out of memory");
         goto done;
@@ -1173,6 +1220,8 @@ int mp_fit_table_mem(const mp_frame *f, const mp_prf_model *m, const mp_frame_op
                 pr.kbounds += r.kbounds;
                 pr.kcoarse += r.kcoarse;
                 pr.kcache += r.kcache;
+                pr.ops_tables += r.ops_tables;
+                pr.ops_saved += r.ops_saved;
             }
         }
         if (failed) {
@@ -1190,6 +1239,8 @@ int mp_fit_table_mem(const mp_frame *f, const mp_prf_model *m, const mp_frame_op
         rep->kbounds += pr.kbounds;
         rep->kcoarse += pr.kcoarse;
         rep->kcache += pr.kcache;
+        rep->ops_tables += pr.ops_tables;
+        rep->ops_saved += pr.ops_saved;
         /* No group refitted: every later pass would see the same light. */
         if (economy && pr.fits == 0) {
             rep->kept += (long)ng * (passes - pass - 1);

@@ -122,53 +122,70 @@ static void weights(double f, double L[4])
     L[3] = a * b * c / 6.0;
 }
 
-/* The interpolated PRF on box [x0, x0+w) × [y0, y0+h) (1-based), derivatives
+/* Where a star's PRF is read from the grid: its whole pixels and branch
+ * per axis and the 4×4 Lagrange weights. */
+typedef struct {
+    axis_pos px, py;
+    double Lx[4], Ly[4];
+} star_pos;
+
+static star_pos star_of(const mp_prf_cache *c, double x, double y)
+{
+    star_pos s;
+    s.px = axis_of(c, x);
+    s.py = axis_of(c, y);
+    weights(s.px.f, s.Lx);
+    weights(s.py.f, s.Ly);
+    return s;
+}
+
+/* The interpolated PRF on pixels [x0, x0+w) of row y (1-based), derivatives
  * optional; pixels outside the cached union box are zero.  Plane pl holds
  * the PRF at img[3·pl·npix], then ∂/∂x, then ∂/∂y. */
+static void interp_row(const mp_prf_cache *c, const star_pos *s, long x0, long y, int w,
+                       double *pr, double *gx, double *gy)
+{
+    int na = c->gb + 3, NA = c->os * na;
+    memset(pr, 0, (size_t)w * sizeof *pr);
+    if (gx)
+        memset(gx, 0, (size_t)w * sizeof *gx);
+    if (gy)
+        memset(gy, 0, (size_t)w * sizeof *gy);
+    /* Columns of the span inside the union box: i ∈ [i0, i1). */
+    long q0 = x0 - s->px.kq - c->ux0, row = y - s->py.kq - c->uy0;
+    long i0 = q0 < 0 ? -q0 : 0, i1 = q0 + w > c->uw ? c->uw - q0 : w;
+    if (i1 <= i0 || row < 0 || row >= c->uh)
+        return;
+    for (int kb = 0; kb < 4; kb++)
+        for (int ka = 0; ka < 4; ka++) {
+            /* node a − 1 + ka of branch beta is plane beta·na + a + ka */
+            size_t pl = (size_t)(s->py.beta * na + s->py.a + kb) * NA +
+                        (size_t)(s->px.beta * na + s->px.a + ka);
+            const float *sp = c->img + 3 * pl * c->npix + (size_t)row * c->uw + (size_t)q0;
+            double wv = s->Ly[kb] * s->Lx[ka];
+            for (long i = i0; i < i1; i++)
+                pr[i] += wv * sp[i];
+            if (gx) {
+                const float *sx = sp + c->npix;
+                for (long i = i0; i < i1; i++)
+                    gx[i] += wv * sx[i];
+            }
+            if (gy) {
+                const float *sy = sp + 2 * c->npix;
+                for (long i = i0; i < i1; i++)
+                    gy[i] += wv * sy[i];
+            }
+        }
+}
+
+/* The interpolated PRF on box [x0, x0+w) × [y0, y0+h), row by row. */
 static void interp(const mp_prf_cache *c, double x, double y, long x0, long y0, int w, int h,
                    double *prf, double *ddx, double *ddy)
 {
-    int na = c->gb + 3, NA = c->os * na;
-    axis_pos px = axis_of(c, x), py = axis_of(c, y);
-    double Lx[4], Ly[4];
-    weights(px.f, Lx);
-    weights(py.f, Ly);
-    size_t nb = (size_t)w * h;
-    memset(prf, 0, nb * sizeof *prf);
-    if (ddx)
-        memset(ddx, 0, nb * sizeof *ddx);
-    if (ddy)
-        memset(ddy, 0, nb * sizeof *ddy);
-    /* Columns of the box inside the union box: i ∈ [i0, i1). */
-    long q0 = x0 - px.kq - c->ux0;
-    long i0 = q0 < 0 ? -q0 : 0, i1 = q0 + w > c->uw ? c->uw - q0 : w;
-    if (i1 <= i0)
-        return;
+    star_pos s = star_of(c, x, y);
     for (int j = 0; j < h; j++) {
-        long row = y0 + j - py.kq - c->uy0;
-        if (row < 0 || row >= c->uh)
-            continue;
-        double *pr = prf + (size_t)j * w, *gx = ddx ? ddx + (size_t)j * w : NULL;
-        double *gy = ddy ? ddy + (size_t)j * w : NULL;
-        for (int kb = 0; kb < 4; kb++)
-            for (int ka = 0; ka < 4; ka++) {
-                /* node a − 1 + ka of branch beta is plane beta·na + a + ka */
-                size_t pl = (size_t)(py.beta * na + py.a + kb) * NA + (size_t)(px.beta * na + px.a + ka);
-                const float *sp = c->img + 3 * pl * c->npix + (size_t)row * c->uw + (size_t)q0;
-                double wv = Ly[kb] * Lx[ka];
-                for (long i = i0; i < i1; i++)
-                    pr[i] += wv * sp[i];
-                if (gx) {
-                    const float *sx = sp + c->npix;
-                    for (long i = i0; i < i1; i++)
-                        gx[i] += wv * sx[i];
-                }
-                if (gy) {
-                    const float *sy = sp + 2 * c->npix;
-                    for (long i = i0; i < i1; i++)
-                        gy[i] += wv * sy[i];
-                }
-            }
+        size_t o = (size_t)j * w;
+        interp_row(c, &s, x0, y0 + j, w, prf + o, ddx ? ddx + o : NULL, ddy ? ddy + o : NULL);
     }
 }
 
@@ -183,6 +200,21 @@ int mp_prf_cache_render(const mp_prf_cache *c, const mp_prf_model *m, double x, 
     if (!mp_prf_cache_usable(c, m))
         return 1;
     interp(c, x, y, x0, y0, w, h, prf, ddx, ddy);
+    return 0;
+}
+
+int mp_prf_cache_render_spans(const mp_prf_cache *c, const mp_prf_model *m, double x, double y,
+                              const mp_span *sp, int ns, double *prf, double *ddx, double *ddy)
+{
+    if (!mp_prf_cache_usable(c, m))
+        return 1;
+    star_pos s = star_of(c, x, y);
+    size_t o = 0;
+    for (int k = 0; k < ns; k++) {
+        interp_row(c, &s, sp[k].x0, sp[k].y, sp[k].n, prf + o, ddx ? ddx + o : NULL,
+                   ddy ? ddy + o : NULL);
+        o += (size_t)sp[k].n;
+    }
     return 0;
 }
 
@@ -310,7 +342,7 @@ double mp_prf_cache_limit(const mp_prf_cache *c, double B, double ron, double fr
         return 0.0;
     if (mp_prf_cache_bound(c, hi, B, ron) <= frac)
         return INFINITY;
-    for (int it = 0; it < 60; it++) {       /* 60 halvings of 18 decades: < 1e-9 relative */
+    for (int it = 0; it < MP_SINC_LIMITS_EVALS - 2; it++) {  /* 18 decades: E to 0.25 % */
         double mid = sqrt(lo * hi);
         if (mp_prf_cache_bound(c, mid, B, ron) <= frac)
             lo = mid;

@@ -100,9 +100,9 @@ void mp_report_parts(const mp_prf_model *m, const mp_frame_opts *o, const mp_fra
             ADD(u, ku, nu, "damped-sinc shift (%d taps); ", 2 * m->sinc_hw + 1);
         else
             ADD(l, kl, nl, "sinc shift (nearest table element); ");
-        if (p->os > 1 && o->nss > 0)
-            ADD(u, ku, nu, "supersampled table x%d (x%d or finer per group: %ld of %ld LM fits); ",
-                p->os, o->ss[0].os, r->kcoarse, r->kcalls);
+        if (p->os > 1 && r->kcoarse > 0)
+            ADD(u, ku, nu, "supersampled table x%d (a coarser block-sum per group: %ld of %ld "
+                "LM fits); ", p->os, r->kcoarse, r->kcalls);
         else if (p->os > 1)
             ADD(u, ku, nu, "supersampled table x%d; ", p->os);
         else
@@ -144,6 +144,12 @@ static void report_lines(FILE *fp, const char *prefix, const mp_run_report *r)
             r->kept, r->cropped, r->kshort, r->kcalls,
             r->kcalls > 0 ? r->khw / (double)r->kcalls : 0.0, r->kcoarse, r->kcache, r->kbounds,
             r->envelopes);
+    if (r->tables && r->tables[0]) {
+        double u = r->ops_render > 0 ? r->ops_render : 1.0;
+        fprintf(fp, "%s  economy tables: %s; this frame spent %.1f renders on them (builds and "
+                "bound evaluations) and saved %.1f\n", prefix, r->tables, r->ops_tables / u,
+                r->ops_saved / u);
+    }
 }
 
 int mp_report_write(const char *path, const char *task, const mp_run_report *r, char *err)

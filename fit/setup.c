@@ -14,14 +14,9 @@ const mp_fit_setup *mp_fit_setup_local(const mp_fit_setup *s, double dx, double 
     *out = *s;
     mp_psf_local(&s->psf, dx, dy, &out->psf, &out->field);
     out->model.psf = &out->psf;
-    for (int l = 0; l < s->opts.nss && s->opts.ss == s->ss; l++) {
-        mp_ss_level *lv = &out->ss[l];
-        if (s->ss[l].psf.field)
-            mp_psf_local(&s->ss[l].psf, dx, dy, &lv->psf, &lv->field);
-        lv->model.psf = &lv->psf;
-    }
-    if (s->opts.ss == s->ss)
-        out->opts.ss = out->ss;
+    /* The run's coarser levels (built later, shared) are read there too. */
+    out->opts.psfdx = s->opts.psfdx + dx;
+    out->opts.psfdy = s->opts.psfdy + dy;
     return out;
 }
 
@@ -30,11 +25,7 @@ void mp_fit_setup_free(mp_fit_setup *s)
     mp_psf_free(&s->psf);
     mp_psf_field_free(&s->field);
     mp_drf_free(&s->drf);
-    mp_sinc_choice_free(&s->sinc);
     mp_econ_cache_free(s->cache);
-    mp_prf_cache_free(&s->phasegrid);
-    for (int l = 0; l < MP_SS_MAXLEVELS; l++)
-        mp_ss_level_free(&s->ss[l]);
 }
 
 /* Paper §5.4: a discrete PSF needs β ≥ 21 in its own (super)pixels, or
@@ -91,63 +82,51 @@ static double beta_normalised(const mp_prf_model *m)
 }
 
 /* The coarser samplings of a supersampled table (every divisor k of its
- * OVERSAMP, coarsest first), each with its error measured on this PSF
- * (fit/ss_choice.c); the frame fit uses, per group, the coarsest whose
- * linearised bias at the group's brightest star is ≤ ssfrac of each
- * parameter's σ and whose χ² shift is ≤ 1.  The decision names each
- * level's flux limit with no sky and 1 e- read noise (the frame's own are
- * used in the fit). */
-static int supersampling_levels(mp_fit_setup *s, char *err)
+ * OVERSAMP, coarsest first), offered to the frame fit, which uses, per
+ * group, the coarsest whose linearised bias at the group's brightest star
+ * is ≤ ssfrac of each parameter's σ and whose χ² shift is ≤ 1
+ * (fit/ss_choice.c).  Each one's bias table is measured on this PSF only
+ * once the run's star fits pay for it (fit/econ_plan.c); the run report
+ * names the levels built and their flux limits. */
+static void supersampling_levels(mp_fit_setup *s)
 {
     char why[512];
     int os = s->psf.os, n = 0, k = snprintf(why, sizeof why, "supersampling: per group, the "
                                             "coarsest table whose linearised bias stays below "
                                             "%.2g of its brightest star's sigma and shifts "
-                                            "chi2 by <= 1 (fit/ss_choice.c):",
+                                            "chi2 by <= 1 (fit/ss_choice.c), offered at",
                                             s->opts.ssfrac);
     for (int c = 1; c < os && n < MP_SS_MAXLEVELS; c++) {
         if (os % c)
             continue;
-        mp_ss_level *lv = &s->ss[n];
-        if (mp_ss_level_build(&s->model, os / c, lv, err))
-            return 1;
-        lv->os = c;
-        n++;
-        double e = mp_ss_level_emax(lv, 0.0, 1.0, s->opts.ssfrac);
+        s->econ_os[n++] = c;
         if (k < (int)sizeof why)
-            k += snprintf(why + k, sizeof why - (size_t)k, " x%d to E = %.3g e-,", c, e);
+            k += snprintf(why + k, sizeof why - (size_t)k, " x%d,", c);
     }
     if (k < (int)sizeof why)
         snprintf(why + k, sizeof why - (size_t)k, " the x%d table above (beta = %.1f px^2 at "
                  "detector sampling)", os, beta_normalised(&s->model));
-    s->opts.ss = s->ss;
-    s->opts.nss = n;
+    s->econ_nlev = n;
     decide(s, why);
-    return 0;
 }
 
 /* The PRF from a grid of subpixel phases (fit/prf_cache.c) for the model as
  * given (its finest table, the costliest to render; a coarser sampling's
- * renders are os² times cheaper and keep the exact render), built last so
- * that nothing above renders through it; a variable PSF keeps the exact
- * renders. */
-static int phase_grids(mp_fit_setup *s, const mp_parset *ps, char *err)
+ * renders are os² times cheaper and keep the exact render); a variable PSF
+ * keeps the exact renders. */
+static void phase_grids(mp_fit_setup *s, const mp_parset *ps)
 {
     int grid = MP_PRF_CACHE_G;
     mp_par_int(ps, "phasegrid", &grid);
     if (grid <= 0 || s->field.order > 0 || s->psf.kind != MP_PSF_TABLE)
-        return 0;
-    if (mp_prf_cache_build(&s->model, grid, &s->phasegrid, err))
-        return 1;
-    s->opts.grid = s->phasegrid.G > 0 ? &s->phasegrid : NULL;
-    if (s->phasegrid.G > 0) {
-        char why[256];
-        snprintf(why, sizeof why, "PRF from a grid of %d subpixel phases per pixel (cubic, five-point derivatives interpolated) "
-                 "for groups whose brightest star's bias bound stays below %.2g sigma, exact renders "
-                 "for brighter ones (fit/prf_cache.c)", s->phasegrid.G, s->opts.sincfrac);
-        decide(s, why);
-    }
-    return 0;
+        return;
+    s->econ_grid = grid;
+    char why[256];
+    snprintf(why, sizeof why, "PRF from a grid of %d subpixel phases per pixel (cubic, five-point "
+             "derivatives interpolated) for groups whose brightest star's bias bound stays below "
+             "%.2g sigma, exact renders for brighter ones (fit/prf_cache.c)", grid,
+             s->opts.sincfrac);
+    decide(s, why);
 }
 
 /* economy=yes: leave out what cannot change the answer (issue 5); every
@@ -157,7 +136,7 @@ static int phase_grids(mp_fit_setup *s, const mp_parset *ps, char *err)
  *    whose error, measured on this PSF, is provably small for the group's
  *    brightest star (supersampling_levels), when no DRF map needs the
  *    subpixels, unless the user asked for a sampling with psfos. */
-static int economize(mp_fit_setup *s, int psfos_given, char *err)
+static void economize(mp_fit_setup *s, int psfos_given)
 {
     char why[256];
     if (s->drf.k > 0) {
@@ -181,26 +160,30 @@ static int economize(mp_fit_setup *s, int psfos_given, char *err)
         decide(s, why);
     }
     if (s->psf.kind != MP_PSF_TABLE || s->psf.os <= 1)
-        return 0;
+        return;
     int os = s->psf.os;
     if (psfos_given) {
         snprintf(why, sizeof why, "supersampling: psfos given, the x%d table used as asked", os);
         decide(s, why);
-        return 0;
+        return;
     }
     if (s->drf.k > 0) {
         snprintf(why, sizeof why, "supersampling: the %dx%d DRF map needs the x%d subpixels, kept",
                  s->drf.k, s->drf.k, os);
         decide(s, why);
-        return 0;
+        return;
     }
-    return supersampling_levels(s, err);
+    supersampling_levels(s);
 }
 
 /* skymodel: an explicit order is honoured; auto chooses per group from the
- * data under economy=yes, and economy=no switches every part of the model
- * on, so auto fits the quadratic sky everywhere. */
-static int sky_order_of(const char *v, int economy)
+ * data (a score test, levmar.c) under economy=yes and economy=no alike.
+ * The order is a choice of the model from the data, not an economy: a
+ * quadratic sky where the data hold none is no more exact, it only adds
+ * five parameters that correlate with the star (within a 5 px fitting
+ * radius they raised the flux error 1.45x over the constant-sky bound,
+ * bench/REPORT.md, issue 10). */
+static int sky_order_of(const char *v)
 {
     if (!strcmp(v, "constant"))
         return 0;
@@ -208,7 +191,7 @@ static int sky_order_of(const char *v, int economy)
         return 1;
     if (!strcmp(v, "quadratic"))
         return 2;
-    return economy ? MP_SKY_AUTO : 2;
+    return MP_SKY_AUTO;
 }
 
 /* The PSF file (psf/psf.h's layout, any order): the field, and the table
@@ -313,31 +296,26 @@ int mp_fit_setup_read(const mp_parset *ps, mp_fit_setup *s, char *err)
     int economy = 1;
     mp_par_bool(ps, "economy", &economy);
     /* Under auto, the per-group choices are counted in the run report
-     * (mp_report_parts) as one more economy decision. */
-    s->opts.fit.sky_order = sky_order_of(mp_par_string(ps, "skymodel"), economy);
+     * (mp_report_parts) as one more decision. */
+    s->opts.fit.sky_order = sky_order_of(mp_par_string(ps, "skymodel"));
     int psfos = MP_PAR_INDEF_INT;
     mp_par_int(ps, "psfos", &psfos);
-    if (economy && economize(s, psfos != MP_PAR_INDEF_INT, err))
-        return 1;
     if (economy) {
-        char why[256];
+        char why[320];
+        economize(s, psfos != MP_PAR_INDEF_INT);
         /* The kernel choice is measured on the model as it now stands (after
          * any block-summing above). */
-        if (mp_sinc_choice_build(&s->model, &s->sinc, err))
-            return 1;
-        if (!(s->opts.cache = s->cache = mp_econ_cache_new())) {
-            snprintf(err, MP_ERRLEN, "out of memory");
-            return 1;
-        }
-        if (s->sinc.nph > 0) {
-            s->opts.sinc = &s->sinc;
+        s->econ_sinc = s->psf.kind == MP_PSF_TABLE && hw > 0;
+        if (s->econ_sinc) {
             snprintf(why, sizeof why, "sinc kernel: per group, the shortest half-width <= %d "
                      "whose bias stays below %.2g of its brightest star's sigma "
-                     "(fit/sinc_choice.c)", s->sinc.hwmax, s->opts.sincfrac);
+                     "(fit/sinc_choice.c)", hw, s->opts.sincfrac);
             decide(s, why);
         }
-        if (phase_grids(s, ps, err))
-            return 1;
+        phase_grids(s, ps);
+        snprintf(why, sizeof why, "tables: each of these measured on the PSF only when the "
+                 "run's star fits can pay for it (fit/econ_plan.c)");
+        decide(s, why);
         snprintf(why, sizeof why, "neighbour light: painted out to where it falls below %.2g of a "
                  "sky pixel's sigma (residual too)", s->opts.cropfrac);
         decide(s, why);
@@ -353,18 +331,19 @@ int mp_fit_setup_read(const mp_parset *ps, mp_fit_setup *s, char *err)
     warn_undersampled(s);
     if (s->field.order > 0) {
         s->psf.field = &s->field;
-        /* Each coarser sampling evaluates its own block-summed field. */
-        for (int l = 0; l < s->opts.nss; l++) {
-            mp_ss_level *lv = &s->ss[l];
-            if (mp_psf_field_rebin(&s->field, s->psf.os / lv->os, &lv->field, err))
-                return 1;
-            lv->psf.field = &lv->field;
-        }
         char why[256];
         snprintf(why, sizeof why, "variable PSF: order %d, each star's table evaluated at its "
                  "own position; sampling and sinc kernel from the table at the origin (%.1f, %.1f)",
                  s->field.order, s->field.x0, s->field.y0);
         decide(s, why);
+    }
+    /* Economy's tables: offered now, built by the frame fit when they pay. */
+    if (economy && s->psf.kind == MP_PSF_TABLE) {
+        if (!(s->opts.cache = s->cache = mp_econ_cache_new())) {
+            snprintf(err, MP_ERRLEN, "out of memory");
+            return 1;
+        }
+        mp_econ_offer(s->cache, &s->model, s->econ_nlev, s->econ_os, s->econ_sinc, s->econ_grid);
     }
     return 0;
 }

@@ -131,7 +131,7 @@ int mp_sinc_choice_limits(const mp_sinc_choice *c, double B, double ron, double 
             emax[hw] = INFINITY;
             continue;
         }
-        for (int it = 0; it < 60; it++) {   /* 60 halvings of 18 decades: < 1e-9 relative */
+        for (int it = 0; it < MP_SINC_LIMITS_EVALS - 2; it++) {   /* 18 decades: E to 0.25 % */
             double mid = sqrt(lo * hi);
             if (mp_sinc_choice_bound(c, hw, mid, B, ron) <= frac)
                 lo = mid;

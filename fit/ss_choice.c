@@ -141,7 +141,8 @@ done:
     return rc;
 }
 
-int mp_ss_level_build(const mp_prf_model *m, int factor, mp_ss_level *lv, char *err)
+int mp_ss_level_build(const mp_prf_model *m, int factor, int with_sinc, mp_ss_level *lv,
+                      char *err)
 {
     memset(lv, 0, sizeof *lv);
     if (mp_psf_rebin(m->psf, factor, &lv->psf, err))
@@ -149,7 +150,7 @@ int mp_ss_level_build(const mp_prf_model *m, int factor, mp_ss_level *lv, char *
     lv->model = *m;
     lv->model.psf = &lv->psf;
     if (bias_build(m, &lv->model, &lv->bias, err) ||
-        mp_sinc_choice_build(&lv->model, &lv->sinc, err)) {
+        (with_sinc && mp_sinc_choice_build(&lv->model, &lv->sinc, err))) {
         mp_ss_level_free(lv);
         return 1;
     }

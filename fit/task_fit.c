@@ -10,9 +10,11 @@
 #include "fit/fit.h"
 #include "params/params.h"
 
-/* Fit one image with one coordinate table; write the table and residual. */
+/* Fit one image with one coordinate table; write the table and residual.
+ * nframes: the run's frames, so that economy plans its tables for the
+ * whole @list (this table's stars in every frame, fit/econ_plan.c). */
 static int fit_one(const mp_fit_setup *s, const char *image, const char *coords,
-                   const char *output, const char *residual, char *err)
+                   const char *output, const char *residual, size_t nframes, char *err)
 {
     mp_frame f;
     memset(&f, 0, sizeof f);
@@ -32,8 +34,10 @@ static int fit_one(const mp_fit_setup *s, const char *image, const char *coords,
     run.t_read = mp_seconds() - t0;
     char e[MP_ERRLEN];
     mp_frame_report rep;
+    mp_frame_opts fo = s->opts;
+    fo.fits = (double)t.nrow * (double)nframes;
     t0 = mp_seconds();
-    if (mp_fit_table(&f, &s->model, &s->opts, &t, &rep, e)) {
+    if (mp_fit_table(&f, &s->model, &fo, &t, &rep, e)) {
         snprintf(err, MP_ERRLEN, "%.200s: %.300s", coords, e);
         goto done;
     }
@@ -72,6 +76,12 @@ static int fit_one(const mp_fit_setup *s, const char *image, const char *coords,
     run.kbounds = rep.kbounds;
     run.kcoarse = rep.kcoarse;
     run.envelopes = rep.envelopes;
+    run.ops_tables = rep.ops_tables;
+    run.ops_saved = rep.ops_saved;
+    run.ops_render = rep.ops_render;
+    char tables[512];
+    mp_econ_summary(s->cache, rep.ops_render, tables, sizeof tables);
+    run.tables = tables;
     mp_report_from_table(&t, &run);
     mp_report_parts(&s->model, &s->opts, &rep, &run);
     run.decisions = s->decisions;
@@ -125,7 +135,7 @@ int mp_task_fit(int argc, char **argv)
             }
             o = named;
         }
-        int r = fit_one(&s, im[i], co[i], o, nrs ? rs[i] : NULL, err);
+        int r = fit_one(&s, im[i], co[i], o, nrs ? rs[i] : NULL, nim, err);
         free(named);
         if (r)
             goto done;

@@ -189,6 +189,17 @@ static int one_fake(const mp_frame *f, const mp_pipeline_opts *o, const mp_fakes
 int mp_fakes_run(const mp_frame *f, const mp_pipeline_opts *o, const mp_fakes_opts *fo,
                  const mp_fakes_base *b, long lo, long hi, mp_fake *out, char *err)
 {
+    /* The boxes are one run: economy's tables pay for all their fits, at
+     * least one per fake (fit/econ_plan.c), not for one box's few; all
+     * parts' fakes, so that a part's fits are the whole run's. */
+    mp_pipeline_opts *run = malloc(sizeof *run);
+    if (!run) {
+        snprintf(err, MP_ERRLEN, "out of memory");
+        return 1;
+    }
+    *run = *o;
+    run->fit.opts.fits = (double)fo->nfake;
+    o = run;
     int failed = 0;
     char ferr[MP_ERRLEN] = "";
 #pragma omp parallel
@@ -216,5 +227,6 @@ int mp_fakes_run(const mp_frame *f, const mp_pipeline_opts *o, const mp_fakes_op
     }
     if (failed)
         snprintf(err, MP_ERRLEN, "%s", ferr);
+    free(run);
     return failed;
 }

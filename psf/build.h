@@ -27,10 +27,19 @@
 #include "fit/fit.h"
 #include "io/io.h"
 
-/* One PSF star: a cut-out of the frame around it (neighbours subtracted
- * when a fitted table was given), and its current fit. */
+/* Neighbours fitted with each PSF star at most (the brightest). */
+#define MP_EPSF_MAXNB 12
+
+/* One PSF star: a cut-out of the frame around it, and its current fit.
+ * With neighbours (mp_epsf_neighbours) the cut-out as cut is kept in raw,
+ * the star is fitted together with them on it, and f holds raw less the
+ * neighbours' current models (what the table is built from). */
 typedef struct {
     mp_frame f;        /* the cut-out; pixels in electrons, own mask */
+    double *raw;       /* NULL, or the cut-out with the neighbours in */
+    int nnb;           /* neighbours, frame coordinates and flux [e-] */
+    double nbx[MP_EPSF_MAXNB], nby[MP_EPSF_MAXNB], nbf[MP_EPSF_MAXNB];
+    size_t nbrow[MP_EPSF_MAXNB];   /* their rows in the table they came from */
     long x0, y0;       /* frame pixel of the cut-out's pixel (1, 1) */
     double x, y;       /* position, frame coordinates (1-based) */
     double xf, yf;     /* where it was found (a fit straying > 1 px from it
@@ -118,6 +127,23 @@ int mp_epsf_cutouts(const mp_frame *f, const double *img, const double *x, const
 int mp_epsf_cutout_add(mp_epsf_star *s, const mp_prf_model *m, double x, double y, double flux,
                        char *err);
 
+/* mp_epsf_neighbours: each star's neighbours, the rows of t (XPSF_IMAGE,
+ * YPSF_IMAGE, FLUX_PSF when present, else find's X_IMAGE, Y_IMAGE, FLUX)
+ * more than 1 px from where the star was found and within psfrad and its
+ * sky annulus (MP_EPSF_ANNULUS), the MP_EPSF_MAXNB brightest; with m
+ * (the cut-outs are of a residual) each is first put back with model m.
+ * They are then fitted with their star at every fit of the build, with
+ * the current table, so that their light (and the old table's error in
+ * it) leaves neither the table nor the star's sky.  Nonzero only on out
+ * of memory. */
+int mp_epsf_neighbours(mp_epsf_star *s, size_t n, const mp_table *t, const mp_prf_model *m,
+                       double psfrad, char *err);
+
+/* mp_epsf_clean: f = raw less the neighbours' models drawn with table
+ * tab (for the star at s->x, s->y), and the star's sky again from the
+ * annulus of that; nothing without neighbours.  Nonzero on out of memory. */
+int mp_epsf_clean(mp_epsf_star *s, const mp_psf *tab, double psfrad);
+
 void mp_epsf_stars_free(mp_epsf_star *s, size_t n);
 
 /* ---- The build (psf/epsf_build.c) ----------------------------------------- */
@@ -155,16 +181,22 @@ int mp_epsf_rebin(const mp_epsf *e, int factor, mp_epsf *out, char *err);
 /* ---- Total flux (psf/growth.c) -------------------------------------------- */
 
 /* mp_epsf_growth: the fraction of a star's light inside the table, by the
- * curve of growth of the brightest used stars (DAOPHOT's aperture
- * correction): each star's flux fitted with the table (of sum 1) against
- * the light in a circular aperture of radius rbig on img (sky: the clipped
- * mode of the annulus rbig..rbig+4 px), img being the frame, or with
- * residual set data less every fitted star (then the star's own model,
- * from e, is put back).  e->sum is set to the median ratio when that is
- * below 1 by more than 3 times its error, else 1; e->sum_err its error.
- * Nonzero only on out of memory (fewer than 3 measurable stars: sum 1). */
-int mp_epsf_growth(const mp_frame *f, const double *img, int residual, const mp_epsf_star *s,
-                   size_t n, double rbig, mp_epsf *e, char *err);
+ * light beyond it on the brightest used stars (DAOPHOT's aperture
+ * correction): each star's flux F fitted with the table (of sum 1)
+ * against F + L, L the light its model leaves out between rin − 1.5 px
+ * (the table's edge, which pixels only partly cover, rin its radius) and
+ * rbig on img, as the median of each 1-px ring of img less the star's
+ * model, less the sky (the median of rbig..rbig+4 px), times the ring's
+ * pixels (robust to the neighbours and faint stars a crowded ring holds;
+ * it misses narrow features such as diffraction spikes).  img is the
+ * frame, or with fitted and m given, data less every star of fitted (then
+ * the star's own rows, within 1 px of where it was found, are put back
+ * with m, as they were taken).  e->sum is set to the median ratio when
+ * that is below 1 by more than 3 times its error, else 1; e->sum_err its error.  Nonzero
+ * only on out of memory (fewer than 3 measurable stars: sum 1). */
+int mp_epsf_growth(const mp_frame *f, const double *img, const mp_table *fitted,
+                   const mp_prf_model *m, const mp_epsf_star *s, size_t n, double rin,
+                   double rbig, mp_epsf *e, char *err);
 
 /* ---- From a frame (psf/frame_build.c): what `matphot psf` and the
  * pipeline run ---------------------------------------------------------- */
@@ -183,7 +215,9 @@ typedef struct {
  * (x, y, start flux: NaN for "measure it") from img — the frame's pixels
  * (residual 0), or data less every fitted star of `fitted` (residual 1: each
  * PSF star's own fitted light, the rows of `fitted` within 1 px, put back
- * with model m) — then the table: at o->os, or with o->os 0 built at ×4 and
+ * with model m); the rows of `fitted` (may be NULL; with residual 0 a
+ * find table will do) around each star its neighbours, fitted with it
+ * (mp_epsf_neighbours) — then the table: at o->os, or with o->os 0 built at ×4 and
  * taken to the coarsest OVERSAMP whose aliasing error for the brightest
  * star is below 1 σ of its noise; of order o->order, or with −1 from e's
  * order (0 when e is empty) raised while mp_epsf_order_test rejects the

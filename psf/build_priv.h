@@ -49,6 +49,11 @@ int mp_epsf_wiener_measure(const mp_epsf *e, const mp_epsf *noise, double *w, in
  * pixel, so any OVERSAMP).  Nonzero on out of memory. */
 int mp_epsf_wiener_apply(mp_epsf *e, const double *w, int nbin);
 
+/* mp_epsf_refit: every used star (and its neighbours) fitted again with
+ * table e as it now is (after a filter or a new order), e->nstar the
+ * stars still used: fluxes that go with the table (growth.c). */
+int mp_epsf_refit(mp_epsf_star *s, size_t n, const mp_epsf_opts *o, mp_epsf *e, char *err);
+
 /* mp_epsf_median: the median of v[0..n) (reorders v). */
 double mp_epsf_median(double *v, size_t n);
 

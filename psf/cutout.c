@@ -14,6 +14,7 @@ void mp_epsf_stars_free(mp_epsf_star *s, size_t n)
     for (size_t k = 0; k < n; k++) {
         free(s[k].f.im.pix);
         free(s[k].f.mask);
+        free(s[k].raw);
     }
     free(s);
 }
@@ -186,4 +187,115 @@ int mp_epsf_cutout_add(mp_epsf_star *s, const mp_prf_model *m, double x, double 
     free(prf);
     mp_prf_work_free(&w);
     return 0;
+}
+
+/* The columns of a star table: the fit's when present, else find's. */
+static int star_cols(const mp_table *t, int *cx, int *cy, int *cf)
+{
+    *cx = mp_table_col(t, "XPSF_IMAGE");
+    *cy = mp_table_col(t, "YPSF_IMAGE");
+    *cf = mp_table_col(t, "FLUX_PSF");
+    if (*cx < 0 || *cy < 0 || *cf < 0) {
+        *cx = mp_table_col(t, "X_IMAGE");
+        *cy = mp_table_col(t, "Y_IMAGE");
+        *cf = mp_table_col(t, "FLUX");
+    }
+    return *cx >= 0 && *cy >= 0 && *cf >= 0;
+}
+
+/* Star s's neighbours among t's rows: the MP_EPSF_MAXNB brightest within
+ * rmax, kept sorted by flux, brightest first. */
+static void pick_neighbours(mp_epsf_star *s, const mp_table *t, int cx, int cy, int cf,
+                            double rmax)
+{
+    s->nnb = 0;
+    for (size_t r = 0; r < t->nrow; r++) {
+        double x = mp_table_get(t, r, cx), y = mp_table_get(t, r, cy), F = mp_table_get(t, r, cf);
+        double d = hypot(x - s->xf, y - s->yf);
+        if (!(F > 0) || !isfinite(F) || !(d > 1.0 && d <= rmax))
+            continue;
+        if (s->nnb == MP_EPSF_MAXNB && s->nbf[MP_EPSF_MAXNB - 1] >= F)
+            continue;
+        int q = s->nnb < MP_EPSF_MAXNB ? s->nnb++ : MP_EPSF_MAXNB - 1;
+        for (; q > 0 && s->nbf[q - 1] < F; q--) {
+            s->nbx[q] = s->nbx[q - 1];
+            s->nby[q] = s->nby[q - 1];
+            s->nbf[q] = s->nbf[q - 1];
+            s->nbrow[q] = s->nbrow[q - 1];
+        }
+        s->nbx[q] = x;
+        s->nby[q] = y;
+        s->nbf[q] = F;
+        s->nbrow[q] = r;
+    }
+}
+
+int mp_epsf_neighbours(mp_epsf_star *s, size_t n, const mp_table *t, const mp_prf_model *m,
+                       double psfrad, char *err)
+{
+    int cx, cy, cf;
+    if (!t || !star_cols(t, &cx, &cy, &cf))
+        return 0;
+    for (size_t k = 0; k < n; k++) {
+        pick_neighbours(&s[k], t, cx, cy, cf, psfrad + MP_EPSF_ANNULUS(psfrad));
+        for (int j = 0; m && j < s[k].nnb; j++)
+            if (mp_epsf_cutout_add(&s[k], m, s[k].nbx[j], s[k].nby[j], s[k].nbf[j], err))
+                return 1;
+        size_t np = (size_t)s[k].f.im.nx * s[k].f.im.ny;
+        if (s[k].nnb == 0)
+            continue;
+        if (!(s[k].raw = malloc(np * sizeof *s[k].raw))) {
+            snprintf(err, MP_ERRLEN, "psf build: out of memory");
+            return 1;
+        }
+        memcpy(s[k].raw, s[k].f.im.pix, np * sizeof *s[k].raw);
+    }
+    return 0;
+}
+
+int mp_epsf_clean(mp_epsf_star *s, const mp_psf *tab, double psfrad)
+{
+    if (!s->raw)
+        return 0;
+    mp_frame *f = &s->f;
+    size_t np = (size_t)f->im.nx * f->im.ny;
+    memcpy(f->im.pix, s->raw, np * sizeof *f->im.pix);
+    mp_prf_model m = {tab, NULL, 10};
+    mp_prf_work w;
+    memset(&w, 0, sizeof w);
+    double *prf = NULL, *buf = malloc(2 * np * sizeof *buf);
+    size_t nprf = 0;
+    int rc = !buf;
+    for (int j = 0; !rc && j < s->nnb; j++) {
+        double xs = s->nbx[j] - (double)(s->x0 - 1), ys = s->nby[j] - (double)(s->y0 - 1);
+        long bx0, by0;
+        int bw, bh;
+        mp_prf_box(&m, xs, ys, &bx0, &by0, &bw, &bh);
+        if ((size_t)bw * bh > nprf) {
+            free(prf);
+            nprf = (size_t)bw * bh;
+            if (!(prf = malloc(nprf * sizeof *prf))) {
+                rc = 1;
+                break;
+            }
+        }
+        if ((rc = mp_prf_render(&m, xs, ys, prf, NULL, NULL, &w)) != 0)
+            break;
+        for (int b = 0; b < bh; b++)
+            for (int a = 0; a < bw; a++) {
+                long px = bx0 + a, py = by0 + b;
+                if (px >= 1 && px <= f->im.nx && py >= 1 && py <= f->im.ny)
+                    f->im.pix[(size_t)(py - 1) * f->im.nx + (size_t)(px - 1)] -=
+                        s->nbf[j] * prf[(size_t)b * bw + a];
+            }
+    }
+    if (!rc) {
+        double b = annulus_sky(s, psfrad + 1.0, psfrad + MP_EPSF_ANNULUS(psfrad), buf);
+        if (isfinite(b))
+            s->sky = b;
+    }
+    free(prf);
+    free(buf);
+    mp_prf_work_free(&w);
+    return rc;
 }

@@ -65,7 +65,9 @@ static int start_planes(const mp_epsf_opts *o, int os, int order, mp_epsf *e, ch
     return 0;
 }
 
-/* Fit one star (centre, flux, constant sky) with its table at its place. */
+/* Fit one star (centre, flux; the sky its annulus's) with its table at
+ * its place, together with its neighbours on the cut-out as cut; then
+ * the cut-out less the neighbours' models (mp_epsf_clean). */
 static int fit_star(mp_epsf_star *s, const mp_epsf *e, const mp_epsf_opts *o, mp_psf *tab,
                     char *err)
 {
@@ -77,29 +79,51 @@ static int fit_star(mp_epsf_star *s, const mp_epsf *e, const mp_epsf_opts *o, mp
     fo.sky_order = 0;
     fo.fitrad = o->fitrad;
     fo.fit_sky = 0;             /* the annulus's (mp_epsf_cutouts) */
-    mp_star st;
-    memset(&st, 0, sizeof st);
-    st.x = s->x - (double)(s->x0 - 1);
-    st.y = s->y - (double)(s->y0 - 1);
-    st.flux = s->flux;
+    mp_star st[1 + MP_EPSF_MAXNB];
+    memset(st, 0, sizeof st);
+    double ox = (double)(s->x0 - 1), oy = (double)(s->y0 - 1);
+    st[0].x = s->x - ox;
+    st[0].y = s->y - oy;
+    st[0].flux = s->flux;
+    for (int j = 0; j < s->nnb; j++) {
+        st[1 + j].x = s->nbx[j] - ox;
+        st[1 + j].y = s->nby[j] - oy;
+        st[1 + j].flux = s->nbf[j];
+    }
+    mp_frame raw = s->f;
+    if (s->raw)
+        raw.im.pix = s->raw;
     char e2[MP_ERRLEN];
-    if (mp_fit_group(&s->f, &m, &fo, s->sky, &st, 1, e2)) {
+    if (mp_fit_group(&raw, &m, &fo, s->sky, st, 1 + s->nnb, e2)) {
         s->used = 0;
         return 0;
     }
-    double nx = st.x + (double)(s->x0 - 1), ny = st.y + (double)(s->y0 - 1);
+    double nx = st[0].x + ox, ny = st[0].y + oy;
     /* A fit that strays from where the star was found, or loses its light,
      * is not a star this table describes. */
-    if (!(st.flux > 0) || !isfinite(nx) || !isfinite(ny) || hypot(nx - s->xf, ny - s->yf) > 1.0 ||
-        (st.flags & (MP_FLAG_NOCONV | MP_FLAG_EDGE))) {
+    if (!(st[0].flux > 0) || !isfinite(nx) || !isfinite(ny) || hypot(nx - s->xf, ny - s->yf) > 1.0 ||
+        (st[0].flags & (MP_FLAG_NOCONV | MP_FLAG_EDGE))) {
         s->used = 0;
         return 0;
     }
     s->x = nx;
     s->y = ny;
-    s->flux = st.flux;
-    s->sky = st.sky;
-    s->chi2 = st.chi2;
+    s->flux = st[0].flux;
+    s->sky = st[0].sky;
+    s->chi2 = st[0].chi2;
+    /* A neighbour keeps a fit that stays finite, positive and near its
+     * start; else its last values. */
+    for (int j = 0; j < s->nnb; j++) {
+        double x = st[1 + j].x + ox, y = st[1 + j].y + oy;
+        if (st[1 + j].flux > 0 && isfinite(x) && isfinite(y) &&
+            hypot(x - s->nbx[j], y - s->nby[j]) <= 1.0) {
+            s->nbx[j] = x;
+            s->nby[j] = y;
+            s->nbf[j] = st[1 + j].flux;
+        }
+    }
+    if (mp_epsf_clean(s, tab, o->psfrad))
+        return oom(err);
     return 0;
 }
 
@@ -182,14 +206,25 @@ int mp_epsf_build(mp_epsf_star *s, size_t n, const mp_epsf_opts *o, int os, int 
         mp_epsf_normalise(e, o->fwhm);
     }
     /* The stars' last fit with the final table. */
-    for (size_t k = 0; k < n; k++)
-        if (s[k].used && fit_star(&s[k], e, o, &tab, err))
-            goto done;
-    e->nstar = (int)count_used(s, n);
+    if (mp_epsf_refit(s, n, o, e, err))
+        goto done;
     rc = 0;
 done:
     free(tmp);
     mp_psf_free(&tab);
     mp_epsf_sirt_free(&w);
+    return rc;
+}
+
+int mp_epsf_refit(mp_epsf_star *s, size_t n, const mp_epsf_opts *o, mp_epsf *e, char *err)
+{
+    mp_psf tab;
+    memset(&tab, 0, sizeof tab);
+    int rc = 0;
+    for (size_t k = 0; k < n && !rc; k++)
+        if (s[k].used)
+            rc = fit_star(&s[k], e, o, &tab, err);
+    e->nstar = (int)count_used(s, n);
+    mp_psf_free(&tab);
     return rc;
 }

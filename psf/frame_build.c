@@ -234,6 +234,8 @@ int mp_epsf_pass(const mp_frame *f, const double *img, int residual, const mp_ta
         goto done;
     if (residual && fitted && m && put_back(s, n, fitted, m, err))
         goto done;
+    if (mp_epsf_neighbours(s, n, fitted, residual ? m : NULL, o->psfrad, err))
+        goto done;
     rep->nsel = n;
     e->why[0] = '\0';
     if (!e->planes && o->os == 0) {
@@ -261,10 +263,12 @@ int mp_epsf_pass(const mp_frame *f, const double *img, int residual, const mp_ta
             goto done;
         }
         mp_epsf_normalise(e, o->fwhm);
+        if (mp_epsf_refit(s, n, o, e, err))
+            goto done;
     }
     /* The light beyond the table only once the neighbours are gone: in a
      * crowded frame they fill the big aperture. */
-    if (residual && mp_epsf_growth(f, img, residual, s, n, 2.0 * o->psfrad, e, err))
+    if (residual && mp_epsf_growth(f, img, fitted, m, s, n, o->psfrad, 2.0 * o->psfrad, e, err))
         goto done;
     rep->nused = (size_t)e->nstar;
     rep->chi2 = median_chi2(s, n);

@@ -199,7 +199,7 @@ static int run(psf_task *t, char *err)
                                 : stars_selected(t, &f, &found, &x, &y, &fl, &n, err))
         goto done;
     char e2[MP_ERRLEN];
-    if (mp_epsf_pass(&f, f.im.pix, 0, NULL, NULL, x, y, fl, n, &t->o, &e, &rep, NULL, e2)) {
+    if (mp_epsf_pass(&f, f.im.pix, 0, &found, NULL, x, y, fl, n, &t->o, &e, &rep, NULL, e2)) {
         snprintf(err, MP_ERRLEN, "%s: %.400s", t->image, e2);
         goto done;
     }

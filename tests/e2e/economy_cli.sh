@@ -7,13 +7,15 @@
 # psfos=2's); without a start flux, or for FWHM 1.5, the table as given;
 # economy=no drops nothing.  Deterministic: fixed seeds, no tolerance.
 M=${MATPHOT:-./matphot}
+OMP_NUM_THREADS=1
+export OMP_NUM_THREADS
 [ -x "$M" ] || { echo "economy_cli: $M not built"; exit 77; }
 T=$(mktemp -d "${TMPDIR:-/tmp}/economy_cli.XXXXXX") || exit 1
-trap 'rm -rf "$T"' EXIT INT TERM
+if [ -n "${KEEP:-}" ]; then echo "economy_cli: $T" >&2; else trap 'rm -rf "$T"' EXIT INT TERM; fi
 fails=0
 no() { echo "FAIL: $*"; fails=$((fails + 1)); }
 has() {  # has FILE PATTERN WHAT
-    grep -q "$2" "$1" || { no "$3 (report: $(grep 'economy:' "$1"))"; }
+    grep -q "$2" "$1" || { no "$3 (report: $(grep 'economy' "$1" | tail -n 3))"; }
 }
 
 "$M" sim "$T/w.fits" seed=21 fwhm=4 magmin=-8 magmax=-8 psfout="$T/w2.fits" psfos=2 || no "sim wide"
@@ -25,21 +27,35 @@ for f in w b; do
     sed 's/^#   4 FLUX_TRUE             /#   4 FLUX                  /' "$T/$f.truth" > "$T/$f.coo"
 done
 
-fit() {  # fit NAME IMAGE COORDS ARGS...
-    n=$1; shift
+fit() {  # fit NAME IMAGE COORDS ARGS...: the frame K times in one @list
+    n=$1 im=$2 co=$3; shift 3
+    # Economy measures a table on the PSF only when the run's star fits pay
+    # for it (fit/econ_plan.c): one star once never does, so the frame is
+    # fitted K = 256 times in one run (an @list), where a x1 level pays; the
+    # first copy's table and report are $n.fit, $n.report.
+    : > "$T/$n.im"; : > "$T/$n.co"; : > "$T/$n.out"
+    k=1
+    while [ $k -le "${K:-256}" ]; do
+        echo "$im" >> "$T/$n.im"; echo "$co" >> "$T/$n.co"
+        if [ $k -eq 1 ]; then echo "$T/$n.fit" >> "$T/$n.out"; else echo "$T/$n.$k.fit" >> "$T/$n.out"; fi
+        k=$((k + 1))
+    done
     # skymodel fixed: these runs compare the table's sampling alone (the
-    # sky order's own decision is test_levmar's; economy=no would force the
-    # quadratic sky); phasegrid=0: the finest table's phase grid (issue 12,
-    # interpolated to 1e-6 of the light) would tell the table reached as the
-    # given one from the same table reached as a coarser level
-    "$M" fit "$@" skymodel=constant phasegrid=0 output="$T/$n.fit" 2>"$T/$n.err" || no "fit $n"
+    # sky order's own decision is test_levmar's); phasegrid=0: the finest
+    # table's phase grid (issue 12, interpolated to 1e-6 of the light)
+    # would tell the table reached as the given one from the same table
+    # reached as a coarser level
+    "$M" fit @"$T/$n.im" @"$T/$n.co" output=@"$T/$n.out" "$@" skymodel=constant phasegrid=0 \
+        2>"$T/$n.err" || no "fit $n"
 }
 # FWHM 4 (beta ~ 37 px^2): x1 serves ~2.5e6 e- even on no sky; a -8 mag star
 # is fitted with it (the same fit as psfos=1's, the same model reached two
 # ways), a -18 mag one (1.6e7 e-) keeps x2 (= psfos=2's).
 fit wyes "$T/w.fits" "$T/w.coo" psf="$T/w2.fits"
-has "$T/wyes.err" 'economy: [0-9]* decisions: supersampling: per group, the coarsest table whose linearised bias.* x1 to E = [0-9.e+]* e-, the x2 table above (beta = 3[0-9.]* px^2' \
+has "$T/wyes.err" 'economy: [0-9]* decisions: supersampling: per group, the coarsest table whose linearised bias.* offered at x1, the x2 table above (beta = 3[0-9.]* px^2' \
     "FWHM 4: no per-group supersampling decision"
+has "$T/wyes.err" "economy tables: planned for up to 256 star fits; built:.* the x1 table's bias table" \
+    "FWHM 4, 256 fits: the x1 level not built"
 has "$T/wyes.err" 'work:.* 1 with a coarser table' "FWHM 4, -8 mag: x1 not used"
 grep -q 'economy: [0-9]* decisions: supersampling' "$T/wyes.report" || no "decision not in root.report"
 fit wos1 "$T/w.fits" "$T/w.coo" psf="$T/w2.fits" psfos=1
@@ -58,10 +74,19 @@ grep -q 'left out:.*supersampling' "$T/wno.err" && no "economy=no left out the s
 cmp -s "$T/wno.fit" "$T/wtr.fit" || no "no start flux: economy=yes changed the fit"
 # FWHM 1.5 (beta ~ 6 px^2): x1 serves no real star.
 fit nyes "$T/n.fits" "$T/n.truth" psf="$T/n2.fits"
-has "$T/nyes.err" 'economy: [0-9]* decisions: supersampling: per group.* x1 to E = [0-9.]* e-,' \
+has "$T/nyes.err" 'economy: [0-9]* decisions: supersampling: per group.* offered at x1,' \
     "FWHM 1.5: no per-group supersampling decision"
 fit nno "$T/n.fits" "$T/n.truth" psf="$T/n2.fits" economy=no
 cmp -s "$T/nyes.fit" "$T/nno.fit" || no "undersampled: economy=yes changed the fit"
+
+# One star once: no table can pay for its build, so none is built and the
+# fit is economy=no's (the tables' own cost is economy's fixed cost, issue 10).
+"$M" fit "$T/w.fits" "$T/w.coo" psf="$T/w2.fits" skymodel=constant output="$T/one.fit" \
+    2>"$T/one.err" || no "fit one"
+has "$T/one.err" 'economy tables: planned for up to 1 star fits; built: none' "one star: a table built"
+"$M" fit "$T/w.fits" "$T/w.coo" psf="$T/w2.fits" skymodel=constant economy=no \
+    output="$T/oneno.fit" 2>/dev/null || no "fit one economy=no"
+cmp -s "$T/one.fit" "$T/oneno.fit" || no "one star: economy=yes's fit is not economy=no's"
 
 # A segmented mirror (lambda/D = 2 px at the blue end of a 50 % band, beta
 # ~ 28 px^2, where paper 5.4's rule took it to x1): its x1 table serves

@@ -88,6 +88,15 @@ static void setup_with(const files *f, int with_drf, mp_fit_setup *s, ...)
         fail_msg("mp_fit_setup_read: %s", err);
 }
 
+/* Economy's tables as a run of many star fits gets them (every one pays,
+ * fit/econ_plan.c), pointed at from s->opts. */
+static void plan_all(mp_fit_setup *s)
+{
+    char err[MP_ERRLEN];
+    if (mp_econ_choose(s->cache, 1e9, s->opts.fit.fitrad, &s->opts, NULL, err))
+        fail_msg("mp_econ_choose: %s", err);
+}
+
 /* The decisions string holds ndecisions "; "-separated items. */
 static void assert_counted(const mp_fit_setup *s)
 {
@@ -123,12 +132,14 @@ static void test_uniform_drf_becomes_scalar(void **state)
     /* With the map gone, the x4 table is offered per group at x1 and x2,
      * each with its measured bias bound (fit/ss_choice.c). */
     assert_int_equal(s.psf.os, 4);
+    assert_int_equal(s.opts.nss, 0);        /* built only when they pay */
+    plan_all(&s);
     assert_int_equal(s.opts.nss, 2);
-    assert_int_equal(s.ss[0].os, 1);
-    assert_int_equal(s.ss[1].os, 2);
-    assert_ptr_equal(s.opts.ss, s.ss);
+    assert_int_equal(s.opts.ss[0].os, 1);
+    assert_int_equal(s.opts.ss[1].os, 2);
     assert_non_null(strstr(s.decisions, "supersampling: per group, the coarsest table"));
-    assert_int_equal(s.ndecisions, 2 + 4);   /* + the neighbour crop, refit, kernel and phase-grid rules */
+    /* + the kernel, phase-grid, tables, neighbour crop and refit rules */
+    assert_int_equal(s.ndecisions, 2 + 5);
     assert_counted(&s);
     mp_fit_setup_free(&s);
 
@@ -192,9 +203,9 @@ static void test_report_prints_decisions(void **state)
     assert_non_null(fp);
     int found = 0;
     while (fgets(line, sizeof line, fp))
-        found |= strstr(line, "economy: 5 decisions: supersampling: per group, the coarsest "
+        found |= strstr(line, "economy: 6 decisions: supersampling: per group, the coarsest "
                               "table whose linearised bias") != NULL &&
-                 strstr(line, "x1 to E = ") != NULL;
+                 strstr(line, "offered at x1, the x2 table above") != NULL;
     fclose(fp);
     unlink(path);
     assert_true(found);
@@ -547,14 +558,15 @@ static void test_supersampling_by_bound(void **state)
     free(t);
     mp_fit_setup s;
     setup_with(f, 0, &s, (const char *)NULL);
+    plan_all(&s);
     double b = beta_of(&s.psf);
     print_message("segmented mirror x2: beta V^2 %.1f px^2, x1 serves E <= %.3g e- on sky 100\n", b,
-                  mp_ss_level_emax(&s.ss[0], B, ron, frac));
+                  mp_ss_level_emax(&s.opts.ss[0], B, ron, frac));
     assert_true(b >= 21.0);                     /* the old rule: x1 for all */
     assert_int_equal(s.psf.os, 2);              /* the table stays as given */
     assert_int_equal(s.opts.nss, 1);
-    assert_int_equal(s.ss[0].os, 1);
-    const mp_ss_level *lv = &s.ss[0];
+    assert_int_equal(s.opts.ss[0].os, 1);
+    const mp_ss_level *lv = &s.opts.ss[0];
     assert_false(mp_ss_level_serves(lv, Ebright, B, ron, frac));
     assert_true(mp_ss_level_emax(lv, B, ron, frac) < Ebright);
     double q, worst = 0.0;
@@ -569,7 +581,8 @@ static void test_supersampling_by_bound(void **state)
 
     write_psf(f, 3.0, 2);
     setup_with(f, 0, &s, (const char *)NULL);
-    lv = &s.ss[0];
+    plan_all(&s);
+    lv = &s.opts.ss[0];
     assert_int_equal(s.opts.nss, 1);
     double emax = mp_ss_level_emax(lv, B, ron, frac);
     print_message("Gaussian FWHM 3 x2: x1 serves E <= %.3g e- on sky 100 (the old bound: 9e3)\n",

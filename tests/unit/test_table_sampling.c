@@ -488,7 +488,7 @@ static void test_tinytim_x2_bias_is_aliasing(void **state)
      * −15 mag on sky 100 (case 7 measured a 1.1 σ bias there). */
     mp_prf_model m4 = {&t4, NULL, 10};
     mp_ss_level lv;
-    assert_int_equal(mp_ss_level_build(&m4, 2, &lv, err), 0);
+    assert_int_equal(mp_ss_level_build(&m4, 2, 1, &lv, err), 0);
     double chi2, q = mp_ss_level_bias(&lv, E15, SKY, RON, &chi2);
     print_message("Tiny Tim x4 -> x2 at 1e6 e-: bias %.2f sigma, chi2 shift %.3g; x2 serves E <= "
                   "%.3g e-\n", q, chi2, mp_ss_level_emax(&lv, SKY, RON, 0.1));

@@ -247,6 +247,10 @@ int sw_econ(const sw_scene *sc, const char *work, int reps, int verbose, char *e
     if (setup_of(psf, drf, "no", sc->whole, NULL, &s[0], err) ||
         setup_of(psf, drf, "yes", sc->whole, NULL, &s[1], err))
         goto done;
+    /* The scene's stars are one run (as `matphot fit` plans an @list's):
+     * economy builds the tables that pay for them (fit/econ_plan.c). */
+    for (int k = 0; k < 2; k++)
+        s[k].opts.fits = sc->n;
     setting_of(&s[0], "no", maxgroup, &res[0].s);
     setting_of(&s[1], "yes", maxgroup, &res[1].s);
     res[0].s.is_default = 1;
@@ -276,6 +280,7 @@ int sw_econ(const sw_scene *sc, const char *work, int reps, int verbose, char *e
         snprintf(os, sizeof os, "%d", sc->tab[sc->def_tab].os);
         if (setup_of(psf, drf, "yes", sc->whole, os, &s[2], err))
             goto done;
+        s[2].opts.fits = sc->n;
         setting_of(&s[2], "beta rule", maxgroup, &res[2].s);
         iold = nset++;
     }

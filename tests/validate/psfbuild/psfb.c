@@ -37,6 +37,7 @@
 #include "catalog/catalog.h"
 #include "fit/fit.h"
 #include "io/io.h"
+#include "psf/build.h"
 #include "sim/sim.h"
 
 #define NX 256
@@ -221,11 +222,12 @@ static int do_match(const char *dir, const char *root)
     /* Each true star takes the nearest unused catalog star within 1 px,
      * brightest true stars first (they are found first and best). */
     enum { NB = 6 };
-    double *ph[NB], *as[NB];
+    double *ph[NB], *as[NB], *bi[NB];
     int nin[NB] = {0}, nm[NB] = {0};
     for (int b = 0; b < NB; b++) {
         ph[b] = malloc(nt * sizeof(double));
         as[b] = malloc(nt * sizeof(double));
+        bi[b] = malloc(nt * sizeof(double));
     }
     size_t *ord = malloc(nt * sizeof *ord);
     for (size_t i = 0; i < nt; i++)
@@ -257,17 +259,20 @@ static int do_match(const char *dir, const char *root)
         used[best] = 1;
         double dE = mp_table_get(&ct, (size_t)best, cf) - mp_table_get(&tr, i, tf);
         ph[b][nm[b]] = fabs(dE) / (0.6745 * mp_table_get(&tr, i, te));
+        bi[b][nm[b]] = dE / mp_table_get(&tr, i, te);
         as[b][nm[b]] = bd / (1.1774 * mp_table_get(&tr, i, tq));
         nm[b]++;
     }
-    printf("%s: mag bin | true | found | completeness | phot/CRLB | astro/CRLB\n", root);
+    printf("%s: mag bin | true | found | completeness | phot/CRLB | astro/CRLB | "
+           "median dE/CRLB\n", root);
     for (int b = 0; b < NB; b++)
-        printf("%s: %.0f..%.0f | %d | %d | %.3f | %.3f | %.3f\n", root, b - 14.0, b - 13.0, nin[b],
-               nm[b], nin[b] ? (double)nm[b] / nin[b] : NAN, median(ph[b], nm[b]),
-               median(as[b], nm[b]));
+        printf("%s: %.0f..%.0f | %d | %d | %.3f | %.3f | %.3f | %+.2f\n", root, b - 14.0,
+               b - 13.0, nin[b], nm[b], nin[b] ? (double)nm[b] / nin[b] : NAN,
+               median(ph[b], nm[b]), median(as[b], nm[b]), median(bi[b], nm[b]));
     for (int b = 0; b < NB; b++) {
         free(ph[b]);
         free(as[b]);
+        free(bi[b]);
     }
     free(ord);
     free(used);
@@ -478,8 +483,126 @@ static int do_resid(const char *frame, const char *res, const char *cat, double 
     return 0;
 }
 
+/* Encircled energy of a PSF file's table at the frame's centre: the
+ * elements whose centres lie within r px of the table's centre, for a
+ * few r (a flux-scale error of the fit shows as a difference inside the
+ * fitting radius). */
+static int do_ee(const char *file)
+{
+    char err[MP_ERRLEN], warn[MP_ERRLEN];
+    mp_psf_field fb;
+    if (mp_psf_field_read(file, 0, 0, &fb, NULL, NULL, warn, err))
+        return fprintf(stderr, "psfb: %s\n", err), 1;
+    mp_psf b;
+    memset(&b, 0, sizeof b);
+    double xc = 0.5 * (NX + 1);
+    if (mp_psf_field_eval(&fb, xc, xc, &b, err))
+        return fprintf(stderr, "psfb: %s\n", err), 1;
+    static const double rr[] = {1, 1.5, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 16};
+    printf("psfb ee: %s (x%d, %dx%d):", file, b.os, b.nx, b.ny);
+    for (int q = 0; q < 14; q++) {
+        double s = 0;
+        for (int j = 0; j < b.ny; j++)
+            for (int i = 0; i < b.nx; i++)
+                if (hypot(i - (b.nx - 1) / 2.0, j - (b.ny - 1) / 2.0) <= rr[q] * b.os)
+                    s += b.t[(size_t)j * b.nx + i];
+        printf(" r%g %.4f", rr[q], s);
+    }
+    printf("\n");
+    mp_psf_free(&b);
+    mp_psf_field_free(&fb);
+    return 0;
+}
+
+/* The builder alone: DIR's frame less every true star but the npsf
+ * brightest (a perfect neighbour subtraction, drawn as the sim drew
+ * them), those stars' PSF built at their true positions by one pass
+ * (matphot psf's defaults, fwhm 3), written to DIR/ideal.psf.fits.  What
+ * the builder's own algorithm costs, apart from crowding. */
+static int do_ideal(const char *dir, const char *kind, int npsf)
+{
+    int seg = !strcmp(kind, "segmented");
+    char err[MP_ERRLEN], path[1024];
+    mp_datapars dp = {NAN, NAN, NAN, NAN, "", 0, 0};
+    mp_frame f;
+    mp_table tr;
+    mp_table_init(&tr);
+    snprintf(path, sizeof path, "%s/frame.fits", dir);
+    if (mp_frame_read(path, &dp, &f, err))
+        return fprintf(stderr, "psfb: %s\n", err), 1;
+    snprintf(path, sizeof path, "%s/truth.dat", dir);
+    if (mp_table_read(path, &tr, err))
+        return fprintf(stderr, "psfb: %s\n", err), 1;
+    int tx = mp_table_col(&tr, "X_IMAGE"), ty = mp_table_col(&tr, "Y_IMAGE"),
+        tf = mp_table_col(&tr, "FLUX");
+    size_t nt = tr.nrow, *ord = malloc(nt * sizeof *ord);
+    for (size_t i = 0; i < nt; i++)
+        ord[i] = i;
+    for (size_t i = 1; i < nt; i++)       /* by flux, brightest first */
+        for (size_t j = i; j > 0 && mp_table_get(&tr, ord[j], tf) > mp_table_get(&tr, ord[j - 1], tf); j--) {
+            size_t q = ord[j];
+            ord[j] = ord[j - 1];
+            ord[j - 1] = q;
+        }
+    int m = 2 * (int)ceil(RAD * TOS) + 1, n = m;
+    double *tab = malloc(sizeof(double) * m * m);
+    snprintf(path, sizeof path, "%s/true.psf.fits", dir);
+    mp_psf tp;
+    if (seg) {
+        if (mp_psf_read(path, 0, 0, &tp, NULL, err))
+            return fprintf(stderr, "psfb: %s\n", err), 1;
+        memcpy(tab, tp.t, sizeof(double) * m * m);
+        mp_psf_free(&tp);
+    }
+    double *x = malloc(nt * sizeof *x), *y = malloc(nt * sizeof *y), *fl = malloc(nt * sizeof *fl);
+    size_t np = 0;
+    for (size_t q = 0; q < nt; q++) {
+        size_t i = ord[q];
+        double sx = mp_table_get(&tr, i, tx), sy = mp_table_get(&tr, i, ty);
+        /* The brightest, none within 20 px of another PSF star (whose
+         * light would then stay in its cut-out). */
+        int lone = (int)np < npsf && sx >= 15 && sy >= 15 && sx <= NX - 15 && sy <= NX - 15;
+        for (size_t k = 0; lone && k < np; k++)
+            lone = hypot(sx - x[k], sy - y[k]) > 20.0;
+        if (lone) {
+            x[np] = sx, y[np] = sy, fl[np++] = NAN;
+            continue;
+        }
+        if (!seg)
+            var_table(sx, sy, tab, &n);
+        mp_sim_prf p = {MP_SIM_TABLE, 0, tab, n, n, TOS, NULL, 0, 1.0};
+        mp_sim_add_star(&p, sx, sy, -mp_table_get(&tr, i, tf), f.im.pix, NX, NX);
+    }
+    mp_epsf_opts o;
+    mp_epsf_opts_default(3.0, NX, NX, &o);
+    o.x0 = o.y0 = 0.5 * (NX + 1);
+    o.xs = o.ys = 0.5 * NX;
+    mp_epsf e;
+    memset(&e, 0, sizeof e);
+    mp_epsf_report rep;
+    memset(&rep, 0, sizeof rep);
+    mp_psf_field fld;
+    if (mp_epsf_pass(&f, f.im.pix, 0, NULL, NULL, x, y, fl, np, &o, &e, &rep, NULL, err) ||
+        mp_epsf_field(&e, &fld, err))
+        return fprintf(stderr, "psfb: %s\n", err), 1;
+    snprintf(path, sizeof path, "%s/ideal.psf.fits", dir);
+    if (mp_psf_field_write(path, &fld, NULL, 0, err))
+        return fprintf(stderr, "psfb: %s\n", err), 1;
+    printf("psfb ideal: %s: %s\n", path, rep.what);
+    mp_psf_field_free(&fld);
+    mp_epsf_free(&e);
+    free(x), free(y), free(fl), free(tab), free(ord);
+    mp_table_free(&tr);
+    mp_frame_free(&f);
+    return 0;
+}
+
 int main(int argc, char **argv)
 {
+    if (argc == 5 && !strcmp(argv[1], "ideal"))
+        return do_ideal(argv[2], argv[3], atoi(argv[4])) ? 1 : 0;
+    if (argc == 3 && !strcmp(argv[1], "ee"))
+        return do_ee(argv[2]) ? 1 : 0;
     if (argc == 7 && !strcmp(argv[1], "resid"))
         return do_resid(argv[2], argv[3], argv[4], atof(argv[5]), atof(argv[6])) ? 1 : 0;
     if (argc == 4 && !strcmp(argv[1], "sim"))
@@ -491,6 +614,6 @@ int main(int argc, char **argv)
     if (argc == 4 && !strcmp(argv[1], "cmp"))
         return do_cmp(argv[2], argv[3]) ? 1 : 0;
     fprintf(stderr, "usage: psfb sim DIR segmented|variable | psfb match DIR ROOT | "
-            "psfb cmp BUILT.fits TRUE.fits | psfb resid FRAME RES CAT R RON\n");
+            "psfb cmp BUILT.fits TRUE.fits | psfb ee PSF.fits | psfb resid FRAME RES CAT R RON\n");
     return 2;
 }

@@ -1,0 +1,340 @@
+/* econ_plan.c — economy's tables built only when they pay (issue 10).
+ *
+ * Why: each economy table is measured on the PSF before it can be used —
+ * the sinc kernel's error at every half-width (fit/sinc_choice.c), each
+ * coarser sampling's bias (fit/ss_choice.c), the phase grid
+ * (fit/prf_cache.c) — and that costs PSF renders: the phase grid of a ×2
+ * table alone is 22² renders with derivatives and 16² without, 150 times
+ * the whole fit of one 60×60 frame.  Built up front, economy=yes cost 0.08
+ * s against 0.01 s on one frame.  So a table is built only when the work it
+ * can save on the star fits the run expects exceeds the work it costs, a
+ * count decided before building:
+ *
+ *     fits · MP_ECON_RENDERS_PER_FIT · (saved per render) ≥ build + decisions
+ *
+ * all in multiply-adds of the damped-sinc shifts and bound sums
+ * (render_ops below).  The saving is an upper bound (every star served by
+ * the table's cheapest option), so a table that cannot pay is never built;
+ * the run report counts what the tables cost and what they saved.  fits is
+ * the run's (an @list's stars, mp_frame_opts.fits) or the frame's own,
+ * never the history of the run, so a frame's fit does not depend on the
+ * frames before it or on the order threads reach it.  Once built, a table
+ * is kept for the run. */
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include "fit/econ_state.h"
+
+#define NPH 16                  /* phases the bound tables measure (4×4) */
+
+mp_econ_cache *mp_econ_cache_new(void)
+{
+    return calloc(1, sizeof(mp_econ_cache));
+}
+
+void mp_econ_cache_free(mp_econ_cache *c)
+{
+    if (!c)
+        return;
+    for (int i = 0; i < c->n; i++)
+        free(c->e[i].emax);
+    mp_sinc_choice_free(&c->sinc);
+    for (int l = 0; l < MP_SS_MAXLEVELS; l++)
+        mp_ss_level_free(&c->ss[l]);
+    mp_prf_cache_free(&c->grid);
+    free(c);
+}
+
+/* Multiply-adds of one render of a table of nx × ny elements (OVERSAMP
+ * os) with half-width hw over a window of side W detector px (INFINITY:
+ * the whole box): the x-pass over the window's elements and the hw rows
+ * the y-pass reads, the y-pass, the block-sum (and five-point derivatives). */
+static double render_ops(int nx, int ny, int os, int hw, int derivs, double W)
+{
+    double ex = fmin(W * os + 4.0, (double)nx), ey = fmin(W * os + 4.0, (double)ny);
+    double taps = 2.0 * hw + 1.0, ty = fmin(ey + 2.0 * hw, (double)ny);
+    return ex * (ty + ey) * taps + ex * ey * (derivs ? 9.0 : 1.0);
+}
+
+static double psf_ops(const mp_psf *p, int hw, int derivs, double W)
+{
+    return render_ops(p->nx, p->ny, p->os, hw, derivs, W);
+}
+
+/* The coarser level's table size (mp_psf_rebin: ceil, kept odd). */
+static void level_size(const mp_psf *p, int factor, int *nx, int *ny)
+{
+    *nx = (p->nx + factor - 1) / factor;
+    *ny = (p->ny + factor - 1) / factor;
+    *nx += !(*nx & 1);
+    *ny += !(*ny & 1);
+}
+
+/* Detector pixels of the PSF's box (one more per axis for the phase). */
+static double box_pixels(const mp_psf *p)
+{
+    double bx = ceil((double)p->nx / p->os) + 1.0, by = ceil((double)p->ny / p->os) + 1.0;
+    return bx * by;
+}
+
+double mp_econ_eval_ops(const void *table, int kind)
+{
+    if (kind == ECON_LIM_SINC) {
+        const mp_sinc_choice *s = table;
+        return 3.0 * (double)s->nph * (double)s->npix;
+    }
+    if (kind == ECON_LIM_LEVEL) {
+        const mp_ss_level *lv = table;
+        return 22.0 * (double)lv->bias.nph * (double)lv->bias.npix;
+    }
+    const mp_prf_cache *g = table;
+    return 3.0 * (double)g->nph * (double)g->npix;
+}
+
+int mp_econ_offer(mp_econ_cache *c, const mp_prf_model *m, int nlev, const int *lev_os,
+                  int sinc, int grid_g)
+{
+    if (!c || m->psf->kind != MP_PSF_TABLE)
+        return 0;
+    c->offered = 1;
+    c->psf = m->psf;
+    c->field = m->psf->field;
+    c->psf0 = *m->psf;              /* shares the table: measured at the origin */
+    c->psf0.field = NULL;
+    c->model0 = *m;
+    c->model0.psf = &c->psf0;
+    c->want_sinc = sinc && m->sinc_hw > 0;
+    c->nlev = nlev < MP_SS_MAXLEVELS ? nlev : MP_SS_MAXLEVELS;
+    for (int l = 0; l < c->nlev; l++)
+        c->lev_os[l] = lev_os[l];
+    c->grid_g = c->field ? 0 : grid_g;
+    return 0;
+}
+
+/* ---- What each table costs and can save ---------------------------------- */
+
+typedef struct {
+    double build, decide, save;   /* multiply-adds: once, per run, per LM render */
+} econ_cost;
+
+static double min_evals(double fits, double limits)
+{
+    return fits < limits ? fits : limits;
+}
+
+/* The kernel choice of a table: 16 phases × (the full render and every
+ * shorter half-width). */
+static double sinc_build_ops(int nx, int ny, int os, int hw)
+{
+    double s = 0.0;
+    for (int h = 0; h <= hw; h++)
+        s += render_ops(nx, ny, os, h, 0, INFINITY);
+    return NPH * s;
+}
+
+static econ_cost cost_sinc(const mp_econ_cache *c, double fits, double W)
+{
+    const mp_psf *p = &c->psf0;
+    int hw = c->model0.sinc_hw;
+    econ_cost k;
+    k.build = sinc_build_ops(p->nx, p->ny, p->os, hw);
+    k.decide = min_evals(fits, MP_SINC_LIMITS_EVALS) * hw * 3.0 * NPH * box_pixels(p);
+    k.save = psf_ops(p, hw, 1, W) - psf_ops(p, 0, 1, W);
+    return k;
+}
+
+static econ_cost cost_level(const mp_econ_cache *c, int l, int with_sinc, double fits, double W)
+{
+    const mp_psf *p = &c->psf0;
+    int f = p->os / c->lev_os[l], hw = c->model0.sinc_hw, nx, ny;
+    level_size(p, f, &nx, &ny);
+    int os = c->lev_os[l];
+    double npix = box_pixels(p) + 2.0 * sqrt(box_pixels(p)) + 1.0;
+    econ_cost k;
+    k.build = NPH * (psf_ops(p, hw, 1, INFINITY) + render_ops(nx, ny, os, hw, 0, INFINITY));
+    k.decide = min_evals(fits, MP_SS_LIMITS_EVALS) * 22.0 * NPH * npix;
+    if (with_sinc) {
+        k.build += sinc_build_ops(nx, ny, os, hw);
+        k.decide += min_evals(fits, MP_SINC_LIMITS_EVALS) * hw * 3.0 * NPH * npix;
+    }
+    k.save = psf_ops(p, hw, 1, W) - render_ops(nx, ny, os, with_sinc ? 0 : hw, 1, W);
+    return k;
+}
+
+static econ_cost cost_grid(const mp_econ_cache *c, double fits, double W)
+{
+    const mp_psf *p = &c->psf0;
+    int hw = c->model0.sinc_hw, os = p->os, gb = (c->grid_g + os - 1) / os;
+    double na = (double)os * (gb + 3), ng = (double)os * gb, npix = box_pixels(p);
+    double w2 = fmin(W * W, npix);
+    econ_cost k;
+    k.build = na * na * psf_ops(p, hw, 1, INFINITY) +
+              ng * ng * (psf_ops(p, hw, 0, INFINITY) + 16.0 * npix);
+    k.decide = min_evals(fits, MP_SINC_LIMITS_EVALS) * 3.0 * ng * ng * npix;
+    k.save = psf_ops(p, hw, 1, W) - 48.0 * w2;
+    return k;
+}
+
+static int pays(econ_cost k, double fits)
+{
+    return fits * MP_ECON_RENDERS_PER_FIT * k.save >= k.build + k.decide && k.save > 0;
+}
+
+/* ---- Building ------------------------------------------------------------ */
+
+static int build_sinc(mp_econ_cache *c, char *err)
+{
+    if (c->sinc_state)
+        return c->sinc_state < 0;
+    int rc = mp_sinc_choice_build(&c->model0, &c->sinc, err);
+    c->sinc_state = rc ? ECON_FAILED : ECON_BUILT;
+    if (!rc)
+        c->spent += sinc_build_ops(c->psf0.nx, c->psf0.ny, c->psf0.os, c->model0.sinc_hw);
+    return rc;
+}
+
+/* Level l: the table block-summed, its bias table (fit/ss_choice.c), its
+ * own kernel choice when with_sinc, and, for a variable PSF, the field
+ * block-summed alike (the fit reads it at each star, fit_frame.c). */
+static int build_level(mp_econ_cache *c, int l, int with_sinc, char *err)
+{
+    mp_ss_level *lv = &c->ss[l];
+    int hw = c->model0.sinc_hw;
+    if (!c->lev_state[l]) {
+        int f = c->psf0.os / c->lev_os[l];
+        int rc = mp_ss_level_build(&c->model0, f, 0, lv, err);
+        if (!rc && c->field) {
+            rc = mp_psf_field_rebin(c->field, f, &lv->field, err);
+            lv->psf.field = rc ? NULL : &lv->field;
+        }
+        if (rc) {
+            c->lev_state[l] = ECON_FAILED;
+            return 1;
+        }
+        lv->os = c->lev_os[l];
+        c->lev_state[l] = ECON_BUILT;
+        c->spent += NPH * (psf_ops(&c->psf0, hw, 1, INFINITY) + psf_ops(&lv->psf, hw, 0, INFINITY));
+    }
+    if (c->lev_state[l] < 0)
+        return 1;
+    if (with_sinc && !lv->sinc.d2 && lv->sinc.hwmax == 0) {
+        /* Measured on the level's table at the origin (field off). */
+        mp_prf_model mo = lv->model;
+        mp_psf po = lv->psf;
+        po.field = NULL;
+        mo.psf = &po;
+        if (mp_sinc_choice_build(&mo, &lv->sinc, err))
+            return 1;
+        c->spent += sinc_build_ops(lv->psf.nx, lv->psf.ny, lv->psf.os, hw);
+    }
+    return 0;
+}
+
+static int build_grid(mp_econ_cache *c, char *err)
+{
+    if (c->grid_state)
+        return c->grid_state < 0;
+    /* Built for the model's own PSF (mp_prf_cache_usable checks it). */
+    mp_prf_model m = c->model0;
+    m.psf = c->psf;
+    int rc = mp_prf_cache_build(&m, c->grid_g, &c->grid, err);
+    c->grid_state = rc ? ECON_FAILED : ECON_BUILT;
+    if (!rc)
+        c->spent += cost_grid(c, 0.0, INFINITY).build;
+    return rc;
+}
+
+/* Under the lock: decide and build (see the top of the file). */
+static int choose_locked(mp_econ_cache *c, double fits, double fitrad, mp_frame_opts *o,
+                         char *err)
+{
+    double W = isfinite(fitrad) ? 2.0 * ceil(fitrad) + 3.0 : INFINITY;
+    c->fits_max = fits > c->fits_max ? fits : c->fits_max;
+    int sinc = c->want_sinc && !o->sinc && pays(cost_sinc(c, fits, W), fits);
+    if (sinc) {
+        if (build_sinc(c, err))
+            return 1;
+        o->sinc = c->sinc.nph > 0 ? &c->sinc : NULL;
+    }
+    /* Coarsest first: a coarser level saves more and costs less than a
+     * finer one, so the levels that pay are a prefix. */
+    if (!o->ss && c->nlev > 0) {
+        int n = 0;
+        while (n < c->nlev && pays(cost_level(c, n, sinc, fits, W), fits)) {
+            if (build_level(c, n, o->sinc != NULL, err))
+                return 1;
+            n++;
+        }
+        o->ss = n ? c->ss : NULL;
+        o->nss = n;
+    }
+    if (!o->grid && c->grid_g > 0 && pays(cost_grid(c, fits, W), fits)) {
+        if (build_grid(c, err))
+            return 1;
+        o->grid = c->grid.G > 0 ? &c->grid : NULL;
+    }
+    return 0;
+}
+
+int mp_econ_choose(mp_econ_cache *c, double fits, double fitrad, mp_frame_opts *o,
+                   double *spent, char *err)
+{
+    if (spent)
+        *spent = 0.0;
+    if (!c || !c->offered)
+        return 0;
+    int rc;
+#pragma omp critical(mp_econ_cache)
+    {
+        double before = c->spent;
+        rc = choose_locked(c, fits, fitrad, o, err);
+        if (spent)
+            *spent = c->spent - before;
+    }
+    return rc;
+}
+
+double mp_econ_render_ops(const mp_prf_model *m, int hw, double fitrad)
+{
+    if (m->psf->kind != MP_PSF_TABLE)
+        return 0.0;
+    double W = isfinite(fitrad) ? 2.0 * ceil(fitrad) + 3.0 : INFINITY;
+    return psf_ops(m->psf, hw, 1, W);
+}
+
+double mp_econ_grid_render_ops(const mp_prf_model *m, double fitrad)
+{
+    double W = isfinite(fitrad) ? 2.0 * ceil(fitrad) + 3.0 : INFINITY;
+    const mp_psf *p = m->psf;
+    return 48.0 * fmin(W * W, box_pixels(p));
+}
+
+void mp_econ_summary(const mp_econ_cache *c, double ops_render, char *buf, size_t n)
+{
+    buf[0] = '\0';
+    if (!c || !c->offered || n == 0)
+        return;
+    size_t k = 0;
+#define ADD(...) do { if (k < n) k += (size_t)snprintf(buf + k, n - k, __VA_ARGS__); } while (0)
+    ADD("planned for up to %.0f star fits; built:", c->fits_max);
+    int any = 0;
+    if (c->sinc_state > 0) {
+        ADD(" the sinc kernel's error table");
+        any = 1;
+    }
+    for (int l = 0; l < c->nlev; l++)
+        if (c->lev_state[l] > 0) {
+            ADD("%s the x%d table's bias table", any ? "," : "", c->lev_os[l]);
+            any = 1;
+        }
+    if (c->grid_state > 0 && c->grid.G > 0) {
+        ADD("%s the phase grid (%d per pixel)", any ? "," : "", c->grid.G);
+        any = 1;
+    }
+    if (!any)
+        ADD(" none (none could pay for its build)");
+    if (ops_render > 0)
+        ADD("; their cost %.0f renders of the model", c->spent / ops_render);
+#undef ADD
+}
