@@ -70,7 +70,7 @@ int mp_image_write(const char *path, const double *pix, long nx, long ny,
 int mp_image_size(const char *name, long *nx, long *ny, char *err);
 
 /* An image written a rectangle at a time (io/image_stream.c): BITPIX -32,
- * the numeric cards given (string cards are left out), under a temporary
+ * the cards given (written as mp_image_write writes them), under a temporary
  * name that mp_image_out_close renames into place (commit != 0) or
  * removes; pixels never put read back as 0.  put writes w x h values
  * (row-major) with their lower-left pixel at (x1, y1), 1-based.  Errors:

@@ -136,47 +136,18 @@ static int take_stars(tiling *g, mp_table *t)
     return 0;
 }
 
-/* The core's residual, in ADU (NaN where the frame is masked bad), into
- * the frame's residual file. */
+/* The core's residual into the frame's residual file. */
 static int put_residual(tiling *g, const mp_frame *f, const double *res, char *err)
 {
-    long w = g->cx2 - g->cx1 + 1, h = g->cy2 - g->cy1 + 1;
-    double *buf = malloc((size_t)w * (size_t)h * sizeof *buf);
-    if (!buf) {
-        snprintf(err, MP_ERRLEN, "out of memory");
-        return 1;
-    }
-    for (long j = 0; j < h; j++)
-        for (long i = 0; i < w; i++) {
-            size_t p = (size_t)(g->cy1 - g->sy1 + j) * (size_t)f->im.nx + (size_t)(g->cx1 - g->sx1 + i);
-            buf[j * w + i] = (f->mask[p] & MP_MASK_BAD) ? NAN : res[p] / f->gain;
-        }
-    int rc = mp_image_out_put(g->res, g->cx1, g->cy1, w, h, buf, err);
-    free(buf);
-    return rc;
-}
-
-/* The frame's residual file, opened with the first tile's detector values. */
-static int open_residual(tiling *g, const char *root, const mp_frame *f, long nx, long ny,
-                         char *err)
-{
-    size_t n = strlen(root) + 10;
-    char *path = malloc(n);
-    if (!path) {
-        snprintf(err, MP_ERRLEN, "out of memory");
-        return 1;
-    }
-    snprintf(path, n, "%s.res.fits", root);
-    mp_card cards[2] = {{"GAIN", f->gain, NULL, "e-/ADU"}, {"RDNOISE", f->rdnoise, NULL, "e-"}};
-    int rc = mp_image_out_open(path, nx, ny, cards, 2, &g->res, err);
-    free(path);
-    return rc;
+    return mp_pl_residual_put(g->res, f, res, g->cx1, g->cy1, g->cx2 - g->cx1 + 1,
+                              g->cy2 - g->cy1 + 1, g->sx1 - 1, g->sy1 - 1, err);
 }
 
 static int tile_done(void *ctx, const mp_frame *f, mp_table *t, double *res, char *err)
 {
     tiling *g = ctx;
-    if (!g->res && open_residual(g, g->root, f, g->nx, g->ny, err))
+    /* opened with the first tile's detector values */
+    if (!g->res && mp_pl_residual_open(g->root, f, g->nx, g->ny, &g->res, err))
         return 1;
     if (take_stars(g, t))
         return oom(err);

@@ -63,9 +63,9 @@ compare() {
 }
 compare "$T/w.cat" "$T/t.cat" "psf file"
 
-# maxmem: a 160 x 160 frame is 1.5 MB whole (60 B/px): a 1 MB budget holds
-# sections of 132 px, cores of 132 less twice the margin (~26): 2 x 2 tiles.
-"$M" sim "$T/g.fits" mode=crowded nx=160 ny=160 nstars=60 fwhm=2.5 magmin=-13 magmax=-9 seed=32 ||
+# maxmem: a 200 x 200 frame is 1.5 MB whole (40 B/px): a 1 MB budget holds
+# sections of 161 px, cores of 161 less twice the margin (~26): 2 x 2 tiles.
+"$M" sim "$T/g.fits" mode=crowded nx=200 ny=200 nstars=94 fwhm=2.5 magmin=-13 magmax=-9 seed=32 ||
     no "sim g"
 "$M" pipeline "$T/g.fits" "$P" root="$T/m" maxmem=1 2>"$T/m.log" || no "maxmem=1: $(tail -n 1 "$T/m.log")"
 grep -q "in 2 x 2 tiles of" "$T/m.log" || no "maxmem=1 did not choose 2 x 2 tiles: $(grep tiles "$T/m.log")"
@@ -95,7 +95,7 @@ echo "stars with masked pixels in their fit: whole $fw, tiled $ft"
 # section, then every tile fitted with it; one root.psf.fits.
 # The whole frame fits the budget, so the PSF is the whole run's, byte for
 # byte; the tiles fitted with it agree with the whole frame fitted with it
-# as above.  With a budget of 1 MB it comes from the central 138 px.
+# as above.  With a budget of 1 MB it comes from the central 161 px.
 "$M" pipeline "$T/f.fits" root="$T/bw" 2>"$T/bw.log" || no "whole, built PSF: $(tail -n 1 "$T/bw.log")"
 "$M" pipeline "$T/f.fits" root="$T/b" tilesize=80 2>"$T/b.log" || no "tiles, built PSF: $(tail -n 1 "$T/b.log")"
 [ "$(grep -c '^matphot pipeline: tile [0-9]' "$T/b.log")" = 9 ] || no "built PSF: not 9 tiles reduced"
@@ -103,6 +103,6 @@ cmp -s "$T/bw.psf.fits" "$T/b.psf.fits" || no "tiles built another PSF than the 
 "$M" pipeline "$T/f.fits" psf="$T/b.psf.fits" root="$T/bf" 2>"$T/bf.log" || no "whole, b.psf.fits"
 compare "$T/bf.cat" "$T/b.cat" "built PSF"
 "$M" pipeline "$T/f.fits" root="$T/bm" tilesize=80 maxmem=1 2>"$T/bm.log" || no "maxmem=1, built PSF"
-grep -q "the PSF from .*f.fits\[52:189,52:189\]" "$T/bm.log" || no "maxmem=1: not the central 138 px"
+grep -q "the PSF from .*f.fits\[40:200,40:200\]" "$T/bm.log" || no "maxmem=1: not the central 161 px"
 [ -s "$T/bm.psf.fits" ] && [ -s "$T/bm.cat" ] || no "maxmem=1, built PSF: no bm.psf.fits or bm.cat"
 [ $fails -eq 0 ]
