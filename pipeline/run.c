@@ -84,6 +84,7 @@ static int read_frame(run_state *s, char *err)
     if (mp_frame_read(s->image, &s->o->fit.dp, &s->f, err))
         return 1;
     s->rep->t_read = mp_seconds() - t0;
+    s->rep->rdnoise = s->f.rdnoise;
     return 0;
 }
 
@@ -130,6 +131,7 @@ static int find_stars(run_state *s, char *err)
     t0 = mp_seconds();
     if (mp_find_stars(&s->f, &s->bkg, &s->o->find, &s->t, err))
         return 1;
+    s->rep->threshold = s->o->find.threshold;
     if (screen(s, &s->f, s->f.im.pix, &s->t))
         return oom(err);
     mp_bkg_free(&s->bkg);        /* the fit needs no map: memory for its model */
