@@ -24,9 +24,11 @@ void mp_frame_opts_default(mp_frame_opts *o)
     o->grid = NULL;
     o->ss = NULL;
     o->nss = 0;
+    o->ss_sinc = ~0;
     o->ssfrac = 0.1;
     o->cache = NULL;
     o->fits = 0.0;
+    o->learn = 0;
     o->psfdx = o->psfdy = 0.0;
 }
 
@@ -518,9 +520,12 @@ static int fit_one_group(const mp_frame *f, const mp_prf_model *m, const mp_fram
         rep->kcalls++;
         rep->khw += mh.sinc_hw;
         rep->kshort += mh.sinc_hw < m->sinc_hw;
+        double gops = 0.0;
+        fo.work = &gops;
         if (mp_fit_group(f, &mh, &fo, sky0, live, nl, err))
             goto done;
         rep->iterations += live[0].niter;
+        rep->render_ops += gops;
         /* What economy saved on this fit's renders (the plan's unit). */
         if (R->ops_full > 0) {
             double used = cached ? mp_econ_grid_render_ops(m, o->fit.fitrad)
@@ -1064,6 +1069,61 @@ static double median_sky(const star_state *st, size_t n)
     return med;
 }
 
+/* The frame's economy rules for the tables o points at (fit_group_local):
+ * the coarser levels' and kernels' choices and the phase grid's limit on
+ * the stars' median start sky.  Nonzero when out of memory. */
+static int rules_setup(frame_rules *R, const mp_frame *f, const mp_frame_opts *o,
+                       const star_state *st, size_t n, size_t ng, double runfits,
+                       mp_frame_report *rep)
+{
+    rules_free(R);
+    double keep = R->ops_full;
+    memset(R, 0, sizeof *R);
+    R->ops_full = keep;
+    double bsky = o->sinc || o->nss ? median_sky(st, n) : 0.0;
+    R->ss = o->ss;
+    R->nss = o->ss ? (o->nss < MP_SS_MAXLEVELS ? o->nss : MP_SS_MAXLEVELS) : 0;
+    int nomem = rule_init(&R->kern[R->nss], o->sinc, bsky, f->rdnoise, o->sincfrac, ng, o->cache,
+                          runfits, rep);
+    for (int l = 0; l < R->nss; l++)
+        nomem |= level_init(&R->level[l], &R->ss[l], bsky, f->rdnoise, o->ssfrac, ng, o->cache,
+                            runfits, rep) ||
+                 rule_init(&R->kern[l],
+                           ((o->ss_sinc >> l) & 1) && R->ss[l].sinc.d2 ? &R->ss[l].sinc : NULL, bsky,
+                           f->rdnoise, o->sincfrac, ng, o->cache, runfits, rep);
+    /* Economy: the largest flux the phase grid serves within the kernel's
+     * bound, on the same sky. */
+    R->gsky = o->grid ? median_sky(st, n) : 0.0;
+    R->gron = f->rdnoise;
+    R->gfrac = o->sincfrac;
+    R->gemax = grid_limit(o->grid, R->gsky, f->rdnoise, o->sincfrac, ng, o->cache, runfits, rep);
+    return nomem;
+}
+
+/* Economy in a sequential run: add ops (exact-render work just done) to
+ * the run's count and, when more groups follow (more), point oc at the
+ * tables that now pay, the rules renewed when they changed.  Nonzero with
+ * err on failure. */
+static int learn_and_choose(const mp_frame *f, const mp_frame_opts *o, mp_frame_opts *oc,
+                            frame_rules *R, const star_state *st, size_t n, size_t ng,
+                            double runfits, double ops, int more, mp_frame_report *rep, char *err)
+{
+    mp_econ_learn(o->cache, ops);
+    if (!more)
+        return 0;
+    const void *had[3] = {oc->sinc, oc->ss, oc->grid};
+    double sp = 0.0;
+    if (mp_econ_choose(o->cache, runfits, oc->fit.fitrad, oc, &sp, err))
+        return 1;
+    rep->ops_tables += sp;
+    if ((had[0] != oc->sinc || had[1] != oc->ss || had[2] != oc->grid) &&
+        rules_setup(R, f, oc, st, n, ng, runfits, rep)) {
+        snprintf(err, MP_ERRLEN, "out of memory");
+        return 1;
+    }
+    return 0;
+}
+
 int mp_fit_table_mem(const mp_frame *f, const mp_prf_model *m, const mp_frame_opts *o,
                      mp_table *t, mp_fit_memory *mem, mp_frame_report *rep, char *err)
 {
@@ -1128,23 +1188,7 @@ int mp_fit_table_mem(const mp_frame *f, const mp_prf_model *m, const mp_frame_op
     o = &oe;
     R.ops_full = o->cache ? mp_econ_render_ops(m, m->sinc_hw, o->fit.fitrad) : 0.0;
     rep->ops_render = R.ops_full;
-    double bsky = o->sinc || o->nss ? median_sky(st, n) : 0.0;
-    R.ss = o->ss;
-    R.nss = o->ss ? (o->nss < MP_SS_MAXLEVELS ? o->nss : MP_SS_MAXLEVELS) : 0;
-    int nomem = rule_init(&R.kern[R.nss], o->sinc, bsky, f->rdnoise, o->sincfrac, ng, o->cache,
-                          runfits, rep);
-    for (int l = 0; l < R.nss; l++)
-        nomem |= level_init(&R.level[l], &R.ss[l], bsky, f->rdnoise, o->ssfrac, ng, o->cache,
-                            runfits, rep) ||
-                 rule_init(&R.kern[l], o->sinc ? &R.ss[l].sinc : NULL, bsky, f->rdnoise,
-                           o->sincfrac, ng, o->cache, runfits, rep);
-    /* Economy: the largest flux the phase grid serves within the kernel's
-     * bound, on the same sky. */
-    R.gsky = o->grid ? median_sky(st, n) : 0.0;
-    R.gron = f->rdnoise;
-    R.gfrac = o->sincfrac;
-    R.gemax = grid_limit(o->grid, R.gsky, f->rdnoise, o->sincfrac, ng, o->cache, runfits, rep);
-    if (nomem) {
+    if (rules_setup(&R, f, o, st, n, ng, runfits, rep)) {
         snprintf(err, MP_ERRLEN, "out of memory");
         goto done;
     }
@@ -1180,39 +1224,54 @@ int mp_fit_table_mem(const mp_frame *f, const mp_prf_model *m, const mp_frame_op
             goto done;
         }
         mp_frame_report pr = {0};
-        int failed = 0;
-        char ferr[MP_ERRLEN] = "";
+        /* Economy in a sequential run: the groups in chunks (the first
+         * sixteenth, the first quarter, the rest), and after each the
+         * exact-render work done counts toward the run's tables; a table
+         * that now pays serves the groups after it.  The chunks' ends and
+         * the work (sums of whole numbers) do not depend on the threads. */
+        int learn = o->cache && o->learn;
+        for (size_t g0 = 0, g1; g0 < ng; g0 = g1) {
+            g1 = !learn ? ng : (g0 < ng / 16 ? ng / 16 : (g0 < ng / 4 ? ng / 4 : ng));
+            g1 = g1 > g0 ? g1 : g0 + 1;
+            double before = pr.render_ops;
+            int failed = 0;
+            char ferr[MP_ERRLEN] = "";
 #pragma omp parallel for schedule(dynamic) reduction(+ : failed)
-        for (size_t g = 0; g < ng; g++) {
-            char e[MP_ERRLEN];
-            mp_frame_report r = {0};
-            int k = (int)(gs[g + 1] - gs[g]);
-            if (fit_group_local(f, m, o, mergerad, &R, all, &crop, st + gs[g], k, economy, economy,
-                                &r, e)) {
-                failed++;
+            for (size_t g = g0; g < g1; g++) {
+                char e[MP_ERRLEN];
+                mp_frame_report r = {0};
+                int k = (int)(gs[g + 1] - gs[g]);
+                if (fit_group_local(f, m, o, mergerad, &R, all, &crop, st + gs[g], k, economy,
+                                    economy, &r, e)) {
+                    failed++;
 #pragma omp critical(fit_table_error)
-                snprintf(ferr, sizeof ferr, "%s", e);
-            }
+                    snprintf(ferr, sizeof ferr, "%s", e);
+                }
 #pragma omp critical(fit_table_report)
-            {
-                pr.merged += r.merged;
-                pr.rejected += r.rejected;
-                pr.iterations += r.iterations;
-                pr.fits += r.fits;
-                pr.kcalls += r.kcalls;
-                pr.kshort += r.kshort;
-                pr.khw += r.khw;
-                pr.kept += r.kept;
-                pr.kbounds += r.kbounds;
-                pr.kcoarse += r.kcoarse;
-                pr.kcache += r.kcache;
-                pr.ops_tables += r.ops_tables;
-                pr.ops_saved += r.ops_saved;
+                {
+                    pr.merged += r.merged;
+                    pr.rejected += r.rejected;
+                    pr.iterations += r.iterations;
+                    pr.fits += r.fits;
+                    pr.kcalls += r.kcalls;
+                    pr.kshort += r.kshort;
+                    pr.khw += r.khw;
+                    pr.kept += r.kept;
+                    pr.kbounds += r.kbounds;
+                    pr.kcoarse += r.kcoarse;
+                    pr.kcache += r.kcache;
+                    pr.ops_tables += r.ops_tables;
+                    pr.ops_saved += r.ops_saved;
+                    pr.render_ops += r.render_ops;
+                }
             }
-        }
-        if (failed) {
-            snprintf(err, MP_ERRLEN, "%s", ferr);
-            goto done;
+            if (failed) {
+                snprintf(err, MP_ERRLEN, "%s", ferr);
+                goto done;
+            }
+            if (learn && learn_and_choose(f, o, &oc, &R, st, n, ng, runfits, pr.render_ops - before,
+                                          g1 < ng || pass + 1 < passes, &pr, err))
+                goto done;
         }
         rep->merged += pr.merged;
         rep->rejected += pr.rejected;
@@ -1227,6 +1286,7 @@ int mp_fit_table_mem(const mp_frame *f, const mp_prf_model *m, const mp_frame_op
         rep->kcache += pr.kcache;
         rep->ops_tables += pr.ops_tables;
         rep->ops_saved += pr.ops_saved;
+        rep->render_ops += pr.render_ops;
         /* No group refitted: every later pass would see the same light. */
         if (economy && pr.fits == 0) {
             rep->kept += (long)ng * (passes - pass - 1);

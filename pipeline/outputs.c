@@ -109,6 +109,9 @@ static void report_counts(const mp_pipeline_report *rep, const mp_table *t, mp_r
     run->kcoarse = rep->kcoarse;
     run->kcache = rep->kcache;
     run->envelopes = rep->envelopes;
+    run->ops_tables = rep->ops_tables;
+    run->ops_saved = rep->ops_saved;
+    run->ops_render = rep->ops_render;
 }
 
 static int cmp_dbl(const void *a, const void *b)
@@ -182,6 +185,9 @@ int mp_pl_write_report(const char *image, const char *root,
     mp_report_parts(&fit->model, &fit->opts, &last, &run);
     run.decisions = fit->decisions;
     run.ndecisions = fit->ndecisions;
+    char tables[512];
+    mp_econ_summary(fit->cache, rep->ops_render, tables, sizeof tables);
+    run.tables = tables;
     detection_line(fit, rep, t, &run);
     size_t n = strlen(root) + 8;
     char *path = malloc(n);

@@ -46,6 +46,8 @@ typedef struct {
     long kbounds, envelopes;      /* economy's own cost (mp_frame_report) */
     long kcoarse;                 /* LM fits with a coarser table */
     long kcache;                  /* LM fits with the PRF from the phase grid */
+    double ops_tables, ops_saved, ops_render;  /* economy's tables' cost and saving
+                                   * (mp_frame_report), summed over rounds */
     long sky_groups[MP_SKY_MAXORDER + 1];  /* last round's groups by sky order */
     double khw;                   /* their half-widths summed over all group fits */
     double threshold, rdnoise;    /* find's threshold [σ] and the frame's read noise

@@ -53,6 +53,10 @@ static int state_init(run_state *s, const char *image, const char *root,
     mp_table_init(&s->before);
     s->fit = &o->fit;
     s->fwhm = mp_prf_fwhm(&o->fit.model);
+    /* Economy learns within this frame only: an @list's frame reduces as
+     * its own job would (tools/slurm, survey_jobs.sh). */
+    if (o->fit.opts.learn)
+        mp_econ_forget(o->fit.cache);
     return (s->mem = mp_fit_memory_new()) ? 0 : oom(err);
 }
 
@@ -151,6 +155,9 @@ static void count_fit(mp_pipeline_report *rep, const mp_frame_report *fr, size_t
     rep->khw += fr->khw;
     rep->kbounds += fr->kbounds;
     rep->kcoarse += fr->kcoarse;
+    rep->ops_tables += fr->ops_tables;
+    rep->ops_saved += fr->ops_saved;
+    rep->ops_render = fr->ops_render;
     rep->kcache += fr->kcache;
     rep->envelopes += fr->envelopes;
     rep->ngroups = fr->ngroups;
