@@ -570,6 +570,14 @@ typedef struct mp_fit_memory mp_fit_memory;
 mp_fit_memory *mp_fit_memory_new(void);
 void mp_fit_memory_free(mp_fit_memory *mem);
 
+/* mp_fit_memory_scratch: lend the fit a buffer of n doubles it may
+ * overwrite with the model of every star (the neighbours subtracted from
+ * each group) instead of allocating one of the frame's size: the
+ * pipeline lends its residual, which is dead until mp_fit_residual
+ * redraws it.  A buffer smaller than the frame is not used; NULL takes
+ * the loan back.  The memory never frees it. */
+void mp_fit_memory_scratch(mp_fit_memory *mem, double *buf, size_t n);
+
 /* mp_fit_table: fit every star of t on f — rows carry X_IMAGE/Y_IMAGE or
  * XPSF_IMAGE/YPSF_IMAGE, optional GROUP_ID (else each star alone, or all in
  * one group when fit.fitrad is NaN), optional start FLUX_PSF or FLUX and

@@ -611,7 +611,15 @@ typedef struct {
 struct mp_fit_memory {
     star_seen *s;        /* indexed by NUMBER */
     size_t ns;
+    double *scratch;     /* lent: room for the model of every star */
+    size_t nscratch;
 };
+
+void mp_fit_memory_scratch(mp_fit_memory *mem, double *buf, size_t n)
+{
+    mem->scratch = buf;
+    mem->nscratch = buf ? n : 0;
+}
 
 mp_fit_memory *mp_fit_memory_new(void)
 {
@@ -891,9 +899,10 @@ done:
  * radius; *ncut counts the stars cropped. */
 static double *all_stars(const mp_frame *f, const mp_prf_model *m, const star_state *st, size_t n,
                          const crop_rule *crop, const mp_frame_opts *o, const frame_rules *R,
-                         long *ncut)
+                         double *lent, long *ncut)
 {
-    double *all = calloc((size_t)f->im.nx * f->im.ny, sizeof *all);
+    size_t npix = (size_t)f->im.nx * (size_t)f->im.ny;
+    double *all = lent ? memset(lent, 0, npix * sizeof *lent) : calloc(npix, sizeof *all);
     mp_prf_work wk = {0};
     wk.grid = o->grid;
     wk.grid_emax = R->gemax;
@@ -903,7 +912,8 @@ static double *all_stars(const mp_frame *f, const mp_prf_model *m, const star_st
         int cut = 0;
         if (st[k].alive && paint(m, &st[k].s, +1.0, crop_radius(crop, &st[k].s), all, 1, 1,
                                  f->im.nx, f->im.ny, &wk, &buf, &cap, &cut)) {
-            free(all);
+            if (!lent)
+                free(all);
             all = NULL;
         }
         *ncut += cut;
@@ -1144,6 +1154,9 @@ int mp_fit_table_mem(const mp_frame *f, const mp_prf_model *m, const mp_frame_op
     star_state *st = calloc(n ? n : 1, sizeof *st);
     size_t *gs = malloc((n + 1) * sizeof *gs);
     double *all = NULL;
+    /* The model image: in the caller's lent buffer when there is one. */
+    size_t npix = (size_t)f->im.nx * (size_t)f->im.ny;
+    double *lent = mem && mem->scratch && mem->nscratch >= npix ? mem->scratch : NULL;
     frame_rules R;
     memset(&R, 0, sizeof R);
     crop_rule crop = {0};
@@ -1217,9 +1230,10 @@ int mp_fit_table_mem(const mp_frame *f, const mp_prf_model *m, const mp_frame_op
     for (int pass = 0; pass < passes; pass++) {
         /* Neighbours are subtracted with the latest values; in the first
          * pass only those with a start flux (find's FLUX) can be. */
-        free(all);
+        if (!lent)
+            free(all);
         all = NULL;
-        if (!alone && !(all = all_stars(f, m, st, n, &crop, o, &R, &rep->cropped))) {
+        if (!alone && !(all = all_stars(f, m, st, n, &crop, o, &R, lent, &rep->cropped))) {
             snprintf(err, MP_ERRLEN, "out of memory for the model image");
             goto done;
         }
@@ -1312,7 +1326,8 @@ int mp_fit_table_mem(const mp_frame *f, const mp_prf_model *m, const mp_frame_op
 done:
     for (size_t i = 0; st && i < n; i++)
         free(st[i].seen);
-    free(all);
+    if (!lent)
+        free(all);
     rules_free(&R);
     free(st);
     free(gs);
