@@ -595,6 +595,8 @@ typedef struct {
     const char *tables;        /* economy's tables (mp_econ_summary; may be NULL) */
     long kbounds, envelopes;   /* economy's own cost: kernel-bound evaluations
                                 * and crop envelopes built (mp_frame_report) */
+    char detection[384];       /* the pipeline's detection limit in words ("": no
+                                * line; pipeline/outputs.c fills it) */
 } mp_run_report;
 
 /* mp_report_from_table: the medians, from a fitted table. */

@@ -144,6 +144,8 @@ static void report_lines(FILE *fp, const char *prefix, const mp_run_report *r)
             r->kept, r->cropped, r->kshort, r->kcalls,
             r->kcalls > 0 ? r->khw / (double)r->kcalls : 0.0, r->kcoarse, r->kcache, r->kbounds,
             r->envelopes);
+    if (r->detection[0])
+        fprintf(fp, "%s  detection: %s\n", prefix, r->detection);
     if (r->tables && r->tables[0]) {
         double u = r->ops_render > 0 ? r->ops_render : 1.0;
         fprintf(fp, "%s  economy tables: %s; this frame spent %.1f renders on them (builds and "

@@ -111,6 +111,63 @@ static void report_counts(const mp_pipeline_report *rep, const mp_table *t, mp_r
     run->envelopes = rep->envelopes;
 }
 
+static int cmp_dbl(const void *a, const void *b)
+{
+    double x = *(const double *)a, y = *(const double *)b;
+    return (x > y) - (x < y);
+}
+
+/* Median of the finite values of column name, NaN when none. */
+static double col_median(const mp_table *t, const char *name)
+{
+    int c = mp_table_col(t, name);
+    double *v = c >= 0 && t->nrow ? malloc(t->nrow * sizeof *v) : NULL;
+    size_t n = 0;
+    for (size_t r = 0; v && r < t->nrow; r++) {
+        double x = mp_table_get(t, r, c);
+        if (isfinite(x))
+            v[n++] = x;
+    }
+    double m = NAN;
+    if (n) {
+        qsort(v, n, sizeof *v, cmp_dbl);
+        m = n % 2 ? v[n / 2] : 0.5 * (v[n / 2 - 1] + v[n / 2]);
+    }
+    free(v);
+    return m;
+}
+
+/* The detection limit stated as the S/N of a fitted star (issue 13), and
+ * the flux it means for an isolated star on this frame: the paper's
+ * practical S/N E/√(E + β(B + RON²)) = minsnr solved for E, with β and B
+ * the catalog's median BETA_PSF and SKY_PSF. */
+static void detection_line(const mp_fit_setup *fit, const mp_pipeline_report *rep,
+                           const mp_table *t, mp_run_report *run)
+{
+    double s = fit->opts.minsnr, cut = s - MP_PL_SCREEN_SLACK;
+    size_t n = sizeof run->detection;
+    int k = s > 0 ? snprintf(run->detection, n, "a star is kept when its fit's S/N "
+                             "FLUX_PSF/FLUXERR_PSF >= %g (minsnr)", s)
+                  : snprintf(run->detection, n, "no S/N cut (minsnr 0)");
+    if (k < 0 || (size_t)k >= n)
+        return;
+    if (rep->threshold > 0)
+        k += snprintf(run->detection + k, n - (size_t)k, "; find offers peaks above %g sigma "
+                      "of its kernel's amplitude (threshold)", rep->threshold);
+    if (k > 0 && (size_t)k < n && s > 0 && cut > 0)
+        k += snprintf(run->detection + k, n - (size_t)k, ", a linear fit at each keeps S/N "
+                      ">= %g", cut);
+    double beta = col_median(t, "BETA_PSF"), B = col_median(t, "SKY_PSF");
+    double v = beta * (fmax(B, 0.0) + rep->rdnoise * rep->rdnoise);
+    if (k > 0 && (size_t)k < n && s > 0 && isfinite(v) && v > 0) {
+        double E = 0.5 * (s * s + sqrt(s * s * s * s + 4.0 * s * s * v));
+        snprintf(run->detection + k, n - (size_t)k, "; S/N %g here is E = %.4g e- (MAG_PSF "
+                 "%.2f) for an isolated star on the median sky %.4g e- (beta %.3g px^2, "
+                 "RON %.3g e-)", s, E, -2.5 * log10(E) + fit->opts.magzero, B, beta,
+                 rep->rdnoise);
+    }
+}
+
 int mp_pl_write_report(const char *image, const char *root,
                        const mp_fit_setup *fit, const mp_pipeline_report *rep, const mp_table *t,
                        char *err)
@@ -125,6 +182,7 @@ int mp_pl_write_report(const char *image, const char *root,
     mp_report_parts(&fit->model, &fit->opts, &last, &run);
     run.decisions = fit->decisions;
     run.ndecisions = fit->ndecisions;
+    detection_line(fit, rep, t, &run);
     size_t n = strlen(root) + 8;
     char *path = malloc(n);
     if (!path) {

@@ -48,6 +48,8 @@ typedef struct {
     long kcache;                  /* LM fits with the PRF from the phase grid */
     long sky_groups[MP_SKY_MAXORDER + 1];  /* last round's groups by sky order */
     double khw;                   /* their half-widths summed over all group fits */
+    double threshold, rdnoise;    /* find's threshold [σ] and the frame's read noise
+                                   * [e-], for the report's detection line (0: unknown) */
 } mp_pipeline_report;
 
 /* mp_pipeline_run: reduce one image; root names the outputs. */

@@ -81,6 +81,7 @@ static int read_frame(run_state *s, char *err)
     if (mp_frame_read(s->image, &s->o->fit.dp, &s->f, err))
         return 1;
     s->rep->t_read = mp_seconds() - t0;
+    s->rep->rdnoise = s->f.rdnoise;
     size_t npix = (size_t)s->f.im.nx * s->f.im.ny;
     if (!(s->res = malloc(npix * sizeof *s->res))) {
         snprintf(err, MP_ERRLEN, "%s: out of memory for the residual", s->image);
@@ -117,6 +118,7 @@ static int find_stars(run_state *s, char *err)
     t0 = mp_seconds();
     if (mp_find_stars(&s->f, &s->bkg, &s->o->find, &s->t, err))
         return 1;
+    s->rep->threshold = s->o->find.threshold;
     if (screen(s, &s->f, s->f.im.pix, &s->t))
         return oom(err);
     mp_pl_drop_unset(&s->t);

@@ -225,6 +225,8 @@ static void add_report(mp_pipeline_report *s, const mp_pipeline_report *r)
     s->kept += r->kept; s->cropped += r->cropped; s->kcalls += r->kcalls;
     s->kshort += r->kshort; s->kbounds += r->kbounds; s->envelopes += r->envelopes;
     s->kcoarse += r->kcoarse; s->khw += r->khw;
+    s->threshold = r->threshold;     /* one frame: the same in every tile */
+    s->rdnoise = r->rdnoise;
     for (int i = 0; i <= MP_SKY_MAXORDER; i++)
         s->sky_groups[i] += r->sky_groups[i];
 }

@@ -14,6 +14,7 @@ typedef struct {
     size_t nstar, nel;
     double *G, *H;         /* nstar × nel */
     double *a, *b, *tmp;   /* nel each */
+    unsigned char *mask;   /* nstar × nel: MP_EPSF_MASKED, MP_EPSF_HIT */
     double *prf;           /* a star's box */
     size_t nprf;
     mp_prf_work pw;
@@ -23,7 +24,22 @@ typedef struct {
     int steps;             /* steps taken by the last mp_epsf_sirt_run */
 } mp_epsf_sirt;
 
+/* Bits of mp_epsf_sirt.mask per star and element: left out of the
+ * combination (a neighbour's light is there, mp_epsf_sirt_dilate), and
+ * above 4 robust σ of the other stars in the last step. */
+enum { MP_EPSF_MASKED = 1, MP_EPSF_HIT = 2 };
+
 int mp_epsf_sirt_init(mp_epsf_sirt *w, const mp_epsf *e, size_t nstar, char *err);
+
+/* mp_epsf_sirt_dilate: each used star's MP_EPSF_MASKED elements become
+ * those within a square of half-width rd elements of a cluster of its
+ * MP_EPSF_HIT elements (an element hit with at least min(3, os²) − 1 hit
+ * among its 8 neighbours: one pixel's light reaches os² elements, so a
+ * lone hit is noise), and the hits are cleared: what only one star
+ * shows beyond its core, a neighbour too faint to be found, is left out
+ * of that star's share of the table, its wings with it (the 4 σ clip
+ * takes only its core). */
+void mp_epsf_sirt_dilate(mp_epsf_sirt *w, const mp_epsf *e, size_t n, double rd);
 void mp_epsf_sirt_free(mp_epsf_sirt *w);
 
 /* mp_epsf_sirt_run: up to o->sirt steps on e's planes from the used stars'

@@ -21,7 +21,8 @@ int mp_epsf_sirt_init(mp_epsf_sirt *w, const mp_epsf *e, size_t nstar, char *err
     w->a = malloc(w->nel * sizeof *w->a);
     w->b = malloc(w->nel * sizeof *w->b);
     w->tmp = malloc(w->nel * sizeof *w->tmp);
-    if (!w->G || !w->H || !w->a || !w->b || !w->tmp) {
+    w->mask = calloc(nstar * w->nel + 1, 1);
+    if (!w->G || !w->H || !w->a || !w->b || !w->tmp || !w->mask) {
         mp_epsf_sirt_free(w);
         snprintf(err, MP_ERRLEN, "psf build: out of memory");
         return 1;
@@ -36,6 +37,7 @@ void mp_epsf_sirt_free(mp_epsf_sirt *w)
     free(w->a);
     free(w->b);
     free(w->tmp);
+    free(w->mask);
     free(w->prf);
     mp_prf_work_free(&w->pw);
     mp_psf_free(&w->tab);
@@ -153,13 +155,17 @@ static int wls(const mp_epsf_sirt *w, size_t el, const size_t *idx, size_t m, co
     return mp_epsf_solve(A, c, nt);
 }
 
-/* The update of one element, robust: fit, clip at 4 robust σ, fit again. */
-static void combine_element(const mp_epsf_sirt *w, size_t el, const mp_epsf_star *s, size_t n,
-                            const double *terms, int nt, size_t *idx, double *dev, double *c)
+/* The update of one element, robust: fit (leaving out the stars whose
+ * mask says a neighbour is there), clip at 4 robust σ, fit again.  With
+ * flag, every star whose deviation is above 4 σ is marked MP_EPSF_HIT
+ * in w->mask (mp_epsf_sirt_dilate makes the next step's mask of it). */
+static void combine_element(mp_epsf_sirt *w, size_t el, const mp_epsf_star *s, size_t n,
+                            const double *terms, int nt, size_t *idx, double *dev, double *c,
+                            int flag)
 {
-    size_t m = 0;
+    size_t m = 0, nel = w->nel;
     for (size_t k = 0; k < n; k++)
-        if (s[k].used && w->H[k * w->nel + el] > 0)
+        if (s[k].used && w->H[k * nel + el] > 0 && !(w->mask[k * nel + el] & MP_EPSF_MASKED))
             idx[m++] = k;
     for (int t = 0; t < nt; t++)
         c[t] = 0.0;
@@ -169,7 +175,7 @@ static void combine_element(const mp_epsf_sirt *w, size_t el, const mp_epsf_star
         return;
     for (size_t q = 0; q < m; q++) {
         size_t k = idx[q];
-        double h = w->H[k * w->nel + el], g = w->G[k * w->nel + el] / h, mod = 0;
+        double h = w->H[k * nel + el], g = w->G[k * nel + el] / h, mod = 0;
         for (int t = 0; t < nt; t++)
             mod += terms[k * 6 + t] * c[t];
         dev[q] = fabs(g - mod) * sqrt(h);
@@ -179,6 +185,15 @@ static void combine_element(const mp_epsf_sirt *w, size_t el, const mp_epsf_star
     double sig = 1.4826 * mp_epsf_median(tmp, m);
     if (!(sig > 0))
         return;
+    for (size_t k = 0; flag && k < n; k++) {
+        double h = w->H[k * nel + el], mod = 0;
+        if (!s[k].used || !(h > 0))
+            continue;
+        for (int t = 0; t < nt; t++)
+            mod += terms[k * 6 + t] * c[t];
+        if (fabs(w->G[k * nel + el] / h - mod) * sqrt(h) > 4.0 * sig)
+            w->mask[k * nel + el] |= MP_EPSF_HIT;
+    }
     size_t kept = 0;
     for (size_t q = 0; q < m; q++)
         if (dev[q] <= 4.0 * sig)
@@ -242,6 +257,9 @@ int mp_epsf_sirt_run(mp_epsf_sirt *w, const mp_epsf_star *s, size_t n, const mp_
      * nothing: the table is defined on the disc its stars' pixels cover,
      * the light beyond is PSFSUM's (growth.c). */
     double rmax = (o->psfrad - 0.5) * e->os;
+    /* Neighbours are masked beyond the core only: within a FWHM every
+     * star's own fit (its centre's error) varies from star to star. */
+    double rcore = o->fwhm * e->os;
     for (int j = 0; j < e->ny; j++)
         for (int i = 0; i < e->nx; i++)
             if (hypot(i - (e->nx - 1) / 2, j - (e->ny - 1) / 2) > rmax)
@@ -273,13 +291,15 @@ int mp_epsf_sirt_run(mp_epsf_sirt *w, const mp_epsf_star *s, size_t n, const mp_
         memset(upd, 0, (size_t)nt * nel * sizeof *upd);
         for (size_t el = 0; el < nel; el++) {
             int i = (int)(el % (size_t)e->nx), j = (int)(el / (size_t)e->nx);
-            if (hypot(i - (e->nx - 1) / 2, j - (e->ny - 1) / 2) > rmax)
+            double r = hypot(i - (e->nx - 1) / 2, j - (e->ny - 1) / 2);
+            if (r > rmax)
                 continue;
             double c[6];
-            combine_element(w, el, s, n, terms, nt, idx, dev, c);
+            combine_element(w, el, s, n, terms, nt, idx, dev, c, r > rcore);
             for (int t = 0; t < nt; t++)
                 upd[(size_t)t * nel + el] = c[t];
         }
+        mp_epsf_sirt_dilate(w, e, n, 0.75 * o->fwhm * e->os);
         for (int t = 0; t < nt; t++) {
             null_filter(upd + (size_t)t * nel, e->nx, e->ny, e->os, w->tmp);
             for (size_t el = 0; el < nel; el++)

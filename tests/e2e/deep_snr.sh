@@ -53,9 +53,15 @@ check() {
 "$M" pipeline "$T/f.fits" psf="$T/psf.fits" root="$T/a" 2>"$T/log" || no "pipeline: $(tail -1 "$T/log")"
 check 5 "$T/a.cat" || no "default minsnr 5: $(cat "$T/match")"
 grep -q "candidates below the screen's S/N 3" "$T/log" || no "no screen line on stderr"
+# the run report states the limit as the S/N of a fitted star, and the flux
+# it means here (isolated star on sky 100, RON 3, beta 21.5: E = 254.7 e-)
+grep -q "detection: a star is kept when its fit's S/N FLUX_PSF/FLUXERR_PSF >= 5 (minsnr);.* S/N 5 here is E = 2[45][0-9]" \
+    "$T/a.report" || no "no detection line in the report: $(grep detection "$T/a.report")"
 
 "$M" pipeline "$T/f.fits" psf="$T/psf.fits" root="$T/b" minsnr=8 2>"$T/log" || no "pipeline minsnr=8"
 check 8 "$T/b.cat" || no "minsnr 8: $(cat "$T/match")"
+grep -q "detection: a star is kept when its fit's S/N FLUX_PSF/FLUXERR_PSF >= 8 (minsnr);.*keeps S/N >= 6;" \
+    "$T/b.report" || no "minsnr 8: detection line: $(grep detection "$T/b.report")"
 # the deeper cut keeps more stars
 [ "$(grep -vc '^#' "$T/a.cat")" -gt "$(grep -vc '^#' "$T/b.cat")" ] ||
     no "minsnr 5 kept no more stars than minsnr 8"

@@ -312,6 +312,81 @@ static int do_cmpvar(const char *built)
     return 0;
 }
 
+/* The variable scene's floor for an order-2 field: every element of
+ * var_table fitted by least squares with the 6 terms over a 15 × 15 grid
+ * of places (PSFEx's terms, origin the centre, scales the half-sizes),
+ * then compared as cmpvar compares a built field: what no order-2 build
+ * can do better than. */
+static int do_varfloor(const char *out)
+{
+    char err[MP_ERRLEN];
+    int m = 2 * (int)ceil(RAD * TOS) + 1, n;
+    size_t nel = (size_t)m * m;
+    enum { G = 15 };
+    double *tabs = malloc(sizeof(double) * nel * G * G), A[36] = {0}, T[G * G][6];
+    for (int q = 0; q < G * G; q++) {
+        double u = -1 + 2.0 * (q % G) / (G - 1), v = -1 + 2.0 * (q / G) / (G - 1);
+        var_table(0.5 * (NX + 1) + u * 0.5 * NX, 0.5 * (NX + 1) + v * 0.5 * NX, tabs + q * nel, &n);
+        double t[6] = {1, u, u * u, v, u * v, v * v};
+        for (int a = 0; a < 6; a++) {
+            T[q][a] = t[a];
+            for (int b = 0; b < 6; b++)
+                A[a * 6 + b] += t[a] * t[b];
+        }
+    }
+    /* A⁻¹ by Gauss–Jordan (6×6, well conditioned). */
+    double I[36] = {0};
+    for (int a = 0; a < 6; a++)
+        I[a * 6 + a] = 1;
+    for (int c = 0; c < 6; c++) {
+        double p = A[c * 6 + c];
+        for (int k = 0; k < 6; k++)
+            A[c * 6 + k] /= p, I[c * 6 + k] /= p;
+        for (int r = 0; r < 6; r++)
+            if (r != c) {
+                double f = A[r * 6 + c];
+                for (int k = 0; k < 6; k++)
+                    A[r * 6 + k] -= f * A[c * 6 + k], I[r * 6 + k] -= f * I[c * 6 + k];
+            }
+    }
+    mp_psf_field fb;
+    if (mp_psf_field_new(2, m, m, TOS, 0.5 * (NX + 1), 0.5 * (NX + 1), 0.5 * NX, 0.5 * NX, &fb, err))
+        return fprintf(stderr, "psfb: %s\n", err), 1;
+    for (size_t el = 0; el < nel; el++) {
+        double b[6] = {0};
+        for (int q = 0; q < G * G; q++)
+            for (int a = 0; a < 6; a++)
+                b[a] += T[q][a] * tabs[q * nel + el];
+        for (int a = 0; a < 6; a++) {
+            double c = 0;
+            for (int k = 0; k < 6; k++)
+                c += I[a * 6 + k] * b[k];
+            fb.planes[(size_t)a * nel + el] = c;
+        }
+    }
+    if (out && mp_psf_field_write(out, &fb, NULL, 0, err))
+        return fprintf(stderr, "psfb: %s\n", err), 1;
+    double *tab = malloc(sizeof(double) * nel);
+    for (int q = 0; q < 9; q++) {
+        double u = 0.8 * (q % 3 - 1), v = 0.8 * (q / 3 - 1);
+        double x = 0.5 * (NX + 1) + u * 0.5 * NX, y = 0.5 * (NX + 1) + v * 0.5 * NX;
+        var_table(x, y, tab, &n);
+        mp_psf t = {MP_PSF_TABLE, n, n, TOS, tab, 1.0, 0, 0, NULL}, b;
+        memset(&b, 0, sizeof b);
+        if (mp_psf_field_eval(&fb, x, y, &b, err))
+            return fprintf(stderr, "psfb: %s\n", err), 1;
+        double rms, mx, peak;
+        cmp_at(&b, &t, &rms, &mx, &peak);
+        printf("psfb varfloor: order-2 least squares at u %+.1f v %+.1f: PRF rms %.2f %%, largest "
+               "%.2f %% of the peak\n", u, v, 100 * rms / peak, 100 * mx / peak);
+        mp_psf_free(&b);
+    }
+    free(tab);
+    free(tabs);
+    mp_psf_field_free(&fb);
+    return 0;
+}
+
 /* The PRFs of two tables at 16 phases on one canvas: rms, largest
  * difference, the truth's peak. */
 static void cmp_at(const mp_psf *b, const mp_psf *t, double *rms, double *mxo, double *pko)
@@ -518,8 +593,9 @@ static int do_ee(const char *file)
  * brightest (a perfect neighbour subtraction, drawn as the sim drew
  * them), those stars' PSF built at their true positions by one pass
  * (matphot psf's defaults, fwhm 3), written to DIR/ideal.psf.fits.  What
- * the builder's own algorithm costs, apart from crowding. */
-static int do_ideal(const char *dir, const char *kind, int npsf)
+ * the builder's own algorithm costs, apart from crowding.  Stars fainter
+ * than fkeep [e-] are left in (what undetected neighbours cost). */
+static int do_ideal(const char *dir, const char *kind, int npsf, double fkeep)
 {
     int seg = !strcmp(kind, "segmented");
     char err[MP_ERRLEN], path[1024];
@@ -568,6 +644,8 @@ static int do_ideal(const char *dir, const char *kind, int npsf)
             x[np] = sx, y[np] = sy, fl[np++] = NAN;
             continue;
         }
+        if (mp_table_get(&tr, i, tf) < fkeep)
+            continue;
         if (!seg)
             var_table(sx, sy, tab, &n);
         mp_sim_prf p = {MP_SIM_TABLE, 0, tab, n, n, TOS, NULL, 0, 1.0};
@@ -599,8 +677,10 @@ static int do_ideal(const char *dir, const char *kind, int npsf)
 
 int main(int argc, char **argv)
 {
-    if (argc == 5 && !strcmp(argv[1], "ideal"))
-        return do_ideal(argv[2], argv[3], atoi(argv[4])) ? 1 : 0;
+    if ((argc == 2 || argc == 3) && !strcmp(argv[1], "varfloor"))
+        return do_varfloor(argc == 3 ? argv[2] : NULL) ? 1 : 0;
+    if ((argc == 5 || argc == 6) && !strcmp(argv[1], "ideal"))
+        return do_ideal(argv[2], argv[3], atoi(argv[4]), argc == 6 ? atof(argv[5]) : 0.0) ? 1 : 0;
     if (argc == 3 && !strcmp(argv[1], "ee"))
         return do_ee(argv[2]) ? 1 : 0;
     if (argc == 7 && !strcmp(argv[1], "resid"))
@@ -614,6 +694,7 @@ int main(int argc, char **argv)
     if (argc == 4 && !strcmp(argv[1], "cmp"))
         return do_cmp(argv[2], argv[3]) ? 1 : 0;
     fprintf(stderr, "usage: psfb sim DIR segmented|variable | psfb match DIR ROOT | "
-            "psfb cmp BUILT.fits TRUE.fits | psfb ee PSF.fits | psfb resid FRAME RES CAT R RON\n");
+            "psfb cmp BUILT.fits TRUE.fits | psfb ee PSF.fits | psfb ideal DIR KIND NPSF [FKEEP] | "
+            "psfb varfloor [OUT.fits] | psfb resid FRAME RES CAT R RON\n");
     return 2;
 }

@@ -1,0 +1,59 @@
+/* sirt_mask.c — each PSF star's mask of table elements where only it
+ * shows light (build_priv.h): a neighbour too faint to be found, whose
+ * wings the per-element 4 σ clip of sirt.c would let into the table (the
+ * segmented scene of validate/PSFBUILD.md: stars fainter than 1e4 e-
+ * left in raise the fluxes' bias from 0.1 to 1.0 σ in the brightest bin). */
+#include <math.h>
+#include <stdlib.h>
+#include <string.h>
+#include "psf/build_priv.h"
+
+/* Cluster of hits: element (i, j) hit, with at least need hit neighbours. */
+static int cluster(const unsigned char *m, int nx, int ny, int i, int j, int need)
+{
+    if (!(m[(size_t)j * nx + i] & MP_EPSF_HIT))
+        return 0;
+    int c = 0;
+    for (int b = j - 1; b <= j + 1; b++)
+        for (int a = i - 1; a <= i + 1; a++)
+            if ((a != i || b != j) && a >= 0 && b >= 0 && a < nx && b < ny &&
+                (m[(size_t)b * nx + a] & MP_EPSF_HIT))
+                c++;
+    return c >= need;
+}
+
+void mp_epsf_sirt_dilate(mp_epsf_sirt *w, const mp_epsf *e, size_t n, double rd)
+{
+    int nx = e->nx, ny = e->ny, h = (int)ceil(rd);
+    int need = (e->os * e->os < 3 ? e->os * e->os : 3) - 1;
+    size_t nel = w->nel;
+    for (size_t k = 0; k < n; k++) {
+        unsigned char *m = w->mask + k * nel;
+        /* Rows first: tmp marks the clusters' row-dilation. */
+        double *row = w->tmp;
+        for (int j = 0; j < ny; j++) {
+            int last = -h - 1;       /* last cluster column seen */
+            for (int i = 0; i < nx; i++)
+                row[(size_t)j * nx + i] = 0.0;
+            for (int i = 0; i < nx + h; i++) {
+                if (i < nx && cluster(m, nx, ny, i, j, need))
+                    last = i;
+                int t = i - h;      /* covered by a cluster within h on the left or right */
+                if (t >= 0 && t < nx && i - last <= 2 * h)
+                    row[(size_t)j * nx + t] = 1.0;
+            }
+        }
+        for (size_t el = 0; el < nel; el++)
+            m[el] = 0;
+        for (int i = 0; i < nx; i++) {
+            int last = -h - 1;
+            for (int j = 0; j < ny + h; j++) {
+                if (j < ny && row[(size_t)j * nx + i] > 0)
+                    last = j;
+                int t = j - h;
+                if (t >= 0 && t < ny && j - last <= 2 * h)
+                    m[(size_t)t * nx + i] = MP_EPSF_MASKED;
+            }
+        }
+    }
+}
