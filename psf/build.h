@@ -27,8 +27,15 @@
 #include "fit/fit.h"
 #include "io/io.h"
 
-/* Neighbours fitted with each PSF star at most (the brightest). */
+/* Neighbours fitted with each PSF star at most (the brightest), and the
+ * least flux one has, in units of the star's: a fainter detection beside
+ * a bright star is as likely a feature of its own PSF (a ring, a
+ * segment's satellite: fitted as a neighbour it would take that light
+ * out of the table; `matphot psf`'s unscreened find list on the
+ * segmented scene: largest error 6 % of the peak), and a faint real
+ * neighbour is left to the star's mask (sirt_mask.c). */
 #define MP_EPSF_MAXNB 12
+#define MP_EPSF_NBMIN 0.05
 
 /* One PSF star: a cut-out of the frame around it, and its current fit.
  * With neighbours (mp_epsf_neighbours) the cut-out as cut is kept in raw,
@@ -130,7 +137,9 @@ int mp_epsf_cutout_add(mp_epsf_star *s, const mp_prf_model *m, double x, double 
 /* mp_epsf_neighbours: each star's neighbours, the rows of t (XPSF_IMAGE,
  * YPSF_IMAGE, FLUX_PSF when present, else find's X_IMAGE, Y_IMAGE, FLUX)
  * more than 1 px from where the star was found and within psfrad and its
- * sky annulus (MP_EPSF_ANNULUS), the MP_EPSF_MAXNB brightest; with m
+ * sky annulus (MP_EPSF_ANNULUS), at least MP_EPSF_NBMIN of the star's flux
+ * (its own row's, within 1 px, else its start flux), the MP_EPSF_MAXNB
+ * brightest; with m
  * (the cut-outs are of a residual) each is first put back with model m.
  * They are then fitted with their star at every fit of the build, with
  * the current table, so that their light (and the old table's error in

@@ -209,10 +209,16 @@ static void pick_neighbours(mp_epsf_star *s, const mp_table *t, int cx, int cy, 
                             double rmax)
 {
     s->nnb = 0;
+    /* The star's own flux on the table's scale: its row within 1 px. */
+    double F0 = s->flux;
+    for (size_t r = 0; r < t->nrow; r++)
+        if (hypot(mp_table_get(t, r, cx) - s->xf, mp_table_get(t, r, cy) - s->yf) <= 1.0 &&
+            mp_table_get(t, r, cf) > 0)
+            F0 = mp_table_get(t, r, cf);
     for (size_t r = 0; r < t->nrow; r++) {
         double x = mp_table_get(t, r, cx), y = mp_table_get(t, r, cy), F = mp_table_get(t, r, cf);
         double d = hypot(x - s->xf, y - s->yf);
-        if (!(F > 0) || !isfinite(F) || !(d > 1.0 && d <= rmax))
+        if (!(F > 0) || !isfinite(F) || !(d > 1.0 && d <= rmax) || F < MP_EPSF_NBMIN * F0)
             continue;
         if (s->nnb == MP_EPSF_MAXNB && s->nbf[MP_EPSF_MAXNB - 1] >= F)
             continue;
