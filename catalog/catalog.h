@@ -293,7 +293,9 @@ int mp_task_catalog(int argc, char **argv);
  * apart) in the tangent plane at its first detection, with errors
  * 1/sqrt(Σ 1/σ²); its magnitude the weighted mean of MAG_PSF (weights
  * 1/MAGERR_PSF²; the catalogs' own zero points: calibrate each with
- * `matphot catalog magzero=` first), with MAGERR_MEAN = 1/sqrt(Σw) and
+ * `matphot catalog magzero=` first, which writes a MAGZERO column; a mix
+ * of calibrated and instrumental catalogs is an error naming one of each),
+ * with MAGERR_MEAN = 1/sqrt(Σw) and
  * MAG_CHI2 the reduced χ² of its magnitudes about the mean (≈ 1 for a
  * constant star with right errors).  NDET counts its detections; FLAGS ORs
  * theirs.

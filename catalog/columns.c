@@ -42,6 +42,7 @@ static const mp_col registry[] = {
     {"FLUXERR_PSF",    "RMS flux error for PSF-fitting",             ELEC, "%12.7g", 0},
     {"MAG_PSF",        "Magnitude from PSF-fitting",                 "mag", "%9.5f", 0},
     {"MAGERR_PSF",     "RMS magnitude error from PSF-fitting",       "mag", "%10.6f", 0},
+    {"MAGZERO",        "Zero point of MAG_PSF (its frame's calibration)", "mag", "%9.5f", 0},
     {"ALPHAPSF_J2000", "Right ascension of the fitted PSF (J2000)",  "deg", "%11.7f", 0},
     {"DELTAPSF_J2000", "Declination of the fitted PSF (J2000)",      "deg", "%+11.7f", 0},
     /* catalog: sky position of the detection (catalog/wcs.c) */

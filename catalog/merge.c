@@ -201,6 +201,7 @@ mp_merge *mp_merge_new(const mp_merge_opts *o)
     if (!m)
         return NULL;
     m->o = *o;
+    m->zp = -1;
     if (rehash(m)) {
         free(m);
         return NULL;
@@ -235,11 +236,40 @@ static int append_dets(mp_merge *m, const mg_det *d, size_t n)
     return 0;
 }
 
+/* Magnitudes on one system: every catalog calibrated (a MAGZERO column:
+ * its frame's zero point, each MAG_PSF on it) or none (instrumental, all
+ * on the fit's magzero); a mix would average magnitudes of different
+ * systems, so it is refused, naming a catalog of each kind. */
+static int same_system(mp_merge *m, const mp_table *cat, const char *name, char *err)
+{
+    int c = mp_table_col(cat, "MAGZERO");
+    double zp = NAN;
+    for (size_t r = 0; c >= 0 && r < cat->nrow && !isfinite(zp); r++)
+        zp = mp_table_get(cat, r, c);
+    int kind = c >= 0;
+    if (m->zp < 0) {
+        m->zp = kind;
+        m->zpval = zp;
+        snprintf(m->zpname, sizeof m->zpname, "%s", name);
+        return 0;
+    }
+    if (kind == m->zp)
+        return 0;
+    const char *cal = kind ? name : m->zpname, *ins = kind ? m->zpname : name;
+    int lc = (int)strnlen(cal, 180), li = (int)strnlen(ins, 180);
+    snprintf(err, MP_ERRLEN, "%.*s: magnitudes on a calibrated zero point (MAGZERO %g) but %.*s's "
+             "are instrumental (no MAGZERO column): calibrate every catalog with `matphot "
+             "catalog magzero=` (or none)", lc, cal, kind ? zp : m->zpval, li, ins);
+    return 1;
+}
+
 int mp_merge_add(mp_merge *m, const mp_table *cat, const char *name, long *skipped, char *err)
 {
     mg_det *d;
     size_t n;
     int frame = m->nframes + 1;
+    if (same_system(m, cat, name, err))
+        return 1;
     if (mg_frame_dets(cat, name, frame, m->o.syserr, m->o.pixscale, &d, &n, err))
         return 1;
     if (skipped)

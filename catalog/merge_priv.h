@@ -44,6 +44,10 @@ struct mp_merge {
     long *bucket;         /* heads of the hash chains (mg_src.next), -1: empty */
     size_t nbucket;       /* a power of two, >= 2 caps */
     int nframes;
+    int zp;               /* the catalogs' magnitudes: -1 none yet, 0 instrumental
+                           * (no MAGZERO column), 1 calibrated (MAGZERO) */
+    double zpval;         /* the first calibrated catalog's zero point */
+    char zpname[256];     /* the first catalog, for the message */
 };
 
 /* Unit vector of (ra, dec) [deg]. */

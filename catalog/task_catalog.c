@@ -110,8 +110,16 @@ static int recompute_mags(mp_table *t, const char *input, double magzero, double
         snprintf(err, MP_ERRLEN, "%s: out of memory", input);
         return 1;
     }
+    /* The zero point goes with the magnitudes (matphot merge checks that
+     * the frames it averages are all calibrated). */
+    int cz = mp_table_add_col(t, "MAGZERO");
+    if (cz < 0) {
+        snprintf(err, MP_ERRLEN, "%s: out of memory", input);
+        return 1;
+    }
     double zp = magzero + 2.5 * log10(exptime);
     for (size_t r = 0; r < t->nrow; r++) {
+        mp_table_set(t, r, cz, magzero);
         double f = mp_table_get(t, r, cf);
         double m, me = NAN;
         if (isnan(f))

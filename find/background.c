@@ -185,7 +185,7 @@ static int median_filter(double *v, int nbx, int nby, int h)
 /* Bicubic natural spline through the mesh centres to every pixel: a
  * spline along y per mesh column, then along x per image row. */
 static int interpolate(const double *v, const axis_grid *gx, const axis_grid *gy,
-                       long nx, long ny, double *out, int clamp0)
+                       long nx, long ny, float *out, int clamp0)
 {
     int nbx = gx->nb, nby = gy->nb;
     /* vt, d2col [bx*nby + by]: mesh column bx and its second derivatives
@@ -209,7 +209,7 @@ static int interpolate(const double *v, const axis_grid *gx, const axis_grid *gy
     int nomem = 0;
 #pragma omp parallel
     {
-        double *row = malloc((size_t)nbx * 3 * sizeof *row);
+        double *row = malloc(((size_t)nbx * 3 + (size_t)nx) * sizeof *row);
         if (!row) {
 #pragma omp atomic write
             nomem = 1;
@@ -224,11 +224,11 @@ static int interpolate(const double *v, const axis_grid *gx, const axis_grid *gy
                                           d2col + (size_t)bx * nby, nby, (double)y, &k);
             }
             mpf_spline_init(gx->c, row, nbx, row + nbx, row + 2 * nbx);
-            double *o = out + (size_t)y * (size_t)nx;
+            double *o = row + 3 * nbx;
             mpf_spline_row(gx->c, row, row + nbx, nbx, o, nx);
-            if (clamp0)
-                for (long x = 0; x < nx; x++)
-                    o[x] = o[x] < 0.0 ? 0.0 : o[x];
+            float *to = out + (size_t)y * (size_t)nx;
+            for (long x = 0; x < nx; x++)
+                to[x] = (float)(clamp0 && o[x] < 0.0 ? 0.0 : o[x]);
         }
         free(row);
     }

@@ -42,7 +42,7 @@ static double h_slow(const mp_frame *f, const mp_bkg *b, const mpf_kernel *k, lo
  * inner loop of the whole detection.  restrict and four independent
  * lanes let -O2 keep it in registers without asking for vectorisation
  * (which clang -O1 refuses under -Werror). */
-static void tap_row(double *restrict o, const double *restrict p, const double *restrict s,
+static void tap_row(double *restrict o, const double *restrict p, const float *restrict s,
                     double w, long n)
 {
     long x = 0;
@@ -67,7 +67,7 @@ static int any_bad(const mp_frame *f)
     return 0;
 }
 
-int mpf_convolve(const mp_frame *f, const mp_bkg *b, const mpf_kernel *k, double *h,
+int mpf_convolve(const mp_frame *f, const mp_bkg *b, const mpf_kernel *k, float *h,
                  char *err)
 {
     long nx = f->im.nx, ny = f->im.ny, nh = k->nh;
@@ -77,19 +77,22 @@ int mpf_convolve(const mp_frame *f, const mp_bkg *b, const mpf_kernel *k, double
         /* near[x]: a bad pixel lies in the (2nh+1)² box around (x, y). */
         unsigned char *colbad = bad ? malloc((size_t)nx) : NULL;
         unsigned char *near = bad ? malloc((size_t)nx) : NULL;
-        if (bad && (!colbad || !near)) {
+        /* A row summed in double, kept in single precision (h is an
+         * image of the frame's size: issue 14's memory). */
+        double *o = malloc((size_t)nx * sizeof *o);
+        if ((bad && (!colbad || !near)) || !o) {
 #pragma omp atomic write
             nomem = 1;
         }
 #pragma omp for schedule(static)
         for (long y = 0; y < ny; y++) {
-            double *o = h + (size_t)y * (size_t)nx;
-            if (bad && (!colbad || !near))
+            if ((bad && (!colbad || !near)) || !o)
                 continue;
+            float *ho = h + (size_t)y * (size_t)nx;
             long x0 = nh, x1 = nx - nh;     /* whole footprints: [x0, x1) */
             if (y < nh || y >= ny - nh || x1 <= x0) {
                 for (long x = 0; x < nx; x++)
-                    o[x] = h_slow(f, b, k, x, y);
+                    ho[x] = (float)h_slow(f, b, k, x, y);
                 continue;
             }
             for (long x = x0; x < x1; x++)
@@ -103,8 +106,11 @@ int mpf_convolve(const mp_frame *f, const mp_bkg *b, const mpf_kernel *k, double
                 o[x] = h_slow(f, b, k, x, y);
             for (long x = x1; x < nx; x++)
                 o[x] = h_slow(f, b, k, x, y);
-            if (!bad)
+            if (!bad) {
+                for (long x = 0; x < nx; x++)
+                    ho[x] = (float)o[x];
                 continue;
+            }
             memset(colbad, 0, (size_t)nx);
             for (long j = y - nh; j <= y + nh; j++)
                 for (long x = 0; x < nx; x++)
@@ -122,7 +128,10 @@ int mpf_convolve(const mp_frame *f, const mp_bkg *b, const mpf_kernel *k, double
             for (long x = x0; x < x1; x++)
                 if (near[x])
                     o[x] = h_slow(f, b, k, x, y);
+            for (long x = 0; x < nx; x++)
+                ho[x] = (float)o[x];
         }
+        free(o);
         free(colbad);
         free(near);
     }

@@ -2,6 +2,7 @@
  * the lowered-kernel amplitude, local maxima over the footprint), one
  * detection per saturated plateau, the measurements and the shape cuts,
  * appended to a table. */
+#include <float.h>
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -51,14 +52,18 @@ static int cmp_long(const void *a, const void *b)
  * first in raster order), and no saturated pixel within it (that star is
  * found as its plateau)? */
 static int is_candidate(const mp_frame *f, const mp_bkg *b, const mpf_kernel *k,
-                        const double *h, double thresh, long x, long y)
+                        const float *h, double thresh, long x, long y)
 {
     long nx = f->im.nx, ny = f->im.ny;
     size_t p = (size_t)y * (size_t)nx + (size_t)x;
     double hv = h[p];
     /* A noiseless frame has rms 0: there h must still beat the roundoff
-     * of subtracting the sky, or every flat pixel would be a star. */
-    if (!(hv > 1e-10 * (1.0 + fabs(b->sky[p]))) || hv < thresh * b->rms[p] * k->relerr)
+     * of subtracting the sky (a single-precision map: FLT_EPSILON of it
+     * through the kernel's weights, and h's own rounding), or every flat
+     * pixel would be a star. */
+    double sky = fabs(b->sky[p]);
+    if (!(hv > 4.0 * FLT_EPSILON * (1.0 + sky) * (k->klsum + 1.0)) ||
+        hv < thresh * b->rms[p] * k->relerr)
         return 0;
     for (int t = 0; t < k->n; t++) {
         long qx = x + k->dx[t], qy = y + k->dy[t];
@@ -81,7 +86,7 @@ static int is_candidate(const mp_frame *f, const mp_bkg *b, const mpf_kernel *k,
 }
 
 static int find_candidates(const mp_frame *f, const mp_bkg *b, const mpf_kernel *k,
-                           const double *h, double thresh, idx_list *out)
+                           const float *h, double thresh, idx_list *out)
 {
     long nx = f->im.nx, ny = f->im.ny;
     int nomem = 0;
@@ -248,7 +253,7 @@ int mp_find_stars(const mp_frame *f, const mp_bkg *b, const mp_find_opts *o,
     mpf_star *stars = NULL;
     long *keys = NULL;
     ordered *ord = NULL;
-    double *h = malloc((npix ? npix : 1) * sizeof *h);
+    float *h = malloc((npix ? npix : 1) * sizeof *h);
     if (!h)
         goto nomem;
     if (mpf_convolve(f, b, &k, h, err))

@@ -59,6 +59,7 @@ typedef struct {
     int *dx, *dy;
     double *g, *kl;
     double gbar, denom, relerr;
+    double klsum;            /* Σ |kl[t]|: h's roundoff per unit error of the sky */
     int nmin;                /* good taps a footprint needs: ceil(n/2) */
 } mpf_kernel;
 
@@ -90,7 +91,7 @@ void mpf_footprint(const mp_frame *f, const mpf_kernel *k, long px, long py,
 
 /* mpf_convolve: h[nx*ny], the lowered-kernel amplitude of every pixel of
  * the background-subtracted frame (MPF_NO_H where undefined). */
-int mpf_convolve(const mp_frame *f, const mp_bkg *b, const mpf_kernel *k, double *h,
+int mpf_convolve(const mp_frame *f, const mp_bkg *b, const mpf_kernel *k, float *h,
                  char *err);
 
 /* ---- centroid.c ----------------------------------------------------------- */

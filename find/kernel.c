@@ -60,6 +60,9 @@ int mpf_kernel_make(double fwhm, double nsigma, mpf_kernel *k, char *err)
     k->denom = sgg - sg * sg / k->n;
     for (int t = 0; t < k->n; t++)
         k->kl[t] = (k->g[t] - k->gbar) / k->denom;
+    k->klsum = 0.0;
+    for (int t = 0; t < k->n; t++)
+        k->klsum += fabs(k->kl[t]);
     k->relerr = 1.0 / sqrt(k->denom);
     k->nmin = (k->n + 1) / 2;
     return 0;

@@ -70,13 +70,14 @@ int mp_bkg_noise_from_model(mp_bkg *b, const mp_frame *f, const double *res, int
      * pixels pin k to ~0.3 % (the MAD's relative error 1.166/√n). */
     size_t step = npix / 200000 + 1, cap = npix / step + 1;
     samples all = {0}, star = {0};
-    double *buf = malloc(8 * cap * sizeof *buf);
+    double *buf = malloc(4 * cap * sizeof *buf);
     if (!buf) {
         snprintf(err, MP_ERRLEN, "out of memory for the residual noise map");
         return 1;
     }
+    /* The star samples are drawn once k is known: the same room. */
     all.r = buf, all.p = buf + cap, all.m = buf + 2 * cap, all.z = buf + 3 * cap;
-    star.r = buf + 4 * cap, star.p = buf + 5 * cap, star.m = buf + 6 * cap, star.z = buf + 7 * cap;
+    star.r = all.r, star.p = all.p, star.m = all.m, star.z = all.z;
     /* k from block × block sums over blocks where the stars' light is
      * below its Poisson noise in every pixel (a profile error cannot show
      * there).  Blocks of about the detection kernel's size make k describe
@@ -158,7 +159,7 @@ int mp_bkg_noise_from_model(mp_bkg *b, const mp_frame *f, const double *res, int
         *proferr = eps;
         for (size_t i = 0; i < npix; i++) {
             double m = fmax(f->im.pix[i] - res[i], 0.0);
-            b->rms[i] = sqrt(k * k * poisson_var(b, f, res, i) + eps * eps * m * m);
+            b->rms[i] = (float)sqrt(k * k * poisson_var(b, f, res, i) + eps * eps * m * m);
         }
     }
     free(buf);

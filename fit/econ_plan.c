@@ -16,10 +16,15 @@
  * (render_ops below).  The saving is an upper bound (every star served by
  * the table's cheapest option), so a table that cannot pay is never built;
  * the run report counts what the tables cost and what they saved.  fits is
- * the run's (an @list's stars, mp_frame_opts.fits) or the frame's own,
- * never the history of the run, so a frame's fit does not depend on the
- * frames before it or on the order threads reach it.  Once built, a table
- * is kept for the run. */
+ * the run's (an @list's stars, mp_frame_opts.fits) or the frame's own; in
+ * a pipeline frame (mp_frame_opts.learn: its rounds and passes) the
+ * exact-render work its fits have already done counts too, times the
+ * fraction of a render the table saves (mp_econ_learn, after each pass),
+ * so a run whose fits take many iterations and wide windows (real frames
+ * at χ²/dof ≫ 1, crowded groups) builds its tables once they would have
+ * paid — never more than twice the work of knowing its length in advance.  Frames fitted in parallel
+ * (fakes) plan on their count alone, so that no fit depends on the order
+ * threads reach it.  Once built, a table is kept for the run. */
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -133,10 +138,9 @@ static double sinc_build_ops(int nx, int ny, int os, int hw)
     return NPH * s;
 }
 
-static econ_cost cost_sinc(const mp_econ_cache *c, double fits, double W)
+/* The kernel choice of table p (the model's, or a coarser level's). */
+static econ_cost cost_sinc(const mp_psf *p, int hw, double fits, double W)
 {
-    const mp_psf *p = &c->psf0;
-    int hw = c->model0.sinc_hw;
     econ_cost k;
     k.build = sinc_build_ops(p->nx, p->ny, p->os, hw);
     k.decide = min_evals(fits, MP_SINC_LIMITS_EVALS) * hw * 3.0 * NPH * box_pixels(p);
@@ -144,7 +148,10 @@ static econ_cost cost_sinc(const mp_econ_cache *c, double fits, double W)
     return k;
 }
 
-static econ_cost cost_level(const mp_econ_cache *c, int l, int with_sinc, double fits, double W)
+/* A coarser level's bias table: what fitting with it saves against the
+ * model's table at the full kernel (its own kernel choice is decided as
+ * the model's is, on its own table: cost_sinc). */
+static econ_cost cost_level(const mp_econ_cache *c, int l, double fits, double W)
 {
     const mp_psf *p = &c->psf0;
     int f = p->os / c->lev_os[l], hw = c->model0.sinc_hw, nx, ny;
@@ -154,11 +161,7 @@ static econ_cost cost_level(const mp_econ_cache *c, int l, int with_sinc, double
     econ_cost k;
     k.build = NPH * (psf_ops(p, hw, 1, INFINITY) + render_ops(nx, ny, os, hw, 0, INFINITY));
     k.decide = min_evals(fits, MP_SS_LIMITS_EVALS) * 22.0 * NPH * npix;
-    if (with_sinc) {
-        k.build += sinc_build_ops(nx, ny, os, hw);
-        k.decide += min_evals(fits, MP_SINC_LIMITS_EVALS) * hw * 3.0 * NPH * npix;
-    }
-    k.save = psf_ops(p, hw, 1, W) - render_ops(nx, ny, os, with_sinc ? 0 : hw, 1, W);
+    k.save = psf_ops(p, hw, 1, W) - render_ops(nx, ny, os, hw, 1, W);
     return k;
 }
 
@@ -176,9 +179,14 @@ static econ_cost cost_grid(const mp_econ_cache *c, double fits, double W)
     return k;
 }
 
-static int pays(econ_cost k, double fits)
+/* learned: the exact-render work already done in a sequential run, of
+ * which the table would have saved the fraction save/full. */
+static int pays(econ_cost k, double fits, double learned, double full)
 {
-    return fits * MP_ECON_RENDERS_PER_FIT * k.save >= k.build + k.decide && k.save > 0;
+    double gain = fits * MP_ECON_RENDERS_PER_FIT * k.save;
+    if (learned > 0 && full > 0)
+        gain += learned * k.save / full;
+    return k.save > 0 && gain >= k.build + k.decide;
 }
 
 /* ---- Building ------------------------------------------------------------ */
@@ -194,40 +202,45 @@ static int build_sinc(mp_econ_cache *c, char *err)
     return rc;
 }
 
-/* Level l: the table block-summed, its bias table (fit/ss_choice.c), its
- * own kernel choice when with_sinc, and, for a variable PSF, the field
- * block-summed alike (the fit reads it at each star, fit_frame.c). */
-static int build_level(mp_econ_cache *c, int l, int with_sinc, char *err)
+/* Level l: the table block-summed, its bias table (fit/ss_choice.c) and,
+ * for a variable PSF, the field block-summed alike (the fit reads it at
+ * each star, fit_frame.c). */
+static int build_level(mp_econ_cache *c, int l, char *err)
 {
     mp_ss_level *lv = &c->ss[l];
     int hw = c->model0.sinc_hw;
-    if (!c->lev_state[l]) {
-        int f = c->psf0.os / c->lev_os[l];
-        int rc = mp_ss_level_build(&c->model0, f, 0, lv, err);
-        if (!rc && c->field) {
-            rc = mp_psf_field_rebin(c->field, f, &lv->field, err);
-            lv->psf.field = rc ? NULL : &lv->field;
-        }
-        if (rc) {
-            c->lev_state[l] = ECON_FAILED;
-            return 1;
-        }
-        lv->os = c->lev_os[l];
-        c->lev_state[l] = ECON_BUILT;
-        c->spent += NPH * (psf_ops(&c->psf0, hw, 1, INFINITY) + psf_ops(&lv->psf, hw, 0, INFINITY));
+    if (c->lev_state[l])
+        return c->lev_state[l] < 0;
+    int f = c->psf0.os / c->lev_os[l];
+    int rc = mp_ss_level_build(&c->model0, f, 0, lv, err);
+    if (!rc && c->field) {
+        rc = mp_psf_field_rebin(c->field, f, &lv->field, err);
+        lv->psf.field = rc ? NULL : &lv->field;
     }
-    if (c->lev_state[l] < 0)
+    if (rc) {
+        c->lev_state[l] = ECON_FAILED;
         return 1;
-    if (with_sinc && !lv->sinc.d2 && lv->sinc.hwmax == 0) {
-        /* Measured on the level's table at the origin (field off). */
-        mp_prf_model mo = lv->model;
-        mp_psf po = lv->psf;
-        po.field = NULL;
-        mo.psf = &po;
-        if (mp_sinc_choice_build(&mo, &lv->sinc, err))
-            return 1;
-        c->spent += sinc_build_ops(lv->psf.nx, lv->psf.ny, lv->psf.os, hw);
     }
+    lv->os = c->lev_os[l];
+    c->lev_state[l] = ECON_BUILT;
+    c->spent += NPH * (psf_ops(&c->psf0, hw, 1, INFINITY) + psf_ops(&lv->psf, hw, 0, INFINITY));
+    return 0;
+}
+
+/* Level l's own kernel choice, measured on its table at the origin (field
+ * off), as a run given that table (psfos) would measure it. */
+static int build_level_sinc(mp_econ_cache *c, int l, char *err)
+{
+    mp_ss_level *lv = &c->ss[l];
+    if (lv->sinc.d2 || lv->sinc.hwmax > 0)
+        return 0;
+    mp_prf_model mo = lv->model;
+    mp_psf po = lv->psf;
+    po.field = NULL;
+    mo.psf = &po;
+    if (mp_sinc_choice_build(&mo, &lv->sinc, err))
+        return 1;
+    c->spent += sinc_build_ops(lv->psf.nx, lv->psf.ny, lv->psf.os, c->model0.sinc_hw);
     return 0;
 }
 
@@ -250,26 +263,38 @@ static int choose_locked(mp_econ_cache *c, double fits, double fitrad, mp_frame_
                          char *err)
 {
     double W = isfinite(fitrad) ? 2.0 * ceil(fitrad) + 3.0 : INFINITY;
+    /* What the run has already rendered counts too (a sequential run's own
+     * history: deterministic). */
+    double learned = o->learn ? c->ops_done : 0.0, full = psf_ops(&c->psf0, c->model0.sinc_hw, 1, W);
     c->fits_max = fits > c->fits_max ? fits : c->fits_max;
-    int sinc = c->want_sinc && !o->sinc && pays(cost_sinc(c, fits, W), fits);
-    if (sinc) {
+    int hw = c->model0.sinc_hw;
+    if (c->want_sinc && !o->sinc && pays(cost_sinc(&c->psf0, hw, fits, W), fits, learned, full)) {
         if (build_sinc(c, err))
             return 1;
         o->sinc = c->sinc.nph > 0 ? &c->sinc : NULL;
     }
     /* Coarsest first: a coarser level saves more and costs less than a
-     * finer one, so the levels that pay are a prefix. */
+     * finer one, so the levels that pay are a prefix.  Each level's
+     * kernel choice pays or not on its own table, as the model's does. */
     if (!o->ss && c->nlev > 0) {
-        int n = 0;
-        while (n < c->nlev && pays(cost_level(c, n, sinc, fits, W), fits)) {
-            if (build_level(c, n, o->sinc != NULL, err))
+        int n = 0, bits = 0;
+        while (n < c->nlev && pays(cost_level(c, n, fits, W), fits, learned, full)) {
+            if (build_level(c, n, err))
                 return 1;
+            /* Decided for this frame, like every table: one built for an
+             * earlier frame serves only where this frame's count pays. */
+            if (c->want_sinc && pays(cost_sinc(&c->ss[n].psf, hw, fits, W), fits, learned, full)) {
+                if (build_level_sinc(c, n, err))
+                    return 1;
+                bits |= 1 << n;
+            }
             n++;
         }
         o->ss = n ? c->ss : NULL;
         o->nss = n;
+        o->ss_sinc = bits;
     }
-    if (!o->grid && c->grid_g > 0 && pays(cost_grid(c, fits, W), fits)) {
+    if (!o->grid && c->grid_g > 0 && pays(cost_grid(c, fits, W), fits, learned, full)) {
         if (build_grid(c, err))
             return 1;
         o->grid = c->grid.G > 0 ? &c->grid : NULL;
@@ -293,6 +318,22 @@ int mp_econ_choose(mp_econ_cache *c, double fits, double fitrad, mp_frame_opts *
             *spent = c->spent - before;
     }
     return rc;
+}
+
+void mp_econ_learn(mp_econ_cache *c, double ops)
+{
+    if (!c || !(ops > 0))
+        return;
+#pragma omp critical(mp_econ_cache)
+    c->ops_done += ops;
+}
+
+void mp_econ_forget(mp_econ_cache *c)
+{
+    if (!c)
+        return;
+#pragma omp critical(mp_econ_cache)
+    c->ops_done = 0.0;
 }
 
 double mp_econ_render_ops(const mp_prf_model *m, int hw, double fitrad)

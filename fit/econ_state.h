@@ -36,6 +36,7 @@ struct mp_econ_cache {
     mp_prf_cache grid;
     double spent;                  /* multiply-adds spent building tables */
     double fits_max;               /* the most star fits a frame was planned for */
+    double ops_done;               /* exact-render work the run's fits did (mp_econ_learn) */
 };
 
 /* Kinds of cached limits. */

@@ -82,6 +82,8 @@ typedef struct {
     double *e;             /* the star's own table, when the model has a field */
     long nshift, nskip;    /* table renders: axes shifted, and of those skipped
                             * because the shift is on the grid (mp_shift_on_grid) */
+    double ops;            /* multiply-adds of the exact table renders done
+                            * (shift taps, block-sums; economy's plan) */
     const struct mp_prf_cache_s *grid;  /* economy: renders of the model this
                             * phase grid was built for are drawn from it
                             * (fit/prf_cache.c); NULL: exact renders */
@@ -166,7 +168,8 @@ int mp_sinc_choice_pick(const double *emax, int hwmax, double E);
  * the linearised bias it causes in the fit of (flux, x, y, sky) is ≤ frac
  * of each parameter's Cramér–Rao σ at every phase, and the part of E·δP the
  * fit cannot absorb raises χ² by λ ≤ MP_SS_CHI2MAX (fit/ss_choice.c).
- * sinc is the coarse model's own kernel-length table.  model points into
+ * sinc is the coarse model's own kernel-length table (not built: the
+ * full kernel for that level).  model points into
  * psf: build in place, do not copy. */
 typedef struct {
     int nph;               /* phases */
@@ -393,6 +396,9 @@ typedef struct {
     const struct mp_prf_cache_s *grid;  /* economy: the group's PRF drawn from
                                 * this phase grid when built for its model
                                 * (fit/prf_cache.c); NULL: exact renders */
+    double *work;              /* not NULL: the multiply-adds of the group's
+                                * exact table renders are added to *work (the
+                                * caller's own, per thread; economy's plan) */
 } mp_fit_opts;
 
 void mp_fit_opts_default(mp_fit_opts *o);
@@ -458,6 +464,9 @@ typedef struct {
                         * else with the model's table (neighbours are painted
                         * with the model's table) */
     int nss;
+    int ss_sinc;       /* bit l: level l's own kernel choice (ss[l].sinc) is
+                        * used when built (default all; mp_econ_choose sets
+                        * the levels' whose choice pays for this frame) */
     double ssfrac;
     mp_econ_cache *cache;  /* economy: the run's tables, built when they pay
                         * (mp_econ_choose), and the choices' flux limits
@@ -465,6 +474,11 @@ typedef struct {
     double fits;       /* economy: star fits the run expects (an @list's
                         * stars); a frame plans for the larger of this and
                         * its own stars (0: its own) */
+    int learn;         /* economy: the LM renders this run has already done
+                        * count toward a table's pay-off too (the pipeline's
+                        * rounds and passes of a frame); 0 where the plan
+                        * knows the run (fit's @list) and where frames are
+                        * fitted in parallel (fakes: timing) */
     double psfdx, psfdy;  /* a sub-image's pixel (1, 1) is the PSF field's
                         * (1 + psfdx, 1 + psfdy) (mp_fit_setup_local): the
                         * run's coarser levels read a variable PSF there */
@@ -498,6 +512,19 @@ int mp_econ_offer(mp_econ_cache *c, const mp_prf_model *m, int nlev, const int *
 int mp_econ_choose(mp_econ_cache *c, double fits, double fitrad, mp_frame_opts *o,
                    double *spent, char *err);
 
+/* mp_econ_learn: add ops (multiply-adds of the exact table renders the
+ * run's fits have done) to what mp_econ_choose counts for options with
+ * learn set: a table is also built once that work, times the fraction of
+ * a render the table saves, would have paid for it (at most twice the
+ * work of knowing the run's length in advance). */
+void mp_econ_learn(mp_econ_cache *c, double ops);
+
+/* mp_econ_forget: the learned work back to 0, for a run whose every frame
+ * must come out as it would alone (the pipeline: an @list's frame is
+ * byte-identical to its own job's); tables already built stay, used only
+ * where this frame's own count pays for them. */
+void mp_econ_forget(mp_econ_cache *c);
+
 /* The plan's unit: multiply-adds of one LM render (with derivatives) of
  * model m at half-width hw over a fitting window of radius fitrad (NaN:
  * its whole box); of one render from the phase grid. */
@@ -528,6 +555,8 @@ typedef struct {
                         * renders (iterations + 1) × (a render of the
                         * model as given − the render used) */
     double ops_render; /* one render of the model as given (the unit) */
+    double render_ops; /* multiply-adds of the group fits' exact table
+                        * renders (mp_fit_opts.work) */
     long envelopes;    /* crop envelopes built (mp_prf_envelope: 25 PSF
                         * renders each); 0 when the frame is one group */
     long kept;         /* group fits left out: no star's surroundings changed */
@@ -541,6 +570,14 @@ typedef struct mp_fit_memory mp_fit_memory;
 /* mp_fit_memory_new: an empty memory; NULL when out of memory. */
 mp_fit_memory *mp_fit_memory_new(void);
 void mp_fit_memory_free(mp_fit_memory *mem);
+
+/* mp_fit_memory_scratch: lend the fit a buffer of n doubles it may
+ * overwrite with the model of every star (the neighbours subtracted from
+ * each group) instead of allocating one of the frame's size: the
+ * pipeline lends its residual, which is dead until mp_fit_residual
+ * redraws it.  A buffer smaller than the frame is not used; NULL takes
+ * the loan back.  The memory never frees it. */
+void mp_fit_memory_scratch(mp_fit_memory *mem, double *buf, size_t n);
 
 /* mp_fit_table: fit every star of t on f — rows carry X_IMAGE/Y_IMAGE or
  * XPSF_IMAGE/YPSF_IMAGE, optional GROUP_ID (else each star alone, or all in

@@ -24,9 +24,11 @@ void mp_frame_opts_default(mp_frame_opts *o)
     o->grid = NULL;
     o->ss = NULL;
     o->nss = 0;
+    o->ss_sinc = ~0;
     o->ssfrac = 0.1;
     o->cache = NULL;
     o->fits = 0.0;
+    o->learn = 0;
     o->psfdx = o->psfdy = 0.0;
 }
 
@@ -518,9 +520,12 @@ static int fit_one_group(const mp_frame *f, const mp_prf_model *m, const mp_fram
         rep->kcalls++;
         rep->khw += mh.sinc_hw;
         rep->kshort += mh.sinc_hw < m->sinc_hw;
+        double gops = 0.0;
+        fo.work = &gops;
         if (mp_fit_group(f, &mh, &fo, sky0, live, nl, err))
             goto done;
         rep->iterations += live[0].niter;
+        rep->render_ops += gops;
         /* What economy saved on this fit's renders (the plan's unit). */
         if (R->ops_full > 0) {
             double used = cached ? mp_econ_grid_render_ops(m, o->fit.fitrad)
@@ -606,7 +611,15 @@ typedef struct {
 struct mp_fit_memory {
     star_seen *s;        /* indexed by NUMBER */
     size_t ns;
+    double *scratch;     /* lent: room for the model of every star */
+    size_t nscratch;
 };
+
+void mp_fit_memory_scratch(mp_fit_memory *mem, double *buf, size_t n)
+{
+    mem->scratch = buf;
+    mem->nscratch = buf ? n : 0;
+}
 
 mp_fit_memory *mp_fit_memory_new(void)
 {
@@ -886,9 +899,10 @@ done:
  * radius; *ncut counts the stars cropped. */
 static double *all_stars(const mp_frame *f, const mp_prf_model *m, const star_state *st, size_t n,
                          const crop_rule *crop, const mp_frame_opts *o, const frame_rules *R,
-                         long *ncut)
+                         double *lent, long *ncut)
 {
-    double *all = calloc((size_t)f->im.nx * f->im.ny, sizeof *all);
+    size_t npix = (size_t)f->im.nx * (size_t)f->im.ny;
+    double *all = lent ? memset(lent, 0, npix * sizeof *lent) : calloc(npix, sizeof *all);
     mp_prf_work wk = {0};
     wk.grid = o->grid;
     wk.grid_emax = R->gemax;
@@ -898,7 +912,8 @@ static double *all_stars(const mp_frame *f, const mp_prf_model *m, const star_st
         int cut = 0;
         if (st[k].alive && paint(m, &st[k].s, +1.0, crop_radius(crop, &st[k].s), all, 1, 1,
                                  f->im.nx, f->im.ny, &wk, &buf, &cap, &cut)) {
-            free(all);
+            if (!lent)
+                free(all);
             all = NULL;
         }
         *ncut += cut;
@@ -1064,6 +1079,61 @@ static double median_sky(const star_state *st, size_t n)
     return med;
 }
 
+/* The frame's economy rules for the tables o points at (fit_group_local):
+ * the coarser levels' and kernels' choices and the phase grid's limit on
+ * the stars' median start sky.  Nonzero when out of memory. */
+static int rules_setup(frame_rules *R, const mp_frame *f, const mp_frame_opts *o,
+                       const star_state *st, size_t n, size_t ng, double runfits,
+                       mp_frame_report *rep)
+{
+    rules_free(R);
+    double keep = R->ops_full;
+    memset(R, 0, sizeof *R);
+    R->ops_full = keep;
+    double bsky = o->sinc || o->nss ? median_sky(st, n) : 0.0;
+    R->ss = o->ss;
+    R->nss = o->ss ? (o->nss < MP_SS_MAXLEVELS ? o->nss : MP_SS_MAXLEVELS) : 0;
+    int nomem = rule_init(&R->kern[R->nss], o->sinc, bsky, f->rdnoise, o->sincfrac, ng, o->cache,
+                          runfits, rep);
+    for (int l = 0; l < R->nss; l++)
+        nomem |= level_init(&R->level[l], &R->ss[l], bsky, f->rdnoise, o->ssfrac, ng, o->cache,
+                            runfits, rep) ||
+                 rule_init(&R->kern[l],
+                           ((o->ss_sinc >> l) & 1) && R->ss[l].sinc.d2 ? &R->ss[l].sinc : NULL, bsky,
+                           f->rdnoise, o->sincfrac, ng, o->cache, runfits, rep);
+    /* Economy: the largest flux the phase grid serves within the kernel's
+     * bound, on the same sky. */
+    R->gsky = o->grid ? median_sky(st, n) : 0.0;
+    R->gron = f->rdnoise;
+    R->gfrac = o->sincfrac;
+    R->gemax = grid_limit(o->grid, R->gsky, f->rdnoise, o->sincfrac, ng, o->cache, runfits, rep);
+    return nomem;
+}
+
+/* Economy in a sequential run: add ops (exact-render work just done) to
+ * the run's count and, when more groups follow (more), point oc at the
+ * tables that now pay, the rules renewed when they changed.  Nonzero with
+ * err on failure. */
+static int learn_and_choose(const mp_frame *f, const mp_frame_opts *o, mp_frame_opts *oc,
+                            frame_rules *R, const star_state *st, size_t n, size_t ng,
+                            double runfits, double ops, int more, mp_frame_report *rep, char *err)
+{
+    mp_econ_learn(o->cache, ops);
+    if (!more)
+        return 0;
+    const void *had[3] = {oc->sinc, oc->ss, oc->grid};
+    double sp = 0.0;
+    if (mp_econ_choose(o->cache, runfits, oc->fit.fitrad, oc, &sp, err))
+        return 1;
+    rep->ops_tables += sp;
+    if ((had[0] != oc->sinc || had[1] != oc->ss || had[2] != oc->grid) &&
+        rules_setup(R, f, oc, st, n, ng, runfits, rep)) {
+        snprintf(err, MP_ERRLEN, "out of memory");
+        return 1;
+    }
+    return 0;
+}
+
 int mp_fit_table_mem(const mp_frame *f, const mp_prf_model *m, const mp_frame_opts *o,
                      mp_table *t, mp_fit_memory *mem, mp_frame_report *rep, char *err)
 {
@@ -1084,6 +1154,9 @@ int mp_fit_table_mem(const mp_frame *f, const mp_prf_model *m, const mp_frame_op
     star_state *st = calloc(n ? n : 1, sizeof *st);
     size_t *gs = malloc((n + 1) * sizeof *gs);
     double *all = NULL;
+    /* The model image: in the caller's lent buffer when there is one. */
+    size_t npix = (size_t)f->im.nx * (size_t)f->im.ny;
+    double *lent = mem && mem->scratch && mem->nscratch >= npix ? mem->scratch : NULL;
     frame_rules R;
     memset(&R, 0, sizeof R);
     crop_rule crop = {0};
@@ -1128,23 +1201,7 @@ int mp_fit_table_mem(const mp_frame *f, const mp_prf_model *m, const mp_frame_op
     o = &oe;
     R.ops_full = o->cache ? mp_econ_render_ops(m, m->sinc_hw, o->fit.fitrad) : 0.0;
     rep->ops_render = R.ops_full;
-    double bsky = o->sinc || o->nss ? median_sky(st, n) : 0.0;
-    R.ss = o->ss;
-    R.nss = o->ss ? (o->nss < MP_SS_MAXLEVELS ? o->nss : MP_SS_MAXLEVELS) : 0;
-    int nomem = rule_init(&R.kern[R.nss], o->sinc, bsky, f->rdnoise, o->sincfrac, ng, o->cache,
-                          runfits, rep);
-    for (int l = 0; l < R.nss; l++)
-        nomem |= level_init(&R.level[l], &R.ss[l], bsky, f->rdnoise, o->ssfrac, ng, o->cache,
-                            runfits, rep) ||
-                 rule_init(&R.kern[l], o->sinc ? &R.ss[l].sinc : NULL, bsky, f->rdnoise,
-                           o->sincfrac, ng, o->cache, runfits, rep);
-    /* Economy: the largest flux the phase grid serves within the kernel's
-     * bound, on the same sky. */
-    R.gsky = o->grid ? median_sky(st, n) : 0.0;
-    R.gron = f->rdnoise;
-    R.gfrac = o->sincfrac;
-    R.gemax = grid_limit(o->grid, R.gsky, f->rdnoise, o->sincfrac, ng, o->cache, runfits, rep);
-    if (nomem) {
+    if (rules_setup(&R, f, o, st, n, ng, runfits, rep)) {
         snprintf(err, MP_ERRLEN, "out of memory");
         goto done;
     }
@@ -1173,46 +1230,62 @@ int mp_fit_table_mem(const mp_frame *f, const mp_prf_model *m, const mp_frame_op
     for (int pass = 0; pass < passes; pass++) {
         /* Neighbours are subtracted with the latest values; in the first
          * pass only those with a start flux (find's FLUX) can be. */
-        free(all);
+        if (!lent)
+            free(all);
         all = NULL;
-        if (!alone && !(all = all_stars(f, m, st, n, &crop, o, &R, &rep->cropped))) {
+        if (!alone && !(all = all_stars(f, m, st, n, &crop, o, &R, lent, &rep->cropped))) {
             snprintf(err, MP_ERRLEN, "out of memory for the model image");
             goto done;
         }
         mp_frame_report pr = {0};
-        int failed = 0;
-        char ferr[MP_ERRLEN] = "";
+        /* Economy in a sequential run: the groups in chunks (the first
+         * sixteenth, the first quarter, the rest), and after each the
+         * exact-render work done counts toward the run's tables; a table
+         * that now pays serves the groups after it.  The chunks' ends and
+         * the work (sums of whole numbers) do not depend on the threads. */
+        int learn = o->cache && o->learn;
+        for (size_t g0 = 0, g1; g0 < ng; g0 = g1) {
+            g1 = !learn ? ng : (g0 < ng / 16 ? ng / 16 : (g0 < ng / 4 ? ng / 4 : ng));
+            g1 = g1 > g0 ? g1 : g0 + 1;
+            double before = pr.render_ops;
+            int failed = 0;
+            char ferr[MP_ERRLEN] = "";
 #pragma omp parallel for schedule(dynamic) reduction(+ : failed)
-        for (size_t g = 0; g < ng; g++) {
-            char e[MP_ERRLEN];
-            mp_frame_report r = {0};
-            int k = (int)(gs[g + 1] - gs[g]);
-            if (fit_group_local(f, m, o, mergerad, &R, all, &crop, st + gs[g], k, economy, economy,
-                                &r, e)) {
-                failed++;
+            for (size_t g = g0; g < g1; g++) {
+                char e[MP_ERRLEN];
+                mp_frame_report r = {0};
+                int k = (int)(gs[g + 1] - gs[g]);
+                if (fit_group_local(f, m, o, mergerad, &R, all, &crop, st + gs[g], k, economy,
+                                    economy, &r, e)) {
+                    failed++;
 #pragma omp critical(fit_table_error)
-                snprintf(ferr, sizeof ferr, "%s", e);
-            }
+                    snprintf(ferr, sizeof ferr, "%s", e);
+                }
 #pragma omp critical(fit_table_report)
-            {
-                pr.merged += r.merged;
-                pr.rejected += r.rejected;
-                pr.iterations += r.iterations;
-                pr.fits += r.fits;
-                pr.kcalls += r.kcalls;
-                pr.kshort += r.kshort;
-                pr.khw += r.khw;
-                pr.kept += r.kept;
-                pr.kbounds += r.kbounds;
-                pr.kcoarse += r.kcoarse;
-                pr.kcache += r.kcache;
-                pr.ops_tables += r.ops_tables;
-                pr.ops_saved += r.ops_saved;
+                {
+                    pr.merged += r.merged;
+                    pr.rejected += r.rejected;
+                    pr.iterations += r.iterations;
+                    pr.fits += r.fits;
+                    pr.kcalls += r.kcalls;
+                    pr.kshort += r.kshort;
+                    pr.khw += r.khw;
+                    pr.kept += r.kept;
+                    pr.kbounds += r.kbounds;
+                    pr.kcoarse += r.kcoarse;
+                    pr.kcache += r.kcache;
+                    pr.ops_tables += r.ops_tables;
+                    pr.ops_saved += r.ops_saved;
+                    pr.render_ops += r.render_ops;
+                }
             }
-        }
-        if (failed) {
-            snprintf(err, MP_ERRLEN, "%s", ferr);
-            goto done;
+            if (failed) {
+                snprintf(err, MP_ERRLEN, "%s", ferr);
+                goto done;
+            }
+            if (learn && learn_and_choose(f, o, &oc, &R, st, n, ng, runfits, pr.render_ops - before,
+                                          g1 < ng || pass + 1 < passes, &pr, err))
+                goto done;
         }
         rep->merged += pr.merged;
         rep->rejected += pr.rejected;
@@ -1227,6 +1300,7 @@ int mp_fit_table_mem(const mp_frame *f, const mp_prf_model *m, const mp_frame_op
         rep->kcache += pr.kcache;
         rep->ops_tables += pr.ops_tables;
         rep->ops_saved += pr.ops_saved;
+        rep->render_ops += pr.render_ops;
         /* No group refitted: every later pass would see the same light. */
         if (economy && pr.fits == 0) {
             rep->kept += (long)ng * (passes - pass - 1);
@@ -1252,7 +1326,8 @@ int mp_fit_table_mem(const mp_frame *f, const mp_prf_model *m, const mp_frame_op
 done:
     for (size_t i = 0; st && i < n; i++)
         free(st[i].seen);
-    free(all);
+    if (!lent)
+        free(all);
     rules_free(&R);
     free(st);
     free(gs);

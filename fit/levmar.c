@@ -37,6 +37,7 @@ void mp_fit_opts_default(mp_fit_opts *o)
     o->fit_sky = 1;
     o->crop = NULL;
     o->grid = NULL;
+    o->work = NULL;
 }
 
 /* One star's rendered PRF and derivatives on the fitted pixels of its
@@ -1599,6 +1600,8 @@ finish_flagged:
             s->sky = 0.0;
     }
 done:
+    if (o->work)
+        *o->work += G.work.ops;     /* the exact renders' work (economy's plan) */
     group_free(&G);
     return rc;
 }

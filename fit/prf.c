@@ -23,6 +23,7 @@ static int work_reserve(mp_prf_work *w, size_t n)
     if (w->n >= n)
         return 0;
     long nshift = w->nshift, nskip = w->nskip;    /* the counts outlive a regrowth */
+    double ops = w->ops;
     free(w->a);
     free(w->b);
     free(w->c);
@@ -31,6 +32,7 @@ static int work_reserve(mp_prf_work *w, size_t n)
     w->n = 0;
     w->nshift = nshift;
     w->nskip = nskip;
+    w->ops = ops;
     w->a = malloc(n * sizeof *w->a);
     w->b = malloc(n * sizeof *w->b);
     w->c = malloc(n * sizeof *w->c);
@@ -260,6 +262,9 @@ static int render_table(const mp_prf_model *m, double x, double y, double xr, do
     if (!T)
         return 1;
     double wt[2 * 64 + 1];
+    /* The work, for economy's plan (fit/econ_plan.c). */
+    w->ops += (double)(si1 - si0) * (double)((tj1 - tj0) + (sj1 - sj0)) * (2.0 * hw + 1.0) +
+              (double)(mi1 - mi0) * (double)(mj1 - mj0) * (ddx || ddy ? 9.0 : 1.0);
     /* x-pass (skipped for a shift on the grid, where the sinc is the
      * identity: mp_shift_on_grid; counted in the work for the report) */
     w->nshift += 2;

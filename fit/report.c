@@ -148,7 +148,7 @@ static void report_lines(FILE *fp, const char *prefix, const mp_run_report *r)
         fprintf(fp, "%s  detection: %s\n", prefix, r->detection);
     if (r->tables && r->tables[0]) {
         double u = r->ops_render > 0 ? r->ops_render : 1.0;
-        fprintf(fp, "%s  economy tables: %s; this frame spent %.1f renders on them (builds and "
+        fprintf(fp, "%s  economy tables: %s; spent %.1f renders on them here (builds and "
                 "bound evaluations) and saved %.1f\n", prefix, r->tables, r->ops_tables / u,
                 r->ops_saved / u);
     }

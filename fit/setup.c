@@ -275,6 +275,7 @@ int mp_fit_setup_read(const mp_parset *ps, mp_fit_setup *s, char *err)
         mp_drf_uniform(vol, &s->drf);
     }
     mp_frame_opts_default(&s->opts);
+    s->opts.learn = 1;          /* the pipeline's rounds and passes, in turn (fit: 0) */
     mp_par_real(ps, "fitrad", &s->opts.fit.fitrad);   /* INDEF (NaN): whole image */
 
     mp_par_real(ps, "tol", &s->opts.fit.tol);

@@ -36,6 +36,9 @@ static int fit_one(const mp_fit_setup *s, const char *image, const char *coords,
     mp_frame_report rep;
     mp_frame_opts fo = s->opts;
     fo.fits = (double)t.nrow * (double)nframes;
+    /* The plan knows the whole list; what the frames already rendered
+     * would count the same fits twice (and come too late to pay). */
+    fo.learn = 0;
     t0 = mp_seconds();
     if (mp_fit_table(&f, &s->model, &fo, &t, &rep, e)) {
         snprintf(err, MP_ERRLEN, "%.200s: %.300s", coords, e);

@@ -82,10 +82,8 @@ int mp_image_out_open(const char *path, long nx, long ny, const mp_card *cards, 
         return 1;
     }
     fits_create_img(o->fp, FLOAT_IMG, 2, naxes, &status);
-    for (int i = 0; i < ncards && !status; i++)
-        if (cards[i].key && !cards[i].str)
-            fits_update_key_dbl(o->fp, cards[i].key, cards[i].value, -15, cards[i].comment,
-                                &status);
+    if (!status)
+        mp_fits_write_cards(o->fp, cards, ncards, &status);
     if (status) {
         mp_fits_error(path, "write", status, err);
         return mp_image_out_close(o, 0, err) || 1;

@@ -21,8 +21,9 @@ static int card_decimals(double v)
     return strtod(buf, NULL) == v ? -15 : -17;
 }
 
-static int write_cards(fitsfile *fp, const mp_card *cards, int ncards, int *status)
+int mp_fits_write_cards(void *vfp, const mp_card *cards, int ncards, int *status)
 {
+    fitsfile *fp = vfp;
     for (int i = 0; i < ncards && !*status; i++) {
         const mp_card *c = &cards[i];
         if (!c->key)
@@ -81,7 +82,7 @@ int mp_image_write(const char *path, const double *pix, long nx, long ny,
         return 1;
     }
     fits_create_img(fp, bitpix, 2, naxes, &status);
-    write_cards(fp, cards, ncards, &status);
+    mp_fits_write_cards(fp, cards, ncards, &status);
     fits_write_pix(fp, TDOUBLE, fpix, (LONGLONG)nx * ny, (void *)pix, &status);
     fits_close_file(fp, &status);
     if (status) {

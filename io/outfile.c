@@ -1,28 +1,83 @@
 /* outfile.c — atomic output files and "-" inputs (io.h). */
 #include "io/io.h"
 
+#include <ctype.h>
+#include <dirent.h>
 #include <errno.h>
+#include <signal.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 #include <unistd.h>
 
+/* This host's name as it goes into a temporary's name: letters, digits
+ * and '-' up to the first '.', at most 63 characters ("host" if none). */
+static void host_tag(char *out, size_t len)
+{
+    char h[256] = "";
+    if (gethostname(h, sizeof h - 1) != 0)
+        h[0] = '\0';
+    size_t k = 0;
+    for (const char *c = h; *c && *c != '.' && k + 1 < len && k < 63; c++)
+        if (isalnum((unsigned char)*c) || *c == '-')
+            out[k++] = *c;
+    out[k] = '\0';
+    if (k == 0)
+        snprintf(out, len, "host");
+}
+
+/* Remove the temporaries of path that runs on this host left when they
+ * were killed (SIGKILL, a node's OOM killer, a job's time limit): a name
+ * of the form ".<base>.tmp.<host>.<pid>" whose process is gone.  Another
+ * host's temporaries (a shared file system) and live processes' are left
+ * alone; a pid reused since leaves its stale file in place, harmlessly. */
+static void sweep_stale(const char *path, size_t dlen, const char *prefix)
+{
+    char *dir = dlen ? strndup(path, dlen) : strdup(".");
+    DIR *d = dir ? opendir(dir) : NULL;
+    size_t np = strlen(prefix);
+    for (struct dirent *e; d && (e = readdir(d));) {
+        const char *tail = e->d_name + np;
+        if (strncmp(e->d_name, prefix, np) != 0 || !*tail ||
+            strspn(tail, "0123456789") != strlen(tail) || strlen(tail) > 18)
+            continue;
+        long pid = atol(tail);
+        if (pid <= 0 || pid == (long)getpid() || kill((pid_t)pid, 0) == 0 || errno != ESRCH)
+            continue;
+        size_t n = strlen(dir) + strlen(e->d_name) + 2;
+        char *f = malloc(n);
+        if (f) {
+            snprintf(f, n, "%s/%s", dir, e->d_name);
+            unlink(f);
+            free(f);
+        }
+    }
+    if (d)
+        closedir(d);
+    free(dir);
+}
+
 char *mp_tmp_name(const char *path)
 {
-    /* "<dir>/.<base>.tmp.<pid>": same directory so rename() is atomic,
-     * hidden so a directory listing during a run stays clean, pid so two
-     * runs writing the same output do not share a temporary. */
+    /* "<dir>/.<base>.tmp.<host>.<pid>": same directory so rename() is
+     * atomic, hidden so a directory listing during a run stays clean,
+     * host and pid so two runs writing the same output do not share a
+     * temporary, and a killed run's can be told stale (sweep_stale). */
     const char *slash = strrchr(path, '/');
     size_t dlen = slash ? (size_t)(slash - path) + 1 : 0;
     const char *base = path + dlen;
-    char pid[32];
-    snprintf(pid, sizeof pid, ".tmp.%ld", (long)getpid());
-    size_t n = dlen + 1 + strlen(base) + strlen(pid) + 1;
+    char host[64], tag[128];
+    host_tag(host, sizeof host);
+    snprintf(tag, sizeof tag, ".tmp.%s.", host);
+    size_t n = dlen + 1 + strlen(base) + strlen(tag) + 24;
     char *t = malloc(n);
     if (!t)
         return NULL;
     memcpy(t, path, dlen);
-    snprintf(t + dlen, n - dlen, ".%s%s", base, pid);
+    snprintf(t + dlen, n - dlen, ".%s%s", base, tag);
+    sweep_stale(path, dlen, t + dlen);
+    size_t l = strlen(t);
+    snprintf(t + l, n - l, "%ld", (long)getpid());
     return t;
 }
 

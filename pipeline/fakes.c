@@ -199,6 +199,7 @@ int mp_fakes_run(const mp_frame *f, const mp_pipeline_opts *o, const mp_fakes_op
     }
     *run = *o;
     run->fit.opts.fits = (double)fo->nfake;
+    run->fit.opts.learn = 0;    /* boxes in parallel: no history */
     o = run;
     int failed = 0;
     char ferr[MP_ERRLEN] = "";

@@ -66,11 +66,9 @@ int mp_pl_write_catalog(const char *root, const mp_frame *f, mp_table *t,
 }
 
 
-int mp_pl_write_residual(const char *root, const mp_frame *f, double *res, char *err)
+int mp_pl_residual_open(const char *root, const mp_frame *f, long nx, long ny,
+                        mp_image_out **out, char *err)
 {
-    size_t npix = (size_t)f->im.nx * f->im.ny;
-    for (size_t i = 0; i < npix; i++)
-        res[i] = (f->mask[i] & MP_MASK_BAD) ? NAN : res[i] / f->gain;
     size_t n = strlen(root) + 10;
     char *path = malloc(n);
     if (!path) {
@@ -79,9 +77,38 @@ int mp_pl_write_residual(const char *root, const mp_frame *f, double *res, char 
     }
     snprintf(path, n, "%s.res.fits", root);
     mp_card cards[2] = {{"GAIN", f->gain, NULL, "e-/ADU"}, {"RDNOISE", f->rdnoise, NULL, "e-"}};
-    int rc = mp_image_write(path, res, f->im.nx, f->im.ny, -32, cards, 2, err);
+    int rc = mp_image_out_open(path, nx, ny, cards, 2, out, err);
     free(path);
     return rc;
+}
+
+int mp_pl_residual_put(mp_image_out *out, const mp_frame *f, const double *res, long x1, long y1,
+                       long w, long h, long ox, long oy, char *err)
+{
+    /* A row at a time, in ADU: no copy of the frame's size. */
+    double *row = malloc((size_t)w * sizeof *row);
+    if (!row) {
+        snprintf(err, MP_ERRLEN, "out of memory");
+        return 1;
+    }
+    int rc = 0;
+    for (long j = 0; j < h && !rc; j++) {
+        size_t p = (size_t)(y1 - 1 - oy + j) * (size_t)f->im.nx + (size_t)(x1 - 1 - ox);
+        for (long i = 0; i < w; i++)
+            row[i] = (f->mask[p + i] & MP_MASK_BAD) ? NAN : res[p + i] / f->gain;
+        rc = mp_image_out_put(out, x1, y1 + j, w, 1, row, err);
+    }
+    free(row);
+    return rc;
+}
+
+int mp_pl_write_residual(const char *root, const mp_frame *f, const double *res, char *err)
+{
+    mp_image_out *out;
+    if (mp_pl_residual_open(root, f, f->im.nx, f->im.ny, &out, err))
+        return 1;
+    int rc = mp_pl_residual_put(out, f, res, 1, 1, f->im.nx, f->im.ny, 0, 0, err);
+    return mp_image_out_close(out, !rc, err) || rc;
 }
 
 /* The run report's counts, from the pipeline's. */
@@ -109,6 +136,9 @@ static void report_counts(const mp_pipeline_report *rep, const mp_table *t, mp_r
     run->kcoarse = rep->kcoarse;
     run->kcache = rep->kcache;
     run->envelopes = rep->envelopes;
+    run->ops_tables = rep->ops_tables;
+    run->ops_saved = rep->ops_saved;
+    run->ops_render = rep->ops_render;
 }
 
 static int cmp_dbl(const void *a, const void *b)
@@ -182,6 +212,9 @@ int mp_pl_write_report(const char *image, const char *root,
     mp_report_parts(&fit->model, &fit->opts, &last, &run);
     run.decisions = fit->decisions;
     run.ndecisions = fit->ndecisions;
+    char tables[512];
+    mp_econ_summary(fit->cache, rep->ops_render, tables, sizeof tables);
+    run.tables = tables;
     detection_line(fit, rep, t, &run);
     size_t n = strlen(root) + 8;
     char *path = malloc(n);

@@ -46,6 +46,8 @@ typedef struct {
     long kbounds, envelopes;      /* economy's own cost (mp_frame_report) */
     long kcoarse;                 /* LM fits with a coarser table */
     long kcache;                  /* LM fits with the PRF from the phase grid */
+    double ops_tables, ops_saved, ops_render;  /* economy's tables' cost and saving
+                                   * (mp_frame_report), summed over rounds */
     long sky_groups[MP_SKY_MAXORDER + 1];  /* last round's groups by sky order */
     double khw;                   /* their half-widths summed over all group fits */
     double threshold, rdnoise;    /* find's threshold [σ] and the frame's read noise
@@ -68,9 +70,11 @@ int mp_pipeline_run_tiled(const char *image, const char *root, const mp_pipeline
                           long tilesize, long margin, mp_pipeline_report *rep, char *err);
 
 /* MP_PL_BYTES_PER_PIXEL: peak memory of a whole-frame run per pixel (the
- * frame, residual, mask, sky and noise maps, the fit's work), measured
- * (README, "Frames of any size"); it sets the tiles from maxmem. */
-#define MP_PL_BYTES_PER_PIXEL 60.0
+ * frame and residual in double, mask, single-precision sky, noise and
+ * detection maps: 29 bytes; the stars' tables and patches at 3.7e-3 stars
+ * a pixel: 9), measured on 4096² (README, "Frames of any size": 38.4),
+ * rounded up; it sets the tiles from maxmem. */
+#define MP_PL_BYTES_PER_PIXEL 40.0
 
 /* mp_pipeline_run_any: mp_pipeline_run or mp_pipeline_run_tiled, as
  * o->tilesize, o->maxmem and the frame's size say. */

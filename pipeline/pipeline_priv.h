@@ -72,6 +72,16 @@ typedef int (*mp_pl_done_fn)(void *ctx, const mp_frame *f, mp_table *t, double *
 int mp_pl_reduce(const char *image, const mp_pipeline_opts *o, mp_pipeline_report *rep,
                  mp_pl_done_fn done, void *ctx, char *err);
 
+/* mp_pl_psf_on: the PSF of a frame built as mp_pipeline_run builds it
+ * (find, pass 1, fit, pass 2 with the neighbours subtracted) on section,
+ * a part of the frame whose pixel (1, 1) is frame pixel (1 + offx,
+ * 1 + offy), the frame being fnx x fny: root.psf.fits is written in frame
+ * coordinates (its polynomial's origin and scales the frame's, as a whole
+ * run writes them).  *built = 0 (no file) when the section has no star
+ * fit to shape a PSF.  For tiles. */
+int mp_pl_psf_on(const char *section, const char *root, const mp_pipeline_opts *o, long offx,
+                 long offy, long fnx, long fny, int *built, char *err);
+
 /* ---- split.c ------------------------------------------------------------ */
 
 /* mp_pl_split_candidates: one star or two.  For every star of t (fitted:
@@ -102,9 +112,18 @@ int mp_pl_write_named(const char *root, const char *ext, const mp_table *t,
 int mp_pl_write_catalog(const char *root, const mp_frame *f, mp_table *t,
                         const mp_pipeline_opts *o, char *err);
 
-/* mp_pl_write_residual: root.res.fits from the residual res [e-] (converted
- * to ADU in place; NaN where the frame is masked bad). */
-int mp_pl_write_residual(const char *root, const mp_frame *f, double *res, char *err);
+/* The residual image root.res.fits (BITPIX -32, GAIN and RDNOISE of f),
+ * in ADU, NaN where the frame is masked bad; written whole by
+ * mp_pl_write_residual, or a core at a time by the tiles:
+ * mp_pl_residual_open makes an nx x ny image (mp_image_out: close it with
+ * mp_image_out_close), mp_pl_residual_put writes its rectangle of w x h
+ * pixels at frame pixel (x1, y1) from res [e-], the residual of frame f
+ * whose pixel (1, 1) is frame pixel (1 + ox, 1 + oy). */
+int mp_pl_residual_open(const char *root, const mp_frame *f, long nx, long ny,
+                        mp_image_out **out, char *err);
+int mp_pl_residual_put(mp_image_out *out, const mp_frame *f, const double *res, long x1, long y1,
+                       long w, long h, long ox, long oy, char *err);
+int mp_pl_write_residual(const char *root, const mp_frame *f, const double *res, char *err);
 
 /* mp_pl_write_report: the run report of a finished run (stderr and
  * root.report) from the pipeline's counts and the final table; fit is the

@@ -25,7 +25,10 @@ typedef struct {
     double fwhm;
     const mp_fit_setup *fit;   /* the fit's setup: the task's, or own */
     mp_fit_setup own;     /* set up from root.psf.fits when the PSF is built */
+    mp_fit_setup local;   /* own read at frame positions (a section: mp_pl_psf_on) */
     int have_own;
+    long offx, offy;      /* the frame pixel of this image's (1, 1), less 1 */
+    long fnx, fny;        /* the whole frame's size (0: this image is the frame) */
     mp_epsf psf;          /* the PSF built from the frame (build_psf) */
     double *px, *py, *pf; /* its stars */
     size_t np;
@@ -53,6 +56,10 @@ static int state_init(run_state *s, const char *image, const char *root,
     mp_table_init(&s->before);
     s->fit = &o->fit;
     s->fwhm = mp_prf_fwhm(&o->fit.model);
+    /* Economy learns within this frame only: an @list's frame reduces as
+     * its own job would (tools/slurm, survey_jobs.sh). */
+    if (o->fit.opts.learn)
+        mp_econ_forget(o->fit.cache);
     return (s->mem = mp_fit_memory_new()) ? 0 : oom(err);
 }
 
@@ -74,7 +81,7 @@ static void state_free(run_state *s)
     mp_frame_free(&s->f);
 }
 
-/* The frame, and room for its residual. */
+/* The frame. */
 static int read_frame(run_state *s, char *err)
 {
     double t0 = mp_seconds();
@@ -82,11 +89,21 @@ static int read_frame(run_state *s, char *err)
         return 1;
     s->rep->t_read = mp_seconds() - t0;
     s->rep->rdnoise = s->f.rdnoise;
-    size_t npix = (size_t)s->f.im.nx * s->f.im.ny;
-    if (!(s->res = malloc(npix * sizeof *s->res))) {
+    return 0;
+}
+
+/* Room for the residual, taken when the first fit needs it (not while the
+ * first detection holds its maps), and lent to the fit for its model of
+ * every star until mp_fit_residual draws the residual into it: the peak
+ * is then the frame, its mask and one more image (issue 14). */
+static int need_residual(run_state *s, char *err)
+{
+    size_t npix = (size_t)s->f.im.nx * (size_t)s->f.im.ny;
+    if (!s->res && !(s->res = malloc((npix ? npix : 1) * sizeof *s->res))) {
         snprintf(err, MP_ERRLEN, "%s: out of memory for the residual", s->image);
         return 1;
     }
+    mp_fit_memory_scratch(s->mem, s->res, npix);
     return 0;
 }
 
@@ -121,6 +138,7 @@ static int find_stars(run_state *s, char *err)
     s->rep->threshold = s->o->find.threshold;
     if (screen(s, &s->f, s->f.im.pix, &s->t))
         return oom(err);
+    mp_bkg_free(&s->bkg);        /* the fit needs no map: memory for its model */
     mp_pl_drop_unset(&s->t);
     s->rep->t_find += mp_seconds() - t0;
     s->rep->found = (long)s->t.nrow;
@@ -151,6 +169,9 @@ static void count_fit(mp_pipeline_report *rep, const mp_frame_report *fr, size_t
     rep->khw += fr->khw;
     rep->kbounds += fr->kbounds;
     rep->kcoarse += fr->kcoarse;
+    rep->ops_tables += fr->ops_tables;
+    rep->ops_saved += fr->ops_saved;
+    rep->ops_render = fr->ops_render;
     rep->kcache += fr->kcache;
     rep->envelopes += fr->envelopes;
     rep->ngroups = fr->ngroups;
@@ -171,6 +192,8 @@ static int group_and_fit(run_state *s, int round, char *err)
     mp_frame_report fr;
     if (mp_pl_positions_of(&s->t, &s->before))
         return oom(err);
+    if (need_residual(s, err))
+        return 1;
     if (mp_fit_table_mem(&s->f, &s->fit->model, &s->fit->opts, &s->t, s->mem, &fr, err))
         return 1;
     if (mp_pl_note_gone(&s->gone, &s->before, &s->t))
@@ -248,6 +271,7 @@ static int find_on_residual(run_state *s, int round, long *added, char *err)
                                o->fit.opts.fit.fitrad, 1.05 * mergerad, fmax(matchrad, 1.1 * mergerad),
                                splitsnr, &s->found) < 0)
         return oom(err);
+    mp_bkg_free(&s->bkg);        /* as after the first detection */
     *added = mp_pl_add_new_stars(&s->t, &s->gone, &s->found, s->f.im.nx, s->f.im.ny, matchrad,
                                  mergerad, s->fit->opts.minsnr > 0 ? splitsnr : INFINITY);
     if (*added < 0)
@@ -316,10 +340,13 @@ static int build_psf(run_state *s, int pass, char *err)
     const mp_pipeline_opts *o = s->o;
     double t0 = mp_seconds();
     mp_epsf_opts po = o->psfb;
-    po.x0 = 0.5 * (double)(s->f.im.nx + 1);
-    po.y0 = 0.5 * (double)(s->f.im.ny + 1);
-    po.xs = s->f.im.nx > 1 ? 0.5 * (double)s->f.im.nx : 1.0;
-    po.ys = s->f.im.ny > 1 ? 0.5 * (double)s->f.im.ny : 1.0;
+    /* The polynomial's origin and scales are the whole frame's, in this
+     * image's pixels (a section's: mp_pl_psf_on). */
+    long nx = s->fnx ? s->fnx : s->f.im.nx, ny = s->fny ? s->fny : s->f.im.ny;
+    po.x0 = 0.5 * (double)(nx + 1) - (double)s->offx;
+    po.y0 = 0.5 * (double)(ny + 1) - (double)s->offy;
+    po.xs = nx > 1 ? 0.5 * (double)nx : 1.0;
+    po.ys = ny > 1 ? 0.5 * (double)ny : 1.0;
     if (pass == 1 && psf_stars(s, err))
         return 1;
     /* A frame with no star fit to shape a PSF (an empty or tiny frame, a
@@ -342,7 +369,10 @@ static int build_psf(run_state *s, int pass, char *err)
     }
     mp_psf_field fld;
     char *path = mp_name_after(s->root, ".psf.fits");
-    int rc = !path ? oom(err) : mp_epsf_field(&s->psf, &fld, err);
+    mp_epsf inframe = s->psf;         /* written in frame coordinates */
+    inframe.x0 += (double)s->offx;
+    inframe.y0 += (double)s->offy;
+    int rc = !path ? oom(err) : mp_epsf_field(&inframe, &fld, err);
     if (!rc) {
         rc = mp_psf_field_write(path, &fld, NULL, 0, err);
         mp_psf_field_free(&fld);
@@ -360,7 +390,7 @@ static int build_psf(run_state *s, int pass, char *err)
         mp_params_set(o->ps, "psf", "", e3);
     }
     if (!rc) {
-        s->fit = &s->own;
+        s->fit = mp_fit_setup_local(&s->own, (double)s->offx, (double)s->offy, &s->local);
         s->fwhm = mp_prf_fwhm(&s->own.model);
         mp_fit_memory_free(s->mem);
         if (!(s->mem = mp_fit_memory_new()))
@@ -429,9 +459,6 @@ int mp_pipeline_reduce(const mp_frame *f, const mp_pipeline_opts *o, mp_table *t
     int rc = state_init(&s, "(in memory)", NULL, o, &rep, err);
     s.quiet = 1;
     s.f = *f;                    /* borrowed: not freed below */
-    size_t npix = (size_t)f->im.nx * (size_t)f->im.ny;
-    if (!rc && !(s.res = malloc(npix * sizeof *s.res)))
-        rc = oom(err);
     if (!rc)
         rc = find_stars(&s, err) || rounds(&s, err);
     if (!rc) {
@@ -452,6 +479,28 @@ int mp_pl_reduce(const char *image, const mp_pipeline_opts *o, mp_pipeline_repor
     if (!rc)
         rc = read_frame(&s, err) || find_stars(&s, err) || rounds(&s, err) ||
              done(ctx, &s.f, &s.t, s.res, err);
+    state_free(&s);
+    return rc;
+}
+
+int mp_pl_psf_on(const char *section, const char *root, const mp_pipeline_opts *o, long offx,
+                 long offy, long fnx, long fny, int *built, char *err)
+{
+    run_state s;
+    mp_pipeline_report rep;
+    *built = 0;
+    int rc = state_init(&s, section, root, o, &rep, err);
+    s.quiet = 1;                 /* no root.coo, root.grp: the tiles write theirs */
+    s.offx = offx;
+    s.offy = offy;
+    s.fnx = fnx;
+    s.fny = fny;
+    if (!rc)
+        rc = read_frame(&s, err) || find_stars(&s, err) || build_psf(&s, 1, err);
+    /* Pass 2 as a whole run makes it: every neighbour fitted and gone. */
+    if (!rc && s.have_own)
+        rc = group_and_fit(&s, 1, err) || build_psf(&s, 2, err);
+    *built = !rc && s.have_own;
     state_free(&s);
     return rc;
 }

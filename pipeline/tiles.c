@@ -136,47 +136,18 @@ static int take_stars(tiling *g, mp_table *t)
     return 0;
 }
 
-/* The core's residual, in ADU (NaN where the frame is masked bad), into
- * the frame's residual file. */
+/* The core's residual into the frame's residual file. */
 static int put_residual(tiling *g, const mp_frame *f, const double *res, char *err)
 {
-    long w = g->cx2 - g->cx1 + 1, h = g->cy2 - g->cy1 + 1;
-    double *buf = malloc((size_t)w * (size_t)h * sizeof *buf);
-    if (!buf) {
-        snprintf(err, MP_ERRLEN, "out of memory");
-        return 1;
-    }
-    for (long j = 0; j < h; j++)
-        for (long i = 0; i < w; i++) {
-            size_t p = (size_t)(g->cy1 - g->sy1 + j) * (size_t)f->im.nx + (size_t)(g->cx1 - g->sx1 + i);
-            buf[j * w + i] = (f->mask[p] & MP_MASK_BAD) ? NAN : res[p] / f->gain;
-        }
-    int rc = mp_image_out_put(g->res, g->cx1, g->cy1, w, h, buf, err);
-    free(buf);
-    return rc;
-}
-
-/* The frame's residual file, opened with the first tile's detector values. */
-static int open_residual(tiling *g, const char *root, const mp_frame *f, long nx, long ny,
-                         char *err)
-{
-    size_t n = strlen(root) + 10;
-    char *path = malloc(n);
-    if (!path) {
-        snprintf(err, MP_ERRLEN, "out of memory");
-        return 1;
-    }
-    snprintf(path, n, "%s.res.fits", root);
-    mp_card cards[2] = {{"GAIN", f->gain, NULL, "e-/ADU"}, {"RDNOISE", f->rdnoise, NULL, "e-"}};
-    int rc = mp_image_out_open(path, nx, ny, cards, 2, &g->res, err);
-    free(path);
-    return rc;
+    return mp_pl_residual_put(g->res, f, res, g->cx1, g->cy1, g->cx2 - g->cx1 + 1,
+                              g->cy2 - g->cy1 + 1, g->sx1 - 1, g->sy1 - 1, err);
 }
 
 static int tile_done(void *ctx, const mp_frame *f, mp_table *t, double *res, char *err)
 {
     tiling *g = ctx;
-    if (!g->res && open_residual(g, g->root, f, g->nx, g->ny, err))
+    /* opened with the first tile's detector values */
+    if (!g->res && mp_pl_residual_open(g->root, f, g->nx, g->ny, &g->res, err))
         return 1;
     if (take_stars(g, t))
         return oom(err);
@@ -225,6 +196,7 @@ static void add_report(mp_pipeline_report *s, const mp_pipeline_report *r)
     s->kept += r->kept; s->cropped += r->cropped; s->kcalls += r->kcalls;
     s->kshort += r->kshort; s->kbounds += r->kbounds; s->envelopes += r->envelopes;
     s->kcoarse += r->kcoarse; s->khw += r->khw;
+    s->ops_tables += r->ops_tables; s->ops_saved += r->ops_saved; s->ops_render = r->ops_render;
     s->threshold = r->threshold;     /* one frame: the same in every tile */
     s->rdnoise = r->rdnoise;
     for (int i = 0; i <= MP_SKY_MAXORDER; i++)
@@ -335,6 +307,53 @@ int mp_pipeline_run_tiled(const char *image, const char *root, const mp_pipeline
     return rc;
 }
 
+/* No PSF given: it is built once, as a whole run builds it, on the
+ * largest central section that maxmem holds (the whole frame when it
+ * fits), written as root.psf.fits in frame coordinates, and every tile is
+ * then fitted with it. */
+static int tiles_with_built_psf(const char *image, const char *root, const mp_pipeline_opts *o,
+                                long nx, long ny, long ts, long margin, mp_pipeline_report *rep,
+                                char *err)
+{
+    long side = (long)floor(sqrt(o->maxmem / (MP_PL_BYTES_PER_PIXEL / 1048576.0)));
+    side = side > ts + 2 * margin ? side : ts + 2 * margin;
+    long w = side < nx ? side : nx, h = side < ny ? side : ny;
+    long x1 = (nx - w) / 2 + 1, y1 = (ny - h) / 2 + 1;
+    size_t n = strlen(image) + 96;
+    char *sec = malloc(n);
+    if (!sec)
+        return oom(err);
+    snprintf(sec, n, "%s[%ld:%ld,%ld:%ld]", image, x1, x1 + w - 1, y1, y1 + h - 1);
+    fprintf(stderr, "matphot pipeline: %s: the PSF from %s\n", image, sec);
+    int have = 0;
+    int rc = mp_pl_psf_on(sec, root, o, x1 - 1, y1 - 1, nx, ny, &have, err);
+    free(sec);
+    /* The tiles reduced as `pipeline psf=root.psf.fits` would reduce them
+     * (detection kernel and grouping radii from it too), the options read
+     * in place (a fit setup holds pointers into itself: it is not copied). */
+    mp_pipeline_opts *lo = rc ? NULL : malloc(sizeof *lo);
+    char *path = rc ? NULL : mp_name_after(root, ".psf.fits");
+    if (!rc && (!lo || !path))
+        rc = oom(err);
+    int own = 0;
+    if (!rc && !have) {          /* no PSF star: the Gaussian of fwhm, said */
+        *lo = *o;
+        lo->build_psf = 0;
+    } else if (!rc && !(rc = mp_params_set(o->ps, "psf", path, err))) {
+        rc = mp_pl_opts_read(o->ps, lo, err);
+        own = !rc;
+        char e2[MP_ERRLEN];
+        mp_params_set(o->ps, "psf", "", e2);
+    }
+    if (!rc)
+        rc = mp_pipeline_run_tiled(image, root, lo, ts, margin, rep, err);
+    if (own)
+        mp_fit_setup_free(&lo->fit);
+    free(lo);
+    free(path);
+    return rc;
+}
+
 int mp_pipeline_run_any(const char *image, const char *root, const mp_pipeline_opts *o,
                         mp_pipeline_report *rep, char *err)
 {
@@ -360,14 +379,7 @@ int mp_pipeline_run_any(const char *image, const char *root, const mp_pipeline_o
     }
     if (ts >= nx && ts >= ny)
         return mp_pipeline_run(image, root, o, rep, err);
-    if (o->build_psf) {
-        snprintf(err, MP_ERRLEN, "tilesize: tiles need a PSF model (psf=FILE or psf=gauss); "
-                 "build one first with `matphot psf %s`", image);
-        return 1;
-    }
-    if (o->fit.dp.dqmask[0]) {
-        snprintf(err, MP_ERRLEN, "dqmask: not read in tiles yet; give tilesize=0");
-        return 1;
-    }
+    if (o->build_psf)
+        return tiles_with_built_psf(image, root, o, nx, ny, ts, margin, rep, err);
     return mp_pipeline_run_tiled(image, root, o, ts, margin, rep, err);
 }

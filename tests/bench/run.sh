@@ -20,3 +20,6 @@ REPORT="$B/bench/daophot/REPORT.md" sh tests/bench/compare_daophot.sh
 # peak RSS and accuracy; skips without IRAF or ../shared/data/real.  The
 # committed report is bench/REAL.md; a bench run writes its own copy.
 REPS=${REAL_REPS:-3} REPORT="$B/bench/REAL.md" sh tests/bench/real/real.sh
+# Threads (issue 14): per-stage speed-up from 1 to 2 OpenMP threads, medians
+# of interleaved runs; the committed table is bench/SCALING.md.
+sh tests/bench/threads.sh | tee "$B/bench/SCALING.txt"

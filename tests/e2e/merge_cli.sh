@@ -13,6 +13,8 @@
 #     have NDET = number of frames covering them;
 #   - the same list in reverse order gives as many sources;
 #   - format=fits writes both tables as FITS that read back;
+#   - calibrated catalogs (MAGZERO) merge on their zero point; a mix of
+#     calibrated and instrumental ones is refused;
 #   - a catalog without sky positions is refused in one line, exit 1, no output.
 M=${MATPHOT:-./matphot}
 [ -x "$M" ] || { echo "merge_cli: $M not built"; exit 77; }
@@ -93,6 +95,26 @@ h2=$(grep -v '^#' "$T/r.cat" | awk '{print $9}' | sort | uniq -c | tr -s ' ')
 [ -s "$T/s.det.fits" ] || no "format=fits wrote no s.det.fits"
 "$M" catalog "$T/s.fits" >"$T/back.cat" || no "s.fits does not read back"
 [ "$(grep -vc '^#' "$T/back.cat")" = "$(grep -vc '^#' "$T/s.cat")" ] || no "FITS and ASCII tables differ in rows"
+
+# Zero points: every catalog calibrated (`catalog magzero=25` writes
+# MAGZERO) gives the same sources with MAG_MEAN 25 brighter-numbered than
+# the instrumental merge (to the printed 1e-5 mag); a calibrated catalog
+# beside an instrumental one is refused in one line, exit 1, no output.
+for i in 1 2 3 4; do
+    "$M" catalog "$T/f$i.cat" magzero=25 output="$T/z$i.cat" 2>/dev/null || no "catalog magzero=25 f$i"
+    echo "$T/z$i.cat" >>"$T/z.lis"
+done
+"$M" merge @"$T/z.lis" output="$T/z.cat" 2>/dev/null || no "merge of calibrated catalogs"
+awk 'FNR == 1 { f++ } /^#/ { if ($3 == "MAG_MEAN") c = $2; next }
+     f == 1 { m[FNR] = $c; n++; next } { d = $c - m[FNR] - 25; if (d > 2e-5 || d < -2e-5) bad++; k++ }
+     END { exit !(n == k && n > 0 && !bad) }' "$T/s.cat" "$T/z.cat" ||
+    no "calibrated merge: not the instrumental one + 25 mag"
+printf '%s\n%s\n' "$T/z1.cat" "$T/f2.cat" >"$T/mixed.lis"
+"$M" merge @"$T/mixed.lis" output="$T/mixed.cat" 2>"$T/err"; rc=$?
+[ $rc -eq 1 ] || no "merge of mixed zero points exited $rc"
+[ "$(wc -l <"$T/err")" -eq 1 ] && grep -q "^matphot merge: .*z1.cat: magnitudes on a calibrated zero point (MAGZERO 25) but .*f2.cat's are instrumental" "$T/err" ||
+    no "mixed zero points: $(cat "$T/err")"
+[ -e "$T/mixed.cat" ] || [ -e "$T/mixed.det" ] && no "a refused merge left an output"
 
 # A catalog with no sky positions: one line, exit 1, no output.
 "$M" catalog "$T/f1.fit" output="$T/nosky.cat" || no "catalog without image"

@@ -11,7 +11,8 @@
 # seed, no randomness: no false-failure rate.  Also: the residual has the
 # whole frame's size, the catalog its sky positions (the header read
 # through a one-pixel section); maxmem picks tiles for a frame larger than
-# the budget (and not for one within it); tiles without a PSF model are refused in one line.
+# the budget (and not for one within it).  dqmask in tiles; tiles with the
+# PSF built from the frame (a central section within maxmem, then tiles).
 M=${MATPHOT:-./matphot}
 [ -x "$M" ] || { echo "tiles_cli: $M not built"; exit 77; }
 T=$(mktemp -d "${TMPDIR:-/tmp}/tiles_cli.XXXXXX") || exit 1
@@ -31,42 +32,77 @@ for e in fit cat reg report res.fits; do [ -s "$T/t.$e" ] || no "tiled run wrote
 [ "$(wc -c <"$T/t.res.fits")" = "$(wc -c <"$T/w.res.fits")" ] || no "tiled residual is not the frame's size"
 grep -q ALPHAPSF_J2000 "$T/t.cat" || no "tiled catalog has no sky positions"
 
-awk -v V="$T/vals" '
-FNR == 1 { file++ }
-/^#/ { c[file, $3] = $2; next }
-file == 1 { n1++; x1[n1] = $(c[1, "XPSF_IMAGE"]); y1[n1] = $(c[1, "YPSF_IMAGE"])
-    m1[n1] = $(c[1, "MAG_PSF"]); e1[n1] = $(c[1, "MAGERR_PSF"])
-    ex[n1] = $(c[1, "ERRX_PSF"]); ey[n1] = $(c[1, "ERRY_PSF"]); next }
-file == 2 { n2++; x = $(c[2, "XPSF_IMAGE"]); y = $(c[2, "YPSF_IMAGE"]); best = 1; who = 0
-    for (k = 1; k <= n1; k++) { d = (x - x1[k])^2 + (y - y1[k])^2; if (d < best) { best = d; who = k } }
-    if (!who) { lost2++; next }
-    if (used[who]++) dup++
-    dp = sqrt(((x - x1[who]) / ex[who])^2 + ((y - y1[who]) / ey[who])^2)
-    dm = ($(c[2, "MAG_PSF"]) - m1[who]) / e1[who]
-    print dp, (dm < 0 ? -dm : dm) > V }
-END { for (k = 1; k <= n1; k++) if (!used[k]) lost1++
-    printf "whole %d, tiled %d stars: %d of the whole not in the tiled, %d of the tiled not in the whole, %d twice\n",
-        n1, n2, lost1, lost2, dup
-    exit (lost1 + lost2 + dup > 0) }' "$T/w.cat" "$T/t.cat" >"$T/cmp" || no "$(cat "$T/cmp")"
-n=$(wc -l <"$T/vals")
-for col in 1 2; do
-    cut -d' ' -f$col "$T/vals" | sort -g >"$T/s$col"
-    p99=$(sed -n "$((n * 99 / 100 + 1))p" "$T/s$col"); max=$(tail -n 1 "$T/s$col")
-    echo "column $col (1: position, 2: magnitude) in sigma: p99 $p99, max $max"
-    awk -v a="$p99" -v b="$max" 'BEGIN { exit !(a < 0.5 && b < 3) }' || no "tiled differs: p99 $p99 max $max sigma (column $col)"
-done
-cat "$T/cmp"
+# compare WHOLE.cat TILED.cat WHAT: every star in both, none twice, the
+# matched ones within the criterion above.
+compare() {
+    awk -v V="$T/vals" '
+    FNR == 1 { file++ }
+    /^#/ { c[file, $3] = $2; next }
+    file == 1 { n1++; x1[n1] = $(c[1, "XPSF_IMAGE"]); y1[n1] = $(c[1, "YPSF_IMAGE"])
+        m1[n1] = $(c[1, "MAG_PSF"]); e1[n1] = $(c[1, "MAGERR_PSF"])
+        ex[n1] = $(c[1, "ERRX_PSF"]); ey[n1] = $(c[1, "ERRY_PSF"]); next }
+    file == 2 { n2++; x = $(c[2, "XPSF_IMAGE"]); y = $(c[2, "YPSF_IMAGE"]); best = 1; who = 0
+        for (k = 1; k <= n1; k++) { d = (x - x1[k])^2 + (y - y1[k])^2; if (d < best) { best = d; who = k } }
+        if (!who) { lost2++; next }
+        if (used[who]++) dup++
+        dp = sqrt(((x - x1[who]) / ex[who])^2 + ((y - y1[who]) / ey[who])^2)
+        dm = ($(c[2, "MAG_PSF"]) - m1[who]) / e1[who]
+        print dp, (dm < 0 ? -dm : dm) > V }
+    END { for (k = 1; k <= n1; k++) if (!used[k]) lost1++
+        printf "whole %d, tiled %d stars: %d of the whole not in the tiled, %d of the tiled not in the whole, %d twice\n",
+            n1, n2, lost1, lost2, dup
+        exit (lost1 + lost2 + dup > 0) }' "$1" "$2" >"$T/cmp" || no "$3: $(cat "$T/cmp")"
+    n=$(wc -l <"$T/vals")
+    for col in 1 2; do
+        cut -d' ' -f$col "$T/vals" | sort -g >"$T/s$col"
+        p99=$(sed -n "$((n * 99 / 100 + 1))p" "$T/s$col"); max=$(tail -n 1 "$T/s$col")
+        echo "column $col (1: position, 2: magnitude) in sigma: p99 $p99, max $max"
+        awk -v a="$p99" -v b="$max" 'BEGIN { exit !(a < 0.5 && b < 3) }' || no "$3: tiled differs: p99 $p99 max $max sigma (column $col)"
+    done
+    cat "$T/cmp"
+}
+compare "$T/w.cat" "$T/t.cat" "psf file"
 
-# maxmem: a 160 x 160 frame is 1.5 MB whole (60 B/px): a 1 MB budget holds
-# sections of 132 px, cores of 132 less twice the margin (~26): 2 x 2 tiles.
-"$M" sim "$T/g.fits" mode=crowded nx=160 ny=160 nstars=60 fwhm=2.5 magmin=-13 magmax=-9 seed=32 ||
+# maxmem: a 200 x 200 frame is 1.5 MB whole (40 B/px): a 1 MB budget holds
+# sections of 161 px, cores of 161 less twice the margin (~26): 2 x 2 tiles.
+"$M" sim "$T/g.fits" mode=crowded nx=200 ny=200 nstars=94 fwhm=2.5 magmin=-13 magmax=-9 seed=32 ||
     no "sim g"
 "$M" pipeline "$T/g.fits" "$P" root="$T/m" maxmem=1 2>"$T/m.log" || no "maxmem=1: $(tail -n 1 "$T/m.log")"
 grep -q "in 2 x 2 tiles of" "$T/m.log" || no "maxmem=1 did not choose 2 x 2 tiles: $(grep tiles "$T/m.log")"
 
-# Tiles need a PSF model: one line, exit 1, nothing written.
-"$M" pipeline "$T/f.fits" root="$T/x" tilesize=80 2>"$T/refused.log"; rc=$?
-[ $rc -eq 1 ] || no "tiles without psf= exited $rc"
-grep -q "^matphot pipeline: tilesize: tiles need a PSF model" "$T/refused.log" || no "message: $(tail -n 1 "$T/refused.log")"
-ls "$T" | grep -q '^x\.' && no "a refused tiled run left files: $(ls "$T" | grep '^x\.')"
+# dqmask in tiles: each tile reads the DQ image through its own section.
+# A band of bad pixels (rows 158-162, across the tiles' edge at 160/161):
+# whole and tiled agree by the criterion above, and as many fitted stars
+# carry flag 32 (masked pixels in the fit) in both.
+{ for c in "SIMPLE  =                    T" "BITPIX  =                    8" \
+      "NAXIS   =                    2" "NAXIS1  =                  240" \
+      "NAXIS2  =                  240" "END"; do printf '%-80s' "$c"; done
+  printf '%*s' $((2880 - 6 * 80)) ''; } >"$T/dq.fits"
+head -c $((157 * 240)) /dev/zero >>"$T/dq.fits"
+head -c 1200 /dev/zero | tr '\000' '\001' >>"$T/dq.fits"
+head -c $((240 * 240 - 162 * 240)) /dev/zero >>"$T/dq.fits"
+D="dqmask=$T/dq.fits dqbad=1"
+"$M" pipeline "$T/f.fits" "$P" $D root="$T/wd" 2>"$T/wd.log" || no "whole, dqmask: $(tail -n 1 "$T/wd.log")"
+"$M" pipeline "$T/f.fits" "$P" $D root="$T/td" tilesize=80 2>"$T/td.log" ||
+    no "tiled, dqmask: $(tail -n 1 "$T/td.log")"
+compare "$T/wd.cat" "$T/td.cat" "dqmask"
+flag32() { awk '/^#/ { if ($3 == "FLAGS") c = $2; next } int($c / 32) % 2 { n++ } END { print n + 0 }' "$1"; }
+fw=$(flag32 "$T/wd.cat"); ft=$(flag32 "$T/td.cat")
+echo "stars with masked pixels in their fit: whole $fw, tiled $ft"
+[ "$fw" -gt 0 ] && [ "$fw" = "$ft" ] || no "flag 32: whole $fw, tiled $ft"
+
+# Tiles with the PSF built from the frame: built once on a central
+# section, then every tile fitted with it; one root.psf.fits.
+# The whole frame fits the budget, so the PSF is the whole run's, byte for
+# byte; the tiles fitted with it agree with the whole frame fitted with it
+# as above.  With a budget of 1 MB it comes from the central 161 px.
+"$M" pipeline "$T/f.fits" root="$T/bw" 2>"$T/bw.log" || no "whole, built PSF: $(tail -n 1 "$T/bw.log")"
+"$M" pipeline "$T/f.fits" root="$T/b" tilesize=80 2>"$T/b.log" || no "tiles, built PSF: $(tail -n 1 "$T/b.log")"
+[ "$(grep -c '^matphot pipeline: tile [0-9]' "$T/b.log")" = 9 ] || no "built PSF: not 9 tiles reduced"
+cmp -s "$T/bw.psf.fits" "$T/b.psf.fits" || no "tiles built another PSF than the whole run's"
+"$M" pipeline "$T/f.fits" psf="$T/b.psf.fits" root="$T/bf" 2>"$T/bf.log" || no "whole, b.psf.fits"
+compare "$T/bf.cat" "$T/b.cat" "built PSF"
+"$M" pipeline "$T/f.fits" root="$T/bm" tilesize=80 maxmem=1 2>"$T/bm.log" || no "maxmem=1, built PSF"
+grep -q "the PSF from .*f.fits\[40:200,40:200\]" "$T/bm.log" || no "maxmem=1: not the central 161 px"
+[ -s "$T/bm.psf.fits" ] && [ -s "$T/bm.cat" ] || no "maxmem=1, built PSF: no bm.psf.fits or bm.cat"
 [ $fails -eq 0 ]

@@ -857,7 +857,8 @@ static void test_noise_from_model(void **state)
             assert_true(fabs(eps / cs[c].eps - 1.0) < 0.2);
         for (long i = 0; i < nx * ny; i += 97) {
             double m = stars[i], want = sqrt(k * k * (sky + m + ron * ron) + eps * eps * m * m);
-            assert_true(fabs(b.rms[i] - want) < 1e-9 * want);
+            /* the map is single precision: half an ulp is 6e-8 of it */
+            assert_true(fabs(b.rms[i] - want) < 1e-7 * want);
         }
         mp_bkg_free(&b);
     }

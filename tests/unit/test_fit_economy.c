@@ -441,7 +441,7 @@ static void test_coarse_table_per_group(void **state)
     assert_int_equal(mp_psf_gauss_table(FWHM, 2, 15.0, &p, err), 0);
     mp_prf_model m = {&p, NULL, 10};
     mp_ss_level lv;
-    assert_int_equal(mp_ss_level_build(&m, 2, 1, &lv, err), 0);
+    assert_int_equal(mp_ss_level_build(&m, 2, 0, &lv, err), 0);   /* its full kernel */
     lv.os = 1;
     double lim = mp_ss_level_emax(&lv, 100.0, 3.0, 0.1);
     double es[2] = {0.5 * lim, 1e6}, sum[3] = {0}, sum2[3] = {0};

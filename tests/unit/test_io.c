@@ -11,6 +11,7 @@
 #include <stdlib.h>
 #include <string.h>
 #include <sys/stat.h>
+#include <sys/wait.h>
 #include <unistd.h>
 
 #include <cmocka.h>
@@ -524,12 +525,15 @@ static void test_outfile(void **state)
 
     char *tmp = mp_tmp_name(path);
     assert_non_null(tmp);
-    char want[800];
-    snprintf(want, sizeof want, "%s/.out.txt.tmp.%ld", s->dir, (long)getpid());
-    assert_string_equal(tmp, want);
+    /* ".out.txt.tmp.<host>.<pid>" beside the output */
+    char want[800], pidtail[40];
+    snprintf(want, sizeof want, "%s/.out.txt.tmp.", s->dir);
+    snprintf(pidtail, sizeof pidtail, ".%ld", (long)getpid());
+    assert_int_equal(strncmp(tmp, want, strlen(want)), 0);
+    size_t lt = strlen(tmp), lp = strlen(pidtail);
+    assert_true(lt > strlen(want) + lp && strcmp(tmp + lt - lp, pidtail) == 0);
     char *bare = mp_tmp_name("x.fits");
-    snprintf(want, sizeof want, ".x.fits.tmp.%ld", (long)getpid());
-    assert_string_equal(bare, want);
+    assert_int_equal(strncmp(bare, ".x.fits.tmp.", 12), 0);
     free(bare);
 
     /* Abort: neither the output nor the temporary remains. */
@@ -595,6 +599,45 @@ static void test_outfile(void **state)
     assert_int_equal(count_files(s), 1);   /* only out.txt */
 }
 
+/* A killed run's temporary (its pid gone, this host) is swept when the
+ * output is next written; a live process's and another host's stay. */
+static void test_tmp_sweep(void **state)
+{
+    scratch *s = *state;
+    char path[700], prefix[800], dead[900], live[900], other[900];
+    snprintf(path, sizeof path, "%s/swept.cat", s->dir);
+    char *mine = mp_tmp_name(path);
+    assert_non_null(mine);
+    size_t l = strrchr(mine, '.') - mine + 1;          /* up to "<host>." */
+    snprintf(prefix, sizeof prefix, "%.*s", (int)l, mine);
+    pid_t child = fork();
+    assert_true(child >= 0);
+    if (child == 0)
+        _exit(0);
+    waitpid(child, NULL, 0);                           /* now a dead pid */
+    snprintf(dead, sizeof dead, "%s%ld", prefix, (long)child);
+    snprintf(live, sizeof live, "%s%ld", prefix, (long)getppid());
+    snprintf(other, sizeof other, "%s/.swept.cat.tmp.elsewhere-node.%ld", s->dir, (long)child);
+    const char *const made[] = {dead, live, other};
+    for (int i = 0; i < 3; i++) {
+        FILE *fp = fopen(made[i], "w");
+        assert_non_null(fp);
+        fclose(fp);
+    }
+    char err[MP_ERRLEN];
+    mp_outfile o;
+    assert_int_equal(mp_out_open(&o, path, err), 0);
+    fputs("x\n", o.fp);
+    assert_int_equal(mp_out_commit(&o, err), 0);
+    assert_false(exists(dead));
+    assert_true(exists(live));
+    assert_true(exists(other));
+    unlink(live);
+    unlink(other);
+    unlink(path);
+    free(mine);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
@@ -605,6 +648,7 @@ int main(void)
         cmocka_unit_test_setup_teardown(test_frame, setup, teardown),
         cmocka_unit_test_setup_teardown(test_frame_dq, setup, teardown),
         cmocka_unit_test_setup_teardown(test_outfile, setup, teardown),
+        cmocka_unit_test_setup_teardown(test_tmp_sweep, setup, teardown),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }

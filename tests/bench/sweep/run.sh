@@ -184,6 +184,8 @@ cpu2=$(awk -v a="$(cpu_of isolated)" -v b="$(cpu_of undersampled)" -v c="$(cpu_o
 # economy=yes against economy=no on the four scenes and two more (gradient
 # sky, gate-structure DRF): the section "Economy" of the report.
 ECON_N=${ECON_N:-$N_ISO} ECON_N_CROWDED=${ECON_N_CROWDED:-$N_CRO} sh tests/bench/sweep/econ.sh || rc=1
+# Economy's fixed cost per run: one frame against @lists of 10 and 200.
+sh tests/bench/sweep/econ_fixed.sh || rc=1
 npng=0
 for s in isolated crowded undersampled ugly; do [ -f "$OUT/$s.png" ] && npng=$((npng + 1)); done
 echo "sweep: wrote $OUT/REPORT.md and $npng PNGs in $((t1 - t0)) s"
