@@ -310,8 +310,9 @@ typedef struct {
 } mp_span;
 
 /* mp_prf_cache_render_spans: as mp_prf_cache_render, on the pixels of ns
- * spans only, their values one span after the other (Σ n of each array):
- * a group fit renders its fitted pixels, not the box around them. */
+ * spans only, their values one span after the other (Σ n of each array;
+ * any of the three may be NULL): a group fit renders its fitted pixels,
+ * not the box around them, and a trial step its PRF only. */
 int mp_prf_cache_render_spans(const mp_prf_cache *c, const mp_prf_model *m, double x, double y,
                               const mp_span *sp, int ns, double *prf, double *ddx, double *ddy);
 

@@ -218,9 +218,18 @@ static int render_exact(group *G, double x, double y, const rstar *r, int ns)
 /* Render every star of parameter vector p into r, on the fitted pixels of
  * its window only (the group's box, the star's PRF box and its crop
  * radius): the fit pays for its fitting region, not for the PSF's wings,
- * nor for the pixels between the stars' fitting radii. */
-static int render_all(group *G, const double *p, rstar *r)
+ * nor for the pixels between the stars' fitting radii.  what: RENDER_ALL,
+ * or, from the phase grid, RENDER_PRF (a trial step: D needs the PRF
+ * only, and a third of the trials are refused) and RENDER_DERIVS (the
+ * derivatives of a step taken, whose PRF is there); exact renders always
+ * draw all three. */
+enum { RENDER_ALL, RENDER_PRF, RENDER_DERIVS };
+
+static int render_all(group *G, const double *p, rstar *r, int what)
 {
+    int grid = mp_prf_cache_usable(G->work.grid, G->m);
+    if (!grid && what == RENDER_DERIVS)
+        return 0;
     for (int k = 0; k < G->n; k++) {
         double x = p[3 * k + 1], y = p[3 * k + 2];
         long x0, y0;
@@ -253,10 +262,11 @@ static int render_all(group *G, const double *p, rstar *r)
             return 1;
         if (ns == 0)
             continue;
-        int rc = mp_prf_cache_usable(G->work.grid, G->m)
-                     ? mp_prf_cache_render_spans(G->work.grid, G->m, x, y, G->spans, ns, rk->prf,
-                                                 rk->dx, rk->dy)
-                     : render_exact(G, x, y, rk, ns);
+        int rc = grid ? mp_prf_cache_render_spans(G->work.grid, G->m, x, y, G->spans, ns,
+                                                  what == RENDER_DERIVS ? NULL : rk->prf,
+                                                  what == RENDER_PRF ? NULL : rk->dx,
+                                                  what == RENDER_PRF ? NULL : rk->dy)
+                      : render_exact(G, x, y, rk, ns);
         if (rc)
             return 1;
     }
@@ -800,7 +810,7 @@ static int levmar(group *G, const mp_fit_opts *o, int *iter, int *converged)
         fresh = 0;
         for (int a = 0; a < np; a++)
             G->pt[a] = G->p[a] + G->step[a];
-        if (render_all(G, G->pt, G->trial))
+        if (render_all(G, G->pt, G->trial, RENDER_PRF))
             return 1;
         model_of(G, G->pt, G->trial);
         double Dt = sky_in_bounds(G) ? deviance_of(G) : INFINITY;
@@ -832,7 +842,8 @@ static int levmar(group *G, const mp_fit_opts *o, int *iter, int *converged)
         fresh = 1;
         lambda = lambda / 10.0 > 1e-7 ? lambda / 10.0 : 1e-7;
         variance_of(G);
-        if (normal_equations(G, G->p, G->cur, done))
+        if (render_all(G, G->p, G->cur, RENDER_DERIVS) ||
+            normal_equations(G, G->p, G->cur, done))
             return 1;
         if (done) {
             *converged = 1;
@@ -1491,7 +1502,7 @@ int mp_fit_group(const mp_frame *f, const mp_prf_model *m, const mp_fit_opts *o,
     G.p[3 * n] = sky;
     for (int a = 3 * n + 1; a < G.npmax; a++)
         G.p[a] = 0.0;
-    if (render_all(&G, G.p, G.cur))
+    if (render_all(&G, G.p, G.cur, RENDER_ALL))
         goto nomem;
     for (int k = 0; k < n; k++)
         if (!(isfinite(G.p[3 * k]) && G.p[3 * k] > 0))

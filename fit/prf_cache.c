@@ -139,14 +139,15 @@ static star_pos star_of(const mp_prf_cache *c, double x, double y)
     return s;
 }
 
-/* The interpolated PRF on pixels [x0, x0+w) of row y (1-based), derivatives
- * optional; pixels outside the cached union box are zero.  Plane pl holds
+/* The interpolated PRF on pixels [x0, x0+w) of row y (1-based), each of
+ * the three optional; pixels outside the cached union box are zero.  Plane pl holds
  * the PRF at img[3·pl·npix], then ∂/∂x, then ∂/∂y. */
 static void interp_row(const mp_prf_cache *c, const star_pos *s, long x0, long y, int w,
                        double *pr, double *gx, double *gy)
 {
     int na = c->gb + 3, NA = c->os * na;
-    memset(pr, 0, (size_t)w * sizeof *pr);
+    if (pr)
+        memset(pr, 0, (size_t)w * sizeof *pr);
     if (gx)
         memset(gx, 0, (size_t)w * sizeof *gx);
     if (gy)
@@ -163,8 +164,9 @@ static void interp_row(const mp_prf_cache *c, const star_pos *s, long x0, long y
                         (size_t)(s->px.beta * na + s->px.a + ka);
             const float *sp = c->img + 3 * pl * c->npix + (size_t)row * c->uw + (size_t)q0;
             double wv = s->Ly[kb] * s->Lx[ka];
-            for (long i = i0; i < i1; i++)
-                pr[i] += wv * sp[i];
+            if (pr)
+                for (long i = i0; i < i1; i++)
+                    pr[i] += wv * sp[i];
             if (gx) {
                 const float *sx = sp + c->npix;
                 for (long i = i0; i < i1; i++)
@@ -211,7 +213,7 @@ int mp_prf_cache_render_spans(const mp_prf_cache *c, const mp_prf_model *m, doub
     star_pos s = star_of(c, x, y);
     size_t o = 0;
     for (int k = 0; k < ns; k++) {
-        interp_row(c, &s, sp[k].x0, sp[k].y, sp[k].n, prf + o, ddx ? ddx + o : NULL,
+        interp_row(c, &s, sp[k].x0, sp[k].y, sp[k].n, prf ? prf + o : NULL, ddx ? ddx + o : NULL,
                    ddy ? ddy + o : NULL);
         o += (size_t)sp[k].n;
     }
