@@ -97,30 +97,7 @@ cl_head() {
   fw=$2; fitrad=$2
   psfrad=$(awk -v f="$fw" 'BEGIN { printf "%.2f", 4*f }')
   cl_env "$1"
-  cat <<EOF
-datapars.fwhmpsf = $fw
-datapars.sigma = $3
-datapars.readnoise = $4
-datapars.epadu = $5
-datapars.datamin = INDEF
-datapars.datamax = INDEF
-findpars.threshold = 4.0
-findpars.nsigma = 1.5
-centerpars.calgorithm = "none"
-fitskypars.salgorithm = "mode"
-fitskypars.annulus = 10.0
-fitskypars.dannulus = 10.0
-photpars.apertures = "$fitrad"
-photpars.zmag = 0.0
-daopars.function = "gauss"
-daopars.varorder = $6
-daopars.psfrad = $psfrad
-daopars.fitrad = $fitrad
-daopars.fitsky = yes
-daopars.sannulus = $fitrad
-daopars.wsannulus = 11.0
-daopars.maxgroup = 60
-EOF
+  cl_pars "$fw" "$3" "$4" "$5" INDEF "$fitrad" gauss "$6" "$psfrad" "$fitrad"
 }
 
 # run_cl DIR NAME: irafcl -f DIR/NAME.cl, no stdin, log in DIR/NAME.log.

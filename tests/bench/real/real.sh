@@ -94,31 +94,8 @@ frame() {
 # cl_head DIR SIGMA: the CL script's head: environment, datapars, daopars.
 cl_head() {
     cl_env "$1"
-    cat <<EOF
-datapars.fwhmpsf = $FWHM
-datapars.sigma = $2
-datapars.readnoise = $RON
-datapars.epadu = $GAIN
-datapars.datamin = INDEF
-datapars.datamax = $DMAX
-findpars.threshold = 4.0
-findpars.nsigma = 1.5
-centerpars.calgorithm = "none"
-fitskypars.salgorithm = "mode"
-fitskypars.annulus = 10.0
-fitskypars.dannulus = 10.0
-photpars.apertures = "$FITRAD"
-photpars.zmag = 0.0
-daopars.function = "gauss"
-daopars.varorder = 0
-daopars.psfrad = $PSFRAD
-daopars.fitrad = $FITRAD
-daopars.fitsky = yes
-daopars.sannulus = $FITRAD
-daopars.wsannulus = 11.0
-daopars.maxgroup = 60
-pstselect.maxnpsf = 25
-EOF
+    cl_pars "$FWHM" "$2" "$RON" "$GAIN" "$DMAX" "$FITRAD" gauss 0 "$PSFRAD" "$FITRAD"
+    echo "pstselect.maxnpsf = 25"
 }
 
 # dao_run DIR SIGMA: the chain in four timed CL runs (find, psf, als1,

@@ -65,62 +65,10 @@ dao() {
     # these frames (3 FWHM: fluxes 3x too high).  psfrad 8 px (the
     # tables' half-width), fitrad 1 FWHM.
     ap=$(awk -v f="$fw" 'BEGIN { printf "%.2f", 1.5 * f }')
-    dao_head() {
-        cl_env "$d"
-        cat <<EOF
-datapars.fwhmpsf = $fw
-datapars.sigma = 10.44
-datapars.readnoise = 3.0
-datapars.epadu = 1.0
-datapars.datamin = INDEF
-datapars.datamax = INDEF
-findpars.threshold = 4.0
-findpars.nsigma = 1.5
-centerpars.calgorithm = "none"
-fitskypars.salgorithm = "mode"
-fitskypars.annulus = 10.0
-fitskypars.dannulus = 10.0
-photpars.apertures = "$ap"
-photpars.zmag = 0.0
-daopars.function = "auto"
-daopars.varorder = $vo
-daopars.psfrad = 8.0
-daopars.fitrad = $fw
-daopars.fitsky = yes
-daopars.sannulus = $fw
-daopars.wsannulus = 11.0
-daopars.maxgroup = 60
-pstselect.maxnpsf = 60
-EOF
-    }
-    { dao_head; cat <<EOF
-imcopy ("$OUT/$s/frame.fits", "im.fits", verbose=no)
-daofind ("im.fits", output="im.coo", starmap="", skymap="", interactive=no, verify=no, verbose=no)
-phot ("im.fits", coords="im.coo", output="im.mag", interactive=no, verify=no, verbose=no)
-pstselect ("im.fits", "im.mag", "im.pst0", maxnpsf=60, interactive=no, verify=no, verbose=no)
-psf ("im.fits", "im.mag", "im.pst0", "im.dpsf0", "im.pst1", "im.psg1", matchbyid=yes, interactive=no, showplots=no, plotfile="", verify=no, verbose=no)
-nstar ("im.fits", "im.psg1", "im.dpsf0", "im.nst1", "im.nrj1", verify=no, verbose=no)
-substar ("im.fits", "im.nst1", "im.pst1", "im.dpsf0", "im.cln1", verify=no, verbose=no)
-psf ("im.cln1.fits", "im.mag", "im.pst1", "im.dpsf", "im.pst2", "im.psg2", matchbyid=yes, interactive=no, showplots=no, plotfile="", verify=no, verbose=no)
-allstar ("im.fits", "im.mag", "im.dpsf", "im.als1", "im.arj1", "im.sub1", verify=no, verbose=no)
-daofind ("im.sub1.fits", output="im.coo2", starmap="", skymap="", interactive=no, verify=no, verbose=no)
-phot ("im.fits", coords="im.coo2", output="im.mag2", interactive=no, verify=no, verbose=no)
-pfmerge ("im.als1,im.mag2", "im.mrg2", verbose=no)
-prenumber ("im.mrg2")
-allstar ("im.fits", "im.mrg2", "im.dpsf", "im.als2", "im.arj2", "im.sub2", verify=no, verbose=no)
-txdump ("im.als2", "XCENTER,YCENTER,MAG", yes, headers=no, parameters=no, > "als.txt")
-print ("CL_OK")
-logout
-EOF
-    } > "$d/run.cl"
-    ( cd "$d" && mkdir -p h/uparm h/imdir h/cache &&
-      HOME="$d/h" /usr/bin/time -f 'cpu %e %U %S' -o time timeout 1800 irafcl -f run.cl \
-          < /dev/null > run.log 2>&1 )
-    if ! grep -q '^CL_OK' "$d/run.log" || grep -qE 'ERROR|Syntax error' "$d/run.log"; then
-        tail -n 20 "$d/run.log" >&2
-        say "DAOPHOT failed on $s (varorder $vo)" >&2
-        return 1
-    fi
+    { cl_env "$d"; cl_pars "$fw" 10.44 3.0 1.0 INDEF "$ap" auto "$vo" 8.0 "$fw"
+      echo "pstselect.maxnpsf = 60"
+      cl_chain "$OUT/$s/frame.fits" 60 "XCENTER,YCENTER,MAG" als.txt; } > "$d/run.cl"
+    cl_run "$d" || { say "DAOPHOT failed on $s (varorder $vo)" >&2; return 1; }
     # MAG = -2.5 log10(counts) with zmag 0, gain 1: counts are electrons.
     awk '$3 != "INDEF" { print $1, $2, 10 ^ (-0.4 * $3) }' "$d/als.txt" | ascii_head "$OUT/$s/dao$vo.cat"
     echo "IRAF DAOPHOT psf (function auto, varorder $vo, 60 stars by pstselect, neighbours subtracted, psf again) + allstar + one refind round; apertures $ap px, psfrad 8, fitrad $fw" > "$OUT/$s/dao$vo.cmd"

@@ -139,55 +139,9 @@ tuc_dao() {
     # shellcheck disable=SC2046
     set -- $("$OUT/realcmp" sky "$img" 1 4.71)
     sig=$2
-    { cl_env "$d"; cat <<EOF
-datapars.fwhmpsf = 2.0
-datapars.sigma = $sig
-datapars.readnoise = 4.71
-datapars.epadu = 1.0
-datapars.datamin = INDEF
-datapars.datamax = 130000.0
-findpars.threshold = 4.0
-findpars.nsigma = 1.5
-centerpars.calgorithm = "none"
-fitskypars.salgorithm = "mode"
-fitskypars.annulus = 10.0
-fitskypars.dannulus = 10.0
-photpars.apertures = "3.0"
-photpars.zmag = 0.0
-daopars.function = "auto"
-daopars.varorder = 0
-daopars.psfrad = 10.0
-daopars.fitrad = 2.0
-daopars.fitsky = yes
-daopars.sannulus = 2.0
-daopars.wsannulus = 11.0
-daopars.maxgroup = 60
-imcopy ("$img", "im.fits", verbose=no)
-daofind ("im.fits", output="im.coo", starmap="", skymap="", interactive=no, verify=no, verbose=no)
-phot ("im.fits", coords="im.coo", output="im.mag", interactive=no, verify=no, verbose=no)
-pstselect ("im.fits", "im.mag", "im.pst0", maxnpsf=25, interactive=no, verify=no, verbose=no)
-psf ("im.fits", "im.mag", "im.pst0", "im.dpsf0", "im.pst1", "im.psg1", matchbyid=yes, interactive=no, showplots=no, plotfile="", verify=no, verbose=no)
-nstar ("im.fits", "im.psg1", "im.dpsf0", "im.nst1", "im.nrj1", verify=no, verbose=no)
-substar ("im.fits", "im.nst1", "im.pst1", "im.dpsf0", "im.cln1", verify=no, verbose=no)
-psf ("im.cln1.fits", "im.mag", "im.pst1", "im.dpsf", "im.pst2", "im.psg2", matchbyid=yes, interactive=no, showplots=no, plotfile="", verify=no, verbose=no)
-allstar ("im.fits", "im.mag", "im.dpsf", "im.als1", "im.arj1", "im.sub1", verify=no, verbose=no)
-daofind ("im.sub1.fits", output="im.coo2", starmap="", skymap="", interactive=no, verify=no, verbose=no)
-phot ("im.fits", coords="im.coo2", output="im.mag2", interactive=no, verify=no, verbose=no)
-pfmerge ("im.als1,im.mag2", "im.mrg2", verbose=no)
-prenumber ("im.mrg2")
-allstar ("im.fits", "im.mrg2", "im.dpsf", "im.als2", "im.arj2", "im.sub2", verify=no, verbose=no)
-txdump ("im.als2", "XCENTER,YCENTER,MAG,MSKY,CHI", yes, headers=no, parameters=no, > "chi.txt")
-print ("CL_OK")
-logout
-EOF
-    } > "$d/run.cl"
-    ( cd "$d" && HOME="$d/h" /usr/bin/time -f 'cpu %e %U %S' -o time timeout 1800 irafcl -f run.cl \
-          < /dev/null > run.log 2>&1 )
-    if ! grep -q '^CL_OK' "$d/run.log" || grep -qE 'ERROR|Syntax error' "$d/run.log"; then
-        tail -n 20 "$d/run.log" >&2
-        say "DAOPHOT failed on 47 Tuc" >&2
-        return 1
-    fi
+    { cl_env "$d"; cl_pars 2.0 "$sig" 4.71 1.0 130000.0 3.0 auto 0 10.0 2.0
+      cl_chain "$img" 25 "XCENTER,YCENTER,MAG,MSKY,CHI" chi.txt; } > "$d/run.cl"
+    cl_run "$d" || { say "DAOPHOT failed on 47 Tuc" >&2; return 1; }
     awk '$3 != "INDEF" { printf "%d %s %s %s\n", ++n, $1, $2, 10 ^ (-0.4 * $3) }' "$d/chi.txt" |
         awk 'BEGIN {
             print "#   1 NUMBER                 Running object number"
