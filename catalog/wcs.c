@@ -625,58 +625,22 @@ int mp_wcs_pix2j2000(const mp_wcs *w, double x, double y, double *ra, double *de
 
 /* ---- the catalog columns ------------------------------------------------ */
 
-int mp_table_add_sky(mp_table *t, const mp_image *im, char *err)
+/* The position pairs mp_table_add_sky converts: [0] fitted, [1] detection. */
+static const char *const sky_in[2][2] = {
+    { "XPSF_IMAGE", "YPSF_IMAGE" }, { "X_IMAGE", "Y_IMAGE" }
+};
+static const char *const sky_out[2][2] = {
+    { "ALPHAPSF_J2000", "DELTAPSF_J2000" }, { "ALPHA_J2000", "DELTA_J2000" }
+};
+
+/* sky[r*4 + p*2 + {0,1}]: (RA, Dec) J2000 of row r's pair p (NaN where the
+ * pair is absent or its pixel position NaN). */
+static int sky_positions(const mp_table *t, const mp_wcs *w, const int cx[2],
+                         const int cy[2], double *sky, char *err)
 {
-    if (!t || !im) {
-        say(err, "WCS: internal error (null table or image)");
-        return MP_WCS_FAIL;
-    }
-    /* The position pairs present: [0] fitted, [1] detection. */
-    static const char *const in[2][2] = {
-        { "XPSF_IMAGE", "YPSF_IMAGE" }, { "X_IMAGE", "Y_IMAGE" }
-    };
-    static const char *const out[2][2] = {
-        { "ALPHAPSF_J2000", "DELTAPSF_J2000" }, { "ALPHA_J2000", "DELTA_J2000" }
-    };
-    int cx[2], cy[2], npair = 0;
-    for (int p = 0; p < 2; p++) {
-        cx[p] = mp_table_col(t, in[p][0]);
-        cy[p] = mp_table_col(t, in[p][1]);
-        if (cx[p] < 0 || cy[p] < 0)
-            cx[p] = cy[p] = -1;
-        else
-            npair++;
-    }
-    if (npair == 0) {
-        say(err, "sky positions: the table has neither XPSF_IMAGE/YPSF_IMAGE "
-            "nor X_IMAGE/Y_IMAGE");
-        return MP_WCS_FAIL;
-    }
-
-    mp_wcs *w = NULL;
-    int st = mp_wcs_open(im, &w, err);
-    if (st)
-        return st;
-    if (check_j2000(w, err)) {
-        mp_wcs_close(w);
-        return MP_WCS_FAIL;
-    }
-
-    /* Compute first, then add the columns, so that a failure leaves the
-     * table as it was. */
-    size_t nrow = t->nrow;
-    double *sky = NULL;
-    if (nrow > 0) {
-        if (nrow > ((size_t)-1) / (4 * sizeof *sky)
-            || !(sky = malloc(nrow * 4 * sizeof *sky))) {
-            mp_wcs_close(w);
-            say(err, "sky positions: out of memory");
-            return MP_WCS_FAIL;
-        }
-    }
     int fail = 0;
     char ferr[MP_ERRLEN] = "";
-    long nr = (long)nrow;
+    long nr = (long)t->nrow;
 #pragma omp parallel for schedule(static) if (nr > 256)
     for (long r = 0; r < nr; r++) {
         for (int p = 0; p < 2; p++) {
@@ -701,30 +665,75 @@ int mp_table_add_sky(mp_table *t, const mp_image *im, char *err)
             }
         }
     }
-    mp_wcs_close(w);
-    if (fail) {
-        free(sky);
-        if (err)
-            snprintf(err, MP_ERRLEN, "%s", ferr);
-        return MP_WCS_FAIL;
-    }
+    if (fail && err)
+        snprintf(err, MP_ERRLEN, "%s", ferr);
+    return fail ? MP_WCS_FAIL : 0;
+}
 
+/* The sky columns of the pairs present, filled from sky[]. */
+static int sky_columns_add(mp_table *t, const int cx[2], const double *sky,
+                           char *err)
+{
     for (int p = 0; p < 2; p++) {
         if (cx[p] < 0)
             continue;
-        int ca = mp_table_add_col(t, out[p][0]);
-        int cd = ca < 0 ? -1 : mp_table_add_col(t, out[p][1]);
+        int ca = mp_table_add_col(t, sky_out[p][0]);
+        int cd = ca < 0 ? -1 : mp_table_add_col(t, sky_out[p][1]);
         if (ca < 0 || cd < 0) {
-            free(sky);
             say(err, "sky positions: out of memory adding column %s",
-                out[p][ca < 0 ? 0 : 1]);
+                sky_out[p][ca < 0 ? 0 : 1]);
             return MP_WCS_FAIL;
         }
-        for (size_t r = 0; r < nrow; r++) {
+        for (size_t r = 0; r < t->nrow; r++) {
             mp_table_set(t, r, ca, sky[r * 4 + (size_t)p * 2]);
             mp_table_set(t, r, cd, sky[r * 4 + (size_t)p * 2 + 1]);
         }
     }
-    free(sky);
     return 0;
+}
+
+int mp_table_add_sky(mp_table *t, const mp_image *im, char *err)
+{
+    if (!t || !im) {
+        say(err, "WCS: internal error (null table or image)");
+        return MP_WCS_FAIL;
+    }
+    int cx[2], cy[2], npair = 0;
+    for (int p = 0; p < 2; p++) {
+        cx[p] = mp_table_col(t, sky_in[p][0]);
+        cy[p] = mp_table_col(t, sky_in[p][1]);
+        if (cx[p] < 0 || cy[p] < 0)
+            cx[p] = cy[p] = -1;
+        else
+            npair++;
+    }
+    if (npair == 0) {
+        say(err, "sky positions: the table has neither XPSF_IMAGE/YPSF_IMAGE "
+            "nor X_IMAGE/Y_IMAGE");
+        return MP_WCS_FAIL;
+    }
+    mp_wcs *w = NULL;
+    int st = mp_wcs_open(im, &w, err);
+    if (st)
+        return st;
+    if (check_j2000(w, err)) {
+        mp_wcs_close(w);
+        return MP_WCS_FAIL;
+    }
+    /* Compute first, then add the columns, so that a failure leaves the
+     * table as it was. */
+    size_t nrow = t->nrow;
+    double *sky = NULL;
+    if (nrow > 0 && (nrow > ((size_t)-1) / (4 * sizeof *sky)
+                     || !(sky = malloc(nrow * 4 * sizeof *sky)))) {
+        mp_wcs_close(w);
+        say(err, "sky positions: out of memory");
+        return MP_WCS_FAIL;
+    }
+    st = sky_positions(t, w, cx, cy, sky, err);
+    mp_wcs_close(w);
+    if (!st)
+        st = sky_columns_add(t, cx, sky, err);
+    free(sky);
+    return st;
 }
