@@ -40,7 +40,7 @@ static int resolve(const char *name, const mp_image *im, double dp, const char *
 
 void mp_datapars_read(const mp_parset *ps, mp_datapars *dp)
 {
-    *dp = (mp_datapars){NAN, NAN, NAN, NAN, "", 0, 0, 0, ""};
+    *dp = (mp_datapars){NAN, NAN, NAN, NAN, "", 0, 0, 0, "", 0};
     mp_par_real(ps, "gain", &dp->gain);
     mp_par_real(ps, "rdnoise", &dp->rdnoise);
     mp_par_real(ps, "saturate", &dp->saturate);
@@ -57,6 +57,9 @@ void mp_datapars_read(const mp_parset *ps, mp_datapars *dp)
     v = 0;
     if (!mp_par_int(ps, "satgrow", &v) && v > 0)
         dp->satgrow = v;
+    v = 0;
+    if (!mp_par_int(ps, "bleedgrow", &v) && v > 0)
+        dp->bleedgrow = v;
     const char *ep = mp_par_string(ps, "errplane");
     snprintf(dp->errplane, sizeof dp->errplane, "%s", ep ? ep : "");
 }
@@ -191,10 +194,43 @@ static int grow_saturated(mp_frame *f, int g, const char *name, char *err)
     return 0;
 }
 
+/* A bleed trail's ends (datapars bleedgrow): a run of two or more
+ * saturated pixels along a column is a bleed, and the g pixels beyond each
+ * end of it are saturated too (charge spilled along the column past where
+ * the DQ plane stops flagging it), unless bad already.  From a copy. */
+static int grow_bleeds(mp_frame *f, int g, const char *name, char *err)
+{
+    long nx = f->im.nx, ny = f->im.ny;
+    uint8_t *m0 = malloc(nx * ny > 0 ? (size_t)(nx * ny) : 1);
+    if (!m0) {
+        snprintf(err, MP_ERRLEN, "%s: out of memory for the saturation mask", name);
+        return 1;
+    }
+    memcpy(m0, f->mask, nx * ny > 0 ? (size_t)(nx * ny) : 0);
+    for (long x = 0; x < nx; x++)
+        for (long y = 0; y < ny;) {
+            long y1 = y;
+            while (y1 < ny && (m0[y1 * nx + x] & MP_MASK_SATURATED))
+                y1++;
+            if (y1 - y >= 2)
+                for (long k = 1; k <= g; k++)
+                    for (int e = 0; e < 2; e++) {
+                        long j = e ? y1 - 1 + k : y - k;
+                        if (j >= 0 && j < ny && !f->mask[j * nx + x]) {
+                            f->mask[j * nx + x] = MP_MASK_SATURATED;
+                            f->nsat++;
+                        }
+                    }
+            y = y1 > y ? y1 : y + 1;
+        }
+    free(m0);
+    return 0;
+}
+
 int mp_frame_read(const char *name, const mp_datapars *dp, mp_frame *f, char *err)
 {
     memset(f, 0, sizeof *f);
-    const mp_datapars none = {NAN, NAN, NAN, NAN, "", 0, 0, 0, ""};
+    const mp_datapars none = {NAN, NAN, NAN, NAN, "", 0, 0, 0, "", 0};
     if (!dp)
         dp = &none;
     if (mp_image_read(name, &f->im, err))
@@ -248,6 +284,8 @@ int mp_frame_read(const char *name, const mp_datapars *dp, mp_frame *f, char *er
         f->nsat += f->mask[i] == MP_MASK_SATURATED;
         f->im.pix[i] = adu * f->gain;
     }
+    if (dp->bleedgrow > 0 && f->nsat && grow_bleeds(f, dp->bleedgrow, name, err))
+        goto fail;
     if (dp->satgrow > 0 && f->nsat && grow_saturated(f, dp->satgrow, name, err))
         goto fail;
     if (dp->errplane[0] && apply_err(name, dp, f, err))

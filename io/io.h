@@ -104,11 +104,16 @@ typedef struct {
      * there) becomes mp_frame.xvar; the Poisson part stays the model's
      * (design.md §5).  "": none. */
     char errplane[1024];
+    /* bleedgrow: a run of two or more saturated pixels along a column (a
+     * bleed trail) counts as this many pixels longer at each end, before
+     * satgrow: CCD charge bleeds along columns past where a DQ plane stops
+     * flagging it. */
+    int bleedgrow;
 } mp_datapars;
 
 struct mp_parset_s;
 /* mp_datapars_read: the datapars parameters (gain, rdnoise, saturate,
- * exptime, dqmask, dqsat, dqbad, satgrow, errplane) of a task's parameter set; INDEF reals
+ * exptime, dqmask, dqsat, dqbad, satgrow, errplane, bleedgrow) of a task's parameter set; INDEF reals
  * come back NaN (take the header's). */
 void mp_datapars_read(const struct mp_parset_s *ps, mp_datapars *dp);
 

@@ -26,6 +26,8 @@ typedef struct {
     int build_psf;           /* psf="" : build root.psf.fits from the frame
                               * before the first round and once after it */
     mp_epsf_opts psfb;       /* how (psf.par's names: varorder, maxnpsf) */
+    int halo;                /* after the first round, model the bright stars'
+                              * light beyond the table (pipeline/halo.c) */
     mp_parset *ps;           /* the task's parameters: the fit is set up
                               * again from them with psf=root.psf.fits */
     long tilesize;           /* core of a tile [px]; 0: whole frame; -1: from maxmem */

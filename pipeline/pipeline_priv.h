@@ -14,6 +14,21 @@
  * value; o->fit is then to be freed with mp_fit_setup_free all the same. */
 int mp_pl_opts_read(mp_parset *ps, mp_pipeline_opts *o, char *err);
 
+/* ---- halo.c ------------------------------------------------------------ */
+
+/* mp_pl_halo: the light of bright stars beyond what the PSF table holds
+ * (halo=yes).  From res (f's data less every star of t, sky kept) around
+ * t's 10 brightest stars (XPSF_IMAGE, YPSF_IMAGE, FLUX_PSF): the profile
+ * h(r) per electron on 1-px rings from rin = max(fwhm, 1) to 16 rin, each
+ * star's ring median less its sky (the ring beyond), fitted as E·h over the
+ * stars, the nearest non-increasing profile, >= 0, flat inside rin.  Then
+ * E·h(r) of every star whose halo reaches 0.05 σ of a sky pixel is taken
+ * off f's pixels and res, and its Poisson variance added to f->xvar
+ * (allocated when NULL).  what: one line for the report.  Nonzero with err
+ * when out of memory. */
+int mp_pl_halo(mp_frame *f, double *res, const mp_table *t, double fwhm, char *what, size_t wlen,
+               char *err);
+
 /* ---- new_stars.c ------------------------------------------------------- */
 
 /* mp_pl_positions_of: before = NUMBER, X_IMAGE, Y_IMAGE of every row of t

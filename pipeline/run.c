@@ -33,6 +33,7 @@ typedef struct {
     double *px, *py, *pf; /* its stars */
     size_t np;
     int quiet;            /* mp_pipeline_reduce: no stderr lines, no files */
+    int own_frame;        /* f read here, so the halo may be taken off it */
 } run_state;
 
 static int oom(char *err)
@@ -407,6 +408,25 @@ static int build_psf(run_state *s, int pass, char *err)
     return rc;
 }
 
+/* The bright stars' light beyond the table (halo=yes, pipeline/halo.c),
+ * measured on the first round's residual and taken off the frame; every
+ * group is then fitted afresh (after the PSF's second pass when the PSF is
+ * built, which then sees the frame without it). */
+static int take_halo(run_state *s, char *err)
+{
+    char what[MP_ERRLEN];
+    double t0 = mp_seconds();
+    if (mp_pl_halo(&s->f, s->res, &s->t, s->fwhm, what, sizeof what, err))
+        return 1;
+    if (!s->quiet)
+        fprintf(stderr, "matphot pipeline: %s: %s, %.2f s\n", s->image, what, mp_seconds() - t0);
+    mp_fit_memory_free(s->mem);
+    if (!(s->mem = mp_fit_memory_new()))
+        return oom(err);
+    s->rep->t_fit += mp_seconds() - t0;
+    return s->o->build_psf ? 0 : group_and_fit(s, 1, err);
+}
+
 /* The rounds: group and fit, find on the residual, until nothing new is
  * found or niter rounds are done. */
 static int rounds(run_state *s, char *err)
@@ -417,6 +437,8 @@ static int rounds(run_state *s, char *err)
         s->rep->rounds = round;
         long added = 0;
         rc = group_and_fit(s, round, err);
+        if (!rc && round == 1 && o->halo && s->own_frame)
+            rc = take_halo(s, err);
         /* DAOPHOT's second pass: the PSF again with every neighbour gone,
          * and this round fitted again with it. */
         if (!rc && round == 1 && o->build_psf)
@@ -438,6 +460,7 @@ int mp_pipeline_run(const char *image, const char *root, const mp_pipeline_opts 
         state_free(&s);
         return 1;
     }
+    s.own_frame = 1;
     int rc = read_frame(&s, err) || find_stars(&s, err) || (o->build_psf && build_psf(&s, 1, err));
     if (!rc)
         rc = rounds(&s, err);

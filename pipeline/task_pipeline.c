@@ -45,6 +45,7 @@ int mp_pl_opts_read(mp_parset *ps, mp_pipeline_opts *o, char *err)
     mp_par_int(ps, "niter", &o->niter);
     mp_par_real(ps, "matchrad", &o->matchrad);
     mp_par_bool(ps, "regions", &o->regions);
+    mp_par_bool(ps, "halo", &o->halo);
     int ts, tm;
     mp_par_int(ps, "tilesize", &ts);
     mp_par_int(ps, "tilemargin", &tm);

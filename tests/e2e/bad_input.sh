@@ -66,6 +66,7 @@ bad "PSF sum above 1"   big.fits      -- "$T/ok.fits" "$T/ok.truth" psf="$T/big.
 # itself as its own error plane (every value >= 0) is accepted.
 bad "missing errplane"  noerr.fits    -- "$T/ok.fits" "$T/ok.truth" errplane="$T/noerr.fits"
 bad "errplane size"     errplane      -- "$T/ok.fits" "$T/ok.truth" errplane="$T/even.fits"
+bad "bleedgrow range"   bleedgrow     -- "$T/ok.fits" "$T/ok.truth" bleedgrow=51
 "$M" fit "$T/ok.fits" "$T/ok.truth" errplane="$T/ok.fits" output="$T/err.fit" >/dev/null 2>"$T/err" &&
     [ -s "$T/err.fit" ] || no "errplane refused: $(cat "$T/err")"
 

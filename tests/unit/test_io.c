@@ -402,7 +402,7 @@ static void test_frame_dq(void **state)
     char sci[720], err[MP_ERRLEN];
     snprintf(sci, sizeof sci, "%s[SCI]", path);
     mp_frame f;
-    mp_datapars dp = {NAN, NAN, NAN, NAN, "[DQ]", 2304, 16, 0, ""};
+    mp_datapars dp = {NAN, NAN, NAN, NAN, "[DQ]", 2304, 16, 0, "", 0};
     assert_int_equal(mp_frame_read(sci, &dp, &f, err), 0);
     assert_int_equal(f.nsat, 2);
     assert_int_equal(f.nbad, 1);
@@ -498,7 +498,7 @@ static void test_frame_err(void **state)
     char sci[720], err[MP_ERRLEN];
     snprintf(sci, sizeof sci, "%s[SCI]", path);
     mp_frame f;
-    mp_datapars dp = {2.0, 3.0, NAN, NAN, "", 0, 0, 0, "[ERR]"};
+    mp_datapars dp = {2.0, 3.0, NAN, NAN, "", 0, 0, 0, "[ERR]", 0};
     assert_int_equal(mp_frame_read(sci, &dp, &f, err), 0);
     assert_non_null(f.xvar);
     assert_float_equal(f.xvar[0], 91.0, 1e-3);
@@ -534,6 +534,37 @@ static void test_frame_err(void **state)
     assert_non_null(strstr(err, "NOPE"));
 }
 
+/* bleedgrow: a run of two or more saturated pixels along a column (a bleed)
+ * grows by bleedgrow at each end, within the frame; a lone saturated pixel
+ * and pixels beside the run do not.  Column 2 holds rows 2-3 saturated
+ * (SATURATE 1000 ADU), column 5 only row 3. */
+static void test_frame_bleed(void **state)
+{
+    scratch *s = *state;
+    double pix[NX * NY];
+    pattern(pix);
+    pix[1 * NX + 1] = pix[2 * NX + 1] = 2000.0;
+    pix[2 * NX + 4] = 2000.0;
+    const char *path = in_dir(s, "bleed.fits");
+    char err[MP_ERRLEN];
+    assert_int_equal(mp_image_write(path, pix, NX, NY, -32, NULL, 0, err), 0);
+    mp_datapars dp = {NAN, NAN, 1000.0, NAN, "", 0, 0, 0, "", 1};
+    mp_frame f;
+    assert_int_equal(mp_frame_read(path, &dp, &f, err), 0);
+    assert_int_equal(f.nsat, 5);
+    for (int y = 1; y <= 4; y++)
+        assert_int_equal(f.mask[(y - 1) * NX + 1], MP_MASK_SATURATED);
+    assert_int_equal(f.mask[4 * NX + 1], 0);
+    assert_int_equal(f.mask[1 * NX + 0], 0);
+    assert_int_equal(f.mask[1 * NX + 4], 0);
+    assert_int_equal(f.mask[3 * NX + 4], 0);
+    mp_frame_free(&f);
+    dp.bleedgrow = 3;       /* clipped at the frame's edges: rows 1-5 */
+    assert_int_equal(mp_frame_read(path, &dp, &f, err), 0);
+    assert_int_equal(f.nsat, 6);
+    mp_frame_free(&f);
+}
+
 static void test_frame(void **state)
 {
     scratch *s = *state;
@@ -551,7 +582,7 @@ static void test_frame(void **state)
     assert_int_equal(mp_image_write(path, pix, NX, NY, -32, cards, 4, err), 0);
 
     mp_frame f;
-    const mp_datapars none = {NAN, NAN, NAN, NAN, "", 0, 0, 0, ""};
+    const mp_datapars none = {NAN, NAN, NAN, NAN, "", 0, 0, 0, "", 0};
     assert_int_equal(mp_frame_read(path, &none, &f, err), 0);
     assert_true(f.gain == 2.0 && f.rdnoise == 5.0 && f.saturate == 1000.0 && f.exptime == 30.0);
     assert_int_equal(f.nbad, 1);
@@ -567,7 +598,7 @@ static void test_frame(void **state)
     mp_frame_free(&f);
 
     /* datapars wins over the header; NULL datapars means all from header. */
-    const mp_datapars dp = {4.0, 1.0, NAN, 2.0, "", 0, 0, 0, ""};
+    const mp_datapars dp = {4.0, 1.0, NAN, 2.0, "", 0, 0, 0, "", 0};
     assert_int_equal(mp_frame_read(path, &dp, &f, err), 0);
     assert_true(f.gain == 4.0 && f.rdnoise == 1.0 && f.saturate == 1000.0 && f.exptime == 2.0);
     assert_true(f.im.pix[5] == 4.0 * pix[5]);
@@ -585,11 +616,11 @@ static void test_frame(void **state)
     mp_frame_free(&f);
 
     /* Bad detector numbers, named. */
-    const mp_datapars badgain = {0.0, NAN, NAN, NAN, "", 0, 0, 0, ""};
+    const mp_datapars badgain = {0.0, NAN, NAN, NAN, "", 0, 0, 0, "", 0};
     assert_int_not_equal(mp_frame_read(path, &badgain, &f, err), 0);
     assert_true(strncmp(err, "gain: ", 6) == 0);
     assert_null(f.mask);
-    const mp_datapars badron = {NAN, -1.0, NAN, NAN, "", 0, 0, 0, ""};
+    const mp_datapars badron = {NAN, -1.0, NAN, NAN, "", 0, 0, 0, "", 0};
     assert_int_not_equal(mp_frame_read(path, &badron, &f, err), 0);
     assert_true(strncmp(err, "rdnoise: ", 9) == 0);
     const mp_card neg[] = {{"GAIN", -2.0, NULL, NULL}};
@@ -741,6 +772,7 @@ int main(void)
         cmocka_unit_test_setup_teardown(test_frame, setup, teardown),
         cmocka_unit_test_setup_teardown(test_frame_dq, setup, teardown),
         cmocka_unit_test_setup_teardown(test_frame_err, setup, teardown),
+        cmocka_unit_test_setup_teardown(test_frame_bleed, setup, teardown),
         cmocka_unit_test_setup_teardown(test_outfile, setup, teardown),
         cmocka_unit_test_setup_teardown(test_tmp_sweep, setup, teardown),
     };

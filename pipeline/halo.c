@@ -1,0 +1,235 @@
+/* halo.c — the light of bright stars beyond what the PSF table holds
+ * (pipeline halo=yes, mp_pl_halo in pipeline_priv.h).
+ *
+ * A table built from a crowded frame's stars misses their outer wings: each
+ * PSF star's sky is taken from an annulus that still holds its own light,
+ * so the table's wings come out low, and it ends at psfrad.  Around a
+ * saturated star of 10⁷ e⁻ (47 Tuc) that light is 3-4 σ a pixel out to
+ * 18 px, more than a group's quadratic sky can follow.  The halo is modelled
+ * as what it is: an azimuthally symmetric profile h(r) per electron of the
+ * star, measured on the residual of the brightest stars, added to every
+ * star's light as E·h(r) and taken off the frame as known light (its
+ * Poisson variance goes to the pixels' xvar, io.h), so that the PSF's
+ * second pass and every later fit see data the table describes. */
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include "pipeline/pipeline_priv.h"
+
+enum { HALO_NSTAR = 10, HALO_MINPIX = 5 };
+
+typedef struct {
+    double x, y, e;
+} hstar;
+
+static int by_flux_desc(const void *a, const void *b)
+{
+    double x = ((const hstar *)a)->e, y = ((const hstar *)b)->e;
+    return (x < y) - (x > y);
+}
+
+static int by_value(const void *a, const void *b)
+{
+    double x = *(const double *)a, y = *(const double *)b;
+    return (x > y) - (x < y);
+}
+
+/* The median of v[0..n) (sorted in place); NaN when n = 0. */
+static double median_of(double *v, size_t n)
+{
+    if (n == 0)
+        return NAN;
+    qsort(v, n, sizeof *v, by_value);
+    return n % 2 ? v[n / 2] : 0.5 * (v[n / 2 - 1] + v[n / 2]);
+}
+
+/* The stars of t with a positive fitted flux, brightest first; *n of them. */
+static hstar *stars_of(const mp_table *t, size_t *n)
+{
+    int cx = mp_table_col(t, "XPSF_IMAGE"), cy = mp_table_col(t, "YPSF_IMAGE"),
+        ce = mp_table_col(t, "FLUX_PSF");
+    hstar *s = malloc((t->nrow ? t->nrow : 1) * sizeof *s);
+    *n = 0;
+    if (!s || cx < 0 || cy < 0 || ce < 0)
+        return s;
+    for (size_t r = 0; r < t->nrow; r++) {
+        hstar h = {mp_table_get(t, r, cx), mp_table_get(t, r, cy), mp_table_get(t, r, ce)};
+        if (isfinite(h.x) && isfinite(h.y) && h.e > 0)
+            s[(*n)++] = h;
+    }
+    qsort(s, *n, sizeof *s, by_flux_desc);
+    return s;
+}
+
+/* The unmasked residual values in the ring [r0, r1) around s, in buf. */
+static size_t ring_values(const mp_frame *f, const double *res, const hstar *s, double r0,
+                          double r1, double *buf)
+{
+    long nx = f->im.nx, ny = f->im.ny, n = 0;
+    long x0 = (long)floor(s->x - r1), x1 = (long)ceil(s->x + r1);
+    long y0 = (long)floor(s->y - r1), y1 = (long)ceil(s->y + r1);
+    for (long y = y0 < 1 ? 1 : y0; y <= y1 && y <= ny; y++)
+        for (long x = x0 < 1 ? 1 : x0; x <= x1 && x <= nx; x++) {
+            size_t i = (size_t)(y - 1) * (size_t)nx + (size_t)(x - 1);
+            double r = hypot((double)x - s->x, (double)y - s->y);
+            if (r >= r0 && r < r1 && !f->mask[i] && isfinite(res[i]))
+                buf[n++] = res[i];
+        }
+    return (size_t)n;
+}
+
+/* The non-increasing sequence nearest h in the least squares of weights
+ * w (pool-adjacent-violators), in place; scratch holds 3n. */
+static void non_increasing(double *h, const double *w, int n, double *scratch)
+{
+    double *v = scratch, *wt = scratch + n, *len = scratch + 2 * n;
+    int m = 0;
+    for (int j = 0; j < n; j++) {
+        v[m] = h[j];
+        wt[m] = w[j] > 0 ? w[j] : 1e-300;
+        len[m++] = 1;
+        while (m > 1 && v[m - 2] < v[m - 1]) {
+            double W = wt[m - 2] + wt[m - 1];
+            v[m - 2] = (wt[m - 2] * v[m - 2] + wt[m - 1] * v[m - 1]) / W;
+            wt[m - 2] = W;
+            len[m - 2] += len[m - 1];
+            m--;
+        }
+    }
+    for (int b = 0, j = 0; b < m; b++)
+        for (int q = 0; q < (int)len[b]; q++)
+            h[j++] = v[b];
+}
+
+/* h[j], the profile on the rings [rin + j, rin + j + 1), j < nb: for each
+ * of the brightest stars the median of its ring less its sky (the median of
+ * [rout, rout + 2 rin)), fitted as h·E over the stars by least squares;
+ * then the nearest non-increasing profile (weights Σ E²), kept >= 0.
+ * Returns the number of stars used, −1 when out of memory. */
+static int measure(const mp_frame *f, const double *res, const hstar *s, size_t ns, double rin,
+                   double rout, double *h, int nb)
+{
+    size_t cap = (size_t)(M_PI * (rout + 2 * rin + 2) * (rout + 2 * rin + 2)) + 16;
+    double *buf = malloc(cap * sizeof *buf), *num = calloc((size_t)nb, sizeof *num),
+           *den = calloc((size_t)nb, sizeof *den);
+    int used = 0;
+    if (!buf || !num || !den) {
+        used = -1;
+        goto done;
+    }
+    for (size_t k = 0; k < ns && k < HALO_NSTAR; k++) {
+        size_t m = ring_values(f, res, &s[k], rout, rout + 2 * rin, buf);
+        if (m < HALO_MINPIX)
+            continue;
+        double sky = median_of(buf, m);
+        used++;
+        for (int j = 0; j < nb; j++) {
+            m = ring_values(f, res, &s[k], rin + j, rin + j + 1, buf);
+            if (m < HALO_MINPIX)
+                continue;
+            num[j] += (median_of(buf, m) - sky) * s[k].e;
+            den[j] += s[k].e * s[k].e;
+        }
+    }
+    for (int j = 0; j < nb; j++)
+        h[j] = den[j] > 0 ? num[j] / den[j] : 0.0;
+    non_increasing(h, den, nb, buf);
+    for (int j = 0; j < nb; j++)
+        h[j] = fmax(h[j], 0.0);
+done:
+    free(buf);
+    free(num);
+    free(den);
+    return used;
+}
+
+/* h at radius r: flat inside rin, linear between ring centres, 0 beyond. */
+static double h_at(const double *h, int nb, double rin, double r)
+{
+    double u = r - rin - 0.5;
+    if (u <= 0)
+        return h[0];
+    int j = (int)u;
+    if (j >= nb - 1)
+        return 0.0;
+    double t = u - j;
+    return (1 - t) * h[j] + t * h[j + 1];
+}
+
+/* Take E·h(r) of every star whose halo reaches a twentieth of a sky pixel's
+ * σ off the frame and the residual, its variance into xvar; *nlit counts
+ * them. */
+static int subtract(mp_frame *f, double *res, const hstar *s, size_t ns, const double *h, int nb,
+                    double rin, double sig, long *nlit)
+{
+    size_t npix = (size_t)f->im.nx * (size_t)f->im.ny;
+    if (!f->xvar && !(f->xvar = calloc(npix ? npix : 1, sizeof *f->xvar)))
+        return 1;
+    double rmax = rin + nb - 0.5;
+    *nlit = 0;
+    for (size_t k = 0; k < ns; k++) {
+        if (!(s[k].e * h[0] >= 0.05 * sig))
+            break;                      /* brightest first: none further */
+        (*nlit)++;
+        long x0 = (long)floor(s[k].x - rmax), x1 = (long)ceil(s[k].x + rmax);
+        long y0 = (long)floor(s[k].y - rmax), y1 = (long)ceil(s[k].y + rmax);
+        for (long y = y0 < 1 ? 1 : y0; y <= y1 && y <= f->im.ny; y++)
+            for (long x = x0 < 1 ? 1 : x0; x <= x1 && x <= f->im.nx; x++) {
+                size_t i = (size_t)(y - 1) * (size_t)f->im.nx + (size_t)(x - 1);
+                double l = s[k].e * h_at(h, nb, rin, hypot((double)x - s[k].x, (double)y - s[k].y));
+                if (f->mask[i] || l <= 0)
+                    continue;
+                f->im.pix[i] -= l;
+                res[i] -= l;
+                f->xvar[i] += (float)l;
+            }
+    }
+    return 0;
+}
+
+/* The median fitted sky of t's stars (SKY_PSF), 0 without. */
+static double sky_of(const mp_table *t)
+{
+    int c = mp_table_col(t, "SKY_PSF");
+    double *v = malloc((t->nrow ? t->nrow : 1) * sizeof *v), m = 0.0;
+    size_t n = 0;
+    for (size_t r = 0; v && c >= 0 && r < t->nrow; r++)
+        if (isfinite(mp_table_get(t, r, c)))
+            v[n++] = mp_table_get(t, r, c);
+    if (v && n)
+        m = median_of(v, n);
+    free(v);
+    return m;
+}
+
+int mp_pl_halo(mp_frame *f, double *res, const mp_table *t, double fwhm, char *what, size_t wlen,
+               char *err)
+{
+    double sky = sky_of(t);
+    double rin = fmax(fwhm, 1.0), rout = 16.0 * rin;
+    int nb = (int)(rout - rin);
+    size_t ns;
+    hstar *s = stars_of(t, &ns);
+    double *h = malloc((size_t)nb * sizeof *h);
+    int rc = 1, used = s && h ? measure(f, res, s, ns, rin, rout, h, nb) : -1;
+    long nlit = 0;
+    double sig = sqrt(fmax(sky, 0.0) + f->rdnoise * f->rdnoise);
+    if (used < 0 || (used > 0 && subtract(f, res, s, ns, h, nb, rin, sig, &nlit))) {
+        snprintf(err, MP_ERRLEN, "out of memory for the halo");
+        goto done;
+    }
+    /* The halo's share of a star's light beyond rin, and its value at
+     * 4 rin (the table's default radius), for the report. */
+    double frac = 0.0;
+    for (int j = 0; used > 0 && j < nb; j++)
+        frac += h[j] * M_PI * ((rin + j + 1) * (rin + j + 1) - (rin + j) * (rin + j));
+    snprintf(what, wlen, "halo from the %d brightest stars, r = %.3g..%.3g px: %.3g of a star's "
+             "light beyond %.3g px, %.3g per e- at %.3g px; taken off around %ld stars", used, rin,
+             rout, frac, rin, used > 0 ? h_at(h, nb, rin, 4 * rin) : 0.0, 4 * rin, nlit);
+    rc = 0;
+done:
+    free(s);
+    free(h);
+    return rc;
+}
