@@ -222,6 +222,7 @@ typedef struct {
     double chi2;             /* median reduced χ² of the PSF stars' fits */
     double ptest[MP_PSF_MAXORDER + 1];   /* order test p-values k→k+1 (index k;
                               * NaN: not run) */
+    double ztest[MP_PSF_MAXORDER + 1];   /* their standardised statistics */
     char what[512];          /* one line: stars, OVERSAMP, order, sum, why */
 } mp_epsf_report;
 

@@ -196,6 +196,7 @@ static int choose_order(mp_epsf_star *s, size_t n, const mp_epsf_opts *o, mp_eps
         if (mp_epsf_order_test(s, n, e, o->fitrad, &p, &z, err))
             return 1;
         rep->ptest[e->order] = p;
+        rep->ztest[e->order] = z;
         if (e->order >= MP_PSF_MAXORDER || !(p < o->alpha))
             break;
         int was = e->order;
@@ -210,8 +211,9 @@ static int choose_order(mp_epsf_star *s, size_t n, const mp_epsf_opts *o, mp_eps
             snprintf(e->why + l, sizeof e->why - l, "%s order %d->%d in the first pass",
                      k ? ";" : " (", k, k + 1);
         else
-            snprintf(e->why + l, sizeof e->why - l, "%s order %d->%d p=%.2g%s", k ? ";" : " (",
-                     k, k + 1, rep->ptest[k], rep->ptest[k] < o->alpha ? " <" : " >=");
+            snprintf(e->why + l, sizeof e->why - l, "%s order %d->%d p=%.2g (z %.1f)%s",
+                     k ? ";" : " (", k, k + 1, rep->ptest[k], rep->ztest[k],
+                     rep->ptest[k] < o->alpha ? " <" : " >=");
     }
     l = strlen(e->why);
     snprintf(e->why + l, sizeof e->why - l, " alpha %.0e)", o->alpha);
@@ -228,7 +230,7 @@ int mp_epsf_pass(const mp_frame *f, const double *img, int residual, const mp_ta
     int rc = 1;
     rep->what[0] = '\0';
     for (int k = 0; k <= MP_PSF_MAXORDER; k++)
-        rep->ptest[k] = NAN;
+        rep->ptest[k] = rep->ztest[k] = NAN;
     if (!sky) {
         snprintf(err, MP_ERRLEN, "psf build: out of memory");
         return 1;
