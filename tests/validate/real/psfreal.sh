@@ -64,12 +64,15 @@ tuc() {
     IMG="${F}[SCI]$SEC"
     T="$OUT/tuc"
     mkdir -p "$T"
-    # mp: the detector's values only; mpg: and the saturation mask grown
-    # by one pixel (datapars satgrow).
-    for v in mp mpg; do
+    # mpg: the detector's values, the saturation mask grown by one pixel
+    # (datapars satgrow); mpe: and the FLT's ERR plane as the noise beyond
+    # Poisson + RON² (errplane); mph: and the bright stars' halo modelled
+    # (pipeline halo=yes).
+    for v in mpg mpe mph; do
         say "47 Tuc: matphot pipeline, no psf= ($v)"
-        set -- pipeline "$IMG" root="$T/$v" gain=1 rdnoise=4.71 saturate=151553.98 'dqmask=[DQ]' dqsat=2304
-        [ $v = mpg ] && set -- "$@" satgrow=1
+        set -- pipeline "$IMG" root="$T/$v" gain=1 rdnoise=4.71 saturate=151553.98 'dqmask=[DQ]' dqsat=2304 satgrow=1
+        [ $v != mpg ] && set -- "$@" 'errplane=[ERR]'
+        [ $v = mph ] && set -- "$@" halo=yes
         echo "./matphot $*" | sed "s|root=$T/$v|root=R|; s|$REALDATA|$REALDATA0|" > "$T/$v.cmd"
         timed "$T/$v.log" "$MP" "$@" || { tail -n 3 "$T/$v.log" >&2; rc=1; return 0; }
     done
@@ -87,7 +90,7 @@ tuc() {
     echo '```'
     cat "$T/noise.txt"
     echo '```'
-    for v in mp mpg; do
+    for v in mpg mpe mph; do
         echo
         echo '```'
         cat "$T/$v.cmd"
@@ -96,7 +99,7 @@ tuc() {
         echo "$(cpu_of "$T/$v.log").  The PSF it built (its report):"
         echo
         echo '```'
-        grep -h 'PSF pass' "$T/$v.log" | sed 's/^[^:]*: [^:]*: //' | cut -c1-400
+        grep -h 'PSF pass\|halo from' "$T/$v.log" | sed 's/^[^:]*: [^:]*: //' | cut -c1-400
         echo '```'
         echo
         echo "Median CHI2_PSF **$(colq "$T/$v.cat" CHI2_PSF 0.5)** (quartiles $(colq "$T/$v.cat" CHI2_PSF 0.25), $(colq "$T/$v.cat" CHI2_PSF 0.75)) over $(grep -vc '^#' "$T/$v.cat") stars.  Where it comes from (\`psfb chi2 CAT\`: by flux, by whether the group holds a saturated star, by group size; a PSF profile error makes CHI2 grow with the flux, neighbours and the noise model do not):"
@@ -113,14 +116,15 @@ tuc() {
         echo
         echo '| residual | pixels near matphot'"'"'s stars | pixels near DAOPHOT'"'"'s stars | pixels near either |'
         echo '|---|---|---|---|'
-        for r in mp mpg dao; do
+        for r in mpg mpe mph dao; do
             res="$T/$r.res.fits"; [ $r = dao ] && res="$T/dao/im.sub2.fits"
-            a=$("$OUT/psfb" resid "$IMG" "$res" "$T/mp.cat" 3 4.71 | sed -n 's/.*residual \([0-9.]*\),.*/\1/p')
+            a=$("$OUT/psfb" resid "$IMG" "$res" "$T/mpg.cat" 3 4.71 | sed -n 's/.*residual \([0-9.]*\),.*/\1/p')
             b=$("$OUT/psfb" resid "$IMG" "$res" "$T/dao/dao.cat" 3 4.71 | sed -n 's/.*residual \([0-9.]*\),.*/\1/p')
-            c=$("$OUT/psfb" resid "$IMG" "$res" "$T/mp.cat" 3 4.71 "$T/dao/dao.cat" | sed -n 's/.*residual \([0-9.]*\),.*/\1/p')
+            c=$("$OUT/psfb" resid "$IMG" "$res" "$T/mpg.cat" 3 4.71 "$T/dao/dao.cat" | sed -n 's/.*residual \([0-9.]*\),.*/\1/p')
             case $r in
-            mp) n="matphot, its own PSF ($(grep -vc '^#' "$T/mp.cat") stars)" ;;
             mpg) n="matphot, its own PSF, satgrow=1 ($(grep -vc '^#' "$T/mpg.cat") stars)" ;;
+            mpe) n="matphot, and errplane=[ERR] ($(grep -vc '^#' "$T/mpe.cat") stars)" ;;
+            mph) n="matphot, and halo=yes ($(grep -vc '^#' "$T/mph.cat") stars)" ;;
             *) n="IRAF DAOPHOT ($(grep -vc '^#' "$T/dao/dao.cat") stars)" ;;
             esac
             echo "| $n | $a | $b | $c |"
