@@ -111,9 +111,9 @@ int main(int argc, char **argv)
         }
         fclose(f);
     }
-    printf("| mag | found | rσ (E−Et)/σE | resolved | rσ, resolved ± 1.17/√N | (rσ − 1)/σ | "
+    printf("| mag | found | rσ (E−Et)/σE | resolved | median, resolved | rσ, resolved ± 1.17/√N | (rσ − 1)/σ | "
            "resolved: rσ (E−Et)/FLUXERR_JOINT | expected from the S/N ≥ %g cut alone: median, rσ |\n"
-           "|---:|---:|---:|---:|---:|---:|---:|---|\n",
+           "|---:|---:|---:|---:|---:|---:|---:|---:|---|\n",
            minsnr);
     for (int b = 0; b < NB; b++) {
         if (nrr[b] == 0)
@@ -121,9 +121,9 @@ int main(int argc, char **argv)
         double rs = rsig(nr[b], nrr[b]), se = 1.17 / sqrt((double)nrr[b]);
         double q1 = mix_quant(cut[b], n[b], 0.25), q2 = mix_quant(cut[b], n[b], 0.5),
                q3 = mix_quant(cut[b], n[b], 0.75);
-        printf("| %d | %ld | %.3f | %ld | %.3f ± %.3f | %+.1f | %.3f | %+.3f, %.3f |\n", MB0 + b,
-               nn[b], rsig(ne[b], nn[b]), nrr[b], rs, se, (rs - 1.0) / se, rsig(nj[b], nnj[b]), q2,
-               (q3 - q1) / 1.349);
+        printf("| %d | %ld | %.3f | %ld | %+.3f | %.3f ± %.3f | %+.1f | %.3f | %+.3f, %.3f |\n",
+               MB0 + b, nn[b], rsig(ne[b], nn[b]), nrr[b], quant(nr[b], nrr[b], 0.5), rs, se,
+               (rs - 1.0) / se, rsig(nj[b], nnj[b]), q2, (q3 - q1) / 1.349);
     }
     for (int b = 0; b < NB; b++)
         free(ne[b]), free(nr[b]), free(cut[b]), free(nj[b]);

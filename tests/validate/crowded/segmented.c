@@ -7,7 +7,7 @@
  *
  *   crowdseg sim DIR
  *       DIR/frame.fits (ADU, gain 1, SATURATE), DIR/psf.fits (the true ×5
- *       table, ±TR px: all the light the stars were drawn with),
+ *       table, ±TR px, sum 1: all the light the stars were drawn with),
  *       DIR/psf8.fits (the same cut to ±8 px: a bright star's halo lies
  *       beyond the table, as with a PSF built from a frame's stars),
  *       DIR/truth.dat (ASCII_HEAD, with each star's Cramér–Rao bound alone
@@ -18,7 +18,7 @@
  *
  * The scene (seed SEED, or CROWDSEG_SEED): 512×512 px; sim/segmented.c's
  * 18-hexagon mirror, λ/D = 2 px at the blue end of a 50 % band (FWHM
- * about 2.2 px, undersampled), its ±TR px ×5 table; stars drawn by exact
+ * about 2.2 px, undersampled), its ±TR px ×5 table normalised to 1; stars drawn by exact
  * block-sums of it at positions on its grid (design.md §2).  NFIELD field
  * stars uniform over the frame, mag uniform in [−14, −6]; NBRIGHT bright
  * stars, mag uniform in [−17.5, −15.5], ≥ 40 px from the edges, whose
@@ -218,6 +218,14 @@ static int do_sim(const char *dir)
     int tn = 0;
     if (mp_sim_segmented_psf(2.0, 0.5, TOS, TR, &tab, &tn, err))
         return fprintf(stderr, "crowdseg: %s\n", err), 1;
+    /* All of a star's light drawn: the ±TR table normalised to 1, so that
+     * the frame holds the flux the truth lists (a PSF built from the frame
+     * cannot find light the frame never received; psfb.c does the same). */
+    double tsum = 0;
+    for (int i = 0; i < tn * tn; i++)
+        tsum += tab[i];
+    for (int i = 0; i < tn * tn; i++)
+        tab[i] /= tsum;
     star *s = calloc((size_t)n, sizeof *s);
     double *img = malloc(sizeof(double) * npix), *mean = malloc(sizeof(double) * npix);
     double *stamps = malloc(sizeof(double) * 3 * ss * (size_t)n);
