@@ -156,6 +156,7 @@ static int choose_os(mp_epsf_star *s, size_t n, const mp_epsf_opts *o, const mp_
     }
     mp_epsf_free(&noise);
     int pick = 4;
+    rep->oserr[1] = rep->oserr[2] = NAN; /* NaN: not tried (a finer one failed) */
     for (int os = 2; os >= 1; os /= 2) {
         rep->oserr[os] = mp_epsf_oversamp_error(e, os, E, B, f->rdnoise);
         if (rep->oserr[os] < 1.0)
@@ -166,11 +167,14 @@ static int choose_os(mp_epsf_star *s, size_t n, const mp_epsf_opts *o, const mp_
     int band = 0;
     while (band < MP_EPSF_NWBIN && e->wiener[band] >= 0.5)
         band++;
+    char x1[48] = "not tried (x2 is above 1 already)";
+    if (!isnan(rep->oserr[1]))
+        snprintf(x1, sizeof x1, "%.2g sigma", rep->oserr[1]);
     snprintf(rep->what + strlen(rep->what), sizeof rep->what - strlen(rep->what),
              "OVERSAMP %d (aliasing error for the brightest star, %.3g e-, of the x4 table "
-             "smoothed as its noise needs (S/N > 1 out to %.2f cycles/px%s): x2 %.2g, x1 %.2g "
-             "sigma; the coarsest below 1); ", pick, E, band * MP_EPSF_WBIN,
-             e->have_wiener ? "" : ", not measured", rep->oserr[2], rep->oserr[1]);
+             "smoothed as its noise needs (S/N > 1 out to %.2f cycles/px%s): x2 %.2g sigma, x1 %s; "
+             "the coarsest below 1); ", pick, E, band * MP_EPSF_WBIN,
+             e->have_wiener ? "" : ", not measured", rep->oserr[2], x1);
     if (pick < 4) {
         mp_epsf c;
         if (mp_epsf_rebin(e, 4 / pick, &c, err))
@@ -192,7 +196,8 @@ static int choose_order(mp_epsf_star *s, size_t n, const mp_epsf_opts *o, mp_eps
         if (mp_epsf_order_test(s, n, e, o->fitrad, &p, &z, err))
             return 1;
         rep->ptest[e->order] = p;
-        if (e->order >= 2 || !(p < o->alpha))
+        rep->ztest[e->order] = z;
+        if (e->order >= MP_PSF_MAXORDER || !(p < o->alpha))
             break;
         int was = e->order;
         if (mp_epsf_build(s, n, o, e->os, was + 1, e, err))
@@ -200,14 +205,15 @@ static int choose_order(mp_epsf_star *s, size_t n, const mp_epsf_opts *o, mp_eps
     }
     size_t l = strlen(e->why);
     snprintf(e->why + l, sizeof e->why - l, "auto: order %d", e->order);
-    for (int k = 0; k <= e->order && k < 2; k++) {
+    for (int k = 0; k <= e->order && k < MP_PSF_MAXORDER; k++) {
         l = strlen(e->why);
         if (isnan(rep->ptest[k]))      /* raised in the first pass */
             snprintf(e->why + l, sizeof e->why - l, "%s order %d->%d in the first pass",
                      k ? ";" : " (", k, k + 1);
         else
-            snprintf(e->why + l, sizeof e->why - l, "%s order %d->%d p=%.2g%s", k ? ";" : " (",
-                     k, k + 1, rep->ptest[k], rep->ptest[k] < o->alpha ? " <" : " >=");
+            snprintf(e->why + l, sizeof e->why - l, "%s order %d->%d p=%.2g (z %.1f)%s",
+                     k ? ";" : " (", k, k + 1, rep->ptest[k], rep->ztest[k],
+                     rep->ptest[k] < o->alpha ? " <" : " >=");
     }
     l = strlen(e->why);
     snprintf(e->why + l, sizeof e->why - l, " alpha %.0e)", o->alpha);
@@ -223,7 +229,8 @@ int mp_epsf_pass(const mp_frame *f, const double *img, int residual, const mp_ta
     double *sky = malloc((n + 1) * sizeof *sky);
     int rc = 1;
     rep->what[0] = '\0';
-    rep->ptest[0] = rep->ptest[1] = rep->ptest[2] = NAN;
+    for (int k = 0; k <= MP_PSF_MAXORDER; k++)
+        rep->ptest[k] = rep->ztest[k] = NAN;
     if (!sky) {
         snprintf(err, MP_ERRLEN, "psf build: out of memory");
         return 1;
