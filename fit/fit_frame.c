@@ -49,7 +49,7 @@ typedef struct {
     /* Economy: the light of every other star on the pixels around this one
      * (its fitting region and a pixel more) when it was last fitted, a
      * square of side sw at (sx0, sy0); NULL: not fitted yet. */
-    double *seen;
+    float *seen;        /* single precision, as the frame (issue 14) */
     long sx0, sy0;
     int sw;
 } star_state;
@@ -280,10 +280,10 @@ static double crop_radius(const crop_rule *c, const mp_star *s)
  * Returns 1 when out of memory; *cut is set when the crop left part of the
  * box out. */
 static int paint_window(const mp_prf_model *m, const mp_star *s, double sign, double rad,
-                        double *img, long x0, long y0, long w, long h, mp_prf_work *wk,
+                        float *img, long x0, long y0, long w, long h, mp_prf_work *wk,
                         double **buf, size_t *cap, int *cut);
 
-static int paint(const mp_prf_model *m, const mp_star *s, double sign, double rad, double *img,
+static int paint(const mp_prf_model *m, const mp_star *s, double sign, double rad, float *img,
                  long x0, long y0, long w, long h, mp_prf_work *wk, double **buf, size_t *cap,
                  int *cut)
 {
@@ -299,7 +299,7 @@ static int paint(const mp_prf_model *m, const mp_star *s, double sign, double ra
 }
 
 static int paint_window(const mp_prf_model *m, const mp_star *s, double sign, double rad,
-                        double *img, long x0, long y0, long w, long h, mp_prf_work *wk,
+                        float *img, long x0, long y0, long w, long h, mp_prf_work *wk,
                         double **buf, size_t *cap, int *cut)
 {
     long wx0 = x0, wy0 = y0, wx1 = x0 + w, wy1 = y0 + h;   /* [wx0, wx1) */
@@ -332,10 +332,10 @@ static int paint_window(const mp_prf_model *m, const mp_star *s, double sign, do
                              *buf, NULL, NULL, wk))
         return 1;
     for (int j = 0; j < rh; j++) {
-        double *row = img + (ry0 + j - y0) * w + (rx0 - x0);
+        float *row = img + (ry0 + j - y0) * w + (rx0 - x0);
         const double *src = *buf + (size_t)j * rw;
         for (int i = 0; i < rw; i++)
-            row[i] += sign * s->flux * src[i];
+            row[i] = (float)(row[i] + sign * s->flux * src[i]);
     }
     return 0;
 }
@@ -603,7 +603,7 @@ static void group_window(const mp_frame *f, const star_state *st, int n, double 
 /* A star's last fit, by NUMBER, across calls. */
 typedef struct {
     mp_star s;
-    double *seen;
+    float *seen;
     long sx0, sy0;
     int sw;
 } star_seen;
@@ -611,11 +611,11 @@ typedef struct {
 struct mp_fit_memory {
     star_seen *s;        /* indexed by NUMBER */
     size_t ns;
-    double *scratch;     /* lent: room for the model of every star */
+    float *scratch;      /* lent: room for the model of every star */
     size_t nscratch;
 };
 
-void mp_fit_memory_scratch(mp_fit_memory *mem, double *buf, size_t n)
+void mp_fit_memory_scratch(mp_fit_memory *mem, float *buf, size_t n)
 {
     mem->scratch = buf;
     mem->nscratch = buf ? n : 0;
@@ -656,8 +656,8 @@ static void patch_of(const mp_frame *f, double x, double y, double r, long *x0, 
 /* The light of every star but k on k's patch: img (a window at wx0, wy0,
  * width ww, holding the patch) minus k's own light.  out holds sw*sw. */
 static int others_on_patch(const mp_prf_model *m, const crop_rule *crop, const star_state *k,
-                           const double *img, long wx0, long wy0, long ww, long px0, long py0,
-                           int pw, long ph, double *out, mp_prf_work *wk, double **buf, size_t *cap)
+                           const float *img, long wx0, long wy0, long ww, long px0, long py0,
+                           int pw, long ph, float *out, mp_prf_work *wk, double **buf, size_t *cap)
 {
     for (long j = 0; j < ph; j++)
         for (long i = 0; i < pw; i++)
@@ -671,7 +671,7 @@ static int others_on_patch(const mp_prf_model *m, const crop_rule *crop, const s
  * of its parameters by more than this many of its own σ (to first order).
  * INFINITY when it was never fitted or its region left the patch. */
 static double light_change(const mp_frame *f, const mp_prf_model *m, const crop_rule *crop,
-                           const star_state *k, double r, const double *all, double *tmp,
+                           const star_state *k, double r, const float *all, float *tmp,
                            mp_prf_work *wk, double **buf, size_t *cap, int *nomem)
 {
     if (!k->seen)
@@ -708,7 +708,7 @@ static double light_change(const mp_frame *f, const mp_prf_model *m, const crop_
  * pass's model, with the old values) with the fitted stars' old light
  * replaced by their new. */
 static int remember_patches(const mp_frame *f, const mp_prf_model *m, const crop_rule *crop,
-                            double r, const double *all, const mp_star *old, star_state *sub,
+                            double r, const float *all, const mp_star *old, star_state *sub,
                             int n, mp_prf_work *wk, double **buf, size_t *cap)
 {
     /* The window holding every patch. */
@@ -733,7 +733,7 @@ static int remember_patches(const mp_frame *f, const mp_prf_model *m, const crop
     if (x1 < x0 || y1 < y0)
         return 0;
     long w = x1 - x0 + 1, h = y1 - y0 + 1;
-    double *img = malloc((size_t)(w * h) * sizeof *img);
+    float *img = malloc((size_t)(w * h) * sizeof *img);
     if (!img)
         return 1;
     for (long j = 0; j < h; j++)
@@ -775,7 +775,7 @@ static int remember_patches(const mp_frame *f, const mp_prf_model *m, const crop
  * was fitted (light_change); rep counts group fits (fits) and groups left
  * alone (kept).  With economy, every survivor's patch is remembered. */
 static int fit_group_local(const mp_frame *f, const mp_prf_model *m, const mp_frame_opts *o,
-                           double mergerad, const frame_rules *R, const double *all,
+                           double mergerad, const frame_rules *R, const float *all,
                            const crop_rule *crop,
                            star_state *st, int n, int may_keep, int economy,
                            mp_frame_report *rep, char *err)
@@ -784,7 +784,8 @@ static int fit_group_local(const mp_frame *f, const mp_prf_model *m, const mp_fr
     mp_prf_work wk = {0};
     wk.grid = o->grid;
     wk.grid_emax = R->gemax;
-    double *buf = NULL, *tmp = NULL;
+    double *buf = NULL;
+    float *tmp = NULL;
     size_t cap = 0;
     star_state *sub = malloc((size_t)n * sizeof *sub);
     int *act = calloc((size_t)n, sizeof *act), *idx = malloc((size_t)n * sizeof *idx);
@@ -860,7 +861,7 @@ static int fit_group_local(const mp_frame *f, const mp_prf_model *m, const mp_fr
         for (long j = 0; j < h; j++)
             for (long i = 0; i < w; i++) {
                 size_t g = (size_t)(y0 - 1 + j) * f->im.nx + (size_t)(x0 - 1 + i);
-                L.im.pix[j * w + i] = f->im.pix[g] - (all ? all[g] : 0.0);
+                L.im.pix[j * w + i] = (float)(f->im.pix[g] - (all ? (double)all[g] : 0.0));
                 L.mask[j * w + i] = f->mask ? f->mask[g] : 0;
             }
         /* The fitted stars' own light comes back with the same crop
@@ -897,12 +898,12 @@ done:
 
 /* The model of every live star on the whole frame, each out to its crop
  * radius; *ncut counts the stars cropped. */
-static double *all_stars(const mp_frame *f, const mp_prf_model *m, const star_state *st, size_t n,
-                         const crop_rule *crop, const mp_frame_opts *o, const frame_rules *R,
-                         double *lent, long *ncut)
+static float *all_stars(const mp_frame *f, const mp_prf_model *m, const star_state *st, size_t n,
+                        const crop_rule *crop, const mp_frame_opts *o, const frame_rules *R,
+                        float *lent, long *ncut)
 {
     size_t npix = (size_t)f->im.nx * (size_t)f->im.ny;
-    double *all = lent ? memset(lent, 0, npix * sizeof *lent) : calloc(npix, sizeof *all);
+    float *all = lent ? memset(lent, 0, npix * sizeof *lent) : calloc(npix, sizeof *all);
     mp_prf_work wk = {0};
     wk.grid = o->grid;
     wk.grid_emax = R->gemax;
@@ -1153,10 +1154,10 @@ int mp_fit_table_mem(const mp_frame *f, const mp_prf_model *m, const mp_frame_op
     size_t n = t->nrow;
     star_state *st = calloc(n ? n : 1, sizeof *st);
     size_t *gs = malloc((n + 1) * sizeof *gs);
-    double *all = NULL;
+    float *all = NULL;
     /* The model image: in the caller's lent buffer when there is one. */
     size_t npix = (size_t)f->im.nx * (size_t)f->im.ny;
-    double *lent = mem && mem->scratch && mem->nscratch >= npix ? mem->scratch : NULL;
+    float *lent = mem && mem->scratch && mem->nscratch >= npix ? mem->scratch : NULL;
     frame_rules R;
     memset(&R, 0, sizeof R);
     crop_rule crop = {0};
@@ -1336,7 +1337,7 @@ done:
 }
 
 int mp_fit_residual(const mp_frame *f, const mp_prf_model *m, const mp_table *t,
-                    double cropfrac, double *res, char *err)
+                    double cropfrac, float *res, char *err)
 {
     long nx = f->im.nx, ny = f->im.ny;
     int cx = mp_table_col(t, "XPSF_IMAGE"), cy = mp_table_col(t, "YPSF_IMAGE");

@@ -21,7 +21,7 @@ static int fit_one(const mp_fit_setup *s, const char *image, const char *coords,
     mp_table t;
     mp_table_init(&t);
     int rc = 1;
-    double *res = NULL;
+    float *res = NULL;
     char *report = NULL;
     mp_run_report run;
     memset(&run, 0, sizeof run);
@@ -57,7 +57,7 @@ static int fit_one(const mp_fit_setup *s, const char *image, const char *coords,
         for (long i = 0; i < f.im.nx * f.im.ny; i++)
             res[i] /= f.gain;                   /* back to ADU, as the input */
         mp_card cards[2] = {{"GAIN", f.gain, NULL, "e-/ADU"}, {"RDNOISE", f.rdnoise, NULL, "e-"}};
-        if (mp_image_write(residual, res, f.im.nx, f.im.ny, -32, cards, 2, err))
+        if (mp_image_write_float(residual, res, f.im.nx, f.im.ny, cards, 2, err))
             goto done;
     }
     if (mp_table_write(output, &t, s->fmt, err))

@@ -137,13 +137,13 @@ static int take_stars(tiling *g, mp_table *t)
 }
 
 /* The core's residual into the frame's residual file. */
-static int put_residual(tiling *g, const mp_frame *f, const double *res, char *err)
+static int put_residual(tiling *g, const mp_frame *f, const float *res, char *err)
 {
     return mp_pl_residual_put(g->res, f, res, g->cx1, g->cy1, g->cx2 - g->cx1 + 1,
                               g->cy2 - g->cy1 + 1, g->sx1 - 1, g->sy1 - 1, err);
 }
 
-static int tile_done(void *ctx, const mp_frame *f, mp_table *t, double *res, char *err)
+static int tile_done(void *ctx, const mp_frame *f, mp_table *t, float *res, char *err)
 {
     tiling *g = ctx;
     /* opened with the first tile's detector values */

@@ -222,8 +222,8 @@ static void test_crlb_short_run(void **state)
         double x = 30.0 + mp_rng_uniform(&r), y = 30.0 + mp_rng_uniform(&r);
         for (long i = 0; i < NP * NP; i++)
             f.im.pix[i] = B;
-        assert_int_equal(mp_sim_add_star(&sp, x, y, E, f.im.pix, NP, NP), 0);
-        mp_sim_add_noise(&r, f.im.pix, NP * NP, RON);
+        assert_int_equal(mp_sim_add_star_float(&sp, x, y, E, f.im.pix, NP, NP), 0);
+        mp_sim_add_noise_float(&r, f.im.pix, NP * NP, RON);
         /* The exact CRLB of this star (design.md §6). */
         long x0, y0;
         int bw, bh;
@@ -320,8 +320,8 @@ static void test_gate_drf_recovers_flux(void **state)
     mp_sim_snap(&sp, &x, &y);
     for (long i = 0; i < 1600; i++)
         f.im.pix[i] = 56.25;
-    assert_int_equal(mp_sim_add_star(&sp, x, y, E, f.im.pix, 40, 40), 0);
-    mp_sim_add_noise(&r, f.im.pix, 1600, 3.0);
+    assert_int_equal(mp_sim_add_star_float(&sp, x, y, E, f.im.pix, 40, 40), 0);
+    mp_sim_add_noise_float(&r, f.im.pix, 1600, 3.0);
     mp_fit_opts o;
     mp_fit_opts_default(&o);
     mp_prf_model m = {&tab, &d, 10};
