@@ -409,42 +409,126 @@ static int add_fits_col(fitsfile *fp, int fc, int code, mp_table *t, const char 
     return 0;
 }
 
-int mp_table_read_fits(const char *name, const void *mem, size_t len, mp_table *t, char *err)
+/* The FITS file or memory image opened read-only.  cfitsio reads whole
+ * 2880-byte records, and its memory driver does not stop at the end of the
+ * bytes: it gets a copy padded with zeros to a whole record, *mbuf, which
+ * the caller frees after closing (found by tests/fuzz: a heap over-read). */
+static int table_open(const char *name, const void *mem, size_t len, fitsfile **fp,
+                      void **mbuf, size_t *msize, char *err)
 {
-    mp_table_init(t);
     char badkey[9];
     if (mem ? mp_fits_guard_mem(mem, len, badkey) : mp_fits_guard_file(name, badkey)) {
         snprintf(err, MP_ERRLEN, "%s: malformed header card %s (its value is not a "
                  "well-formed quoted string)", name, badkey);
         return 1;
     }
-    fitsfile *fp = NULL;
     int status = 0;
-    /* cfitsio reads whole 2880-byte records, and its memory driver does
-     * not stop at the end of the bytes: give it a copy padded with zeros to
-     * a whole record (found by tests/fuzz: a heap over-read). */
-    size_t msize = mem ? (len / 2880 + 1) * 2880 : 0;
-    void *mbuf = mem ? calloc(msize, 1) : NULL;
-    if (mem && !mbuf) {
-        snprintf(err, MP_ERRLEN, "%s: out of memory", name);
-        return 1;
-    }
     if (mem) {
-        memcpy(mbuf, mem, len);
-        fits_open_memfile(&fp, name, READONLY, &mbuf, &msize, 0, NULL, &status);
+        *msize = (len / 2880 + 1) * 2880;
+        if (!(*mbuf = calloc(*msize, 1))) {
+            snprintf(err, MP_ERRLEN, "%s: out of memory", name);
+            return 1;
+        }
+        memcpy(*mbuf, mem, len);
+        fits_open_memfile(fp, name, READONLY, mbuf, msize, 0, NULL, &status);
     } else {
-        fits_open_file(&fp, name, READONLY, &status);
+        fits_open_file(fp, name, READONLY, &status);
     }
     if (status) {
         fits_message(name, "cannot open as FITS", status, err);
-        if (fp) {   /* cfitsio may fail with fp set: see io/image_read.c */
+        if (*fp) {   /* cfitsio may fail with fp set: see io/image_read.c */
             int s2 = 0;
-            fits_close_file(fp, &s2);
+            fits_close_file(*fp, &s2);
+            *fp = NULL;
         }
+        return 1;
+    }
+    return 0;
+}
+
+/* 0 when nrow rows of the current HDU fit in the bytes there are.  A
+ * table whose rows end past the end of the bytes would make cfitsio's
+ * memory driver read beyond the buffer (found by tests/fuzz), and a header
+ * claiming 10^12 rows would ask for terabytes: say so first.  Returns -1
+ * with err set, or a cfitsio status. */
+static int table_size_check(fitsfile *fp, const char *name, const void *mem, size_t len,
+                            LONGLONG nrow, int *status, char *err)
+{
+    LONGLONG hstart, dstart, dend, width = 0;
+    fits_get_hduaddrll(fp, &hstart, &dstart, &dend, status);
+    fits_read_key_lnglng(fp, "NAXIS1", &width, NULL, status);
+    if (*status)
+        return *status;
+    LONGLONG avail = (mem ? (LONGLONG)len : fp->Fptr->logfilesize) - dstart;
+    /* (A row of no bytes counts as one: rows cannot outnumber bytes.) */
+    if (width < 0 || nrow < 0 || nrow > avail / (width > 0 ? width : 1)) {
+        snprintf(err, MP_ERRLEN, "%s: truncated FITS table (%lld rows of %lld bytes "
+                 "do not fit in the file)", name, (long long)nrow, (long long)width);
+        return -1;
+    }
+    return 0;
+}
+
+/* The table's columns: one per numeric scalar column of the file (the
+ * table model has no vectors), whose file column numbers go to fcol[].
+ * Returns -1 with err set, or a cfitsio status. */
+static int table_columns_define(fitsfile *fp, int ncol, mp_table *t, const char *name,
+                                int *fcol, int *nuse, int *status, char *err)
+{
+    *nuse = 0;
+    for (int fc = 1; fc <= ncol; fc++) {
+        int code;
+        long repeat, width;
+        if (fits_get_coltype(fp, fc, &code, &repeat, &width, status))
+            return *status;
+        if (!numeric_type(code) || repeat != 1)
+            continue;
+        int r = add_fits_col(fp, fc, code, t, name, status, err);
+        if (r)
+            return r;
+        fcol[(*nuse)++] = fc;
+    }
+    if (*nuse == 0) {
+        snprintf(err, MP_ERRLEN, "%s: the binary table has no numeric scalar columns", name);
+        return -1;
+    }
+    return 0;
+}
+
+/* nrow rows of the table's nuse columns, read column by column through
+ * buf (nrow doubles).  Returns -1 with err set, or a cfitsio status. */
+static int table_rows_read(fitsfile *fp, const int *fcol, int nuse, LONGLONG nrow,
+                           double *buf, mp_table *t, const char *name, int *status,
+                           char *err)
+{
+    for (LONGLONG r = 0; r < nrow; r++)
+        if (mp_table_add_row(t) < 0) {
+            snprintf(err, MP_ERRLEN, "%s: out of memory for %lld rows", name, (long long)nrow);
+            return -1;
+        }
+    for (int c = 0; c < nuse; c++) {
+        double nulval = NAN;
+        int anynul = 0;
+        if (nrow && fits_read_col(fp, TDOUBLE, fcol[c], 1, 1, nrow, &nulval, buf, &anynul,
+                                  status))
+            return *status;
+        for (LONGLONG r = 0; r < nrow; r++)
+            mp_table_set(t, (size_t)r, c, buf[r]);
+    }
+    return 0;
+}
+
+int mp_table_read_fits(const char *name, const void *mem, size_t len, mp_table *t, char *err)
+{
+    mp_table_init(t);
+    fitsfile *fp = NULL;
+    void *mbuf = NULL;
+    size_t msize = 0;
+    if (table_open(name, mem, len, &fp, &mbuf, &msize, err)) {
         free(mbuf);
         return 1;
     }
-    int rc = 1, ncol = 0, *fcol = NULL;
+    int st = -1, status = 0, ncol = 0, nuse = 0, *fcol = NULL;
     double *buf = NULL;
     LONGLONG nrow = 0;
     if (find_objects(fp, &status)) {
@@ -455,76 +539,29 @@ int mp_table_read_fits(const char *name, const void *mem, size_t len, mp_table *
     }
     fits_get_num_cols(fp, &ncol, &status);
     fits_get_num_rowsll(fp, &nrow, &status);
-    if (status)
-        goto fits_fail;
-    /* A table whose rows end past the end of the bytes: cfitsio's memory
-     * driver would read beyond the buffer (found by tests/fuzz), and a
-     * header claiming 10^12 rows would ask for terabytes.  Say so first. */
-    {
-        LONGLONG hstart, dstart, dend, width = 0;
-        fits_get_hduaddrll(fp, &hstart, &dstart, &dend, &status);
-        fits_read_key_lnglng(fp, "NAXIS1", &width, NULL, &status);
-        if (status)
-            goto fits_fail;
-        LONGLONG avail = (mem ? (LONGLONG)len : fp->Fptr->logfilesize) - dstart;
-        /* (A row of no bytes counts as one: rows cannot outnumber bytes.) */
-        if (width < 0 || nrow < 0 || nrow > avail / (width > 0 ? width : 1)) {
-            snprintf(err, MP_ERRLEN, "%s: truncated FITS table (%lld rows of %lld bytes "
-                     "do not fit in the file)", name, (long long)nrow, (long long)width);
-            goto done;
-        }
-    }
+    st = status ? status : table_size_check(fp, name, mem, len, nrow, &status, err);
+    if (st)
+        goto done;
     fcol = malloc((size_t)(ncol > 0 ? ncol : 1) * sizeof *fcol);
     if (!fcol || (uint64_t)nrow > SIZE_MAX / sizeof *buf ||
         !(buf = malloc((size_t)(nrow > 0 ? nrow : 1) * sizeof *buf))) {
         snprintf(err, MP_ERRLEN, "%s: out of memory for %lld rows", name, (long long)nrow);
+        st = -1;
         goto done;
     }
-    int nuse = 0;
-    for (int fc = 1; fc <= ncol; fc++) {
-        int code;
-        long repeat, width;
-        if (fits_get_coltype(fp, fc, &code, &repeat, &width, &status))
-            goto fits_fail;
-        /* One number per row only: the table model has no vectors. */
-        if (!numeric_type(code) || repeat != 1)
-            continue;
-        int r = add_fits_col(fp, fc, code, t, name, &status, err);
-        if (r < 0)
-            goto done;
-        if (r > 0)
-            goto fits_fail;
-        fcol[nuse++] = fc;
-    }
-    if (nuse == 0) {
-        snprintf(err, MP_ERRLEN, "%s: the binary table has no numeric scalar columns", name);
-        goto done;
-    }
-    for (LONGLONG r = 0; r < nrow; r++)
-        if (mp_table_add_row(t) < 0) {
-            snprintf(err, MP_ERRLEN, "%s: out of memory for %lld rows", name, (long long)nrow);
-            goto done;
-        }
-    for (int c = 0; c < nuse; c++) {
-        double nulval = NAN;
-        int anynul = 0;
-        if (nrow && fits_read_col(fp, TDOUBLE, fcol[c], 1, 1, nrow, &nulval, buf, &anynul, &status))
-            goto fits_fail;
-        for (LONGLONG r = 0; r < nrow; r++)
-            mp_table_set(t, (size_t)r, c, buf[r]);
-    }
-    rc = 0;
-    goto done;
-fits_fail:
-    fits_message(name, "cannot read the table", status, err);
+    st = table_columns_define(fp, ncol, t, name, fcol, &nuse, &status, err);
+    if (!st)
+        st = table_rows_read(fp, fcol, nuse, nrow, buf, t, name, &status, err);
 done:
+    if (st > 0)
+        fits_message(name, "cannot read the table", st, err);
     status = 0;
     fits_close_file(fp, &status);
     fits_clear_errmsg();
     free(mbuf);
     free(fcol);
     free(buf);
-    if (rc)
+    if (st)
         mp_table_free(t);
-    return rc;
+    return st ? 1 : 0;
 }

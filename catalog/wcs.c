@@ -250,20 +250,15 @@ static void ctype_list(const struct wcsprm *c, char *buf, size_t len)
     }
 }
 
-int mp_wcs_open(const mp_image *im, mp_wcs **wp, char *err)
+/* The header's WCSes, as wcspih() reads them from a writable,
+ * NUL-terminated copy of the cards.  On success *all holds *nwcs >= 1. */
+static int header_wcs_read(const mp_image *im, int *nwcs, struct wcsprm **all,
+                           char *err)
 {
-    if (wp)
-        *wp = NULL;
-    if (!im || !wp) {
-        say(err, "WCS: internal error (null image or result pointer)");
-        return MP_WCS_FAIL;
-    }
     if (!im->hdr || im->nkeys <= 0) {
         say(err, "no WCS: the image has no header cards");
         return MP_WCS_FAIL;
     }
-
-    /* wcspih wants a writable, NUL-terminated copy of the cards. */
     size_t n = (size_t)im->nkeys * 80;
     char *hdr = malloc(n + 1);
     if (!hdr) {
@@ -272,66 +267,60 @@ int mp_wcs_open(const mp_image *im, mp_wcs **wp, char *err)
     }
     memcpy(hdr, im->hdr, n);
     hdr[n] = '\0';
-
-    int nreject = 0, nwcs = 0;
-    struct wcsprm *all = NULL;
-    int st = wcspih(hdr, im->nkeys, WCSHDR_all, 0, &nreject, &nwcs, &all);
+    int nreject = 0;
+    int st = wcspih(hdr, im->nkeys, WCSHDR_all, 0, &nreject, nwcs, all);
     free(hdr);
     if (st) {
         say(err, "WCS: reading the header: %s", wcshdr_words(st));
         return MP_WCS_FAIL;
     }
-    if (nwcs <= 0 || !all) {
-        wcsvfree(&nwcs, &all);
+    if (*nwcs <= 0 || !*all) {
+        wcsvfree(nwcs, all);
         say(err, "no WCS in the header (no CTYPEn, CRPIXn, CRVALn or CDi_j cards)");
         return MP_WCS_FAIL;
     }
+    return 0;
+}
 
-    int pick = pick_wcs(all, nwcs);
-    struct wcsprm *src = &all[pick];
-    char ctypes[256];
-    ctype_list(src, ctypes, sizeof ctypes);
-
+/* 0 when the WCS has two typed axes or more.  wcspih gives a default,
+ * untyped linear WCS for a header without any WCS cards: no CTYPE at all
+ * means no WCS. */
+static int wcs_typed_check(const struct wcsprm *src, const char *ctypes, char *err)
+{
     if (src->naxis < 2) {
-        wcsvfree(&nwcs, &all);
         say(err, "no celestial WCS: the header's WCS has only one axis (%s)", ctypes);
         return MP_WCS_FAIL;
     }
-
-    /* wcspih gives a default, untyped linear WCS for a header without any
-     * WCS cards: no CTYPE at all means no WCS. */
-    int typed = 0;
     for (int i = 0; i < src->naxis; i++)
         if (strspn(src->ctype[i], " ") != strlen(src->ctype[i]))
-            typed = 1;
-    if (!typed) {
-        wcsvfree(&nwcs, &all);
-        say(err, "no WCS in the header (no CTYPEn cards; a celestial WCS needs "
-            "e.g. CTYPE1 = 'RA---TAN', CTYPE2 = 'DEC--TAN')");
-        return MP_WCS_FAIL;
-    }
+            return 0;
+    say(err, "no WCS in the header (no CTYPEn cards; a celestial WCS needs "
+        "e.g. CTYPE1 = 'RA---TAN', CTYPE2 = 'DEC--TAN')");
+    return MP_WCS_FAIL;
+}
 
-    /* wcsfix's repairs, one by one: CD rows of zeros, unit spellings, the
-     * NCP/GLS projections, malformed cylindrical headers.  Their statuses
-     * are informational (wcsset() is the judge), except for memory.
-     * celfix and cylfix call wcsset() themselves, and WCSLIB 7.12's linset()
-     * leaks its matrices when called again after failing, so they are only
-     * used where needed: celfix for NCP/GLS, cylfix once the WCS sets up. */
+/* wcsfix's repairs, one by one: CD rows of zeros, unit spellings, the
+ * NCP/GLS projections, malformed cylindrical headers; then wcsset(), and
+ * the celestial axes must be the image's two.  The fixes' statuses are
+ * informational (wcsset() is the judge), except for memory.  celfix and
+ * cylfix call wcsset() themselves, and WCSLIB 7.12's linset() leaks its
+ * matrices when called again after failing, so they are only used where
+ * needed: celfix for NCP/GLS, cylfix once the WCS sets up.  When a WCS of
+ * more than two axes cannot be set up, its first two are tried alone
+ * later (a broken third axis does not matter to a 2-D image). */
+static int wcs_repair(struct wcsprm *src, const mp_image *im, const char *ctypes,
+                      char *err)
+{
     int fx = cdfix(src);
     if (fx != FIXERR_MEMORY)
         fx = unitfix(7, src);
     if (fx != FIXERR_MEMORY && (strstr(ctypes, "-NCP") || strstr(ctypes, "-GLS")))
         fx = celfix(src);
     if (fx == FIXERR_MEMORY) {
-        wcsvfree(&nwcs, &all);
         say(err, "WCS: out of memory");
         return MP_WCS_FAIL;
     }
-
-    /* Where the celestial axes are.  When the whole WCS cannot be set up,
-     * a 2-D one is unusable; for more axes, the first two are tried alone
-     * below (a broken third axis does not matter to a 2-D image). */
-    st = wcsset(src);
+    int st = wcsset(src);
     if (st == 0 && src->naxis == 2 && im->nx > 0 && im->ny > 0
         && im->nx <= 0x7fffffffL && im->ny <= 0x7fffffffL) {
         int naxis_len[2] = { (int)im->nx, (int)im->ny };
@@ -340,60 +329,61 @@ int mp_wcs_open(const mp_image *im, mp_wcs **wp, char *err)
     }
     if (st == 0) {
         if (src->lng < 0 || src->lat < 0) {
-            wcsvfree(&nwcs, &all);
             say(err, "no celestial WCS in the header (%s)", ctypes);
             return MP_WCS_FAIL;
         }
         if (src->lng + src->lat != 1) {
             int a1 = src->lng < src->lat ? src->lng : src->lat;
             int a2 = src->lng + src->lat - a1;
-            wcsvfree(&nwcs, &all);
             say(err, "no celestial WCS on the image's two axes: the celestial "
                 "axes are axes %d and %d (%s)", a1 + 1, a2 + 1, ctypes);
             return MP_WCS_FAIL;
         }
     } else if (src->naxis == 2 || st == WCSERR_MEMORY) {
-        wcsvfree(&nwcs, &all);
         say(err, "unusable WCS in the header: %s (%s)", wcs_words(st), ctypes);
         return MP_WCS_FAIL;
     }
+    return 0;
+}
 
+/* An mp_wcs with its slots allocated and none set up. */
+static mp_wcs *wcs_alloc(char *err)
+{
     mp_wcs *w = calloc(1, sizeof *w);
-    if (!w) {
-        wcsvfree(&nwcs, &all);
-        say(err, "WCS: out of memory");
-        return MP_WCS_FAIL;
+    if (w) {
+        w->nslot = slot_count();
+        w->slot = calloc((size_t)w->nslot, sizeof *w->slot);
+        if (!w->slot) {
+            free(w);
+            w = NULL;
+        }
     }
-    w->nslot = slot_count();
-    w->slot = calloc((size_t)w->nslot, sizeof *w->slot);
-    if (!w->slot) {
-        free(w);
-        wcsvfree(&nwcs, &all);
+    if (!w)
         say(err, "WCS: out of memory");
-        return MP_WCS_FAIL;
-    }
+    return w;
+}
 
-    /* Slot 0: the image's first two axes (all of them for a 2-D WCS). */
+/* Slot 0: the image's first two axes of src (all of them for a 2-D WCS),
+ * set up and checked to be celestial and invertible. */
+static int first_slot_make(mp_wcs *w, const struct wcsprm *src, const char *ctypes,
+                           char *err)
+{
     wcs_slot *s0 = &w->slot[0];
     s0->wcs.flag = -1;
     int nsub = 2, axes[2] = { 1, 2 };
-    st = src->naxis == 2 ? wcssub(1, src, NULL, NULL, &s0->wcs)
-                         : wcssub(1, src, &nsub, axes, &s0->wcs);
+    int st = src->naxis == 2 ? wcssub(1, src, NULL, NULL, &s0->wcs)
+                             : wcssub(1, src, &nsub, axes, &s0->wcs);
     s0->have_wcs = 1;
-    wcsvfree(&nwcs, &all);
     if (st) {
-        mp_wcs_close(w);
         say(err, "WCS: %s", wcs_words(st));
         return MP_WCS_FAIL;
     }
     st = wcsset(&s0->wcs);
     if (st) {
-        mp_wcs_close(w);
         say(err, "unusable WCS in the header: %s (%s)", wcs_words(st), ctypes);
         return MP_WCS_FAIL;
     }
     if (s0->wcs.lng < 0 || s0->wcs.lat < 0 || s0->wcs.naxis != 2) {
-        mp_wcs_close(w);
         say(err, "no celestial WCS on the image's first two axes (%s)", ctypes);
         return MP_WCS_FAIL;
     }
@@ -403,7 +393,6 @@ int mp_wcs_open(const mp_image *im, mp_wcs **wp, char *err)
     double det = (pc[0] * pc[3] - pc[1] * pc[2]) * cdl[0] * cdl[1];
     double mag = (fabs(pc[0] * pc[3]) + fabs(pc[1] * pc[2])) * fabs(cdl[0] * cdl[1]);
     if (!isfinite(det) || fabs(det) <= 1e-12 * mag) {
-        mp_wcs_close(w);
         say(err, "unusable WCS in the header: %s (%s)",
             wcs_words(WCSERR_SINGULAR_MTX), ctypes);
         return MP_WCS_FAIL;
@@ -411,29 +400,64 @@ int mp_wcs_open(const mp_image *im, mp_wcs **wp, char *err)
     w->lng = s0->wcs.lng;
     w->lat = s0->wcs.lat;
     classify_frame(&s0->wcs, w);
+    return 0;
+}
 
-    /* The other slots: deep copies (distortions included), set up now so
-     * that the transformations never call wcsset(). */
+/* The other slots: deep copies of slot 0 (distortions included), set up
+ * now so that the transformations never call wcsset(); then every lock. */
+static int other_slots_make(mp_wcs *w, char *err)
+{
     for (int i = 1; i < w->nslot; i++) {
         wcs_slot *s = &w->slot[i];
         s->wcs.flag = -1;
-        st = wcssub(1, &s0->wcs, NULL, NULL, &s->wcs);
+        int st = wcssub(1, &w->slot[0].wcs, NULL, NULL, &s->wcs);
         s->have_wcs = 1;
         if (!st)
             st = wcsset(&s->wcs);
         if (st) {
-            mp_wcs_close(w);
             say(err, "WCS: copying the WCS: %s", wcs_words(st));
             return MP_WCS_FAIL;
         }
     }
     for (int i = 0; i < w->nslot; i++) {
         if (pthread_mutex_init(&w->slot[i].lock, NULL) != 0) {
-            mp_wcs_close(w);
             say(err, "WCS: cannot create a lock");
             return MP_WCS_FAIL;
         }
         w->slot[i].have_lock = 1;
+    }
+    return 0;
+}
+
+int mp_wcs_open(const mp_image *im, mp_wcs **wp, char *err)
+{
+    if (wp)
+        *wp = NULL;
+    if (!im || !wp) {
+        say(err, "WCS: internal error (null image or result pointer)");
+        return MP_WCS_FAIL;
+    }
+    int nwcs = 0;
+    struct wcsprm *all = NULL;
+    if (header_wcs_read(im, &nwcs, &all, err))
+        return MP_WCS_FAIL;
+    struct wcsprm *src = &all[pick_wcs(all, nwcs)];
+    char ctypes[256];
+    ctype_list(src, ctypes, sizeof ctypes);
+    mp_wcs *w = NULL;
+    int st = wcs_typed_check(src, ctypes, err);
+    if (!st)
+        st = wcs_repair(src, im, ctypes, err);
+    if (!st && !(w = wcs_alloc(err)))
+        st = MP_WCS_FAIL;
+    if (!st)
+        st = first_slot_make(w, src, ctypes, err);
+    wcsvfree(&nwcs, &all);
+    if (!st)
+        st = other_slots_make(w, err);
+    if (st) {
+        mp_wcs_close(w);
+        return MP_WCS_FAIL;
     }
     *wp = w;
     return 0;
@@ -601,58 +625,22 @@ int mp_wcs_pix2j2000(const mp_wcs *w, double x, double y, double *ra, double *de
 
 /* ---- the catalog columns ------------------------------------------------ */
 
-int mp_table_add_sky(mp_table *t, const mp_image *im, char *err)
+/* The position pairs mp_table_add_sky converts: [0] fitted, [1] detection. */
+static const char *const sky_in[2][2] = {
+    { "XPSF_IMAGE", "YPSF_IMAGE" }, { "X_IMAGE", "Y_IMAGE" }
+};
+static const char *const sky_out[2][2] = {
+    { "ALPHAPSF_J2000", "DELTAPSF_J2000" }, { "ALPHA_J2000", "DELTA_J2000" }
+};
+
+/* sky[r*4 + p*2 + {0,1}]: (RA, Dec) J2000 of row r's pair p (NaN where the
+ * pair is absent or its pixel position NaN). */
+static int sky_positions(const mp_table *t, const mp_wcs *w, const int cx[2],
+                         const int cy[2], double *sky, char *err)
 {
-    if (!t || !im) {
-        say(err, "WCS: internal error (null table or image)");
-        return MP_WCS_FAIL;
-    }
-    /* The position pairs present: [0] fitted, [1] detection. */
-    static const char *const in[2][2] = {
-        { "XPSF_IMAGE", "YPSF_IMAGE" }, { "X_IMAGE", "Y_IMAGE" }
-    };
-    static const char *const out[2][2] = {
-        { "ALPHAPSF_J2000", "DELTAPSF_J2000" }, { "ALPHA_J2000", "DELTA_J2000" }
-    };
-    int cx[2], cy[2], npair = 0;
-    for (int p = 0; p < 2; p++) {
-        cx[p] = mp_table_col(t, in[p][0]);
-        cy[p] = mp_table_col(t, in[p][1]);
-        if (cx[p] < 0 || cy[p] < 0)
-            cx[p] = cy[p] = -1;
-        else
-            npair++;
-    }
-    if (npair == 0) {
-        say(err, "sky positions: the table has neither XPSF_IMAGE/YPSF_IMAGE "
-            "nor X_IMAGE/Y_IMAGE");
-        return MP_WCS_FAIL;
-    }
-
-    mp_wcs *w = NULL;
-    int st = mp_wcs_open(im, &w, err);
-    if (st)
-        return st;
-    if (check_j2000(w, err)) {
-        mp_wcs_close(w);
-        return MP_WCS_FAIL;
-    }
-
-    /* Compute first, then add the columns, so that a failure leaves the
-     * table as it was. */
-    size_t nrow = t->nrow;
-    double *sky = NULL;
-    if (nrow > 0) {
-        if (nrow > ((size_t)-1) / (4 * sizeof *sky)
-            || !(sky = malloc(nrow * 4 * sizeof *sky))) {
-            mp_wcs_close(w);
-            say(err, "sky positions: out of memory");
-            return MP_WCS_FAIL;
-        }
-    }
     int fail = 0;
     char ferr[MP_ERRLEN] = "";
-    long nr = (long)nrow;
+    long nr = (long)t->nrow;
 #pragma omp parallel for schedule(static) if (nr > 256)
     for (long r = 0; r < nr; r++) {
         for (int p = 0; p < 2; p++) {
@@ -677,30 +665,75 @@ int mp_table_add_sky(mp_table *t, const mp_image *im, char *err)
             }
         }
     }
-    mp_wcs_close(w);
-    if (fail) {
-        free(sky);
-        if (err)
-            snprintf(err, MP_ERRLEN, "%s", ferr);
-        return MP_WCS_FAIL;
-    }
+    if (fail && err)
+        snprintf(err, MP_ERRLEN, "%s", ferr);
+    return fail ? MP_WCS_FAIL : 0;
+}
 
+/* The sky columns of the pairs present, filled from sky[]. */
+static int sky_columns_add(mp_table *t, const int cx[2], const double *sky,
+                           char *err)
+{
     for (int p = 0; p < 2; p++) {
         if (cx[p] < 0)
             continue;
-        int ca = mp_table_add_col(t, out[p][0]);
-        int cd = ca < 0 ? -1 : mp_table_add_col(t, out[p][1]);
+        int ca = mp_table_add_col(t, sky_out[p][0]);
+        int cd = ca < 0 ? -1 : mp_table_add_col(t, sky_out[p][1]);
         if (ca < 0 || cd < 0) {
-            free(sky);
             say(err, "sky positions: out of memory adding column %s",
-                out[p][ca < 0 ? 0 : 1]);
+                sky_out[p][ca < 0 ? 0 : 1]);
             return MP_WCS_FAIL;
         }
-        for (size_t r = 0; r < nrow; r++) {
+        for (size_t r = 0; r < t->nrow; r++) {
             mp_table_set(t, r, ca, sky[r * 4 + (size_t)p * 2]);
             mp_table_set(t, r, cd, sky[r * 4 + (size_t)p * 2 + 1]);
         }
     }
-    free(sky);
     return 0;
+}
+
+int mp_table_add_sky(mp_table *t, const mp_image *im, char *err)
+{
+    if (!t || !im) {
+        say(err, "WCS: internal error (null table or image)");
+        return MP_WCS_FAIL;
+    }
+    int cx[2], cy[2], npair = 0;
+    for (int p = 0; p < 2; p++) {
+        cx[p] = mp_table_col(t, sky_in[p][0]);
+        cy[p] = mp_table_col(t, sky_in[p][1]);
+        if (cx[p] < 0 || cy[p] < 0)
+            cx[p] = cy[p] = -1;
+        else
+            npair++;
+    }
+    if (npair == 0) {
+        say(err, "sky positions: the table has neither XPSF_IMAGE/YPSF_IMAGE "
+            "nor X_IMAGE/Y_IMAGE");
+        return MP_WCS_FAIL;
+    }
+    mp_wcs *w = NULL;
+    int st = mp_wcs_open(im, &w, err);
+    if (st)
+        return st;
+    if (check_j2000(w, err)) {
+        mp_wcs_close(w);
+        return MP_WCS_FAIL;
+    }
+    /* Compute first, then add the columns, so that a failure leaves the
+     * table as it was. */
+    size_t nrow = t->nrow;
+    double *sky = NULL;
+    if (nrow > 0 && (nrow > ((size_t)-1) / (4 * sizeof *sky)
+                     || !(sky = malloc(nrow * 4 * sizeof *sky)))) {
+        mp_wcs_close(w);
+        say(err, "sky positions: out of memory");
+        return MP_WCS_FAIL;
+    }
+    st = sky_positions(t, w, cx, cy, sky, err);
+    mp_wcs_close(w);
+    if (!st)
+        st = sky_columns_add(t, cx, sky, err);
+    free(sky);
+    return st;
 }

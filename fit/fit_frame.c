@@ -793,6 +793,7 @@ static int fit_group_local(const mp_frame *f, const mp_prf_model *m, const mp_fr
     mp_frame L = *f;
     L.im.pix = NULL;
     L.mask = NULL;
+    L.xvar = NULL;
     int rc = 1, nomem = 0;
     if (!sub || !act || !idx || !old) {
         snprintf(err, MP_ERRLEN, "out of memory");
@@ -854,7 +855,8 @@ static int fit_group_local(const mp_frame *f, const mp_prf_model *m, const mp_fr
         L.im.ny = h;
         L.im.pix = malloc((size_t)(w * h) * sizeof *L.im.pix);
         L.mask = malloc((size_t)(w * h));
-        if (!L.im.pix || !L.mask) {
+        L.xvar = f->xvar ? malloc((size_t)(w * h) * sizeof *L.xvar) : NULL;
+        if (!L.im.pix || !L.mask || (f->xvar && !L.xvar)) {
             snprintf(err, MP_ERRLEN, "out of memory");
             goto done;
         }
@@ -863,6 +865,8 @@ static int fit_group_local(const mp_frame *f, const mp_prf_model *m, const mp_fr
                 size_t g = (size_t)(y0 - 1 + j) * f->im.nx + (size_t)(x0 - 1 + i);
                 L.im.pix[j * w + i] = (float)(f->im.pix[g] - (all ? (double)all[g] : 0.0));
                 L.mask[j * w + i] = f->mask ? f->mask[g] : 0;
+                if (L.xvar)
+                    L.xvar[j * w + i] = f->xvar[g];
             }
         /* The fitted stars' own light comes back with the same crop
          * all_stars took it off with, so it cancels exactly. */
@@ -886,6 +890,7 @@ static int fit_group_local(const mp_frame *f, const mp_prf_model *m, const mp_fr
 done:
     free(L.im.pix);
     free(L.mask);
+    free(L.xvar);
     free(sub);
     free(act);
     free(idx);

@@ -80,6 +80,8 @@ typedef struct {
     int nrun;
     int *rj, *ri0, *ri1, *rp, *rrow, *prow;
     double *dat, *mod, *var;    /* npix: data, model, V(m) */
+    double *rv;                 /* npix: RON² + the error plane's extra
+                                 * variance (mp_frame.xvar), the r of V */
     double *wt, *wres;          /* npix: 1/V, and 1/V·(d − m), for the
                                  * normal equations */
     double *basis;              /* 6 × npix: the sky basis at every pixel */
@@ -113,6 +115,7 @@ static void group_free(group *G)
     free(G->dat);
     free(G->mod);
     free(G->var);
+    free(G->rv);
     free(G->wt);
     free(G->wres);
     free(G->basis);
@@ -151,6 +154,14 @@ static void group_free(group *G)
 static double pixel(const group *G, long x, long y)
 {
     return G->f->im.pix[(size_t)(y - 1) * G->f->im.nx + (size_t)(x - 1)];
+}
+
+/* RON² plus what the frame's error plane holds beyond it and the Poisson
+ * noise, at pixel (x, y). */
+static double ron2_at(const group *G, long x, long y)
+{
+    const float *xv = G->f->xvar;
+    return G->ron2 + (xv ? (double)xv[(size_t)(y - 1) * G->f->im.nx + (size_t)(x - 1)] : 0.0);
 }
 
 /* The packed index of the first fitted pixel at or after column i of box
@@ -335,13 +346,13 @@ static void model_of(group *G, const double *p, const rstar *r)
     }
 }
 
-/* Weights from the model: σ² = V(m) = max(m, S) + RON², RON² at least
- * 1e-2 so a zero model and sky with no read noise cannot give an infinite
- * weight. */
+/* Weights from the model: σ² = V(m) = max(m, S) + RON² (+ the error
+ * plane's extra variance), RON² at least 1e-2 so a zero model and sky
+ * with no read noise cannot give an infinite weight. */
 static void variance_of(group *G)
 {
     for (size_t i = 0; i < G->npix; i++)
-        G->var[i] = (G->mod[i] > G->vfloor ? G->mod[i] : G->vfloor) + G->ron2;
+        G->var[i] = (G->mod[i] > G->vfloor ? G->mod[i] : G->vfloor) + G->rv[i];
 }
 
 /* ∫_a^b (t − d)/V(t) dt for 0 ≤ a ≤ b, where V(t) = t + r. */
@@ -376,7 +387,7 @@ static double deviance_of(const group *G)
 {
     double D = 0.0;
     for (size_t o = 0; o < G->npix; o++)
-        D += pixel_deviance(G->mod[o], G->dat[o], G->vfloor, G->ron2);
+        D += pixel_deviance(G->mod[o], G->dat[o], G->vfloor, G->rv[o]);
     return D;
 }
 
@@ -1042,7 +1053,7 @@ static int ring_sums(group *G, double fitrad, sky_sums *S)
                 d2 = fmin(d2, dx * dx + dy * dy);
             }
             double sky = sky_at(G, G->p, (double)X, (double)Y), star = light[q];
-            double v = (sky + star > G->vfloor ? sky + star : G->vfloor) + G->ron2;
+            double v = (sky + star > G->vfloor ? sky + star : G->vfloor) + ron2_at(G, X, Y);
             if (d2 > R * R || star * star > v)
                 continue;
             int cl = octant((double)X - G->xc, (double)Y - G->yc) + (d2 > rmid * rmid ? RING_SECTORS : 0);
@@ -1205,11 +1216,12 @@ static int pack_pixels(group *G)
     G->dat = malloc(N * sizeof *G->dat);
     G->mod = malloc(N * sizeof *G->mod);
     G->var = malloc(N * sizeof *G->var);
+    G->rv = malloc(N * sizeof *G->rv);
     G->wt = malloc(N * sizeof *G->wt);
     G->wres = malloc(N * sizeof *G->wres);
     G->basis = malloc(6 * N * sizeof *G->basis);
     if (!G->rj || !G->ri0 || !G->ri1 || !G->rp || !G->spans || !G->rrow || !G->prow || !G->dat ||
-        !G->mod || !G->var || !G->wt || !G->wres || !G->basis)
+        !G->mod || !G->var || !G->rv || !G->wt || !G->wres || !G->basis)
         return 2;
     int q = 0, o = 0;
     for (int j = 0; j < G->bh; j++) {
@@ -1229,6 +1241,7 @@ static int pack_pixels(group *G)
             sky_basis(G, (double)(G->bx0 + i), (double)(G->by0 + j), c);
             for (int a = 0; a < 6; a++)
                 G->basis[(size_t)a * N + (size_t)o] = c[a];
+            G->rv[o] = ron2_at(G, G->bx0 + i, G->by0 + j);
             G->dat[o++] = pixel(G, G->bx0 + i, G->by0 + j);
         }
     }

@@ -40,7 +40,7 @@ static int resolve(const char *name, const mp_image *im, double dp, const char *
 
 void mp_datapars_read(const mp_parset *ps, mp_datapars *dp)
 {
-    *dp = (mp_datapars){NAN, NAN, NAN, NAN, "", 0, 0, 0};
+    *dp = (mp_datapars){NAN, NAN, NAN, NAN, "", 0, 0, 0, ""};
     mp_par_real(ps, "gain", &dp->gain);
     mp_par_real(ps, "rdnoise", &dp->rdnoise);
     mp_par_real(ps, "saturate", &dp->saturate);
@@ -57,6 +57,8 @@ void mp_datapars_read(const mp_parset *ps, mp_datapars *dp)
     v = 0;
     if (!mp_par_int(ps, "satgrow", &v) && v > 0)
         dp->satgrow = v;
+    const char *ep = mp_par_string(ps, "errplane");
+    snprintf(dp->errplane, sizeof dp->errplane, "%s", ep ? ep : "");
 }
 
 /* The DQ image's name: "[EXT]" is an extension of the frame's own file
@@ -81,22 +83,73 @@ static char *dq_name(const char *image, const char *dq)
     return s;
 }
 
+/* An auxiliary plane of the frame (dqmask, errplane), read and checked
+ * for size; *got is set when aux must be freed. */
+static int read_aux(const char *name, const char *par, const char *aux, const mp_frame *f,
+                    mp_image *im, int *got, char *err)
+{
+    *got = 0;
+    char *an = dq_name(name, aux);
+    if (!an) {
+        snprintf(err, MP_ERRLEN, "%s: out of memory", name);
+        return 1;
+    }
+    int rc = mp_image_read(an, im, err);
+    *got = !rc;
+    if (!rc && (im->nx != f->im.nx || im->ny != f->im.ny)) {
+        snprintf(err, MP_ERRLEN, "%s: %s is %ldx%ld, the frame %s is %ldx%ld", par, an, im->nx,
+                 im->ny, name, f->im.nx, f->im.ny);
+        rc = 1;
+    }
+    free(an);
+    return rc;
+}
+
+/* The error plane's variance beyond the Poisson noise and RON² (io.h,
+ * mp_frame.xvar), after the pixels are in electrons and masked.  An
+ * infinite or NaN error (cfitsio reads an IEEE infinity as NaN) is no
+ * weight: the pixel is masked bad. */
+static int apply_err(const char *name, const mp_datapars *dp, mp_frame *f, char *err)
+{
+    mp_image e;
+    int got, rc = read_aux(name, "errplane", dp->errplane, f, &e, &got, err);
+    size_t n = (size_t)f->im.nx * (size_t)f->im.ny;
+    if (!rc && !(f->xvar = malloc((n ? n : 1) * sizeof *f->xvar))) {
+        snprintf(err, MP_ERRLEN, "%s: out of memory for the error plane", name);
+        rc = 1;
+    }
+    double ron2 = f->rdnoise * f->rdnoise;
+    for (size_t i = 0; !rc && i < n; i++) {
+        double s = e.pix[i] * f->gain, d = f->im.pix[i];
+        f->xvar[i] = 0.0f;
+        if (f->mask[i] & MP_MASK_BAD)
+            continue;
+        if (s < 0) {
+            snprintf(err, MP_ERRLEN, "errplane: %.400s: pixel (%ld, %ld) holds %g, not an error >= 0",
+                     dp->errplane, (long)(i % (size_t)f->im.nx) + 1,
+                     (long)(i / (size_t)f->im.nx) + 1, e.pix[i]);
+            rc = 1;
+        } else if (!isfinite(s)) {
+            f->nsat -= (f->mask[i] & MP_MASK_SATURATED) != 0;
+            f->mask[i] = MP_MASK_BAD;
+            f->im.pix[i] = 0.0;
+            f->nbad++;
+        } else {
+            double x = s * s - (d > 0 ? d : 0.0) - ron2;
+            f->xvar[i] = x > 0 ? (float)x : 0.0f;
+        }
+    }
+    if (got)
+        mp_image_free(&e);
+    return rc;
+}
+
 /* Apply the DQ image's bits to the mask (before any other masking, so the
  * counts stay those of the final mask). */
 static int apply_dq(const char *name, const mp_datapars *dp, mp_frame *f, char *err)
 {
-    char *dqn = dq_name(name, dp->dqmask);
-    if (!dqn) {
-        snprintf(err, MP_ERRLEN, "%s: out of memory", name);
-        return 1;
-    }
     mp_image dq;
-    int rc = mp_image_read(dqn, &dq, err), got = !rc;
-    if (!rc && (dq.nx != f->im.nx || dq.ny != f->im.ny)) {
-        snprintf(err, MP_ERRLEN, "dqmask: %s is %ldx%ld, the frame %s is %ldx%ld", dqn,
-                 dq.nx, dq.ny, name, f->im.nx, f->im.ny);
-        rc = 1;
-    }
+    int got, rc = read_aux(name, "dqmask", dp->dqmask, f, &dq, &got, err);
     for (size_t i = 0, n = (size_t)f->im.nx * (size_t)f->im.ny; !rc && i < n; i++) {
         double v = dq.pix[i];
         long bits = isfinite(v) && v >= 0 && v < 2147483648.0 ? (long)v : 0;
@@ -107,7 +160,6 @@ static int apply_dq(const char *name, const mp_datapars *dp, mp_frame *f, char *
     }
     if (got)
         mp_image_free(&dq);
-    free(dqn);
     return rc;
 }
 
@@ -142,7 +194,7 @@ static int grow_saturated(mp_frame *f, int g, const char *name, char *err)
 int mp_frame_read(const char *name, const mp_datapars *dp, mp_frame *f, char *err)
 {
     memset(f, 0, sizeof *f);
-    const mp_datapars none = {NAN, NAN, NAN, NAN, "", 0, 0, 0};
+    const mp_datapars none = {NAN, NAN, NAN, NAN, "", 0, 0, 0, ""};
     if (!dp)
         dp = &none;
     if (mp_fimage_read(name, &f->im, err))
@@ -199,6 +251,8 @@ int mp_frame_read(const char *name, const mp_datapars *dp, mp_frame *f, char *er
     }
     if (dp->satgrow > 0 && f->nsat && grow_saturated(f, dp->satgrow, name, err))
         goto fail;
+    if (dp->errplane[0] && apply_err(name, dp, f, err))
+        goto fail;
     return 0;
 
 fail:
@@ -213,5 +267,7 @@ void mp_frame_free(mp_frame *f)
     mp_fimage_free(&f->im);
     free(f->mask);
     f->mask = NULL;
+    free(f->xvar);
+    f->xvar = NULL;
     f->nbad = f->nsat = 0;
 }

@@ -125,11 +125,18 @@ typedef struct {
      * + 1) of a saturated one count as saturated too: the charge next to
      * a full well spills or is nonlinear, and no DQ plane flags it. */
     int satgrow;
+    /* Optional error plane (HST ERR, a weight map's 1/sqrt): the 1-sigma
+     * noise of each pixel in the image's units, named as dqmask is.  What
+     * its variance holds beyond the Poisson noise of the pixel and RON²
+     * (dark current, the bias's and the flat's noise: calacs puts them
+     * there) becomes mp_frame.xvar; the Poisson part stays the model's
+     * (design.md §5).  "": none. */
+    char errplane[1024];
 } mp_datapars;
 
 struct mp_parset_s;
 /* mp_datapars_read: the datapars parameters (gain, rdnoise, saturate,
- * exptime, dqmask, dqsat, dqbad, satgrow) of a task's parameter set; INDEF reals
+ * exptime, dqmask, dqsat, dqbad, satgrow, errplane) of a task's parameter set; INDEF reals
  * come back NaN (take the header's). */
 void mp_datapars_read(const struct mp_parset_s *ps, mp_datapars *dp);
 
@@ -147,10 +154,18 @@ typedef struct {
     uint8_t *mask;         /* nx*ny, MP_MASK_* bits */
     double gain, rdnoise, saturate, exptime;
     long nbad, nsat;       /* counts of masked and saturated pixels */
+    /* xvar: nx*ny, the variance [e-²] the error plane holds beyond
+     * max(data, 0) + RON², at least 0; NULL without errplane.  A fit's
+     * pixel weight is 1/(max(m, S) + RON² + xvar) (fit/levmar.c).  A copy
+     * of a frame onto other pixels must crop it too, or set it NULL. */
+    float *xvar;
 } mp_frame;
 
 /* mp_frame_read: read an image and prepare it for fitting.  Errors as
- * mp_image_read, plus non-positive gain, negative read noise. */
+ * mp_image_read, plus non-positive gain, negative read noise, and for
+ * dqmask/errplane an image of another size, and in the error plane a
+ * negative value on a pixel that is not masked (an infinite or NaN
+ * error masks the pixel as bad). */
 int mp_frame_read(const char *name, const mp_datapars *dp, mp_frame *f, char *err);
 void mp_frame_free(mp_frame *f);
 

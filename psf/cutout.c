@@ -14,6 +14,7 @@ void mp_epsf_stars_free(mp_epsf_star *s, size_t n)
     for (size_t k = 0; k < n; k++) {
         free(s[k].f.im.pix);
         free(s[k].f.mask);
+        free(s[k].f.xvar);
         free(s[k].raw);
     }
     free(s);
@@ -90,7 +91,8 @@ static int cut_one(const mp_frame *f, const float *img, double x, double y, doub
     s->f.im.ny = h;
     s->f.im.pix = malloc((size_t)w * h * sizeof *s->f.im.pix);
     s->f.mask = malloc((size_t)w * h);
-    if (!s->f.im.pix || !s->f.mask)
+    s->f.xvar = f->xvar ? malloc((size_t)w * h * sizeof *s->f.xvar) : NULL;
+    if (!s->f.im.pix || !s->f.mask || (f->xvar && !s->f.xvar))
         return 1;
     s->f.nbad = s->f.nsat = 0;
     for (long j = 0; j < h; j++)
@@ -98,6 +100,8 @@ static int cut_one(const mp_frame *f, const float *img, double x, double y, doub
             size_t o = (size_t)(y0 - 1 + j) * f->im.nx + (size_t)(x0 - 1 + i);
             size_t c = (size_t)j * w + i;
             s->f.mask[c] = f->mask[o];
+            if (s->f.xvar)
+                s->f.xvar[c] = f->xvar[o];
             s->f.im.pix[c] = f->mask[o] || !isfinite(img[o]) ? 0.0 : img[o];
             if (!isfinite(img[o]))
                 s->f.mask[c] |= MP_MASK_BAD;

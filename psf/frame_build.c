@@ -156,6 +156,7 @@ static int choose_os(mp_epsf_star *s, size_t n, const mp_epsf_opts *o, const mp_
     }
     mp_epsf_free(&noise);
     int pick = 4;
+    rep->oserr[1] = rep->oserr[2] = NAN; /* NaN: not tried (a finer one failed) */
     for (int os = 2; os >= 1; os /= 2) {
         rep->oserr[os] = mp_epsf_oversamp_error(e, os, E, B, f->rdnoise);
         if (rep->oserr[os] < 1.0)
@@ -166,11 +167,14 @@ static int choose_os(mp_epsf_star *s, size_t n, const mp_epsf_opts *o, const mp_
     int band = 0;
     while (band < MP_EPSF_NWBIN && e->wiener[band] >= 0.5)
         band++;
+    char x1[48] = "not tried (x2 is above 1 already)";
+    if (!isnan(rep->oserr[1]))
+        snprintf(x1, sizeof x1, "%.2g sigma", rep->oserr[1]);
     snprintf(rep->what + strlen(rep->what), sizeof rep->what - strlen(rep->what),
              "OVERSAMP %d (aliasing error for the brightest star, %.3g e-, of the x4 table "
-             "smoothed as its noise needs (S/N > 1 out to %.2f cycles/px%s): x2 %.2g, x1 %.2g "
-             "sigma; the coarsest below 1); ", pick, E, band * MP_EPSF_WBIN,
-             e->have_wiener ? "" : ", not measured", rep->oserr[2], rep->oserr[1]);
+             "smoothed as its noise needs (S/N > 1 out to %.2f cycles/px%s): x2 %.2g sigma, x1 %s; "
+             "the coarsest below 1); ", pick, E, band * MP_EPSF_WBIN,
+             e->have_wiener ? "" : ", not measured", rep->oserr[2], x1);
     if (pick < 4) {
         mp_epsf c;
         if (mp_epsf_rebin(e, 4 / pick, &c, err))

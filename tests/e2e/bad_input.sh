@@ -62,6 +62,13 @@ bad "even PSF"          even.fits     -- "$T/ok.fits" "$T/ok.truth" psf="$T/even
 "$M" sim "$T/big.fits" nx=15 ny=15 noise=no sky=0 fwhm=2 magmin=-10 magmax=-10 >/dev/null 2>&1
 bad "PSF sum above 1"   big.fits      -- "$T/ok.fits" "$T/ok.truth" psf="$T/big.fits"
 
+# An error plane (datapars errplane): missing, of another size; the frame
+# itself as its own error plane (every value >= 0) is accepted.
+bad "missing errplane"  noerr.fits    -- "$T/ok.fits" "$T/ok.truth" errplane="$T/noerr.fits"
+bad "errplane size"     errplane      -- "$T/ok.fits" "$T/ok.truth" errplane="$T/even.fits"
+"$M" fit "$T/ok.fits" "$T/ok.truth" errplane="$T/ok.fits" output="$T/err.fit" >/dev/null 2>"$T/err" &&
+    [ -s "$T/err.fit" ] || no "errplane refused: $(cat "$T/err")"
+
 # An output directory that cannot be written.
 rm -f "$T/err"
 "$M" fit "$T/ok.fits" "$T/ok.truth" output="$T/nodir/out.fit" >/dev/null 2>"$T/err"

@@ -402,7 +402,7 @@ static void test_frame_dq(void **state)
     char sci[720], err[MP_ERRLEN];
     snprintf(sci, sizeof sci, "%s[SCI]", path);
     mp_frame f;
-    mp_datapars dp = {NAN, NAN, NAN, NAN, "[DQ]", 2304, 16, 0};
+    mp_datapars dp = {NAN, NAN, NAN, NAN, "[DQ]", 2304, 16, 0, ""};
     assert_int_equal(mp_frame_read(sci, &dp, &f, err), 0);
     assert_int_equal(f.nsat, 2);
     assert_int_equal(f.nbad, 1);
@@ -457,6 +457,83 @@ static void test_frame_dq(void **state)
     assert_non_null(strstr(err, "NOPE"));
 }
 
+/* An error plane (HST layout: SCI and ERR extensions), gain 2 and read
+ * noise 3 from datapars: xvar is what ERR² (in e-², gain² × ADU²) holds
+ * beyond max(data, 0) + RON², and 0 where it holds less; an infinite error
+ * or NaN one masks the pixel bad; a negative one on a live pixel, or a plane
+ * of another shape, is refused with one line naming errplane; no errplane,
+ * no xvar. */
+static void test_frame_err(void **state)
+{
+    scratch *s = *state;
+    double pix[NX * NY], e[NX * NY];
+    pattern(pix);                       /* 101 ... ADU: 202 ... e- */
+    for (int i = 0; i < NX * NY; i++)
+        e[i] = sqrt(pix[i] / 2.0 + 25.0);   /* (2e)² = 2 pix + 100 = d + 9 + 91 e-² */
+    e[1] = 1.0;                         /* less than Poisson: xvar 0 */
+    e[2] = INFINITY;                    /* no weight */
+    pix[3] = -50.0;                     /* a negative pixel: no Poisson part */
+    e[3] = 10.0;                        /* 400 - 9 = 391 e-² */
+    const char *path = in_dir(s, "err.fits");
+    char name[700];
+    snprintf(name, sizeof name, "!%s", path);
+    fitsfile *fp;
+    int st = 0;
+    long ax[2] = {NX, NY}, fpix[2] = {1, 1};
+    fits_create_file(&fp, name, &st);
+    fits_create_img(fp, 8, 0, NULL, &st);
+    fits_create_img(fp, DOUBLE_IMG, 2, ax, &st);
+    fits_update_key_str(fp, "EXTNAME", "SCI", NULL, &st);
+    fits_write_pix(fp, TDOUBLE, fpix, NX * NY, pix, &st);
+    fits_create_img(fp, DOUBLE_IMG, 2, ax, &st);
+    fits_update_key_str(fp, "EXTNAME", "ERR", NULL, &st);
+    fits_write_pix(fp, TDOUBLE, fpix, NX * NY, e, &st);
+    e[5] = -1.0;
+    fits_create_img(fp, DOUBLE_IMG, 2, ax, &st);
+    fits_update_key_str(fp, "EXTNAME", "NEG", NULL, &st);
+    fits_write_pix(fp, TDOUBLE, fpix, NX * NY, e, &st);
+    fits_close_file(fp, &st);
+    assert_int_equal(st, 0);
+
+    char sci[720], err[MP_ERRLEN];
+    snprintf(sci, sizeof sci, "%s[SCI]", path);
+    mp_frame f;
+    mp_datapars dp = {2.0, 3.0, NAN, NAN, "", 0, 0, 0, "[ERR]"};
+    assert_int_equal(mp_frame_read(sci, &dp, &f, err), 0);
+    assert_non_null(f.xvar);
+    assert_float_equal(f.xvar[0], 91.0, 1e-3);
+    assert_float_equal(f.xvar[NX * NY - 1], 91.0, 1e-3);
+    assert_true(f.xvar[1] == 0.0f);
+    assert_int_equal(f.mask[2], MP_MASK_BAD);
+    assert_int_equal(f.nbad, 1);
+    assert_true(f.xvar[2] == 0.0f);
+    assert_float_equal(f.xvar[3], 391.0, 1e-3);
+    mp_frame_free(&f);
+    assert_null(f.xvar);
+    /* A section applies to the plane too. */
+    snprintf(sci, sizeof sci, "%s[SCI][2:5,2:3]", path);
+    assert_int_equal(mp_frame_read(sci, &dp, &f, err), 0);
+    assert_float_equal(f.xvar[0], 91.0, 1e-3);
+    mp_frame_free(&f);
+    snprintf(sci, sizeof sci, "%s[SCI]", path);
+    dp.errplane[0] = 0;
+    assert_int_equal(mp_frame_read(sci, &dp, &f, err), 0);
+    assert_null(f.xvar);
+    mp_frame_free(&f);
+    snprintf(dp.errplane, sizeof dp.errplane, "[NEG]");
+    assert_int_not_equal(mp_frame_read(sci, &dp, &f, err), 0);
+    assert_non_null(strstr(err, "errplane"));
+    assert_non_null(strstr(err, "(6, 1)"));
+    assert_null(f.mask);
+    assert_null(f.xvar);
+    snprintf(dp.errplane, sizeof dp.errplane, "%s[SCI][1:4,1:4]", path);
+    assert_int_not_equal(mp_frame_read(sci, &dp, &f, err), 0);
+    assert_non_null(strstr(err, "errplane"));
+    snprintf(dp.errplane, sizeof dp.errplane, "[NOPE]");
+    assert_int_not_equal(mp_frame_read(sci, &dp, &f, err), 0);
+    assert_non_null(strstr(err, "NOPE"));
+}
+
 static void test_frame(void **state)
 {
     scratch *s = *state;
@@ -474,7 +551,7 @@ static void test_frame(void **state)
     assert_int_equal(mp_image_write(path, pix, NX, NY, -32, cards, 4, err), 0);
 
     mp_frame f;
-    const mp_datapars none = {NAN, NAN, NAN, NAN, "", 0, 0, 0};
+    const mp_datapars none = {NAN, NAN, NAN, NAN, "", 0, 0, 0, ""};
     assert_int_equal(mp_frame_read(path, &none, &f, err), 0);
     assert_true(f.gain == 2.0 && f.rdnoise == 5.0 && f.saturate == 1000.0 && f.exptime == 30.0);
     assert_int_equal(f.nbad, 1);
@@ -490,7 +567,7 @@ static void test_frame(void **state)
     mp_frame_free(&f);
 
     /* datapars wins over the header; NULL datapars means all from header. */
-    const mp_datapars dp = {4.0, 1.0, NAN, 2.0, "", 0, 0, 0};
+    const mp_datapars dp = {4.0, 1.0, NAN, 2.0, "", 0, 0, 0, ""};
     assert_int_equal(mp_frame_read(path, &dp, &f, err), 0);
     assert_true(f.gain == 4.0 && f.rdnoise == 1.0 && f.saturate == 1000.0 && f.exptime == 2.0);
     assert_true(f.im.pix[5] == 4.0 * pix[5]);
@@ -508,11 +585,11 @@ static void test_frame(void **state)
     mp_frame_free(&f);
 
     /* Bad detector numbers, named. */
-    const mp_datapars badgain = {0.0, NAN, NAN, NAN, "", 0, 0, 0};
+    const mp_datapars badgain = {0.0, NAN, NAN, NAN, "", 0, 0, 0, ""};
     assert_int_not_equal(mp_frame_read(path, &badgain, &f, err), 0);
     assert_true(strncmp(err, "gain: ", 6) == 0);
     assert_null(f.mask);
-    const mp_datapars badron = {NAN, -1.0, NAN, NAN, "", 0, 0, 0};
+    const mp_datapars badron = {NAN, -1.0, NAN, NAN, "", 0, 0, 0, ""};
     assert_int_not_equal(mp_frame_read(path, &badron, &f, err), 0);
     assert_true(strncmp(err, "rdnoise: ", 9) == 0);
     const mp_card neg[] = {{"GAIN", -2.0, NULL, NULL}};
@@ -663,6 +740,7 @@ int main(void)
         cmocka_unit_test_setup_teardown(test_bad_inputs, setup, teardown),
         cmocka_unit_test_setup_teardown(test_frame, setup, teardown),
         cmocka_unit_test_setup_teardown(test_frame_dq, setup, teardown),
+        cmocka_unit_test_setup_teardown(test_frame_err, setup, teardown),
         cmocka_unit_test_setup_teardown(test_outfile, setup, teardown),
         cmocka_unit_test_setup_teardown(test_tmp_sweep, setup, teardown),
     };

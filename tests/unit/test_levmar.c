@@ -633,6 +633,82 @@ static void test_skymodel_parameter(void **state)
     }
 }
 
+/* The error plane's extra variance (mp_frame.xvar) is part of the r of
+ * V(m) = max(m, S) + r.  A uniform xvar c with read noise 3 fits exactly
+ * as read noise sqrt(9 + c) (the same arithmetic to rounding: flux,
+ * position and χ² agree to 1e-9 relative).  And with noise of variance
+ * 900 e-² added to the right half of each frame (x > 20), the group's χ²/dof
+ * averages 1 when xvar says so: over K = 20 whole-frame fits of 1596 dof,
+ * the mean of χ²/dof has σ = sqrt(2 / (20 · 1596)) = 0.0079, and the
+ * assertion allows 5σ (false-failure rate 6e-7); without xvar the same
+ * frames give about 1 + 0.5 · 900 / 109 ≈ 5 (asserted > 3). */
+static void test_error_plane_weights(void **state)
+{
+    (void)state;
+    enum { N = SKY_NP, K = 20 };
+    mp_sim_prf sp = {.kind = MP_SIM_GAUSS, .sigma = fwhm_to_sigma(3.0), .volume = 1.0};
+    mp_psf gau;
+    mp_psf_gauss(3.0, &gau);
+    mp_prf_model m = {&gau, NULL, 10};
+    mp_fit_opts o;
+    mp_fit_opts_default(&o);
+    o.sky_order = 0;
+    char err[MP_ERRLEN];
+    mp_frame f, g;
+    frame_make(&f, N, 3.0);
+    frame_make(&g, N, sqrt(9.0 + 400.0));
+    f.xvar = malloc((size_t)(N * N) * sizeof *f.xvar);
+    assert_non_null(f.xvar);
+    mp_rng r;
+    mp_rng_seed(&r, 7001);
+    for (long i = 0; i < N * N; i++)
+        f.im.pix[i] = 100.0;
+    assert_int_equal(mp_sim_add_star(&sp, 20.3, 19.6, 2e4, f.im.pix, N, N), 0);
+    mp_sim_add_noise(&r, f.im.pix, N * N, 3.0);
+    memcpy(g.im.pix, f.im.pix, (size_t)(N * N) * sizeof *g.im.pix);
+    for (long i = 0; i < N * N; i++)
+        f.xvar[i] = 400.0f;
+    mp_star a = {.x = 20.5, .y = 19.5, .flux = NAN}, b = a;
+    assert_int_equal(mp_fit_group(&f, &m, &o, NAN, &a, 1, err), 0);
+    assert_int_equal(mp_fit_group(&g, &m, &o, NAN, &b, 1, err), 0);
+    assert_float_equal(a.flux, b.flux, 1e-9 * fabs(b.flux));
+    assert_float_equal(a.x, b.x, 1e-9);
+    assert_float_equal(a.y, b.y, 1e-9);
+    assert_float_equal(a.chi2, b.chi2, 1e-9 * b.chi2);
+
+    double with = 0.0, without = 0.0;
+    int dof = 0;
+    for (int k = 0; k < K; k++) {
+        for (long i = 0; i < N * N; i++)
+            f.im.pix[i] = 100.0;
+        assert_int_equal(mp_sim_add_star(&sp, 20.3, 19.6, 2e4, f.im.pix, N, N), 0);
+        mp_sim_add_noise(&r, f.im.pix, N * N, 3.0);
+        for (long j = 0; j < N; j++)
+            for (long i = 0; i < N; i++) {
+                int right = i + 1 > 20;
+                f.xvar[j * N + i] = right ? 900.0f : 0.0f;
+                if (right)
+                    f.im.pix[j * N + i] += 30.0 * mp_rng_normal(&r);
+            }
+        mp_star s = {.x = 20.5, .y = 19.5, .flux = NAN};
+        assert_int_equal(mp_fit_group(&f, &m, &o, NAN, &s, 1, err), 0);
+        with += s.chi2 / K;
+        dof = s.dof;
+        float *xv = f.xvar;
+        f.xvar = NULL;
+        s = (mp_star){.x = 20.5, .y = 19.5, .flux = NAN};
+        assert_int_equal(mp_fit_group(&f, &m, &o, NAN, &s, 1, err), 0);
+        without += s.chi2 / K;
+        f.xvar = xv;
+    }
+    assert_int_equal(dof, N * N - 4);
+    assert_float_equal(with, 1.0, 5.0 * sqrt(2.0 / (K * (double)dof)));
+    assert_true(without > 3.0);
+    free(f.xvar);
+    frame_drop(&f);
+    frame_drop(&g);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
@@ -649,6 +725,7 @@ int main(void)
         cmocka_unit_test(test_skymodel_parameter),
         cmocka_unit_test(test_negative_pixels_weigh_as_sky),
         cmocka_unit_test(test_sky_floor_from_found_sky),
+        cmocka_unit_test(test_error_plane_weights),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }
