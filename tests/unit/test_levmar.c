@@ -663,8 +663,8 @@ static void test_error_plane_weights(void **state)
     mp_rng_seed(&r, 7001);
     for (long i = 0; i < N * N; i++)
         f.im.pix[i] = 100.0;
-    assert_int_equal(mp_sim_add_star(&sp, 20.3, 19.6, 2e4, f.im.pix, N, N), 0);
-    mp_sim_add_noise(&r, f.im.pix, N * N, 3.0);
+    assert_int_equal(mp_sim_add_star_float(&sp, 20.3, 19.6, 2e4, f.im.pix, N, N), 0);
+    mp_sim_add_noise_float(&r, f.im.pix, N * N, 3.0);
     memcpy(g.im.pix, f.im.pix, (size_t)(N * N) * sizeof *g.im.pix);
     for (long i = 0; i < N * N; i++)
         f.xvar[i] = 400.0f;
@@ -681,8 +681,8 @@ static void test_error_plane_weights(void **state)
     for (int k = 0; k < K; k++) {
         for (long i = 0; i < N * N; i++)
             f.im.pix[i] = 100.0;
-        assert_int_equal(mp_sim_add_star(&sp, 20.3, 19.6, 2e4, f.im.pix, N, N), 0);
-        mp_sim_add_noise(&r, f.im.pix, N * N, 3.0);
+        assert_int_equal(mp_sim_add_star_float(&sp, 20.3, 19.6, 2e4, f.im.pix, N, N), 0);
+        mp_sim_add_noise_float(&r, f.im.pix, N * N, 3.0);
         for (long j = 0; j < N; j++)
             for (long i = 0; i < N; i++) {
                 int right = i + 1 > 20;
