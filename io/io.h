@@ -184,12 +184,30 @@ int mp_out_commit(mp_outfile *o, char *err);   /* flush, close, rename */
 void mp_out_abort(mp_outfile *o);              /* close, unlink temporary */
 
 /* mp_tmp_name: the temporary name used for path, "<dir>/.<base>.tmp.<host>.<pid>"
- * (caller frees; NULL when out of memory).  It first removes the
- * temporaries of the same path that killed runs on this host left behind
- * (SIGKILL cannot be caught: cleanup.c's handler never ran), those whose
- * pid no longer exists, so a resubmitted job leaves its directory as a
- * clean run does. */
+ * (caller frees; NULL when out of memory).  A name only: the temporaries
+ * of killed runs are swept by mp_tmp_sweep. */
 char *mp_tmp_name(const char *path);
+
+/* Killed runs' temporaries.  SIGKILL cannot be caught (cleanup.c's
+ * handler never runs: a node's OOM killer, a job's time limit), so a
+ * task sweeps the directory of each output before writing it:
+ * mp_tmp_sweep removes from path's directory every temporary that a run
+ * on this host left (".<base>.tmp.<host>.<pid>", any base, the pid no
+ * longer alive), so a resubmitted job leaves its directory as a clean
+ * run does.  Another host's temporaries (a shared file system) and live
+ * runs' are left alone.  Once per directory per run (issue 14: listing
+ * the directory at every write made a survey's thousands of outputs in
+ * one folder O(N²)): s is the set of directories the run (a task's
+ * invocation, every frame of an @list) has swept; a directory already in
+ * it is not listed again.  s NULL: list it every time.  path "-" or ""
+ * (stdout, none): nothing.  Returns 1 when the directory was listed, 0
+ * otherwise.  mp_sweeps_listed counts the listings a set has made (for
+ * tests: counts, not times). */
+typedef struct mp_sweeps mp_sweeps;
+mp_sweeps *mp_sweeps_new(void);       /* NULL when out of memory */
+void mp_sweeps_free(mp_sweeps *s);
+int mp_tmp_sweep(mp_sweeps *s, const char *path);
+long mp_sweeps_listed(const mp_sweeps *s);
 
 /* Interrupted runs (io/cleanup.c).  The writers above (and the FITS table
  * writer) register each temporary before creating it and unregister it

@@ -438,6 +438,7 @@ int mp_pipeline_run(const char *image, const char *root, const mp_pipeline_opts 
         state_free(&s);
         return 1;
     }
+    mp_tmp_sweep(o->sweeps, root);   /* every output is root.*: one directory */
     int rc = read_frame(&s, err) || find_stars(&s, err) || (o->build_psf && build_psf(&s, 1, err));
     if (!rc)
         rc = rounds(&s, err);
@@ -495,6 +496,7 @@ int mp_pl_psf_on(const char *section, const char *root, const mp_pipeline_opts *
     s.offy = offy;
     s.fnx = fnx;
     s.fny = fny;
+    mp_tmp_sweep(o->sweeps, root);   /* root.psf.fits */
     if (!rc)
         rc = read_frame(&s, err) || find_stars(&s, err) || build_psf(&s, 1, err);
     /* Pass 2 as a whole run makes it: every neighbour fitted and gone. */

@@ -272,6 +272,7 @@ int mp_pipeline_run_tiled(const char *image, const char *root, const mp_pipeline
     long nx, ny;
     if (mp_image_size(image, &nx, &ny, err))
         return 1;
+    mp_tmp_sweep(o->sweeps, root);   /* every output is root.*: one directory */
     tiling g;
     memset(&g, 0, sizeof g);
     g.o = o;
@@ -342,6 +343,7 @@ static int tiles_with_built_psf(const char *image, const char *root, const mp_pi
     } else if (!rc && !(rc = mp_params_set(o->ps, "psf", path, err))) {
         rc = mp_pl_opts_read(o->ps, lo, err);
         own = !rc;
+        lo->sweeps = o->sweeps;
         char e2[MP_ERRLEN];
         mp_params_set(o->ps, "psf", "", e2);
     }

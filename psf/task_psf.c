@@ -240,6 +240,7 @@ static int run(psf_task *t, char *err)
         }
         out = named;
     }
+    mp_tmp_sweep(NULL, out);         /* killed runs' temporaries */
     if (mp_psf_field_write(out, &fld, ps, t->passes > 1 ? (int)n : 0, err))
         goto done;
     fprintf(stderr, "matphot psf: %s: wrote %s (OVERSAMP %d, %dx%d, order %d, PSFSUM %.4f)\n",
