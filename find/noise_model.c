@@ -157,6 +157,8 @@ int mp_bkg_noise_from_model(mp_bkg *b, const mp_frame *f, const float *res, int 
     if (k > 0 && isfinite(k)) {
         *scale = k;
         *proferr = eps;
+        /* the map of every pixel: independent, so in parallel (issue 14) */
+#pragma omp parallel for schedule(static)
         for (size_t i = 0; i < npix; i++) {
             double m = fmax(f->im.pix[i] - res[i], 0.0);
             b->rms[i] = (float)sqrt(k * k * poisson_var(b, f, res, i) + eps * eps * m * m);

@@ -901,6 +901,110 @@ done:
     return rc;
 }
 
+/* ---- Painting every star onto the frame, in parallel (issue 14) -------- */
+
+/* Rows of a band: each band is painted by one thread. */
+#define PAINT_BAND 64
+
+/* The rows [*r0, *r1] star s reaches out to radius rad, within 1..ny. */
+static void star_rows(const mp_prf_model *m, const mp_star *s, double rad, long ny, long *r0,
+                      long *r1)
+{
+    long bx, by;
+    int bw, bh;
+    mp_prf_box(m, s->x, s->y, &bx, &by, &bw, &bh);
+    long a = by, b = by + bh - 1;
+    if (rad < (double)bh) {          /* a crop inside the box (NaN: none) */
+        long c = (long)ceil(s->y - rad), d = (long)floor(s->y + rad);
+        a = c > a ? c : a;
+        b = d < b ? d : b;
+    }
+    *r0 = a < 1 ? 1 : a;
+    *r1 = b > ny ? ny : b;
+}
+
+/* Add sign·E·PRF of the stars s[0..n-1] (each out to crop's radius) to
+ * the nx × ny image img.  Once the residual's and the model's painting
+ * was the largest serial part of a round (bench/SCALING.md): the frame is
+ * cut into bands of PAINT_BAND rows, threads take bands, and a band
+ * paints in list order every star that reaches it, clipped to its rows.
+ * Every pixel so gets its stars in the same order whatever the number of
+ * threads: the image does not depend on it.  A star across a band's edge
+ * is rendered once per band, clipped (as the crop clips it).  proto: the
+ * phase grid to use (its grid and grid_emax; may be zeroed).  *ncut
+ * counts the stars the crop cut.  Returns 1 when out of memory. */
+static int paint_frame(const mp_prf_model *m, const mp_star *const *s, size_t n,
+                       const crop_rule *crop, double sign, const mp_prf_work *proto, float *img,
+                       long nx, long ny, long *ncut)
+{
+    long nb = (ny + PAINT_BAND - 1) / PAINT_BAND;
+    size_t *cnt = calloc((size_t)nb + 1, sizeof *cnt), *idx = NULL;
+    double *rad = malloc((n ? n : 1) * sizeof *rad);
+    long *b0 = malloc((n ? n : 1) * sizeof *b0), *b1 = malloc((n ? n : 1) * sizeof *b1);
+    unsigned char *cut = calloc(n ? n : 1, 1);
+    int nomem = !cnt || !rad || !b0 || !b1 || !cut;
+    size_t tot = 0;
+    for (size_t k = 0; !nomem && k < n; k++) {
+        long r0 = 1, r1 = 0;         /* none: what paint leaves undrawn */
+        const mp_star *p = s[k];
+        rad[k] = crop_radius(crop, p);
+        if (isfinite(p->flux) && p->flux != 0.0 && fabs(p->x) < 1e9 && fabs(p->y) < 1e9)
+            star_rows(m, p, rad[k], ny, &r0, &r1);
+        b0[k] = r1 >= r0 ? (r0 - 1) / PAINT_BAND : 1;
+        b1[k] = r1 >= r0 ? (r1 - 1) / PAINT_BAND : 0;
+        for (long b = b0[k]; b <= b1[k]; b++, tot++)
+            cnt[b + 1]++;
+    }
+    /* Each band's stars, in list order (counts to offsets, then filled). */
+    if (!nomem && !(idx = malloc((tot ? tot : 1) * sizeof *idx)))
+        nomem = 1;
+    for (long b = 0; !nomem && b < nb; b++)
+        cnt[b + 1] += cnt[b];
+    size_t *fill = nomem ? NULL : malloc(((size_t)nb + 1) * sizeof *fill);
+    nomem = nomem || !fill;
+    if (!nomem) {
+        memcpy(fill, cnt, ((size_t)nb + 1) * sizeof *fill);
+        for (size_t k = 0; k < n; k++)
+            for (long b = b0[k]; b <= b1[k]; b++)
+                idx[fill[b]++] = k;
+    }
+#pragma omp parallel if (!nomem)
+    {
+        mp_prf_work wk = {0};
+        wk.grid = proto->grid;
+        wk.grid_emax = proto->grid_emax;
+        double *buf = NULL;
+        size_t cap = 0;
+#pragma omp for schedule(dynamic)
+        for (long b = 0; b < nb; b++) {
+            long y0 = 1 + b * PAINT_BAND, h = ny - y0 + 1 < PAINT_BAND ? ny - y0 + 1 : PAINT_BAND;
+            for (size_t q = cnt[b]; q < cnt[b + 1]; q++) {
+                size_t k = idx[q];
+                int c = 0;
+                if (paint(m, s[k], sign, rad[k], img + (size_t)(y0 - 1) * (size_t)nx, 1, y0, nx,
+                          h, &wk, &buf, &cap, &c)) {
+#pragma omp atomic write
+                    nomem = 1;
+                }
+                if (c && b == b0[k])
+                    cut[k] = 1;    /* counted by the star's first band only */
+            }
+        }
+        free(buf);
+        mp_prf_work_free(&wk);
+    }
+    for (size_t k = 0; !nomem && k < n; k++)
+        *ncut += cut[k];
+    free(cnt);
+    free(idx);
+    free(fill);
+    free(rad);
+    free(b0);
+    free(b1);
+    free(cut);
+    return nomem;
+}
+
 /* The model of every live star on the whole frame, each out to its crop
  * radius; *ncut counts the stars cropped. */
 static float *all_stars(const mp_frame *f, const mp_prf_model *m, const star_state *st, size_t n,
@@ -909,23 +1013,21 @@ static float *all_stars(const mp_frame *f, const mp_prf_model *m, const star_sta
 {
     size_t npix = (size_t)f->im.nx * (size_t)f->im.ny;
     float *all = lent ? memset(lent, 0, npix * sizeof *lent) : calloc(npix, sizeof *all);
-    mp_prf_work wk = {0};
-    wk.grid = o->grid;
-    wk.grid_emax = R->gemax;
-    double *buf = NULL;
-    size_t cap = 0;
-    for (size_t k = 0; all && k < n; k++) {
-        int cut = 0;
-        if (st[k].alive && paint(m, &st[k].s, +1.0, crop_radius(crop, &st[k].s), all, 1, 1,
-                                 f->im.nx, f->im.ny, &wk, &buf, &cap, &cut)) {
-            if (!lent)
-                free(all);
-            all = NULL;
-        }
-        *ncut += cut;
+    const mp_star **live = malloc((n ? n : 1) * sizeof *live);
+    size_t nl = 0;
+    for (size_t k = 0; live && k < n; k++)
+        if (st[k].alive)
+            live[nl++] = &st[k].s;
+    mp_prf_work proto = {0};
+    proto.grid = o->grid;
+    proto.grid_emax = R->gemax;
+    if (all && (!live || paint_frame(m, live, nl, crop, +1.0, &proto, all, f->im.nx, f->im.ny,
+                                     ncut))) {
+        if (!lent)
+            free(all);
+        all = NULL;
     }
-    free(buf);
-    mp_prf_work_free(&wk);
+    free(live);
     return all;
 }
 
@@ -1351,21 +1453,26 @@ int mp_fit_residual(const mp_frame *f, const mp_prf_model *m, const mp_table *t,
         snprintf(err, MP_ERRLEN, "residual: table has no fitted columns");
         return 1;
     }
+#pragma omp parallel for schedule(static)
     for (long i = 0; i < nx * ny; i++)
         res[i] = (f->mask && (f->mask[i] & MP_MASK_BAD)) ? NAN : f->im.pix[i];
-    mp_prf_work w = {0};
-    double *buf = NULL;
-    size_t cap = 0;
-    crop_rule crop;
-    int rc = crop_init(f, m, cropfrac, &crop);
-    for (size_t r = 0; r < t->nrow && !rc; r++) {
-        mp_star s = {.x = mp_table_get(t, r, cx), .y = mp_table_get(t, r, cy),
-                     .flux = mp_table_get(t, r, cf), .sky = cs >= 0 ? mp_table_get(t, r, cs) : NAN};
-        rc = paint(m, &s, -1.0, crop_radius(&crop, &s), res, 1, 1, nx, ny, &w, &buf, &cap, NULL);
+    size_t n = t->nrow;
+    mp_star *st = malloc((n ? n : 1) * sizeof *st);
+    const mp_star **ps = malloc((n ? n : 1) * sizeof *ps);
+    crop_rule crop = {0};
+    int rc = !st || !ps || crop_init(f, m, cropfrac, &crop);
+    for (size_t r = 0; !rc && r < n; r++) {
+        st[r] = (mp_star){.x = mp_table_get(t, r, cx), .y = mp_table_get(t, r, cy),
+                          .flux = mp_table_get(t, r, cf),
+                          .sky = cs >= 0 ? mp_table_get(t, r, cs) : NAN};
+        ps[r] = &st[r];
     }
-    free(buf);
+    mp_prf_work none = {0};
+    long ncut = 0;
+    rc = rc || paint_frame(m, ps, n, &crop, -1.0, &none, res, nx, ny, &ncut);
+    free(st);
+    free(ps);
     free(crop.env);
-    mp_prf_work_free(&w);
     if (rc)
         snprintf(err, MP_ERRLEN, "residual: out of memory");
     return rc;
