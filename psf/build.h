@@ -15,8 +15,9 @@
  * start.  Such an iteration never adds what block-summing cannot see (the
  * box's null space: the dotted, multi-peaked tables of anchors.md §3.2),
  * and its early stop, when an iteration's change is below the noise, is
- * the smoothing the noise needs.  Each element is a polynomial of order 0,
- * 1 or 2 in the star's position (PSFEx order: 1, dx, dx², dy, dx·dy, dy²).
+ * the smoothing the noise needs.  Each element is a polynomial of order 0
+ * to 3 in the star's position (PSFEx order: 1, dx, dx², dy, dx·dy, dy² for
+ * order 2; psf.h).
  *
  * Errors: 0 on success, nonzero with one line in err (MP_ERRLEN bytes).
  */
@@ -36,6 +37,9 @@
  * neighbour is left to the star's mask (sirt_mask.c). */
 #define MP_EPSF_MAXNB 12
 #define MP_EPSF_NBMIN 0.05
+
+/* Terms of the highest order the builder makes (MP_PSF_MAXORDER). */
+#define MP_EPSF_MAXT ((MP_PSF_MAXORDER + 1) * (MP_PSF_MAXORDER + 2) / 2)
 
 /* One PSF star: a cut-out of the frame around it, and its current fit.
  * With neighbours (mp_epsf_neighbours) the cut-out as cut is kept in raw,
@@ -64,7 +68,7 @@ typedef struct {
     double psfrad;     /* table half-size [px] */
     double fitrad;     /* radius of each star's fit [px] */
     double fwhm;       /* FWHM of the start (a Gaussian) [px] */
-    int order;         /* 0, 1, 2; -1: auto (mp_epsf_order_test) */
+    int order;         /* 0..MP_PSF_MAXORDER; -1: auto (mp_epsf_order_test) */
     double alpha;      /* the order test's false-alarm probability */
     int maxnpsf;       /* stars used at most (selection) */
     int outer;         /* star fits per pass (each followed by SIRT steps) */
@@ -157,7 +161,7 @@ void mp_epsf_stars_free(mp_epsf_star *s, size_t n);
 
 /* ---- The build (psf/epsf_build.c) ----------------------------------------- */
 
-/* mp_epsf_build: build the table of order o->order (0..2) at OVERSAMP os
+/* mp_epsf_build: build the table of order o->order (0..MP_PSF_MAXORDER) at OVERSAMP os
  * (1..4) from the stars, starting from e when e->planes is set (its order
  * may be lower: the missing terms start at 0), else from a Gaussian of
  * o->fwhm.  Every star not skipped takes part afresh (one rejected by a
@@ -216,7 +220,9 @@ typedef struct {
     double oserr[5];         /* oversamp_error of OVERSAMP 1..4 (index) for the
                               * brightest star (0 where not measured) */
     double chi2;             /* median reduced χ² of the PSF stars' fits */
-    double ptest[3];         /* order test p-values 0→1, 1→2 (NaN: not run) */
+    double ptest[MP_PSF_MAXORDER + 1];   /* order test p-values k→k+1 (index k;
+                              * NaN: not run) */
+    double ztest[MP_PSF_MAXORDER + 1];   /* their standardised statistics */
     char what[512];          /* one line: stars, OVERSAMP, order, sum, why */
 } mp_epsf_report;
 

@@ -35,17 +35,16 @@ void mp_epsf_free(mp_epsf *e)
 
 void mp_epsf_terms(const mp_epsf *e, double x, double y, double *t)
 {
-    double dx = (x - e->x0) / e->xs, dy = (y - e->y0) / e->ys;
-    t[0] = 1.0;
-    if (e->order == 1) {
-        t[1] = dx;
-        t[2] = dy;
-    } else if (e->order == 2) {
-        t[1] = dx;
-        t[2] = dx * dx;
-        t[3] = dy;
-        t[4] = dx * dy;
-        t[5] = dy * dy;
+    /* PSFEx order, as mp_psf_field_terms: y power outer, x power inner. */
+    double dx = (x - e->x0) / e->xs, dy = (y - e->y0) / e->ys, py = 1.0;
+    int k = 0;
+    for (int j = 0; j <= e->order; j++) {
+        double px = 1.0;
+        for (int i = 0; i + j <= e->order; i++) {
+            t[k++] = px * py;
+            px *= dx;
+        }
+        py *= dy;
     }
 }
 
@@ -59,7 +58,7 @@ int mp_epsf_table(const mp_epsf *e, double x, double y, mp_psf *p, char *err)
             return 1;
         }
     }
-    double t[6];
+    double t[MP_EPSF_MAXT];
     mp_epsf_terms(e, x, y, t);
     double s = 0.0;
     for (size_t i = 0; i < nel; i++) {

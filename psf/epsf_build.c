@@ -15,6 +15,17 @@ static int oom(char *err)
     return 1;
 }
 
+/* The powers of x and y of each term of an order, in PSFEx order. */
+static void term_powers(int order, int pw[][2])
+{
+    int k = 0;
+    for (int j = 0; j <= order; j++)
+        for (int i = 0; i + j <= order; i++) {
+            pw[k][0] = i;
+            pw[k++][1] = j;
+        }
+}
+
 /* The start: a Gaussian of o->fwhm, or e's planes padded to order. */
 static int start_planes(const mp_epsf_opts *o, int os, int order, mp_epsf *e, char *err)
 {
@@ -27,12 +38,12 @@ static int start_planes(const mp_epsf_opts *o, int os, int order, mp_epsf *e, ch
         if (!p)
             return oom(err);
         /* Terms keep their meaning across orders: map by powers. */
-        static const int pw[3][6][2] = {
-            {{0, 0}}, {{0, 0}, {1, 0}, {0, 1}},
-            {{0, 0}, {1, 0}, {2, 0}, {0, 1}, {1, 1}, {0, 2}}};
+        int pa[MP_EPSF_MAXT][2], pb[MP_EPSF_MAXT][2];
+        term_powers(e->order, pa);
+        term_powers(order, pb);
         for (int a = 0; a < e->nterms; a++)
             for (int b = 0; b < nterms; b++)
-                if (pw[e->order][a][0] == pw[order][b][0] && pw[e->order][a][1] == pw[order][b][1])
+                if (pa[a][0] == pb[b][0] && pa[a][1] == pb[b][1])
                     memcpy(p + (size_t)b * nel, e->planes + (size_t)a * nel, nel * sizeof *p);
         free(e->planes);
         e->planes = p;
@@ -170,7 +181,7 @@ static size_t count_used(const mp_epsf_star *s, size_t n)
 int mp_epsf_build(mp_epsf_star *s, size_t n, const mp_epsf_opts *o, int os, int order,
                   mp_epsf *e, char *err)
 {
-    if (os < 1 || os > 8 || order < 0 || order > 2) {
+    if (os < 1 || os > 8 || order < 0 || order > MP_PSF_MAXORDER) {
         snprintf(err, MP_ERRLEN, "psf build: oversamp %d or order %d out of range", os, order);
         return 1;
     }

@@ -1,5 +1,5 @@
 /* field.c — spatially variable PSF tables: every element a polynomial of
- * order 0–2 in the star's position (DAOPHOT varorder, PSFEx PSFVAR_DEGREES),
+ * order 0–3 in the star's position (DAOPHOT varorder, PSFEx PSFVAR_DEGREES),
  * evaluated, made and block-summed. */
 #include <math.h>
 #include <stdio.h>

@@ -8,8 +8,8 @@
 #include <unistd.h>
 #include "psf/psf_priv.h"
 
-/* Largest cube read: far beyond any PSF (a 1025² ×8 table of 6 planes is
- * 6.3 M elements), small enough that a forged header cannot ask for more. */
+/* Largest cube read: far beyond any PSF (a 1025² ×8 table of 10 planes is
+ * 10.5 M elements), small enough that a forged header cannot ask for more. */
 #define MAX_ELEMENTS (1L << 25)
 
 void psf_fits_msg(const char *name, const char *what, int status, char *err)
@@ -44,16 +44,19 @@ static int cube_order(fitsfile *fp, const char *name, long nt, int *order, char 
     double o;
     int k = key_double(fp, "PSFORDER", &o);
     if (k == 1) {
-        *order = nt == 1 ? 0 : nt == 3 ? 1 : nt == 6 ? 2 : -1;
+        *order = -1;
+        for (int q = 0; q <= MP_PSF_MAXORDER; q++)
+            if (mp_psf_nterms(q) == nt)
+                *order = q;
     } else if (k == 0 && o == floor(o) && o >= 0 && o <= MP_PSF_MAXORDER) {
         *order = (int)o;
     } else {
-        snprintf(err, MP_ERRLEN, "%s: PSFORDER must be 0, 1 or 2", name);
+        snprintf(err, MP_ERRLEN, "%s: PSFORDER must be 0 .. %d", name, MP_PSF_MAXORDER);
         return 1;
     }
     if (*order < 0 || mp_psf_nterms(*order) != nt) {
         snprintf(err, MP_ERRLEN, "%s: the cube has %ld planes; PSF order %d needs %d "
-                 "(1, 3 or 6 planes for order 0, 1, 2)", name, nt, *order < 0 ? 0 : *order,
+                 "(1, 3, 6 or 10 planes for order 0, 1, 2, 3)", name, nt, *order < 0 ? 0 : *order,
                  mp_psf_nterms(*order < 0 ? 0 : *order));
         return 1;
     }
@@ -198,7 +201,7 @@ static int read_cube(fitsfile *fp, const char *name, const long naxes[3], int no
                  "(star at the centre of the central element)", name, naxes[0], naxes[1]);
         return 1;
     }
-    if (naxes[0] * naxes[1] > MAX_ELEMENTS / 8) {
+    if (naxes[0] * naxes[1] > MAX_ELEMENTS / 16) {
         snprintf(err, MP_ERRLEN, "%s: PSF table of %ldx%ld elements is too large", name,
                  naxes[0], naxes[1]);
         return 1;
@@ -461,8 +464,8 @@ static void write_keys(fitsfile *fp, const mp_psf_field *f, int *status)
     write_exact(fp, "POLSCAL1", f->xscale, "dx = (x - POLZERO1)/POLSCAL1", status);
     write_exact(fp, "POLSCAL2", f->yscale, "dy = (y - POLZERO2)/POLSCAL2", status);
     write_exact(fp, "PSFSUM", f->sum, "light fraction of the table at the origin", status);
-    fits_write_comment(fp, "planes: 1, dx, dx^2, dy, dx*dy, dy^2 (PSFEx order, to PSFORDER)",
-                       status);
+    fits_write_comment(fp, "planes: PSFEx order, dy power outer, dx power inner, total degree "
+                       "<= PSFORDER: 1, dx, dx^2, dy, dx*dy, dy^2 for order 2", status);
     if (f->nstar > 0)
         fits_write_key(fp, TINT, "PSFNSTAR", (void *)&f->nstar, "PSF stars used", status);
     if (f->offset != 0.0) {

@@ -196,7 +196,8 @@ static int choose_order(mp_epsf_star *s, size_t n, const mp_epsf_opts *o, mp_eps
         if (mp_epsf_order_test(s, n, e, o->fitrad, &p, &z, err))
             return 1;
         rep->ptest[e->order] = p;
-        if (e->order >= 2 || !(p < o->alpha))
+        rep->ztest[e->order] = z;
+        if (e->order >= MP_PSF_MAXORDER || !(p < o->alpha))
             break;
         int was = e->order;
         if (mp_epsf_build(s, n, o, e->os, was + 1, e, err))
@@ -204,14 +205,15 @@ static int choose_order(mp_epsf_star *s, size_t n, const mp_epsf_opts *o, mp_eps
     }
     size_t l = strlen(e->why);
     snprintf(e->why + l, sizeof e->why - l, "auto: order %d", e->order);
-    for (int k = 0; k <= e->order && k < 2; k++) {
+    for (int k = 0; k <= e->order && k < MP_PSF_MAXORDER; k++) {
         l = strlen(e->why);
         if (isnan(rep->ptest[k]))      /* raised in the first pass */
             snprintf(e->why + l, sizeof e->why - l, "%s order %d->%d in the first pass",
                      k ? ";" : " (", k, k + 1);
         else
-            snprintf(e->why + l, sizeof e->why - l, "%s order %d->%d p=%.2g%s", k ? ";" : " (",
-                     k, k + 1, rep->ptest[k], rep->ptest[k] < o->alpha ? " <" : " >=");
+            snprintf(e->why + l, sizeof e->why - l, "%s order %d->%d p=%.2g (z %.1f)%s",
+                     k ? ";" : " (", k, k + 1, rep->ptest[k], rep->ztest[k],
+                     rep->ptest[k] < o->alpha ? " <" : " >=");
     }
     l = strlen(e->why);
     snprintf(e->why + l, sizeof e->why - l, " alpha %.0e)", o->alpha);
@@ -227,7 +229,8 @@ int mp_epsf_pass(const mp_frame *f, const float *img, int residual, const mp_tab
     double *sky = malloc((n + 1) * sizeof *sky);
     int rc = 1;
     rep->what[0] = '\0';
-    rep->ptest[0] = rep->ptest[1] = rep->ptest[2] = NAN;
+    for (int k = 0; k <= MP_PSF_MAXORDER; k++)
+        rep->ptest[k] = rep->ztest[k] = NAN;
     if (!sky) {
         snprintf(err, MP_ERRLEN, "psf build: out of memory");
         return 1;

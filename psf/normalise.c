@@ -37,7 +37,7 @@ static void recentre(mp_epsf *e, double fwhm, double *dx, double *dy)
     double cx = (e->nx - 1) / 2, cy = (e->ny - 1) / 2;
     mp_five_point(e->planes, e->nx, e->ny, 0, dx);
     mp_five_point(e->planes, e->nx, e->ny, 1, dy);
-    double kx = 0.0, ky = 0.0, mx[6] = {0}, my[6] = {0};
+    double kx = 0.0, ky = 0.0, mx[MP_EPSF_MAXT] = {0}, my[MP_EPSF_MAXT] = {0};
     for (int j = 0; j < e->ny; j++)
         for (int i = 0; i < e->nx; i++) {
             double u = i - cx, v = j - cy, wgt = exp(-0.5 * (u * u + v * v) / (sw * sw));

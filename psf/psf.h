@@ -15,11 +15,13 @@
  *   primary HDU  2-D image (order 0: one table) or 3-D cube
  *                NAXIS1 × NAXIS2 × NTERMS, odd sizes;
  *   OVERSAMP     int, table elements per detector pixel (1..8);
- *   PSFORDER     0, 1 or 2: polynomial order in (x, y) of every element;
+ *   PSFORDER     0..3: polynomial order in (x, y) of every element;
  *   POLZERO1/2   1-based pixel x, y of the polynomial's origin;
  *   POLSCAL1/2   its scales: dx = (x − POLZERO1)/POLSCAL1, likewise dy;
- *   planes       in PSFEx order, x powers fastest: 1, dx, dx², dy, dx·dy,
- *                dy² (order 1: 1, dx, dy), so T(x,y) = Σ_k P_k · term_k;
+ *   planes       in PSFEx order, y power outer, x power inner, total
+ *                degree ≤ PSFORDER: 1, dx, dx², dy, dx·dy, dy² (order 1:
+ *                1, dx, dy; order 3: 1, dx, dx², dx³, dy, dx·dy, dx²·dy,
+ *                dy², dx·dy², dy³), so T(x,y) = Σ_k P_k · term_k;
  *   PSFSUM       fraction of a star's light the table holds at the origin;
  *   PSFORDWH     optional string: why this order;
  *   PSFNSTAR     optional: number of PSF stars used;
@@ -96,10 +98,10 @@ void mp_psf_free(mp_psf *p);
  * GriddedPSFModel, Anderson's STDPSF), interpolated bilinearly between the
  * four around a star (clamped to the grid's edge, never extrapolated);
  * plane j·ngx + i is the table at (gx[i], gy[j]). */
-enum { MP_PSF_MAXORDER = 2, MP_PSF_GRID = 9, MP_PSF_MAXGRID = 32, MP_PSF_MAXTERMS = 256 };
+enum { MP_PSF_MAXORDER = 3, MP_PSF_GRID = 9, MP_PSF_MAXGRID = 32, MP_PSF_MAXTERMS = 256 };
 
 struct mp_psf_field_s {
-    int order;         /* 0, 1 or 2; MP_PSF_GRID */
+    int order;         /* 0..MP_PSF_MAXORDER; MP_PSF_GRID */
     int nterms;        /* (order+1)(order+2)/2; a grid's ngx·ngy */
     double x0, y0;     /* origin (1-based pixel x, y): POLZERO1/2 (a grid's centre) */
     double xscale, yscale;   /* POLSCAL1/2 (> 0 for order ≥ 1; a grid's span) */
@@ -119,12 +121,13 @@ typedef struct {
     int used;
 } mp_psf_star;
 
-/* mp_psf_nterms: the number of polynomial terms of an order (0..2), 0 for
- * any other order. */
+/* mp_psf_nterms: the number of polynomial terms of an order
+ * (0..MP_PSF_MAXORDER), 0 for any other order. */
 int mp_psf_nterms(int order);
 
 /* mp_psf_field_terms: the values of the order's terms at (x, y) in PSFEx
- * order (1, dx, dx², dy, dx·dy, dy²; order 1: 1, dx, dy); for a grid, the
+ * order (y power outer, x power inner: 1, dx, dx², dy, dx·dy, dy² for
+ * order 2; order 1: 1, dx, dy); for a grid, the
  * bilinear weight of every plane (at most four nonzero). */
 void mp_psf_field_terms(const mp_psf_field *f, double x, double y, double *terms);
 

@@ -74,8 +74,8 @@ static int read_keys(fitsfile *fp, const char *name, psfex_keys *k, char *err)
 static int check_keys(const char *name, const psfex_keys *k, char *err)
 {
     if (!(k->deg >= 0 && k->deg <= MP_PSF_MAXORDER && k->deg == floor(k->deg))) {
-        snprintf(err, MP_ERRLEN, "%s: PSFEx polynomial degree %g; matphot evaluates 0, 1 or 2",
-                 name, k->deg);
+        snprintf(err, MP_ERRLEN, "%s: PSFEx polynomial degree %g; matphot evaluates 0 to %d",
+                 name, k->deg, MP_PSF_MAXORDER);
         return 1;
     }
     int deg = (int)k->deg;

@@ -130,13 +130,13 @@ static int backproject(mp_epsf_sirt *w, const mp_epsf_star *s, const mp_epsf *e,
 static int wls(const mp_epsf_sirt *w, size_t el, const size_t *idx, size_t m, const double *terms,
                int nt, double *c)
 {
-    double A[36] = {0};
+    double A[MP_EPSF_MAXT * MP_EPSF_MAXT] = {0};
     for (int t = 0; t < nt; t++)
         c[t] = 0.0;
     for (size_t q = 0; q < m; q++) {
         size_t k = idx[q];
         double h = w->H[k * w->nel + el], G = w->G[k * w->nel + el];
-        const double *tk = terms + k * 6;
+        const double *tk = terms + k * MP_EPSF_MAXT;
         for (int a = 0; a < nt; a++) {
             c[a] += tk[a] * G;
             for (int b = 0; b <= a; b++)
@@ -177,7 +177,7 @@ static void combine_element(mp_epsf_sirt *w, size_t el, const mp_epsf_star *s, s
         size_t k = idx[q];
         double h = w->H[k * nel + el], g = w->G[k * nel + el] / h, mod = 0;
         for (int t = 0; t < nt; t++)
-            mod += terms[k * 6 + t] * c[t];
+            mod += terms[k * MP_EPSF_MAXT + t] * c[t];
         dev[q] = fabs(g - mod) * sqrt(h);
     }
     double *tmp = dev + n;
@@ -190,7 +190,7 @@ static void combine_element(mp_epsf_sirt *w, size_t el, const mp_epsf_star *s, s
         if (!s[k].used || !(h > 0))
             continue;
         for (int t = 0; t < nt; t++)
-            mod += terms[k * 6 + t] * c[t];
+            mod += terms[k * MP_EPSF_MAXT + t] * c[t];
         if (fabs(w->G[k * nel + el] / h - mod) * sqrt(h) > 4.0 * sig)
             w->mask[k * nel + el] |= MP_EPSF_HIT;
     }
@@ -243,7 +243,7 @@ int mp_epsf_sirt_run(mp_epsf_sirt *w, const mp_epsf_star *s, size_t n, const mp_
 {
     int nt = e->nterms, rc = 1;
     size_t nel = w->nel;
-    double *terms = malloc(n * 6 * sizeof *terms);
+    double *terms = malloc(n * MP_EPSF_MAXT * sizeof *terms);
     double *dev = malloc(2 * (n + 1) * sizeof *dev);
     size_t *idx = malloc((n + 1) * sizeof *idx);
     double *upd = malloc((size_t)nt * nel * sizeof *upd);
@@ -252,7 +252,7 @@ int mp_epsf_sirt_run(mp_epsf_sirt *w, const mp_epsf_star *s, size_t n, const mp_
         goto done;
     }
     for (size_t k = 0; k < n; k++)
-        mp_epsf_terms(e, s[k].x, s[k].y, terms + k * 6);
+        mp_epsf_terms(e, s[k].x, s[k].y, terms + k * MP_EPSF_MAXT);
     /* Elements beyond psfrad (less the half pixel a block reaches) hold
      * nothing: the table is defined on the disc its stars' pixels cover,
      * the light beyond is PSFSUM's (growth.c). */
@@ -294,7 +294,7 @@ int mp_epsf_sirt_run(mp_epsf_sirt *w, const mp_epsf_star *s, size_t n, const mp_
             double r = hypot(i - (e->nx - 1) / 2, j - (e->ny - 1) / 2);
             if (r > rmax)
                 continue;
-            double c[6];
+            double c[MP_EPSF_MAXT];
             combine_element(w, el, s, n, terms, nt, idx, dev, c, r > rcore);
             for (int t = 0; t < nt; t++)
                 upd[(size_t)t * nel + el] = c[t];

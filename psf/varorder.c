@@ -18,12 +18,12 @@
 #include "psf/build_priv.h"
 
 /* RSS of the unweighted LS fit of z[idx] on the first nt columns of the
- * term rows (6 per star). */
+ * term rows (MP_EPSF_MAXT per star). */
 static double rss(const double *z, const double *terms, const size_t *idx, size_t m, int nt)
 {
-    double A[36] = {0}, c[6] = {0};
+    double A[MP_EPSF_MAXT * MP_EPSF_MAXT] = {0}, c[MP_EPSF_MAXT] = {0};
     for (size_t q = 0; q < m; q++) {
-        const double *t = terms + idx[q] * 6;
+        const double *t = terms + idx[q] * MP_EPSF_MAXT;
         for (int a = 0; a < nt; a++) {
             c[a] += t[a] * z[q];
             for (int b = 0; b <= a; b++)
@@ -37,7 +37,7 @@ static double rss(const double *z, const double *terms, const size_t *idx, size_
         return NAN;
     double r = 0;
     for (size_t q = 0; q < m; q++) {
-        const double *t = terms + idx[q] * 6;
+        const double *t = terms + idx[q] * MP_EPSF_MAXT;
         double mod = 0;
         for (int a = 0; a < nt; a++)
             mod += t[a] * c[a];
@@ -92,7 +92,7 @@ int mp_epsf_order_test(const mp_epsf_star *s, size_t n, const mp_epsf *e, double
 {
     *p = 1.0;
     *stat = 0.0;
-    if (e->order >= 2)
+    if (e->order >= MP_PSF_MAXORDER)
         return 0;
     int nt0 = e->nterms, nt1 = (e->order + 2) * (e->order + 3) / 2, q = nt1 - nt0;
     int R = (int)ceil(fitrad), side = 2 * R + 1, np = side * side;
@@ -102,7 +102,7 @@ int mp_epsf_order_test(const mp_epsf_star *s, size_t n, const mp_epsf *e, double
     if (nu < (size_t)(3 * nt1 + 5))
         return 0;
     double *z = malloc(nu * (size_t)np * sizeof *z);
-    double *terms = malloc(nu * 6 * sizeof *terms);
+    double *terms = malloc(nu * MP_EPSF_MAXT * sizeof *terms);
     double *zc = malloc((nu + 1) * sizeof *zc);
     size_t *idx = malloc((nu + 1) * sizeof *idx);
     mp_psf tab;
@@ -114,27 +114,23 @@ int mp_epsf_order_test(const mp_epsf_star *s, size_t n, const mp_epsf *e, double
         snprintf(err, MP_ERRLEN, "psf build: out of memory");
         goto done;
     }
-    /* The next order's terms, in its own PSFEx order, with the current
-     * order's terms first (as columns 0..nt0−1) so that the reduced model
-     * is the first nt0 columns. */
+    /* The next order's terms with the current order's first (as columns
+     * 0..nt0−1) so that the reduced model is the first nt0 columns. */
     mp_epsf next = *e;
     next.order = e->order + 1;
     size_t u = 0;
     for (size_t k = 0; k < n; k++) {
         if (!s[k].used)
             continue;
-        double t1[6], *t = terms + u * 6;
+        double t1[MP_EPSF_MAXT], *t = terms + u * MP_EPSF_MAXT;
         mp_epsf_terms(&next, s[k].x, s[k].y, t1);
-        if (next.order == 1) {           /* 1, dx, dy */
-            memcpy(t, t1, 3 * sizeof *t);
-        } else {                         /* 1, dx, dy | dx², dxdy, dy² */
-            t[0] = t1[0];
-            t[1] = t1[1];
-            t[2] = t1[3];
-            t[3] = t1[2];
-            t[4] = t1[4];
-            t[5] = t1[5];
-        }
+        /* PSFEx order is y power outer: the terms of total degree
+         * next.order are the last of each row of y power; move them to
+         * the end, keeping the rest in order. */
+        int a = 0, b = nt0, q1 = 0;
+        for (int j = 0; j <= next.order; j++)
+            for (int i = 0; i + j <= next.order; i++, q1++)
+                t[i + j == next.order ? b++ : a++] = t1[q1];
         if (residuals(&s[k], e, R, fitrad, z + u * np, &tab, &w, err))
             goto done;
         u++;

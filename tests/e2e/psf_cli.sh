@@ -45,7 +45,7 @@ printf '#   1 X_IMAGE                Object position along x                    
 bad "list off the frame" "row 2: star at (500, 20) is outside" "$T/f.fits" stars="$T/off.lis"
 printf '#   1 NUMBER                 Running object number\n 1\n' >"$T/nopos.lis"
 bad "list without positions" "no X_IMAGE/Y_IMAGE" "$T/f.fits" stars="$T/nopos.lis"
-bad "unknown varorder" "varorder" "$T/f.fits" varorder=3
+bad "unknown varorder" "varorder" "$T/f.fits" varorder=4
 
 [ "$fails" -eq 0 ] || exit 1
 echo "psf_cli: ok"

@@ -64,15 +64,18 @@ static void truth_one(double s1, double s2, double rad, double *t, int *n)
 
 /* The truth at column position u (−1..1): the blend (1−w)·A + w·B,
  * w = (1+u)/2, of cores of σx 1 − grad and 1 + grad: every element
- * exactly linear in position, as the model (PSFEx, DAOPHOT) has it. */
-static void truth_fine(double grad, double u, double rad, double *t, int *n)
+ * exactly linear in position, as the model (PSFEx, DAOPHOT) has it.
+ * cubic: w = (1 + P₃(u))/2, P₃(u) = (5u³ − 3u)/2 the Legendre cubic (no
+ * linear or quadratic part over a uniform spread of stars: only the
+ * cubic terms of the model see it), every element exactly cubic. */
+static void truth_fine(double grad, int cubic, double u, double rad, double *t, int *n)
 {
     int h = (int)ceil(rad * FOS), m = 2 * h + 1;
     double *b = malloc(sizeof(double) * m * m);
     assert_non_null(b);
     truth_one(1.0 - grad, 1.3, rad, t, n);
     truth_one(1.0 + grad, 1.3, rad, b, n);
-    double w = 0.5 * (1.0 + u);
+    double w = 0.5 * (1.0 + (cubic ? 0.5 * (5.0 * u * u * u - 3.0 * u) : u));
     for (int i = 0; i < m * m; i++)
         t[i] = (1.0 - w) * t[i] + w * b[i];
     free(b);
@@ -80,10 +83,11 @@ static void truth_fine(double grad, double u, double rad, double *t, int *n)
 
 typedef struct { double x, y, f; } tstar;
 
-/* A frame of NSTAR stars whose core σx grows linearly with x by grad
- * (0: constant), fluxes 2e4..4e5 log-uniform, on a grid with jitter so
- * they do not overlap much. */
-static void make_frame(uint64_t seed, double grad, double rad, mp_frame *f, tstar *ts)
+/* A frame of NSTAR stars whose core σx grows with x by grad (0:
+ * constant), linearly or as P₃ (cubic; truth_fine), fluxes 2e4..4e5
+ * log-uniform, on a grid with jitter so they do not overlap much. */
+static void make_frame(uint64_t seed, double grad, int cubic, double rad, mp_frame *f,
+                       tstar *ts)
 {
     mp_rng r;
     mp_rng_seed(&r, seed);
@@ -109,7 +113,7 @@ static void make_frame(uint64_t seed, double grad, double rad, mp_frame *f, tsta
         double flux = 2e4 * pow(20.0, mp_rng_uniform(&r));
         double u = (x - 0.5 * (NX + 1)) / (0.5 * NX);
         int n;
-        truth_fine(grad, u, rad, tab, &n);
+        truth_fine(grad, cubic, u, rad, tab, &n);
         mp_sim_prf p = {MP_SIM_TABLE, 0, tab, n, n, FOS, NULL, 0, 1.0};
         mp_sim_snap(&p, &x, &y);
         assert_int_equal(mp_sim_add_star_float(&p, x, y, flux, f->im.pix, NX, NX), 0);
@@ -120,12 +124,12 @@ static void make_frame(uint64_t seed, double grad, double rad, mp_frame *f, tsta
 }
 
 /* The truth at ×BOS at column position u (−1..1). */
-static void truth_table(double grad, double u, double rad, mp_psf *p)
+static void truth_table(double grad, int cubic, double u, double rad, mp_psf *p)
 {
     double *tab = malloc(sizeof(double) * 200 * 200);
     assert_non_null(tab);
     int n;
-    truth_fine(grad, u, rad, tab, &n);
+    truth_fine(grad, cubic, u, rad, tab, &n);
     mp_psf fine = {MP_PSF_TABLE, n, n, FOS, tab, 1.0, 0, 0, NULL};
     char err[MP_ERRLEN];
     assert_int_equal(mp_psf_rebin(&fine, FOS / BOS, p, err), 0);
@@ -199,7 +203,7 @@ static void test_recovers_constant_table(void **state)
     const double rad = 6.0;
     mp_frame f;
     tstar ts[NSTAR];
-    make_frame(11, 0.0, rad, &f, ts);
+    make_frame(11, 0.0, 0, rad, &f, ts);
     mp_epsf_opts o;
     mp_epsf_opts_default(2.6, NX, NX, &o);
     o.psfrad = rad;
@@ -211,7 +215,7 @@ static void test_recovers_constant_table(void **state)
     assert_int_equal(mp_epsf_build(s, NSTAR, &o, BOS, 0, &e, err), 0);
     mp_psf truth, built, start;
     memset(&built, 0, sizeof built);
-    truth_table(0.0, 0.0, rad, &truth);
+    truth_table(0.0, 0, 0.0, rad, &truth);
     assert_int_equal(mp_epsf_table(&e, o.x0, o.y0, &built, err), 0);
     assert_int_equal(mp_psf_gauss_table(2.6, BOS, rad, &start, err), 0);
     int np;
@@ -225,6 +229,12 @@ static void test_recovers_constant_table(void **state)
     assert_true(c_built < CHI2_TOL);
     assert_true(c_start > 30.0);
     assert_true(p > 1e-3);
+    /* The order-2 build of the same stars: order 3 not asked for either. */
+    double p2, st2;
+    assert_int_equal(mp_epsf_build(s, NSTAR, &o, BOS, 2, &e, err), 0);
+    assert_int_equal(mp_epsf_order_test(s, NSTAR, &e, o.fitrad, &p2, &st2, err), 0);
+    printf("# constant: order 2->3 p %.3g (z %.1f)\n", p2, st2);
+    assert_true(p2 > 1e-3);
     mp_psf_free(&truth);
     mp_psf_free(&built);
     mp_psf_free(&start);
@@ -243,7 +253,7 @@ static void test_linear_variation(void **state)
     const double rad = 6.0, grad = 0.15;
     mp_frame f;
     tstar ts[NSTAR];
-    make_frame(12, grad, rad, &f, ts);
+    make_frame(12, grad, 0, rad, &f, ts);
     mp_epsf_opts o;
     mp_epsf_opts_default(2.6, NX, NX, &o);
     o.psfrad = rad;
@@ -265,7 +275,7 @@ static void test_linear_variation(void **state)
         mp_psf truth, built, flat;
         memset(&built, 0, sizeof built);
         memset(&flat, 0, sizeof flat);
-        truth_table(grad, u, rad, &truth);
+        truth_table(grad, 0, u, rad, &truth);
         assert_int_equal(mp_epsf_table(&e, x, o.y0, &built, err), 0);
         /* the order-1 table without its slope: what order 0 would give */
         mp_epsf e0 = e;
@@ -288,6 +298,91 @@ static void test_linear_variation(void **state)
         mp_psf_free(&truth);
         mp_psf_free(&built);
         mp_psf_free(&flat);
+    }
+    mp_epsf_free(&e);
+    mp_epsf_stars_free(s, NSTAR);
+    free(f.im.pix);
+    free(f.mask);
+}
+
+/* N · the leverage of a fit of the order's terms over the stars at
+ * (x, y): the variance of the fitted table there over that of the mean
+ * of all stars (1 + u²/⟨u²⟩ for a centred line). */
+static double leverage(const mp_epsf *e, const tstar *ts, double x, double y)
+{
+    int nt = e->nterms;
+    double A[MP_EPSF_MAXT * MP_EPSF_MAXT] = {0}, t[MP_EPSF_MAXT], b[MP_EPSF_MAXT];
+    for (int k = 0; k < NSTAR; k++) {
+        mp_epsf_terms(e, ts[k].x, ts[k].y, t);
+        for (int a = 0; a < nt; a++)
+            for (int c = 0; c < nt; c++)
+                A[a * nt + c] += t[a] * t[c];
+    }
+    mp_epsf_terms(e, x, y, t);
+    memcpy(b, t, sizeof b);
+    assert_int_equal(mp_epsf_solve(A, b, nt), 0);
+    double h = 0;
+    for (int a = 0; a < nt; a++)
+        h += t[a] * b[a];
+    return NSTAR * h;
+}
+
+/* σx of the core runs 0.85 … 1.15 px as P₃ of the column position
+ * (truth_fine): an order-2 table misses the cubic part, so the order
+ * test of the order-2 build must ask for order 3, and the order-3 table
+ * at u = ±0.5 (P₃ = ∓0.44, where order 2 is worst off) must match the
+ * truth within the noise its stars predict for a 10-term fit (CHI2_TOL,
+ * the variance scaled by the fit's leverage there).  A constant PSF
+ * built at order 2 must not be raised (its test is in
+ * test_recovers_constant_table's frame: p > alpha, false-raise rate
+ * alpha = 1e-3 under the test's normal approximation). */
+static void test_cubic_variation(void **state)
+{
+    (void)state;
+    const double rad = 6.0, grad = 0.15;
+    mp_frame f;
+    tstar ts[NSTAR];
+    make_frame(17, grad, 1, rad, &f, ts);
+    mp_epsf_opts o;
+    mp_epsf_opts_default(2.6, NX, NX, &o);
+    o.psfrad = rad;
+    o.fitrad = 4.0;
+    mp_epsf_star *s = stars_of(&f, ts, &o);
+    mp_epsf e;
+    memset(&e, 0, sizeof e);
+    char err[MP_ERRLEN];
+    double p2, st2, p3, st3;
+    assert_int_equal(mp_epsf_build(s, NSTAR, &o, BOS, 2, &e, err), 0);
+    assert_int_equal(mp_epsf_order_test(s, NSTAR, &e, o.fitrad, &p2, &st2, err), 0);
+    mp_psf q2[2];
+    memset(q2, 0, sizeof q2);
+    for (int side = 0; side < 2; side++)
+        assert_int_equal(mp_epsf_table(&e, 0.5 * (NX + 1) + (side ? 0.25 : -0.25) * NX, o.y0,
+                                       &q2[side], err), 0);
+    assert_int_equal(mp_epsf_build(s, NSTAR, &o, BOS, 3, &e, err), 0);
+    assert_int_equal(mp_epsf_order_test(s, NSTAR, &e, o.fitrad, &p3, &st3, err), 0);
+    printf("# cubic: order 2->3 p %.3g (z %.1f); at order 3 the test is not run (p %.3g)\n",
+           p2, st2, p3);
+    assert_true(p2 < 1e-3);
+    assert_true(p3 == 1.0);
+    for (int side = 0; side < 2; side++) {
+        double u = side ? 0.5 : -0.5, x = 0.5 * (NX + 1) + u * 0.5 * NX;
+        mp_psf truth, built;
+        memset(&built, 0, sizeof built);
+        truth_table(grad, 1, u, rad, &truth);
+        assert_int_equal(mp_epsf_table(&e, x, o.y0, &built, err), 0);
+        double vf = leverage(&e, ts, x, o.y0);
+        int np;
+        double cb = prf_chi2(&built, &truth, ts, vf, &np);
+        double c2 = prf_chi2(&q2[side], &truth, ts, leverage(&(mp_epsf){.order = 2, .nterms = 6,
+                             .x0 = e.x0, .y0 = e.y0, .xs = e.xs, .ys = e.ys}, ts, x, o.y0), &np);
+        printf("# cubic: at u = %+.1f chi2/pix order 3 %.3f (leverage %.2f), order 2 %.1f\n", u,
+               cb, vf, c2);
+        assert_true(cb < CHI2_TOL);
+        assert_true(c2 > 10.0);
+        mp_psf_free(&truth);
+        mp_psf_free(&built);
+        mp_psf_free(&q2[side]);
     }
     mp_epsf_free(&e);
     mp_epsf_stars_free(s, NSTAR);
@@ -394,7 +489,7 @@ static void add_companions(uint64_t seed, double rad, double d0, double lo, doub
     double *tab = malloc(sizeof(double) * 200 * 200);
     assert_non_null(tab);
     int n;
-    truth_fine(0.0, 0.0, rad, tab, &n);
+    truth_fine(0.0, 0, 0.0, rad, tab, &n);
     mp_sim_prf p = {MP_SIM_TABLE, 0, tab, n, n, FOS, NULL, 0, 1.0};
     double *img = calloc((size_t)NX * NX, sizeof *img);
     assert_non_null(img);
@@ -446,14 +541,14 @@ static void test_neighbours_fitted(void **state)
     const double rad = 6.0;
     mp_frame f;
     tstar ts[NSTAR], cs[NSTAR];
-    make_frame(13, 0.0, rad, &f, ts);
+    make_frame(13, 0.0, 0, rad, &f, ts);
     add_companions(14, rad, 3.5, 0.2, 0.4, &f, ts, cs);
     mp_epsf_opts o;
     mp_epsf_opts_default(2.6, NX, NX, &o);
     o.psfrad = rad;
     o.fitrad = 4.0;
     mp_psf truth;
-    truth_table(0.0, 0.0, rad, &truth);
+    truth_table(0.0, 0, 0.0, rad, &truth);
     mp_table t;
     neighbour_table(ts, cs, &t);
     char err[MP_ERRLEN];
@@ -507,7 +602,7 @@ static void test_growth_finds_outer_light(void **state)
     const double rad = 10.0;
     mp_frame f;
     tstar ts[NSTAR];
-    make_frame(15, 0.0, rad, &f, ts);
+    make_frame(15, 0.0, 0, rad, &f, ts);
     mp_epsf_opts o;
     mp_epsf_opts_default(2.6, NX, NX, &o);
     o.psfrad = 5.0;
@@ -543,7 +638,7 @@ static void test_faint_neighbours_masked(void **state)
     const double rad = 8.0;
     mp_frame f;
     tstar ts[NSTAR], cs[NSTAR];
-    make_frame(16, 0.0, rad, &f, ts);
+    make_frame(16, 0.0, 0, rad, &f, ts);
     add_companions(17, rad, 5.5, 0.03, 0.08, &f, ts, cs);
     mp_epsf_opts o;
     mp_epsf_opts_default(2.6, NX, NX, &o);
@@ -551,7 +646,7 @@ static void test_faint_neighbours_masked(void **state)
     o.fitrad = 4.0;
     mp_psf truth, built;
     memset(&built, 0, sizeof built);
-    truth_table(0.0, 0.0, rad, &truth);
+    truth_table(0.0, 0, 0.0, rad, &truth);
     mp_epsf_star *s = stars_of(&f, ts, &o);
     mp_epsf e;
     memset(&e, 0, sizeof e);
@@ -575,6 +670,7 @@ int main(void)
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(test_recovers_constant_table),
         cmocka_unit_test(test_linear_variation),
+        cmocka_unit_test(test_cubic_variation),
         cmocka_unit_test(test_cutout_add_reads_field_at_star),
         cmocka_unit_test(test_neighbours_fitted),
         cmocka_unit_test(test_growth_finds_outer_light),

@@ -103,6 +103,14 @@ static void test_eval_is_the_polynomial(void **state)
     assert_near(terms[1], 0.5, 0);
     assert_near(terms[2], -0.5, 0);
     mp_psf_field_free(&g);
+    /* Order 3 (README): 1, dx, dx², dx³, dy, dx·dy, dx²·dy, dy², dx·dy², dy³. */
+    assert_int_equal(mp_psf_field_new(3, 1, 1, 1, 10.0, 20.0, 4.0, 8.0, &g, err), 0);
+    assert_int_equal(g.nterms, 10);
+    mp_psf_field_terms(&g, 18.0, 16.0, terms);      /* dx 2, dy −0.5 */
+    const double want3[10] = {1, 2, 4, 8, -0.5, -1, -2, 0.25, 0.5, -0.125};
+    for (int k = 0; k < 10; k++)
+        assert_near(terms[k], want3[k], 0);
+    mp_psf_field_free(&g);
     mp_psf_field_free(&f);
 }
 
@@ -253,6 +261,12 @@ static void test_bad_cubes(void **state)
     assert_int_equal(mp_psf_field_read(p, 0, 0, &f, NULL, NULL, warn, err), 0);
     assert_int_equal(f.order, 1);
     mp_psf_field_free(&f);
+    write_cube(p, 5, 5, 10, NULL, "20", 0.0);         /* 10 planes: order 3 */
+    assert_int_equal(mp_psf_field_read(p, 0, 0, &f, NULL, NULL, warn, err), 0);
+    assert_int_equal(f.order, 3);
+    mp_psf_field_free(&f);
+    write_cube(p, 5, 5, 15, "4", "20", 0.0);
+    expect_error(p, "PSFORDER must be 0 .. 3");
     write_cube(p, 5, 5, 4, NULL, "20", 0.0);
     expect_error(p, "4 planes");
     write_cube(p, 5, 5, 3, "2", "20", 0.0);

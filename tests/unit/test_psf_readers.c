@@ -259,8 +259,16 @@ static void test_psfex_synthetic(void **state)
     assert_true(fabs(t.t[3 * 7 + 3] - 1.0) < 1e-15 && fabs(t.t[3 * 7 + 4] - 0.25) < 1e-15);
     mp_psf_free(&t);
     mp_psf_field_free(&f);
+    /* Degree 3 (10 planes, PSFEx order as matphot's): read, evaluated. */
     write_psfex(path, 3, 10, 1, 1.0);
-    expect_error(path, "degree 3");
+    assert_int_equal(mp_psf_field_read(path, 0, 0, &f, NULL, NULL, warn, err), 0);
+    assert_int_equal(f.order, 3);
+    assert_int_equal(mp_psf_field_eval(&f, 150.0, 50.0, &t, err), 0);
+    assert_true(fabs(t.t[3 * 7 + 3] - 1.0) < 1e-15 && fabs(t.t[3 * 7 + 4] - 0.25) < 1e-15);
+    mp_psf_free(&t);
+    mp_psf_field_free(&f);
+    write_psfex(path, 4, 15, 1, 1.0);
+    expect_error(path, "degree 4");
     write_psfex(path, 2, 3, 1, 1.0);
     expect_error(path, "PSFAXIS3 3 does not match degree 2");
     write_psfex(path, 1, 3, 2, 1.0);

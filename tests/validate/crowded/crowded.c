@@ -229,7 +229,7 @@ static int do_sim(const char *dir)
     }
     for (int i = 0; i < n; i++)
         js[i] = (jb_star){s[i].x, s[i].y, s[i].flux};
-    jb_scene jsc = {sigma, RON, SATURATE, FITRAD, NX, NY, img};
+    jb_scene jsc = {sigma, RON, SATURATE, FITRAD, NX, NY, img, NULL, 0};
     if (joint_bounds(&jsc, js, n, bse, bsx, bsy, &jmax)) {
         fprintf(stderr, "crowded: out of memory\n");
         return 1;
@@ -588,6 +588,28 @@ static int do_match(const char *dir, const char *root, const char *label)
                 break;
             }
     }
+
+    /* Each unsaturated field star's normalised flux error (NaN: not found;
+     * ne_res NaN: an unfound star within 2 FWHM) and its S/N at the joint
+     * bound, for `crowdpool` (several realisations pooled per bin). */
+    snprintf(path, sizeof path, "%s/%s_ne.dat", dir, root);
+    FILE *ned = fopen(path, "w");
+    if (!ned) {
+        fprintf(stderr, "crowded: %s: cannot write\n", path);
+        return 1;
+    }
+    fprintf(ned, "# mag_true ne ne_res snr_joint ne_joint (unsaturated field stars; NaN: not "
+            "found; ne_joint: (E - Et)/FLUXERR_JOINT of the resolved)\n");
+    for (int i = 0; i < nt; i++)
+        if ((int)mp_table_get(&tt, (size_t)i, tk) == K_FIELD && !mp_table_get(&tt, (size_t)i, tq)) {
+            double sj = mp_table_get(&tt, (size_t)i, tje), et = mp_table_get(&tt, (size_t)i, tf);
+            double nj = tmatch[i] >= 0 && isfinite(e[i].ne_res)
+                        ? (mp_table_get(&ct, (size_t)tmatch[i], kf) - et) / sj : NAN;
+            fprintf(ned, "%.5f %.5f %.5f %.4f %.5f\n", mp_table_get(&tt, (size_t)i, tm),
+                    tmatch[i] >= 0 ? e[i].ne : NAN, tmatch[i] >= 0 ? e[i].ne_res : NAN, et / sj,
+                    nj);
+        }
+    fclose(ned);
 
     snprintf(path, sizeof path, "%s/%s.md", dir, root);
     FILE *md = fopen(path, "w");

@@ -118,16 +118,28 @@ static void fisher_of(const jb_scene *sc, const jb_star *s, const member *set, i
             int nn = 0;
             for (int a = 0; a < m; a++) {
                 const jb_star *q = &s[set[a].k];
-                if (fabs((double)X - q->x) > reach || fabs((double)Y - q->y) > reach)
-                    continue;
-                double px, dpx, py, dpy;
-                axis((double)X, q->x, sc->sigma, &px, &dpx);
-                axis((double)Y, q->y, sc->sigma, &py, &dpy);
-                g[nn] = px * py;
+                double p, dx, dy;
+                if (sc->stamp) {
+                    long h = sc->sw / 2, i = X - lround(q->x) + h, j = Y - lround(q->y) + h;
+                    if (i < 0 || j < 0 || i >= sc->sw || j >= sc->sw)
+                        continue;
+                    size_t ss = (size_t)sc->sw * (size_t)sc->sw;
+                    const double *st = sc->stamp + 3 * ss * (size_t)set[a].k;
+                    size_t o = (size_t)j * (size_t)sc->sw + (size_t)i;
+                    p = st[o], dx = st[ss + o], dy = st[2 * ss + o];
+                } else {
+                    if (fabs((double)X - q->x) > reach || fabs((double)Y - q->y) > reach)
+                        continue;
+                    double px, dpx, py, dpy;
+                    axis((double)X, q->x, sc->sigma, &px, &dpx);
+                    axis((double)Y, q->y, sc->sigma, &py, &dpy);
+                    p = px * py, dx = dpx * py, dy = px * dpy;
+                }
+                g[nn] = p;
                 nz[nn++] = 3 * a;
-                g[nn] = q->flux * dpx * py;
+                g[nn] = q->flux * dx;
                 nz[nn++] = 3 * a + 1;
-                g[nn] = q->flux * px * dpy;
+                g[nn] = q->flux * dy;
                 nz[nn++] = 3 * a + 2;
             }
             g[nn] = 1.0;

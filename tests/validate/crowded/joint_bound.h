@@ -10,13 +10,19 @@ typedef struct {
 } jb_star;
 
 /* The scene: a Gaussian PSF of standard deviation sigma [px] integrated
- * over pixels, read noise ron [e-], pixels whose expected value reaches
+ * over pixels (or the stamps below), read noise ron [e-], pixels whose expected value reaches
  * satur masked (the pipeline masks them), fitting radius fitrad [px];
  * mean is the expected image (sky + every star), nx × ny, row-major. */
 typedef struct {
     double sigma, ron, satur, fitrad;
     long nx, ny;
     const double *mean;
+    /* Optional (NULL: the Gaussian of sigma): any PRF as stamps, star k's
+     * at stamp + 3·k·sw², three sw × sw planes (sw odd) centred on the
+     * pixel (lround(x), lround(y)): the PRF, its x and its y derivative.
+     * Light beyond a stamp is left out of the bound. */
+    const double *stamp;
+    int sw;
 } jb_scene;
 
 /* joint_bounds: for each star t, the bound of (E, X, Y) when t is fitted

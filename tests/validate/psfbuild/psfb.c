@@ -35,6 +35,7 @@
  *     across x, stretched by up to 15 % along y at the left and right
  *     edges and along x at the top and bottom (issue 11's second case).
  */
+#include <ctype.h>
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -345,58 +346,60 @@ static int do_cmpvar(const char *built)
     return 0;
 }
 
-/* The variable scene's floor for an order-2 field: every element of
- * var_table fitted by least squares with the 6 terms over a 15 × 15 grid
- * of places (PSFEx's terms, origin the centre, scales the half-sizes),
- * then compared as cmpvar compares a built field: what no order-2 build
- * can do better than. */
-static int do_varfloor(const char *out)
+/* The variable scene's floor for an order-`order` field: every element
+ * of var_table fitted by least squares with the order's terms over a
+ * 15 × 15 grid of places (PSFEx's terms, origin the centre, scales the
+ * half-sizes), then compared as cmpvar compares a built field: what no
+ * build of that order can do better than. */
+static int do_varfloor(int order, const char *out)
 {
     char err[MP_ERRLEN];
     int m = 2 * (int)ceil(RAD * TOS) + 1, n;
     size_t nel = (size_t)m * m;
-    enum { G = 15 };
-    double *tabs = malloc(sizeof(double) * nel * G * G), A[36] = {0}, T[G * G][6];
+    enum { G = 15, MT = MP_EPSF_MAXT };
+    mp_psf_field fb;
+    if (mp_psf_field_new(order, m, m, TOS, 0.5 * (NX + 1), 0.5 * (NX + 1), 0.5 * NX, 0.5 * NX,
+                         &fb, err))
+        return fprintf(stderr, "psfb: %s\n", err), 1;
+    int nt = fb.nterms;
+    double *tabs = malloc(sizeof(double) * nel * G * G), A[MT * MT] = {0}, T[G * G][MT];
     for (int q = 0; q < G * G; q++) {
-        double u = -1 + 2.0 * (q % G) / (G - 1), v = -1 + 2.0 * (q / G) / (G - 1);
-        var_table(0.5 * (NX + 1) + u * 0.5 * NX, 0.5 * (NX + 1) + v * 0.5 * NX, tabs + q * nel, &n);
-        double t[6] = {1, u, u * u, v, u * v, v * v};
-        for (int a = 0; a < 6; a++) {
-            T[q][a] = t[a];
-            for (int b = 0; b < 6; b++)
-                A[a * 6 + b] += t[a] * t[b];
-        }
+        double x = 0.5 * (NX + 1) + (-1 + 2.0 * (q % G) / (G - 1)) * 0.5 * NX;
+        double y = 0.5 * (NX + 1) + (-1 + 2.0 * (q / G) / (G - 1)) * 0.5 * NX;
+        var_table(x, y, tabs + q * nel, &n);
+        mp_psf_field_terms(&fb, x, y, T[q]);
+        for (int a = 0; a < nt; a++)
+            for (int b = 0; b < nt; b++)
+                A[a * nt + b] += T[q][a] * T[q][b];
     }
-    /* A⁻¹ by Gauss–Jordan (6×6, well conditioned). */
-    double I[36] = {0};
-    for (int a = 0; a < 6; a++)
-        I[a * 6 + a] = 1;
-    for (int c = 0; c < 6; c++) {
-        double p = A[c * 6 + c];
-        for (int k = 0; k < 6; k++)
-            A[c * 6 + k] /= p, I[c * 6 + k] /= p;
-        for (int r = 0; r < 6; r++)
+    /* A⁻¹ by Gauss–Jordan (at most 10×10, well conditioned). */
+    double I[MT * MT] = {0};
+    for (int a = 0; a < nt; a++)
+        I[a * nt + a] = 1;
+    for (int c = 0; c < nt; c++) {
+        double p = A[c * nt + c];
+        for (int k = 0; k < nt; k++)
+            A[c * nt + k] /= p, I[c * nt + k] /= p;
+        for (int r = 0; r < nt; r++)
             if (r != c) {
-                double f = A[r * 6 + c];
-                for (int k = 0; k < 6; k++)
-                    A[r * 6 + k] -= f * A[c * 6 + k], I[r * 6 + k] -= f * I[c * 6 + k];
+                double f = A[r * nt + c];
+                for (int k = 0; k < nt; k++)
+                    A[r * nt + k] -= f * A[c * nt + k], I[r * nt + k] -= f * I[c * nt + k];
             }
     }
-    mp_psf_field fb;
-    if (mp_psf_field_new(2, m, m, TOS, 0.5 * (NX + 1), 0.5 * (NX + 1), 0.5 * NX, 0.5 * NX, &fb, err))
-        return fprintf(stderr, "psfb: %s\n", err), 1;
     for (size_t el = 0; el < nel; el++) {
-        double b[6] = {0};
+        double b[MT] = {0};
         for (int q = 0; q < G * G; q++)
-            for (int a = 0; a < 6; a++)
+            for (int a = 0; a < nt; a++)
                 b[a] += T[q][a] * tabs[q * nel + el];
-        for (int a = 0; a < 6; a++) {
+        for (int a = 0; a < nt; a++) {
             double c = 0;
-            for (int k = 0; k < 6; k++)
-                c += I[a * 6 + k] * b[k];
+            for (int k = 0; k < nt; k++)
+                c += I[a * nt + k] * b[k];
             fb.planes[(size_t)a * nel + el] = c;
         }
     }
+    fb.sum = 1.0;
     if (out && mp_psf_field_write(out, &fb, NULL, 0, err))
         return fprintf(stderr, "psfb: %s\n", err), 1;
     double *tab = malloc(sizeof(double) * nel);
@@ -410,8 +413,8 @@ static int do_varfloor(const char *out)
             return fprintf(stderr, "psfb: %s\n", err), 1;
         double rms, mx, peak;
         cmp_at(&b, &t, &rms, &mx, &peak);
-        printf("psfb varfloor: order-2 least squares at u %+.1f v %+.1f: PRF rms %.2f %%, largest "
-               "%.2f %% of the peak\n", u, v, 100 * rms / peak, 100 * mx / peak);
+        printf("psfb varfloor: order-%d least squares at u %+.1f v %+.1f: PRF rms %.2f %%, "
+               "largest %.2f %% of the peak\n", order, u, v, 100 * rms / peak, 100 * mx / peak);
         mp_psf_free(&b);
     }
     free(tab);
@@ -842,8 +845,15 @@ static int do_ideal(const char *dir, const char *kind, int npsf, double fkeep)
 
 int main(int argc, char **argv)
 {
-    if ((argc == 2 || argc == 3) && !strcmp(argv[1], "varfloor"))
-        return do_varfloor(argc == 3 ? argv[2] : NULL) ? 1 : 0;
+    /* psfb varfloor [ORDER] [OUT.fits]: order 2 unless a digit is given */
+    if (argc >= 2 && argc <= 4 && !strcmp(argv[1], "varfloor")) {
+        int has_ord = argc >= 3 && isdigit((unsigned char)argv[2][0]) && !argv[2][1];
+        int ord = has_ord ? argv[2][0] - '0' : 2;
+        const char *out = argc > 2 + has_ord ? argv[2 + has_ord] : NULL;
+        if (ord > MP_PSF_MAXORDER || argc > 3 + has_ord)
+            return fprintf(stderr, "psfb: varfloor [0..%d] [OUT.fits]\n", MP_PSF_MAXORDER), 2;
+        return do_varfloor(ord, out) ? 1 : 0;
+    }
     if ((argc == 5 || argc == 6) && !strcmp(argv[1], "ideal"))
         return do_ideal(argv[2], argv[3], atoi(argv[4]), argc == 6 ? atof(argv[5]) : 0.0) ? 1 : 0;
     if (argc == 3 && !strcmp(argv[1], "ee"))
@@ -865,7 +875,7 @@ int main(int argc, char **argv)
         return do_cmp(argv[2], argv[3]) ? 1 : 0;
     fprintf(stderr, "usage: psfb sim DIR segmented|variable | psfb match DIR ROOT [zp] | "
             "psfb cmp BUILT.fits TRUE.fits | psfb ee PSF.fits | psfb ideal DIR KIND NPSF [FKEEP] | "
-            "psfb varfloor [OUT.fits] | psfb resid FRAME RES CAT R RON [CAT2] | "
+            "psfb varfloor [ORDER] [OUT.fits] | psfb resid FRAME RES CAT R RON [CAT2] | "
             "psfb noise SCI ERR RON | psfb chi2 CAT\n");
     return 2;
 }
