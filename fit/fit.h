@@ -316,6 +316,13 @@ typedef struct {
 int mp_prf_cache_render_spans(const mp_prf_cache *c, const mp_prf_model *m, double x, double y,
                               const mp_span *sp, int ns, double *prf, double *ddx, double *ddy);
 
+/* mp_prf_cache_render_at: as mp_prf_cache_render_spans, span k's values at
+ * index at[k] of each array (at NULL: one span after the other), so that a
+ * part of a star's window is rendered in place (levmar.c's core renders). */
+int mp_prf_cache_render_at(const mp_prf_cache *c, const mp_prf_model *m, double x, double y,
+                           const mp_span *sp, const size_t *at, int ns, double *prf, double *ddx,
+                           double *ddy);
+
 /* ---- Performance model (paper §2) ----------------------------------------- */
 
 typedef struct {

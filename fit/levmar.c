@@ -47,6 +47,7 @@ void mp_fit_opts_default(mp_fit_opts *o)
  * prf[pb[t] ...]. */
 typedef struct {
     int i0, i1, j0, j1;
+    int ci0, ci1, cj0, cj1;     /* its core while the wings are frozen (levmar) */
     int *pp, *pn, *pb;          /* bh each */
     double *prf, *dx, *dy;      /* cap each */
 } rstar;
@@ -86,6 +87,12 @@ typedef struct {
                                  * normal equations */
     double *basis;              /* 6 × npix: the sky basis at every pixel */
     mp_span *spans;             /* nrun: the spans a star is rendered on */
+    size_t *soff;               /* nrun: where each span's values go (core renders) */
+    /* Frozen wings (levmar): while set, a render redraws each star on its
+     * core only, the rest of its window keeping the values drawn at
+     * (fx, fy) — both buffers alike. */
+    int freezing, frozen;       /* this fit freezes; frozen now */
+    double *fx, *fy;            /* n each */
     /* Star pairs between exact normal equations (normal_equations): the
      * pairs whose windows meet, each pair's sums outside its core (9 a
      * pair, unscaled), and each star's core, [cx0, cx1) × [cy0, cy1) of
@@ -93,6 +100,7 @@ typedef struct {
     int npair, cappair, ne_exact;
     int *pk, *pl;
     double *tail;
+    double *stail;              /* 27 a star: its sky and self sums outside its core */
     int *cx0, *cx1, *cy0, *cy1;
     double core_hw;
     size_t cap;                 /* per-star capacity (packed pixels) */
@@ -120,10 +128,14 @@ static void group_free(group *G)
     free(G->wres);
     free(G->basis);
     free(G->spans);
+    free(G->soff);
+    free(G->fx);
+    free(G->fy);
     free(G->scr);
     free(G->pk);
     free(G->pl);
     free(G->tail);
+    free(G->stail);
     free(G->cx0);
     free(G->cx1);
     free(G->cy0);
@@ -199,21 +211,24 @@ static int window_rows(group *G, rstar *r)
     return ns;
 }
 
-/* An exact render (no phase grid for this model) of the window's box into
- * G->scr, gathered onto the spans. */
-static int render_exact(group *G, double x, double y, const rstar *r, int ns)
+/* An exact render (no phase grid for this model) of box columns [i0, i1)
+ * and rows [j0, j1) into G->scr, gathered onto the ns spans of G->spans,
+ * span k's values from r's index at[k] (at NULL: one after the other). */
+static int render_exact(group *G, double x, double y, int i0, int i1, int j0, int j1,
+                        const rstar *r, int ns, const size_t *at)
 {
-    long wx0 = G->bx0 + r->i0, wy0 = G->by0 + r->j0, rx0, ry0;
+    long wx0 = G->bx0 + i0, wy0 = G->by0 + j0, rx0, ry0;
     int rw, rh;
     double *s0 = G->scr, *s1 = G->scr + G->boxcap, *s2 = G->scr + 2 * G->boxcap;
-    if ((size_t)(r->i1 - r->i0) * (size_t)(r->j1 - r->j0) > G->boxcap)
+    if ((size_t)(i1 - i0) * (size_t)(j1 - j0) > G->boxcap)
         return 1;
-    if (mp_prf_render_window(G->m, x, y, wx0, wy0, r->i1 - r->i0, r->j1 - r->j0, &rx0, &ry0, &rw,
-                             &rh, s0, s1, s2, &G->work))
+    if (mp_prf_render_window(G->m, x, y, wx0, wy0, i1 - i0, j1 - j0, &rx0, &ry0, &rw, &rh, s0, s1,
+                             s2, &G->work))
         return 1;
     size_t o = 0;
     for (int k = 0; k < ns; k++) {
         const mp_span *sp = &G->spans[k];
+        o = at ? at[k] : o;
         for (int i = 0; i < sp->n; i++, o++) {
             long X = sp->x0 + i - rx0, Y = sp->y - ry0;
             int in = X >= 0 && X < rw && Y >= 0 && Y < rh;
@@ -236,8 +251,56 @@ static int render_exact(group *G, double x, double y, const rstar *r, int ns)
  * draw all three. */
 enum { RENDER_ALL, RENDER_PRF, RENDER_DERIVS };
 
+/* Star r's core — its box [ci0, ci1) × [cj0, cj1) within its window — as
+ * spans of frame pixels in G->spans, each with its index in r's arrays in
+ * G->soff, and the core's box clipped to the window in c; returns the
+ * number of spans. */
+static int core_rows(group *G, const rstar *r, int c[4])
+{
+    int ns = 0;
+    c[0] = r->ci0 > r->i0 ? r->ci0 : r->i0;
+    c[1] = r->ci1 < r->i1 ? r->ci1 : r->i1;
+    c[2] = r->cj0 > r->j0 ? r->cj0 : r->j0;
+    c[3] = r->cj1 < r->j1 ? r->cj1 : r->j1;
+    for (int j = c[2]; j < c[3] && c[0] < c[1]; j++) {
+        int t = j - r->j0;
+        for (int q = G->rrow[j]; q < G->rrow[j + 1] && r->pn[t] > 0; q++) {
+            int a = G->ri0[q] > c[0] ? G->ri0[q] : c[0], e = G->ri1[q] < c[1] ? G->ri1[q] : c[1];
+            if (a >= e)
+                continue;
+            G->spans[ns] = (mp_span){G->bx0 + a, G->by0 + j, e - a};
+            G->soff[ns++] = (size_t)(r->pb[t] + G->rp[q] + (a - G->ri0[q]) - r->pp[t]);
+        }
+    }
+    return ns;
+}
+
+/* render_all while the wings are frozen: each star on its core only. */
+static int render_core(group *G, const double *p, rstar *r, int what)
+{
+    int grid = mp_prf_cache_usable(G->work.grid, G->m);
+    if (!grid && what == RENDER_DERIVS)
+        return 0;
+    for (int k = 0; k < G->n; k++) {
+        double x = p[3 * k + 1], y = p[3 * k + 2];
+        int c[4], ns = core_rows(G, &r[k], c);
+        if (ns == 0)
+            continue;
+        int rc = grid ? mp_prf_cache_render_at(G->work.grid, G->m, x, y, G->spans, G->soff, ns,
+                                               what == RENDER_DERIVS ? NULL : r[k].prf,
+                                               what == RENDER_PRF ? NULL : r[k].dx,
+                                               what == RENDER_PRF ? NULL : r[k].dy)
+                      : render_exact(G, x, y, c[0], c[1], c[2], c[3], &r[k], ns, G->soff);
+        if (rc)
+            return 1;
+    }
+    return 0;
+}
+
 static int render_all(group *G, const double *p, rstar *r, int what)
 {
+    if (G->frozen)
+        return render_core(G, p, r, what);
     int grid = mp_prf_cache_usable(G->work.grid, G->m);
     if (!grid && what == RENDER_DERIVS)
         return 0;
@@ -277,7 +340,7 @@ static int render_all(group *G, const double *p, rstar *r, int what)
                                                   what == RENDER_DERIVS ? NULL : rk->prf,
                                                   what == RENDER_PRF ? NULL : rk->dx,
                                                   what == RENDER_PRF ? NULL : rk->dy)
-                      : render_exact(G, x, y, rk, ns);
+                      : render_exact(G, x, y, rk->i0, rk->i1, rk->j0, rk->j1, rk, ns, NULL);
         if (rc)
             return 1;
     }
@@ -428,35 +491,43 @@ static void ne_sky(group *G)
     }
 }
 
-/* Star k's data term and its coupling with the sky, over its window. */
-static void ne_star_sky(group *G, const double *p, const rstar *rk, int k)
+/* Star r's sums over the fitted pixels of its window within box columns
+ * [x0, x1) and rows [y0, y1), added in: with g, its data terms Σ wres·J
+ * (unscaled); with a, its coupling with the sky Σ w·J·c_b. */
+static void star_sky_sums(const group *G, const rstar *rk, int x0, int x1, int y0, int y1,
+                          double g[3], double a[3][6])
 {
-    int np = G->np, s0 = 3 * G->n, ns = G->nsky;
+    int ns = G->nsky, full = x0 <= rk->i0 && x1 >= rk->i1;
     size_t N = G->npix;
-    double Ek = p[3 * k], gk[3] = {0}, sk[3][6] = {{0}};
-    for (int t = 0; t < rk->j1 - rk->j0; t++) {
-        int o = rk->pp[t], m = rk->pn[t];
-        const double *jk[3] = {rk->prf + rk->pb[t], rk->dx + rk->pb[t], rk->dy + rk->pb[t]};
+    int j0 = rk->j0 > y0 ? rk->j0 : y0, j1 = rk->j1 < y1 ? rk->j1 : y1;
+    for (int j = j0; j < j1; j++) {
+        int t = j - rk->j0, o = rk->pp[t], e = o + rk->pn[t];
+        if (!full) {
+            int q0 = packed_at(G, j, x0), q1 = packed_at(G, j, x1);
+            o = o > q0 ? o : q0;
+            e = e < q1 ? e : q1;
+        }
+        if (o >= e)
+            continue;
+        size_t u = (size_t)(rk->pb[t] + o - rk->pp[t]);
+        const double *jk[3] = {rk->prf + u, rk->dx + u, rk->dy + u};
         const double *wr = G->wres + o, *w = G->wt + o;
-        for (int a = 0; a < 3; a++) {
-            double s = 0.0;
-            for (int i = 0; i < m; i++)
-                s += wr[i] * jk[a][i];
-            gk[a] += s;
-            for (int b = 0; b < ns; b++) {
-                const double *cb = G->basis + (size_t)b * N + o;
-                double u = 0.0;
+        int m = e - o;
+        for (int c = 0; c < 3; c++) {
+            if (g) {
+                double q = 0.0;
                 for (int i = 0; i < m; i++)
-                    u += w[i] * jk[a][i] * cb[i];
-                sk[a][b] += u;
+                    q += wr[i] * jk[c][i];
+                g[c] += q;
+            }
+            for (int b = 0; a && b < ns; b++) {
+                const double *cb = G->basis + (size_t)b * N + o;
+                double q = 0.0;
+                for (int i = 0; i < m; i++)
+                    q += w[i] * jk[c][i] * cb[i];
+                a[c][b] += q;
             }
         }
-    }
-    double sc[3] = {1.0, Ek, Ek};
-    for (int a = 0; a < 3; a++) {
-        G->g[3 * k + a] = sc[a] * gk[a];
-        for (int b = 0; b < ns; b++)
-            G->A[(size_t)(3 * k + a) * np + s0 + b] = sc[a] * sk[a][b];
     }
 }
 
@@ -525,19 +596,26 @@ static void put_pair(group *G, const double *p, int k, int l, double s[3][3])
             G->A[(size_t)(3 * k + a) * np + 3 * l + b] = sk[a] * sl[b] * s[a][b];
 }
 
-/* The exact pass's pairs: every pair whose windows meet, its sums outside
- * its core kept in G->tail; the stars' cores fixed at their positions.
- * Nonzero when out of memory. */
-static int pairs_exact(group *G, const double *p, const rstar *r)
+/* Each star's core for the pair and self sums between exact passes: the
+ * box within G->core_hw px of where it is at an exact pass. */
+static void set_cores(group *G, const double *p)
 {
-    int n = G->n;
     double h = G->core_hw;
-    for (int k = 0; k < n && h > 0; k++) {
+    for (int k = 0; k < G->n && h > 0; k++) {
         G->cx0[k] = (int)floor(p[3 * k + 1] - h) - (int)G->bx0;
         G->cx1[k] = (int)ceil(p[3 * k + 1] + h) + 1 - (int)G->bx0;
         G->cy0[k] = (int)floor(p[3 * k + 2] - h) - (int)G->by0;
         G->cy1[k] = (int)ceil(p[3 * k + 2] + h) + 1 - (int)G->by0;
     }
+}
+
+/* The exact pass's pairs: every pair whose windows meet, its sums outside
+ * its core kept in G->tail (the cores as set_cores fixed them).  Nonzero
+ * when out of memory. */
+static int pairs_exact(group *G, const double *p, const rstar *r)
+{
+    int n = G->n;
+    double h = G->core_hw;
     G->npair = 0;
     for (int k = 0; k < n; k++)
         for (int l = k + 1; l < n; l++) {
@@ -590,6 +668,47 @@ static void pairs_core(group *G, const double *p, const rstar *r)
     }
 }
 
+/* Star k's rows of g and A: its data terms, its coupling with the sky and
+ * with itself.  While the wings are frozen (levmar) the couplings are
+ * summed over the star's core only between exact passes, the rest (its
+ * wings, whose values are frozen: only their weights move) kept from the
+ * last exact pass in G->stail (every exact pass keeps it: the wings are
+ * frozen right after one); g is summed over the whole window always. */
+static void star_terms(group *G, const double *p, const rstar *rk, int k, int exact)
+{
+    int np = G->np, s0 = 3 * G->n, ns = G->nsky, bw = G->bw, bh = G->bh;
+    double gk[3] = {0}, sk[3][6] = {{0}}, ss[3][3], *tl = G->stail + (size_t)k * 27;
+    int x0 = G->cx0[k], x1 = G->cx1[k], y0 = G->cy0[k], y1 = G->cy1[k];
+    if (exact || !G->frozen) {
+        star_sky_sums(G, rk, 0, bw, 0, bh, gk, sk);
+        pair_sums(G, rk, rk, 1, 0, bw, 0, bh, ss);
+        if (exact && G->freezing) {
+            double ck[3][6] = {{0}}, cs[3][3];
+            star_sky_sums(G, rk, x0, x1, y0, y1, NULL, ck);
+            pair_sums(G, rk, rk, 1, x0, x1, y0, y1, cs);
+            for (int a = 0; a < 18; a++)
+                tl[a] = sk[a / 6][a % 6] - ck[a / 6][a % 6];
+            for (int a = 0; a < 9; a++)
+                tl[18 + a] = ss[a / 3][a % 3] - cs[a / 3][a % 3];
+        }
+    } else {
+        star_sky_sums(G, rk, 0, bw, 0, bh, gk, NULL);
+        star_sky_sums(G, rk, x0, x1, y0, y1, NULL, sk);
+        pair_sums(G, rk, rk, 1, x0, x1, y0, y1, ss);
+        for (int a = 0; a < 18; a++)
+            sk[a / 6][a % 6] += tl[a];
+        for (int a = 0; a < 9; a++)
+            ss[a / 3][a % 3] += tl[18 + a];
+    }
+    double sc[3] = {1.0, p[3 * k], p[3 * k]};
+    for (int a = 0; a < 3; a++) {
+        G->g[3 * k + a] = sc[a] * gk[a];
+        for (int b = 0; b < ns; b++)
+            G->A[(size_t)(3 * k + a) * np + s0 + b] = sc[a] * sk[a][b];
+    }
+    put_pair(G, p, k, k, ss);
+}
+
 /* Normal equations A = JᵀWJ and g = JᵀW(d − m) at the current model.
  * Block-sparse (issue 12): a star's columns meet the sky's over its own
  * window and another star's only where their windows overlap, so each
@@ -612,13 +731,11 @@ static int normal_equations(group *G, const double *p, const rstar *r, int exact
     memset(G->A, 0, (size_t)np * np * sizeof *G->A);
     memset(G->g, 0, (size_t)np * sizeof *G->g);
     ne_sky(G);
-    for (int k = 0; k < n; k++) {
-        double s[3][3];
-        ne_star_sky(G, p, &r[k], k);
-        pair_sums(G, &r[k], &r[k], 1, 0, G->bw, 0, G->bh, s);
-        put_pair(G, p, k, k, s);
-    }
     exact = exact || !(G->core_hw > 0);
+    if (exact)
+        set_cores(G, p);
+    for (int k = 0; k < n; k++)
+        star_terms(G, p, &r[k], k, exact);
     if (exact) {
         if (pairs_exact(G, p, r))
             return 1;
@@ -780,6 +897,113 @@ static double dispersion(const group *G, double D)
     return dof > 0 && D / dof > 1.0 ? D / dof : 1.0;
 }
 
+/* Frozen wings (issue 12).  A star's window reaches as far as its light
+ * matters to the model (its crop radius: 47 Tuc, 1240 fitted px a star on
+ * average, against 80 in its own fitting disc), yet between two steps the
+ * light of its wings barely moves.  So the LM iterates with each star
+ * redrawn on its core only — the box LM_CORE px beyond G->core_hw around
+ * where it stood when the wings were last drawn — and its wings (values
+ * and derivatives) as they were then, scaled by its current flux; it
+ * redraws everything (a refresh) when a star has moved LM_MOVE px from
+ * there, and when the steps have converged on that model.  A fit is
+ * converged only when the first step from a refreshed state is below tol:
+ * the same test on the same exact normal equations as without freezing,
+ * so the answer is the same to within tol; the frozen model only steers
+ * the way there. */
+#define LM_CORE 1.0
+#define LM_MOVE 0.5
+
+/* Freeze every star's wings where it is now: its core box, and the trial
+ * buffers as the current ones (the same windows and wing values). */
+static void core_box(group *G, int k)
+{
+    double h = G->core_hw + LM_CORE, x = G->p[3 * k + 1], y = G->p[3 * k + 2];
+    rstar *c = &G->cur[k];
+    c->ci0 = (int)floor(x - h) - (int)G->bx0;
+    c->ci1 = (int)ceil(x + h) + 1 - (int)G->bx0;
+    c->cj0 = (int)floor(y - h) - (int)G->by0;
+    c->cj1 = (int)ceil(y + h) + 1 - (int)G->by0;
+}
+
+/* Whether freezing pays: the stars' windows hold LM_PAYS times the
+ * pixels of their cores (a PSF with faint wings, or a Gaussian's small
+ * crop radius, leaves nothing to save but the refreshes' cost: the crowded
+ * Gaussian scene of make validate ran 28 % slower frozen). */
+#define LM_PAYS 2.0
+
+static int freezing_pays(group *G)
+{
+    double win = 0.0, core = 0.0;
+    for (int k = 0; k < G->n; k++) {
+        rstar *c = &G->cur[k];
+        int b[4], ns;
+        core_box(G, k);
+        ns = core_rows(G, c, b);
+        for (int t = 0; t < c->j1 - c->j0; t++)
+            win += c->pn[t];
+        for (int q = 0; q < ns; q++)
+            core += G->spans[q].n;
+    }
+    return win > LM_PAYS * core;
+}
+
+static void freeze(group *G)
+{
+    for (int k = 0; k < G->n; k++) {
+        rstar *c = &G->cur[k], *t = &G->trial[k];
+        G->fx[k] = G->p[3 * k + 1];
+        G->fy[k] = G->p[3 * k + 2];
+        core_box(G, k);
+        int *pp = t->pp, *pn = t->pn, *pb = t->pb;
+        double *prf = t->prf, *dx = t->dx, *dy = t->dy;
+        *t = *c;
+        t->pp = pp;
+        t->pn = pn;
+        t->pb = pb;
+        t->prf = prf;
+        t->dx = dx;
+        t->dy = dy;
+        int rows = c->j1 - c->j0;
+        size_t len = rows > 0 ? (size_t)(c->pb[rows - 1] + c->pn[rows - 1]) : 0;
+        if (rows > 0) {
+            memcpy(pp, c->pp, (size_t)rows * sizeof *pp);
+            memcpy(pn, c->pn, (size_t)rows * sizeof *pn);
+            memcpy(pb, c->pb, (size_t)rows * sizeof *pb);
+        }
+        memcpy(prf, c->prf, len * sizeof *prf);
+        memcpy(dx, c->dx, len * sizeof *dx);
+        memcpy(dy, c->dy, len * sizeof *dy);
+    }
+    G->frozen = 1;
+}
+
+/* Whether a star has moved LM_MOVE px from where its wings were drawn. */
+static int moved_far(const group *G)
+{
+    for (int k = 0; k < G->n; k++)
+        if (fabs(G->p[3 * k + 1] - G->fx[k]) > LM_MOVE || fabs(G->p[3 * k + 2] - G->fy[k]) > LM_MOVE)
+            return 1;
+    return 0;
+}
+
+/* Everything redrawn at G->p (whole windows), its deviance in *D, exact
+ * normal equations; frozen again there when again is set.  Nonzero when
+ * out of memory. */
+static int refresh(group *G, double *D, int again)
+{
+    G->frozen = 0;
+    if (render_all(G, G->p, G->cur, RENDER_ALL))
+        return 1;
+    model_of(G, G->p, G->cur);
+    variance_of(G);
+    *D = deviance_of(G);
+    if (normal_equations(G, G->p, G->cur, 1))
+        return 1;
+    if (again)
+        freeze(G);
+    return 0;
+}
+
 /* Levenberg–Marquardt from G->p at the current sky order.  A step is taken
  * only when it lowers D.  Converged (*converged = 1) when a step taken is
  * below tol·σ·√φ in every parameter (φ the dispersion, below) (scaled back by 1 + λ, so damping cannot
@@ -791,12 +1015,15 @@ static double dispersion(const group *G, double D)
  * Nonzero: out of memory. */
 static int levmar(group *G, const mp_fit_opts *o, int *iter, int *converged)
 {
+    G->freezing = G->core_hw > 0 && G->crop && freezing_pays(G);
     model_of(G, G->p, G->cur);
     variance_of(G);
     if (normal_equations(G, G->p, G->cur, 1))
         return 1;
     double D = deviance_of(G), lambda = 1e-3, zfirst = INFINITY, lfirst = lambda;
-    int it = 0, trials = 0, np = G->np, fresh = 1;
+    int it = 0, trials = 0, np = G->np, fresh = 1, since = 0;
+    if (G->freezing)
+        freeze(G);
     /* Steps are judged in σ of the data as they scatter: the quasi-
      * likelihood dispersion φ = D/dof (McCullagh & Nelder §9.2.4) scales
      * every σ by √φ when the model misses the data (a PSF sharper than the
@@ -829,6 +1056,15 @@ static int levmar(group *G, const mp_fit_opts *o, int *iter, int *converged)
             model_of(G, G->p, G->cur);
             lambda *= 10.0;
             if (zfirst < LM_RESOLVE_SIGMAS && lambda > 1e3 * lfirst) {
+                if (G->frozen && since > 0) {    /* on the frozen model: see */
+                    if (refresh(G, &D, 1))
+                        return 1;
+                    since = 0;
+                    fresh = 1;
+                    lambda = lfirst;
+                    rphi = 1.0 / sqrt(dispersion(G, D));
+                    continue;
+                }
                 *converged = 1;      /* damped 1000×: nothing left D can see */
                 break;
             }
@@ -837,6 +1073,7 @@ static int levmar(group *G, const mp_fit_opts *o, int *iter, int *converged)
             continue;
         }
         it++;
+        since++;
         /* Taken: converged when the step, undamped, was below tol, or when
          * only 1000× damping made progress from a state whose undamped step
          * was within D's resolution (creeping on D's noise floor). */
@@ -853,6 +1090,20 @@ static int levmar(group *G, const mp_fit_opts *o, int *iter, int *converged)
         fresh = 1;
         lambda = lambda / 10.0 > 1e-7 ? lambda / 10.0 : 1e-7;
         variance_of(G);
+        if (G->frozen && (done || moved_far(G))) {
+            /* Converged from a refreshed state (the step was computed
+             * from exact sums there): the same test as unfrozen. */
+            int real = done && since == 1;
+            if (refresh(G, &D, !real))
+                return 1;
+            since = 0;
+            rphi = 1.0 / sqrt(dispersion(G, D));
+            if (real) {
+                *converged = 1;
+                break;
+            }
+            continue;
+        }
         if (render_all(G, G->p, G->cur, RENDER_DERIVS) ||
             normal_equations(G, G->p, G->cur, done))
             return 1;
@@ -862,7 +1113,13 @@ static int levmar(group *G, const mp_fit_opts *o, int *iter, int *converged)
         }
     }
     *iter += it;
-    /* The covariance and the next sky order start from exact sums. */
+    /* The covariance and the next sky order start from exact sums on
+     * whole windows. */
+    if (G->frozen) {
+        if (since > 0 && refresh(G, &D, 0))
+            return 1;
+        G->frozen = 0;
+    }
     if (!G->ne_exact && normal_equations(G, G->p, G->cur, 1))
         return 1;
     return 0;
@@ -1211,6 +1468,7 @@ static int pack_pixels(group *G)
     G->ri1 = malloc(nr * sizeof *G->ri1);
     G->rp = malloc(nr * sizeof *G->rp);
     G->spans = malloc(nr * sizeof *G->spans);
+    G->soff = malloc(nr * sizeof *G->soff);
     G->rrow = malloc(((size_t)G->bh + 1) * sizeof *G->rrow);
     G->prow = malloc(((size_t)G->bh + 1) * sizeof *G->prow);
     G->dat = malloc(N * sizeof *G->dat);
@@ -1220,8 +1478,8 @@ static int pack_pixels(group *G)
     G->wt = malloc(N * sizeof *G->wt);
     G->wres = malloc(N * sizeof *G->wres);
     G->basis = malloc(6 * N * sizeof *G->basis);
-    if (!G->rj || !G->ri0 || !G->ri1 || !G->rp || !G->spans || !G->rrow || !G->prow || !G->dat ||
-        !G->mod || !G->var || !G->rv || !G->wt || !G->wres || !G->basis)
+    if (!G->rj || !G->ri0 || !G->ri1 || !G->rp || !G->spans || !G->soff || !G->rrow || !G->prow ||
+        !G->dat || !G->mod || !G->var || !G->rv || !G->wt || !G->wres || !G->basis)
         return 2;
     int q = 0, o = 0;
     for (int j = 0; j < G->bh; j++) {
@@ -1368,6 +1626,9 @@ static int alloc_stars(group *G)
     size_t np = (size_t)G->npmax;
     G->p = calloc(np, sizeof *G->p);
     G->pt = calloc(np, sizeof *G->pt);
+    G->stail = calloc((size_t)G->n * 27, sizeof *G->stail);
+    G->fx = malloc((size_t)G->n * sizeof *G->fx);
+    G->fy = malloc((size_t)G->n * sizeof *G->fy);
     G->cx0 = malloc((size_t)G->n * sizeof *G->cx0);
     G->cx1 = malloc((size_t)G->n * sizeof *G->cx1);
     G->cy0 = malloc((size_t)G->n * sizeof *G->cy0);
@@ -1376,7 +1637,7 @@ static int alloc_stars(group *G)
     G->M = malloc(np * np * sizeof *G->M);
     G->g = malloc(np * sizeof *G->g);
     G->step = malloc(np * sizeof *G->step);
-    return !G->scr || !G->cx0 || !G->cx1 || !G->cy0 || !G->cy1 || !G->p || !G->pt || !G->A || !G->M || !G->g || !G->step;
+    return !G->scr || !G->stail || !G->fx || !G->fy || !G->cx0 || !G->cx1 || !G->cy0 || !G->cy1 || !G->p || !G->pt || !G->A || !G->M || !G->g || !G->step;
 }
 
 /* The data's range over the fitted pixels and the largest flux a star may

@@ -205,19 +205,27 @@ int mp_prf_cache_render(const mp_prf_cache *c, const mp_prf_model *m, double x, 
     return 0;
 }
 
-int mp_prf_cache_render_spans(const mp_prf_cache *c, const mp_prf_model *m, double x, double y,
-                              const mp_span *sp, int ns, double *prf, double *ddx, double *ddy)
+int mp_prf_cache_render_at(const mp_prf_cache *c, const mp_prf_model *m, double x, double y,
+                           const mp_span *sp, const size_t *at, int ns, double *prf, double *ddx,
+                           double *ddy)
 {
     if (!mp_prf_cache_usable(c, m))
         return 1;
     star_pos s = star_of(c, x, y);
     size_t o = 0;
     for (int k = 0; k < ns; k++) {
+        o = at ? at[k] : o;
         interp_row(c, &s, sp[k].x0, sp[k].y, sp[k].n, prf ? prf + o : NULL, ddx ? ddx + o : NULL,
                    ddy ? ddy + o : NULL);
         o += (size_t)sp[k].n;
     }
     return 0;
+}
+
+int mp_prf_cache_render_spans(const mp_prf_cache *c, const mp_prf_model *m, double x, double y,
+                              const mp_span *sp, int ns, double *prf, double *ddx, double *ddy)
+{
+    return mp_prf_cache_render_at(c, m, x, y, sp, NULL, ns, prf, ddx, ddy);
 }
 
 /* The nodes: branch (bx, by), node (a − 1, b − 1), aligned as the branch;

@@ -390,6 +390,99 @@ static void test_cubic_variation(void **state)
     free(f.mask);
 }
 
+/* The order test's false-raise rate, measured: frames drawn with the
+ * fit's own renderer from one table (so the table is exactly right and
+ * only the noise is left), every star at its true place, flux and sky;
+ * the tests 0→1 and 2→3 (an order-2 field whose higher planes are zero)
+ * over 200 frames.  Under the null each p is uniform, so p < 0.05 in
+ * 10 ± 3.1 of 200; the bound 23 (10 + 4.2 σ) fails by chance < 1e-4, and
+ * a test that raised the order on noise alone (anti-conservative) would
+ * exceed it.  Measured: 15 (0→1) and 10 (2→3) of 200, a false-raise rate
+ * of 5-7.5 % at alpha 0.05, so ~1e-3 at the default alpha. */
+static void test_order_test_false_raise(void **state)
+{
+    (void)state;
+    enum { NTRIAL = 200, NS = 48 };
+    const double rad = 5.0;
+    char err[MP_ERRLEN];
+    mp_psf g;
+    assert_int_equal(mp_psf_gauss_table(2.6, BOS, rad, &g, err), 0);
+    size_t nel = (size_t)g.nx * g.ny;
+    mp_epsf e0 = {.order = 0, .nterms = 1, .nx = g.nx, .ny = g.ny, .os = BOS,
+                  .x0 = 0.5 * (NX + 1), .y0 = 0.5 * (NX + 1), .xs = 0.5 * NX, .ys = 0.5 * NX,
+                  .planes = g.t, .sum = g.sum};
+    mp_epsf e2 = e0;
+    e2.order = 2;
+    e2.nterms = 6;
+    e2.planes = calloc(6 * nel, sizeof *e2.planes);
+    assert_non_null(e2.planes);
+    memcpy(e2.planes, g.t, nel * sizeof *g.t);
+    mp_frame f;
+    memset(&f, 0, sizeof f);
+    f.im.nx = f.im.ny = NX;
+    f.im.pix = malloc(sizeof(double) * NX * NX);
+    f.mask = calloc((size_t)NX * NX, 1);
+    assert_non_null(f.im.pix);
+    assert_non_null(f.mask);
+    f.gain = 1.0;
+    f.rdnoise = RON;
+    f.saturate = INFINITY;
+    f.exptime = 1.0;
+    mp_prf_model m = {&g, NULL, 10};
+    mp_prf_work w;
+    memset(&w, 0, sizeof w);
+    double *prf = malloc(sizeof(double) * 64 * 64);
+    assert_non_null(prf);
+    int low01 = 0, low23 = 0;
+    for (int t = 0; t < NTRIAL; t++) {
+        mp_rng r;
+        mp_rng_seed(&r, 1000 + (uint64_t)t);
+        double x[NS], y[NS], fl[NS], sk[NS];
+        for (size_t i = 0; i < (size_t)NX * NX; i++)
+            f.im.pix[i] = SKY;
+        double cell = (NX - 2 * rad) / 8;
+        for (int k = 0; k < NS; k++) {
+            x[k] = rad + (k % 8 + 0.3 + 0.4 * mp_rng_uniform(&r)) * cell;
+            y[k] = rad + (k / 8 + 0.3 + 0.4 * mp_rng_uniform(&r)) * cell;
+            fl[k] = 2e4 * pow(20.0, mp_rng_uniform(&r));
+            sk[k] = SKY;
+            long bx, by;
+            int bw, bh;
+            mp_prf_box(&m, x[k], y[k], &bx, &by, &bw, &bh);
+            assert_true(bw * bh <= 64 * 64);
+            assert_int_equal(mp_prf_render(&m, x[k], y[k], prf, NULL, NULL, &w), 0);
+            for (int j = 0; j < bh; j++)
+                for (int i = 0; i < bw; i++)
+                    if (bx + i >= 1 && by + j >= 1 && bx + i <= NX && by + j <= NX)
+                        f.im.pix[(size_t)(by + j - 1) * NX + (size_t)(bx + i - 1)] +=
+                            fl[k] * prf[(size_t)j * bw + i];
+        }
+        mp_sim_add_noise(&r, f.im.pix, (long)NX * NX, RON);
+        mp_epsf_star *s;
+        assert_int_equal(mp_epsf_cutouts(&f, f.im.pix, x, y, fl, sk, NS, rad, &s, err), 0);
+        for (int k = 0; k < NS; k++) {
+            s[k].x = x[k], s[k].y = y[k], s[k].flux = fl[k], s[k].sky = SKY;
+            s[k].used = 1;
+        }
+        double p01, p23, z;
+        assert_int_equal(mp_epsf_order_test(s, NS, &e0, 3.0, &p01, &z, err), 0);
+        assert_int_equal(mp_epsf_order_test(s, NS, &e2, 3.0, &p23, &z, err), 0);
+        low01 += p01 < 0.05;
+        low23 += p23 < 0.05;
+        mp_epsf_stars_free(s, NS);
+    }
+    printf("# order test on exact tables, %d frames of %d stars: p < 0.05 in %d (0->1) and "
+           "%d (2->3), expected 10 +- 3.1\n", NTRIAL, NS, low01, low23);
+    assert_true(low01 <= 23);
+    assert_true(low23 <= 23);
+    free(prf);
+    mp_prf_work_free(&w);
+    free(e2.planes);
+    mp_psf_free(&g);
+    free(f.im.pix);
+    free(f.mask);
+}
+
 /* A PSF star put back into its cut-out (the second pass: its fitted light
  * returned to the residual) must be drawn with the field at its frame
  * position: the cut-out is a sub-image whose pixel (1, 1) is frame pixel
@@ -671,6 +764,7 @@ int main(void)
         cmocka_unit_test(test_recovers_constant_table),
         cmocka_unit_test(test_linear_variation),
         cmocka_unit_test(test_cubic_variation),
+        cmocka_unit_test(test_order_test_false_raise),
         cmocka_unit_test(test_cutout_add_reads_field_at_star),
         cmocka_unit_test(test_neighbours_fitted),
         cmocka_unit_test(test_growth_finds_outer_light),

@@ -13,14 +13,14 @@
 #
 #     sh tests/validate/psfbuild/peers.sh      (after make all; psfbuild.sh
 #                                              first for matphot's rows)
-# Environment: SCENES="segmented variable", BUILD, CC.
+# Environment: SCENES="segmented variable gauss", BUILD, CC.
 set -u
 cd "$(dirname "$0")/../../.." || exit 1
 BUILD=${BUILD:-build}
 CC=${CC:-cc}
 OUT="$BUILD/validate/psfbuild"
 REP=validate/PSFPEERS.md
-SCENES=${SCENES:-segmented variable}
+SCENES=${SCENES:-segmented variable gauss}
 say() { echo "psfbuild peers: $*"; }
 mkdir -p "$OUT" validate || exit 1
 CFLAGS="-std=c17 -Wall -Wextra -Werror -O2 -fopenmp -D_XOPEN_SOURCE=700 -I. -I/usr/include/wcslib"
@@ -40,7 +40,7 @@ rc=0
 
 # The scenes' detector and PSF (tests/validate/psfbuild/psfb.c): gain 1,
 # RON 3 e-, sky 100 e-; FWHM about 2 px (segmented, lambda/D = 2 px at the
-# band's blue end) and 3 px (variable, +-15 % across the field).
+# band's blue end) and 3 px (variable, +-15 % across the field; gauss).
 fwhm_of() { case $1 in segmented) echo 2.0 ;; *) echo 3.0 ;; esac; }
 
 # ascii_head OUT: "x y flux" lines on stdin → a SExtractor ASCII_HEAD table
@@ -155,6 +155,7 @@ row() {
         echo "## $s"
         [ -f "$OUT/$s/built.cat" ] && row "$s" built "matphot, its own PSF (no psf=)"
         [ -f "$OUT/$s/true.cat" ] && row "$s" true "matphot, the true table"
+        [ -f "$OUT/$s/truegrid.cat" ] && row "$s" truegrid "matphot, the true PSF on a 9x9 grid (within 0.16 % of the PRF's peak)"
         [ -f "$OUT/$s/centre.cat" ] && row "$s" centre "matphot, the true table at the frame's centre"
         for v in 0 2; do
             if [ -n "$HAVE_IRAF" ]; then row "$s" "dao$v" "IRAF DAOPHOT, varorder $v"

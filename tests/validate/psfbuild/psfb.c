@@ -5,16 +5,18 @@
  * matched against `matphot pipeline`'s catalogs run with the true table,
  * with the PSF built from the frame, and with a Gaussian.
  *
- *   psfb sim DIR KIND      KIND segmented | variable
+ *   psfb sim DIR KIND      KIND segmented | variable | gauss
  *       DIR/frame.fits (gain 1, RDNOISE), DIR/truth.dat (ASCII_HEAD:
  *       position, flux, and each star's Cramér–Rao bound of flux and x
  *       alone on its sky), DIR/true.psf.fits (segmented: the ×5 table;
- *       variable: the table at the frame's centre, for the comparison).
+ *       variable: the table at the frame's centre, for the comparison;
+ *       gauss: the one Gaussian table).
  *   psfb match DIR ROOT [zp]  errors over the bound per magnitude bin
  *       (median |ΔE|/(0.6745 σ_E), median Δr/(1.1774 σ_X): 1 on the
  *       bound) and completeness, from DIR/ROOT.cat; one line per bin;
  *       zp: the fluxes rescaled first by the median E_true/E of the two
- *       brightest bins (a peer's fluxes on its aperture scale).
+ *       brightest bins (a peer's fluxes on its aperture scale); a last
+ *       row "-14..-8 (all)" pools the bins.
  *   psfb resid FRAME RES CAT R RON [CAT2]   the normalised residual near
  *       the stars (within R px of each star of CAT, or of CAT and CAT2),
  *       as issue 11 compares it with DAOPHOT's on 47 Tuc.
@@ -34,12 +36,17 @@
  *   variable: an elliptical Gaussian whose FWHM runs 3 px × (1 ± 0.15)
  *     across x, stretched by up to 15 % along y at the left and right
  *     edges and along x at the top and bottom (issue 11's second case).
+ *   gauss: the variable scene's table at the centre (a round Gaussian of
+ *     FWHM 3 px) everywhere: the crowded Gaussian scene of the peers'
+ *     side by side, at this frame size.
  */
 #include <ctype.h>
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+
+#include <fitsio.h>
 
 #include "catalog/catalog.h"
 #include "fit/fit.h"
@@ -114,10 +121,12 @@ static void crlb_of(const mp_sim_prf *p, double x, double y, double E, double *s
 
 static int do_sim(const char *dir, const char *kind)
 {
-    int seg = !strcmp(kind, "segmented");
+    int seg = !strcmp(kind, "segmented"), gau = !strcmp(kind, "gauss");
+    if (!seg && !gau && strcmp(kind, "variable"))
+        return fprintf(stderr, "psfb: scene %s: segmented, variable or gauss\n", kind), 1;
     char err[MP_ERRLEN], path[1024];
     mp_rng r;
-    mp_rng_seed(&r, seg ? 1101 : 1102);
+    mp_rng_seed(&r, seg ? 1101 : gau ? 1103 : 1102);
     double *img = malloc(sizeof(double) * NX * NX), *tab = NULL;
     int n = 0;
     for (int i = 0; i < NX * NX; i++)
@@ -158,7 +167,7 @@ static int do_sim(const char *dir, const char *kind)
         double mag = -14.0 + 6.0 * mp_rng_uniform(&r), E = pow(10.0, -0.4 * mag);
         int m = n;
         const double *use = tab;
-        if (!seg) {
+        if (!seg && !gau) {
             var_table(x, y, vt, &m);
             use = vt;
         }
@@ -301,6 +310,21 @@ static int do_match(const char *dir, const char *root, int zp)
         printf("%s: %.0f..%.0f | %d | %d | %.3f | %.3f | %.3f | %+.2f\n", root, b - 14.0,
                b - 13.0, nin[b], nm[b], nin[b] ? (double)nm[b] / nin[b] : NAN,
                median(ph[b], nm[b]), median(as[b], nm[b]), median(bi[b], nm[b]));
+    /* All bins pooled: a bin's median of ~60 stars scatters by ~16 %
+     * (the median of |N(0,1)| from n draws: 0.5/(sqrt(n)·0.636)/0.674),
+     * the pooled one of ~400 by ~6 %. */
+    int tin = 0, tm_ = 0;
+    for (int b = 0; b < NB; b++)
+        tin += nin[b], tm_ += nm[b];
+    double *pp = malloc((size_t)(tm_ + 1) * sizeof *pp), *pa = malloc((size_t)(tm_ + 1) * sizeof *pa),
+           *pb = malloc((size_t)(tm_ + 1) * sizeof *pb);
+    int q = 0;
+    for (int b = 0; b < NB; b++)
+        for (int k = 0; k < nm[b]; k++, q++)
+            pp[q] = ph[b][k], pa[q] = as[b][k], pb[q] = bi[b][k];
+    printf("%s: -14..-8 (all) | %d | %d | %.3f | %.3f | %.3f | %+.2f\n", root, tin, tm_,
+           tin ? (double)tm_ / tin : NAN, median(pp, tm_), median(pa, tm_), median(pb, tm_));
+    free(pp), free(pa), free(pb);
     for (int b = 0; b < NB; b++) {
         free(ph[b]);
         free(as[b]);
@@ -419,6 +443,138 @@ static int do_varfloor(int order, const char *out)
     }
     free(tab);
     free(tabs);
+    mp_psf_field_free(&fb);
+    return 0;
+}
+
+/* The variable scene's floor for a gridded PSF (photutils'
+ * GriddedPSFModel, Anderson's STDPSF): the true table at n × n places
+ * spread evenly from edge to edge, interpolated bilinearly between them
+ * (psf/field.c), written as a GriddedPSFModel cube (DET_YXk "(y, x)"
+ * 0-based, OVERSAMP) that fit and pipeline read; compared as cmpvar
+ * compares a built field. */
+static int do_gridfloor(int ng, const char *out)
+{
+    char err[MP_ERRLEN];
+    int m = 2 * (int)ceil(RAD * TOS) + 1, n;
+    size_t nel = (size_t)m * m;
+    double *cube = malloc(sizeof(double) * nel * ng * ng);
+    fitsfile *fp;
+    int st = 0, os = TOS;
+    long nax[3] = {m, m, (long)ng * ng};
+    char tmp[1100];
+    snprintf(tmp, sizeof tmp, "!%s", out);
+    fits_create_file(&fp, tmp, &st);
+    fits_create_img(fp, DOUBLE_IMG, 3, nax, &st);
+    fits_write_key(fp, TINT, "OVERSAMP", &os, "table elements per pixel", &st);
+    for (int q = 0; q < ng * ng; q++) {
+        double x = 1.0 + (NX - 1.0) * (q % ng) / (ng - 1), y = 1.0 + (NX - 1.0) * (q / ng) / (ng - 1);
+        var_table(x, y, cube + q * nel, &n);
+        char key[24], val[64];
+        snprintf(key, sizeof key, "DET_YX%d", q);
+        snprintf(val, sizeof val, "(%.1f, %.1f)", y - 1.0, x - 1.0);
+        fits_write_key(fp, TSTRING, key, val, "grid point (y, x), 0-based", &st);
+    }
+    fits_write_img(fp, TDOUBLE, 1, (LONGLONG)(nel * ng * ng), cube, &st);
+    fits_close_file(fp, &st);
+    free(cube);
+    if (st)
+        return fprintf(stderr, "psfb: %s: cfitsio status %d\n", out, st), 1;
+    mp_psf_field fb;
+    char warn[MP_ERRLEN];
+    if (mp_psf_field_read(out, 0, 0, &fb, NULL, NULL, warn, err))
+        return fprintf(stderr, "psfb: %s\n", err), 1;
+    double *tab = malloc(sizeof(double) * nel);
+    for (int q = 0; q < 9; q++) {
+        double u = 0.8 * (q % 3 - 1), v = 0.8 * (q / 3 - 1);
+        double x = 0.5 * (NX + 1) + u * 0.5 * NX, y = 0.5 * (NX + 1) + v * 0.5 * NX;
+        var_table(x, y, tab, &n);
+        mp_psf t = {MP_PSF_TABLE, n, n, TOS, tab, 1.0, 0, 0, NULL}, b;
+        memset(&b, 0, sizeof b);
+        if (mp_psf_field_eval(&fb, x, y, &b, err))
+            return fprintf(stderr, "psfb: %s\n", err), 1;
+        double rms, mx, peak;
+        cmp_at(&b, &t, &rms, &mx, &peak);
+        printf("psfb gridfloor: %dx%d grid at u %+.1f v %+.1f: PRF rms %.2f %%, largest %.2f %% "
+               "of the peak\n", ng, ng, u, v, 100 * rms / peak, 100 * mx / peak);
+        mp_psf_free(&b);
+    }
+    free(tab);
+    mp_psf_field_free(&fb);
+    return 0;
+}
+
+/* x = A⁻¹ b for a small symmetric positive A (n ≤ MP_EPSF_MAXT), by
+ * Gauss–Jordan without pivoting (A, b overwritten); nonzero if singular. */
+static int solve_small(double *A, double *b, int n)
+{
+    for (int c = 0; c < n; c++) {
+        double p = A[c * n + c];
+        if (!(fabs(p) > 1e-300))
+            return 1;
+        for (int k = 0; k < n; k++)
+            A[c * n + k] /= p;
+        b[c] /= p;
+        for (int r = 0; r < n; r++)
+            if (r != c) {
+                double f = A[r * n + c];
+                for (int k = 0; k < n; k++)
+                    A[r * n + k] -= f * A[c * n + k];
+                b[r] -= f * b[c];
+            }
+    }
+    return 0;
+}
+
+/* The noise side of the order's trade: N · the leverage of an order-k
+ * fit over the used PSF stars of a built file (PSFSTARS) at the 3 × 3
+ * places of cmpvar, k = 0..3 — the variance of the fitted table there
+ * over that of the mean of all N stars (1 everywhere for order 0). */
+static int do_leverage(const char *built)
+{
+    char err[MP_ERRLEN], warn[MP_ERRLEN];
+    mp_psf_field fb;
+    mp_psf_star *st = NULL;
+    int ns = 0;
+    if (mp_psf_field_read(built, 0, 0, &fb, &st, &ns, warn, err))
+        return fprintf(stderr, "psfb: %s\n", err), 1;
+    enum { MT = MP_EPSF_MAXT };
+    for (int k = 0; k <= MP_PSF_MAXORDER; k++) {
+        mp_psf_field f;
+        if (mp_psf_field_new(k, 1, 1, 1, 0.5 * (NX + 1), 0.5 * (NX + 1), 0.5 * NX, 0.5 * NX, &f,
+                             err))
+            return fprintf(stderr, "psfb: %s\n", err), 1;
+        int nt = f.nterms, nu = 0;
+        double A[MT * MT] = {0}, t[MT];
+        for (int q = 0; q < ns; q++) {
+            if (!st[q].used)
+                continue;
+            nu++;
+            mp_psf_field_terms(&f, st[q].x, st[q].y, t);
+            for (int a = 0; a < nt; a++)
+                for (int b = 0; b < nt; b++)
+                    A[a * nt + b] += t[a] * t[b];
+        }
+        printf("psfb leverage: %s: %d PSF stars, order %d (%d terms): N x leverage at u,v in "
+               "-0.8,0,0.8:", built, nu, k, nt);
+        for (int q = 0; q < 9; q++) {
+            double x = 0.5 * (NX + 1) + 0.8 * (q % 3 - 1) * 0.5 * NX;
+            double y = 0.5 * (NX + 1) + 0.8 * (q / 3 - 1) * 0.5 * NX, M[MT * MT], b[MT];
+            mp_psf_field_terms(&f, x, y, t);
+            memcpy(M, A, sizeof M);
+            memcpy(b, t, sizeof b);
+            double h = NAN;
+            if (!solve_small(M, b, nt)) {
+                h = 0;
+                for (int a = 0; a < nt; a++)
+                    h += t[a] * b[a];
+            }
+            printf(" %.2f", nu * h);
+        }
+        printf("\n");
+        mp_psf_field_free(&f);
+    }
+    free(st);
     mp_psf_field_free(&fb);
     return 0;
 }
@@ -854,6 +1010,9 @@ int main(int argc, char **argv)
             return fprintf(stderr, "psfb: varfloor [0..%d] [OUT.fits]\n", MP_PSF_MAXORDER), 2;
         return do_varfloor(ord, out) ? 1 : 0;
     }
+    if (argc == 4 && !strcmp(argv[1], "gridfloor") && atoi(argv[2]) >= 2 &&
+        atoi(argv[2]) <= 16)
+        return do_gridfloor(atoi(argv[2]), argv[3]) ? 1 : 0;
     if ((argc == 5 || argc == 6) && !strcmp(argv[1], "ideal"))
         return do_ideal(argv[2], argv[3], atoi(argv[4]), argc == 6 ? atof(argv[5]) : 0.0) ? 1 : 0;
     if (argc == 3 && !strcmp(argv[1], "ee"))
@@ -869,13 +1028,15 @@ int main(int argc, char **argv)
         return do_sim(argv[2], argv[3]) ? 1 : 0;
     if ((argc == 4 || (argc == 5 && !strcmp(argv[4], "zp"))) && !strcmp(argv[1], "match"))
         return do_match(argv[2], argv[3], argc == 5) ? 1 : 0;
+    if (argc == 3 && !strcmp(argv[1], "leverage"))
+        return do_leverage(argv[2]) ? 1 : 0;
     if (argc == 3 && !strcmp(argv[1], "cmpvar"))
         return do_cmpvar(argv[2]) ? 1 : 0;
     if (argc == 4 && !strcmp(argv[1], "cmp"))
         return do_cmp(argv[2], argv[3]) ? 1 : 0;
     fprintf(stderr, "usage: psfb sim DIR segmented|variable | psfb match DIR ROOT [zp] | "
             "psfb cmp BUILT.fits TRUE.fits | psfb ee PSF.fits | psfb ideal DIR KIND NPSF [FKEEP] | "
-            "psfb varfloor [ORDER] [OUT.fits] | psfb resid FRAME RES CAT R RON [CAT2] | "
+            "psfb varfloor [ORDER] [OUT.fits] | psfb gridfloor N OUT.fits | psfb leverage PSF.fits | psfb resid FRAME RES CAT R RON [CAT2] | "
             "psfb noise SCI ERR RON | psfb chi2 CAT\n");
     return 2;
 }
