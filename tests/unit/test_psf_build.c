@@ -457,7 +457,7 @@ static void test_order_test_false_raise(void **state)
                         f.im.pix[(size_t)(by + j - 1) * NX + (size_t)(bx + i - 1)] +=
                             fl[k] * prf[(size_t)j * bw + i];
         }
-        mp_sim_add_noise(&r, f.im.pix, (long)NX * NX, RON);
+        mp_sim_add_noise_float(&r, f.im.pix, (long)NX * NX, RON);
         mp_epsf_star *s;
         assert_int_equal(mp_epsf_cutouts(&f, f.im.pix, x, y, fl, sk, NS, rad, &s, err), 0);
         for (int k = 0; k < NS; k++) {
