@@ -139,6 +139,22 @@ static star_pos star_of(const mp_prf_cache *c, double x, double y)
     return s;
 }
 
+/* One plane's row: out[i] (= or +=) Σ_ka w[ka]·a_ka[i] over four nodes,
+ * in one pass (the output read and written once per node row, not once
+ * per node). */
+static void row4(double *restrict out, const float *restrict a0, const float *restrict a1,
+                 const float *restrict a2, const float *restrict a3, const double w[4], long n,
+                 int add)
+{
+    double w0 = w[0], w1 = w[1], w2 = w[2], w3 = w[3];
+    if (add)
+        for (long i = 0; i < n; i++)
+            out[i] += w0 * a0[i] + w1 * a1[i] + w2 * a2[i] + w3 * a3[i];
+    else
+        for (long i = 0; i < n; i++)
+            out[i] = w0 * a0[i] + w1 * a1[i] + w2 * a2[i] + w3 * a3[i];
+}
+
 /* The interpolated PRF on pixels [x0, x0+w) of row y (1-based), each of
  * the three optional; pixels outside the cached union box are zero.  Plane pl holds
  * the PRF at img[3·pl·npix], then ∂/∂x, then ∂/∂y. */
@@ -146,38 +162,35 @@ static void interp_row(const mp_prf_cache *c, const star_pos *s, long x0, long y
                        double *pr, double *gx, double *gy)
 {
     int na = c->gb + 3, NA = c->os * na;
-    if (pr)
-        memset(pr, 0, (size_t)w * sizeof *pr);
-    if (gx)
-        memset(gx, 0, (size_t)w * sizeof *gx);
-    if (gy)
-        memset(gy, 0, (size_t)w * sizeof *gy);
     /* Columns of the span inside the union box: i ∈ [i0, i1). */
     long q0 = x0 - s->px.kq - c->ux0, row = y - s->py.kq - c->uy0;
     long i0 = q0 < 0 ? -q0 : 0, i1 = q0 + w > c->uw ? c->uw - q0 : w;
-    if (i1 <= i0 || row < 0 || row >= c->uh)
-        return;
-    for (int kb = 0; kb < 4; kb++)
-        for (int ka = 0; ka < 4; ka++) {
-            /* node a − 1 + ka of branch beta is plane beta·na + a + ka */
-            size_t pl = (size_t)(s->py.beta * na + s->py.a + kb) * NA +
-                        (size_t)(s->px.beta * na + s->px.a + ka);
-            const float *sp = c->img + 3 * pl * c->npix + (size_t)row * c->uw + (size_t)q0;
-            double wv = s->Ly[kb] * s->Lx[ka];
-            if (pr)
-                for (long i = i0; i < i1; i++)
-                    pr[i] += wv * sp[i];
-            if (gx) {
-                const float *sx = sp + c->npix;
-                for (long i = i0; i < i1; i++)
-                    gx[i] += wv * sx[i];
-            }
-            if (gy) {
-                const float *sy = sp + 2 * c->npix;
-                for (long i = i0; i < i1; i++)
-                    gy[i] += wv * sy[i];
-            }
+    int inside = i1 > i0 && row >= 0 && row < c->uh;
+    double *out[3] = {pr, gx, gy};
+    for (int k = 0; k < 3; k++)
+        if (out[k] && !inside)
+            memset(out[k], 0, (size_t)w * sizeof *out[k]);
+        else if (out[k]) {          /* the span's ends beyond the box */
+            memset(out[k], 0, (size_t)i0 * sizeof *out[k]);
+            memset(out[k] + i1, 0, (size_t)(w - i1) * sizeof *out[k]);
         }
+    if (!inside)
+        return;
+    for (int kb = 0; kb < 4; kb++) {
+        /* node a − 1 + ka of branch beta is plane beta·na + a + ka */
+        size_t pl = (size_t)(s->py.beta * na + s->py.a + kb) * NA +
+                    (size_t)(s->px.beta * na + s->px.a);
+        const float *sp = c->img + 3 * pl * c->npix + (size_t)row * c->uw + (size_t)q0 + i0;
+        size_t step = 3 * c->npix;      /* the next node along x */
+        double wv[4];
+        for (int ka = 0; ka < 4; ka++)
+            wv[ka] = s->Ly[kb] * s->Lx[ka];
+        for (int k = 0; k < 3; k++)
+            if (out[k]) {
+                const float *a = sp + (size_t)k * c->npix;
+                row4(out[k] + i0, a, a + step, a + 2 * step, a + 3 * step, wv, i1 - i0, kb > 0);
+            }
+    }
 }
 
 /* The interpolated PRF on box [x0, x0+w) × [y0, y0+h), row by row. */
