@@ -63,7 +63,7 @@ static hstar *stars_of(const mp_table *t, size_t *n)
 }
 
 /* The unmasked residual values in the ring [r0, r1) around s, in buf. */
-static size_t ring_values(const mp_frame *f, const double *res, const hstar *s, double r0,
+static size_t ring_values(const mp_frame *f, const float *res, const hstar *s, double r0,
                           double r1, double *buf)
 {
     long nx = f->im.nx, ny = f->im.ny, n = 0;
@@ -107,7 +107,7 @@ static void non_increasing(double *h, const double *w, int n, double *scratch)
  * [rout, rout + 2 rin)), fitted as h·E over the stars by least squares;
  * then the nearest non-increasing profile (weights Σ E²), kept >= 0.
  * Returns the number of stars used, −1 when out of memory. */
-static int measure(const mp_frame *f, const double *res, const hstar *s, size_t ns, double rin,
+static int measure(const mp_frame *f, const float *res, const hstar *s, size_t ns, double rin,
                    double rout, double *h, int nb)
 {
     size_t cap = (size_t)(M_PI * (rout + 2 * rin + 2) * (rout + 2 * rin + 2)) + 16;
@@ -160,7 +160,7 @@ static double h_at(const double *h, int nb, double rin, double r)
 /* Take E·h(r) of every star whose halo reaches a twentieth of a sky pixel's
  * σ off the frame and the residual, its variance into xvar; *nlit counts
  * them. */
-static int subtract(mp_frame *f, double *res, const hstar *s, size_t ns, const double *h, int nb,
+static int subtract(mp_frame *f, float *res, const hstar *s, size_t ns, const double *h, int nb,
                     double rin, double sig, long *nlit)
 {
     size_t npix = (size_t)f->im.nx * (size_t)f->im.ny;
@@ -203,7 +203,7 @@ static double sky_of(const mp_table *t)
     return m;
 }
 
-int mp_pl_halo(mp_frame *f, double *res, const mp_table *t, double fwhm, char *what, size_t wlen,
+int mp_pl_halo(mp_frame *f, float *res, const mp_table *t, double fwhm, char *what, size_t wlen,
                char *err)
 {
     double sky = sky_of(t);

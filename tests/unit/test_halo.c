@@ -53,7 +53,7 @@ static double sky_ring_halo(void)
 }
 
 /* The mean of (pix - SKY) over the rings [r0, r1) of the NS stars. */
-static double ring_mean(const double *pix, double r0, double r1, long *n)
+static double ring_mean(const float *pix, double r0, double r1, long *n)
 {
     double s = 0.0;
     *n = 0;
@@ -98,8 +98,8 @@ static void test_halo_measured_and_taken_off(void **state)
         }
     mp_rng r;
     mp_rng_seed(&r, 4242);
-    mp_sim_add_noise(&r, f.im.pix, N * N, f.rdnoise);
-    double *res = malloc(N * N * sizeof *res), *orig = malloc(N * N * sizeof *orig);
+    mp_sim_add_noise_float(&r, f.im.pix, N * N, f.rdnoise);
+    float *res = malloc(N * N * sizeof *res), *orig = malloc(N * N * sizeof *orig);
     assert_non_null(res);
     assert_non_null(orig);
     memcpy(res, f.im.pix, N * N * sizeof *res);
