@@ -306,6 +306,11 @@ int mp_task_catalog(int argc, char **argv)
             goto done;
         cat = &sel;
     }
+    /* Killed runs' temporaries: each output directory swept once. */
+    mp_sweeps *sw = mp_sweeps_new();
+    mp_tmp_sweep(sw, s.regions);
+    mp_tmp_sweep(sw, s.output);
+    mp_sweeps_free(sw);
     /* Regions come from the whole table (FLAGS and NUMBER even when
      * columns= leaves them out of the catalogue). */
     if (s.regions[0]) {

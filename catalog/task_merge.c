@@ -122,6 +122,11 @@ int mp_task_merge(int argc, char **argv)
     }
     if (merge_all(m, cats, ncat, &ndet, err) || mp_merge_tables(m, &src, &det, err))
         goto done;
+    /* Killed runs' temporaries: each output directory swept once. */
+    mp_sweeps *sw = mp_sweeps_new();
+    mp_tmp_sweep(sw, s.detections);
+    mp_tmp_sweep(sw, s.output);
+    mp_sweeps_free(sw);
     /* The detections first: a survey catalog on disk always has its table. */
     if (mp_table_write(s.detections, &det, s.fmt, err))
         goto done;

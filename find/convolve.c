@@ -42,20 +42,20 @@ static double h_slow(const mp_frame *f, const mp_bkg *b, const mpf_kernel *k, lo
  * inner loop of the whole detection.  restrict and four independent
  * lanes let -O2 keep it in registers without asking for vectorisation
  * (which clang -O1 refuses under -Werror). */
-static void tap_row(double *restrict o, const double *restrict p, const float *restrict s,
+static void tap_row(double *restrict o, const float *restrict p, const float *restrict s,
                     double w, long n)
 {
     long x = 0;
     for (; x + 4 <= n; x += 4) {
-        double a = p[x] - s[x], b = p[x + 1] - s[x + 1];
-        double c = p[x + 2] - s[x + 2], d = p[x + 3] - s[x + 3];
+        double a = (double)p[x] - s[x], b = (double)p[x + 1] - s[x + 1];
+        double c = (double)p[x + 2] - s[x + 2], d = (double)p[x + 3] - s[x + 3];
         o[x] += w * a;
         o[x + 1] += w * b;
         o[x + 2] += w * c;
         o[x + 3] += w * d;
     }
     for (; x < n; x++)
-        o[x] += w * (p[x] - s[x]);
+        o[x] += w * ((double)p[x] - s[x]);
 }
 
 static int any_bad(const mp_frame *f)

@@ -96,7 +96,7 @@ int mp_bkg_estimate(const mp_frame *f, int mesh, int filter, mp_bkg *b, char *er
  * (NaN, and rms left as it was, with fewer than 10 such pixels), *proferr
  * ε.  b->sky is used as the sky.  Errors: out of memory.
  */
-int mp_bkg_noise_from_model(mp_bkg *b, const mp_frame *f, const double *res, int block,
+int mp_bkg_noise_from_model(mp_bkg *b, const mp_frame *f, const float *res, int block,
                             double *scale, double *proferr, char *err);
 
 /* mp_bkg_free: release the maps; safe on a zeroed or freed mp_bkg. */

@@ -28,7 +28,7 @@ static double median_of(double *v, size_t n)
 }
 
 /* Poisson variance [e-²] of pixel i: sky + stars + RON². */
-static double poisson_var(const mp_bkg *b, const mp_frame *f, const double *res, size_t i)
+static double poisson_var(const mp_bkg *b, const mp_frame *f, const float *res, size_t i)
 {
     return fmax(b->sky[i], 0.0) + fmax(f->im.pix[i] - res[i], 0.0) + f->rdnoise * f->rdnoise;
 }
@@ -58,7 +58,7 @@ static double normalised_sigma(samples *s, double k, double eps)
     return robust_sigma(s->z, s->n);
 }
 
-int mp_bkg_noise_from_model(mp_bkg *b, const mp_frame *f, const double *res, int block,
+int mp_bkg_noise_from_model(mp_bkg *b, const mp_frame *f, const float *res, int block,
                             double *scale, double *proferr, char *err)
 {
     *scale = NAN;
@@ -157,6 +157,8 @@ int mp_bkg_noise_from_model(mp_bkg *b, const mp_frame *f, const double *res, int
     if (k > 0 && isfinite(k)) {
         *scale = k;
         *proferr = eps;
+        /* the map of every pixel: independent, so in parallel (issue 14) */
+#pragma omp parallel for schedule(static)
         for (size_t i = 0; i < npix; i++) {
             double m = fmax(f->im.pix[i] - res[i], 0.0);
             b->rms[i] = (float)sqrt(k * k * poisson_var(b, f, res, i) + eps * eps * m * m);

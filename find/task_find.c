@@ -132,6 +132,7 @@ int mp_task_find(int argc, char **argv)
     char **im = NULL, **out = NULL;
     size_t nim = 0, nout = 0;
     int rc = 1;
+    mp_sweeps *sw = NULL;
     if (setup_of(&ps, &s, err))
         goto done;
     if (mp_params_list(mp_par_string(&ps, "image"), &im, &nim, err) ||
@@ -146,6 +147,7 @@ int mp_task_find(int argc, char **argv)
                  "line by line", nout, nim);
         goto done;
     }
+    sw = mp_sweeps_new();        /* each output directory swept once */
     for (size_t i = 0; i < nim; i++) {
         char *named = NULL;
         const char *o = nout ? out[i] : "-";
@@ -156,6 +158,7 @@ int mp_task_find(int argc, char **argv)
             }
             o = named;
         }
+        mp_tmp_sweep(sw, o);
         int r = find_one(&s, im[i], o, err);
         free(named);
         if (r)
@@ -167,6 +170,7 @@ done:
         fprintf(stderr, "matphot find: %s\n", err);
     mp_list_free(im, nim);
     mp_list_free(out, nout);
+    mp_sweeps_free(sw);
     mp_params_free(&ps);
     return rc;
 }

@@ -578,13 +578,13 @@ typedef struct mp_fit_memory mp_fit_memory;
 mp_fit_memory *mp_fit_memory_new(void);
 void mp_fit_memory_free(mp_fit_memory *mem);
 
-/* mp_fit_memory_scratch: lend the fit a buffer of n doubles it may
+/* mp_fit_memory_scratch: lend the fit a buffer of n floats it may
  * overwrite with the model of every star (the neighbours subtracted from
  * each group) instead of allocating one of the frame's size: the
  * pipeline lends its residual, which is dead until mp_fit_residual
  * redraws it.  A buffer smaller than the frame is not used; NULL takes
  * the loan back.  The memory never frees it. */
-void mp_fit_memory_scratch(mp_fit_memory *mem, double *buf, size_t n);
+void mp_fit_memory_scratch(mp_fit_memory *mem, float *buf, size_t n);
 
 /* mp_fit_table: fit every star of t on f — rows carry X_IMAGE/Y_IMAGE or
  * XPSF_IMAGE/YPSF_IMAGE, optional GROUP_ID (else each star alone, or all in
@@ -605,10 +605,11 @@ int mp_fit_table_mem(const mp_frame *f, const mp_prf_model *m, const mp_frame_op
                      mp_table *t, mp_fit_memory *mem, mp_frame_report *rep, char *err);
 
 /* mp_fit_residual: res = data − Σ E·PRF over the stars of a fitted table
- * (electrons; NaN where masked).  res holds nx*ny.  cropfrac as in
+ * (electrons, single precision as the frame; NaN where masked).  res holds
+ * nx*ny.  cropfrac as in
  * mp_frame_opts (0: every star's whole PSF). */
 int mp_fit_residual(const mp_frame *f, const mp_prf_model *m, const mp_table *t,
-                    double cropfrac, double *res, char *err);
+                    double cropfrac, float *res, char *err);
 
 /* ---- The run report ------------------------------------------------------ */
 

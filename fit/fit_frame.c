@@ -49,7 +49,7 @@ typedef struct {
     /* Economy: the light of every other star on the pixels around this one
      * (its fitting region and a pixel more) when it was last fitted, a
      * square of side sw at (sx0, sy0); NULL: not fitted yet. */
-    double *seen;
+    float *seen;        /* single precision, as the frame (issue 14) */
     long sx0, sy0;
     int sw;
 } star_state;
@@ -280,10 +280,10 @@ static double crop_radius(const crop_rule *c, const mp_star *s)
  * Returns 1 when out of memory; *cut is set when the crop left part of the
  * box out. */
 static int paint_window(const mp_prf_model *m, const mp_star *s, double sign, double rad,
-                        double *img, long x0, long y0, long w, long h, mp_prf_work *wk,
+                        float *img, long x0, long y0, long w, long h, mp_prf_work *wk,
                         double **buf, size_t *cap, int *cut);
 
-static int paint(const mp_prf_model *m, const mp_star *s, double sign, double rad, double *img,
+static int paint(const mp_prf_model *m, const mp_star *s, double sign, double rad, float *img,
                  long x0, long y0, long w, long h, mp_prf_work *wk, double **buf, size_t *cap,
                  int *cut)
 {
@@ -299,7 +299,7 @@ static int paint(const mp_prf_model *m, const mp_star *s, double sign, double ra
 }
 
 static int paint_window(const mp_prf_model *m, const mp_star *s, double sign, double rad,
-                        double *img, long x0, long y0, long w, long h, mp_prf_work *wk,
+                        float *img, long x0, long y0, long w, long h, mp_prf_work *wk,
                         double **buf, size_t *cap, int *cut)
 {
     long wx0 = x0, wy0 = y0, wx1 = x0 + w, wy1 = y0 + h;   /* [wx0, wx1) */
@@ -332,10 +332,10 @@ static int paint_window(const mp_prf_model *m, const mp_star *s, double sign, do
                              *buf, NULL, NULL, wk))
         return 1;
     for (int j = 0; j < rh; j++) {
-        double *row = img + (ry0 + j - y0) * w + (rx0 - x0);
+        float *row = img + (ry0 + j - y0) * w + (rx0 - x0);
         const double *src = *buf + (size_t)j * rw;
         for (int i = 0; i < rw; i++)
-            row[i] += sign * s->flux * src[i];
+            row[i] = (float)(row[i] + sign * s->flux * src[i]);
     }
     return 0;
 }
@@ -603,7 +603,7 @@ static void group_window(const mp_frame *f, const star_state *st, int n, double 
 /* A star's last fit, by NUMBER, across calls. */
 typedef struct {
     mp_star s;
-    double *seen;
+    float *seen;
     long sx0, sy0;
     int sw;
 } star_seen;
@@ -611,11 +611,11 @@ typedef struct {
 struct mp_fit_memory {
     star_seen *s;        /* indexed by NUMBER */
     size_t ns;
-    double *scratch;     /* lent: room for the model of every star */
+    float *scratch;      /* lent: room for the model of every star */
     size_t nscratch;
 };
 
-void mp_fit_memory_scratch(mp_fit_memory *mem, double *buf, size_t n)
+void mp_fit_memory_scratch(mp_fit_memory *mem, float *buf, size_t n)
 {
     mem->scratch = buf;
     mem->nscratch = buf ? n : 0;
@@ -656,8 +656,8 @@ static void patch_of(const mp_frame *f, double x, double y, double r, long *x0, 
 /* The light of every star but k on k's patch: img (a window at wx0, wy0,
  * width ww, holding the patch) minus k's own light.  out holds sw*sw. */
 static int others_on_patch(const mp_prf_model *m, const crop_rule *crop, const star_state *k,
-                           const double *img, long wx0, long wy0, long ww, long px0, long py0,
-                           int pw, long ph, double *out, mp_prf_work *wk, double **buf, size_t *cap)
+                           const float *img, long wx0, long wy0, long ww, long px0, long py0,
+                           int pw, long ph, float *out, mp_prf_work *wk, double **buf, size_t *cap)
 {
     for (long j = 0; j < ph; j++)
         for (long i = 0; i < pw; i++)
@@ -671,7 +671,7 @@ static int others_on_patch(const mp_prf_model *m, const crop_rule *crop, const s
  * of its parameters by more than this many of its own σ (to first order).
  * INFINITY when it was never fitted or its region left the patch. */
 static double light_change(const mp_frame *f, const mp_prf_model *m, const crop_rule *crop,
-                           const star_state *k, double r, const double *all, double *tmp,
+                           const star_state *k, double r, const float *all, float *tmp,
                            mp_prf_work *wk, double **buf, size_t *cap, int *nomem)
 {
     if (!k->seen)
@@ -708,7 +708,7 @@ static double light_change(const mp_frame *f, const mp_prf_model *m, const crop_
  * pass's model, with the old values) with the fitted stars' old light
  * replaced by their new. */
 static int remember_patches(const mp_frame *f, const mp_prf_model *m, const crop_rule *crop,
-                            double r, const double *all, const mp_star *old, star_state *sub,
+                            double r, const float *all, const mp_star *old, star_state *sub,
                             int n, mp_prf_work *wk, double **buf, size_t *cap)
 {
     /* The window holding every patch. */
@@ -733,7 +733,7 @@ static int remember_patches(const mp_frame *f, const mp_prf_model *m, const crop
     if (x1 < x0 || y1 < y0)
         return 0;
     long w = x1 - x0 + 1, h = y1 - y0 + 1;
-    double *img = malloc((size_t)(w * h) * sizeof *img);
+    float *img = malloc((size_t)(w * h) * sizeof *img);
     if (!img)
         return 1;
     for (long j = 0; j < h; j++)
@@ -775,7 +775,7 @@ static int remember_patches(const mp_frame *f, const mp_prf_model *m, const crop
  * was fitted (light_change); rep counts group fits (fits) and groups left
  * alone (kept).  With economy, every survivor's patch is remembered. */
 static int fit_group_local(const mp_frame *f, const mp_prf_model *m, const mp_frame_opts *o,
-                           double mergerad, const frame_rules *R, const double *all,
+                           double mergerad, const frame_rules *R, const float *all,
                            const crop_rule *crop,
                            star_state *st, int n, int may_keep, int economy,
                            mp_frame_report *rep, char *err)
@@ -784,7 +784,8 @@ static int fit_group_local(const mp_frame *f, const mp_prf_model *m, const mp_fr
     mp_prf_work wk = {0};
     wk.grid = o->grid;
     wk.grid_emax = R->gemax;
-    double *buf = NULL, *tmp = NULL;
+    double *buf = NULL;
+    float *tmp = NULL;
     size_t cap = 0;
     star_state *sub = malloc((size_t)n * sizeof *sub);
     int *act = calloc((size_t)n, sizeof *act), *idx = malloc((size_t)n * sizeof *idx);
@@ -862,7 +863,7 @@ static int fit_group_local(const mp_frame *f, const mp_prf_model *m, const mp_fr
         for (long j = 0; j < h; j++)
             for (long i = 0; i < w; i++) {
                 size_t g = (size_t)(y0 - 1 + j) * f->im.nx + (size_t)(x0 - 1 + i);
-                L.im.pix[j * w + i] = f->im.pix[g] - (all ? all[g] : 0.0);
+                L.im.pix[j * w + i] = (float)(f->im.pix[g] - (all ? (double)all[g] : 0.0));
                 L.mask[j * w + i] = f->mask ? f->mask[g] : 0;
                 if (L.xvar)
                     L.xvar[j * w + i] = f->xvar[g];
@@ -900,31 +901,133 @@ done:
     return rc;
 }
 
+/* ---- Painting every star onto the frame, in parallel (issue 14) -------- */
+
+/* Rows of a band: each band is painted by one thread. */
+#define PAINT_BAND 64
+
+/* The rows [*r0, *r1] star s reaches out to radius rad, within 1..ny. */
+static void star_rows(const mp_prf_model *m, const mp_star *s, double rad, long ny, long *r0,
+                      long *r1)
+{
+    long bx, by;
+    int bw, bh;
+    mp_prf_box(m, s->x, s->y, &bx, &by, &bw, &bh);
+    long a = by, b = by + bh - 1;
+    if (rad < (double)bh) {          /* a crop inside the box (NaN: none) */
+        long c = (long)ceil(s->y - rad), d = (long)floor(s->y + rad);
+        a = c > a ? c : a;
+        b = d < b ? d : b;
+    }
+    *r0 = a < 1 ? 1 : a;
+    *r1 = b > ny ? ny : b;
+}
+
+/* Add sign·E·PRF of the stars s[0..n-1] (each out to crop's radius) to
+ * the nx × ny image img.  Once the residual's and the model's painting
+ * was the largest serial part of a round (bench/SCALING.md): the frame is
+ * cut into bands of PAINT_BAND rows, threads take bands, and a band
+ * paints in list order every star that reaches it, clipped to its rows.
+ * Every pixel so gets its stars in the same order whatever the number of
+ * threads: the image does not depend on it.  A star across a band's edge
+ * is rendered once per band, clipped (as the crop clips it).  proto: the
+ * phase grid to use (its grid and grid_emax; may be zeroed).  *ncut
+ * counts the stars the crop cut.  Returns 1 when out of memory. */
+static int paint_frame(const mp_prf_model *m, const mp_star *const *s, size_t n,
+                       const crop_rule *crop, double sign, const mp_prf_work *proto, float *img,
+                       long nx, long ny, long *ncut)
+{
+    long nb = (ny + PAINT_BAND - 1) / PAINT_BAND;
+    size_t *cnt = calloc((size_t)nb + 1, sizeof *cnt), *idx = NULL;
+    double *rad = malloc((n ? n : 1) * sizeof *rad);
+    long *b0 = malloc((n ? n : 1) * sizeof *b0), *b1 = malloc((n ? n : 1) * sizeof *b1);
+    unsigned char *cut = calloc(n ? n : 1, 1);
+    int nomem = !cnt || !rad || !b0 || !b1 || !cut;
+    size_t tot = 0;
+    for (size_t k = 0; !nomem && k < n; k++) {
+        long r0 = 1, r1 = 0;         /* none: what paint leaves undrawn */
+        const mp_star *p = s[k];
+        rad[k] = crop_radius(crop, p);
+        if (isfinite(p->flux) && p->flux != 0.0 && fabs(p->x) < 1e9 && fabs(p->y) < 1e9)
+            star_rows(m, p, rad[k], ny, &r0, &r1);
+        b0[k] = r1 >= r0 ? (r0 - 1) / PAINT_BAND : 1;
+        b1[k] = r1 >= r0 ? (r1 - 1) / PAINT_BAND : 0;
+        for (long b = b0[k]; b <= b1[k]; b++, tot++)
+            cnt[b + 1]++;
+    }
+    /* Each band's stars, in list order (counts to offsets, then filled). */
+    if (!nomem && !(idx = malloc((tot ? tot : 1) * sizeof *idx)))
+        nomem = 1;
+    for (long b = 0; !nomem && b < nb; b++)
+        cnt[b + 1] += cnt[b];
+    size_t *fill = nomem ? NULL : malloc(((size_t)nb + 1) * sizeof *fill);
+    nomem = nomem || !fill;
+    if (!nomem) {
+        memcpy(fill, cnt, ((size_t)nb + 1) * sizeof *fill);
+        for (size_t k = 0; k < n; k++)
+            for (long b = b0[k]; b <= b1[k]; b++)
+                idx[fill[b]++] = k;
+    }
+#pragma omp parallel if (!nomem)
+    {
+        mp_prf_work wk = {0};
+        wk.grid = proto->grid;
+        wk.grid_emax = proto->grid_emax;
+        double *buf = NULL;
+        size_t cap = 0;
+#pragma omp for schedule(dynamic)
+        for (long b = 0; b < nb; b++) {
+            long y0 = 1 + b * PAINT_BAND, h = ny - y0 + 1 < PAINT_BAND ? ny - y0 + 1 : PAINT_BAND;
+            for (size_t q = cnt[b]; q < cnt[b + 1]; q++) {
+                size_t k = idx[q];
+                int c = 0;
+                if (paint(m, s[k], sign, rad[k], img + (size_t)(y0 - 1) * (size_t)nx, 1, y0, nx,
+                          h, &wk, &buf, &cap, &c)) {
+#pragma omp atomic write
+                    nomem = 1;
+                }
+                if (c && b == b0[k])
+                    cut[k] = 1;    /* counted by the star's first band only */
+            }
+        }
+        free(buf);
+        mp_prf_work_free(&wk);
+    }
+    for (size_t k = 0; !nomem && k < n; k++)
+        *ncut += cut[k];
+    free(cnt);
+    free(idx);
+    free(fill);
+    free(rad);
+    free(b0);
+    free(b1);
+    free(cut);
+    return nomem;
+}
+
 /* The model of every live star on the whole frame, each out to its crop
  * radius; *ncut counts the stars cropped. */
-static double *all_stars(const mp_frame *f, const mp_prf_model *m, const star_state *st, size_t n,
-                         const crop_rule *crop, const mp_frame_opts *o, const frame_rules *R,
-                         double *lent, long *ncut)
+static float *all_stars(const mp_frame *f, const mp_prf_model *m, const star_state *st, size_t n,
+                        const crop_rule *crop, const mp_frame_opts *o, const frame_rules *R,
+                        float *lent, long *ncut)
 {
     size_t npix = (size_t)f->im.nx * (size_t)f->im.ny;
-    double *all = lent ? memset(lent, 0, npix * sizeof *lent) : calloc(npix, sizeof *all);
-    mp_prf_work wk = {0};
-    wk.grid = o->grid;
-    wk.grid_emax = R->gemax;
-    double *buf = NULL;
-    size_t cap = 0;
-    for (size_t k = 0; all && k < n; k++) {
-        int cut = 0;
-        if (st[k].alive && paint(m, &st[k].s, +1.0, crop_radius(crop, &st[k].s), all, 1, 1,
-                                 f->im.nx, f->im.ny, &wk, &buf, &cap, &cut)) {
-            if (!lent)
-                free(all);
-            all = NULL;
-        }
-        *ncut += cut;
+    float *all = lent ? memset(lent, 0, npix * sizeof *lent) : calloc(npix, sizeof *all);
+    const mp_star **live = malloc((n ? n : 1) * sizeof *live);
+    size_t nl = 0;
+    for (size_t k = 0; live && k < n; k++)
+        if (st[k].alive)
+            live[nl++] = &st[k].s;
+    mp_prf_work proto = {0};
+    proto.grid = o->grid;
+    proto.grid_emax = R->gemax;
+    if (all && (!live || paint_frame(m, live, nl, crop, +1.0, &proto, all, f->im.nx, f->im.ny,
+                                     ncut))) {
+        if (!lent)
+            free(all);
+        all = NULL;
     }
-    free(buf);
-    mp_prf_work_free(&wk);
+    free(live);
     return all;
 }
 
@@ -1158,10 +1261,10 @@ int mp_fit_table_mem(const mp_frame *f, const mp_prf_model *m, const mp_frame_op
     size_t n = t->nrow;
     star_state *st = calloc(n ? n : 1, sizeof *st);
     size_t *gs = malloc((n + 1) * sizeof *gs);
-    double *all = NULL;
+    float *all = NULL;
     /* The model image: in the caller's lent buffer when there is one. */
     size_t npix = (size_t)f->im.nx * (size_t)f->im.ny;
-    double *lent = mem && mem->scratch && mem->nscratch >= npix ? mem->scratch : NULL;
+    float *lent = mem && mem->scratch && mem->nscratch >= npix ? mem->scratch : NULL;
     frame_rules R;
     memset(&R, 0, sizeof R);
     crop_rule crop = {0};
@@ -1341,7 +1444,7 @@ done:
 }
 
 int mp_fit_residual(const mp_frame *f, const mp_prf_model *m, const mp_table *t,
-                    double cropfrac, double *res, char *err)
+                    double cropfrac, float *res, char *err)
 {
     long nx = f->im.nx, ny = f->im.ny;
     int cx = mp_table_col(t, "XPSF_IMAGE"), cy = mp_table_col(t, "YPSF_IMAGE");
@@ -1350,21 +1453,26 @@ int mp_fit_residual(const mp_frame *f, const mp_prf_model *m, const mp_table *t,
         snprintf(err, MP_ERRLEN, "residual: table has no fitted columns");
         return 1;
     }
+#pragma omp parallel for schedule(static)
     for (long i = 0; i < nx * ny; i++)
         res[i] = (f->mask && (f->mask[i] & MP_MASK_BAD)) ? NAN : f->im.pix[i];
-    mp_prf_work w = {0};
-    double *buf = NULL;
-    size_t cap = 0;
-    crop_rule crop;
-    int rc = crop_init(f, m, cropfrac, &crop);
-    for (size_t r = 0; r < t->nrow && !rc; r++) {
-        mp_star s = {.x = mp_table_get(t, r, cx), .y = mp_table_get(t, r, cy),
-                     .flux = mp_table_get(t, r, cf), .sky = cs >= 0 ? mp_table_get(t, r, cs) : NAN};
-        rc = paint(m, &s, -1.0, crop_radius(&crop, &s), res, 1, 1, nx, ny, &w, &buf, &cap, NULL);
+    size_t n = t->nrow;
+    mp_star *st = malloc((n ? n : 1) * sizeof *st);
+    const mp_star **ps = malloc((n ? n : 1) * sizeof *ps);
+    crop_rule crop = {0};
+    int rc = !st || !ps || crop_init(f, m, cropfrac, &crop);
+    for (size_t r = 0; !rc && r < n; r++) {
+        st[r] = (mp_star){.x = mp_table_get(t, r, cx), .y = mp_table_get(t, r, cy),
+                          .flux = mp_table_get(t, r, cf),
+                          .sky = cs >= 0 ? mp_table_get(t, r, cs) : NAN};
+        ps[r] = &st[r];
     }
-    free(buf);
+    mp_prf_work none = {0};
+    long ncut = 0;
+    rc = rc || paint_frame(m, ps, n, &crop, -1.0, &none, res, nx, ny, &ncut);
+    free(st);
+    free(ps);
     free(crop.env);
-    mp_prf_work_free(&w);
     if (rc)
         snprintf(err, MP_ERRLEN, "residual: out of memory");
     return rc;

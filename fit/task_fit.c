@@ -21,7 +21,7 @@ static int fit_one(const mp_fit_setup *s, const char *image, const char *coords,
     mp_table t;
     mp_table_init(&t);
     int rc = 1;
-    double *res = NULL;
+    float *res = NULL;
     char *report = NULL;
     mp_run_report run;
     memset(&run, 0, sizeof run);
@@ -57,7 +57,7 @@ static int fit_one(const mp_fit_setup *s, const char *image, const char *coords,
         for (long i = 0; i < f.im.nx * f.im.ny; i++)
             res[i] /= f.gain;                   /* back to ADU, as the input */
         mp_card cards[2] = {{"GAIN", f.gain, NULL, "e-/ADU"}, {"RDNOISE", f.rdnoise, NULL, "e-"}};
-        if (mp_image_write(residual, res, f.im.nx, f.im.ny, -32, cards, 2, err))
+        if (mp_image_write_float(residual, res, f.im.nx, f.im.ny, cards, 2, err))
             goto done;
     }
     if (mp_table_write(output, &t, s->fmt, err))
@@ -116,6 +116,8 @@ int mp_task_fit(int argc, char **argv)
     char **im = NULL, **co = NULL, **out = NULL, **rs = NULL;
     size_t nim = 0, nco = 0, nout = 0, nrs = 0;
     int rc = 1;
+    /* Killed runs' temporaries: each output directory swept once. */
+    mp_sweeps *sw = mp_sweeps_new();
     if (mp_fit_setup_read(&ps, &s, err))
         goto done;
     if (mp_params_list(mp_par_string(&ps, "image"), &im, &nim, err) ||
@@ -138,6 +140,9 @@ int mp_task_fit(int argc, char **argv)
             }
             o = named;
         }
+        mp_tmp_sweep(sw, o);
+        if (nrs)
+            mp_tmp_sweep(sw, rs[i]);
         int r = fit_one(&s, im[i], co[i], o, nrs ? rs[i] : NULL, nim, err);
         free(named);
         if (r)
@@ -151,6 +156,7 @@ done:
     mp_list_free(co, nco);
     mp_list_free(out, nout);
     mp_list_free(rs, nrs);
+    mp_sweeps_free(sw);
     mp_fit_setup_free(&s);
     mp_params_free(&ps);
     return rc;

@@ -105,6 +105,7 @@ int mp_task_group(int argc, char **argv)
     }
     if (verbose && histogram(&t, &o, strcmp(input, "-") ? input : "stdin", err))
         goto done;
+    mp_tmp_sweep(NULL, output);      /* killed runs' temporaries */
     if (mp_table_write(output && output[0] ? output : "-", &t, fmt, err))
         goto done;
     rc = 0;

@@ -197,14 +197,15 @@ int mp_frame_read(const char *name, const mp_datapars *dp, mp_frame *f, char *er
     const mp_datapars none = {NAN, NAN, NAN, NAN, "", 0, 0, 0, ""};
     if (!dp)
         dp = &none;
-    if (mp_image_read(name, &f->im, err))
+    if (mp_fimage_read(name, &f->im, err))
         return 1;
+    mp_image hv = mp_fimage_header(&f->im);
 
     int hg, hr, hs, he;
-    if (resolve(name, &f->im, dp->gain, "GAIN", 1.0, &f->gain, &hg, err) ||
-        resolve(name, &f->im, dp->rdnoise, "RDNOISE", 0.0, &f->rdnoise, &hr, err) ||
-        resolve(name, &f->im, dp->saturate, "SATURATE", INFINITY, &f->saturate, &hs, err) ||
-        resolve(name, &f->im, dp->exptime, "EXPTIME", 1.0, &f->exptime, &he, err))
+    if (resolve(name, &hv, dp->gain, "GAIN", 1.0, &f->gain, &hg, err) ||
+        resolve(name, &hv, dp->rdnoise, "RDNOISE", 0.0, &f->rdnoise, &hr, err) ||
+        resolve(name, &hv, dp->saturate, "SATURATE", INFINITY, &f->saturate, &hs, err) ||
+        resolve(name, &hv, dp->exptime, "EXPTIME", 1.0, &f->exptime, &he, err))
         goto fail;
     /* Name where a bad value came from: the header or the parameter. */
     if (!(f->gain > 0) || !isfinite(f->gain)) {
@@ -263,7 +264,7 @@ void mp_frame_free(mp_frame *f)
 {
     if (!f)
         return;
-    mp_image_free(&f->im);
+    mp_fimage_free(&f->im);
     free(f->mask);
     f->mask = NULL;
     free(f->xvar);

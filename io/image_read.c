@@ -12,26 +12,42 @@
 #include "io/section.h"
 
 /* Keep a malloc'd copy of the HDU's header so callers free one way only. */
-static int copy_header(fitsfile *fp, mp_image *im, int *status)
+static int copy_header(fitsfile *fp, char **hdr, int *nkeys_out, int *status)
 {
     char *h = NULL;
     int nkeys = 0;
     if (fits_hdr2str(fp, 0, NULL, 0, &h, &nkeys, status))
         return *status;
     size_t n = (size_t)nkeys * 80;
-    im->hdr = malloc(n + 1);
-    if (!im->hdr) {
+    *hdr = malloc(n + 1);
+    if (!*hdr) {
         fits_free_memory(h, status);
         return *status = MEMORY_ALLOCATION;
     }
-    memcpy(im->hdr, h, n);
-    im->hdr[n] = '\0';
-    im->nkeys = nkeys;
+    memcpy(*hdr, h, n);
+    (*hdr)[n] = '\0';
+    *nkeys_out = nkeys;
     fits_free_memory(h, status);
     return *status;
 }
 
-int mp_image_read(const char *name, mp_image *im, char *err)
+/* What both readers fill: the pixels in the type asked for (TDOUBLE or
+ * TFLOAT), the size and the header. */
+typedef struct {
+    long nx, ny;
+    void *pix;
+    char *hdr;
+    int nkeys;
+} raw_image;
+
+static void raw_free(raw_image *im)
+{
+    free(im->pix);
+    free(im->hdr);
+    memset(im, 0, sizeof *im);
+}
+
+static int read_raw(const char *name, int datatype, raw_image *im, char *err)
 {
     memset(im, 0, sizeof *im);
     if (!name || !*name) {
@@ -131,7 +147,8 @@ int mp_image_read(const char *name, mp_image *im, char *err)
     }
     im->nx = nx;
     im->ny = ny;
-    im->pix = malloc((size_t)nx * (size_t)ny * sizeof(double));
+    size_t esize = datatype == TFLOAT ? sizeof(float) : sizeof(double);
+    im->pix = malloc((size_t)nx * (size_t)ny * esize);
     if (!im->pix) {
         snprintf(err, MP_ERRLEN, "%s: out of memory for %ld x %ld pixels", name, nx, ny);
         goto fail;
@@ -140,20 +157,23 @@ int mp_image_read(const char *name, mp_image *im, char *err)
      * back as NaN, so callers test one thing. */
     long fpix[9] = {1, 1, 1, 1, 1, 1, 1, 1, 1};
     double nulval = NAN;
+    float fnulval = NAN;
     int anynul = 0;
-    fits_read_pix(fp, TDOUBLE, fpix, (LONGLONG)nx * ny, &nulval, im->pix, &anynul, &status);
+    fits_read_pix(fp, datatype, fpix, (LONGLONG)nx * ny,
+                  datatype == TFLOAT ? (void *)&fnulval : (void *)&nulval, im->pix, &anynul,
+                  &status);
     if (status) {
         mp_fits_error(name, "read", status, err);
         goto fail;
     }
-    if (copy_header(fp, im, &status)) {
+    if (copy_header(fp, &im->hdr, &im->nkeys, &status)) {
         mp_fits_error(name, "read the header of", status, err);
         goto fail;
     }
     fits_close_file(fp, &status);
     if (status) {
         mp_fits_error(name, "close", status, err);
-        mp_image_free(im);
+        raw_free(im);
         return 1;
     }
     return 0;
@@ -162,8 +182,38 @@ fail:
     status = 0;
     fits_close_file(fp, &status);
     fits_clear_errmsg();
-    mp_image_free(im);
+    raw_free(im);
     return 1;
+}
+
+int mp_image_read(const char *name, mp_image *im, char *err)
+{
+    raw_image r;
+    int rc = read_raw(name, TDOUBLE, &r, err);
+    *im = (mp_image){r.nx, r.ny, r.pix, r.hdr, r.nkeys};
+    return rc;
+}
+
+int mp_fimage_read(const char *name, mp_fimage *im, char *err)
+{
+    raw_image r;
+    int rc = read_raw(name, TFLOAT, &r, err);
+    *im = (mp_fimage){r.nx, r.ny, r.pix, r.hdr, r.nkeys};
+    return rc;
+}
+
+void mp_fimage_free(mp_fimage *im)
+{
+    if (!im)
+        return;
+    free(im->pix);
+    free(im->hdr);
+    memset(im, 0, sizeof *im);
+}
+
+mp_image mp_fimage_header(const mp_fimage *im)
+{
+    return (mp_image){im->nx, im->ny, NULL, im->hdr, im->nkeys};
 }
 
 void mp_image_free(mp_image *im)

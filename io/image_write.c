@@ -43,8 +43,9 @@ int mp_fits_write_cards(void *vfp, const mp_card *cards, int ncards, int *status
     return *status;
 }
 
-int mp_image_write(const char *path, const double *pix, long nx, long ny,
-                   int bitpix, const mp_card *cards, int ncards, char *err)
+/* Either writer: pix of cfitsio type datatype (TDOUBLE or TFLOAT). */
+static int write_typed(const char *path, int datatype, const void *pix, long nx, long ny,
+                       int bitpix, const mp_card *cards, int ncards, char *err)
 {
     if (!path || !*path) {
         snprintf(err, MP_ERRLEN, "(no name): no output image name given");
@@ -83,7 +84,7 @@ int mp_image_write(const char *path, const double *pix, long nx, long ny,
     }
     fits_create_img(fp, bitpix, 2, naxes, &status);
     mp_fits_write_cards(fp, cards, ncards, &status);
-    fits_write_pix(fp, TDOUBLE, fpix, (LONGLONG)nx * ny, (void *)pix, &status);
+    fits_write_pix(fp, datatype, fpix, (LONGLONG)nx * ny, (void *)pix, &status);
     fits_close_file(fp, &status);
     if (status) {
         mp_fits_error(path, "write", status, err);
@@ -103,4 +104,16 @@ int mp_image_write(const char *path, const double *pix, long nx, long ny,
     mp_tmp_unregister(tmp);
     free(tmp);
     return 0;
+}
+
+int mp_image_write(const char *path, const double *pix, long nx, long ny,
+                   int bitpix, const mp_card *cards, int ncards, char *err)
+{
+    return write_typed(path, TDOUBLE, pix, nx, ny, bitpix, cards, ncards, err);
+}
+
+int mp_image_write_float(const char *path, const float *pix, long nx, long ny,
+                         const mp_card *cards, int ncards, char *err)
+{
+    return write_typed(path, TFLOAT, pix, nx, ny, FLOAT_IMG, cards, ncards, err);
 }

@@ -5,8 +5,9 @@
  * Conventions (design.md §3):
  *   - Image names are cfitsio extended file names: "f.fits", "f.fits[1]",
  *     "f.fits[SCI]", "f.fits[1:512,1:512]", "psf.fits[DRF]".
- *   - Pixels are held as double, row-major: pix[(y-1)*nx + (x-1)] is the pixel
- *     whose centre is at the 1-based coordinate (x, y).
+ *   - Pixels are held row-major: pix[(y-1)*nx + (x-1)] is the pixel whose
+ *     centre is at the 1-based coordinate (x, y); as double in mp_image
+ *     (PSF tables, DRFs, masks), as float in a frame's mp_fimage.
  *   - Every function that can fail returns 0 on success and nonzero on
  *     failure, and then writes one line (no trailing newline) into err, of at
  *     most MP_ERRLEN bytes, naming the file or parameter and what is wrong.
@@ -43,6 +44,28 @@ int mp_image_read(const char *name, mp_image *im, char *err);
  * already freed image. */
 void mp_image_free(mp_image *im);
 
+/* A frame's image: as mp_image, its pixels in single precision.  A frame
+ * is data with a noise of at least a few electrons a pixel; float's
+ * relative 6e-8 rounding is far below it, and it halves the largest
+ * arrays of a survey-size run (issue 14: whole-frame memory counted in
+ * images).  Arithmetic on the pixels is done in double (the values are
+ * promoted as they are read). */
+typedef struct {
+    long nx, ny;
+    float *pix;      /* nx*ny values; NaN where the file has NaN/blank */
+    char *hdr;       /* nkeys 80-character cards, not NUL-separated */
+    int nkeys;
+} mp_fimage;
+
+/* mp_fimage_read / mp_fimage_free: mp_image_read and mp_image_free for a
+ * single-precision image (any BITPIX, converted by cfitsio). */
+int mp_fimage_read(const char *name, mp_fimage *im, char *err);
+void mp_fimage_free(mp_fimage *im);
+
+/* mp_fimage_header: a view of im's size and header as an mp_image with no
+ * pixels (pix NULL), for the keyword and WCS readers; nothing to free. */
+mp_image mp_fimage_header(const mp_fimage *im);
+
 /* mp_header_double / mp_header_string: look a keyword up in im->hdr.
  * Return 0 when found and parsed, 1 when absent, 2 when present but not of
  * that type. */
@@ -64,6 +87,11 @@ typedef struct {
  * same directory, renamed at the end; removed on failure). */
 int mp_image_write(const char *path, const double *pix, long nx, long ny,
                    int bitpix, const mp_card *cards, int ncards, char *err);
+
+/* mp_image_write_float: mp_image_write of single-precision pixels, BITPIX
+ * -32 (a frame's residual, with no double copy of the frame's size). */
+int mp_image_write_float(const char *path, const float *pix, long nx, long ny,
+                         const mp_card *cards, int ncards, char *err);
 
 /* mp_image_size: the size of a 2-D image (extended names and sections as
  * mp_image_read) without reading its pixels. */
@@ -122,7 +150,7 @@ enum {
  * detector numbers actually in force (already resolved from datapars and
  * header). saturate is in ADU as in the header; INFINITY when none. */
 typedef struct {
-    mp_image im;           /* pix in electrons; bad pixels hold 0.0 */
+    mp_fimage im;          /* pix in electrons (single precision); bad pixels hold 0 */
     uint8_t *mask;         /* nx*ny, MP_MASK_* bits */
     double gain, rdnoise, saturate, exptime;
     long nbad, nsat;       /* counts of masked and saturated pixels */
@@ -156,12 +184,30 @@ int mp_out_commit(mp_outfile *o, char *err);   /* flush, close, rename */
 void mp_out_abort(mp_outfile *o);              /* close, unlink temporary */
 
 /* mp_tmp_name: the temporary name used for path, "<dir>/.<base>.tmp.<host>.<pid>"
- * (caller frees; NULL when out of memory).  It first removes the
- * temporaries of the same path that killed runs on this host left behind
- * (SIGKILL cannot be caught: cleanup.c's handler never ran), those whose
- * pid no longer exists, so a resubmitted job leaves its directory as a
- * clean run does. */
+ * (caller frees; NULL when out of memory).  A name only: the temporaries
+ * of killed runs are swept by mp_tmp_sweep. */
 char *mp_tmp_name(const char *path);
+
+/* Killed runs' temporaries.  SIGKILL cannot be caught (cleanup.c's
+ * handler never runs: a node's OOM killer, a job's time limit), so a
+ * task sweeps the directory of each output before writing it:
+ * mp_tmp_sweep removes from path's directory every temporary that a run
+ * on this host left (".<base>.tmp.<host>.<pid>", any base, the pid no
+ * longer alive), so a resubmitted job leaves its directory as a clean
+ * run does.  Another host's temporaries (a shared file system) and live
+ * runs' are left alone.  Once per directory per run (issue 14: listing
+ * the directory at every write made a survey's thousands of outputs in
+ * one folder O(N²)): s is the set of directories the run (a task's
+ * invocation, every frame of an @list) has swept; a directory already in
+ * it is not listed again.  s NULL: list it every time.  path "-" or ""
+ * (stdout, none): nothing.  Returns 1 when the directory was listed, 0
+ * otherwise.  mp_sweeps_listed counts the listings a set has made (for
+ * tests: counts, not times). */
+typedef struct mp_sweeps mp_sweeps;
+mp_sweeps *mp_sweeps_new(void);       /* NULL when out of memory */
+void mp_sweeps_free(mp_sweeps *s);
+int mp_tmp_sweep(mp_sweeps *s, const char *path);
+long mp_sweeps_listed(const mp_sweeps *s);
 
 /* Interrupted runs (io/cleanup.c).  The writers above (and the FITS table
  * writer) register each temporary before creating it and unregister it

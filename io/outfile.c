@@ -26,35 +26,111 @@ static void host_tag(char *out, size_t len)
         snprintf(out, len, "host");
 }
 
-/* Remove the temporaries of path that runs on this host left when they
- * were killed (SIGKILL, a node's OOM killer, a job's time limit): a name
- * of the form ".<base>.tmp.<host>.<pid>" whose process is gone.  Another
- * host's temporaries (a shared file system) and live processes' are left
- * alone; a pid reused since leaves its stale file in place, harmlessly. */
-static void sweep_stale(const char *path, size_t dlen, const char *prefix)
+/* The directories a run has swept (io.h): their names, in the order
+ * swept (a run writes into few: a linear search is enough). */
+struct mp_sweeps {
+    char **dir;
+    size_t n, cap;
+    long listed;
+};
+
+mp_sweeps *mp_sweeps_new(void)
 {
-    char *dir = dlen ? strndup(path, dlen) : strdup(".");
-    DIR *d = dir ? opendir(dir) : NULL;
-    size_t np = strlen(prefix);
+    return calloc(1, sizeof(mp_sweeps));
+}
+
+void mp_sweeps_free(mp_sweeps *s)
+{
+    if (!s)
+        return;
+    for (size_t i = 0; i < s->n; i++)
+        free(s->dir[i]);
+    free(s->dir);
+    free(s);
+}
+
+long mp_sweeps_listed(const mp_sweeps *s)
+{
+    return s ? s->listed : 0;
+}
+
+/* Is name ".<anything>.tmp.<host>.<digits>", the digits a pid of at most
+ * 18 digits?  *pid gets it. */
+static int stale_form(const char *name, const char *tag, long *pid)
+{
+    const char *t = NULL;
+    for (const char *q = strstr(name, tag); q; q = strstr(q + 1, tag))
+        t = q;                                   /* the last ".tmp.<host>." */
+    if (name[0] != '.' || !t || t == name + 1)
+        return 0;
+    const char *tail = t + strlen(tag);
+    if (!*tail || strspn(tail, "0123456789") != strlen(tail) || strlen(tail) > 18)
+        return 0;
+    *pid = atol(tail);
+    return 1;
+}
+
+/* Remove from directory dir the temporaries that runs on this host left
+ * when they were killed (SIGKILL, a node's OOM killer, a job's time
+ * limit): any output's ".<base>.tmp.<host>.<pid>" whose process is gone.
+ * Another host's temporaries (a shared file system) and live processes'
+ * are left alone; a pid reused since leaves its stale file in place,
+ * harmlessly. */
+static void sweep_dir(const char *dir)
+{
+    char host[64], tag[80];
+    host_tag(host, sizeof host);
+    snprintf(tag, sizeof tag, ".tmp.%s.", host);
+    DIR *d = opendir(dir);
     for (struct dirent *e; d && (e = readdir(d));) {
-        const char *tail = e->d_name + np;
-        if (strncmp(e->d_name, prefix, np) != 0 || !*tail ||
-            strspn(tail, "0123456789") != strlen(tail) || strlen(tail) > 18)
+        long pid = 0;
+        if (!stale_form(e->d_name, tag, &pid))
             continue;
-        long pid = atol(tail);
         if (pid <= 0 || pid == (long)getpid() || kill((pid_t)pid, 0) == 0 || errno != ESRCH)
             continue;
-        size_t n = strlen(dir) + strlen(e->d_name) + 2;
+        size_t n = strlen(dir) + strlen(e->d_name) + 1;
         char *f = malloc(n);
         if (f) {
-            snprintf(f, n, "%s/%s", dir, e->d_name);
+            snprintf(f, n, "%s%s", dir, e->d_name);
             unlink(f);
             free(f);
         }
     }
     if (d)
         closedir(d);
-    free(dir);
+}
+
+int mp_tmp_sweep(mp_sweeps *s, const char *path)
+{
+    if (!path || !*path || strcmp(path, "-") == 0)
+        return 0;
+    const char *slash = strrchr(path, '/');
+    char *dir = slash ? strndup(path, (size_t)(slash - path) + 1) : strdup("./");
+    if (!dir)
+        return 0;                    /* out of memory: a stale file stays, harmlessly */
+    for (size_t i = 0; s && i < s->n; i++)
+        if (strcmp(s->dir[i], dir) == 0) {
+            free(dir);
+            return 0;
+        }
+    sweep_dir(dir);
+    if (!s) {
+        free(dir);
+        return 1;
+    }
+    s->listed++;
+    if (s->n == s->cap) {
+        size_t cap = s->cap ? 2 * s->cap : 4;
+        char **d = realloc(s->dir, cap * sizeof *d);
+        if (!d) {
+            free(dir);               /* not remembered: swept again next time */
+            return 1;
+        }
+        s->dir = d;
+        s->cap = cap;
+    }
+    s->dir[s->n++] = dir;
+    return 1;
 }
 
 char *mp_tmp_name(const char *path)
@@ -62,7 +138,7 @@ char *mp_tmp_name(const char *path)
     /* "<dir>/.<base>.tmp.<host>.<pid>": same directory so rename() is
      * atomic, hidden so a directory listing during a run stays clean,
      * host and pid so two runs writing the same output do not share a
-     * temporary, and a killed run's can be told stale (sweep_stale). */
+     * temporary, and a killed run's can be told stale (mp_tmp_sweep). */
     const char *slash = strrchr(path, '/');
     size_t dlen = slash ? (size_t)(slash - path) + 1 : 0;
     const char *base = path + dlen;
@@ -75,7 +151,6 @@ char *mp_tmp_name(const char *path)
         return NULL;
     memcpy(t, path, dlen);
     snprintf(t + dlen, n - dlen, ".%s%s", base, tag);
-    sweep_stale(path, dlen, t + dlen);
     size_t l = strlen(t);
     snprintf(t + l, n - l, "%ld", (long)getpid());
     return t;

@@ -42,7 +42,7 @@ static int cut_box(const mp_frame *f, double x, double y, long side, mp_frame *c
         return 1;
     for (long j = 0; j < c->im.ny; j++) {
         size_t src = (size_t)(b - 1 + j) * (size_t)f->im.nx + (size_t)(a - 1);
-        memcpy(c->im.pix + (size_t)j * c->im.nx, f->im.pix + src, (size_t)c->im.nx * sizeof(double));
+        memcpy(c->im.pix + (size_t)j * c->im.nx, f->im.pix + src, (size_t)c->im.nx * sizeof *c->im.pix);
         memcpy(c->mask + (size_t)j * c->im.nx, f->mask + src, (size_t)c->im.nx);
     }
     c->gain = f->gain;

@@ -38,7 +38,8 @@ int mp_pl_write_catalog(const char *root, const mp_frame *f, mp_table *t,
                          const mp_pipeline_opts *o, char *err)
 {
     char e[MP_ERRLEN];
-    if (has_wcs(&f->im) && mp_table_add_sky(t, &f->im, e))
+    mp_image hv = mp_fimage_header(&f->im);
+    if (has_wcs(&hv) && mp_table_add_sky(t, &hv, e))
         fprintf(stderr, "matphot pipeline: warning: no sky positions: %s\n", e);
     size_t n = strlen(root) + 8;
     char *path = malloc(n);
@@ -82,7 +83,7 @@ int mp_pl_residual_open(const char *root, const mp_frame *f, long nx, long ny,
     return rc;
 }
 
-int mp_pl_residual_put(mp_image_out *out, const mp_frame *f, const double *res, long x1, long y1,
+int mp_pl_residual_put(mp_image_out *out, const mp_frame *f, const float *res, long x1, long y1,
                        long w, long h, long ox, long oy, char *err)
 {
     /* A row at a time, in ADU: no copy of the frame's size. */
@@ -102,7 +103,7 @@ int mp_pl_residual_put(mp_image_out *out, const mp_frame *f, const double *res, 
     return rc;
 }
 
-int mp_pl_write_residual(const char *root, const mp_frame *f, const double *res, char *err)
+int mp_pl_write_residual(const char *root, const mp_frame *f, const float *res, char *err)
 {
     mp_image_out *out;
     if (mp_pl_residual_open(root, f, f->im.nx, f->im.ny, &out, err))

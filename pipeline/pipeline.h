@@ -31,6 +31,9 @@ typedef struct {
     long tilesize;           /* core of a tile [px]; 0: whole frame; -1: from maxmem */
     double maxmem;           /* memory budget [MB] that chooses tiles when tilesize = -1 */
     long tilemargin;         /* [px] read around a core; -1: 2 (fitrad + psfrad) + 2 FWHM */
+    mp_sweeps *sweeps;       /* the directories this run (every frame of an
+                              * @list) has swept of killed runs' temporaries
+                              * (io.h mp_tmp_sweep); NULL: each frame sweeps */
 } mp_pipeline_opts;
 
 /* Seconds and counts of every stage, for the report on stderr. */

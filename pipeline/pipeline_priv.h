@@ -47,7 +47,7 @@ long mp_pl_add_new_stars(mp_table *t, const mp_table *gone, const mp_table *foun
  * FLUX set to the fitted flux (the fit's start); its S/N goes to column
  * MP_PL_SNR_COL either way.  Returns the number
  * dropped, −1 when out of memory.  Threads over candidates (OpenMP). */
-long mp_pl_prescreen(const mp_frame *f, const mp_bkg *b, const double *res,
+long mp_pl_prescreen(const mp_frame *f, const mp_bkg *b, const float *res,
                      const mp_prf_model *m, double fitrad, double snrmin, mp_table *found);
 
 /* The column mp_pl_prescreen writes each candidate's S/N to (not copied
@@ -68,7 +68,7 @@ void mp_pl_drop_unset(mp_table *t);
 /* mp_pl_reduce: what mp_pipeline_run does to image, writing no file: at the
  * end done(ctx, frame, stars, residual [e-], err) gets the run's results
  * (its to modify, not to keep) and its return is the run's.  For tiles. */
-typedef int (*mp_pl_done_fn)(void *ctx, const mp_frame *f, mp_table *t, double *res, char *err);
+typedef int (*mp_pl_done_fn)(void *ctx, const mp_frame *f, mp_table *t, float *res, char *err);
 int mp_pl_reduce(const char *image, const mp_pipeline_opts *o, mp_pipeline_report *rep,
                  mp_pl_done_fn done, void *ctx, char *err);
 
@@ -97,7 +97,7 @@ int mp_pl_psf_on(const char *section, const char *root, const mp_pipeline_opts *
  * χ²(1) > 25 has probability 6e-7 at one place. */
 #define MP_PL_SPLIT_MINSNR 5.0
 
-long mp_pl_split_candidates(const mp_frame *f, const mp_bkg *b, const double *res,
+long mp_pl_split_candidates(const mp_frame *f, const mp_bkg *b, const float *res,
                             const mp_prf_model *m, const mp_table *t, double fitrad, double rmin,
                             double rmax, double snrmin, mp_table *found);
 
@@ -121,9 +121,9 @@ int mp_pl_write_catalog(const char *root, const mp_frame *f, mp_table *t,
  * whose pixel (1, 1) is frame pixel (1 + ox, 1 + oy). */
 int mp_pl_residual_open(const char *root, const mp_frame *f, long nx, long ny,
                         mp_image_out **out, char *err);
-int mp_pl_residual_put(mp_image_out *out, const mp_frame *f, const double *res, long x1, long y1,
+int mp_pl_residual_put(mp_image_out *out, const mp_frame *f, const float *res, long x1, long y1,
                        long w, long h, long ox, long oy, char *err);
-int mp_pl_write_residual(const char *root, const mp_frame *f, const double *res, char *err);
+int mp_pl_write_residual(const char *root, const mp_frame *f, const float *res, char *err);
 
 /* mp_pl_write_report: the run report of a finished run (stderr and
  * root.report) from the pipeline's counts and the final table; fit is the

@@ -13,7 +13,7 @@
 /* Linear weighted fit of E·P + B over the pixels within r of (x, y):
  * E and its σ from the 2×2 normal equations, weights 1/rms².  NaN when
  * the window holds too little. */
-static double linear_snr(const mp_frame *f, const mp_bkg *b, const double *res,
+static double linear_snr(const mp_frame *f, const mp_bkg *b, const float *res,
                          const mp_prf_model *m, double x, double y, double r, double *prf,
                          mp_prf_work *wk, double *flux)
 {
@@ -54,7 +54,7 @@ static double linear_snr(const mp_frame *f, const mp_bkg *b, const double *res,
     return *flux / sqrt(s1 / det);
 }
 
-long mp_pl_prescreen(const mp_frame *f, const mp_bkg *b, const double *res,
+long mp_pl_prescreen(const mp_frame *f, const mp_bkg *b, const float *res,
                      const mp_prf_model *m, double fitrad, double snrmin, mp_table *found)
 {
     int fx = mp_table_col(found, "X_IMAGE"), fy = mp_table_col(found, "Y_IMAGE");

@@ -19,7 +19,7 @@ typedef struct {
     mp_table found;    /* detections on the residual, this round */
     mp_table gone;     /* where merged or rejected stars were */
     mp_table before;   /* NUMBER and position of every row given to the fit */
-    double *res;       /* residual [e-], nx*ny */
+    float *res;        /* residual [e-], nx*ny, single precision as the frame */
     mp_fit_memory *mem;   /* what every group was fitted against, so a round
                            * refits only the groups new stars reach */
     double fwhm;
@@ -112,7 +112,7 @@ static int need_residual(run_state *s, char *err)
  * full fit judges them by minsnr.  (Leaving the candidates within 1.5
  * FWHM of a fitted star unscreened, for blends, found 9 more stars of
  * 5000 at 3x the fit's time: not done.) */
-static int screen(run_state *s, const mp_frame *on, const double *data, mp_table *cand)
+static int screen(run_state *s, const mp_frame *on, const float *data, mp_table *cand)
 {
     double cut = s->fit->opts.minsnr - MP_PL_SCREEN_SLACK;
     if (!(cut > 0) || cand->nrow == 0)
@@ -438,6 +438,7 @@ int mp_pipeline_run(const char *image, const char *root, const mp_pipeline_opts 
         state_free(&s);
         return 1;
     }
+    mp_tmp_sweep(o->sweeps, root);   /* every output is root.*: one directory */
     int rc = read_frame(&s, err) || find_stars(&s, err) || (o->build_psf && build_psf(&s, 1, err));
     if (!rc)
         rc = rounds(&s, err);
@@ -495,6 +496,7 @@ int mp_pl_psf_on(const char *section, const char *root, const mp_pipeline_opts *
     s.offy = offy;
     s.fnx = fnx;
     s.fny = fny;
+    mp_tmp_sweep(o->sweeps, root);   /* root.psf.fits */
     if (!rc)
         rc = read_frame(&s, err) || find_stars(&s, err) || build_psf(&s, 1, err);
     /* Pass 2 as a whole run makes it: every neighbour fitted and gone. */

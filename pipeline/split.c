@@ -89,7 +89,7 @@ static int render(const mp_prf_model *m, double x, double y, const split_work *s
 
 /* The best second star beside the star at (x, y): its place, Δχ² and
  * linear flux; Δχ² NaN when none could be tried. */
-static double best_second(const mp_frame *f, const mp_bkg *b, const double *res,
+static double best_second(const mp_frame *f, const mp_bkg *b, const float *res,
                           const mp_prf_model *m, double x, double y, double fitrad,
                           const double *rings, split_work *s, double *scratch, mp_prf_work *wk,
                           double *bx, double *by, double *bflux, double *bpeak)
@@ -163,7 +163,7 @@ static double best_second(const mp_frame *f, const mp_bkg *b, const double *res,
     return best;
 }
 
-long mp_pl_split_candidates(const mp_frame *f, const mp_bkg *b, const double *res,
+long mp_pl_split_candidates(const mp_frame *f, const mp_bkg *b, const float *res,
                             const mp_prf_model *m, const mp_table *t, double fitrad, double rmin,
                             double rmax, double snrmin, mp_table *found)
 {

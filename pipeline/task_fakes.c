@@ -117,6 +117,10 @@ int mp_task_fakes(int argc, char **argv)
         goto done;
     if (mp_fakes_run(&f, &o, &fo, &base, lo, hi, out, err))
         goto done;
+    mp_sweeps *sw = mp_sweeps_new();  /* killed runs' temporaries, once a directory */
+    mp_tmp_sweep(sw, cat);
+    mp_tmp_sweep(sw, root);
+    mp_sweeps_free(sw);
     if (mp_fakes_write_table(cat, out, hi - lo, err) ||
         mp_fakes_write_report(root, image, &fo, lo, hi, out, err))
         goto done;

@@ -76,6 +76,10 @@ int mp_task_pipeline(int argc, char **argv)
     int rc = 1;
     if (mp_pl_opts_read(&ps, &o, err))
         goto done;
+    if (!(o.sweeps = mp_sweeps_new())) {
+        snprintf(err, MP_ERRLEN, "out of memory");
+        goto done;
+    }
     if (mp_params_list(mp_par_string(&ps, "image"), &im, &nim, err))
         goto done;
     const char *root = mp_par_string(&ps, "root");
@@ -101,6 +105,7 @@ done:
     if (rc)
         fprintf(stderr, "matphot pipeline: %s\n", err);
     mp_list_free(im, nim);
+    mp_sweeps_free(o.sweeps);
     mp_fit_setup_free(&o.fit);
     mp_params_free(&ps);
     return rc;

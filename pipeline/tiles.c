@@ -137,13 +137,13 @@ static int take_stars(tiling *g, mp_table *t)
 }
 
 /* The core's residual into the frame's residual file. */
-static int put_residual(tiling *g, const mp_frame *f, const double *res, char *err)
+static int put_residual(tiling *g, const mp_frame *f, const float *res, char *err)
 {
     return mp_pl_residual_put(g->res, f, res, g->cx1, g->cy1, g->cx2 - g->cx1 + 1,
                               g->cy2 - g->cy1 + 1, g->sx1 - 1, g->sy1 - 1, err);
 }
 
-static int tile_done(void *ctx, const mp_frame *f, mp_table *t, double *res, char *err)
+static int tile_done(void *ctx, const mp_frame *f, mp_table *t, float *res, char *err)
 {
     tiling *g = ctx;
     /* opened with the first tile's detector values */
@@ -272,6 +272,7 @@ int mp_pipeline_run_tiled(const char *image, const char *root, const mp_pipeline
     long nx, ny;
     if (mp_image_size(image, &nx, &ny, err))
         return 1;
+    mp_tmp_sweep(o->sweeps, root);   /* every output is root.*: one directory */
     tiling g;
     memset(&g, 0, sizeof g);
     g.o = o;
@@ -342,6 +343,7 @@ static int tiles_with_built_psf(const char *image, const char *root, const mp_pi
     } else if (!rc && !(rc = mp_params_set(o->ps, "psf", path, err))) {
         rc = mp_pl_opts_read(o->ps, lo, err);
         own = !rc;
+        lo->sweeps = o->sweeps;
         char e2[MP_ERRLEN];
         mp_params_set(o->ps, "psf", "", e2);
     }

@@ -47,7 +47,7 @@
  * neighbours' current models (what the table is built from). */
 typedef struct {
     mp_frame f;        /* the cut-out; pixels in electrons, own mask */
-    double *raw;       /* NULL, or the cut-out with the neighbours in */
+    float *raw;        /* NULL, or the cut-out with the neighbours in */
     int nnb;           /* neighbours, frame coordinates and flux [e-] */
     double nbx[MP_EPSF_MAXNB], nby[MP_EPSF_MAXNB], nbf[MP_EPSF_MAXNB];
     size_t nbrow[MP_EPSF_MAXNB];   /* their rows in the table they came from */
@@ -129,7 +129,7 @@ int mp_epsf_select(const mp_frame *f, const mp_table *found, const mp_epsf_opts 
  * fitted star) reaching psfrad + 2 px around it, with f's mask and
  * detector numbers.  Errors: a star whose centre is off the frame (named
  * by its position), out of memory. */
-int mp_epsf_cutouts(const mp_frame *f, const double *img, const double *x, const double *y,
+int mp_epsf_cutouts(const mp_frame *f, const float *img, const double *x, const double *y,
                     const double *flux, const double *sky, size_t n, double psfrad,
                     mp_epsf_star **stars, char *err);
 
@@ -207,7 +207,7 @@ int mp_epsf_rebin(const mp_epsf *e, int factor, mp_epsf *out, char *err);
  * with m, as they were taken).  e->sum is set to the median ratio when
  * that is below 1 by more than 3 times its error, else 1; e->sum_err its error.  Nonzero
  * only on out of memory (fewer than 3 measurable stars: sum 1). */
-int mp_epsf_growth(const mp_frame *f, const double *img, const mp_table *fitted,
+int mp_epsf_growth(const mp_frame *f, const float *img, const mp_table *fitted,
                    const mp_prf_model *m, const mp_epsf_star *s, size_t n, double rin,
                    double rbig, mp_epsf *e, char *err);
 
@@ -240,7 +240,7 @@ typedef struct {
  * 2·psfrad.  e may hold the previous pass's table (its OVERSAMP and order
  * are kept as the start).  Errors: no usable PSF star, a star off the
  * frame, out of memory. */
-int mp_epsf_pass(const mp_frame *f, const double *img, int residual, const mp_table *fitted,
+int mp_epsf_pass(const mp_frame *f, const float *img, int residual, const mp_table *fitted,
                  const mp_prf_model *m, const double *x, const double *y, const double *flux,
                  size_t n, const mp_epsf_opts *o, mp_epsf *e, mp_epsf_report *rep,
                  mp_psf_star **stars, char *err);

@@ -76,7 +76,7 @@ static double start_flux(const mp_epsf_star *s, double r)
     return sum > 1.0 ? sum : 1.0;
 }
 
-static int cut_one(const mp_frame *f, const double *img, double x, double y, double psfrad,
+static int cut_one(const mp_frame *f, const float *img, double x, double y, double psfrad,
                    mp_epsf_star *s)
 {
     long r = (long)ceil(psfrad + MP_EPSF_ANNULUS(psfrad)) + 2;
@@ -111,7 +111,7 @@ static int cut_one(const mp_frame *f, const double *img, double x, double y, dou
     return 0;
 }
 
-int mp_epsf_cutouts(const mp_frame *f, const double *img, const double *x, const double *y,
+int mp_epsf_cutouts(const mp_frame *f, const float *img, const double *x, const double *y,
                     const double *flux, const double *sky, size_t n, double psfrad,
                     mp_epsf_star **stars, char *err)
 {

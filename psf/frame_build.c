@@ -220,7 +220,7 @@ static int choose_order(mp_epsf_star *s, size_t n, const mp_epsf_opts *o, mp_eps
     return 0;
 }
 
-int mp_epsf_pass(const mp_frame *f, const double *img, int residual, const mp_table *fitted,
+int mp_epsf_pass(const mp_frame *f, const float *img, int residual, const mp_table *fitted,
                  const mp_prf_model *m, const double *x, const double *y, const double *flux,
                  size_t n, const mp_epsf_opts *o, mp_epsf *e, mp_epsf_report *rep,
                  mp_psf_star **stars, char *err)

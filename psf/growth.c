@@ -26,7 +26,7 @@ static int by_flux(const void *a, const void *b)
  * NaN when the rings leave the frame or a ring has fewer than half its
  * pixels unmasked.  buf holds 2 × the box's pixels; ring the ring index
  * of each. */
-static double outer_light(const mp_frame *f, const double *img, const double *own, long ox,
+static double outer_light(const mp_frame *f, const float *img, const double *own, long ox,
                           long oy, int ow, int oh, double x, double y, double rin, double rbig,
                           double *buf, int *ring)
 {
@@ -129,7 +129,7 @@ static int own_light(const mp_table *t, const mp_prf_model *m, const mp_epsf *e,
     return 0;
 }
 
-int mp_epsf_growth(const mp_frame *f, const double *img, const mp_table *fitted,
+int mp_epsf_growth(const mp_frame *f, const float *img, const mp_table *fitted,
                    const mp_prf_model *m, const mp_epsf_star *s, size_t n, double rin,
                    double rbig, mp_epsf *e, char *err)
 {

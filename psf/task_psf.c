@@ -108,7 +108,7 @@ done:
 /* Every detection fitted with the first pass's table (grouped as the
  * pipeline groups), and the residual: what the second pass needs. */
 static int fit_all(const mp_frame *f, const psf_task *t, mp_table *found,
-                   const mp_prf_model *m, double *res, char *err)
+                   const mp_prf_model *m, float *res, char *err)
 {
     mp_group_opts go;
     mp_group_opts_default(&go);
@@ -177,7 +177,8 @@ static int run(psf_task *t, char *err)
     mp_psf tab;
     memset(&tab, 0, sizeof tab);
     mp_psf_star *ps = NULL;
-    double *x = NULL, *y = NULL, *fl = NULL, *res = NULL;
+    double *x = NULL, *y = NULL, *fl = NULL;
+    float *res = NULL;
     size_t n = 0;
     char *named = NULL;
     int rc = 1;
@@ -239,6 +240,7 @@ static int run(psf_task *t, char *err)
         }
         out = named;
     }
+    mp_tmp_sweep(NULL, out);         /* killed runs' temporaries */
     if (mp_psf_field_write(out, &fld, ps, t->passes > 1 ? (int)n : 0, err))
         goto done;
     fprintf(stderr, "matphot psf: %s: wrote %s (OVERSAMP %d, %dx%d, order %d, PSFSUM %.4f)\n",

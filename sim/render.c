@@ -56,10 +56,25 @@ static void axis_integrals(double c, double sigma, long lo, long hi, int dk, dou
 }
 
 static long lmax(long a, long b) { return a > b ? a : b; }
+
+/* The image a star is added to: double (the simulator's own) or float
+ * (a frame's pixels, io.h); exactly one is set. */
+typedef struct {
+    double *d;
+    float *f;
+} sink;
+
+static void add_at(sink img, size_t i, double v)
+{
+    if (img.d)
+        img.d[i] += v;
+    else
+        img.f[i] = (float)(img.f[i] + v);
+}
 static long lmin(long a, long b) { return a < b ? a : b; }
 
 static int add_gauss(const mp_sim_prf *p, double x, double y, double flux,
-                     double *img, long nx, long ny)
+                     sink img, long nx, long ny)
 {
     double r = GAUSS_NSIGMA * p->sigma;
     /* Pixels containing x-r .. x+r, clipped to the image. */
@@ -93,12 +108,12 @@ static int add_gauss(const mp_sim_prf *p, double x, double y, double flux,
             w[j * wx + px] = s;
         }
     for (long py = 0; py < wy; py++) {
-        double *row = img + (y0 - 1 + py) * nx + (x0 - 1);
+        size_t row = (size_t)((y0 - 1 + py) * nx + (x0 - 1));
         for (long px = 0; px < wx; px++) {
             double s = 0;
             for (int j = 0; j < dk; j++)
                 s += ay[py * dk + j] * w[j * wx + px];
-            row[px] += flux * s;
+            add_at(img, row + (size_t)px, flux * s);
         }
     }
     free(ax); free(ay); free(w);
@@ -129,7 +144,7 @@ void mp_sim_snap(const mp_sim_prf *p, double *x, double *y)
 }
 
 static int add_table(const mp_sim_prf *p, double x, double y, double flux,
-                     double *img, long nx, long ny)
+                     sink img, long nx, long ny)
 {
     const int tos = p->tos;
     if (fabs(x) > 1e12 || fabs(y) > 1e12)   /* beyond exact integer offsets */
@@ -167,28 +182,49 @@ static int add_table(const mp_sim_prf *p, double x, double y, double flux,
                     sum += trow[i] * qe;
                 }
             }
-            img[(py - 1) * nx + (px - 1)] += flux * sum;
+            add_at(img, (size_t)((py - 1) * nx + (px - 1)), flux * sum);
         }
     return 0;
 }
 
-int mp_sim_add_star(const mp_sim_prf *p, double x, double y, double flux,
-                    double *img, long nx, long ny)
+static int add_star(const mp_sim_prf *p, double x, double y, double flux, sink img, long nx,
+                    long ny)
 {
-    if (!prf_ok(p) || !img || nx < 1 || ny < 1 || !isfinite(x) || !isfinite(y) ||
+    if (!prf_ok(p) || (!img.d && !img.f) || nx < 1 || ny < 1 || !isfinite(x) || !isfinite(y) ||
         !isfinite(flux))
         return 1;
     return p->kind == MP_SIM_GAUSS ? add_gauss(p, x, y, flux, img, nx, ny)
                                    : add_table(p, x, y, flux, img, nx, ny);
 }
 
+int mp_sim_add_star(const mp_sim_prf *p, double x, double y, double flux,
+                    double *img, long nx, long ny)
+{
+    return add_star(p, x, y, flux, (sink){img, NULL}, nx, ny);
+}
+
+int mp_sim_add_star_float(const mp_sim_prf *p, double x, double y, double flux, float *img,
+                          long nx, long ny)
+{
+    return add_star(p, x, y, flux, (sink){NULL, img}, nx, ny);
+}
+
+static double noisy(mp_rng *r, double m, double ron)
+{
+    double v = m > 0 ? mp_rng_poisson(r, m) : 0.0;
+    if (ron > 0)
+        v += ron * mp_rng_normal(r);
+    return v;
+}
+
 void mp_sim_add_noise(mp_rng *r, double *img, long n, double ron)
 {
-    for (long i = 0; i < n; i++) {
-        double m = img[i];
-        double v = m > 0 ? mp_rng_poisson(r, m) : 0.0;
-        if (ron > 0)
-            v += ron * mp_rng_normal(r);
-        img[i] = v;
-    }
+    for (long i = 0; i < n; i++)
+        img[i] = noisy(r, img[i], ron);
+}
+
+void mp_sim_add_noise_float(mp_rng *r, float *img, long n, double ron)
+{
+    for (long i = 0; i < n; i++)
+        img[i] = (float)noisy(r, img[i], ron);
 }

@@ -54,6 +54,13 @@ int mp_sim_add_star(const mp_sim_prf *p, double x, double y, double flux,
  * N(0, ron²). */
 void mp_sim_add_noise(mp_rng *r, double *img, long n, double ron);
 
+/* mp_sim_add_star_float / mp_sim_add_noise_float: the same on a frame's
+ * single-precision pixels (io.h mp_fimage: tests draw their frames in
+ * place); the sums are formed in double, each pixel rounded once. */
+int mp_sim_add_star_float(const mp_sim_prf *p, double x, double y, double flux, float *img,
+                          long nx, long ny);
+void mp_sim_add_noise_float(mp_rng *r, float *img, long n, double ron);
+
 /* mp_sim_segmented_psf: the monochromatic PSF of a segmented mirror (18
  * hexagonal segments in two rings, no centre segment, 2 % gaps; Fraunhofer
  * diffraction, sim/segmented.c) with λ/D = lod detector px at the blue end

@@ -413,7 +413,15 @@ int mp_task_sim(int argc, char **argv)
         return rc;
     sim_config c;
     char err[MP_ERRLEN];
-    rc = read_config(&ps, &c, err) || run(&c, err);
+    rc = read_config(&ps, &c, err);
+    if (!rc) {                   /* killed runs' temporaries, once a directory */
+        mp_sweeps *sw = mp_sweeps_new();
+        mp_tmp_sweep(sw, c.output);
+        mp_tmp_sweep(sw, c.psfout);
+        mp_tmp_sweep(sw, c.truth);
+        mp_sweeps_free(sw);
+    }
+    rc = rc || run(&c, err);
     if (rc)
         fprintf(stderr, "matphot sim: %s\n", err);
     free(c.truth);

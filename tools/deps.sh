@@ -5,7 +5,7 @@ PKGS="gcc clang make pkg-config libcfitsio-dev wcslib-dev libcsv-dev liblapacke-
 libopenblas-dev libomp-dev libcmocka-dev gnuplot-nox python3-astropy valgrind
 libclang-rt-14-dev"
 # `make bench` also compares with IRAF DAOPHOT: `sh tools/deps.sh bench`.
-BENCH_PKGS="iraf iraf-noao time"
+BENCH_PKGS="iraf iraf-noao time linux-perf"
 # `make test-slurm` starts a one-node Slurm cluster: `sh tools/deps.sh slurm`.
 SLURM_PKGS="slurm-wlm munge"
 [ "${1:-}" = bench ] && PKGS="$PKGS $BENCH_PKGS"

@@ -25,7 +25,7 @@ static int cmp_d(const void *a, const void *b)
 }
 
 /* Fit every frame once; return CPU seconds. */
-static double run(const mp_prf_model *m, double **frames, const double *truth, int n)
+static double run(const mp_prf_model *m, float **frames, const double *truth, int n)
 {
     char err[MP_ERRLEN];
     mp_fit_opts o;
@@ -64,7 +64,8 @@ int main(int argc, char **argv)
     }
     mp_psf_gauss(3.0, &gau);
     mp_sim_prf sp = {.kind = MP_SIM_GAUSS, .sigma = gau.sigma, .volume = 1.0};
-    double **frames = malloc((size_t)n * sizeof *frames), *truth = malloc(2 * (size_t)n * sizeof *truth);
+    float **frames = malloc((size_t)n * sizeof *frames);
+    double *truth = malloc(2 * (size_t)n * sizeof *truth);
     if (!frames || !truth)
         return 1;
     mp_rng r;
@@ -78,8 +79,8 @@ int main(int argc, char **argv)
         double mag = -6.0 - 9.0 * mp_rng_uniform(&r);
         truth[2 * s] = 30.0 + mp_rng_uniform(&r);
         truth[2 * s + 1] = 30.0 + mp_rng_uniform(&r);
-        mp_sim_add_star(&sp, truth[2 * s], truth[2 * s + 1], pow(10, -0.4 * mag), frames[s], NP, NP);
-        mp_sim_add_noise(&r, frames[s], NP * NP, 3.0);
+        mp_sim_add_star_float(&sp, truth[2 * s], truth[2 * s + 1], pow(10, -0.4 * mag), frames[s], NP, NP);
+        mp_sim_add_noise_float(&r, frames[s], NP * NP, 3.0);
     }
     mp_prf_model md = {&tab, NULL, 10}, ma = {&gau, NULL, 10};
     double *td = malloc((size_t)reps * sizeof *td), *ta = malloc((size_t)reps * sizeof *ta);

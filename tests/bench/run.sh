@@ -23,3 +23,6 @@ REPS=${REAL_REPS:-3} REPORT="$B/bench/REAL.md" sh tests/bench/real/real.sh
 # Threads (issue 14): per-stage speed-up from 1 to 2 OpenMP threads, medians
 # of interleaved runs; the committed table is bench/SCALING.md.
 sh tests/bench/threads.sh | tee "$B/bench/SCALING.txt"
+# What runs serially, per stage, and the Amdahl bound (perf samples of a
+# 1-thread run; bench/SCALING.md).
+sh tests/bench/amdahl.sh | tee -a "$B/bench/SCALING.txt"

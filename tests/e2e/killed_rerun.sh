@@ -3,7 +3,8 @@
 # system's time limit: no handler runs) and run again writes the same bytes
 # as a run that was never killed, and leaves no temporary behind: the
 # stale temporaries of its outputs (".<name>.tmp.<host>.<pid>", the pid
-# gone) are swept when the outputs are written again (io/outfile.c).
+# gone) are swept when the run starts, once per output directory
+# (io/outfile.c mp_tmp_sweep).
 M=${MATPHOT:-./matphot}
 [ -x "$M" ] || { echo "killed_rerun: $M not built"; exit 77; }
 case $M in /*) ;; *) M=$(pwd)/$M ;; esac

@@ -51,10 +51,10 @@ static inline void sf_render(mp_frame *f, double B, double fwhm, const double *x
         f->im.pix[i] = B;
     mp_sim_prf sp = {.kind = MP_SIM_GAUSS, .sigma = fwhm / FWHM_SIGMA, .volume = 1.0};
     for (int k = 0; k < n; k++)
-        assert_int_equal(mp_sim_add_star(&sp, x[k], y[k], E[k], f->im.pix, f->im.nx,
+        assert_int_equal(mp_sim_add_star_float(&sp, x[k], y[k], E[k], f->im.pix, f->im.nx,
                                          f->im.ny), 0);
     if (ron >= 0)
-        mp_sim_add_noise(r, f->im.pix, (long)np, ron);
+        mp_sim_add_noise_float(r, f->im.pix, (long)np, ron);
 }
 
 /* A start table: X_IMAGE, Y_IMAGE, GROUP_ID (gid ≤ 0: none), FLUX (NaN:

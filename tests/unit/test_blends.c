@@ -68,7 +68,7 @@ static int reduce(const setup *s, const double (*st)[3], int n, uint64_t seed, i
     mp_frame f;
     memset(&f, 0, sizeof f);
     f.im.nx = f.im.ny = N;
-    f.im.pix = malloc(sizeof(double) * N * N);
+    f.im.pix = malloc(sizeof *f.im.pix * N * N);
     f.mask = calloc(N * N, 1);
     assert_non_null(f.im.pix);
     assert_non_null(f.mask);
@@ -80,10 +80,10 @@ static int reduce(const setup *s, const double (*st)[3], int n, uint64_t seed, i
         f.im.pix[i] = SKY;
     mp_sim_prf prf = {.kind = MP_SIM_GAUSS, .sigma = FWHM / 2.3548200450309493, .volume = 1.0};
     for (int k = 0; k < n; k++)
-        assert_int_equal(mp_sim_add_star(&prf, st[k][0], st[k][1], st[k][2], f.im.pix, N, N), 0);
+        assert_int_equal(mp_sim_add_star_float(&prf, st[k][0], st[k][1], st[k][2], f.im.pix, N, N), 0);
     mp_rng r;
     mp_rng_seed(&r, seed);
-    mp_sim_add_noise(&r, f.im.pix, N * N, RON);
+    mp_sim_add_noise_float(&r, f.im.pix, N * N, RON);
     mp_table t;
     char err[MP_ERRLEN];
     if (mp_pipeline_reduce(&f, &s->o, &t, err))

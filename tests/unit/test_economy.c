@@ -491,7 +491,8 @@ static double fitted_bias(const mp_prf_model *m, const mp_prf_model *mh, double 
                           double E, double B, double ron)
 {
     enum { N = 41 };
-    double *img = calloc(N * N, sizeof *img), *P = calloc(3 * N * N, sizeof *P);
+    float *img = calloc(N * N, sizeof *img);
+    double *P = calloc(3 * N * N, sizeof *P);
     uint8_t *mask = calloc(N * N, 1);
     assert_true(img && P && mask);
     mp_prf_work wk = {0};

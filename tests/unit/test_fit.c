@@ -6,6 +6,7 @@
 #include <math.h>
 #include <stdlib.h>
 #include <string.h>
+#include <omp.h>
 #include "fit/fit.h"
 #include "sim/sim.h"
 
@@ -222,8 +223,8 @@ static void test_crlb_short_run(void **state)
         double x = 30.0 + mp_rng_uniform(&r), y = 30.0 + mp_rng_uniform(&r);
         for (long i = 0; i < NP * NP; i++)
             f.im.pix[i] = B;
-        assert_int_equal(mp_sim_add_star(&sp, x, y, E, f.im.pix, NP, NP), 0);
-        mp_sim_add_noise(&r, f.im.pix, NP * NP, RON);
+        assert_int_equal(mp_sim_add_star_float(&sp, x, y, E, f.im.pix, NP, NP), 0);
+        mp_sim_add_noise_float(&r, f.im.pix, NP * NP, RON);
         /* The exact CRLB of this star (design.md §6). */
         long x0, y0;
         int bw, bh;
@@ -320,8 +321,8 @@ static void test_gate_drf_recovers_flux(void **state)
     mp_sim_snap(&sp, &x, &y);
     for (long i = 0; i < 1600; i++)
         f.im.pix[i] = 56.25;
-    assert_int_equal(mp_sim_add_star(&sp, x, y, E, f.im.pix, 40, 40), 0);
-    mp_sim_add_noise(&r, f.im.pix, 1600, 3.0);
+    assert_int_equal(mp_sim_add_star_float(&sp, x, y, E, f.im.pix, 40, 40), 0);
+    mp_sim_add_noise_float(&r, f.im.pix, 1600, 3.0);
     mp_fit_opts o;
     mp_fit_opts_default(&o);
     mp_prf_model m = {&tab, &d, 10};
@@ -428,6 +429,93 @@ static void test_window_render_is_exact(void **state)
     mp_psf_free(&tab);
 }
 
+/* mp_fit_residual paints the stars by bands of rows, in parallel (issue
+ * 14): the residual must be every star's whole PRF subtracted once —
+ * stars across the bands' edges (rows 64/65, 128/129) and the frame's
+ * included — and the same bytes with 1 thread or 3.  The reference is
+ * drawn star by star in double from mp_prf_render; the float residual
+ * differs from it by rounding only: at most a few ulp (2^-24 = 6e-8) of
+ * the largest value per overlapping star, so 1e-6 of it bounds it. */
+static void test_residual_bands(void **state)
+{
+    (void)state;
+    enum { NX = 90, NY = 150, NS = 40 };
+    char err[MP_ERRLEN];
+    mp_psf tab;
+    assert_int_equal(mp_psf_gauss_table(2.5, 2, 8.0, &tab, err), 0);
+    mp_prf_model m = {&tab, NULL, 10};
+    mp_frame f;
+    memset(&f, 0, sizeof f);
+    f.im.nx = NX;
+    f.im.ny = NY;
+    f.im.pix = malloc(NX * NY * sizeof *f.im.pix);
+    f.mask = calloc(NX * NY, 1);
+    float *r1 = malloc(NX * NY * sizeof *r1), *r3 = malloc(NX * NY * sizeof *r3);
+    double *ref = malloc(NX * NY * sizeof *ref), *p = NULL;
+    assert_true(f.im.pix && f.mask && r1 && r3 && ref);
+    f.gain = 1.0;
+    f.rdnoise = 3.0;
+    for (int i = 0; i < NX * NY; i++)
+        f.im.pix[i] = 100.0f;
+    f.mask[77] = f.mask[NX * 64 + 5] = MP_MASK_BAD;
+    mp_table t;
+    mp_table_init(&t);
+    int cx = mp_table_add_col(&t, "XPSF_IMAGE"), cy = mp_table_add_col(&t, "YPSF_IMAGE");
+    int cf = mp_table_add_col(&t, "FLUX_PSF");
+    assert_true(cx >= 0 && cy >= 0 && cf >= 0);
+    const double edge[] = {0.7, 1.2, 63.9, 64.5, 65.1, 128.6, 129.4, 149.8, 150.3};
+    for (int k = 0; k < NS; k++) {
+        long r = mp_table_add_row(&t);
+        assert_true(r >= 0);
+        double y = k < 9 ? edge[k] : 1.0 + 149.0 * ((k * 37) % 101) / 101.0;
+        mp_table_set(&t, (size_t)r, cx, 2.0 + 86.0 * ((k * 53) % 97) / 97.0);
+        mp_table_set(&t, (size_t)r, cy, y);
+        mp_table_set(&t, (size_t)r, cf, 500.0 + 97.0 * k);
+    }
+    for (int i = 0; i < NX * NY; i++)
+        ref[i] = 100.0;
+    mp_prf_work w = {0};
+    for (int k = 0; k < NS; k++) {
+        double x = mp_table_get(&t, k, cx), y = mp_table_get(&t, k, cy), E = mp_table_get(&t, k, cf);
+        long x0, y0;
+        int bw, bh;
+        mp_prf_box(&m, x, y, &x0, &y0, &bw, &bh);
+        p = realloc(p, (size_t)bw * bh * sizeof *p);
+        assert_non_null(p);
+        assert_int_equal(mp_prf_render(&m, x, y, p, NULL, NULL, &w), 0);
+        for (int j = 0; j < bh; j++)
+            for (int i = 0; i < bw; i++)
+                if (x0 + i >= 1 && x0 + i <= NX && y0 + j >= 1 && y0 + j <= NY)
+                    ref[(y0 + j - 1) * NX + (x0 + i - 1)] -= E * p[j * bw + i];
+    }
+    int nt = omp_get_max_threads();
+    omp_set_num_threads(1);
+    assert_int_equal(mp_fit_residual(&f, &m, &t, 0.0, r1, err), 0);
+    omp_set_num_threads(3);
+    assert_int_equal(mp_fit_residual(&f, &m, &t, 0.0, r3, err), 0);
+    omp_set_num_threads(nt);
+    assert_memory_equal(r1, r3, NX * NY * sizeof *r1);
+    double big = 0.0;
+    for (int i = 0; i < NX * NY; i++)
+        big = fmax(big, fabs(ref[i]));
+    for (int i = 0; i < NX * NY; i++) {
+        if (f.mask[i]) {
+            assert_true(isnan(r1[i]));
+            continue;
+        }
+        assert_true(fabs(r1[i] - ref[i]) <= 1e-6 * big);
+    }
+    mp_prf_work_free(&w);
+    mp_table_free(&t);
+    mp_psf_free(&tab);
+    free(p);
+    free(ref);
+    free(r1);
+    free(r3);
+    free(f.im.pix);
+    free(f.mask);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
@@ -439,6 +527,7 @@ int main(void)
         cmocka_unit_test(test_gate_drf_recovers_flux),
         cmocka_unit_test(test_rebin_keeps_position),
         cmocka_unit_test(test_window_render_is_exact),
+        cmocka_unit_test(test_residual_bands),
     };
     return cmocka_run_group_tests_name("fit", tests, NULL, NULL);
 }

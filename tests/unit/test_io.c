@@ -711,23 +711,55 @@ static void test_tmp_sweep(void **state)
     snprintf(dead, sizeof dead, "%s%ld", prefix, (long)child);
     snprintf(live, sizeof live, "%s%ld", prefix, (long)getppid());
     snprintf(other, sizeof other, "%s/.swept.cat.tmp.elsewhere-node.%ld", s->dir, (long)child);
-    const char *const made[] = {dead, live, other};
-    for (int i = 0; i < 3; i++) {
+    /* Another output's temporary of the same dead run: one listing of
+     * the directory removes every stale temporary in it. */
+    char dead2[900];
+    const char *host = strstr(mine, ".tmp.") + 5;       /* "<host>.<pid>" */
+    snprintf(dead2, sizeof dead2, "%s/.other.fit.tmp.%.*s%ld", s->dir,
+             (int)(strrchr(mine, '.') + 1 - host), host, (long)child);
+    const char *const made[] = {dead, live, other, dead2};
+    for (int i = 0; i < 4; i++) {
         FILE *fp = fopen(made[i], "w");
         assert_non_null(fp);
         fclose(fp);
     }
-    char err[MP_ERRLEN];
-    mp_outfile o;
-    assert_int_equal(mp_out_open(&o, path, err), 0);
-    fputs("x\n", o.fp);
-    assert_int_equal(mp_out_commit(&o, err), 0);
+    mp_sweeps *sw = mp_sweeps_new();
+    assert_non_null(sw);
+    assert_int_equal(mp_tmp_sweep(sw, path), 1);
     assert_false(exists(dead));
+    assert_false(exists(dead2));
     assert_true(exists(live));
     assert_true(exists(other));
+    /* Writing itself no longer lists the directory: 50 outputs into it
+     * after the sweep, one listing in all (issue 14: was one a write). */
+    char err[MP_ERRLEN];
+    for (int k = 0; k < 50; k++) {
+        char out[800];
+        snprintf(out, sizeof out, "%s/out%02d.txt", s->dir, k);
+        assert_int_equal(mp_tmp_sweep(sw, out), 0);
+        mp_outfile o;
+        assert_int_equal(mp_out_open(&o, out, err), 0);
+        fputs("x\n", o.fp);
+        assert_int_equal(mp_out_commit(&o, err), 0);
+        unlink(out);
+    }
+    assert_int_equal(mp_sweeps_listed(sw), 1);
+    /* Another directory is listed once too; stdout never. */
+    char sub[800], inner[900];
+    snprintf(sub, sizeof sub, "%s/sub", s->dir);
+    assert_int_equal(mkdir(sub, 0700), 0);
+    snprintf(inner, sizeof inner, "%s/a.cat", sub);
+    assert_int_equal(mp_tmp_sweep(sw, inner), 1);
+    assert_int_equal(mp_tmp_sweep(sw, inner), 0);
+    assert_int_equal(mp_tmp_sweep(sw, "-"), 0);
+    assert_int_equal(mp_sweeps_listed(sw), 2);
+    mp_sweeps_free(sw);
+    /* No set: every call lists. */
+    assert_int_equal(mp_tmp_sweep(NULL, inner), 1);
+    assert_int_equal(mp_tmp_sweep(NULL, inner), 1);
+    rmdir(sub);
     unlink(live);
     unlink(other);
-    unlink(path);
     free(mine);
 }
 

@@ -113,9 +113,9 @@ static void crowded_frame(mp_frame *f, truth_star *tr)
         tr[k].y0 = tr[k].y + 0.5 * mp_rng_uniform(&r) - 0.25;
         tr[k].e = pow(10.0, -0.4 * mag);
         tr[k].f0 = tr[k].e * exp(0.2 * mp_rng_normal(&r));
-        assert_int_equal(mp_sim_add_star(&sp, tr[k].x, tr[k].y, tr[k].e, f->im.pix, CR_SIDE, CR_SIDE), 0);
+        assert_int_equal(mp_sim_add_star_float(&sp, tr[k].x, tr[k].y, tr[k].e, f->im.pix, CR_SIDE, CR_SIDE), 0);
     }
-    mp_sim_add_noise(&r, f->im.pix, CR_SIDE * CR_SIDE, 3.0);
+    mp_sim_add_noise_float(&r, f->im.pix, CR_SIDE * CR_SIDE, 3.0);
 }
 
 /* The start table (NUMBER, X_IMAGE, Y_IMAGE, FLUX), grouped as group.par's
@@ -265,8 +265,8 @@ static void test_lambda_exit_flagged(void **state)
         double x = 20.2 + 0.6 * mp_rng_uniform(&r), y = 20.2 + 0.6 * mp_rng_uniform(&r);
         for (long i = 0; i < NP * NP; i++)
             f.im.pix[i] = 100.0;
-        assert_int_equal(mp_sim_add_star(&sp, x, y, 1e6, f.im.pix, NP, NP), 0);
-        mp_sim_add_noise(&r, f.im.pix, NP * NP, 3.0);
+        assert_int_equal(mp_sim_add_star_float(&sp, x, y, 1e6, f.im.pix, NP, NP), 0);
+        mp_sim_add_noise_float(&r, f.im.pix, NP * NP, 3.0);
         for (int hw = 0; hw < 2; hw++) {
             mp_prf_model m = {&tab, NULL, hw ? 10 : 0};
             mp_fit_opts o;
@@ -313,8 +313,8 @@ static mp_star sky_fit(const sky_truth *sk, uint64_t seed, int order, mp_frame *
     for (long j = 0; j < SKY_NP; j++)
         for (long i = 0; i < SKY_NP; i++)
             f->im.pix[j * SKY_NP + i] = sky_value(sk, (double)(i + 1), (double)(j + 1));
-    assert_int_equal(mp_sim_add_star(&sp, x, y, 1e4, f->im.pix, SKY_NP, SKY_NP), 0);
-    mp_sim_add_noise(&r, f->im.pix, SKY_NP * SKY_NP, 3.0);
+    assert_int_equal(mp_sim_add_star_float(&sp, x, y, 1e4, f->im.pix, SKY_NP, SKY_NP), 0);
+    mp_sim_add_noise_float(&r, f->im.pix, SKY_NP * SKY_NP, 3.0);
     mp_fit_opts o;
     mp_fit_opts_default(&o);
     o.sky_order = order;
@@ -397,8 +397,8 @@ static void fitrad5_frame(mp_frame *f, uint64_t seed, double E, double g, double
     for (long j = 0; j < F5_NPX; j++)
         for (long i = 0; i < F5_NPX; i++)
             f->im.pix[j * F5_NPX + i] = 100.0 + g * (1.5 * (double)(i - 20) + 1.0 * (double)(j - 20));
-    assert_int_equal(mp_sim_add_star(&sp, *x, *y, E, f->im.pix, F5_NPX, F5_NPX), 0);
-    mp_sim_add_noise(&r, f->im.pix, F5_NPX * F5_NPX, ron);
+    assert_int_equal(mp_sim_add_star_float(&sp, *x, *y, E, f->im.pix, F5_NPX, F5_NPX), 0);
+    mp_sim_add_noise_float(&r, f->im.pix, F5_NPX * F5_NPX, ron);
 }
 
 /* The star of f fitted from (x, y) with fitrad 5, sky order `order`, its
@@ -663,8 +663,8 @@ static void test_error_plane_weights(void **state)
     mp_rng_seed(&r, 7001);
     for (long i = 0; i < N * N; i++)
         f.im.pix[i] = 100.0;
-    assert_int_equal(mp_sim_add_star(&sp, 20.3, 19.6, 2e4, f.im.pix, N, N), 0);
-    mp_sim_add_noise(&r, f.im.pix, N * N, 3.0);
+    assert_int_equal(mp_sim_add_star_float(&sp, 20.3, 19.6, 2e4, f.im.pix, N, N), 0);
+    mp_sim_add_noise_float(&r, f.im.pix, N * N, 3.0);
     memcpy(g.im.pix, f.im.pix, (size_t)(N * N) * sizeof *g.im.pix);
     for (long i = 0; i < N * N; i++)
         f.xvar[i] = 400.0f;
@@ -681,8 +681,8 @@ static void test_error_plane_weights(void **state)
     for (int k = 0; k < K; k++) {
         for (long i = 0; i < N * N; i++)
             f.im.pix[i] = 100.0;
-        assert_int_equal(mp_sim_add_star(&sp, 20.3, 19.6, 2e4, f.im.pix, N, N), 0);
-        mp_sim_add_noise(&r, f.im.pix, N * N, 3.0);
+        assert_int_equal(mp_sim_add_star_float(&sp, 20.3, 19.6, 2e4, f.im.pix, N, N), 0);
+        mp_sim_add_noise_float(&r, f.im.pix, N * N, 3.0);
         for (long j = 0; j < N; j++)
             for (long i = 0; i < N; i++) {
                 int right = i + 1 > 20;

@@ -116,11 +116,11 @@ static void make_frame(uint64_t seed, double grad, int cubic, double rad, mp_fra
         truth_fine(grad, cubic, u, rad, tab, &n);
         mp_sim_prf p = {MP_SIM_TABLE, 0, tab, n, n, FOS, NULL, 0, 1.0};
         mp_sim_snap(&p, &x, &y);
-        assert_int_equal(mp_sim_add_star(&p, x, y, flux, f->im.pix, NX, NX), 0);
+        assert_int_equal(mp_sim_add_star_float(&p, x, y, flux, f->im.pix, NX, NX), 0);
         ts[k] = (tstar){x, y, flux};
     }
     free(tab);
-    mp_sim_add_noise(&r, f->im.pix, (long)NX * NX, RON);
+    mp_sim_add_noise_float(&r, f->im.pix, (long)NX * NX, RON);
 }
 
 /* The truth at ×BOS at column position u (−1..1). */
@@ -457,7 +457,7 @@ static void test_order_test_false_raise(void **state)
                         f.im.pix[(size_t)(by + j - 1) * NX + (size_t)(bx + i - 1)] +=
                             fl[k] * prf[(size_t)j * bw + i];
         }
-        mp_sim_add_noise(&r, f.im.pix, (long)NX * NX, RON);
+        mp_sim_add_noise_float(&r, f.im.pix, (long)NX * NX, RON);
         mp_epsf_star *s;
         assert_int_equal(mp_epsf_cutouts(&f, f.im.pix, x, y, fl, sk, NS, rad, &s, err), 0);
         for (int k = 0; k < NS; k++) {
@@ -545,7 +545,9 @@ static void test_cutout_add_reads_field_at_star(void **state)
     print_message("cut-out against frame render: largest difference %.3g of the peak %.3g\n",
                   worst, peak);
     assert_true(peak > 0.01 * F);
-    assert_true(worst <= 1e-9 * peak);
+    /* the cut-out is single precision, as the frame (io.h mp_fimage):
+     * half an ulp is 2^-24 = 6e-8 of a value */
+    assert_true(worst <= 1e-7 * peak);
     mp_prf_work_free(&w);
     free(prf);
     mp_epsf_stars_free(s, 1);

@@ -368,10 +368,10 @@ static void linear_frame(mp_frame *fr, double E, double *tx, double *ty)
         double s1 = 2.5 / (2.0 * sqrt(2.0 * log(2.0))), s2 = 3.5 / (2.0 * sqrt(2.0 * log(2.0)));
         mp_sim_prf p1 = {.kind = MP_SIM_GAUSS, .sigma = s1, .volume = 1.0};
         mp_sim_prf p2 = {.kind = MP_SIM_GAUSS, .sigma = s2, .volume = 1.0};
-        assert_int_equal(mp_sim_add_star(&p1, tx[k], ty[k], (1 - a) * E, fr->im.pix, NSIDE, NSIDE), 0);
-        assert_int_equal(mp_sim_add_star(&p2, tx[k], ty[k], a * E, fr->im.pix, NSIDE, NSIDE), 0);
+        assert_int_equal(mp_sim_add_star_float(&p1, tx[k], ty[k], (1 - a) * E, fr->im.pix, NSIDE, NSIDE), 0);
+        assert_int_equal(mp_sim_add_star_float(&p2, tx[k], ty[k], a * E, fr->im.pix, NSIDE, NSIDE), 0);
     }
-    mp_sim_add_noise(&r, fr->im.pix, (long)NSIDE * NSIDE, RON);
+    mp_sim_add_noise_float(&r, fr->im.pix, (long)NSIDE * NSIDE, RON);
 }
 
 /* A frame whose PSF widens linearly along x, fitted with the true order-1

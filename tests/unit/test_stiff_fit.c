@@ -77,7 +77,7 @@ static void test_saturated_wings(void **state)
              getenv("TMPDIR") ? getenv("TMPDIR") : "/tmp", (long)getpid());
     mp_card cards[2] = {{"SATURATE", sat, NULL, "saturation [ADU]"},
                         {"RDNOISE", RON, NULL, "read noise [e-]"}};
-    assert_int_equal(mp_image_write(path, f.im.pix, 60, 60, -64, cards, 2, err), 0);
+    assert_int_equal(mp_image_write_float(path, f.im.pix, 60, 60, cards, 2, err), 0);
     sf_frame_drop(&f);
     mp_datapars dp = {NAN, NAN, NAN, NAN, "", 0, 0, 0, ""};
     assert_int_equal(mp_frame_read(path, &dp, &f, err), 0);
@@ -322,7 +322,7 @@ static void test_nan_and_masked_column(void **state)
     snprintf(path, sizeof path, "%s/stiff_nan_%ld.fits",
              getenv("TMPDIR") ? getenv("TMPDIR") : "/tmp", (long)getpid());
     mp_card c = {"RDNOISE", RON, NULL, "read noise"};
-    assert_int_equal(mp_image_write(path, f.im.pix, 50, 50, -32, &c, 1, err), 0);
+    assert_int_equal(mp_image_write_float(path, f.im.pix, 50, 50, &c, 1, err), 0);
     sf_frame_drop(&f);
     mp_datapars dp = {NAN, NAN, NAN, NAN, "", 0, 0, 0, ""};
     assert_int_equal(mp_frame_read(path, &dp, &f, err), 0);

@@ -124,7 +124,7 @@ static void test_tiny_and_huge_psf(void **state)
     f.im.pix[10 * 21 + 10] += E;   /* the star on pixel (11, 11) */
     mp_rng r;
     mp_rng_seed(&r, 31);
-    mp_sim_add_noise(&r, f.im.pix, 441, 3.0);
+    mp_sim_add_noise_float(&r, f.im.pix, 441, 3.0);
     mp_prf_model m = {&p, NULL, 10};
     mp_fit_opts o;
     mp_fit_opts_default(&o);
@@ -193,8 +193,8 @@ static void test_inefficient_detector(void **state)
         sf_frame_make(&f, 31, 31, 3.0);
         for (int i = 0; i < 961; i++)
             f.im.pix[i] = 100.0 / 9;
-        assert_int_equal(mp_sim_add_star(&sp, x, y, E, f.im.pix, 31, 31), 0);
-        mp_sim_add_noise(&r, f.im.pix, 961, 3.0);
+        assert_int_equal(mp_sim_add_star_float(&sp, x, y, E, f.im.pix, 31, 31), 0);
+        mp_sim_add_noise_float(&r, f.im.pix, 961, 3.0);
         mp_fit_opts o;
         mp_fit_opts_default(&o);
         mp_star st = {.x = x + 0.2, .y = y - 0.2, .flux = NAN};
@@ -235,8 +235,8 @@ static void test_gate_detector(void **state)
         sf_frame_make(&f, 31, 31, 3.0);
         for (int i = 0; i < 961; i++)
             f.im.pix[i] = 56.25;
-        assert_int_equal(mp_sim_add_star(&sp, x, y, E, f.im.pix, 31, 31), 0);
-        mp_sim_add_noise(&r, f.im.pix, 961, 3.0);
+        assert_int_equal(mp_sim_add_star_float(&sp, x, y, E, f.im.pix, 31, 31), 0);
+        mp_sim_add_noise_float(&r, f.im.pix, 961, 3.0);
         mp_fit_opts o;
         mp_fit_opts_default(&o);
         mp_star st = {.x = x + 0.1, .y = y + 0.1, .flux = NAN};

@@ -133,14 +133,14 @@ static int half_phase(const mp_psf *p, double x)
 static mp_star fit_noiseless(const mp_psf *truth4, const mp_prf_model *m, double x, double y,
                              double E)
 {
-    double *img = malloc(NPIX * sizeof *img);
+    float *img = malloc(NPIX * sizeof *img);
     uint8_t *mask = calloc(NPIX, 1);
     assert_non_null(img);
     assert_non_null(mask);
     for (int i = 0; i < NPIX; i++)
         img[i] = SKY;
     mp_sim_prf sp = sim_of(truth4);
-    assert_int_equal(mp_sim_add_star(&sp, x, y, E, img, NX, NX), 0);
+    assert_int_equal(mp_sim_add_star_float(&sp, x, y, E, img, NX, NX), 0);
     mp_frame f;
     memset(&f, 0, sizeof f);
     f.im.nx = f.im.ny = NX;

@@ -209,7 +209,8 @@ static double wall_now(void)
 
 /* Per-thread scratch. */
 typedef struct {
-    double *img, *P, *DX, *DY, *bp, *bx, *by;
+    float *img;            /* the frame (io.h: single precision) */
+    double *P, *DX, *DY, *bp, *bx, *by;
     uint8_t *mask;
     mp_prf_work w;
 } scratch;
@@ -341,7 +342,7 @@ static int noiseless_bias(const vt_case *c, const mp_sim_prf *sp, const mp_prf_m
                 st.y = y - 0.03;
                 st.flux = NAN;
                 double sd[4];
-                if (mp_sim_add_star(sp, x, y, E, s.img, VT_NX, VT_NX) ||
+                if (mp_sim_add_star_float(sp, x, y, E, s.img, VT_NX, VT_NX) ||
                     mp_fit_group(&fr, fit, opts, NAN, &st, 1, ferr) ||
                     truth_prf(truth, x, y, cap, &s) ||
                     mp_crlb(s.P, s.DX, s.DY, VT_NPIX, E, c->sky, VT_RON, sd)) {
@@ -517,11 +518,11 @@ int vt_run_case(const vt_case *c, const vt_inputs *in, int n, int seedset, int v
             double E = pow(10.0, -0.4 * mag);
             for (int i = 0; i < VT_NPIX; i++)
                 s.img[i] = c->sky;
-            if (mp_sim_add_star(&sp, x, y, E, s.img, VT_NX, VT_NX)) {
+            if (mp_sim_add_star_float(&sp, x, y, E, s.img, VT_NX, VT_NX)) {
                 o->rc = -1;
                 continue;
             }
-            mp_sim_add_noise(&rng, s.img, VT_NPIX, VT_RON);
+            mp_sim_add_noise_float(&rng, s.img, VT_NPIX, VT_RON);
 
             mp_star st;
             memset(&st, 0, sizeof st);

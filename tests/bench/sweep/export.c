@@ -22,7 +22,7 @@ int sw_export(const char *dir, const sw_scene *sc, char *err)
     long tiles = sc->kind == SW_SINGLE ? (long)ceil(sqrt((double)sc->n)) : 1;
     long nx = sc->kind == SW_SINGLE ? tiles * SW_NX : sc->fnx;
     long ny = sc->kind == SW_SINGLE ? ((sc->n + tiles - 1) / tiles) * SW_NX : sc->fny;
-    double *img = sc->img;
+    float *img = sc->img;
     if (sc->kind == SW_SINGLE) {
         img = malloc((size_t)nx * (size_t)ny * sizeof *img);
         if (!img) {
@@ -33,7 +33,7 @@ int sw_export(const char *dir, const sw_scene *sc, char *err)
             img[i] = SW_SKY;                  /* empty tiles: sky without noise */
         for (int k = 0; k < sc->n; k++) {
             long ox = (k % tiles) * SW_NX, oy = (k / tiles) * SW_NX;
-            const double *src = sc->img + (size_t)k * SW_NPIX;
+            const float *src = sc->img + (size_t)k * SW_NPIX;
             for (long j = 0; j < SW_NX; j++)
                 memcpy(img + (size_t)(oy + j) * nx + ox, src + (size_t)j * SW_NX,
                        SW_NX * sizeof *img);
@@ -42,7 +42,7 @@ int sw_export(const char *dir, const sw_scene *sc, char *err)
     mp_card cards[] = {{"GAIN", 1.0, NULL, "e-/ADU"}, {"RDNOISE", SW_RON, NULL, "e-"},
                        {"EXPTIME", 1.0, NULL, "s"}, {"SKY", SW_SKY, NULL, "e-/px (truth)"}};
     snprintf(path, sizeof path, "%s/%s.fits", dir, sc->name);
-    int rc = mp_image_write(path, img, nx, ny, -32, cards, 4, err);
+    int rc = mp_image_write_float(path, img, nx, ny, cards, 4, err);
     if (img != sc->img)
         free(img);
     if (rc)

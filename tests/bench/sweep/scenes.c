@@ -241,15 +241,15 @@ static int build_single(sw_scene *sc, const mp_sim_prf *sp, const mp_prf_model *
         t->x0 = t->x + 0.5 * mp_rng_uniform(&r) - 0.25;
         t->y0 = t->y + 0.5 * mp_rng_uniform(&r) - 0.25;
         t->e = pow(10.0, -0.4 * t->mag);
-        double *img = sc->img + (size_t)k * SW_NPIX;
+        float *img = sc->img + (size_t)k * SW_NPIX;
         for (int i = 0; i < SW_NPIX; i++)    /* sky: a plane through SW_SKY at the centre */
             img[i] = SW_SKY + sc->gx * (i % SW_NX + 1 - 30.5) + sc->gy * (i / SW_NX + 1 - 30.5);
-        if (mp_sim_add_star(sp, t->x, t->y, t->e, img, SW_NX, SW_NX)) {
+        if (mp_sim_add_star_float(sp, t->x, t->y, t->e, img, SW_NX, SW_NX)) {
             snprintf(err, MP_ERRLEN, "%s: the simulator refused star %d", sc->name, k);
             rc = 1;
             break;
         }
-        mp_sim_add_noise(&r, img, SW_NPIX, SW_RON);
+        mp_sim_add_noise_float(&r, img, SW_NPIX, SW_RON);
         /* Drawn last, so the frames are those of the sweep before it. */
         t->f0 = t->e * exp(CROWD_FLUX_SCATTER * mp_rng_normal(&r));
         if (crlb_at(truth, t->x, t->y, t->e, &cw, &t->se, &t->sx)) {
@@ -292,7 +292,7 @@ static int build_crowded(sw_scene *sc, const mp_sim_prf *sp, const mp_prf_model 
         t->y0 = t->y + 0.5 * mp_rng_uniform(&r) - 0.25;
         t->e = pow(10.0, -0.4 * t->mag);
         t->f0 = t->e * exp(CROWD_FLUX_SCATTER * mp_rng_normal(&r));
-        if (mp_sim_add_star(sp, t->x, t->y, t->e, sc->img, side, side)) {
+        if (mp_sim_add_star_float(sp, t->x, t->y, t->e, sc->img, side, side)) {
             snprintf(err, MP_ERRLEN, "%s: the simulator refused star %d", sc->name, k);
             rc = 1;
             break;
@@ -304,7 +304,7 @@ static int build_crowded(sw_scene *sc, const mp_sim_prf *sp, const mp_prf_model 
         }
     }
     if (!rc)
-        mp_sim_add_noise(&r, sc->img, (long)np, SW_RON);
+        mp_sim_add_noise_float(&r, sc->img, (long)np, SW_RON);
     crlb_free(&cw);
     return rc;
 }

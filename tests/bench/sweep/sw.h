@@ -55,7 +55,7 @@ typedef struct {
     int whole;                   /* economy mode: fitrad=INDEF (the paper's whole-frame fits) */
     /* Frames: single: n frames of SW_NPIX; crowded: one fnx x fny frame. */
     long fnx, fny;
-    double *img;
+    float *img;                  /* single precision, as a frame (io.h) */
     sw_truth *t;
     char note[1024];
 } sw_scene;

@@ -973,7 +973,7 @@ static int do_ideal(const char *dir, const char *kind, int npsf, double fkeep)
         if (!seg)
             var_table(sx, sy, tab, &n);
         mp_sim_prf p = {MP_SIM_TABLE, 0, tab, n, n, TOS, NULL, 0, 1.0};
-        mp_sim_add_star(&p, sx, sy, -mp_table_get(&tr, i, tf), f.im.pix, NX, NX);
+        mp_sim_add_star_float(&p, sx, sy, -mp_table_get(&tr, i, tf), f.im.pix, NX, NX);
     }
     mp_epsf_opts o;
     mp_epsf_opts_default(3.0, NX, NX, &o);
