@@ -406,6 +406,9 @@ typedef struct {
     double *work;              /* not NULL: the multiply-adds of the group's
                                 * exact table renders are added to *work (the
                                 * caller's own, per thread; economy's plan) */
+    int exact_lm;              /* 1: every LM step on the whole windows, no
+                                * frozen wings (fit/levmar.c); 0, the default,
+                                * freezes them where it pays (tests compare) */
 } mp_fit_opts;
 
 void mp_fit_opts_default(mp_fit_opts *o);

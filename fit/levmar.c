@@ -38,6 +38,7 @@ void mp_fit_opts_default(mp_fit_opts *o)
     o->crop = NULL;
     o->grid = NULL;
     o->work = NULL;
+    o->exact_lm = 0;
 }
 
 /* One star's rendered PRF and derivatives on the fitted pixels of its
@@ -1138,7 +1139,7 @@ static int lm_loop(group *G, const mp_fit_opts *o, int freeze_ok, int *iter, int
  * flagged 8 against 1). */
 static int levmar(group *G, const mp_fit_opts *o, int *iter, int *converged)
 {
-    if (lm_loop(G, o, 1, iter, converged))
+    if (lm_loop(G, o, !o->exact_lm, iter, converged))
         return 1;
     if (*converged || !G->freezing)
         return 0;
