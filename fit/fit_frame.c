@@ -1063,9 +1063,13 @@ static int write_columns(mp_table *t, const star_state *st, size_t n, double mag
         size_t r = (size_t)st[i].row;
         keep[r] = (unsigned char)st[i].alive;
         int ok = s->flux > 0;
-        /* Flags from earlier stages (find's saturation, group's split) stay. */
+        /* Flags from earlier stages (find's saturation, group's split)
+         * stay; the fit's own (edge, not converged, merged, masked) are
+         * this fit's, not a previous round's: a star flagged not converged
+         * in round 1 and converged in round 2 is not flagged. */
         double before = cflags0 >= 0 ? mp_table_get(t, r, c[NCOL - 1]) : 0.0;
-        int fl = s->flags | (isfinite(before) ? (int)before : 0);
+        int carried = isfinite(before) ? (int)before & (MP_FLAG_SATURATED | MP_FLAG_SPLIT) : 0;
+        int fl = s->flags | carried;
         double v[NCOL] = {
             s->x, s->y, s->ex, s->ey, s->flux, s->eflux,
             ok ? -2.5 * log10(s->flux) + magzero : 99.0,

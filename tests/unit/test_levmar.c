@@ -772,6 +772,59 @@ static void test_frozen_wings_same_fit(void **state)
     frame_drop(&f);
 }
 
+/* FLAGS through a refit (the pipeline's rounds refit a table that already
+ * holds the previous round's flags): find's and group's bits (saturated 1,
+ * split 2) are carried, the fit's own (edge 4, not converged 8, merged 16,
+ * masked 32) describe this fit only.  An isolated, well-measured star in
+ * the middle of a clean frame, handed FLAGS 63 (group decides bit 2
+ * again: this star is not split): its fit converges, touches no edge and
+ * no mask, so only the carried bits remain.  Deterministic; before the fix
+ * the fit kept 8, 16, 4 and 32 from the table. */
+static void test_refit_flags_are_this_fit(void **state)
+{
+    (void)state;
+    enum { N = 40 };
+    mp_sim_prf sp = {.kind = MP_SIM_GAUSS, .sigma = fwhm_to_sigma(3.0), .volume = 1.0};
+    mp_frame f;
+    frame_make(&f, N, 3.0);
+    for (long i = 0; i < N * N; i++)
+        f.im.pix[i] = 100.0;
+    mp_rng r;
+    mp_rng_seed(&r, 9090);
+    assert_int_equal(mp_sim_add_star_float(&sp, 20.3, 19.6, 5e4, f.im.pix, N, N), 0);
+    mp_sim_add_noise_float(&r, f.im.pix, N * N, 3.0);
+    mp_table t;
+    mp_table_init(&t);
+    int cn = mp_table_add_col(&t, "NUMBER"), cx = mp_table_add_col(&t, "X_IMAGE"),
+        cy = mp_table_add_col(&t, "Y_IMAGE"), cf = mp_table_add_col(&t, "FLUX"),
+        cg = mp_table_add_col(&t, "FLAGS");
+    assert_true(cn >= 0 && cx >= 0 && cy >= 0 && cf >= 0 && cg >= 0);
+    long row = mp_table_add_row(&t);
+    assert_true(row >= 0);
+    mp_table_set(&t, (size_t)row, cn, 1);
+    mp_table_set(&t, (size_t)row, cx, 20.5);
+    mp_table_set(&t, (size_t)row, cy, 19.5);
+    mp_table_set(&t, (size_t)row, cf, 4e4);
+    mp_table_set(&t, (size_t)row, cg, 63);
+    char err[MP_ERRLEN];
+    mp_group_opts go;
+    mp_group_opts_default(&go);
+    assert_int_equal(mp_group_table(&t, &go, err), 0);
+    int grouped = (int)mp_table_get(&t, 0, mp_table_col(&t, "FLAGS"));
+    assert_int_equal(grouped & ~MP_FLAG_SPLIT, 63 & ~MP_FLAG_SPLIT);   /* group owns bit 2 */
+    mp_psf gau;
+    mp_psf_gauss(3.0, &gau);
+    mp_prf_model m = {&gau, NULL, 10};
+    mp_frame_opts fo;
+    mp_frame_opts_default(&fo);
+    fo.fit.sky_order = 0;
+    assert_int_equal(mp_fit_table(&f, &m, &fo, &t, NULL, err), 0);
+    assert_int_equal(t.nrow, 1);
+    assert_int_equal((int)mp_table_get(&t, 0, mp_table_col(&t, "FLAGS")), grouped & 3);
+    mp_table_free(&t);
+    frame_drop(&f);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
@@ -790,6 +843,7 @@ int main(void)
         cmocka_unit_test(test_sky_floor_from_found_sky),
         cmocka_unit_test(test_error_plane_weights),
         cmocka_unit_test(test_frozen_wings_same_fit),
+        cmocka_unit_test(test_refit_flags_are_this_fit),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }
