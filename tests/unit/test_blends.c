@@ -154,22 +154,26 @@ static void test_split_from_grid(void **state)
     f.im.nx = f.im.ny = N;
     f.im.pix = malloc(sizeof *f.im.pix * N * N);
     f.mask = calloc(N * N, 1);
-    mp_bkg b = {N, N, malloc(sizeof(float) * N * N), malloc(sizeof(float) * N * N)};
-    assert_true(f.im.pix && f.mask && b.sky && b.rms);
+    assert_true(f.im.pix && f.mask);
     f.rdnoise = RON;
     double d = 0.6 * FWHM, x1 = 24.3, y1 = 23.8, x2 = x1 + d * 0.8, y2 = y1 + d * 0.6;
     double e1 = 4e4, e2 = 1.6e4, E = e1 + e2;
     double xc = (e1 * x1 + e2 * x2) / E, yc = (e1 * y1 + e2 * y2) / E;
     mp_sim_prf prf = {.kind = MP_SIM_GAUSS, .sigma = FWHM / 2.3548200450309493, .volume = 1.0};
-    for (int i = 0; i < N * N; i++) {
+    for (int i = 0; i < N * N; i++)
         f.im.pix[i] = SKY;
-        b.sky[i] = SKY;
-        b.rms[i] = (float)sqrt(SKY + RON * RON);
-    }
-    assert_int_equal(mp_sim_add_star_float(&prf, x1, y1, e1, f.im.pix, N, N), 0);
-    assert_int_equal(mp_sim_add_star_float(&prf, x2, y2, e2, f.im.pix, N, N), 0);
+    /* the weights: the sky's noise, measured on the star-free frame */
     mp_rng r;
     mp_rng_seed(&r, 77);
+    mp_sim_add_noise_float(&r, f.im.pix, N * N, RON);
+    mp_bkg b;
+    memset(&b, 0, sizeof b);
+    assert_int_equal(mp_bkg_estimate(&f, N, 1, &b, err), 0);
+    mp_rng_seed(&r, 78);
+    for (int i = 0; i < N * N; i++)
+        f.im.pix[i] = SKY;
+    assert_int_equal(mp_sim_add_star_float(&prf, x1, y1, e1, f.im.pix, N, N), 0);
+    assert_int_equal(mp_sim_add_star_float(&prf, x2, y2, e2, f.im.pix, N, N), 0);
     mp_sim_add_noise_float(&r, f.im.pix, N * N, RON);
     assert_int_equal(mp_sim_add_star_float(&prf, xc, yc, -E, f.im.pix, N, N), 0);
     mp_table t;
@@ -201,8 +205,7 @@ static void test_split_from_grid(void **state)
     mp_table_free(&fe);
     mp_table_free(&fg);
     mp_table_free(&t);
-    free(b.sky);
-    free(b.rms);
+    mp_bkg_free(&b);
     free(f.im.pix);
     free(f.mask);
     mp_prf_cache_free(&c);

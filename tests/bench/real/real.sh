@@ -88,7 +88,7 @@ frame() {
         frame glimpse
         PSFARG=""
         DESC="Spitzer IRAC 4.5 um GLIMPSE 1025x513, PSF built from the frame"
-        NEED="$IMG";;
+        NEED="$D/spitzer_example_image.fits";;
     glimpse)
         D=$REALDATA/spitzer_irac_glimpse
         IMG="$D/spitzer_example_image.fits$SEC"
@@ -97,7 +97,7 @@ frame() {
         MPARGS="oversamp=4 gain=31.3065"
         GAIN=31.3065; RON=0; DMAX=INDEF; FWHM=1.8; PSFRAD=8; FITRAD=1.8
         DESC="Spitzer IRAC 4.5 um GLIMPSE 1025x513, IRAC ch2 x4 table"
-        NEED="$IMG $D/irac_ch2_flight.fits";;
+        NEED="$D/spitzer_example_image.fits $D/irac_ch2_flight.fits";;
     *) die "unknown frame $1";;
     esac
 }
