@@ -252,7 +252,7 @@ static int find_on_residual(run_state *s, int round, long *added, char *err)
         return 1;
     /* Half a FWHM: a detection beyond it goes to the fit, which keeps the
      * pair when their separation is significant and both reach minsnr
-     * (fit_frame.c), else merges it.  At 1 FWHM the companions of close
+     * (frame_group.c), else merges it.  At 1 FWHM the companions of close
      * pairs were never offered (issue 13, validate frame: members of
      * 0.5-0.75 FWHM pairs found 0.67x as often as field stars -> 0.94x). */
     double matchrad = isfinite(o->matchrad) ? o->matchrad : 0.5 * s->fwhm;
@@ -261,7 +261,7 @@ static int find_on_residual(run_state *s, int round, long *added, char *err)
      * away χ² ≥ minsnr² (its screen S/N ≥ minsnr: for one star, a chance
      * of ≈ 6e-7 per independent position, χ²(1) > 25) and it lies beyond
      * the merge radius; the fit of both then keeps the pair only if both
-     * reach minsnr and their separation is significant (fit_frame.c). */
+     * reach minsnr and their separation is significant (frame_group.c). */
     double mergerad = isfinite(s->fit->opts.mergerad) ? s->fit->opts.mergerad : 0.4 * s->fwhm;
     /* The test's own false-split rate stays ~1e-5 a star whatever minsnr
      * is: at minsnr 2 a Δχ² of 4 proposed noise (validate frame: 142 false
@@ -363,10 +363,16 @@ static int build_psf(run_state *s, int pass, char *err)
     mp_epsf_report rep;
     memset(&rep, 0, sizeof rep);
     char e2[MP_ERRLEN];
+    mp_psf_star *used = NULL;        /* the file's PSFSTARS */
     if (mp_epsf_pass(&s->f, pass == 1 ? s->f.im.pix : s->res, pass > 1, &s->t, &s->fit->model,
-                     s->px, s->py, s->pf, s->np, &po, &s->psf, &rep, NULL, e2)) {
+                     s->px, s->py, s->pf, s->np, &po, &s->psf, &rep, &used, e2)) {
         snprintf(err, MP_ERRLEN, "%s: PSF: %.400s", s->image, e2);
         return 1;
+    }
+    /* PSFSTARS in frame coordinates, as the field's origin. */
+    for (size_t k = 0; k < s->np; k++) {
+        used[k].x += (double)s->offx;
+        used[k].y += (double)s->offy;
     }
     mp_psf_field fld;
     char *path = mp_name_after(s->root, ".psf.fits");
@@ -375,7 +381,7 @@ static int build_psf(run_state *s, int pass, char *err)
     inframe.y0 += (double)s->offy;
     int rc = !path ? oom(err) : mp_epsf_field(&inframe, &fld, err);
     if (!rc) {
-        rc = mp_psf_field_write(path, &fld, NULL, 0, err);
+        rc = mp_psf_field_write(path, &fld, used, (int)s->np, err);
         mp_psf_field_free(&fld);
     }
     /* The fit as `fit psf=root.psf.fits` sets it up (economy's decisions
@@ -404,6 +410,7 @@ static int build_psf(run_state *s, int pass, char *err)
                 mp_seconds() - t0);
     }
     s->rep->t_fit += mp_seconds() - t0;
+    free(used);
     free(path);
     return rc;
 }
