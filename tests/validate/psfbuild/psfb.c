@@ -1016,8 +1016,9 @@ static int do_ee(const char *file)
  * them), those stars' PSF built at their true positions by one pass
  * (matphot psf's defaults, fwhm 3), written to DIR/ideal.psf.fits.  What
  * the builder's own algorithm costs, apart from crowding.  Stars fainter
- * than fkeep [e-] are left in (what undetected neighbours cost). */
-static int do_ideal(const char *dir, const char *kind, int npsf, double fkeep)
+ * than fkeep [e-] are left in (what undetected neighbours cost).  order
+ * (−1: auto) and os (0: auto) as matphot psf's varorder and oversamp. */
+static int do_ideal(const char *dir, const char *kind, int npsf, double fkeep, int order, int os)
 {
     int seg = !strcmp(kind, "segmented");
     char err[MP_ERRLEN], path[1024];
@@ -1077,6 +1078,8 @@ static int do_ideal(const char *dir, const char *kind, int npsf, double fkeep)
     mp_epsf_opts_default(3.0, NX, NX, &o);
     o.x0 = o.y0 = 0.5 * (NX + 1);
     o.xs = o.ys = 0.5 * NX;
+    o.order = order;
+    o.os = os;
     mp_epsf e;
     memset(&e, 0, sizeof e);
     mp_epsf_report rep;
@@ -1111,8 +1114,9 @@ int main(int argc, char **argv)
     if (argc == 4 && !strcmp(argv[1], "gridfloor") && atoi(argv[2]) >= 2 &&
         atoi(argv[2]) <= 16)
         return do_gridfloor(atoi(argv[2]), argv[3]) ? 1 : 0;
-    if ((argc == 5 || argc == 6) && !strcmp(argv[1], "ideal"))
-        return do_ideal(argv[2], argv[3], atoi(argv[4]), argc == 6 ? atof(argv[5]) : 0.0) ? 1 : 0;
+    if (argc >= 5 && argc <= 8 && !strcmp(argv[1], "ideal"))
+        return do_ideal(argv[2], argv[3], atoi(argv[4]), argc >= 6 ? atof(argv[5]) : 0.0,
+                        argc >= 7 ? atoi(argv[6]) : -1, argc >= 8 ? atoi(argv[7]) : 0) ? 1 : 0;
     if (argc == 3 && !strcmp(argv[1], "ee"))
         return do_ee(argv[2]) ? 1 : 0;
     if ((argc == 7 || argc == 8) && !strcmp(argv[1], "resid"))
@@ -1133,7 +1137,7 @@ int main(int argc, char **argv)
     if (argc == 4 && !strcmp(argv[1], "cmp"))
         return do_cmp(argv[2], argv[3]) ? 1 : 0;
     fprintf(stderr, "usage: psfb sim DIR segmented|variable | psfb match DIR ROOT [zp] | "
-            "psfb cmp BUILT.fits TRUE.fits | psfb ee PSF.fits | psfb ideal DIR KIND NPSF [FKEEP] | "
+            "psfb cmp BUILT.fits TRUE.fits | psfb ee PSF.fits | psfb ideal DIR KIND NPSF [FKEEP [ORDER [OS]]] | "
             "psfb varfloor [ORDER] [OUT.fits] | psfb gridfloor N OUT.fits | psfb leverage PSF.fits | psfb resid FRAME RES CAT R RON [CAT2] | "
             "psfb noise SCI ERR RON | psfb chi2 CAT\n");
     return 2;
