@@ -258,6 +258,87 @@ static int ldac_extras(const cat_setup *s, const mp_image *im, const mp_table *t
     return n;
 }
 
+/* What one catalog run holds between its steps. */
+typedef struct {
+    mp_table t;          /* the input table, with magnitudes and sky added */
+    mp_image im;         /* image=, when given */
+    int have_image;
+    double exptime;
+} cat_run;
+
+/* The input table and, when image= is given, the frame (header and WCS). */
+static int read_inputs(const cat_setup *s, cat_run *r, char *err)
+{
+    if (mp_table_read(s->input, &r->t, err))
+        return 1;
+    if (s->image[0]) {
+        if (mp_image_read(s->image, &r->im, err))
+            return 1;
+        r->have_image = 1;
+    }
+    r->exptime = detector_value(s->dp.exptime, r->have_image ? &r->im : NULL, "EXPTIME", 1.0);
+    return 0;
+}
+
+/* MAG_* from the fluxes when magzero= is given: magnitudes per second. */
+static int apply_magzero(const cat_setup *s, cat_run *r, char *err)
+{
+    if (!isfinite(s->magzero))
+        return 0;
+    if (!(r->exptime > 0) || !isfinite(r->exptime)) {
+        snprintf(err, MP_ERRLEN, "%s: exposure time %g is not positive: magnitudes per "
+                 "second need one (give exptime=)",
+                 isnan(s->dp.exptime) ? s->image : "exptime", r->exptime);
+        return 1;
+    }
+    return recompute_mags(&r->t, s->input, s->magzero, r->exptime, err);
+}
+
+/* Sky positions by the WCS section's routine (catalog/wcs.c). */
+static int add_sky(const cat_setup *s, cat_run *r, char *err)
+{
+    if (!s->wcs || !r->have_image || !has_wcs_cards(&r->im))
+        return 0;
+    char e[MP_ERRLEN];
+    if (mp_table_add_sky(&r->t, &r->im, e)) {
+        snprintf(err, MP_ERRLEN, "%.200s: %.300s", s->image, e);
+        return 1;
+    }
+    return 0;
+}
+
+/* Regions come from the whole table (FLAGS and NUMBER even when columns=
+ * leaves them out of the catalogue). *wrote: a regions file now exists. */
+static int write_regions(const cat_setup *s, const cat_run *r, int *wrote, char *err)
+{
+    *wrote = 0;
+    if (!s->regions[0])
+        return 0;
+    mp_region_opts ro = {s->radius, s->fk5, s->label};
+    if (mp_regions_write(s->regions, &r->t, &ro, NULL, err)) {
+        if (s->fk5 && mp_table_col(&r->t, "ALPHAPSF_J2000") < 0 &&
+            mp_table_col(&r->t, "ALPHA_J2000") < 0)
+            snprintf(err, MP_ERRLEN, "regsys: fk5 regions need sky positions: give image= "
+                     "a frame with a WCS (and wcs=yes), or regsys=image");
+        return 1;
+    }
+    *wrote = strcmp(s->regions, "-") != 0;
+    return 0;
+}
+
+/* The catalogue in its format; LDAC carries the frame's header and
+ * SExtractor's keywords. */
+static int write_catalog(const cat_setup *s, const cat_run *r, const mp_table *cat, char *err)
+{
+    if (s->fmt != MP_TAB_LDAC)
+        return mp_table_write(s->output[0] ? s->output : "-", cat, s->fmt, err);
+    const mp_image *im = r->have_image ? &r->im : NULL;
+    mp_card extra[10];
+    mp_ldac_head h = {im ? im->hdr : NULL, im ? im->nkeys : 0, extra, 0};
+    h.nextra = ldac_extras(s, im, cat, r->exptime, extra);
+    return mp_table_write_fits(s->output, cat, &h, err);
+}
+
 int mp_task_catalog(int argc, char **argv)
 {
     mp_parset ps;
@@ -266,43 +347,18 @@ int mp_task_catalog(int argc, char **argv)
         return b;
     char err[MP_ERRLEN] = "";
     cat_setup s;
-    mp_table t, sel;
-    mp_image im;
-    mp_table_init(&t);
+    cat_run r;
+    mp_table sel;
+    memset(&r, 0, sizeof r);
+    mp_table_init(&r.t);
     mp_table_init(&sel);
-    memset(&im, 0, sizeof im);
-    int rc = 1, have_image = 0, wrote_regions = 0;
-    if (setup_of(&ps, &s, err))
+    int rc = 1, wrote_regions = 0;
+    if (setup_of(&ps, &s, err) || read_inputs(&s, &r, err) || apply_magzero(&s, &r, err) ||
+        add_sky(&s, &r, err))
         goto done;
-    if (mp_table_read(s.input, &t, err))
-        goto done;
-    if (s.image[0]) {
-        if (mp_image_read(s.image, &im, err))
-            goto done;
-        have_image = 1;
-    }
-    double exptime = detector_value(s.dp.exptime, have_image ? &im : NULL, "EXPTIME", 1.0);
-    if (isfinite(s.magzero)) {
-        if (!(exptime > 0) || !isfinite(exptime)) {
-            snprintf(err, MP_ERRLEN, "%s: exposure time %g is not positive: magnitudes per "
-                     "second need one (give exptime=)",
-                     isnan(s.dp.exptime) ? s.image : "exptime", exptime);
-            goto done;
-        }
-        if (recompute_mags(&t, s.input, s.magzero, exptime, err))
-            goto done;
-    }
-    /* Sky positions by the WCS section's routine (catalog/wcs.c). */
-    if (s.wcs && have_image && has_wcs_cards(&im)) {
-        char e[MP_ERRLEN];
-        if (mp_table_add_sky(&t, &im, e)) {
-            snprintf(err, MP_ERRLEN, "%.200s: %.300s", s.image, e);
-            goto done;
-        }
-    }
-    const mp_table *cat = &t;
+    const mp_table *cat = &r.t;
     if (s.columns[0]) {
-        if (select_columns(&t, s.columns, &sel, err))
+        if (select_columns(&r.t, s.columns, &sel, err))
             goto done;
         cat = &sel;
     }
@@ -311,28 +367,9 @@ int mp_task_catalog(int argc, char **argv)
     mp_tmp_sweep(sw, s.regions);
     mp_tmp_sweep(sw, s.output);
     mp_sweeps_free(sw);
-    /* Regions come from the whole table (FLAGS and NUMBER even when
-     * columns= leaves them out of the catalogue). */
-    if (s.regions[0]) {
-        mp_region_opts ro = {s.radius, s.fk5, s.label};
-        if (mp_regions_write(s.regions, &t, &ro, NULL, err)) {
-            if (s.fk5 && mp_table_col(&t, "ALPHAPSF_J2000") < 0 && mp_table_col(&t, "ALPHA_J2000") < 0)
-                snprintf(err, MP_ERRLEN, "regsys: fk5 regions need sky positions: give image= "
-                         "a frame with a WCS (and wcs=yes), or regsys=image");
-            goto done;
-        }
-        wrote_regions = strcmp(s.regions, "-") != 0;
-    }
-    int w;
-    if (s.fmt == MP_TAB_LDAC) {
-        mp_card extra[10];
-        mp_ldac_head h = {have_image ? im.hdr : NULL, have_image ? im.nkeys : 0, extra, 0};
-        h.nextra = ldac_extras(&s, have_image ? &im : NULL, cat, exptime, extra);
-        w = mp_table_write_fits(s.output, cat, &h, err);
-    } else {
-        w = mp_table_write(s.output[0] ? s.output : "-", cat, s.fmt, err);
-    }
-    if (w) {
+    if (write_regions(&s, &r, &wrote_regions, err))
+        goto done;
+    if (write_catalog(&s, &r, cat, err)) {
         if (wrote_regions)
             unlink(s.regions);   /* no half of the outputs from a failed run */
         goto done;
@@ -342,8 +379,8 @@ done:
     if (rc)
         fprintf(stderr, "matphot catalog: %s\n", err);
     mp_table_free(&sel);
-    mp_table_free(&t);
-    mp_image_free(&im);
+    mp_table_free(&r.t);
+    mp_image_free(&r.im);
     mp_params_free(&ps);
     return rc;
 }

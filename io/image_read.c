@@ -47,19 +47,16 @@ static void raw_free(raw_image *im)
     memset(im, 0, sizeof *im);
 }
 
-static int read_raw(const char *name, int datatype, raw_image *im, char *err)
+/* Open the image HDU NAME names (section syntax allowed), after the
+ * header guard; on failure *fp is closed and ERR says why. */
+static int open_image(const char *name, fitsfile **fp, char *err)
 {
-    memset(im, 0, sizeof *im);
-    if (!name || !*name) {
-        snprintf(err, MP_ERRLEN, "(no name): no image file given");
-        return 1;
-    }
+    *fp = NULL;
     char *cname = mp_section_name(name);
     if (!cname) {
         snprintf(err, MP_ERRLEN, "%s: out of memory", name);
         return 1;
     }
-    fitsfile *fp = NULL;
     int status = 0;
     char badkey[9];
     if (mp_fits_guard_file(cname, badkey)) {
@@ -68,108 +65,142 @@ static int read_raw(const char *name, int datatype, raw_image *im, char *err)
         free(cname);
         return 1;
     }
-    fits_open_image(&fp, cname, READONLY, &status);
+    fits_open_image(fp, cname, READONLY, &status);
     free(cname);
     if (status) {
         mp_fits_error(name, "open", status, err);
         /* cfitsio 4.2 can fail inside the header parse with the file
          * already open and fp set (a card without "= "): close it, or the
          * descriptor and its buffers leak (found by tests/fuzz). */
-        if (fp) {
+        if (*fp) {
             int s2 = 0;
-            fits_close_file(fp, &s2);
+            fits_close_file(*fp, &s2);
+            *fp = NULL;
         }
         return 1;
     }
+    return 0;
+}
 
-    int bitpix = 0, naxis = 0;
-    long naxes[9] = {0};
-    fits_get_img_type(fp, &bitpix, &status);
-    fits_get_img_dim(fp, &naxis, &status);
-    if (status) {
-        mp_fits_error(name, "read", status, err);
-        goto fail;
+/* The "give a 2-D plane" message for a cube: the plane syntax goes after
+ * the HDU part of the name ("f.fits[SCI][*,*,1]"), dropping a section
+ * already there. */
+static void plane_hint(const char *name, int naxis, char *err)
+{
+    const char *b = strrchr(name, '[');
+    int blen = b && strchr(b, ',') ? (int)(b - name) : (int)strlen(name);
+    char extra[40] = "";
+    for (int j = 3; j < naxis; j++)
+        strcat(extra, ",1");
+    snprintf(err, MP_ERRLEN, "%s: %d-D image; give a 2-D section like %.*s[*,*,1%s]",
+             name, naxis, blen, name, extra);
+}
+
+/* BITPIX, NAXIS and NAXISn of the open HDU, checked to be a 2-D image
+ * (trailing axes of length 1 allowed) of a size that can be held. */
+static int image_shape(fitsfile *fp, const char *name, int *bitpix, int *naxis, long naxes[9],
+                       char *err)
+{
+    int status = 0;
+    fits_get_img_type(fp, bitpix, &status);
+    fits_get_img_dim(fp, naxis, &status);
+    if (status)
+        return mp_fits_error(name, "read", status, err), 1;
+    int bp = *bitpix, na = *naxis;
+    if (bp != 8 && bp != 16 && bp != 32 && bp != 64 && bp != -32 && bp != -64) {
+        snprintf(err, MP_ERRLEN, "%s: unsupported BITPIX %d", name, bp);
+        return 1;
     }
-    if (bitpix != 8 && bitpix != 16 && bitpix != 32 && bitpix != 64 &&
-        bitpix != -32 && bitpix != -64) {
-        snprintf(err, MP_ERRLEN, "%s: unsupported BITPIX %d", name, bitpix);
-        goto fail;
-    }
-    if (naxis == 0) {
+    if (na == 0) {
         snprintf(err, MP_ERRLEN, "%s: no image here (NAXIS = 0); "
                  "name an image extension like %s[1]", name, name);
-        goto fail;
+        return 1;
     }
-    if (naxis > 9) {
-        snprintf(err, MP_ERRLEN, "%s: %d-D image; matphot reads 2-D images", name, naxis);
-        goto fail;
+    if (na > 9) {
+        snprintf(err, MP_ERRLEN, "%s: %d-D image; matphot reads 2-D images", name, na);
+        return 1;
     }
-    fits_get_img_size(fp, naxis, naxes, &status);
-    if (status) {
-        mp_fits_error(name, "read", status, err);
-        goto fail;
-    }
-    for (int k = 2; k < naxis; k++) {
-        if (naxes[k] != 1) {
-            /* Suggest the plane syntax after the HDU part of the name
-             * ("f.fits[SCI][*,*,1]"), dropping a section already there. */
-            const char *b = strrchr(name, '[');
-            int blen = b && strchr(b, ',') ? (int)(b - name) : (int)strlen(name);
-            char extra[40] = "";
-            for (int j = 3; j < naxis; j++)
-                strcat(extra, ",1");
-            snprintf(err, MP_ERRLEN,
-                     "%s: %d-D image; give a 2-D section like %.*s[*,*,1%s]",
-                     name, naxis, blen, name, extra);
-            goto fail;
-        }
-    }
-    long nx = naxes[0], ny = naxis > 1 ? naxes[1] : 1;
+    fits_get_img_size(fp, na, naxes, &status);
+    if (status)
+        return mp_fits_error(name, "read", status, err), 1;
+    for (int k = 2; k < na; k++)
+        if (naxes[k] != 1)
+            return plane_hint(name, na, err), 1;
+    long nx = naxes[0], ny = na > 1 ? naxes[1] : 1;
     if (nx < 1 || ny < 1) {
         snprintf(err, MP_ERRLEN, "%s: empty image (%ld x %ld)", name, nx, ny);
-        goto fail;
+        return 1;
     }
     if ((uint64_t)nx > SIZE_MAX / sizeof(double) / (uint64_t)ny) {
         snprintf(err, MP_ERRLEN, "%s: image too large (%ld x %ld)", name, nx, ny);
-        goto fail;
+        return 1;
     }
-    /* A file cut short inside its data: say so before reading, since
-     * cfitsio would otherwise convert bytes past the end of the file. */
+    return 0;
+}
+
+/* A file cut short inside its data: say so before reading, since cfitsio
+ * would otherwise convert bytes past the end of the file. */
+static int check_complete(fitsfile *fp, const char *name, int bitpix, int naxis,
+                          const long naxes[9], char *err)
+{
+    int status = 0;
     LONGLONG hstart, dstart, dend;
     fits_get_hduaddrll(fp, &hstart, &dstart, &dend, &status);
-    LONGLONG nbytes = (LONGLONG)nx * ny * (bitpix < 0 ? -bitpix : bitpix) / 8;
-    for (int k = 2; k < naxis; k++)
+    LONGLONG nbytes = (LONGLONG)(bitpix < 0 ? -bitpix : bitpix) / 8;
+    for (int k = 0; k < naxis; k++)
         nbytes *= naxes[k];
     if (!status && dstart + nbytes > fp->Fptr->logfilesize) {
         snprintf(err, MP_ERRLEN, "%s: truncated FITS file (the data end before the header says)",
                  name);
-        goto fail;
+        return 1;
     }
-    im->nx = nx;
-    im->ny = ny;
+    return 0;
+}
+
+/* The pixels, in DATATYPE, and a copy of the header. BLANK pixels of
+ * integer images and NaN of float images both come back as NaN, so
+ * callers test one thing. */
+static int read_pixels(fitsfile *fp, const char *name, int datatype, raw_image *im, char *err)
+{
     size_t esize = datatype == TFLOAT ? sizeof(float) : sizeof(double);
-    im->pix = malloc((size_t)nx * (size_t)ny * esize);
+    im->pix = malloc((size_t)im->nx * (size_t)im->ny * esize);
     if (!im->pix) {
-        snprintf(err, MP_ERRLEN, "%s: out of memory for %ld x %ld pixels", name, nx, ny);
-        goto fail;
+        snprintf(err, MP_ERRLEN, "%s: out of memory for %ld x %ld pixels", name, im->nx, im->ny);
+        return 1;
     }
-    /* BLANK pixels of integer images and NaN of float images both come
-     * back as NaN, so callers test one thing. */
     long fpix[9] = {1, 1, 1, 1, 1, 1, 1, 1, 1};
     double nulval = NAN;
     float fnulval = NAN;
-    int anynul = 0;
-    fits_read_pix(fp, datatype, fpix, (LONGLONG)nx * ny,
+    int anynul = 0, status = 0;
+    fits_read_pix(fp, datatype, fpix, (LONGLONG)im->nx * im->ny,
                   datatype == TFLOAT ? (void *)&fnulval : (void *)&nulval, im->pix, &anynul,
                   &status);
-    if (status) {
-        mp_fits_error(name, "read", status, err);
-        goto fail;
+    if (status)
+        return mp_fits_error(name, "read", status, err), 1;
+    if (copy_header(fp, &im->hdr, &im->nkeys, &status))
+        return mp_fits_error(name, "read the header of", status, err), 1;
+    return 0;
+}
+
+static int read_raw(const char *name, int datatype, raw_image *im, char *err)
+{
+    memset(im, 0, sizeof *im);
+    if (!name || !*name) {
+        snprintf(err, MP_ERRLEN, "(no name): no image file given");
+        return 1;
     }
-    if (copy_header(fp, &im->hdr, &im->nkeys, &status)) {
-        mp_fits_error(name, "read the header of", status, err);
+    fitsfile *fp;
+    if (open_image(name, &fp, err))
+        return 1;
+    int bitpix = 0, naxis = 0, status = 0;
+    long naxes[9] = {0};
+    if (image_shape(fp, name, &bitpix, &naxis, naxes, err) ||
+        check_complete(fp, name, bitpix, naxis, naxes, err))
         goto fail;
-    }
+    im->nx = naxes[0];
+    im->ny = naxis > 1 ? naxes[1] : 1;
+    if (read_pixels(fp, name, datatype, im, err))
+        goto fail;
     fits_close_file(fp, &status);
     if (status) {
         mp_fits_error(name, "close", status, err);

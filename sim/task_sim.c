@@ -69,32 +69,21 @@ static int read_field(const mp_parset *ps, sim_config *c, char *err)
     return 0;
 }
 
-static int read_config(const mp_parset *ps, sim_config *c, char *err)
+/* The numeric parameters, each one a number. */
+static int read_numbers(const mp_parset *ps, sim_config *c, char *err)
 {
-    memset(c, 0, sizeof *c);
-    c->output = mp_par_string(ps, "output");
-    c->psf = mp_par_string(ps, "psf");
-    c->drf = mp_par_string(ps, "drf");
-    c->psfout = mp_par_string(ps, "psfout");
-    const char *truth = mp_par_string(ps, "truth");
-    const char *mode = mp_par_string(ps, "mode");
-    if (!c->output || !c->psf || !c->drf || !truth || !mode) {
-        snprintf(err, MP_ERRLEN, "sim.par: a parameter is missing from the defaults");
-        return 1;
-    }
-    if (!*c->output) {
-        snprintf(err, MP_ERRLEN, "output: no output frame named");
-        return 1;
-    }
-    int seed;
-    if (need_int(ps, "nx", &c->nx, err) || need_int(ps, "ny", &c->ny, err) ||
-        need_int(ps, "nstars", &c->nstars, err) ||
-        need_real(ps, "magmin", &c->magmin, err) || need_real(ps, "magmax", &c->magmax, err) ||
-        need_real(ps, "sky", &c->sky, err) || need_real(ps, "rdnoise", &c->rdnoise, err) ||
-        need_real(ps, "gain", &c->gain, err) || need_real(ps, "fwhm", &c->fwhm, err) ||
-        need_real(ps, "volume", &c->volume, err) || need_int(ps, "psfos", &c->psfos, err) ||
-        need_real(ps, "lod", &c->lod, err) || need_real(ps, "band", &c->band, err))
-        return 1;
+    return need_int(ps, "nx", &c->nx, err) || need_int(ps, "ny", &c->ny, err) ||
+           need_int(ps, "nstars", &c->nstars, err) ||
+           need_real(ps, "magmin", &c->magmin, err) || need_real(ps, "magmax", &c->magmax, err) ||
+           need_real(ps, "sky", &c->sky, err) || need_real(ps, "rdnoise", &c->rdnoise, err) ||
+           need_real(ps, "gain", &c->gain, err) || need_real(ps, "fwhm", &c->fwhm, err) ||
+           need_real(ps, "volume", &c->volume, err) || need_int(ps, "psfos", &c->psfos, err) ||
+           need_real(ps, "lod", &c->lod, err) || need_real(ps, "band", &c->band, err);
+}
+
+/* pupil=: gaussian, or segmented (which draws its own PSF). */
+static int read_pupil(const mp_parset *ps, sim_config *c, char *err)
+{
     const char *pupil = mp_par_string(ps, "pupil");
     c->segmented = pupil && strcmp(pupil, "segmented") == 0;
     if (!pupil || (!c->segmented && strcmp(pupil, "gaussian") != 0)) {
@@ -105,29 +94,36 @@ static int read_config(const mp_parset *ps, sim_config *c, char *err)
         snprintf(err, MP_ERRLEN, "pupil: segmented draws its own PSF; give no psf=");
         return 1;
     }
+    return 0;
+}
+
+/* seed=, noise= and mode=. No seed: one from the clock, recorded in the
+ * SEED card so the frame can be made again. */
+static int read_mode_seed(const mp_parset *ps, const char *mode, sim_config *c, char *err)
+{
+    int seed;
     if (mp_par_real(ps, "saturate", &c->saturate) || mp_par_int(ps, "seed", &seed)) {
         snprintf(err, MP_ERRLEN, "sim.par: saturate or seed is missing from the defaults");
         return 1;
     }
-    if (read_field(ps, c, err))
-        return 1;
     if (mp_par_bool(ps, "noise", &c->noise)) {
         snprintf(err, MP_ERRLEN, "noise: give yes or no");
         return 1;
     }
-    /* No seed: one from the clock, recorded in the SEED card so the frame
-     * can be made again. */
     c->seed = seed == MP_PAR_INDEF_INT
         ? ((uint64_t)time(NULL) * 1000003u ^ (uint64_t)getpid()) & 0x7fffffff
         : (uint64_t)seed;
-    if (strcmp(mode, "single") == 0) {
-        c->crowded = 0;
-    } else if (strcmp(mode, "crowded") == 0) {
-        c->crowded = 1;
-    } else {
+    if (strcmp(mode, "single") != 0 && strcmp(mode, "crowded") != 0) {
         snprintf(err, MP_ERRLEN, "mode: '%s' is not single or crowded", mode);
         return 1;
     }
+    c->crowded = strcmp(mode, "crowded") == 0;
+    return 0;
+}
+
+/* Values that are numbers but not usable ones. */
+static int check_ranges(const sim_config *c, char *err)
+{
     if (c->magmax < c->magmin) {
         snprintf(err, MP_ERRLEN, "magmax: %g is brighter than magmin %g", c->magmax, c->magmin);
         return 1;
@@ -147,6 +143,12 @@ static int read_config(const mp_parset *ps, sim_config *c, char *err)
                  "give one of them");
         return 1;
     }
+    return 0;
+}
+
+/* truth=, or the output's name with .truth; never the output itself. */
+static int name_truth(const char *truth, sim_config *c, char *err)
+{
     c->truth = *truth ? strdup(truth) : mp_name_after(c->output, ".truth");
     if (!c->truth) {
         snprintf(err, MP_ERRLEN, "truth: out of memory");
@@ -157,6 +159,30 @@ static int read_config(const mp_parset *ps, sim_config *c, char *err)
         return 1;
     }
     return 0;
+}
+
+static int read_config(const mp_parset *ps, sim_config *c, char *err)
+{
+    memset(c, 0, sizeof *c);
+    c->output = mp_par_string(ps, "output");
+    c->psf = mp_par_string(ps, "psf");
+    c->drf = mp_par_string(ps, "drf");
+    c->psfout = mp_par_string(ps, "psfout");
+    const char *truth = mp_par_string(ps, "truth");
+    const char *mode = mp_par_string(ps, "mode");
+    if (!c->output || !c->psf || !c->drf || !truth || !mode) {
+        snprintf(err, MP_ERRLEN, "sim.par: a parameter is missing from the defaults");
+        return 1;
+    }
+    if (!*c->output) {
+        snprintf(err, MP_ERRLEN, "output: no output frame named");
+        return 1;
+    }
+    /* The order of the checks is the order of the messages a user with
+     * several mistakes sees first. */
+    return read_numbers(ps, c, err) || read_pupil(ps, c, err) ||
+           read_mode_seed(ps, mode, c, err) || read_field(ps, c, err) ||
+           check_ranges(c, err) || name_truth(truth, c, err);
 }
 
 /* Stars of the scene, drawn in a fixed order (x, y, mag per star) so one
