@@ -83,7 +83,7 @@ static void marginal_of(const mp_frame *f, const mp_bkg *b, const mpf_kernel *k,
                 continue;
             double w = nh + 1 - abs(j);
             sw += w;
-            swd += w * (f->im.pix[q] - b->sky[q]);
+            swd += w * (f->im.pix[q] - mp_bkg_sky(b, q));
             swg += w * exp(-0.5 * j * j / (k->sigma * k->sigma));
         }
         int e = i + nh;
@@ -187,12 +187,12 @@ void mpf_measure(const mp_frame *f, const mp_bkg *b, const mpf_kernel *k,
         size_t q = (size_t)y * (size_t)nx + (size_t)x;
         if (mpf_bad(f, q))
             continue;
-        others += f->im.pix[q] - b->sky[q];
+        others += f->im.pix[q] - mp_bkg_sky(b, q);
         nothers++;
     }
     if (nothers == 0)
         return;
-    double d0 = f->im.pix[ic] - b->sky[ic];
+    double d0 = f->im.pix[ic] - mp_bkg_sky(b, ic);
     s->sharp = (d0 - others / nothers) / h;
 
     marginal mg;
@@ -217,14 +217,14 @@ void mpf_measure(const mp_frame *f, const mp_bkg *b, const mpf_kernel *k,
             if (x < 0 || x >= nx || y < 0 || y >= ny)
                 continue;
             size_t q = (size_t)y * (size_t)nx + (size_t)x;
-            if (!mpf_bad(f, q) && f->im.pix[q] - b->sky[q] > fmax)
-                fmax = f->im.pix[q] - b->sky[q];
+            if (!mpf_bad(f, q) && f->im.pix[q] - mp_bkg_sky(b, q) > fmax)
+                fmax = f->im.pix[q] - mp_bkg_sky(b, q);
         }
     s->flux_max = fmax;
     long cx = lround(s->x) - 1, cy = lround(s->y) - 1;
     cx = cx < 0 ? 0 : cx >= nx ? nx - 1 : cx;
     cy = cy < 0 ? 0 : cy >= ny ? ny - 1 : cy;
-    s->background = b->sky[(size_t)cy * (size_t)nx + (size_t)cx];
+    s->background = mp_bkg_sky(b, (size_t)cy * (size_t)nx + (size_t)cx);
     s->ok = isfinite(s->x) && isfinite(s->y) && isfinite(s->sharp) && isfinite(s->round) &&
             isfinite(s->flux);
 }
@@ -240,7 +240,7 @@ void mpf_measure_plateau(const mp_frame *f, const mp_bkg *b, const mpf_kernel *k
         long x = idx[i] % nx, y = idx[i] / nx;
         sx += (double)x;
         sy += (double)y;
-        double d = f->im.pix[idx[i]] - b->sky[idx[i]];
+        double d = f->im.pix[idx[i]] - mp_bkg_sky(b, idx[i]);
         if (d > dmax)
             dmax = d;
         if (x < k->nh || y < k->nh || x >= nx - k->nh || y >= ny - k->nh)
@@ -249,7 +249,7 @@ void mpf_measure_plateau(const mp_frame *f, const mp_bkg *b, const mpf_kernel *k
     s->x = sx / (double)n + 1.0;
     s->y = sy / (double)n + 1.0;
     long cx = lround(s->x) - 1, cy = lround(s->y) - 1;
-    s->background = b->sky[(size_t)cy * (size_t)nx + (size_t)cx];
+    s->background = mp_bkg_sky(b, (size_t)cy * (size_t)nx + (size_t)cx);
     s->flux_max = dmax;
     /* A Gaussian of peak A clipped at level S is flat out to radius r_s
      * with A·exp(−r_s²/2σ²) = S; the plateau's area gives r_s² = n/π.  σ

@@ -10,8 +10,14 @@
 
 #include "find/find_priv.h"
 
+/* The sky rows a strip holds: row y at sky + (y − s0)·nx. */
+typedef struct {
+    const float *sky;
+    long s0;
+} sky_rows;
+
 /* h at one pixel from its good taps only. */
-static double h_slow(const mp_frame *f, const mp_bkg *b, const mpf_kernel *k, long px, long py)
+static double h_slow(const mp_frame *f, const sky_rows *b, const mpf_kernel *k, long px, long py)
 {
     long nx = f->im.nx, ny = f->im.ny;
     int n = 0;
@@ -23,7 +29,8 @@ static double h_slow(const mp_frame *f, const mp_bkg *b, const mpf_kernel *k, lo
         size_t i = (size_t)y * (size_t)nx + (size_t)x;
         if (mpf_bad(f, i))
             continue;
-        double g = k->g[t], d = f->im.pix[i] - b->sky[i];
+        float sky = b->sky[(size_t)(y - b->s0) * (size_t)nx + (size_t)x];
+        double g = k->g[t], d = f->im.pix[i] - sky;
         n++;
         sg += g;
         sgg += g * g;
@@ -58,7 +65,7 @@ static void tap_row(double *restrict o, const float *restrict p, const float *re
         o[x] += w * ((double)p[x] - s[x]);
 }
 
-static int any_bad(const mp_frame *f)
+int mpf_any_bad(const mp_frame *f)
 {
     size_t n = (size_t)f->im.nx * (size_t)f->im.ny;
     for (size_t i = 0; i < n; i++)
@@ -67,11 +74,12 @@ static int any_bad(const mp_frame *f)
     return 0;
 }
 
-int mpf_convolve(const mp_frame *f, const mp_bkg *b, const mpf_kernel *k, float *h,
-                 char *err)
+int mpf_convolve_rows(const mp_frame *f, const float *sky, long s0, const mpf_kernel *k,
+                      int bad, long y0, long y1, float *h, char *err)
 {
     long nx = f->im.nx, ny = f->im.ny, nh = k->nh;
-    int bad = any_bad(f), nomem = 0;
+    const sky_rows srows = {sky, s0}, *b = &srows;
+    int nomem = 0;
 #pragma omp parallel
     {
         /* near[x]: a bad pixel lies in the (2nh+1)² box around (x, y). */
@@ -85,10 +93,10 @@ int mpf_convolve(const mp_frame *f, const mp_bkg *b, const mpf_kernel *k, float 
             nomem = 1;
         }
 #pragma omp for schedule(static)
-        for (long y = 0; y < ny; y++) {
+        for (long y = y0; y < y1; y++) {
             if ((bad && (!colbad || !near)) || !o)
                 continue;
-            float *ho = h + (size_t)y * (size_t)nx;
+            float *ho = h + (size_t)(y - y0) * (size_t)nx;
             long x0 = nh, x1 = nx - nh;     /* whole footprints: [x0, x1) */
             if (y < nh || y >= ny - nh || x1 <= x0) {
                 for (long x = 0; x < nx; x++)
@@ -99,7 +107,8 @@ int mpf_convolve(const mp_frame *f, const mp_bkg *b, const mpf_kernel *k, float 
                 o[x] = 0.0;
             for (int t = 0; t < k->n; t++) {
                 size_t off = (size_t)(y + k->dy[t]) * (size_t)nx;
-                tap_row(o + x0, f->im.pix + off + k->dx[t] + x0, b->sky + off + k->dx[t] + x0,
+                size_t soff = (size_t)(y + k->dy[t] - s0) * (size_t)nx;
+                tap_row(o + x0, f->im.pix + off + k->dx[t] + x0, sky + soff + k->dx[t] + x0,
                         k->kl[t], x1 - x0);
             }
             for (long x = 0; x < x0; x++)

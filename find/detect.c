@@ -41,36 +41,41 @@ static int push(idx_list *l, long i)
     return 0;
 }
 
-static int cmp_long(const void *a, const void *b)
-{
-    long x = *(const long *)a, y = *(const long *)b;
-    return (x > y) - (x < y);
-}
+/* A detection strip: the rows [y0, y1) searched, h over [h0, h1) (y0 − nh
+ * .. y1 + nh within the image), the sky over [s0, s1) (h's rows ± nh) and
+ * the rms over [y0, y1); each buffer row-major from its first row. */
+typedef struct {
+    long y0, y1, h0, h1, s0, s1;
+    float *h, *sky, *rms;
+} strip;
 
-/* Is pixel p (h there = hv) a candidate: above threshold in the noise of
- * its own footprint, the maximum of h over the footprint (ties to the
+/* Is pixel (x, y) of the strip a candidate: above threshold in the noise
+ * of its own footprint, the maximum of h over the footprint (ties to the
  * first in raster order), and no saturated pixel within it (that star is
  * found as its plateau)? */
-static int is_candidate(const mp_frame *f, const mp_bkg *b, const mpf_kernel *k,
-                        const float *h, double thresh, long x, long y)
+static int is_candidate(const mp_frame *f, const strip *st, const mpf_kernel *k,
+                        double thresh, long x, long y)
 {
     long nx = f->im.nx, ny = f->im.ny;
     size_t p = (size_t)y * (size_t)nx + (size_t)x;
-    double hv = h[p];
+    size_t sp = (size_t)(y - st->y0) * (size_t)nx + (size_t)x;
+    double hv = st->h[(size_t)(y - st->h0) * (size_t)nx + (size_t)x];
+    float rms = st->rms[sp];
     /* A noiseless frame has rms 0: there h must still beat the roundoff
      * of subtracting the sky (a single-precision map: FLT_EPSILON of it
      * through the kernel's weights, and h's own rounding), or every flat
      * pixel would be a star. */
-    double sky = fabs(b->sky[p]);
+    double sky = fabs(st->sky[(size_t)(y - st->s0) * (size_t)nx + (size_t)x]);
     if (!(hv > 4.0 * FLT_EPSILON * (1.0 + sky) * (k->klsum + 1.0)) ||
-        hv < thresh * b->rms[p] * k->relerr)
+        hv < thresh * rms * k->relerr)
         return 0;
     for (int t = 0; t < k->n; t++) {
         long qx = x + k->dx[t], qy = y + k->dy[t];
         if (qx < 0 || qx >= nx || qy < 0 || qy >= ny || (qx == x && qy == y))
             continue;
         size_t q = (size_t)qy * (size_t)nx + (size_t)qx;
-        if (h[q] > hv || (h[q] == hv && q < p))
+        float hq = st->h[(size_t)(qy - st->h0) * (size_t)nx + (size_t)qx];
+        if (hq > hv || (hq == hv && q < p))
             return 0;
     }
     if (mpf_bad(f, p))
@@ -80,36 +85,122 @@ static int is_candidate(const mp_frame *f, const mp_bkg *b, const mpf_kernel *k,
     if (fp.sat || fp.denom <= 0.0)
         return 0;
     /* A cut footprint has a noisier h (relerr grows as taps are lost). */
-    if ((fp.edge || fp.masked) && hv < thresh * b->rms[p] / sqrt(fp.denom))
+    if ((fp.edge || fp.masked) && hv < thresh * rms / sqrt(fp.denom))
         return 0;
     return 1;
 }
 
-static int find_candidates(const mp_frame *f, const mp_bkg *b, const mpf_kernel *k,
-                           const float *h, double thresh, idx_list *out)
+/* A candidate: its pixel and h there. */
+typedef struct {
+    long p;
+    float h;
+} cand;
+
+typedef struct {
+    cand *v;
+    size_t n, cap;
+} cand_list;
+
+static int push_cand(cand_list *l, long p, float h)
 {
-    long nx = f->im.nx, ny = f->im.ny;
+    if (l->n == l->cap) {
+        size_t cap = l->cap ? 2 * l->cap : 256;
+        cand *v = realloc(l->v, cap * sizeof *v);
+        if (!v)
+            return 1;
+        l->v = v;
+        l->cap = cap;
+    }
+    l->v[l->n].p = p;
+    l->v[l->n++].h = h;
+    return 0;
+}
+
+static int cmp_cand(const void *a, const void *b)
+{
+    long x = ((const cand *)a)->p, y = ((const cand *)b)->p;
+    return (x > y) - (x < y);
+}
+
+/* The strip's candidates, appended to out in raster order. */
+static int find_candidates(const mp_frame *f, const strip *st, const mpf_kernel *k,
+                           double thresh, cand_list *out)
+{
+    long nx = f->im.nx;
+    size_t n0 = out->n;
     int nomem = 0;
 #pragma omp parallel
     {
-        idx_list mine = {0};
+        cand_list mine = {0};
 #pragma omp for schedule(static)
-        for (long y = 0; y < ny; y++)
+        for (long y = st->y0; y < st->y1; y++)
             for (long x = 0; x < nx; x++)
-                if (is_candidate(f, b, k, h, thresh, x, y) && push(&mine, y * nx + x)) {
+                if (is_candidate(f, st, k, thresh, x, y) &&
+                    push_cand(&mine, y * nx + x,
+                              st->h[(size_t)(y - st->h0) * (size_t)nx + (size_t)x])) {
 #pragma omp atomic write
                     nomem = 1;
                 }
 #pragma omp critical(find_merge)
         for (size_t i = 0; i < mine.n && !nomem; i++)
-            if (push(out, mine.v[i]))
+            if (push_cand(out, mine.v[i].p, mine.v[i].h))
                 nomem = 1;
         free(mine.v);
     }
-    if (!nomem && out->n)
-        qsort(out->v, out->n, sizeof *out->v, cmp_long);
+    if (!nomem && out->n > n0)
+        qsort(out->v + n0, out->n - n0, sizeof *out->v, cmp_cand);
     return nomem;
 }
+
+/* Room for strips of `rows` rows (and the kernel's margins) of nx pixels. */
+static int strip_alloc(strip *st, long rows, long nh, long nx, size_t *bytes)
+{
+    size_t w = (size_t)nx, hr = (size_t)(rows + 2 * nh), sr = (size_t)(rows + 4 * nh);
+    st->h = malloc(hr * w * sizeof *st->h);
+    st->sky = malloc(sr * w * sizeof *st->sky);
+    st->rms = malloc((size_t)rows * w * sizeof *st->rms);
+    *bytes = (hr + sr + (size_t)rows) * w * sizeof(float);
+    return !st->h || !st->sky || !st->rms;
+}
+
+static void strip_free(strip *st)
+{
+    free(st->h);
+    free(st->sky);
+    free(st->rms);
+}
+
+/* One strip: its rows [y0, y0 + rows), their h (and the margins'), the
+ * candidates among them appended to out. */
+static int strip_search(const mp_frame *f, const mp_bkg *b, const mpf_kernel *k, int bad,
+                        double thresh, long y0, long rows, strip *st, cand_list *out,
+                        char *err)
+{
+    long ny = f->im.ny, nh = k->nh, nx = f->im.nx;
+    st->y0 = y0;
+    st->y1 = y0 + rows < ny ? y0 + rows : ny;
+    st->h0 = st->y0 - nh > 0 ? st->y0 - nh : 0;
+    st->h1 = st->y1 + nh < ny ? st->y1 + nh : ny;
+    st->s0 = st->h0 - nh > 0 ? st->h0 - nh : 0;
+    st->s1 = st->h1 + nh < ny ? st->h1 + nh : ny;
+#pragma omp parallel for schedule(static)
+    for (long y = st->s0; y < st->s1; y++)
+        mp_bkg_rows(b, y, y + 1, st->sky + (size_t)(y - st->s0) * (size_t)nx, NULL);
+#pragma omp parallel for schedule(static)
+    for (long y = st->y0; y < st->y1; y++)
+        mp_bkg_rows(b, y, y + 1, st->sky + (size_t)(y - st->s0) * (size_t)nx,
+                    st->rms + (size_t)(y - st->y0) * (size_t)nx);
+    if (mpf_convolve_rows(f, st->sky, st->s0, k, bad, st->h0, st->h1, st->h, err))
+        return 1;
+    if (find_candidates(f, st, k, thresh, out)) {
+        snprintf(err, MP_ERRLEN, "out of memory for the candidates");
+        return 1;
+    }
+    return 0;
+}
+
+#define SEEN(i) (seen[(i) >> 3] & (1u << ((i) & 7)))
+#define MARK(i) (seen[(i) >> 3] |= (unsigned char)(1u << ((i) & 7)))
 
 /* The 8-connected regions of saturated pixels, each measured as one star;
  * *stars grows by one per region. */
@@ -123,17 +214,18 @@ static int find_plateaus(const mp_frame *f, const mp_bkg *b, const mpf_kernel *k
         first++;
     if (first == npix)
         return 0;
-    unsigned char *seen = calloc(npix, 1);
+    /* one bit a pixel: saturated frames are the big ones (issue 14) */
+    unsigned char *seen = calloc(npix / 8 + 1, 1);
     idx_list reg = {0};
     size_t cap = *n;
     int rc = 1;
     if (!seen)
         return 1;
     for (size_t s = first; s < npix; s++) {
-        if (seen[s] || !mpf_sat(f, s))
+        if (SEEN(s) || !mpf_sat(f, s))
             continue;
         reg.n = 0;
-        seen[s] = 1;
+        MARK(s);
         if (push(&reg, (long)s))
             goto done;
         for (size_t head = 0; head < reg.n; head++) {
@@ -143,9 +235,9 @@ static int find_plateaus(const mp_frame *f, const mp_bkg *b, const mpf_kernel *k
                     if (i < 0 || i >= nx || j < 0 || j >= ny)
                         continue;
                     size_t q = (size_t)j * (size_t)nx + (size_t)i;
-                    if (seen[q] || !mpf_sat(f, q))
+                    if (SEEN(q) || !mpf_sat(f, q))
                         continue;
-                    seen[q] = 1;
+                    MARK(q);
                     if (push(&reg, (long)q))
                         goto done;
                 }
@@ -229,6 +321,12 @@ static int append(mp_table *t, const ordered *o, size_t n, char *err)
 int mp_find_stars(const mp_frame *f, const mp_bkg *b, const mp_find_opts *o,
                   mp_table *t, char *err)
 {
+    return mpf_find_stars_strips(f, b, o, MPF_STRIP, t, NULL, err);
+}
+
+int mpf_find_stars_strips(const mp_frame *f, const mp_bkg *b, const mp_find_opts *o,
+                          long rows, mp_table *t, size_t *work, char *err)
+{
     mp_find_opts def;
     if (!o) {
         mp_find_opts_default(&def);
@@ -238,7 +336,7 @@ int mp_find_stars(const mp_frame *f, const mp_bkg *b, const mp_find_opts *o,
         snprintf(err, MP_ERRLEN, "threshold: %g must be a number of sigma >= 0", o->threshold);
         return 1;
     }
-    if (b->nx != f->im.nx || b->ny != f->im.ny || !b->sky || !b->rms) {
+    if (b->nx != f->im.nx || b->ny != f->im.ny || !b->vals) {
         snprintf(err, MP_ERRLEN, "background map is %ld x %ld pixels, the image %ld x %ld",
                  b->nx, b->ny, f->im.nx, f->im.ny);
         return 1;
@@ -247,20 +345,30 @@ int mp_find_stars(const mp_frame *f, const mp_bkg *b, const mp_find_opts *o,
     if (mpf_kernel_make(o->fwhm, o->nsigma, &k, err))
         return 1;
     long nx = f->im.nx, ny = f->im.ny;
-    size_t npix = (size_t)nx * (size_t)ny;
+    if (rows < 1)
+        rows = 1;
+    if (rows > ny)
+        rows = ny;
     int rc = 1, nomem = 0;
-    idx_list cand = {0};
+    cand_list cand = {0};
     mpf_star *stars = NULL;
     long *keys = NULL;
     ordered *ord = NULL;
-    float *h = malloc((npix ? npix : 1) * sizeof *h);
-    if (!h)
+    size_t bytes = 0;
+    /* The convolved image in strips of rows, never whole (issue 14). */
+    strip st = {0};
+    if (strip_alloc(&st, rows, k.nh, nx, &bytes))
         goto nomem;
-    if (mpf_convolve(f, b, &k, h, err))
-        goto done;
-    if (find_candidates(f, b, &k, h, o->threshold, &cand))
-        goto nomem;
-    size_t nc = cand.n;
+    int bad = mpf_any_bad(f);
+    for (long y0 = 0; y0 < ny; y0 += rows)
+        if (strip_search(f, b, &k, bad, o->threshold, y0, rows, &st, &cand, err)) {
+            strip_free(&st);
+            goto done;
+        }
+    strip_free(&st);
+    size_t nc = cand.n, meas = nc * (sizeof *stars + sizeof *keys);
+    /* the candidates are held first with the strips, then with the measures */
+    bytes = cand.cap * sizeof *cand.v + (meas > bytes ? meas : bytes);
     stars = malloc((nc ? nc : 1) * sizeof *stars);
     keys = malloc((nc ? nc : 1) * sizeof *keys);
     if (!stars || !keys)
@@ -274,9 +382,10 @@ int mp_find_stars(const mp_frame *f, const mp_bkg *b, const mp_find_opts *o,
         }
 #pragma omp for schedule(dynamic, 64)
         for (size_t i = 0; i < nc; i++) {
-            keys[i] = cand.v[i];
+            keys[i] = cand.v[i].p;
             if (w)
-                mpf_measure(f, b, &k, cand.v[i] % nx, cand.v[i] / nx, h[cand.v[i]], w, &stars[i]);
+                mpf_measure(f, b, &k, cand.v[i].p % nx, cand.v[i].p / nx, cand.v[i].h, w,
+                            &stars[i]);
         }
         free(w);
     }
@@ -308,10 +417,11 @@ nomem:
     snprintf(err, MP_ERRLEN, "out of memory for detection (%ld x %ld pixels)", nx, ny);
 done:
     mpf_kernel_free(&k);
-    free(h);
     free(cand.v);
     free(stars);
     free(keys);
     free(ord);
+    if (work)
+        *work = bytes;
     return rc;
 }

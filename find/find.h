@@ -24,14 +24,41 @@
 
 /* ---- Background ----------------------------------------------------------- */
 
-/* Per-pixel sky and sky-noise maps, electrons, nx*ny, row-major as the
- * frame.  Single precision (a relative 6e-8, far below any sky's noise):
- * the two maps are the largest of the detection's working set, and the
- * whole-frame run's peak memory is counted in images (issue 14). */
+/* The sky and sky-noise maps, electrons, of an nx × ny frame.  No plane
+ * of the frame's size is held (issue 14: the whole-frame run's memory is
+ * counted in planes): the bicubic spline through the meshes is kept by
+ * image rows (per row, the nbx values of the mesh columns' splines along y
+ * and the second derivatives along x: 32/mesh bytes a pixel for both
+ * maps, 0.5 at mesh 64), and a pixel's value is one cubic in x, evaluated where it is
+ * used (mp_bkg_sky, mp_bkg_rms, mp_bkg_rows below) — in single precision,
+ * bit for bit the value a stored float map would hold.  After
+ * mp_bkg_noise_from_model the rms is the fitted model's noise, evaluated
+ * from the frame and residual it was given (which must then outlive the
+ * map).  Read the fields through the functions only. */
 typedef struct {
     long nx, ny;
-    float *sky, *rms;
+    int nbx;              /* mesh centres along x */
+    double *cx;           /* their x [pixel, 0-based] */
+    double *vals;         /* [4][ny][nbx]: sky values, sky d2, rms values, rms d2 */
+    int model;            /* rms from the noise model below */
+    double k, eps, ron2;  /* its scale, profile error and RON² */
+    const float *pix, *res;   /* its frame and residual */
 } mp_bkg;
+
+/* mp_bkg_sky, mp_bkg_rms: the sky and rms at pixel i = y·nx + x (0-based). */
+float mp_bkg_sky(const mp_bkg *b, size_t i);
+float mp_bkg_rms(const mp_bkg *b, size_t i);
+
+/* mp_bkg_rows: sky (and rms when not NULL) of the rows [y0, y1), nx values
+ * a row, into sky[(y − y0)·nx + x] and rms[…]: the cheap way for whole rows. */
+void mp_bkg_rows(const mp_bkg *b, long y0, long y1, float *sky, float *rms);
+
+/* mp_bkg_bytes: the bytes the map holds (for tests of the memory). */
+size_t mp_bkg_bytes(const mp_bkg *b);
+
+/* mp_bkg_set_flat: make b a flat map of nx × ny (sky and rms constant),
+ * freeing what it held.  Errors (nonzero): out of memory. */
+int mp_bkg_set_flat(mp_bkg *b, long nx, long ny, double sky, double rms);
 
 /*
  * mp_bkg_estimate: the background map of f, as SExtractor makes it

@@ -39,9 +39,14 @@ void mpf_spline_init(const double *x, const double *y, int n, double *d2, double
 double mpf_spline_eval(const double *x, const double *y, const double *d2, int n,
                        double t, int *k);
 
-/* mpf_spline_row: out[t] = the spline at t = 0, 1, …, count − 1. */
+/* mpf_spline_row: out[t] = the spline at t = 0, 1, …, count − 1, in
+ * single precision, clamped at ≥ 0 when clamp0 (a map's values). */
 void mpf_spline_row(const double *x, const double *y, const double *d2, int n,
-                    double *out, long count);
+                    float *out, long count, int clamp0);
+
+/* mpf_spline_at: out[t] of mpf_spline_row for one t, bit for bit. */
+float mpf_spline_at(const double *x, const double *y, const double *d2, int n, long t,
+                    int clamp0);
 
 /* ---- kernel.c ------------------------------------------------------------- */
 
@@ -89,10 +94,28 @@ void mpf_footprint(const mp_frame *f, const mpf_kernel *k, long px, long py,
 /* Value of h where the footprint has too few good pixels. */
 #define MPF_NO_H (-HUGE_VAL)
 
-/* mpf_convolve: h[nx*ny], the lowered-kernel amplitude of every pixel of
- * the background-subtracted frame (MPF_NO_H where undefined). */
-int mpf_convolve(const mp_frame *f, const mp_bkg *b, const mpf_kernel *k, float *h,
-                 char *err);
+/* mpf_convolve_rows: h of the rows [y0, y1) (the lowered-kernel amplitude
+ * of the background-subtracted frame, MPF_NO_H where undefined) into
+ * h[(y − y0)·nx + x]; sky holds the sky map's rows from s0 (row y at
+ * sky + (y − s0)·nx), at least [y0 − nh, y1 + nh) within the image; bad:
+ * mpf_any_bad(f).  A row's h depends on nothing else, so a frame done in
+ * strips of rows equals one done whole, bit for bit. */
+int mpf_convolve_rows(const mp_frame *f, const float *sky, long s0, const mpf_kernel *k,
+                      int bad, long y0, long y1, float *h, char *err);
+
+/* mpf_any_bad: does f hold a pixel bad for detection (mpf_bad)? */
+int mpf_any_bad(const mp_frame *f);
+
+/* Rows of a detection strip (mp_find_stars): the strips' working set is
+ * about (3·MPF_STRIP + 8·nh) rows of 4 bytes a pixel, not the frame's
+ * 4 bytes a pixel (issue 14). */
+#define MPF_STRIP 128
+
+/* mpf_find_stars_strips: mp_find_stars in strips of `strip` rows (≥ 1);
+ * *work (when not NULL) receives the bytes of its largest working set
+ * beside the table (the strips' buffers, the candidates, the measures). */
+int mpf_find_stars_strips(const mp_frame *f, const mp_bkg *b, const mp_find_opts *o,
+                          long strip, mp_table *t, size_t *work, char *err);
 
 /* ---- centroid.c ----------------------------------------------------------- */
 

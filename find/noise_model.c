@@ -30,7 +30,7 @@ static double median_of(double *v, size_t n)
 /* Poisson variance [e-²] of pixel i: sky + stars + RON². */
 static double poisson_var(const mp_bkg *b, const mp_frame *f, const float *res, size_t i)
 {
-    return fmax(b->sky[i], 0.0) + fmax(f->im.pix[i] - res[i], 0.0) + f->rdnoise * f->rdnoise;
+    return fmax(mp_bkg_sky(b, i), 0.0) + fmax(f->im.pix[i] - res[i], 0.0) + f->rdnoise * f->rdnoise;
 }
 
 /* 1.4826·MAD of v[0..n-1] (reorders v): the σ of a Gaussian, robust to
@@ -96,7 +96,7 @@ int mp_bkg_noise_from_model(mp_bkg *b, const mp_frame *f, const float *res, int 
                     size_t i = (size_t)y * (size_t)nx + (size_t)x;
                     double v = poisson_var(b, f, res, i);
                     ok = !f->mask[i] && v > 0 && isfinite(res[i]);
-                    sr += res[i] - b->sky[i];
+                    sr += res[i] - mp_bkg_sky(b, i);
                     sp += v;
                     sm += fmax(f->im.pix[i] - res[i], 0.0);
                 }
@@ -129,7 +129,7 @@ int mp_bkg_noise_from_model(mp_bkg *b, const mp_frame *f, const float *res, int 
         double v = poisson_var(b, f, res, i), m = fmax(f->im.pix[i] - res[i], 0.0);
         if (f->mask[i] || !(v > 0) || !isfinite(res[i]) || m * m <= 9.0 * k * k * v)
             continue;
-        star.r[star.n] = res[i] - b->sky[i];
+        star.r[star.n] = res[i] - mp_bkg_sky(b, i);
         star.p[star.n] = v;
         star.m[star.n] = m;
         star.n++;
@@ -157,12 +157,13 @@ int mp_bkg_noise_from_model(mp_bkg *b, const mp_frame *f, const float *res, int 
     if (k > 0 && isfinite(k)) {
         *scale = k;
         *proferr = eps;
-        /* the map of every pixel: independent, so in parallel (issue 14) */
-#pragma omp parallel for schedule(static)
-        for (size_t i = 0; i < npix; i++) {
-            double m = fmax(f->im.pix[i] - res[i], 0.0);
-            b->rms[i] = (float)sqrt(k * k * poisson_var(b, f, res, i) + eps * eps * m * m);
-        }
+        /* no map: each pixel's noise is formed where it is used (find.h) */
+        b->model = 1;
+        b->k = k;
+        b->eps = eps;
+        b->ron2 = f->rdnoise * f->rdnoise;
+        b->pix = f->im.pix;
+        b->res = res;
     }
     free(buf);
     return 0;

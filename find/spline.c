@@ -50,27 +50,58 @@ double mpf_spline_eval(const double *x, const double *y, const double *d2, int n
            ((a * a * a - a) * d2[i] + (bb * bb * bb - bb) * d2[i + 1]) * h * h / 6.0;
 }
 
+/* One value of the spline at t (c[0] < t < c[n-1], n >= 2) as
+ * mpf_spline_row forms it, on interval i (c[i] <= t < c[i+1]). */
+static double interval_value(const double *x, const double *y, const double *d2, int i, double t)
+{
+    double h = x[i + 1] - x[i], c = h * h / 6.0;
+    double a = (x[i + 1] - t) / h, b = 1.0 - a;
+    return a * y[i] + b * y[i + 1] + ((a * a * a - a) * d2[i] + (b * b * b - b) * d2[i + 1]) * c;
+}
+
+static float to_map(double v, int clamp0)
+{
+    return (float)(clamp0 && v < 0.0 ? 0.0 : v);
+}
+
 void mpf_spline_row(const double *x, const double *y, const double *d2, int n,
-                    double *out, long count)
+                    float *out, long count, int clamp0)
 {
     long t = 0;
     if (n == 1) {
         for (; t < count; t++)
-            out[t] = y[0];
+            out[t] = to_map(y[0], clamp0);
         return;
     }
     int k = 0;
     /* Left of the first node, then interval by interval, then right of
      * the last: the same values as mpf_spline_eval, without its search. */
     for (; t < count && (double)t <= x[0]; t++)
-        out[t] = mpf_spline_eval(x, y, d2, n, (double)t, &k);
-    for (int i = 0; i < n - 1 && t < count; i++) {
-        double h = x[i + 1] - x[i], c = h * h / 6.0;
-        for (; t < count && (double)t < x[i + 1]; t++) {
-            double a = (x[i + 1] - (double)t) / h, b = 1.0 - a;
-            out[t] = a * y[i] + b * y[i + 1] + ((a * a * a - a) * d2[i] + (b * b * b - b) * d2[i + 1]) * c;
-        }
-    }
+        out[t] = to_map(mpf_spline_eval(x, y, d2, n, (double)t, &k), clamp0);
+    for (int i = 0; i < n - 1 && t < count; i++)
+        for (; t < count && (double)t < x[i + 1]; t++)
+            out[t] = to_map(interval_value(x, y, d2, i, (double)t), clamp0);
     for (; t < count; t++)
-        out[t] = mpf_spline_eval(x, y, d2, n, (double)t, &k);
+        out[t] = to_map(mpf_spline_eval(x, y, d2, n, (double)t, &k), clamp0);
+}
+
+float mpf_spline_at(const double *x, const double *y, const double *d2, int n, long t,
+                    int clamp0)
+{
+    double v = (double)t;
+    if (n == 1)
+        return to_map(y[0], clamp0);
+    if (v <= x[0] || v >= x[n - 1]) {
+        int k = 0;
+        return to_map(mpf_spline_eval(x, y, d2, n, v, &k), clamp0);
+    }
+    /* The nodes are nearly evenly spaced (equal meshes ±1 px): guess the
+     * interval, then step to it. */
+    int i = (int)((v - x[0]) / (x[n - 1] - x[0]) * (n - 1));
+    i = i < 0 ? 0 : i > n - 2 ? n - 2 : i;
+    while (i > 0 && x[i] > v)
+        i--;
+    while (i < n - 2 && x[i + 1] <= v)
+        i++;
+    return to_map(interval_value(x, y, d2, i, v), clamp0);
 }

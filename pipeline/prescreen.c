@@ -38,9 +38,12 @@ static double linear_snr(const mp_frame *f, const mp_bkg *b, const float *res,
             if (hypot((double)gx - x, (double)gy - y) > r)
                 continue;
             size_t k = (size_t)(gy - 1) * (size_t)f->im.nx + (size_t)(gx - 1);
-            if (f->mask[k] || !isfinite(res[k]) || !(b->rms[k] > 0))
+            if (f->mask[k] || !isfinite(res[k]))
                 continue;
-            double w = 1.0 / (b->rms[k] * b->rms[k]), p = prf[j * rw + i];
+            float rms = mp_bkg_rms(b, k);
+            if (!(rms > 0))
+                continue;
+            double w = 1.0 / (rms * rms), p = prf[j * rw + i];
             spp += w * p * p;
             sp += w * p;
             s1 += w;

@@ -104,9 +104,10 @@ static double best_second(const mp_frame *f, const mp_bkg *b, const float *res,
             size_t k = (size_t)(j * s->w + i);
             long gx = s->x0 + i, gy = s->y0 + j;
             size_t g = (size_t)(gy - 1) * (size_t)f->im.nx + (size_t)(gx - 1);
+            float rms = 0.0f;
             int ok = hypot((double)gx - x, (double)gy - y) <= fitrad && !f->mask[g] &&
-                     isfinite(res[g]) && b->rms[g] > 0;
-            s->wt[k] = ok ? 1.0 / (b->rms[g] * b->rms[g]) : 0.0;
+                     isfinite(res[g]) && (rms = mp_bkg_rms(b, g)) > 0;
+            s->wt[k] = ok ? 1.0 / (rms * rms) : 0.0;
             s->r[k] = ok ? res[g] : 0.0;
         }
     const double *B[4] = {s->p0, s->dx, s->dy, NULL};
@@ -237,7 +238,7 @@ long mp_pl_split_candidates(const mp_frame *f, const mp_bkg *b, const float *res
         long px = lround(cx[r]), py = lround(cy[r]);
         size_t g = (size_t)(py - 1) * (size_t)f->im.nx + (size_t)(px - 1);
         mp_table_set(found, (size_t)row, fm, cp[r]);
-        mp_table_set(found, (size_t)row, fb, b->sky[g]);
+        mp_table_set(found, (size_t)row, fb, mp_bkg_sky(b, g));
         mp_table_set(found, (size_t)row, fsh, 0.0);
         mp_table_set(found, (size_t)row, fro, 0.0);
         mp_table_set(found, (size_t)row, ffl, 0.0);

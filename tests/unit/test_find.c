@@ -20,6 +20,7 @@
 
 #include "catalog/catalog.h"
 #include "find/find.h"
+#include "find/find_priv.h"   /* mpf_find_stars_strips */
 #include "io/io.h"
 #include "sim/sim.h"
 
@@ -88,8 +89,8 @@ static void assert_all_finite(const mp_table *t)
 static void assert_map_finite(const mp_bkg *b)
 {
     for (long i = 0; i < b->nx * b->ny; i++) {
-        assert_true(isfinite(b->sky[i]));
-        assert_true(isfinite(b->rms[i]) && b->rms[i] >= 0.0);
+        assert_true(isfinite(mp_bkg_sky(b, i)));
+        assert_true(isfinite(mp_bkg_rms(b, i)) && mp_bkg_rms(b, i) >= 0.0);
     }
 }
 
@@ -222,13 +223,13 @@ static void test_background_plane(void **state)
            rmax = 0.0, rin = 0.0;
     for (long y = 0; y < N; y++)
         for (long x = 0; x < N; x++) {
-            double e = b.sky[y * N + x] - (B0 + GX * x + GY * y);
+            double e = mp_bkg_sky(&b, y * N + x) - (B0 + GX * x + GY * y);
             esum += e;
             emax = fmax(emax, fabs(e));
             if (x >= 32 && x < N - 32 && y >= 32 && y < N - 32)
                 eint = fmax(eint, fabs(e));
-            rsum += b.rms[y * N + x];
-            double er = fabs(b.rms[y * N + x] / S - 1.0);
+            rsum += mp_bkg_rms(&b, y * N + x);
+            double er = fabs(mp_bkg_rms(&b, y * N + x) / S - 1.0);
             rmax = fmax(rmax, er);
             if (x >= 32 && x < N - 32 && y >= 32 && y < N - 32)
                 rin = fmax(rin, er);
@@ -265,8 +266,8 @@ static void test_background_poisson(void **state)
     assert_int_equal(mp_bkg_estimate(&f, 64, 3, &b, err), 0);
     double s = 0.0, rs = 0.0;
     for (long i = 0; i < N * N; i++) {
-        s += b.sky[i];
-        rs += b.rms[i];
+        s += mp_bkg_sky(&b, i);
+        rs += mp_bkg_rms(&b, i);
     }
     s /= N * N;
     rs /= N * N;
@@ -299,7 +300,7 @@ static void test_background_under_stars(void **state)
     assert_int_equal(mp_bkg_estimate(&f, 64, 3, &b, err), 0);
     double s = 0.0;
     for (long i = 0; i < N * N; i++)
-        s += b.sky[i];
+        s += mp_bkg_sky(&b, i);
     /* 1000 stars in 512²: ~4 % of pixels carry > 1σ of starlight. */
     assert_true(fabs(s / (N * N) - B) < 0.2 * sqrt(B + RON * RON));
     mp_bkg_free(&b);
@@ -325,7 +326,7 @@ static void test_background_degenerate(void **state)
     assert_int_equal(b.ny, 15);
     assert_map_finite(&b);
     for (long i = 0; i < 300; i++)
-        assert_true(fabs(b.sky[i] - 50.0) < Z_TOL * 2.137 * 5.0 / sqrt(300.0));
+        assert_true(fabs(mp_bkg_sky(&b, i) - 50.0) < Z_TOL * 2.137 * 5.0 / sqrt(300.0));
     mp_bkg_free(&b);
     frame_drop(&f);
 
@@ -333,8 +334,8 @@ static void test_background_degenerate(void **state)
     fill(&f, 7.5);
     assert_int_equal(mp_bkg_estimate(&f, 16, 3, &b, err), 0);
     for (long i = 0; i < 8000; i++) {
-        assert_true(fabs(b.sky[i] - 7.5) < 1e-12);
-        assert_true(b.rms[i] == 0.0);
+        assert_true(fabs(mp_bkg_sky(&b, i) - 7.5) < 1e-12);
+        assert_true(mp_bkg_rms(&b, i) == 0.0);
     }
     mp_find_opts o;
     mp_find_opts_default(&o);
@@ -350,7 +351,7 @@ static void test_background_degenerate(void **state)
         f.im.pix[i] = NAN;
     assert_int_equal(mp_bkg_estimate(&f, 16, 3, &b, err), 0);
     for (long i = 0; i < 8000; i++)
-        assert_true(b.sky[i] == 0.0 && b.rms[i] == 0.0);
+        assert_true(mp_bkg_sky(&b, i) == 0.0 && mp_bkg_rms(&b, i) == 0.0);
     mp_table_init(&t);
     assert_int_equal(mp_find_stars(&f, &b, &o, &t, err), 0);
     assert_int_equal(t.nrow, 0);
@@ -846,8 +847,7 @@ static void test_noise_from_model(void **state)
         for (long i = 0; i < nx * ny; i++)
             nstar += stars[i] * stars[i] > sky + stars[i] + ron * ron;
         assert_int_equal(mp_bkg_estimate(&f, 64, 3, &b, err), 0);
-        for (long i = 0; i < nx * ny; i++)
-            b.sky[i] = sky;
+        assert_int_equal(mp_bkg_set_flat(&b, nx, ny, sky, 0.0), 0);
         assert_int_equal(mp_bkg_noise_from_model(&b, &f, res, 3, &k, &eps, err), 0);
         /* k from 3×3 sums: at most (nx·ny − nstar)/9 of them */
         assert_true(fabs(k / cs[c].k - 1.0) < Z_TOL * 1.166 / sqrt((double)(nx * ny - nstar) / 9.0));
@@ -862,20 +862,143 @@ static void test_noise_from_model(void **state)
             double m = (double)f.im.pix[i] - (double)res[i];
             double want = sqrt(k * k * (sky + m + ron * ron) + eps * eps * m * m);
             /* the map is single precision: half an ulp is 6e-8 of it */
-            assert_true(fabs(b.rms[i] - want) < 1e-7 * want);
+            assert_true(fabs(mp_bkg_rms(&b, i) - want) < 1e-7 * want);
         }
         mp_bkg_free(&b);
     }
     /* No good pixel: k is NaN and the map is untouched. */
     memset(f.mask, MP_MASK_BAD, (size_t)(nx * ny));
     assert_int_equal(mp_bkg_estimate(&f, 64, 3, &b, err), 0);
-    double before = b.rms[123];
+    double before = mp_bkg_rms(&b, 123);
     assert_int_equal(mp_bkg_noise_from_model(&b, &f, res, 3, &k, &eps, err), 0);
     assert_true(isnan(k));
-    assert_true(b.rms[123] == before);
+    assert_true(mp_bkg_rms(&b, 123) == before);
     mp_bkg_free(&b);
     free(stars);
     free(res);
+    frame_drop(&f);
+}
+
+/* ---------- memory: no plane of the frame's size (issue 14) ---------- */
+
+/* A frame with a sky gradient, stars (some on the strips' borders and the
+ * image's edges), bad pixels and a saturated star: what every code path
+ * of detection meets. */
+static void strips_frame(mp_frame *f, long nx, long ny)
+{
+    frame_make(f, nx, ny, 4.0);
+    for (long y = 0; y < ny; y++)
+        for (long x = 0; x < nx; x++)
+            f->im.pix[y * nx + x] = (float)(80.0 + 0.05 * x + 0.03 * y);
+    mp_rng r;
+    mp_rng_seed(&r, 1414);
+    mp_sim_prf p = gauss_prf(3.0);
+    for (int s = 0; s < 120; s++)
+        assert_int_equal(mp_sim_add_star_float(&p, 1 + (nx - 1) * mp_rng_uniform(&r),
+                                               1 + (ny - 1) * mp_rng_uniform(&r),
+                                               200.0 + 5e4 * mp_rng_uniform(&r), f->im.pix, nx,
+                                               ny), 0);
+    mp_sim_add_noise_float(&r, f->im.pix, nx * ny, 4.0);
+    for (long i = 0; i < 60; i++)
+        f->mask[(i * 7919) % (nx * ny)] = MP_MASK_BAD;
+    for (long y = 100; y < 103; y++)           /* a saturated plateau */
+        for (long x = 50; x < 53; x++)
+            f->mask[y * nx + x] = MP_MASK_SATURATED;
+}
+
+static void assert_tables_equal(const mp_table *a, const mp_table *b)
+{
+    assert_int_equal(a->nrow, b->nrow);
+    assert_int_equal(a->ncol, b->ncol);
+    for (size_t i = 0; i < a->nrow * a->ncol; i++)
+        if (a->v[i] != b->v[i])
+            fail_msg("value %zu: %.17g against %.17g", i, a->v[i], b->v[i]);
+}
+
+/* Detection in strips of rows equals detection on the whole convolved
+ * image bit for bit (a row's h depends on its own rows only; candidates
+ * compare h across a strip's border through its margins), for strips of
+ * 1 row, a prime number of rows and the default; and its working set is
+ * the strip's, not the frame's: with the frame as one strip it holds h
+ * (4 bytes a pixel) and more, with strips of 16 rows under half of that. */
+static void test_find_strips(void **state)
+{
+    (void)state;
+    const long nx = 160, ny = 400;
+    mp_frame f;
+    strips_frame(&f, nx, ny);
+    mp_bkg b;
+    char err[MP_ERRLEN];
+    assert_int_equal(mp_bkg_estimate(&f, 32, 3, &b, err), 0);
+    mp_find_opts o;
+    mp_find_opts_default(&o);
+    mp_table whole, part;
+    mp_table_init(&whole);
+    size_t wwhole = 0, wpart = 0;
+    assert_int_equal(mpf_find_stars_strips(&f, &b, &o, ny, &whole, &wwhole, err), 0);
+    assert_true(whole.nrow >= 60);      /* the frame tests something */
+    int sat = 0;
+    for (size_t r = 0; r < whole.nrow; r++)
+        sat |= (int)mp_table_get(&whole, r, col(&whole, "FLAGS")) & MP_FIND_SATURATED;
+    assert_true(sat);
+    const long rows[] = {1, 7, 16, MPF_STRIP};
+    for (size_t c = 0; c < sizeof rows / sizeof rows[0]; c++) {
+        mp_table_init(&part);
+        assert_int_equal(mpf_find_stars_strips(&f, &b, &o, rows[c], &part, &wpart, err), 0);
+        assert_tables_equal(&whole, &part);
+        mp_table_free(&part);
+        if (rows[c] == 16) {
+            assert_true(wwhole >= (size_t)(nx * ny) * sizeof(float));
+            assert_true(2 * wpart < (size_t)(nx * ny) * sizeof(float));
+        }
+    }
+    mp_table_free(&whole);
+    mp_bkg_free(&b);
+    frame_drop(&f);
+}
+
+/* The map is evaluated where used, by rows (detection's strips) or by
+ * pixels (centroids, the fit's screens): both give the same float, for the
+ * mesh map and for the residual's noise model; and it holds 32/mesh bytes
+ * a pixel (0.5 at mesh 64), not the 8 of two float maps. */
+static void test_bkg_rows_points(void **state)
+{
+    (void)state;
+    const long nx = 300, ny = 260;
+    mp_frame f;
+    strips_frame(&f, nx, ny);
+    float *res = malloc((size_t)(nx * ny) * sizeof *res);
+    float *sky = malloc((size_t)(nx * ny) * sizeof *sky);
+    float *rms = malloc((size_t)(nx * ny) * sizeof *rms);
+    assert_non_null(res);
+    assert_non_null(sky);
+    assert_non_null(rms);
+    for (long i = 0; i < nx * ny; i++)   /* a "residual": 90 % of the light gone */
+        res[i] = (float)(80.0 + 0.1 * (f.im.pix[i] - 80.0));
+    mp_bkg b;
+    char err[MP_ERRLEN];
+    assert_int_equal(mp_bkg_estimate(&f, 64, 3, &b, err), 0);
+    assert_true(mp_bkg_bytes(&b) > 0);
+    assert_true(mp_bkg_bytes(&b) < (size_t)(nx * ny));
+    for (int model = 0; model < 2; model++) {
+        double k, eps;
+        if (model) {
+            assert_int_equal(mp_bkg_noise_from_model(&b, &f, res, 3, &k, &eps, err), 0);
+            assert_true(isfinite(k));
+        }
+        mp_bkg_rows(&b, 0, ny, sky, rms);
+        for (long i = 0; i < nx * ny; i++) {
+            float s = mp_bkg_sky(&b, (size_t)i), r = mp_bkg_rms(&b, (size_t)i);
+            if (memcmp(&s, &sky[i], sizeof s) || memcmp(&r, &rms[i], sizeof r))
+                fail_msg("model %d pixel %ld: sky %.9g/%.9g rms %.9g/%.9g", model, i, s, sky[i],
+                         r, rms[i]);
+        }
+    }
+    mp_bkg_free(&b);
+    assert_int_equal(mp_bkg_bytes(&b), 0);
+    free(res);
+    free(sky);
+    free(rms);
     frame_drop(&f);
 }
 
@@ -883,6 +1006,8 @@ int main(void)
 {
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(test_background_plane),
+        cmocka_unit_test(test_find_strips),
+        cmocka_unit_test(test_bkg_rows_points),
         cmocka_unit_test(test_background_poisson),
         cmocka_unit_test(test_background_under_stars),
         cmocka_unit_test(test_background_degenerate),
