@@ -204,7 +204,7 @@ static int build_sinc(mp_econ_cache *c, char *err)
 
 /* Level l: the table block-summed, its bias table (fit/ss_choice.c) and,
  * for a variable PSF, the field block-summed alike (the fit reads it at
- * each star, fit_frame.c). */
+ * each star, frame_group.c). */
 static int build_level(mp_econ_cache *c, int l, char *err)
 {
     mp_ss_level *lv = &c->ss[l];

@@ -2,7 +2,7 @@
  * econ_state.h — inside fit/ only: the run's economy state (the tables
  * economy may build and the flux limits kept across frames), shared by
  * fit/econ_plan.c, which builds the tables when they pay, and
- * fit/fit_frame.c, which keeps the limits.  Others use fit.h's
+ * fit/frame_rules.c, which keeps the limits.  Others use fit.h's
  * mp_econ_cache functions.
  */
 #ifndef MATPHOT_FIT_ECON_STATE_H
@@ -14,7 +14,7 @@
 enum { ECON_UNASKED = 0, ECON_BUILT = 1, ECON_FAILED = -1 };
 
 struct mp_econ_cache {
-    /* The flux limits of the bound tables per sky level (fit_frame.c). */
+    /* The flux limits of the bound tables per sky level (frame_rules.c). */
     int n;
     struct {
         const void *c;             /* an mp_sinc_choice, mp_ss_level or mp_prf_cache */

@@ -87,7 +87,7 @@ typedef struct {
     const struct mp_prf_cache_s *grid;  /* economy: renders of the model this
                             * phase grid was built for are drawn from it
                             * (fit/prf_cache.c); NULL: exact renders */
-    double grid_emax;      /* the frame fit's paint of a star (fit_frame.c)
+    double grid_emax;      /* the frame fit's paint of a star (frame_paint.c)
                             * uses grid only up to this flux, its bound */
 } mp_prf_work;
 
@@ -155,7 +155,7 @@ int mp_sinc_choice_limits(const mp_sinc_choice *c, double B, double ron, double 
 /* Bound evaluations mp_sinc_choice_limits spends per half-width, at most
  * (two ends, 14 halvings of 18 decades: the limit to 0.25 %, rounded to
  * the served side, so every flux below it is served): a frame with fewer
- * groups than this evaluates the bound per group instead (fit_frame.c).
+ * groups than this evaluates the bound per group instead (frame_rules.c).
  * mp_prf_cache_limit spends as many. */
 #define MP_SINC_LIMITS_EVALS 16
 int mp_sinc_choice_pick(const double *emax, int hwmax, double E);
@@ -318,7 +318,7 @@ int mp_prf_cache_render_spans(const mp_prf_cache *c, const mp_prf_model *m, doub
 
 /* mp_prf_cache_render_at: as mp_prf_cache_render_spans, span k's values at
  * index at[k] of each array (at NULL: one span after the other), so that a
- * part of a star's window is rendered in place (levmar.c's core renders). */
+ * part of a star's window is rendered in place (lm_render.c's core renders). */
 int mp_prf_cache_render_at(const mp_prf_cache *c, const mp_prf_model *m, double x, double y,
                            const mp_span *sp, const size_t *at, int ns, double *prf, double *ddx,
                            double *ddy);
@@ -385,11 +385,11 @@ enum {
  * MP_SKY_AUTO: the order is chosen per group from the data — constant,
  * then higher when a score test of the extra terms at the lower-order fit
  * (over the fitted pixels and the background around them) is significant
- * at p < MP_SKY_ALPHA (levmar.c). */
+ * at p < MP_SKY_ALPHA (sky_test.c). */
 enum { MP_SKY_AUTO = -1, MP_SKY_MAXORDER = 2 };
 #define MP_SKY_ALPHA 1e-3
 /* The test also reads the background out to this many fitrad from the
- * group's stars (levmar.c ring_sums); a group's frame must hold it. */
+ * group's stars (sky_test.c ring_sums); a group's frame must hold it. */
 #define MP_SKY_TEST_RADIUS 2.0
 
 typedef struct {
@@ -407,7 +407,7 @@ typedef struct {
                                 * exact table renders are added to *work (the
                                 * caller's own, per thread; economy's plan) */
     int exact_lm;              /* 1: every LM step on the whole windows, no
-                                * frozen wings (fit/levmar.c); 0, the default,
+                                * frozen wings (fit/lm_frozen.c); 0, the default,
                                 * freezes them where it pays (tests compare) */
 } mp_fit_opts;
 
@@ -574,7 +574,7 @@ typedef struct {
 } mp_frame_report;
 
 /* What every star's fit saw, so a later pass or pipeline round can tell
- * whether refitting it could change anything (economy, fit_frame.c). */
+ * whether refitting it could change anything (economy, frame_refit.c). */
 typedef struct mp_fit_memory mp_fit_memory;
 
 /* mp_fit_memory_new: an empty memory; NULL when out of memory. */

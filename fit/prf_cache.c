@@ -32,7 +32,7 @@
  * grid in both axes — where the cubic's error term (f+1)f(f−1)(f−2) peaks —
  * and the worst cell counts; mp_prf_cache_limit turns q ≤ frac into the
  * largest flux served on a given sky, and brighter stars are rendered
- * exactly (fit_frame.c). */
+ * exactly (frame_paint.c). */
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>

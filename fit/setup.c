@@ -177,7 +177,7 @@ static void economize(mp_fit_setup *s, int psfos_given)
 }
 
 /* skymodel: an explicit order is honoured; auto chooses per group from the
- * data (a score test, levmar.c) under economy=yes and economy=no alike.
+ * data (a score test, sky_test.c) under economy=yes and economy=no alike.
  * The order is a choice of the model from the data, not an economy: a
  * quadratic sky where the data hold none is no more exact, it only adds
  * five parameters that correlate with the star (within a 5 px fitting

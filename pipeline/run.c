@@ -252,7 +252,7 @@ static int find_on_residual(run_state *s, int round, long *added, char *err)
         return 1;
     /* Half a FWHM: a detection beyond it goes to the fit, which keeps the
      * pair when their separation is significant and both reach minsnr
-     * (fit_frame.c), else merges it.  At 1 FWHM the companions of close
+     * (frame_group.c), else merges it.  At 1 FWHM the companions of close
      * pairs were never offered (issue 13, validate frame: members of
      * 0.5-0.75 FWHM pairs found 0.67x as often as field stars -> 0.94x). */
     double matchrad = isfinite(o->matchrad) ? o->matchrad : 0.5 * s->fwhm;
@@ -261,7 +261,7 @@ static int find_on_residual(run_state *s, int round, long *added, char *err)
      * away χ² ≥ minsnr² (its screen S/N ≥ minsnr: for one star, a chance
      * of ≈ 6e-7 per independent position, χ²(1) > 25) and it lies beyond
      * the merge radius; the fit of both then keeps the pair only if both
-     * reach minsnr and their separation is significant (fit_frame.c). */
+     * reach minsnr and their separation is significant (frame_group.c). */
     double mergerad = isfinite(s->fit->opts.mergerad) ? s->fit->opts.mergerad : 0.4 * s->fwhm;
     /* The test's own false-split rate stays ~1e-5 a star whatever minsnr
      * is: at minsnr 2 a Δχ² of 4 proposed noise (validate frame: 142 false

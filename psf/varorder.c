@@ -8,7 +8,7 @@
  * F(q, d) distributed (q new terms, d = n − terms − ... dof), whatever the
  * pixel's own noise.  Their sum over P pixels has mean P·d/(d−2) and
  * variance P·2d²(q+d−2)/(q(d−2)²(d−4)); the standardised sum is referred
- * to the normal (the sky order's test in fit/levmar.c is a score test of
+ * to the normal (the sky order's test in fit/sky_test.c is a score test of
  * the same kind).  The pixels' F are nearly independent: each star's
  * pixels carry independent noise. */
 #include <math.h>

@@ -1,5 +1,5 @@
 /* test_levmar.c — the Levenberg–Marquardt engine's safeguards and the sky
- * model's order (fit/levmar.c), against what theory predicts.
+ * model's order (fit/levmar.c, fit/sky_test.c), against what theory predicts.
  *
  * False-failure rates are stated per assertion; they come from the
  * binomial or χ² tails of the quantity tested, never from tuning. */
@@ -709,7 +709,7 @@ static void test_error_plane_weights(void **state)
     frame_drop(&g);
 }
 
-/* Frozen wings (fit/levmar.c, issue 12).  A group of bright stars fitted
+/* Frozen wings (fit/lm_frozen.c, issue 12).  A group of bright stars fitted
  * on small discs (fitrad 3) whose windows, cropped where a star's light
  * falls below 0.02 σ of a sky pixel, reach their neighbours' discs (FWHM
  * 6, 7 px apart): the LM iterates on each star's core with its wings held,

@@ -166,7 +166,7 @@ static void test_faint_and_negative(void **state)
 
 /* Pairs of equal stars (2 × 10⁵ e⁻) at 0.05, 0.1, 0.25, 0.5 and 1 FWHM,
  * fitted as one group from their true positions (what a deblending finder
- * would hand over).  The rule (fit/fit_frame.c): a pair closer than
+ * would hand over).  The rule (fit/frame_group.c): a pair closer than
  * mergerad (0.4 FWHM by default) or than twice the error of its separation
  * is merged into one star of flag 16 carrying the summed flux.  So 0.05,
  * 0.1 and 0.25 FWHM must merge, and the merged flux must be the total

@@ -1,0 +1,433 @@
+/* fit_group.c — mp_fit_group: one group of stars and its sky fitted
+ * (design.md §5): the start, the fit (levmar.c), the sky order
+ * (sky_test.c), the covariance and the stars' outputs. */
+
+#include <lapacke.h>
+#include <math.h>
+#include <stddef.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include "fit/lm_group.h"
+
+void mp_fit_opts_default(mp_fit_opts *o)
+{
+    o->sky_order = MP_SKY_AUTO;
+    o->fitrad = NAN;
+    o->tol = 1e-3;
+    o->maxiter = 50;
+    o->fit_sky = 1;
+    o->crop = NULL;
+    o->grid = NULL;
+    o->work = NULL;
+    o->exact_lm = 0;
+}
+
+static void group_free(group *G)
+{
+    free(G->sel);
+    free(G->rj);
+    free(G->ri0);
+    free(G->ri1);
+    free(G->rp);
+    free(G->rrow);
+    free(G->prow);
+    free(G->dat);
+    free(G->mod);
+    free(G->var);
+    free(G->rv);
+    free(G->wt);
+    free(G->wres);
+    free(G->basis);
+    free(G->spans);
+    free(G->soff);
+    free(G->fx);
+    free(G->fy);
+    free(G->scr);
+    free(G->pk);
+    free(G->pl);
+    free(G->tail);
+    free(G->stail);
+    free(G->cx0);
+    free(G->cx1);
+    free(G->cy0);
+    free(G->cy1);
+    for (int s = 0; s < 2; s++) {
+        rstar *r = s ? G->trial : G->cur;
+        if (!r)
+            continue;
+        for (int k = 0; k < G->n; k++) {
+            free(r[k].prf);
+            free(r[k].dx);
+            free(r[k].dy);
+            free(r[k].pp);
+            free(r[k].pn);
+            free(r[k].pb);
+        }
+        free(r);
+    }
+    free(G->p);
+    free(G->pt);
+    free(G->A);
+    free(G->g);
+    free(G->M);
+    free(G->step);
+    mp_prf_work_free(&G->work);
+}
+
+/* Covariance = A⁻¹ into G->M.  Cholesky first; when A is singular or
+ * nearly so, the eigen pseudo-inverse (small eigenvalues dropped) and a
+ * return of 1 so the stars are flagged degenerate. */
+static int covariance(group *G)
+{
+    int np = G->np;
+    /* Equilibrate: C = D⁻¹ (D⁻¹ A D⁻¹)⁻¹ D⁻¹ with D = sqrt(diag A). */
+    double *d = G->step;
+    for (int a = 0; a < np; a++) {
+        double v = G->A[(size_t)a * np + a];
+        d[a] = v > 0 ? sqrt(v) : 1.0;
+    }
+    for (int a = 0; a < np; a++)
+        for (int b = 0; b < np; b++)
+            G->M[(size_t)a * np + b] = G->A[(size_t)a * np + b] / (d[a] * d[b]);
+    int rc = 0;
+    if (LAPACKE_dpotrf(LAPACK_ROW_MAJOR, 'U', np, G->M, np) == 0 &&
+        LAPACKE_dpotri(LAPACK_ROW_MAJOR, 'U', np, G->M, np) == 0) {
+        for (int a = 0; a < np; a++)
+            for (int b = 0; b < a; b++)
+                G->M[(size_t)a * np + b] = G->M[(size_t)b * np + a];
+    } else {
+        rc = 1;
+        double *ev = malloc((size_t)np * sizeof *ev), *V = malloc((size_t)np * np * sizeof *V);
+        if (!ev || !V) {
+            free(ev);
+            free(V);
+            return 2;
+        }
+        for (int a = 0; a < np; a++)
+            for (int b = 0; b < np; b++)
+                V[(size_t)a * np + b] = G->A[(size_t)a * np + b] / (d[a] * d[b]);
+        if (LAPACKE_dsyev(LAPACK_ROW_MAJOR, 'V', 'U', np, V, np, ev) != 0) {
+            free(ev);
+            free(V);
+            return 2;
+        }
+        double emax = ev[np - 1];
+        memset(G->M, 0, (size_t)np * np * sizeof *G->M);
+        for (int e = 0; e < np; e++) {
+            if (!(ev[e] > emax * 1e-12))
+                continue;
+            for (int a = 0; a < np; a++)
+                for (int b = 0; b < np; b++)
+                    G->M[(size_t)a * np + b] += V[(size_t)a * np + e] * V[(size_t)b * np + e] / ev[e];
+        }
+        free(ev);
+        free(V);
+    }
+    for (int a = 0; a < np; a++)
+        for (int b = 0; b < np; b++)
+            G->M[(size_t)a * np + b] /= d[a] * d[b];
+    return rc;
+}
+
+static double start_sky(const group *G)
+{
+    double *v = malloc((G->npix ? G->npix : 1) * sizeof *v);
+    if (!v)
+        return 0.0;
+    size_t n = G->npix;
+    memcpy(v, G->dat, n * sizeof *v);
+    qsort(v, n, sizeof *v, lm_cmp_double);
+    double s = n ? v[n / 2] : 0.0;
+    free(v);
+    return s;
+}
+
+static int alloc_stars(group *G)
+{
+    long x0, y0;
+    int w, h;
+    /* The box can grow by one pixel a side as a star moves within a pixel;
+     * it is cut to the group's box. */
+    mp_prf_box(G->m, 0.0, 0.0, &x0, &y0, &w, &h);
+    w = w + 2 < G->bw ? w + 2 : G->bw;
+    h = h + 2 < G->bh ? h + 2 : G->bh;
+    G->boxcap = (size_t)w * h;
+    G->cap = G->boxcap < G->npix ? G->boxcap : G->npix;
+    G->cap = G->cap ? G->cap : 1;
+    G->scr = malloc((3 * G->boxcap + 1) * sizeof *G->scr);
+    G->cur = calloc((size_t)G->n, sizeof *G->cur);
+    G->trial = calloc((size_t)G->n, sizeof *G->trial);
+    if (!G->cur || !G->trial)
+        return 1;
+    for (int s = 0; s < 2; s++) {
+        rstar *r = s ? G->trial : G->cur;
+        for (int k = 0; k < G->n; k++) {
+            r[k].prf = malloc(G->cap * sizeof(double));
+            r[k].dx = malloc(G->cap * sizeof(double));
+            r[k].dy = malloc(G->cap * sizeof(double));
+            r[k].pp = malloc(((size_t)G->bh + 1) * sizeof(int));
+            r[k].pn = malloc(((size_t)G->bh + 1) * sizeof(int));
+            r[k].pb = malloc(((size_t)G->bh + 1) * sizeof(int));
+            if (!r[k].prf || !r[k].dx || !r[k].dy || !r[k].pp || !r[k].pn || !r[k].pb)
+                return 1;
+        }
+    }
+    /* Room for the quadratic sky whatever the order: the order may rise. */
+    size_t np = (size_t)G->npmax;
+    G->p = calloc(np, sizeof *G->p);
+    G->pt = calloc(np, sizeof *G->pt);
+    G->stail = calloc((size_t)G->n * 27, sizeof *G->stail);
+    G->fx = malloc((size_t)G->n * sizeof *G->fx);
+    G->fy = malloc((size_t)G->n * sizeof *G->fy);
+    G->cx0 = malloc((size_t)G->n * sizeof *G->cx0);
+    G->cx1 = malloc((size_t)G->n * sizeof *G->cx1);
+    G->cy0 = malloc((size_t)G->n * sizeof *G->cy0);
+    G->cy1 = malloc((size_t)G->n * sizeof *G->cy1);
+    G->A = malloc(np * np * sizeof *G->A);
+    G->M = malloc(np * np * sizeof *G->M);
+    G->g = malloc(np * sizeof *G->g);
+    G->step = malloc(np * sizeof *G->step);
+    return !G->scr || !G->stail || !G->fx || !G->fy || !G->cx0 || !G->cx1 || !G->cy0 || !G->cy1 || !G->p || !G->pt || !G->A || !G->M || !G->g || !G->step;
+}
+
+/* The data's range over the fitted pixels and the largest flux a star may
+ * take: 1000 times all the light above the lowest pixel, over the smallest
+ * fraction (1 %) of a PSF a fitted star keeps inside its window. */
+static void data_range(group *G)
+{
+    double lo = INFINITY, hi = -INFINITY, sum = 0.0;
+    for (size_t o = 0; G->dat && o < G->npix; o++) {
+        double d = G->dat[o];
+        lo = d < lo ? d : lo;
+        hi = d > hi ? d : hi;
+        sum += d;
+    }
+    if (!isfinite(lo)) {
+        G->dlo = -INFINITY;
+        G->dhi = G->emax = INFINITY;
+        return;
+    }
+    G->dlo = lo;
+    G->dhi = hi;
+    double above = sum - lo * (double)G->npix;
+    G->emax = 1e5 * (above > 1.0 ? above : 1.0);
+}
+
+/* First flux guess: data above the sky over the star's box, over the PRF. */
+static double start_flux(const group *G, const rstar *r, double sky)
+{
+    double s = 0.0, q = 0.0;
+    for (int t = 0; t < r->j1 - r->j0; t++)
+        for (int i = 0; i < r->pn[t]; i++) {
+            s += G->dat[r->pp[t] + i] - sky;
+            q += r->prf[r->pb[t] + i];
+        }
+    return q > 0 && s > 0 ? s / q : 1.0;
+}
+
+static int all_finite(const double *v, int n)
+{
+    for (int i = 0; i < n; i++)
+        if (!isfinite(v[i]))
+            return 0;
+    return 1;
+}
+
+/* The lowest sky the members were found on (find's BACKGROUND, an earlier
+ * fit's SKY_PSF), the star light of a crowded group left out, so it errs
+ * low; NaN when no member has one. */
+static double known_sky(const mp_star *st, int n)
+{
+    double s = INFINITY;
+    for (int k = 0; k < n; k++)
+        if (isfinite(st[k].sky) && st[k].sky < s)
+            s = st[k].sky;
+    return isfinite(s) ? s : NAN;
+}
+
+/* The sky order to fit first: the one asked for, or constant under auto. */
+static int first_order(const mp_fit_opts *o)
+{
+    if (o->sky_order == MP_SKY_AUTO)
+        return 0;
+    return o->sky_order < 0 ? 0 : (o->sky_order > MP_SKY_MAXORDER ? MP_SKY_MAXORDER : o->sky_order);
+}
+
+/* The fit at the first sky order, then, under MP_SKY_AUTO, the order
+ * raised while the score test at the converged lower-order fit says the
+ * extra terms are needed, going on from the current state (the new terms
+ * start at zero, so the model does not change).  Nonzero when out of
+ * memory. */
+static int fit_orders(group *G, const mp_fit_opts *o, int *order, int *iter, int *converged)
+{
+    int n = G->n;
+    if (lm_levmar(G, o, iter, converged))
+        return 1;
+    while (o->fit_sky && o->sky_order == MP_SKY_AUTO && *converged && *order < MP_SKY_MAXORDER) {
+        int to;
+        if (lm_higher_order(G, *order, o->fitrad, &to))
+            return 1;
+        if (to < 0)
+            break;
+        /* The new terms start at zero (the buffers swap with the trial
+         * state, whose slots past the old order were never written). */
+        for (int a = 3 * n + G->nsky; a < 3 * n + nsky_of(to); a++)
+            G->p[a] = 0.0;
+        *order = to;
+        G->nsky = nsky_of(*order);
+        G->np = 3 * n + G->nsky;
+        if (lm_levmar(G, o, iter, converged))
+            return 1;
+    }
+    return 0;
+}
+
+/* Star k's outputs from the converged state and the covariance in G->M:
+ * its values, errors, χ² of the group (chi2f over dof), the performance
+ * model's prediction and the flags.  Nonzero when out of memory. */
+static int store_star(group *G, int k, mp_star *s, int converged, int cv, double chi2f, int dof,
+                      int iter, int order)
+{
+    int n = G->n, np = G->np;
+    double out[6] = {G->p[3 * k + 1], G->p[3 * k + 2], G->p[3 * k],
+                     sqrt(G->M[(size_t)(3 * k + 1) * np + 3 * k + 1]),
+                     sqrt(G->M[(size_t)(3 * k + 2) * np + 3 * k + 2]),
+                     sqrt(G->M[(size_t)(3 * k) * np + 3 * k])};
+    double skyv = sky_at(G, G->p, out[0], out[1]);
+    double c[6], vs = 0.0;
+    sky_basis(G, out[0], out[1], c);
+    for (int a = 0; a < G->nsky; a++)
+        for (int b = 0; b < G->nsky; b++)
+            vs += c[a] * c[b] * G->M[(size_t)(3 * n + a) * np + 3 * n + b];
+    /* The performance model wants the whole PRF, not the fitted window. */
+    if (!isfinite(out[0]) || !isfinite(out[1]))
+        memset(&s->st, 0, sizeof s->st);
+    else if (mp_prf_stats_at(G->m, out[0], out[1], &s->st, &G->work))
+        return 1;
+    double se, sx;
+    double E = out[2] > 1.0 ? out[2] : 1.0;
+    mp_perf_model(&s->st, E, skyv > 0 ? skyv : 0.0, G->f->rdnoise, (double)G->npix, &se, &sx);
+    if (!converged)
+        s->flags |= MP_FLAG_NOCONV;
+    if (cv)
+        s->flags |= MP_FLAG_MERGED;
+    if (!all_finite(out, 6) || !isfinite(skyv) || !isfinite(vs) || !isfinite(chi2f)) {
+        s->flags |= MP_FLAG_NOCONV;
+        return 0;                 /* keep the start values */
+    }
+    s->x = out[0];
+    s->y = out[1];
+    s->flux = out[2];
+    s->ex = out[3];
+    s->ey = out[4];
+    s->eflux = out[5];
+    s->sky = skyv;
+    s->esky = sqrt(vs > 0 ? vs : 0.0);
+    s->chi2 = dof > 0 ? chi2f / dof : 0.0;
+    s->dof = dof;
+    s->niter = iter;
+    s->sky_order = order;
+    s->fluxerr_model = isfinite(se) ? se : 0.0;
+    s->poserr_model = isfinite(sx) ? sx : 0.0;
+    return 0;
+}
+
+/* The start: fluxes, positions and the sky in G->p, the renders of every
+ * star there, and a flux from the data for a star that has none.
+ * Nonzero when out of memory. */
+static int start_state(group *G, const mp_star *stars, double sky)
+{
+    int n = G->n;
+    for (int k = 0; k < n; k++) {
+        G->p[3 * k] = stars[k].flux;
+        G->p[3 * k + 1] = stars[k].x;
+        G->p[3 * k + 2] = stars[k].y;
+    }
+    G->p[3 * n] = sky;
+    for (int a = 3 * n + 1; a < G->npmax; a++)
+        G->p[a] = 0.0;
+    if (lm_render_all(G, G->p, G->cur, RENDER_ALL))
+        return 1;
+    for (int k = 0; k < n; k++)
+        if (!(isfinite(G->p[3 * k]) && G->p[3 * k] > 0))
+            G->p[3 * k] = start_flux(G, &G->cur[k], sky);
+    return 0;
+}
+
+int mp_fit_group(const mp_frame *f, const mp_prf_model *m, const mp_fit_opts *o,
+                 double sky0, mp_star *stars, int n, char *err)
+{
+    group G;
+    memset(&G, 0, sizeof G);
+    G.f = f;
+    G.m = m;
+    G.crop = isfinite(o->fitrad) ? o->crop : NULL;
+    G.work.grid = o->grid;      /* every render of the group through G.work */
+    G.crop_min = o->fitrad + 1.0;
+    G.core_hw = G.crop_min;     /* NaN (whole frame): every pass exact */
+    G.n = n;
+    int order = first_order(o);
+    G.nsky = o->fit_sky ? nsky_of(order) : 0;
+    G.np = 3 * n + (G.nsky ? G.nsky : 1);   /* a fixed sky still has a slot */
+    G.npmax = 3 * n + nsky_of(MP_SKY_MAXORDER);
+    G.ron2 = f->rdnoise * f->rdnoise > 1e-2 ? f->rdnoise * f->rdnoise : 1e-2;
+    int rc = 1;
+    for (int k = 0; k < n; k++) {
+        stars[k].flags = 0;
+        stars[k].niter = 0;
+        stars[k].sky_order = order;
+    }
+    int sp = lm_select_pixels(&G, o, stars);
+    data_range(&G);
+    if (sp == 2 || alloc_stars(&G)) {
+        snprintf(err, MP_ERRLEN, "fit: out of memory for a group of %d stars", n);
+        goto done;
+    }
+    if (sp == 1 || G.npix <= (size_t)(3 * n + G.nsky)) {
+        for (int k = 0; k < n; k++)
+            stars[k].flags |= MP_FLAG_NOCONV | MP_FLAG_EDGE;
+        rc = 0;
+        goto finish_flagged;
+    }
+    double sky = isfinite(sky0) ? sky0 : start_sky(&G);
+    /* S of the variance function, and the sky's lower bound: a group's own
+     * median is neither (in a crowded group it sits well above the sky,
+     * and a floor above the sky reweights every sky pixel). */
+    G.sknown = known_sky(stars, n);
+    G.vfloor = G.sknown > 0 ? G.sknown : 0.0;
+    int converged = 0, iter = 0;
+    if (start_state(&G, stars, sky) || fit_orders(&G, o, &order, &iter, &converged))
+        goto nomem;
+    int cv = covariance(&G);
+    if (cv == 2)
+        goto nomem;
+    double chi2f = lm_chi2_with(&G, G.var);
+    int dof = (int)G.npix - (3 * n + G.nsky);
+    for (int k = 0; k < n; k++)
+        if (store_star(&G, k, &stars[k], converged, cv, chi2f, dof, iter, order))
+            goto nomem;
+    rc = 0;
+    goto done;
+
+nomem:
+    snprintf(err, MP_ERRLEN, "fit: out of memory for a group of %d stars", n);
+    rc = 1;
+    goto done;
+finish_flagged:
+    for (int k = 0; k < n; k++) {
+        mp_star *s = &stars[k];
+        s->ex = s->ey = s->eflux = s->esky = 0.0;
+        s->chi2 = 0.0;
+        s->dof = 0;
+        if (!isfinite(s->flux))
+            s->flux = 0.0;
+        if (!isfinite(s->sky))
+            s->sky = 0.0;
+    }
+done:
+    if (o->work)
+        *o->work += G.work.ops;     /* the exact renders' work (economy's plan) */
+    group_free(&G);
+    return rc;
+}

@@ -1,0 +1,267 @@
+/* frame_group.c — one group of a frame fitted as ALLSTAR does: close
+ * pairs merged, insignificant stars rejected, the group refitted after
+ * each change (anchors.md §1.6). */
+
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include "fit/frame_priv.h"
+
+double mp_prf_fwhm(const mp_prf_model *m)
+{
+    mp_prf_stats st;
+    /* A variable PSF: its FWHM at the field's origin. */
+    const mp_psf_field *fd = m->psf->field;
+    int var = fd && fd->order > 0;
+    double cx = var ? round(fd->x0) : 100.0, cy = var ? round(fd->y0) : 100.0;
+    if (mp_prf_stats_at(m, cx, cy, &st, NULL) || !(st.lscale > 0))
+        return 3.0;      /* out of memory: DAOPHOT's usual FWHM keeps find and merge going */
+    return 2.0 * sqrt(2.0 * log(2.0)) * st.lscale;
+}
+
+/* Merge the closest pair of the group that is closer than mergerad or not
+ * significantly separated: the brighter survives at the flux-weighted mean
+ * position with the summed flux.  Returns 1 if a pair was merged. */
+static int merge_one(mp_star *s, int *alive, int n, double mergerad)
+{
+    int a = -1, b = -1;
+    double best = INFINITY;
+    for (int i = 0; i < n; i++)
+        for (int j = i + 1; j < n; j++) {
+            if (!alive[i] || !alive[j])
+                continue;
+            double d = hypot(s[i].x - s[j].x, s[i].y - s[j].y);
+            double es = sqrt(s[i].ex * s[i].ex + s[i].ey * s[i].ey + s[j].ex * s[j].ex + s[j].ey * s[j].ey);
+            if ((d < mergerad || d < 2.0 * es) && d < best) {
+                best = d;
+                a = i;
+                b = j;
+            }
+        }
+    if (a < 0)
+        return 0;
+    if (s[b].flux > s[a].flux) {
+        int t = a;
+        a = b;
+        b = t;
+    }
+    double fa = fmax(s[a].flux, 0.0), fb = fmax(s[b].flux, 0.0), ft = fa + fb;
+    if (ft > 0) {
+        s[a].x = (fa * s[a].x + fb * s[b].x) / ft;
+        s[a].y = (fa * s[a].y + fb * s[b].y) / ft;
+    }
+    s[a].flux = s[a].flux + s[b].flux;
+    s[a].flags |= MP_FLAG_MERGED;
+    alive[b] = 0;
+    return 1;
+}
+
+static double snr_of(const mp_star *s)
+{
+    return s->eflux > 0 ? s->flux / s->eflux : (s->flux > 0 ? INFINITY : -INFINITY);
+}
+
+/* Flag merged (16) the live star nearest to star w within 2·mergerad: a
+ * star rejected beside a neighbour was most likely half of an unresolved
+ * blend whose light the neighbour now carries. */
+static void flag_blend_partner(mp_star *s, const int *alive, int n, int w, double mergerad)
+{
+    int near = -1;
+    double best = 2.0 * mergerad;
+    for (int i = 0; i < n; i++) {
+        double d = hypot(s[i].x - s[w].x, s[i].y - s[w].y);
+        if (alive[i] && d < best) {
+            best = d;
+            near = i;
+        }
+    }
+    if (near >= 0)
+        s[near].flags |= MP_FLAG_MERGED;
+}
+
+/* Reject the stars below minsnr; the number rejected.  Deep detection
+ * hands the fit many candidates below the cut, so they go in one step
+ * rather than one refit each (a 2-sigma find: 9188 rejections, fit 104 s
+ * -> see the commit): a below-cut star goes when no less significant
+ * below-cut star lies within sepind [px] of it.  Beyond sepind (2 FWHM)
+ * their PRFs barely overlap, so removing one leaves the other's S/N as
+ * it was; within it, only the worse goes, and the other is judged again
+ * after the refit (half of a split star may climb above the cut). */
+static int reject_low(mp_star *s, int *alive, int n, double minsnr, double mergerad,
+                      double sepind)
+{
+    int *gone = calloc((size_t)n, sizeof *gone), nr = 0;
+    for (int i = 0; i < n; i++) {
+        if (!alive[i])
+            continue;
+        double si = snr_of(&s[i]);
+        if (!(si < minsnr))
+            continue;
+        int worst = 1;
+        for (int j = 0; j < n && worst; j++) {
+            if (j == i || !alive[j] || hypot(s[i].x - s[j].x, s[i].y - s[j].y) >= sepind)
+                continue;
+            double sj = snr_of(&s[j]);
+            worst = !(sj < si || (sj == si && j < i));
+        }
+        if (!gone) {            /* out of memory: one at a time, as before */
+            if (worst) {
+                alive[i] = 0;
+                flag_blend_partner(s, alive, n, i, mergerad);
+                return 1;
+            }
+            continue;
+        }
+        gone[i] = worst;
+    }
+    for (int i = 0; gone && i < n; i++)
+        if (gone[i]) {
+            alive[i] = 0;
+            nr++;
+        }
+    for (int i = 0; gone && i < n; i++)
+        if (gone[i])
+            flag_blend_partner(s, alive, n, i, mergerad);
+    free(gone);
+    return nr;
+}
+
+/* Fit one group (members st[0..n-1]) on frame f: merge/reject until
+ * stable.  Local copies of the stars move in the frame's coordinates
+ * shifted by (dx, dy). */
+int ff_fit_one_group(const mp_frame *f, const mp_prf_model *m, const mp_frame_opts *o,
+                         double mergerad, const frame_rules *R, star_state *st, int n, double dx, double dy,
+                         mp_frame_report *rep, char *err)
+{
+    mp_star *s = malloc((size_t)n * sizeof *s), *live = malloc((size_t)n * sizeof *live);
+    int *alive = malloc((size_t)n * sizeof *alive), *map = malloc((size_t)n * sizeof *map);
+    int rc = 1;
+    if (!s || !live || !alive || !map) {
+        snprintf(err, MP_ERRLEN, "out of memory");
+        goto done;
+    }
+    for (int k = 0; k < n; k++) {
+        s[k] = st[k].s;
+        s[k].x -= dx;
+        s[k].y -= dy;
+        alive[k] = st[k].alive;     /* merged or rejected in an earlier pass: stays out */
+    }
+    /* Each round removes a star or ends, so n + 1 rounds suffice. */
+    for (int round = 0; round <= n; round++) {
+        int nl = 0;
+        for (int k = 0; k < n; k++)
+            if (alive[k]) {
+                live[nl] = s[k];
+                map[nl++] = k;
+            }
+        if (nl == 0)
+            break;
+        double sky0 = nl == 1 ? live[0].sky : NAN;
+        /* Economy: the coarsest table and the shortest kernel the
+         * group's brightest star allows. */
+        double e = 0.0;
+        for (int k = 0; k < nl; k++)
+            e = isfinite(live[k].flux) && live[k].flux > e ? live[k].flux : e;
+        int l = 0;
+        while (l < R->nss && !ff_level_serves(&R->level[l], e, rep))
+            l++;
+        mp_prf_model mh = l < R->nss ? R->ss[l].model : *m;
+        /* The group is fitted on a sub-image offset by (dx, dy): a
+         * variable PSF must still be read at each star's frame position
+         * (a run's coarser level also at the sub-frame's, o->psfdx). */
+        mp_psf lp;
+        mp_psf_field lf;
+        if (mh.psf->field) {    /* (a constant table keeps its pointer: the cache's key) */
+            double ox = l < R->nss ? o->psfdx : 0.0, oy = l < R->nss ? o->psfdy : 0.0;
+            mp_psf_local(mh.psf, dx + ox, dy + oy, &lp, &lf);
+            mh.psf = &lp;
+        }
+        mh.sinc_hw = ff_kernel_for(&R->kern[l], mh.sinc_hw, e, rep);
+        rep->kcoarse += l < R->nss;
+        /* Economy: the phase grid of the table as given, when its bound
+         * allows the brightest star (a star without a flux: the exact render). */
+        mp_fit_opts fo = o->fit;
+        fo.grid = l == R->nss && ff_grid_serves(R, o->grid, e, rep) ? o->grid : NULL;
+        int cached = mp_prf_cache_usable(fo.grid, &mh);
+        rep->kcache += cached;
+        rep->kcalls++;
+        rep->khw += mh.sinc_hw;
+        rep->kshort += mh.sinc_hw < m->sinc_hw;
+        double gops = 0.0;
+        fo.work = &gops;
+        if (mp_fit_group(f, &mh, &fo, sky0, live, nl, err))
+            goto done;
+        rep->iterations += live[0].niter;
+        rep->render_ops += gops;
+        /* What economy saved on this fit's renders (the plan's unit). */
+        if (R->ops_full > 0) {
+            double used = cached ? mp_econ_grid_render_ops(m, o->fit.fitrad)
+                                 : mp_econ_render_ops(&mh, mh.sinc_hw, o->fit.fitrad);
+            rep->ops_saved += (live[0].niter + 1.0) * fmax(R->ops_full - used, 0.0) * nl;
+        }
+        for (int k = 0; k < nl; k++) {
+            int keep = s[map[k]].flags & MP_FLAG_MERGED;
+            s[map[k]] = live[k];
+            s[map[k]].flags |= keep;
+        }
+        if (mergerad > 0 && merge_one(s, alive, n, mergerad)) {
+            rep->merged++;
+            continue;
+        }
+        /* 2 FWHM: 5 default merge radii (0.4 FWHM), or from the PSF when
+         * merging is off */
+        double sepind = mergerad > 0 ? 5.0 * mergerad : 2.0 * mp_prf_fwhm(m);
+        int nrej = o->minsnr > 0 ? reject_low(s, alive, n, o->minsnr, mergerad, sepind) : 0;
+        if (nrej > 0) {
+            rep->rejected += nrej;
+            continue;
+        }
+        break;
+    }
+    for (int k = 0; k < n; k++) {
+        st[k].s = s[k];
+        st[k].s.x += dx;
+        st[k].s.y += dy;
+        st[k].alive = alive[k];
+        if (alive[k] && (s[k].flags & MP_FLAG_NOCONV))
+            rep->noconv++;
+    }
+    rc = 0;
+done:
+    free(s);
+    free(live);
+    free(alive);
+    free(map);
+    return rc;
+}
+
+/* The window a group's fit reads: its stars ± fitrad, one pixel of margin
+ * (so the fitter's edge test sees only the frame's real edges), clipped. */
+void ff_group_window(const mp_frame *f, const star_state *st, int n, double r,
+                         long *x0, long *y0, long *w, long *h)
+{
+    if (!isfinite(r)) {
+        *x0 = *y0 = 1;
+        *w = f->im.nx;
+        *h = f->im.ny;
+        return;
+    }
+    double xa = INFINITY, xb = -INFINITY, ya = INFINITY, yb = -INFINITY;
+    for (int k = 0; k < n; k++) {
+        xa = fmin(xa, st[k].s.x);
+        xb = fmax(xb, st[k].s.x);
+        ya = fmin(ya, st[k].s.y);
+        yb = fmax(yb, st[k].s.y);
+    }
+    long a = (long)floor(xa - r) - 1, b = (long)ceil(xb + r) + 1;
+    long c = (long)floor(ya - r) - 1, d = (long)ceil(yb + r) + 1;
+    a = a < 1 ? 1 : a;
+    c = c < 1 ? 1 : c;
+    b = b > f->im.nx ? f->im.nx : b;
+    d = d > f->im.ny ? f->im.ny : d;
+    *x0 = a;
+    *y0 = c;
+    *w = b >= a ? b - a + 1 : 0;
+    *h = d >= c ? d - c + 1 : 0;
+}

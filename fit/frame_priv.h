@@ -1,0 +1,147 @@
+/*
+ * frame_priv.h — inside fit/ only: what fitting a table on a frame
+ * (mp_fit_table_mem, fit_frame.c) shares among its files: frame_rules.c
+ * (economy's per-group choices), frame_paint.c (stars painted on the
+ * frame), frame_group.c (one group, merges and rejections),
+ * frame_refit.c (a group against its neighbours' light, refitted when it
+ * changed), frame_memory.c (across calls), frame_columns.c (outputs).
+ */
+#ifndef MATPHOT_FIT_FRAME_PRIV_H
+#define MATPHOT_FIT_FRAME_PRIV_H
+
+#include "fit/econ_state.h"
+
+/* The state of one star through the passes. */
+typedef struct {
+    mp_star s;          /* current estimate (global coordinates) */
+    double id;          /* group id */
+    long row;
+    double number;      /* NUMBER (the memory's key across calls), or row */
+    int alive;
+    /* Economy: the light of every other star on the pixels around this one
+     * (its fitting region and a pixel more) when it was last fitted, a
+     * square of side sw at (sx0, sy0); NULL: not fitted yet. */
+    float *seen;        /* single precision, as the frame (issue 14) */
+    long sx0, sy0;
+    int sw;
+} star_state;
+
+typedef mp_prf_crop crop_rule;
+
+/* Economy's kernel choice on one frame (fit/sinc_choice.c): each group gets
+ * the shortest half-width whose bound at its brightest star is ≤ frac on
+ * the frame's sky.  With many groups the flux limits of every half-width
+ * are found once (emax, MP_SINC_LIMITS_EVALS bound evaluations each);
+ * with few, each group evaluates the bound itself (≤ hwmax evaluations),
+ * so the choice never costs more bound evaluations than
+ * min(groups, MP_SINC_LIMITS_EVALS) · hwmax per pass. */
+typedef struct {
+    const mp_sinc_choice *c;   /* NULL: every group with the model's sinc_hw */
+    double *emax;              /* the limits, or NULL: evaluate per group */
+    int owned;                 /* emax is this rule's (else the cache's) */
+    double sky, ron, frac;
+} kernel_rule;
+
+/* The table's choice (fit/ss_choice.c): whether a coarser sampling serves
+ * the group's brightest star, from its flux limit on the frame's sky (found
+ * once, as the kernel's) or, with few groups, evaluated per group. */
+typedef struct {
+    const mp_ss_level *lv;     /* NULL: never serves */
+    double emax;               /* the limit, or NAN: evaluate per group */
+    double sky, ron, frac;
+} level_rule;
+
+/* level[l] says whether ss[l] serves a flux, kern[l] is the kernel choice
+ * of ss[l]'s model, kern[nss] that of the model as given. */
+typedef struct {
+    const mp_ss_level *ss;
+    int nss;
+    level_rule level[MP_SS_MAXLEVELS];
+    kernel_rule kern[MP_SS_MAXLEVELS + 1];
+    double gemax;               /* the phase grid's flux limit (o->grid); NaN:
+                                 * each group evaluates the bound */
+    double gsky, gron, gfrac;   /* the grid's bound: sky, read noise, fraction */
+    double ops_full;            /* a render of the model as given (economy's unit) */
+} frame_rules;
+
+/* A star's last fit, by NUMBER, across calls. */
+typedef struct {
+    mp_star s;
+    float *seen;
+    long sx0, sy0;
+    int sw;
+} star_seen;
+
+struct mp_fit_memory {
+    star_seen *s;        /* indexed by NUMBER */
+    size_t ns;
+    float *scratch;      /* lent: room for the model of every star */
+    size_t nscratch;
+};
+
+/* frame_rules.c.  ff_rules_setup: the frame's rules for the tables o
+ * points at, on the stars' median start sky; nonzero when out of memory.
+ * ff_rules_free: frees them.  ff_learn_and_choose: in a sequential run,
+ * the exact-render work ops counted and oc pointed at the tables that now
+ * pay (when more groups follow); nonzero with err on failure.
+ * ff_level_serves, ff_grid_serves: whether a coarser level, the phase
+ * grid, serves a group whose brightest star has flux e; ff_kernel_for: its
+ * sinc half-width (hwfull the model's).  Each charges its bound
+ * evaluations to cost. */
+int ff_rules_setup(frame_rules *R, const mp_frame *f, const mp_frame_opts *o,
+                   const star_state *st, size_t n, size_t ng, double runfits,
+                   mp_frame_report *rep);
+void ff_rules_free(frame_rules *R);
+int ff_learn_and_choose(const mp_frame *f, const mp_frame_opts *o, mp_frame_opts *oc,
+                        frame_rules *R, const star_state *st, size_t n, size_t ng,
+                        double runfits, double ops, int more, mp_frame_report *rep, char *err);
+int ff_level_serves(const level_rule *k, double e, mp_frame_report *cost);
+int ff_grid_serves(const frame_rules *R, const mp_prf_cache *g, double e, mp_frame_report *cost);
+int ff_kernel_for(const kernel_rule *k, int hwfull, double e, mp_frame_report *cost);
+
+/* frame_paint.c.  ff_crop_init: the crop rule of cropfrac (nonzero when
+ * out of memory).  ff_crop_radius: how far star s is painted.
+ * ff_paint: star s times sign added to img (a window at (x0, y0), w × h)
+ * out to rad.  ff_all_stars: every live star with a flux painted on one
+ * image (lent, or allocated; NULL when out of memory), the cropped
+ * paints counted in *cut. */
+int ff_crop_init(const mp_frame *f, const mp_prf_model *m, double cropfrac, crop_rule *c);
+double ff_crop_radius(const crop_rule *c, const mp_star *s);
+int ff_paint(const mp_prf_model *m, const mp_star *s, double sign, double rad, float *img,
+             long x0, long y0, long w, long h, mp_prf_work *wk, double **buf, size_t *cap,
+             int *cut);
+float *ff_all_stars(const mp_frame *f, const mp_prf_model *m, const star_state *st, size_t n,
+                    const crop_rule *crop, const mp_frame_opts *o, const frame_rules *R,
+                    float *lent, long *ncut);
+
+/* frame_group.c.  ff_fit_one_group: members st[0..n-1] fitted on f (their
+ * positions shifted by (dx, dy)), merged and rejected until stable;
+ * nonzero with err on failure.  ff_group_window: the window a group's fit
+ * reads (its stars ± r and a pixel), clipped to the frame. */
+int ff_fit_one_group(const mp_frame *f, const mp_prf_model *m, const mp_frame_opts *o,
+                     double mergerad, const frame_rules *R, star_state *st, int n, double dx,
+                     double dy, mp_frame_report *rep, char *err);
+void ff_group_window(const mp_frame *f, const star_state *st, int n, double r, long *x0,
+                     long *y0, long *w, long *h);
+
+/* frame_refit.c: one group fitted on a local copy of its pixels with
+ * every other star's light (all) subtracted, or kept when that light has
+ * not changed since its last fit (may_keep, economy); nonzero with err on
+ * failure. */
+int ff_fit_group_local(const mp_frame *f, const mp_prf_model *m, const mp_frame_opts *o,
+                       double mergerad, const frame_rules *R, const float *all,
+                       const crop_rule *crop, star_state *st, int n, int may_keep, int economy,
+                       mp_frame_report *rep, char *err);
+
+/* frame_memory.c.  ff_max_number: the table's largest NUMBER, or -1 when
+ * it has none (or one not a whole number ≥ 0).  ff_recall: each star's
+ * last fit from mem; ff_remember: kept there (nonzero when out of memory). */
+double ff_max_number(const mp_table *t);
+void ff_recall(mp_fit_memory *mem, star_state *st, size_t n);
+int ff_remember(mp_fit_memory *mem, star_state *st, size_t n, double maxnum);
+
+/* frame_columns.c: the fitted columns of the live stars written into t
+ * (MAG_PSF with magzero); nonzero with err on failure. */
+int ff_write_columns(mp_table *t, const star_state *st, size_t n, double magzero, char *err);
+
+#endif

@@ -1,0 +1,208 @@
+/*
+ * lm_group.h — inside fit/ only: the state of one group fit (mp_fit_group)
+ * and the routines its files share: fit_group.c (start, outputs),
+ * lm_pixels.c (fitted pixels), lm_render.c (the stars' PRFs), lm_model.c
+ * (model, weights, deviance), lm_normal.c (normal equations), lm_frozen.c
+ * (frozen wings), levmar.c (the LM loop), sky_test.c (the sky's order).
+ */
+#ifndef MATPHOT_FIT_LM_GROUP_H
+#define MATPHOT_FIT_LM_GROUP_H
+
+#include <math.h>
+#include <stddef.h>
+#include <stdint.h>
+#include "fit/fit.h"
+
+/* One star's rendered PRF and derivatives on the fitted pixels of its
+ * window, rows [j0, j1) and columns [i0, i1) of the group box: row j0 + t
+ * holds the packed pixels [pp[t], pp[t] + pn[t]) (the fitted pixels of a
+ * row within a column range are consecutive in the packing), at
+ * prf[pb[t] ...]. */
+typedef struct {
+    int i0, i1, j0, j1;
+    int ci0, ci1, cj0, cj1;     /* its core while the wings are frozen (levmar) */
+    int *pp, *pn, *pb;          /* bh each */
+    double *prf, *dx, *dy;      /* cap each */
+} rstar;
+
+/* Everything one group fit needs; freed in one place. */
+typedef struct {
+    const mp_frame *f;
+    const mp_prf_model *m;
+    const mp_prf_crop *crop;    /* NULL: every star on its whole box */
+    double crop_min;            /* never cropped inside its fitting region */
+    int n, nsky, np;            /* nsky sky terms fitted (0: sky held fixed) */
+    int npmax;                  /* parameters the arrays hold: 3n + 6 */
+    long bx0, by0;              /* group box, 1-based, and size */
+    int bw, bh;
+    double xc, yc, hx, hy;      /* sky basis: u = (x − xc)/hx, v = (y − yc)/hy */
+    double dlo, dhi, emax;      /* data range over the fitted pixels, and the
+                                 * largest flux any star may take there */
+    double ron2;                /* RON², at least 1e-2 so V > 0 */
+    double vfloor;              /* S of V(m) = max(m, S) + RON², ≥ 0 */
+    double sknown;              /* the sky the stars were found on, or NaN */
+    double skylo, skyhi;        /* a plane or quadratic sky's range over the
+                                 * fitted pixels, as model_of last drew it */
+    uint8_t *sel;               /* bw*bh: pixel fitted */
+    /* The fitted pixels packed row by row (issue 12: every per-pixel sum
+     * and render runs over them only, not the box around them, which
+     * holds about twice as many): runs of consecutive fitted pixels, run
+     * r in box row rj[r], columns [ri0[r], ri1[r]), packed from rp[r];
+     * row j's runs are rrow[j] .. rrow[j + 1] − 1, its first packed pixel
+     * prow[j] (both bh + 1). */
+    size_t npix;
+    int nrun;
+    int *rj, *ri0, *ri1, *rp, *rrow, *prow;
+    double *dat, *mod, *var;    /* npix: data, model, V(m) */
+    double *rv;                 /* npix: RON² + the error plane's extra
+                                 * variance (mp_frame.xvar), the r of V */
+    double *wt, *wres;          /* npix: 1/V, and 1/V·(d − m), for the
+                                 * normal equations */
+    double *basis;              /* 6 × npix: the sky basis at every pixel */
+    mp_span *spans;             /* nrun: the spans a star is rendered on */
+    size_t *soff;               /* nrun: where each span's values go (core renders) */
+    /* Frozen wings (levmar): while set, a render redraws each star on its
+     * core only, the rest of its window keeping the values drawn at
+     * (fx, fy) — both buffers alike. */
+    int freezing, frozen;       /* this fit freezes; frozen now */
+    double *fx, *fy;            /* n each */
+    /* Star pairs between exact normal equations (normal_equations): the
+     * pairs whose windows meet, each pair's sums outside its core (9 a
+     * pair, unscaled), and each star's core, [cx0, cx1) × [cy0, cy1) of
+     * the box (n each); core_hw ≤ 0: every pass exact. */
+    int npair, cappair, ne_exact;
+    int *pk, *pl;
+    double *tail;
+    double *stail;              /* 27 a star: its sky and self sums outside its core */
+    int *cx0, *cx1, *cy0, *cy1;
+    double core_hw;
+    size_t cap;                 /* per-star capacity (packed pixels) */
+    size_t boxcap;              /* an exact render's box (scr: 3 of them) */
+    double *scr;
+    rstar *cur, *trial;
+    double *p, *pt, *A, *g, *M, *step;
+    mp_prf_work work;
+} group;
+
+static inline double pixel(const group *G, long x, long y)
+{
+    return G->f->im.pix[(size_t)(y - 1) * G->f->im.nx + (size_t)(x - 1)];
+}
+
+/* RON² plus what the frame's error plane holds beyond it and the Poisson
+ * noise, at pixel (x, y). */
+static inline double ron2_at(const group *G, long x, long y)
+{
+    const float *xv = G->f->xvar;
+    return G->ron2 + (xv ? (double)xv[(size_t)(y - 1) * G->f->im.nx + (size_t)(x - 1)] : 0.0);
+}
+
+/* The packed index of the first fitted pixel at or after column i of box
+ * row j. */
+static inline int packed_at(const group *G, int j, int i)
+{
+    for (int q = G->rrow[j]; q < G->rrow[j + 1]; q++) {
+        if (i <= G->ri0[q])
+            return G->rp[q];
+        if (i < G->ri1[q])
+            return G->rp[q] + (i - G->ri0[q]);
+    }
+    return G->prow[j + 1];
+}
+
+/* Sky terms of order 0, 1, 2: 1, 3, 6. */
+static inline int nsky_of(int order)
+{
+    return order <= 0 ? 1 : (order == 1 ? 3 : 6);
+}
+
+/* The sky basis at (x, y): 1, u, v, u² − 1/3, uv, v² − 1/3, with u, v the
+ * offsets from the box centre scaled to [−1, 1].  Scaled and centred (u²
+ * has mean about 1/3 over the box) so the normal equations stay well
+ * conditioned and one bound fits every coefficient's step. */
+static inline void sky_basis(const group *G, double x, double y, double c[6])
+{
+    double u = (x - G->xc) / G->hx, v = (y - G->yc) / G->hy;
+    c[0] = 1.0;
+    c[1] = u;
+    c[2] = v;
+    c[3] = u * u - 1.0 / 3.0;
+    c[4] = u * v;
+    c[5] = v * v - 1.0 / 3.0;
+}
+
+static inline double sky_at(const group *G, const double *p, double x, double y)
+{
+    if (G->nsky <= 1)
+        return p[3 * G->n];      /* constant, or fixed (kept in the first sky slot) */
+    double c[6], s = 0.0;
+    sky_basis(G, x, y, c);
+    for (int a = 0; a < G->nsky; a++)
+        s += p[3 * G->n + a] * c[a];
+    return s;
+}
+
+/* qsort's order of doubles. */
+static inline int lm_cmp_double(const void *a, const void *b)
+{
+    double x = *(const double *)a, y = *(const double *)b;
+    return (x > y) - (x < y);
+}
+
+/* Render every star of parameter vector p into r, on the fitted pixels of
+ * its window only (the group's box, the star's PRF box and its crop
+ * radius): the fit pays for its fitting region, not for the PSF's wings,
+ * nor for the pixels between the stars' fitting radii.  what: RENDER_ALL,
+ * or, from the phase grid, RENDER_PRF (a trial step: D needs the PRF
+ * only, and a third of the trials are refused) and RENDER_DERIVS (the
+ * derivatives of a step taken, whose PRF is there); exact renders always
+ * draw all three. */
+enum { RENDER_ALL, RENDER_PRF, RENDER_DERIVS };
+
+/* lm_render.c.  lm_render_all: every star of p into r on its window (or
+ * core, while frozen); nonzero when a window overflows its buffers.
+ * lm_core_rows: star r's core as spans (G->spans, offsets G->soff), its
+ * box clipped to the window in c; returns the number of spans. */
+int lm_render_all(group *G, const double *p, rstar *r, int what);
+int lm_core_rows(group *G, const rstar *r, int c[4]);
+
+/* lm_model.c.  lm_model_of: the model of p with renders r into G->mod.
+ * lm_variance_of: V(m) into G->var.  lm_deviance_of: D of G->mod.
+ * lm_chi2_with: Σ (d − m)²/var. */
+void lm_model_of(group *G, const double *p, const rstar *r);
+void lm_variance_of(group *G);
+double lm_deviance_of(const group *G);
+double lm_chi2_with(const group *G, const double *var);
+
+/* How lm_normal_equations sums: the pairs over their cores only (between
+ * steps), everything exact, or every star's own terms exact. */
+enum { NE_STEER, NE_EXACT, NE_STARS };
+
+/* lm_normal.c: A and g at p (exact: NE_EXACT, NE_STEER or NE_STARS);
+ * nonzero when out of memory. */
+int lm_normal_equations(group *G, const double *p, const rstar *r, int exact);
+
+/* lm_frozen.c.  lm_freezing_pays: whether the windows hold enough more
+ * than the cores.  lm_freeze: freeze every star's wings where it is.
+ * lm_moved_far: a star moved far from where its wings were drawn.
+ * lm_refresh: everything redrawn at G->p, D in *D, exact normal
+ * equations, frozen again when again; nonzero when out of memory. */
+int lm_freezing_pays(group *G);
+void lm_freeze(group *G);
+int lm_moved_far(const group *G);
+int lm_refresh(group *G, double *D, int again);
+
+/* levmar.c: LM from G->p (frozen wings unless o->exact_lm), accepted
+ * steps added to *iter; nonzero when out of memory. */
+int lm_levmar(group *G, const mp_fit_opts *o, int *iter, int *converged);
+
+/* sky_test.c: under MP_SKY_AUTO, the higher sky order the data ask for
+ * at a converged fit of order 0 or 1 in *to, or -1; nonzero when out of
+ * memory. */
+int lm_higher_order(group *G, int order, double fitrad, int *to);
+
+/* lm_pixels.c: the group box, its fitted pixels (packed) and the flags
+ * they set on st; 1 when no pixel, 2 when out of memory. */
+int lm_select_pixels(group *G, const mp_fit_opts *o, mp_star *st);
+
+#endif

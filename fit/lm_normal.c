@@ -1,0 +1,307 @@
+/* lm_normal.c — a group fit's normal equations A = JᵀWJ, g = JᵀW(d − m):
+ * the sky block, each star's terms and the star pairs' sums, block-sparse
+ * over the windows' overlaps (issue 12). */
+
+#include <math.h>
+#include <stddef.h>
+#include <stdlib.h>
+#include <string.h>
+#include "fit/lm_group.h"
+
+/* The weights, the data term and the sky's block of the normal equations,
+ * over all fitted pixels. */
+static void ne_sky(group *G)
+{
+    int np = G->np, s0 = 3 * G->n, ns = G->nsky;
+    size_t N = G->npix;
+    for (size_t o = 0; o < N; o++) {
+        double w = 1.0 / G->var[o];
+        G->wt[o] = w;
+        G->wres[o] = w * (G->dat[o] - G->mod[o]);
+    }
+    for (int a = 0; a < ns; a++) {
+        const double *ca = G->basis + (size_t)a * N;
+        double ga = 0.0;
+        for (size_t o = 0; o < N; o++)
+            ga += ca[o] * G->wres[o];
+        G->g[s0 + a] = ga;
+        for (int b = a; b < ns; b++) {
+            const double *cb = G->basis + (size_t)b * N;
+            double s = 0.0;
+            for (size_t o = 0; o < N; o++)
+                s += G->wt[o] * ca[o] * cb[o];
+            G->A[(size_t)(s0 + a) * np + s0 + b] = s;
+        }
+    }
+}
+
+/* Star r's sums over the fitted pixels of its window within box columns
+ * [x0, x1) and rows [y0, y1), added in: with g, its data terms Σ wres·J
+ * (unscaled); with a, its coupling with the sky Σ w·J·c_b. */
+static void star_sky_sums(const group *G, const rstar *rk, int x0, int x1, int y0, int y1,
+                          double g[3], double a[3][6])
+{
+    int ns = G->nsky, full = x0 <= rk->i0 && x1 >= rk->i1;
+    size_t N = G->npix;
+    int j0 = rk->j0 > y0 ? rk->j0 : y0, j1 = rk->j1 < y1 ? rk->j1 : y1;
+    for (int j = j0; j < j1; j++) {
+        int t = j - rk->j0, o = rk->pp[t], e = o + rk->pn[t];
+        if (!full) {
+            int q0 = packed_at(G, j, x0), q1 = packed_at(G, j, x1);
+            o = o > q0 ? o : q0;
+            e = e < q1 ? e : q1;
+        }
+        if (o >= e)
+            continue;
+        size_t u = (size_t)(rk->pb[t] + o - rk->pp[t]);
+        const double *jk[3] = {rk->prf + u, rk->dx + u, rk->dy + u};
+        const double *wr = G->wres + o, *w = G->wt + o;
+        int m = e - o;
+        for (int c = 0; c < 3; c++) {
+            if (g) {
+                double q = 0.0;
+                for (int i = 0; i < m; i++)
+                    q += wr[i] * jk[c][i];
+                g[c] += q;
+            }
+            for (int b = 0; a && b < ns; b++) {
+                const double *cb = G->basis + (size_t)b * N + o;
+                double q = 0.0;
+                for (int i = 0; i < m; i++)
+                    q += w[i] * jk[c][i] * cb[i];
+                a[c][b] += q;
+            }
+        }
+    }
+}
+
+/* Σ w J_k,a J_l,b over the fitted pixels where the windows of stars k and
+ * l meet, within box columns [x0, x1) and rows [y0, y1); s is 3×3, only
+ * b ≥ a when k == l.  Nonzero when they meet there at all. */
+static int pair_sums(const group *G, const rstar *rk, const rstar *rl, int same, int x0, int x1,
+                     int y0, int y1, double s[3][3])
+{
+    int j0 = rk->j0 > rl->j0 ? rk->j0 : rl->j0, j1 = rk->j1 < rl->j1 ? rk->j1 : rl->j1;
+    int c0 = rk->i0 > rl->i0 ? rk->i0 : rl->i0, c1 = rk->i1 < rl->i1 ? rk->i1 : rl->i1;
+    int full = x0 <= c0 && x1 >= c1;
+    j0 = j0 > y0 ? j0 : y0;
+    j1 = j1 < y1 ? j1 : y1;
+    memset(s, 0, 9 * sizeof s[0][0]);
+    if (j0 >= j1 || c0 >= c1 || x0 >= c1 || x1 <= c0)
+        return 0;
+    for (int j = j0; j < j1; j++) {
+        int tk = j - rk->j0, tl = j - rl->j0;
+        int a0 = rk->pp[tk] > rl->pp[tl] ? rk->pp[tk] : rl->pp[tl];
+        int a1 = rk->pp[tk] + rk->pn[tk], e1 = rl->pp[tl] + rl->pn[tl];
+        a1 = a1 < e1 ? a1 : e1;
+        if (!full) {
+            int q0 = packed_at(G, j, x0), q1 = packed_at(G, j, x1);
+            a0 = a0 > q0 ? a0 : q0;
+            a1 = a1 < q1 ? a1 : q1;
+        }
+        if (a0 >= a1)
+            continue;
+        size_t u = (size_t)(rk->pb[tk] + a0 - rk->pp[tk]);
+        size_t v = (size_t)(rl->pb[tl] + a0 - rl->pp[tl]);
+        const double *jk[3] = {rk->prf + u, rk->dx + u, rk->dy + u};
+        const double *jl[3] = {rl->prf + v, rl->dx + v, rl->dy + v};
+        const double *w = G->wt + a0;
+        int m = a1 - a0;
+        for (int a = 0; a < 3; a++)
+            for (int b = (same ? a : 0); b < 3; b++) {
+                double q = 0.0;
+                for (int i = 0; i < m; i++)
+                    q += w[i] * jk[a][i] * jl[b][i];
+                s[a][b] += q;
+            }
+    }
+    return 1;
+}
+
+/* The core of a pair: the box around both stars' cores when they lie
+ * within two core half-widths of each other (else empty, x0 = x1). */
+static void pair_core(const group *G, int k, int l, int *x0, int *x1, int *y0, int *y1)
+{
+    *x0 = G->cx0[k] < G->cx0[l] ? G->cx0[k] : G->cx0[l];
+    *x1 = G->cx1[k] > G->cx1[l] ? G->cx1[k] : G->cx1[l];
+    *y0 = G->cy0[k] < G->cy0[l] ? G->cy0[k] : G->cy0[l];
+    *y1 = G->cy1[k] > G->cy1[l] ? G->cy1[k] : G->cy1[l];
+    int span = (int)ceil(4.0 * G->core_hw) + 2;
+    if (*x1 - *x0 > span || *y1 - *y0 > span)
+        *x1 = *x0;
+}
+
+static void put_pair(group *G, const double *p, int k, int l, double s[3][3])
+{
+    int np = G->np;
+    double sk[3] = {1.0, p[3 * k], p[3 * k]}, sl[3] = {1.0, p[3 * l], p[3 * l]};
+    for (int a = 0; a < 3; a++)
+        for (int b = (l == k ? a : 0); b < 3; b++)
+            G->A[(size_t)(3 * k + a) * np + 3 * l + b] = sk[a] * sl[b] * s[a][b];
+}
+
+/* Each star's core for the pair and self sums between exact passes: the
+ * box within G->core_hw px of where it is at an exact pass. */
+static void set_cores(group *G, const double *p)
+{
+    double h = G->core_hw;
+    for (int k = 0; k < G->n && h > 0; k++) {
+        G->cx0[k] = (int)floor(p[3 * k + 1] - h) - (int)G->bx0;
+        G->cx1[k] = (int)ceil(p[3 * k + 1] + h) + 1 - (int)G->bx0;
+        G->cy0[k] = (int)floor(p[3 * k + 2] - h) - (int)G->by0;
+        G->cy1[k] = (int)ceil(p[3 * k + 2] + h) + 1 - (int)G->by0;
+    }
+}
+
+/* The exact pass's pairs: every pair whose windows meet, its sums outside
+ * its core kept in G->tail (the cores as set_cores fixed them).  Nonzero
+ * when out of memory. */
+static int pairs_exact(group *G, const double *p, const rstar *r)
+{
+    int n = G->n;
+    double h = G->core_hw;
+    G->npair = 0;
+    for (int k = 0; k < n; k++)
+        for (int l = k + 1; l < n; l++) {
+            double s[3][3], c[3][3];
+            if (!pair_sums(G, &r[k], &r[l], 0, 0, G->bw, 0, G->bh, s))
+                continue;
+            put_pair(G, p, k, l, s);
+            if (!(h > 0))
+                continue;
+            if (G->npair == G->cappair) {
+                int cap = G->cappair ? 2 * G->cappair : 64;
+                int *a = realloc(G->pk, (size_t)cap * sizeof *a);
+                if (a)
+                    G->pk = a;
+                int *b = realloc(G->pl, (size_t)cap * sizeof *b);
+                if (b)
+                    G->pl = b;
+                double *t = realloc(G->tail, (size_t)cap * 9 * sizeof *t);
+                if (t)
+                    G->tail = t;
+                if (!a || !b || !t)
+                    return 1;
+                G->cappair = cap;
+            }
+            int x0, x1, y0, y1;
+            pair_core(G, k, l, &x0, &x1, &y0, &y1);
+            pair_sums(G, &r[k], &r[l], 0, x0, x1, y0, y1, c);
+            double *t = G->tail + (size_t)G->npair * 9;
+            for (int a = 0; a < 9; a++)
+                t[a] = s[a / 3][a % 3] - c[a / 3][a % 3];
+            G->pk[G->npair] = k;
+            G->pl[G->npair++] = l;
+        }
+    return 0;
+}
+
+/* Between exact passes: each pair's core summed afresh, its tail as the
+ * exact pass left it. */
+static void pairs_core(group *G, const double *p, const rstar *r)
+{
+    for (int q = 0; q < G->npair; q++) {
+        int k = G->pk[q], l = G->pl[q], x0, x1, y0, y1;
+        double s[3][3];
+        const double *t = G->tail + (size_t)q * 9;
+        pair_core(G, k, l, &x0, &x1, &y0, &y1);
+        pair_sums(G, &r[k], &r[l], 0, x0, x1, y0, y1, s);
+        for (int a = 0; a < 9; a++)
+            s[a / 3][a % 3] += t[a];
+        put_pair(G, p, k, l, s);
+    }
+}
+
+/* Star k's rows of g and A: its data terms, its coupling with the sky and
+ * with itself.  While the wings are frozen (levmar) the couplings are
+ * summed over the star's core only between exact passes, the rest (its
+ * wings, whose values are frozen: only their weights move) kept from the
+ * last exact pass in G->stail (every exact pass keeps it: the wings are
+ * frozen right after one); g is summed over the whole window always. */
+static void star_terms(group *G, const double *p, const rstar *rk, int k, int exact)
+{
+    int np = G->np, s0 = 3 * G->n, ns = G->nsky, bw = G->bw, bh = G->bh;
+    double gk[3] = {0}, sk[3][6] = {{0}}, ss[3][3], *tl = G->stail + (size_t)k * 27;
+    int x0 = G->cx0[k], x1 = G->cx1[k], y0 = G->cy0[k], y1 = G->cy1[k];
+    if (exact || !G->frozen) {
+        star_sky_sums(G, rk, 0, bw, 0, bh, gk, sk);
+        pair_sums(G, rk, rk, 1, 0, bw, 0, bh, ss);
+        if (exact && G->freezing) {
+            double ck[3][6] = {{0}}, cs[3][3];
+            star_sky_sums(G, rk, x0, x1, y0, y1, NULL, ck);
+            pair_sums(G, rk, rk, 1, x0, x1, y0, y1, cs);
+            for (int a = 0; a < 18; a++)
+                tl[a] = sk[a / 6][a % 6] - ck[a / 6][a % 6];
+            for (int a = 0; a < 9; a++)
+                tl[18 + a] = ss[a / 3][a % 3] - cs[a / 3][a % 3];
+        }
+    } else {
+        star_sky_sums(G, rk, 0, bw, 0, bh, gk, NULL);
+        star_sky_sums(G, rk, x0, x1, y0, y1, NULL, sk);
+        pair_sums(G, rk, rk, 1, x0, x1, y0, y1, ss);
+        for (int a = 0; a < 18; a++)
+            sk[a / 6][a % 6] += tl[a];
+        for (int a = 0; a < 9; a++)
+            ss[a / 3][a % 3] += tl[18 + a];
+    }
+    double sc[3] = {1.0, p[3 * k], p[3 * k]};
+    for (int a = 0; a < 3; a++) {
+        G->g[3 * k + a] = sc[a] * gk[a];
+        for (int b = 0; b < ns; b++)
+            G->A[(size_t)(3 * k + a) * np + s0 + b] = sc[a] * sk[a][b];
+    }
+    put_pair(G, p, k, k, ss);
+}
+
+/* Normal equations A = JᵀWJ and g = JᵀW(d − m) at the current model.
+ * Block-sparse (issue 12): a star's columns meet the sky's over its own
+ * window and another star's only where their windows overlap, so each
+ * pair is summed over its windows' intersection alone, and only over the
+ * fitted pixels (packed: contiguous rows, branch-free inner loops).
+ * Between the steps of a fit (exact = 0) a pair of stars is summed only
+ * over its core — within G->core_hw px of either star, when they lie
+ * that close — and keeps its sums over the rest (the stars' far wings,
+ * where both are faint and the coupling barely moves with a step) from
+ * the last exact pass: A only steers the steps, so the root the fit
+ * converges to (g = 0, always exact) does not change, and every fit ends
+ * on an exact pass, from which its covariance comes.  In a big group the
+ * pairs were most of the work (47 Tuc, 60 stars: 2.1e6 pixel-pairs a pass
+ * against 1.1e5 pixels in the stars' windows).  g, the diagonal blocks and
+ * the sky's, which set the steps' σ and the bounds, are exact every time.
+ * Nonzero when out of memory. */
+int lm_normal_equations(group *G, const double *p, const rstar *r, int exact)
+{
+    /* exact: NE_EXACT, or NE_STEER between steps; NE_STARS (every star's
+     * own terms exact, its pairs' as between steps) was tried for the
+     * refreshes of frozen wings: 47 Tuc 256² 10 % less CPU, but 51 fits
+     * not converged against 21 (the first step after a refresh, steered
+     * by stale pair sums, missed tol) */
+    int np = G->np, n = G->n;
+    memset(G->A, 0, (size_t)np * np * sizeof *G->A);
+    memset(G->g, 0, (size_t)np * sizeof *G->g);
+    ne_sky(G);
+    int full = exact == NE_EXACT || !(G->core_hw > 0);
+    if (full)
+        set_cores(G, p);
+    for (int k = 0; k < n; k++)
+        star_terms(G, p, &r[k], k, full || exact == NE_STARS);
+    if (full) {
+        if (pairs_exact(G, p, r))
+            return 1;
+    } else
+        pairs_core(G, p, r);
+    G->ne_exact = full;
+    for (int a = 0; a < np; a++)           /* mirror the upper triangle */
+        for (int b = 0; b < a; b++)
+            G->A[(size_t)a * np + b] = G->A[(size_t)b * np + a];
+    /* Without a fitted sky the sky slot is held fixed: the slot gets a unit,
+     * uncoupled row, so the step solves the star block only. */
+    if (!G->nsky) {
+        int s = 3 * n;
+        for (int a = 0; a < np; a++)
+            G->A[(size_t)a * np + s] = G->A[(size_t)s * np + a] = 0.0;
+        G->A[(size_t)s * np + s] = 1.0;
+        G->g[s] = 0.0;
+    }
+    return 0;
+}

@@ -1,0 +1,157 @@
+/* lm_render.c — a group fit's renders: each star's PRF and derivatives on
+ * the fitted pixels of its window (or of its core while the wings are
+ * frozen), from the phase grid or exactly (issue 12). */
+
+#include <math.h>
+#include <stddef.h>
+#include <stdlib.h>
+#include <string.h>
+#include "fit/lm_group.h"
+
+/* Star r's window (box coordinates, set) as packed rows, and the spans of
+ * frame pixels to render; returns the number of spans. */
+static int window_rows(group *G, rstar *r)
+{
+    int ns = 0, len = 0;
+    for (int j = r->j0; j < r->j1; j++) {
+        int t = j - r->j0, a = packed_at(G, j, r->i0), b = packed_at(G, j, r->i1);
+        r->pp[t] = a;
+        r->pn[t] = b - a;
+        r->pb[t] = len;
+        len += b - a;
+        if ((size_t)len > G->cap)
+            return -1;
+        for (int q = G->rrow[j]; q < G->rrow[j + 1] && b > a; q++) {
+            int s = G->ri0[q] > r->i0 ? G->ri0[q] : r->i0, e = G->ri1[q] < r->i1 ? G->ri1[q] : r->i1;
+            if (s < e)
+                G->spans[ns++] = (mp_span){G->bx0 + s, G->by0 + j, e - s};
+        }
+    }
+    return ns;
+}
+
+/* An exact render (no phase grid for this model) of box columns [i0, i1)
+ * and rows [j0, j1) into G->scr, gathered onto the ns spans of G->spans,
+ * span k's values from r's index at[k] (at NULL: one after the other). */
+static int render_exact(group *G, double x, double y, int i0, int i1, int j0, int j1,
+                        const rstar *r, int ns, const size_t *at)
+{
+    long wx0 = G->bx0 + i0, wy0 = G->by0 + j0, rx0, ry0;
+    int rw, rh;
+    double *s0 = G->scr, *s1 = G->scr + G->boxcap, *s2 = G->scr + 2 * G->boxcap;
+    if ((size_t)(i1 - i0) * (size_t)(j1 - j0) > G->boxcap)
+        return 1;
+    if (mp_prf_render_window(G->m, x, y, wx0, wy0, i1 - i0, j1 - j0, &rx0, &ry0, &rw, &rh, s0, s1,
+                             s2, &G->work))
+        return 1;
+    size_t o = 0;
+    for (int k = 0; k < ns; k++) {
+        const mp_span *sp = &G->spans[k];
+        o = at ? at[k] : o;
+        for (int i = 0; i < sp->n; i++, o++) {
+            long X = sp->x0 + i - rx0, Y = sp->y - ry0;
+            int in = X >= 0 && X < rw && Y >= 0 && Y < rh;
+            size_t t = in ? (size_t)Y * rw + (size_t)X : 0;
+            r->prf[o] = in ? s0[t] : 0.0;
+            r->dx[o] = in ? s1[t] : 0.0;
+            r->dy[o] = in ? s2[t] : 0.0;
+        }
+    }
+    return 0;
+}
+
+/* Star r's core — its box [ci0, ci1) × [cj0, cj1) within its window — as
+ * spans of frame pixels in G->spans, each with its index in r's arrays in
+ * G->soff, and the core's box clipped to the window in c; returns the
+ * number of spans. */
+int lm_core_rows(group *G, const rstar *r, int c[4])
+{
+    int ns = 0;
+    c[0] = r->ci0 > r->i0 ? r->ci0 : r->i0;
+    c[1] = r->ci1 < r->i1 ? r->ci1 : r->i1;
+    c[2] = r->cj0 > r->j0 ? r->cj0 : r->j0;
+    c[3] = r->cj1 < r->j1 ? r->cj1 : r->j1;
+    for (int j = c[2]; j < c[3] && c[0] < c[1]; j++) {
+        int t = j - r->j0;
+        for (int q = G->rrow[j]; q < G->rrow[j + 1] && r->pn[t] > 0; q++) {
+            int a = G->ri0[q] > c[0] ? G->ri0[q] : c[0], e = G->ri1[q] < c[1] ? G->ri1[q] : c[1];
+            if (a >= e)
+                continue;
+            G->spans[ns] = (mp_span){G->bx0 + a, G->by0 + j, e - a};
+            G->soff[ns++] = (size_t)(r->pb[t] + G->rp[q] + (a - G->ri0[q]) - r->pp[t]);
+        }
+    }
+    return ns;
+}
+
+/* render_all while the wings are frozen: each star on its core only. */
+static int render_core(group *G, const double *p, rstar *r, int what)
+{
+    int grid = mp_prf_cache_usable(G->work.grid, G->m);
+    if (!grid && what == RENDER_DERIVS)
+        return 0;
+    for (int k = 0; k < G->n; k++) {
+        double x = p[3 * k + 1], y = p[3 * k + 2];
+        int c[4], ns = lm_core_rows(G, &r[k], c);
+        if (ns == 0)
+            continue;
+        int rc = grid ? mp_prf_cache_render_at(G->work.grid, G->m, x, y, G->spans, G->soff, ns,
+                                               what == RENDER_DERIVS ? NULL : r[k].prf,
+                                               what == RENDER_PRF ? NULL : r[k].dx,
+                                               what == RENDER_PRF ? NULL : r[k].dy)
+                      : render_exact(G, x, y, c[0], c[1], c[2], c[3], &r[k], ns, G->soff);
+        if (rc)
+            return 1;
+    }
+    return 0;
+}
+
+int lm_render_all(group *G, const double *p, rstar *r, int what)
+{
+    if (G->frozen)
+        return render_core(G, p, r, what);
+    int grid = mp_prf_cache_usable(G->work.grid, G->m);
+    if (!grid && what == RENDER_DERIVS)
+        return 0;
+    for (int k = 0; k < G->n; k++) {
+        double x = p[3 * k + 1], y = p[3 * k + 2];
+        long x0, y0;
+        int w, h;
+        mp_prf_box(G->m, x, y, &x0, &y0, &w, &h);
+        long wx0 = G->bx0, wy0 = G->by0, wx1 = G->bx0 + G->bw, wy1 = G->by0 + G->bh;
+        wx0 = x0 > wx0 ? x0 : wx0;
+        wy0 = y0 > wy0 ? y0 : wy0;
+        wx1 = x0 + w < wx1 ? x0 + w : wx1;
+        wy1 = y0 + h < wy1 ? y0 + h : wy1;
+        /* Economy: only out to where the star's light is below a fraction
+         * of the noise (frame_paint.c subtracts neighbours the same way). */
+        double rad = mp_prf_crop_radius(G->crop, p[3 * k], p[3 * G->n]);
+        if (isfinite(rad)) {
+            rad = rad > G->crop_min ? rad : G->crop_min;
+            long a = (long)ceil(x - rad), b = (long)ceil(y - rad);
+            long c = (long)floor(x + rad) + 1, d = (long)floor(y + rad) + 1;
+            wx0 = a > wx0 ? a : wx0;
+            wy0 = b > wy0 ? b : wy0;
+            wx1 = c < wx1 ? c : wx1;
+            wy1 = d < wy1 ? d : wy1;
+        }
+        rstar *rk = &r[k];
+        rk->i0 = (int)(wx0 - G->bx0);
+        rk->j0 = (int)(wy0 - G->by0);
+        rk->i1 = wx1 > wx0 ? (int)(wx1 - G->bx0) : rk->i0;
+        rk->j1 = wy1 > wy0 && wx1 > wx0 ? (int)(wy1 - G->by0) : rk->j0;
+        int ns = window_rows(G, rk);
+        if (ns < 0)
+            return 1;
+        if (ns == 0)
+            continue;
+        int rc = grid ? mp_prf_cache_render_spans(G->work.grid, G->m, x, y, G->spans, ns,
+                                                  what == RENDER_DERIVS ? NULL : rk->prf,
+                                                  what == RENDER_PRF ? NULL : rk->dx,
+                                                  what == RENDER_PRF ? NULL : rk->dy)
+                      : render_exact(G, x, y, rk->i0, rk->i1, rk->j0, rk->j1, rk, ns, NULL);
+        if (rc)
+            return 1;
+    }
+    return 0;
+}
