@@ -262,7 +262,8 @@ static int build_grid(mp_econ_cache *c, char *err)
 static int choose_locked(mp_econ_cache *c, double fits, double fitrad, mp_frame_opts *o,
                          char *err)
 {
-    double W = isfinite(fitrad) ? 2.0 * ceil(fitrad) + 3.0 : INFINITY;
+    /* The windows the frame measured (a lone star's box when it did not). */
+    double W = o->win > 0 ? o->win : (isfinite(fitrad) ? 2.0 * ceil(fitrad) + 3.0 : INFINITY);
     /* What the run has already rendered counts too (a sequential run's own
      * history: deterministic). */
     double learned = o->learn ? c->ops_done : 0.0, full = psf_ops(&c->psf0, c->model0.sinc_hw, 1, W);

@@ -495,6 +495,12 @@ typedef struct {
                         * rounds and passes of a frame); 0 where the plan
                         * knows the run (fit's @list) and where frames are
                         * fitted in parallel (fakes: timing) */
+    double win;        /* economy: the side [px] of the square whose area is
+                        * the mean window a star is rendered on in its group's
+                        * fit (its group's box, PSF box and crop radius),
+                        * measured on the frame by mp_fit_table_mem; 0:
+                        * 2·ceil(fitrad) + 3, a lone star's (issue 12: 47 Tuc
+                        * measures 36-42 px against that 13) */
     double psfdx, psfdy;  /* a sub-image's pixel (1, 1) is the PSF field's
                         * (1 + psfdx, 1 + psfdy) (mp_fit_setup_local): the
                         * run's coarser levels read a variable PSF there */
@@ -521,8 +527,9 @@ int mp_econ_offer(mp_econ_cache *c, const mp_prf_model *m, int nlev, const int *
 
 /* mp_econ_choose: point o->sinc, o->ss/o->nss and o->grid (those still
  * NULL) at the offered tables that pay for `fits` star fits over windows
- * of radius fitrad (NaN: whole frames), building them on first need.  The
- * decision depends on fits and the PSF only.  *spent (may be NULL) gets
+ * of side o->win, or of radius fitrad when o->win is 0 (NaN: whole
+ * frames), building them on first need.  The decision depends on fits,
+ * the windows and the PSF only.  *spent (may be NULL) gets
  * the multiply-adds this call spent building.  Nonzero with err when a
  * build fails (out of memory). */
 int mp_econ_choose(mp_econ_cache *c, double fits, double fitrad, mp_frame_opts *o,

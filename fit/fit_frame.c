@@ -29,6 +29,7 @@ void mp_frame_opts_default(mp_frame_opts *o)
     o->cache = NULL;
     o->fits = 0.0;
     o->learn = 0;
+    o->win = 0.0;
     o->psfdx = o->psfdy = 0.0;
 }
 
@@ -175,6 +176,48 @@ static void final_counts(const star_state *st, size_t n, const size_t *gs, size_
             }
 }
 
+/* One star's render window in its group's fit, in px²: the group's box
+ * (its stars ± r, cut to the frame, as lm_pixels.c draws it) ∩ the star's
+ * PSF box ∩ its crop radius (at least r + 1), as lm_render.c renders it. */
+static double star_window(const mp_frame *f, const mp_prf_model *m, const crop_rule *crop,
+                          const star_state *s, const double box[4], double r)
+{
+    long px0, py0;
+    int pw, ph;
+    mp_prf_box(m, s->s.x, s->s.y, &px0, &py0, &pw, &ph);
+    double rad = crop->env ? ff_crop_radius(crop, &s->s) : INFINITY;
+    rad = rad > r + 1.0 ? rad : r + 1.0;
+    double x0 = fmax(fmax(ceil(box[0] - r), 1.0), fmax((double)px0, ceil(s->s.x - rad)));
+    double x1 = fmin(fmin(floor(box[1] + r), (double)f->im.nx),
+                     fmin((double)(px0 + pw - 1), floor(s->s.x + rad)));
+    double y0 = fmax(fmax(ceil(box[2] - r), 1.0), fmax((double)py0, ceil(s->s.y - rad)));
+    double y1 = fmin(fmin(floor(box[3] + r), (double)f->im.ny),
+                     fmin((double)(py0 + ph - 1), floor(s->s.y + rad)));
+    return x1 >= x0 && y1 >= y0 ? (x1 - x0 + 1.0) * (y1 - y0 + 1.0) : 0.0;
+}
+
+/* Economy's window (mp_frame_opts.win): the side of the square of the
+ * mean render window of the frame's stars, from their start values; 0
+ * for whole-frame fits (the plan's own INFINITY). */
+static double plan_window(const mp_frame *f, const mp_prf_model *m, const crop_rule *crop,
+                          const star_state *st, const size_t *gs, size_t ng, double r)
+{
+    double sum = 0.0;
+    size_t cnt = 0;
+    for (size_t g = 0; g < ng && isfinite(r); g++) {
+        double box[4] = {INFINITY, -INFINITY, INFINITY, -INFINITY};
+        for (size_t i = gs[g]; i < gs[g + 1]; i++) {
+            box[0] = fmin(box[0], st[i].s.x);
+            box[1] = fmax(box[1], st[i].s.x);
+            box[2] = fmin(box[2], st[i].s.y);
+            box[3] = fmax(box[3], st[i].s.y);
+        }
+        for (size_t i = gs[g]; i < gs[g + 1]; i++, cnt++)
+            sum += star_window(f, m, crop, &st[i], box, r);
+    }
+    return cnt ? sqrt(sum / (double)cnt) : 0.0;
+}
+
 int mp_fit_table_mem(const mp_frame *f, const mp_prf_model *m, const mp_frame_opts *o,
                      mp_table *t, mp_fit_memory *mem, mp_frame_report *rep, char *err)
 {
@@ -209,17 +252,6 @@ int mp_fit_table_mem(const mp_frame *f, const mp_prf_model *m, const mp_frame_op
      * table and kernel choices on the frame's median start sky (0, the
      * safe side, when no star has one); the limits tables only when
      * cheaper than each group's own evaluation (rule_init). */
-    mp_frame_opts oe = *o;
-    double runfits = o->fits > (double)n ? o->fits : (double)n;
-    if (mp_econ_choose(o->cache, runfits, o->fit.fitrad, &oe, &rep->ops_tables, err))
-        goto done;
-    o = &oe;
-    R.ops_full = o->cache ? mp_econ_render_ops(m, m->sinc_hw, o->fit.fitrad) : 0.0;
-    rep->ops_render = R.ops_full;
-    if (ff_rules_setup(&R, f, o, st, n, ng, runfits, rep)) {
-        snprintf(err, MP_ERRLEN, "out of memory");
-        goto done;
-    }
     int passes = o->passes < 1 ? 1 : o->passes;
     /* One group (a whole-frame fit, or one star): nobody else's light to
      * subtract, so neither the neighbours' model nor its crop envelope is
@@ -233,6 +265,19 @@ int mp_fit_table_mem(const mp_frame *f, const mp_prf_model *m, const mp_frame_op
         goto done;
     }
     rep->envelopes += crop.env != NULL;
+    mp_frame_opts oe = *o;
+    if (o->cache && !(oe.win > 0))
+        oe.win = plan_window(f, m, &crop, st, gs, ng, o->fit.fitrad);
+    double runfits = o->fits > (double)n ? o->fits : (double)n;
+    if (mp_econ_choose(o->cache, runfits, o->fit.fitrad, &oe, &rep->ops_tables, err))
+        goto done;
+    o = &oe;
+    R.ops_full = o->cache ? mp_econ_render_ops(m, m->sinc_hw, o->fit.fitrad) : 0.0;
+    rep->ops_render = R.ops_full;
+    if (ff_rules_setup(&R, f, o, st, n, ng, runfits, rep)) {
+        snprintf(err, MP_ERRLEN, "out of memory");
+        goto done;
+    }
     /* The group fits render each star as far as it is subtracted. */
     mp_frame_opts oc = *o;
     oc.fit.crop = crop.env ? &crop : NULL;

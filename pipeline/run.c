@@ -363,10 +363,16 @@ static int build_psf(run_state *s, int pass, char *err)
     mp_epsf_report rep;
     memset(&rep, 0, sizeof rep);
     char e2[MP_ERRLEN];
+    mp_psf_star *used = NULL;        /* the file's PSFSTARS */
     if (mp_epsf_pass(&s->f, pass == 1 ? s->f.im.pix : s->res, pass > 1, &s->t, &s->fit->model,
-                     s->px, s->py, s->pf, s->np, &po, &s->psf, &rep, NULL, e2)) {
+                     s->px, s->py, s->pf, s->np, &po, &s->psf, &rep, &used, e2)) {
         snprintf(err, MP_ERRLEN, "%s: PSF: %.400s", s->image, e2);
         return 1;
+    }
+    /* PSFSTARS in frame coordinates, as the field's origin. */
+    for (size_t k = 0; k < s->np; k++) {
+        used[k].x += (double)s->offx;
+        used[k].y += (double)s->offy;
     }
     mp_psf_field fld;
     char *path = mp_name_after(s->root, ".psf.fits");
@@ -375,7 +381,7 @@ static int build_psf(run_state *s, int pass, char *err)
     inframe.y0 += (double)s->offy;
     int rc = !path ? oom(err) : mp_epsf_field(&inframe, &fld, err);
     if (!rc) {
-        rc = mp_psf_field_write(path, &fld, NULL, 0, err);
+        rc = mp_psf_field_write(path, &fld, used, (int)s->np, err);
         mp_psf_field_free(&fld);
     }
     /* The fit as `fit psf=root.psf.fits` sets it up (economy's decisions
@@ -404,6 +410,7 @@ static int build_psf(run_state *s, int pass, char *err)
                 mp_seconds() - t0);
     }
     s->rep->t_fit += mp_seconds() - t0;
+    free(used);
     free(path);
     return rc;
 }

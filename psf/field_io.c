@@ -63,6 +63,22 @@ static int cube_order(fitsfile *fp, const char *name, long nt, int *order, char 
     return 0;
 }
 
+/* PSFNSTAR and PSFORDWH (optional; a built table's, cube or 2-D). */
+static void build_keys(fitsfile *fp, mp_psf_field *f)
+{
+    double ns;
+    if (key_double(fp, "PSFNSTAR", &ns) == 0 && ns >= 0 && ns < 1e9)
+        f->nstar = (int)ns;
+    int status = 0;
+    char *why = NULL;
+    fits_read_key_longstr(fp, "PSFORDWH", &why, NULL, &status);
+    if (!status && why)
+        snprintf(f->why, sizeof f->why, "%s", why);
+    if (why)
+        fits_free_memory(why, &status);
+    fits_clear_errmsg();
+}
+
 /* OVERSAMP, POLZERO/POLSCAL, PSFNSTAR, PSFORDWH of a cube. */
 static int cube_keys(fitsfile *fp, const char *name, int oversamp, double *os, double pol[4],
                      mp_psf_field *f, char *err)
@@ -83,17 +99,7 @@ static int cube_keys(fitsfile *fp, const char *name, int oversamp, double *os, d
             return 1;
         }
     }
-    double ns;
-    if (key_double(fp, "PSFNSTAR", &ns) == 0 && ns >= 0 && ns < 1e9)
-        f->nstar = (int)ns;
-    int status = 0;
-    char *why = NULL;
-    fits_read_key_longstr(fp, "PSFORDWH", &why, NULL, &status);
-    if (!status && why)
-        snprintf(f->why, sizeof f->why, "%s", why);
-    if (why)
-        fits_free_memory(why, &status);
-    fits_clear_errmsg();
+    build_keys(fp, f);
     return 0;
 }
 
@@ -418,6 +424,8 @@ int mp_psf_field_read(const char *name, int normalize, int oversamp, mp_psf_fiel
             mp_psf_free(&p);
             if (!rc && fp)
                 rc = read_offset(fp, name, f, err);
+            if (!rc && fp)
+                build_keys(fp, f);
         }
         if (!rc && fp && stars)
             rc = read_stars(fp, name, stars, nstars, err);

@@ -200,7 +200,9 @@ static int run(psf_task *t, char *err)
                                 : stars_selected(t, &f, &found, &x, &y, &fl, &n, err))
         goto done;
     char e2[MP_ERRLEN];
-    if (mp_epsf_pass(&f, f.im.pix, 0, &found, NULL, x, y, fl, n, &t->o, &e, &rep, NULL, e2)) {
+    /* The PSF stars used go into the file (PSFSTARS): the last pass's. */
+    if (mp_epsf_pass(&f, f.im.pix, 0, &found, NULL, x, y, fl, n, &t->o, &e, &rep,
+                     t->passes > 1 ? NULL : &ps, e2)) {
         snprintf(err, MP_ERRLEN, "%s: %.400s", t->image, e2);
         goto done;
     }
@@ -226,9 +228,6 @@ static int run(psf_task *t, char *err)
         fprintf(stderr, "matphot psf: %s: pass 2 (neighbours subtracted): %s\n", t->image, rep.what);
         mp_psf_field_free(&fld);
         mp_psf_free(&tab);
-    } else if (!(ps = calloc(1, sizeof *ps))) {
-        snprintf(err, MP_ERRLEN, "out of memory");
-        goto done;
     }
     if (mp_epsf_field(&e, &fld, err))
         goto done;
@@ -241,7 +240,7 @@ static int run(psf_task *t, char *err)
         out = named;
     }
     mp_tmp_sweep(NULL, out);         /* killed runs' temporaries */
-    if (mp_psf_field_write(out, &fld, ps, t->passes > 1 ? (int)n : 0, err))
+    if (mp_psf_field_write(out, &fld, ps, (int)n, err))
         goto done;
     fprintf(stderr, "matphot psf: %s: wrote %s (OVERSAMP %d, %dx%d, order %d, PSFSUM %.4f)\n",
             t->image, out, fld.os, fld.nx, fld.ny, fld.order, fld.sum);

@@ -53,6 +53,7 @@
 #include "io/io.h"
 #include "psf/build.h"
 #include "sim/sim.h"
+#include "tests/validate/crowded/joint_bound.h"
 
 #define NX 256
 #define NSTAR 400
@@ -60,6 +61,8 @@
 #define RAD 8.0
 #define SKY 100.0
 #define RON 3.0
+#define FITRAD 5.0           /* the pipeline's default fitrad (params/pipeline.par) */
+#define SW 19                /* joint-bound stamps: the ±RAD table and 1 px of phase */
 
 /* The variable scene's table at (x, y): ×TOS, ±RAD px, sum 1. */
 static void var_table(double x, double y, double *t, int *n)
@@ -119,6 +122,48 @@ static void crlb_of(const mp_sim_prf *p, double x, double y, double E, double *s
     free(a), free(b), free(c), free(d), free(e);
 }
 
+/* The joint bound's stamps of a star (joint_bound.h): its PRF and its x,
+ * y derivatives (central differences of one table element) on SW × SW
+ * pixels centred on (lround(x), lround(y)). */
+static void stamp_of(const mp_sim_prf *p, double x, double y, double *st)
+{
+    const size_t ss = SW * SW;
+    const double h = 1.0 / TOS, c = SW / 2 + 1;
+    double cx = c + x - (double)lround(x), cy = c + y - (double)lround(y);
+    memset(st, 0, 3 * ss * sizeof *st);
+    mp_sim_add_star(p, cx, cy, 1.0, st, SW, SW);
+    mp_sim_add_star(p, cx + h, cy, 0.5 / h, st + ss, SW, SW);
+    mp_sim_add_star(p, cx - h, cy, -0.5 / h, st + ss, SW, SW);
+    mp_sim_add_star(p, cx, cy + h, 0.5 / h, st + 2 * ss, SW, SW);
+    mp_sim_add_star(p, cx, cy - h, -0.5 / h, st + 2 * ss, SW, SW);
+}
+
+/* Each star's bound fitted with its neighbours (issue 13's joint bound,
+ * tests/validate/crowded/joint_bound.c): every star whose fitting disc
+ * (FITRAD) overlaps its own and one constant sky, on the union of their
+ * discs, the variance from the noiseless frame mean; and the same star
+ * fitted alone on its disc (its neighbours known): the bound's part that
+ * is the disc and the neighbours' photon noise, apart from their
+ * parameters.  sE, sX: flux and the mean of the x and y variances. */
+static int joint_of(const double *mean, const double *stamps, const jb_star *js, int n, double *sE,
+                    double *sX, double *aE, double *aX)
+{
+    double *ex = malloc(sizeof(double) * (size_t)n), *ey = malloc(sizeof(double) * (size_t)n);
+    jb_scene sc = {0, RON, INFINITY, FITRAD, NX, NX, mean, stamps, SW};
+    int rc = !ex || !ey || joint_bounds(&sc, js, n, sE, ex, ey, NULL);
+    for (int k = 0; !rc && k < n; k++)
+        sX[k] = sqrt(0.5 * (ex[k] * ex[k] + ey[k] * ey[k]));
+    for (int k = 0; !rc && k < n; k++) {
+        double e, x, y;
+        sc.stamp = stamps + (size_t)3 * SW * SW * k;
+        rc = joint_bounds(&sc, js + k, 1, &e, &x, &y, NULL);
+        aE[k] = e;
+        aX[k] = sqrt(0.5 * (x * x + y * y));
+    }
+    free(ex), free(ey);
+    return rc;
+}
+
 static int do_sim(const char *dir, const char *kind)
 {
     int seg = !strcmp(kind, "segmented"), gau = !strcmp(kind, "gauss");
@@ -160,8 +205,16 @@ static int do_sim(const char *dir, const char *kind)
     int cn = mp_table_add_col(&t, "NUMBER"), cx = mp_table_add_col(&t, "X_IMAGE"),
         cy = mp_table_add_col(&t, "Y_IMAGE"), cf = mp_table_add_col(&t, "FLUX"),
         cm = mp_table_add_col(&t, "MAG"), ce = mp_table_add_col(&t, "CRLB_FLUX"),
-        cq = mp_table_add_col(&t, "CRLB_X");
+        cq = mp_table_add_col(&t, "CRLB_X"), cje = mp_table_add_col(&t, "JOINT_FLUX"),
+        cjq = mp_table_add_col(&t, "JOINT_X"), cae = mp_table_add_col(&t, "DISC_FLUX"),
+        caq = mp_table_add_col(&t, "DISC_X");
     double *vt = malloc(sizeof(double) * (2 * (int)ceil(RAD * TOS) + 1) * (2 * (int)ceil(RAD * TOS) + 1));
+    const size_t ss = SW * SW;
+    double *stamps = malloc(sizeof(double) * 3 * ss * NSTAR), *mean = malloc(sizeof(double) * NX * NX);
+    double *b = malloc(sizeof(double) * 8 * NSTAR);   /* sE sX jE jX aE aX mag */
+    jb_star *js = malloc(sizeof *js * NSTAR);
+    if (!vt || !stamps || !mean || !b || !js)
+        return fprintf(stderr, "psfb: out of memory\n"), 1;
     for (int k = 0; k < NSTAR; k++) {
         double x = 0.5 + NX * mp_rng_uniform(&r), y = 0.5 + NX * mp_rng_uniform(&r);
         double mag = -14.0 + 6.0 * mp_rng_uniform(&r), E = pow(10.0, -0.4 * mag);
@@ -174,14 +227,25 @@ static int do_sim(const char *dir, const char *kind)
         mp_sim_prf p = {MP_SIM_TABLE, 0, use, m, m, TOS, NULL, 0, 1.0};
         mp_sim_snap(&p, &x, &y);
         mp_sim_add_star(&p, x, y, E, img, NX, NX);
-        double sE, sX;
-        crlb_of(&p, x, y, E, &sE, &sX);
+        crlb_of(&p, x, y, E, &b[k], &b[NSTAR + k]);
+        stamp_of(&p, x, y, stamps + 3 * ss * (size_t)k);
+        js[k] = (jb_star){x, y, E};
+        b[6 * NSTAR + k] = mag;
+    }
+    memcpy(mean, img, sizeof(double) * NX * NX);
+    if (joint_of(mean, stamps, js, NSTAR, b + 2 * NSTAR, b + 3 * NSTAR, b + 4 * NSTAR,
+                 b + 5 * NSTAR))
+        return fprintf(stderr, "psfb: out of memory\n"), 1;
+    for (int k = 0; k < NSTAR; k++) {
         long row = mp_table_add_row(&t);
-        double v[7] = {k + 1, x, y, E, mag, sE, sX};
-        int col[7] = {cn, cx, cy, cf, cm, ce, cq};
-        for (int j = 0; j < 7; j++)
+        double v[11] = {k + 1, js[k].x, js[k].y, js[k].flux, b[6 * NSTAR + k], b[k],
+                        b[NSTAR + k], b[2 * NSTAR + k], b[3 * NSTAR + k], b[4 * NSTAR + k],
+                        b[5 * NSTAR + k]};
+        int col[11] = {cn, cx, cy, cf, cm, ce, cq, cje, cjq, cae, caq};
+        for (int j = 0; j < 11; j++)
             mp_table_set(&t, (size_t)row, col[j], v[j]);
     }
+    free(stamps), free(mean), free(b), free(js);
     mp_sim_add_noise(&r, img, (long)NX * NX, RON);
     mp_card c[2] = {{"GAIN", 1.0, NULL, "e-/ADU"}, {"RDNOISE", RON, NULL, "e-"}};
     snprintf(path, sizeof path, "%s/frame.fits", dir);
@@ -216,6 +280,54 @@ static double median(double *v, int n)
     return n % 2 ? v[n / 2] : 0.5 * (v[n / 2 - 1] + v[n / 2]);
 }
 
+/* The bounds a match divides by: the joint bound (the star fitted with
+ * its neighbours on the union of their FITRAD discs; the row's ratios),
+ * the star alone on a 21 × 21 px box of its sky (the isolated bound, the
+ * scoring before), and alone on its disc (neighbours known). */
+enum { NB = 6, NK = 3 };
+static const char *const kflux[NK] = {"JOINT_FLUX", "CRLB_FLUX", "DISC_FLUX"};
+static const char *const kpos[NK] = {"JOINT_X", "CRLB_X", "DISC_X"};
+
+/* One magnitude bin's matched stars: fitted and true flux, position
+ * error, and each bound. */
+typedef struct {
+    double *ef, *et, *dr, *se[NK], *sx[NK];
+    int nin, nm;
+} mbin;
+
+static double med_ratio(const mbin *bn, int nb, int k, int astro, double scale, int bias)
+{
+    int n = 0;
+    for (int b = 0; b < nb; b++)
+        n += bn[b].nm;
+    double *v = malloc((size_t)(n + 1) * sizeof *v), r;
+    n = 0;
+    for (int b = 0; b < nb; b++)
+        for (int q = 0; q < bn[b].nm; q++) {
+            double dE = scale * bn[b].ef[q] - bn[b].et[q];
+            v[n++] = astro ? bn[b].dr[q] / (1.1774 * bn[b].sx[k][q])
+                     : bias ? dE / bn[b].se[k][q] : fabs(dE) / (0.6745 * bn[b].se[k][q]);
+        }
+    r = median(v, n);
+    free(v);
+    return r;
+}
+
+/* One row: "root: LABEL | true | found | completeness | phot/joint |
+ * astro/joint | bias | phot/alone | astro/alone | phot/disc | astro/disc". */
+static void match_row(const char *root, const char *label, const mbin *bn, int nb, double scale)
+{
+    int nin = 0, nm = 0;
+    for (int b = 0; b < nb; b++)
+        nin += bn[b].nin, nm += bn[b].nm;
+    printf("%s: %s | %d | %d | %.3f | %.3f | %.3f | %+.2f", root, label, nin, nm,
+           nin ? (double)nm / nin : NAN, med_ratio(bn, nb, 0, 0, scale, 0),
+           med_ratio(bn, nb, 0, 1, scale, 0), med_ratio(bn, nb, 0, 0, scale, 1));
+    for (int k = 1; k < NK; k++)
+        printf(" | %.3f | %.3f", med_ratio(bn, nb, k, 0, scale, 0), med_ratio(bn, nb, k, 1, scale, 0));
+    printf("\n");
+}
+
 /* zp: the catalog's fluxes times one scale, the median E_true/E of the
  * matched stars in the two brightest bins (a peer's aperture-scale fluxes
  * put on the truth's, as an aperture correction would). */
@@ -232,25 +344,24 @@ static int do_match(const char *dir, const char *root, int zp)
     if (mp_table_read(path, &ct, err))
         return fprintf(stderr, "psfb: %s\n", err), 1;
     int tx = mp_table_col(&tr, "X_IMAGE"), ty = mp_table_col(&tr, "Y_IMAGE"),
-        tf = mp_table_col(&tr, "FLUX"), tm = mp_table_col(&tr, "MAG"),
-        te = mp_table_col(&tr, "CRLB_FLUX"), tq = mp_table_col(&tr, "CRLB_X");
+        tf = mp_table_col(&tr, "FLUX"), tm = mp_table_col(&tr, "MAG"), te[NK], tq[NK];
+    for (int k = 0; k < NK; k++)
+        if ((te[k] = mp_table_col(&tr, kflux[k])) < 0 || (tq[k] = mp_table_col(&tr, kpos[k])) < 0)
+            return fprintf(stderr, "psfb: %s/truth.dat: no %s (run psfb sim again)\n", dir,
+                           kflux[k]), 1;
     int cx = mp_table_col(&ct, "XPSF_IMAGE"), cy = mp_table_col(&ct, "YPSF_IMAGE"),
         cf = mp_table_col(&ct, "FLUX_PSF");
     size_t nt = tr.nrow, nc = ct.nrow;
     int *used = calloc(nc + 1, sizeof *used);
-    /* Each true star takes the nearest unused catalog star within 1 px,
-     * brightest true stars first (they are found first and best). */
-    enum { NB = 6 };
-    double *ph[NB], *as[NB], *ef[NB], *et[NB], *bi[NB];
-    int nin[NB] = {0}, nm[NB] = {0};
+    mbin bn[NB];
+    memset(bn, 0, sizeof bn);
     for (int b = 0; b < NB; b++) {
-        ph[b] = malloc(nt * sizeof(double));
-        as[b] = malloc(nt * sizeof(double));
-        ef[b] = malloc(nt * sizeof(double));
-        et[b] = malloc(nt * sizeof(double));
-        bi[b] = malloc(nt * sizeof(double));
-        if (!ph[b] || !as[b] || !ef[b] || !et[b] || !bi[b])
-            return fprintf(stderr, "psfb: out of memory\n"), 1;
+        double **a[3 + 2 * NK] = {&bn[b].ef, &bn[b].et, &bn[b].dr};
+        for (int k = 0; k < NK; k++)
+            a[3 + k] = &bn[b].se[k], a[3 + NK + k] = &bn[b].sx[k];
+        for (int q = 0; q < 3 + 2 * NK; q++)
+            if (!(*a[q] = malloc((nt + 1) * sizeof(double))))
+                return fprintf(stderr, "psfb: out of memory\n"), 1;
     }
     size_t *ord = malloc(nt * sizeof *ord);
     for (size_t i = 0; i < nt; i++)
@@ -261,13 +372,15 @@ static int do_match(const char *dir, const char *root, int zp)
             ord[j] = ord[j - 1];
             ord[j - 1] = s;
         }
+    /* Each true star takes the nearest unused catalog star within 1 px,
+     * brightest true stars first (they are found first and best). */
     for (size_t q = 0; q < nt; q++) {
         size_t i = ord[q];
         double x = mp_table_get(&tr, i, tx), y = mp_table_get(&tr, i, ty);
         int b = (int)floor(mp_table_get(&tr, i, tm) + 14.0);
         if (b < 0 || b >= NB)
             continue;
-        nin[b]++;
+        bn[b].nin++;
         long best = -1;
         double bd = 1.0;
         for (size_t c = 0; c < nc; c++) {
@@ -280,57 +393,42 @@ static int do_match(const char *dir, const char *root, int zp)
         if (best < 0)
             continue;
         used[best] = 1;
-        ef[b][nm[b]] = mp_table_get(&ct, (size_t)best, cf);
-        et[b][nm[b]] = mp_table_get(&tr, i, tf);
-        ph[b][nm[b]] = mp_table_get(&tr, i, te);
-        as[b][nm[b]] = bd / (1.1774 * mp_table_get(&tr, i, tq));
-        nm[b]++;
+        int m = bn[b].nm++;
+        bn[b].ef[m] = mp_table_get(&ct, (size_t)best, cf);
+        bn[b].et[m] = mp_table_get(&tr, i, tf);
+        bn[b].dr[m] = bd;
+        for (int k = 0; k < NK; k++) {
+            bn[b].se[k][m] = mp_table_get(&tr, i, te[k]);
+            bn[b].sx[k][m] = mp_table_get(&tr, i, tq[k]);
+        }
     }
     double scale = 1.0;
     if (zp) {
         double *r = malloc((nt + 1) * sizeof *r);
         int nr = 0;
         for (int b = 0; b < 2; b++)
-            for (int k = 0; k < nm[b]; k++)
-                if (ef[b][k] > 0)
-                    r[nr++] = et[b][k] / ef[b][k];
+            for (int k = 0; k < bn[b].nm; k++)
+                if (bn[b].ef[k] > 0)
+                    r[nr++] = bn[b].et[k] / bn[b].ef[k];
         scale = nr ? median(r, nr) : 1.0;
         free(r);
         printf("%s: flux scale %.5f from %d stars\n", root, scale, nr);
     }
-    for (int b = 0; b < NB; b++)
-        for (int k = 0; k < nm[b]; k++) {
-            double dE = scale * ef[b][k] - et[b][k];
-            bi[b][k] = dE / ph[b][k];
-            ph[b][k] = fabs(dE) / (0.6745 * ph[b][k]);
-        }
-    printf("%s: mag bin | true | found | completeness | phot/CRLB | astro/CRLB | "
-           "median dE/CRLB\n", root);
-    for (int b = 0; b < NB; b++)
-        printf("%s: %.0f..%.0f | %d | %d | %.3f | %.3f | %.3f | %+.2f\n", root, b - 14.0,
-               b - 13.0, nin[b], nm[b], nin[b] ? (double)nm[b] / nin[b] : NAN,
-               median(ph[b], nm[b]), median(as[b], nm[b]), median(bi[b], nm[b]));
+    printf("%s: mag bin | true | found | completeness | phot/joint | astro/joint | "
+           "median dE/joint | phot/alone | astro/alone | phot/disc | astro/disc\n", root);
+    for (int b = 0; b < NB; b++) {
+        char label[32];
+        snprintf(label, sizeof label, "%.0f..%.0f", b - 14.0, b - 13.0);
+        match_row(root, label, &bn[b], 1, scale);
+    }
     /* All bins pooled: a bin's median of ~60 stars scatters by ~16 %
      * (the median of |N(0,1)| from n draws: 0.5/(sqrt(n)·0.636)/0.674),
      * the pooled one of ~400 by ~6 %. */
-    int tin = 0, tm_ = 0;
-    for (int b = 0; b < NB; b++)
-        tin += nin[b], tm_ += nm[b];
-    double *pp = malloc((size_t)(tm_ + 1) * sizeof *pp), *pa = malloc((size_t)(tm_ + 1) * sizeof *pa),
-           *pb = malloc((size_t)(tm_ + 1) * sizeof *pb);
-    int q = 0;
-    for (int b = 0; b < NB; b++)
-        for (int k = 0; k < nm[b]; k++, q++)
-            pp[q] = ph[b][k], pa[q] = as[b][k], pb[q] = bi[b][k];
-    printf("%s: -14..-8 (all) | %d | %d | %.3f | %.3f | %.3f | %+.2f\n", root, tin, tm_,
-           tin ? (double)tm_ / tin : NAN, median(pp, tm_), median(pa, tm_), median(pb, tm_));
-    free(pp), free(pa), free(pb);
+    match_row(root, "-14..-8 (all)", bn, NB, scale);
     for (int b = 0; b < NB; b++) {
-        free(ph[b]);
-        free(as[b]);
-        free(ef[b]);
-        free(et[b]);
-        free(bi[b]);
+        free(bn[b].ef), free(bn[b].et), free(bn[b].dr);
+        for (int k = 0; k < NK; k++)
+            free(bn[b].se[k]), free(bn[b].sx[k]);
     }
     free(ord);
     free(used);
