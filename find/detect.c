@@ -324,6 +324,71 @@ int mp_find_stars(const mp_frame *f, const mp_bkg *b, const mp_find_opts *o,
     return mpf_find_stars_strips(f, b, o, MPF_STRIP, t, NULL, err);
 }
 
+/* The detections kept so far (measured, past the shape cuts), in raster
+ * order of their peak pixels, and room for a strip's measures. */
+typedef struct {
+    mpf_star *stars, *meas;
+    long *keys;
+    size_t n, cap, mcap;
+} kept_list;
+
+static void kept_free(kept_list *l)
+{
+    free(l->stars);
+    free(l->meas);
+    free(l->keys);
+}
+
+/* Measure the strip's candidates (in parallel) and keep those that pass
+ * the shape cuts: only the kept are held past their strip (on a deep
+ * search of a residual most candidates fail, issue 14). */
+static int measure_and_cut(const mp_frame *f, const mp_bkg *b, const mpf_kernel *k,
+                           const mp_find_opts *o, const cand_list *c, kept_list *l)
+{
+    size_t nc = c->n;
+    long nx = f->im.nx;
+    if (nc > l->mcap) {
+        free(l->meas);
+        if (!(l->meas = malloc(nc * sizeof *l->meas)))
+            return 1;
+        l->mcap = nc;
+    }
+    int nomem = 0;
+#pragma omp parallel
+    {
+        double *w = malloc((size_t)k->n * sizeof *w);
+        if (!w) {
+#pragma omp atomic write
+            nomem = 1;
+        }
+#pragma omp for schedule(dynamic, 64)
+        for (size_t i = 0; i < nc; i++)
+            if (w)
+                mpf_measure(f, b, k, c->v[i].p % nx, c->v[i].p / nx, c->v[i].h, w, &l->meas[i]);
+        free(w);
+    }
+    for (size_t i = 0; i < nc && !nomem; i++) {
+        const mpf_star *s = &l->meas[i];
+        if (!s->ok || !within(s->sharp, o->sharplo, o->sharphi) ||
+            !within(s->round, o->roundlo, o->roundhi))
+            continue;
+        if (l->n == l->cap) {
+            size_t cap = l->cap ? 2 * l->cap : 256;
+            mpf_star *ns = realloc(l->stars, cap * sizeof *ns);
+            if (ns)
+                l->stars = ns;
+            long *nk = ns ? realloc(l->keys, cap * sizeof *nk) : NULL;
+            if (!nk)
+                return 1;
+            l->keys = nk;
+            l->cap = cap;
+        }
+        l->stars[l->n] = *s;
+        l->keys[l->n++] = c->v[i].p;
+    }
+    return nomem;
+}
+
 int mpf_find_stars_strips(const mp_frame *f, const mp_bkg *b, const mp_find_opts *o,
                           long rows, mp_table *t, size_t *work, char *err)
 {
@@ -349,57 +414,44 @@ int mpf_find_stars_strips(const mp_frame *f, const mp_bkg *b, const mp_find_opts
         rows = 1;
     if (rows > ny)
         rows = ny;
-    int rc = 1, nomem = 0;
+    int rc = 1;
     cand_list cand = {0};
-    mpf_star *stars = NULL;
-    long *keys = NULL;
+    kept_list kl = {0};
     ordered *ord = NULL;
-    size_t bytes = 0;
-    /* The convolved image in strips of rows, never whole (issue 14). */
+    size_t bytes = 0, most = 0;
+    /* The convolved image in strips of rows, never whole, and only the
+     * kept detections held across strips (issue 14). */
     strip st = {0};
     if (strip_alloc(&st, rows, k.nh, nx, &bytes))
         goto nomem;
     int bad = mpf_any_bad(f);
-    for (long y0 = 0; y0 < ny; y0 += rows)
+    for (long y0 = 0; y0 < ny; y0 += rows) {
+        cand.n = 0;
         if (strip_search(f, b, &k, bad, o->threshold, y0, rows, &st, &cand, err)) {
             strip_free(&st);
             goto done;
         }
-    strip_free(&st);
-    size_t nc = cand.n, meas = nc * (sizeof *stars + sizeof *keys);
-    /* the candidates are held first with the strips, then with the measures */
-    bytes = cand.cap * sizeof *cand.v + (meas > bytes ? meas : bytes);
-    stars = malloc((nc ? nc : 1) * sizeof *stars);
-    keys = malloc((nc ? nc : 1) * sizeof *keys);
-    if (!stars || !keys)
-        goto nomem;
-#pragma omp parallel
-    {
-        double *w = malloc((size_t)k.n * sizeof *w);
-        if (!w) {
-#pragma omp atomic write
-            nomem = 1;
+        if (measure_and_cut(f, b, &k, o, &cand, &kl)) {
+            strip_free(&st);
+            goto nomem;
         }
-#pragma omp for schedule(dynamic, 64)
-        for (size_t i = 0; i < nc; i++) {
-            keys[i] = cand.v[i].p;
-            if (w)
-                mpf_measure(f, b, &k, cand.v[i].p % nx, cand.v[i].p / nx, cand.v[i].h, w,
-                            &stars[i]);
-        }
-        free(w);
+        size_t now = bytes + cand.cap * sizeof *cand.v + kl.mcap * sizeof *kl.meas +
+                     kl.cap * (sizeof *kl.stars + sizeof *kl.keys);
+        most = now > most ? now : most;
     }
-    if (nomem)
-        goto nomem;
-    /* Shape cuts apply to ordinary detections only; plateaus come after. */
-    size_t n = 0;
-    for (size_t i = 0; i < nc; i++)
-        if (stars[i].ok && within(stars[i].sharp, o->sharplo, o->sharphi) &&
-            within(stars[i].round, o->roundlo, o->roundhi)) {
-            stars[n] = stars[i];
-            keys[n++] = keys[i];
-        }
-    if (find_plateaus(f, b, &k, &stars, &keys, &n))
+    strip_free(&st);
+    free(cand.v);
+    cand.v = NULL;
+    free(kl.meas);
+    kl.meas = NULL;
+    /* Plateaus come after the shape cuts (they have none). */
+    size_t n = kl.n;
+    mpf_star *stars = kl.stars;
+    long *keys = kl.keys;
+    int prc = find_plateaus(f, b, &k, &stars, &keys, &n);
+    kl.stars = stars;
+    kl.keys = keys;
+    if (prc)
         goto nomem;
     ord = malloc((n ? n : 1) * sizeof *ord);
     if (!ord)
@@ -418,10 +470,9 @@ nomem:
 done:
     mpf_kernel_free(&k);
     free(cand.v);
-    free(stars);
-    free(keys);
+    kept_free(&kl);
     free(ord);
     if (work)
-        *work = bytes;
+        *work = most;
     return rc;
 }

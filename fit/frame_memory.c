@@ -60,6 +60,8 @@ void ff_recall(mp_fit_memory *mem, star_state *st, size_t n)
             continue;
         st[i].s = r->s;
         st[i].seen = r->seen;
+        st[i].cx = r->cx;
+        st[i].cy = r->cy;
         st[i].sx0 = r->sx0;
         st[i].sy0 = r->sy0;
         st[i].sw = r->sw;
@@ -87,6 +89,8 @@ int ff_remember(mp_fit_memory *mem, star_state *st, size_t n, double maxnum)
             continue;
         r->s = st[i].s;
         r->seen = st[i].seen;
+        r->cx = st[i].cx;
+        r->cy = st[i].cy;
         r->sx0 = st[i].sx0;
         r->sy0 = st[i].sy0;
         r->sw = st[i].sw;

@@ -18,10 +18,14 @@ typedef struct {
     long row;
     double number;      /* NUMBER (the memory's key across calls), or row */
     int alive;
-    /* Economy: the light of every other star on the pixels around this one
-     * (its fitting region and a pixel more) when it was last fitted, a
-     * square of side sw at (sx0, sy0); NULL: not fitted yet. */
-    float *seen;        /* single precision, as the frame (issue 14) */
+    /* Economy: the light of every other star on its fitting region (the
+     * frame's pixels within fitrad of (cx, cy), its fitted place then) when
+     * it was last fitted, in raster order (ff_disc_next); its patch, the
+     * square of side sw at (sx0, sy0) holding that disc and a pixel more;
+     * NULL: not fitted yet.  The disc only, in single precision: the
+     * memory is held for every star between rounds (issue 14). */
+    float *seen;
+    double cx, cy;
     long sx0, sy0;
     int sw;
 } star_state;
@@ -68,6 +72,7 @@ typedef struct {
 typedef struct {
     mp_star s;
     float *seen;
+    double cx, cy;
     long sx0, sy0;
     int sw;
 } star_seen;

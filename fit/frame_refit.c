@@ -37,16 +37,56 @@ static int others_on_patch(const mp_prf_model *m, const crop_rule *crop, const s
     return ff_paint(m, &k->s, -1.0, ff_crop_radius(crop, &k->s), out, px0, py0, pw, ph, wk, buf, cap, NULL);
 }
 
+/* The fitting region of a star at (x, y): the frame's pixels within r, in
+ * raster order.  disc_first sets *X, *Y to the first (0 when none),
+ * disc_next steps to the next (0 past the last). */
+typedef struct {
+    long a, b, c, d;
+    double x, y, r2;
+    long nx, ny;
+} disc;
+
+static int disc_next(const disc *D, long *X, long *Y)
+{
+    for (;;) {
+        if (++*X > D->c) {
+            *X = D->a;
+            if (++*Y > D->d)
+                return 0;
+        }
+        double dx = *X - D->x, dy = *Y - D->y;
+        if (*X >= 1 && *Y >= 1 && *X <= D->nx && *Y <= D->ny && dx * dx + dy * dy <= D->r2)
+            return 1;
+    }
+}
+
+static int disc_first(const mp_frame *f, double x, double y, double r, disc *D, long *X, long *Y)
+{
+    D->a = (long)ceil(x - r);
+    D->b = (long)ceil(y - r);
+    D->c = (long)floor(x + r);
+    D->d = (long)floor(y + r);
+    D->x = x;
+    D->y = y;
+    D->r2 = r * r;
+    D->nx = f->im.nx;
+    D->ny = f->im.ny;
+    *X = D->a - 1;
+    *Y = D->b;
+    return D->a <= D->c && D->b <= D->d && disc_next(D, X, Y);
+}
+
 /* √Σ((others − seen)/σ)² over the star's fitting region (unmasked pixels
  * within fitrad), σ² = max(data, 0) + RON²: by Cauchy–Schwarz, refitting
  * the star against the light of the others now instead of then moves none
  * of its parameters by more than this many of its own σ (to first order).
- * INFINITY when it was never fitted or its region left the patch. */
+ * INFINITY when it was never fitted, has moved since (its region is not
+ * the one remembered) or its region left the patch. */
 static double light_change(const mp_frame *f, const mp_prf_model *m, const crop_rule *crop,
                            const star_state *k, double r, const float *all, float *tmp,
                            mp_prf_work *wk, double **buf, size_t *cap, int *nomem)
 {
-    if (!k->seen)
+    if (!k->seen || k->s.x != k->cx || k->s.y != k->cy)
         return INFINITY;
     long ph = k->sw;
     if (others_on_patch(m, crop, k, all, 1, 1, f->im.nx, k->sx0, k->sy0, k->sw, ph, tmp, wk, buf,
@@ -55,24 +95,45 @@ static double light_change(const mp_frame *f, const mp_prf_model *m, const crop_
         return INFINITY;
     }
     double ron2 = f->rdnoise * f->rdnoise, q = 0.0;
-    long a = (long)ceil(k->s.x - r), b = (long)ceil(k->s.y - r);
-    long c = (long)floor(k->s.x + r), d = (long)floor(k->s.y + r);
-    for (long Y = b; Y <= d; Y++)
-        for (long X = a; X <= c; X++) {
-            double dx = X - k->s.x, dy = Y - k->s.y;
-            if (X < 1 || Y < 1 || X > f->im.nx || Y > f->im.ny || dx * dx + dy * dy > r * r)
-                continue;
-            size_t g = (size_t)(Y - 1) * f->im.nx + (size_t)(X - 1);
-            if (f->mask && f->mask[g])
-                continue;
-            long i = X - k->sx0, j = Y - k->sy0;
-            if (i < 0 || j < 0 || i >= k->sw || j >= k->sw)
-                return INFINITY;
-            double v = (f->im.pix[g] > 0 ? f->im.pix[g] : 0.0) + ron2;
-            double dd = tmp[j * k->sw + i] - k->seen[j * k->sw + i];
-            q += dd * dd / (v > 1e-2 ? v : 1e-2);
-        }
+    disc D;
+    long X, Y;
+    size_t e = 0;
+    for (int more = disc_first(f, k->cx, k->cy, r, &D, &X, &Y); more;
+         more = disc_next(&D, &X, &Y), e++) {
+        size_t g = (size_t)(Y - 1) * f->im.nx + (size_t)(X - 1);
+        if (f->mask && f->mask[g])
+            continue;
+        long i = X - k->sx0, j = Y - k->sy0;
+        if (i < 0 || j < 0 || i >= k->sw || j >= k->sw)
+            return INFINITY;
+        double v = (f->im.pix[g] > 0 ? f->im.pix[g] : 0.0) + ron2;
+        double dd = tmp[j * k->sw + i] - k->seen[e];
+        q += dd * dd / (v > 1e-2 ? v : 1e-2);
+    }
     return sqrt(q);
+}
+
+/* Keep of the patch sq (side sw at sx0, sy0) the pixels of the star's
+ * fitting region, in k->seen (NULL when the region leaves the patch). */
+static int keep_disc(const mp_frame *f, star_state *k, double r, const float *sq)
+{
+    disc D;
+    long X, Y;
+    size_t n = 0;
+    for (int more = disc_first(f, k->s.x, k->s.y, r, &D, &X, &Y); more; more = disc_next(&D, &X, &Y)) {
+        long i = X - k->sx0, j = Y - k->sy0;
+        if (i < 0 || j < 0 || i >= k->sw || j >= k->sw)
+            return 0;
+        n++;
+    }
+    if (!(k->seen = malloc((n ? n : 1) * sizeof *k->seen)))
+        return 1;
+    k->cx = k->s.x;
+    k->cy = k->s.y;
+    n = 0;
+    for (int more = disc_first(f, k->s.x, k->s.y, r, &D, &X, &Y); more; more = disc_next(&D, &X, &Y))
+        k->seen[n++] = sq[(Y - k->sy0) * k->sw + (X - k->sx0)];
+    return 0;
 }
 
 /* After a fit of the stars sub[0..n-1] (their values before it in old):
@@ -112,6 +173,8 @@ static int remember_patches(const mp_frame *f, const mp_prf_model *m, const crop
         memcpy(img + j * w, all + (size_t)(y0 - 1 + j) * f->im.nx + (size_t)(x0 - 1),
                (size_t)w * sizeof *img);
     int rc = 0;
+    float *sq = NULL;       /* one patch, whole */
+    size_t nsq = 0;
     for (int k = 0; k < n && !rc; k++) {
         rc = ff_paint(m, &old[k], -1.0, ff_crop_radius(crop, &old[k]), img, x0, y0, w, h, wk, buf, cap,
                    NULL);
@@ -127,16 +190,21 @@ static int remember_patches(const mp_frame *f, const mp_prf_model *m, const crop
         patch_of(f, sub[k].s.x, sub[k].s.y, r, &px, &py, &pw, &ph);
         if (pw == 0 || ph != pw)
             continue;                /* cut by the frame's edge: refitted every time */
-        if (!(sub[k].seen = malloc((size_t)pw * pw * sizeof *sub[k].seen))) {
-            rc = 1;
-            break;
+        if ((size_t)pw * (size_t)pw > nsq) {
+            free(sq);
+            nsq = (size_t)pw * (size_t)pw;
+            if (!(sq = malloc(nsq * sizeof *sq))) {
+                rc = 1;
+                break;
+            }
         }
         sub[k].sx0 = px;
         sub[k].sy0 = py;
         sub[k].sw = pw;
-        rc = others_on_patch(m, crop, &sub[k], img, x0, y0, w, px, py, pw, ph, sub[k].seen, wk,
-                             buf, cap);
+        rc = others_on_patch(m, crop, &sub[k], img, x0, y0, w, px, py, pw, ph, sq, wk, buf, cap) ||
+             keep_disc(f, &sub[k], r, sq);
     }
+    free(sq);
     free(img);
     return rc;
 }

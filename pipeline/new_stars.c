@@ -41,8 +41,11 @@ int mp_pl_positions_of(const mp_table *t, mp_table *before)
     return 0;
 }
 
-/* Known stars on a grid of cells matchrad wide, so each new detection is
- * compared with its neighbourhood only. */
+/* Known stars on a grid of cells at least matchrad wide, so each new
+ * detection is compared with its neighbourhood only: the 3 x 3 cells
+ * around it hold every star within a cell's width.  Cells hold about one
+ * star each: cells of matchrad (1.5 px at FWHM 3) cost 7 bytes a pixel
+ * for the two grids, more than the frame (issue 14). */
 typedef struct {
     long nx, ny;
     double cell;
@@ -59,7 +62,8 @@ static long cell_of(const star_grid *g, double x, double y)
 
 static int grid_build(star_grid *g, const mp_table *t, long fnx, long fny, double cell)
 {
-    g->cell = cell > 0.5 ? cell : 0.5;
+    double per_star = sqrt((double)fnx * (double)fny / (double)(t->nrow ? t->nrow : 1));
+    g->cell = fmax(fmax(cell, 0.5), per_star);
     g->nx = (long)(fnx / g->cell) + 2;
     g->ny = (long)(fny / g->cell) + 2;
     g->head = malloc((size_t)(g->nx * g->ny) * sizeof *g->head);

@@ -74,11 +74,12 @@ int mp_pipeline_run(const char *image, const char *root, const mp_pipeline_opts 
 int mp_pipeline_run_tiled(const char *image, const char *root, const mp_pipeline_opts *o,
                           long tilesize, long margin, mp_pipeline_report *rep, char *err);
 
-/* MP_PL_BYTES_PER_PIXEL: peak memory of a whole-frame run per pixel (the
- * frame and residual in double, mask, single-precision sky, noise and
- * detection maps: 29 bytes; the stars' tables and patches at 3.7e-3 stars
- * a pixel: 9), measured on 4096² (README, "Frames of any size": 38.4),
- * rounded up; it sets the tiles from maxmem. */
+/* MP_PL_BYTES_PER_PIXEL: peak memory of a whole-frame run per pixel, as
+ * measured on 4096² when frame and residual were double and the sky, noise
+ * and detection maps were planes (README, "Frames of any size": 38.4),
+ * rounded up; it sets the tiles from maxmem.  Conservative since issue 14
+ * took those planes away (~18 bytes a pixel at 4096² with 3.7e-3 stars a
+ * pixel: 9 for frame, residual and mask, the rest the stars'). */
 #define MP_PL_BYTES_PER_PIXEL 40.0
 
 /* mp_pipeline_run_any: mp_pipeline_run or mp_pipeline_run_tiled, as

@@ -199,6 +199,8 @@ static int group_and_fit(run_state *s, int round, char *err)
         return 1;
     if (mp_pl_note_gone(&s->gone, &s->before, &s->t))
         return oom(err);
+    mp_table_free(&s->before);   /* not held through the residual (issue 14) */
+    mp_table_init(&s->before);
     if (mp_fit_residual(&s->f, &s->fit->model, &s->t, s->fit->opts.cropfrac, s->res, err))
         return 1;
     s->rep->t_fit += mp_seconds() - t0;
@@ -275,6 +277,8 @@ static int find_on_residual(run_state *s, int round, long *added, char *err)
     mp_bkg_free(&s->bkg);        /* as after the first detection */
     *added = mp_pl_add_new_stars(&s->t, &s->gone, &s->found, s->f.im.nx, s->f.im.ny, matchrad,
                                  mergerad, s->fit->opts.minsnr > 0 ? splitsnr : INFINITY);
+    mp_table_free(&s->found);    /* not held through the next fit (issue 14) */
+    mp_table_init(&s->found);
     if (*added < 0)
         return oom(err);
     s->rep->added += *added;
