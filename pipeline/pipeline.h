@@ -28,6 +28,8 @@ typedef struct {
     mp_epsf_opts psfb;       /* how (psf.par's names: varorder, maxnpsf) */
     int halo;                /* after the first round, model the bright stars'
                               * light beyond the table (pipeline/halo.c) */
+    int lookup;              /* after the first round, take off the PSF's mean
+                              * residual around bright stars (pipeline/lookup.c) */
     mp_parset *ps;           /* the task's parameters: the fit is set up
                               * again from them with psf=root.psf.fits */
     long tilesize;           /* core of a tile [px]; 0: whole frame; -1: from maxmem */

@@ -34,6 +34,24 @@ int mp_pl_opts_read(mp_parset *ps, mp_pipeline_opts *o, char *err);
 int mp_pl_halo(mp_frame *f, float *res, const mp_table *t, double fwhm, double *z, char *what,
                size_t wlen, char *err);
 
+/* ---- lookup.c ---------------------------------------------------------- */
+
+/* mp_pl_lookup: what the PSF leaves around every star (lookup=yes): from
+ * f's data less the light (model m, as mp_fit_residual draws it with
+ * cropfrac) of t's stars no fainter than a hundredth of the stacked ones,
+ * around t's 50 brightest converged unsaturated stars (XPSF_IMAGE,
+ * YPSF_IMAGE, FLUX_PSF, SKY_PSF, FLAGS), each less its sky (the median just
+ * outside the box), the mean residual per electron M
+ * on the detector grid, ±16 fwhm, by least squares over the stars (pixels
+ * spread bilinearly over the grid); elements within rin of the centre or
+ * below 3 σ of their own noise are 0.  Then E·M (bilinear at each pixel's
+ * offset) around every star whose largest correction reaches 0.05 σ of a
+ * sky pixel is taken off f's pixels and res, its variance (E·σ_M)² added to
+ * f->xvar (allocated when NULL).  what: one line for the report.  Nonzero
+ * with err when out of memory. */
+int mp_pl_lookup(mp_frame *f, float *res, const mp_table *t, const mp_prf_model *m,
+                 double cropfrac, double fwhm, double rin, char *what, size_t wlen, char *err);
+
 /* ---- new_stars.c ------------------------------------------------------- */
 
 /* mp_pl_positions_of: before = NUMBER, X_IMAGE, Y_IMAGE of every row of t

@@ -440,6 +440,27 @@ static int take_halo(run_state *s, char *err)
     return s->o->build_psf ? 0 : group_and_fit(s, 1, err);
 }
 
+/* What the PSF leaves around bright stars (lookup=yes, pipeline/lookup.c),
+ * measured on the first round's last residual (after the PSF's second
+ * pass) and taken off the frame; every group is then fitted afresh, so
+ * that the stars the first fit put on a bright star's features lose their
+ * light (and minsnr rejects them) before the residual is searched. */
+static int take_lookup(run_state *s, char *err)
+{
+    char what[MP_ERRLEN];
+    double t0 = mp_seconds();
+    if (mp_pl_lookup(&s->f, s->res, &s->t, &s->fit->model, s->fit->opts.cropfrac, s->fwhm,
+                     s->fwhm, what, sizeof what, err))
+        return 1;
+    if (!s->quiet)
+        fprintf(stderr, "matphot pipeline: %s: %s, %.2f s\n", s->image, what, mp_seconds() - t0);
+    mp_fit_memory_free(s->mem);
+    if (!(s->mem = mp_fit_memory_new()))
+        return oom(err);
+    s->rep->t_fit += mp_seconds() - t0;
+    return group_and_fit(s, 1, err);
+}
+
 /* The rounds: group and fit, find on the residual, until nothing new is
  * found or niter rounds are done. */
 static int rounds(run_state *s, char *err)
@@ -456,6 +477,8 @@ static int rounds(run_state *s, char *err)
          * and this round fitted again with it. */
         if (!rc && round == 1 && o->build_psf)
             rc = build_psf(s, 2, err) || group_and_fit(s, round, err);
+        if (!rc && round == 1 && o->lookup && s->own_frame)
+            rc = take_lookup(s, err);
         if (rc || round == o->niter)
             break;
         rc = find_on_residual(s, round, &added, err);
