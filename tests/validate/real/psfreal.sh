@@ -7,7 +7,9 @@
 #            normalised residual near the stars against IRAF DAOPHOT's
 #            (its PSF built from the same pixels: pstselect, psf, nstar +
 #            substar of the neighbours, psf again, allstar, one refind
-#            round) on the same pixels.
+#            round) on the same pixels; CHI2STAR_PSF (each star's own
+#            disc) beside CHI2_PSF; stamps as validate/REAL.md draws them
+#            (validate/psfreal_47tuc_stamp.png).
 #   glimpse  Spitzer GLIMPSE 4.5 um with no PSF given against the GLIMPSE
 #            catalog, beside validate/REAL.md's run with the IRAC table.
 # DECam with its PSFEx model against Gaia is validate/PSF_FILES.md's
