@@ -627,6 +627,14 @@ int mp_fit_table_mem(const mp_frame *f, const mp_prf_model *m, const mp_frame_op
 int mp_fit_residual(const mp_frame *f, const mp_prf_model *m, const mp_table *t,
                     double cropfrac, float *res, char *err);
 
+/* mp_fit_residual_grid: as mp_fit_residual, the stars whose |FLUX_PSF| is
+ * at most gemax painted from the phase grid (economy, fit/prf_cache.c: the
+ * PRF within its bound of 0.1 σ of such a star's fit, as the fit's own
+ * paints of the neighbours draw it); grid NULL: exact renders. */
+int mp_fit_residual_grid(const mp_frame *f, const mp_prf_model *m, const mp_table *t,
+                         double cropfrac, const mp_prf_cache *grid, double gemax, float *res,
+                         char *err);
+
 /* ---- The run report ------------------------------------------------------ */
 
 /* What a run reports (design: every fit and pipeline run ends with it, on

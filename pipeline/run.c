@@ -179,6 +179,48 @@ static void count_fit(mp_pipeline_report *rep, const mp_frame_report *fr, size_t
     rep->fitted = (long)nrow;
 }
 
+/* The phase grid the fit draws its groups' PRFs from (economy's own
+ * decision for this run: mp_econ_choose with the fit's count of star
+ * fits, so it is the table the last fit used, or one that pays for the
+ * next), and its flux limit on the stars' median sky, as the fit sets
+ * it (fit/frame_rules.c).  The residual and the one-or-two test draw the
+ * stars within that limit from it, as the fit's paints of the neighbours
+ * do (issue 12: 15 % of 47 Tuc's CPU was the test's exact renders).  NULL
+ * (exact renders) without economy or a grid. */
+static int cmp_double(const void *a, const void *b)
+{
+    double x = *(const double *)a, y = *(const double *)b;
+    return (x > y) - (x < y);
+}
+
+static const mp_prf_cache *phase_grid(run_state *s, double *gemax)
+{
+    char err[MP_ERRLEN];         /* a failed build leaves the exact renders */
+    *gemax = 0.0;
+    mp_frame_opts oe = s->fit->opts;
+    if (!oe.cache)
+        return NULL;
+    oe.grid = NULL;
+    double fits = oe.fits > (double)s->t.nrow ? oe.fits : (double)s->t.nrow;
+    if (mp_econ_choose(oe.cache, fits, oe.fit.fitrad, &oe, NULL, err) || !oe.grid ||
+        !mp_prf_cache_usable(oe.grid, &s->fit->model))
+        return NULL;
+    int cs = mp_table_col(&s->t, "SKY_PSF");
+    double *v = malloc((s->t.nrow + 1) * sizeof *v);
+    size_t k = 0;
+    for (size_t r = 0; v && cs >= 0 && r < s->t.nrow; r++) {
+        double b = mp_table_get(&s->t, r, cs);
+        if (isfinite(b) && b > 0)
+            v[k++] = b;
+    }
+    if (k)
+        qsort(v, k, sizeof *v, cmp_double);
+    double sky = k ? v[k / 2] : 0.0;
+    free(v);
+    *gemax = mp_prf_cache_limit(oe.grid, sky, s->f.rdnoise, oe.sincfrac);
+    return oe.grid;
+}
+
 /* Group the stars (root.grp), fit every group, and draw the residual. */
 static int group_and_fit(run_state *s, int round, char *err)
 {
@@ -201,7 +243,10 @@ static int group_and_fit(run_state *s, int round, char *err)
         return oom(err);
     mp_table_free(&s->before);   /* not held through the residual (issue 14) */
     mp_table_init(&s->before);
-    if (mp_fit_residual(&s->f, &s->fit->model, &s->t, s->fit->opts.cropfrac, s->res, err))
+    double gemax;
+    const mp_prf_cache *grid = phase_grid(s, &gemax);
+    if (mp_fit_residual_grid(&s->f, &s->fit->model, &s->t, s->fit->opts.cropfrac, grid, gemax,
+                             s->res, err))
         return 1;
     s->rep->t_fit += mp_seconds() - t0;
     count_fit(s->rep, &fr, s->t.nrow);
@@ -269,8 +314,10 @@ static int find_on_residual(run_state *s, int round, long *added, char *err)
      * is: at minsnr 2 a Δχ² of 4 proposed noise (validate frame: 142 false
      * detections against 30 from find alone). */
     double splitsnr = fmax(s->fit->opts.minsnr, MP_PL_SPLIT_MINSNR);
+    double gemax;
+    const mp_prf_cache *grid = phase_grid(s, &gemax);
     if (s->fit->opts.minsnr > 0 &&
-        mp_pl_split_candidates(&s->f, &s->bkg, s->res, &s->fit->model, &s->t,
+        mp_pl_split_candidates(&s->f, &s->bkg, s->res, &s->fit->model, grid, gemax, &s->t,
                                o->fit.opts.fit.fitrad, 1.05 * mergerad, fmax(matchrad, 1.1 * mergerad),
                                splitsnr, &s->found) < 0)
         return oom(err);

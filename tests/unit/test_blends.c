@@ -15,7 +15,11 @@
  *   - a single star of 5·10⁴ e-: one star on every draw (a false split
  *     needs Δχ² ≥ 25 from noise: χ²(1) > 25 has probability 6e-7 per
  *     place tried, ~1e-5 over the 36 places).
- * A failure is a defect, not chance: nothing here is near its threshold. */
+ * A failure is a defect, not chance: nothing here is near its threshold.
+ * And the test itself drawn from the phase grid (economy, issue 12) on a
+ * x2 table against exact renders: the same place proposed, √Δχ² the same
+ * to 1e-4 (the grid's error bound, 0.1 σ of a star within its limit,
+ * moves √Δχ² by less than 0.1·σ_E/E ≈ 1e-3 of it here; measured 4e-7). */
 #include <setjmp.h>
 #include <stdarg.h>
 #include <stddef.h>
@@ -132,6 +136,82 @@ static void test_single_star(void **state)
     }
 }
 
+/* The one-or-two test (split.c) on the residual of an unresolved pair
+ * (0.6 FWHM, 4·10⁴ + 1.6·10⁴ e-) less one star at its light's centre, with
+ * a x2 Gaussian table: from the phase grid and exact, the same answer. */
+static void test_split_from_grid(void **state)
+{
+    (void)state;
+    char err[MP_ERRLEN];
+    mp_psf p;
+    assert_int_equal(mp_psf_gauss_table(FWHM, 2, 8.0, &p, err), 0);
+    mp_prf_model m = {&p, NULL, 10};
+    mp_prf_cache c;
+    assert_int_equal(mp_prf_cache_build(&m, 16, &c, err), 0);
+    assert_true(c.G > 0);
+    mp_frame f;
+    memset(&f, 0, sizeof f);
+    f.im.nx = f.im.ny = N;
+    f.im.pix = malloc(sizeof *f.im.pix * N * N);
+    f.mask = calloc(N * N, 1);
+    assert_true(f.im.pix && f.mask);
+    f.rdnoise = RON;
+    double d = 0.6 * FWHM, x1 = 24.3, y1 = 23.8, x2 = x1 + d * 0.8, y2 = y1 + d * 0.6;
+    double e1 = 4e4, e2 = 1.6e4, E = e1 + e2;
+    double xc = (e1 * x1 + e2 * x2) / E, yc = (e1 * y1 + e2 * y2) / E;
+    mp_sim_prf prf = {.kind = MP_SIM_GAUSS, .sigma = FWHM / 2.3548200450309493, .volume = 1.0};
+    for (int i = 0; i < N * N; i++)
+        f.im.pix[i] = SKY;
+    /* the weights: the sky's noise, measured on the star-free frame */
+    mp_rng r;
+    mp_rng_seed(&r, 77);
+    mp_sim_add_noise_float(&r, f.im.pix, N * N, RON);
+    mp_bkg b;
+    memset(&b, 0, sizeof b);
+    assert_int_equal(mp_bkg_estimate(&f, N, 1, &b, err), 0);
+    mp_rng_seed(&r, 78);
+    for (int i = 0; i < N * N; i++)
+        f.im.pix[i] = SKY;
+    assert_int_equal(mp_sim_add_star_float(&prf, x1, y1, e1, f.im.pix, N, N), 0);
+    assert_int_equal(mp_sim_add_star_float(&prf, x2, y2, e2, f.im.pix, N, N), 0);
+    mp_sim_add_noise_float(&r, f.im.pix, N * N, RON);
+    assert_int_equal(mp_sim_add_star_float(&prf, xc, yc, -E, f.im.pix, N, N), 0);
+    mp_table t;
+    mp_table_init(&t);
+    int cx = mp_table_add_col(&t, "XPSF_IMAGE"), cy = mp_table_add_col(&t, "YPSF_IMAGE");
+    int cf = mp_table_add_col(&t, "FLUX_PSF"), ce = mp_table_add_col(&t, "FLUXERR_PSF");
+    assert_true(mp_table_add_row(&t) == 0);
+    mp_table_set(&t, 0, cx, xc);
+    mp_table_set(&t, 0, cy, yc);
+    mp_table_set(&t, 0, cf, E);
+    mp_table_set(&t, 0, ce, 300.0);
+    double gemax = mp_prf_cache_limit(&c, SKY, RON, 0.1);
+    assert_true(E <= gemax);          /* else the grid is not used: no test */
+    mp_table fe, fg;
+    mp_table_init(&fe);
+    mp_table_init(&fg);
+    assert_int_equal(mp_pl_split_candidates(&f, &b, f.im.pix, &m, NULL, 0.0, &t, 5.0, 0.4 * FWHM,
+                                            0.75 * FWHM, 5.0, &fe), 1);
+    assert_int_equal(mp_pl_split_candidates(&f, &b, f.im.pix, &m, &c, gemax, &t, 5.0, 0.4 * FWHM,
+                                            0.75 * FWHM, 5.0, &fg), 1);
+    int sx = mp_table_col(&fe, "X_IMAGE"), sy = mp_table_col(&fe, "Y_IMAGE");
+    int ss = mp_table_col(&fe, MP_PL_SNR_COL);
+    assert_true(mp_table_get(&fe, 0, sx) == mp_table_get(&fg, 0, sx));
+    assert_true(mp_table_get(&fe, 0, sy) == mp_table_get(&fg, 0, sy));
+    double se = mp_table_get(&fe, 0, ss), sg = mp_table_get(&fg, 0, ss);
+    assert_true(se >= 5.0);
+    assert_true(fabs(sg - se) <= 1e-4 * se);
+    assert_true(sg != se);            /* the grid drew it: not the exact renders */
+    mp_table_free(&fe);
+    mp_table_free(&fg);
+    mp_table_free(&t);
+    mp_bkg_free(&b);
+    free(f.im.pix);
+    free(f.mask);
+    mp_prf_cache_free(&c);
+    mp_psf_free(&p);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
@@ -139,6 +219,7 @@ int main(void)
         cmocka_unit_test(test_pair_2fwhm),
         cmocka_unit_test(test_pair_1fwhm),
         cmocka_unit_test(test_pair_half_fwhm),
+        cmocka_unit_test(test_split_from_grid),
     };
     return cmocka_run_group_tests(tests, setup_opts, teardown_opts);
 }

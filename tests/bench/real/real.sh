@@ -14,7 +14,8 @@
 # Writes $REPORT (default bench/REAL.md).
 #
 #     sh tests/bench/real/real.sh        (from the top of the tree, after make)
-# Environment: REPS=3, FRAMES="tuc glimpse", REALDATA=../shared/data/real,
+# Environment: REPS=3, FRAMES="tuc tucb glimpse glimpseb" (tucb, glimpseb: the
+# same frames with no psf=, the PSF built from the frame), REALDATA=../shared/data/real,
 # MATPHOT_THREADS=1 (IRAF uses one core), SAME=1 (the phase-grid accuracy
 # fits; 0 skips them), SEC (an image section, e.g. "[1:128,1:128]", for a
 # quick try; the report says so), REPORT, KEEP=1 (keep the work directory).
@@ -28,7 +29,7 @@ B=${BUILD:-build}
 [ -f "$B/libmatphot.a" ] || die "$B/libmatphot.a not found: run make first"
 REALDATA=${REALDATA:-../shared/data/real}
 REPS=${REPS:-3}
-FRAMES=${FRAMES:-tuc glimpse}
+FRAMES=${FRAMES:-tuc tucb glimpse glimpseb}
 THREADS=${MATPHOT_THREADS:-1}
 SAME=${SAME:-1}
 SEC=${SEC:-}
@@ -78,6 +79,16 @@ frame() {
         GAIN=1; RON=4.71; DMAX=151553.98; FWHM=2.0; PSFRAD=10; FITRAD=2.0
         DESC="HST ACS/HRC F606W 47 Tuc core, 512x512 crop, Tiny Tim x4 table"
         NEED="$D/j8bt06nyq_flt_sip_crop512.fits $D/tinytim_acs_hrc_f606w_x512y512_sub4.fits";;
+    tucb)
+        frame tuc
+        PSFARG=""
+        DESC="HST ACS/HRC F606W 47 Tuc core, 512x512 crop, PSF built from the frame"
+        NEED="$D/j8bt06nyq_flt_sip_crop512.fits";;
+    glimpseb)
+        frame glimpse
+        PSFARG=""
+        DESC="Spitzer IRAC 4.5 um GLIMPSE 1025x513, PSF built from the frame"
+        NEED="$D/spitzer_example_image.fits";;
     glimpse)
         D=$REALDATA/spitzer_irac_glimpse
         IMG="$D/spitzer_example_image.fits$SEC"
@@ -86,7 +97,7 @@ frame() {
         MPARGS="oversamp=4 gain=31.3065"
         GAIN=31.3065; RON=0; DMAX=INDEF; FWHM=1.8; PSFRAD=8; FITRAD=1.8
         DESC="Spitzer IRAC 4.5 um GLIMPSE 1025x513, IRAC ch2 x4 table"
-        NEED="$IMG $D/irac_ch2_flight.fits";;
+        NEED="$D/spitzer_example_image.fits $D/irac_ch2_flight.fits";;
     *) die "unknown frame $1";;
     esac
 }
@@ -156,7 +167,7 @@ echo "# matphot against IRAF DAOPHOT on real frames"
 echo
 echo "Generated $(date -u '+%Y-%m-%d %H:%M UTC') by \`tests/bench/real/real.sh\` (part of \`make bench\`; \`REPS=$REPS\`), $(nproc) processors, load before $(cut -d' ' -f1-3 /proc/loadavg).  matphot $(git rev-parse --short HEAD 2>/dev/null || echo '?'), \`OMP_NUM_THREADS=$THREADS\`; IRAF $(irafcl -v 2>/dev/null | head -n 1) (Debian iraf $(dpkg-query -W -f='${Version}' iraf 2>/dev/null || echo '?')).  Data: \`$REALDATA\` (MANIFEST.md)${SEC:+; only the section $SEC of each frame}."
 echo
-echo "CPU = user + sys seconds of the whole process (\`/usr/bin/time\`), the median of $REPS runs, matphot and DAOPHOT interleaved; peak RSS the largest resident size of any run (DAOPHOT: of its largest CL run).  matphot reduces each frame with the instrument's PSF table (validate/REAL.md's commands, nothing tuned); DAOPHOT builds its PSF from the frame (25 stars by pstselect, psf, nstar + substar of their neighbours, psf again), then allstar, daofind on the residual, phot, pfmerge, allstar (\`function = gauss\`, \`varorder = 0\`: a look-up table; fitrad ≈ FWHM, psfrad as below).  The stage seconds are wall clock."
+echo "CPU = user + sys seconds of the whole process (\`/usr/bin/time\`), the median of $REPS runs, matphot and DAOPHOT interleaved; peak RSS the largest resident size of any run (DAOPHOT: of its largest CL run).  matphot reduces each frame with the instrument's PSF table (validate/REAL.md's commands, nothing tuned) and, in the rows ending in b, with the PSF it builds from the frame (no psf=; the build counted in its CPU); DAOPHOT builds its PSF from the frame (25 stars by pstselect, psf, nstar + substar of their neighbours, psf again), then allstar, daofind on the residual, phot, pfmerge, allstar (\`function = gauss\`, \`varorder = 0\`: a look-up table; fitrad ≈ FWHM, psfrad as below).  The stage seconds are wall clock."
 echo
 } > "$W/head.md"
 : > "$W/summary.md"
@@ -180,7 +191,7 @@ for F in $FRAMES; do
         RD="$FD/r$r"
         mkdir -p "$RD/mp" "$RD/dao"
         ( cd "$RD/mp" && OMP_NUM_THREADS=$THREADS timed "$RD/mp/time" "$MP" pipeline "$IMG" \
-              root="$RD/mp/m" "$PSFARG" $MPARGS > run.log 2>&1 ) ||
+              root="$RD/mp/m" ${PSFARG:+"$PSFARG"} $MPARGS > run.log 2>&1 ) ||
             { tail -n 5 "$RD/mp/run.log" >&2; die "matphot pipeline failed on $F"; }
         dao_run "$RD/dao" "$SIGMA"
         mc=$(cpu_of "$RD/mp/time")
@@ -219,10 +230,12 @@ for F in $FRAMES; do
     echo
     echo "Star by star, matphot's catalog against DAOPHOT's (mutual nearest within 1 px): \`$cmpdao\`."
     } >> "$W/detail.md"
-    if [ "$F" = glimpse ]; then
+    if [ "$F" = glimpse ] || [ "$F" = glimpseb ]; then
         "$W/real" glimpse "$R1/mp/m.cat" "$D/glimpse_catalog_subset.csv" "$GAIN" "$FD/gcmp" > "$FD/gcmp.txt" 2>&1 &&
             { echo; echo "Against the GLIMPSE point-source catalog (tests/validate/real/real.c): $(cat "$FD/gcmp.txt")"; } >> "$W/detail.md"
     fi
+    # the fit of the same stars: with the PSF run 1 built, when it built one
+    [ -n "$PSFARG" ] || PSFARG="psf=$R1/mp/m.psf.fits"
     if [ "$SAME" = 1 ]; then
         # The phase grid against exact renders, on the same stars and groups
         # (the run's final catalog as the start).
