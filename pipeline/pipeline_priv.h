@@ -103,6 +103,13 @@ void mp_pl_drop_unset(mp_table *t);
 
 /* ---- run.c ------------------------------------------------------------- */
 
+/* mp_pl_warn_whole_frame_only: one warning line on stderr, naming task and
+ * image, when o asks for halo= or lookup=, which are measured on the whole
+ * frame's residual and so are not applied where the frame is reduced in
+ * pieces (tiles, artificial-star boxes). */
+void mp_pl_warn_whole_frame_only(const mp_pipeline_opts *o, const char *task, const char *image,
+                                 const char *where);
+
 /* mp_pl_reduce: what mp_pipeline_run does to image, writing no file: at the
  * end done(ctx, frame, stars, residual [e-], err) gets the run's results
  * (its to modify, not to keep) and its return is the run's.  For tiles. */

@@ -535,6 +535,15 @@ static int rounds(run_state *s, char *err)
     return rc;
 }
 
+void mp_pl_warn_whole_frame_only(const mp_pipeline_opts *o, const char *task, const char *image,
+                                 const char *where)
+{
+    if (o->halo || o->lookup)
+        fprintf(stderr, "matphot %s: %s: warning: %s%s%s not applied %s (they are measured on "
+                "the whole frame's residual)\n", task, image, o->halo ? "halo=yes" : "",
+                o->halo && o->lookup ? " and " : "", o->lookup ? "lookup=yes" : "", where);
+}
+
 int mp_pipeline_run(const char *image, const char *root, const mp_pipeline_opts *o,
                     mp_pipeline_report *rep, char *err)
 {

@@ -115,6 +115,7 @@ int mp_task_fakes(int argc, char **argv)
     }
     if (mp_frame_read(image, &o.fit.dp, &f, err) || base_stars(&f, &o, &fo, &base, err))
         goto done;
+    mp_pl_warn_whole_frame_only(&o, "fakes", image, "to the fakes' boxes");
     if (mp_fakes_run(&f, &o, &fo, &base, lo, hi, out, err))
         goto done;
     mp_sweeps *sw = mp_sweeps_new();  /* killed runs' temporaries, once a directory */

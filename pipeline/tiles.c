@@ -381,6 +381,7 @@ int mp_pipeline_run_any(const char *image, const char *root, const mp_pipeline_o
     }
     if (ts >= nx && ts >= ny)
         return mp_pipeline_run(image, root, o, rep, err);
+    mp_pl_warn_whole_frame_only(o, "pipeline", image, "in tiles");
     if (o->build_psf)
         return tiles_with_built_psf(image, root, o, nx, ny, ts, margin, rep, err);
     return mp_pipeline_run_tiled(image, root, o, ts, margin, rep, err);

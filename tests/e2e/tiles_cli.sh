@@ -25,8 +25,12 @@ no() { echo "FAIL: $*"; fails=$((fails + 1)); }
 P="psf=$T/psf.fits"
 "$M" pipeline "$T/f.fits" "$P" root="$T/w" 2>"$T/w.log" || no "whole: $(tail -n 1 "$T/w.log")"
 grep -q "tiles of" "$T/w.log" && no "the default budget tiled a small frame"
-"$M" pipeline "$T/f.fits" "$P" root="$T/t" tilesize=80 2>"$T/t.log" || no "tiled: $(tail -n 1 "$T/t.log")"
+# halo= is measured on the whole frame's residual: in tiles it is not
+# applied, and the run says so (the tiles' results are unchanged by it).
+"$M" pipeline "$T/f.fits" "$P" root="$T/t" tilesize=80 halo=yes 2>"$T/t.log" ||
+    no "tiled: $(tail -n 1 "$T/t.log")"
 grep -q "in 3 x 3 tiles of 80" "$T/t.log" || no "tilesize=80 did not make 3 x 3 tiles"
+grep -q "warning: halo=yes not applied in tiles" "$T/t.log" || no "halo=yes in tiles: no warning"
 [ "$(grep -c '^matphot pipeline: tile [0-9]' "$T/t.log")" = 9 ] || no "not 9 tiles reduced"
 for e in fit cat reg report res.fits; do [ -s "$T/t.$e" ] || no "tiled run wrote no t.$e"; done
 [ "$(wc -c <"$T/t.res.fits")" = "$(wc -c <"$T/w.res.fits")" ] || no "tiled residual is not the frame's size"

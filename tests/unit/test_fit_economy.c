@@ -547,6 +547,49 @@ static void test_tables_pay_for_themselves(void **state)
     mp_psf_free(&p);
 }
 
+/* The plan prices a render on the windows the frame measured
+ * (mp_frame_opts.win, issue 12), not on a lone star's 2·ceil(fitrad) + 3
+ * px: on 47 Tuc a star is rendered on ~40 px a side, not 13, so the phase
+ * grid never paid in `matphot fit`.  The smallest run (fits, powers of 2)
+ * for which the grid is built, with win = 0 (fitrad 5: 13 px) and win =
+ * 40: the gain is fits · 4 · (exact render − grid render), so the
+ * thresholds are in the ratio of the savings per render, 5.3 for this
+ * ×2 table of 41 px (econ_plan.c's render_ops: 266e3 against 50e3 ops);
+ * on powers of 2, 4 or 8.  A plan that ignored win gives 1.
+ * Deterministic: no false-failure rate. */
+static long grid_threshold(const mp_prf_model *m, double win)
+{
+    for (long fits = 1; fits <= (1L << 24); fits *= 2) {
+        char err[MP_ERRLEN];
+        mp_frame_opts o;
+        mp_frame_opts_default(&o);
+        o.win = win;
+        mp_econ_cache *c = mp_econ_cache_new();
+        assert_non_null(c);
+        assert_int_equal(mp_econ_offer(c, m, 0, NULL, 0, MP_PRF_CACHE_G), 0);
+        assert_int_equal(mp_econ_choose(c, (double)fits, o.fit.fitrad, &o, NULL, err), 0);
+        int built = o.grid != NULL;
+        mp_econ_cache_free(c);
+        if (built)
+            return fits;
+    }
+    return -1;
+}
+
+static void test_plan_prices_measured_windows(void **state)
+{
+    (void)state;
+    char err[MP_ERRLEN];
+    mp_psf p;
+    assert_int_equal(mp_psf_gauss_table(FWHM, 2, 20.0, &p, err), 0);
+    mp_prf_model m = {&p, NULL, 10};
+    long lone = grid_threshold(&m, 0.0), wide = grid_threshold(&m, 40.0);
+    print_message("grid built from %ld fits (13-px windows), %ld (40-px)\n", lone, wide);
+    assert_true(lone > 0 && wide > 0);
+    assert_true(lone >= 4 * wide && lone <= 8 * wide);
+    mp_psf_free(&p);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
@@ -558,6 +601,7 @@ int main(void)
         cmocka_unit_test(test_whole_frame_overhead_counted),
         cmocka_unit_test(test_coarse_table_per_group),
         cmocka_unit_test(test_tables_pay_for_themselves),
+        cmocka_unit_test(test_plan_prices_measured_windows),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }
