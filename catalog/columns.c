@@ -52,6 +52,7 @@ static const mp_col registry[] = {
     {"SKYERR_PSF",     "RMS sky error from PSF-fitting",             ELEC, "%12.7g", 0},
     {"CHI2_PSF",       "Reduced chi2 from PSF-fitting",              "",   "%10.6g", 0},
     {"DOF_PSF",        "Degrees of freedom of the group fit",        "",   "%8.0f",  1},
+    {"CHI2STAR_PSF",   "Reduced chi2 over the star's own fitting disc", "", "%10.6g", 0},
     {"NITER_PSF",      "Number of iterations for PSF-fitting",       "",   "%3.0f",  1},
     {"BETA_PSF",       "Effective background area of the PRF",       "pixel**2", "%12.7g", 0},
     {"SHARP_PRF",      "Sharpness of the PRF",                       "",   "%12.7g", 0},

@@ -425,6 +425,12 @@ typedef struct {
     double sky, esky;               /* fitted sky at the star and its error */
     double chi2;                    /* reduced χ² of its group */
     int dof, niter, flags;
+    /* Reduced χ² over the star's own disc alone (the group's fitted pixels
+     * within fitrad of its fitted position; the whole group's when fitrad
+     * is not finite), with dof = those pixels − 3: DAOPHOT's CHI, squared.
+     * Beside chi2, not instead of it (CHI2STAR_PSF). */
+    double chi2star;
+    int dofstar;
     int sky_order;                  /* the order the group's sky was fitted with */
     mp_prf_stats st;                /* of the PRF at the fitted position */
     double fluxerr_model, poserr_model;

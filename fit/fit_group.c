@@ -283,11 +283,35 @@ static int fit_orders(group *G, const mp_fit_opts *o, int *order, int *iter, int
     return 0;
 }
 
+/* Σ (d − m)²/V over the group's fitted pixels within r of (x, y) (all
+ * of them when r is not finite), as a reduced χ² with n − 3 degrees of
+ * freedom (the star's flux and position; the sky is the group's): the
+ * star's own χ², DAOPHOT's CHI².  0 and 0 with 3 pixels or fewer. */
+static void own_disc_chi2(const group *G, double r, double x, double y, double *chi2, int *dof)
+{
+    double c = 0.0;
+    long n = 0;
+    for (int q = 0; q < G->nrun; q++) {
+        double dy = (double)(G->by0 + G->rj[q]) - y;
+        for (int i = G->ri0[q]; i < G->ri1[q]; i++) {
+            double dx = (double)(G->bx0 + i) - x;
+            if (isfinite(r) && dx * dx + dy * dy > r * r)
+                continue;
+            size_t o = (size_t)G->rp[q] + (size_t)(i - G->ri0[q]);
+            double d = G->dat[o] - G->mod[o];
+            c += d * d / G->var[o];
+            n++;
+        }
+    }
+    *dof = n > 3 ? (int)(n - 3) : 0;
+    *chi2 = *dof > 0 ? c / *dof : 0.0;
+}
+
 /* Star k's outputs from the converged state and the covariance in G->M:
  * its values, errors, χ² of the group (chi2f over dof), the performance
  * model's prediction and the flags.  Nonzero when out of memory. */
 static int store_star(group *G, int k, mp_star *s, int converged, int cv, double chi2f, int dof,
-                      int iter, int order)
+                      int iter, int order, double fitrad)
 {
     int n = G->n, np = G->np;
     double out[6] = {G->p[3 * k + 1], G->p[3 * k + 2], G->p[3 * k],
@@ -326,6 +350,7 @@ static int store_star(group *G, int k, mp_star *s, int converged, int cv, double
     s->esky = sqrt(vs > 0 ? vs : 0.0);
     s->chi2 = dof > 0 ? chi2f / dof : 0.0;
     s->dof = dof;
+    own_disc_chi2(G, fitrad, s->x, s->y, &s->chi2star, &s->dofstar);
     s->niter = iter;
     s->sky_order = order;
     s->fluxerr_model = isfinite(se) ? se : 0.0;
@@ -376,6 +401,8 @@ int mp_fit_group(const mp_frame *f, const mp_prf_model *m, const mp_fit_opts *o,
     for (int k = 0; k < n; k++) {
         stars[k].flags = 0;
         stars[k].niter = 0;
+        stars[k].chi2star = 0.0;
+        stars[k].dofstar = 0;
         stars[k].sky_order = order;
     }
     int sp = lm_select_pixels(&G, o, stars);
@@ -405,7 +432,7 @@ int mp_fit_group(const mp_frame *f, const mp_prf_model *m, const mp_fit_opts *o,
     double chi2f = lm_chi2_with(&G, G.var);
     int dof = (int)G.npix - (3 * n + G.nsky);
     for (int k = 0; k < n; k++)
-        if (store_star(&G, k, &stars[k], converged, cv, chi2f, dof, iter, order))
+        if (store_star(&G, k, &stars[k], converged, cv, chi2f, dof, iter, order, o->fitrad))
             goto nomem;
     rc = 0;
     goto done;
@@ -418,8 +445,8 @@ finish_flagged:
     for (int k = 0; k < n; k++) {
         mp_star *s = &stars[k];
         s->ex = s->ey = s->eflux = s->esky = 0.0;
-        s->chi2 = 0.0;
-        s->dof = 0;
+        s->chi2 = s->chi2star = 0.0;
+        s->dof = s->dofstar = 0;
         if (!isfinite(s->flux))
             s->flux = 0.0;
         if (!isfinite(s->sky))

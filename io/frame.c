@@ -3,6 +3,7 @@
 #include "io/io.h"
 #include "params/params.h"
 
+#include <fitsio.h>
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -106,6 +107,34 @@ static int read_aux(const char *name, const char *par, const char *aux, const mp
     }
     free(an);
     return rc;
+}
+
+/* errplane=auto: does the frame's own file hold an image extension named
+ * ERR (HST FLT/FLC/DRZ, JWST)?  Any failure to tell is no: the frame's own
+ * read reports a broken file. */
+static int has_err_ext(const char *name)
+{
+    size_t n = strcspn(name, "[");
+    char *base = malloc(n + 1), badkey[9];
+    if (!base)
+        return 0;
+    memcpy(base, name, n);
+    base[n] = '\0';
+    fitsfile *fp = NULL;
+    int status = 0, found = 0;
+    if (!mp_fits_guard_file(base, badkey)) {
+        fits_open_file(&fp, base, READONLY, &status);
+        if (!status) {
+            fits_movnam_hdu(fp, IMAGE_HDU, "ERR", 0, &status);
+            found = !status;
+        }
+        if (fp) {
+            int s2 = 0;
+            fits_close_file(fp, &s2);
+        }
+    }
+    free(base);
+    return found;
 }
 
 /* The error plane's variance beyond the Poisson noise and RON² (io.h,
@@ -289,7 +318,12 @@ int mp_frame_read(const char *name, const mp_datapars *dp, mp_frame *f, char *er
         goto fail;
     if (dp->satgrow > 0 && f->nsat && grow_saturated(f, dp->satgrow, name, err))
         goto fail;
-    if (dp->errplane[0] && apply_err(name, dp, f, err))
+    mp_datapars dpe = *dp;
+    if (strcmp(dp->errplane, "auto") == 0)
+        snprintf(dpe.errplane, sizeof dpe.errplane, "%s", has_err_ext(name) ? "[ERR]" : "");
+    if (strcmp(dpe.errplane, "none") == 0)
+        dpe.errplane[0] = '\0';
+    if (dpe.errplane[0] && apply_err(name, &dpe, f, err))
         goto fail;
     return 0;
 

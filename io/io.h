@@ -130,7 +130,8 @@ typedef struct {
      * its variance holds beyond the Poisson noise of the pixel and RON²
      * (dark current, the bias's and the flat's noise: calacs puts them
      * there) becomes mp_frame.xvar; the Poisson part stays the model's
-     * (design.md §5).  "": none. */
+     * (design.md §5).  "" or "none": none; "auto" (the default): [ERR]
+     * when the frame's own file holds an image extension named ERR. */
     char errplane[1024];
     /* bleedgrow: a run of two or more saturated pixels along a column (a
      * bleed trail) counts as this many pixels longer at each end, before

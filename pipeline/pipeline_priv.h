@@ -21,13 +21,18 @@ int mp_pl_opts_read(mp_parset *ps, mp_pipeline_opts *o, char *err);
  * t's 10 brightest stars (XPSF_IMAGE, YPSF_IMAGE, FLUX_PSF): the profile
  * h(r) per electron on 1-px rings from rin = max(fwhm, 1) to 16 rin, each
  * star's ring median less its sky (the ring beyond), fitted as E·h over the
- * stars, the nearest non-increasing profile, >= 0, flat inside rin.  Then
- * E·h(r) of every star whose halo reaches 0.05 σ of a sky pixel is taken
- * off f's pixels and res, and its Poisson variance added to f->xvar
- * (allocated when NULL).  what: one line for the report.  Nonzero with err
- * when out of memory. */
-int mp_pl_halo(mp_frame *f, float *res, const mp_table *t, double fwhm, char *what, size_t wlen,
-               char *err);
+ * stars, the nearest non-increasing profile, >= 0, flat inside rin.
+ * *z: the significance of the unconstrained profile's light beyond rin
+ * against its own error (each ring median's from its pixels' robust
+ * scatter, and each star's sky's, common to all its rings); N(0, 1) where
+ * there is no halo.  Only when z > MP_PL_HALO_Z (one-sided false rate
+ * 1e-3) is E·h(r) of every star whose halo reaches 0.05 σ of a sky pixel
+ * taken off f's pixels and res, and its Poisson variance added to f->xvar
+ * (allocated when NULL); otherwise nothing changes.  what: one line for the
+ * report.  Nonzero with err when out of memory. */
+#define MP_PL_HALO_Z 3.090
+int mp_pl_halo(mp_frame *f, float *res, const mp_table *t, double fwhm, double *z, char *what,
+               size_t wlen, char *err);
 
 /* ---- lookup.c ---------------------------------------------------------- */
 

@@ -473,11 +473,13 @@ static int build_psf(run_state *s, int pass, char *err)
 static int take_halo(run_state *s, char *err)
 {
     char what[MP_ERRLEN];
-    double t0 = mp_seconds();
-    if (mp_pl_halo(&s->f, s->res, &s->t, s->fwhm, what, sizeof what, err))
+    double t0 = mp_seconds(), z;
+    if (mp_pl_halo(&s->f, s->res, &s->t, s->fwhm, &z, what, sizeof what, err))
         return 1;
     if (!s->quiet)
         fprintf(stderr, "matphot pipeline: %s: %s, %.2f s\n", s->image, what, mp_seconds() - t0);
+    if (!(z > MP_PL_HALO_Z))
+        return 0;                       /* nothing taken off: the fit stands */
     mp_fit_memory_free(s->mem);
     if (!(s->mem = mp_fit_memory_new()))
         return oom(err);

@@ -120,7 +120,9 @@ static void test_halo_measured_and_taken_off(void **state)
     double before = ring_mean(f.im.pix, 10.0, 20.0, &n);
     assert_true(before > 40.0);
     char what[MP_ERRLEN], err[MP_ERRLEN];
-    assert_int_equal(mp_pl_halo(&f, res, &t, 3.0, what, sizeof what, err), 0);
+    double z;
+    assert_int_equal(mp_pl_halo(&f, res, &t, 3.0, &z, what, sizeof what, err), 0);
+    assert_true(z > MP_PL_HALO_Z);
     assert_non_null(strstr(what, "taken off around 4 stars"));
     double after = ring_mean(f.im.pix, 10.0, 20.0, &n);
     double b = sky_ring_halo();
@@ -139,10 +141,83 @@ static void test_halo_measured_and_taken_off(void **state)
     free(f.xvar);
 }
 
+/* The significance test where there is no halo: NF frames of sky + noise
+ * alone around the same four stars (fluxes 1, 1.5, 2, 2.5 e7).  z should
+ * be about N(0, 1): its mean within 4/√NF of 0 and its standard deviation
+ * within 0.15 of 1 (the rings of the four stars overlap, which the pixels'
+ * error ignores; σ_F is the larger of two estimates, which makes z's
+ * spread a little below 1; the sd's own sampling σ is 1/√(2 NF) = 0.035,
+ * the mean's 0.05: false failure below 1e-4 each, the seed fixed).  The halo is taken off in at
+ * most 3 of the NF = 400 frames (expected 0.4 at the one-sided 1e-3:
+ * P(>= 4) = 8e-4), and where it is not, not a pixel changes. */
+enum { NF = 400 };
+static void test_no_halo_not_taken_off(void **state)
+{
+    (void)state;
+    mp_frame f;
+    memset(&f, 0, sizeof f);
+    f.im.nx = f.im.ny = N;
+    f.im.pix = malloc(N * N * sizeof *f.im.pix);
+    f.mask = calloc(N * N, 1);
+    f.gain = 1.0;
+    f.rdnoise = 5.0;
+    float *res = malloc(N * N * sizeof *res);
+    assert_non_null(f.im.pix);
+    assert_non_null(f.mask);
+    assert_non_null(res);
+    mp_table t;
+    mp_table_init(&t);
+    int cx = mp_table_add_col(&t, "XPSF_IMAGE"), cy = mp_table_add_col(&t, "YPSF_IMAGE"),
+        ce = mp_table_add_col(&t, "FLUX_PSF"), cs = mp_table_add_col(&t, "SKY_PSF");
+    for (int k = 0; k < NS; k++) {
+        long row = mp_table_add_row(&t);
+        assert_true(row >= 0);
+        mp_table_set(&t, (size_t)row, cx, SX[k]);
+        mp_table_set(&t, (size_t)row, cy, SY[k]);
+        mp_table_set(&t, (size_t)row, ce, E * (1.0 + 0.5 * k));
+        mp_table_set(&t, (size_t)row, cs, SKY);
+    }
+    mp_rng r;
+    mp_rng_seed(&r, 777);
+    double s1 = 0.0, s2 = 0.0;
+    int fired = 0;
+    for (int n = 0; n < NF; n++) {
+        for (long i = 0; i < N * N; i++)
+            f.im.pix[i] = (float)SKY;
+        mp_sim_add_noise_float(&r, f.im.pix, N * N, f.rdnoise);
+        memcpy(res, f.im.pix, N * N * sizeof *res);
+        char what[MP_ERRLEN], err[MP_ERRLEN];
+        double z;
+        assert_int_equal(mp_pl_halo(&f, res, &t, 3.0, &z, what, sizeof what, err), 0);
+        s1 += z;
+        s2 += z * z;
+        if (z > MP_PL_HALO_Z) {
+            fired++;
+            free(f.xvar);
+            f.xvar = NULL;
+            continue;
+        }
+        assert_non_null(strstr(what, "taken off around 0 stars"));
+        assert_null(f.xvar);
+        assert_memory_equal(res, f.im.pix, N * N * sizeof *res);
+    }
+    double mean = s1 / NF, sd = sqrt(s2 / NF - mean * mean);
+    print_message("no halo: z mean %.3f sd %.3f over %d frames, %d above %.3f\n", mean, sd, NF,
+                  fired, MP_PL_HALO_Z);
+    assert_true(fabs(mean) < 4.0 / sqrt(NF));
+    assert_true(fabs(sd - 1.0) < 0.15);
+    assert_true(fired <= 3);
+    mp_table_free(&t);
+    free(res);
+    free(f.im.pix);
+    free(f.mask);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(test_halo_measured_and_taken_off),
+        cmocka_unit_test(test_no_halo_not_taken_off),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }

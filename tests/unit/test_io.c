@@ -532,6 +532,29 @@ static void test_frame_err(void **state)
     snprintf(dp.errplane, sizeof dp.errplane, "[NOPE]");
     assert_int_not_equal(mp_frame_read(sci, &dp, &f, err), 0);
     assert_non_null(strstr(err, "NOPE"));
+    /* auto (the default): the file's ERR extension, section and all;
+     * none: no plane; auto on a file without ERR: no plane, no error. */
+    snprintf(dp.errplane, sizeof dp.errplane, "auto");
+    snprintf(sci, sizeof sci, "%s[SCI][2:5,2:3]", path);
+    assert_int_equal(mp_frame_read(sci, &dp, &f, err), 0);
+    assert_non_null(f.xvar);
+    assert_float_equal(f.xvar[0], 91.0, 1e-3);
+    mp_frame_free(&f);
+    snprintf(dp.errplane, sizeof dp.errplane, "none");
+    assert_int_equal(mp_frame_read(sci, &dp, &f, err), 0);
+    assert_null(f.xvar);
+    mp_frame_free(&f);
+    const char *plain = in_dir(s, "noerr.fits");
+    snprintf(name, sizeof name, "!%s", plain);
+    fits_create_file(&fp, name, &st);
+    fits_create_img(fp, DOUBLE_IMG, 2, ax, &st);
+    fits_write_pix(fp, TDOUBLE, fpix, NX * NY, pix, &st);
+    fits_close_file(fp, &st);
+    assert_int_equal(st, 0);
+    snprintf(dp.errplane, sizeof dp.errplane, "auto");
+    assert_int_equal(mp_frame_read(plain, &dp, &f, err), 0);
+    assert_null(f.xvar);
+    mp_frame_free(&f);
 }
 
 /* bleedgrow: a run of two or more saturated pixels along a column (a bleed)

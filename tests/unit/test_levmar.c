@@ -709,6 +709,57 @@ static void test_error_plane_weights(void **state)
     frame_drop(&g);
 }
 
+/* CHI2STAR_PSF (mp_star.chi2star): each star's reduced χ² over its own
+ * disc, beside the group's.  Two stars of 2e4 e- (Gaussian FWHM 3, sky 100,
+ * RON 3) 15 px apart fitted as one group on fitrad-5 discs (about 78 pixels
+ * each); in K = 20 frames star B's disc gets 30 e- of extra Gaussian noise
+ * a pixel (x > 20) that the weights do not know.  A's χ²star averages 1
+ * (σ of the mean sqrt(2 / (20 · 75)) = 0.037, plus under 0.01 from the
+ * shared sky's degree of freedom; asserted within 5σ = 0.18: false-failure
+ * rate below 1e-6), B's is about 1 + 900/110 (asserted > 3), and the
+ * group's χ² is the same number for both, between the two. */
+static void test_star_chi2_own_disc(void **state)
+{
+    (void)state;
+    enum { N = SKY_NP, K = 20 };
+    mp_sim_prf sp = {.kind = MP_SIM_GAUSS, .sigma = fwhm_to_sigma(3.0), .volume = 1.0};
+    mp_psf gau;
+    mp_psf_gauss(3.0, &gau);
+    mp_prf_model m = {&gau, NULL, 10};
+    mp_fit_opts o;
+    mp_fit_opts_default(&o);
+    o.sky_order = 0;
+    o.fitrad = 5.0;
+    char err[MP_ERRLEN];
+    mp_frame f;
+    frame_make(&f, N, 3.0);
+    mp_rng r;
+    mp_rng_seed(&r, 7103);
+    double ca = 0.0, cb = 0.0;
+    for (int k = 0; k < K; k++) {
+        for (long i = 0; i < N * N; i++)
+            f.im.pix[i] = 100.0;
+        assert_int_equal(mp_sim_add_star_float(&sp, 12.3, 20.4, 2e4, f.im.pix, N, N), 0);
+        assert_int_equal(mp_sim_add_star_float(&sp, 27.6, 19.7, 2e4, f.im.pix, N, N), 0);
+        mp_sim_add_noise_float(&r, f.im.pix, N * N, 3.0);
+        for (long j = 0; j < N; j++)
+            for (long i = 20; i < N; i++)
+                f.im.pix[j * N + i] += 30.0 * mp_rng_normal(&r);
+        mp_star st[2] = {{.x = 12.5, .y = 20.5, .flux = NAN}, {.x = 27.5, .y = 19.5, .flux = NAN}};
+        assert_int_equal(mp_fit_group(&f, &m, &o, NAN, st, 2, err), 0);
+        assert_true(st[0].chi2 == st[1].chi2);
+        assert_true(st[0].dofstar >= 70 && st[0].dofstar <= 80);
+        assert_true(st[1].dofstar >= 70 && st[1].dofstar <= 80);
+        assert_true(st[0].chi2star < st[0].chi2 && st[0].chi2 < st[1].chi2star);
+        ca += st[0].chi2star / K;
+        cb += st[1].chi2star / K;
+    }
+    print_message("own-disc chi2: A %.3f, B %.3f\n", ca, cb);
+    assert_float_equal(ca, 1.0, 0.18);
+    assert_true(cb > 3.0);
+    frame_drop(&f);
+}
+
 /* Frozen wings (fit/lm_frozen.c, issue 12).  A group of bright stars fitted
  * on small discs (fitrad 3) whose windows, cropped where a star's light
  * falls below 0.02 σ of a sky pixel, reach their neighbours' discs (FWHM
@@ -844,6 +895,7 @@ int main(void)
         cmocka_unit_test(test_error_plane_weights),
         cmocka_unit_test(test_frozen_wings_same_fit),
         cmocka_unit_test(test_refit_flags_are_this_fit),
+        cmocka_unit_test(test_star_chi2_own_disc),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }

@@ -946,7 +946,14 @@ static int do_chi2(const char *cat)
         /* A group's CHI2_PSF is its fit's: one saturated member (FLAGS
          * 1: its core has no weight, its halo and bleed trail do) sets it
          * for every star of the group. */
-        printf("groups         stars  median CHI2_PSF\n");
+        /* CHI2STAR_PSF (each star's own disc), where the fit wrote it:
+         * beside the group's, by the same split. */
+        int cs = mp_table_col(&t, "CHI2STAR_PSF");
+        double *w = malloc(sizeof(double) * (t.nrow + 1));
+        if (!w)
+            return free(v), 1;
+        printf(cs >= 0 ? "groups         stars  median CHI2_PSF  median CHI2STAR_PSF\n"
+                       : "groups         stars  median CHI2_PSF\n");
         for (int with = 0; with < 2; with++) {
             int n = 0;
             for (size_t k = 0; k < t.nrow; k++) {
@@ -954,12 +961,20 @@ static int do_chi2(const char *cat)
                 for (size_t q = 0; q < t.nrow && !sat; q++)
                     sat = mp_table_get(&t, q, ci) == mp_table_get(&t, k, ci) &&
                           ((long)mp_table_get(&t, q, cl) & 1);
-                if (sat == with)
+                if (sat == with) {
+                    w[n] = cs >= 0 ? mp_table_get(&t, k, cs) : NAN;
                     v[n++] = mp_table_get(&t, k, cc);
+                }
             }
-            if (n)
+            if (n && cs >= 0) {
+                double mv = median(v, n);
+                printf("%-14s %5d  %-15.2f  %.2f\n", with ? "a saturated" : "no saturated", n, mv,
+                       median(w, n));
+            } else if (n) {
                 printf("%-14s %5d  %.2f\n", with ? "a saturated" : "no saturated", n, median(v, n));
+            }
         }
+        free(w);
     }
     if (cg >= 0) {
         printf("GROUP_SIZE     stars  median CHI2_PSF\n");

@@ -7,7 +7,9 @@
 #            normalised residual near the stars against IRAF DAOPHOT's
 #            (its PSF built from the same pixels: pstselect, psf, nstar +
 #            substar of the neighbours, psf again, allstar, one refind
-#            round) on the same pixels.
+#            round) on the same pixels; CHI2STAR_PSF (each star's own
+#            disc) beside CHI2_PSF; stamps as validate/REAL.md draws them
+#            (validate/psfreal_47tuc_stamp.png).
 #   glimpse  Spitzer GLIMPSE 4.5 um with no PSF given against the GLIMPSE
 #            catalog, beside validate/REAL.md's run with the IRAC table.
 # DECam with its PSFEx model against Gaia is validate/PSF_FILES.md's
@@ -56,6 +58,54 @@ colq() {
         awk -v q="$3" '{ v[NR] = $1 } END { if (!NR) { print "nan"; exit } i = q * (NR - 1) + 1; print v[int(i)] }'
 }
 
+# tuc_stamps IMG T PNG: validate/REAL.md's stamps (asinh((value - sky)/σ)
+# on one grey scale, sky and σ from a residual) on 100 × 100 px around the
+# brightest star of T/mph.cat: the frame, DAOPHOT's residual (when there),
+# matphot's without and with halo=yes.
+tuc_stamps() {
+    command -v gnuplot > /dev/null 2>&1 || return 1
+    # shellcheck disable=SC2046
+    set -- "$1" "$2" "$3" $(awk '/^#/ { c[$3] = $2; next }
+        $c["FLUX_PSF"] > e { e = $c["FLUX_PSF"]; x = $c["XPSF_IMAGE"]; y = $c["YPSF_IMAGE"] }
+        END { x0 = int(x) - 49; y0 = int(y) - 49
+              if (x0 < 1) x0 = 1; if (y0 < 1) y0 = 1; if (x0 > 157) x0 = 157; if (y0 > 157) y0 = 157
+              print x0, y0 }' "$2/mph.cat")
+    x0=$4 y0=$5 n=100 d=$OUT/stamps
+    mkdir -p "$d" || return 1
+    "$OUT/real" stamp "$1" "$x0" "$y0" $n "$d/img.dat" > /dev/null || return 1
+    st=$("$OUT/real" stamp "$2/mpe.res.fits" "$x0" "$y0" $n "$d/mpe.dat") || return 1
+    "$OUT/real" stamp "$2/mph.res.fits" "$x0" "$y0" $n "$d/mph.dat" > /dev/null || return 1
+    dao=""
+    [ -f "$2/dao/im.sub2.fits" ] && "$OUT/real" stamp "$2/dao/im.sub2.fits" "$x0" "$y0" $n "$d/dao.dat" > /dev/null && dao=yes
+    sky=${st% *} sig=${st#* }
+    u="u (\$1 + $x0):(\$2 + $y0):(asinh((\$3 - $sky)/$sig)) w image"
+    if [ -n "$dao" ]; then
+        t2="IRAF DAOPHOT residual" p2="plot '$d/dao.dat' matrix $u"
+    else
+        t2="(no DAOPHOT run)" p2="plot '$d/img.dat' matrix u 1:2:(0) w image"
+    fi
+    gnuplot <<EOF 2>> "$d/gnuplot.log"
+set terminal pngcairo size 820,800 font ',9'
+set output '$3'
+set multiplot layout 2,2 title '47 Tuc [SCI][1:256,1:256], no psf=: asinh((value - $sky)/$sig), pixels ($x0..$((x0 + n - 1)), $y0..$((y0 + n - 1)))'
+set size ratio -1
+set palette grey
+set cbrange [-3:8]
+unset key
+set xrange [$x0 - 0.5:$x0 + $n - 0.5]
+set yrange [$y0 - 0.5:$y0 + $n - 0.5]
+set title 'frame'
+plot '$d/img.dat' matrix $u
+set title '$t2'
+$p2
+set title 'matphot residual (errplane=auto: [ERR])'
+plot '$d/mpe.dat' matrix $u
+set title 'matphot residual, and halo=yes'
+plot '$d/mph.dat' matrix $u
+unset multiplot
+EOF
+}
+
 tuc() {
     D=$REALDATA/hst_acs_hrc_47tuc
     F=$D/j8bt06nyq_flt_sip_crop512.fits
@@ -65,13 +115,13 @@ tuc() {
     T="$OUT/tuc"
     mkdir -p "$T"
     # mpg: the detector's values, the saturation mask grown by one pixel
-    # (datapars satgrow); mpe: and the FLT's ERR plane as the noise beyond
-    # Poisson + RON² (errplane); mph: and the bright stars' halo modelled
-    # (pipeline halo=yes).
+    # (datapars satgrow), no error plane; mpe: the defaults, which take the
+    # FLT's ERR plane as the noise beyond Poisson + RON² (errplane=auto);
+    # mph: and the bright stars' halo modelled (pipeline halo=yes).
     for v in mpg mpe mph; do
         say "47 Tuc: matphot pipeline, no psf= ($v)"
         set -- pipeline "$IMG" root="$T/$v" gain=1 rdnoise=4.71 saturate=151553.98 'dqmask=[DQ]' dqsat=2304 satgrow=1
-        [ $v != mpg ] && set -- "$@" 'errplane=[ERR]'
+        [ $v = mpg ] && set -- "$@" errplane=none
         [ $v = mph ] && set -- "$@" halo=yes
         echo "./matphot $*" | sed "s|root=$T/$v|root=R|; s|$REALDATA|$REALDATA0|" > "$T/$v.cmd"
         timed "$T/$v.log" "$MP" "$@" || { tail -n 3 "$T/$v.log" >&2; rc=1; return 0; }
@@ -102,7 +152,7 @@ tuc() {
         grep -h 'PSF pass\|halo from' "$T/$v.log" | sed 's/^[^:]*: [^:]*: //' | cut -c1-400
         echo '```'
         echo
-        echo "Median CHI2_PSF **$(colq "$T/$v.cat" CHI2_PSF 0.5)** (quartiles $(colq "$T/$v.cat" CHI2_PSF 0.25), $(colq "$T/$v.cat" CHI2_PSF 0.75)) over $(grep -vc '^#' "$T/$v.cat") stars.  Where it comes from (\`psfb chi2 CAT\`: by flux, by whether the group holds a saturated star, by group size; a PSF profile error makes CHI2 grow with the flux, neighbours and the noise model do not):"
+        echo "Median CHI2_PSF (the group's) **$(colq "$T/$v.cat" CHI2_PSF 0.5)** (quartiles $(colq "$T/$v.cat" CHI2_PSF 0.25), $(colq "$T/$v.cat" CHI2_PSF 0.75)) over $(grep -vc '^#' "$T/$v.cat") stars; median CHI2STAR_PSF (each star's own fitting disc, DAOPHOT's CHI²) **$(colq "$T/$v.cat" CHI2STAR_PSF 0.5)** (quartiles $(colq "$T/$v.cat" CHI2STAR_PSF 0.25), $(colq "$T/$v.cat" CHI2STAR_PSF 0.75)).  Where it comes from (\`psfb chi2 CAT\`: by flux, by whether the group holds a saturated star, by group size; a PSF profile error makes CHI2 grow with the flux, neighbours and the noise model do not):"
         echo
         echo '```'
         "$OUT/psfb" chi2 "$T/$v.cat"
@@ -122,8 +172,8 @@ tuc() {
             b=$("$OUT/psfb" resid "$IMG" "$res" "$T/dao/dao.cat" 3 4.71 | sed -n 's/.*residual \([0-9.]*\),.*/\1/p')
             c=$("$OUT/psfb" resid "$IMG" "$res" "$T/mpg.cat" 3 4.71 "$T/dao/dao.cat" | sed -n 's/.*residual \([0-9.]*\),.*/\1/p')
             case $r in
-            mpg) n="matphot, its own PSF, satgrow=1 ($(grep -vc '^#' "$T/mpg.cat") stars)" ;;
-            mpe) n="matphot, and errplane=[ERR] ($(grep -vc '^#' "$T/mpe.cat") stars)" ;;
+            mpg) n="matphot, its own PSF, satgrow=1, errplane=none ($(grep -vc '^#' "$T/mpg.cat") stars)" ;;
+            mpe) n="matphot, and the ERR plane (errplane=auto, the default) ($(grep -vc '^#' "$T/mpe.cat") stars)" ;;
             mph) n="matphot, and halo=yes ($(grep -vc '^#' "$T/mph.cat") stars)" ;;
             *) n="IRAF DAOPHOT ($(grep -vc '^#' "$T/dao/dao.cat") stars)" ;;
             esac
@@ -131,6 +181,12 @@ tuc() {
         done
         echo
         echo "DAOPHOT's CHI (its ratio of the observed to the expected scatter, about sqrt(chi2/dof)), squared: median $(awk '!/^#/ { print $5 * $5 }' "$T/dao/chi.txt" | sort -g | awk '{ v[NR] = $1 } END { print v[int((NR + 1) / 2)] }') over its stars."
+    fi
+    if tuc_stamps "$IMG" "$T" validate/psfreal_47tuc_stamp.png && [ -f validate/psfreal_47tuc_stamp.png ]; then
+        echo
+        echo "Stamps as validate/REAL.md draws them (\`tuc_stamps\` in this script), 100 px around the brightest star:"
+        echo
+        echo "![47 Tuc stamps](psfreal_47tuc_stamp.png)"
     fi
     } > "$OUT/tuc.md"
 }
