@@ -19,16 +19,6 @@
 
 enum { HALO_NSTAR = 10, HALO_MINPIX = 5 };
 
-typedef struct {
-    double x, y, e;
-} hstar;
-
-static int by_flux_desc(const void *a, const void *b)
-{
-    double x = ((const hstar *)a)->e, y = ((const hstar *)b)->e;
-    return (x < y) - (x > y);
-}
-
 static int by_value(const void *a, const void *b)
 {
     double x = *(const double *)a, y = *(const double *)b;
@@ -44,26 +34,8 @@ static double median_of(double *v, size_t n)
     return n % 2 ? v[n / 2] : 0.5 * (v[n / 2 - 1] + v[n / 2]);
 }
 
-/* The stars of t with a positive fitted flux, brightest first; *n of them. */
-static hstar *stars_of(const mp_table *t, size_t *n)
-{
-    int cx = mp_table_col(t, "XPSF_IMAGE"), cy = mp_table_col(t, "YPSF_IMAGE"),
-        ce = mp_table_col(t, "FLUX_PSF");
-    hstar *s = malloc((t->nrow ? t->nrow : 1) * sizeof *s);
-    *n = 0;
-    if (!s || cx < 0 || cy < 0 || ce < 0)
-        return s;
-    for (size_t r = 0; r < t->nrow; r++) {
-        hstar h = {mp_table_get(t, r, cx), mp_table_get(t, r, cy), mp_table_get(t, r, ce)};
-        if (isfinite(h.x) && isfinite(h.y) && h.e > 0)
-            s[(*n)++] = h;
-    }
-    qsort(s, *n, sizeof *s, by_flux_desc);
-    return s;
-}
-
 /* The unmasked residual values in the ring [r0, r1) around s, in buf. */
-static size_t ring_values(const mp_frame *f, const float *res, const hstar *s, double r0,
+static size_t ring_values(const mp_frame *f, const float *res, const mp_pl_star *s, double r0,
                           double r1, double *buf)
 {
     long nx = f->im.nx, ny = f->im.ny, n = 0;
@@ -83,7 +55,7 @@ static size_t ring_values(const mp_frame *f, const float *res, const hstar *s, d
  * 1.2533 σ/√m with σ the ring's robust scatter (IQR/1.349; the median of m
  * Gaussian values scatters √(π/2) more than their mean).  0 with fewer than
  * HALO_MINPIX pixels. */
-static int ring_median(const mp_frame *f, const float *res, const hstar *s, double r0, double r1,
+static int ring_median(const mp_frame *f, const float *res, const mp_pl_star *s, double r0, double r1,
                        double *buf, double *med, double *se)
 {
     size_t m = ring_values(f, res, s, r0, r1, buf);
@@ -132,7 +104,7 @@ typedef struct {
 } rings;
 
 /* The stars' rings into g; the number of stars with a sky. */
-static int star_rings(const mp_frame *f, const float *res, const hstar *s, size_t ns, double rin,
+static int star_rings(const mp_frame *f, const float *res, const mp_pl_star *s, size_t ns, double rin,
                       double rout, int nb, double *buf, rings *g)
 {
     int used = 0;
@@ -182,7 +154,7 @@ static double scatter_var(const rings *g, const double *ck, const double *fk, do
  * larger of the pixels' (each ring median's variance and, since one star's
  * sky enters all its rings, its sky's variance times (Σ_j c_kj)²) and the
  * stars' scatter about F (scatter_var). */
-static double profile(const hstar *s, const rings *g, int nb, double rin, double *h, double *den)
+static double profile(const mp_pl_star *s, const rings *g, int nb, double rin, double *h, double *den)
 {
     for (int j = 0; j < nb; j++) {
         double num = 0.0;
@@ -224,7 +196,7 @@ static double profile(const hstar *s, const rings *g, int nb, double rin, double
  * >= 0.  *z: the significance of the unconstrained profile's light (the
  * constrained one is biased up by its >= 0).  Returns the number of stars
  * used, −1 when out of memory. */
-static int measure(const mp_frame *f, const float *res, const hstar *s, size_t ns, double rin,
+static int measure(const mp_frame *f, const float *res, const mp_pl_star *s, size_t ns, double rin,
                    double rout, double *h, int nb, double *z)
 {
     size_t cap = (size_t)(M_PI * (rout + 2 * rin + 2) * (rout + 2 * rin + 2)) + 16;
@@ -264,7 +236,7 @@ static double h_at(const double *h, int nb, double rin, double r)
 /* Take E·h(r) of every star whose halo reaches a twentieth of a sky pixel's
  * σ off the frame and the residual, its variance into xvar; *nlit counts
  * them. */
-static int subtract(mp_frame *f, float *res, const hstar *s, size_t ns, const double *h, int nb,
+static int subtract(mp_frame *f, float *res, const mp_pl_star *s, size_t ns, const double *h, int nb,
                     double rin, double sig, long *nlit)
 {
     size_t npix = (size_t)f->im.nx * (size_t)f->im.ny;
@@ -314,7 +286,7 @@ int mp_pl_halo(mp_frame *f, float *res, const mp_table *t, double fwhm, double *
     double rin = fmax(fwhm, 1.0), rout = 16.0 * rin;
     int nb = (int)(rout - rin);
     size_t ns;
-    hstar *s = stars_of(t, &ns);
+    mp_pl_star *s = mp_pl_stars_by_flux(t, 0, &ns);
     double *h = malloc((size_t)nb * sizeof *h);
     int rc = 1, used = s && h ? measure(f, res, s, ns, rin, rout, h, nb, z) : -1;
     int significant = used > 0 && *z > MP_PL_HALO_Z;

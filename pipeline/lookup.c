@@ -33,10 +33,6 @@ enum { LK_NSTAR = 50 };
  * make the finer elements significant (-> 31). */
 #define LK_OS 1
 
-typedef struct {
-    double x, y, e;
-    int sat;              /* FLAGS 1: near a saturated pixel */
-} lstar;
 
 typedef struct {
     int hp, os;           /* half-size [px]; elements a pixel, per axis */
@@ -48,42 +44,15 @@ typedef struct {
     double *m, *sig;      /* the look-up per e-, its σ */
 } lookup;
 
-static int by_flux_desc(const void *a, const void *b)
-{
-    double x = ((const lstar *)a)->e, y = ((const lstar *)b)->e;
-    return (x < y) - (x > y);
-}
-
 static int by_value(const void *a, const void *b)
 {
     double x = *(const double *)a, y = *(const double *)b;
     return (x > y) - (x < y);
 }
 
-/* The stars of t fitted with a positive flux and converged (FLAGS 8, 16
- * not set), brightest first; *n of them. */
-static lstar *stars_of(const mp_table *t, size_t *n)
-{
-    int cx = mp_table_col(t, "XPSF_IMAGE"), cy = mp_table_col(t, "YPSF_IMAGE"),
-        ce = mp_table_col(t, "FLUX_PSF"), cf = mp_table_col(t, "FLAGS");
-    lstar *s = malloc((t->nrow ? t->nrow : 1) * sizeof *s);
-    *n = 0;
-    if (!s || cx < 0 || cy < 0 || ce < 0)
-        return s;
-    for (size_t r = 0; r < t->nrow; r++) {
-        long fl = cf >= 0 ? (long)mp_table_get(t, r, cf) : 0;
-        lstar h = {mp_table_get(t, r, cx), mp_table_get(t, r, cy), mp_table_get(t, r, ce),
-                   (int)(fl & 1)};
-        if (isfinite(h.x) && isfinite(h.y) && h.e > 0 && !(fl & 24))
-            s[(*n)++] = h;
-    }
-    qsort(s, *n, sizeof *s, by_flux_desc);
-    return s;
-}
-
 /* The star's sky: the median residual on the square ring just outside the
  * look-up's box (NaN with fewer than 8 pixels). */
-static double sky_near(const mp_frame *f, const float *res, const lstar *s, int h, double *buf)
+static double sky_near(const mp_frame *f, const float *res, const mp_pl_star *s, int h, double *buf)
 {
     long cx = lround(s->x), cy = lround(s->y);
     size_t m = 0;
@@ -107,7 +76,7 @@ static double sky_near(const mp_frame *f, const float *res, const lstar *s, int 
  * star spread over the four elements around it with bilinear weights (so
  * the stars' subpixel phases average rather than blur by a whole pixel),
  * as a least-squares estimate of the look-up per electron. */
-static void stack_star(lookup *L, const mp_frame *f, const float *res, const lstar *s, double sky)
+static void stack_star(lookup *L, const mp_frame *f, const float *res, const mp_pl_star *s, double sky)
 {
     long x0 = (long)floor(s->x) - L->hp, y0 = (long)floor(s->y) - L->hp;
     for (long y = y0; y <= y0 + 2 * L->hp + 1; y++)
@@ -184,7 +153,7 @@ static double at(const lookup *L, const double *v, double dx, double dy)
 /* E·M around every star whose largest correction reaches LK_MINSKY of a
  * sky pixel's σ taken off f and res, (E·σ_M)² added to f->xvar; *nlit
  * counts the stars. */
-static int take_off(const lookup *L, mp_frame *f, float *res, const lstar *s, size_t ns,
+static int take_off(const lookup *L, mp_frame *f, float *res, const mp_pl_star *s, size_t ns,
                     double sigsky, long *nlit)
 {
     size_t npix = (size_t)f->im.nx * (size_t)f->im.ny;
@@ -237,13 +206,13 @@ static double sky_of(const mp_table *t)
  * within 2.5 mag of the brightest (the stars whose features matter, not
  * the features themselves, which the first round fitted as stars), at
  * s[*last] the faintest of them; *nst how many. */
-static void pick(const lstar *s, size_t ns, size_t *last, size_t *nst)
+static void pick(const mp_pl_star *s, size_t ns, size_t *last, size_t *nst)
 {
     double emax = NAN;
     *nst = 0;
     *last = 0;
     for (size_t k = 0; k < ns && *nst < LK_NSTAR; k++)
-        if (!s[k].sat) {
+        if (!(s[k].flags & 1)) {
             if (isnan(emax))
                 emax = s[k].e;
             if (s[k].e < 0.1 * emax)
@@ -304,7 +273,8 @@ int mp_pl_lookup(mp_frame *f, float *res, const mp_table *t, const mp_prf_model 
     L.n = 2 * L.h + 1;
     L.rin = rin;
     size_t nel = (size_t)L.n * (size_t)L.n, ns = 0, used = 0;
-    lstar *s = stars_of(t, &ns);
+    /* Converged fits only (FLAGS 8, 16 not set), brightest first. */
+    mp_pl_star *s = mp_pl_stars_by_flux(t, 8 | 16, &ns);
     double *buf = malloc((size_t)(2 * L.hp + 5) * (size_t)(2 * L.hp + 5) * sizeof *buf);
     L.num = calloc(nel, sizeof *L.num);
     L.den = calloc(nel, sizeof *L.den);
@@ -324,7 +294,7 @@ int mp_pl_lookup(mp_frame *f, float *res, const mp_table *t, const mp_prf_model 
     if (nst && bright_residual(f, m, t, cropfrac, 0.01 * s[last].e, rb, err))
         goto fail;
     for (size_t k = 0; nst && k <= last; k++) {
-        if (s[k].sat)
+        if (s[k].flags & 1)
             continue;            /* spilled charge is no PSF's */
         double sky = sky_near(f, rb, &s[k], L.hp, buf);
         if (!isfinite(sky))

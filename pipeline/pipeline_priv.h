@@ -14,6 +14,19 @@
  * value; o->fit is then to be freed with mp_fit_setup_free all the same. */
 int mp_pl_opts_read(mp_parset *ps, mp_pipeline_opts *o, char *err);
 
+/* ---- bright_stars.c ---------------------------------------------------- */
+
+/* A fitted star: position, flux (e-) and FLAGS. */
+typedef struct {
+    double x, y, e;
+    long flags;
+} mp_pl_star;
+
+/* mp_pl_stars_by_flux: the rows of t with a finite XPSF/YPSF_IMAGE, a
+ * positive FLUX_PSF and none of skipflags in FLAGS, brightest first; *n
+ * of them.  NULL when out of memory (*n = 0); the caller frees. */
+mp_pl_star *mp_pl_stars_by_flux(const mp_table *t, long skipflags, size_t *n);
+
 /* ---- halo.c ------------------------------------------------------------ */
 
 /* mp_pl_halo: the light of bright stars beyond what the PSF table holds
