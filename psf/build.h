@@ -73,6 +73,9 @@ typedef struct {
     int maxnpsf;       /* stars used at most (selection) */
     int outer;         /* star fits per pass (each followed by SIRT steps) */
     int sirt;          /* largest number of SIRT steps per outer iteration */
+    int grid;          /* the stars' fits at order 0 from a phase grid within
+                        * its bias bound (psf/star_model.c): 0 when it pays,
+                        * 1 always, -1 never (exact renders; tests compare) */
     double x0, y0, xs, ys;   /* polynomial origin and scales [px] */
 } mp_epsf_opts;
 
@@ -98,6 +101,8 @@ typedef struct {
     double wiener[MP_EPSF_NWBIN];   /* the noise filter per 0.05 cycles/px
                           * (S/(S+N), measured in the first pass) */
     int have_wiener;
+    long fits, fits_grid;   /* star fits of the builds so far, and of them
+                          * from the phase grid (star_model.c) */
 } mp_epsf;
 
 void mp_epsf_free(mp_epsf *e);
@@ -153,9 +158,10 @@ int mp_epsf_neighbours(mp_epsf_star *s, size_t n, const mp_table *t, const mp_pr
                        double psfrad, char *err);
 
 /* mp_epsf_clean: f = raw less the neighbours' models drawn with table
- * tab (for the star at s->x, s->y), and the star's sky again from the
- * annulus of that; nothing without neighbours.  Nonzero on out of memory. */
-int mp_epsf_clean(mp_epsf_star *s, const mp_psf *tab, double psfrad);
+ * tab (for the star at s->x, s->y; from grid when not NULL and built for
+ * tab), and the star's sky again from the annulus of that; nothing
+ * without neighbours.  Nonzero on out of memory. */
+int mp_epsf_clean(mp_epsf_star *s, const mp_psf *tab, const mp_prf_cache *grid, double psfrad);
 
 void mp_epsf_stars_free(mp_epsf_star *s, size_t n);
 

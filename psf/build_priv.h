@@ -29,6 +29,36 @@ typedef struct {
  * above 4 robust σ of the other stars in the last step. */
 enum { MP_EPSF_MASKED = 1, MP_EPSF_HIT = 2 };
 
+/* The model the stars are fitted with for one state of the table
+ * (star_model.c): at order 0 the table of every star, and its phase grid
+ * when the fits pay for it; at higher orders each star's own table. */
+typedef struct {
+    mp_psf tab;            /* order 0: the table; else the last star's */
+    mp_prf_cache grid;     /* order 0: tab's phase grid (G 0: none) */
+    int order0;            /* tab is every star's table */
+    int mode;              /* mp_epsf_opts.grid */
+    int fine;              /* the last grid was MP_PRF_CACHE_G's */
+    long fits, fits_grid;  /* star fits done, and of them from the grid */
+} mp_epsf_fitter;
+
+/* The bias bound, in units of the brightest star's σ, under which a
+ * group's PRF is drawn from the phase grid (the fit's sincfrac default). */
+#define MP_EPSF_GRID_FRAC 0.1
+/* The coarser grid tried first (phases per pixel; star_model.c). */
+#define MP_EPSF_GRID_G 8
+
+/* mp_epsf_fitter_set: z for table e as it now is, before fitting the used
+ * stars of s (the grid is built when their fits need more renders than
+ * it costs).  Nonzero on out of memory. */
+int mp_epsf_fitter_set(mp_epsf_fitter *z, const mp_epsf *e, const mp_epsf_star *s, size_t n,
+                       char *err);
+
+/* mp_epsf_fitter_grid: the grid to fit star s (and its neighbours) from,
+ * or NULL: none built, or its bound at twice the group's brightest flux
+ * above MP_EPSF_GRID_FRAC. */
+const mp_prf_cache *mp_epsf_fitter_grid(const mp_epsf_fitter *z, const mp_epsf_star *s);
+void mp_epsf_fitter_free(mp_epsf_fitter *z);
+
 int mp_epsf_sirt_init(mp_epsf_sirt *w, const mp_epsf *e, size_t nstar, char *err);
 
 /* mp_epsf_sirt_dilate: each used star's MP_EPSF_MASKED elements become

@@ -263,7 +263,7 @@ int mp_epsf_neighbours(mp_epsf_star *s, size_t n, const mp_table *t, const mp_pr
     return 0;
 }
 
-int mp_epsf_clean(mp_epsf_star *s, const mp_psf *tab, double psfrad)
+int mp_epsf_clean(mp_epsf_star *s, const mp_psf *tab, const mp_prf_cache *grid, double psfrad)
 {
     if (!s->raw)
         return 0;
@@ -273,6 +273,7 @@ int mp_epsf_clean(mp_epsf_star *s, const mp_psf *tab, double psfrad)
     mp_prf_model m = {tab, NULL, 10};
     mp_prf_work w;
     memset(&w, 0, sizeof w);
+    w.grid = grid;
     double *prf = NULL, *buf = malloc(2 * np * sizeof *buf);
     size_t nprf = 0;
     int rc = !buf;

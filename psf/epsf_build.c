@@ -55,7 +55,10 @@ static int start_planes(const mp_epsf_opts *o, int os, int order, mp_epsf *e, ch
     if (mp_psf_gauss_table(o->fwhm, os, o->psfrad, &g, err))
         return 1;
     size_t nel = (size_t)g.nx * g.ny;
+    long fits = e->fits, fits_grid = e->fits_grid;   /* the work so far stays counted */
     mp_epsf_free(e);
+    e->fits = fits;
+    e->fits_grid = fits_grid;
     if (!(e->planes = calloc((size_t)nterms * nel, sizeof *e->planes))) {
         mp_psf_free(&g);
         return oom(err);
@@ -77,16 +80,21 @@ static int start_planes(const mp_epsf_opts *o, int os, int order, mp_epsf *e, ch
 }
 
 /* Fit one star (centre, flux; the sky its annulus's) with its table at
- * its place, together with its neighbours on the cut-out as cut; then
- * the cut-out less the neighbours' models (mp_epsf_clean). */
-static int fit_star(mp_epsf_star *s, const mp_epsf *e, const mp_epsf_opts *o, mp_psf *tab,
+ * its place (z's model: star_model.c), together with its neighbours on
+ * the cut-out as cut; then the cut-out less the neighbours' models
+ * (mp_epsf_clean). */
+static int fit_star(mp_epsf_star *s, const mp_epsf *e, const mp_epsf_opts *o, mp_epsf_fitter *z,
                     char *err)
 {
-    if (mp_epsf_table(e, s->x, s->y, tab, err))
+    mp_psf *tab = &z->tab;
+    if (!z->order0 && mp_epsf_table(e, s->x, s->y, tab, err))
         return 1;
     mp_prf_model m = {tab, NULL, 10};
     mp_fit_opts fo;
     mp_fit_opts_default(&fo);
+    fo.grid = mp_epsf_fitter_grid(z, s);
+    z->fits++;
+    z->fits_grid += fo.grid != NULL;
     fo.sky_order = 0;
     fo.fitrad = o->fitrad;
     fo.fit_sky = 0;             /* the annulus's (mp_epsf_cutouts) */
@@ -133,7 +141,7 @@ static int fit_star(mp_epsf_star *s, const mp_epsf *e, const mp_epsf_opts *o, mp
             s->nbf[j] = st[1 + j].flux;
         }
     }
-    if (mp_epsf_clean(s, tab, o->psfrad))
+    if (mp_epsf_clean(s, tab, fo.grid, o->psfrad))
         return oom(err);
     return 0;
 }
@@ -192,8 +200,9 @@ int mp_epsf_build(mp_epsf_star *s, size_t n, const mp_epsf_opts *o, int os, int 
     mp_epsf_sirt w;
     if (mp_epsf_sirt_init(&w, e, n, err))
         return 1;
-    mp_psf tab;
-    memset(&tab, 0, sizeof tab);
+    mp_epsf_fitter z;
+    memset(&z, 0, sizeof z);
+    z.mode = o->grid;
     int rc = 1;
     double *tmp = malloc((n + 1) * sizeof *tmp);
     if (!tmp) {
@@ -201,8 +210,10 @@ int mp_epsf_build(mp_epsf_star *s, size_t n, const mp_epsf_opts *o, int os, int 
         goto done;
     }
     for (int it = 0; it < o->outer; it++) {
+        if (mp_epsf_fitter_set(&z, e, s, n, err))
+            goto done;
         for (size_t k = 0; k < n; k++)
-            if (s[k].used && fit_star(&s[k], e, o, &tab, err))
+            if (s[k].used && fit_star(&s[k], e, o, &z, err))
                 goto done;
         if (it >= 2)
             reject_chi2(s, n, tmp);
@@ -222,20 +233,25 @@ int mp_epsf_build(mp_epsf_star *s, size_t n, const mp_epsf_opts *o, int os, int 
     rc = 0;
 done:
     free(tmp);
-    mp_psf_free(&tab);
+    e->fits += z.fits;
+    e->fits_grid += z.fits_grid;
+    mp_epsf_fitter_free(&z);
     mp_epsf_sirt_free(&w);
     return rc;
 }
 
 int mp_epsf_refit(mp_epsf_star *s, size_t n, const mp_epsf_opts *o, mp_epsf *e, char *err)
 {
-    mp_psf tab;
-    memset(&tab, 0, sizeof tab);
-    int rc = 0;
+    mp_epsf_fitter z;
+    memset(&z, 0, sizeof z);
+    z.mode = o->grid;
+    int rc = mp_epsf_fitter_set(&z, e, s, n, err);
     for (size_t k = 0; k < n && !rc; k++)
         if (s[k].used)
-            rc = fit_star(&s[k], e, o, &tab, err);
+            rc = fit_star(&s[k], e, o, &z, err);
     e->nstar = (int)count_used(s, n);
-    mp_psf_free(&tab);
+    e->fits += z.fits;
+    e->fits_grid += z.fits_grid;
+    mp_epsf_fitter_free(&z);
     return rc;
 }

@@ -100,7 +100,7 @@ static void brightest(const mp_epsf_star *s, size_t n, double *E, double *B)
  * (alternate ones), each builds its own ×4 table from the start, and half
  * their difference is a draw of the full table's error (each half has
  * twice the full table's variance).  noise receives it. */
-static int half_difference(mp_epsf_star *s, size_t n, const mp_epsf_opts *o, const mp_epsf *e,
+static int half_difference(mp_epsf_star *s, size_t n, const mp_epsf_opts *o, mp_epsf *e,
                            mp_epsf *noise, char *err)
 {
     mp_epsf h[2];
@@ -121,6 +121,10 @@ static int half_difference(mp_epsf_star *s, size_t n, const mp_epsf_opts *o, con
             s[k].used = keep[k];
             s[k].skip = 0;
         }
+    }
+    for (int half = 0; half < 2; half++) {
+        e->fits += h[half].fits;
+        e->fits_grid += h[half].fits_grid;
     }
     if (!rc) {
         *noise = h[0];
@@ -281,8 +285,9 @@ int mp_epsf_pass(const mp_frame *f, const float *img, int residual, const mp_tab
     rep->chi2 = median_chi2(s, n);
     size_t l = strlen(rep->what);
     snprintf(rep->what + l, sizeof rep->what - l,
-             "%zu of %zu stars used (median chi2 %.2f); %s; PSFSUM %.4f +- %.4f from %d stars",
-             rep->nused, n, rep->chi2, e->why, e->sum, e->sum_err, e->ngrowth);
+             "%zu of %zu stars used (median chi2 %.2f); %s; PSFSUM %.4f +- %.4f from %d stars; "
+             "%ld star fits, %ld from the phase grid", rep->nused, n, rep->chi2, e->why, e->sum,
+             e->sum_err, e->ngrowth, e->fits, e->fits_grid);
     if (stars) {
         if (!(*stars = malloc((n + 1) * sizeof **stars))) {
             snprintf(err, MP_ERRLEN, "psf build: out of memory");

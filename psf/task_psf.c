@@ -106,7 +106,10 @@ done:
 }
 
 /* Every detection fitted with the first pass's table (grouped as the
- * pipeline groups), and the residual: what the second pass needs. */
+ * pipeline groups), and the residual: what the second pass needs.  With
+ * the fit's economy as `matphot fit` has it: the sinc kernel's choice and,
+ * for a constant PSF, the phase grid, each built only when the frame's
+ * fits pay for it and used only within its bias bound (fit/fit.h). */
 static int fit_all(const mp_frame *f, const psf_task *t, mp_table *found,
                    const mp_prf_model *m, float *res, char *err)
 {
@@ -119,9 +122,31 @@ static int fit_all(const mp_frame *f, const psf_task *t, mp_table *found,
     mp_frame_opts fo;
     mp_frame_opts_default(&fo);
     fo.fit.fitrad = t->o.fitrad;
-    if (mp_fit_table(f, m, &fo, found, NULL, err))
+    if (!(fo.cache = mp_econ_cache_new())) {
+        snprintf(err, MP_ERRLEN, "out of memory");
         return 1;
-    return mp_fit_residual(f, m, found, 0.0, res, err);
+    }
+    int rc = mp_econ_offer(fo.cache, m, 0, NULL, m->sinc_hw > 0,
+                           m->psf->field ? 0 : MP_PRF_CACHE_G);
+    if (rc)
+        snprintf(err, MP_ERRLEN, "out of memory");
+    else
+        rc = mp_fit_table(f, m, &fo, found, NULL, err);
+    const mp_prf_cache *grid = NULL;
+    if (!rc) {
+        /* The residual from the grid the fit built, within its bound. */
+        mp_frame_opts oe = fo;
+        rc = mp_econ_choose(fo.cache, (double)found->nrow, fo.fit.fitrad, &oe, NULL, err);
+        grid = oe.grid;
+    }
+    /* Its flux limit on no sky (the safe side: less sky, lower limit). */
+    if (!rc)
+        rc = grid ? mp_fit_residual_grid(f, m, found, 0.0, grid,
+                                         mp_prf_cache_limit(grid, 0.0, f->rdnoise, fo.sincfrac),
+                                         res, err)
+                  : mp_fit_residual(f, m, found, 0.0, res, err);
+    mp_econ_cache_free(fo.cache);
+    return rc;
 }
 
 /* The find table's rows picked by mp_epsf_select as arrays. */

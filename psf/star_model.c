@@ -1,0 +1,88 @@
+/* star_model.c — the model the PSF stars are fitted with while the table
+ * is built (build_priv.h, mp_epsf_fitter).
+ *
+ * Why: the builder fits every PSF star with its neighbours (up to 13
+ * stars) at every outer iteration of every build, and the exact render
+ * shifts the whole supersampled table for each star at each LM step: on
+ * a crowded frame those fits were 75 % of `matphot psf` (bench/PROFILE.md).
+ * At order 0 every star has the same table, so its PRF is drawn from the
+ * fit's own phase grid (fit/prf_cache.c) whenever the grid's bias bound for
+ * the group's brightest star, q = E·sqrt(Σ δP²/(E P + B + RON²)), is at
+ * most MP_EPSF_GRID_FRAC of its σ (the fit's sincfrac default; the bound's
+ * argument is fit/sinc_choice.c's).  The grid is built only when the fits
+ * it would serve need more renders than it costs.  The back-projection
+ * (sirt.c) stays exact: it is the transpose of the render that defines the
+ * table. */
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include "psf/build_priv.h"
+
+void mp_epsf_fitter_free(mp_epsf_fitter *z)
+{
+    mp_psf_free(&z->tab);
+    mp_prf_cache_free(&z->grid);
+    memset(z, 0, sizeof *z);
+}
+
+/* Renders a grid of G phases per pixel costs: its nodes (os·(gb + 3) per
+ * axis, gb = ⌈G/os⌉: fit/prf_cache.c) and the G² cells where its error is
+ * measured. */
+static double grid_renders(int G, int os)
+{
+    int gb = (G + os - 1) / os, na = os * (gb + 3), ng = os * gb;
+    return (double)na * na + (double)ng * ng;
+}
+
+/* The renders of the used stars' fits (MP_ECON_RENDERS_PER_FIT per star of
+ * a group, at least) that z's grid does not serve (all without one). */
+static double unserved(const mp_epsf_fitter *z, const mp_epsf_star *s, size_t n)
+{
+    double r = 0.0;
+    for (size_t k = 0; k < n; k++)
+        if (s[k].used && !mp_epsf_fitter_grid(z, &s[k]))
+            r += MP_ECON_RENDERS_PER_FIT * (1.0 + s[k].nnb);
+    return r;
+}
+
+/* The grid is built when the fits it would serve need more renders than it
+ * costs: first at MP_EPSF_GRID_G phases (a quarter of the fit's nodes per
+ * axis at ×4: the cubic's error grows 16-fold, and a PSF star's bound
+ * mostly still holds), then at the fit's MP_PRF_CACHE_G when the stars the
+ * coarse grid leaves out pay for that; a table that needed the finer grid
+ * starts there at the next step (the table changes little between steps). */
+int mp_epsf_fitter_set(mp_epsf_fitter *z, const mp_epsf *e, const mp_epsf_star *s, size_t n,
+                       char *err)
+{
+    mp_prf_cache_free(&z->grid);
+    z->order0 = e->nterms == 1;
+    if (!z->order0)
+        return 0;
+    if (mp_epsf_table(e, e->x0, e->y0, &z->tab, err))
+        return 1;
+    mp_prf_model m = {&z->tab, NULL, 10};
+    for (int G = z->fine ? MP_PRF_CACHE_G : MP_EPSF_GRID_G; G <= MP_PRF_CACHE_G; G *= 2) {
+        double need = unserved(z, s, n);
+        if (z->mode < 0 || need == 0.0 || (z->mode == 0 && need < grid_renders(G, e->os)))
+            return 0;
+        mp_prf_cache_free(&z->grid);
+        if (mp_prf_cache_build(&m, G, &z->grid, err))
+            return 1;
+        z->fine = G == MP_PRF_CACHE_G;
+    }
+    return 0;
+}
+
+const mp_prf_cache *mp_epsf_fitter_grid(const mp_epsf_fitter *z, const mp_epsf_star *s)
+{
+    if (!z->order0 || z->grid.G == 0)
+        return NULL;
+    /* The group's brightest star, twice over: a start flux (the light
+     * within half psfrad) falls short of the fitted one. */
+    double E = s->flux;
+    for (int j = 0; j < s->nnb; j++)
+        E = fmax(E, s->nbf[j]);
+    double q = mp_prf_cache_bound(&z->grid, 2.0 * E, fmax(s->sky, 0.0), s->f.rdnoise);
+    return q <= MP_EPSF_GRID_FRAC ? &z->grid : NULL;
+}
