@@ -226,11 +226,14 @@ for F in $FRAMES; do
   printf '%s\t%s\t%s\t%s\t%s\t%s\n' "$F" "$fw" "$MAGMIN" "$MAGMAX" "$desc" "$simcmd" >> "$W/frames.tsv"
   mpcmd="matphot pipeline $F.fits psf=$F.psf.fits fitrad=$fw threshold=4 niter=$NITER"
   mpdcmd="matphot pipeline $F.fits psf=$F.psf.fits threshold=4 niter=$NITER"
+  # the PSF built from the frame (no psf=), as DAOPHOT builds its own
+  mpbcmd="matphot pipeline $F.fits fitrad=$fw threshold=4 niter=$NITER"
   {
     echo "# frame $F"
     echo "$simcmd"
     echo "OMP_NUM_THREADS=$MATPHOT_THREADS $mpcmd    # matphot, fitrad = FWHM (as DAOPHOT)"
     echo "OMP_NUM_THREADS=$MATPHOT_THREADS $mpdcmd    # matphot, default fitrad"
+    echo "OMP_NUM_THREADS=$MATPHOT_THREADS $mpbcmd    # matphot, fitrad = FWHM, PSF built from the frame"
     echo "irafcl -f find.cl; irafcl -f psf.cl; irafcl -f als1.cl; irafcl -f refind.cl   # DAOPHOT, varorder 0 (sigma=$sigma, fitrad=$fw, psfrad=$psfrad)"
     echo "irafcl -f find.cl; irafcl -f psf.cl; irafcl -f als1.cl; irafcl -f refind.cl   # the same with varorder -1 (analytic PSF)"
   } >> "$W/commands.txt"
@@ -238,15 +241,17 @@ for F in $FRAMES; do
   r=1
   while [ "$r" -le "$REPS" ]; do
     # matphot, fitrad = FWHM
-    RD="$FD/r$r"; mkdir -p "$RD/mp" "$RD/mpd" "$RD/dao" "$RD/daoa"
-    # interleaved: matphot, DAOPHOT, matphot default, DAOPHOT analytic PSF
-    for v in mp dao mpd daoa; do
+    RD="$FD/r$r"; mkdir -p "$RD/mp" "$RD/mpd" "$RD/mpb" "$RD/dao" "$RD/daoa"
+    # interleaved: matphot, DAOPHOT, matphot default, DAOPHOT analytic PSF,
+    # matphot with the PSF built from the frame
+    for v in mp dao mpd daoa mpb; do
       case $v in
-      mp|mpd)
+      mp|mpd|mpb)
         ln -sf "$FD/$F.fits" "$RD/$v/$F.fits"
-        if [ $v = mp ]; then cmd=$mpcmd; else cmd=$mpdcmd; fi
+        case $v in mp) cmd=$mpcmd;; mpd) cmd=$mpdcmd;; *) cmd=$mpbcmd;; esac
+        psfarg=psf="$FD/$F.psf.fits"; [ $v = mpb ] && psfarg=
         ( cd "$RD/$v" && OMP_NUM_THREADS=$MATPHOT_THREADS \
-            timed "$RD/$v/times" "$MP" ${cmd#matphot } psf="$FD/$F.psf.fits" >run.log 2>&1 ) \
+            timed "$RD/$v/times" "$MP" ${cmd#matphot } $psfarg >run.log 2>&1 ) \
           || { tail -n 20 "$RD/$v/run.log" >&2; die "matphot pipeline failed on frame $F"; }
         printf '%s\t%s\t%s\t%s\n' "$F" "$v" "$r" "$(tail -n 1 "$RD/$v/times")" >> "$W/runs.tsv";;
       dao|daoa)
@@ -263,6 +268,7 @@ for F in $FRAMES; do
     if [ "$r" = 1 ]; then
       cp "$RD/mp/$F.cat" "$FD/cat/mp.cat"
       cp "$RD/mpd/$F.cat" "$FD/cat/mpd.cat"
+      cp "$RD/mpb/$F.cat" "$FD/cat/mpb.cat"
       cp "$RD/dao/$F.als1" "$FD/cat/dao1.als"
       cp "$RD/dao/$F.als$NITER" "$FD/cat/dao.als"
       cp "$RD/daoa/$F.als$NITER" "$FD/cat/daoa.als"

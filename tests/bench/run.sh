@@ -11,6 +11,9 @@ OMP_NUM_THREADS=1 "$B/bench/bench_fit" "${BENCH_N:-400}" "${BENCH_REPS:-7}"
 # Error against run time (issue 5): the fit's knobs swept on fixed scenes,
 # bench/REPORT.md and bench/*.png (BENCH_QUICK=1: a 1-2 minute version).
 sh tests/bench/sweep/run.sh
+# Where the CPU goes with the PSF built from the frame (issue 12): perf of
+# the simulated crowded frame and of 47 Tuc, a section of bench/REPORT.md.
+sh tests/bench/profile.sh
 # The peer to beat: IRAF DAOPHOT on the same simulated frames (skips with a
 # line when IRAF is not installed; `make bench` installs it).  The committed
 # report is tests/bench/daophot/REPORT.md; a bench run writes its own copy.

@@ -693,8 +693,9 @@ static char *path_join(const char *a, const char *b, const char *c)
 
 static int frame_stats(const char *workdir, cmp_frame *fr)
 {
-    static const char *const names[CMP_NTOOL] = { "mp", "mpd", "dao1", "dao", "daoa" };
-    static const char *const files[CMP_NTOOL] = { "mp.cat", "mpd.cat", "dao1.als", "dao.als", "daoa.als" };
+    static const char *const names[CMP_NTOOL] = { "mp", "mpd", "mpb", "dao1", "dao", "daoa" };
+    static const char *const files[CMP_NTOOL] = { "mp.cat", "mpd.cat", "mpb.cat", "dao1.als", "dao.als",
+                                                  "daoa.als" };
     static const char *const tcols[3] = { "X_IMAGE", "Y_IMAGE", "MAG_TRUE" };
     static const char *const mcols[3] = { "XPSF_IMAGE", "YPSF_IMAGE", "MAG_PSF" };
     size_t tn = strlen(fr->name) + 7;

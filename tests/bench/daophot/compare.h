@@ -10,7 +10,7 @@
 #include <stdio.h>
 
 #define CMP_NSEP   4     /* nearest-neighbour bins */
-#define CMP_NTOOL  5     /* catalogues per frame */
+#define CMP_NTOOL  6     /* catalogues per frame */
 #define CMP_MAXBIN 64    /* magnitude bins */
 
 typedef struct { int ok; double v; } cmp_opt;   /* ok == 0: None */

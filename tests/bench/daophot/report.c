@@ -402,7 +402,7 @@ static const char *setup_fmt(void)
     ;
 }
 
-enum { NTL = 11, NRATIO = 5, LAB = 256 };
+enum { NTL = 12, NRATIO = 6, LAB = 256 };
 
 int cmp_report(const char *stats_path, const char *out)
 {
@@ -427,36 +427,41 @@ int cmp_report(const char *stats_path, const char *out)
     const char *iraf = cmp_stats_meta(s, "iraf", "?");
 
     /* labels */
-    static const char *const tl_tool[NTL] = { "mp", "mpd", "dao_find", "dao_psf", "dao_als1",
+    static const char *const tl_tool[NTL] = { "mp", "mpd", "mpb", "dao_find", "dao_psf", "dao_als1",
         "dao_refind", "dao1", "dao", "daopsf", "daoa_psf", "daoa" };
     char tl[NTL][LAB];
     snprintf(tl[0], LAB, "matphot pipeline, fitrad = FWHM, %d rounds (%s thread%s)", n, th,
              strcmp(th, "1") ? "s" : "");
     snprintf(tl[1], LAB, "matphot pipeline, default fitrad (5 px), %d rounds", n);
-    snprintf(tl[2], LAB, "DAOPHOT daofind + phot");
-    snprintf(tl[3], LAB, "DAOPHOT phot of 25 PSF stars + psf (gauss, varorder 0, %s cleaning rounds)", clean);
-    snprintf(tl[4], LAB, "DAOPHOT allstar, pass 1");
-    snprintf(tl[5], LAB, "DAOPHOT %d refind passes (daofind on residual, phot, pfmerge, prenumber, allstar)", n - 1);
-    snprintf(tl[6], LAB, "DAOPHOT 1 pass (daofind + phot + allstar), PSF given");
-    snprintf(tl[7], LAB, "**DAOPHOT %d passes, PSF given** (the peer of matphot pipeline)", n);
-    snprintf(tl[8], LAB, "DAOPHOT %d passes + building its PSF", n);
-    snprintf(tl[9], LAB, "DAOPHOT analytic PSF (varorder −1): phot of 25 PSF stars + psf");
-    snprintf(tl[10], LAB, "DAOPHOT analytic PSF (varorder −1), %d passes, PSF given", n);
-    static const char *const ra_a[NRATIO] = { "mp", "mpd", "mp", "mp", "mp" };
-    static const char *const ra_b[NRATIO] = { "dao", "dao", "daopsf", "daoa", "dao1" };
+    snprintf(tl[2], LAB, "**matphot pipeline, fitrad = FWHM, PSF built from the frame** (no psf=: "
+             "`matphot psf`'s build and its rebuild after round 1 included), %d rounds", n);
+    snprintf(tl[3], LAB, "DAOPHOT daofind + phot");
+    snprintf(tl[4], LAB, "DAOPHOT phot of 25 PSF stars + psf (gauss, varorder 0, %s cleaning rounds)", clean);
+    snprintf(tl[5], LAB, "DAOPHOT allstar, pass 1");
+    snprintf(tl[6], LAB, "DAOPHOT %d refind passes (daofind on residual, phot, pfmerge, prenumber, allstar)", n - 1);
+    snprintf(tl[7], LAB, "DAOPHOT 1 pass (daofind + phot + allstar), PSF given");
+    snprintf(tl[8], LAB, "**DAOPHOT %d passes, PSF given** (the peer of matphot pipeline)", n);
+    snprintf(tl[9], LAB, "**DAOPHOT %d passes + building its PSF** (the peer of matphot's built PSF)", n);
+    snprintf(tl[10], LAB, "DAOPHOT analytic PSF (varorder −1): phot of 25 PSF stars + psf");
+    snprintf(tl[11], LAB, "DAOPHOT analytic PSF (varorder −1), %d passes, PSF given", n);
+    static const char *const ra_a[NRATIO] = { "mp", "mpd", "mp", "mp", "mp", "mpb" };
+    static const char *const ra_b[NRATIO] = { "dao", "dao", "daopsf", "daoa", "dao1", "daopsf" };
     char rl[NRATIO][LAB];
     snprintf(rl[0], LAB, "**matphot (fitrad = FWHM) / DAOPHOT %d passes**", n);
     snprintf(rl[1], LAB, "matphot (default fitrad) / DAOPHOT %d passes", n);
     snprintf(rl[2], LAB, "matphot (fitrad = FWHM) / DAOPHOT %d passes + psf", n);
     snprintf(rl[3], LAB, "matphot (fitrad = FWHM) / DAOPHOT analytic PSF, %d passes", n);
     snprintf(rl[4], LAB, "matphot (fitrad = FWHM) / DAOPHOT 1 pass");
-    static const char *const cl_tool[CMP_NTOOL] = { "mp", "mpd", "dao1", "dao", "daoa" };
+    snprintf(rl[5], LAB, "**matphot with the PSF built from the frame / DAOPHOT %d passes + psf** "
+             "(each building its own PSF)", n);
+    static const char *const cl_tool[CMP_NTOOL] = { "mp", "mpd", "mpb", "dao1", "dao", "daoa" };
     char cl[CMP_NTOOL][LAB];
     snprintf(cl[0], LAB, "matphot, fitrad = FWHM");
     snprintf(cl[1], LAB, "matphot, default fitrad (5 px)");
-    snprintf(cl[2], LAB, "DAOPHOT allstar, 1 pass");
-    snprintf(cl[3], LAB, "DAOPHOT allstar, %d passes", n);
-    snprintf(cl[4], LAB, "DAOPHOT allstar, analytic PSF (varorder −1), %d passes", n);
+    snprintf(cl[2], LAB, "matphot, fitrad = FWHM, PSF built from the frame");
+    snprintf(cl[3], LAB, "DAOPHOT allstar, 1 pass");
+    snprintf(cl[4], LAB, "DAOPHOT allstar, %d passes", n);
+    snprintf(cl[5], LAB, "DAOPHOT allstar, analytic PSF (varorder −1), %d passes", n);
 
     char b1[64], b2[64], b3[64], b4[64], b5[64];
     el(&A, "# matphot against IRAF DAOPHOT on the same simulated frames\n");
@@ -551,6 +556,10 @@ int cmp_report(const char *stats_path, const char *out)
                fmtv(b2, sizeof b2, ratio(&T, "mp", "dao", 1), "%.2f"),
                fmtv(b3, sizeof b3, ratio(&T, "mpd", "dao", 0), "%.2f"),
                fmtv(b4, sizeof b4, ratio(&T, "mpd", "dao", 1), "%.2f"));
+            if (tool_ok(F, "mpb") && tool_ok(F, "daopsf"))
+                el(&S, "  time matphot with its PSF built from the frame / DAOPHOT %d passes + psf: "
+                       "wall %s, CPU %s", n, fmtv(b1, sizeof b1, ratio(&T, "mpb", "daopsf", 0), "%.2f"),
+                   fmtv(b2, sizeof b2, ratio(&T, "mpb", "daopsf", 1), "%.2f"));
             static const char *const sl[4] = { "matphot fitrad=FWHM", "matphot default    ",
                                                "DAOPHOT varorder 0 ", "DAOPHOT analytic   " };
             static const char *const st_[4] = { "mp", "mpd", "dao", "daoa" };
