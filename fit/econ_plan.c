@@ -165,10 +165,10 @@ static econ_cost cost_level(const mp_econ_cache *c, int l, double fits, double W
     return k;
 }
 
-static econ_cost cost_grid(const mp_econ_cache *c, double fits, double W)
+/* The phase grid of table p (the model's, or a coarser level's). */
+static econ_cost cost_grid(const mp_psf *p, int G, int hw, double fits, double W)
 {
-    const mp_psf *p = &c->psf0;
-    int hw = c->model0.sinc_hw, os = p->os, gb = (c->grid_g + os - 1) / os;
+    int os = p->os, gb = (G + os - 1) / os;
     double na = (double)os * (gb + 3), ng = (double)os * gb, npix = box_pixels(p);
     double w2 = fmin(W * W, npix);
     econ_cost k;
@@ -254,8 +254,28 @@ static int build_grid(mp_econ_cache *c, char *err)
     int rc = mp_prf_cache_build(&m, c->grid_g, &c->grid, err);
     c->grid_state = rc ? ECON_FAILED : ECON_BUILT;
     if (!rc)
-        c->spent += cost_grid(c, 0.0, INFINITY).build;
+        c->spent += cost_grid(&c->psf0, c->grid_g, c->model0.sinc_hw, 0.0, INFINITY).build;
     return rc;
+}
+
+/* Level l's own phase grid, on its table as the fit uses it (a constant
+ * PSF only: the grid is never offered for a field). */
+static int build_level_grid(mp_econ_cache *c, int l, char *err)
+{
+    mp_ss_level *lv = &c->ss[l];
+    if (lv->grid)
+        return 0;
+    if (!(lv->grid = calloc(1, sizeof *lv->grid))) {
+        snprintf(err, MP_ERRLEN, "out of memory for a phase grid");
+        return 1;
+    }
+    if (mp_prf_cache_build(&lv->model, c->grid_g, lv->grid, err)) {
+        free(lv->grid);
+        lv->grid = NULL;
+        return 1;
+    }
+    c->spent += cost_grid(&lv->psf, c->grid_g, c->model0.sinc_hw, 0.0, INFINITY).build;
+    return 0;
 }
 
 /* Under the lock: decide and build (see the top of the file). */
@@ -294,8 +314,20 @@ static int choose_locked(mp_econ_cache *c, double fits, double fitrad, mp_frame_
         o->ss = n ? c->ss : NULL;
         o->nss = n;
         o->ss_sinc = bits;
+        o->ss_grid = 0;
     }
-    if (!o->grid && c->grid_g > 0 && pays(cost_grid(c, fits, W), fits, learned, full)) {
+    /* Each level's own phase grid, as the model's: the levels that fit
+     * with a coarser table render it exactly otherwise (issue 12: 1660 of
+     * 1975 LM fits of 47 Tuc with the PSF built from the frame). */
+    for (int l = 0; o->ss == c->ss && l < o->nss && c->grid_g > 0; l++)
+        if (!((o->ss_grid >> l) & 1) &&
+            pays(cost_grid(&c->ss[l].psf, c->grid_g, hw, fits, W), fits, learned, full)) {
+            if (build_level_grid(c, l, err))
+                return 1;
+            o->ss_grid |= (c->ss[l].grid->G > 0) << l;
+        }
+    if (!o->grid && c->grid_g > 0 &&
+        pays(cost_grid(&c->psf0, c->grid_g, hw, fits, W), fits, learned, full)) {
         if (build_grid(c, err))
             return 1;
         o->grid = c->grid.G > 0 ? &c->grid : NULL;
@@ -374,6 +406,11 @@ void mp_econ_summary(const mp_econ_cache *c, double ops_render, char *buf, size_
         ADD("%s the phase grid (%d per pixel)", any ? "," : "", c->grid.G);
         any = 1;
     }
+    for (int l = 0; l < c->nlev; l++)
+        if (c->lev_state[l] > 0 && c->ss[l].grid && c->ss[l].grid->G > 0) {
+            ADD("%s the x%d table's phase grid", any ? "," : "", c->lev_os[l]);
+            any = 1;
+        }
     if (!any)
         ADD(" none (none could pay for its build)");
     if (ops_render > 0)
