@@ -30,6 +30,7 @@
 #include <stdlib.h>
 #include <string.h>
 #include "fit/econ_state.h"
+#include "fit/prf_axis.h"
 
 #define NPH 16                  /* phases the bound tables measure (4×4) */
 
@@ -165,15 +166,25 @@ static econ_cost cost_level(const mp_econ_cache *c, int l, double fits, double W
     return k;
 }
 
-/* The phase grid of table p (the model's, or a coarser level's). */
-static econ_cost cost_grid(const mp_psf *p, int G, int hw, double fits, double W)
+/* The phase grid of table p (the model's, or a coarser level's): its
+ * nodes and cells drawn by the axis operators (fit/prf_axis.c) when the
+ * model is separable — per x node the rows T·Xᵀ, T·X'ᵀ, per node three
+ * products on the box, bw = os + 2hw + 4 taps a pixel — else by full renders. */
+/* Whether the run's grids are drawn by the axis operators. */
+#define SEP(c) mp_prf_separable(&(c)->model0)
+
+static econ_cost cost_grid(const mp_psf *p, int sep, int G, int hw, double fits, double W)
 {
     int os = p->os, gb = (G + os - 1) / os;
     double na = (double)os * (gb + 3), ng = (double)os * gb, npix = box_pixels(p);
-    double w2 = fmin(W * W, npix);
+    double w2 = fmin(W * W, npix), bw = os + 2.0 * hw + 4.0, side = sqrt(npix);
     econ_cost k;
-    k.build = na * na * psf_ops(p, hw, 1, INFINITY) +
-              ng * ng * (psf_ops(p, hw, 0, INFINITY) + 16.0 * npix);
+    if (sep)
+        k.build = na * 2.0 * p->ny * side * bw + na * na * 3.0 * npix * bw +
+                  ng * p->ny * side * bw + ng * ng * (npix * bw + 16.0 * npix);
+    else
+        k.build = na * na * psf_ops(p, hw, 1, INFINITY) +
+                  ng * ng * (psf_ops(p, hw, 0, INFINITY) + 16.0 * npix);
     k.decide = min_evals(fits, MP_SINC_LIMITS_EVALS) * 3.0 * ng * ng * npix;
     k.save = psf_ops(p, hw, 1, W) - 48.0 * w2;
     return k;
@@ -254,7 +265,8 @@ static int build_grid(mp_econ_cache *c, char *err)
     int rc = mp_prf_cache_build(&m, c->grid_g, &c->grid, err);
     c->grid_state = rc ? ECON_FAILED : ECON_BUILT;
     if (!rc)
-        c->spent += cost_grid(&c->psf0, c->grid_g, c->model0.sinc_hw, 0.0, INFINITY).build;
+        c->spent +=
+            cost_grid(&c->psf0, SEP(c), c->grid_g, c->model0.sinc_hw, 0.0, INFINITY).build;
     return rc;
 }
 
@@ -274,7 +286,7 @@ static int build_level_grid(mp_econ_cache *c, int l, char *err)
         lv->grid = NULL;
         return 1;
     }
-    c->spent += cost_grid(&lv->psf, c->grid_g, c->model0.sinc_hw, 0.0, INFINITY).build;
+    c->spent += cost_grid(&lv->psf, SEP(c), c->grid_g, c->model0.sinc_hw, 0.0, INFINITY).build;
     return 0;
 }
 
@@ -321,13 +333,14 @@ static int choose_locked(mp_econ_cache *c, double fits, double fitrad, mp_frame_
      * 1975 LM fits of 47 Tuc with the PSF built from the frame). */
     for (int l = 0; o->ss == c->ss && l < o->nss && c->grid_g > 0; l++)
         if (!((o->ss_grid >> l) & 1) &&
-            pays(cost_grid(&c->ss[l].psf, c->grid_g, hw, fits, W), fits, learned, full)) {
+            pays(cost_grid(&c->ss[l].psf, SEP(c), c->grid_g, hw, fits, W), fits, learned,
+                 full)) {
             if (build_level_grid(c, l, err))
                 return 1;
             o->ss_grid |= (c->ss[l].grid->G > 0) << l;
         }
     if (!o->grid && c->grid_g > 0 &&
-        pays(cost_grid(&c->psf0, c->grid_g, hw, fits, W), fits, learned, full)) {
+        pays(cost_grid(&c->psf0, SEP(c), c->grid_g, hw, fits, W), fits, learned, full)) {
         if (build_grid(c, err))
             return 1;
         o->grid = c->grid.G > 0 ? &c->grid : NULL;
