@@ -167,9 +167,15 @@ static econ_cost cost_level(const mp_econ_cache *c, int l, double fits, double W
 }
 
 /* The phase grid of table p (the model's, or a coarser level's): its
- * nodes and cells drawn by the axis operators (fit/prf_axis.c) when the
- * model is separable — per x node the rows T·Xᵀ, T·X'ᵀ, per node three
- * products on the box, bw = os + 2hw + 4 taps a pixel — else by full renders. */
+ * nodes and cells drawn by the axis operators (fit/prf_axis.c) when sep —
+ * per x node the rows T·Xᵀ, T·X'ᵀ, per node three products on the box,
+ * bw = os + 2hw + 4 taps a pixel — else by full renders.  The decision
+ * prices the build at full renders either way (choose_locked passes sep
+ * 0): the saving is an upper bound that every table of the run claims for
+ * the same fits (the coarser levels take most of them), and at the
+ * separable price a 200-frame run built a ×2 grid its own fits did not pay
+ * for (test_tables_pay_for_themselves: 644 renders spent, 572 saved);
+ * what was spent is counted at the real price. */
 /* Whether the run's grids are drawn by the axis operators. */
 #define SEP(c) mp_prf_separable(&(c)->model0)
 
@@ -333,14 +339,14 @@ static int choose_locked(mp_econ_cache *c, double fits, double fitrad, mp_frame_
      * 1975 LM fits of 47 Tuc with the PSF built from the frame). */
     for (int l = 0; o->ss == c->ss && l < o->nss && c->grid_g > 0; l++)
         if (!((o->ss_grid >> l) & 1) &&
-            pays(cost_grid(&c->ss[l].psf, SEP(c), c->grid_g, hw, fits, W), fits, learned,
+            pays(cost_grid(&c->ss[l].psf, 0, c->grid_g, hw, fits, W), fits, learned,
                  full)) {
             if (build_level_grid(c, l, err))
                 return 1;
             o->ss_grid |= (c->ss[l].grid->G > 0) << l;
         }
     if (!o->grid && c->grid_g > 0 &&
-        pays(cost_grid(&c->psf0, SEP(c), c->grid_g, hw, fits, W), fits, learned, full)) {
+        pays(cost_grid(&c->psf0, 0, c->grid_g, hw, fits, W), fits, learned, full)) {
         if (build_grid(c, err))
             return 1;
         o->grid = c->grid.G > 0 ? &c->grid : NULL;
