@@ -185,10 +185,14 @@ static int apply_dq(const char *name, const mp_datapars *dp, mp_frame *f, char *
     for (size_t i = 0, n = (size_t)f->im.nx * (size_t)f->im.ny; !rc && i < n; i++) {
         double v = dq.pix[i];
         long bits = isfinite(v) && v >= 0 && v < 2147483648.0 ? (long)v : 0;
-        if (bits & dp->dqbad)
-            f->mask[i] |= MP_MASK_BAD;
-        else if (bits & dp->dqsat)
+        /* Saturation first: a saturated core that another bit flags too
+         * (AstroDrizzle marks them as cosmic rays, 4096: ACS DQ 6400 =
+         * 4096|2048|256) is still saturated, so satgrow grows it and its
+         * stars keep FLAGS 1. */
+        if (bits & dp->dqsat)
             f->mask[i] |= MP_MASK_SATURATED;
+        else if (bits & dp->dqbad)
+            f->mask[i] |= MP_MASK_BAD;
     }
     if (got)
         mp_image_free(&dq);

@@ -457,6 +457,48 @@ static void test_frame_dq(void **state)
     assert_non_null(strstr(err, "NOPE"));
 }
 
+/* A pixel both saturated and flagged by a dqbad bit (AstroDrizzle marks
+ * saturated cores as cosmic rays: ACS DQ 6400 = 4096|2048|256) is
+ * saturated: satgrow grows it and it sets FLAGS 1.  A pixel with the dqbad
+ * bit alone stays bad and is not grown.  Counted on a 7 x 5 frame: the
+ * saturated pixel (3, 3) and its 8 neighbours are saturated (9), the bad
+ * one (7, 1) alone is bad. */
+static void test_frame_dq_saturation_first(void **state)
+{
+    scratch *s = *state;
+    double pix[NX * NY], dq[NX * NY] = {0};
+    pattern(pix);
+    dq[2 * NX + 2] = 6400;    /* (3, 3): saturated and a "cosmic ray" */
+    dq[6] = 4096;             /* (7, 1): a cosmic ray */
+    const char *path = in_dir(s, "mef2.fits");
+    char name[700];
+    snprintf(name, sizeof name, "!%s", path);
+    fitsfile *fp;
+    int st = 0;
+    long ax[2] = {NX, NY}, fpix[2] = {1, 1};
+    fits_create_file(&fp, name, &st);
+    fits_create_img(fp, DOUBLE_IMG, 2, ax, &st);
+    fits_write_pix(fp, TDOUBLE, fpix, NX * NY, pix, &st);
+    fits_create_img(fp, SHORT_IMG, 2, ax, &st);
+    fits_update_key_str(fp, "EXTNAME", "DQ", NULL, &st);
+    fits_write_pix(fp, TDOUBLE, fpix, NX * NY, dq, &st);
+    fits_close_file(fp, &st);
+    assert_int_equal(st, 0);
+    char err[MP_ERRLEN];
+    mp_frame f;
+    mp_datapars dp = {NAN, NAN, NAN, NAN, "[DQ]", 2304, 4096, 1, "", 0};
+    assert_int_equal(mp_frame_read(path, &dp, &f, err), 0);
+    assert_int_equal(f.nsat, 9);
+    assert_int_equal(f.nbad, 1);
+    for (int x = 2; x <= 4; x++)
+        for (int y = 2; y <= 4; y++)
+            assert_int_equal(f.mask[(y - 1) * NX + x - 1], MP_MASK_SATURATED);
+    assert_int_equal(f.mask[6], MP_MASK_BAD);
+    assert_int_equal(f.mask[5], 0);
+    assert_int_equal(f.mask[NX + 6], 0);
+    mp_frame_free(&f);
+}
+
 /* An error plane (HST layout: SCI and ERR extensions), gain 2 and read
  * noise 3 from datapars: xvar is what ERR² (in e-², gain² × ADU²) holds
  * beyond max(data, 0) + RON², and 0 where it holds less; an infinite error
@@ -826,6 +868,7 @@ int main(void)
         cmocka_unit_test_setup_teardown(test_bad_inputs, setup, teardown),
         cmocka_unit_test_setup_teardown(test_frame, setup, teardown),
         cmocka_unit_test_setup_teardown(test_frame_dq, setup, teardown),
+        cmocka_unit_test_setup_teardown(test_frame_dq_saturation_first, setup, teardown),
         cmocka_unit_test_setup_teardown(test_frame_err, setup, teardown),
         cmocka_unit_test_setup_teardown(test_frame_bleed, setup, teardown),
         cmocka_unit_test_setup_teardown(test_outfile, setup, teardown),
