@@ -38,7 +38,7 @@ REALDATA0=$REALDATA
 CFLAGS="-std=c17 -Wall -Wextra -Werror -O2 -fopenmp -D_XOPEN_SOURCE=700 -I. -I/usr/include/wcslib"
 LIBS="-fopenmp $BUILD/libmatphot.a -lcfitsio -lwcs -lcsv -llapacke -lopenblas -lm"
 # shellcheck disable=SC2086
-{ $CC $CFLAGS -o "$OUT/psfb" tests/validate/psfbuild/psfb.c $LIBS &&
+{ $CC $CFLAGS -o "$OUT/psfb" tests/validate/psfbuild/psfb.c tests/validate/crowded/joint_bound.c $LIBS &&
   $CC $CFLAGS -o "$OUT/real" tests/validate/real/real.c $LIBS &&
   $CC $CFLAGS -o "$OUT/realcmp" tests/bench/real/realcmp.c $LIBS; } || { say "build failed" >&2; exit 1; }
 OUT=$(cd "$OUT" && pwd)
