@@ -98,7 +98,7 @@ set title 'frame'
 plot '$d/img.dat' matrix $u
 set title '$t2'
 $p2
-set title 'matphot residual (CR hits masked, varorder=0)'
+set title 'matphot residual (cosmic rays masked)'
 plot '$d/mpe.dat' matrix $u
 set title 'matphot residual, and halo=yes'
 plot '$d/mph.dat' matrix $u
@@ -115,16 +115,15 @@ tuc() {
     T="$OUT/tuc"
     mkdir -p "$T"
     # Every run masks the DQ plane's saturated pixels (2304, grown by
-    # satgrow 1) and its cosmic-ray hits grown by one pixel (dqbad=4096,
-    # AstroDrizzle's flag in the FLT; badgrow=1): unmasked, those ~120
-    # pixels held 28 % of the fitted pixels' chi2 (psfreal_notes.md).  mpg: the defaults
-    # otherwise (ERR plane, varorder=auto); mpe: varorder=0 (auto takes
-    # order 3 here, psfreal_notes.md); mph: and the bright stars' halo
+    # satgrow 1).  mpg: session 7's defaults; mpe: and the cosmic-ray hits
+    # grown by one pixel (dqbad=4096, AstroDrizzle's flag in the FLT;
+    # badgrow=1): unmasked, those ~120 pixels held 28 % of the fitted
+    # pixels' chi2 (psfreal_notes.md); mph: and the bright stars' halo
     # modelled (pipeline halo=yes).
     for v in mpg mpe mph; do
         say "47 Tuc: matphot pipeline, no psf= ($v)"
-        set -- pipeline "$IMG" root="$T/$v" gain=1 rdnoise=4.71 saturate=151553.98 'dqmask=[DQ]' dqsat=2304 dqbad=4096 badgrow=1 satgrow=1
-        [ $v = mpg ] || set -- "$@" varorder=0
+        set -- pipeline "$IMG" root="$T/$v" gain=1 rdnoise=4.71 saturate=151553.98 'dqmask=[DQ]' dqsat=2304 satgrow=1
+        [ $v = mpg ] || set -- "$@" dqbad=4096 badgrow=1
         [ $v = mph ] && set -- "$@" halo=yes
         echo "./matphot $*" | sed "s|root=$T/$v|root=R|; s|$REALDATA|$REALDATA0|" > "$T/$v.cmd"
         timed "$T/$v.log" "$MP" "$@" || { tail -n 3 "$T/$v.log" >&2; rc=1; return 0; }
@@ -175,9 +174,9 @@ tuc() {
             b=$("$OUT/psfb" resid "$IMG" "$res" "$T/dao/dao.cat" 3 4.71 | sed -n 's/.*residual \([0-9.]*\),.*/\1/p')
             c=$("$OUT/psfb" resid "$IMG" "$res" "$T/mpe.cat" 3 4.71 "$T/dao/dao.cat" | sed -n 's/.*residual \([0-9.]*\),.*/\1/p')
             case $r in
-            mpg) n="matphot, its own PSF, CR hits masked, varorder=auto ($(grep -vc '^#' "$T/mpg.cat") stars)" ;;
-            mpe) n="matphot, and varorder=0 ($(grep -vc '^#' "$T/mpe.cat") stars)" ;;
-            mph) n="matphot, varorder=0 and halo=yes ($(grep -vc '^#' "$T/mph.cat") stars)" ;;
+            mpg) n="matphot, its own PSF, session 7's defaults ($(grep -vc '^#' "$T/mpg.cat") stars)" ;;
+            mpe) n="matphot, and the cosmic rays masked (dqbad=4096 badgrow=1) ($(grep -vc '^#' "$T/mpe.cat") stars)" ;;
+            mph) n="matphot, and halo=yes ($(grep -vc '^#' "$T/mph.cat") stars)" ;;
             *) n="IRAF DAOPHOT ($(grep -vc '^#' "$T/dao/dao.cat") stars)" ;;
             esac
             echo "| $n | $a | $b | $c |"
