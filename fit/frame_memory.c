@@ -25,6 +25,7 @@ void mp_fit_memory_free(mp_fit_memory *mem)
     for (size_t i = 0; i < mem->ns; i++)
         free(mem->s[i].seen);
     free(mem->s);
+    free(mem->at);
     free(mem);
 }
 
@@ -53,9 +54,9 @@ void ff_recall(mp_fit_memory *mem, star_state *st, size_t n)
 {
     for (size_t i = 0; i < n; i++) {
         size_t k = (size_t)st[i].number;
-        if (k >= mem->ns || !mem->s[k].seen)
+        if (k >= mem->nat || !mem->at[k] || !mem->s[mem->at[k] - 1].seen)
             continue;
-        star_seen *r = &mem->s[k];
+        star_seen *r = &mem->s[mem->at[k] - 1];
         if (r->s.x != st[i].s.x || r->s.y != st[i].s.y || r->s.flux != st[i].s.flux)
             continue;
         st[i].s = r->s;
@@ -69,24 +70,65 @@ void ff_recall(mp_fit_memory *mem, star_state *st, size_t n)
     }
 }
 
-/* Keep every live star's fit and patch in mem, by NUMBER. */
+/* The index grown to NUMBERs 0..maxnum; nonzero when out of memory. */
+static int grow_index(mp_fit_memory *mem, double maxnum)
+{
+    size_t nat = (size_t)maxnum + 1;
+    if (nat <= mem->nat)
+        return 0;
+    uint32_t *at = realloc(mem->at, nat * sizeof *at);
+    if (!at)
+        return 1;
+    memset(at + mem->nat, 0, (nat - mem->nat) * sizeof *at);
+    mem->at = at;
+    mem->nat = nat;
+    return 0;
+}
+
+/* The entries that still hold a disc (stars not in this call's table)
+ * moved to the front, in place, and indexed anew. */
+static void compact(mp_fit_memory *mem)
+{
+    size_t j = 0;
+    for (size_t i = 0; i < mem->ns; i++)
+        if (mem->s[i].seen) {
+            mem->s[j] = mem->s[i];
+            mem->at[mem->s[j].number] = (uint32_t)(j + 1);
+            j++;
+        }
+    mem->ns = j;
+}
+
+/* Keep every live star's fit and patch in mem, by NUMBER: each star of
+ * this call forgets its earlier entry, the others' stay, the live ones
+ * are appended. */
 int ff_remember(mp_fit_memory *mem, star_state *st, size_t n, double maxnum)
 {
-    size_t ns = (size_t)maxnum + 1;
-    if (ns > mem->ns) {
-        star_seen *s = realloc(mem->s, ns * sizeof *s);
-        if (!s)
-            return 1;
-        memset(s + mem->ns, 0, (ns - mem->ns) * sizeof *s);
-        mem->s = s;
-        mem->ns = ns;
-    }
+    if (grow_index(mem, maxnum))
+        return 1;
+    size_t live = 0;
     for (size_t i = 0; i < n; i++) {
-        star_seen *r = &mem->s[(size_t)st[i].number];
-        free(r->seen);
-        r->seen = NULL;
-        if (!st[i].alive)
+        size_t k = (size_t)st[i].number;
+        if (mem->at[k]) {
+            star_seen *r = &mem->s[mem->at[k] - 1];
+            free(r->seen);
+            r->seen = NULL;
+            mem->at[k] = 0;
+        }
+        live += st[i].alive && st[i].seen;
+    }
+    compact(mem);
+    size_t ns = mem->ns + live;
+    star_seen *s = ns ? realloc(mem->s, ns * sizeof *s) : NULL;
+    if (ns && !s)
+        return 1;
+    if (!ns)
+        free(mem->s);
+    mem->s = s;
+    for (size_t i = 0; i < n; i++) {
+        if (!st[i].alive || !st[i].seen)
             continue;
+        star_seen *r = &mem->s[mem->ns];
         r->s = st[i].s;
         r->seen = st[i].seen;
         r->cx = st[i].cx;
@@ -94,6 +136,8 @@ int ff_remember(mp_fit_memory *mem, star_state *st, size_t n, double maxnum)
         r->sx0 = st[i].sx0;
         r->sy0 = st[i].sy0;
         r->sw = st[i].sw;
+        r->number = (uint32_t)st[i].number;
+        mem->at[r->number] = (uint32_t)(++mem->ns);
         st[i].seen = NULL;
     }
     return 0;

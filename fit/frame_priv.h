@@ -75,11 +75,17 @@ typedef struct {
     double cx, cy;
     long sx0, sy0;
     int sw;
+    uint32_t number;     /* its NUMBER (ff_max_number: below 1e8) */
 } star_seen;
 
+/* The stars remembered, dense, and where each NUMBER's is: NUMBERs run to
+ * ~3x the stars kept (find numbers its candidates before the screen), so
+ * an array of entries indexed by NUMBER was 3x the room (issue 14). */
 struct mp_fit_memory {
-    star_seen *s;        /* indexed by NUMBER */
+    star_seen *s;        /* ns entries, each with a disc */
     size_t ns;
+    uint32_t *at;        /* by NUMBER: 1 + its entry in s, or 0 */
+    size_t nat;
     float *scratch;      /* lent: room for the model of every star */
     size_t nscratch;
 };

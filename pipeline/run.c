@@ -141,6 +141,8 @@ static int find_stars(run_state *s, char *err)
         return oom(err);
     mp_bkg_free(&s->bkg);        /* the fit needs no map: memory for its model */
     mp_pl_drop_unset(&s->t);
+    if (mp_table_shrink(&s->t))  /* the candidates' rows given back (issue 14) */
+        return oom(err);
     s->rep->t_find += mp_seconds() - t0;
     s->rep->found = (long)s->t.nrow;
     /* Written first: a failed write is the run's only stderr line. */
@@ -326,7 +328,7 @@ static int find_on_residual(run_state *s, int round, long *added, char *err)
                                  mergerad, s->fit->opts.minsnr > 0 ? splitsnr : INFINITY);
     mp_table_free(&s->found);    /* not held through the next fit (issue 14) */
     mp_table_init(&s->found);
-    if (*added < 0)
+    if (*added < 0 || mp_table_shrink(&s->t))
         return oom(err);
     s->rep->added += *added;
     if (s->quiet)
