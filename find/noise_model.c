@@ -233,6 +233,11 @@ int mp_bkg_noise_from_model(mp_bkg *b, const mp_frame *f, const float *res, int 
         b->ron2 = f->rdnoise * f->rdnoise;
         b->pix = f->im.pix;
         b->res = res;
+        /* The mesh rms rows (the second half of vals) are no longer read:
+         * given back (issue 14: 16 bytes a pixel / mesh, 8.4 MB at 4096²). */
+        double *v = realloc(b->vals, 2 * (size_t)b->ny * (size_t)b->nbx * sizeof *v);
+        if (v)
+            b->vals = v;
     }
     free(buf);
     return 0;

@@ -293,9 +293,13 @@ static int find_on_residual(run_state *s, int round, long *added, char *err)
     mp_find_opts ro = o->find;
     ro.roundlo = fmin(ro.roundlo, -2.0);
     ro.roundhi = fmax(ro.roundhi, 2.0);
+    /* The screen as detection goes (its candidates never all held). */
+    double cut = s->fit->opts.minsnr - MP_PL_SCREEN_SLACK;
+    mp_pl_screen sc = {&R, &s->bkg, s->res, &s->fit->model, s->fit->opts.fit.fitrad, cut, 0};
+    struct mp_find_sieve sv = {mp_pl_screen_sieve, &sc, MP_PL_SNR_COL};
+    ro.sieve = cut > 0 ? &sv : NULL;
     int frc = mp_find_stars(&R, &s->bkg, &ro, &s->found, err);
-    if (!frc && screen(s, &R, s->res, &s->found))
-        return oom(err);
+    s->rep->screened += sc.dropped;
     s->rep->t_find += mp_seconds() - t0;
     if (frc)
         return 1;
