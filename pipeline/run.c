@@ -32,6 +32,9 @@ typedef struct {
     mp_epsf psf;          /* the PSF built from the frame (build_psf) */
     double *px, *py, *pf; /* its stars */
     size_t np;
+    double tabrad;        /* its table's radius [px], measured in pass 1
+                           * with tablerad=INDEF (0: the option's) */
+    char tabwhy[320];     /* how (mp_epsf_rad.why), for the run report */
     int quiet;            /* mp_pipeline_reduce: no stderr lines, no files */
     int own_frame;        /* f read here, so the halo may be taken off it */
 } run_state;
@@ -389,6 +392,22 @@ static int psf_stars(run_state *s, char *err)
     return rc;
 }
 
+/* tablerad=INDEF: the table's radius measured on the PSF stars and the
+ * bright ones (pipeline/tablerad.c), said on stderr; kept for pass 2. */
+static int table_radius(run_state *s, char *err)
+{
+    if (!s->o->tablerad_auto || s->np == 0)
+        return 0;
+    mp_epsf_rad r;
+    if (mp_pl_tablerad(&s->f, &s->t, s->px, s->py, s->pf, s->np, &s->o->psfb, &r, err))
+        return 1;
+    s->tabrad = r.rad;
+    snprintf(s->tabwhy, sizeof s->tabwhy, "%s", r.why);
+    if (!s->quiet)
+        fprintf(stderr, "matphot pipeline: %s: %s\n", s->image, r.why);
+    return 0;
+}
+
 /* Build (pass 1: the frame as it is) or rebuild (pass 2: every fitted
  * star but the PSF stars' own subtracted) the PSF, write root.psf.fits,
  * and set the fit up from it as `fit psf=root.psf.fits` would be; every
@@ -405,8 +424,10 @@ static int build_psf(run_state *s, int pass, char *err)
     po.y0 = 0.5 * (double)(ny + 1) - (double)s->offy;
     po.xs = nx > 1 ? 0.5 * (double)nx : 1.0;
     po.ys = ny > 1 ? 0.5 * (double)ny : 1.0;
-    if (pass == 1 && psf_stars(s, err))
+    if (pass == 1 && (psf_stars(s, err) || table_radius(s, err)))
         return 1;
+    if (s->tabrad > 0)
+        po.psfrad = s->tabrad;
     /* A frame with no star fit to shape a PSF (an empty or tiny frame, a
      * crowd of saturated stars) is still reduced: with the Gaussian of
      * fwhm, as psf=gauss, said on stderr and in the report. */
@@ -461,7 +482,8 @@ static int build_psf(run_state *s, int pass, char *err)
             rc = oom(err);
         size_t l = strlen(s->own.decisions);
         snprintf(s->own.decisions + l, sizeof s->own.decisions - l, "%sPSF built from the frame "
-                 "(pass %d, %s): %s", l ? "; " : "", pass, path, rep.what);
+                 "(pass %d, %s): %s%s%s", l ? "; " : "", pass, path, s->tabwhy,
+                 s->tabwhy[0] ? "; " : "", rep.what);
         s->own.ndecisions++;
         fprintf(stderr, "matphot pipeline: %s: PSF pass %d: %s, %.2f s\n", s->image, pass, rep.what,
                 mp_seconds() - t0);
