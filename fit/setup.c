@@ -225,37 +225,14 @@ static int read_psf(mp_fit_setup *s, const char *name, int norm, int os, const c
     return 0;
 }
 
-int mp_fit_setup_read(const mp_parset *ps, mp_fit_setup *s, char *err)
+/* The PSF: a table (psf=, with its detector kernel and an optional
+ * block-sum to psfos) or the analytic Gaussian (psf= empty or gauss: the
+ * pipeline builds a PSF from the frame when psf is empty). */
+static int setup_psf(const mp_parset *ps, mp_fit_setup *s, char *err)
 {
-    memset(s, 0, sizeof *s);
     const char *psf = mp_par_string(ps, "psf");
-    int norm = 0;
-    mp_par_bool(ps, "psfnorm", &norm);
-    char warn[MP_ERRLEN];
-    /* psf=gauss names the analytic mode (the pipeline builds a PSF from
-     * the frame when psf is empty). */
-    if (psf[0] && strcmp(psf, "gauss") != 0) {
-        int hos = MP_PAR_INDEF_INT;
-        mp_par_int(ps, "oversamp", &hos);
-        const char *kspec = mp_par_string(ps, "psfkernel");
-        if (read_psf(s, psf, norm, hos == MP_PAR_INDEF_INT ? 0 : hos, kspec ? kspec : "", warn,
-                     err))
-            return 1;
-        if (warn[0])
-            fprintf(stderr, "matphot fit: warning: %s\n", warn);
-        int os = MP_PAR_INDEF_INT;
-        mp_par_int(ps, "psfos", &os);
-        if (os != MP_PAR_INDEF_INT && os != s->psf.os) {
-            if (s->psf.os % os) {
-                snprintf(err, MP_ERRLEN, "psfos: %d does not divide the table's OVERSAMP %d",
-                         os, s->psf.os);
-                return 1;
-            }
-            if (rebin_both(s, s->psf.os / os, err))
-                return 1;
-        }
-    } else {
-        const char *kspec = mp_par_string(ps, "psfkernel");
+    const char *kspec = mp_par_string(ps, "psfkernel");
+    if (!psf[0] || strcmp(psf, "gauss") == 0) {
         if (kspec && kspec[0]) {
             snprintf(err, MP_ERRLEN, "psfkernel: %s: a detector kernel needs a PSF table (psf=)",
                      kspec);
@@ -264,20 +241,46 @@ int mp_fit_setup_read(const mp_parset *ps, mp_fit_setup *s, char *err)
         double fwhm;
         mp_par_real(ps, "fwhm", &fwhm);
         mp_psf_gauss(fwhm, &s->psf);
+        return 0;
     }
+    int norm = 0, hos = MP_PAR_INDEF_INT, os = MP_PAR_INDEF_INT;
+    mp_par_bool(ps, "psfnorm", &norm);
+    mp_par_int(ps, "oversamp", &hos);
+    char warn[MP_ERRLEN];
+    if (read_psf(s, psf, norm, hos == MP_PAR_INDEF_INT ? 0 : hos, kspec ? kspec : "", warn, err))
+        return 1;
+    if (warn[0])
+        fprintf(stderr, "matphot fit: warning: %s\n", warn);
+    mp_par_int(ps, "psfos", &os);
+    if (os == MP_PAR_INDEF_INT || os == s->psf.os)
+        return 0;
+    if (s->psf.os % os) {
+        snprintf(err, MP_ERRLEN, "psfos: %d does not divide the table's OVERSAMP %d", os,
+                 s->psf.os);
+        return 1;
+    }
+    return rebin_both(s, s->psf.os / os, err);
+}
+
+/* The detector response: drf= a table, else a uniform pixel of `volume`. */
+static int setup_drf(const mp_parset *ps, mp_fit_setup *s, char *err)
+{
     const char *drf = mp_par_string(ps, "drf");
     double vol = 1.0;
     mp_par_real(ps, "volume", &vol);
-    if (drf[0]) {
-        if (mp_drf_read(drf, s->psf.os, &s->drf, err))
-            return 1;
-    } else {
-        mp_drf_uniform(vol, &s->drf);
-    }
+    if (drf[0])
+        return mp_drf_read(drf, s->psf.os, &s->drf, err);
+    mp_drf_uniform(vol, &s->drf);
+    return 0;
+}
+
+/* The fit's own parameters, the model's sinc half-width and the data
+ * parameters. */
+static int read_fit_options(const mp_parset *ps, mp_fit_setup *s, char *err)
+{
     mp_frame_opts_default(&s->opts);
     s->opts.learn = 1;          /* the pipeline's rounds and passes, in turn (fit: 0) */
     mp_par_real(ps, "fitrad", &s->opts.fit.fitrad);   /* INDEF (NaN): whole image */
-
     mp_par_real(ps, "tol", &s->opts.fit.tol);
     mp_par_int(ps, "maxiter", &s->opts.fit.maxiter);
     mp_par_real(ps, "mergerad", &s->opts.mergerad);
@@ -294,50 +297,71 @@ int mp_fit_setup_read(const mp_parset *ps, mp_fit_setup *s, char *err)
         snprintf(err, MP_ERRLEN, "format: unknown table format '%s'", mp_par_string(ps, "format"));
         return 1;
     }
-    int economy = 1;
-    mp_par_bool(ps, "economy", &economy);
     /* Under auto, the per-group choices are counted in the run report
      * (mp_report_parts) as one more decision. */
     s->opts.fit.sky_order = sky_order_of(mp_par_string(ps, "skymodel"));
+    return 0;
+}
+
+/* economy=yes: the model parts measured against their bounds, each
+ * decision stated for the run report. */
+static void economy_decisions(const mp_parset *ps, mp_fit_setup *s)
+{
+    char why[320];
+    int hw = s->model.sinc_hw;
     int psfos = MP_PAR_INDEF_INT;
     mp_par_int(ps, "psfos", &psfos);
+    economize(s, psfos != MP_PAR_INDEF_INT);
+    /* The kernel choice is measured on the model as it now stands (after
+     * any block-summing above). */
+    s->econ_sinc = s->psf.kind == MP_PSF_TABLE && hw > 0;
+    if (s->econ_sinc) {
+        snprintf(why, sizeof why, "sinc kernel: per group, the shortest half-width <= %d "
+                 "whose bias stays below %.2g of its brightest star's sigma "
+                 "(fit/sinc_choice.c)", hw, s->opts.sincfrac);
+        decide(s, why);
+    }
+    phase_grids(s, ps);
+    snprintf(why, sizeof why, "tables: each of these measured on the PSF only when the "
+             "run's star fits can pay for it (fit/econ_plan.c)");
+    decide(s, why);
+    snprintf(why, sizeof why, "neighbour light: painted out to where it falls below %.2g of a "
+             "sky pixel's sigma (residual too)", s->opts.cropfrac);
+    decide(s, why);
+    snprintf(why, sizeof why, "refits: a group is refitted only when its members or its "
+             "neighbours' light changed (sqrt(sum (dlight/sigma)^2) >= %.2g, which bounds "
+             "every parameter's change to that many sigma)", s->opts.refittol);
+    decide(s, why);
+}
+
+static void variable_psf_decision(mp_fit_setup *s)
+{
+    if (s->field.order <= 0)
+        return;
+    s->psf.field = &s->field;
+    char why[256];
+    snprintf(why, sizeof why, "variable PSF: order %d, each star's table evaluated at its "
+             "own position; sampling and sinc kernel from the table at the origin (%.1f, %.1f)",
+             s->field.order, s->field.x0, s->field.y0);
+    decide(s, why);
+}
+
+int mp_fit_setup_read(const mp_parset *ps, mp_fit_setup *s, char *err)
+{
+    memset(s, 0, sizeof *s);
+    if (setup_psf(ps, s, err) || setup_drf(ps, s, err) || read_fit_options(ps, s, err))
+        return 1;
+    int economy = 1;
+    mp_par_bool(ps, "economy", &economy);
     if (economy) {
-        char why[320];
-        economize(s, psfos != MP_PAR_INDEF_INT);
-        /* The kernel choice is measured on the model as it now stands (after
-         * any block-summing above). */
-        s->econ_sinc = s->psf.kind == MP_PSF_TABLE && hw > 0;
-        if (s->econ_sinc) {
-            snprintf(why, sizeof why, "sinc kernel: per group, the shortest half-width <= %d "
-                     "whose bias stays below %.2g of its brightest star's sigma "
-                     "(fit/sinc_choice.c)", hw, s->opts.sincfrac);
-            decide(s, why);
-        }
-        phase_grids(s, ps);
-        snprintf(why, sizeof why, "tables: each of these measured on the PSF only when the "
-                 "run's star fits can pay for it (fit/econ_plan.c)");
-        decide(s, why);
-        snprintf(why, sizeof why, "neighbour light: painted out to where it falls below %.2g of a "
-                 "sky pixel's sigma (residual too)", s->opts.cropfrac);
-        decide(s, why);
-        snprintf(why, sizeof why, "refits: a group is refitted only when its members or its "
-                 "neighbours' light changed (sqrt(sum (dlight/sigma)^2) >= %.2g, which bounds "
-                 "every parameter's change to that many sigma)", s->opts.refittol);
-        decide(s, why);
+        economy_decisions(ps, s);
     } else {
         decide(s, "economy=no: every part of the model forced on");
         s->opts.cropfrac = 0.0;     /* economy=no: the full work, to compare */
         s->opts.refittol = 0.0;
     }
     warn_undersampled(s);
-    if (s->field.order > 0) {
-        s->psf.field = &s->field;
-        char why[256];
-        snprintf(why, sizeof why, "variable PSF: order %d, each star's table evaluated at its "
-                 "own position; sampling and sinc kernel from the table at the origin (%.1f, %.1f)",
-                 s->field.order, s->field.x0, s->field.y0);
-        decide(s, why);
-    }
+    variable_psf_decision(s);
     /* Economy's tables: offered now, built by the frame fit when they pay. */
     if (economy && s->psf.kind == MP_PSF_TABLE) {
         if (!(s->opts.cache = s->cache = mp_econ_cache_new())) {
