@@ -180,11 +180,8 @@ int mp_epsf_build(mp_epsf_star *s, size_t n, const mp_epsf_opts *o, int os, int 
 #define MP_EPSF_PER_TERM 10
 
 /* mp_epsf_order_test: is order+1 demanded by the data?  The stars'
- * normalised residuals z = (d − model)/σ per pixel offset are regressed on
- * the next order's terms of position times F/σ (a table error δP·t(x)
- * leaves F·δP·t(x) in the data: the regressors under the alternative, so
- * the bright stars, which see the error, carry the test; the lower terms
- * are the reduced model); the F statistics of the pixels are
+ * normalised residuals (d − model)/σ per pixel offset are regressed on the
+ * next order's new terms of position; the F statistics of the pixels are
  * summed and compared with their null distribution (normal approximation):
  * *p the p-value, *stat the standardised sum.  Nonzero only on out of
  * memory; *p = 1 when too few stars to test (fewer than 3 × the terms + 5). */

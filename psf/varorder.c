@@ -2,11 +2,7 @@
  *
  * With the table of order k built, each used star's normalised residual
  * z = (d − sky − F·PRF)/σ at every pixel offset p from its nearest pixel
- * (within fitrad) is regressed over the stars on the terms of order k+1
- * times F/σ: a table error δP_p·t(x) leaves z = (F/σ)·δP_p·t(x) + noise,
- * so these are the alternative's regressors (the terms alone would weigh
- * a faint star's pure noise like a bright star's signal, and would not
- * absorb an error of the order-k table itself, which scales with F too).
+ * (within fitrad) is regressed over the stars on the terms of order k+1.
  * Under "order k suffices" the residuals do not depend on position, and
  * the extra terms' F statistic of pixel p, F_p = (ΔRSS/q)/(RSS/d), is
  * F(q, d) distributed (q new terms, d = n − terms − ... dof), whatever the
@@ -22,18 +18,16 @@
 #include "psf/build_priv.h"
 
 /* RSS of the unweighted LS fit of z[idx] on the first nt columns of the
- * term rows (MP_EPSF_MAXT per star), row q scaled by g[q]. */
-static double rss(const double *z, const double *g, const double *terms, const size_t *idx,
-                  size_t m, int nt)
+ * term rows (MP_EPSF_MAXT per star). */
+static double rss(const double *z, const double *terms, const size_t *idx, size_t m, int nt)
 {
     double A[MP_EPSF_MAXT * MP_EPSF_MAXT] = {0}, c[MP_EPSF_MAXT] = {0};
     for (size_t q = 0; q < m; q++) {
         const double *t = terms + idx[q] * MP_EPSF_MAXT;
-        double gq = g[q];
         for (int a = 0; a < nt; a++) {
-            c[a] += gq * t[a] * z[q];
+            c[a] += t[a] * z[q];
             for (int b = 0; b <= a; b++)
-                A[a * nt + b] += gq * gq * t[a] * t[b];
+                A[a * nt + b] += t[a] * t[b];
         }
     }
     for (int a = 0; a < nt; a++)
@@ -46,16 +40,16 @@ static double rss(const double *z, const double *g, const double *terms, const s
         const double *t = terms + idx[q] * MP_EPSF_MAXT;
         double mod = 0;
         for (int a = 0; a < nt; a++)
-            mod += g[q] * t[a] * c[a];
+            mod += t[a] * c[a];
         r += (z[q] - mod) * (z[q] - mod);
     }
     return r;
 }
 
 /* z of star k at the pixel offsets of a (2R+1)² square about its nearest
- * pixel, NaN where not measured; g the regressors' scale there, F/σ. */
+ * pixel, NaN where not measured. */
 static int residuals(const mp_epsf_star *s, const mp_epsf *e, int R, double fitrad, double *z,
-                     double *g, mp_psf *tab, mp_prf_work *w, char *err)
+                     mp_psf *tab, mp_prf_work *w, char *err)
 {
     int side = 2 * R + 1;
     for (int i = 0; i < side * side; i++)
@@ -86,9 +80,8 @@ static int residuals(const mp_epsf_star *s, const mp_epsf *e, int R, double fitr
             if (s->f.mask[o] || bi < 0 || bj < 0 || bi >= bw || bj >= bh)
                 continue;
             double mod = s->flux * prf[(size_t)bj * bw + bi];
-            double sig = sqrt(fmax(mod + sky, sky) + ron2);
-            z[(dj + R) * side + di + R] = (s->f.im.pix[o] - s->sky - mod) / sig;
-            g[(dj + R) * side + di + R] = s->flux / sig;
+            z[(dj + R) * side + di + R] = (s->f.im.pix[o] - s->sky - mod) /
+                                          sqrt(fmax(mod + sky, sky) + ron2);
         }
     free(prf);
     return 0;
@@ -108,8 +101,7 @@ int mp_epsf_order_test(const mp_epsf_star *s, size_t n, const mp_epsf *e, double
         nu += s[k].used != 0;
     if (nu < (size_t)(3 * nt1 + 5))
         return 0;
-    double *z = malloc(nu * (size_t)np * sizeof *z), *g = malloc(nu * (size_t)np * sizeof *g);
-    double *gc = malloc((nu + 1) * sizeof *gc);
+    double *z = malloc(nu * (size_t)np * sizeof *z);
     double *terms = malloc(nu * MP_EPSF_MAXT * sizeof *terms);
     double *zc = malloc((nu + 1) * sizeof *zc);
     size_t *idx = malloc((nu + 1) * sizeof *idx);
@@ -118,7 +110,7 @@ int mp_epsf_order_test(const mp_epsf_star *s, size_t n, const mp_epsf *e, double
     mp_prf_work w;
     memset(&w, 0, sizeof w);
     int rc = 1;
-    if (!z || !g || !gc || !terms || !zc || !idx) {
+    if (!z || !terms || !zc || !idx) {
         snprintf(err, MP_ERRLEN, "psf build: out of memory");
         goto done;
     }
@@ -139,7 +131,7 @@ int mp_epsf_order_test(const mp_epsf_star *s, size_t n, const mp_epsf *e, double
         for (int j = 0; j <= next.order; j++)
             for (int i = 0; i + j <= next.order; i++, q1++)
                 t[i + j == next.order ? b++ : a++] = t1[q1];
-        if (residuals(&s[k], e, R, fitrad, z + u * np, g + u * np, &tab, &w, err))
+        if (residuals(&s[k], e, R, fitrad, z + u * np, &tab, &w, err))
             goto done;
         u++;
     }
@@ -150,13 +142,12 @@ int mp_epsf_order_test(const mp_epsf_star *s, size_t n, const mp_epsf *e, double
         for (size_t k = 0; k < nu; k++)
             if (isfinite(z[k * np + pix])) {
                 zc[m] = z[k * np + pix];
-                gc[m] = g[k * np + pix];
                 idx[m++] = k;
             }
         int d = (int)m - nt1;
         if (d <= 8)
             continue;
-        double r0 = rss(zc, gc, terms, idx, m, nt0), r1 = rss(zc, gc, terms, idx, m, nt1);
+        double r0 = rss(zc, terms, idx, m, nt0), r1 = rss(zc, terms, idx, m, nt1);
         if (!isfinite(r0) || !isfinite(r1) || !(r1 > 0))
             continue;
         sum += ((r0 - r1) / q) / (r1 / d);
@@ -171,8 +162,6 @@ int mp_epsf_order_test(const mp_epsf_star *s, size_t n, const mp_epsf *e, double
     rc = 0;
 done:
     free(z);
-    free(g);
-    free(gc);
     free(terms);
     free(zc);
     free(idx);

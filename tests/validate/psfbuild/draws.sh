@@ -9,7 +9,8 @@
 #   sh tests/validate/psfbuild/draws.sh ROOT [ARGS...]
 # Work files $BUILD/validate/psfbuild/draws/SEED/; the pooled table on
 # stdout and in .../draws/ROOT.pool.  Runs two frames at a time (make -j2's
-# share of this machine).  REPORT_ONLY=1: only the pool of the last run.
+# share of this machine).  REPORT_ONLY=1: only the pool of the last run;
+# REUSE=1: frames with a ROOT.cat are not run again.
 set -u
 cd "$(dirname "$0")/../../.." || exit 1
 BUILD=${BUILD:-build}
@@ -25,6 +26,8 @@ one() {
     shift
     mkdir -p "$d" || return 1
     [ -f "$d/truth.dat" ] || "$OUT/psfb" sim "$d" variable "${d##*/}" > /dev/null || return 1
+    # REUSE=1: a frame already reduced under this ROOT is kept.
+    [ -n "${REUSE:-}" ] && [ -f "$d/$root.cat" ] && return 0
     echo "$MATPHOT pipeline $d/frame.fits root=$d/$root $*" > "$d/$root.cmd"
     /usr/bin/time -f 'cpu %e %U %S' "$MATPHOT" pipeline "$d/frame.fits" root="$d/$root" "$@" \
         > "$d/$root.log" 2>&1 || { echo "draws: $d $root failed" >&2; return 1; }
