@@ -184,6 +184,8 @@ typedef struct mp_ss_level_s {
     mp_prf_model model;    /* the given model with psf swapped in */
     mp_ss_bias bias;
     mp_sinc_choice sinc;
+    struct mp_prf_cache_s *grid;  /* economy: its own phase grid (fit/prf_cache.c,
+                            * built by mp_econ_choose when it pays); NULL: none */
 } mp_ss_level;
 
 /* mp_ss_level_build: the level of m's table block-summed by factor
@@ -270,6 +272,12 @@ typedef struct mp_prf_cache_s {
  * would take more than 256 MB, gets an empty cache (c->G = 0).
  * Nonzero with err when out of memory. */
 int mp_prf_cache_build(const mp_prf_model *m, int G, mp_prf_cache *c, char *err);
+
+/* mp_prf_cache_build_exact: the same grid with every node and cell drawn
+ * by mp_prf_render_branch (the path a DRF with subpixel QE takes; the
+ * others' are drawn as a product of per-axis operators, fit/prf_axis.c,
+ * equal up to the order of the sums: test_prf_cache compares them). */
+int mp_prf_cache_build_exact(const mp_prf_model *m, int G, mp_prf_cache *c, char *err);
 
 /* The grid economy=yes builds by default (fit/setup.c; parameter phasegrid). */
 #define MP_PRF_CACHE_G 16
@@ -483,6 +491,10 @@ typedef struct {
     int ss_sinc;       /* bit l: level l's own kernel choice (ss[l].sinc) is
                         * used when built (default all; mp_econ_choose sets
                         * the levels' whose choice pays for this frame) */
+    int ss_grid;       /* bit l: level l's own phase grid (ss[l].grid) serves
+                        * its groups within its bound, as grid does the
+                        * model's table (default all; mp_econ_choose sets
+                        * the levels' whose grid pays for this frame) */
     double ssfrac;
     mp_econ_cache *cache;  /* economy: the run's tables, built when they pay
                         * (mp_econ_choose), and the choices' flux limits

@@ -25,6 +25,7 @@ void mp_frame_opts_default(mp_frame_opts *o)
     o->ss = NULL;
     o->nss = 0;
     o->ss_sinc = ~0;
+    o->ss_grid = ~0;
     o->ssfrac = 0.1;
     o->cache = NULL;
     o->fits = 0.0;

@@ -179,10 +179,11 @@ int ff_fit_one_group(const mp_frame *f, const mp_prf_model *m, const mp_frame_op
         }
         mh.sinc_hw = ff_kernel_for(&R->kern[l], mh.sinc_hw, e, rep);
         rep->kcoarse += l < R->nss;
-        /* Economy: the phase grid of the table as given, when its bound
-         * allows the brightest star (a star without a flux: the exact render). */
+        /* Economy: the phase grid of the table the group uses, when its
+         * bound allows the brightest star (a star without a flux: the
+         * exact render). */
         mp_fit_opts fo = o->fit;
-        fo.grid = l == R->nss && ff_grid_serves(R, o->grid, e, rep) ? o->grid : NULL;
+        fo.grid = ff_group_grid(R, o->grid, l, e, rep);
         int cached = mp_prf_cache_usable(fo.grid, &mh);
         rep->kcache += cached;
         rep->kcalls++;

@@ -65,6 +65,9 @@ typedef struct {
     double gemax;               /* the phase grid's flux limit (o->grid); NaN:
                                  * each group evaluates the bound */
     double gsky, gron, gfrac;   /* the grid's bound: sky, read noise, fraction */
+    const mp_prf_cache *lgrid[MP_SS_MAXLEVELS];  /* ss[l]'s own phase grid (NULL:
+                                 * its groups render exactly) */
+    double lgemax[MP_SS_MAXLEVELS];  /* its flux limit, as gemax */
     double ops_full;            /* a render of the model as given (economy's unit) */
 } frame_rules;
 
@@ -102,6 +105,11 @@ int ff_learn_and_choose(const mp_frame *f, const mp_frame_opts *o, mp_frame_opts
                         double runfits, double ops, int more, mp_frame_report *rep, char *err);
 int ff_level_serves(const level_rule *k, double e, mp_frame_report *cost);
 int ff_grid_serves(const frame_rules *R, const mp_prf_cache *g, double e, mp_frame_report *cost);
+/* ff_group_grid: the phase grid a group fitted with ss[l] (l = nss: the
+ * model's table, whose grid is g) draws its PRF from when its brightest
+ * star has flux e, or NULL (exact renders); charges as ff_grid_serves. */
+const mp_prf_cache *ff_group_grid(const frame_rules *R, const mp_prf_cache *g, int l, double e,
+                                  mp_frame_report *cost);
 int ff_kernel_for(const kernel_rule *k, int hwfull, double e, mp_frame_report *cost);
 
 /* frame_paint.c.  ff_crop_init: the crop rule of cropfrac (nonzero when

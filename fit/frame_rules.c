@@ -27,6 +27,20 @@ int ff_grid_serves(const frame_rules *R, const mp_prf_cache *g, double e,
     return mp_prf_cache_bound(g, e, R->gsky, R->gron) <= R->gfrac;
 }
 
+const mp_prf_cache *ff_group_grid(const frame_rules *R, const mp_prf_cache *g, int l, double e,
+                                  mp_frame_report *cost)
+{
+    if (l >= R->nss)
+        return ff_grid_serves(R, g, e, cost) ? g : NULL;
+    const mp_prf_cache *lg = R->lgrid[l];
+    if (!lg || !(e > 0))
+        return NULL;
+    if (!isnan(R->lgemax[l]))
+        return e <= R->lgemax[l] ? lg : NULL;
+    charge(cost, 1, lg, ECON_LIM_GRID);
+    return mp_prf_cache_bound(lg, e, R->gsky, R->gron) <= R->gfrac ? lg : NULL;
+}
+
 /* The limits of c on sky level sky (already rounded), computed on a miss:
  * an mp_sinc_choice's hwmax limits, an mp_ss_level's one or an
  * mp_prf_cache's one; NULL when the cache is full or out of memory. */
@@ -227,10 +241,19 @@ int ff_rules_setup(frame_rules *R, const mp_frame *f, const mp_frame_opts *o,
                            f->rdnoise, o->sincfrac, ng, o->cache, runfits, rep);
     /* Economy: the largest flux the phase grid serves within the kernel's
      * bound, on the same sky. */
-    R->gsky = o->grid ? median_sky(st, n) : 0.0;
+    int lgrids = 0;
+    for (int l = 0; l < R->nss; l++) {
+        const mp_prf_cache *g = R->ss[l].grid;
+        R->lgrid[l] = ((o->ss_grid >> l) & 1) && g && g->G > 0 ? g : NULL;
+        lgrids |= R->lgrid[l] != NULL;
+    }
+    R->gsky = o->grid || lgrids ? median_sky(st, n) : 0.0;
     R->gron = f->rdnoise;
     R->gfrac = o->sincfrac;
     R->gemax = grid_limit(o->grid, R->gsky, f->rdnoise, o->sincfrac, ng, o->cache, runfits, rep);
+    for (int l = 0; l < R->nss; l++)
+        R->lgemax[l] = grid_limit(R->lgrid[l], R->gsky, f->rdnoise, o->sincfrac, ng, o->cache,
+                                  runfits, rep);
     return nomem;
 }
 
@@ -246,11 +269,13 @@ int ff_learn_and_choose(const mp_frame *f, const mp_frame_opts *o, mp_frame_opts
     if (!more)
         return 0;
     const void *had[3] = {oc->sinc, oc->ss, oc->grid};
+    int had_bits = oc->ss_grid;
     double sp = 0.0;
     if (mp_econ_choose(o->cache, runfits, oc->fit.fitrad, oc, &sp, err))
         return 1;
     rep->ops_tables += sp;
-    if ((had[0] != oc->sinc || had[1] != oc->ss || had[2] != oc->grid) &&
+    if ((had[0] != oc->sinc || had[1] != oc->ss || had[2] != oc->grid ||
+         had_bits != oc->ss_grid) &&
         ff_rules_setup(R, f, oc, st, n, ng, runfits, rep)) {
         snprintf(err, MP_ERRLEN, "out of memory");
         return 1;

@@ -4,7 +4,7 @@
 #include <math.h>
 #include <stdlib.h>
 #include <string.h>
-#include "fit/fit.h"
+#include "fit/prf_axis.h"
 
 void mp_prf_work_free(mp_prf_work *w)
 {
@@ -83,18 +83,10 @@ static int gauss_halfbox(double sigma)
  * |δ| ≤ ½ so that, with S the table shifted by δ, fine g holds S[g + n0]. */
 typedef struct { long n0; double delta; long p0; int w; } axis_geom;
 
-static axis_geom table_axis_ref(int n, int os, double x, double xref)
+static axis_geom table_axis_ref(int n, int os, double x, double xr)
 {
     axis_geom a;
-    double c0 = (n - 1) / 2 + 0.5 + os * (0.5 - x);
-    a.n0 = lround((n - 1) / 2 + 0.5 + os * (0.5 - xref));
-    a.delta = c0 - (double)a.n0;
-    /* Table index m ↔ g = m − n0; pixel p = floor(g/os) + 1. */
-    long g0 = -a.n0, g1 = (long)(n - 1) - a.n0;
-    long p0 = (long)floor((double)g0 / os) + 1;
-    long p1 = (long)floor((double)g1 / os) + 1;
-    a.p0 = p0;
-    a.w = (int)(p1 - p0 + 1);
+    mp_prf_axis_geom(n, os, x, xr, &a.n0, &a.delta, &a.p0, &a.w);
     return a;
 }
 

@@ -37,7 +37,7 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
-#include "fit/fit.h"
+#include "fit/prf_axis.h"
 
 /* Where reference stars sit: far from 0 so that every box index is positive
  * (any position works; the render only sees its phase and box). */
@@ -293,7 +293,110 @@ static int measure(const mp_prf_model *m, mp_prf_cache *c, double *buf, double *
     return 0;
 }
 
-int mp_prf_cache_build(const mp_prf_model *m, int G, mp_prf_cache *c, char *err)
+/* ---- The nodes and cells from the axis operators (fit/prf_axis.c) -------- */
+
+/* A coordinate's operator along one axis of the union box (xr: aligned as
+ * for a star there). */
+static int axis_op(const mp_prf_model *m, const mp_prf_cache *c, int yaxis, double x, double xr,
+                   mp_prf_axis *a)
+{
+    const mp_psf *p = m->psf;
+    return yaxis ? mp_prf_axis_build(p->ny, p->os, p->offset, x, xr, REF + c->uy0, c->uh,
+                                     m->sinc_hw, a)
+                 : mp_prf_axis_build(p->nx, p->os, p->offset, x, xr, REF + c->ux0, c->uw,
+                                     m->sinc_hw, a);
+}
+
+/* Y·A (or Y'·A) into a union-box image (zero outside the box), as double. */
+static void product(const mp_prf_cache *c, const mp_prf_axis *ax, const mp_prf_axis *ay,
+                    int yderiv, const double *A, double scale, double *img)
+{
+    memset(img, 0, c->npix * sizeof *img);
+    mp_prf_axis_cols(ay, yderiv, A, ax->w, scale, img, ay->p0 - REF - c->uy0,
+                     ax->p0 - REF - c->ux0, c->uw);
+}
+
+/* Every node: per x node A = T·Xᵀ and T·X'ᵀ, then per y node the PRF
+ * Y·A, ∂/∂x Y·(T·X'ᵀ) and ∂/∂y Y'·A; buf holds npix + 2·ny·uw. */
+static int nodes_sep(const mp_prf_model *m, mp_prf_cache *c, double *buf)
+{
+    int na = c->gb + 3, NA = c->os * na, rc = 1;
+    size_t np = c->npix;
+    double scale = m->drf ? m->drf->volume : 1.0, *A = buf + np,
+           *Ad = A + (size_t)m->psf->ny * c->uw;
+    mp_prf_axis *ay = calloc((size_t)NA, sizeof *ay), ax = {0};
+    for (int Y = 0; ay && Y < NA; Y++)
+        if (axis_op(m, c, 1, ref_coord(c, Y / na, (Y % na - 1.0) / c->gb),
+                    ref_coord(c, Y / na, 0.5), &ay[Y]))
+            goto done;
+    for (int X = 0; ay && X < NA; X++) {
+        if (axis_op(m, c, 0, ref_coord(c, X / na, (X % na - 1.0) / c->gb),
+                    ref_coord(c, X / na, 0.5), &ax))
+            goto done;
+        mp_prf_axis_rows(m->psf, &ax, 0, A);
+        mp_prf_axis_rows(m->psf, &ax, 1, Ad);
+        for (int Y = 0; Y < NA; Y++) {
+            float *pl = c->img + 3 * ((size_t)Y * NA + (size_t)X) * np;
+            for (int k = 0; k < 3; k++) {
+                product(c, &ax, &ay[Y], k == 2, k == 1 ? Ad : A, scale, buf);
+                for (size_t i = 0; i < np; i++)
+                    pl[k * np + i] = (float)buf[i];
+            }
+        }
+        mp_prf_axis_free(&ax);
+    }
+    rc = !ay;
+done:
+    mp_prf_axis_free(&ax);
+    for (int Y = 0; ay && Y < NA; Y++)
+        mp_prf_axis_free(&ay[Y]);
+    free(ay);
+    return rc;
+}
+
+/* The cells' exact renders (natural alignment) the same way, then the
+ * error as measure() takes it; buf holds 2·npix + ny·uw. */
+static int measure_sep(const mp_prf_model *m, mp_prf_cache *c, double *buf)
+{
+    int ng = c->os * c->gb, rc = 1;
+    double scale = m->drf ? m->drf->volume : 1.0, *ex = buf, *cur = buf + c->npix,
+           *A = cur + c->npix;
+    mp_prf_axis *ay = calloc((size_t)ng, sizeof *ay), ax = {0};
+    for (int iy = 0; ay && iy < ng; iy++) {
+        double y = ref_coord(c, iy / c->gb, (iy % c->gb + 0.5) / c->gb);
+        if (axis_op(m, c, 1, y, y, &ay[iy]))
+            goto done;
+    }
+    for (int ix = 0; ay && ix < ng; ix++) {
+        double x = ref_coord(c, ix / c->gb, (ix % c->gb + 0.5) / c->gb);
+        if (axis_op(m, c, 0, x, x, &ax))
+            goto done;
+        mp_prf_axis_rows(m->psf, &ax, 0, A);
+        for (int iy = 0; iy < ng; iy++) {
+            double y = ref_coord(c, iy / c->gb, (iy % c->gb + 0.5) / c->gb);
+            size_t ph = (size_t)iy * ng + ix;
+            product(c, &ax, &ay[iy], 0, A, scale, ex);
+            interp(c, x, y, REF + c->ux0, REF + c->uy0, c->uw, c->uh, cur, NULL, NULL);
+            float *p = c->p + ph * c->npix, *d = c->d2 + ph * c->npix;
+            for (size_t i = 0; i < c->npix; i++) {
+                p[i] = (float)ex[i];
+                d[i] = (float)((cur[i] - ex[i]) * (cur[i] - ex[i]));
+            }
+        }
+        mp_prf_axis_free(&ax);
+    }
+    rc = !ay;
+done:
+    mp_prf_axis_free(&ax);
+    for (int iy = 0; ay && iy < ng; iy++)
+        mp_prf_axis_free(&ay[iy]);
+    free(ay);
+    return rc;
+}
+
+/* The grid, its nodes and cells rendered by the axis operators when the
+ * model allows (sep), else by fit/prf.c's render. */
+static int build(const mp_prf_model *m, int G, int sep, mp_prf_cache *c, char *err)
 {
     memset(c, 0, sizeof *c);
     if (m->psf->kind != MP_PSF_TABLE || G < 1)
@@ -315,7 +418,9 @@ int mp_prf_cache_build(const mp_prf_model *m, int G, mp_prf_cache *c, char *err)
     c->img = malloc(3 * (size_t)NA * NA * c->npix * sizeof *c->img);
     c->p = malloc((size_t)c->nph * c->npix * sizeof *c->p);
     c->d2 = malloc((size_t)c->nph * c->npix * sizeof *c->d2);
-    double *buf = malloc(6 * c->npix * sizeof *buf);
+    sep = sep && mp_prf_separable(&me);
+    size_t nbuf = sep ? 2 * c->npix + 2 * (size_t)m->psf->ny * c->uw : 6 * c->npix;
+    double *buf = malloc(nbuf * sizeof *buf);
     mp_prf_work wk = {0};
     int rc = 1;
     if (!c->img || !c->p || !c->d2 || !buf) {
@@ -325,7 +430,9 @@ int mp_prf_cache_build(const mp_prf_model *m, int G, mp_prf_cache *c, char *err)
     }
     c->psf = m->psf;
     c->drf = m->drf;
-    if (render_nodes(&me, c, buf, &wk) || measure(&me, c, buf, buf + c->npix, buf + 2 * c->npix, &wk)) {
+    if (sep ? nodes_sep(&me, c, buf) || measure_sep(&me, c, buf)
+            : render_nodes(&me, c, buf, &wk) ||
+                  measure(&me, c, buf, buf + c->npix, buf + 2 * c->npix, &wk)) {
         snprintf(err, MP_ERRLEN, "out of memory rendering the PRF phase grid");
         goto done;
     }
@@ -337,6 +444,16 @@ done:
     if (rc)
         mp_prf_cache_free(c);
     return rc;
+}
+
+int mp_prf_cache_build(const mp_prf_model *m, int G, mp_prf_cache *c, char *err)
+{
+    return build(m, G, 1, c, err);
+}
+
+int mp_prf_cache_build_exact(const mp_prf_model *m, int G, mp_prf_cache *c, char *err)
+{
+    return build(m, G, 0, c, err);
 }
 
 double mp_prf_cache_bound(const mp_prf_cache *c, double E, double B, double ron)

@@ -41,6 +41,8 @@ void mp_ss_level_free(mp_ss_level *lv)
     mp_psf_field_free(&lv->field);
     free(lv->bias.p);
     mp_sinc_choice_free(&lv->sinc);
+    mp_prf_cache_free(lv->grid);
+    free(lv->grid);
     memset(lv, 0, sizeof *lv);
 }
 

@@ -1,0 +1,140 @@
+/* prf_axis.c — a table PRF as the product of two 1-D operators (issue 12).
+ *
+ * Why: the phase grid (fit/prf_cache.c) renders the table exactly at
+ * (os·(Gb+3))² node phases, with derivatives, and at G² cell centres for its
+ * bound: 27 % of the 47 Tuc 256² fit task with the Tiny Tim ×4 table, each
+ * render the whole table's damped-sinc shift (paper §3.1).  Every step of
+ * that render acts on one axis only — the shift is a product of 1-D kernels,
+ * the block-sum and the five-point derivative (§3.2) are per axis, a DRF
+ * uniform over the pixel is a scale — so the render is Y·T·Xᵀ with X, Y
+ * banded (a pixel reads os + 2hw + 4 elements).  X depends on the star's x
+ * phase only: A = T·Xᵀ is formed once per x node and every y node is then
+ * Y·A on detector columns, os·(2hw+1)/(os+2hw+4) times fewer operations per
+ * node than the shift of the table, and the derivatives come from the same
+ * A (∂/∂x: T·X'ᵀ; ∂/∂y: Y'·A).  The values are render_table's up to the
+ * order of the sums (test_prf_cache checks them to 1e-12 of the peak). */
+#include <math.h>
+#include <stdlib.h>
+#include <string.h>
+#include "fit/prf_axis.h"
+
+void mp_prf_axis_geom(int n, int os, double x, double xr, long *n0, double *delta, long *p0,
+                      int *w)
+{
+    double c0 = (n - 1) / 2 + 0.5 + os * (0.5 - x);
+    *n0 = lround((n - 1) / 2 + 0.5 + os * (0.5 - xr));
+    *delta = c0 - (double)*n0;
+    /* Table index m ↔ g = m − n0; pixel p = floor(g/os) + 1. */
+    long g0 = -*n0, g1 = (long)(n - 1) - *n0;
+    long a = (long)floor((double)g0 / os) + 1, b = (long)floor((double)g1 / os) + 1;
+    *p0 = a;
+    *w = (int)(b - a + 1);
+}
+
+void mp_prf_axis_free(mp_prf_axis *a)
+{
+    if (!a)
+        return;
+    free(a->lo);
+    free(a->len);
+    free(a->v);
+    memset(a, 0, sizeof *a);
+}
+
+int mp_prf_separable(const mp_prf_model *m)
+{
+    return m->psf->kind == MP_PSF_TABLE && !m->psf->field && (!m->drf || m->drf->k == 0);
+}
+
+/* c·S[j] added to a pixel's row, S the shifted table (zero beyond [0, n)):
+ * S[j] = Σ_k T[j+k]·wt[k+h] over the taps inside the table. */
+static void add_shifted(double *row, long lo, long j, double c, const double *wt, int h, int n)
+{
+    if (j < 0 || j >= n)
+        return;
+    for (int k = -h; k <= h; k++)
+        if (j + k >= 0 && j + k < n)
+            row[j + k - lo] += c * wt[k + h];
+}
+
+int mp_prf_axis_build(int n, int os, double offset, double x, double xr, long wp0, long ww,
+                      int hw, mp_prf_axis *a)
+{
+    memset(a, 0, sizeof *a);
+    long n0, bp0;
+    double delta;
+    int bwid;
+    mp_prf_axis_geom(n, os, x - offset, xr - offset, &n0, &delta, &bp0, &bwid);
+    long p0 = bp0 > wp0 ? bp0 : wp0, p1 = bp0 + bwid < wp0 + ww ? bp0 + bwid : wp0 + ww;
+    a->p0 = p0;
+    a->w = p1 > p0 ? (int)(p1 - p0) : 0;
+    hw = hw > 0 ? (hw < 64 ? hw : 64) : 0;
+    int h = mp_shift_on_grid(delta) || hw == 0 ? 0 : hw;
+    double wt[2 * 64 + 1] = {1.0};
+    for (int k = -h; k <= h && h > 0; k++)
+        wt[k + h] = mp_damped_sinc((double)k - delta);
+    a->bw = os + 2 * h + 4;
+    size_t nw = a->w > 0 ? (size_t)a->w : 1;
+    a->lo = malloc(nw * sizeof *a->lo);
+    a->len = malloc(nw * sizeof *a->len);
+    a->v = calloc(2 * nw * (size_t)a->bw, sizeof *a->v);
+    if (!a->lo || !a->len || !a->v) {
+        mp_prf_axis_free(a);
+        return 1;
+    }
+    a->d = a->v + nw * (size_t)a->bw;
+    /* The five-point derivative's weights on S[m−2..m+2] (render_table:
+     * the table index moves by −os per +1 px of the star). */
+    static const int dd[4] = {-2, -1, 1, 2};
+    const double cd[4] = {-os / 12.0, 8.0 * os / 12.0, -8.0 * os / 12.0, os / 12.0};
+    for (int q = 0; q < a->w; q++) {
+        long mb0 = (p0 + q - 1) * os + n0;      /* the pixel's first element */
+        long lo = mb0 - h - 2 < 0 ? 0 : mb0 - h - 2, hi = mb0 + os + h + 2;
+        hi = hi > n ? n : hi;
+        a->lo[q] = lo;
+        a->len[q] = hi > lo ? (int)(hi - lo) : 0;
+        double *v = a->v + (size_t)q * a->bw, *d = a->d + (size_t)q * a->bw;
+        for (long m = mb0 < 0 ? 0 : mb0; m < mb0 + os && m < n; m++) {
+            add_shifted(v, lo, m, 1.0, wt, h, n);
+            for (int t = 0; t < 4; t++)
+                add_shifted(d, lo, m + dd[t], cd[t], wt, h, n);
+        }
+    }
+    return 0;
+}
+
+void mp_prf_axis_rows(const mp_psf *p, const mp_prf_axis *ax, int deriv, double *A)
+{
+    const double *W = deriv ? ax->d : ax->v;
+    for (int j = 0; j < p->ny; j++) {
+        const double *T = p->t + (size_t)j * p->nx;
+        double *out = A + (size_t)j * ax->w;
+        for (int q = 0; q < ax->w; q++) {
+            const double *t = T + ax->lo[q], *w = W + (size_t)q * ax->bw;
+            double s = 0.0;
+            for (int i = 0; i < ax->len[q]; i++)
+                s += t[i] * w[i];
+            out[q] = s;
+        }
+    }
+}
+
+void mp_prf_axis_cols(const mp_prf_axis *ay, int deriv, const double *A, int ax_w, double scale,
+                      double *out, long oy, long ox, long ostride)
+{
+    const double *W = deriv ? ay->d : ay->v;
+    for (int q = 0; q < ay->w; q++) {
+        double *o = out + (size_t)(oy + q) * ostride + ox;
+        const double *w = W + (size_t)q * ay->bw;
+        for (int i = 0; i < ax_w; i++)
+            o[i] = 0.0;
+        for (int k = 0; k < ay->len[q]; k++) {
+            const double *a = A + (size_t)(ay->lo[q] + k) * ax_w;
+            double c = w[k];
+            for (int i = 0; i < ax_w; i++)
+                o[i] += c * a[i];
+        }
+        for (int i = 0; i < ax_w; i++)
+            o[i] *= scale;
+    }
+}

@@ -1,0 +1,52 @@
+/*
+ * prf_axis.h — inside fit/ only: a table PRF as the product of two 1-D
+ * operators (fit/prf_axis.c), for fit/prf_cache.c's phase-grid build.
+ */
+#ifndef MATPHOT_FIT_PRF_AXIS_H
+#define MATPHOT_FIT_PRF_AXIS_H
+
+#include "fit/fit.h"
+
+/* One axis of a table render: the damped-sinc shift, the block-sum and the
+ * five-point derivative, composed into one banded operator from table
+ * elements to detector pixels [p0, p0 + w): pixel p reads elements
+ * [lo[p], lo[p] + len[p]) with weights v (PRF) and d (∂/∂x of the star's
+ * coordinate along this axis), bw a row. */
+typedef struct {
+    long p0;
+    int w, bw;
+    long *lo;
+    int *len;
+    double *v, *d;
+} mp_prf_axis;
+
+/* mp_prf_axis_geom: one axis of a table star (n elements, OVERSAMP os) at
+ * coordinate x (the table's offset removed), aligned as for one at xr:
+ * global fine index g = os·(p − 1) + s holds the table shifted by delta
+ * (|delta| ≤ ½ for xr = x) at element g + n0; its box is pixels [p0, p0 + w). */
+void mp_prf_axis_geom(int n, int os, double x, double xr, long *n0, double *delta, long *p0,
+                      int *w);
+
+/* mp_prf_axis_build: the operator of an axis of n elements (os, offset as
+ * the table's) for a star at coordinate x, the table aligned as for one
+ * at xr (fit/prf.c's render_table), its box clipped to pixels [wp0, wp0 +
+ * ww), with a half-width hw sinc.  Nonzero when out of memory. */
+int mp_prf_axis_build(int n, int os, double offset, double x, double xr, long wp0, long ww,
+                      int hw, mp_prf_axis *a);
+void mp_prf_axis_free(mp_prf_axis *a);
+
+/* mp_prf_separable: whether m's renders are the product of its two axes'
+ * operators (a constant table; a DRF uniform over the pixel, or none). */
+int mp_prf_separable(const mp_prf_model *m);
+
+/* mp_prf_axis_rows: A = T·Xᵀ over every table row (ny × ax->w, row-major):
+ * the x operator applied, its PRF weights (deriv 0) or its derivative's. */
+void mp_prf_axis_rows(const mp_psf *p, const mp_prf_axis *ax, int deriv, double *A);
+
+/* mp_prf_axis_cols: out = scale · Y·A (ay->w × ax_w, the y operator's PRF
+ * weights or, deriv, its derivative's), written at (oy, ox) of an image of
+ * stride ostride. */
+void mp_prf_axis_cols(const mp_prf_axis *ay, int deriv, const double *A, int ax_w, double scale,
+                      double *out, long oy, long ox, long ostride);
+
+#endif
