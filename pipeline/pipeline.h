@@ -26,6 +26,8 @@ typedef struct {
     int build_psf;           /* psf="" : build root.psf.fits from the frame
                               * before the first round and once after it */
     mp_epsf_opts psfb;       /* how (psf.par's names: varorder, maxnpsf) */
+    int tablerad_auto;       /* tablerad=INDEF: the table's radius measured on
+                              * the frame's stars (psf/tablerad.c) */
     int halo;                /* after the first round, model the bright stars'
                               * light beyond the table (pipeline/halo.c) */
     int lookup;              /* after the first round, take off the PSF's mean

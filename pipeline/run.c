@@ -32,6 +32,9 @@ typedef struct {
     mp_epsf psf;          /* the PSF built from the frame (build_psf) */
     double *px, *py, *pf; /* its stars */
     size_t np;
+    double tabrad;        /* its table's radius [px], measured in pass 1
+                           * with tablerad=INDEF (0: the option's) */
+    char tabwhy[320];     /* how (mp_epsf_rad.why), for the run report */
     int quiet;            /* mp_pipeline_reduce: no stderr lines, no files */
     int own_frame;        /* f read here, so the halo may be taken off it */
 } run_state;
@@ -141,6 +144,8 @@ static int find_stars(run_state *s, char *err)
         return oom(err);
     mp_bkg_free(&s->bkg);        /* the fit needs no map: memory for its model */
     mp_pl_drop_unset(&s->t);
+    if (mp_table_shrink(&s->t))  /* the candidates' rows given back (issue 14) */
+        return oom(err);
     s->rep->t_find += mp_seconds() - t0;
     s->rep->found = (long)s->t.nrow;
     /* Written first: a failed write is the run's only stderr line. */
@@ -291,9 +296,13 @@ static int find_on_residual(run_state *s, int round, long *added, char *err)
     mp_find_opts ro = o->find;
     ro.roundlo = fmin(ro.roundlo, -2.0);
     ro.roundhi = fmax(ro.roundhi, 2.0);
+    /* The screen as detection goes (its candidates never all held). */
+    double cut = s->fit->opts.minsnr - MP_PL_SCREEN_SLACK;
+    mp_pl_screen sc = {&R, &s->bkg, s->res, &s->fit->model, s->fit->opts.fit.fitrad, cut, 0};
+    struct mp_find_sieve sv = {mp_pl_screen_sieve, &sc, MP_PL_SNR_COL};
+    ro.sieve = cut > 0 ? &sv : NULL;
     int frc = mp_find_stars(&R, &s->bkg, &ro, &s->found, err);
-    if (!frc && screen(s, &R, s->res, &s->found))
-        return oom(err);
+    s->rep->screened += sc.dropped;
     s->rep->t_find += mp_seconds() - t0;
     if (frc)
         return 1;
@@ -326,7 +335,7 @@ static int find_on_residual(run_state *s, int round, long *added, char *err)
                                  mergerad, s->fit->opts.minsnr > 0 ? splitsnr : INFINITY);
     mp_table_free(&s->found);    /* not held through the next fit (issue 14) */
     mp_table_init(&s->found);
-    if (*added < 0)
+    if (*added < 0 || mp_table_shrink(&s->t))
         return oom(err);
     s->rep->added += *added;
     if (s->quiet)
@@ -383,6 +392,22 @@ static int psf_stars(run_state *s, char *err)
     return rc;
 }
 
+/* tablerad=INDEF: the table's radius measured on the PSF stars and the
+ * bright ones (pipeline/tablerad.c), said on stderr; kept for pass 2. */
+static int table_radius(run_state *s, char *err)
+{
+    if (!s->o->tablerad_auto || s->np == 0)
+        return 0;
+    mp_epsf_rad r;
+    if (mp_pl_tablerad(&s->f, &s->t, s->px, s->py, s->pf, s->np, &s->o->psfb, &r, err))
+        return 1;
+    s->tabrad = r.rad;
+    snprintf(s->tabwhy, sizeof s->tabwhy, "%s", r.why);
+    if (!s->quiet)
+        fprintf(stderr, "matphot pipeline: %s: %s\n", s->image, r.why);
+    return 0;
+}
+
 /* Build (pass 1: the frame as it is) or rebuild (pass 2: every fitted
  * star but the PSF stars' own subtracted) the PSF, write root.psf.fits,
  * and set the fit up from it as `fit psf=root.psf.fits` would be; every
@@ -399,8 +424,10 @@ static int build_psf(run_state *s, int pass, char *err)
     po.y0 = 0.5 * (double)(ny + 1) - (double)s->offy;
     po.xs = nx > 1 ? 0.5 * (double)nx : 1.0;
     po.ys = ny > 1 ? 0.5 * (double)ny : 1.0;
-    if (pass == 1 && psf_stars(s, err))
+    if (pass == 1 && (psf_stars(s, err) || table_radius(s, err)))
         return 1;
+    if (s->tabrad > 0)
+        po.psfrad = s->tabrad;
     /* A frame with no star fit to shape a PSF (an empty or tiny frame, a
      * crowd of saturated stars) is still reduced: with the Gaussian of
      * fwhm, as psf=gauss, said on stderr and in the report. */
@@ -455,7 +482,8 @@ static int build_psf(run_state *s, int pass, char *err)
             rc = oom(err);
         size_t l = strlen(s->own.decisions);
         snprintf(s->own.decisions + l, sizeof s->own.decisions - l, "%sPSF built from the frame "
-                 "(pass %d, %s): %s", l ? "; " : "", pass, path, rep.what);
+                 "(pass %d, %s): %s%s%s", l ? "; " : "", pass, path, s->tabwhy,
+                 s->tabwhy[0] ? "; " : "", rep.what);
         s->own.ndecisions++;
         fprintf(stderr, "matphot pipeline: %s: PSF pass %d: %s, %.2f s\n", s->image, pass, rep.what,
                 mp_seconds() - t0);

@@ -206,18 +206,82 @@ int mp_epsf_rebin(const mp_epsf *e, int factor, mp_epsf *out, char *err);
  * correction): each star's flux F fitted with the table (of sum 1)
  * against F + L, L the light its model leaves out between rin − 1.5 px
  * (the table's edge, which pixels only partly cover, rin its radius) and
- * rbig on img, as the median of each 1-px ring of img less the star's
- * model, less the sky (the median of rbig..rbig+4 px), times the ring's
- * pixels (robust to the neighbours and faint stars a crowded ring holds;
- * it misses narrow features such as diffraction spikes).  img is the
- * frame, or with fitted and m given, data less every star of fitted (then
- * the star's own rows, within 1 px of where it was found, are put back
- * with m, as they were taken).  e->sum is set to the median ratio when
- * that is below 1 by more than 3 times its error, else 1; e->sum_err its error.  Nonzero
- * only on out of memory (fewer than 3 measurable stars: sum 1). */
+ * rbig on img.  The stars' images of img less their models, interpolated
+ * to their own centres, less their sky (the median of rbig..rbig+4 px),
+ * per unit flux, are stacked: the median over the (up to 10) stars per
+ * offset, robust to the neighbours and faint stars a crowded ring holds;
+ * then summed over the annulus ring by ring as each ring's mean over
+ * azimuth, so narrow features (diffraction spikes) count with their
+ * light, which a ring's median drops.  img is the frame, or with fitted
+ * and m given, data less every star of fitted (then the star's own rows,
+ * within 1 px of where it was found, are put back with m, as they were
+ * taken).  e->sum is set to 1/(1 + L/F) when that is below 1 by more
+ * than 3 times its error, else 1; e->sum_err its error (the larger of
+ * the per-offset medians' errors summed and the stars' own sums'
+ * scatter).  Nonzero only on out of memory (fewer than 3 measurable
+ * stars: sum 1). */
 int mp_epsf_growth(const mp_frame *f, const float *img, const mp_table *fitted,
                    const mp_prf_model *m, const mp_epsf_star *s, size_t n, double rin,
                    double rbig, mp_epsf *e, char *err);
+
+/* ---- The table's radius (psf/tablerad.c) -------------------------------- */
+
+/* A ring's light is "measured" when its 0.9 quantile over azimuth, less
+ * what noise alone gives that quantile, is this many of that quantile's
+ * sampling errors for noise alone (one-sided false rate 1.3e-4 a ring). */
+#define MP_EPSF_RADZ 3.65
+
+/* How the table radius is measured (mp_epsf_tablerad). */
+typedef struct {
+    double frac;       /* the brightest star's light per pixel above frac·σ of a
+                        * sky pixel (the economy's cropfrac, 0.02) */
+    double fwhm;       /* [px] the PSF stars' flux: their light within 2 fwhm */
+    double rmin, rmax; /* [px] floor, and cap (the frame's and the build's budget) */
+    double rdefault;   /* [px] when it cannot be measured (fewer than 3 PSF stars) */
+} mp_epsf_radopts;
+
+/* What it measured. */
+typedef struct {
+    double rad;        /* the table radius [px] */
+    double fmax;       /* the brightest star's flux in the stacks' unit [e-] */
+    double level;      /* frac·σ of a sky pixel [e-] */
+    int npsf, nbright; /* stars in the two stacks */
+    char why[320];     /* one line for the run report */
+} mp_epsf_rad;
+
+/* mp_epsf_profile_hi: the high-quantile profile of a stacked star image
+ * (med, sig: (2hw+1)² values per unit flux and their errors, NaN where
+ * unmeasured) on 1-px rings r = 0..hw (distance of the offset in [r, r+1)):
+ * q[r] the ring's 0.9 quantile over azimuth less 1.2816 × the ring's
+ * median error (what noise alone gives that quantile), so a spike that
+ * fills a tenth of the ring counts at its own height where a median or a
+ * mean would dilute it; z[r] = q[r] over that quantile's sampling error
+ * for noise alone (1.709 σ/√m, m values).  NaN for rings with fewer than
+ * 8 values.  Nonzero on out of memory. */
+int mp_epsf_profile_hi(const double *med, const double *sig, int hw, double *q, double *z);
+
+/* mp_epsf_radius_rule: 1 + the largest ring r < nr whose light is
+ * measured (z[r] ≥ MP_EPSF_RADZ) and, for a star of flux fmax, reaches
+ * level per pixel (fmax·q[r] ≥ level); 0 when none. */
+double mp_epsf_radius_rule(const double *q, const double *z, int nr, double fmax, double level);
+
+/* mp_epsf_tablerad: the table radius a frame needs (pipeline tablerad=INDEF):
+ * the PSF stars (x, y: unsaturated, alone) stacked on img, each as its
+ * light per unit flux (its flux the light within 2 fwhm, its sky the
+ * median of the ring rmax..rmax+4 px), the median over stars per pixel
+ * offset (a neighbour or a faint star is in one star's image, a spike or
+ * a ring in all); then mp_epsf_radius_rule on the stack's high-quantile
+ * profile with fmax the brightest star's flux — the PSF stars', or a
+ * bright star's (bx, by: saturated, their cores clipped) from its wings,
+ * the median over its first usable rings of its ring median over the
+ * stack's — and level frac·σ of the median sky pixel; within
+ * rmin..rmax.  Light a bright star shows beyond the table is fitted as
+ * stars (validate/CROWDED.md's segmented scene: 1130 false entries with
+ * ±12 px).  Fewer than 3 usable PSF stars: rdefault.  Nonzero only on out
+ * of memory. */
+int mp_epsf_tablerad(const mp_frame *f, const float *img, const double *x, const double *y,
+                     size_t n, const double *bx, const double *by, size_t nb,
+                     const mp_epsf_radopts *o, mp_epsf_rad *out, char *err);
 
 /* ---- From a frame (psf/frame_build.c): what `matphot psf` and the
  * pipeline run ---------------------------------------------------------- */

@@ -1,11 +1,14 @@
 /* growth.c — the table's share of a star's light (build.h): the fit with
- * a table of sum 1 gives the light the table holds; the rings beyond it
- * out to rbig around the brightest stars the rest (nearly). */
+ * a table of sum 1 gives the light the table holds; the light beyond it
+ * out to rbig around the brightest stars, stacked, the rest (nearly). */
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 #include "psf/build_priv.h"
+
+/* Stars the light beyond the table is stacked over at most (the brightest). */
+#define MP_EPSF_NGROWTH 10
 
 typedef struct { size_t k; double flux; } bright;
 
@@ -15,59 +18,131 @@ static int by_flux(const void *a, const void *b)
     return (x < y) - (x > y);
 }
 
-/* The light the star's model leaves out, between rin and rbig [px] of
- * (x, y): per ring of 1 px the median pixel of v = img + own (own: the
- * star's light put back less its model) less the sky (the median of
- * rbig..rbig+4), times the ring's pixels.  Medians, not sums: the rings
- * of a crowded frame hold neighbours' cores and stars too faint to find,
- * which a sum takes for the PSF's wings (the segmented scene of
- * validate/PSFBUILD.md: 0.979 ± 0.003 where all the light was inside the
- * table); light in narrow features (diffraction spikes) is missed alike.
- * NaN when the rings leave the frame or a ring has fewer than half its
- * pixels unmasked.  buf holds 2 × the box's pixels; ring the ring index
- * of each. */
-static double outer_light(const mp_frame *f, const float *img, const double *own, long ox,
-                          long oy, int ow, int oh, double x, double y, double rin, double rbig,
-                          double *buf, int *ring)
+/* v = img + own at frame pixel (px, py) (own: on the box ox, oy, ow, oh);
+ * NaN where masked, not finite or off the frame. */
+static double value_at(const mp_frame *f, const float *img, const double *own, long ox, long oy,
+                       int ow, int oh, long px, long py)
+{
+    if (px < 1 || py < 1 || px > f->im.nx || py > f->im.ny)
+        return NAN;
+    size_t o = (size_t)(py - 1) * f->im.nx + (size_t)(px - 1);
+    double v = img[o];
+    if (own && px >= ox && px < ox + ow && py >= oy && py < oy + oh)
+        v += own[(size_t)(py - oy) * ow + (size_t)(px - ox)];
+    return f->mask[o] || !isfinite(v) ? NAN : v;
+}
+
+/* The light the star's model leaves out, per unit flux, at the offsets
+ * (i, j) within ±hw px of the star's own position (x, y), into u
+ * ((2hw+1)²; NaN where a pixel it needs is masked or off the frame, or
+ * outside rin < |offset| ≤ rbig): v = img + own (own: the star's light put
+ * back less its model) interpolated bilinearly at (x + i, y + j), so that
+ * every star's offsets are its true distances, less the sky (the median
+ * of the pixels rbig..rbig+4 px away), over the star's flux F.  Returns 1
+ * when the rings leave the frame or the sky ring has fewer than half its
+ * pixels; buf holds the box's pixels. */
+static int outer_image(const mp_frame *f, const float *img, const double *own, long ox,
+                       long oy, int ow, int oh, double x, double y, double F, double rin,
+                       double rbig, int hw, double *u, double *buf)
 {
     double r1 = rbig + 4.0;
     long x0 = (long)floor(x - r1), x1 = (long)ceil(x + r1);
     long y0 = (long)floor(y - r1), y1 = (long)ceil(y + r1);
     if (x0 < 1 || y0 < 1 || x1 > f->im.nx || y1 > f->im.ny || !(rbig > rin))
-        return NAN;
-    int nring = (int)ceil(rbig - rin);
-    size_t nb = 0;
+        return 1;
+    size_t ns = 0, all = 0;
     for (long j = y0; j <= y1; j++)
         for (long i = x0; i <= x1; i++) {
             double r = hypot(i - x, j - y);
-            if (r <= rin || r > r1)
+            if (r <= rbig || r > r1)
                 continue;
-            int q = r > rbig ? nring : (int)fmin(floor(r - rin), nring - 1);
-            size_t o = (size_t)(j - 1) * f->im.nx + (size_t)(i - 1);
-            double v = img[o];
-            if (own && i >= ox && i < ox + ow && j >= oy && j < oy + oh)
-                v += own[(size_t)(j - oy) * ow + (size_t)(i - ox)];
-            ring[nb] = q;
-            buf[nb++] = f->mask[o] || !isfinite(v) ? NAN : v;
+            all++;
+            double v = value_at(f, img, own, ox, oy, ow, oh, i, j);
+            if (isfinite(v))
+                buf[ns++] = v;
         }
-    double *tmp = buf + nb, out = 0.0, sky = NAN;
-    for (int q = nring; q >= 0; q--) {
-        size_t m = 0, all = 0;
-        for (size_t k = 0; k < nb; k++)
-            if (ring[k] == q) {
-                all++;
-                if (!isnan(buf[k]))
-                    tmp[m++] = buf[k];
+    if (ns < 8 || 2 * ns < all)
+        return 1;
+    double sky = mp_epsf_median(buf, ns);
+    int w = 2 * hw + 1;
+    for (int j = -hw; j <= hw; j++)
+        for (int i = -hw; i <= hw; i++) {
+            double r = hypot(i, j), px = x + i, py = y + j, val = NAN;
+            if (r > rin && r <= rbig) {
+                long ix = (long)floor(px), iy = (long)floor(py);
+                double ax = px - ix, ay = py - iy;
+                val = (1 - ax) * (1 - ay) * value_at(f, img, own, ox, oy, ow, oh, ix, iy) +
+                      ax * (1 - ay) * value_at(f, img, own, ox, oy, ow, oh, ix + 1, iy) +
+                      (1 - ax) * ay * value_at(f, img, own, ox, oy, ow, oh, ix, iy + 1) +
+                      ax * ay * value_at(f, img, own, ox, oy, ow, oh, ix + 1, iy + 1);
             }
-        if (m < 8 || 2 * m < all)
-            return NAN;
-        double med = mp_epsf_median(tmp, m);
-        if (q == nring)
-            sky = med;
-        else
-            out += (med - sky) * (double)all;
+            u[(size_t)(j + hw) * w + (size_t)(i + hw)] = (val - sky) / F;
+        }
+    return 0;
+}
+
+/* The stars' light beyond the table per unit flux, ℓ, and its error:
+ * the median over the nst star images u (nst × w², w = 2hw+1) per
+ * offset — a neighbour or a faint star lies in one star's image, a
+ * spike or a ring in all — then per 1-px ring the mean over its
+ * measured offsets times the ring's offsets (so a narrow spike counts
+ * with its own light, where a ring's median over azimuth drops it). */
+static void stacked_light(const double *u, int nst, int hw, double rin, double rbig,
+                          double *col, double *l, double *lerr)
+{
+    int w = 2 * hw + 1, nring = (int)ceil(rbig) + 1;
+    double sum[256] = {0}, var[256] = {0};
+    int cnt[256] = {0}, all[256] = {0};
+    nring = nring > 256 ? 256 : nring;
+    for (int j = 0; j < w; j++)
+        for (int i = 0; i < w; i++) {
+            double r = hypot(i - hw, j - hw);
+            int q = (int)r;
+            if (r <= rin || r > rbig || q >= nring)
+                continue;
+            all[q]++;
+            size_t m = 0, e = (size_t)j * w + i;
+            for (int k = 0; k < nst; k++)
+                if (isfinite(u[(size_t)k * w * w + e]))
+                    col[m++] = u[(size_t)k * w * w + e];
+            if (m < 3)
+                continue;
+            double med = mp_epsf_median(col, m);
+            for (size_t k = 0; k < m; k++)
+                col[k] = fabs(col[k] - med);
+            double se = 1.2533 * 1.4826 * mp_epsf_median(col, m) / sqrt((double)m);
+            sum[q] += med;
+            var[q] += se * se;
+            cnt[q]++;
+        }
+    *l = 0.0;
+    double v = 0.0;
+    for (int q = 0; q < nring; q++)
+        if (cnt[q]) {
+            double s = (double)all[q] / cnt[q];
+            *l += sum[q] * s;
+            v += var[q] * s * s;
+        }
+    /* Each star's own sum over the annulus: what its sky and flux errors
+     * shift, on every pixel of its image at once, the per-pixel errors
+     * above treat as independent.  The error is the larger of the two
+     * (the median of nst stars: 1.2533 × robust σ / √nst). */
+    double ls[MP_EPSF_NGROWTH];
+    for (int k = 0; k < nst && k < MP_EPSF_NGROWTH; k++) {
+        ls[k] = 0.0;
+        for (int j = 0; j < w; j++)
+            for (int i = 0; i < w; i++) {
+                double r = hypot(i - hw, j - hw), x = u[(size_t)k * w * w + (size_t)j * w + i];
+                if (r > rin && r <= rbig && (int)r < nring && isfinite(x))
+                    ls[k] += x * (double)all[(int)r] / fmax(cnt[(int)r], 1);
+            }
     }
-    return out;
+    int n = nst < MP_EPSF_NGROWTH ? nst : MP_EPSF_NGROWTH;
+    double med = mp_epsf_median(memcpy(col, ls, (size_t)n * sizeof *col), (size_t)n);
+    for (int k = 0; k < n; k++)
+        ls[k] = fabs(ls[k] - med);
+    double es = 1.2533 * 1.4826 * mp_epsf_median(ls, (size_t)n) / sqrt((double)n);
+    *lerr = fmax(sqrt(v), es);
 }
 
 /* own += F × the PRF of model m at frame position (x, y), on the box
@@ -138,17 +213,16 @@ int mp_epsf_growth(const mp_frame *f, const float *img, const mp_table *fitted,
     e->ngrowth = 0;
     bright *b = malloc((n + 1) * sizeof *b);
     long r1 = (long)ceil(rbig + 4.0);
-    int ow = (int)(2 * r1 + 3), oh = ow;
-    double *buf = malloc(2 * (size_t)ow * oh * sizeof *buf);
-    int *ring = malloc((size_t)ow * oh * sizeof *ring);
+    int ow = (int)(2 * r1 + 3), oh = ow, hw = (int)ceil(rbig), w = 2 * hw + 1;
+    double *buf = malloc((size_t)ow * oh * sizeof *buf);
     double *own = malloc((size_t)ow * oh * sizeof *own);
-    double ratio[10];
-    mp_prf_work w;
-    memset(&w, 0, sizeof w);
+    double *u = malloc((size_t)MP_EPSF_NGROWTH * w * w * sizeof *u);
+    mp_prf_work wk;
+    memset(&wk, 0, sizeof wk);
     mp_psf tab;
     memset(&tab, 0, sizeof tab);
     int rc = 1;
-    if (!b || !buf || !ring || !own)
+    if (!b || !buf || !own || !u || ceil(rbig) >= 255)
         goto oom;
     size_t nu = 0;
     for (size_t k = 0; k < n; k++)
@@ -159,29 +233,27 @@ int mp_epsf_growth(const mp_frame *f, const float *img, const mp_table *fitted,
     /* From the band the table's edge only partly covers (its elements
      * reach psfrad − 0.5 px; a pixel's block ±0.7 px more). */
     double r0 = fmax(rin - 1.5, 0.0);
-    for (size_t q = 0; q < nu && nr < 10; q++) {
+    for (size_t q = 0; q < nu && nr < MP_EPSF_NGROWTH; q++) {
         const mp_epsf_star *st = &s[b[q].k];
         long ox = (long)floor(st->x) - r1 - 1, oy = (long)floor(st->y) - r1 - 1;
-        if (own_light(fitted, m, e, st, ox, oy, ow, oh, own, &tab, &w))
+        if (!(st->flux > 0))
+            continue;
+        if (own_light(fitted, m, e, st, ox, oy, ow, oh, own, &tab, &wk))
             goto oom;
-        double L = outer_light(f, img, own, ox, oy, ow, oh, st->x, st->y, r0, rbig, buf, ring);
-        if (isfinite(L) && st->flux + L > 0)
-            ratio[nr++] = st->flux / (st->flux + L);
+        if (!outer_image(f, img, own, ox, oy, ow, oh, st->x, st->y, st->flux, r0, rbig, hw,
+                         u + (size_t)nr * w * w, buf))
+            nr++;
     }
     e->ngrowth = nr;
     if (nr >= 3) {
-        double v[10], med = mp_epsf_median(memcpy(v, ratio, nr * sizeof *v), (size_t)nr);
-        for (int k = 0; k < nr; k++)
-            v[k] = fabs(ratio[k] - med);
-        /* The median's error: 1.2533 × the robust σ / √n. */
-        double se = 1.2533 * 1.4826 * mp_epsf_median(v, (size_t)nr) / sqrt((double)nr);
-        e->sum_err = se;
-        /* Only a deficit significant at 3 σ: what the rings' medians
-         * still take from neighbours' wings biases the ratio low (the
-         * variable scene of validate/PSFBUILD.md, with sums: 0.863 ±
-         * 0.050 where all the light was inside the table). */
-        if (med < 1.0 - 3.0 * se && med > 0.2)
-            e->sum = med;
+        double l, le;
+        stacked_light(u, nr, hw, r0, rbig, buf, &l, &le);
+        double ratio = 1.0 / (1.0 + l);
+        e->sum_err = le * ratio * ratio;
+        /* Only a deficit significant at 3 σ: a crowded frame's unfound
+         * stars still bias the stack's light up a little. */
+        if (ratio < 1.0 - 3.0 * e->sum_err && ratio > 0.2)
+            e->sum = ratio;
     }
     rc = 0;
     goto done;
@@ -191,8 +263,8 @@ done:
     free(own);
     free(b);
     free(buf);
-    free(ring);
+    free(u);
     mp_psf_free(&tab);
-    mp_prf_work_free(&w);
+    mp_prf_work_free(&wk);
     return rc;
 }

@@ -1,0 +1,306 @@
+/* tablerad.c — how far the built table must reach (build.h): as far as
+ * the frame's stars show PSF light, spikes included, and the brightest
+ * star's light per pixel is above the economy's painting level. */
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include "psf/build_priv.h"
+
+/* A stack: per offset (dx, dy) within ±hw px of the stars' nearest
+ * pixel, the median over stars of their light per unit flux, and the
+ * error of that median. */
+typedef struct {
+    int hw, w, n;          /* half-width, 2hw+1, stars stacked */
+    double *med, *sig;     /* w*w each; NaN where fewer than 3 stars */
+} stack;
+
+static int cmp_d(const void *a, const void *b)
+{
+    double x = *(const double *)a, y = *(const double *)b;
+    return (x > y) - (x < y);
+}
+
+static void stack_free(stack *s)
+{
+    free(s->med);
+    free(s->sig);
+}
+
+/* The median of the pixels of img within [r0, r1) px of the pixel (cx,
+ * cy) (1-based), unmasked and on the frame; NaN when fewer than half of
+ * the ring's pixels are usable or fewer than 8.  tmp: (2r1+1)² values. */
+static double ring_median(const mp_frame *f, const float *img, long cx, long cy, double r0,
+                          double r1, double *tmp)
+{
+    long h = (long)ceil(r1);
+    size_t m = 0, all = 0;
+    for (long j = cy - h; j <= cy + h; j++)
+        for (long i = cx - h; i <= cx + h; i++) {
+            double r = hypot((double)(i - cx), (double)(j - cy));
+            if (r < r0 || r >= r1)
+                continue;
+            all++;
+            if (i < 1 || j < 1 || i > f->im.nx || j > f->im.ny)
+                continue;
+            size_t o = (size_t)(j - 1) * f->im.nx + (size_t)(i - 1);
+            if (!f->mask[o] && isfinite(img[o]))
+                tmp[m++] = img[o];
+        }
+    return m >= 8 && 2 * m >= all ? mp_epsf_median(tmp, m) : NAN;
+}
+
+/* One star's light per unit flux around the pixel (cx, cy) into v (w*w,
+ * NaN where masked or off the frame): (img − sky)/F. */
+static void star_image(const mp_frame *f, const float *img, long cx, long cy, double sky,
+                       double F, int hw, double *v)
+{
+    int w = 2 * hw + 1;
+    for (int j = 0; j < w; j++)
+        for (int i = 0; i < w; i++) {
+            long x = cx + i - hw, y = cy + j - hw;
+            double u = NAN;
+            if (x >= 1 && y >= 1 && x <= f->im.nx && y <= f->im.ny) {
+                size_t o = (size_t)(y - 1) * f->im.nx + (size_t)(x - 1);
+                if (!f->mask[o] && isfinite(img[o]))
+                    u = (img[o] - sky) / F;
+            }
+            v[(size_t)j * w + i] = u;
+        }
+}
+
+/* The median over the n star images (n × w*w) per offset, and its error
+ * (1.2533 × 1.4826 MAD / √m: the median of m normal values). */
+static int stack_combine(const double *im, int n, stack *s)
+{
+    size_t nel = (size_t)s->w * s->w;
+    double *col = malloc(((size_t)n + 1) * sizeof *col);
+    s->med = malloc(nel * sizeof *s->med);
+    s->sig = malloc(nel * sizeof *s->sig);
+    if (!col || !s->med || !s->sig) {
+        free(col);
+        return 1;
+    }
+    for (size_t e = 0; e < nel; e++) {
+        size_t m = 0;
+        for (int k = 0; k < n; k++)
+            if (isfinite(im[(size_t)k * nel + e]))
+                col[m++] = im[(size_t)k * nel + e];
+        double med = m >= 3 ? mp_epsf_median(col, m) : NAN;
+        for (size_t q = 0; q < m; q++)
+            col[q] = fabs(col[q] - med);
+        s->med[e] = med;
+        s->sig[e] = m >= 3 ? 1.2533 * 1.4826 * mp_epsf_median(col, m) / sqrt((double)m) : NAN;
+    }
+    s->n = n;
+    free(col);
+    return 0;
+}
+
+/* The PSF stars' stack: each normalised by its light within 2 fwhm (its
+ * sky the median of the ring hw..hw+4 px). */
+static int psf_stack(const mp_frame *f, const float *img, const double *x, const double *y,
+                     size_t n, double fwhm, stack *s, double *fbig, double *skymed)
+{
+    size_t nel = (size_t)s->w * s->w;
+    double *im = malloc((n + 1) * nel * sizeof *im), *tmp = malloc(nel * 4 * sizeof *tmp);
+    double *skies = malloc((n + 1) * sizeof *skies);
+    int ns = 0, rc = 1;
+    *fbig = 0.0;
+    if (!im || !tmp || !skies)
+        goto done;
+    double ra = 2.0 * fwhm;
+    for (size_t k = 0; k < n; k++) {
+        long cx = lround(x[k]), cy = lround(y[k]);
+        double sky = ring_median(f, img, cx, cy, s->hw, s->hw + 4.0, tmp);
+        if (!isfinite(sky))
+            continue;
+        double *v = im + (size_t)ns * nel, A = 0.0;
+        star_image(f, img, cx, cy, sky, 1.0, s->hw, v);
+        int bad = 0;
+        for (int j = 0; j < s->w; j++)
+            for (int i = 0; i < s->w; i++)
+                if (hypot(i - s->hw, j - s->hw) <= ra) {
+                    double u = v[(size_t)j * s->w + i];
+                    bad |= !isfinite(u);
+                    A += u;
+                }
+        if (bad || !(A > 0))
+            continue;
+        for (size_t e = 0; e < nel; e++)
+            v[e] /= A;
+        *fbig = fmax(*fbig, A);
+        skies[ns++] = sky;
+    }
+    *skymed = ns ? mp_epsf_median(skies, (size_t)ns) : NAN;
+    rc = stack_combine(im, ns, s);
+done:
+    free(im);
+    free(tmp);
+    free(skies);
+    return rc;
+}
+
+/* The flux of a bright (saturated) star in the PSF stack's units, by its
+ * wings: the median over its first four usable 1-px rings (≥ 3/4
+ * unmasked, the stack's ring median there > 5 of its errors) of the
+ * star's ring median over the stack's.  NaN when none is usable. */
+static double wing_flux(const mp_frame *f, const float *img, long cx, long cy, double sky,
+                        const stack *p, double *tmp)
+{
+    double ratio[4];
+    int nr = 0;
+    double *sv = tmp + (size_t)p->w * p->w * 4;
+    for (int r = 2; r < p->hw && nr < 4; r++) {
+        size_t m = 0, all = 0, ms = 0;
+        double se = 0.0;
+        for (int j = 0; j < p->w; j++)
+            for (int i = 0; i < p->w; i++) {
+                double d = hypot(i - p->hw, j - p->hw);
+                if (d < r || d >= r + 1)
+                    continue;
+                all++;
+                long xx = cx + i - p->hw, yy = cy + j - p->hw;
+                size_t e = (size_t)j * p->w + i;
+                if (isfinite(p->med[e])) {
+                    sv[ms++] = p->med[e];
+                    se += p->sig[e] * p->sig[e];
+                }
+                if (xx < 1 || yy < 1 || xx > f->im.nx || yy > f->im.ny)
+                    continue;
+                size_t o = (size_t)(yy - 1) * f->im.nx + (size_t)(xx - 1);
+                if (!f->mask[o] && isfinite(img[o]))
+                    tmp[m++] = img[o] - sky;
+            }
+        if (4 * m < 3 * all || ms < 8)
+            continue;
+        double sm = mp_epsf_median(sv, ms), sme = 1.2533 * sqrt(se) / (double)ms;
+        if (!(sm > 5.0 * sme))
+            continue;
+        ratio[nr++] = mp_epsf_median(tmp, m) / sm;
+    }
+    return nr ? mp_epsf_median(ratio, (size_t)nr) : NAN;
+}
+
+/* The largest wing flux of the bright stars (their cores are clipped),
+ * and how many had one. */
+static int bright_flux(const mp_frame *f, const float *img, const double *x, const double *y,
+                       size_t n, const stack *p, double *fbig, int *nb)
+{
+    size_t nel = (size_t)p->w * p->w;
+    double *tmp = malloc(nel * 5 * sizeof *tmp);
+    *nb = 0;
+    if (!tmp)
+        return 1;
+    for (size_t k = 0; k < n; k++) {
+        long cx = lround(x[k]), cy = lround(y[k]);
+        double sky = ring_median(f, img, cx, cy, p->hw, p->hw + 4.0, tmp);
+        double F = isfinite(sky) ? wing_flux(f, img, cx, cy, sky, p, tmp) : NAN;
+        if (F > 0) {
+            *fbig = fmax(*fbig, F);
+            (*nb)++;
+        }
+    }
+    free(tmp);
+    return 0;
+}
+
+int mp_epsf_profile_hi(const double *med, const double *sig, int hw, double *q, double *z)
+{
+    int w = 2 * hw + 1;
+    double *v = malloc((size_t)w * w * sizeof *v), *e = malloc((size_t)w * w * sizeof *e);
+    if (!v || !e) {
+        free(v);
+        free(e);
+        return 1;
+    }
+    for (int r = 0; r <= hw; r++) {
+        size_t m = 0;
+        for (int j = 0; j < w; j++)
+            for (int i = 0; i < w; i++) {
+                double d = hypot(i - hw, j - hw);
+                size_t o = (size_t)j * w + i;
+                if (d >= r && d < r + 1 && isfinite(med[o]) && isfinite(sig[o])) {
+                    v[m] = med[o];
+                    e[m++] = sig[o];
+                }
+            }
+        if (m < 8) {
+            q[r] = z[r] = NAN;
+            continue;
+        }
+        /* The ring's 0.9 quantile less what noise alone gives it (1.2816
+         * σ), over that quantile's sampling error for noise alone
+         * (√(0.09)/φ(1.2816) σ/√m = 1.709 σ/√m). */
+        double s = mp_epsf_median(e, m);
+        qsort(v, m, sizeof *v, cmp_d);
+        double p = 0.9 * (double)(m - 1);
+        size_t i0 = (size_t)p;
+        double q9 = i0 + 1 < m ? v[i0] + (p - (double)i0) * (v[i0 + 1] - v[i0]) : v[m - 1];
+        q[r] = q9 - 1.2816 * s;
+        z[r] = s > 0 ? q[r] / (1.709 * s / sqrt((double)m)) : (q[r] > 0 ? INFINITY : 0.0);
+    }
+    free(v);
+    free(e);
+    return 0;
+}
+
+double mp_epsf_radius_rule(const double *q, const double *z, int nr, double fmax, double level)
+{
+    for (int r = nr - 1; r >= 0; r--)
+        if (isfinite(q[r]) && z[r] >= MP_EPSF_RADZ && fmax * q[r] >= level)
+            return (double)(r + 1);
+    return 0.0;
+}
+
+/* The rule on one stack: the radius, 0 when it has none. */
+static int stack_radius(const stack *s, double fmax, double level, double *rad)
+{
+    *rad = 0.0;
+    if (s->n < 3)
+        return 0;
+    double *q = malloc(((size_t)s->hw + 1) * sizeof *q), *z = malloc(((size_t)s->hw + 1) * sizeof *z);
+    int rc = !q || !z || mp_epsf_profile_hi(s->med, s->sig, s->hw, q, z);
+    if (!rc)
+        *rad = mp_epsf_radius_rule(q, z, s->hw + 1, fmax, level);
+
+    free(q);
+    free(z);
+    return rc;
+}
+
+int mp_epsf_tablerad(const mp_frame *f, const float *img, const double *x, const double *y,
+                     size_t n, const double *bx, const double *by, size_t nb,
+                     const mp_epsf_radopts *o, mp_epsf_rad *out, char *err)
+{
+    memset(out, 0, sizeof *out);
+    out->rad = o->rdefault;
+    stack p = {0};
+    p.hw = (int)ceil(o->rmax);
+    p.w = 2 * p.hw + 1;
+    double fp = 0.0, fb = 0.0, sky = NAN, r = 0.0;
+    int rc = psf_stack(f, img, x, y, n, o->fwhm, &p, &fp, &sky) ||
+             (p.n >= 3 && bright_flux(f, img, bx, by, nb, &p, &fb, &out->nbright));
+    if (!rc) {
+        out->npsf = p.n;
+        out->fmax = fmax(fp, fb);
+        out->level = o->frac * sqrt(fmax(sky, 0.0) + f->rdnoise * f->rdnoise);
+        rc = stack_radius(&p, out->fmax, out->level, &r);
+    }
+    if (rc) {
+        snprintf(err, MP_ERRLEN, "psf build: out of memory");
+    } else if (p.n < 3) {
+        snprintf(out->why, sizeof out->why, "tablerad %.1f px (%d PSF stars to measure it: "
+                 "too few, the default)", out->rad, p.n);
+    } else {
+        out->rad = fmin(fmax(r, o->rmin), o->rmax);
+        snprintf(out->why, sizeof out->why,
+                 "tablerad %.1f px (PSF light per pixel, 0.9 quantile over azimuth of %d PSF "
+                 "stars, measured (z >= %.2f) and above %.2g sigma of a sky pixel for the "
+                 "brightest star (%.3g e- within 2 fwhm%s): to %.0f px; within %.1f..%.1f px)",
+                 out->rad, p.n, MP_EPSF_RADZ, o->frac, out->fmax,
+                 fb > fp ? ", by its wings" : "", r, o->rmin, o->rmax);
+    }
+    stack_free(&p);
+    return rc;
+}

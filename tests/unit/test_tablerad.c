@@ -1,0 +1,179 @@
+/* test_tablerad.c — psf/tablerad.c: the built table's radius is where the
+ * PSF's light per pixel, spikes counted, stops being measured or falls
+ * below the brightest star's level — the radius theory gives for a known
+ * profile, not the old fixed 4 fwhm (12 px here).
+ *
+ * The rule on an exact stacked profile (no noise: the radius follows from
+ * the profile's formula), with and without six spikes; then the whole
+ * measurement on a frame of stars whose PSF ends at a known radius. */
+#include <math.h>
+#include <setjmp.h>
+#include <stdarg.h>
+#include <stddef.h>
+#include <stdint.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include <cmocka.h>
+
+#include "psf/build.h"
+#include "sim/sim.h"
+
+#define HW 30
+
+/* A stacked image per unit flux on ±HW px: a·d^-3 everywhere, plus, with
+ * spikes, s·d^-2 in six wedges of ±10° about 0°, 60°, ... (a third of
+ * every ring, so that even a ring of 9 px holds more than the tenth the
+ * 0.9 quantile looks at; a ring's median drops them). */
+static void profile(double a, double s, double *med, double *sig)
+{
+    int w = 2 * HW + 1;
+    for (int j = 0; j < w; j++)
+        for (int i = 0; i < w; i++) {
+            double dx = i - HW, dy = j - HW, d = hypot(dx, dy);
+            double v = d > 0 ? a / (d * d * d) : 1.0;
+            double ang = fmod(atan2(dy, dx) * 180.0 / M_PI + 360.0, 60.0);
+            if (d > 0 && s > 0 && (ang <= 10.0 || ang >= 50.0))
+                v += s / (d * d);
+            med[(size_t)j * w + i] = v;
+            sig[(size_t)j * w + i] = 1e-9;
+        }
+}
+
+static double rule_on(double a, double s, double fmax, double level)
+{
+    int w = 2 * HW + 1;
+    double *med = malloc(sizeof(double) * w * w), *sig = malloc(sizeof(double) * w * w);
+    double q[HW + 1], z[HW + 1];
+    assert_non_null(med);
+    assert_non_null(sig);
+    profile(a, s, med, sig);
+    assert_int_equal(mp_epsf_profile_hi(med, sig, HW, q, z), 0);
+    free(med);
+    free(sig);
+    return mp_epsf_radius_rule(q, z, HW + 1, fmax, level);
+}
+
+/* Ring r (distances [r, r+1)) passes while the profile at the ring's 0.9
+ * quantile, at some d in [r, r+1), is ≥ level/fmax: the last passing ring
+ * is floor(R*) − 1 or floor(R*) for the R* where the profile meets it, so
+ * the rule gives floor(R*) or floor(R*) + 1.  With spikes R* solves
+ * s/d² + a/d³ = level/fmax. */
+static void test_rule_power_law_and_spikes(void **state)
+{
+    (void)state;
+    double a = 1e-2, s = 1e-2, rstar = 20.25, level = s / (rstar * rstar);
+    /* With spikes: they set the radius, R* = 20.74 (20.25 from s/d² alone). */
+    double r = rule_on(a, s, 1.0, level);
+    printf("# spikes: radius %.0f (theory 20 or 21)\n", r);
+    assert_true(r == 20.0 || r == 21.0);
+    /* Without: the d^-3 light meets the level at (a/level)^(1/3) = 7.43. */
+    double r0 = rule_on(a, 0.0, 1.0, level);
+    printf("# no spikes: radius %.0f (theory 7 or 8)\n", r0);
+    assert_true(r0 == 7.0 || r0 == 8.0);
+    /* A star 4 times fainter reaches half as far along a spike. */
+    double r4 = rule_on(a, s, 0.25, level);
+    printf("# spikes, a star 4 times fainter: radius %.0f (theory 10 or 11)\n", r4);
+    assert_true(r4 == 10.0 || r4 == 11.0);   /* R* = 10.6 */
+}
+
+/* Light that noise alone could give is not "measured": a ring's z is the
+ * 0.9 quantile's excess over its noise-only sampling error. */
+static void test_rule_needs_measured_light(void **state)
+{
+    (void)state;
+    int w = 2 * HW + 1;
+    double *med = malloc(sizeof(double) * w * w), *sig = malloc(sizeof(double) * w * w);
+    double q[HW + 1], z[HW + 1];
+    assert_non_null(med);
+    assert_non_null(sig);
+    profile(1e-2, 1e-2, med, sig);
+    /* An error so large that beyond 5 px nothing stands out: the level
+     * is met to 20 px, the measurement only to the ring where z < 3.65. */
+    for (int k = 0; k < w * w; k++)
+        sig[k] = 2e-4;
+    assert_int_equal(mp_epsf_profile_hi(med, sig, HW, q, z), 0);
+    double r = mp_epsf_radius_rule(q, z, HW + 1, 1.0, 1e-2 / (20.25 * 20.25));
+    int last = -1;
+    for (int k = 0; k <= HW; k++)
+        if (z[k] >= MP_EPSF_RADZ)
+            last = k;
+    printf("# measured to ring %d: radius %.0f\n", last, r);
+    assert_true(last > 2 && last < 19);
+    assert_true(r == last + 1.0);
+    free(med);
+    free(sig);
+}
+
+/* A frame of NS stars at pixel centres (so a star's offsets are its
+ * distances) whose PSF is a Moffat of FWHM 3 (β 2) cut at 13.5 px:
+ * every ring up to 13 holds light (ring 13 half lit, 5e-5 of the flux a
+ * pixel: z about 10 with these stars), none beyond.  The radius must be
+ * 14, where 4 fwhm would give 12.  False failure: a noise ring 14..16
+ * passing (one-sided 1.3e-4 each) or ring 13 failing (z 10 → < 1e-9). */
+#define NXF 256
+#define NS 36
+#define CUTR 13.5
+
+static void test_tablerad_finds_where_the_light_ends(void **state)
+{
+    (void)state;
+    mp_frame f;
+    memset(&f, 0, sizeof f);
+    f.im.nx = f.im.ny = NXF;
+    f.im.pix = calloc((size_t)NXF * NXF, sizeof *f.im.pix);
+    f.mask = calloc((size_t)NXF * NXF, 1);
+    assert_non_null(f.im.pix);
+    assert_non_null(f.mask);
+    f.gain = 1.0;
+    f.rdnoise = 3.0;
+    f.saturate = INFINITY;
+    f.exptime = 1.0;
+    double alpha = 3.0 / (2.0 * sqrt(pow(2.0, 0.5) - 1.0)), norm = 0.0;
+    int h = (int)CUTR;
+    for (int j = -h; j <= h; j++)
+        for (int i = -h; i <= h; i++)
+            if (hypot(i, j) <= CUTR)
+                norm += pow(1.0 + (i * i + j * j) / (alpha * alpha), -2.0);
+    for (size_t k = 0; k < (size_t)NXF * NXF; k++)
+        f.im.pix[k] = 100.0f;
+    double x[NS], y[NS];
+    for (int k = 0; k < NS; k++) {
+        x[k] = 30.0 + 39.0 * (k % 6);
+        y[k] = 30.0 + 39.0 * (k / 6);
+        for (int j = -h; j <= h; j++)
+            for (int i = -h; i <= h; i++)
+                if (hypot(i, j) <= CUTR) {
+                    size_t o = (size_t)(y[k] + j - 1) * NXF + (size_t)(x[k] + i - 1);
+                    f.im.pix[o] += (float)(1e5 * pow(1.0 + (i * i + j * j) / (alpha * alpha),
+                                                     -2.0) / norm);
+                }
+    }
+    mp_rng r;
+    mp_rng_seed(&r, 20261125);
+    mp_sim_add_noise_float(&r, f.im.pix, (long)NXF * NXF, f.rdnoise);
+    mp_epsf_radopts o = {.frac = 0.02, .fwhm = 3.0, .rmin = 6.0, .rmax = 16.0, .rdefault = 12.0};
+    mp_epsf_rad out;
+    char err[MP_ERRLEN];
+    assert_int_equal(mp_epsf_tablerad(&f, f.im.pix, x, y, NS, NULL, NULL, 0, &o, &out, err), 0);
+    printf("# %s\n", out.why);
+    assert_int_equal(out.npsf, NS);
+    assert_true(out.rad == 14.0);
+    /* Too few stars to measure: the default, said. */
+    assert_int_equal(mp_epsf_tablerad(&f, f.im.pix, x, y, 2, NULL, NULL, 0, &o, &out, err), 0);
+    assert_true(out.rad == 12.0);
+    assert_non_null(strstr(out.why, "too few"));
+    free(f.im.pix);
+    free(f.mask);
+}
+
+int main(void)
+{
+    const struct CMUnitTest tests[] = {
+        cmocka_unit_test(test_rule_power_law_and_spikes),
+        cmocka_unit_test(test_rule_needs_measured_light),
+        cmocka_unit_test(test_tablerad_finds_where_the_light_ends),
+    };
+    return cmocka_run_group_tests(tests, NULL, NULL);
+}
