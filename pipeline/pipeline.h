@@ -78,13 +78,17 @@ int mp_pipeline_run(const char *image, const char *root, const mp_pipeline_opts 
 int mp_pipeline_run_tiled(const char *image, const char *root, const mp_pipeline_opts *o,
                           long tilesize, long margin, mp_pipeline_report *rep, char *err);
 
-/* MP_PL_BYTES_PER_PIXEL: peak memory of a whole-frame run per pixel, as
- * measured on 4096² when frame and residual were double and the sky, noise
- * and detection maps were planes (README, "Frames of any size": 38.4),
- * rounded up; it sets the tiles from maxmem.  Conservative since issue 14
- * took those planes away (~18 bytes a pixel at 4096² with 3.7e-3 stars a
- * pixel: 9 for frame, residual and mask, the rest the stars'). */
-#define MP_PL_BYTES_PER_PIXEL 40.0
+/* MP_PL_BYTES_PER_PIXEL: peak memory of a whole-frame run per pixel; it
+ * sets the tiles from maxmem.  Measured (issue 14, session 8: peak RSS,
+ * OMP 1, crowded frames of 3.7e-3 stars a pixel, FWHM 3, x2 table):
+ * 4096², 61 600 stars, 218.5 MiB = 13.65 B/px; 8192², 246 500 stars,
+ * 808.2 MiB = 12.63 B/px.  Per pixel 8 (frame and residual, floats; the
+ * mask is paged in only where a pixel is masked), per star ~1.2 kB at
+ * the peak (~4.5 B/px at this density: table, patches, fit state), and
+ * ~22 MiB whatever the frame (libraries, the PSF's tables), which the
+ * 4096² ratio, rounded up, covers for frames of 4096² and more; a
+ * budget under ~200 MB is met less well (that fixed part dominates). */
+#define MP_PL_BYTES_PER_PIXEL 14.0
 
 /* mp_pipeline_run_any: mp_pipeline_run or mp_pipeline_run_tiled, as
  * o->tilesize, o->maxmem and the frame's size say. */

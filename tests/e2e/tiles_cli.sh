@@ -67,12 +67,13 @@ compare() {
 }
 compare "$T/w.cat" "$T/t.cat" "psf file"
 
-# maxmem: a 200 x 200 frame is 1.5 MB whole (40 B/px): a 1 MB budget holds
-# sections of 161 px, cores of 161 less twice the margin (~26): 2 x 2 tiles.
+# maxmem: a 200 x 200 frame is 0.53 MB whole (14 B/px): a 0.35 MB budget
+# holds sections of 161 px, cores of 161 less twice the margin (~26): 2 x 2
+# tiles.
 "$M" sim "$T/g.fits" mode=crowded nx=200 ny=200 nstars=94 fwhm=2.5 magmin=-13 magmax=-9 seed=32 ||
     no "sim g"
-"$M" pipeline "$T/g.fits" "$P" root="$T/m" maxmem=1 2>"$T/m.log" || no "maxmem=1: $(tail -n 1 "$T/m.log")"
-grep -q "in 2 x 2 tiles of" "$T/m.log" || no "maxmem=1 did not choose 2 x 2 tiles: $(grep tiles "$T/m.log")"
+"$M" pipeline "$T/g.fits" "$P" root="$T/m" maxmem=0.35 2>"$T/m.log" || no "maxmem=0.35: $(tail -n 1 "$T/m.log")"
+grep -q "in 2 x 2 tiles of" "$T/m.log" || no "maxmem=0.35 did not choose 2 x 2 tiles: $(grep tiles "$T/m.log")"
 
 # dqmask in tiles: each tile reads the DQ image through its own section.
 # A band of bad pixels (rows 158-162, across the tiles' edge at 160/161):
@@ -114,7 +115,7 @@ cmp -s "$T/bw.psf.fits" "$T/b.psf.fits" || no "tiles built another PSF than the 
 compare "$T/bf.cat" "$T/b.cat" "built PSF"
 ;;
 esac
-"$M" pipeline "$T/f.fits" root="$T/bm" tilesize=80 maxmem=1 2>"$T/bm.log" || no "maxmem=1, built PSF"
-grep -q "the PSF from .*f.fits\[40:200,40:200\]" "$T/bm.log" || no "maxmem=1: not the central 161 px"
-[ -s "$T/bm.psf.fits" ] && [ -s "$T/bm.cat" ] || no "maxmem=1, built PSF: no bm.psf.fits or bm.cat"
+"$M" pipeline "$T/f.fits" root="$T/bm" tilesize=80 maxmem=0.35 2>"$T/bm.log" || no "maxmem=0.35, built PSF"
+grep -q "the PSF from .*f.fits\[40:200,40:200\]" "$T/bm.log" || no "maxmem=0.35: not the central 161 px"
+[ -s "$T/bm.psf.fits" ] && [ -s "$T/bm.cat" ] || no "maxmem=0.35, built PSF: no bm.psf.fits or bm.cat"
 [ $fails -eq 0 ]

@@ -23,6 +23,9 @@
 #include "catalog/catalog.h"
 #include "catalog/table_priv.h"
 #include "io/io.h"
+#ifdef _OPENMP
+#include <omp.h>
+#endif
 
 /* ---- helpers ---------------------------------------------------------- */
 
@@ -262,6 +265,46 @@ static void test_table_add_cols(void **state)
     assert_int_equal(mp_table_shrink(&t), 0);
     assert_int_equal(t.cap, t.nrow);
     assert_true(mp_table_get(&t, 999, x) == 999.0 && isnan(mp_table_get(&t, 1000, x)));
+    mp_table_free(&t);
+}
+
+/* ASCII_HEAD rows are formatted in parallel chunks (2048 rows a thread)
+ * and written in order: the bytes of 1 and of 3 threads are the same, over
+ * a table that spans several rounds of chunks and ends in a part chunk. */
+static void test_ascii_rows_threads(void **state)
+{
+    (void)state;
+    mp_table t;
+    mp_table_init(&t);
+    int c[3] = {mp_table_add_col(&t, "NUMBER"), mp_table_add_col(&t, "XPSF_IMAGE"),
+                mp_table_add_col(&t, "MAG_PSF")};
+    for (long r = 0; r < 13001; r++) {
+        assert_int_equal(mp_table_add_row(&t), r);
+        mp_table_set(&t, (size_t)r, c[0], (double)(r + 1));
+        mp_table_set(&t, (size_t)r, c[1], 0.001 * (double)r * (double)r);
+        mp_table_set(&t, (size_t)r, c[2], r % 97 ? -2.5 * log10(1.0 + (double)r) : NAN);
+    }
+    char *out[2];
+    size_t len[2];
+    char err[MP_ERRLEN];
+    int threads[2] = {1, 3};
+    for (int k = 0; k < 2; k++) {
+#ifdef _OPENMP
+        omp_set_num_threads(threads[k]);
+#endif
+        FILE *fp = open_memstream(&out[k], &len[k]);
+        assert_non_null(fp);
+        assert_int_equal(mp_ascii_head_write(fp, "mem", &t, err), 0);
+        fclose(fp);
+    }
+    (void)threads;
+    assert_true(len[0] > 13001 * 20);
+    assert_int_equal(len[0], len[1]);
+    assert_memory_equal(out[0], out[1], len[0]);
+    /* the last row, whole, at the end */
+    assert_non_null(strstr(out[0] + len[0] - 64, "13001 "));
+    free(out[0]);
+    free(out[1]);
     mp_table_free(&t);
 }
 
@@ -762,6 +805,7 @@ int main(void)
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(test_table_model),
         cmocka_unit_test(test_table_add_cols),
+        cmocka_unit_test(test_ascii_rows_threads),
         cmocka_unit_test(test_registry),
         cmocka_unit_test(test_parse_value),
         cmocka_unit_test(test_format_parse),
