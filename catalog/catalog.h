@@ -55,6 +55,19 @@ void mp_table_free(mp_table *t);
  * Description, unit and format come from the registry of known names. */
 int mp_table_add_col(mp_table *t, const char *name);
 
+/* mp_table_add_cols: the columns names[0..n-1] added at once (one
+ * re-layout of the rows instead of n), each's index in idx[k] (an existing
+ * column's own); 0, or -1 when out of memory or a name is bad (then no
+ * column is added).  Adding columns leaves the rows' block exactly nrow
+ * long, and grows it in place (issue 14: the peak is the new table, not
+ * the old and the new side by side). */
+int mp_table_add_cols(mp_table *t, const char *const *names, int n, int *idx);
+
+/* mp_table_shrink: the rows' block cut to nrow rows (after rows were
+ * dropped or appended: appending doubles it); 0, or -1 when out of memory
+ * (the table unchanged). */
+int mp_table_shrink(mp_table *t);
+
 /* mp_table_col: index of a column, -1 when absent. */
 int mp_table_col(const mp_table *t, const char *name);
 

@@ -42,44 +42,77 @@ static size_t n_values(size_t cap, size_t ncol)
     return cap * ncol;
 }
 
+/* The rows laid out anew with nc ≥ ncol values each (the new ones NaN)
+ * in a block of exactly nrow rows, in place: realloc grows the block (a
+ * large one by remapping its pages, not by copying) and the rows move
+ * back to front, so the peak is the new table alone, not the old beside
+ * it, and a capacity left over from a longer past (find's candidates) is
+ * given back.  Issue 14: at 2048² the fit's 21 columns, added one by one
+ * to the candidates' capacity, held two copies of it: 32 of 88 MB. */
+static int relayout(mp_table *t, size_t nc)
+{
+    size_t rows = t->nrow ? t->nrow : 1, n = n_values(rows, nc);
+    if (n == 0)
+        return -1;
+    double *v = realloc(t->v, n * sizeof *v);
+    if (!v)
+        return -1;
+    for (size_t r = t->nrow; r-- > 0;) {
+        if (t->ncol)
+            memmove(v + r * nc, v + r * t->ncol, t->ncol * sizeof *v);
+        for (size_t c = t->ncol; c < nc; c++)
+            v[r * nc + c] = NAN;
+    }
+    t->v = v;
+    t->cap = t->nrow;
+    t->ncol = nc;
+    return 0;
+}
+
+int mp_table_add_cols(mp_table *t, const char *const *names, int n, int *idx)
+{
+    size_t nc = t->ncol;
+    mp_col *cols;
+    for (int k = 0; k < n; k++) {
+        int have = mp_table_col(t, names[k]);
+        for (size_t j = t->ncol; have < 0 && j < nc; j++)
+            if (strcmp(t->cols[j].name, names[k]) == 0)
+                have = (int)j;
+        if (have >= 0) {
+            idx[k] = have;
+            continue;
+        }
+        if (nc >= (size_t)INT32_MAX)
+            return -1;
+        mp_col c;
+        if (mp_col_describe(names[k], &c) != 0)
+            return -1;
+        if (!(cols = realloc(t->cols, (nc + 1) * sizeof *cols)))
+            return -1;
+        t->cols = cols;
+        cols[nc] = c;
+        idx[k] = (int)nc++;
+    }
+    if (nc == t->ncol)
+        return 0;
+    /* Rows are stored contiguously: new columns re-lay every row out. */
+    if (t->cap > 0 || t->nrow > 0)
+        return relayout(t, nc);
+    t->ncol = nc;
+    return 0;
+}
+
 int mp_table_add_col(mp_table *t, const char *name)
 {
-    int have = mp_table_col(t, name);
-    if (have >= 0)
-        return have;
-    if (t->ncol >= (size_t)INT32_MAX)
-        return -1;
+    int idx;
+    return mp_table_add_cols(t, &name, 1, &idx) ? -1 : idx;
+}
 
-    mp_col c;
-    if (mp_col_describe(name, &c) != 0)
-        return -1;
-
-    mp_col *cols = realloc(t->cols, (t->ncol + 1) * sizeof *cols);
-    if (!cols)
-        return -1;
-    t->cols = cols;
-
-    /* Rows are stored contiguously, so a new column means re-laying out
-     * every row; columns are added a handful of times per table. */
-    size_t nc = t->ncol + 1;
-    if (t->cap > 0) {
-        size_t n = n_values(t->cap, nc);
-        if (n == 0)
-            return -1;
-        double *v = malloc(n * sizeof *v);
-        if (!v)
-            return -1;
-        for (size_t r = 0; r < t->nrow; r++) {
-            if (t->ncol)
-                memcpy(v + r * nc, t->v + r * t->ncol, t->ncol * sizeof *v);
-            v[r * nc + t->ncol] = NAN;
-        }
-        free(t->v);
-        t->v = v;
-    }
-    t->cols[t->ncol] = c;
-    t->ncol = nc;
-    return (int)(nc - 1);
+int mp_table_shrink(mp_table *t)
+{
+    if (t->cap <= t->nrow || t->ncol == 0)
+        return 0;
+    return relayout(t, t->ncol);
 }
 
 long mp_table_add_row(mp_table *t)

@@ -235,7 +235,8 @@ void mp_bkg_free(mp_bkg *b)
 
 size_t mp_bkg_bytes(const mp_bkg *b)
 {
-    return b->cx ? (size_t)b->nbx * sizeof *b->cx * (1 + 4 * (size_t)b->ny) : 0;
+    /* the rms rows are given back once the noise model replaces them */
+    return b->cx ? (size_t)b->nbx * sizeof *b->cx * (1 + (b->model ? 2 : 4) * (size_t)b->ny) : 0;
 }
 
 /* Room for the rows of nbx meshes (sky and rms: values and d2). */

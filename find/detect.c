@@ -19,6 +19,7 @@ void mp_find_opts_default(mp_find_opts *o)
     o->sharphi = 1.0;
     o->roundlo = -1.0;
     o->roundhi = 1.0;
+    o->sieve = NULL;
 }
 
 /* A growable list of pixel indices. */
@@ -287,14 +288,18 @@ static const char *const columns[] = {
     "FLUX", "FLAGS"};
 enum { NCOLS = sizeof columns / sizeof columns[0] };
 
-static int append(mp_table *t, const ordered *o, size_t n, char *err)
+static int append(mp_table *t, const ordered *o, size_t n, const char *snrcol, char *err)
 {
-    int c[NCOLS];
+    int c[NCOLS], cs = -1;
     for (int i = 0; i < NCOLS; i++)
         if ((c[i] = mp_table_add_col(t, columns[i])) < 0) {
             snprintf(err, MP_ERRLEN, "out of memory for the table");
             return 1;
         }
+    if (snrcol && (cs = mp_table_add_col(t, snrcol)) < 0) {
+        snprintf(err, MP_ERRLEN, "out of memory for the table");
+        return 1;
+    }
     double number = 0.0;
     for (size_t r = 0; r < t->nrow; r++) {
         double v = mp_table_get(t, r, c[0]);
@@ -314,6 +319,8 @@ static int append(mp_table *t, const ordered *o, size_t n, char *err)
                            s->sharp, s->round, s->flux, (double)s->flags};
         for (int j = 0; j < NCOLS; j++)
             mp_table_set(t, (size_t)r, c[j], isfinite(v[j]) ? v[j] : 0.0);
+        if (cs >= 0)
+            mp_table_set(t, (size_t)r, cs, s->snr);
     }
     return 0;
 }
@@ -367,6 +374,7 @@ static int measure_and_cut(const mp_frame *f, const mp_bkg *b, const mpf_kernel 
                 mpf_measure(f, b, k, c->v[i].p % nx, c->v[i].p / nx, c->v[i].h, w, &l->meas[i]);
         free(w);
     }
+    size_t n0 = l->n;
     for (size_t i = 0; i < nc && !nomem; i++) {
         const mpf_star *s = &l->meas[i];
         if (!s->ok || !within(s->sharp, o->sharplo, o->sharphi) ||
@@ -384,9 +392,10 @@ static int measure_and_cut(const mp_frame *f, const mp_bkg *b, const mpf_kernel 
             l->cap = cap;
         }
         l->stars[l->n] = *s;
+        l->stars[l->n].snr = NAN;
         l->keys[l->n++] = c->v[i].p;
     }
-    return nomem;
+    return nomem || mpf_sieve(o, l->stars, l->keys, n0, &l->n);
 }
 
 int mpf_find_stars_strips(const mp_frame *f, const mp_bkg *b, const mp_find_opts *o,
@@ -451,7 +460,7 @@ int mpf_find_stars_strips(const mp_frame *f, const mp_bkg *b, const mp_find_opts
     int prc = find_plateaus(f, b, &k, &stars, &keys, &n);
     kl.stars = stars;
     kl.keys = keys;
-    if (prc)
+    if (prc || mpf_sieve(o, stars, keys, kl.n, &n))
         goto nomem;
     ord = malloc((n ? n : 1) * sizeof *ord);
     if (!ord)
@@ -461,7 +470,7 @@ int mpf_find_stars_strips(const mp_frame *f, const mp_bkg *b, const mp_find_opts
         ord[i].s = &stars[i];
     }
     qsort(ord, n, sizeof *ord, cmp_ordered);
-    if (append(t, ord, n, err))
+    if (append(t, ord, n, o->sieve ? o->sieve->col : NULL, err))
         goto done;
     rc = 0;
     goto done;

@@ -139,7 +139,33 @@ typedef struct {
     double nsigma;     /* kernel radius in Gaussian σ, at least 2 px (1.5) */
     double sharplo, sharphi;  /* sharpness limits (0.2, 1.0) */
     double roundlo, roundhi;  /* roundness limits (−1.0, 1.0) */
+    /* A screen of the detections as they are made (NULL, the default:
+     * none): see mp_find_sieve_fn. */
+    struct mp_find_sieve *sieve;
 } mp_find_opts;
+
+/* A detection offered to a sieve: its 1-based position and flux as the
+ * table would hold them; the sieve sets keep (0: dropped there and then,
+ * never held nor written), and may set flux (written as FLUX) and snr
+ * (written as column `col`). */
+typedef struct {
+    double x, y, flux, snr;
+    int keep;
+} mp_find_cand;
+
+/* mp_find_opts.sieve: fn(ctx, c, n) is called with the detections of each
+ * strip that pass the shape cuts (and with the saturated plateaus' at the
+ * end), from one thread (it may thread itself); nonzero: out of memory.
+ * A deep search of a residual finds several candidates a star, most of
+ * them noise that a screen drops: sieved as they are made, they are never
+ * all held at once (issue 14).  The table keeps the rows' order and
+ * NUMBERs run on over the kept rows only. */
+typedef int (*mp_find_sieve_fn)(void *ctx, mp_find_cand *c, size_t n);
+struct mp_find_sieve {
+    mp_find_sieve_fn fn;
+    void *ctx;
+    const char *col;           /* the column snr is written to */
+};
 
 /* mp_find_opts_default: DAOPHOT's findpars defaults (fwhm 3.0, the
  * design's usual PSF): threshold 4, nsigma 1.5, sharpness 0.2..1.0,

@@ -124,7 +124,13 @@ typedef struct {
     double flux_max, background, sharp, round, flux;
     int flags;
     int ok;                  /* passed the fits (shape cuts not yet applied) */
+    double snr;              /* a sieve's (mp_find_opts.sieve), else NaN */
 } mpf_star;
+
+/* mpf_sieve: stars[n0..*n-1] (and their keys) offered to o->sieve (none:
+ * nothing done), the kept moved down in order, *n their new end; nonzero
+ * when out of memory (sieve.c). */
+int mpf_sieve(const mp_find_opts *o, mpf_star *stars, long *keys, size_t n0, size_t *n);
 
 /* mpf_measure: centroid, sharpness, roundness and fluxes of the candidate
  * at pixel (px, py) (0-based) whose convolved height is h; w is scratch of

@@ -287,7 +287,7 @@ int mp_fit_table_mem(const mp_frame *f, const mp_prf_model *m, const mp_frame_op
      * (o->refittol); never in whole-frame fits. */
     int economy = o->refittol > 0 && !whole && ng > 1;
     if (economy && maxnum >= 0)
-        ff_recall(mem, st, n);
+        ff_recall(mem, t, st, n);
     for (int pass = 0; pass < passes; pass++) {
         /* Neighbours are subtracted with the latest values; in the first
          * pass only those with a start flux (find's FLUX) can be. */

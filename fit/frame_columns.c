@@ -17,11 +17,10 @@ int ff_write_columns(mp_table *t, const star_state *st, size_t n, double magzero
     enum { NCOL = sizeof names / sizeof names[0] };
     int c[NCOL];
     int cflags0 = mp_table_col(t, "FLAGS");
-    for (int k = 0; k < NCOL; k++)
-        if ((c[k] = mp_table_add_col(t, names[k])) < 0) {
-            snprintf(err, MP_ERRLEN, "out of memory");
-            return 1;
-        }
+    if (mp_table_add_cols(t, names, NCOL, c)) {
+        snprintf(err, MP_ERRLEN, "out of memory");
+        return 1;
+    }
     unsigned char *keep = calloc(t->nrow ? t->nrow : 1, 1);
     if (!keep) {
         snprintf(err, MP_ERRLEN, "out of memory");

@@ -71,18 +71,29 @@ typedef struct {
     double ops_full;            /* a render of the model as given (economy's unit) */
 } frame_rules;
 
-/* A star's last fit, by NUMBER, across calls. */
+/* A star's last fit, by NUMBER, across calls: what its table row does
+ * not hold (the row holds the rest of its mp_star, as ff_write_columns
+ * wrote it: ff_recall reads it back), and its position and flux, by
+ * which a row still holding that fit is known.  Issue 14: the whole
+ * mp_star here was 200 bytes a star held between rounds. */
 typedef struct {
-    mp_star s;
+    double x, y, flux;
     float *seen;
     double cx, cy;
     long sx0, sy0;
     int sw;
+    uint32_t number;     /* its NUMBER (ff_max_number: below 1e8) */
+    int dofstar, sky_order, flags;
 } star_seen;
 
+/* The stars remembered, dense, and where each NUMBER's is: NUMBERs run to
+ * ~3x the stars kept (find numbers its candidates before the screen), so
+ * an array of entries indexed by NUMBER was 3x the room (issue 14). */
 struct mp_fit_memory {
-    star_seen *s;        /* indexed by NUMBER */
+    star_seen *s;        /* ns entries, each with a disc */
     size_t ns;
+    uint32_t *at;        /* by NUMBER: 1 + its entry in s, or 0 */
+    size_t nat;
     float *scratch;      /* lent: room for the model of every star */
     size_t nscratch;
 };
@@ -148,9 +159,11 @@ int ff_fit_group_local(const mp_frame *f, const mp_prf_model *m, const mp_frame_
 
 /* frame_memory.c.  ff_max_number: the table's largest NUMBER, or -1 when
  * it has none (or one not a whole number ≥ 0).  ff_recall: each star's
- * last fit from mem; ff_remember: kept there (nonzero when out of memory). */
+ * last fit from mem and its row of t (the fit's columns), the entries of
+ * t's stars then forgotten; ff_remember: kept there (nonzero when out of
+ * memory). */
 double ff_max_number(const mp_table *t);
-void ff_recall(mp_fit_memory *mem, star_state *st, size_t n);
+void ff_recall(mp_fit_memory *mem, const mp_table *t, star_state *st, size_t n);
 int ff_remember(mp_fit_memory *mem, star_state *st, size_t n, double maxnum);
 
 /* frame_columns.c: the fitted columns of the live stars written into t

@@ -41,7 +41,7 @@ static int resolve(const char *name, const mp_image *im, double dp, const char *
 
 void mp_datapars_read(const mp_parset *ps, mp_datapars *dp)
 {
-    *dp = (mp_datapars){NAN, NAN, NAN, NAN, "", 0, 0, 0, "", 0};
+    *dp = (mp_datapars){NAN, NAN, NAN, NAN, "", 0, 0, 0, "", 0, 0};
     mp_par_real(ps, "gain", &dp->gain);
     mp_par_real(ps, "rdnoise", &dp->rdnoise);
     mp_par_real(ps, "saturate", &dp->saturate);
@@ -61,6 +61,9 @@ void mp_datapars_read(const mp_parset *ps, mp_datapars *dp)
     v = 0;
     if (!mp_par_int(ps, "bleedgrow", &v) && v > 0)
         dp->bleedgrow = v;
+    v = 0;
+    if (!mp_par_int(ps, "badgrow", &v) && v > 0)
+        dp->badgrow = v;
     const char *ep = mp_par_string(ps, "errplane");
     snprintf(dp->errplane, sizeof dp->errplane, "%s", ep ? ep : "");
 }
@@ -176,6 +179,32 @@ static int apply_err(const char *name, const mp_datapars *dp, mp_frame *f, char 
     return rc;
 }
 
+/* The DQ plane's bad pixels grown by g (datapars badgrow): a pixel within
+ * g (in x and in y) of one is bad too, unless saturated.  Called before
+ * any other masking, so every bad pixel then is the DQ plane's.  From a
+ * copy, so that the growth does not feed on itself. */
+static int grow_bad(mp_frame *f, int g, const char *name, char *err)
+{
+    long nx = f->im.nx, ny = f->im.ny, n = nx * ny;
+    uint8_t *m0 = malloc(n > 0 ? (size_t)n : 1);
+    if (!m0) {
+        snprintf(err, MP_ERRLEN, "%s: out of memory for the DQ mask", name);
+        return 1;
+    }
+    memcpy(m0, f->mask, n > 0 ? (size_t)n : 0);
+    for (long y = 0; y < ny; y++)
+        for (long x = 0; x < nx; x++) {
+            if (!(m0[y * nx + x] & MP_MASK_BAD))
+                continue;
+            for (long j = y - g > 0 ? y - g : 0; j <= y + g && j < ny; j++)
+                for (long i = x - g > 0 ? x - g : 0; i <= x + g && i < nx; i++)
+                    if (!f->mask[j * nx + i])
+                        f->mask[j * nx + i] = MP_MASK_BAD;
+        }
+    free(m0);
+    return 0;
+}
+
 /* Apply the DQ image's bits to the mask (before any other masking, so the
  * counts stay those of the final mask). */
 static int apply_dq(const char *name, const mp_datapars *dp, mp_frame *f, char *err)
@@ -185,14 +214,18 @@ static int apply_dq(const char *name, const mp_datapars *dp, mp_frame *f, char *
     for (size_t i = 0, n = (size_t)f->im.nx * (size_t)f->im.ny; !rc && i < n; i++) {
         double v = dq.pix[i];
         long bits = isfinite(v) && v >= 0 && v < 2147483648.0 ? (long)v : 0;
-        if (bits & dp->dqbad)
-            f->mask[i] |= MP_MASK_BAD;
-        else if (bits & dp->dqsat)
+        /* Saturation first: a saturated core that another bit flags too
+         * (AstroDrizzle marks them as cosmic rays, 4096: ACS DQ 6400 =
+         * 4096|2048|256) is still saturated, so satgrow grows it and its
+         * stars keep FLAGS 1. */
+        if (bits & dp->dqsat)
             f->mask[i] |= MP_MASK_SATURATED;
+        else if (bits & dp->dqbad)
+            f->mask[i] |= MP_MASK_BAD;
     }
     if (got)
         mp_image_free(&dq);
-    return rc;
+    return rc || (dp->badgrow > 0 && grow_bad(f, dp->badgrow, name, err));
 }
 
 /* The saturated pixels grown by g (datapars satgrow): a pixel within g
@@ -259,7 +292,7 @@ static int grow_bleeds(mp_frame *f, int g, const char *name, char *err)
 int mp_frame_read(const char *name, const mp_datapars *dp, mp_frame *f, char *err)
 {
     memset(f, 0, sizeof *f);
-    const mp_datapars none = {NAN, NAN, NAN, NAN, "", 0, 0, 0, "", 0};
+    const mp_datapars none = {NAN, NAN, NAN, NAN, "", 0, 0, 0, "", 0, 0};
     if (!dp)
         dp = &none;
     if (mp_fimage_read(name, &f->im, err))

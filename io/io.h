@@ -138,11 +138,16 @@ typedef struct {
      * satgrow: CCD charge bleeds along columns past where a DQ plane stops
      * flagging it. */
     int bleedgrow;
+    /* badgrow: the pixels within this many (a square of side 2 badgrow +
+     * 1) of one with a dqbad bit carry no weight too: a cosmic ray's
+     * charge spreads past the pixels the DQ plane flags (47 Tuc FLT:
+     * README, validate/PSFREAL.md).  Saturated pixels stay saturated. */
+    int badgrow;
 } mp_datapars;
 
 struct mp_parset_s;
 /* mp_datapars_read: the datapars parameters (gain, rdnoise, saturate,
- * exptime, dqmask, dqsat, dqbad, satgrow, errplane, bleedgrow) of a task's parameter set; INDEF reals
+ * exptime, dqmask, dqsat, dqbad, satgrow, errplane, bleedgrow, badgrow) of a task's parameter set; INDEF reals
  * come back NaN (take the header's). */
 void mp_datapars_read(const struct mp_parset_s *ps, mp_datapars *dp);
 

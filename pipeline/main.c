@@ -9,6 +9,9 @@
  */
 #include <stdio.h>
 #include <string.h>
+#ifdef __GLIBC__
+#include <malloc.h>
+#endif
 
 #include "find/find.h"
 #include "fit/fit.h"
@@ -61,6 +64,20 @@ static void usage(FILE *fp)
             "`matphot fit img.fits img.coo @my.par fitrad=4` uses them.\n");
 }
 
+/* Blocks of 1 MiB and more mapped on their own, so that freeing one gives
+ * its pages back: glibc's default threshold rises to the largest block
+ * freed (up to 32 MiB), after which the tables, star arrays and maps of
+ * one stage stay in the heap, holding their pages after they are freed
+ * (issue 14: peak RSS at 2048^2, 15 600 stars, 89.4 -> 81.4 MiB, the
+ * heap's own peak being 70.6 MB; CPU unchanged within 1 %).  A fixed
+ * threshold also fixes the trim threshold, as mallopt(3) says. */
+static void malloc_policy(void)
+{
+#ifdef __GLIBC__
+    (void)mallopt(M_MMAP_THRESHOLD, 1 << 20);
+#endif
+}
+
 static int is_help(const char *s)
 {
     return !strcmp(s, "-h") || !strcmp(s, "--help");
@@ -72,6 +89,7 @@ int main(int argc, char **argv)
      * temporaries of the outputs it was writing (io/cleanup.c). */
     (void)mp_cleanup_install();
     mp_blas_single_thread();
+    malloc_policy();
     if (argc < 2) {
         usage(stderr);
         return 2;

@@ -96,6 +96,38 @@ long mp_pl_prescreen(const mp_frame *f, const mp_bkg *b, const float *res,
     return failed ? -1 : dropped;
 }
 
+int mp_pl_screen_sieve(void *ctx, mp_find_cand *c, size_t n)
+{
+    mp_pl_screen *sc = ctx;
+    long side = 2 * (long)ceil(sc->fitrad) + 3, dropped = 0;
+    int failed = 0;
+    /* as mp_pl_prescreen does to each row */
+#pragma omp parallel reduction(+ : dropped) reduction(| : failed)
+    {
+        mp_prf_work wk = {0};
+        double *prf = malloc((size_t)(side * side) * sizeof *prf);
+        failed |= !prf;
+#pragma omp for schedule(dynamic, 64)
+        for (size_t i = 0; i < n; i++) {
+            if (!prf || !isfinite(c[i].x) || !isfinite(c[i].y))
+                continue;
+            double e;
+            c[i].snr = linear_snr(sc->f, sc->b, sc->res, sc->m, c[i].x, c[i].y, sc->fitrad, prf,
+                                  &wk, &e);
+            if (isfinite(c[i].snr) && c[i].snr < sc->snrmin) {
+                c[i].keep = 0;
+                dropped++;
+            } else if (isfinite(e) && e > 0) {
+                c[i].flux = e;
+            }
+        }
+        free(prf);
+        mp_prf_work_free(&wk);
+    }
+    sc->dropped += dropped;
+    return failed;
+}
+
 /* Remove column c of t. */
 static void drop_col(mp_table *t, int c)
 {

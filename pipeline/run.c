@@ -144,6 +144,8 @@ static int find_stars(run_state *s, char *err)
         return oom(err);
     mp_bkg_free(&s->bkg);        /* the fit needs no map: memory for its model */
     mp_pl_drop_unset(&s->t);
+    if (mp_table_shrink(&s->t))  /* the candidates' rows given back (issue 14) */
+        return oom(err);
     s->rep->t_find += mp_seconds() - t0;
     s->rep->found = (long)s->t.nrow;
     /* Written first: a failed write is the run's only stderr line. */
@@ -294,9 +296,13 @@ static int find_on_residual(run_state *s, int round, long *added, char *err)
     mp_find_opts ro = o->find;
     ro.roundlo = fmin(ro.roundlo, -2.0);
     ro.roundhi = fmax(ro.roundhi, 2.0);
+    /* The screen as detection goes (its candidates never all held). */
+    double cut = s->fit->opts.minsnr - MP_PL_SCREEN_SLACK;
+    mp_pl_screen sc = {&R, &s->bkg, s->res, &s->fit->model, s->fit->opts.fit.fitrad, cut, 0};
+    struct mp_find_sieve sv = {mp_pl_screen_sieve, &sc, MP_PL_SNR_COL};
+    ro.sieve = cut > 0 ? &sv : NULL;
     int frc = mp_find_stars(&R, &s->bkg, &ro, &s->found, err);
-    if (!frc && screen(s, &R, s->res, &s->found))
-        return oom(err);
+    s->rep->screened += sc.dropped;
     s->rep->t_find += mp_seconds() - t0;
     if (frc)
         return 1;
@@ -329,7 +335,7 @@ static int find_on_residual(run_state *s, int round, long *added, char *err)
                                  mergerad, s->fit->opts.minsnr > 0 ? splitsnr : INFINITY);
     mp_table_free(&s->found);    /* not held through the next fit (issue 14) */
     mp_table_init(&s->found);
-    if (*added < 0)
+    if (*added < 0 || mp_table_shrink(&s->t))
         return oom(err);
     s->rep->added += *added;
     if (s->quiet)

@@ -222,6 +222,49 @@ static void test_table_model(void **state)
     mp_table_free(&t);   /* safe twice */
 }
 
+/* Columns added at once (issue 14): one re-layout, the old values in
+ * place, the new NaN, an existing name's own index, a bad name adding
+ * none; the rows' block exactly nrow rows after, and after a shrink. */
+static void test_table_add_cols(void **state)
+{
+    (void)state;
+    mp_table t;
+    mp_table_init(&t);
+    int x = mp_table_add_col(&t, "X_IMAGE"), y = mp_table_add_col(&t, "Y_IMAGE");
+    for (long r = 0; r < 1000; r++) {
+        assert_int_equal(mp_table_add_row(&t), r);
+        mp_table_set(&t, (size_t)r, x, (double)r);
+        mp_table_set(&t, (size_t)r, y, -(double)r);
+    }
+    assert_true(t.cap > t.nrow);            /* doubling left room: 1024 */
+    const char *const bad[] = {"FLUX_PSF", "NOT A NAME OF 32 CHARACTERS OR MORE"};
+    int idx[3];
+    assert_int_equal(mp_table_add_cols(&t, bad, 2, idx), -1);
+    assert_int_equal(t.ncol, 2);            /* none added */
+    const char *const names[] = {"FLUX_PSF", "Y_IMAGE", "FLAGS", "FLUX_PSF"};
+    int c[4];
+    assert_int_equal(mp_table_add_cols(&t, names, 4, c), 0);
+    assert_int_equal(t.ncol, 4);
+    assert_int_equal(c[0], 2);
+    assert_int_equal(c[1], y);
+    assert_int_equal(c[2], 3);
+    assert_int_equal(c[3], 2);             /* named twice: one column */
+    assert_int_equal(t.cap, t.nrow);
+    for (size_t r = 0; r < t.nrow; r++) {
+        assert_true(mp_table_get(&t, r, x) == (double)r);
+        assert_true(mp_table_get(&t, r, y) == -(double)r);
+        assert_true(isnan(mp_table_get(&t, r, c[0])) && isnan(mp_table_get(&t, r, c[2])));
+    }
+    assert_int_equal(mp_table_add_cols(&t, names, 4, c), 0);   /* all there: no-op */
+    assert_int_equal(t.ncol, 4);
+    assert_int_equal(mp_table_add_row(&t), 1000);
+    assert_true(t.cap > t.nrow);
+    assert_int_equal(mp_table_shrink(&t), 0);
+    assert_int_equal(t.cap, t.nrow);
+    assert_true(mp_table_get(&t, 999, x) == 999.0 && isnan(mp_table_get(&t, 1000, x)));
+    mp_table_free(&t);
+}
+
 static void test_registry(void **state)
 {
     (void)state;
@@ -718,6 +761,7 @@ int main(void)
 {
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(test_table_model),
+        cmocka_unit_test(test_table_add_cols),
         cmocka_unit_test(test_registry),
         cmocka_unit_test(test_parse_value),
         cmocka_unit_test(test_format_parse),

@@ -983,8 +983,11 @@ static void test_bkg_rows_points(void **state)
     for (int model = 0; model < 2; model++) {
         double k, eps;
         if (model) {
+            size_t before = mp_bkg_bytes(&b);
             assert_int_equal(mp_bkg_noise_from_model(&b, &f, res, 3, &k, &eps, err), 0);
             assert_true(isfinite(k));
+            /* the mesh rms rows given back: half the rows' bytes */
+            assert_int_equal(mp_bkg_bytes(&b), before - 2 * (size_t)ny * (size_t)b.nbx * 8);
         }
         mp_bkg_rows(&b, 0, ny, sky, rms);
         for (long i = 0; i < nx * ny; i++) {

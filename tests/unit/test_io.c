@@ -402,7 +402,7 @@ static void test_frame_dq(void **state)
     char sci[720], err[MP_ERRLEN];
     snprintf(sci, sizeof sci, "%s[SCI]", path);
     mp_frame f;
-    mp_datapars dp = {NAN, NAN, NAN, NAN, "[DQ]", 2304, 16, 0, "", 0};
+    mp_datapars dp = {NAN, NAN, NAN, NAN, "[DQ]", 2304, 16, 0, "", 0, 0};
     assert_int_equal(mp_frame_read(sci, &dp, &f, err), 0);
     assert_int_equal(f.nsat, 2);
     assert_int_equal(f.nbad, 1);
@@ -457,6 +457,72 @@ static void test_frame_dq(void **state)
     assert_non_null(strstr(err, "NOPE"));
 }
 
+/* A pixel both saturated and flagged by a dqbad bit (AstroDrizzle marks
+ * saturated cores as cosmic rays: ACS DQ 6400 = 4096|2048|256) is
+ * saturated: satgrow grows it and it sets FLAGS 1.  A pixel with the dqbad
+ * bit alone stays bad and is not grown.  Counted on a 7 x 5 frame: the
+ * saturated pixel (3, 3) and its 8 neighbours are saturated (9), the bad
+ * one (7, 1) alone is bad. */
+static void test_frame_dq_saturation_first(void **state)
+{
+    scratch *s = *state;
+    double pix[NX * NY], dq[NX * NY] = {0};
+    pattern(pix);
+    dq[2 * NX + 2] = 6400;    /* (3, 3): saturated and a "cosmic ray" */
+    dq[6] = 4096;             /* (7, 1): a cosmic ray */
+    const char *path = in_dir(s, "mef2.fits");
+    char name[700];
+    snprintf(name, sizeof name, "!%s", path);
+    fitsfile *fp;
+    int st = 0;
+    long ax[2] = {NX, NY}, fpix[2] = {1, 1};
+    fits_create_file(&fp, name, &st);
+    fits_create_img(fp, DOUBLE_IMG, 2, ax, &st);
+    fits_write_pix(fp, TDOUBLE, fpix, NX * NY, pix, &st);
+    fits_create_img(fp, SHORT_IMG, 2, ax, &st);
+    fits_update_key_str(fp, "EXTNAME", "DQ", NULL, &st);
+    fits_write_pix(fp, TDOUBLE, fpix, NX * NY, dq, &st);
+    fits_close_file(fp, &st);
+    assert_int_equal(st, 0);
+    char err[MP_ERRLEN];
+    mp_frame f;
+    mp_datapars dp = {NAN, NAN, NAN, NAN, "[DQ]", 2304, 4096, 1, "", 0, 0};
+    assert_int_equal(mp_frame_read(path, &dp, &f, err), 0);
+    assert_int_equal(f.nsat, 9);
+    assert_int_equal(f.nbad, 1);
+    for (int x = 2; x <= 4; x++)
+        for (int y = 2; y <= 4; y++)
+            assert_int_equal(f.mask[(y - 1) * NX + x - 1], MP_MASK_SATURATED);
+    assert_int_equal(f.mask[6], MP_MASK_BAD);
+    assert_int_equal(f.mask[5], 0);
+    assert_int_equal(f.mask[NX + 6], 0);
+    mp_frame_free(&f);
+    /* badgrow = 1: the bad pixel's square, (6..7, 1..2) in the corner, is
+     * bad (4); a saturated pixel in it, (6, 2), stays saturated, and its
+     * satgrow square takes only the pixels still free, (5, 1..3), (6..7,
+     * 3): with (3, 3)'s 9 that overlap at none, 9 + 1 + 5 = 15. */
+    dp.badgrow = 1;
+    dq[NX + 5] = 256;
+    st = 0;
+    fits_open_file(&fp, path, READWRITE, &st);
+    fits_movnam_hdu(fp, IMAGE_HDU, "DQ", 0, &st);
+    fits_write_pix(fp, TDOUBLE, fpix, NX * NY, dq, &st);
+    fits_close_file(fp, &st);
+    assert_int_equal(st, 0);
+    assert_int_equal(mp_frame_read(path, &dp, &f, err), 0);
+    assert_int_equal(f.nbad, 3);
+    assert_int_equal(f.mask[5], MP_MASK_BAD);
+    assert_int_equal(f.mask[6], MP_MASK_BAD);
+    assert_int_equal(f.mask[NX + 6], MP_MASK_BAD);
+    assert_int_equal(f.mask[NX + 5], MP_MASK_SATURATED);
+    assert_int_equal(f.mask[2 * NX + 6], MP_MASK_SATURATED);
+    assert_int_equal(f.mask[4], MP_MASK_SATURATED);
+    assert_int_equal(f.mask[3], 0);                   /* (4, 1): in neither square */
+    assert_int_equal(f.nsat, 15);
+    assert_int_equal(f.mask[3 * NX + 6], 0);
+    mp_frame_free(&f);
+}
+
 /* An error plane (HST layout: SCI and ERR extensions), gain 2 and read
  * noise 3 from datapars: xvar is what ERR² (in e-², gain² × ADU²) holds
  * beyond max(data, 0) + RON², and 0 where it holds less; an infinite error
@@ -498,7 +564,7 @@ static void test_frame_err(void **state)
     char sci[720], err[MP_ERRLEN];
     snprintf(sci, sizeof sci, "%s[SCI]", path);
     mp_frame f;
-    mp_datapars dp = {2.0, 3.0, NAN, NAN, "", 0, 0, 0, "[ERR]", 0};
+    mp_datapars dp = {2.0, 3.0, NAN, NAN, "", 0, 0, 0, "[ERR]", 0, 0};
     assert_int_equal(mp_frame_read(sci, &dp, &f, err), 0);
     assert_non_null(f.xvar);
     assert_float_equal(f.xvar[0], 91.0, 1e-3);
@@ -571,7 +637,7 @@ static void test_frame_bleed(void **state)
     const char *path = in_dir(s, "bleed.fits");
     char err[MP_ERRLEN];
     assert_int_equal(mp_image_write(path, pix, NX, NY, -32, NULL, 0, err), 0);
-    mp_datapars dp = {NAN, NAN, 1000.0, NAN, "", 0, 0, 0, "", 1};
+    mp_datapars dp = {NAN, NAN, 1000.0, NAN, "", 0, 0, 0, "", 1, 0};
     mp_frame f;
     assert_int_equal(mp_frame_read(path, &dp, &f, err), 0);
     assert_int_equal(f.nsat, 5);
@@ -605,7 +671,7 @@ static void test_frame(void **state)
     assert_int_equal(mp_image_write(path, pix, NX, NY, -32, cards, 4, err), 0);
 
     mp_frame f;
-    const mp_datapars none = {NAN, NAN, NAN, NAN, "", 0, 0, 0, "", 0};
+    const mp_datapars none = {NAN, NAN, NAN, NAN, "", 0, 0, 0, "", 0, 0};
     assert_int_equal(mp_frame_read(path, &none, &f, err), 0);
     assert_true(f.gain == 2.0 && f.rdnoise == 5.0 && f.saturate == 1000.0 && f.exptime == 30.0);
     assert_int_equal(f.nbad, 1);
@@ -621,7 +687,7 @@ static void test_frame(void **state)
     mp_frame_free(&f);
 
     /* datapars wins over the header; NULL datapars means all from header. */
-    const mp_datapars dp = {4.0, 1.0, NAN, 2.0, "", 0, 0, 0, "", 0};
+    const mp_datapars dp = {4.0, 1.0, NAN, 2.0, "", 0, 0, 0, "", 0, 0};
     assert_int_equal(mp_frame_read(path, &dp, &f, err), 0);
     assert_true(f.gain == 4.0 && f.rdnoise == 1.0 && f.saturate == 1000.0 && f.exptime == 2.0);
     assert_true(f.im.pix[5] == 4.0 * pix[5]);
@@ -639,11 +705,11 @@ static void test_frame(void **state)
     mp_frame_free(&f);
 
     /* Bad detector numbers, named. */
-    const mp_datapars badgain = {0.0, NAN, NAN, NAN, "", 0, 0, 0, "", 0};
+    const mp_datapars badgain = {0.0, NAN, NAN, NAN, "", 0, 0, 0, "", 0, 0};
     assert_int_not_equal(mp_frame_read(path, &badgain, &f, err), 0);
     assert_true(strncmp(err, "gain: ", 6) == 0);
     assert_null(f.mask);
-    const mp_datapars badron = {NAN, -1.0, NAN, NAN, "", 0, 0, 0, "", 0};
+    const mp_datapars badron = {NAN, -1.0, NAN, NAN, "", 0, 0, 0, "", 0, 0};
     assert_int_not_equal(mp_frame_read(path, &badron, &f, err), 0);
     assert_true(strncmp(err, "rdnoise: ", 9) == 0);
     const mp_card neg[] = {{"GAIN", -2.0, NULL, NULL}};
@@ -826,6 +892,7 @@ int main(void)
         cmocka_unit_test_setup_teardown(test_bad_inputs, setup, teardown),
         cmocka_unit_test_setup_teardown(test_frame, setup, teardown),
         cmocka_unit_test_setup_teardown(test_frame_dq, setup, teardown),
+        cmocka_unit_test_setup_teardown(test_frame_dq_saturation_first, setup, teardown),
         cmocka_unit_test_setup_teardown(test_frame_err, setup, teardown),
         cmocka_unit_test_setup_teardown(test_frame_bleed, setup, teardown),
         cmocka_unit_test_setup_teardown(test_outfile, setup, teardown),

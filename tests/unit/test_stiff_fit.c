@@ -79,7 +79,7 @@ static void test_saturated_wings(void **state)
                         {"RDNOISE", RON, NULL, "read noise [e-]"}};
     assert_int_equal(mp_image_write_float(path, f.im.pix, 60, 60, cards, 2, err), 0);
     sf_frame_drop(&f);
-    mp_datapars dp = {NAN, NAN, NAN, NAN, "", 0, 0, 0, "", 0};
+    mp_datapars dp = {NAN, NAN, NAN, NAN, "", 0, 0, 0, "", 0, 0};
     assert_int_equal(mp_frame_read(path, &dp, &f, err), 0);
     unlink(path);
     assert_int_equal(f.nsat, nclip);
@@ -324,7 +324,7 @@ static void test_nan_and_masked_column(void **state)
     mp_card c = {"RDNOISE", RON, NULL, "read noise"};
     assert_int_equal(mp_image_write_float(path, f.im.pix, 50, 50, &c, 1, err), 0);
     sf_frame_drop(&f);
-    mp_datapars dp = {NAN, NAN, NAN, NAN, "", 0, 0, 0, "", 0};
+    mp_datapars dp = {NAN, NAN, NAN, NAN, "", 0, 0, 0, "", 0, 0};
     assert_int_equal(mp_frame_read(path, &dp, &f, err), 0);
     unlink(path);
     assert_int_equal(f.nbad, nnan);

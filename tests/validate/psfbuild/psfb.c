@@ -1037,7 +1037,7 @@ static int do_ideal(const char *dir, const char *kind, int npsf, double fkeep, i
 {
     int seg = !strcmp(kind, "segmented");
     char err[MP_ERRLEN], path[1024];
-    mp_datapars dp = {NAN, NAN, NAN, NAN, "", 0, 0, 0, "", 0};
+    mp_datapars dp = {NAN, NAN, NAN, NAN, "", 0, 0, 0, "", 0, 0};
     mp_frame f;
     mp_table tr;
     mp_table_init(&tr);
