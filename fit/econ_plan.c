@@ -122,6 +122,8 @@ int mp_econ_offer(mp_econ_cache *c, const mp_prf_model *m, int nlev, const int *
 
 typedef struct {
     double build, decide, save;   /* multiply-adds: once, per run, per LM render */
+    double real;                  /* the build's own cost, where build prices it
+                                   * higher (cost_grid) */
 } econ_cost;
 
 static double min_evals(double fits, double limits)
@@ -143,7 +145,7 @@ static double sinc_build_ops(int nx, int ny, int os, int hw)
 static econ_cost cost_sinc(const mp_psf *p, int hw, double fits, double W)
 {
     econ_cost k;
-    k.build = sinc_build_ops(p->nx, p->ny, p->os, hw);
+    k.build = k.real = sinc_build_ops(p->nx, p->ny, p->os, hw);
     k.decide = min_evals(fits, MP_SINC_LIMITS_EVALS) * hw * 3.0 * NPH * box_pixels(p);
     k.save = psf_ops(p, hw, 1, W) - psf_ops(p, 0, 1, W);
     return k;
@@ -161,21 +163,22 @@ static econ_cost cost_level(const mp_econ_cache *c, int l, double fits, double W
     double npix = box_pixels(p) + 2.0 * sqrt(box_pixels(p)) + 1.0;
     econ_cost k;
     k.build = NPH * (psf_ops(p, hw, 1, INFINITY) + render_ops(nx, ny, os, hw, 0, INFINITY));
+    k.real = k.build;
     k.decide = min_evals(fits, MP_SS_LIMITS_EVALS) * 22.0 * NPH * npix;
     k.save = psf_ops(p, hw, 1, W) - render_ops(nx, ny, os, hw, 1, W);
     return k;
 }
 
-/* The phase grid of table p (the model's, or a coarser level's): its
- * nodes and cells drawn by the axis operators (fit/prf_axis.c) when sep —
- * per x node the rows T·Xᵀ, T·X'ᵀ, per node three products on the box,
- * bw = os + 2hw + 4 taps a pixel — else by full renders.  The decision
- * prices the build at full renders either way (choose_locked passes sep
- * 0): the saving is an upper bound that every table of the run claims for
- * the same fits (the coarser levels take most of them), and at the
- * separable price a 200-frame run built a ×2 grid its own fits did not pay
- * for (test_tables_pay_for_themselves: 644 renders spent, 572 saved);
- * what was spent is counted at the real price. */
+/* The phase grid of table p (the model's, or a coarser level's).  Its
+ * nodes and cells are drawn by the axis operators (fit/prf_axis.c) when
+ * sep — per x node the rows T·Xᵀ, T·X'ᵀ, per node three products on the
+ * box, bw = os + 2hw + 4 taps a pixel — else by full renders: real.  The
+ * up-front plan prices the build at full renders either way (build): its
+ * saving is an upper bound that every table of the run claims for the
+ * same fits (the coarser levels take most of them), and at the separable
+ * price a 200-frame run built a ×2 grid its own fits did not pay for
+ * (test_tables_pay_for_themselves: 644 renders spent, 572 saved).  Work
+ * the run has done (learned) is set against the real price (pays). */
 /* Whether the run's grids are drawn by the axis operators. */
 #define SEP(c) mp_prf_separable(&(c)->model0)
 
@@ -185,12 +188,11 @@ static econ_cost cost_grid(const mp_psf *p, int sep, int G, int hw, double fits,
     double na = (double)os * (gb + 3), ng = (double)os * gb, npix = box_pixels(p);
     double w2 = fmin(W * W, npix), bw = os + 2.0 * hw + 4.0, side = sqrt(npix);
     econ_cost k;
-    if (sep)
-        k.build = na * 2.0 * p->ny * side * bw + na * na * 3.0 * npix * bw +
-                  ng * p->ny * side * bw + ng * ng * (npix * bw + 16.0 * npix);
-    else
-        k.build = na * na * psf_ops(p, hw, 1, INFINITY) +
-                  ng * ng * (psf_ops(p, hw, 0, INFINITY) + 16.0 * npix);
+    k.build = na * na * psf_ops(p, hw, 1, INFINITY) +
+              ng * ng * (psf_ops(p, hw, 0, INFINITY) + 16.0 * npix);
+    k.real = !sep ? k.build
+                  : na * 2.0 * p->ny * side * bw + na * na * 3.0 * npix * bw +
+                        ng * p->ny * side * bw + ng * ng * (npix * bw + 16.0 * npix);
     k.decide = min_evals(fits, MP_SINC_LIMITS_EVALS) * 3.0 * ng * ng * npix;
     k.save = psf_ops(p, hw, 1, W) - 48.0 * w2;
     return k;
@@ -200,10 +202,10 @@ static econ_cost cost_grid(const mp_psf *p, int sep, int G, int hw, double fits,
  * which the table would have saved the fraction save/full. */
 static int pays(econ_cost k, double fits, double learned, double full)
 {
-    double gain = fits * MP_ECON_RENDERS_PER_FIT * k.save;
+    double plan = fits * MP_ECON_RENDERS_PER_FIT * k.save, done = 0.0;
     if (learned > 0 && full > 0)
-        gain += learned * k.save / full;
-    return k.save > 0 && gain >= k.build + k.decide;
+        done = learned * k.save / full;
+    return k.save > 0 && (plan + done >= k.build + k.decide || done >= k.real + k.decide);
 }
 
 /* ---- Building ------------------------------------------------------------ */
@@ -272,7 +274,7 @@ static int build_grid(mp_econ_cache *c, char *err)
     c->grid_state = rc ? ECON_FAILED : ECON_BUILT;
     if (!rc)
         c->spent +=
-            cost_grid(&c->psf0, SEP(c), c->grid_g, c->model0.sinc_hw, 0.0, INFINITY).build;
+            cost_grid(&c->psf0, SEP(c), c->grid_g, c->model0.sinc_hw, 0.0, INFINITY).real;
     return rc;
 }
 
@@ -292,7 +294,7 @@ static int build_level_grid(mp_econ_cache *c, int l, char *err)
         lv->grid = NULL;
         return 1;
     }
-    c->spent += cost_grid(&lv->psf, SEP(c), c->grid_g, c->model0.sinc_hw, 0.0, INFINITY).build;
+    c->spent += cost_grid(&lv->psf, SEP(c), c->grid_g, c->model0.sinc_hw, 0.0, INFINITY).real;
     return 0;
 }
 
@@ -339,14 +341,14 @@ static int choose_locked(mp_econ_cache *c, double fits, double fitrad, mp_frame_
      * 1975 LM fits of 47 Tuc with the PSF built from the frame). */
     for (int l = 0; o->ss == c->ss && l < o->nss && c->grid_g > 0; l++)
         if (!((o->ss_grid >> l) & 1) &&
-            pays(cost_grid(&c->ss[l].psf, 0, c->grid_g, hw, fits, W), fits, learned,
+            pays(cost_grid(&c->ss[l].psf, SEP(c), c->grid_g, hw, fits, W), fits, learned,
                  full)) {
             if (build_level_grid(c, l, err))
                 return 1;
             o->ss_grid |= (c->ss[l].grid->G > 0) << l;
         }
     if (!o->grid && c->grid_g > 0 &&
-        pays(cost_grid(&c->psf0, 0, c->grid_g, hw, fits, W), fits, learned, full)) {
+        pays(cost_grid(&c->psf0, SEP(c), c->grid_g, hw, fits, W), fits, learned, full)) {
         if (build_grid(c, err))
             return 1;
         o->grid = c->grid.G > 0 ? &c->grid : NULL;

@@ -411,6 +411,9 @@ typedef struct {
     const struct mp_prf_cache_s *grid;  /* economy: the group's PRF drawn from
                                 * this phase grid when built for its model
                                 * (fit/prf_cache.c); NULL: exact renders */
+    double grid_emax;          /* economy: a star whose start flux exceeds this
+                                * (the grid's bias bound) is rendered exactly,
+                                * its neighbours from grid (INFINITY: all) */
     double *work;              /* not NULL: the multiply-adds of the group's
                                 * exact table renders are added to *work (the
                                 * caller's own, per thread; economy's plan) */

@@ -19,6 +19,7 @@ void mp_fit_opts_default(mp_fit_opts *o)
     o->fit_sky = 1;
     o->crop = NULL;
     o->grid = NULL;
+    o->grid_emax = INFINITY;
     o->work = NULL;
     o->exact_lm = 0;
 }
@@ -42,6 +43,7 @@ static void group_free(group *G)
     free(G->spans);
     free(G->soff);
     free(G->fx);
+    free(G->ongrid);
     free(G->fy);
     free(G->scr);
     free(G->pk);
@@ -179,6 +181,7 @@ static int alloc_stars(group *G)
     G->pt = calloc(np, sizeof *G->pt);
     G->stail = calloc((size_t)G->n * 27, sizeof *G->stail);
     G->fx = malloc((size_t)G->n * sizeof *G->fx);
+    G->ongrid = calloc((size_t)G->n, 1);
     G->fy = malloc((size_t)G->n * sizeof *G->fy);
     G->cx0 = malloc((size_t)G->n * sizeof *G->cx0);
     G->cx1 = malloc((size_t)G->n * sizeof *G->cx1);
@@ -188,7 +191,7 @@ static int alloc_stars(group *G)
     G->M = malloc(np * np * sizeof *G->M);
     G->g = malloc(np * sizeof *G->g);
     G->step = malloc(np * sizeof *G->step);
-    return !G->scr || !G->stail || !G->fx || !G->fy || !G->cx0 || !G->cx1 || !G->cy0 || !G->cy1 || !G->p || !G->pt || !G->A || !G->M || !G->g || !G->step;
+    return !G->scr || !G->ongrid || !G->stail || !G->fx || !G->fy || !G->cx0 || !G->cx1 || !G->cy0 || !G->cy1 || !G->p || !G->pt || !G->A || !G->M || !G->g || !G->step;
 }
 
 /* The data's range over the fitted pixels and the largest flux a star may
@@ -424,6 +427,10 @@ int mp_fit_group(const mp_frame *f, const mp_prf_model *m, const mp_fit_opts *o,
     G.sknown = known_sky(stars, n);
     G.vfloor = G.sknown > 0 ? G.sknown : 0.0;
     int converged = 0, iter = 0;
+    /* Economy: a star brighter than the grid's bound is drawn exactly
+     * (its own bias bound, fit/prf_cache.c), the others from the grid. */
+    for (int k = 0; k < n; k++)
+        G.ongrid[k] = !(fabs(stars[k].flux) > o->grid_emax);
     if (start_state(&G, stars, sky) || fit_orders(&G, o, &order, &iter, &converged))
         goto nomem;
     int cv = covariance(&G);

@@ -117,10 +117,13 @@ int ff_learn_and_choose(const mp_frame *f, const mp_frame_opts *o, mp_frame_opts
 int ff_level_serves(const level_rule *k, double e, mp_frame_report *cost);
 int ff_grid_serves(const frame_rules *R, const mp_prf_cache *g, double e, mp_frame_report *cost);
 /* ff_group_grid: the phase grid a group fitted with ss[l] (l = nss: the
- * model's table, whose grid is g) draws its PRF from when its brightest
- * star has flux e, or NULL (exact renders); charges as ff_grid_serves. */
+ * model's table, whose grid is g) draws its PRF from, or NULL (exact
+ * renders), and in *emax the largest start flux of a star it serves (the
+ * others are drawn exactly); with the frame's flux limit, any group with
+ * a star of flux e > 0; without it (few groups), the group whose brightest
+ * star e passes the bound, *emax INFINITY.  Charges as ff_grid_serves. */
 const mp_prf_cache *ff_group_grid(const frame_rules *R, const mp_prf_cache *g, int l, double e,
-                                  mp_frame_report *cost);
+                                  double *emax, mp_frame_report *cost);
 int ff_kernel_for(const kernel_rule *k, int hwfull, double e, mp_frame_report *cost);
 
 /* frame_paint.c.  ff_crop_init: the crop rule of cropfrac (nonzero when

@@ -28,17 +28,19 @@ int ff_grid_serves(const frame_rules *R, const mp_prf_cache *g, double e,
 }
 
 const mp_prf_cache *ff_group_grid(const frame_rules *R, const mp_prf_cache *g, int l, double e,
-                                  mp_frame_report *cost)
+                                  double *emax, mp_frame_report *cost)
 {
-    if (l >= R->nss)
-        return ff_grid_serves(R, g, e, cost) ? g : NULL;
-    const mp_prf_cache *lg = R->lgrid[l];
-    if (!lg || !(e > 0))
+    const mp_prf_cache *t = l >= R->nss ? g : R->lgrid[l];
+    double lim = l >= R->nss ? R->gemax : R->lgemax[l];
+    *emax = INFINITY;
+    if (!t || !(e > 0))
         return NULL;
-    if (!isnan(R->lgemax[l]))
-        return e <= R->lgemax[l] ? lg : NULL;
-    charge(cost, 1, lg, ECON_LIM_GRID);
-    return mp_prf_cache_bound(lg, e, R->gsky, R->gron) <= R->gfrac ? lg : NULL;
+    if (!isnan(lim)) {          /* per star: the brighter ones exactly */
+        *emax = lim;
+        return lim > 0 ? t : NULL;
+    }
+    charge(cost, 1, t, ECON_LIM_GRID);
+    return mp_prf_cache_bound(t, e, R->gsky, R->gron) <= R->gfrac ? t : NULL;
 }
 
 /* The limits of c on sky level sky (already rounded), computed on a miss:

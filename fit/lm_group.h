@@ -66,6 +66,9 @@ typedef struct {
      * (fx, fy) — both buffers alike. */
     int freezing, frozen;       /* this fit freezes; frozen now */
     double *fx, *fy;            /* n each */
+    uint8_t *ongrid;            /* n: star drawn from the phase grid (its
+                                 * start flux within o->grid_emax), else
+                                 * exactly (set with G->work.grid) */
     /* Star pairs between exact normal equations (normal_equations): the
      * pairs whose windows meet, each pair's sums outside its core (9 a
      * pair, unscaled), and each star's core, [cx0, cx1) × [cy0, cy1) of

@@ -87,11 +87,12 @@ int lm_core_rows(group *G, const rstar *r, int c[4])
 /* render_all while the wings are frozen: each star on its core only. */
 static int render_core(group *G, const double *p, rstar *r, int what)
 {
-    int grid = mp_prf_cache_usable(G->work.grid, G->m);
-    if (!grid && what == RENDER_DERIVS)
-        return 0;
+    int usable = mp_prf_cache_usable(G->work.grid, G->m);
     for (int k = 0; k < G->n; k++) {
         double x = p[3 * k + 1], y = p[3 * k + 2];
+        int grid = usable && G->ongrid[k];
+        if (!grid && what == RENDER_DERIVS)
+            continue;       /* the exact render drew them with the PRF */
         int c[4], ns = lm_core_rows(G, &r[k], c);
         if (ns == 0)
             continue;
@@ -110,11 +111,12 @@ int lm_render_all(group *G, const double *p, rstar *r, int what)
 {
     if (G->frozen)
         return render_core(G, p, r, what);
-    int grid = mp_prf_cache_usable(G->work.grid, G->m);
-    if (!grid && what == RENDER_DERIVS)
-        return 0;
+    int usable = mp_prf_cache_usable(G->work.grid, G->m);
     for (int k = 0; k < G->n; k++) {
         double x = p[3 * k + 1], y = p[3 * k + 2];
+        int grid = usable && G->ongrid[k];
+        if (!grid && what == RENDER_DERIVS)
+            continue;       /* the exact render drew them with the PRF */
         long x0, y0;
         int w, h;
         mp_prf_box(G->m, x, y, &x0, &y0, &w, &h);

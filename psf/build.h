@@ -77,7 +77,7 @@ typedef struct {
 } mp_epsf_opts;
 
 /* mp_epsf_opts_default: os auto, psfrad 4·fwhm, fitrad 2·fwhm, order auto,
- * alpha 1e-3, maxnpsf 100, 5 outer × up to 30 SIRT steps; origin and
+ * alpha 1e-3, maxnpsf 200, 5 outer × up to 30 SIRT steps; origin and
  * scales from nx, ny (the frame's centre and half-sizes, as PSFEx). */
 void mp_epsf_opts_default(double fwhm, long nx, long ny, mp_epsf_opts *o);
 
@@ -115,7 +115,7 @@ int mp_epsf_table(const mp_epsf *e, double x, double y, mp_psf *p, char *err);
  * BACKGROUND, SHARPNESS, ROUNDNESS, FLAGS) fit to be PSF stars: FLAGS 0;
  * no masked or saturated pixel within psfrad; whole fitting region inside
  * the frame; sharpness and roundness within 3 robust σ of the bright
- * stars'; no brighter detection within psfrad; S/N ≥ 20 by the find flux;
+ * stars'; no brighter detection within fitrad; S/N ≥ 20 by the find flux;
  * then the brightest, in turn from each cell of a grid over the frame, so
  * that they spread over it, up to maxnpsf.  idx receives the rows (at
  * most maxnpsf), *n their number (0 is not an error here). */
@@ -170,6 +170,14 @@ void mp_epsf_stars_free(mp_epsf_star *s, size_t n);
  * Errors: fewer usable stars than 2·nterms + 1, out of memory. */
 int mp_epsf_build(mp_epsf_star *s, size_t n, const mp_epsf_opts *o, int os, int order,
                   mp_epsf *e, char *err);
+
+/* PSF stars per polynomial term that varorder=auto needs before it raises
+ * the order: a table of nt terms fitted over N stars has at a star's place
+ * a variance nt/N (the mean leverage) times that of the stars' mean, so it
+ * adds about nt/N of a like star's own variance to that star's fit; 10
+ * keeps it within 10 % (5 % in σ, a third of issue 11's 15 %): order 1
+ * needs 30 stars, order 2 60, order 3 100. */
+#define MP_EPSF_PER_TERM 10
 
 /* mp_epsf_order_test: is order+1 demanded by the data?  The stars'
  * normalised residuals (d − model)/σ per pixel offset are regressed on the

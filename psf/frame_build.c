@@ -187,10 +187,15 @@ static int choose_os(mp_epsf_star *s, size_t n, const mp_epsf_opts *o, const mp_
     return 0;
 }
 
-/* varorder auto: raise the order while the test rejects the lower one. */
+/* varorder auto: raise the order while the test rejects the lower one
+ * and the used stars number at least MP_EPSF_PER_TERM per term of the
+ * higher order (build.h: its table's noise then stays within ~5 % of a
+ * PSF star's own σ). */
 static int choose_order(mp_epsf_star *s, size_t n, const mp_epsf_opts *o, mp_epsf *e,
                         mp_epsf_report *rep, char *err)
 {
+    int short_of = 0;
+    size_t nu = 0;
     for (;;) {
         double p, z;
         if (mp_epsf_order_test(s, n, e, o->fitrad, &p, &z, err))
@@ -200,6 +205,11 @@ static int choose_order(mp_epsf_star *s, size_t n, const mp_epsf_opts *o, mp_eps
         if (e->order >= MP_PSF_MAXORDER || !(p < o->alpha))
             break;
         int was = e->order;
+        nu = count_used_stars(s, n);
+        if (nu < (size_t)(MP_EPSF_PER_TERM * mp_psf_nterms(was + 1))) {
+            short_of = 1;
+            break;
+        }
         if (mp_epsf_build(s, n, o, e->os, was + 1, e, err))
             return 1;
     }
@@ -217,6 +227,11 @@ static int choose_order(mp_epsf_star *s, size_t n, const mp_epsf_opts *o, mp_eps
     }
     l = strlen(e->why);
     snprintf(e->why + l, sizeof e->why - l, " alpha %.0e)", o->alpha);
+    if (short_of) {
+        l = strlen(e->why);
+        snprintf(e->why + l, sizeof e->why - l, "; not raised: %zu stars < %d per term x %d",
+                 nu, MP_EPSF_PER_TERM, mp_psf_nterms(e->order + 1));
+    }
     return 0;
 }
 

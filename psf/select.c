@@ -93,8 +93,13 @@ int mp_epsf_select(const mp_frame *f, const mp_table *t, const mp_epsf_opts *o, 
         }
         m = kept;
     }
-    /* Alone: no brighter detection within psfrad (a fainter one is
-     * clipped, then subtracted in the second pass). */
+    /* Alone: no brighter detection within fitrad, where star and
+     * neighbour would be one blend.  Beyond it a neighbour, brighter or
+     * fainter, is fitted with the star at every fit of the build and its
+     * model taken out (mp_epsf_neighbours, mp_epsf_clean), and what it
+     * leaves is masked (mp_epsf_sirt_dilate): DAOPHOT's psfrad rule left
+     * ~100 of a crowded frame's 400 stars, too few for an order-3 field
+     * (MP_EPSF_PER_TERM). */
     size_t kept = 0;
     for (size_t k = 0; k < m; k++) {
         double x = mp_table_get(t, c[k].row, cx), y = mp_table_get(t, c[k].row, cy);
@@ -103,7 +108,7 @@ int mp_epsf_select(const mp_frame *f, const mp_table *t, const mp_epsf_opts *o, 
             if (q == c[k].row)
                 continue;
             double d = hypot(mp_table_get(t, q, cx) - x, mp_table_get(t, q, cy) - y);
-            if (d <= o->psfrad && !(mp_table_get(t, q, cf) < c[k].flux))
+            if (d <= o->fitrad && !(mp_table_get(t, q, cf) < c[k].flux))
                 alone = 0;
         }
         if (alone)

@@ -65,9 +65,10 @@ static void truth_one(double s1, double s2, double rad, double *t, int *n)
 /* The truth at column position u (−1..1): the blend (1−w)·A + w·B,
  * w = (1+u)/2, of cores of σx 1 − grad and 1 + grad: every element
  * exactly linear in position, as the model (PSFEx, DAOPHOT) has it.
- * cubic: w = (1 + P₃(u))/2, P₃(u) = (5u³ − 3u)/2 the Legendre cubic (no
+ * cubic 1: w = (1 + P₃(u))/2, P₃(u) = (5u³ − 3u)/2 the Legendre cubic (no
  * linear or quadratic part over a uniform spread of stars: only the
- * cubic terms of the model see it), every element exactly cubic. */
+ * cubic terms of the model see it), every element exactly cubic; cubic 2
+ * (quadratic): w = (1 + P₂(u))/2, P₂(u) = (3u² − 1)/2, exactly quadratic. */
 static void truth_fine(double grad, int cubic, double u, double rad, double *t, int *n)
 {
     int h = (int)ceil(rad * FOS), m = 2 * h + 1;
@@ -75,7 +76,9 @@ static void truth_fine(double grad, int cubic, double u, double rad, double *t, 
     assert_non_null(b);
     truth_one(1.0 - grad, 1.3, rad, t, n);
     truth_one(1.0 + grad, 1.3, rad, b, n);
-    double w = 0.5 * (1.0 + (cubic ? 0.5 * (5.0 * u * u * u - 3.0 * u) : u));
+    double w = 0.5 * (1.0 + (cubic == 1   ? 0.5 * (5.0 * u * u * u - 3.0 * u)
+                             : cubic == 2 ? 0.5 * (3.0 * u * u - 1.0)
+                                          : u));
     for (int i = 0; i < m * m; i++)
         t[i] = (1.0 - w) * t[i] + w * b[i];
     free(b);
@@ -386,6 +389,66 @@ static void test_cubic_variation(void **state)
     }
     mp_epsf_free(&e);
     mp_epsf_stars_free(s, NSTAR);
+    free(f.im.pix);
+    free(f.mask);
+}
+
+/* σx of the core runs 0.85 … 1.15 px as P₂ of the column position: the
+ * order test of the order-1 build must ask for order 2, and that of the
+ * order-2 build must not ask for order 3 (the truth is exactly quadratic
+ * per element: a false raise has probability alpha = 1e-3 under the
+ * test's normal approximation, measured 5-7 % at 0.05 below).  Then
+ * varorder=auto through mp_epsf_pass on the linear frame's first 24 stars
+ * (three rows of the grid, every column): the test asks for order 1
+ * (z 244 from 64 stars), but 24 stars are fewer than MP_EPSF_PER_TERM × 3,
+ * so the order stays 0 and PSFORDWH says why. */
+static void test_quadratic_and_star_count(void **state)
+{
+    (void)state;
+    const double rad = 6.0, grad = 0.15;
+    mp_frame f;
+    tstar ts[NSTAR];
+    make_frame(18, grad, 2, rad, &f, ts);
+    mp_epsf_opts o;
+    mp_epsf_opts_default(2.6, NX, NX, &o);
+    o.psfrad = rad;
+    o.fitrad = 4.0;
+    mp_epsf_star *s = stars_of(&f, ts, &o);
+    mp_epsf e;
+    memset(&e, 0, sizeof e);
+    char err[MP_ERRLEN];
+    double p1, st1, p2, st2;
+    assert_int_equal(mp_epsf_build(s, NSTAR, &o, BOS, 1, &e, err), 0);
+    assert_int_equal(mp_epsf_order_test(s, NSTAR, &e, o.fitrad, &p1, &st1, err), 0);
+    assert_int_equal(mp_epsf_build(s, NSTAR, &o, BOS, 2, &e, err), 0);
+    assert_int_equal(mp_epsf_order_test(s, NSTAR, &e, o.fitrad, &p2, &st2, err), 0);
+    printf("# quadratic: order 1->2 p %.3g (z %.1f), 2->3 p %.3g (z %.1f)\n", p1, st1, p2, st2);
+    assert_true(p1 < 1e-3);
+    assert_true(p2 > 1e-3);
+    mp_epsf_free(&e);
+    mp_epsf_stars_free(s, NSTAR);
+    free(f.im.pix);
+    free(f.mask);
+    /* auto on the linear frame, too few stars for order 1 */
+    enum { NFEW = 24 };
+    make_frame(12, grad, 0, rad, &f, ts);
+    double x[NFEW], y[NFEW], fl[NFEW];
+    for (int k = 0; k < NFEW; k++) {
+        x[k] = ts[k].x + 0.2;
+        y[k] = ts[k].y - 0.15;
+        fl[k] = ts[k].f;
+    }
+    o.os = BOS;
+    o.order = -1;
+    mp_epsf_report rep;
+    memset(&e, 0, sizeof e);
+    assert_int_equal(mp_epsf_pass(&f, f.im.pix, 0, NULL, NULL, x, y, fl, NFEW, &o, &e, &rep,
+                                  NULL, err), 0);
+    printf("# linear, %d stars, auto: %s\n", NFEW, e.why);
+    assert_int_equal(e.order, 0);
+    assert_true(rep.ptest[0] < 1e-3);
+    assert_non_null(strstr(e.why, "not raised"));
+    mp_epsf_free(&e);
     free(f.im.pix);
     free(f.mask);
 }
@@ -782,6 +845,7 @@ int main(void)
         cmocka_unit_test(test_recovers_constant_table),
         cmocka_unit_test(test_linear_variation),
         cmocka_unit_test(test_cubic_variation),
+        cmocka_unit_test(test_quadratic_and_star_count),
         cmocka_unit_test(test_order_test_false_raise),
         cmocka_unit_test(test_cutout_add_reads_field_at_star),
         cmocka_unit_test(test_neighbours_fitted),

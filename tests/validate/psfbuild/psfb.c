@@ -5,7 +5,8 @@
  * matched against `matphot pipeline`'s catalogs run with the true table,
  * with the PSF built from the frame, and with a Gaussian.
  *
- *   psfb sim DIR KIND      KIND segmented | variable | gauss
+ *   psfb sim DIR KIND [SEED]   KIND segmented | variable | gauss (SEED: another
+ *       draw of the same scene; default the scene's own)
  *       DIR/frame.fits (gain 1, RDNOISE), DIR/truth.dat (ASCII_HEAD:
  *       position, flux, and each star's Cramér–Rao bound of flux and x
  *       alone on its sky), DIR/true.psf.fits (segmented: the ×5 table;
@@ -17,6 +18,9 @@
  *       zp: the fluxes rescaled first by the median E_true/E of the two
  *       brightest bins (a peer's fluxes on its aperture scale); a last
  *       row "-14..-8 (all)" pools the bins.
+ *   psfb pool ROOT DIR...   the matches of DIR/ROOT.cat of several draws
+ *       of one scene pooled: per bin completeness, phot and astro over
+ *       the joint bound with their bootstrap standard errors.
  *   psfb resid FRAME RES CAT R RON [CAT2]   the normalised residual near
  *       the stars (within R px of each star of CAT, or of CAT and CAT2),
  *       as issue 11 compares it with DAOPHOT's on 47 Tuc.
@@ -164,14 +168,14 @@ static int joint_of(const double *mean, const double *stamps, const jb_star *js,
     return rc;
 }
 
-static int do_sim(const char *dir, const char *kind)
+static int do_sim(const char *dir, const char *kind, long seed)
 {
     int seg = !strcmp(kind, "segmented"), gau = !strcmp(kind, "gauss");
     if (!seg && !gau && strcmp(kind, "variable"))
         return fprintf(stderr, "psfb: scene %s: segmented, variable or gauss\n", kind), 1;
     char err[MP_ERRLEN], path[1024];
     mp_rng r;
-    mp_rng_seed(&r, seg ? 1101 : gau ? 1103 : 1102);
+    mp_rng_seed(&r, seed > 0 ? (uint64_t)seed : seg ? 1101 : gau ? 1103 : 1102);
     double *img = malloc(sizeof(double) * NX * NX), *tab = NULL;
     int n = 0;
     for (int i = 0; i < NX * NX; i++)
@@ -328,10 +332,35 @@ static void match_row(const char *root, const char *label, const mbin *bn, int n
     printf("\n");
 }
 
-/* zp: the catalog's fluxes times one scale, the median E_true/E of the
- * matched stars in the two brightest bins (a peer's aperture-scale fluxes
- * put on the truth's, as an aperture correction would). */
-static int do_match(const char *dir, const char *root, int zp)
+/* The bins' arrays, room for cap stars each; nonzero on out of memory. */
+static int bins_alloc(mbin *bn, size_t cap)
+{
+    memset(bn, 0, NB * sizeof *bn);
+    for (int b = 0; b < NB; b++) {
+        double **a[3 + 2 * NK] = {&bn[b].ef, &bn[b].et, &bn[b].dr};
+        for (int k = 0; k < NK; k++)
+            a[3 + k] = &bn[b].se[k], a[3 + NK + k] = &bn[b].sx[k];
+        for (int q = 0; q < 3 + 2 * NK; q++)
+            if (!(*a[q] = malloc((cap + 1) * sizeof(double))))
+                return 1;
+    }
+    return 0;
+}
+
+static void bins_free(mbin *bn)
+{
+    for (int b = 0; b < NB; b++) {
+        free(bn[b].ef), free(bn[b].et), free(bn[b].dr);
+        for (int k = 0; k < NK; k++)
+            free(bn[b].se[k]), free(bn[b].sx[k]);
+    }
+}
+
+/* DIR/ROOT.cat matched against DIR/truth.dat, appended to the bins (room
+ * for cap stars each): each true star takes the nearest unused catalog
+ * star within 1 px, brightest true stars first (they are found first and
+ * best). */
+static int match_dir(const char *dir, const char *root, mbin *bn, size_t cap)
 {
     char err[MP_ERRLEN], path[1024];
     mp_table tr, ct;
@@ -353,17 +382,9 @@ static int do_match(const char *dir, const char *root, int zp)
         cf = mp_table_col(&ct, "FLUX_PSF");
     size_t nt = tr.nrow, nc = ct.nrow;
     int *used = calloc(nc + 1, sizeof *used);
-    mbin bn[NB];
-    memset(bn, 0, sizeof bn);
-    for (int b = 0; b < NB; b++) {
-        double **a[3 + 2 * NK] = {&bn[b].ef, &bn[b].et, &bn[b].dr};
-        for (int k = 0; k < NK; k++)
-            a[3 + k] = &bn[b].se[k], a[3 + NK + k] = &bn[b].sx[k];
-        for (int q = 0; q < 3 + 2 * NK; q++)
-            if (!(*a[q] = malloc((nt + 1) * sizeof(double))))
-                return fprintf(stderr, "psfb: out of memory\n"), 1;
-    }
-    size_t *ord = malloc(nt * sizeof *ord);
+    size_t *ord = malloc((nt + 1) * sizeof *ord);
+    if (!used || !ord)
+        return fprintf(stderr, "psfb: out of memory\n"), 1;
     for (size_t i = 0; i < nt; i++)
         ord[i] = i;
     for (size_t i = 0; i < nt; i++)       /* insertion sort by magnitude */
@@ -372,13 +393,11 @@ static int do_match(const char *dir, const char *root, int zp)
             ord[j] = ord[j - 1];
             ord[j - 1] = s;
         }
-    /* Each true star takes the nearest unused catalog star within 1 px,
-     * brightest true stars first (they are found first and best). */
     for (size_t q = 0; q < nt; q++) {
         size_t i = ord[q];
         double x = mp_table_get(&tr, i, tx), y = mp_table_get(&tr, i, ty);
         int b = (int)floor(mp_table_get(&tr, i, tm) + 14.0);
-        if (b < 0 || b >= NB)
+        if (b < 0 || b >= NB || (size_t)bn[b].nm >= cap)
             continue;
         bn[b].nin++;
         long best = -1;
@@ -402,9 +421,26 @@ static int do_match(const char *dir, const char *root, int zp)
             bn[b].sx[k][m] = mp_table_get(&tr, i, tq[k]);
         }
     }
+    free(ord);
+    free(used);
+    mp_table_free(&tr);
+    mp_table_free(&ct);
+    return 0;
+}
+
+/* zp: the catalog's fluxes times one scale, the median E_true/E of the
+ * matched stars in the two brightest bins (a peer's aperture-scale fluxes
+ * put on the truth's, as an aperture correction would). */
+static int do_match(const char *dir, const char *root, int zp)
+{
+    mbin bn[NB];
+    if (bins_alloc(bn, 4 * NSTAR))
+        return fprintf(stderr, "psfb: out of memory\n"), 1;
+    if (match_dir(dir, root, bn, 4 * NSTAR))
+        return 1;
     double scale = 1.0;
     if (zp) {
-        double *r = malloc((nt + 1) * sizeof *r);
+        double *r = malloc((4 * NSTAR + 1) * sizeof *r);
         int nr = 0;
         for (int b = 0; b < 2; b++)
             for (int k = 0; k < bn[b].nm; k++)
@@ -425,15 +461,79 @@ static int do_match(const char *dir, const char *root, int zp)
      * (the median of |N(0,1)| from n draws: 0.5/(sqrt(n)·0.636)/0.674),
      * the pooled one of ~400 by ~6 %. */
     match_row(root, "-14..-8 (all)", bn, NB, scale);
-    for (int b = 0; b < NB; b++) {
-        free(bn[b].ef), free(bn[b].et), free(bn[b].dr);
-        for (int k = 0; k < NK; k++)
-            free(bn[b].se[k]), free(bn[b].sx[k]);
+    bins_free(bn);
+    return 0;
+}
+
+/* The median ratio (phot or astro over the joint bound) of nb bins and
+ * its standard error by the bootstrap over the stars (NBOOT resamples,
+ * a fixed seed): the error of "within 15 % of the bound" in a bin. */
+#define NBOOT 400
+static void ratio_se(const mbin *bn, int nb, int astro, double *r, double *se)
+{
+    int n = 0;
+    for (int b = 0; b < nb; b++)
+        n += bn[b].nm;
+    double *v = malloc((size_t)(n + 1) * sizeof *v), *w = malloc((size_t)(n + 1) * sizeof *w);
+    double *bs = malloc(NBOOT * sizeof *bs);
+    *r = *se = NAN;
+    if (!v || !w || !bs || n < 2) {
+        free(v), free(w), free(bs);
+        return;
     }
-    free(ord);
-    free(used);
-    mp_table_free(&tr);
-    mp_table_free(&ct);
+    n = 0;
+    for (int b = 0; b < nb; b++)
+        for (int q = 0; q < bn[b].nm; q++)
+            v[n++] = astro ? bn[b].dr[q] / (1.1774 * bn[b].sx[0][q])
+                           : fabs(bn[b].ef[q] - bn[b].et[q]) / (0.6745 * bn[b].se[0][q]);
+    mp_rng g;
+    mp_rng_seed(&g, 4242);
+    double s = 0, s2 = 0;
+    for (int t = 0; t < NBOOT; t++) {
+        for (int q = 0; q < n; q++)
+            w[q] = v[(int)(n * mp_rng_uniform(&g)) % n];
+        bs[t] = median(w, n);
+        s += bs[t];
+        s2 += bs[t] * bs[t];
+    }
+    *r = median(v, n);
+    *se = sqrt(fmax(s2 / NBOOT - (s / NBOOT) * (s / NBOOT), 0.0));
+    free(v), free(w), free(bs);
+}
+
+static void pool_row(const char *label, const mbin *bn, int nb)
+{
+    int nin = 0, nm = 0;
+    for (int b = 0; b < nb; b++)
+        nin += bn[b].nin, nm += bn[b].nm;
+    double rp, sp, ra, sa;
+    ratio_se(bn, nb, 0, &rp, &sp);
+    ratio_se(bn, nb, 1, &ra, &sa);
+    printf("pool: %s | %d | %d | %.3f | %.3f +- %.3f | %.3f +- %.3f\n", label, nin, nm,
+           nin ? (double)nm / nin : NAN, rp, sp, ra, sa);
+}
+
+/* psfb pool ROOT DIR...: the frames' matches pooled (draws of one scene):
+ * per magnitude bin completeness and phot, astro over the joint bound,
+ * each with its bootstrap standard error. */
+static int do_pool(const char *root, char **dirs, int nd)
+{
+    mbin bn[NB];
+    size_t cap = (size_t)nd * NSTAR * 4;
+    if (bins_alloc(bn, cap))
+        return fprintf(stderr, "psfb: out of memory\n"), 1;
+    for (int d = 0; d < nd; d++)
+        if (match_dir(dirs[d], root, bn, cap))
+            return 1;
+    printf("pool: %s over %d frames: mag bin | true | found | completeness | phot/joint +- se | "
+           "astro/joint +- se\n", root, nd);
+    for (int b = 0; b < NB; b++) {
+        char label[32];
+        snprintf(label, sizeof label, "%.0f..%.0f", b - 14.0, b - 13.0);
+        pool_row(label, &bn[b], 1);
+    }
+    pool_row("-14..-8 (all)", bn, NB);
+    bins_free(bn);
     return 0;
 }
 
@@ -1141,10 +1241,12 @@ int main(int argc, char **argv)
         return do_noise(argv[2], argv[3], atof(argv[4])) ? 1 : 0;
     if (argc == 3 && !strcmp(argv[1], "chi2"))
         return do_chi2(argv[2]) ? 1 : 0;
-    if (argc == 4 && !strcmp(argv[1], "sim"))
-        return do_sim(argv[2], argv[3]) ? 1 : 0;
+    if ((argc == 4 || argc == 5) && !strcmp(argv[1], "sim"))
+        return do_sim(argv[2], argv[3], argc == 5 ? atol(argv[4]) : 0) ? 1 : 0;
     if ((argc == 4 || (argc == 5 && !strcmp(argv[4], "zp"))) && !strcmp(argv[1], "match"))
         return do_match(argv[2], argv[3], argc == 5) ? 1 : 0;
+    if (argc >= 4 && !strcmp(argv[1], "pool"))
+        return do_pool(argv[2], argv + 3, argc - 3) ? 1 : 0;
     if (argc == 3 && !strcmp(argv[1], "leverage"))
         return do_leverage(argv[2]) ? 1 : 0;
     if (argc == 3 && !strcmp(argv[1], "cmpvar"))
@@ -1152,7 +1254,7 @@ int main(int argc, char **argv)
     if (argc == 4 && !strcmp(argv[1], "cmp"))
         return do_cmp(argv[2], argv[3]) ? 1 : 0;
     fprintf(stderr, "usage: psfb sim DIR segmented|variable | psfb match DIR ROOT [zp] | "
-            "psfb cmp BUILT.fits TRUE.fits | psfb ee PSF.fits | psfb ideal DIR KIND NPSF [FKEEP [ORDER [OS]]] | "
+            "psfb pool ROOT DIR... | psfb cmp BUILT.fits TRUE.fits | psfb ee PSF.fits | psfb ideal DIR KIND NPSF [FKEEP [ORDER [OS]]] | "
             "psfb varfloor [ORDER] [OUT.fits] | psfb gridfloor N OUT.fits | psfb leverage PSF.fits | psfb resid FRAME RES CAT R RON [CAT2] | "
             "psfb noise SCI ERR RON | psfb chi2 CAT\n");
     return 2;

@@ -22,7 +22,8 @@ CFLAGS="-std=c17 -Wall -Wextra -Werror -O2 -fopenmp -D_XOPEN_SOURCE=700 -I. -I/u
 $CC $CFLAGS -o "$OUT/psfb" tests/validate/psfbuild/psfb.c tests/validate/crowded/joint_bound.c -fopenmp "$BUILD/libmatphot.a" \
     -lcfitsio -lwcs -lcsv -llapacke -lopenblas -lm || { echo "psfbuild: build failed" >&2; exit 1; }
 OPENBLAS_NUM_THREADS=1
-export OPENBLAS_NUM_THREADS
+DRAWS=${DRAWS:-"2001 2002 2003 2004 2005 2006 2007 2008"}
+export OPENBLAS_NUM_THREADS DRAWS
 rc=0
 # run SCENE ROOT ARGS...: the pipeline on SCENE's frame, then the match
 # (REPORT_ONLY=1: only the match of the last run's catalog, and the report).
@@ -66,19 +67,28 @@ run segmented built
 run segmented ideal psf="$OUT/segmented/ideal.psf.fits"
 run segmented gauss psf=gauss fwhm=2.2
 run variable built
-run variable built3 varorder=3
+run variable built2 varorder=2
 run variable floor2 psf="$OUT/variable/floor2.psf.fits"
 run variable floor3 psf="$OUT/variable/floor3.psf.fits"
 run variable centre psf="$OUT/variable/true.psf.fits"
 run variable truegrid psf="$OUT/variable/truegrid.psf.fits"
 run variable grid5 psf="$OUT/variable/grid5.psf.fits"
+# The per-bin verdict made decidable: 8 draws of the variable scene
+# pooled (draws.sh; ~500 stars a bin, standard error ~0.05 of a ratio),
+# with the true table (as the 9x9 grid) and the build (auto).
+DR="sh tests/validate/psfbuild/draws.sh"
+$DR truegrid psf="$OUT/variable/truegrid.psf.fits" > /dev/null || rc=1
+$DR built > /dev/null || rc=1
+for s in 2001 2002; do
+    "$OUT/psfb" cmpvar "$OUT/draws/$s/built.psf.fits"
+done > "$OUT/draws/cmpvar.txt" 2>&1
 run gauss true psf="$OUT/gauss/true.psf.fits"
 run gauss built
 "$OUT/psfb" cmp "$OUT/segmented/built.psf.fits" "$OUT/segmented/true.psf.fits" > "$OUT/segmented/cmp.txt"
 "$OUT/psfb" cmp "$OUT/variable/built.psf.fits" "$OUT/variable/true.psf.fits" > "$OUT/variable/cmp.txt"
 "$OUT/psfb" cmp "$OUT/gauss/built.psf.fits" "$OUT/gauss/true.psf.fits" > "$OUT/gauss/cmp.txt"
 "$OUT/psfb" cmpvar "$OUT/variable/built.psf.fits" > "$OUT/variable/cmpvar.txt"
-"$OUT/psfb" cmpvar "$OUT/variable/built3.psf.fits" >> "$OUT/variable/cmpvar.txt"
+"$OUT/psfb" cmpvar "$OUT/variable/built2.psf.fits" >> "$OUT/variable/cmpvar.txt"
 for f in true built ideal; do "$OUT/psfb" ee "$OUT/segmented/$f.psf.fits"; done > "$OUT/segmented/ee.txt"
 {
     echo "# The PSF built from the frame (issue 11 part B)"
@@ -87,7 +97,7 @@ for f in true built ideal; do "$OUT/psfb" ee "$OUT/segmented/$f.psf.fits"; done 
     echo "Scenes: tests/validate/psfbuild/psfb.c (256x256 px, 400 stars, mag -14..-8, sky 100 e-, RON 3 e-; stars drawn by exact block-sums of x5 tables on their grid)."
     echo "The last row of each table pools the bins (-14..-8 (all)): a bin's median of ~60 stars scatters by ~16 % (1 sigma), the pooled one of ~400 by ~6 %."
     echo "Ratios: median |E - E_true| over 0.6745 sigma_CRLB(E) and median position error over 1.1774 sigma_CRLB(X) (1 = on the bound), for three bounds of each star: *joint* (the row's verdict; issue 13's, tests/validate/crowded/joint_bound.c: the star fitted with every true star whose fitting disc, fitrad 5 px, overlaps its own and one constant sky, on the union of their discs, noise from the whole noiseless frame), *alone* (the star alone on a 21x21 px box of its sky: the scoring of these tables before 2026-11-25), *disc* (alone on its fitrad disc, its neighbours known: their photon noise and the disc, not their parameters); sigma_X = sqrt((sigma_x^2 + sigma_y^2)/2); bias: median (E - E_true)/sigma_joint(E) (a flux-scale error grows with brightness in these units); completeness within 1 px."
-    echo "Rows: true = the true table; built = no psf= (the PSF built from the frame); ideal (segmented) = \`psfb ideal\`: the frame less every true star but the lone brightest (none within 20 px of another), their PSF built at their true places (the builder's own floor, without crowding); built3 (variable) = no psf=, varorder=3; floor2, floor3 (variable) = \`psfb varfloor 2|3\`: the truth fitted by an order-2 (order-3) field (least squares over 15x15 places), the best any PSF of that order can do; centre (variable) = the true table at the frame's centre everywhere; truegrid, grid5 (variable) = \`psfb gridfloor 9|5\`: the true table at 9x9 (5x5) places edge to edge, interpolated bilinearly (a gridded PSF file as photutils writes it): truegrid is the truth within 0.16 % of the PRF's peak, this scene's true-table row.  gauss: the variable scene's central table (round, FWHM 3 px) everywhere."
+    echo "Rows: true = the true table; built = no psf= (the PSF built from the frame); ideal (segmented) = \`psfb ideal\`: the frame less every true star but the lone brightest (none within 20 px of another), their PSF built at their true places (the builder's own floor, without crowding); built2 (variable) = no psf=, varorder=2; floor2, floor3 (variable) = \`psfb varfloor 2|3\`: the truth fitted by an order-2 (order-3) field (least squares over 15x15 places), the best any PSF of that order can do; centre (variable) = the true table at the frame's centre everywhere; truegrid, grid5 (variable) = \`psfb gridfloor 9|5\`: the true table at 9x9 (5x5) places edge to edge, interpolated bilinearly (a gridded PSF file as photutils writes it): truegrid is the truth within 0.16 % of the PRF's peak, this scene's true-table row.  gauss: the variable scene's central table (round, FWHM 3 px) everywhere."
     for s in segmented variable gauss; do
         echo
         echo "## $s"
@@ -114,12 +124,35 @@ for f in true built ideal; do "$OUT/psfb" ee "$OUT/segmented/$f.psf.fits"; done 
             echo "ideal: $(cat "$OUT/segmented/ideal.txt")"
         elif [ "$s" = variable ]; then
             echo
-            echo "The built fields (auto, then varorder=3) at 3x3 places (\`psfb cmpvar\`) and the order-2 and order-3 floors there (\`psfb varfloor\`):"
+            echo "The built fields (auto, then varorder=2) at 3x3 places (\`psfb cmpvar\`) and the order-2 and order-3 floors there (\`psfb varfloor\`):"
             echo
             echo '```'
             sed 's/^psfb cmpvar: //' "$OUT/variable/cmpvar.txt"
             sed 's/^psfb varfloor: //' "$OUT/variable/floor2.txt" "$OUT/variable/floor3.txt"
             sed 's/^psfb gridfloor: //' "$OUT/variable/grid5.txt" "$OUT/variable/grid9.txt"
+            echo '```'
+            echo
+            echo
+            echo "### The variable scene over $(echo $DRAWS | wc -w) draws (\`tests/validate/psfbuild/draws.sh ROOT ARGS\`, \`psfb pool\`)"
+            echo
+            echo "The same scene drawn with seeds $DRAWS, each frame reduced by \`matphot pipeline\` (truegrid: psf= the 9x9 true grid; built: no psf=, varorder auto), the matched stars of all frames pooled per bin: phot/astro over the joint bound +- the bootstrap standard error of the median ratio (400 resamples; 1.166 r/sqrt(n) for a normal error), completeness."
+            echo
+            echo '| mag | stars | truegrid found | phot/joint | astro/joint | built found | phot/joint | astro/joint |'
+            echo '|---|---|---|---|---|---|---|---|'
+            for r in truegrid built; do
+                sed -n 's/^pool: \(-[0-9][^|]*\)| \([0-9]*\) | \([0-9]*\) | [^|]*| \(.*\) | \(.*\)$/\1|\2|\3|\4|\5/p' "$OUT/draws/$r.pool" > "$OUT/draws/$r.rows"
+            done
+            paste -d'|' "$OUT/draws/truegrid.rows" "$OUT/draws/built.rows" |
+                awk -F'|' '{printf "| %s | %s | %s | %s | %s | %s | %s | %s |\n", $1, $2, $3, $4, $5, $8, $9, $10}'
+            echo
+            for s in $DRAWS; do
+                grep -h 'PSF pass 2' "$OUT/draws/$s/built.log" | sed "s/^/    /" | cut -c1-400
+            done
+            echo
+            echo "The built fields of two draws against the truth at 3x3 places (\`psfb cmpvar\`):"
+            echo
+            echo '```'
+            sed 's/^psfb cmpvar: //' "$OUT/draws/cmpvar.txt"
             echo '```'
             echo
             echo "The noise of more terms (\`matphot psf $OUT/variable/frame.fits\`, then \`psfb leverage\` of its PSF stars): the variance of an order-k table at the same 3x3 places over that of the mean of the N stars:"
