@@ -52,9 +52,10 @@ int mp_pl_halo(mp_frame *f, float *res, const mp_table *t, double fwhm, double *
 /* mp_pl_tablerad: the built table's radius for frame f (tablerad=INDEF):
  * mp_epsf_tablerad on the PSF stars (px, py; find fluxes pf) and the find
  * table t's bright stars (saturated, or brighter than every PSF star),
- * frac 0.02 (the economy's cropfrac), within 2 fwhm .. min(10 fwhm, an
- * eighth of the frame's smaller side); po->psfrad when it cannot be
- * measured.  Nonzero only on out of memory. */
+ * frac 0.02 (the economy's cropfrac), within po->psfrad (4 fwhm, the
+ * fixed radius before) .. min(10 fwhm, an eighth of the frame's smaller
+ * side); po->psfrad when it cannot be measured.  Nonzero only on out of
+ * memory. */
 int mp_pl_tablerad(const mp_frame *f, const mp_table *t, const double *px, const double *py,
                    const double *pf, size_t np, const mp_epsf_opts *po, mp_epsf_rad *out,
                    char *err);
