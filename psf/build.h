@@ -80,7 +80,7 @@ typedef struct {
 } mp_epsf_opts;
 
 /* mp_epsf_opts_default: os auto, psfrad 4·fwhm, fitrad 2·fwhm, order auto,
- * alpha 1e-3, maxnpsf 200, 5 outer × up to 30 SIRT steps; origin and
+ * alpha 1e-3, maxnpsf 100, 5 outer × up to 30 SIRT steps; origin and
  * scales from nx, ny (the frame's centre and half-sizes, as PSFEx). */
 void mp_epsf_opts_default(double fwhm, long nx, long ny, mp_epsf_opts *o);
 
