@@ -1,5 +1,5 @@
-/* bright_stars.c — the fitted stars brightest first, for the models of the
- * light the PSF table leaves out (halo.c, lookup.c). */
+/* bright_stars.c — the fitted stars brightest first, and their median sky,
+ * for the models of the light the PSF table leaves out (halo.c, lookup.c). */
 #include <math.h>
 #include <stdlib.h>
 #include "pipeline/pipeline_priv.h"
@@ -27,4 +27,32 @@ mp_pl_star *mp_pl_stars_by_flux(const mp_table *t, long skipflags, size_t *n)
     }
     qsort(s, *n, sizeof *s, by_flux_desc);
     return s;
+}
+
+static int by_value(const void *a, const void *b)
+{
+    double x = *(const double *)a, y = *(const double *)b;
+    return (x > y) - (x < y);
+}
+
+double mp_pl_median(double *v, size_t n)
+{
+    if (n == 0)
+        return NAN;
+    qsort(v, n, sizeof *v, by_value);
+    return n % 2 ? v[n / 2] : 0.5 * (v[n / 2 - 1] + v[n / 2]);
+}
+
+double mp_pl_median_sky(const mp_table *t)
+{
+    int c = mp_table_col(t, "SKY_PSF");
+    double *v = malloc((t->nrow ? t->nrow : 1) * sizeof *v), m = 0.0;
+    size_t n = 0;
+    for (size_t r = 0; v && c >= 0 && r < t->nrow; r++)
+        if (isfinite(mp_table_get(t, r, c)))
+            v[n++] = mp_table_get(t, r, c);
+    if (v && n)
+        m = mp_pl_median(v, n);
+    free(v);
+    return m;
 }

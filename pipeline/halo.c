@@ -19,21 +19,6 @@
 
 enum { HALO_NSTAR = 10, HALO_MINPIX = 5 };
 
-static int by_value(const void *a, const void *b)
-{
-    double x = *(const double *)a, y = *(const double *)b;
-    return (x > y) - (x < y);
-}
-
-/* The median of v[0..n) (sorted in place); NaN when n = 0. */
-static double median_of(double *v, size_t n)
-{
-    if (n == 0)
-        return NAN;
-    qsort(v, n, sizeof *v, by_value);
-    return n % 2 ? v[n / 2] : 0.5 * (v[n / 2 - 1] + v[n / 2]);
-}
-
 /* The unmasked residual values in the ring [r0, r1) around s, in buf. */
 static size_t ring_values(const mp_frame *f, const float *res, const mp_pl_star *s, double r0,
                           double r1, double *buf)
@@ -61,7 +46,7 @@ static int ring_median(const mp_frame *f, const float *res, const mp_pl_star *s,
     size_t m = ring_values(f, res, s, r0, r1, buf);
     if (m < HALO_MINPIX)
         return 0;
-    *med = median_of(buf, m);            /* sorts buf */
+    *med = mp_pl_median(buf, m);            /* sorts buf */
     double iqr = buf[(3 * m) / 4] - buf[m / 4];
     *se = 1.2533 * (iqr / 1.349) / sqrt((double)m);
     return 1;
@@ -264,25 +249,10 @@ static int subtract(mp_frame *f, float *res, const mp_pl_star *s, size_t ns, con
     return 0;
 }
 
-/* The median fitted sky of t's stars (SKY_PSF), 0 without. */
-static double sky_of(const mp_table *t)
-{
-    int c = mp_table_col(t, "SKY_PSF");
-    double *v = malloc((t->nrow ? t->nrow : 1) * sizeof *v), m = 0.0;
-    size_t n = 0;
-    for (size_t r = 0; v && c >= 0 && r < t->nrow; r++)
-        if (isfinite(mp_table_get(t, r, c)))
-            v[n++] = mp_table_get(t, r, c);
-    if (v && n)
-        m = median_of(v, n);
-    free(v);
-    return m;
-}
-
 int mp_pl_halo(mp_frame *f, float *res, const mp_table *t, double fwhm, double *z, char *what,
                size_t wlen, char *err)
 {
-    double sky = sky_of(t);
+    double sky = mp_pl_median_sky(t);
     double rin = fmax(fwhm, 1.0), rout = 16.0 * rin;
     int nb = (int)(rout - rin);
     size_t ns;

@@ -44,12 +44,6 @@ typedef struct {
     double *m, *sig;      /* the look-up per e-, its σ */
 } lookup;
 
-static int by_value(const void *a, const void *b)
-{
-    double x = *(const double *)a, y = *(const double *)b;
-    return (x > y) - (x < y);
-}
-
 /* The star's sky: the median residual on the square ring just outside the
  * look-up's box (NaN with fewer than 8 pixels). */
 static double sky_near(const mp_frame *f, const float *res, const mp_pl_star *s, int h, double *buf)
@@ -68,8 +62,7 @@ static double sky_near(const mp_frame *f, const float *res, const mp_pl_star *s,
         }
     if (m < 8)
         return NAN;
-    qsort(buf, m, sizeof *buf, by_value);
-    return m % 2 ? buf[m / 2] : 0.5 * (buf[m / 2 - 1] + buf[m / 2]);
+    return mp_pl_median(buf, m);
 }
 
 /* Star s's residual into the stack: each pixel at offset (dx, dy) from the
@@ -185,23 +178,6 @@ static int take_off(const lookup *L, mp_frame *f, float *res, const mp_pl_star *
     return 0;
 }
 
-/* The median fitted sky of t's stars (SKY_PSF), 0 without. */
-static double sky_of(const mp_table *t)
-{
-    int c = mp_table_col(t, "SKY_PSF");
-    double *v = malloc((t->nrow ? t->nrow : 1) * sizeof *v), m = 0.0;
-    size_t n = 0;
-    for (size_t r = 0; v && c >= 0 && r < t->nrow; r++)
-        if (isfinite(mp_table_get(t, r, c)))
-            v[n++] = mp_table_get(t, r, c);
-    if (v && n) {
-        qsort(v, n, sizeof *v, by_value);
-        m = v[n / 2];
-    }
-    free(v);
-    return m;
-}
-
 /* The stars to stack: the LK_NSTAR brightest unsaturated ones of s (ns)
  * within 2.5 mag of the brightest (the stars whose features matter, not
  * the features themselves, which the first round fitted as stars), at
@@ -303,7 +279,7 @@ int mp_pl_lookup(mp_frame *f, float *res, const mp_table *t, const mp_prf_model 
         used++;
     }
     kept = finish(&L);
-    double sky = sky_of(t), sig = sqrt(fmax(sky, 0.0) + f->rdnoise * f->rdnoise);
+    double sky = mp_pl_median_sky(t), sig = sqrt(fmax(sky, 0.0) + f->rdnoise * f->rdnoise);
     if (take_off(&L, f, res, s, ns, sig, &nlit))
         goto oom;
     snprintf(what, wlen, "look-up of the PSF's residual from the %zu brightest stars (+-%d px, "
