@@ -8,6 +8,7 @@ CSTD    := -std=c17
 WARN    := -Wall -Wextra -Werror
 OPT     ?= -O2 -g
 SAN     ?=
+VALGRIND_JOBS ?= 2
 CPPFLAGS += -D_XOPEN_SOURCE=700 -I. $(shell pkg-config --cflags wcslib 2>/dev/null) \
             $(shell pkg-config --cflags openblas 2>/dev/null)
 CFLAGS  += $(CSTD) $(WARN) $(OPT) -fopenmp $(SAN)
@@ -83,12 +84,18 @@ test: deps
 # OpenBLAS from starting a pool of threads matphot never uses
 # (fit/blas_threads.c).
 SAN_RUNTIME = ASAN_OPTIONS=intercept_tls_get_addr=0 OPENBLAS_NUM_THREADS=1
+# Two sub-makes, not one with goals `unit e2e`: under -j those two goals
+# would run at once.
+SAN_MAKE = $(SAN_RUNTIME) $(MAKE) BUILD=build-san CC=clang OPT='-O1 -g' \
+	  SAN='-fsanitize=address,undefined -fno-omit-frame-pointer -fno-sanitize-recover=all'
 sanitize:
-	$(SAN_RUNTIME) $(MAKE) BUILD=build-san CC=clang OPT='-O1 -g' \
-	  SAN='-fsanitize=address,undefined -fno-omit-frame-pointer -fno-sanitize-recover=all' unit e2e
+	$(SAN_MAKE) unit
+	$(SAN_MAKE) e2e
 
+# Two scripts at a time: memcheck keeps matphot on one thread
+# (tests/valgrind_matphot.sh), so one script alone leaves a core idle.
 valgrind: all
-	MATPHOT=tests/valgrind_matphot.sh sh tests/run_e2e.sh
+	MATPHOT=tests/valgrind_matphot.sh E2E_JOBS=$(VALGRIND_JOBS) sh tests/run_e2e.sh
 
 validate: deps all
 	@sh tests/validate/run.sh
