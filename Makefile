@@ -25,7 +25,7 @@ PARFILES := $(wildcard params/*.par)
 UNITSRC := $(wildcard tests/unit/test_*.c)
 UNITBIN := $(patsubst tests/unit/%.c,$(BUILD)/tests/%,$(UNITSRC))
 
-.PHONY: all deps test unit e2e validate bench run clean sanitize valgrind fuzz fuzz-run test-slurm
+.PHONY: all deps test unit unit-bins e2e validate bench run clean sanitize valgrind fuzz fuzz-run test-slurm
 
 # ./matphot is always the binary of the BUILD this make was asked for
 # (sanitize's e2e runs the ASan one through it): compared, not dated, so a
@@ -61,6 +61,9 @@ $(BUILD)/tests/%: tests/unit/%.c $(BUILD)/libmatphot.a
 
 deps:
 	@sh tools/deps.sh
+
+# The unit tests built, not run (.ci/run builds them with -j2 first).
+unit-bins: $(UNITBIN)
 
 unit: $(UNITBIN)
 	@sh tests/run_unit.sh $(UNITBIN)

@@ -29,20 +29,6 @@ mp_pl_star *mp_pl_stars_by_flux(const mp_table *t, long skipflags, size_t *n)
     return s;
 }
 
-static int by_value(const void *a, const void *b)
-{
-    double x = *(const double *)a, y = *(const double *)b;
-    return (x > y) - (x < y);
-}
-
-double mp_pl_median(double *v, size_t n)
-{
-    if (n == 0)
-        return NAN;
-    qsort(v, n, sizeof *v, by_value);
-    return n % 2 ? v[n / 2] : 0.5 * (v[n / 2 - 1] + v[n / 2]);
-}
-
 double mp_pl_median_sky(const mp_table *t)
 {
     int c = mp_table_col(t, "SKY_PSF");
@@ -52,7 +38,7 @@ double mp_pl_median_sky(const mp_table *t)
         if (isfinite(mp_table_get(t, r, c)))
             v[n++] = mp_table_get(t, r, c);
     if (v && n)
-        m = mp_pl_median(v, n);
+        m = mp_epsf_median(v, n);
     free(v);
     return m;
 }

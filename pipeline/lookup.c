@@ -62,7 +62,7 @@ static double sky_near(const mp_frame *f, const float *res, const mp_pl_star *s,
         }
     if (m < 8)
         return NAN;
-    return mp_pl_median(buf, m);
+    return mp_epsf_median(buf, m);
 }
 
 /* Star s's residual into the stack: each pixel at offset (dx, dy) from the

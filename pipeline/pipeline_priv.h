@@ -27,11 +27,6 @@ typedef struct {
  * of them.  NULL when out of memory (*n = 0); the caller frees. */
 mp_pl_star *mp_pl_stars_by_flux(const mp_table *t, long skipflags, size_t *n);
 
-/* mp_pl_median: the median of v[0..n), the mean of the middle two for even
- * n; sorts v in place (callers read quantiles off it after).  NaN when
- * n = 0. */
-double mp_pl_median(double *v, size_t n);
-
 /* mp_pl_median_sky: the median fitted sky (SKY_PSF) of t's stars with a
  * finite one; 0 when there is none (or no memory to sort them). */
 double mp_pl_median_sky(const mp_table *t);

@@ -334,4 +334,10 @@ int mp_epsf_model(const mp_psf_field *fld, mp_psf *tab, mp_prf_model *m, char *e
 /* The `matphot psf` task (params/psf.par). */
 int mp_task_psf(int argc, char **argv);
 
+/* mp_epsf_median: the median of v[0..n), the mean of the middle two for
+ * even n; sorts v in place (callers read quantiles off it after).  NaN
+ * when n = 0.  The builder's, and the pipeline's models of the light the
+ * table leaves out (pipeline/halo.c, lookup.c). */
+double mp_epsf_median(double *v, size_t n);
+
 #endif

@@ -100,8 +100,6 @@ int mp_epsf_wiener_apply(mp_epsf *e, const double *w, int nbin);
  * stars still used: fluxes that go with the table (growth.c). */
 int mp_epsf_refit(mp_epsf_star *s, size_t n, const mp_epsf_opts *o, mp_epsf *e, char *err);
 
-/* mp_epsf_median: the median of v[0..n) (reorders v). */
-double mp_epsf_median(double *v, size_t n);
 
 /* mp_epsf_solve: the symmetric positive system A x = b of order m ≤ MP_EPSF_MAXT by
  * Cholesky (A, b overwritten; x in b); nonzero when not positive. */
