@@ -88,12 +88,15 @@ test: deps
 # (fit/blas_threads.c).
 SAN_RUNTIME = ASAN_OPTIONS=intercept_tls_get_addr=0 OPENBLAS_NUM_THREADS=1
 # Two sub-makes, not one with goals `unit e2e`: under -j those two goals
-# would run at once.
+# would run at once.  '+' hands them the jobserver (the env prefix hid
+# $(MAKE) from make: "jobserver unavailable").  The e2e scripts run two at
+# a time, as valgrind's: each is independent (its own temporary folder).
+SAN_E2E_JOBS ?= 2
 SAN_MAKE = $(SAN_RUNTIME) $(MAKE) BUILD=build-san CC=clang OPT='-O1 -g' \
 	  SAN='-fsanitize=address,undefined -fno-omit-frame-pointer -fno-sanitize-recover=all'
 sanitize:
-	$(SAN_MAKE) unit
-	$(SAN_MAKE) e2e
+	+$(SAN_MAKE) unit
+	+E2E_JOBS=$(SAN_E2E_JOBS) $(SAN_MAKE) e2e
 
 # Two scripts at a time: memcheck keeps matphot on one thread
 # (tests/valgrind_matphot.sh), so one script alone leaves a core idle.
