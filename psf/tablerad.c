@@ -28,13 +28,16 @@ static void stack_free(stack *s)
 }
 
 /* The median of the pixels of img within [r0, r1) px of the pixel (cx,
- * cy) (1-based), unmasked and on the frame; NaN when fewer than half of
- * the ring's pixels are usable or fewer than 8.  tmp: (2r1+1)² values. */
+ * cy) (1-based), unmasked, on the frame and finite; NaN when fewer than
+ * half of the ring's pixels are on the frame and unmasked, or fewer than
+ * 8 usable.  (A NaN in img is a neighbour blanked by the caller: it
+ * thins the ring, it does not cut it as an edge does.)  tmp: (2r1+1)²
+ * values. */
 static double ring_median(const mp_frame *f, const float *img, long cx, long cy, double r0,
                           double r1, double *tmp)
 {
     long h = (long)ceil(r1);
-    size_t m = 0, all = 0;
+    size_t m = 0, all = 0, avail = 0;
     for (long j = cy - h; j <= cy + h; j++)
         for (long i = cx - h; i <= cx + h; i++) {
             double r = hypot((double)(i - cx), (double)(j - cy));
@@ -44,10 +47,13 @@ static double ring_median(const mp_frame *f, const float *img, long cx, long cy,
             if (i < 1 || j < 1 || i > f->im.nx || j > f->im.ny)
                 continue;
             size_t o = (size_t)(j - 1) * f->im.nx + (size_t)(i - 1);
-            if (!f->mask[o] && isfinite(img[o]))
+            if (f->mask[o])
+                continue;
+            avail++;
+            if (isfinite(img[o]))
                 tmp[m++] = img[o];
         }
-    return m >= 8 && 2 * m >= all ? mp_epsf_median(tmp, m) : NAN;
+    return m >= 8 && 2 * avail >= all ? mp_epsf_median(tmp, m) : NAN;
 }
 
 /* One star's light per unit flux around the pixel (cx, cy) into v (w*w,

@@ -17,6 +17,8 @@
 
 #include <cmocka.h>
 
+#include "catalog/catalog.h"
+#include "pipeline/pipeline_priv.h"
 #include "psf/build.h"
 #include "sim/sim.h"
 
@@ -106,6 +108,25 @@ static void test_rule_needs_measured_light(void **state)
     free(sig);
 }
 
+/* An n × n frame of sky 100 e- (RON 3, gain 1), nothing masked. */
+static mp_frame sky_frame(long n)
+{
+    mp_frame f;
+    memset(&f, 0, sizeof f);
+    f.im.nx = f.im.ny = n;
+    f.im.pix = malloc((size_t)(n * n) * sizeof *f.im.pix);
+    f.mask = calloc((size_t)(n * n), 1);
+    assert_non_null(f.im.pix);
+    assert_non_null(f.mask);
+    for (size_t k = 0; k < (size_t)(n * n); k++)
+        f.im.pix[k] = 100.0f;
+    f.gain = 1.0;
+    f.rdnoise = 3.0;
+    f.saturate = INFINITY;
+    f.exptime = 1.0;
+    return f;
+}
+
 /* A frame of NS stars at pixel centres (so a star's offsets are its
  * distances) whose PSF is a Moffat of FWHM 3 (β 2) cut at 13.5 px:
  * every ring up to 13 holds light (ring 13 half lit, 5e-5 of the flux a
@@ -119,25 +140,13 @@ static void test_rule_needs_measured_light(void **state)
 static void test_tablerad_finds_where_the_light_ends(void **state)
 {
     (void)state;
-    mp_frame f;
-    memset(&f, 0, sizeof f);
-    f.im.nx = f.im.ny = NXF;
-    f.im.pix = calloc((size_t)NXF * NXF, sizeof *f.im.pix);
-    f.mask = calloc((size_t)NXF * NXF, 1);
-    assert_non_null(f.im.pix);
-    assert_non_null(f.mask);
-    f.gain = 1.0;
-    f.rdnoise = 3.0;
-    f.saturate = INFINITY;
-    f.exptime = 1.0;
+    mp_frame f = sky_frame(NXF);
     double alpha = 3.0 / (2.0 * sqrt(pow(2.0, 0.5) - 1.0)), norm = 0.0;
     int h = (int)CUTR;
     for (int j = -h; j <= h; j++)
         for (int i = -h; i <= h; i++)
             if (hypot(i, j) <= CUTR)
                 norm += pow(1.0 + (i * i + j * j) / (alpha * alpha), -2.0);
-    for (size_t k = 0; k < (size_t)NXF * NXF; k++)
-        f.im.pix[k] = 100.0f;
     double x[NS], y[NS];
     for (int k = 0; k < NS; k++) {
         x[k] = 30.0 + 39.0 * (k % 6);
@@ -168,12 +177,85 @@ static void test_tablerad_finds_where_the_light_ends(void **state)
     free(f.mask);
 }
 
+
+/* A crowd must not read as PSF wings (pipeline/tablerad.c blanks every
+ * other detection's core before stacking).  320² frame, sky 100 e-, RON
+ * 3: 36 PSF stars of 1e5 e- on a grid, and a crowd of 700 stars of
+ * 1e3..3e4 e- at random places (0.0068 a px²: ~25 in each PSF star's 61²
+ * box), all a Gaussian of FWHM 3, all in the find table given.  Theory:
+ * the brightest star's light per pixel, fmax exp(-d²/2s²)/(2πs²), meets
+ * the level (0.02 σ of a sky pixel) at R*, so the rule gives at most
+ * floor(R*) + 1, and one ring more when the ring just past R* (light a
+ * few % under the level) passes by its noise: at most floor(R*) + 2
+ * (8 px here); a ring beyond that passes only if the
+ * crowd's leftover light is measured there (noise alone: one-sided
+ * 1.3e-4 a ring, ~3e-3 over the rings to the cap).  Stacked on the frame
+ * as it is, the crowd took the radius to 26 px.  (At 0.011 a px², frame
+ * C's density, this synthetic crowd still gives 21 px blanked, 26 raw:
+ * its light beyond the blanked cores reads as wings — bench/REAL.md.) */
+#define NXC 320
+#define NCROWD 700
+static void test_crowd_does_not_widen_the_table(void **state)
+{
+    (void)state;
+    mp_frame f = sky_frame(NXC);
+    mp_rng r;
+    mp_rng_seed(&r, 20261128);
+    mp_table t;
+    mp_table_init(&t);
+    const char *names[] = {"X_IMAGE", "Y_IMAGE", "FLUX", "BACKGROUND"};
+    int c[4];
+    assert_int_equal(mp_table_add_cols(&t, names, 4, c), 0);
+    double px[NS], py[NS], pf[NS], s = 3.0 / 2.3548;
+    for (int k = 0; k < NS + NCROWD; k++) {
+        double x, y, e;
+        if (k < NS) {
+            x = px[k] = 40.0 + 48.0 * (k % 6);
+            y = py[k] = 40.0 + 48.0 * (k / 6);
+            e = pf[k] = 1e5;
+        } else {
+            x = 1.0 + (NXC - 1) * mp_rng_uniform(&r);
+            y = 1.0 + (NXC - 1) * mp_rng_uniform(&r);
+            e = 1e3 * pow(30.0, mp_rng_uniform(&r));
+        }
+        long row = mp_table_add_row(&t);
+        assert_true(row >= 0);
+        mp_table_set(&t, (size_t)row, c[0], x);
+        mp_table_set(&t, (size_t)row, c[1], y);
+        mp_table_set(&t, (size_t)row, c[2], e);
+        mp_table_set(&t, (size_t)row, c[3], 100.0);
+        for (long j = (long)(y - 12); j <= (long)(y + 12); j++)
+            for (long i = (long)(x - 12); i <= (long)(x + 12); i++)
+                if (i >= 1 && j >= 1 && i <= NXC && j <= NXC)
+                    f.im.pix[(size_t)(j - 1) * NXC + (size_t)(i - 1)] +=
+                        (float)(e * exp(-((i - x) * (i - x) + (j - y) * (j - y)) / (2 * s * s)) /
+                                (2 * M_PI * s * s));
+    }
+    mp_sim_add_noise_float(&r, f.im.pix, (long)NXC * NXC, f.rdnoise);
+    mp_epsf_opts po;
+    memset(&po, 0, sizeof po);
+    po.fwhm = 3.0;
+    po.psfrad = 1.0;      /* no floor: the rule's own radius */
+    mp_epsf_rad out;
+    char err[MP_ERRLEN];
+    assert_int_equal(mp_pl_tablerad(&f, &t, px, py, pf, NS, &po, &out, err), 0);
+    printf("# %s\n", out.why);
+    double rstar = s * sqrt(2.0 * log(out.fmax / (2 * M_PI * s * s) / out.level));
+    printf("# theory: R* %.2f px, so at most %.0f\n", rstar, floor(rstar) + 2.0);
+    assert_int_equal(out.npsf, NS);
+    assert_true(out.rad <= floor(rstar) + 2.0);
+    mp_table_free(&t);
+    free(f.im.pix);
+    free(f.mask);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(test_rule_power_law_and_spikes),
         cmocka_unit_test(test_rule_needs_measured_light),
         cmocka_unit_test(test_tablerad_finds_where_the_light_ends),
+        cmocka_unit_test(test_crowd_does_not_widen_the_table),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }
