@@ -104,7 +104,7 @@ static int near_any(double x, double y, const double *ax, const double *ay, size
  * stack: in a crowded frame the median over stars at a pixel offset holds
  * neighbours' light (frame C of the DAOPHOT comparison, 0.011 stars a
  * px²: ~40 detections in each star's 61² box), which reads as PSF wings to
- * the cap, 10 fwhm, and comes out in the table (fluxes 1.1 % high, 4.5x
+ * the cap, 10 fwhm, and comes out in the table (fluxes 1.1 % high, 4.7x
  * the CPU of a 12-px table).  A detection's core is the disc where its
  * light, a Gaussian of fwhm with find's FLUX, is above half the noise of
  * a sky pixel (its BACKGROUND and the read noise), at least 1.5 fwhm; the
