@@ -46,7 +46,7 @@ static int ring_median(const mp_frame *f, const float *res, const mp_pl_star *s,
     size_t m = ring_values(f, res, s, r0, r1, buf);
     if (m < HALO_MINPIX)
         return 0;
-    *med = mp_epsf_median(buf, m);            /* sorts buf */
+    *med = mp_epsf_median(buf, m);          /* sorts buf */
     double iqr = buf[(3 * m) / 4] - buf[m / 4];
     *se = 1.2533 * (iqr / 1.349) / sqrt((double)m);
     return 1;

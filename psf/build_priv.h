@@ -100,7 +100,6 @@ int mp_epsf_wiener_apply(mp_epsf *e, const double *w, int nbin);
  * stars still used: fluxes that go with the table (growth.c). */
 int mp_epsf_refit(mp_epsf_star *s, size_t n, const mp_epsf_opts *o, mp_epsf *e, char *err);
 
-
 /* mp_epsf_solve: the symmetric positive system A x = b of order m ≤ MP_EPSF_MAXT by
  * Cholesky (A, b overwritten; x in b); nonzero when not positive. */
 int mp_epsf_solve(double *A, double *b, int m);

@@ -184,12 +184,16 @@ static void test_tablerad_finds_where_the_light_ends(void **state)
  * 1e3..3e4 e- at random places (0.0068 a px²: ~25 in each PSF star's 61²
  * box), all a Gaussian of FWHM 3, all in the find table given.  Theory:
  * the brightest star's light per pixel, fmax exp(-d²/2s²)/(2πs²), meets
- * the level (0.02 σ of a sky pixel) at R*, so the rule gives at most
- * floor(R*) + 1, and one ring more when the ring just past R* (light a
- * few % under the level) passes by its noise: at most floor(R*) + 2
- * (8 px here); a ring beyond that passes only if the
- * crowd's leftover light is measured there (noise alone: one-sided
- * 1.3e-4 a ring, ~3e-3 over the rings to the cap).  Stacked on the frame
+ * the level (0.02 σ of a sky pixel) at R*, so on the stars alone the
+ * rule gives at most floor(R*) + 1: 6 here, and the same scene with no
+ * crowd measures 6.  Blanking does not take all of the crowd: each
+ * neighbour's light beyond its blanked disc is below half a sky pixel's
+ * noise, not zero, and at this density that leftover adds one ring (7).
+ * The bound allows that one ring, floor(R*) + 2, and no more; a ring
+ * beyond passes only if more of the crowd's light is measured (noise
+ * alone: one-sided 1.3e-4 a ring, ~3e-3 over the rings to the cap).  The
+ * leftover is the weakness the next step (a control stack) is for.
+ * Stacked on the frame
  * as it is, the crowd took the radius to 26 px.  (At 0.011 a px², frame
  * C's density, this synthetic crowd still gives 21 px blanked, 26 raw:
  * its light beyond the blanked cores reads as wings — bench/REAL.md.) */
