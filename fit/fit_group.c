@@ -93,8 +93,10 @@ static int covariance(group *G)
         for (int b = 0; b < np; b++)
             G->M[(size_t)a * np + b] = G->A[(size_t)a * np + b] / (d[a] * d[b]);
     int rc = 0;
-    if (LAPACKE_dpotrf(LAPACK_ROW_MAJOR, 'U', np, G->M, np) == 0 &&
-        LAPACKE_dpotri(LAPACK_ROW_MAJOR, 'U', np, G->M, np) == 0) {
+    /* (The row-major upper triangle is the column-major lower one: no
+     * transposed copy, as in levmar.c's lm_step.) */
+    if (LAPACKE_dpotrf(LAPACK_COL_MAJOR, 'L', np, G->M, np) == 0 &&
+        LAPACKE_dpotri(LAPACK_COL_MAJOR, 'L', np, G->M, np) == 0) {
         for (int a = 0; a < np; a++)
             for (int b = 0; b < a; b++)
                 G->M[(size_t)a * np + b] = G->M[(size_t)b * np + a];
