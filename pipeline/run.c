@@ -34,7 +34,9 @@ typedef struct {
     size_t np;
     double tabrad;        /* its table's radius [px], measured in pass 1
                            * with tablerad=INDEF (0: the option's) */
-    char tabwhy[320];     /* how (mp_epsf_rad.why), for the run report */
+    double tabsupport;    /* the reach measured when short of tabrad (the
+                           * table zero beyond it), else 0 */
+    char tabwhy[400];     /* how (mp_epsf_rad.why), for the run report */
     int quiet;            /* mp_pipeline_reduce: no stderr lines, no files */
     int own_frame;        /* f read here, so the halo may be taken off it */
 } run_state;
@@ -402,9 +404,20 @@ static int table_radius(run_state *s, char *err)
     if (mp_pl_tablerad(&s->f, &s->t, s->px, s->py, s->pf, s->np, &s->o->psfb, &r, err))
         return 1;
     s->tabrad = r.rad;
-    snprintf(s->tabwhy, sizeof s->tabwhy, "%s", r.why);
+    /* Short of the floor, the table is zero past what was measured, and
+     * ends a pixel later (what a shift and a block sum reach past it);
+     * the floor's extra rings would hold zeros only. */
+    s->tabsupport = r.reach > 0 && r.reach < r.rad ? r.reach : 0.0;
+    int l = snprintf(s->tabwhy, sizeof s->tabwhy, "%s", r.why);
+    if (s->tabsupport > 0) {
+        s->tabrad = ceil(s->tabsupport) + 1.0;
+        if (l > 0 && (size_t)l < sizeof s->tabwhy)
+            snprintf(s->tabwhy + l, sizeof s->tabwhy - (size_t)l,
+                     "; zero beyond %.0f px, its light in PSFSUM, so %.0f px", s->tabsupport,
+                     s->tabrad);
+    }
     if (!s->quiet)
-        fprintf(stderr, "matphot pipeline: %s: %s\n", s->image, r.why);
+        fprintf(stderr, "matphot pipeline: %s: %s\n", s->image, s->tabwhy);
     return 0;
 }
 
@@ -428,6 +441,7 @@ static int build_psf(run_state *s, int pass, char *err)
         return 1;
     if (s->tabrad > 0)
         po.psfrad = s->tabrad;
+    po.support = s->tabsupport;
     /* A frame with no star fit to shape a PSF (an empty or tiny frame, a
      * crowd of saturated stars) is still reduced: with the Gaussian of
      * fwhm, as psf=gauss, said on stderr and in the report. */

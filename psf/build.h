@@ -66,6 +66,10 @@ typedef struct {
     int os;            /* OVERSAMP 1..4; 0: the coarsest whose aliasing
                         * error is below the noise of the brightest star */
     double psfrad;     /* table half-size [px] */
+    double support;    /* elements farther than this from the centre [px]
+                        * are zero: the light the stacks could not
+                        * measure there (mp_epsf_tablerad's reach), which
+                        * mp_epsf_growth counts instead; 0: none */
     double fitrad;     /* radius of each star's fit [px] */
     double fwhm;       /* FWHM of the start (a Gaussian) [px] */
     int order;         /* 0..MP_PSF_MAXORDER; -1: auto (mp_epsf_order_test) */
@@ -230,6 +234,11 @@ int mp_epsf_growth(const mp_frame *f, const float *img, const mp_table *fitted,
                    const mp_prf_model *m, const mp_epsf_star *s, size_t n, double rin,
                    double rbig, mp_epsf *e, char *err);
 
+/* mp_epsf_growth_rin: the table's radius as mp_epsf_growth's rin: its
+ * support when shorter than psfrad (the light between them is left out
+ * of the table and must be counted), else psfrad. */
+double mp_epsf_growth_rin(const mp_epsf_opts *o);
+
 /* ---- The table's radius (psf/tablerad.c) -------------------------------- */
 
 /* A ring's light is "measured" when its 0.9 quantile over azimuth, less
@@ -249,6 +258,7 @@ typedef struct {
 /* What it measured. */
 typedef struct {
     double rad;        /* the table radius [px] */
+    double reach;      /* the radius measured, before rmin..rmax (0: none) */
     double fmax;       /* the brightest star's flux in the stacks' unit [e-] */
     double level;      /* frac·σ of a sky pixel [e-] */
     int npsf, nbright; /* stars in the two stacks */

@@ -79,8 +79,9 @@ int mp_epsf_sirt_run(mp_epsf_sirt *w, const mp_epsf_star *s, size_t n, const mp_
 
 /* mp_epsf_normalise: plane 0 to sum 1, the other planes to sum 0 (a
  * star's flux means the same everywhere), and the windowed centroid of
- * every plane (Gaussian window of fwhm) to the central element. */
-void mp_epsf_normalise(mp_epsf *e, double fwhm);
+ * every plane (Gaussian window of fwhm) to the central element; elements
+ * beyond support px of it zero first (mp_epsf_opts.support; 0: none). */
+void mp_epsf_normalise(mp_epsf *e, double fwhm, double support);
 
 /* The Wiener filter of the table (denoise.c): MP_EPSF_NWBIN bins of
  * MP_EPSF_WBIN cycles per detector pixel (out to 2: the ×4 Nyquist). */

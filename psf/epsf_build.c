@@ -225,7 +225,7 @@ int mp_epsf_build(mp_epsf_star *s, size_t n, const mp_epsf_opts *o, int os, int 
         }
         if (mp_epsf_sirt_run(&w, s, n, o, e, err))
             goto done;
-        mp_epsf_normalise(e, o->fwhm);
+        mp_epsf_normalise(e, o->fwhm, o->support);
     }
     /* The stars' last fit with the final table. */
     if (mp_epsf_refit(s, n, o, e, err))

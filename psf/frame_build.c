@@ -156,7 +156,7 @@ static int choose_os(mp_epsf_star *s, size_t n, const mp_epsf_opts *o, const mp_
         mp_epsf_wiener_measure(e, &noise, e->wiener, MP_EPSF_NWBIN) == 0 &&
         mp_epsf_wiener_apply(e, e->wiener, MP_EPSF_NWBIN) == 0) {
         e->have_wiener = 1;
-        mp_epsf_normalise(e, o->fwhm);
+        mp_epsf_normalise(e, o->fwhm, o->support);
     }
     mp_epsf_free(&noise);
     int pick = 4;
@@ -288,13 +288,14 @@ int mp_epsf_pass(const mp_frame *f, const float *img, int residual, const mp_tab
             snprintf(err, MP_ERRLEN, "psf build: out of memory");
             goto done;
         }
-        mp_epsf_normalise(e, o->fwhm);
+        mp_epsf_normalise(e, o->fwhm, o->support);
         if (mp_epsf_refit(s, n, o, e, err))
             goto done;
     }
-    /* The light beyond the table only once the neighbours are gone: in a
-     * crowded frame they fill the big aperture. */
-    if (residual && mp_epsf_growth(f, img, fitted, m, s, n, o->psfrad, 2.0 * o->psfrad, e, err))
+    /* The light beyond the table (its support) only once the neighbours are gone: in a crowded frame they
+     * fill the big aperture. */
+    if (residual &&
+        mp_epsf_growth(f, img, fitted, m, s, n, mp_epsf_growth_rin(o), 2.0 * o->psfrad, e, err))
         goto done;
     rep->nused = (size_t)e->nstar;
     rep->chi2 = median_chi2(s, n);

@@ -204,6 +204,11 @@ static int own_light(const mp_table *t, const mp_prf_model *m, const mp_epsf *e,
     return 0;
 }
 
+double mp_epsf_growth_rin(const mp_epsf_opts *o)
+{
+    return o->support > 0 && o->support < o->psfrad ? o->support : o->psfrad;
+}
+
 int mp_epsf_growth(const mp_frame *f, const float *img, const mp_table *fitted,
                    const mp_prf_model *m, const mp_epsf_star *s, size_t n, double rin,
                    double rbig, mp_epsf *e, char *err)

@@ -255,8 +255,11 @@ int mp_epsf_sirt_run(mp_epsf_sirt *w, const mp_epsf_star *s, size_t n, const mp_
         mp_epsf_terms(e, s[k].x, s[k].y, terms + k * MP_EPSF_MAXT);
     /* Elements beyond psfrad (less the half pixel a block reaches) hold
      * nothing: the table is defined on the disc its stars' pixels cover,
-     * the light beyond is PSFSUM's (growth.c). */
+     * the light beyond is PSFSUM's (growth.c); so do those beyond the
+     * support (mp_epsf_opts), which mp_epsf_normalise zeroes. */
     double rmax = (o->psfrad - 0.5) * e->os;
+    if (o->support > 0 && o->support * e->os < rmax)
+        rmax = o->support * e->os;
     /* Neighbours are masked beyond the core only: within a FWHM every
      * star's own fit (its centre's error) varies from star to star. */
     double rcore = o->fwhm * e->os;

@@ -300,6 +300,7 @@ int mp_epsf_tablerad(const mp_frame *f, const float *img, const double *x, const
                  "too few, the default)", out->rad, p.n);
     } else {
         out->rad = fmin(fmax(r, o->rmin), o->rmax);
+        out->reach = r;
         snprintf(out->why, sizeof out->why,
                  "tablerad %.1f px (PSF light per pixel, 0.9 quantile over azimuth of %d PSF "
                  "stars, measured (z >= %.2f) and above %.2g sigma of a sky pixel for the "

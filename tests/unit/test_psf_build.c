@@ -800,6 +800,52 @@ static void test_growth_finds_outer_light(void **state)
     free(f.mask);
 }
 
+/* A support shorter than the table (pipeline tablerad=INDEF when the
+ * stacks measure light to less than the floor): the same stars out to
+ * 10 px, a table of 7 px zero beyond 4 px.  Every element beyond is zero,
+ * and the growth curve, counted from the support (mp_epsf_growth_rin),
+ * finds what the fluxes lack within 3 σ as above; counted from the
+ * table's edge (from 5.5 px: growth.c's r0) it misses the halo's 2.8 %
+ * between 4 and 5.5 px. */
+static void test_support_light_in_growth(void **state)
+{
+    (void)state;
+    mp_frame f;
+    tstar ts[NSTAR];
+    make_frame(18, 0.0, 0, 10.0, &f, ts);
+    mp_epsf_opts o;
+    mp_epsf_opts_default(2.6, NX, NX, &o);
+    o.psfrad = 7.0;
+    o.support = 4.0;
+    o.fitrad = 4.0;
+    mp_epsf_star *s = stars_of(&f, ts, &o);
+    mp_epsf e;
+    memset(&e, 0, sizeof e);
+    char err[MP_ERRLEN];
+    assert_int_equal(mp_epsf_build(s, NSTAR, &o, BOS, 0, &e, err), 0);
+    double c = (e.nx - 1) / 2, beyond = 0.0;
+    for (int j = 0; j < e.ny; j++)
+        for (int i = 0; i < e.nx; i++)
+            if (hypot(i - c, j - c) > o.support * BOS)
+                beyond = fmax(beyond, fabs(e.planes[(size_t)j * e.nx + i]));
+    assert_true(e.nx > 2 * 4 * BOS + 1);
+    assert_true(beyond == 0.0);
+    assert_true(mp_epsf_growth_rin(&o) == 4.0);
+    assert_int_equal(mp_epsf_growth(&f, f.im.pix, NULL, NULL, s, NSTAR, mp_epsf_growth_rin(&o),
+                                    10.0, &e, err), 0);
+    double want = flux_ratio(s, ts);
+    double werr = flux_ratio_err(s, ts), tol = 3.0 * hypot(e.sum_err, werr);
+    printf("# support 4 px of 7: growth sum %.4f +- %.4f from %d stars; fluxes' median ratio "
+           "%.4f +- %.4f\n", e.sum, e.sum_err, e.ngrowth, want, werr);
+    assert_true(e.ngrowth >= 3);
+    assert_true(want < 0.99);
+    assert_true(fabs(e.sum - want) < tol);
+    mp_epsf_free(&e);
+    mp_epsf_stars_free(s, NSTAR);
+    free(f.im.pix);
+    free(f.mask);
+}
+
 /* Companions too faint to be found (3..8 % of the star, 5.5..7 px away)
  * and given to no one: each PSF star's mask (sirt_mask.c) leaves its
  * companion's light out of its share of the table, so the build still
@@ -850,6 +896,7 @@ int main(void)
         cmocka_unit_test(test_cutout_add_reads_field_at_star),
         cmocka_unit_test(test_neighbours_fitted),
         cmocka_unit_test(test_growth_finds_outer_light),
+        cmocka_unit_test(test_support_light_in_growth),
         cmocka_unit_test(test_faint_neighbours_masked),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
