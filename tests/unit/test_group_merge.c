@@ -39,8 +39,10 @@ static void test_separated_pairs_merge_together(void **state)
     mp_rng r;
     mp_rng_seed(&r, 71);
     double one_y[NTRUE], one_e[NTRUE];
-    for (int k = 0; k < NTRUE; k++)
-        one_y[k] = ty, one_e[k] = E;
+    for (int k = 0; k < NTRUE; k++) {
+        one_y[k] = ty;
+        one_e[k] = E;
+    }
     sf_render(&f, 100.0, FWHM, tx, one_y, one_e, NTRUE, &r, 3.0);
     mp_psf p;
     mp_psf_gauss(FWHM, &p);
