@@ -78,7 +78,8 @@ static merge_pair *merge_candidates(const mp_star *s, const int *alive, int n, d
             }
             p[m++] = (merge_pair){i, j, d};
         }
-    qsort(p, (size_t)m, sizeof *p, by_distance);
+    if (m > 1)      /* (p is NULL when there is none: qsort's pointer must not be) */
+        qsort(p, (size_t)m, sizeof *p, by_distance);
     *np = m;
     return p;
 }
