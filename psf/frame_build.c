@@ -292,8 +292,8 @@ int mp_epsf_pass(const mp_frame *f, const float *img, int residual, const mp_tab
         if (mp_epsf_refit(s, n, o, e, err))
             goto done;
     }
-    /* The light beyond the table (its support) only once the neighbours are gone: in a crowded frame they
-     * fill the big aperture. */
+    /* The light beyond the table (its support) only once the neighbours
+     * are gone: in a crowded frame they fill the big aperture. */
     if (residual &&
         mp_epsf_growth(f, img, fitted, m, s, n, mp_epsf_growth_rin(o), 2.0 * o->psfrad, e, err))
         goto done;

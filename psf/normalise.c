@@ -64,7 +64,8 @@ static void recentre(mp_epsf *e, double fwhm, double *dx, double *dy)
  * elements hold only the build's noise, and a bright star's share of it
  * stays above the economy's painting level out to the table's edge, so
  * every neighbour was painted and fitted over the whole box (frame C of
- * compare_daophot.sh: the fit's CPU 1.77x the true table's, with the same
+ * compare_daophot.sh, the built table given as psf=: the fit's CPU 36.4 s
+ * against the true table's 18.4 s; zeroed past the reach 20.6 s, the same
  * fluxes). */
 static void cut_support(mp_epsf *e, double support)
 {
