@@ -42,7 +42,9 @@ typedef struct {
                               * (io.h mp_tmp_sweep); NULL: each frame sweeps */
 } mp_pipeline_opts;
 
-/* Seconds and counts of every stage, for the report on stderr. */
+/* Seconds and counts of every stage, for the report on stderr.  t_find
+ * holds every detection: the frame's, and on the residual its noise map,
+ * screen, one-or-two test (split.c) and the new stars' matching. */
 typedef struct {
     double t_read, t_bkg, t_find, t_group, t_fit, t_write;
     int rounds;
