@@ -599,6 +599,9 @@ typedef struct {
                         * renders each); 0 when the frame is one group */
     long kept;         /* group fits left out: no star's surroundings changed */
     long cropped;      /* stars painted with a cropped PSF */
+    const struct mp_prf_cache_s *grid;  /* the phase grid the last pass drew
+                        * its groups' PRFs from (economy's, kept for the run;
+                        * NULL: exact renders) */
 } mp_frame_report;
 
 /* What every star's fit saw, so a later pass or pipeline round can tell

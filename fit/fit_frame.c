@@ -314,6 +314,7 @@ int mp_fit_table_mem(const mp_frame *f, const mp_prf_model *m, const mp_frame_op
         snprintf(err, MP_ERRLEN, "out of memory");
         goto done;
     }
+    rep->grid = oc.grid;
     rc = ff_write_columns(t, st, n, o->magzero, err);
 done:
     for (size_t i = 0; st && i < n; i++)

@@ -39,6 +39,7 @@ typedef struct {
     char tabwhy[400];     /* how (mp_epsf_rad.why), for the run report */
     int quiet;            /* mp_pipeline_reduce: no stderr lines, no files */
     int own_frame;        /* f read here, so the halo may be taken off it */
+    const mp_prf_cache *grid;  /* the phase grid the last fit drew from */
 } run_state;
 
 static int oom(char *err)
@@ -186,14 +187,18 @@ static void count_fit(mp_pipeline_report *rep, const mp_frame_report *fr, size_t
     rep->fitted = (long)nrow;
 }
 
-/* The phase grid the fit draws its groups' PRFs from (economy's own
- * decision for this run: mp_econ_choose with the fit's count of star
- * fits, so it is the table the last fit used, or one that pays for the
- * next), and its flux limit on the stars' median sky, as the fit sets
- * it (fit/frame_rules.c).  The residual and the one-or-two test draw the
- * stars within that limit from it, as the fit's paints of the neighbours
- * do (issue 12: 15 % of 47 Tuc's CPU was the test's exact renders).  NULL
- * (exact renders) without economy or a grid. */
+/* The phase grid the fit draws its groups' PRFs from — the one the last
+ * fit used (mp_frame_report.grid), else economy's own decision for this
+ * run (mp_econ_choose with the fit's count of star fits) — and its flux
+ * limit on the stars' median sky, as the fit sets it (fit/frame_rules.c).
+ * The residual and the one-or-two test draw the stars within that limit
+ * from it, as the fit's paints of the neighbours do (issue 12: 15 % of 47
+ * Tuc's CPU was the test's exact renders).  NULL (exact renders) without
+ * economy or a grid.  The last fit's grid first: economy priced it on the
+ * fit's measured render windows (~40 px a side on 47 Tuc) or learned that
+ * it pays from the renders done, where a choice on fitrad's windows alone
+ * finds that it does not — and 47 Tuc with Tiny Tim's table then tested
+ * every star with exact x4 renders, ~36 s a round against the fit's 37. */
 static int cmp_double(const void *a, const void *b)
 {
     double x = *(const double *)a, y = *(const double *)b;
@@ -207,10 +212,10 @@ static const mp_prf_cache *phase_grid(run_state *s, double *gemax)
     mp_frame_opts oe = s->fit->opts;
     if (!oe.cache)
         return NULL;
-    oe.grid = NULL;
+    oe.grid = s->grid && mp_prf_cache_usable(s->grid, &s->fit->model) ? s->grid : NULL;
     double fits = oe.fits > (double)s->t.nrow ? oe.fits : (double)s->t.nrow;
-    if (mp_econ_choose(oe.cache, fits, oe.fit.fitrad, &oe, NULL, err) || !oe.grid ||
-        !mp_prf_cache_usable(oe.grid, &s->fit->model))
+    if (!oe.grid && (mp_econ_choose(oe.cache, fits, oe.fit.fitrad, &oe, NULL, err) || !oe.grid ||
+                     !mp_prf_cache_usable(oe.grid, &s->fit->model)))
         return NULL;
     int cs = mp_table_col(&s->t, "SKY_PSF");
     double *v = malloc((s->t.nrow + 1) * sizeof *v);
@@ -246,6 +251,7 @@ static int group_and_fit(run_state *s, int round, char *err)
         return 1;
     if (mp_fit_table_mem(&s->f, &s->fit->model, &s->fit->opts, &s->t, s->mem, &fr, err))
         return 1;
+    s->grid = fr.grid;
     if (mp_pl_note_gone(&s->gone, &s->before, &s->t))
         return oom(err);
     mp_table_free(&s->before);   /* not held through the residual (issue 14) */

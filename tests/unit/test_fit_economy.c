@@ -590,6 +590,49 @@ static void test_plan_prices_measured_windows(void **state)
     mp_psf_free(&p);
 }
 
+/* The frame fit names the phase grid its groups drew from
+ * (mp_frame_report.grid), so the pipeline's residual and one-or-two test
+ * draw from that same grid (pipeline/run.c phase_grid): asked afresh on
+ * fitrad's windows, economy declined the grid that the fit's measured
+ * ~40-px windows paid for, and 47 Tuc's one-or-two test rendered every
+ * star exactly.  Planned for 2^20 fits the grid pays on any window: the
+ * fit draws from it (kcache > 0) and names it, the grid economy keeps for
+ * the run; without economy's cache it names none. */
+static void test_report_names_grid(void **state)
+{
+    (void)state;
+    char err[MP_ERRLEN];
+    mp_psf p;
+    assert_int_equal(mp_psf_gauss_table(FWHM, 2, 20.0, &p, err), 0);
+    mp_prf_model m = {&p, NULL, 10};
+    mp_frame f;
+    frame6(&f, 5);
+    mp_frame_opts eco, bare;
+    mp_frame_opts_default(&eco);
+    bare = eco;
+    eco.cache = mp_econ_cache_new();
+    assert_non_null(eco.cache);
+    assert_int_equal(mp_econ_offer(eco.cache, &m, 0, NULL, 0, MP_PRF_CACHE_G), 0);
+    eco.fits = (double)(1L << 20);
+    mp_table a, b;
+    table_n(&a, 5);
+    table_n(&b, 5);
+    mp_frame_report ra, rb;
+    assert_int_equal(mp_fit_table(&f, &m, &eco, &a, &ra, err), 0);
+    assert_int_equal(mp_fit_table(&f, &m, &bare, &b, &rb, err), 0);
+    mp_frame_opts o = eco;
+    assert_int_equal(mp_econ_choose(eco.cache, eco.fits, o.fit.fitrad, &o, NULL, err), 0);
+    assert_true(ra.kcache > 0);
+    assert_non_null(ra.grid);
+    assert_ptr_equal(ra.grid, o.grid);
+    assert_null(rb.grid);
+    mp_table_free(&a);
+    mp_table_free(&b);
+    sf_frame_drop(&f);
+    mp_econ_cache_free(eco.cache);
+    mp_psf_free(&p);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
@@ -602,6 +645,7 @@ int main(void)
         cmocka_unit_test(test_coarse_table_per_group),
         cmocka_unit_test(test_tables_pay_for_themselves),
         cmocka_unit_test(test_plan_prices_measured_windows),
+        cmocka_unit_test(test_report_names_grid),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }
