@@ -490,6 +490,7 @@ static int build_psf(run_state *s, int pass, char *err)
     if (!rc && s->have_own) {
         mp_fit_setup_free(&s->own);
         s->have_own = 0;
+        s->grid = NULL;         /* it was the freed setup's */
     }
     if (!rc && !(rc = mp_params_set(o->ps, "psf", path, err))) {
         rc = mp_fit_setup_read(o->ps, &s->own, err);
