@@ -194,11 +194,10 @@ static void count_fit(mp_pipeline_report *rep, const mp_frame_report *fr, size_t
  * The residual and the one-or-two test draw the stars within that limit
  * from it, as the fit's paints of the neighbours do (issue 12: 15 % of 47
  * Tuc's CPU was the test's exact renders).  NULL (exact renders) without
- * economy or a grid.  The last fit's grid first: economy priced it on the
- * fit's measured render windows (~40 px a side on 47 Tuc) or learned that
- * it pays from the renders done, where a choice on fitrad's windows alone
- * finds that it does not — and 47 Tuc with Tiny Tim's table then tested
- * every star with exact x4 renders, ~36 s a round against the fit's 37. */
+ * economy or a grid.  The last fit's first: economy priced it on the
+ * fit's measured render windows (~40 px a side on 47 Tuc), where a choice
+ * on fitrad's windows declines it (47 Tuc, Tiny Tim's table: every star
+ * of the test rendered exactly, ~36 s a round against the fit's 37). */
 static int cmp_double(const void *a, const void *b)
 {
     double x = *(const double *)a, y = *(const double *)b;
@@ -212,11 +211,14 @@ static const mp_prf_cache *phase_grid(run_state *s, double *gemax)
     mp_frame_opts oe = s->fit->opts;
     if (!oe.cache)
         return NULL;
-    oe.grid = s->grid && mp_prf_cache_usable(s->grid, &s->fit->model) ? s->grid : NULL;
-    double fits = oe.fits > (double)s->t.nrow ? oe.fits : (double)s->t.nrow;
-    if (!oe.grid && (mp_econ_choose(oe.cache, fits, oe.fit.fitrad, &oe, NULL, err) || !oe.grid ||
-                     !mp_prf_cache_usable(oe.grid, &s->fit->model)))
-        return NULL;
+    oe.grid = s->grid;
+    if (!oe.grid || !mp_prf_cache_usable(oe.grid, &s->fit->model)) {
+        double fits = oe.fits > (double)s->t.nrow ? oe.fits : (double)s->t.nrow;
+        oe.grid = NULL;
+        if (mp_econ_choose(oe.cache, fits, oe.fit.fitrad, &oe, NULL, err) || !oe.grid ||
+            !mp_prf_cache_usable(oe.grid, &s->fit->model))
+            return NULL;
+    }
     int cs = mp_table_col(&s->t, "SKY_PSF");
     double *v = malloc((s->t.nrow + 1) * sizeof *v);
     size_t k = 0;
@@ -347,7 +349,7 @@ static int find_on_residual(run_state *s, int round, long *added, char *err)
     s->rep->added += *added;
     /* the one-or-two test and the new stars' bookkeeping are detection's
      * too (they were counted in no stage: 47 Tuc with Tiny Tim's table,
-     * ~40 s of its ~350 s of CPU outside the report's seconds) */
+     * ~40 of its ~350 s fell outside the report's seconds) */
     s->rep->t_find += mp_seconds() - t0;
     if (s->quiet)
         return 0;
