@@ -75,6 +75,41 @@ static void star_sky_sums(const group *G, const rstar *rk, int x0, int x1, int y
     }
 }
 
+/* One row's sums q[a][b] = Σ_i w_i·jk_a,i·jl_b,i over m pixels, the
+ * three columns of each star (PRF, ∂x, ∂y), in one pass: the row's
+ * values are read once, not once per sum (pair_sums was 23 % of 47 Tuc's
+ * CPU).  Each sum adds its terms in the order of i, each term (w·jk)·jl,
+ * so the values are those of nine separate loops, bit for bit. */
+static void row_sums(const double *restrict w, const double *restrict k0,
+                     const double *restrict k1, const double *restrict k2,
+                     const double *restrict l0, const double *restrict l1,
+                     const double *restrict l2, int m, double q[3][3])
+{
+    double q00 = 0, q01 = 0, q02 = 0, q10 = 0, q11 = 0, q12 = 0, q20 = 0, q21 = 0, q22 = 0;
+    for (int i = 0; i < m; i++) {
+        double a0 = w[i] * k0[i], a1 = w[i] * k1[i], a2 = w[i] * k2[i];
+        double b0 = l0[i], b1 = l1[i], b2 = l2[i];
+        q00 += a0 * b0;
+        q01 += a0 * b1;
+        q02 += a0 * b2;
+        q10 += a1 * b0;
+        q11 += a1 * b1;
+        q12 += a1 * b2;
+        q20 += a2 * b0;
+        q21 += a2 * b1;
+        q22 += a2 * b2;
+    }
+    q[0][0] = q00;
+    q[0][1] = q01;
+    q[0][2] = q02;
+    q[1][0] = q10;
+    q[1][1] = q11;
+    q[1][2] = q12;
+    q[2][0] = q20;
+    q[2][1] = q21;
+    q[2][2] = q22;
+}
+
 /* Σ w J_k,a J_l,b over the fitted pixels where the windows of stars k and
  * l meet, within box columns [x0, x1) and rows [y0, y1); s is 3×3, only
  * b ≥ a when k == l.  Nonzero when they meet there at all. */
@@ -103,17 +138,12 @@ static int pair_sums(const group *G, const rstar *rk, const rstar *rl, int same,
             continue;
         size_t u = (size_t)(rk->pb[tk] + a0 - rk->pp[tk]);
         size_t v = (size_t)(rl->pb[tl] + a0 - rl->pp[tl]);
-        const double *jk[3] = {rk->prf + u, rk->dx + u, rk->dy + u};
-        const double *jl[3] = {rl->prf + v, rl->dx + v, rl->dy + v};
-        const double *w = G->wt + a0;
-        int m = a1 - a0;
+        double q[3][3];
+        row_sums(G->wt + a0, rk->prf + u, rk->dx + u, rk->dy + u, rl->prf + v, rl->dx + v,
+                 rl->dy + v, a1 - a0, q);
         for (int a = 0; a < 3; a++)
-            for (int b = (same ? a : 0); b < 3; b++) {
-                double q = 0.0;
-                for (int i = 0; i < m; i++)
-                    q += w[i] * jk[a][i] * jl[b][i];
-                s[a][b] += q;
-            }
+            for (int b = (same ? a : 0); b < 3; b++)
+                s[a][b] += q[a][b];
     }
     return 1;
 }

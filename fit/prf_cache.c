@@ -141,16 +141,20 @@ static star_pos star_of(const mp_prf_cache *c, double x, double y)
 
 /* One plane's row: out[i] (= or +=) Σ_ka w[ka]·a_ka[i] over four nodes,
  * in one pass (the output read and written once per node row, not once
- * per node). */
+ * per node).  omp simd: gcc 12 at -O2 left it scalar (a quarter of the
+ * crowded frame's CPU); vectorised across i, each element's sum keeps
+ * its order, so the values are the same bit for bit. */
 static void row4(double *restrict out, const float *restrict a0, const float *restrict a1,
                  const float *restrict a2, const float *restrict a3, const double w[4], long n,
                  int add)
 {
     double w0 = w[0], w1 = w[1], w2 = w[2], w3 = w[3];
     if (add)
+#pragma omp simd
         for (long i = 0; i < n; i++)
             out[i] += w0 * a0[i] + w1 * a1[i] + w2 * a2[i] + w3 * a3[i];
     else
+#pragma omp simd
         for (long i = 0; i < n; i++)
             out[i] = w0 * a0[i] + w1 * a1[i] + w2 * a2[i] + w3 * a3[i];
 }
