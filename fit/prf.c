@@ -6,12 +6,6 @@
 #include <string.h>
 #include "fit/prf_axis.h"
 
-/* The omp simd loops below only ask for vectors: clang at -O1 (the
- * sanitizer and fuzzer builds) declines and would say so as an error. */
-#ifdef __clang__
-#pragma clang diagnostic ignored "-Wpass-failed"
-#endif
-
 void mp_prf_work_free(mp_prf_work *w)
 {
     if (!w)

@@ -39,12 +39,6 @@
 #include <string.h>
 #include "fit/prf_axis.h"
 
-/* The omp simd loops below only ask for vectors: clang at -O1 (the
- * sanitizer and fuzzer builds) declines and would say so as an error. */
-#ifdef __clang__
-#pragma clang diagnostic ignored "-Wpass-failed"
-#endif
-
 /* Where reference stars sit: far from 0 so that every box index is positive
  * (any position works; the render only sees its phase and box). */
 #define REF 1000L
