@@ -416,10 +416,9 @@ static int add_fits_col(fitsfile *fp, int fc, int code, mp_table *t, const char 
 static int table_open(const char *name, const void *mem, size_t len, fitsfile **fp,
                       void **mbuf, size_t *msize, char *err)
 {
-    char badkey[9];
-    if (mem ? mp_fits_guard_mem(mem, len, badkey) : mp_fits_guard_file(name, badkey)) {
-        snprintf(err, MP_ERRLEN, "%s: malformed header card %s (its value is not a "
-                 "well-formed quoted string)", name, badkey);
+    char why[MP_GUARD_LEN];
+    if (mem ? mp_fits_guard_mem(mem, len, why) : mp_fits_guard_file(name, why)) {
+        snprintf(err, MP_ERRLEN, "%s: %s", name, why);
         return 1;
     }
     int status = 0;

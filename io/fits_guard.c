@@ -5,7 +5,8 @@
  * tests/fuzz).  Only the string-valued structural keywords are checked;
  * everything else is left to cfitsio.  The walk reads header records only:
  * data areas are skipped by their size, computed as FITS 4.0 §4.4.1.1 and
- * §7.3.1 define it (|BITPIX|/8 · GCOUNT · (PCOUNT + Π NAXISn)). */
+ * §7.3.1 define it (|BITPIX|/8 · GCOUNT · (PCOUNT + Π NAXISn)).  Compressed
+ * files are not walked; their stated size is checked instead. */
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -153,16 +154,68 @@ static int file_record(void *ctx, long long off, unsigned char *rec)
     return 0;
 }
 
-int mp_fits_guard_mem(const void *b, size_t n, char *badkey)
+/* Deflate makes at most 1032 bytes of one (a run of 258-byte matches at
+ * about two bits each; zlib's "zlib technical details"). */
+#define DEFLATE_MAX_RATIO 1032
+
+static unsigned long long le32(const unsigned char b[4])
 {
-    mem_ctx m = {b, n};
-    return walk(mem_record, &m, badkey);
+    return b[0] | (unsigned long long)b[1] << 8 | (unsigned long long)b[2] << 16 |
+           (unsigned long long)b[3] << 24;
 }
 
-int mp_fits_guard_file(const char *name, char *badkey)
+/* A gzip or PKZIP file: the uncompressed size cfitsio will allocate before
+ * inflating (its drvrmem.c mem_compress_open: gzip's trailer, with 4 GiB
+ * added while it is below the file's own size past 10000 bytes; PKZIP's
+ * local header at byte 22), refused when deflate cannot make that much of
+ * the file's bytes.  A corrupt trailer would otherwise cost gigabytes of
+ * memory before the stream is found broken (found by tests/fuzz). */
+static int compressed_size_ok(FILE *fp, int gzip, char *why)
 {
-    /* The file part of a cfitsio extended name; URLs, stdin and compressed
-     * files are left to cfitsio. */
+    const char *kind = gzip ? "gzip" : "zip";
+    long long least = gzip ? 18 : 30;     /* header and trailer; a local file header */
+    unsigned char b[4];
+    if (fseeko(fp, 0, SEEK_END))
+        return 1;
+    long long size = (long long)ftello(fp);
+    if (size < least) {
+        snprintf(why, MP_GUARD_LEN, "corrupt %s file: %lld bytes, shorter than its headers",
+                 kind, size);
+        return 0;
+    }
+    if (fseeko(fp, gzip ? size - 4 : 22, SEEK_SET) || fread(b, 1, 4, fp) != 4)
+        return 1;
+    unsigned long long claimed = le32(b);
+    if (gzip && size > 10000)
+        while (claimed < (unsigned long long)size)
+            claimed += 1ULL << 32;
+    if (claimed <= (unsigned long long)size * DEFLATE_MAX_RATIO)
+        return 1;
+    snprintf(why, MP_GUARD_LEN, "corrupt %s file: it claims %llu bytes uncompressed, more "
+             "than deflate makes of its %lld bytes", kind, claimed, size);
+    return 0;
+}
+
+static void key_why(const char *badkey, char *why)
+{
+    snprintf(why, MP_GUARD_LEN, "malformed header card %s (its value is not a well-formed "
+             "quoted string)", badkey);
+}
+
+int mp_fits_guard_mem(const void *b, size_t n, char *why)
+{
+    mem_ctx m = {b, n};
+    char badkey[9];
+    if (!walk(mem_record, &m, badkey))
+        return 0;
+    key_why(badkey, why);
+    return 1;
+}
+
+int mp_fits_guard_file(const char *name, char *why)
+{
+    /* The file part of a cfitsio extended name; URLs and stdin are left to
+     * cfitsio. */
     char path[4096];
     size_t n = strcspn(name, "[");
     if (n == 0 || n >= sizeof path || strstr(name, "://") || strcmp(name, "-") == 0)
@@ -173,9 +226,15 @@ int mp_fits_guard_file(const char *name, char *badkey)
     if (!fp)
         return 0;
     unsigned char magic[2] = {0, 0};
+    char badkey[9];
     int rc = 0;
-    if (fread(magic, 1, 2, fp) == 2 && !(magic[0] == 0x1f && magic[1] == 0x8b))
-        rc = walk(file_record, fp, badkey);
+    if (fread(magic, 1, 2, fp) == 2) {
+        int gzip = magic[0] == 0x1f && magic[1] == 0x8b, zip = magic[0] == 'P' && magic[1] == 'K';
+        if (gzip || zip)
+            rc = !compressed_size_ok(fp, gzip, why);
+        else if ((rc = walk(file_record, fp, badkey)))
+            key_why(badkey, why);
+    }
     fclose(fp);
     return rc;
 }

@@ -118,14 +118,14 @@ static int read_aux(const char *name, const char *par, const char *aux, const mp
 static int has_err_ext(const char *name)
 {
     size_t n = strcspn(name, "[");
-    char *base = malloc(n + 1), badkey[9];
+    char *base = malloc(n + 1), why[MP_GUARD_LEN];
     if (!base)
         return 0;
     memcpy(base, name, n);
     base[n] = '\0';
     fitsfile *fp = NULL;
     int status = 0, found = 0;
-    if (!mp_fits_guard_file(base, badkey)) {
+    if (!mp_fits_guard_file(base, why)) {
         fits_open_file(&fp, base, READONLY, &status);
         if (!status) {
             fits_movnam_hdu(fp, IMAGE_HDU, "ERR", 0, &status);

@@ -58,10 +58,9 @@ static int open_image(const char *name, fitsfile **fp, char *err)
         return 1;
     }
     int status = 0;
-    char badkey[9];
-    if (mp_fits_guard_file(cname, badkey)) {
-        snprintf(err, MP_ERRLEN, "%s: malformed header card %s (its value is not a "
-                 "well-formed quoted string)", name, badkey);
+    char why[MP_GUARD_LEN];
+    if (mp_fits_guard_file(cname, why)) {
+        snprintf(err, MP_ERRLEN, "%s: %s", name, why);
         free(cname);
         return 1;
     }

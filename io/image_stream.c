@@ -27,6 +27,12 @@ int mp_image_size(const char *name, long *nx, long *ny, char *err)
         snprintf(err, MP_ERRLEN, "%s: out of memory", name);
         return 1;
     }
+    char why[MP_GUARD_LEN];
+    if (mp_fits_guard_file(n, why)) {
+        snprintf(err, MP_ERRLEN, "%s: %s", name, why);
+        free(n);
+        return 1;
+    }
     fitsfile *fp = NULL;
     int status = 0, naxis = 0;
     long ax[3] = {0, 0, 0};

@@ -244,15 +244,20 @@ int mp_cleanup_install(void);
  * caller frees; NULL when out of memory. */
 char *mp_name_after(const char *image, const char *ext);
 
-/* mp_fits_guard_file / mp_fits_guard_mem: walk the headers of a FITS file
- * (plain files only: compressed files, URLs and stdin are left alone) or
- * of bytes in memory, before cfitsio parses them, and return 1 with the
- * keyword in badkey (9 bytes) when a structural string keyword (XTENSION,
- * EXTNAME, TFORMn, TTYPEn, TUNITn, TDISPn, TDIMn) has a value that is not a
- * well-formed quoted string: cfitsio 4.2.0 overflows a buffer and aborts
- * on such a card.  0 otherwise. */
-int mp_fits_guard_file(const char *name, char *badkey);
-int mp_fits_guard_mem(const void *b, size_t n, char *badkey);
+/* mp_fits_guard_file / mp_fits_guard_mem: look at a FITS file (URLs and
+ * stdin are left alone) or at bytes in memory before cfitsio parses them,
+ * and return 1 with why (MP_GUARD_LEN bytes; the file's name not in it)
+ * when cfitsio would abort or run away on it:
+ *  - a structural string keyword (XTENSION, EXTNAME, TFORMn, TTYPEn, TUNITn,
+ *    TDISPn, TDIMn) whose value is not a well-formed quoted string:
+ *    cfitsio 4.2.0 overflows a buffer and aborts on such a card.  Plain
+ *    files' and memory's headers are walked; compressed files' are not;
+ *  - a gzip or PKZIP file stating an uncompressed size more than deflate
+ *    can make of its bytes (1032:1): cfitsio allocates that size first.
+ * 0 otherwise. */
+#define MP_GUARD_LEN 160
+int mp_fits_guard_file(const char *name, char *why);
+int mp_fits_guard_mem(const void *b, size_t n, char *why);
 
 /* mp_seconds: monotonic wall-clock seconds (differences only). */
 double mp_seconds(void);

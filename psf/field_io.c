@@ -245,9 +245,9 @@ static int read_cube(fitsfile *fp, const char *name, const long naxes[3], int no
  * why, with io/'s wording). */
 static int open_image(const char *name, fitsfile **fp, int *naxis, long naxes[3])
 {
-    char bad[9];
+    char why[MP_GUARD_LEN];
     *naxis = 0;
-    if (mp_fits_guard_file(name, bad))
+    if (mp_fits_guard_file(name, why))
         return 1;
     int status = 0, type = 0;
     fits_open_file(fp, name, READONLY, &status);
