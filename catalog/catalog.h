@@ -39,6 +39,7 @@ typedef struct {
 
 typedef struct {
     size_t ncol, nrow, cap;   /* cap: rows allocated */
+    size_t ccap;              /* columns allocated in cols */
     mp_col *cols;
     double *v;                /* v[row*ncol + col] */
 } mp_table;

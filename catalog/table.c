@@ -14,7 +14,7 @@
 
 void mp_table_init(mp_table *t)
 {
-    t->ncol = t->nrow = t->cap = 0;
+    t->ncol = t->nrow = t->cap = t->ccap = 0;
     t->cols = NULL;
     t->v = NULL;
 }
@@ -87,10 +87,17 @@ int mp_table_add_cols(mp_table *t, const char *const *names, int n, int *idx)
         mp_col c;
         if (mp_col_describe(names[k], &c) != 0)
             return -1;
-        if (!(cols = realloc(t->cols, (nc + 1) * sizeof *cols)))
-            return -1;
-        t->cols = cols;
-        cols[nc] = c;
+        if (nc >= t->ccap) {
+            /* Doubling: a header of thousands of columns (a vector's
+             * hidden elements) copied them all at each one (a fuzz
+             * timeout under ASan). */
+            size_t ccap = nc >= 8 ? 2 * nc : 16;
+            if (!(cols = realloc(t->cols, ccap * sizeof *cols)))
+                return -1;
+            t->cols = cols;
+            t->ccap = ccap;
+        }
+        t->cols[nc] = c;
         idx[k] = (int)nc++;
     }
     if (nc == t->ncol)
