@@ -86,8 +86,11 @@ static void sky_row(const double *wr, const double *w, const double *const jk[3]
     case 3:
         row_sky(wr, w, jk[0], jk[1], jk[2], cb, 3, m, gq, aq);
         break;
-    default:
+    case 6:
         row_sky(wr, w, jk[0], jk[1], jk[2], cb, 6, m, gq, aq);
+        break;
+    default:                /* no other sky today; correct, only slower */
+        row_sky(wr, w, jk[0], jk[1], jk[2], cb, ns, m, gq, aq);
         break;
     }
 }
