@@ -420,6 +420,10 @@ typedef struct {
     int exact_lm;              /* 1: every LM step on the whole windows, no
                                 * frozen wings (fit/lm_frozen.c); 0, the default,
                                 * freezes them where it pays (tests compare) */
+    int settle;                /* 1, the default: a star whose steps stay
+                                * below tol is held while the others go on
+                                * (fit/lm_settle.c); 0: every star steps to
+                                * the end (tests compare) */
 } mp_fit_opts;
 
 void mp_fit_opts_default(mp_fit_opts *o);

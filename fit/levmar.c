@@ -215,17 +215,40 @@ static int shorten_overshoot(group *G, double D, double *Dt, double *z)
     return render_trial(G, 1.0, &Dfull);
 }
 
+/* Whether the step LM would take from G->p at λ is below tol·σ·√φ in
+ * every parameter, as lm_loop's test (A and g exact at G->p, every star
+ * open): the fit has converged without taking it. */
+static int step_below_tol(group *G, double lambda, double rphi, double tol)
+{
+    if (lm_step(G, lambda) || bound_step(G))
+        return 0;
+    return step_sigmas(G) * rphi * (1.0 + lambda) < tol;
+}
+
+/* Every settled star opened again (lm_settle.c) and the normal equations
+ * summed exactly over all of them at G->p: their renders in G->cur are
+ * those of their parameters.  Nonzero when out of memory. */
+static int open_all(group *G)
+{
+    lm_unsettle(G, 0);
+    return lm_normal_equations(G, G->p, G->cur, NE_EXACT);
+}
+
 /* Levenberg–Marquardt from G->p at the current sky order.  A step is taken
- * only when it lowers D.  Converged (*converged = 1) when a step taken is
- * below tol·σ·√φ in every parameter (φ the dispersion, below) (scaled back by 1 + λ, so damping cannot
- * fake it), or when the first, least damped step tried from the current
- * state was already below LM_RESOLVE_SIGMAS and it took 1000× more damping
- * to lower D, or that did not help either.  Not converged when the damping
- * blows up (λ > 1e8) from a larger step, or after maxiter steps; the state
- * is then the best one reached.  Accepted steps are added to *iter.
- * Nonzero: out of memory. */
+ * only when it lowers D.  Converged (*converged = 1) when a step taken
+ * with every star open is below tol·σ·√φ in every parameter (φ the
+ * dispersion, below; scaled back by 1 + λ, so damping cannot fake it),
+ * or the step that would be taken next from exact sums is; or when the
+ * first, least damped step tried from the current state was already below
+ * LM_RESOLVE_SIGMAS and it took 1000× more damping to lower D, or that did
+ * not help either.  Stars whose own steps stay below tol are settled on
+ * the way (lm_settle.c) and opened again before any of these tests is
+ * final.  Not converged when the damping blows up (λ > 1e8) from a larger
+ * step, or after maxiter steps; the state is then the best one reached.
+ * Accepted steps are added to *iter.  Nonzero: out of memory. */
 static int lm_loop(group *G, const mp_fit_opts *o, int freeze_ok, int *iter, int *converged)
 {
+    lm_unsettle(G, 1);
     G->freezing = freeze_ok && G->core_hw > 0 && G->crop && lm_freezing_pays(G);
     lm_model_of(G, G->p, G->cur);
     lm_variance_of(G);
@@ -267,13 +290,20 @@ static int lm_loop(group *G, const mp_fit_opts *o, int freeze_ok, int *iter, int
             lm_model_of(G, G->p, G->cur);
             lambda *= 10.0;
             if (zfirst < LM_RESOLVE_SIGMAS && lambda > 1e3 * lfirst) {
-                if (G->frozen && since > 0) {    /* on the frozen model: see */
-                    if (lm_refresh(G, &D, 1))
+                if (G->frozen && (since > 0 || G->nsettled)) {  /* frozen model: see */
+                    if (lm_refresh(G, &D, 1, 1))
                         return 1;
                     since = 0;
                     fresh = 1;
                     lambda = lfirst;
                     rphi = 1.0 / sqrt(dispersion(G, D));
+                    continue;
+                }
+                if (G->nsettled) {   /* the open stars are done: all again */
+                    if (open_all(G))
+                        return 1;
+                    fresh = 1;
+                    lambda = lfirst;
                     continue;
                 }
                 *converged = 1;      /* damped 1000×: nothing left D can see */
@@ -292,6 +322,8 @@ static int lm_loop(group *G, const mp_fit_opts *o, int freeze_ok, int *iter, int
          * was within D's resolution (creeping on D's noise floor). */
         int done = z * (1.0 + lambda) < o->tol ||
                    (zfirst < LM_RESOLVE_SIGMAS && lambda > 1e3 * lfirst * (1.0 - 1e-9));
+        int every = !G->nsettled;        /* every star stepped */
+        lm_calm_update(G, rphi * (1.0 + lambda), cut, o->tol);
         double *tp = G->p;
         G->p = G->pt;
         G->pt = tp;
@@ -306,19 +338,31 @@ static int lm_loop(group *G, const mp_fit_opts *o, int freeze_ok, int *iter, int
         if (G->frozen && (done || lm_moved_far(G))) {
             /* Converged from a refreshed state (the step was computed
              * from exact sums there): the same test as unfrozen. */
-            int real = done && since == 1;
-            if (lm_refresh(G, &D, !real))
+            int real = done && since == 1 && every;
+            if (lm_refresh(G, &D, !real, done))
                 return 1;
             since = 0;
             rphi = 1.0 / sqrt(dispersion(G, D));
-            if (real) {
+            if (real || (done && step_below_tol(G, lambda, rphi, o->tol))) {
                 *converged = 1;
                 break;
             }
             continue;
         }
-        if (lm_render_all(G, G->p, G->cur, RENDER_DERIVS) ||
-            lm_normal_equations(G, G->p, G->cur, done))
+        if (lm_render_all(G, G->p, G->cur, RENDER_DERIVS))
+            return 1;
+        if (done && !every) {       /* the open stars are done */
+            if (open_all(G))
+                return 1;
+            if (step_below_tol(G, lambda, rphi, o->tol)) {
+                *converged = 1;
+                break;
+            }
+            continue;
+        }
+        if (!done)
+            lm_settle(G, o, it);
+        if (lm_normal_equations(G, G->p, G->cur, done))
             return 1;
         if (done) {
             *converged = 1;
@@ -329,10 +373,11 @@ static int lm_loop(group *G, const mp_fit_opts *o, int freeze_ok, int *iter, int
     /* The covariance and the next sky order start from exact sums on
      * whole windows. */
     if (G->frozen) {
-        if (since > 0 && lm_refresh(G, &D, 0))
+        if ((since > 0 || G->nsettled) && lm_refresh(G, &D, 0, 1))
             return 1;
         G->frozen = 0;
     }
+    lm_unsettle(G, 1);
     if (!G->ne_exact && lm_normal_equations(G, G->p, G->cur, 1))
         return 1;
     return 0;

@@ -58,29 +58,10 @@ int lm_freezing_pays(group *G)
 void lm_freeze(group *G)
 {
     for (int k = 0; k < G->n; k++) {
-        rstar *c = &G->cur[k], *t = &G->trial[k];
         G->fx[k] = G->p[3 * k + 1];
         G->fy[k] = G->p[3 * k + 2];
         core_box(G, k);
-        int *pp = t->pp, *pn = t->pn, *pb = t->pb;
-        double *prf = t->prf, *dx = t->dx, *dy = t->dy;
-        *t = *c;
-        t->pp = pp;
-        t->pn = pn;
-        t->pb = pb;
-        t->prf = prf;
-        t->dx = dx;
-        t->dy = dy;
-        int rows = c->j1 - c->j0;
-        size_t len = rows > 0 ? (size_t)(c->pb[rows - 1] + c->pn[rows - 1]) : 0;
-        if (rows > 0) {
-            memcpy(pp, c->pp, (size_t)rows * sizeof *pp);
-            memcpy(pn, c->pn, (size_t)rows * sizeof *pn);
-            memcpy(pb, c->pb, (size_t)rows * sizeof *pb);
-        }
-        memcpy(prf, c->prf, len * sizeof *prf);
-        memcpy(dx, c->dx, len * sizeof *dx);
-        memcpy(dy, c->dy, len * sizeof *dy);
+        lm_render_copy(&G->trial[k], &G->cur[k]);
     }
     G->frozen = 1;
 }
@@ -94,12 +75,16 @@ int lm_moved_far(const group *G)
     return 0;
 }
 
-/* Everything redrawn at G->p (whole windows), its deviance in *D, exact
- * normal equations; frozen again there when again is set.  Nonzero when
- * out of memory. */
-int lm_refresh(group *G, double *D, int again)
+/* Every open star redrawn at G->p (whole windows), the settled ones too
+ * (opened) when open is set, D in *D, exact normal equations over the open
+ * stars; frozen again there when again is set.  A settled star does not
+ * move, so a refresh for a neighbour that moved far leaves it as it is.
+ * Nonzero when out of memory. */
+int lm_refresh(group *G, double *D, int again, int open)
 {
     G->frozen = 0;
+    if (open)
+        lm_unsettle(G, 0);
     if (lm_render_all(G, G->p, G->cur, RENDER_ALL))
         return 1;
     lm_model_of(G, G->p, G->cur);

@@ -66,6 +66,11 @@ typedef struct {
      * (fx, fy) — both buffers alike. */
     int freezing, frozen;       /* this fit freezes; frozen now */
     double *fx, *fy;            /* n each */
+    /* Settled stars (lm_settle.c): held where they are, not redrawn nor
+     * summed, while the others go on. */
+    uint8_t *settled;           /* n */
+    int *calm;                  /* n: steps running below tol */
+    int nsettled;
     uint8_t *ongrid;            /* n: star drawn from the phase grid (its
                                  * start flux within o->grid_emax), else
                                  * exactly (set with G->work.grid) */
@@ -188,12 +193,24 @@ int lm_normal_equations(group *G, const double *p, const rstar *r, int exact);
 /* lm_frozen.c.  lm_freezing_pays: whether the windows hold enough more
  * than the cores.  lm_freeze: freeze every star's wings where it is.
  * lm_moved_far: a star moved far from where its wings were drawn.
- * lm_refresh: everything redrawn at G->p, D in *D, exact normal
- * equations, frozen again when again; nonzero when out of memory. */
+ * lm_refresh: every open star redrawn at G->p (the settled ones opened
+ * and redrawn too when open), D in *D, exact normal equations, frozen
+ * again when again; nonzero when out of memory. */
 int lm_freezing_pays(group *G);
 void lm_freeze(group *G);
 int lm_moved_far(const group *G);
-int lm_refresh(group *G, double *D, int again);
+int lm_refresh(group *G, double *D, int again, int open);
+
+/* lm_settle.c.  lm_render_copy: a render into another buffer (its own
+ * arrays kept).  lm_calm_update: each open star's calm count after a step
+ * taken (its step in σ, times scale, below tol; none when cut).
+ * lm_settle: the calm stars settled, their renders copied into the trial
+ * buffers, from the fit's it-th step on (never unless o->settle).  lm_unsettle: every star open
+ * again (their calm counts cleared too with calm_too). */
+void lm_render_copy(rstar *dst, const rstar *src);
+void lm_calm_update(group *G, double scale, int cut, double tol);
+void lm_settle(group *G, const mp_fit_opts *o, int it);
+void lm_unsettle(group *G, int calm_too);
 
 /* levmar.c: LM from G->p (frozen wings unless o->exact_lm), accepted
  * steps added to *iter; nonzero when out of memory. */

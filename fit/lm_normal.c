@@ -245,9 +245,9 @@ static int pairs_exact(group *G, const double *p, const rstar *r)
     double h = G->core_hw;
     G->npair = 0;
     for (int k = 0; k < n; k++)
-        for (int l = k + 1; l < n; l++) {
+        for (int l = k + 1; l < n && !G->settled[k]; l++) {
             double s[3][3], c[3][3];
-            if (!pair_sums(G, &r[k], &r[l], 0, 0, G->bw, 0, G->bh, s))
+            if (G->settled[l] || !pair_sums(G, &r[k], &r[l], 0, 0, G->bw, 0, G->bh, s))
                 continue;
             put_pair(G, p, k, l, s);
             if (!(h > 0))
@@ -286,6 +286,8 @@ static void pairs_core(group *G, const double *p, const rstar *r)
     for (int q = 0; q < G->npair; q++) {
         int k = G->pk[q], l = G->pl[q], x0, x1, y0, y1;
         double s[3][3];
+        if (G->settled[k] || G->settled[l])
+            continue;
         const double *t = G->tail + (size_t)q * 9;
         pair_core(G, k, l, &x0, &x1, &y0, &y1);
         pair_sums(G, &r[k], &r[l], 0, x0, x1, y0, y1, s);
@@ -367,16 +369,22 @@ int lm_normal_equations(group *G, const double *p, const rstar *r, int exact)
     if (full)
         set_cores(G, p);
     for (int k = 0; k < n; k++)
-        star_terms(G, p, &r[k], k, full || exact == NE_STARS);
+        if (!G->settled[k])
+            star_terms(G, p, &r[k], k, full || exact == NE_STARS);
     if (full) {
         if (pairs_exact(G, p, r))
             return 1;
     } else
         pairs_core(G, p, r);
-    G->ne_exact = full;
+    G->ne_exact = full && !G->nsettled;
     for (int a = 0; a < np; a++)           /* mirror the upper triangle */
         for (int b = 0; b < a; b++)
             G->A[(size_t)a * np + b] = G->A[(size_t)b * np + a];
+    /* A settled star (lm_settle.c) is held: unit, uncoupled rows, g = 0,
+     * so its step is 0. */
+    for (int k = 0; k < n; k++)
+        for (int a = 3 * k; a < 3 * k + 3 && G->settled[k]; a++)
+            G->A[(size_t)a * np + a] = 1.0;
     /* Without a fitted sky the sky slot is held fixed: the slot gets a unit,
      * uncoupled row, so the step solves the star block only. */
     if (!G->nsky) {

@@ -91,7 +91,7 @@ static int render_core(group *G, const double *p, rstar *r, int what)
     for (int k = 0; k < G->n; k++) {
         double x = p[3 * k + 1], y = p[3 * k + 2];
         int grid = usable && G->ongrid[k];
-        if (!grid && what == RENDER_DERIVS)
+        if ((!grid && what == RENDER_DERIVS) || G->settled[k])
             continue;       /* the exact render drew them with the PRF */
         int c[4], ns = lm_core_rows(G, &r[k], c);
         if (ns == 0)
@@ -115,8 +115,9 @@ int lm_render_all(group *G, const double *p, rstar *r, int what)
     for (int k = 0; k < G->n; k++) {
         double x = p[3 * k + 1], y = p[3 * k + 2];
         int grid = usable && G->ongrid[k];
-        if (!grid && what == RENDER_DERIVS)
-            continue;       /* the exact render drew them with the PRF */
+        if ((!grid && what == RENDER_DERIVS) || G->settled[k])
+            continue;       /* the exact render drew them with the PRF;
+                             * a settled star is drawn in both buffers */
         long x0, y0;
         int w, h;
         mp_prf_box(G->m, x, y, &x0, &y0, &w, &h);
