@@ -2,7 +2,6 @@
  * redrawn on its core only, its wings as last drawn. */
 
 #include <math.h>
-#include <string.h>
 #include "fit/lm_group.h"
 
 /* Frozen wings (issue 12).  A star's window reaches as far as its light

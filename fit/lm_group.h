@@ -174,6 +174,9 @@ enum { RENDER_ALL, RENDER_PRF, RENDER_DERIVS };
 int lm_render_all(group *G, const double *p, rstar *r, int what);
 int lm_core_rows(group *G, const rstar *r, int c[4]);
 
+/* lm_render.c: render src copied into dst (dst's own arrays kept). */
+void lm_render_copy(rstar *dst, const rstar *src);
+
 /* lm_model.c.  lm_model_of: the model of p with renders r into G->mod.
  * lm_variance_of: V(m) into G->var.  lm_deviance_of: D of G->mod.
  * lm_chi2_with: Σ (d − m)²/var. */
@@ -201,13 +204,12 @@ void lm_freeze(group *G);
 int lm_moved_far(const group *G);
 int lm_refresh(group *G, double *D, int again, int open);
 
-/* lm_settle.c.  lm_render_copy: a render into another buffer (its own
- * arrays kept).  lm_calm_update: each open star's calm count after a step
+/* lm_settle.c.  lm_calm_update: each open star's calm count after a step
  * taken (its step in σ, times scale, below tol; none when cut).
  * lm_settle: the calm stars settled, their renders copied into the trial
- * buffers, from the fit's it-th step on (never unless o->settle).  lm_unsettle: every star open
- * again (their calm counts cleared too with calm_too). */
-void lm_render_copy(rstar *dst, const rstar *src);
+ * buffers, from the fit's it-th step on (never unless o->settle).
+ * lm_unsettle: every star open again (their calm counts cleared too with
+ * calm_too). */
 void lm_calm_update(group *G, double scale, int cut, double tol);
 void lm_settle(group *G, const mp_fit_opts *o, int it);
 void lm_unsettle(group *G, int calm_too);

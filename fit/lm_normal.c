@@ -245,9 +245,9 @@ static int pairs_exact(group *G, const double *p, const rstar *r)
     double h = G->core_hw;
     G->npair = 0;
     for (int k = 0; k < n; k++)
-        for (int l = k + 1; l < n && !G->settled[k]; l++) {
+        for (int l = k + 1; l < n; l++) {
             double s[3][3], c[3][3];
-            if (G->settled[l] || !pair_sums(G, &r[k], &r[l], 0, 0, G->bw, 0, G->bh, s))
+            if (G->settled[k] || G->settled[l] || !pair_sums(G, &r[k], &r[l], 0, 0, G->bw, 0, G->bh, s))
                 continue;
             put_pair(G, p, k, l, s);
             if (!(h > 0))
@@ -383,8 +383,9 @@ int lm_normal_equations(group *G, const double *p, const rstar *r, int exact)
     /* A settled star (lm_settle.c) is held: unit, uncoupled rows, g = 0,
      * so its step is 0. */
     for (int k = 0; k < n; k++)
-        for (int a = 3 * k; a < 3 * k + 3 && G->settled[k]; a++)
-            G->A[(size_t)a * np + a] = 1.0;
+        if (G->settled[k])
+            for (int a = 3 * k; a < 3 * k + 3; a++)
+                G->A[(size_t)a * np + a] = 1.0;
     /* Without a fitted sky the sky slot is held fixed: the slot gets a unit,
      * uncoupled row, so the step solves the star block only. */
     if (!G->nsky) {

@@ -158,3 +158,28 @@ int lm_render_all(group *G, const double *p, rstar *r, int what)
     }
     return 0;
 }
+
+/* A render copied: the struct, and the contents of its arrays into dst's
+ * own. */
+void lm_render_copy(rstar *dst, const rstar *src)
+{
+    int *pp = dst->pp, *pn = dst->pn, *pb = dst->pb;
+    double *prf = dst->prf, *dx = dst->dx, *dy = dst->dy;
+    *dst = *src;
+    dst->pp = pp;
+    dst->pn = pn;
+    dst->pb = pb;
+    dst->prf = prf;
+    dst->dx = dx;
+    dst->dy = dy;
+    int rows = src->j1 - src->j0;
+    size_t len = rows > 0 ? (size_t)(src->pb[rows - 1] + src->pn[rows - 1]) : 0;
+    if (rows > 0) {
+        memcpy(pp, src->pp, (size_t)rows * sizeof *pp);
+        memcpy(pn, src->pn, (size_t)rows * sizeof *pn);
+        memcpy(pb, src->pb, (size_t)rows * sizeof *pb);
+    }
+    memcpy(prf, src->prf, len * sizeof *prf);
+    memcpy(dx, src->dx, len * sizeof *dx);
+    memcpy(dy, src->dy, len * sizeof *dy);
+}

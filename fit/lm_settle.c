@@ -29,42 +29,18 @@
 #define LM_SETTLE_CALM 2
 #define LM_SETTLE_MIN 3
 
-void lm_render_copy(rstar *dst, const rstar *src)
-{
-    int *pp = dst->pp, *pn = dst->pn, *pb = dst->pb;
-    double *prf = dst->prf, *dx = dst->dx, *dy = dst->dy;
-    *dst = *src;
-    dst->pp = pp;
-    dst->pn = pn;
-    dst->pb = pb;
-    dst->prf = prf;
-    dst->dx = dx;
-    dst->dy = dy;
-    int rows = src->j1 - src->j0;
-    size_t len = rows > 0 ? (size_t)(src->pb[rows - 1] + src->pn[rows - 1]) : 0;
-    if (rows > 0) {
-        memcpy(pp, src->pp, (size_t)rows * sizeof *pp);
-        memcpy(pn, src->pn, (size_t)rows * sizeof *pn);
-        memcpy(pb, src->pb, (size_t)rows * sizeof *pb);
-    }
-    memcpy(prf, src->prf, len * sizeof *prf);
-    memcpy(dx, src->dx, len * sizeof *dx);
-    memcpy(dy, src->dy, len * sizeof *dy);
-}
-
 void lm_calm_update(group *G, double scale, int cut, double tol)
 {
     int np = G->np;
     for (int k = 0; k < G->n; k++) {
-        if (G->settled[k])
-            continue;
-        double z = 0.0;
+        double z = cut ? INFINITY : 0.0;    /* a cut step is no calm one */
         for (int a = 3 * k; a < 3 * k + 3 && !cut; a++) {
             double d = G->A[(size_t)a * np + a];
             double v = d > 0 ? fabs(G->step[a]) * sqrt(d) * scale : 0.0;
             z = v > z ? v : z;
         }
-        G->calm[k] = !cut && z < tol ? G->calm[k] + 1 : 0;
+        if (!G->settled[k])
+            G->calm[k] = z < tol ? G->calm[k] + 1 : 0;
     }
 }
 

@@ -845,8 +845,9 @@ static void test_frozen_wings_same_fit(void **state)
 /* Settled stars (fit/lm_settle.c, issue 12).  A group of 16 stars, 12 on
  * a grid 6–7 px apart (FWHM 3) and 4 companions 1.8 px from some of them,
  * fluxes from 10⁶ down to 3·10³ e⁻, started 0.4 px and 30 % off: the
- * isolated ones settle within a few steps while the blends go on.  A fit ends only on a step below tol over every star,
- * from exact sums, so it must end where the fit with no star settled ends,
+ * isolated ones settle within a few steps while the blends go on.  A fit
+ * ends only on a step below tol over every star, from exact sums, so it
+ * must end where the fit with no star settled ends,
  * to within the LM's tol (1e-3 σ; asserted at 0.05 σ of each parameter,
  * as the frozen wings' test above, and its σ within tol of itself: the
  * covariance comes from exact sums at the final state), on both paths:
