@@ -424,6 +424,10 @@ typedef struct {
                                 * below tol is held while the others go on
                                 * (fit/lm_settle.c); 0: every star steps to
                                 * the end (tests compare) */
+    int refresh_movers;        /* 1, the default: frozen wings redrawn only
+                                * for the stars that moved far, between
+                                * steps (fit/lm_frozen.c); 0: every star's
+                                * (tests compare) */
 } mp_fit_opts;
 
 void mp_fit_opts_default(mp_fit_opts *o);

@@ -23,6 +23,7 @@ void mp_fit_opts_default(mp_fit_opts *o)
     o->work = NULL;
     o->exact_lm = 0;
     o->settle = 1;
+    o->refresh_movers = 1;
 }
 
 static void group_free(group *G)
@@ -46,6 +47,7 @@ static void group_free(group *G)
     free(G->fx);
     free(G->ongrid);
     free(G->settled);
+    free(G->moved);
     free(G->calm);
     free(G->fy);
     free(G->scr);
@@ -188,6 +190,7 @@ static int alloc_stars(group *G)
     G->fx = malloc((size_t)G->n * sizeof *G->fx);
     G->ongrid = calloc((size_t)G->n, 1);
     G->settled = calloc((size_t)G->n, 1);
+    G->moved = calloc((size_t)G->n, 1);
     G->calm = calloc((size_t)G->n, sizeof *G->calm);
     G->fy = malloc((size_t)G->n * sizeof *G->fy);
     G->cx0 = malloc((size_t)G->n * sizeof *G->cx0);
@@ -198,7 +201,7 @@ static int alloc_stars(group *G)
     G->M = malloc(np * np * sizeof *G->M);
     G->g = malloc(np * sizeof *G->g);
     G->step = malloc(np * sizeof *G->step);
-    return !G->scr || !G->ongrid || !G->settled || !G->calm || !G->stail || !G->fx || !G->fy || !G->cx0 || !G->cx1 || !G->cy0 || !G->cy1 || !G->p || !G->pt || !G->A || !G->M || !G->g || !G->step;
+    return !G->scr || !G->ongrid || !G->settled || !G->moved || !G->calm || !G->stail || !G->fx || !G->fy || !G->cx0 || !G->cx1 || !G->cy0 || !G->cy1 || !G->p || !G->pt || !G->A || !G->M || !G->g || !G->step;
 }
 
 /* The data's range over the fitted pixels and the largest flux a star may

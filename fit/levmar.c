@@ -335,15 +335,15 @@ static int lm_loop(group *G, const mp_fit_opts *o, int freeze_ok, int *iter, int
         fresh = 1;
         lambda = lambda / 10.0 > 1e-7 ? lambda / 10.0 : 1e-7;
         lm_variance_of(G);
-        if (G->frozen && (done || lm_moved_far(G))) {
+        if (G->frozen && done) {
             /* Converged from a refreshed state (the step was computed
              * from exact sums there): the same test as unfrozen. */
-            int real = done && since == 1 && every;
-            if (lm_refresh(G, &D, !real, done))
+            int real = since == 1 && every;
+            if (lm_refresh(G, &D, !real, 1))
                 return 1;
             since = 0;
             rphi = 1.0 / sqrt(dispersion(G, D));
-            if (real || (done && step_below_tol(G, lambda, rphi, o->tol))) {
+            if (real || step_below_tol(G, lambda, rphi, o->tol)) {
                 *converged = 1;
                 break;
             }
@@ -351,6 +351,15 @@ static int lm_loop(group *G, const mp_fit_opts *o, int freeze_ok, int *iter, int
         }
         if (lm_render_all(G, G->p, G->cur, RENDER_DERIVS))
             return 1;
+        if (G->frozen && lm_moved_far(G)) {
+            /* Still frozen (since goes on): only the stars that moved far
+             * are redrawn, or every open one. */
+            if (o->refresh_movers ? lm_refresh_movers(G, &D) : lm_refresh(G, &D, 1, 0))
+                return 1;
+            since = o->refresh_movers ? since : 0;    /* a whole refresh is exact */
+            rphi = 1.0 / sqrt(dispersion(G, D));
+            continue;
+        }
         if (done && !every) {       /* the open stars are done */
             if (open_all(G))
                 return 1;

@@ -69,6 +69,7 @@ typedef struct {
     /* Settled stars (lm_settle.c): held where they are, not redrawn nor
      * summed, while the others go on. */
     uint8_t *settled;           /* n */
+    uint8_t *moved;             /* n: redrawn by lm_refresh_movers */
     int *calm;                  /* n: steps running below tol */
     int nsettled;
     uint8_t *ongrid;            /* n: star drawn from the phase grid (its
@@ -172,6 +173,9 @@ enum { RENDER_ALL, RENDER_PRF, RENDER_DERIVS };
  * lm_core_rows: star r's core as spans (G->spans, offsets G->soff), its
  * box clipped to the window in c; returns the number of spans. */
 int lm_render_all(group *G, const double *p, rstar *r, int what);
+/* lm_render.c: star k of p into r[k] on its whole window, frozen or not;
+ * nonzero when the window overflows its buffers. */
+int lm_render_star(group *G, const double *p, rstar *r, int k);
 int lm_core_rows(group *G, const rstar *r, int c[4]);
 
 /* lm_render.c: render src copied into dst (dst's own arrays kept). */
@@ -186,10 +190,13 @@ double lm_deviance_of(const group *G);
 double lm_chi2_with(const group *G, const double *var);
 
 /* How lm_normal_equations sums: the pairs over their cores only (between
- * steps), everything exact, or every star's own terms exact. */
-enum { NE_STEER, NE_EXACT, NE_STARS };
+ * steps), everything exact, every star's own terms exact, or, between
+ * steps, the terms of the stars in G->moved and of their pairs exact
+ * (their wings just redrawn: lm_refresh_movers). */
+enum { NE_STEER, NE_EXACT, NE_STARS, NE_MOVERS };
 
-/* lm_normal.c: A and g at p (exact: NE_EXACT, NE_STEER or NE_STARS);
+/* lm_normal.c: A and g at p (exact: NE_EXACT, NE_STEER, NE_STARS or
+ * NE_MOVERS);
  * nonzero when out of memory. */
 int lm_normal_equations(group *G, const double *p, const rstar *r, int exact);
 
@@ -203,6 +210,10 @@ int lm_freezing_pays(group *G);
 void lm_freeze(group *G);
 int lm_moved_far(const group *G);
 int lm_refresh(group *G, double *D, int again, int open);
+/* lm_frozen.c: only the open stars that moved far redrawn and frozen
+ * again where they are, D in *D, the normal equations with their terms
+ * and pairs exact (NE_MOVERS); nonzero when out of memory. */
+int lm_refresh_movers(group *G, double *D);
 
 /* lm_settle.c.  lm_calm_update: each open star's calm count after a step
  * taken (its step in σ, times scale, below tol; none when cut).

@@ -223,59 +223,63 @@ static void put_pair(group *G, const double *p, int k, int l, double s[3][3])
             G->A[(size_t)(3 * k + a) * np + 3 * l + b] = sk[a] * sl[b] * s[a][b];
 }
 
-/* Each star's core for the pair and self sums between exact passes: the
- * box within G->core_hw px of where it is at an exact pass. */
-static void set_cores(group *G, const double *p)
+/* Star k's core for the pair and self sums between exact passes: the box
+ * within G->core_hw px of where it is at an exact pass. */
+static void set_core(group *G, const double *p, int k)
 {
     double h = G->core_hw;
-    for (int k = 0; k < G->n && h > 0; k++) {
-        G->cx0[k] = (int)floor(p[3 * k + 1] - h) - (int)G->bx0;
-        G->cx1[k] = (int)ceil(p[3 * k + 1] + h) + 1 - (int)G->bx0;
-        G->cy0[k] = (int)floor(p[3 * k + 2] - h) - (int)G->by0;
-        G->cy1[k] = (int)ceil(p[3 * k + 2] + h) + 1 - (int)G->by0;
-    }
+    G->cx0[k] = (int)floor(p[3 * k + 1] - h) - (int)G->bx0;
+    G->cx1[k] = (int)ceil(p[3 * k + 1] + h) + 1 - (int)G->bx0;
+    G->cy0[k] = (int)floor(p[3 * k + 2] - h) - (int)G->by0;
+    G->cy1[k] = (int)ceil(p[3 * k + 2] + h) + 1 - (int)G->by0;
 }
 
-/* The exact pass's pairs: every pair whose windows meet, its sums outside
- * its core kept in G->tail (the cores as set_cores fixed them).  Nonzero
- * when out of memory. */
+/* Pair k < l summed exactly into A when their windows meet, and listed
+ * with its sums outside its core in G->tail (when G->core_hw > 0: the
+ * cores as set_core fixed them).  Nonzero when out of memory. */
+static int pair_exact(group *G, const double *p, const rstar *r, int k, int l)
+{
+    double s[3][3], c[3][3];
+    if (!pair_sums(G, &r[k], &r[l], 0, 0, G->bw, 0, G->bh, s))
+        return 0;
+    put_pair(G, p, k, l, s);
+    if (!(G->core_hw > 0))
+        return 0;
+    if (G->npair == G->cappair) {
+        int cap = G->cappair ? 2 * G->cappair : 64;
+        int *a = realloc(G->pk, (size_t)cap * sizeof *a);
+        if (a)
+            G->pk = a;
+        int *b = realloc(G->pl, (size_t)cap * sizeof *b);
+        if (b)
+            G->pl = b;
+        double *t = realloc(G->tail, (size_t)cap * 9 * sizeof *t);
+        if (t)
+            G->tail = t;
+        if (!a || !b || !t)
+            return 1;
+        G->cappair = cap;
+    }
+    int x0, x1, y0, y1;
+    pair_core(G, k, l, &x0, &x1, &y0, &y1);
+    pair_sums(G, &r[k], &r[l], 0, x0, x1, y0, y1, c);
+    double *t = G->tail + (size_t)G->npair * 9;
+    for (int a = 0; a < 9; a++)
+        t[a] = s[a / 3][a % 3] - c[a / 3][a % 3];
+    G->pk[G->npair] = k;
+    G->pl[G->npair++] = l;
+    return 0;
+}
+
+/* The exact pass's pairs: every pair of open stars whose windows meet.
+ * Nonzero when out of memory. */
 static int pairs_exact(group *G, const double *p, const rstar *r)
 {
-    int n = G->n;
-    double h = G->core_hw;
     G->npair = 0;
-    for (int k = 0; k < n; k++)
-        for (int l = k + 1; l < n; l++) {
-            double s[3][3], c[3][3];
-            if (G->settled[k] || G->settled[l] || !pair_sums(G, &r[k], &r[l], 0, 0, G->bw, 0, G->bh, s))
-                continue;
-            put_pair(G, p, k, l, s);
-            if (!(h > 0))
-                continue;
-            if (G->npair == G->cappair) {
-                int cap = G->cappair ? 2 * G->cappair : 64;
-                int *a = realloc(G->pk, (size_t)cap * sizeof *a);
-                if (a)
-                    G->pk = a;
-                int *b = realloc(G->pl, (size_t)cap * sizeof *b);
-                if (b)
-                    G->pl = b;
-                double *t = realloc(G->tail, (size_t)cap * 9 * sizeof *t);
-                if (t)
-                    G->tail = t;
-                if (!a || !b || !t)
-                    return 1;
-                G->cappair = cap;
-            }
-            int x0, x1, y0, y1;
-            pair_core(G, k, l, &x0, &x1, &y0, &y1);
-            pair_sums(G, &r[k], &r[l], 0, x0, x1, y0, y1, c);
-            double *t = G->tail + (size_t)G->npair * 9;
-            for (int a = 0; a < 9; a++)
-                t[a] = s[a / 3][a % 3] - c[a / 3][a % 3];
-            G->pk[G->npair] = k;
-            G->pl[G->npair++] = l;
-        }
+    for (int k = 0; k < G->n; k++)
+        for (int l = k + 1; l < G->n; l++)
+            if (!G->settled[k] && !G->settled[l] && pair_exact(G, p, r, k, l))
+                return 1;
     return 0;
 }
 
@@ -295,6 +299,32 @@ static void pairs_core(group *G, const double *p, const rstar *r)
             s[a / 3][a % 3] += t[a];
         put_pair(G, p, k, l, s);
     }
+}
+
+/* After the movers (G->moved) were redrawn (lm_refresh_movers): the
+ * other pairs as between exact passes, every pair with a mover summed
+ * exactly and listed afresh (its windows may meet others now).  Nonzero
+ * when out of memory. */
+static int pairs_movers(group *G, const double *p, const rstar *r)
+{
+    int m = 0;
+    for (int q = 0; q < G->npair; q++) {
+        int k = G->pk[q], l = G->pl[q];
+        if (G->moved[k] || G->moved[l])
+            continue;
+        G->pk[m] = k;
+        G->pl[m] = l;
+        memmove(G->tail + (size_t)m * 9, G->tail + (size_t)q * 9, 9 * sizeof *G->tail);
+        m++;
+    }
+    G->npair = m;
+    pairs_core(G, p, r);
+    for (int k = 0; k < G->n; k++)
+        for (int l = k + 1; l < G->n; l++)
+            if ((G->moved[k] || G->moved[l]) && !G->settled[k] && !G->settled[l] &&
+                pair_exact(G, p, r, k, l))
+                return 1;
+    return 0;
 }
 
 /* Star k's rows of g and A: its data terms, its coupling with the sky and
@@ -365,14 +395,18 @@ int lm_normal_equations(group *G, const double *p, const rstar *r, int exact)
     memset(G->A, 0, (size_t)np * np * sizeof *G->A);
     memset(G->g, 0, (size_t)np * sizeof *G->g);
     ne_sky(G);
-    int full = exact == NE_EXACT || !(G->core_hw > 0);
-    if (full)
-        set_cores(G, p);
+    int full = exact == NE_EXACT || !(G->core_hw > 0), movers = !full && exact == NE_MOVERS;
+    for (int k = 0; k < n && G->core_hw > 0; k++)
+        if (full || (movers && G->moved[k]))
+            set_core(G, p, k);
     for (int k = 0; k < n; k++)
         if (!G->settled[k])
-            star_terms(G, p, &r[k], k, full || exact == NE_STARS);
+            star_terms(G, p, &r[k], k, full || exact == NE_STARS || (movers && G->moved[k]));
     if (full) {
         if (pairs_exact(G, p, r))
+            return 1;
+    } else if (movers) {
+        if (pairs_movers(G, p, r))
             return 1;
     } else
         pairs_core(G, p, r);

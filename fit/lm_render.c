@@ -107,56 +107,66 @@ static int render_core(group *G, const double *p, rstar *r, int what)
     return 0;
 }
 
+/* Star k of p rendered into r[k] on the fitted pixels of its whole
+ * window (what as lm_render_all's); nonzero when the window overflows. */
+static int render_window(group *G, const double *p, rstar *r, int k, int what, int grid)
+{
+    double x = p[3 * k + 1], y = p[3 * k + 2];
+    long x0, y0;
+    int w, h;
+    mp_prf_box(G->m, x, y, &x0, &y0, &w, &h);
+    long wx0 = G->bx0, wy0 = G->by0, wx1 = G->bx0 + G->bw, wy1 = G->by0 + G->bh;
+    wx0 = x0 > wx0 ? x0 : wx0;
+    wy0 = y0 > wy0 ? y0 : wy0;
+    wx1 = x0 + w < wx1 ? x0 + w : wx1;
+    wy1 = y0 + h < wy1 ? y0 + h : wy1;
+    /* Economy: only out to where the star's light is below a fraction
+     * of the noise (frame_paint.c subtracts neighbours the same way). */
+    double rad = mp_prf_crop_radius(G->crop, p[3 * k], p[3 * G->n]);
+    if (isfinite(rad)) {
+        rad = rad > G->crop_min ? rad : G->crop_min;
+        long a = (long)ceil(x - rad), b = (long)ceil(y - rad);
+        long c = (long)floor(x + rad) + 1, d = (long)floor(y + rad) + 1;
+        wx0 = a > wx0 ? a : wx0;
+        wy0 = b > wy0 ? b : wy0;
+        wx1 = c < wx1 ? c : wx1;
+        wy1 = d < wy1 ? d : wy1;
+    }
+    rstar *rk = &r[k];
+    rk->i0 = (int)(wx0 - G->bx0);
+    rk->j0 = (int)(wy0 - G->by0);
+    rk->i1 = wx1 > wx0 ? (int)(wx1 - G->bx0) : rk->i0;
+    rk->j1 = wy1 > wy0 && wx1 > wx0 ? (int)(wy1 - G->by0) : rk->j0;
+    int ns = window_rows(G, rk);
+    if (ns <= 0)
+        return ns < 0;
+    return grid ? mp_prf_cache_render_spans(G->work.grid, G->m, x, y, G->spans, ns,
+                                            what == RENDER_DERIVS ? NULL : rk->prf,
+                                            what == RENDER_PRF ? NULL : rk->dx,
+                                            what == RENDER_PRF ? NULL : rk->dy)
+                : render_exact(G, x, y, rk->i0, rk->i1, rk->j0, rk->j1, rk, ns, NULL);
+}
+
 int lm_render_all(group *G, const double *p, rstar *r, int what)
 {
     if (G->frozen)
         return render_core(G, p, r, what);
     int usable = mp_prf_cache_usable(G->work.grid, G->m);
     for (int k = 0; k < G->n; k++) {
-        double x = p[3 * k + 1], y = p[3 * k + 2];
         int grid = usable && G->ongrid[k];
         if ((!grid && what == RENDER_DERIVS) || G->settled[k])
             continue;       /* the exact render drew them with the PRF;
                              * a settled star is drawn in both buffers */
-        long x0, y0;
-        int w, h;
-        mp_prf_box(G->m, x, y, &x0, &y0, &w, &h);
-        long wx0 = G->bx0, wy0 = G->by0, wx1 = G->bx0 + G->bw, wy1 = G->by0 + G->bh;
-        wx0 = x0 > wx0 ? x0 : wx0;
-        wy0 = y0 > wy0 ? y0 : wy0;
-        wx1 = x0 + w < wx1 ? x0 + w : wx1;
-        wy1 = y0 + h < wy1 ? y0 + h : wy1;
-        /* Economy: only out to where the star's light is below a fraction
-         * of the noise (frame_paint.c subtracts neighbours the same way). */
-        double rad = mp_prf_crop_radius(G->crop, p[3 * k], p[3 * G->n]);
-        if (isfinite(rad)) {
-            rad = rad > G->crop_min ? rad : G->crop_min;
-            long a = (long)ceil(x - rad), b = (long)ceil(y - rad);
-            long c = (long)floor(x + rad) + 1, d = (long)floor(y + rad) + 1;
-            wx0 = a > wx0 ? a : wx0;
-            wy0 = b > wy0 ? b : wy0;
-            wx1 = c < wx1 ? c : wx1;
-            wy1 = d < wy1 ? d : wy1;
-        }
-        rstar *rk = &r[k];
-        rk->i0 = (int)(wx0 - G->bx0);
-        rk->j0 = (int)(wy0 - G->by0);
-        rk->i1 = wx1 > wx0 ? (int)(wx1 - G->bx0) : rk->i0;
-        rk->j1 = wy1 > wy0 && wx1 > wx0 ? (int)(wy1 - G->by0) : rk->j0;
-        int ns = window_rows(G, rk);
-        if (ns < 0)
-            return 1;
-        if (ns == 0)
-            continue;
-        int rc = grid ? mp_prf_cache_render_spans(G->work.grid, G->m, x, y, G->spans, ns,
-                                                  what == RENDER_DERIVS ? NULL : rk->prf,
-                                                  what == RENDER_PRF ? NULL : rk->dx,
-                                                  what == RENDER_PRF ? NULL : rk->dy)
-                      : render_exact(G, x, y, rk->i0, rk->i1, rk->j0, rk->j1, rk, ns, NULL);
-        if (rc)
+        if (render_window(G, p, r, k, what, grid))
             return 1;
     }
     return 0;
+}
+
+int lm_render_star(group *G, const double *p, rstar *r, int k)
+{
+    int grid = mp_prf_cache_usable(G->work.grid, G->m) && G->ongrid[k];
+    return render_window(G, p, r, k, RENDER_ALL, grid);
 }
 
 /* A render copied: the struct, and the contents of its arrays into dst's
