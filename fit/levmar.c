@@ -234,10 +234,172 @@ static int open_all(group *G)
     return lm_normal_equations(G, G->p, G->cur, NE_EXACT);
 }
 
+/* Where lm_loop stands: D at G->p, the damping, the first (least damped)
+ * step tried from the current state (its size in σ, undamped, and its
+ * λ), 1/√φ, and the counts: steps taken, steps tried, steps since the
+ * last exact sums (0: A and g are exact at G->p). */
+typedef struct {
+    double D, lambda, zfirst, lfirst, rphi;
+    int it, trials, fresh, since;
+} lm_state;
+
+/* What a step of lm_loop leads to. */
+enum { LM_ON, LM_DONE, LM_NOMEM };
+
+/* The loop's start at G->p: frozen wings where they pay, the model, exact
+ * normal equations, D.  Nonzero when out of memory. */
+static int lm_start(group *G, int freeze_ok, lm_state *s)
+{
+    lm_unsettle(G, 1);
+    G->freezing = freeze_ok && G->core_hw > 0 && G->crop && lm_freezing_pays(G);
+    lm_model_of(G, G->p, G->cur);
+    lm_variance_of(G);
+    if (lm_normal_equations(G, G->p, G->cur, 1))
+        return 1;
+    *s = (lm_state){.D = lm_deviance_of(G), .lambda = 1e-3, .zfirst = INFINITY, .lfirst = 1e-3,
+                    .fresh = 1};
+    if (G->freezing)
+        lm_freeze(G);
+    /* Steps are judged in σ of the data as they scatter: the quasi-
+     * likelihood dispersion φ = D/dof (McCullagh & Nelder §9.2.4) scales
+     * every σ by √φ when the model misses the data (a PSF sharper than the
+     * stars, χ²/dof ≫ 1); φ is floored at 1, so a model that fits keeps
+     * the Fisher σ. */
+    s->rphi = 1.0 / sqrt(dispersion(G, s->D));
+    return 0;
+}
+
+/* A step refused (it did not lower D): more damping, or the end when it
+ * took 1000× more to no avail from a first step within D's resolution —
+ * after a whole refresh when the wings are frozen and moved since, or
+ * with every settled star opened again. */
+static int step_refused(group *G, lm_state *s, int *converged)
+{
+    lm_model_of(G, G->p, G->cur);
+    s->lambda *= 10.0;
+    if (!(s->zfirst < LM_RESOLVE_SIGMAS && s->lambda > 1e3 * s->lfirst))
+        return s->lambda > 1e8 ? LM_DONE : LM_ON;
+    if (G->frozen && (s->since > 0 || G->nsettled)) {     /* frozen model: see */
+        if (lm_refresh(G, &s->D, 1, 1))
+            return LM_NOMEM;
+        s->since = 0;
+        s->fresh = 1;
+        s->lambda = s->lfirst;
+        s->rphi = 1.0 / sqrt(dispersion(G, s->D));
+        return LM_ON;
+    }
+    if (G->nsettled) {          /* the open stars are done: all again */
+        if (open_all(G))
+            return LM_NOMEM;
+        s->fresh = 1;
+        s->lambda = s->lfirst;
+        return LM_ON;
+    }
+    *converged = 1;             /* damped 1000×: nothing left D can see */
+    return LM_DONE;
+}
+
+/* The trial state made current (the buffers swapped), with its D. */
+static void step_taken(group *G, lm_state *s, double Dt)
+{
+    double *tp = G->p;
+    G->p = G->pt;
+    G->pt = tp;
+    rstar *tr = G->cur;
+    G->cur = G->trial;
+    G->trial = tr;
+    s->D = Dt;
+    s->rphi = 1.0 / sqrt(dispersion(G, s->D));
+    s->fresh = 1;
+    s->lambda = s->lambda / 10.0 > 1e-7 ? s->lambda / 10.0 : 1e-7;
+    lm_variance_of(G);
+}
+
+/* After a step taken (done: it met the stopping rule; every: no star was
+ * settled): the sums for the next step, or the end.  Frozen and done: a
+ * whole refresh, converged when the step was taken from exact sums or the
+ * next one would be below tol.  A star moved far: it is redrawn.  The open
+ * stars done: all opened again, converged when the next step would be
+ * below tol.  Else calm stars settle and the next sums are made. */
+static int next_sums(group *G, const mp_fit_opts *o, lm_state *s, int done, int every,
+                     int *converged)
+{
+    if (G->frozen && done) {
+        /* Converged from a refreshed state (the step was computed from
+         * exact sums there): the same test as unfrozen. */
+        int real = s->since == 1 && every;
+        if (lm_refresh(G, &s->D, !real, 1))
+            return LM_NOMEM;
+        s->since = 0;
+        s->rphi = 1.0 / sqrt(dispersion(G, s->D));
+        *converged = real || step_below_tol(G, s->lambda, s->rphi, o->tol);
+        return *converged ? LM_DONE : LM_ON;
+    }
+    if (lm_render_all(G, G->p, G->cur, RENDER_DERIVS))
+        return LM_NOMEM;
+    if (G->frozen && lm_moved_far(G)) {
+        /* Still frozen (since goes on): only the stars that moved far
+         * are redrawn, or every open one. */
+        if (o->refresh_movers ? lm_refresh_movers(G, &s->D) : lm_refresh(G, &s->D, 1, 0))
+            return LM_NOMEM;
+        s->since = o->refresh_movers ? s->since : 0;    /* a whole refresh is exact */
+        s->rphi = 1.0 / sqrt(dispersion(G, s->D));
+        return LM_ON;
+    }
+    if (done && !every) {       /* the open stars are done */
+        if (open_all(G))
+            return LM_NOMEM;
+        *converged = step_below_tol(G, s->lambda, s->rphi, o->tol);
+        return *converged ? LM_DONE : LM_ON;
+    }
+    if (!done)
+        lm_settle(G, o, s->it);
+    if (lm_normal_equations(G, G->p, G->cur, done))
+        return LM_NOMEM;
+    *converged = done;
+    return done ? LM_DONE : LM_ON;
+}
+
+/* One LM step from G->p at the current damping: solved (more damping
+ * when A + λ diag A is not positive definite), bounded, rendered, and
+ * taken when it lowers D. */
+static int lm_iterate(group *G, const mp_fit_opts *o, lm_state *s, int *converged)
+{
+    s->trials++;
+    if (lm_step(G, s->lambda)) {
+        s->lambda *= 10.0;
+        return s->lambda > 1e12 ? LM_DONE : LM_ON;
+    }
+    int cut = bound_step(G);
+    double z = cut ? INFINITY : step_sigmas(G) * s->rphi, Dt;
+    if (s->fresh) {
+        s->zfirst = z * (1.0 + s->lambda);
+        s->lfirst = s->lambda;
+    }
+    s->fresh = 0;
+    if (render_trial(G, 1.0, &Dt))
+        return LM_NOMEM;
+    if (!(Dt < s->D))
+        return step_refused(G, s, converged);
+    if (shorten_overshoot(G, s->D, &Dt, &z))
+        return LM_NOMEM;
+    s->it++;
+    s->since++;
+    /* Taken: converged when the step, undamped, was below tol, or when
+     * only 1000× damping made progress from a state whose undamped step
+     * was within D's resolution (creeping on D's noise floor). */
+    int done = z * (1.0 + s->lambda) < o->tol ||
+               (s->zfirst < LM_RESOLVE_SIGMAS && s->lambda > 1e3 * s->lfirst * (1.0 - 1e-9));
+    int every = !G->nsettled;        /* every star stepped */
+    lm_calm_update(G, s->rphi * (1.0 + s->lambda), cut, o->tol);
+    step_taken(G, s, Dt);
+    return next_sums(G, o, s, done, every, converged);
+}
+
 /* Levenberg–Marquardt from G->p at the current sky order.  A step is taken
  * only when it lowers D.  Converged (*converged = 1) when a step taken
  * with every star open is below tol·σ·√φ in every parameter (φ the
- * dispersion, below; scaled back by 1 + λ, so damping cannot fake it),
+ * dispersion, lm_start; scaled back by 1 + λ, so damping cannot fake it),
  * or the step that would be taken next from exact sums is; or when the
  * first, least damped step tried from the current state was already below
  * LM_RESOLVE_SIGMAS and it took 1000× more damping to lower D, or that did
@@ -248,141 +410,20 @@ static int open_all(group *G)
  * Accepted steps are added to *iter.  Nonzero: out of memory. */
 static int lm_loop(group *G, const mp_fit_opts *o, int freeze_ok, int *iter, int *converged)
 {
-    lm_unsettle(G, 1);
-    G->freezing = freeze_ok && G->core_hw > 0 && G->crop && lm_freezing_pays(G);
-    lm_model_of(G, G->p, G->cur);
-    lm_variance_of(G);
-    if (lm_normal_equations(G, G->p, G->cur, 1))
-        return 1;
-    double D = lm_deviance_of(G), lambda = 1e-3, zfirst = INFINITY, lfirst = lambda;
-    int it = 0, trials = 0, np = G->np, fresh = 1, since = 0;
-    if (G->freezing)
-        lm_freeze(G);
-    /* Steps are judged in σ of the data as they scatter: the quasi-
-     * likelihood dispersion φ = D/dof (McCullagh & Nelder §9.2.4) scales
-     * every σ by √φ when the model misses the data (a PSF sharper than the
-     * stars, χ²/dof ≫ 1); φ is floored at 1, so a model that fits keeps
-     * the Fisher σ. */
-    double rphi = 1.0 / sqrt(dispersion(G, D));
+    lm_state s;
     *converged = 0;
-    while (it < o->maxiter && trials < 4 * o->maxiter) {
-        trials++;
-        if (lm_step(G, lambda)) {
-            lambda *= 10.0;
-            if (lambda > 1e12)
-                break;
-            continue;
-        }
-        int cut = bound_step(G);
-        double z = cut ? INFINITY : step_sigmas(G) * rphi;
-        if (fresh) {
-            zfirst = z * (1.0 + lambda);
-            lfirst = lambda;
-        }
-        fresh = 0;
-        for (int a = 0; a < np; a++)
-            G->pt[a] = G->p[a] + G->step[a];
-        if (lm_render_all(G, G->pt, G->trial, RENDER_PRF))
-            return 1;
-        lm_model_of(G, G->pt, G->trial);
-        double Dt = sky_in_bounds(G) ? lm_deviance_of(G) : INFINITY;
-        if (!(Dt < D)) {
-            lm_model_of(G, G->p, G->cur);
-            lambda *= 10.0;
-            if (zfirst < LM_RESOLVE_SIGMAS && lambda > 1e3 * lfirst) {
-                if (G->frozen && (since > 0 || G->nsettled)) {  /* frozen model: see */
-                    if (lm_refresh(G, &D, 1, 1))
-                        return 1;
-                    since = 0;
-                    fresh = 1;
-                    lambda = lfirst;
-                    rphi = 1.0 / sqrt(dispersion(G, D));
-                    continue;
-                }
-                if (G->nsettled) {   /* the open stars are done: all again */
-                    if (open_all(G))
-                        return 1;
-                    fresh = 1;
-                    lambda = lfirst;
-                    continue;
-                }
-                *converged = 1;      /* damped 1000×: nothing left D can see */
-                break;
-            }
-            if (lambda > 1e8)
-                break;
-            continue;
-        }
-        if (shorten_overshoot(G, D, &Dt, &z))
-            return 1;
-        it++;
-        since++;
-        /* Taken: converged when the step, undamped, was below tol, or when
-         * only 1000× damping made progress from a state whose undamped step
-         * was within D's resolution (creeping on D's noise floor). */
-        int done = z * (1.0 + lambda) < o->tol ||
-                   (zfirst < LM_RESOLVE_SIGMAS && lambda > 1e3 * lfirst * (1.0 - 1e-9));
-        int every = !G->nsettled;        /* every star stepped */
-        lm_calm_update(G, rphi * (1.0 + lambda), cut, o->tol);
-        double *tp = G->p;
-        G->p = G->pt;
-        G->pt = tp;
-        rstar *tr = G->cur;
-        G->cur = G->trial;
-        G->trial = tr;
-        D = Dt;
-        rphi = 1.0 / sqrt(dispersion(G, D));
-        fresh = 1;
-        lambda = lambda / 10.0 > 1e-7 ? lambda / 10.0 : 1e-7;
-        lm_variance_of(G);
-        if (G->frozen && done) {
-            /* Converged from a refreshed state (the step was computed
-             * from exact sums there): the same test as unfrozen. */
-            int real = since == 1 && every;
-            if (lm_refresh(G, &D, !real, 1))
-                return 1;
-            since = 0;
-            rphi = 1.0 / sqrt(dispersion(G, D));
-            if (real || step_below_tol(G, lambda, rphi, o->tol)) {
-                *converged = 1;
-                break;
-            }
-            continue;
-        }
-        if (lm_render_all(G, G->p, G->cur, RENDER_DERIVS))
-            return 1;
-        if (G->frozen && lm_moved_far(G)) {
-            /* Still frozen (since goes on): only the stars that moved far
-             * are redrawn, or every open one. */
-            if (o->refresh_movers ? lm_refresh_movers(G, &D) : lm_refresh(G, &D, 1, 0))
-                return 1;
-            since = o->refresh_movers ? since : 0;    /* a whole refresh is exact */
-            rphi = 1.0 / sqrt(dispersion(G, D));
-            continue;
-        }
-        if (done && !every) {       /* the open stars are done */
-            if (open_all(G))
-                return 1;
-            if (step_below_tol(G, lambda, rphi, o->tol)) {
-                *converged = 1;
-                break;
-            }
-            continue;
-        }
-        if (!done)
-            lm_settle(G, o, it);
-        if (lm_normal_equations(G, G->p, G->cur, done))
-            return 1;
-        if (done) {
-            *converged = 1;
-            break;
-        }
-    }
-    *iter += it;
+    if (lm_start(G, freeze_ok, &s))
+        return 1;
+    int r = LM_ON;
+    while (r == LM_ON && s.it < o->maxiter && s.trials < 4 * o->maxiter)
+        r = lm_iterate(G, o, &s, converged);
+    if (r == LM_NOMEM)
+        return 1;
+    *iter += s.it;
     /* The covariance and the next sky order start from exact sums on
      * whole windows. */
     if (G->frozen) {
-        if ((since > 0 || G->nsettled) && lm_refresh(G, &D, 0, 1))
+        if ((s.since > 0 || G->nsettled) && lm_refresh(G, &s.D, 0, 1))
             return 1;
         G->frozen = 0;
     }
