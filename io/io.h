@@ -253,7 +253,9 @@ char *mp_name_after(const char *image, const char *ext);
  *    cfitsio 4.2.0 overflows a buffer and aborts on such a card.  Plain
  *    files' and memory's headers are walked; compressed files' are not;
  *  - a gzip or PKZIP file stating an uncompressed size more than deflate
- *    can make of its bytes (1032:1): cfitsio allocates that size first.
+ *    can make of its bytes (1032:1): cfitsio allocates that size first;
+ *  - a gzip or PKZIP file whose path holds ".Z" or ".bz2" (a folder's name
+ *    too): cfitsio inflates it as Unix compress or bzip2 and fails.
  * 0 otherwise. */
 #define MP_GUARD_LEN 160
 int mp_fits_guard_file(const char *name, char *why);

@@ -30,7 +30,9 @@ static int setup(void **state)
     if (!s)
         return -1;
     const char *tmp = getenv("TMPDIR");
-    snprintf(s->dir, sizeof s->dir, "%s/test_io.XXXXXX", tmp && *tmp ? tmp : "/tmp");
+    /* Not "test_io.XXXXXX": a random suffix starting with Z would put
+     * ".Z" in the gzip test's path (io/fits_guard.c compressed_name_ok). */
+    snprintf(s->dir, sizeof s->dir, "%s/test_io_XXXXXX", tmp && *tmp ? tmp : "/tmp");
     if (!mkdtemp(s->dir)) {
         free(s);
         return -1;
@@ -293,7 +295,7 @@ static void expect_read_error(const char *name, const char *file, const char *wo
     char err[MP_ERRLEN] = "";
     assert_int_not_equal(mp_image_read(name, &im, err), 0);
     if (!strstr(err, file) || (words && !strstr(err, words)))
-        print_error("unexpected message: %s\n", err);
+        print_error("unexpected message: %s (name %s)\n", err, name);
     assert_non_null(strstr(err, file));
     if (words)
         assert_non_null(strstr(err, words));
@@ -344,17 +346,19 @@ static void test_bad_inputs(void **state)
     snprintf(cmd, sizeof cmd, "gzip -c '%s' > '%s'", plain, gz);
     assert_int_equal(system(cmd), 0);
     mp_image im;
-    int rc = mp_image_read(gz, &im, err);
-    if (rc) {       /* stop 24's CI failed here once, under ASan only: say why */
-        print_error("%s\n", err);
-        snprintf(cmd, sizeof cmd, "ls -l '%s' '%s' >&2; gzip -lv '%s' >&2", plain, gz, gz);
-        if (system(cmd))
-            print_error("(ls or gzip -l failed)\n");
-    }
-    assert_int_equal(rc, 0);
+    assert_int_equal(mp_image_read(gz, &im, err), 0);
     assert_int_equal(im.nx, 100);
     assert_true(im.pix[100 * 100 - 1] == 100 * 100 - 1);
     mp_image_free(&im);
+    /* The same file in a folder whose name holds ".Z": cfitsio would
+     * inflate it as Unix compress and call it "not a FITS file". */
+    char zdir[sizeof s->path], zgz[sizeof s->path + 16];
+    snprintf(zdir, sizeof zdir, "%s", in_dir(s, "run.Zeta"));
+    snprintf(zgz, sizeof zgz, "%s/small.fits.gz", zdir);
+    assert_int_equal(mkdir(zdir, 0700), 0);
+    snprintf(cmd, sizeof cmd, "cp '%s' '%s'", gz, zgz);
+    assert_int_equal(system(cmd), 0);
+    expect_read_error(zgz, "small.fits.gz", "which cfitsio takes for Unix compress");
     fp = fopen(gz, "r+b");
     assert_non_null(fp);
     assert_int_equal(fseek(fp, -4, SEEK_END), 0);
@@ -386,7 +390,7 @@ static void test_bad_inputs(void **state)
     mp_image_free(&im);
 
     /* A directory, a bad section. */
-    expect_read_error(s->dir, "test_io.", "directory");
+    expect_read_error(s->dir, "test_io_", "directory");
     snprintf(name, sizeof name, "%s[1:2,x]", cube);
     expect_read_error(name, "cube.fits", NULL);
 
