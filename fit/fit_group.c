@@ -54,6 +54,7 @@ static void group_free(group *G)
     free(G->pk);
     free(G->pl);
     free(G->tail);
+    free(G->pfull);
     free(G->stail);
     free(G->cx0);
     free(G->cx1);
@@ -275,7 +276,7 @@ static int first_order(const mp_fit_opts *o)
 static int fit_orders(group *G, const mp_fit_opts *o, int *order, int *iter, int *converged)
 {
     int n = G->n;
-    if (lm_levmar(G, o, iter, converged))
+    if (lm_levmar(G, o, 0, iter, converged))
         return 1;
     while (o->fit_sky && o->sky_order == MP_SKY_AUTO && *converged && *order < MP_SKY_MAXORDER) {
         int to;
@@ -290,7 +291,7 @@ static int fit_orders(group *G, const mp_fit_opts *o, int *order, int *iter, int
         *order = to;
         G->nsky = nsky_of(*order);
         G->np = 3 * n + G->nsky;
-        if (lm_levmar(G, o, iter, converged))
+        if (lm_levmar(G, o, 1, iter, converged))
             return 1;
     }
     return 0;

@@ -247,14 +247,16 @@ typedef struct {
 enum { LM_ON, LM_DONE, LM_NOMEM };
 
 /* The loop's start at G->p: frozen wings where they pay, the model, exact
- * normal equations, D.  Nonzero when out of memory. */
-static int lm_start(group *G, int freeze_ok, lm_state *s)
+ * normal equations, D; with rose, the pairs' sums of the last loop's end
+ * (the same renders, model and weights: only the sky order rose, its new
+ * terms at zero).  Nonzero when out of memory. */
+static int lm_start(group *G, int freeze_ok, int rose, lm_state *s)
 {
     lm_unsettle(G, 1);
     G->freezing = freeze_ok && G->core_hw > 0 && G->crop && lm_freezing_pays(G);
     lm_model_of(G, G->p, G->cur);
     lm_variance_of(G);
-    if (lm_normal_equations(G, G->p, G->cur, 1))
+    if (lm_normal_equations(G, G->p, G->cur, rose ? NE_REUSE : NE_EXACT))
         return 1;
     *s = (lm_state){.D = lm_deviance_of(G), .lambda = 1e-3, .zfirst = INFINITY, .lfirst = 1e-3,
                     .fresh = 1};
@@ -408,11 +410,12 @@ static int lm_iterate(group *G, const mp_fit_opts *o, lm_state *s, int *converge
  * final.  Not converged when the damping blows up (λ > 1e8) from a larger
  * step, or after maxiter steps; the state is then the best one reached.
  * Accepted steps are added to *iter.  Nonzero: out of memory. */
-static int lm_loop(group *G, const mp_fit_opts *o, int freeze_ok, int *iter, int *converged)
+static int lm_loop(group *G, const mp_fit_opts *o, int freeze_ok, int rose, int *iter,
+                   int *converged)
 {
     lm_state s;
     *converged = 0;
-    if (lm_start(G, freeze_ok, &s))
+    if (lm_start(G, freeze_ok, rose, &s))
         return 1;
     int r = LM_ON;
     while (r == LM_ON && s.it < o->maxiter && s.trials < 4 * o->maxiter)
@@ -437,13 +440,13 @@ static int lm_loop(group *G, const mp_fit_opts *o, int freeze_ok, int *iter, int
  * state without them (with its own maxiter): frozen, a few more fits end
  * unconverged (47 Tuc 256², PSF built from the frame: 38 of 588 stars
  * flagged 8 against 1). */
-int lm_levmar(group *G, const mp_fit_opts *o, int *iter, int *converged)
+int lm_levmar(group *G, const mp_fit_opts *o, int rose, int *iter, int *converged)
 {
-    if (lm_loop(G, o, !o->exact_lm, iter, converged))
+    if (lm_loop(G, o, !o->exact_lm, rose, iter, converged))
         return 1;
     if (*converged || !G->freezing)
         return 0;
     if (lm_render_all(G, G->p, G->cur, RENDER_ALL))
         return 1;
-    return lm_loop(G, o, 0, iter, converged);
+    return lm_loop(G, o, 0, 0, iter, converged);
 }

@@ -82,6 +82,7 @@ typedef struct {
     int npair, cappair, ne_exact;
     int *pk, *pl;
     double *tail;
+    double *pfull;              /* 9 a pair: its whole sums (NE_REUSE) */
     double *stail;              /* 27 a star: its sky and self sums outside its core */
     int *cx0, *cx1, *cy0, *cy1;
     double core_hw;
@@ -192,11 +193,13 @@ double lm_chi2_with(const group *G, const double *var);
 /* How lm_normal_equations sums: the pairs over their cores only (between
  * steps), everything exact, every star's own terms exact, or, between
  * steps, the terms of the stars in G->moved and of their pairs exact
- * (their wings just redrawn: lm_refresh_movers). */
-enum { NE_STEER, NE_EXACT, NE_STARS, NE_MOVERS };
+ * (their wings just redrawn: lm_refresh_movers); or everything exact with
+ * the pairs' sums those of the last exact pass, when nothing but the sky
+ * order has changed since (NE_REUSE). */
+enum { NE_STEER, NE_EXACT, NE_STARS, NE_MOVERS, NE_REUSE };
 
-/* lm_normal.c: A and g at p (exact: NE_EXACT, NE_STEER, NE_STARS or
- * NE_MOVERS);
+/* lm_normal.c: A and g at p (exact: NE_EXACT, NE_STEER, NE_STARS,
+ * NE_MOVERS or NE_REUSE);
  * nonzero when out of memory. */
 int lm_normal_equations(group *G, const double *p, const rstar *r, int exact);
 
@@ -226,8 +229,10 @@ void lm_settle(group *G, const mp_fit_opts *o, int it);
 void lm_unsettle(group *G, int calm_too);
 
 /* levmar.c: LM from G->p (frozen wings unless o->exact_lm), accepted
- * steps added to *iter; nonzero when out of memory. */
-int lm_levmar(group *G, const mp_fit_opts *o, int *iter, int *converged);
+ * steps added to *iter; rose: only the sky order has changed since the
+ * last lm_levmar ended (its pairs' sums are kept); nonzero when out of
+ * memory. */
+int lm_levmar(group *G, const mp_fit_opts *o, int rose, int *iter, int *converged);
 
 /* sky_test.c: under MP_SKY_AUTO, the higher sky order the data ask for
  * at a converged fit of order 0 or 1 in *to, or -1; nonzero when out of

@@ -256,16 +256,21 @@ static int pair_exact(group *G, const double *p, const rstar *r, int k, int l)
         double *t = realloc(G->tail, (size_t)cap * 9 * sizeof *t);
         if (t)
             G->tail = t;
-        if (!a || !b || !t)
+        double *u = realloc(G->pfull, (size_t)cap * 9 * sizeof *u);
+        if (u)
+            G->pfull = u;
+        if (!a || !b || !t || !u)
             return 1;
         G->cappair = cap;
     }
     int x0, x1, y0, y1;
     pair_core(G, k, l, &x0, &x1, &y0, &y1);
     pair_sums(G, &r[k], &r[l], 0, x0, x1, y0, y1, c);
-    double *t = G->tail + (size_t)G->npair * 9;
-    for (int a = 0; a < 9; a++)
+    double *t = G->tail + (size_t)G->npair * 9, *u = G->pfull + (size_t)G->npair * 9;
+    for (int a = 0; a < 9; a++) {
         t[a] = s[a / 3][a % 3] - c[a / 3][a % 3];
+        u[a] = s[a / 3][a % 3];
+    }
     G->pk[G->npair] = k;
     G->pl[G->npair++] = l;
     return 0;
@@ -298,6 +303,17 @@ static void pairs_core(group *G, const double *p, const rstar *r)
         for (int a = 0; a < 9; a++)
             s[a / 3][a % 3] += t[a];
         put_pair(G, p, k, l, s);
+    }
+}
+
+/* The pairs of the last exact pass, their whole sums as it made them (the
+ * renders, weights and fluxes unchanged since: NE_REUSE). */
+static void pairs_reuse(group *G, const double *p)
+{
+    for (int q = 0; q < G->npair; q++) {
+        double s[3][3];
+        memcpy(s, G->pfull + (size_t)q * 9, sizeof s);
+        put_pair(G, p, G->pk[q], G->pl[q], s);
     }
 }
 
@@ -395,14 +411,18 @@ int lm_normal_equations(group *G, const double *p, const rstar *r, int exact)
     memset(G->A, 0, (size_t)np * np * sizeof *G->A);
     memset(G->g, 0, (size_t)np * sizeof *G->g);
     ne_sky(G);
-    int full = exact == NE_EXACT || !(G->core_hw > 0), movers = !full && exact == NE_MOVERS;
+    int reuse = exact == NE_REUSE && G->core_hw > 0;
+    int full = exact == NE_EXACT || exact == NE_REUSE || !(G->core_hw > 0);
+    int movers = !full && exact == NE_MOVERS;
     for (int k = 0; k < n && G->core_hw > 0; k++)
         if (full || (movers && G->moved[k]))
             set_core(G, p, k);
     for (int k = 0; k < n; k++)
         if (!G->settled[k])
             star_terms(G, p, &r[k], k, full || exact == NE_STARS || (movers && G->moved[k]));
-    if (full) {
+    if (reuse)
+        pairs_reuse(G, p);
+    else if (full) {
         if (pairs_exact(G, p, r))
             return 1;
     } else if (movers) {
