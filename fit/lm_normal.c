@@ -331,6 +331,7 @@ static int pairs_movers(group *G, const double *p, const rstar *r)
         G->pk[m] = k;
         G->pl[m] = l;
         memmove(G->tail + (size_t)m * 9, G->tail + (size_t)q * 9, 9 * sizeof *G->tail);
+        memmove(G->pfull + (size_t)m * 9, G->pfull + (size_t)q * 9, 9 * sizeof *G->pfull);
         m++;
     }
     G->npair = m;
