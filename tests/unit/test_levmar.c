@@ -795,23 +795,11 @@ static void assert_same_fits(const mp_star *a, const mp_star *b, int K)
     assert_close_fits(a, b, K, 0.05);
 }
 
-/* Frozen wings (fit/lm_frozen.c, issue 12).  A group of bright stars fitted
- * on small discs (fitrad 3) whose windows, cropped where a star's light
- * falls below 0.02 σ of a sky pixel, reach their neighbours' discs (FWHM
- * 6, 7 px apart): the LM iterates on each star's core with its wings held,
- * yet converges only on exact sums, so it must end where the fit with every
- * step exact ends, to within the LM's tol (1e-3 σ; asserted at 0.05 σ of
- * each parameter).  That freezing ran shows in the table renders' counted
- * multiply-adds, which differ.  (They are not asserted lower: here the
- * frozen fit takes 18 iterations against 9 and 30 % more rendering, so
- * "windows over twice the cores" does not always pay — noted for issue 12.)
- * One seeded frame: both fits are deterministic, so this fails only when
- * the two paths disagree or freezing did not engage. */
 enum { FROZEN_K = 9 };
 
-/* The frozen-wings scene (below) fitted from its stars moved by (dx, dy)
- * px and 10 % in flux, with exact_lm and refresh_movers as given; the
- * table renders' multiply-adds in *work. */
+/* The scene of test_frozen_wings_same_fit (below) fitted from its stars
+ * moved by (dx, dy) px and 10 % in flux, with exact_lm and refresh_movers
+ * as given; the table renders' multiply-adds in *work. */
 static void frozen_scene_fit(double dx, double dy, int exact_lm, int movers, mp_star a[FROZEN_K],
                              double *work)
 {
@@ -848,6 +836,18 @@ static void frozen_scene_fit(double dx, double dy, int exact_lm, int movers, mp_
     frame_drop(&f);
 }
 
+/* Frozen wings (fit/lm_frozen.c, issue 12).  A group of bright stars fitted
+ * on small discs (fitrad 3) whose windows, cropped where a star's light
+ * falls below 0.02 σ of a sky pixel, reach their neighbours' discs (FWHM
+ * 6, 7 px apart): the LM iterates on each star's core with its wings held,
+ * yet converges only on exact sums, so it must end where the fit with every
+ * step exact ends, to within the LM's tol (1e-3 σ; asserted at 0.05 σ of
+ * each parameter).  That freezing ran shows in the table renders' counted
+ * multiply-adds, which differ.  (They are not asserted lower: here the
+ * frozen fit takes 18 iterations against 9 and 30 % more rendering, so
+ * "windows over twice the cores" does not always pay — noted for issue 12.)
+ * One seeded frame: both fits are deterministic, so this fails only when
+ * the two paths disagree or freezing did not engage. */
 static void test_frozen_wings_same_fit(void **state)
 {
     (void)state;
