@@ -254,3 +254,12 @@ int mp_fits_guard_file(const char *name, char *why)
     fclose(fp);
     return rc;
 }
+
+int mp_fits_guard_named(const char *path, const char *name, char *err)
+{
+    char why[MP_GUARD_LEN];
+    if (!mp_fits_guard_file(path, why))
+        return 0;
+    snprintf(err, MP_ERRLEN, "%s: %s", name, why);
+    return 1;
+}

@@ -58,9 +58,7 @@ static int open_image(const char *name, fitsfile **fp, char *err)
         return 1;
     }
     int status = 0;
-    char why[MP_GUARD_LEN];
-    if (mp_fits_guard_file(cname, why)) {
-        snprintf(err, MP_ERRLEN, "%s: %s", name, why);
+    if (mp_fits_guard_named(cname, name, err)) {
         free(cname);
         return 1;
     }

@@ -27,9 +27,7 @@ int mp_image_size(const char *name, long *nx, long *ny, char *err)
         snprintf(err, MP_ERRLEN, "%s: out of memory", name);
         return 1;
     }
-    char why[MP_GUARD_LEN];
-    if (mp_fits_guard_file(n, why)) {
-        snprintf(err, MP_ERRLEN, "%s: %s", name, why);
+    if (mp_fits_guard_named(n, name, err)) {
         free(n);
         return 1;
     }

@@ -261,6 +261,11 @@ char *mp_name_after(const char *image, const char *ext);
 int mp_fits_guard_file(const char *name, char *why);
 int mp_fits_guard_mem(const void *b, size_t n, char *why);
 
+/* mp_fits_guard_named: mp_fits_guard_file on path, its refusal written to
+ * err (MP_ERRLEN) as "name: why", the way readers report a file; 1 when
+ * refused, 0 otherwise. */
+int mp_fits_guard_named(const char *path, const char *name, char *err);
+
 /* mp_seconds: monotonic wall-clock seconds (differences only). */
 double mp_seconds(void);
 

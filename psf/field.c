@@ -121,16 +121,21 @@ int mp_psf_field_eval(const mp_psf_field *f, double x, double y, mp_psf *out, ch
     return 0;
 }
 
+int mp_psf_field_origin_ok(double x0, double y0, double xs, double ys)
+{
+    return fabs(x0) <= MP_PSF_MAXPOS && fabs(y0) <= MP_PSF_MAXPOS && xs >= MP_PSF_MINSCALE &&
+           ys >= MP_PSF_MINSCALE && xs <= MP_PSF_MAXPOS && ys <= MP_PSF_MAXPOS;
+}
+
 int mp_psf_field_new(int order, int nx, int ny, int os, double x0, double y0, double xs,
                      double ys, mp_psf_field *f, char *err)
 {
     memset(f, 0, sizeof *f);
     int nt = mp_psf_nterms(order);
     if (!nt || nx < 1 || ny < 1 || nx % 2 == 0 || ny % 2 == 0 || os < 1 || os > 8 ||
-        (order > 0 && !(isfinite(x0) && isfinite(y0) && xs > 0 && ys > 0 && isfinite(xs) &&
-                        isfinite(ys)))) {
-        snprintf(err, MP_ERRLEN, "psf field: bad order %d, size %dx%d, OVERSAMP %d or "
-                 "scales %g, %g", order, nx, ny, os, xs, ys);
+        (order > 0 && !mp_psf_field_origin_ok(x0, y0, xs, ys))) {
+        snprintf(err, MP_ERRLEN, "psf field: bad order %d, size %dx%d, OVERSAMP %d, origin "
+                 "%g, %g or scales %g, %g", order, nx, ny, os, x0, y0, xs, ys);
         return 1;
     }
     f->planes = calloc((size_t)nt * (size_t)nx * (size_t)ny, sizeof *f->planes);
@@ -158,12 +163,13 @@ int mp_psf_field_new_grid(int ngx, int ngy, const double *gx, const double *gy, 
              ngx * ngy <= MP_PSF_MAXTERMS && nx % 2 && ny % 2 && nx > 0 && ny > 0 && os >= 1 &&
              os <= 8;
     for (int i = 0; ok && i < ngx; i++)
-        ok = isfinite(gx[i]) && (i == 0 || gx[i] > gx[i - 1]);
+        ok = fabs(gx[i]) <= MP_PSF_MAXPOS && (i == 0 || gx[i] > gx[i - 1]);
     for (int j = 0; ok && j < ngy; j++)
-        ok = isfinite(gy[j]) && (j == 0 || gy[j] > gy[j - 1]);
+        ok = fabs(gy[j]) <= MP_PSF_MAXPOS && (j == 0 || gy[j] > gy[j - 1]);
     if (!ok) {
         snprintf(err, MP_ERRLEN, "psf grid: bad grid %dx%d (at most %d a side, positions "
-                 "ascending), table %dx%d or OVERSAMP %d", ngx, ngy, MP_PSF_MAXGRID, nx, ny, os);
+                 "ascending within +-1e7 px), table %dx%d or OVERSAMP %d",
+                 ngx, ngy, MP_PSF_MAXGRID, nx, ny, os);
         return 1;
     }
     f->planes = calloc((size_t)ngx * ngy * nx * ny, sizeof *f->planes);

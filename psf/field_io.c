@@ -99,6 +99,12 @@ static int cube_keys(fitsfile *fp, const char *name, int oversamp, double *os, d
             return 1;
         }
     }
+    if (f->order > 0 && !mp_psf_field_origin_ok(pol[0], pol[1], pol[2], pol[3])) {
+        snprintf(err, MP_ERRLEN, "%s: POLZERO1/2 %g, %g or POLSCAL1/2 %g, %g out of range "
+                 "(|POLZERO| <= %g px, %g <= POLSCAL <= %g px)", name, pol[0], pol[1], pol[2],
+                 pol[3], MP_PSF_MAXPOS, MP_PSF_MINSCALE, MP_PSF_MAXPOS);
+        return 1;
+    }
     build_keys(fp, f);
     return 0;
 }

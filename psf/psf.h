@@ -153,8 +153,21 @@ void mp_psf_local(const mp_psf *p, double dx, double dy, mp_psf *out, mp_psf_fie
 /* mp_psf_field_from_table: an order-0 field holding a copy of table p. */
 int mp_psf_field_from_table(const mp_psf *p, mp_psf_field *f, char *err);
 
+/* Where a variable PSF may put its origin or grid (|POLZERO|, |position|
+ * ≤ MP_PSF_MAXPOS px) and how fine its scale may be (MP_PSF_MINSCALE ≤
+ * POLSCAL ≤ MP_PSF_MAXPOS): inside these a cubic's terms stay finite at
+ * every pixel of any frame up to MP_PSF_MAXPOS a side (at most
+ * (2e7 / 1e-2)³ ≈ 1e28); outside them no detector's positions lie. */
+#define MP_PSF_MAXPOS 1e7
+#define MP_PSF_MINSCALE 1e-2
+
+/* mp_psf_field_origin_ok: 1 when origin (x0, y0) and scales (xs, ys) lie
+ * within the bounds above, 0 otherwise (NaN included). */
+int mp_psf_field_origin_ok(double x0, double y0, double xs, double ys);
+
 /* mp_psf_field_new: an order-`order` field of nx × ny elements, planes
- * zeroed, origin (x0, y0), scales (xs, ys). */
+ * zeroed, origin (x0, y0), scales (xs, ys) (for order ≥ 1 within the
+ * bounds of mp_psf_field_origin_ok). */
 int mp_psf_field_new(int order, int nx, int ny, int os, double x0, double y0, double xs,
                      double ys, mp_psf_field *f, char *err);
 

@@ -90,9 +90,12 @@ static int check_keys(const char *name, const psfex_keys *k, char *err)
                      k->ax[i]);
             return 1;
         }
-    if (!(k->samp >= 0.05 && k->samp <= 20) || (deg > 0 && !(k->scal[0] > 0 && k->scal[1] > 0))) {
-        snprintf(err, MP_ERRLEN, "%s: PSF_SAMP %g or POLSCAL %g, %g out of range", name, k->samp,
-                 k->scal[0], k->scal[1]);
+    if (!(k->samp >= 0.05 && k->samp <= 20) ||
+        (deg > 0 && !mp_psf_field_origin_ok(k->zero[0], k->zero[1], k->scal[0], k->scal[1]))) {
+        snprintf(err, MP_ERRLEN, "%s: PSF_SAMP %g, POLZERO %g, %g or POLSCAL %g, %g out of range "
+                 "(|POLZERO| <= %g px, %g <= POLSCAL <= %g px)", name, k->samp, k->zero[0],
+                 k->zero[1], k->scal[0], k->scal[1], MP_PSF_MAXPOS, MP_PSF_MINSCALE,
+                 MP_PSF_MAXPOS);
         return 1;
     }
     return 0;

@@ -191,6 +191,19 @@ static int grid_positions(fitsfile *fp, const char *name, int stdpsf, long nz, d
     return 0;
 }
 
+/* Every grid position within ±MP_PSF_MAXPOS px (mp_psf_field_new_grid). */
+static int positions_in_range(const char *name, long nz, const double *px, const double *py,
+                              char *err)
+{
+    for (long k = 0; k < nz; k++)
+        if (!(fabs(px[k]) <= MP_PSF_MAXPOS && fabs(py[k]) <= MP_PSF_MAXPOS)) {
+            snprintf(err, MP_ERRLEN, "%s: PSF grid position (%g, %g) is not a pixel position "
+                     "within +-%g", name, px[k], py[k], MP_PSF_MAXPOS);
+            return 1;
+        }
+    return 0;
+}
+
 int grid_read(fitsfile *fp, const char *name, int stdpsf, const long naxes[3], mp_psf_field *f,
               char *warn, char *err)
 {
@@ -230,7 +243,8 @@ int grid_read(fitsfile *fp, const char *name, int stdpsf, const long naxes[3], m
         snprintf(err, MP_ERRLEN, "%s: out of memory", name);
         goto done;
     }
-    if (grid_positions(fp, name, stdpsf, nz, px, py, err))
+    if (grid_positions(fp, name, stdpsf, nz, px, py, err) ||
+        positions_in_range(name, nz, px, py, err))
         goto done;
     ngx = distinct(px, (int)nz, gx, MP_PSF_MAXGRID);
     ngy = distinct(py, (int)nz, gy, MP_PSF_MAXGRID);

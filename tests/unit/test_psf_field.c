@@ -275,6 +275,13 @@ static void test_bad_cubes(void **state)
     expect_error(p, "POLSCAL1 missing");
     write_cube(p, 5, 5, 3, "1", "0", 0.0);
     expect_error(p, "POLSCAL1 invalid");
+    /* A scale so fine that the polynomial overflows a few pixels from the
+     * origin (a fuzz finding: a non-finite PRF from an accepted file). */
+    write_cube(p, 5, 5, 3, "1", "1e-200", 0.0);
+    expect_error(p, "POLSCAL1/2 1e-200, 20 out of range");
+    write_cube(p, 5, 5, 3, "1", "0.01", 0.0);         /* the finest accepted */
+    assert_int_equal(mp_psf_field_read(p, 0, 0, &f, NULL, NULL, warn, err), 0);
+    mp_psf_field_free(&f);
     write_cube(p, 5, 5, 3, "1", "20", NAN);
     expect_error(p, "NaN");
     write_cube(p, 4, 5, 3, "1", "20", 0.0);
