@@ -246,6 +246,19 @@ double mp_epsf_growth_rin(const mp_epsf_opts *o);
  * sampling errors for noise alone (one-sided false rate 1.3e-4 a ring). */
 #define MP_EPSF_RADZ 3.65
 
+/* Past the last measured ring, the next rings are kept while their light
+ * is at least its own error (z ≥ MP_EPSF_RADKEEP) and reaches the level.
+ * Why: a ring dropped leaves its light μ out of every star's model (a
+ * bias μ², coherent over the ring: the brightest stars' cut rings and
+ * spikes were fitted as stars), a ring kept puts the stack's noise σ² in
+ * (incoherent); keeping lowers the expected squared error when μ > σ,
+ * whose plug-in is z ≥ 1.  On validate/CROWDED.md's segmented scene the
+ * ring past the measured ones read z 2.0, 2.9, 3.9 on three draws; cut
+ * there, it left light of 1·10⁻⁶–2·10⁻⁶ a pixel, 0.5–1 σ of a sky pixel
+ * around the saturated stars.  A ring of noise alone is kept with
+ * probability 0.16. */
+#define MP_EPSF_RADKEEP 1.0
+
 /* How the table radius is measured (mp_epsf_tablerad). */
 typedef struct {
     double frac;       /* the brightest star's light per pixel above frac·σ of a
@@ -278,7 +291,8 @@ int mp_epsf_profile_hi(const double *med, const double *sig, int hw, double *q, 
 
 /* mp_epsf_radius_rule: 1 + the largest ring r < nr whose light is
  * measured (z[r] ≥ MP_EPSF_RADZ) and, for a star of flux fmax, reaches
- * level per pixel (fmax·q[r] ≥ level); 0 when none. */
+ * level per pixel (fmax·q[r] ≥ level), taken on over the rings after it
+ * that reach the level at z ≥ MP_EPSF_RADKEEP; 0 when none. */
 double mp_epsf_radius_rule(const double *q, const double *z, int nr, double fmax, double level);
 
 /* mp_epsf_tablerad: the table radius a frame needs (pipeline tablerad=INDEF):
@@ -349,5 +363,11 @@ int mp_task_psf(int argc, char **argv);
  * when n = 0.  The builder's, and the pipeline's models of the light the
  * table leaves out (pipeline/halo.c, lookup.c). */
 double mp_epsf_median(double *v, size_t n);
+
+/* mp_epsf_median_select: the same median, by selection (linear time on
+ * average, where mp_epsf_median sorts): v is left permuted, not sorted.
+ * For finite values; the medians of the build's hot loops (each PSF
+ * star's sky annulus, every table element's combination). */
+double mp_epsf_median_select(double *v, size_t n);
 
 #endif

@@ -53,7 +53,7 @@ static double ring_median(const mp_frame *f, const float *img, long cx, long cy,
             if (isfinite(img[o]))
                 tmp[m++] = img[o];
         }
-    return m >= 8 && 2 * avail >= all ? mp_epsf_median(tmp, m) : NAN;
+    return m >= 8 && 2 * avail >= all ? mp_epsf_median_select(tmp, m) : NAN;
 }
 
 /* One star's light per unit flux around the pixel (cx, cy) into v (w*w,
@@ -92,11 +92,11 @@ static int stack_combine(const double *im, int n, stack *s)
         for (int k = 0; k < n; k++)
             if (isfinite(im[(size_t)k * nel + e]))
                 col[m++] = im[(size_t)k * nel + e];
-        double med = m >= 3 ? mp_epsf_median(col, m) : NAN;
+        double med = m >= 3 ? mp_epsf_median_select(col, m) : NAN;
         for (size_t q = 0; q < m; q++)
             col[q] = fabs(col[q] - med);
         s->med[e] = med;
-        s->sig[e] = m >= 3 ? 1.2533 * 1.4826 * mp_epsf_median(col, m) / sqrt((double)m) : NAN;
+        s->sig[e] = m >= 3 ? 1.2533 * 1.4826 * mp_epsf_median_select(col, m) / sqrt((double)m) : NAN;
     }
     s->n = n;
     free(col);
@@ -251,12 +251,24 @@ int mp_epsf_profile_hi(const double *med, const double *sig, int hw, double *q, 
     return 0;
 }
 
+/* Whether ring r's light, at z or more of its error, reaches the level
+ * for a star of flux fmax. */
+static int ring_passes(const double *q, const double *z, int r, double zmin, double fmax,
+                       double level)
+{
+    return isfinite(q[r]) && z[r] >= zmin && fmax * q[r] >= level;
+}
+
 double mp_epsf_radius_rule(const double *q, const double *z, int nr, double fmax, double level)
 {
-    for (int r = nr - 1; r >= 0; r--)
-        if (isfinite(q[r]) && z[r] >= MP_EPSF_RADZ && fmax * q[r] >= level)
-            return (double)(r + 1);
-    return 0.0;
+    int last = nr - 1;
+    while (last >= 0 && !ring_passes(q, z, last, MP_EPSF_RADZ, fmax, level))
+        last--;
+    if (last < 0)
+        return 0.0;
+    while (last + 1 < nr && ring_passes(q, z, last + 1, MP_EPSF_RADKEEP, fmax, level))
+        last++;
+    return (double)(last + 1);
 }
 
 /* The rule on one stack: the radius, 0 when it has none. */
@@ -303,9 +315,10 @@ int mp_epsf_tablerad(const mp_frame *f, const float *img, const double *x, const
         out->reach = r;
         snprintf(out->why, sizeof out->why,
                  "tablerad %.1f px (PSF light per pixel, 0.9 quantile over azimuth of %d PSF "
-                 "stars, measured (z >= %.2f) and above %.2g sigma of a sky pixel for the "
-                 "brightest star (%.3g e- within 2 fwhm%s): to %.0f px; within %.1f..%.1f px)",
-                 out->rad, p.n, MP_EPSF_RADZ, o->frac, out->fmax,
+                 "stars, measured (z >= %.2f, then the rings after at z >= %.0f) and above "
+                 "%.2g sigma of a sky pixel for the brightest star (%.3g e- within 2 fwhm%s): "
+                 "to %.0f px; within %.1f..%.1f px)",
+                 out->rad, p.n, MP_EPSF_RADZ, MP_EPSF_RADKEEP, o->frac, out->fmax,
                  fb > fp ? ", by its wings" : "", r, o->rmin, o->rmax);
     }
     stack_free(&p);

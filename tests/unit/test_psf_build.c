@@ -870,9 +870,33 @@ static void test_faint_neighbours_masked(void **state)
     free(f.mask);
 }
 
+/* The selection median is the sorted one, exactly: sizes 1..200, values
+ * drawn from a few levels (ties) or continuous, sorted and reversed
+ * inputs (the partition's worst orders). */
+static void test_median_select_is_the_median(void **state)
+{
+    (void)state;
+    mp_rng r;
+    mp_rng_seed(&r, 20261129);
+    double a[200], b[200];
+    for (size_t n = 1; n <= 200; n++)
+        for (int kind = 0; kind < 4; kind++) {
+            for (size_t i = 0; i < n; i++) {
+                double u = mp_rng_uniform(&r);
+                a[i] = kind == 0 ? u : kind == 1 ? floor(4.0 * u) : (double)(kind == 2 ? i : n - i);
+                b[i] = a[i];
+            }
+            double want = mp_epsf_median(a, n), got = mp_epsf_median_select(b, n);
+            if (got != want)
+                fail_msg("n %zu kind %d: %.17g, sorted %.17g", n, kind, got, want);
+        }
+    assert_true(isnan(mp_epsf_median_select(a, 0)));
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
+        cmocka_unit_test(test_median_select_is_the_median),
         cmocka_unit_test(test_recovers_constant_table),
         cmocka_unit_test(test_linear_variation),
         cmocka_unit_test(test_cubic_variation),
