@@ -6,62 +6,11 @@
 #include <stdlib.h>
 #include <string.h>
 
-/* v[k] as it would be after sorting v[0..n-1] ascending, k < n, found by
- * selection in O(n) (Hoare's partition, median-of-three pivot): v[0..k-1]
- * ≤ v[k] ≤ v[k+1..n-1] afterwards.  The sorts it replaced were the
- * residual noise map's serial 2 % of a run's CPU (30 bisection steps, two
- * medians each, of 2·10⁵ samples; issue 14). */
-static double select_kth(double *v, size_t n, size_t k)
-{
-    size_t lo = 0, hi = n - 1;
-    while (hi > lo) {
-        size_t mid = lo + (hi - lo) / 2;
-        double a = v[lo], b = v[mid], c = v[hi];
-        double piv = a < b ? (b < c ? b : (a < c ? c : a)) : (a < c ? a : (b < c ? c : b));
-        size_t i = lo, j = hi;
-        while (i <= j) {
-            while (v[i] < piv)
-                i++;
-            while (v[j] > piv)
-                j--;
-            if (i <= j) {
-                double t = v[i];
-                v[i] = v[j];
-                v[j] = t;
-                i++;
-                if (j == 0)
-                    break;
-                j--;
-            }
-        }
-        if (k <= j)
-            hi = j;
-        else if (k >= i)
-            lo = i;
-        else
-            break;
-    }
-    return v[k];
-}
-
 /* The q-quantile (0..1, nearest rank) of v[0..n-1], n > 0 (reorders v). */
 static double quantile_of(double *v, size_t n, double q)
 {
     size_t i = (size_t)(q * (double)(n - 1) + 0.5);
-    return select_kth(v, n, i < n ? i : n - 1);
-}
-
-/* Median of v[0..n-1] (reorders v): for even n, the mean of the two
- * middle values, the lower being the largest left of the upper. */
-static double median_of(double *v, size_t n)
-{
-    double hi = select_kth(v, n, n / 2);
-    if (n % 2)
-        return hi;
-    double lo = v[0];
-    for (size_t i = 1; i < n / 2; i++)
-        lo = v[i] > lo ? v[i] : lo;
-    return 0.5 * (lo + hi);
+    return mp_select_kth(v, n, i < n ? i : n - 1);
 }
 
 /* Poisson variance [e-²] of pixel i: sky + stars + RON². */
@@ -74,10 +23,10 @@ static double poisson_var(const mp_bkg *b, const mp_frame *f, const float *res, 
  * the stars not yet found. */
 static double robust_sigma(double *v, size_t n)
 {
-    double med = median_of(v, n);
+    double med = mp_median_select(v, n);
     for (size_t k = 0; k < n; k++)
         v[k] = fabs(v[k] - med);
-    return 1.482602218505602 * median_of(v, n);
+    return 1.482602218505602 * mp_median_select(v, n);
 }
 
 /* The sampled pixels, as residual r (sky removed), Poisson variance p and

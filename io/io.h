@@ -266,6 +266,15 @@ int mp_fits_guard_mem(const void *b, size_t n, char *why);
  * refused, 0 otherwise. */
 int mp_fits_guard_named(const char *path, const char *name, char *err);
 
+/* mp_select_kth: the k-th smallest of v[0..n) (k < n), with v rearranged
+ * so that v[0..k) ≤ v[k] ≤ v[k+1..n) (Hoare's selection, median-of-three
+ * pivot; linear time on average).  For finite values. */
+double mp_select_kth(double *v, size_t n, size_t k);
+
+/* mp_median_select: the median of v[0..n) (the mean of the middle two for
+ * even n) by mp_select_kth, v left permuted, not sorted; NaN when n = 0. */
+double mp_median_select(double *v, size_t n);
+
 /* mp_seconds: monotonic wall-clock seconds (differences only). */
 double mp_seconds(void);
 

@@ -364,10 +364,8 @@ int mp_task_psf(int argc, char **argv);
  * table leaves out (pipeline/halo.c, lookup.c). */
 double mp_epsf_median(double *v, size_t n);
 
-/* mp_epsf_median_select: the same median, by selection (linear time on
- * average, where mp_epsf_median sorts): v is left permuted, not sorted.
- * For finite values; the medians of the build's hot loops (each PSF
- * star's sky annulus, every table element's combination). */
-double mp_epsf_median_select(double *v, size_t n);
+/* (The build's hot loops — each PSF star's sky annulus, every table
+ * element's combination — take io.h's mp_median_select, which does not
+ * sort.) */
 
 #endif

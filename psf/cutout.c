@@ -53,7 +53,7 @@ static double annulus_sky(const mp_epsf_star *s, double r0, double r1, double *b
             break;
         mean = sum / m;
         double sd = sqrt(fmax(sum2 / m - mean * mean, 0.0));
-        med = mp_epsf_median_select(buf + n, m);
+        med = mp_median_select(buf + n, m);
         double nlo = med - 3 * sd, nhi = med + 3 * sd;
         if (nlo == lo && nhi == hi)
             break;

@@ -107,10 +107,10 @@ static void stacked_light(const double *u, int nst, int hw, double rin, double r
                     col[m++] = u[(size_t)k * w * w + e];
             if (m < 3)
                 continue;
-            double med = mp_epsf_median_select(col, m);
+            double med = mp_median_select(col, m);
             for (size_t k = 0; k < m; k++)
                 col[k] = fabs(col[k] - med);
-            double se = 1.2533 * 1.4826 * mp_epsf_median_select(col, m) / sqrt((double)m);
+            double se = 1.2533 * 1.4826 * mp_median_select(col, m) / sqrt((double)m);
             sum[q] += med;
             var[q] += se * se;
             cnt[q]++;

@@ -182,7 +182,7 @@ static void combine_element(mp_epsf_sirt *w, size_t el, const mp_epsf_star *s, s
     }
     double *tmp = dev + n;
     memcpy(tmp, dev, m * sizeof *dev);
-    double sig = 1.4826 * mp_epsf_median_select(tmp, m);
+    double sig = 1.4826 * mp_median_select(tmp, m);
     if (!(sig > 0))
         return;
     for (size_t k = 0; flag && k < n; k++) {

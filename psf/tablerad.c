@@ -53,7 +53,7 @@ static double ring_median(const mp_frame *f, const float *img, long cx, long cy,
             if (isfinite(img[o]))
                 tmp[m++] = img[o];
         }
-    return m >= 8 && 2 * avail >= all ? mp_epsf_median_select(tmp, m) : NAN;
+    return m >= 8 && 2 * avail >= all ? mp_median_select(tmp, m) : NAN;
 }
 
 /* One star's light per unit flux around the pixel (cx, cy) into v (w*w,
@@ -92,11 +92,11 @@ static int stack_combine(const double *im, int n, stack *s)
         for (int k = 0; k < n; k++)
             if (isfinite(im[(size_t)k * nel + e]))
                 col[m++] = im[(size_t)k * nel + e];
-        double med = m >= 3 ? mp_epsf_median_select(col, m) : NAN;
+        double med = m >= 3 ? mp_median_select(col, m) : NAN;
         for (size_t q = 0; q < m; q++)
             col[q] = fabs(col[q] - med);
         s->med[e] = med;
-        s->sig[e] = m >= 3 ? 1.2533 * 1.4826 * mp_epsf_median_select(col, m) / sqrt((double)m) : NAN;
+        s->sig[e] = m >= 3 ? 1.2533 * 1.4826 * mp_median_select(col, m) / sqrt((double)m) : NAN;
     }
     s->n = n;
     free(col);
