@@ -36,7 +36,7 @@ typedef struct {
                            * with tablerad=INDEF (0: the option's) */
     double tabsupport;    /* the reach measured when short of tabrad (the
                            * table zero beyond it), else 0 */
-    char tabwhy[400];     /* how (mp_epsf_rad.why), for the run report */
+    char tabwhy[480];     /* how (mp_epsf_rad.why), for the run report */
     int quiet;            /* mp_pipeline_reduce: no stderr lines, no files */
     int own_frame;        /* f read here, so the halo may be taken off it */
     const mp_prf_cache *grid;  /* the phase grid the last fit drew from */

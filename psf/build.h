@@ -275,7 +275,7 @@ typedef struct {
     double fmax;       /* the brightest star's flux in the stacks' unit [e-] */
     double level;      /* frac·σ of a sky pixel [e-] */
     int npsf, nbright; /* stars in the two stacks */
-    char why[320];     /* one line for the run report */
+    char why[400];     /* one line for the run report */
 } mp_epsf_rad;
 
 /* mp_epsf_profile_hi: the high-quantile profile of a stacked star image
