@@ -428,6 +428,11 @@ typedef struct {
                                 * for the stars that moved far, between
                                 * steps (fit/lm_frozen.c); 0: every star's
                                 * (tests compare) */
+    int reuse_pairs;           /* 1, the default: after a sky-order rise the
+                                * LM starts from the pairs' sums of the last
+                                * loop's exact pass (fit/lm_normal.c
+                                * NE_REUSE); 0: sums them again (tests
+                                * compare: the same bytes) */
 } mp_fit_opts;
 
 void mp_fit_opts_default(mp_fit_opts *o);

@@ -24,6 +24,7 @@ void mp_fit_opts_default(mp_fit_opts *o)
     o->exact_lm = 0;
     o->settle = 1;
     o->refresh_movers = 1;
+    o->reuse_pairs = 1;
 }
 
 static void group_free(group *G)
@@ -291,7 +292,7 @@ static int fit_orders(group *G, const mp_fit_opts *o, int *order, int *iter, int
         *order = to;
         G->nsky = nsky_of(*order);
         G->np = 3 * n + G->nsky;
-        if (lm_levmar(G, o, 1, iter, converged))
+        if (lm_levmar(G, o, o->reuse_pairs, iter, converged))
             return 1;
     }
     return 0;
