@@ -253,10 +253,11 @@ double mp_epsf_growth_rin(const mp_epsf_opts *o);
  * spikes were fitted as stars), a ring kept puts the stack's noise σ² in
  * (incoherent); keeping lowers the expected squared error when μ > σ,
  * whose plug-in is z ≥ 1.  On validate/CROWDED.md's segmented scene the
- * ring past the measured ones read z 2.0, 2.9, 3.9 on three draws; cut
- * there, it left light of 1·10⁻⁶–2·10⁻⁶ a pixel, 0.5–1 σ of a sky pixel
- * around the saturated stars.  A ring of noise alone is kept with
- * probability 0.16. */
+ * rings past the measured ones read z 2.0 (ring 18, then −0.9), and on
+ * its second draw 2.9, 1.4, 1.5 (rings 19–21, then −1.5); cut at ring 18,
+ * the first draw's table left out ~2·10⁻⁶ of the flux a pixel there, ~1 σ
+ * of a sky pixel around its saturated stars.  A ring of noise alone is
+ * kept with probability 0.16. */
 #define MP_EPSF_RADKEEP 1.0
 
 /* How the table radius is measured (mp_epsf_tablerad). */
@@ -361,11 +362,10 @@ int mp_task_psf(int argc, char **argv);
 /* mp_epsf_median: the median of v[0..n), the mean of the middle two for
  * even n; sorts v in place (callers read quantiles off it after).  NaN
  * when n = 0.  The builder's, and the pipeline's models of the light the
- * table leaves out (pipeline/halo.c, lookup.c). */
+ * table leaves out (pipeline/halo.c, lookup.c).  Where nothing reads v
+ * after, io.h's mp_median_select gives the same value without sorting
+ * (the build's hot loops: each PSF star's sky annulus, every table
+ * element's combination). */
 double mp_epsf_median(double *v, size_t n);
-
-/* (The build's hot loops — each PSF star's sky annulus, every table
- * element's combination — take io.h's mp_median_select, which does not
- * sort.) */
 
 #endif

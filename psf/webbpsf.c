@@ -191,19 +191,6 @@ static int grid_positions(fitsfile *fp, const char *name, int stdpsf, long nz, d
     return 0;
 }
 
-/* Every grid position within ±MP_PSF_MAXPOS px (mp_psf_field_new_grid). */
-static int positions_in_range(const char *name, long nz, const double *px, const double *py,
-                              char *err)
-{
-    for (long k = 0; k < nz; k++)
-        if (!(fabs(px[k]) <= MP_PSF_MAXPOS && fabs(py[k]) <= MP_PSF_MAXPOS)) {
-            snprintf(err, MP_ERRLEN, "%s: PSF grid position (%g, %g) is not a pixel position "
-                     "within +-%g", name, px[k], py[k], MP_PSF_MAXPOS);
-            return 1;
-        }
-    return 0;
-}
-
 int grid_read(fitsfile *fp, const char *name, int stdpsf, const long naxes[3], mp_psf_field *f,
               char *warn, char *err)
 {
@@ -243,8 +230,7 @@ int grid_read(fitsfile *fp, const char *name, int stdpsf, const long naxes[3], m
         snprintf(err, MP_ERRLEN, "%s: out of memory", name);
         goto done;
     }
-    if (grid_positions(fp, name, stdpsf, nz, px, py, err) ||
-        positions_in_range(name, nz, px, py, err))
+    if (grid_positions(fp, name, stdpsf, nz, px, py, err))
         goto done;
     ngx = distinct(px, (int)nz, gx, MP_PSF_MAXGRID);
     ngy = distinct(py, (int)nz, gy, MP_PSF_MAXGRID);
@@ -253,9 +239,13 @@ int grid_read(fitsfile *fp, const char *name, int stdpsf, const long naxes[3], m
                  "(%d x %d distinct x, y)", name, nz, ngx, ngy);
         goto done;
     }
-    if (!(v = read_cube(fp, name, nx, ny, nz, err)) ||
-        mp_psf_field_new_grid(ngx, ngy, gx, gy, mx, my, os, f, err))
+    if (!(v = read_cube(fp, name, nx, ny, nz, err)))
         goto done;
+    char e2[MP_ERRLEN];
+    if (mp_psf_field_new_grid(ngx, ngy, gx, gy, mx, my, os, f, e2)) {
+        snprintf(err, MP_ERRLEN, "%s: %.400s", name, e2);   /* positions beyond ±1e7 px too */
+        goto done;
+    }
     f->offset = pad ? 0.5 / os : 0.0;
     for (long k = 0; k < nz; k++) {
         int i = index_of(gx, ngx, px[k]), j = index_of(gy, ngy, py[k]);

@@ -797,27 +797,16 @@ static void assert_same_fits(const mp_star *a, const mp_star *b, int K)
 
 enum { FROZEN_K = 9 };
 
-/* The scene of test_frozen_wings_same_fit (below) fitted from its stars
- * moved by (dx, dy) px and 10 % in flux, with exact_lm and refresh_movers
- * as given; the table renders' multiply-adds in *work. */
-/* The frozen-wings scene fitted from stars started (dx, dy) off, with the
- * paths chosen (exact_lm, movers, reuse: mp_fit_opts); slope > 0 adds a
- * sky plane slope·(x − N/2 + 100) e-/px (positive over the frame) and
- * fits the sky order by the score test (MP_SKY_AUTO), else a constant
- * sky. */
+/* The scene of test_frozen_wings_same_fit (below), its fluxes scaled by
+ * fscale, fitted from its stars moved by (dx, dy) px and 10 % in flux,
+ * with the paths chosen (exact_lm, movers, reuse: mp_fit_opts); slope > 0
+ * adds a sky plane slope·(x − N/2 + 100) e-/px (positive over the frame)
+ * and fits the sky order by the score test (MP_SKY_AUTO), else a
+ * constant sky.  The table renders' multiply-adds in *work. */
 typedef struct {
     double dx, dy, slope, fscale;
     int exact_lm, movers, reuse;
 } frozen_run;
-
-static void frozen_scene_run(const frozen_run *run, mp_star a[FROZEN_K], double *work);
-
-static void frozen_scene_fit(double dx, double dy, int exact_lm, int movers, mp_star a[FROZEN_K],
-                             double *work)
-{
-    frozen_run run = {dx, dy, 0.0, 1.0, exact_lm, movers, 1};
-    frozen_scene_run(&run, a, work);
-}
 
 static void frozen_scene_run(const frozen_run *run, mp_star a[FROZEN_K], double *work)
 {
@@ -857,6 +846,14 @@ static void frozen_scene_run(const frozen_run *run, mp_star a[FROZEN_K], double 
     mp_prf_crop_free(&crop);
     mp_psf_free(&tab);
     frame_drop(&f);
+}
+
+/* The scene as it is, on a constant sky, every path's default but those. */
+static void frozen_scene_fit(double dx, double dy, int exact_lm, int movers, mp_star a[FROZEN_K],
+                             double *work)
+{
+    frozen_run run = {dx, dy, 0.0, 1.0, exact_lm, movers, 1};
+    frozen_scene_run(&run, a, work);
 }
 
 /* Frozen wings (fit/lm_frozen.c, issue 12).  A group of bright stars fitted
