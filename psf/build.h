@@ -75,7 +75,8 @@ typedef struct {
     int order;         /* 0..MP_PSF_MAXORDER; -1: auto (mp_epsf_order_test) */
     double alpha;      /* the order test's false-alarm probability */
     int maxnpsf;       /* stars used at most (selection) */
-    int outer;         /* star fits per pass (each followed by SIRT steps) */
+    int outer;         /* star fits per pass at most (each followed by SIRT
+                        * steps; fewer once a round no longer lowers χ²) */
     int sirt;          /* largest number of SIRT steps per outer iteration */
     int grid;          /* the stars' fits at order 0 from a phase grid within
                         * its bias bound (psf/star_model.c): 0 when it pays,
