@@ -4,8 +4,9 @@ set -e
 PKGS="gcc clang make pkg-config libcfitsio-dev wcslib-dev libcsv-dev liblapacke-dev
 libopenblas-dev libomp-dev libcmocka-dev gnuplot-nox python3-astropy valgrind
 libclang-rt-14-dev"
-# `make bench` also compares with IRAF DAOPHOT: `sh tools/deps.sh bench`.
-BENCH_PKGS="iraf iraf-noao time linux-perf"
+# `make bench` also compares with IRAF DAOPHOT, and `make validate`'s PSF
+# part with SExtractor + PSFEx: `sh tools/deps.sh bench`.
+BENCH_PKGS="iraf iraf-noao time linux-perf source-extractor psfex"
 # `make test-slurm` starts a one-node Slurm cluster: `sh tools/deps.sh slurm`.
 SLURM_PKGS="slurm-wlm munge"
 [ "${1:-}" = bench ] && PKGS="$PKGS $BENCH_PKGS"
