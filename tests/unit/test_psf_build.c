@@ -232,6 +232,22 @@ static void test_recovers_constant_table(void **state)
     assert_true(c_built < CHI2_TOL);
     assert_true(c_start > 30.0);
     assert_true(p > 1e-3);
+    /* Built again from its own table (the ×2 rebuild's and the second
+     * pass's warm start): its rounds no longer lower χ² by one, so it
+     * stops before o.outer of them (5 rounds and the last fit would be
+     * 6 fits a star), with the table as good.  A build without the stop
+     * does all five. */
+    long fits0 = e.fits;
+    assert_int_equal(mp_epsf_build(s, NSTAR, &o, BOS, 0, &e, err), 0);
+    long warm = e.fits - fits0;
+    mp_psf rebuilt;
+    memset(&rebuilt, 0, sizeof rebuilt);
+    assert_int_equal(mp_epsf_table(&e, o.x0, o.y0, &rebuilt, err), 0);
+    double c_warm = prf_chi2(&rebuilt, &truth, ts, 1.0, &np);
+    printf("# constant, warm: %ld star fits for %d stars, chi2/pix %.3f\n", warm, e.nstar, c_warm);
+    assert_true(warm < (long)(o.outer + 1) * e.nstar);
+    assert_true(c_warm < CHI2_TOL);
+    mp_psf_free(&rebuilt);
     /* The order-2 build of the same stars: order 3 not asked for either. */
     double p2, st2;
     assert_int_equal(mp_epsf_build(s, NSTAR, &o, BOS, 2, &e, err), 0);
