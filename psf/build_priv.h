@@ -38,8 +38,16 @@ typedef struct {
     int order0;            /* tab is every star's table */
     int mode;              /* mp_epsf_opts.grid */
     int fine;              /* the last grid was MP_PRF_CACHE_G's */
+    mp_prf_crop crop;      /* order 0: each star rendered out to where its
+                            * light falls below MP_EPSF_CROPFRAC of a sky
+                            * pixel's σ (env NULL: its whole box) */
     long fits, fits_grid;  /* star fits done, and of them from the grid */
 } mp_epsf_fitter;
+
+/* The crop of the stars' renders in the build's fits: the pipeline fit's
+ * cropfrac default (fit/fit_frame.c), whose bound it shares (a star's
+ * light left out of a pixel is below that fraction of its noise). */
+#define MP_EPSF_CROPFRAC 0.02
 
 /* The bias bound, in units of the brightest star's σ, under which a
  * group's PRF is drawn from the phase grid (the fit's sincfrac default). */

@@ -93,6 +93,7 @@ static int fit_star(mp_epsf_star *s, const mp_epsf *e, const mp_epsf_opts *o, mp
     mp_fit_opts fo;
     mp_fit_opts_default(&fo);
     fo.grid = mp_epsf_fitter_grid(z, s);
+    fo.crop = z->order0 && z->crop.env ? &z->crop : NULL;
     z->fits++;
     z->fits_grid += fo.grid != NULL;
     fo.sky_order = 0;

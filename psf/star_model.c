@@ -23,6 +23,7 @@ void mp_epsf_fitter_free(mp_epsf_fitter *z)
 {
     mp_psf_free(&z->tab);
     mp_prf_cache_free(&z->grid);
+    mp_prf_crop_free(&z->crop);
     memset(z, 0, sizeof *z);
 }
 
@@ -56,12 +57,17 @@ int mp_epsf_fitter_set(mp_epsf_fitter *z, const mp_epsf *e, const mp_epsf_star *
                        char *err)
 {
     mp_prf_cache_free(&z->grid);
+    mp_prf_crop_free(&z->crop);
     z->order0 = e->nterms == 1;
     if (!z->order0)
         return 0;
     if (mp_epsf_table(e, e->x0, e->y0, &z->tab, err))
         return 1;
     mp_prf_model m = {&z->tab, NULL, 10};
+    if (n > 0 && mp_prf_crop_init(&m, MP_EPSF_CROPFRAC, s[0].f.rdnoise, &z->crop)) {
+        snprintf(err, MP_ERRLEN, "psf build: out of memory");
+        return 1;
+    }
     for (int G = z->fine ? MP_PRF_CACHE_G : MP_EPSF_GRID_G; G <= MP_PRF_CACHE_G; G *= 2) {
         double need = unserved(z, s, n);
         if (z->mode < 0 || need == 0.0 || (z->mode == 0 && need < grid_renders(G, e->os)))
