@@ -106,6 +106,7 @@ typedef struct {
     double wiener[MP_EPSF_NWBIN];   /* the noise filter per 0.05 cycles/px
                           * (S/(S+N), measured in the first pass) */
     int have_wiener;
+    int filtered;        /* the filter applied since the last build's SIRT */
     long fits, fits_grid;   /* star fits of the builds so far, and of them
                           * from the phase grid (star_model.c) */
 } mp_epsf;

@@ -236,6 +236,7 @@ int mp_epsf_build(mp_epsf_star *s, size_t n, const mp_epsf_opts *o, int os, int 
             break;
         prev = w.chi2;
     }
+    e->filtered = 0;
     /* The stars' last fit with the final table. */
     if (mp_epsf_refit(s, n, o, e, err))
         goto done;

@@ -156,6 +156,7 @@ static int choose_os(mp_epsf_star *s, size_t n, const mp_epsf_opts *o, const mp_
     if (halved && mp_epsf_wiener_measure(e, &noise, e->wiener, MP_EPSF_NWBIN) == 0 &&
         mp_epsf_wiener_apply(e, e->wiener, MP_EPSF_NWBIN) == 0) {
         e->have_wiener = 1;
+        e->filtered = 1;
         mp_epsf_normalise(e, o->fwhm, o->support);
     }
     mp_epsf_free(&noise);
@@ -179,13 +180,17 @@ static int choose_os(mp_epsf_star *s, size_t n, const mp_epsf_opts *o, const mp_
              "smoothed as its noise needs (S/N > 1 out to %.2f cycles/px%s): x2 %.2g sigma, x1 %s; "
              "the coarsest below 1); ", pick, E, band * MP_EPSF_WBIN,
              e->have_wiener ? "" : ", not measured", rep->oserr[2], x1);
+    /* The coarser table is the ×4 one block-summed: the decision bounds
+     * its error for the brightest star, and the second pass builds at
+     * its sampling from it (a build here as well cost a fifth of the
+     * first pass).  The stars are fitted with it. */
     if (pick < 4) {
         mp_epsf c;
         if (mp_epsf_rebin(e, 4 / pick, &c, err))
             return 1;
         mp_epsf_free(e);
         *e = c;
-        if (mp_epsf_build(s, n, o, pick, 0, e, err))
+        if (mp_epsf_refit(s, n, o, e, err))
             return 1;
     }
     return 0;
@@ -281,9 +286,12 @@ int mp_epsf_pass(const mp_frame *f, const float *img, int residual, const mp_tab
     } else if (choose_order(s, n, o, e, rep, err)) {
         goto done;
     }
-    /* Smoothed as the noise needs (the first pass's measured filter): the
-     * iteration adds back some of what the filter took. */
-    if (e->have_wiener) {
+    /* Smoothed as the noise needs (the first pass's measured filter) when
+     * a build ran since it was last applied: its SIRT steps add back some
+     * of what the filter took.  (Applied twice to one table, it smoothed
+     * twice: a ×4 table kept by the first pass, before 2026-11-29.) */
+    if (e->have_wiener && !e->filtered) {
+        e->filtered = 1;
         if (mp_epsf_wiener_apply(e, e->wiener, MP_EPSF_NWBIN)) {
             snprintf(err, MP_ERRLEN, "psf build: out of memory");
             goto done;
