@@ -230,6 +230,8 @@ void mp_bkg_free(mp_bkg *b)
         return;
     free(b->cx);
     free(b->vals);
+    free(b->xv);
+    free(b->xs);
     memset(b, 0, sizeof *b);
 }
 

@@ -18,13 +18,16 @@ static const double *row_d2(const mp_bkg *b, int m, long y)
 }
 
 /* The residual's noise at pixel i given its sky: sqrt(k²·(sky + M + RON²)
- * + ε²M²), M = frame − residual (find.h, mp_bkg_noise_from_model); the
- * same arithmetic as its map was formed with. */
+ * + ε²M² + the stars' F²·v(r)), M = frame − residual (find.h,
+ * mp_bkg_noise_from_model, mp_bkg_star_excess); the same arithmetic as
+ * its map was formed with. */
 static float model_rms(const mp_bkg *b, size_t i, float sky)
 {
     double m = fmax(b->pix[i] - b->res[i], 0.0);
     double v = fmax(sky, 0.0) + fmax(b->pix[i] - b->res[i], 0.0) + b->ron2;
-    return (float)sqrt(b->k * b->k * v + b->eps * b->eps * m * m);
+    double x = b->nxs ? mp_bkg_excess_var(b, (double)(i % (size_t)b->nx),
+                                          (double)(i / (size_t)b->nx)) : 0.0;
+    return (float)sqrt(b->k * b->k * v + b->eps * b->eps * m * m + x);
 }
 
 float mp_bkg_sky(const mp_bkg *b, size_t i)

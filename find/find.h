@@ -43,6 +43,14 @@ typedef struct {
     int model;            /* rms from the noise model below */
     double k, eps, ron2;  /* its scale, profile error and RON² */
     const float *pix, *res;   /* its frame and residual */
+    /* The model error that grows as a star's flux squared
+     * (mp_bkg_star_excess): v per class and 1-px ring of distance r < nxv,
+     * and the stars it is added around, sorted by y (x, y, F², class each;
+     * 0-based). */
+    double *xv;
+    int nxv;
+    double *xs;
+    size_t nxs;
 } mp_bkg;
 
 /* mp_bkg_sky, mp_bkg_rms: the sky and rms at pixel i = y·nx + x (0-based). */
@@ -125,6 +133,39 @@ int mp_bkg_estimate(const mp_frame *f, int mesh, int filter, mp_bkg *b, char *er
  */
 int mp_bkg_noise_from_model(mp_bkg *b, const mp_frame *f, const float *res, int block,
                             double *scale, double *proferr, char *err);
+
+/*
+ * mp_bkg_star_excess: after mp_bkg_noise_from_model, the model's error
+ * that grows as a star's flux squared (the PSF table's own error, a
+ * saturated star's flux taken from its wings), measured and added to b's
+ * noise, so that detection and the one-or-two test do not take a bright
+ * star's misfit rings for stars (issue 13: false stars on the rings and
+ * spikes of a segmented-mirror frame's bright stars with its PSF built).
+ *
+ * Stars of one class share it (the pipeline: 0 the stars fitted whole,
+ * 1 those whose fit left saturated pixels out).  Around the nb brightest
+ * of each class of the n stars (x, y 0-based pixels, F their fluxes [e−],
+ * cls their classes 0..ncls−1, brightest first), per 1-px ring r of
+ * distance below rmax [px], over the unmasked pixels: z the residual less
+ * the sky over the noise so far; the largest tenth of the ring's z² is
+ * left out (a star not yet found, a cosmic ray: few pixels of a ring,
+ * where a misfit PSF's rings and spikes fill much of it), and over the
+ * rest S = Σ (z² − c₁), A = Σ F²/σ², c₁ = E[z² | |z| ≤ 1.645] for noise
+ * alone (0.623, the same trim), whose variance c₂ − c₁² (0.461) gives S's
+ * null σ.  A ring whose S exceeds 3 of that σ (one-sided false alarm
+ * 1.35e-3 a ring) gets v(r) = S/A, the moment estimate of the variance
+ * F²·v(r) its pixels hold beyond the noise (low by what the trim takes);
+ * other rings 0.  Then every star whose F²·max v of its class reaches
+ * MP_BKG_EXCESS_FLOOR of its sky pixel's variance has F²·v(r) added to
+ * the variance of the pixels around it (mp_bkg_rms, mp_bkg_rows).
+ * *nring, *nkept: the rings (all classes) and stars that got it.  Nothing
+ * changes without the noise model (b->model 0).  Errors: out of memory.
+ */
+#define MP_BKG_EXCESS_NSTAR 10
+#define MP_BKG_EXCESS_FLOOR 0.01
+int mp_bkg_star_excess(mp_bkg *b, const mp_frame *f, const double *x, const double *y,
+                       const double *F, const int *cls, size_t n, int ncls, size_t nb,
+                       double rmax, int *nring, size_t *nkept, char *err);
 
 /* mp_bkg_free: release the maps; safe on a zeroed or freed mp_bkg. */
 void mp_bkg_free(mp_bkg *b);

@@ -44,6 +44,10 @@ double mpf_spline_eval(const double *x, const double *y, const double *d2, int n
 void mpf_spline_row(const double *x, const double *y, const double *d2, int n,
                     float *out, long count, int clamp0);
 
+/* mp_bkg_excess_var: the variance b's flux-squared model error adds at
+ * pixel (x, y) (mp_bkg_star_excess; star_excess.c). */
+double mp_bkg_excess_var(const mp_bkg *b, double x, double y);
+
 /* mpf_spline_at: out[t] of mpf_spline_row for one t, bit for bit. */
 float mpf_spline_at(const double *x, const double *y, const double *d2, int n, long t,
                     int clamp0);

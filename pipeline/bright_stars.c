@@ -1,6 +1,8 @@
 /* bright_stars.c — the fitted stars brightest first, and their median sky,
- * for the models of the light the PSF table leaves out (halo.c, lookup.c). */
+ * for the models of the light the PSF table leaves out (halo.c, lookup.c)
+ * and of the error it makes around them (mp_pl_star_excess). */
 #include <math.h>
+#include <stdio.h>
 #include <stdlib.h>
 #include "pipeline/pipeline_priv.h"
 
@@ -41,4 +43,39 @@ double mp_pl_median_sky(const mp_table *t)
         m = mp_epsf_median(v, n);
     free(v);
     return m;
+}
+
+int mp_pl_star_excess(const mp_frame *f, mp_bkg *b, const mp_table *t, const mp_prf_model *m,
+                      int *nring, size_t *nkept, char *err)
+{
+    *nring = 0;
+    *nkept = 0;
+    size_t n;
+    mp_pl_star *s = mp_pl_stars_by_flux(t, 0, &n);
+    double *x = malloc((3 * n + 1) * sizeof *x);
+    int *cls = malloc((n + 1) * sizeof *cls);
+    if (!s || !x || !cls) {
+        free(s);
+        free(x);
+        free(cls);
+        snprintf(err, MP_ERRLEN, "out of memory for the residual noise map");
+        return 1;
+    }
+    double *y = x + n, *F = x + 2 * n;
+    for (size_t k = 0; k < n; k++) {
+        x[k] = s[k].x - 1.0;            /* FITS pixels to 0-based */
+        y[k] = s[k].y - 1.0;
+        F[k] = s[k].e;
+        /* a fit without its saturated pixels: a flux from the wings */
+        cls[k] = (s[k].flags & MP_FLAG_SATURATED) != 0;
+    }
+    /* as far as a star's model reaches: the table's half-size and the
+     * pixel a shift and a block sum add */
+    double rmax = 0.5 * (double)(m->psf->nx - 1) / m->psf->os + 1.0;
+    int rc = mp_bkg_star_excess(b, f, x, y, F, cls, n, 2, MP_BKG_EXCESS_NSTAR, rmax, nring,
+                                nkept, err);
+    free(cls);
+    free(s);
+    free(x);
+    return rc;
 }

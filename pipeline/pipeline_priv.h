@@ -27,6 +27,15 @@ typedef struct {
  * of them.  NULL when out of memory (*n = 0); the caller frees. */
 mp_pl_star *mp_pl_stars_by_flux(const mp_table *t, long skipflags, size_t *n);
 
+/* mp_pl_star_excess: b's noise model (mp_bkg_noise_from_model) given the
+ * error that grows as a star's flux squared around t's stars
+ * (mp_bkg_star_excess: measured on the MP_BKG_EXCESS_NSTAR brightest of
+ * the stars fitted whole and of those fitted without saturated pixels,
+ * out to the reach of m's table).  *nring, *nkept: its rings and stars.
+ * Nonzero with err when out of memory. */
+int mp_pl_star_excess(const mp_frame *f, mp_bkg *b, const mp_table *t, const mp_prf_model *m,
+                      int *nring, size_t *nkept, char *err);
+
 /* mp_pl_median_sky: the median fitted sky (SKY_PSF) of t's stars with a
  * finite one; 0 when there is none (or no memory to sort them). */
 double mp_pl_median_sky(const mp_table *t);

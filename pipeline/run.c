@@ -296,9 +296,12 @@ static int find_on_residual(run_state *s, int round, long *added, char *err)
     mp_table_init(&s->found);
     mp_bkg_free(&s->bkg);
     double kscale, proferr;
+    int nring = 0;
+    size_t nexcess = 0;
     if (mp_bkg_estimate(&R, o->mesh, o->filter, &s->bkg, err) ||
         mp_bkg_noise_from_model(&s->bkg, &s->f, s->res, (int)lround(fmax(1.0, s->fwhm)),
-                                &kscale, &proferr, err))
+                                &kscale, &proferr, err) ||
+        mp_pl_star_excess(&s->f, &s->bkg, &s->t, &s->fit->model, &nring, &nexcess, err))
         return 1;
     /* A star half-hidden by a neighbour's fit leaves a lopsided residual
      * peak: relax the roundness limits there (the fit then keeps or rejects
@@ -355,8 +358,9 @@ static int find_on_residual(run_state *s, int round, long *added, char *err)
         return 0;
     if (isfinite(kscale))
         fprintf(stderr, "matphot pipeline: %s: round %d: %ld new stars on the residual "
-                "(noise: %.3f x Poisson, profile error %.1f %%)\n", s->image, round, *added,
-                kscale, 100.0 * proferr);
+                "(noise: %.3f x Poisson, profile error %.1f %%, the error growing as flux "
+                "squared on %d rings around %zu stars)\n", s->image, round, *added, kscale,
+                100.0 * proferr, nring, nexcess);
     else
         fprintf(stderr, "matphot pipeline: %s: round %d: %ld new stars on the residual "
                 "(noise: the residual's mesh map)\n", s->image, round, *added);

@@ -879,6 +879,94 @@ static void test_noise_from_model(void **state)
     frame_drop(&f);
 }
 
+/* The error growing as flux squared (mp_bkg_star_excess): nine stars of
+ * 10⁶ e− on a 100 e− sky.  Their residual pure noise: no ring is
+ * significant (each a one-sided 1.35e-3 false alarm: ~1.5 % for the
+ * 11 rings, fixed seed) and the noise map is left as it was.  With a
+ * misfit added on each, six lobes of 60 e− at 6 px (a segmented PSF's
+ * first ring, the table's error there): the ring's v·F² estimates the
+ * misfit's mean square there, low by what the trim leaves out (the top
+ * tenth of a ring's z², at most a quarter of six lobes' power, (1 + cos
+ * 6θ)²/4's top tenth) and within a few of its sampling errors (~5 % over
+ * ~340 pixels): 0.6 .. 1.15 of it; and the noise at a lobe's peak then
+ * carries it. */
+static double lobes(double dx, double dy)
+{
+    double r = hypot(dx, dy), t = atan2(dy, dx);
+    return 60.0 * exp(-0.5 * (r - 6.0) * (r - 6.0) / 0.49) * 0.5 * (1.0 + cos(6.0 * t));
+}
+
+static void test_star_excess(void **state)
+{
+    (void)state;
+    const long nx = 200, ny = 200;
+    const double sky = 100.0, ron = 3.0, F = 1e6;
+    mp_frame f;
+    frame_make(&f, nx, ny, ron);
+    double *stars = calloc((size_t)(nx * ny), sizeof *stars);
+    float *res = malloc((size_t)(nx * ny) * sizeof *res);
+    assert_non_null(stars);
+    assert_non_null(res);
+    mp_sim_prf p = gauss_prf(3.0);
+    double x[9], y[9], fl[9];
+    int cls[9] = {0};
+    for (int k = 0; k < 9; k++) {
+        x[k] = 40.3 + 60.0 * (k % 3);   /* 0-based: the sim's 1-based + 1 */
+        y[k] = 40.6 + 60.0 * (k / 3);
+        fl[k] = F;
+        assert_int_equal(mp_sim_add_star(&p, x[k] + 1.0, y[k] + 1.0, F, stars, nx, ny), 0);
+    }
+    char err[MP_ERRLEN];
+    for (int misfit = 0; misfit < 2; misfit++) {
+        noise_frame(&f, stars, res, sky, 1.0, 0.0, 0, 91 + (uint64_t)misfit);
+        double want = 0.0, npx = 0.0;
+        for (long j = 0; misfit && j < ny; j++)
+            for (long i = 0; i < nx; i++)
+                for (int k = 0; k < 9; k++) {
+                    double l = lobes((double)i - x[k], (double)j - y[k]);
+                    res[j * nx + i] += (float)l;
+                    f.im.pix[j * nx + i] += (float)l;
+                    if ((int)hypot((double)i - x[k], (double)j - y[k]) == 6) {
+                        want += l * l;
+                        npx += 1.0;
+                    }
+                }
+        want /= npx;
+        mp_bkg b;
+        double k, eps;
+        assert_int_equal(mp_bkg_estimate(&f, 64, 3, &b, err), 0);
+        assert_int_equal(mp_bkg_set_flat(&b, nx, ny, sky, 0.0), 0);
+        assert_int_equal(mp_bkg_noise_from_model(&b, &f, res, 3, &k, &eps, err), 0);
+        size_t peak = (size_t)lround(y[4]) * (size_t)nx + (size_t)lround(x[4] + 6.0);
+        double before = mp_bkg_rms(&b, peak);
+        int nring;
+        size_t nkept;
+        assert_int_equal(mp_bkg_star_excess(&b, &f, x, y, fl, cls, 9, 1, 10, 11.0, &nring,
+                                            &nkept, err), 0);
+        if (!misfit) {
+            printf("# excess, noise alone: %d rings\n", nring);
+            assert_int_equal(nring, 0);
+            assert_true(mp_bkg_rms(&b, peak) == before);
+        } else {
+            double got = F * F * b.xv[6];
+            printf("# excess, six lobes: %d rings, %zu stars; v F^2 at 6 px %.1f against "
+                   "the lobes' mean square %.1f; noise at a lobe %.1f -> %.1f\n", nring, nkept,
+                   got, want, before, (double)mp_bkg_rms(&b, peak));
+            assert_int_equal(nkept, 9);
+            assert_true(got > 0.6 * want && got < 1.15 * want);
+            /* the peak pixel's own ring: its distance from the star */
+            double d = hypot(lround(x[4] + 6.0) - x[4], lround(y[4]) - y[4]);
+            double add = F * F * b.xv[(int)d], after = mp_bkg_rms(&b, peak);
+            assert_true(add > 0);
+            assert_true(fabs(after * after - before * before - add) < 1e-3 * after * after);
+        }
+        mp_bkg_free(&b);
+    }
+    free(stars);
+    free(res);
+    frame_drop(&f);
+}
+
 /* ---------- memory: no plane of the frame's size (issue 14) ---------- */
 
 /* A frame with a sky gradient, stars (some on the strips' borders and the
@@ -1020,6 +1108,7 @@ int main(void)
         cmocka_unit_test(test_completeness),
         cmocka_unit_test(test_saturated_star),
         cmocka_unit_test(test_noise_from_model),
+        cmocka_unit_test(test_star_excess),
         cmocka_unit_test(test_nan_columns),
         cmocka_unit_test(test_append_and_errors),
     };
