@@ -232,6 +232,7 @@ void mp_bkg_free(mp_bkg *b)
     free(b->vals);
     free(b->xv);
     free(b->xs);
+    free(b->cell0);
     memset(b, 0, sizeof *b);
 }
 

@@ -8,33 +8,36 @@
 
 #include "find/find_priv.h"
 
+/* Values kept a star: x, y, F², class, reach². */
+#define MP_BKG_XS 5
+
 /* The trim: z² above its 0.9 quantile is left out, |z| ≤ a for noise. */
 #define TRIM_Q 0.9
 #define TRIM_A 1.6448536269514722
 
-/* The first star of b->xs (sorted by y) with y ≥ y0. */
-static size_t first_at_or_above(const mp_bkg *b, double y0)
+/* The cell of a position (clamped to the grid). */
+static long cell_of(double v, int size, long n)
 {
-    size_t lo = 0, hi = b->nxs;
-    while (lo < hi) {
-        size_t mid = lo + (hi - lo) / 2;
-        if (b->xs[4 * mid + 1] < y0)
-            lo = mid + 1;
-        else
-            hi = mid;
-    }
-    return lo;
+    long c = (long)floor(v / size);
+    return c < 0 ? 0 : c >= n ? n - 1 : c;
 }
 
 double mp_bkg_excess_var(const mp_bkg *b, double x, double y)
 {
-    double r = (double)b->nxv, add = 0.0;
-    for (size_t s = first_at_or_above(b, y - r); s < b->nxs && b->xs[4 * s + 1] < y + r; s++) {
-        const double *st = b->xs + 4 * s;
-        double d = hypot(x - st[0], y - st[1]);
-        if (d < r)
-            add += st[2] * b->xv[(size_t)st[3] * (size_t)b->nxv + (size_t)d];
-    }
+    double add = 0.0;
+    long cx = cell_of(x, b->nxv, b->ncx), cy = cell_of(y, b->nxv, b->ncy);
+    for (long j = cy - 1; j <= cy + 1; j++)
+        for (long i = cx - 1; i <= cx + 1; i++) {
+            if (i < 0 || j < 0 || i >= b->ncx || j >= b->ncy)
+                continue;
+            size_t c = (size_t)j * (size_t)b->ncx + (size_t)i;
+            for (size_t s = b->cell0[c]; s < b->cell0[c + 1]; s++) {
+                const double *st = b->xs + MP_BKG_XS * s;
+                double dx = x - st[0], dy = y - st[1], d2 = dx * dx + dy * dy;
+                if (d2 < st[4])
+                    add += st[2] * b->xv[(size_t)st[3] * (size_t)b->nxv + (size_t)sqrt(d2)];
+            }
+        }
     return add;
 }
 
@@ -107,18 +110,49 @@ static double ring_excess(ring *g, double *tmp)
     return A > 0 && S > 3.0 * sqrt(m * (c2 - c1 * c1)) ? S / A : 0.0;
 }
 
-static int by_y(const void *a, const void *b)
+/* The kept stars (MP_BKG_XS values each; m of them) by cell into b. */
+static int index_cells(mp_bkg *b, double *xs, size_t m)
 {
-    double u = ((const double *)a)[1], w = ((const double *)b)[1];
-    return (u > w) - (u < w);
+    long ncx = (b->nx + b->nxv - 1) / b->nxv, ncy = (b->ny + b->nxv - 1) / b->nxv;
+    size_t nc = (size_t)ncx * (size_t)ncy;
+    size_t *c0 = calloc(nc + 1, sizeof *c0), *fill = calloc(nc + 1, sizeof *fill);
+    double *sorted = malloc((MP_BKG_XS * m + 1) * sizeof *sorted);
+    if (!c0 || !fill || !sorted) {
+        free(c0);
+        free(fill);
+        free(sorted);
+        free(xs);
+        return 1;
+    }
+    for (size_t s = 0; s < m; s++) {
+        const double *st = xs + MP_BKG_XS * s;
+        c0[cell_of(st[1], b->nxv, ncy) * ncx + cell_of(st[0], b->nxv, ncx) + 1]++;
+    }
+    for (size_t c = 0; c < nc; c++)
+        c0[c + 1] += c0[c];
+    for (size_t s = 0; s < m; s++) {
+        const double *st = xs + MP_BKG_XS * s;
+        long c = cell_of(st[1], b->nxv, ncy) * ncx + cell_of(st[0], b->nxv, ncx);
+        memcpy(sorted + MP_BKG_XS * (c0[c] + fill[c]++), st, MP_BKG_XS * sizeof *xs);
+    }
+    free(fill);
+    free(xs);
+    b->xs = sorted;
+    b->nxs = m;
+    b->cell0 = c0;
+    b->ncx = ncx;
+    b->ncy = ncy;
+    return 0;
 }
 
-/* The stars whose F²·max v of their class reaches MP_BKG_EXCESS_FLOOR of
- * their sky pixel's variance, as (x, y, F², class) sorted by y into b. */
+/* The stars whose term F²·v reaches MP_BKG_EXCESS_FLOOR of their sky
+ * pixel's variance on some ring, each out to the last such ring (its
+ * reach: the term is dropped beyond), as (x, y, F², class, reach²) by
+ * cell into b. */
 static int keep_stars(mp_bkg *b, const mp_frame *f, const double *x, const double *y,
-                      const double *F, const int *cls, size_t n, const double *vmax)
+                      const double *F, const int *cls, size_t n)
 {
-    double *xs = malloc((4 * n + 1) * sizeof *xs);
+    double *xs = malloc((MP_BKG_XS * n + 1) * sizeof *xs);
     if (!xs)
         return 1;
     size_t m = 0;
@@ -128,18 +162,21 @@ static int keep_stars(mp_bkg *b, const mp_frame *f, const double *x, const doubl
             continue;
         size_t i = (size_t)py * (size_t)f->im.nx + (size_t)px;
         double var = b->k * b->k * (fmax(mp_bkg_sky(b, i), 0.0) + b->ron2);
-        if (F[s] * F[s] * vmax[cls[s]] >= MP_BKG_EXCESS_FLOOR * var) {
-            double *st = xs + 4 * m++;
+        const double *v = b->xv + (size_t)cls[s] * (size_t)b->nxv;
+        int reach = 0;
+        for (int r = 0; r < b->nxv; r++)
+            if (F[s] * F[s] * v[r] >= MP_BKG_EXCESS_FLOOR * var)
+                reach = r + 1;
+        if (reach > 0) {
+            double *st = xs + MP_BKG_XS * m++;
             st[0] = x[s];
             st[1] = y[s];
             st[2] = F[s] * F[s];
             st[3] = (double)cls[s];
+            st[4] = (double)reach * reach;
         }
     }
-    qsort(xs, m, 4 * sizeof *xs, by_y);
-    b->xs = xs;
-    b->nxs = m;
-    return 0;
+    return index_cells(b, xs, m);
 }
 
 /* v of class c into v[0..nr-1]; its rings kept. */
@@ -185,26 +222,23 @@ int mp_bkg_star_excess(mp_bkg *b, const mp_frame *f, const double *x, const doub
         return 0;
     free(b->xv);
     free(b->xs);
-    b->xv = NULL, b->xs = NULL, b->nxv = 0, b->nxs = 0;
+    free(b->cell0);
+    b->xv = NULL, b->xs = NULL, b->cell0 = NULL, b->nxv = 0, b->nxs = 0;
     double *v = calloc((size_t)ncls * (size_t)nr, sizeof *v);
-    double *vmax = calloc((size_t)ncls, sizeof *vmax);
-    int rc = !v || !vmax;
+    int rc = !v;
     for (int c = 0; !rc && c < ncls; c++) {
         int kept;
         rc = class_excess(b, f, x, y, F, cls, n, c, nb, nr, v + (size_t)c * nr, &kept);
         *nring += kept;
-        for (int r = 0; r < nr; r++)
-            vmax[c] = fmax(vmax[c], v[(size_t)c * nr + r]);
     }
     if (!rc && *nring > 0) {
         b->xv = v;
         b->nxv = nr;
         v = NULL;
-        rc = keep_stars(b, f, x, y, F, cls, n, vmax);
+        rc = keep_stars(b, f, x, y, F, cls, n);
         *nkept = b->nxs;
     }
     free(v);
-    free(vmax);
     if (rc)
         snprintf(err, MP_ERRLEN, "out of memory for the residual noise map");
     return rc;
