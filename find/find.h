@@ -49,7 +49,7 @@ typedef struct {
      * 0-based), by cells of nxv × nxv px: those of cell c are stars
      * cell0[c] .. cell0[c + 1] − 1 of xs, cells ncx a row. */
     double *xv;
-    int nxv;
+    int nxv, nxc;         /* rings, classes */
     double *xs;
     size_t nxs;
     size_t *cell0;

@@ -234,6 +234,7 @@ int mp_bkg_star_excess(mp_bkg *b, const mp_frame *f, const double *x, const doub
     if (!rc && *nring > 0) {
         b->xv = v;
         b->nxv = nr;
+        b->nxc = ncls;
         v = NULL;
         rc = keep_stars(b, f, x, y, F, cls, n);
         *nkept = b->nxs;
