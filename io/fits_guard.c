@@ -212,10 +212,18 @@ static int compressed_name_ok(const char *path, int gzip, char *why)
     return 0;
 }
 
+/* The card's keyword as printed: a byte outside printable ASCII shown as
+ * '?' (the refusal is one line; a keyword "TUNITE \n" broke it, found by
+ * tests/fuzz). */
 static void key_why(const char *badkey, char *why)
 {
+    char key[9];
+    size_t i = 0;
+    for (; i < 8 && badkey[i]; i++)
+        key[i] = badkey[i] >= 0x20 && badkey[i] < 0x7f ? badkey[i] : '?';
+    key[i] = '\0';
     snprintf(why, MP_GUARD_LEN, "malformed header card %s (its value is not a well-formed "
-             "quoted string)", badkey);
+             "quoted string)", key);
 }
 
 int mp_fits_guard_mem(const void *b, size_t n, char *why)
