@@ -43,7 +43,11 @@ double mp_bkg_excess_var(const mp_bkg *b, double x, double y)
 
 /* A ring's pixels: z² and F²/σ² each. */
 typedef struct {
-    double *z2, *w;
+    double z2, w;
+} ring_px;
+
+typedef struct {
+    ring_px *p;
     size_t n, cap;
 } ring;
 
@@ -51,17 +55,13 @@ static int ring_push(ring *g, double z2, double w)
 {
     if (g->n == g->cap) {
         size_t cap = g->cap ? 2 * g->cap : 64;
-        double *a = realloc(g->z2, cap * sizeof *a);
+        ring_px *a = realloc(g->p, cap * sizeof *a);
         if (!a)
             return 1;
-        g->z2 = a;
-        if (!(a = realloc(g->w, cap * sizeof *a)))
-            return 1;
-        g->w = a;
+        g->p = a;
         g->cap = cap;
     }
-    g->z2[g->n] = z2;
-    g->w[g->n++] = w;
+    g->p[g->n++] = (ring_px){z2, w};
     return 0;
 }
 
@@ -93,7 +93,8 @@ static double ring_excess(ring *g, double *tmp)
 {
     if (g->n < 10)
         return 0.0;
-    memcpy(tmp, g->z2, g->n * sizeof *tmp);
+    for (size_t i = 0; i < g->n; i++)
+        tmp[i] = g->p[i].z2;
     size_t k = (size_t)(TRIM_Q * (double)g->n);
     double cut = mp_select_kth(tmp, g->n, k < g->n ? k : g->n - 1);
     /* noise alone: E[z²], E[z⁴] of a normal z given |z| ≤ a */
@@ -102,9 +103,9 @@ static double ring_excess(ring *g, double *tmp)
     double c2 = (3.0 * TRIM_Q - 2.0 * phi * (TRIM_A * TRIM_A * TRIM_A + 3.0 * TRIM_A)) / TRIM_Q;
     double S = 0.0, A = 0.0, m = 0.0;
     for (size_t i = 0; i < g->n; i++)
-        if (g->z2[i] <= cut) {
-            S += g->z2[i] - c1;
-            A += g->w[i];
+        if (g->p[i].z2 <= cut) {
+            S += g->p[i].z2 - c1;
+            A += g->p[i].w;
             m += 1.0;
         }
     return A > 0 && S > 3.0 * sqrt(m * (c2 - c1 * c1)) ? S / A : 0.0;
@@ -202,10 +203,8 @@ static int class_excess(const mp_bkg *b, const mp_frame *f, const double *x, con
         v[r] = ring_excess(&g[r], tmp);
         *kept += v[r] > 0;
     }
-    for (int r = 0; g && r < nr; r++) {
-        free(g[r].z2);
-        free(g[r].w);
-    }
+    for (int r = 0; g && r < nr; r++)
+        free(g[r].p);
     free(g);
     free(tmp);
     return rc;

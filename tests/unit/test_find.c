@@ -911,7 +911,7 @@ static void test_star_excess(void **state)
     double x[9], y[9], fl[9];
     int cls[9] = {0};
     for (int k = 0; k < 9; k++) {
-        x[k] = 40.3 + 60.0 * (k % 3);   /* 0-based: the sim's 1-based + 1 */
+        x[k] = 40.3 + 60.0 * (k % 3);   /* 0-based; the sim takes x + 1 */
         y[k] = 40.6 + 60.0 * (k / 3);
         fl[k] = F;
         assert_int_equal(mp_sim_add_star(&p, x[k] + 1.0, y[k] + 1.0, F, stars, nx, ny), 0);
