@@ -104,6 +104,15 @@ int mp_epsf_wiener_measure(const mp_epsf *e, const mp_epsf *noise, double *w, in
  * pixel, so any OVERSAMP).  Nonzero on out of memory. */
 int mp_epsf_wiener_apply(mp_epsf *e, const double *w, int nbin);
 
+/* mp_epsf_rounds: mp_epsf_build (build.h) without its last step, the
+ * stars' fit with the final table: their fits are those of the last
+ * round, made with the table before its last SIRT steps.  For builds whose
+ * table is changed again before the stars' fits matter (the halves, a
+ * table then filtered or block-summed: their own refit follows), where
+ * that fit cost a tenth of the first pass. */
+int mp_epsf_rounds(mp_epsf_star *s, size_t n, const mp_epsf_opts *o, int os, int order,
+                   mp_epsf *e, char *err);
+
 /* mp_epsf_refit: every used star (and its neighbours) fitted again with
  * table e as it now is (after a filter or a new order), e->nstar the
  * stars still used: fluxes that go with the table (growth.c). */

@@ -111,7 +111,7 @@ static int half_tables(mp_epsf_star *s, size_t n, const mp_epsf_opts *o, mp_epsf
     for (int half = 0; half < 2 && !rc; half++) {
         for (size_t k = 0; k < n; k++)
             s[k].skip = (int)(k % 2) != half;
-        rc = mp_epsf_build(s, n, o, 4, 0, &h[half], err);
+        rc = mp_epsf_rounds(s, n, o, 4, 0, &h[half], err);
         for (size_t k = 0; k < n; k++)
             s[k].skip = 0;
     }
@@ -147,7 +147,7 @@ static int choose_os(mp_epsf_star *s, size_t n, const mp_epsf_opts *o, const mp_
     mp_epsf noise;
     memset(&noise, 0, sizeof noise);
     int halved = n >= 6 && half_tables(s, n, o, e, &noise, err) == 0;
-    if (mp_epsf_build(s, n, o, 4, 0, e, err)) {
+    if (mp_epsf_rounds(s, n, o, 4, 0, e, err)) {
         mp_epsf_free(&noise);
         return 1;
     }
@@ -183,17 +183,16 @@ static int choose_os(mp_epsf_star *s, size_t n, const mp_epsf_opts *o, const mp_
     /* The coarser table is the ×4 one block-summed: the decision bounds
      * its error for the brightest star, and the second pass builds at
      * its sampling from it (a build here as well cost a fifth of the
-     * first pass).  The stars are fitted with it. */
+     * first pass).  The stars are fitted with the table kept, as
+     * filtered and sampled. */
     if (pick < 4) {
         mp_epsf c;
         if (mp_epsf_rebin(e, 4 / pick, &c, err))
             return 1;
         mp_epsf_free(e);
         *e = c;
-        if (mp_epsf_refit(s, n, o, e, err))
-            return 1;
     }
-    return 0;
+    return mp_epsf_refit(s, n, o, e, err);
 }
 
 /* varorder auto: raise the order while the test rejects the lower one
