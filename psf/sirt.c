@@ -54,11 +54,13 @@ static void axis_of(int n, int os, double x, long *n0, double *delta)
     *delta = c0 - (double)*n0;
 }
 
-/* One star: G = Aᵀ W ρ, H = Aᵀ W (the weight each element gets), with ρ
- * the residual per unit flux and W = F²/σ² its information; adds Σ r²/σ²
- * to *chi2. */
+/* One star: G = Aᵀ W ρ before its sub-element shift (unshifted, below),
+ * H = Aᵀ W (the weight each element gets), with ρ the residual per unit
+ * flux and W = F²/σ² its information; adds Σ r²/σ² to *chi2.  The shift,
+ * half the work, waits until a step is taken: the pass that ends a run is
+ * read only for its χ². */
 static int backproject(mp_epsf_sirt *w, const mp_epsf_star *s, const mp_epsf *e, double psfrad,
-                       double *G, double *H, double *chi2, char *err)
+                       double *G, double *H, double delta[2], double *chi2, char *err)
 {
     if (mp_epsf_table(e, s->x, s->y, &w->tab, err))
         return 1;
@@ -86,7 +88,9 @@ static int backproject(mp_epsf_sirt *w, const mp_epsf_star *s, const mp_epsf *e,
     double dx, dy;
     axis_of(nx, os, xs, &n0x, &dx);
     axis_of(ny, os, ys, &n0y, &dy);
-    memset(w->a, 0, w->nel * sizeof *w->a);
+    delta[0] = dx;
+    delta[1] = dy;
+    memset(G, 0, w->nel * sizeof *G);
     memset(H, 0, w->nel * sizeof *H);
     const mp_frame *f = &s->f;
     double ron2 = fmax(f->rdnoise * f->rdnoise, 1e-2), F = s->flux, sky = fmax(s->sky, 0.0);
@@ -114,15 +118,21 @@ static int backproject(mp_epsf_sirt *w, const mp_epsf_star *s, const mp_epsf *e,
                     long mx = os * (px - 1) + sx + n0x;
                     if (mx < 0 || mx >= nx)
                         continue;
-                    w->a[(size_t)my * nx + mx] += W * rho;
+                    G[(size_t)my * nx + mx] += W * rho;
                     H[(size_t)my * nx + mx] += W;
                 }
             }
         }
     }
-    /* The weights only normalise: they need no sub-element shift. */
-    mp_shift_table(w->a, nx, ny, -dx, -dy, 10, G, w->tmp);
     return 0;
+}
+
+/* G = Aᵀ W ρ: backproject's sum shifted by the transpose of the render's
+ * sub-element shift (the weights H only normalise: they need none). */
+static void unshifted(mp_epsf_sirt *w, const mp_epsf *e, const double delta[2], double *G)
+{
+    mp_shift_table(G, e->nx, e->ny, -delta[0], -delta[1], 10, w->a, w->tmp);
+    memcpy(G, w->a, w->nel * sizeof *G);
 }
 
 /* Weighted least squares of g_k = G_k/H_k on the terms over the stars in
@@ -247,7 +257,8 @@ int mp_epsf_sirt_run(mp_epsf_sirt *w, const mp_epsf_star *s, size_t n, const mp_
     double *dev = malloc(2 * (n + 1) * sizeof *dev);
     size_t *idx = malloc((n + 1) * sizeof *idx);
     double *upd = malloc((size_t)nt * nel * sizeof *upd);
-    if (!terms || !dev || !idx || !upd) {
+    double *delta = malloc(2 * (n + 1) * sizeof *delta);
+    if (!terms || !dev || !idx || !upd || !delta) {
         snprintf(err, MP_ERRLEN, "psf build: out of memory");
         goto done;
     }
@@ -275,13 +286,16 @@ int mp_epsf_sirt_run(mp_epsf_sirt *w, const mp_epsf_star *s, size_t n, const mp_
         double chi2 = 0.0;
         for (size_t k = 0; k < n; k++)
             if (s[k].used && backproject(w, &s[k], e, o->psfrad, w->G + k * nel, w->H + k * nel,
-                                         &chi2, err))
+                                         delta + 2 * k, &chi2, err))
                 goto done;
         w->chi2 = chi2;
         /* A step that no longer lowers χ² by one fits only noise. */
         if (it == o->sirt || prev - chi2 < 1.0)
             break;
         prev = chi2;
+        for (size_t k = 0; k < n; k++)
+            if (s[k].used)
+                unshifted(w, e, delta + 2 * k, w->G + k * nel);
         double hmax = 0;
         for (size_t el = 0; el < nel; el++) {
             double h = 0;
@@ -316,5 +330,6 @@ done:
     free(dev);
     free(idx);
     free(upd);
+    free(delta);
     return rc;
 }
