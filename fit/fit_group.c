@@ -38,6 +38,7 @@ static void group_free(group *G)
     free(G->prow);
     free(G->dat);
     free(G->mod);
+    free(G->modt);
     free(G->var);
     free(G->rv);
     free(G->wt);

@@ -183,14 +183,28 @@ static double dispersion(const group *G, double D)
  * buffers hold its render.  Nonzero when out of memory. */
 #define LM_OVERSHOOT 0.75
 
+/* The trial's model and the current one trade places (mod, modt). */
+static void swap_models(group *G)
+{
+    double *m = G->mod, lo = G->skylo, hi = G->skyhi;
+    G->mod = G->modt;
+    G->modt = m;
+    G->skylo = G->tskylo;
+    G->skyhi = G->tskyhi;
+    G->tskylo = lo;
+    G->tskyhi = hi;
+}
+
 static int render_trial(group *G, double alpha, double *Dt)
 {
     for (int a = 0; a < G->np; a++)
         G->pt[a] = G->p[a] + alpha * G->step[a];
     if (lm_render_all(G, G->pt, G->trial, RENDER_PRF))
         return 1;
+    swap_models(G);             /* drawn in modt; mod stays the current one */
     lm_model_of(G, G->pt, G->trial);
     *Dt = sky_in_bounds(G) ? lm_deviance_of(G) : INFINITY;
+    swap_models(G);
     return 0;
 }
 
@@ -277,7 +291,6 @@ static int lm_start(group *G, int freeze_ok, int rose, lm_state *s)
  * with every settled star opened again. */
 static int step_refused(group *G, lm_state *s, int *converged)
 {
-    lm_model_of(G, G->p, G->cur);
     s->lambda *= 10.0;
     if (!(s->zfirst < LM_RESOLVE_SIGMAS && s->lambda > 1e3 * s->lfirst))
         return s->lambda > 1e8 ? LM_DONE : LM_ON;
@@ -310,6 +323,7 @@ static void step_taken(group *G, lm_state *s, double Dt)
     rstar *tr = G->cur;
     G->cur = G->trial;
     G->trial = tr;
+    swap_models(G);
     s->D = Dt;
     s->rphi = 1.0 / sqrt(dispersion(G, s->D));
     s->fresh = 1;

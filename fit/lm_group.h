@@ -43,6 +43,11 @@ typedef struct {
     double sknown;              /* the sky the stars were found on, or NaN */
     double skylo, skyhi;        /* a plane or quadratic sky's range over the
                                  * fitted pixels, as model_of last drew it */
+    double *modt;               /* npix: the last trial's model (levmar.c
+                                 * render_trial), swapped with mod when the
+                                 * step is taken: a refused one leaves mod
+                                 * as it was, not drawn again */
+    double tskylo, tskyhi;      /* that trial's sky range */
     uint8_t *sel;               /* bw*bh: pixel fitted */
     /* The fitted pixels packed row by row (issue 12: every per-pixel sum
      * and render runs over them only, not the box around them, which

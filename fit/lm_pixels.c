@@ -51,13 +51,14 @@ static int pack_pixels(group *G)
     G->prow = malloc(((size_t)G->bh + 1) * sizeof *G->prow);
     G->dat = malloc(N * sizeof *G->dat);
     G->mod = malloc(N * sizeof *G->mod);
+    G->modt = malloc(N * sizeof *G->modt);
     G->var = malloc(N * sizeof *G->var);
     G->rv = malloc(N * sizeof *G->rv);
     G->wt = malloc(N * sizeof *G->wt);
     G->wres = malloc(N * sizeof *G->wres);
     G->basis = malloc(6 * N * sizeof *G->basis);
     if (!G->rj || !G->ri0 || !G->ri1 || !G->rp || !G->spans || !G->soff || !G->rrow || !G->prow ||
-        !G->dat || !G->mod || !G->var || !G->rv || !G->wt || !G->wres || !G->basis)
+        !G->dat || !G->mod || !G->modt || !G->var || !G->rv || !G->wt || !G->wres || !G->basis)
         return 2;
     int q = 0, o = 0;
     for (int j = 0; j < G->bh; j++) {
