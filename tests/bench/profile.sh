@@ -26,7 +26,7 @@ t0=$(date +%s)
 # The stages: a function on the stack, its label.
 STAGES="build_psf:PSF build (both passes)
 choose_os:  of it: the OVERSAMP choice (pass 1)
-half_difference:    of that: the half-sample builds (noise of the table)
+half_tables:    of that: the half-sample builds (noise of the table)
 mp_epsf_fitter_set:  of it: phase grids of the PSF stars' fits
 mp_epsf_sirt_run:  of it: the table's SIRT steps
 mp_fit_table_mem:group fits (the rounds)
