@@ -85,9 +85,9 @@ static int start_planes(const mp_epsf_opts *o, int os, int order, mp_epsf *e, in
 /* Fit one star (centre, flux; the sky its annulus's) with its table at
  * its place (z's model: star_model.c), together with its neighbours on
  * the cut-out as cut; then the cut-out less the neighbours' models
- * (mp_epsf_clean).  With hold, the neighbours keep their last fit: the cut-out less their
- * models drawn with this table first, then the star alone on it (a fit of
- * 13 stars cost about five of one). */
+ * (mp_epsf_clean).  With hold, the neighbours keep their last fit: the
+ * cut-out less their models drawn with this table first, then the star
+ * alone on it (with them it is a group fit of up to 13 stars). */
 static int fit_star(mp_epsf_star *s, const mp_epsf *e, const mp_epsf_opts *o, mp_epsf_fitter *z,
                     int hold, char *err)
 {
@@ -229,8 +229,10 @@ int mp_epsf_rounds(mp_epsf_star *s, size_t n, const mp_epsf_opts *o, int os, int
             goto done;
         /* The neighbours are fitted with their star while the table is
          * far from made (the first round of a build from a table already
-         * made, the first two from a Gaussian) and in the stars' last fit
-         * (mp_epsf_refit); the rounds between hold them. */
+         * made, the first two from a Gaussian: held from its round 1, a
+         * bright companion's fit to the Gaussian spoils the table,
+         * test_psf_build's test_neighbours_fitted) and in the stars' last
+         * fit (mp_epsf_refit); the rounds between hold them. */
         for (size_t k = 0; k < n; k++)
             if (s[k].used && fit_star(&s[k], e, o, &z, it >= hold_from, err))
                 goto done;
