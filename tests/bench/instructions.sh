@@ -6,8 +6,9 @@
 # [1:256,1:256] with the PSF built from the frame (PSFREAL.md's command),
 # one thread, under `valgrind --tool=callgrind`, for each binary given
 # (default ./matphot), and prints the total and the inclusive count of
-# the stages below, with the ratio to the first binary's total.  About
-# 5 minutes a binary.  Skips when valgrind or the data is absent.
+# the stages below, with the ratio to the first binary's total (a stage
+# the compiler inlined everywhere reads 0: its work is its caller's).
+# About 5 minutes a binary.  Skips when valgrind or the data is absent.
 #   sh tests/bench/instructions.sh [BASE_BINARY] NEW_BINARY ...
 set -u
 REAL=${REALDATA:-../shared/data/real}
@@ -18,7 +19,7 @@ command -v callgrind_annotate >/dev/null 2>&1 || { echo "instructions: SKIP: cal
 [ $# -gt 0 ] || set -- ./matphot
 T=$(mktemp -d "${TMPDIR:-/tmp}/instr.XXXXXX") || exit 1
 trap 'rm -rf "$T"' EXIT INT TERM
-STAGES="mp_pipeline_run mp_epsf_pass choose_os mp_epsf_rounds fit_star mp_epsf_sirt_run mp_epsf_fitter_set mp_fit_table_mem"
+STAGES="mp_pipeline_run mp_epsf_pass choose_os fit_star mp_epsf_sirt_run mp_epsf_fitter_set mp_fit_table_mem"
 first=
 k=0
 for b in "$@"; do
