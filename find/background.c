@@ -239,9 +239,9 @@ void mp_bkg_free(mp_bkg *b)
 size_t mp_bkg_bytes(const mp_bkg *b)
 {
     /* the rms rows are given back once the noise model replaces them;
-     * the stars' flux-squared term: 5 values a star, a cell index of
-     * 8 bytes per nxv² px and v per class and ring */
-    size_t ex = b->nxs * 5 * sizeof(double) +
+     * the stars' flux-squared term: MP_BKG_XS values a star, a cell
+     * index of 8 bytes per nxv² px and v per class and ring */
+    size_t ex = b->nxs * MP_BKG_XS * sizeof(double) +
                 (b->cell0 ? ((size_t)b->ncx * (size_t)b->ncy + 1) * sizeof *b->cell0 : 0) +
                 (b->xv ? (size_t)b->nxc * (size_t)b->nxv * sizeof *b->xv : 0);
     return ex + (b->cx ? (size_t)b->nbx * sizeof *b->cx * (1 + (b->model ? 2 : 4) * (size_t)b->ny)

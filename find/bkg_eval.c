@@ -24,7 +24,7 @@ static const double *row_d2(const mp_bkg *b, int m, long y)
 static float model_rms(const mp_bkg *b, size_t i, float sky)
 {
     double m = fmax(b->pix[i] - b->res[i], 0.0);
-    double v = fmax(sky, 0.0) + fmax(b->pix[i] - b->res[i], 0.0) + b->ron2;
+    double v = fmax(sky, 0.0) + m + b->ron2;
     double x = b->nxs ? mp_bkg_excess_var(b, (double)(i % (size_t)b->nx),
                                           (double)(i / (size_t)b->nx)) : 0.0;
     return (float)sqrt(b->k * b->k * v + b->eps * b->eps * m * m + x);

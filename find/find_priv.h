@@ -44,6 +44,9 @@ double mpf_spline_eval(const double *x, const double *y, const double *d2, int n
 void mpf_spline_row(const double *x, const double *y, const double *d2, int n,
                     float *out, long count, int clamp0);
 
+/* Values mp_bkg_star_excess keeps a star: x, y, F², class, reach². */
+#define MP_BKG_XS 5
+
 /* mp_bkg_excess_var: the variance b's flux-squared model error adds at
  * pixel (x, y) (mp_bkg_star_excess; star_excess.c). */
 double mp_bkg_excess_var(const mp_bkg *b, double x, double y);

@@ -8,9 +8,6 @@
 
 #include "find/find_priv.h"
 
-/* Values kept a star: x, y, F², class, reach². */
-#define MP_BKG_XS 5
-
 /* The trim: z² above its 0.9 quantile is left out, |z| ≤ a for noise. */
 #define TRIM_Q 0.9
 #define TRIM_A 1.6448536269514722
