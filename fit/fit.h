@@ -433,6 +433,19 @@ typedef struct {
                                 * loop's exact pass (fit/lm_normal.c
                                 * NE_REUSE); 0: sums them again (tests
                                 * compare: the same bytes) */
+    int warm_sky;              /* 1 in frame fits (mp_frame_opts_default),
+                                * 0 here: under MP_SKY_AUTO a group starts
+                                * at the highest sky order its stars were
+                                * last fitted with (mp_star.sky_order, 0
+                                * when never fitted), from the polynomial
+                                * through their last sky values, the score
+                                * test going on from there; unless one of
+                                * them last ended flagged saturated or not
+                                * converged (fit_group.c first_order).  A
+                                * refit (the fit's second pass, the
+                                * pipeline's later rounds) then skips the
+                                * loops that raised the order from
+                                * constant the time before */
 } mp_fit_opts;
 
 void mp_fit_opts_default(mp_fit_opts *o);

@@ -13,6 +13,7 @@ void mp_frame_opts_default(mp_frame_opts *o)
 {
     mp_fit_opts_default(&o->fit);
     o->fit.fitrad = 5.0;
+    o->fit.warm_sky = 1;
     o->magzero = 0.0;
     o->mergerad = NAN;
     o->minsnr = 2.0;

@@ -25,6 +25,7 @@ void mp_fit_opts_default(mp_fit_opts *o)
     o->settle = 1;
     o->refresh_movers = 1;
     o->reuse_pairs = 1;
+    o->warm_sky = 0;
 }
 
 static void group_free(group *G)
@@ -262,11 +263,26 @@ static double known_sky(const mp_star *st, int n)
     return isfinite(s) ? s : NAN;
 }
 
-/* The sky order to fit first: the one asked for, or constant under auto. */
-static int first_order(const mp_fit_opts *o)
+/* The sky order to fit first: the one asked for; under auto, constant,
+ * or with o->warm_sky the highest its stars were last fitted with (a star
+ * never fitted reads 0).  Not when a star's last fit did not converge or
+ * held saturated pixels: there the flux comes from the wings, which a
+ * curved sky mimics, and the start from constant (the stars first, the
+ * sky only with what they leave) is what pulls a saturated core's
+ * fragments back into one star (the segmented scene with its PSF built:
+ * 54 false entries, ~100 when such groups kept their order; bench/
+ * PROFILE.md, session 20). */
+static int first_order(const mp_fit_opts *o, const mp_star *st, int n)
 {
-    if (o->sky_order == MP_SKY_AUTO)
-        return 0;
+    if (o->sky_order == MP_SKY_AUTO) {
+        int w = 0, warm = o->warm_sky && o->fit_sky;
+        for (int k = 0; k < n && warm; k++) {
+            if (st[k].flags & (MP_FLAG_SATURATED | MP_FLAG_NOCONV))
+                return 0;
+            w = st[k].sky_order > w && st[k].sky_order <= MP_SKY_MAXORDER ? st[k].sky_order : w;
+        }
+        return w;
+    }
     return o->sky_order < 0 ? 0 : (o->sky_order > MP_SKY_MAXORDER ? MP_SKY_MAXORDER : o->sky_order);
 }
 
@@ -396,6 +412,40 @@ static int start_state(group *G, const mp_star *stars, double sky)
     return 0;
 }
 
+/* A warm start's sky (o->warm_sky, order above constant): the polynomial
+ * through its stars' last fitted sky values at their positions, by least
+ * squares, when at least as many stars as terms carry one (a group fitted
+ * before at this order gets its own polynomial back, so the LM need not
+ * find the higher terms again from zero).  Else, or when that sky
+ * leaves the bounds a step must keep somewhere on the group's pixels (a
+ * polynomial through a few stars, far off between them), the start stays
+ * a constant. */
+static void warm_sky_start(group *G, const mp_star *st)
+{
+    int n = G->n, ns = G->nsky, m = 0;
+    double N[36] = {0}, b[6] = {0}, c[6];
+    for (int k = 0; k < n; k++) {
+        if (!isfinite(st[k].sky))
+            continue;
+        sky_basis(G, st[k].x, st[k].y, c);
+        for (int a = 0; a < ns; a++) {
+            b[a] += c[a] * st[k].sky;
+            for (int e = 0; e < ns; e++)
+                N[a * ns + e] += c[a] * c[e];
+        }
+        m++;
+    }
+    if (m < ns || LAPACKE_dposv(LAPACK_COL_MAJOR, 'L', ns, 1, N, ns, b, ns) != 0 ||
+        !all_finite(b, ns))
+        return;
+    double c0[6];
+    memcpy(c0, G->p + 3 * n, (size_t)ns * sizeof *c0);
+    memcpy(G->p + 3 * n, b, (size_t)ns * sizeof *b);
+    lm_model_of(G, G->p, G->cur);
+    if (!lm_sky_in_bounds(G))
+        memcpy(G->p + 3 * n, c0, (size_t)ns * sizeof *c0);
+}
+
 int mp_fit_group(const mp_frame *f, const mp_prf_model *m, const mp_fit_opts *o,
                  double sky0, mp_star *stars, int n, char *err)
 {
@@ -408,7 +458,7 @@ int mp_fit_group(const mp_frame *f, const mp_prf_model *m, const mp_fit_opts *o,
     G.crop_min = o->fitrad + 1.0;
     G.core_hw = G.crop_min;     /* NaN (whole frame): every pass exact */
     G.n = n;
-    int order = first_order(o);
+    int order = first_order(o, stars, n);
     G.nsky = o->fit_sky ? nsky_of(order) : 0;
     G.np = 3 * n + (G.nsky ? G.nsky : 1);   /* a fixed sky still has a slot */
     G.npmax = 3 * n + nsky_of(MP_SKY_MAXORDER);
@@ -444,7 +494,11 @@ int mp_fit_group(const mp_frame *f, const mp_prf_model *m, const mp_fit_opts *o,
      * (its own bias bound, fit/prf_cache.c), the others from the grid. */
     for (int k = 0; k < n; k++)
         G.ongrid[k] = !(fabs(stars[k].flux) > o->grid_emax);
-    if (start_state(&G, stars, sky) || fit_orders(&G, o, &order, &iter, &converged))
+    if (start_state(&G, stars, sky))
+        goto nomem;
+    if (order > 0 && o->warm_sky)
+        warm_sky_start(&G, stars);
+    if (fit_orders(&G, o, &order, &iter, &converged))
         goto nomem;
     int cv = covariance(&G);
     if (cv == 2)

@@ -66,7 +66,7 @@ static double sky_floor(const group *G)
  * (GLIMPSE's left quarter, 3 rounds: without this 5 stars ended on a
  * negative sky and 3 with CHI2_PSF > 1e4, with it none).  A trial step
  * outside is refused as one that raises D is. */
-static int sky_in_bounds(const group *G)
+int lm_sky_in_bounds(const group *G)
 {
     if (G->nsky <= 1)
         return 1;                /* the constant: bound_step */
@@ -203,7 +203,7 @@ static int render_trial(group *G, double alpha, double *Dt)
         return 1;
     swap_models(G);             /* drawn in modt; mod stays the current one */
     lm_model_of(G, G->pt, G->trial);
-    *Dt = sky_in_bounds(G) ? lm_deviance_of(G) : INFINITY;
+    *Dt = lm_sky_in_bounds(G) ? lm_deviance_of(G) : INFINITY;
     swap_models(G);
     return 0;
 }

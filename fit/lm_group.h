@@ -239,6 +239,10 @@ void lm_unsettle(group *G, int calm_too);
  * memory. */
 int lm_levmar(group *G, const mp_fit_opts *o, int rose, int *iter, int *converged);
 
+/* Whether the plane or quadratic sky of the last lm_model_of stays within
+ * the bounds a step must keep (levmar.c): 1 for a constant sky. */
+int lm_sky_in_bounds(const group *G);
+
 /* sky_test.c: under MP_SKY_AUTO, the higher sky order the data ask for
  * at a converged fit of order 0 or 1 in *to, or -1; nonzero when out of
  * memory. */

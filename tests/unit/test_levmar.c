@@ -798,14 +798,17 @@ static void assert_same_fits(const mp_star *a, const mp_star *b, int K)
 enum { FROZEN_K = 9 };
 
 /* The scene of test_frozen_wings_same_fit (below), its fluxes scaled by
- * fscale, fitted from its stars moved by (dx, dy) px and 10 % in flux,
- * with the paths chosen (exact_lm, movers, reuse: mp_fit_opts); slope > 0
- * adds a sky plane slope·(x − N/2 + 100) e-/px (positive over the frame)
- * and fits the sky order by the score test (MP_SKY_AUTO), else a
- * constant sky.  The table renders' multiply-adds in *work. */
+ * fscale, fitted from its stars moved by (dx, dy) px and 10 % in flux (or
+ * from start, when given), with the paths chosen (exact_lm, movers, reuse,
+ * warm: mp_fit_opts); slope > 0 adds a sky plane slope·(x − N/2 + 100)
+ * e-/px (positive over the frame) and fits the sky order by the score test
+ * (MP_SKY_AUTO), else a constant sky.  The table renders' multiply-adds
+ * in *work. */
 typedef struct {
     double dx, dy, slope, fscale;
     int exact_lm, movers, reuse;
+    const mp_star *start;
+    int warm;
 } frozen_run;
 
 static void frozen_scene_run(const frozen_run *run, mp_star a[FROZEN_K], double *work)
@@ -826,7 +829,7 @@ static void frozen_scene_run(const frozen_run *run, mp_star a[FROZEN_K], double 
         double y = 16.8 + 7.0 * (k / 3) + 0.4 * mp_rng_uniform(&r);
         double e = run->fscale * 2e6 * pow(0.6, k);
         assert_int_equal(mp_sim_add_star_float(&sp, x, y, e, f.im.pix, N, N), 0);
-        a[k] = (mp_star){.x = x + dx, .y = y + dy, .flux = 1.1 * e};
+        a[k] = run->start ? run->start[k] : (mp_star){.x = x + dx, .y = y + dy, .flux = 1.1 * e};
     }
     for (long j = 0; run->slope > 0 && j < N; j++)
         for (long i = 0; i < N; i++)
@@ -840,6 +843,7 @@ static void frozen_scene_run(const frozen_run *run, mp_star a[FROZEN_K], double 
     o.exact_lm = run->exact_lm;
     o.refresh_movers = run->movers;
     o.reuse_pairs = run->reuse;
+    o.warm_sky = run->warm;
     *work = 0.0;
     o.work = work;
     assert_int_equal(mp_fit_group(&f, &m, &o, NAN, a, FROZEN_K, err), 0);
@@ -852,7 +856,7 @@ static void frozen_scene_run(const frozen_run *run, mp_star a[FROZEN_K], double 
 static void frozen_scene_fit(double dx, double dy, int exact_lm, int movers, mp_star a[FROZEN_K],
                              double *work)
 {
-    frozen_run run = {dx, dy, 0.0, 1.0, exact_lm, movers, 1};
+    frozen_run run = {dx, dy, 0.0, 1.0, exact_lm, movers, 1, NULL, 0};
     frozen_scene_run(&run, a, work);
 }
 
@@ -923,7 +927,7 @@ static void test_reused_pair_sums_same_fit(void **state)
     (void)state;
     mp_star a[FROZEN_K], b[FROZEN_K], c[FROZEN_K];
     double wa, wb, wc;
-    frozen_run run = {0.3, -0.2, 20.0, 0.1, 0, 1, 1};
+    frozen_run run = {0.3, -0.2, 20.0, 0.1, 0, 1, 1, NULL, 0};
     frozen_scene_run(&run, a, &wa);
     run.reuse = 0;
     frozen_scene_run(&run, b, &wb);
@@ -937,6 +941,50 @@ static void test_reused_pair_sums_same_fit(void **state)
     }
     assert_true(wa == wb);
     assert_true(wa != wc);   /* the wings froze */
+}
+
+/* A refit that starts at the sky order its stars were last fitted with
+ * (mp_fit_opts.warm_sky, issue 12): the scene of the test above (a sky
+ * plane the score test raises the order for) fitted from its offset
+ * start, then refitted from that fit's result twice on the same frame:
+ * warm, and from a constant sky.  The two refits read the same pixels
+ * (the discs around their common start; the first fit's, around its own
+ * start, differ, and its answer by up to 1.7 σ) and end on the same
+ * test, so they must agree to within the LM's tol (asserted at 0.05 σ,
+ * as the tests above); the warm one at the first fit's order, and in
+ * fewer steps than the cold one, whose constant-sky loop walks the stars
+ * off and back (here 4 steps against 26).  With a star last flagged
+ * saturated the refit is the cold one, bit for bit (fit_group.c
+ * first_order).  Deterministic: fails when the order is not carried, or
+ * it costs steps, or the answers part, or the flag is not heeded. */
+static void test_warm_sky_refit(void **state)
+{
+    (void)state;
+    mp_star a[FROZEN_K], b[FROZEN_K], c[FROZEN_K];
+    double wa, wb, wc;
+    frozen_run run = {0.3, -0.2, 20.0, 0.1, 0, 1, 1, NULL, 0};
+    frozen_scene_run(&run, a, &wa);
+    run.start = a;
+    run.warm = 1;
+    frozen_scene_run(&run, b, &wb);
+    run.warm = 0;
+    frozen_scene_run(&run, c, &wc);
+    print_message("warm sky: order %d; refit steps %d warm, %d cold (first fit %d)\n",
+                  a[0].sky_order, b[0].niter, c[0].niter, a[0].niter);
+    for (int k = 0; k < FROZEN_K; k++)
+        assert_int_equal(b[k].sky_order, a[k].sky_order);
+    assert_true(b[0].niter < c[0].niter);
+    assert_same_fits(b, c, FROZEN_K);
+    /* A star last flagged saturated: the group starts from constant, the
+     * cold refit's path step for step. */
+    mp_star s[FROZEN_K], d[FROZEN_K];
+    memcpy(s, a, sizeof s);
+    s[FROZEN_K - 1].flags |= MP_FLAG_SATURATED;
+    run.start = s;
+    run.warm = 1;
+    frozen_scene_run(&run, d, &wb);
+    for (int k = 0; k < FROZEN_K; k++)
+        assert_true(d[k].x == c[k].x && d[k].flux == c[k].flux && d[k].niter == c[k].niter);
 }
 
 /* Settled stars (fit/lm_settle.c, issue 12).  A group of 16 stars, 12 on
@@ -1130,6 +1178,7 @@ int main(void)
         cmocka_unit_test(test_frozen_wings_same_fit),
         cmocka_unit_test(test_moved_stars_refresh_same_fit),
         cmocka_unit_test(test_reused_pair_sums_same_fit),
+        cmocka_unit_test(test_warm_sky_refit),
         cmocka_unit_test(test_settled_stars_same_fit),
         cmocka_unit_test(test_refit_flags_are_this_fit),
         cmocka_unit_test(test_star_chi2_own_disc),
