@@ -58,6 +58,9 @@ typedef struct {
     double flux, sky;  /* fitted flux [e-] (for the table's current sum), sky [e-/px] */
     double chi2;       /* reduced χ² of its last fit */
     int used;          /* 0: rejected by the last build */
+    int fitted;        /* 1 once a fit of the build set flux (and its
+                        * neighbours'): their start values, 0, may fall
+                        * short of the fitted ones */
     int skip;          /* set by the caller: left out of builds */
 } mp_epsf_star;
 

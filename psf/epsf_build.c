@@ -140,6 +140,7 @@ static int fit_star(mp_epsf_star *s, const mp_epsf *e, const mp_epsf_opts *o, mp
     s->x = nx;
     s->y = ny;
     s->flux = st[0].flux;
+    s->fitted = 1;
     s->sky = st[0].sky;
     s->chi2 = st[0].chi2;
     /* A neighbour keeps a fit that stays finite, positive and near its

@@ -84,11 +84,17 @@ const mp_prf_cache *mp_epsf_fitter_grid(const mp_epsf_fitter *z, const mp_epsf_s
 {
     if (!z->order0 || z->grid.G == 0)
         return NULL;
-    /* The group's brightest star, twice over: a start flux (the light
-     * within half psfrad) falls short of the fitted one. */
+    /* The group's brightest star; twice over until a fit of the build has
+     * set the fluxes: a start flux (the light within half psfrad) falls
+     * short of the fitted one, a fitted one is where the next fit starts
+     * and, the table changing little between rounds, about where it ends
+     * (47 Tuc 256^2: a sixth of the PSF stars' fits were rendered exactly
+     * for want of that, a fifth of the run's instructions; bench/
+     * PROFILE.md, session 20). */
     double E = s->flux;
     for (int j = 0; j < s->nnb; j++)
         E = fmax(E, s->nbf[j]);
-    double q = mp_prf_cache_bound(&z->grid, 2.0 * E, fmax(s->sky, 0.0), s->f.rdnoise);
+    double q = mp_prf_cache_bound(&z->grid, (s->fitted ? 1.0 : 2.0) * E, fmax(s->sky, 0.0),
+                                  s->f.rdnoise);
     return q <= MP_EPSF_GRID_FRAC ? &z->grid : NULL;
 }
