@@ -7,6 +7,7 @@
  * data areas are skipped by their size, computed as FITS 4.0 §4.4.1.1 and
  * §7.3.1 define it (|BITPIX|/8 · GCOUNT · (PCOUNT + Π NAXISn)).  Compressed
  * files are not walked; their stated size is checked instead. */
+#include <fitsio.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -270,4 +271,23 @@ int mp_fits_guard_named(const char *path, const char *name, char *err)
         return 0;
     snprintf(err, MP_ERRLEN, "%s: %s", name, why);
     return 1;
+}
+
+int mp_fits_key_number(void *fp, const char *key, double *v, int *status)
+{
+    char val[FLEN_VALUE] = "";
+    if (*status)
+        return *status;
+    if (fits_read_keyword(fp, (char *)key, val, NULL, status))
+        return *status;
+    for (char *c = val; *c; c++)        /* a Fortran exponent (FITS 4.0 §4.2.4) */
+        *c = *c == 'D' || *c == 'd' ? 'E' : *c;
+    char *end;
+    double x = strtod(val, &end);
+    while (end != val && *end == ' ')
+        end++;
+    if (end == val || *end != '\0')
+        return *status = BAD_C2D;
+    *v = x;
+    return 0;
 }

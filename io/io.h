@@ -266,6 +266,17 @@ int mp_fits_guard_mem(const void *b, size_t n, char *why);
  * refused, 0 otherwise. */
 int mp_fits_guard_named(const char *path, const char *name, char *err);
 
+/* mp_fits_key_number: the value of keyword key of fp's current HDU as a
+ * number, parsed here from the card's value (fits_read_keyword), so that
+ * cfitsio never converts it: cfitsio 4.2.0 overflows a buffer in ffc2j
+ * (and glibc aborts) while writing the error message for a long value
+ * that is not a number (found by tests/fuzz: "NYPSFS  = ZZZZ...").  0 and
+ * *v on a number; KEY_NO_EXIST when absent; BAD_C2D when the value is not
+ * a number (a string, a logical, garbage).  *status as cfitsio's: nothing
+ * is done when it is nonzero on entry.  fp is a fitsfile * (void here:
+ * this header does not include cfitsio's). */
+int mp_fits_key_number(void *fp, const char *key, double *v, int *status);
+
 /* mp_select_kth: the k-th smallest of v[0..n) (k < n), with v rearranged
  * so that v[0..k) ≤ v[k] ≤ v[k+1..n) (Hoare's selection, median-of-three
  * pivot; linear time on average).  For finite values. */

@@ -25,7 +25,7 @@ static int key_double(fitsfile *fp, const char *key, double *v)
 {
     int status = 0;
     double x;
-    fits_read_key(fp, TDOUBLE, key, &x, NULL, &status);
+    mp_fits_key_number(fp, key, &x, &status);
     if (status == KEY_NO_EXIST) {
         fits_clear_errmsg();
         return 1;

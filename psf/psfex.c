@@ -22,8 +22,7 @@ int psf_has_column(fitsfile *fp, const char *col)
 static int num(fitsfile *fp, const char *key, double *v)
 {
     int status = 0, cn;
-    fits_read_key(fp, TDOUBLE, key, v, NULL, &status);
-    if (!status)
+    if (!mp_fits_key_number(fp, key, v, &status))
         return 0;
     status = 0;
     fits_clear_errmsg();

@@ -69,7 +69,7 @@ static int oversamp_of(fitsfile *fp, const char *name, int *os, char *err)
 {
     int st = 0;
     double v = 1.0;
-    fits_read_key(fp, TDOUBLE, "OVERSAMP", &v, NULL, &st);
+    mp_fits_key_number(fp, "OVERSAMP", &v, &st);
     fits_clear_errmsg();
     if (st || v != floor(v) || v < 1 || v > 8) {
         snprintf(err, MP_ERRLEN, "%s: OVERSAMP %s; it must be an integer 1..8", name,
@@ -166,10 +166,15 @@ static int grid_positions(fitsfile *fp, const char *name, int stdpsf, long nz, d
         return 0;
     }
     int st = 0, nxp = 0, nyp = 0;
-    fits_read_key(fp, TINT, "NXPSFS", &nxp, NULL, &st);
-    fits_read_key(fp, TINT, "NYPSFS", &nyp, NULL, &st);
-    if (st || nxp < 1 || nyp < 1 || (long)nxp * nyp != nz || nxp > MP_PSF_MAXGRID ||
-        nyp > MP_PSF_MAXGRID) {
+    double gnx = 0.0, gny = 0.0;
+    mp_fits_key_number(fp, "NXPSFS", &gnx, &st);
+    mp_fits_key_number(fp, "NYPSFS", &gny, &st);
+    if (!st && gnx >= 1 && gnx <= MP_PSF_MAXGRID && gny >= 1 && gny <= MP_PSF_MAXGRID &&
+        gnx == floor(gnx) && gny == floor(gny)) {
+        nxp = (int)gnx;
+        nyp = (int)gny;
+    }
+    if (st || nxp < 1 || nyp < 1 || (long)nxp * nyp != nz) {
         fits_clear_errmsg();
         snprintf(err, MP_ERRLEN, "%s: NXPSFS x NYPSFS (%d x %d) does not match the %ld PSFs",
                  name, nxp, nyp, nz);
@@ -179,7 +184,7 @@ static int grid_positions(fitsfile *fp, const char *name, int stdpsf, long nz, d
     for (int i = 0; i < nxp + nyp && !st; i++) {
         char key[16];
         snprintf(key, sizeof key, i < nxp ? "IPSFX%02d" : "JPSFY%02d", i < nxp ? i + 1 : i - nxp + 1);
-        fits_read_key(fp, TDOUBLE, key, i < nxp ? &gx[i] : &gy[i - nxp], NULL, &st);
+        mp_fits_key_number(fp, key, i < nxp ? &gx[i] : &gy[i - nxp], &st);
     }
     if (st) {
         fits_clear_errmsg();
@@ -207,7 +212,7 @@ int grid_read(fitsfile *fp, const char *name, int stdpsf, const long naxes[3], m
          * block-sum would convolve with the pixel a second time. */
         int st = 0;
         double o = 4.0;
-        fits_read_key(fp, TDOUBLE, "OVERSAMP", &o, NULL, &st);
+        mp_fits_key_number(fp, "OVERSAMP", &o, &st);
         fits_clear_errmsg();
         if (!(o >= 1 && o <= 8 && o == floor(o)) || nx % 2 == 0 || ny % 2 == 0 || nx > 4096 ||
             ny > 4096) {
