@@ -280,13 +280,17 @@ int mp_fits_key_number(void *fp, const char *key, double *v, int *status)
         return *status;
     if (fits_read_keyword(fp, (char *)key, val, NULL, status))
         return *status;
-    for (char *c = val; *c; c++)        /* a Fortran exponent (FITS 4.0 §4.2.4) */
+    /* A quoted number is read as cfitsio reads it (its string's value). */
+    char *a = val[0] == '\'' ? val + 1 : val, *q = val[0] == '\'' ? strrchr(a, '\'') : NULL;
+    if (q)
+        *q = '\0';
+    for (char *c = a; *c; c++)          /* a Fortran exponent (FITS 4.0 §4.2.4) */
         *c = *c == 'D' || *c == 'd' ? 'E' : *c;
     char *end;
-    double x = strtod(val, &end);
-    while (end != val && *end == ' ')
+    double x = strtod(a, &end);
+    while (end != a && *end == ' ')
         end++;
-    if (end == val || *end != '\0')
+    if (end == a || *end != '\0')
         return *status = BAD_C2D;
     *v = x;
     return 0;

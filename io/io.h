@@ -271,8 +271,9 @@ int mp_fits_guard_named(const char *path, const char *name, char *err);
  * cfitsio never converts it: cfitsio 4.2.0 overflows a buffer in ffc2j
  * (and glibc aborts) while writing the error message for a long value
  * that is not a number (found by tests/fuzz: "NYPSFS  = ZZZZ...").  0 and
- * *v on a number; KEY_NO_EXIST when absent; BAD_C2D when the value is not
- * a number (a string, a logical, garbage).  *status as cfitsio's: nothing
+ * *v on a number (quoted too, as cfitsio reads one; D exponents as E);
+ * KEY_NO_EXIST when absent; BAD_C2D when the value is not a number (other
+ * strings, a logical, garbage).  *status as cfitsio's: nothing
  * is done when it is nonzero on entry.  fp is a fitsfile * (void here:
  * this header does not include cfitsio's). */
 int mp_fits_key_number(void *fp, const char *key, double *v, int *status);

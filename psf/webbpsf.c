@@ -165,21 +165,18 @@ static int grid_positions(fitsfile *fp, const char *name, int stdpsf, long nz, d
             }
         return 0;
     }
-    int st = 0, nxp = 0, nyp = 0;
+    int st = 0;
     double gnx = 0.0, gny = 0.0;
     mp_fits_key_number(fp, "NXPSFS", &gnx, &st);
     mp_fits_key_number(fp, "NYPSFS", &gny, &st);
-    if (!st && gnx >= 1 && gnx <= MP_PSF_MAXGRID && gny >= 1 && gny <= MP_PSF_MAXGRID &&
-        gnx == floor(gnx) && gny == floor(gny)) {
-        nxp = (int)gnx;
-        nyp = (int)gny;
-    }
-    if (st || nxp < 1 || nyp < 1 || (long)nxp * nyp != nz) {
+    if (st || !(gnx >= 1 && gnx <= MP_PSF_MAXGRID && gnx == floor(gnx)) ||
+        !(gny >= 1 && gny <= MP_PSF_MAXGRID && gny == floor(gny)) || gnx * gny != (double)nz) {
         fits_clear_errmsg();
-        snprintf(err, MP_ERRLEN, "%s: NXPSFS x NYPSFS (%d x %d) does not match the %ld PSFs",
-                 name, nxp, nyp, nz);
+        snprintf(err, MP_ERRLEN, "%s: NXPSFS x NYPSFS (%g x %g) does not match the %ld PSFs",
+                 name, gnx, gny, nz);
         return 1;
     }
+    int nxp = (int)gnx, nyp = (int)gny;
     double gx[MP_PSF_MAXGRID], gy[MP_PSF_MAXGRID];
     for (int i = 0; i < nxp + nyp && !st; i++) {
         char key[16];

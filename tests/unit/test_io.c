@@ -917,6 +917,50 @@ static void test_tmp_sweep(void **state)
     free(mine);
 }
 
+/* mp_fits_key_number reads a keyword's card itself: plain, quoted and
+ * D-exponent numbers as cfitsio reads them; garbage and a logical as
+ * BAD_C2D (cfitsio's own conversion aborts on a long garbage value, the
+ * fuzz regression psf_field/nypsfs_long_garbage_value); an absent key as
+ * KEY_NO_EXIST; a status set on entry left alone. */
+static void test_key_number(void **state)
+{
+    (void)state;
+    char path[] = "/tmp/test_key_number.XXXXXX";
+    int fd = mkstemp(path);
+    assert_true(fd >= 0);
+    close(fd);
+    char name[64];
+    snprintf(name, sizeof name, "!%s", path);
+    fitsfile *fp;
+    int st = 0;
+    fits_create_file(&fp, name, &st);
+    fits_create_img(fp, FLOAT_IMG, 0, NULL, &st);
+    fits_write_record(fp, "PLAIN   =                   4.5", &st);
+    fits_write_record(fp, "QUOTED  = '12      '", &st);
+    fits_write_record(fp, "FORTRAN =               1.5D2", &st);
+    fits_write_record(fp, "GARBAGE = ZZZZZZZZZZZZZZZZZZZZZZZZZZZZZZZZZZZZZZZZZZZZZZZZZZZZZZZZZZZZZZZZZZZZ", &st);
+    fits_write_record(fp, "LOGIC   =                    T", &st);
+    assert_int_equal(st, 0);
+    const struct { const char *key; int status; double v; } cases[] = {
+        {"PLAIN", 0, 4.5}, {"QUOTED", 0, 12.0}, {"FORTRAN", 0, 150.0},
+        {"GARBAGE", BAD_C2D, -1.0}, {"LOGIC", BAD_C2D, -1.0}, {"ABSENT", KEY_NO_EXIST, -1.0}};
+    for (size_t c = 0; c < sizeof cases / sizeof cases[0]; c++) {
+        double v = -1.0;
+        st = 0;
+        assert_int_equal(mp_fits_key_number(fp, cases[c].key, &v, &st), cases[c].status);
+        assert_int_equal(st, cases[c].status);
+        assert_true(v == cases[c].v);
+        fits_clear_errmsg();
+    }
+    double v = -1.0;
+    st = 7;
+    assert_int_equal(mp_fits_key_number(fp, "PLAIN", &v, &st), 7);
+    assert_true(v == -1.0);
+    st = 0;
+    fits_close_file(fp, &st);
+    unlink(path);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
@@ -931,6 +975,7 @@ int main(void)
         cmocka_unit_test_setup_teardown(test_frame_bleed, setup, teardown),
         cmocka_unit_test_setup_teardown(test_outfile, setup, teardown),
         cmocka_unit_test_setup_teardown(test_tmp_sweep, setup, teardown),
+        cmocka_unit_test(test_key_number),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }
