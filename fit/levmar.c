@@ -291,8 +291,13 @@ static int lm_start(group *G, int freeze_ok, int rose, lm_state *s)
  * with every settled star opened again. */
 static int step_refused(group *G, lm_state *s, int *converged)
 {
-    s->lambda *= 10.0;
-    if (!(s->zfirst < LM_RESOLVE_SIGMAS && s->lambda > 1e3 * s->lfirst))
+    int at_floor = s->zfirst < LM_RESOLVE_SIGMAS;
+    /* Within D's resolution the next trial is the 1000× damped one at
+     * once: the 10× and 100× ones between change a step this short by
+     * a factor 1 + λ ≈ 1 and were refused alike (47 Tuc: 4 renders of
+     * every open star to end each loop, a third of all the trials). */
+    s->lambda = at_floor && s->lambda < 1e3 * s->lfirst ? 1e3 * s->lfirst : 10.0 * s->lambda;
+    if (!(at_floor && s->lambda > 1e3 * s->lfirst * (1.0 + 1e-9)))
         return s->lambda > 1e8 ? LM_DONE : LM_ON;
     if (G->frozen && (s->since > 0 || G->nsettled)) {     /* frozen model: see */
         if (lm_refresh(G, &s->D, 1, 1))
