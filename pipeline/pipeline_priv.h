@@ -121,7 +121,9 @@ long mp_pl_add_new_stars(mp_table *t, const mp_table *gone, const mp_table *foun
  * residual res (data − stars, sky kept) over the pixels within fitrad,
  * weighted by b's rms map (the fitted model's noise): X_IMAGE set NaN
  * (so mp_pl_add_new_stars skips it) when its S/N is below snrmin, else
- * FLUX set to the fitted flux (the fit's start); its S/N goes to column
+ * FLUX set to the fitted flux (the fit's start); a saturated plateau
+ * (FLAGS bit MP_FIND_SATURATED) below snrmin is kept, FLUX set NaN (the
+ * fit starts from its own estimate); its S/N goes to column
  * MP_PL_SNR_COL either way.  Returns the number
  * dropped, −1 when out of memory.  Threads over candidates (OpenMP). */
 long mp_pl_prescreen(const mp_frame *f, const mp_bkg *b, const float *res,

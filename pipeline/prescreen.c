@@ -61,7 +61,7 @@ long mp_pl_prescreen(const mp_frame *f, const mp_bkg *b, const float *res,
                      const mp_prf_model *m, double fitrad, double snrmin, mp_table *found)
 {
     int fx = mp_table_col(found, "X_IMAGE"), fy = mp_table_col(found, "Y_IMAGE");
-    int ff = mp_table_col(found, "FLUX");
+    int ff = mp_table_col(found, "FLUX"), fl = mp_table_col(found, "FLAGS");
     if (fx < 0 || fy < 0 || !(snrmin > 0) || found->nrow == 0)
         return 0;
     int fs = mp_table_add_col(found, MP_PL_SNR_COL);
@@ -83,9 +83,20 @@ long mp_pl_prescreen(const mp_frame *f, const mp_bkg *b, const float *res,
                 continue;
             double e, snr = linear_snr(f, b, res, m, x, y, fitrad, prf, &wk, &e);
             mp_table_set(found, (size_t)r, fs, snr);
-            if (isfinite(snr) && snr < snrmin) {
+            /* A saturated plateau is a star whatever the screen says: its
+             * core is masked, and the first model's shape on the pixels
+             * around it can give any S/N (the segmented scene: a −16.7 mag
+             * star screened out, its wings found as 14 stars instead). */
+            long flags = fl >= 0 ? (long)mp_table_get(found, (size_t)r, fl) : 0;
+            int low = isfinite(snr) && snr < snrmin;
+            if (low && !(flags & MP_FIND_SATURATED)) {
                 mp_table_set(found, (size_t)r, fx, NAN);
                 dropped++;
+            } else if (low && ff >= 0) {
+                /* neither find's plateau flux (a Gaussian's extrapolation:
+                 * 1.3e10 e- for that 5e6 e- star) nor that fit's: the
+                 * fit's own start (its window's light over the PRF's) */
+                mp_table_set(found, (size_t)r, ff, NAN);
             } else if (ff >= 0 && isfinite(e) && e > 0) {
                 mp_table_set(found, (size_t)r, ff, e);
             }

@@ -2,13 +2,15 @@
  * mp_pl_add_new_stars): the grid that finds a detection's known
  * neighbours, whatever its cells' size (issue 14 made them one star's
  * area, not matchrad's), adds exactly the detections a search of every
- * star adds. */
+ * star adds.  And the first detection's screen (pipeline/prescreen.c):
+ * a saturated plateau is kept whatever its S/N there. */
 #include <setjmp.h>
 #include <stdarg.h>
 #include <stddef.h>
 #include <cmocka.h>
 #include <math.h>
 #include <stdlib.h>
+#include <string.h>
 #include "pipeline/pipeline_priv.h"
 #include "sim/sim.h"
 
@@ -103,10 +105,82 @@ static void test_new_stars_grid(void **state)
     }
 }
 
+/* The screen on a frame of sky and read noise with one bright star whose
+ * core (r < 2.5 px) is masked: rows at the star and at an empty place,
+ * each as a plain detection and as a saturated plateau (find's FLAGS 1).
+ * The empty place's linear S/N is noise (|S/N| > 3 has probability
+ * 0.003; this seed's draw is asserted below 3): its plain row is dropped,
+ * its plateau row kept with FLUX NaN (the fit's own start; find's plateau
+ * flux extrapolates a Gaussian, 1.3e10 e- for a 5e6 e- star of the
+ * segmented scene).  The star's rows are kept with their fitted flux. */
+static void test_prescreen_plateau(void **state)
+{
+    (void)state;
+    enum { M = 48 };
+    const double sky = 100.0, ron = 3.0, fwhm = 3.0, e = 1e6, xs = 24.3, ys = 23.8;
+    char err[MP_ERRLEN];
+    mp_psf p;
+    assert_int_equal(mp_psf_gauss_table(fwhm, 2, 8.0, &p, err), 0);
+    mp_prf_model m = {&p, NULL, 10};
+    mp_frame f;
+    memset(&f, 0, sizeof f);
+    f.im.nx = f.im.ny = M;
+    f.im.pix = malloc(sizeof *f.im.pix * M * M);
+    f.mask = calloc(M * M, 1);
+    assert_true(f.im.pix && f.mask);
+    f.rdnoise = ron;
+    mp_rng r;
+    mp_rng_seed(&r, 4242);
+    for (int i = 0; i < M * M; i++)
+        f.im.pix[i] = (float)sky;
+    mp_sim_add_noise_float(&r, f.im.pix, M * M, ron);
+    mp_bkg b;
+    memset(&b, 0, sizeof b);
+    assert_int_equal(mp_bkg_estimate(&f, M, 1, &b, err), 0);
+    mp_sim_prf prf = {.kind = MP_SIM_GAUSS, .sigma = fwhm / 2.3548200450309493, .volume = 1.0};
+    assert_int_equal(mp_sim_add_star_float(&prf, xs, ys, e, f.im.pix, M, M), 0);
+    for (int j = 0; j < M; j++)
+        for (int i = 0; i < M; i++)
+            f.mask[j * M + i] = hypot(i + 1.0 - xs, j + 1.0 - ys) < 2.5;
+    mp_table t;
+    mp_table_init(&t);
+    int cx = mp_table_add_col(&t, "X_IMAGE"), cy = mp_table_add_col(&t, "Y_IMAGE");
+    int cf = mp_table_add_col(&t, "FLUX"), cl = mp_table_add_col(&t, "FLAGS");
+    assert_true(cx >= 0 && cy >= 0 && cf >= 0 && cl >= 0);
+    const double row[4][3] = {{xs, ys, 0}, {xs, ys, 1}, {36.0, 12.0, 0}, {36.0, 12.0, 1}};
+    for (int k = 0; k < 4; k++) {
+        long q = mp_table_add_row(&t);
+        assert_true(q >= 0);
+        mp_table_set(&t, (size_t)q, cx, row[k][0]);
+        mp_table_set(&t, (size_t)q, cy, row[k][1]);
+        mp_table_set(&t, (size_t)q, cf, 1.3e10);
+        mp_table_set(&t, (size_t)q, cl, row[k][2]);
+    }
+    long dropped = mp_pl_prescreen(&f, &b, f.im.pix, &m, 5.0, 3.0, &t);
+    int cs = mp_table_col(&t, MP_PL_SNR_COL);
+    assert_true(cs >= 0);
+    assert_true(mp_table_get(&t, 2, cs) < 3.0 && mp_table_get(&t, 3, cs) < 3.0);
+    assert_int_equal(dropped, 1);
+    for (int k = 0; k < 2; k++) {   /* the star: kept, its flux fitted */
+        double fl = mp_table_get(&t, (size_t)k, cf);
+        assert_true(isfinite(mp_table_get(&t, (size_t)k, cx)));
+        assert_true(fl > 0.5 * e && fl < 2.0 * e);
+    }
+    assert_true(isnan(mp_table_get(&t, 2, cx)));    /* noise: dropped */
+    assert_true(isfinite(mp_table_get(&t, 3, cx))); /* a plateau: kept */
+    assert_true(isnan(mp_table_get(&t, 3, cf)));
+    mp_table_free(&t);
+    mp_bkg_free(&b);
+    mp_psf_free(&p);
+    free(f.im.pix);
+    free(f.mask);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(test_new_stars_grid),
+        cmocka_unit_test(test_prescreen_plateau),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }
