@@ -208,6 +208,24 @@ static int choose_os(mp_epsf_star *s, size_t n, const mp_epsf_opts *o, const mp_
     return mp_epsf_refit(s, n, o, e, err);
 }
 
+/* The table smoothed as its noise needs (the first pass's measured
+ * filter) and the stars fitted with it, when a build ran since the filter
+ * was last applied: its SIRT steps add back some of what the filter took.
+ * (Applied twice to one table, it smoothed twice: a ×4 table kept by the
+ * first pass, before 2026-11-29.) */
+static int filter_refit(mp_epsf_star *s, size_t n, const mp_epsf_opts *o, mp_epsf *e, char *err)
+{
+    if (!e->have_wiener || e->filtered)
+        return 0;
+    e->filtered = 1;
+    if (mp_epsf_wiener_apply(e, e->wiener, MP_EPSF_NWBIN)) {
+        snprintf(err, MP_ERRLEN, "psf build: out of memory");
+        return 1;
+    }
+    mp_epsf_normalise(e, o->fwhm, o->support);
+    return mp_epsf_refit(s, n, o, e, err);
+}
+
 /* varorder auto: raise the order while the test rejects the lower one
  * and the used stars number at least MP_EPSF_PER_TERM per term of the
  * higher order (build.h: its table's noise then stays within ~5 % of a
@@ -288,7 +306,13 @@ int mp_epsf_pass(const mp_frame *f, const float *img, int residual, const mp_tab
         int os = e->planes ? e->os : o->os;
         snprintf(rep->what, sizeof rep->what, "OVERSAMP %d (%s); ", os,
                  e->planes ? "as the first pass" : "given");
-        if (mp_epsf_build(s, n, o, os, e->planes ? e->order : 0, e, err))
+        /* With the first pass's filter to apply, the stars' last fit is
+         * the one with the filtered table (a fit with the build's own
+         * before it was a fifth of the second pass), and the order test
+         * sees that table, as the first pass's does. */
+        if (e->have_wiener ? mp_epsf_rounds(s, n, o, os, e->planes ? e->order : 0, e, err) ||
+                                 filter_refit(s, n, o, e, err)
+                           : mp_epsf_build(s, n, o, os, e->planes ? e->order : 0, e, err))
             goto done;
     }
     if (o->order >= 0) {
@@ -298,20 +322,9 @@ int mp_epsf_pass(const mp_frame *f, const float *img, int residual, const mp_tab
     } else if (choose_order(s, n, o, e, rep, err)) {
         goto done;
     }
-    /* Smoothed as the noise needs (the first pass's measured filter) when
-     * a build ran since it was last applied: its SIRT steps add back some
-     * of what the filter took.  (Applied twice to one table, it smoothed
-     * twice: a ×4 table kept by the first pass, before 2026-11-29.) */
-    if (e->have_wiener && !e->filtered) {
-        e->filtered = 1;
-        if (mp_epsf_wiener_apply(e, e->wiener, MP_EPSF_NWBIN)) {
-            snprintf(err, MP_ERRLEN, "psf build: out of memory");
-            goto done;
-        }
-        mp_epsf_normalise(e, o->fwhm, o->support);
-        if (mp_epsf_refit(s, n, o, e, err))
-            goto done;
-    }
+    /* a higher order built since */
+    if (filter_refit(s, n, o, e, err))
+        goto done;
     /* The light beyond the table (its support) only once the neighbours
      * are gone: in a crowded frame they fill the big aperture. */
     if (residual &&
