@@ -322,7 +322,7 @@ int mp_epsf_pass(const mp_frame *f, const float *img, int residual, const mp_tab
     } else if (choose_order(s, n, o, e, rep, err)) {
         goto done;
     }
-    /* a higher order built since */
+    /* a table built since (a higher order, or the order given) */
     if (filter_refit(s, n, o, e, err))
         goto done;
     /* The light beyond the table (its support) only once the neighbours
