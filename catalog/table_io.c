@@ -127,17 +127,21 @@ int mp_table_read(const char *path, mp_table *t, char *err)
     /* The first non-blank line tells the format: "#" starts ASCII_HEAD's
      * column definitions, anything else is a CSV header row. */
     int r;
-    while ((r = mp_lines_next(&L, err)) == 1 && is_blank(L.line))
-        ;
+    while ((r = mp_lines_next(&L, err)) == 1) {
+        if (L.lineno == 1 && L.len >= 3 && memcmp(L.line, "\xEF\xBB\xBF", 3) == 0) {
+            /* A UTF-8 byte-order mark, as spreadsheets write before a CSV;
+             * dropped before the blank test, so a blank first line stays
+             * blank. */
+            memmove(L.line, L.line + 3, (size_t)L.len - 2);
+            L.len -= 3;
+        }
+        if (!is_blank(L.line))
+            break;
+    }
     int rc = 1;
     if (r == 0)
         snprintf(err, MP_ERRLEN, "%s: empty file", L.name);
     if (r == 1) {
-        if (L.lineno == 1 && L.len >= 3 && memcmp(L.line, "\xEF\xBB\xBF", 3) == 0) {
-            /* A UTF-8 byte-order mark, as spreadsheets write before a CSV. */
-            memmove(L.line, L.line + 3, (size_t)L.len - 2);
-            L.len -= 3;
-        }
         L.pending = 1;
         const char *p = L.line;
         while (*p == ' ' || *p == '\t')

@@ -657,6 +657,31 @@ static void test_csv_quoted_header(void **state)
     mp_table_free(&t);
 }
 
+/* A BOM alone on a blank first line: the next line tells the format, so
+ * "# 1 NUMBER" starts ASCII_HEAD column definitions, not a CSV header
+ * named "# 1 NUMBER" (a fuzzer's find: such a table could not be written
+ * back). */
+static void test_bom_blank_first_line(void **state)
+{
+    fixture *f = *state;
+    char path[512], err[MP_ERRLEN];
+    path_in(f, "bom.cat", path, sizeof path);
+    const char *text = "\xEF\xBB\xBF  \n"
+                       "\n"
+                       "#   1 NUMBER   Running object number\n"
+                       "#   2 X_IMAGE  Object position along x  [pixel]\n"
+                       "7 3.5\n";
+    write_text(path, text, strlen(text));
+    mp_table t;
+    if (mp_table_read(path, &t, err) != 0)
+        fail_msg("%s", err);
+    assert_int_equal(t.ncol, 2);
+    assert_string_equal(t.cols[0].name, "NUMBER");
+    assert_int_equal(t.nrow, 1);
+    assert_true(mp_table_get(&t, 0, 1) == 3.5);
+    mp_table_free(&t);
+}
+
 /* ---- rejected inputs --------------------------------------------------- */
 
 static void test_errors(void **state)
@@ -817,6 +842,7 @@ int main(void)
         cmocka_unit_test_setup_teardown(test_crlf_and_blank_lines, setup, teardown),
         cmocka_unit_test_setup_teardown(test_long_lines, setup, teardown),
         cmocka_unit_test_setup_teardown(test_sextractor_vectors, setup, teardown),
+        cmocka_unit_test_setup_teardown(test_bom_blank_first_line, setup, teardown),
         cmocka_unit_test_setup_teardown(test_csv_quoted_header, setup, teardown),
         cmocka_unit_test_setup_teardown(test_errors, setup, teardown),
         cmocka_unit_test_setup_teardown(test_atomic_write, setup, teardown),
