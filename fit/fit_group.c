@@ -83,6 +83,7 @@ static void group_free(group *G)
     free(G->g);
     free(G->M);
     free(G->step);
+    free(G->psave);
     mp_prf_work_free(&G->work);
 }
 
@@ -205,7 +206,8 @@ static int alloc_stars(group *G)
     G->M = malloc(np * np * sizeof *G->M);
     G->g = malloc(np * sizeof *G->g);
     G->step = malloc(np * sizeof *G->step);
-    return !G->scr || !G->ongrid || !G->settled || !G->moved || !G->calm || !G->stail || !G->fx || !G->fy || !G->cx0 || !G->cx1 || !G->cy0 || !G->cy1 || !G->p || !G->pt || !G->A || !G->M || !G->g || !G->step;
+    G->psave = malloc(np * sizeof *G->psave);
+    return !G->psave || !G->scr || !G->ongrid || !G->settled || !G->moved || !G->calm || !G->stail || !G->fx || !G->fy || !G->cx0 || !G->cx1 || !G->cy0 || !G->cy1 || !G->p || !G->pt || !G->A || !G->M || !G->g || !G->step;
 }
 
 /* The data's range over the fitted pixels and the largest flux a star may
@@ -284,35 +286,6 @@ static int first_order(const mp_fit_opts *o, const mp_star *st, int n)
         return w;
     }
     return o->sky_order < 0 ? 0 : (o->sky_order > MP_SKY_MAXORDER ? MP_SKY_MAXORDER : o->sky_order);
-}
-
-/* The fit at the first sky order, then, under MP_SKY_AUTO, the order
- * raised while the score test at the converged lower-order fit says the
- * extra terms are needed, going on from the current state (the new terms
- * start at zero, so the model does not change).  Nonzero when out of
- * memory. */
-static int fit_orders(group *G, const mp_fit_opts *o, int *order, int *iter, int *converged)
-{
-    int n = G->n;
-    if (lm_levmar(G, o, 0, iter, converged))
-        return 1;
-    while (o->fit_sky && o->sky_order == MP_SKY_AUTO && *converged && *order < MP_SKY_MAXORDER) {
-        int to;
-        if (lm_higher_order(G, *order, o->fitrad, &to))
-            return 1;
-        if (to < 0)
-            break;
-        /* The new terms start at zero (the buffers swap with the trial
-         * state, whose slots past the old order were never written). */
-        for (int a = 3 * n + G->nsky; a < 3 * n + nsky_of(to); a++)
-            G->p[a] = 0.0;
-        *order = to;
-        G->nsky = nsky_of(*order);
-        G->np = 3 * n + G->nsky;
-        if (lm_levmar(G, o, o->reuse_pairs, iter, converged))
-            return 1;
-    }
-    return 0;
 }
 
 /* Σ (d − m)²/V over the group's fitted pixels within r of (x, y) (all
@@ -446,6 +419,69 @@ static void warm_sky_start(group *G, const mp_star *st)
         memcpy(G->p + 3 * n, c0, (size_t)ns * sizeof *c0);
 }
 
+/* The sky order set: its terms counted, the new ones at zero when it
+ * rises. */
+static void set_order(group *G, int order)
+{
+    int n = G->n;
+    for (int a = 3 * n + G->nsky; a < 3 * n + nsky_of(order); a++)
+        G->p[a] = 0.0;
+    G->nsky = nsky_of(order);
+    G->np = 3 * n + G->nsky;
+}
+
+/* The fit at the first sky order, then, under MP_SKY_AUTO, the order
+ * raised while the score test at the converged lower-order fit says the
+ * extra terms are needed, going on from the current state (the new terms
+ * start at zero, so the model does not change).
+ *
+ * A sky order whose loop stalls on the sky's bounds (levmar.c,
+ * LM_SKY_STALL: D still falls as the polynomial leaves the data's range
+ * at some fitted pixel, so no minimum lies within them and the step test
+ * can never be met) is not kept: the group goes back to the converged
+ * lower-order state it rose from, or, when the stalled order was a warm
+ * start's, starts again from a constant sky below it (47 Tuc 256², PSF
+ * built from the frame: 2 groups of 26 and 42 stars crawled to maxiter
+ * with λ at 1e5-1e8; GLIMPSE: one of 53).  Nonzero when out of memory. */
+static int fit_orders(group *G, const mp_fit_opts *o, const mp_star *stars, double sky,
+                      int *order, int *iter, int *converged)
+{
+    int cap = MP_SKY_MAXORDER;
+    if (lm_levmar(G, o, 0, iter, converged))
+        return 1;
+    if (!*converged && G->skystall && *order > 0) {
+        cap = *order - 1;
+        *order = 0;
+        set_order(G, 0);
+        if (start_state(G, stars, sky) || lm_levmar(G, o, 0, iter, converged))
+            return 1;
+    }
+    while (o->fit_sky && o->sky_order == MP_SKY_AUTO && *converged && *order < cap) {
+        int to;
+        if (lm_higher_order(G, *order, o->fitrad, &to))
+            return 1;
+        if (to < 0)
+            break;
+        int from = *order;
+        memcpy(G->psave, G->p, (size_t)G->np * sizeof *G->psave);
+        /* The new terms start at zero (the buffers swap with the trial
+         * state, whose slots past the old order were never written). */
+        set_order(G, to);
+        *order = to;
+        if (lm_levmar(G, o, o->reuse_pairs, iter, converged))
+            return 1;
+        if (*converged || !G->skystall)
+            continue;
+        *order = from;
+        set_order(G, from);
+        memcpy(G->p, G->psave, (size_t)G->np * sizeof *G->p);
+        if (lm_render_all(G, G->p, G->cur, RENDER_ALL) || lm_levmar(G, o, 0, iter, converged))
+            return 1;
+        break;
+    }
+    return 0;
+}
+
 int mp_fit_group(const mp_frame *f, const mp_prf_model *m, const mp_fit_opts *o,
                  double sky0, mp_star *stars, int n, char *err)
 {
@@ -498,7 +534,7 @@ int mp_fit_group(const mp_frame *f, const mp_prf_model *m, const mp_fit_opts *o,
         goto nomem;
     if (order > 0 && o->warm_sky)
         warm_sky_start(&G, stars);
-    if (fit_orders(&G, o, &order, &iter, &converged))
+    if (fit_orders(&G, o, stars, sky, &order, &iter, &converged))
         goto nomem;
     int cv = covariance(&G);
     if (cv == 2)

@@ -70,6 +70,11 @@ typedef struct {
      * core only, the rest of its window keeping the values drawn at
      * (fx, fy) — both buffers alike. */
     int freezing, frozen;       /* this fit freezes; frozen now */
+    int outside;                /* the last trial left the sky's bounds */
+    int skystall;               /* the last loop stalled on the sky's bounds
+                                 * (levmar.c, LM_SKY_STALL) */
+    double *psave;              /* npmax: a converged state kept while a
+                                 * higher sky order is tried */
     double *fx, *fy;            /* n each */
     /* Settled stars (lm_settle.c): held where they are, not redrawn nor
      * summed, while the others go on. */
@@ -235,8 +240,9 @@ void lm_unsettle(group *G, int calm_too);
 
 /* levmar.c: LM from G->p (frozen wings unless o->exact_lm), accepted
  * steps added to *iter; rose: only the sky order has changed since the
- * last lm_levmar ended (its pairs' sums are kept); nonzero when out of
- * memory. */
+ * last lm_levmar ended (its pairs' sums are kept); G->skystall set when
+ * it ended stalled on the sky's bounds (not converged); nonzero when out
+ * of memory. */
 int lm_levmar(group *G, const mp_fit_opts *o, int rose, int *iter, int *converged);
 
 /* Whether the plane or quadratic sky of the last lm_model_of stays within

@@ -596,6 +596,38 @@ static void test_sky_floor_from_found_sky(void **state)
     frame_drop(&f);
 }
 
+/* A sky order that stalls on the sky's bounds is dropped (fit_group.c's
+ * fit_orders, levmar.c's LM_SKY_STALL).  A bowl sky (10 e⁻/px² of
+ * curvature about the star) makes the score test raise the order to
+ * quadratic; a 2×2 block of pixels 1000 e⁻ low inside the fitting disc
+ * then pulls the quadratic down there, past the floor the known sky sets
+ * (100 − 10σ), with D still falling: no minimum lies within the bounds,
+ * and before the fallback the loop crawled against them until maxiter
+ * (flagged not converged, order 2, 34 iterations).  The fit must end
+ * converged, at an order below the stalled one, its sky within the floor.
+ * Deterministic (one seed). */
+static void test_sky_order_stalled_dropped(void **state)
+{
+    (void)state;
+    mp_frame f;
+    double x, y;
+    fitrad5_frame(&f, 1313000000ULL, 2e4, 0.0, 3.0, &x, &y);
+    for (long j = 0; j < F5_NPX; j++)
+        for (long i = 0; i < F5_NPX; i++) {
+            double dx = (double)(i + 1) - x, dy = (double)(j + 1) - y;
+            f.im.pix[j * F5_NPX + i] += (float)(10.0 * (dx * dx + dy * dy));
+        }
+    for (int j = 0; j < 2; j++)
+        for (int i = 0; i < 2; i++)
+            f.im.pix[(lround(y) + 2 + j) * F5_NPX + lround(x) + 2 + i] -= 1000.0f;
+    mp_star st = fitrad5_fit(&f, x, y, MP_SKY_AUTO, 100.0);
+    assert_false(st.flags & MP_FLAG_NOCONV);
+    assert_true(st.sky_order < 2);
+    assert_true(st.sky >= 100.0 - 10.0 * sqrt(109.0) - 1e-9);
+    assert_true(isfinite(st.flux) && st.flux > 0);
+    frame_drop(&f);
+}
+
 /* fit.par's skymodel: auto is the default and chooses per group under
  * economy=yes and economy=no alike (the order is a choice of the model
  * from the data, not an economy: issue 10); an explicit order is honoured
@@ -1174,6 +1206,7 @@ int main(void)
         cmocka_unit_test(test_skymodel_parameter),
         cmocka_unit_test(test_negative_pixels_weigh_as_sky),
         cmocka_unit_test(test_sky_floor_from_found_sky),
+        cmocka_unit_test(test_sky_order_stalled_dropped),
         cmocka_unit_test(test_error_plane_weights),
         cmocka_unit_test(test_frozen_wings_same_fit),
         cmocka_unit_test(test_moved_stars_refresh_same_fit),
