@@ -628,6 +628,42 @@ static void test_sky_order_stalled_dropped(void **state)
     frame_drop(&f);
 }
 
+/* The same scene as test_sky_order_stalled_dropped, refitted warm: the
+ * star comes back at order 2 (o.warm_sky, as a frame's later rounds
+ * start), so the first loop is the stalled one; the fit starts again
+ * from a constant sky, its order capped below 2 (fit_orders).  It must
+ * end converged below order 2, as the cold fit does. */
+static void test_sky_order_stalled_warm(void **state)
+{
+    (void)state;
+    mp_frame f;
+    double x, y;
+    fitrad5_frame(&f, 1313000000ULL, 2e4, 0.0, 3.0, &x, &y);
+    for (long j = 0; j < F5_NPX; j++)
+        for (long i = 0; i < F5_NPX; i++) {
+            double dx = (double)(i + 1) - x, dy = (double)(j + 1) - y;
+            f.im.pix[j * F5_NPX + i] += (float)(10.0 * (dx * dx + dy * dy));
+        }
+    for (int j = 0; j < 2; j++)
+        for (int i = 0; i < 2; i++)
+            f.im.pix[(lround(y) + 2 + j) * F5_NPX + lround(x) + 2 + i] -= 1000.0f;
+    mp_psf gau;
+    mp_psf_gauss(3.0, &gau);
+    mp_prf_model m = {&gau, NULL, 10};
+    mp_fit_opts o;
+    mp_fit_opts_default(&o);
+    o.fitrad = 5.0;
+    o.warm_sky = 1;
+    mp_star st = {.x = x, .y = y, .flux = 2e4, .sky = 100.0, .sky_order = 2};
+    char err[MP_ERRLEN];
+    assert_int_equal(mp_fit_group(&f, &m, &o, NAN, &st, 1, err), 0);
+    assert_false(st.flags & MP_FLAG_NOCONV);
+    assert_true(st.sky_order < 2);
+    assert_true(st.sky >= 100.0 - 10.0 * sqrt(109.0) - 1e-9);
+    assert_true(isfinite(st.flux) && st.flux > 0);
+    frame_drop(&f);
+}
+
 /* fit.par's skymodel: auto is the default and chooses per group under
  * economy=yes and economy=no alike (the order is a choice of the model
  * from the data, not an economy: issue 10); an explicit order is honoured
@@ -1207,6 +1243,7 @@ int main(void)
         cmocka_unit_test(test_negative_pixels_weigh_as_sky),
         cmocka_unit_test(test_sky_floor_from_found_sky),
         cmocka_unit_test(test_sky_order_stalled_dropped),
+        cmocka_unit_test(test_sky_order_stalled_warm),
         cmocka_unit_test(test_error_plane_weights),
         cmocka_unit_test(test_frozen_wings_same_fit),
         cmocka_unit_test(test_moved_stars_refresh_same_fit),
