@@ -420,7 +420,8 @@ static void warm_sky_start(group *G, const mp_star *st)
 }
 
 /* The sky order set: its terms counted, the new ones at zero when it
- * rises. */
+ * rises (the buffers swap with the trial state, whose slots past the old
+ * order were never written). */
 static void set_order(group *G, int order)
 {
     int n = G->n;
@@ -464,8 +465,6 @@ static int fit_orders(group *G, const mp_fit_opts *o, const mp_star *stars, doub
             break;
         int from = *order;
         memcpy(G->psave, G->p, (size_t)G->np * sizeof *G->psave);
-        /* The new terms start at zero (the buffers swap with the trial
-         * state, whose slots past the old order were never written). */
         set_order(G, to);
         *order = to;
         if (lm_levmar(G, o, o->reuse_pairs, iter, converged))

@@ -596,57 +596,61 @@ static void test_sky_floor_from_found_sky(void **state)
     frame_drop(&f);
 }
 
+/* The scene where a raised sky order stalls on the sky's bounds (fit
+ * seed 1313000000): a bowl sky (10 e⁻/px² of curvature about the star)
+ * makes the score test raise the order to quadratic; a 2×2 block of
+ * pixels 1000 e⁻ low inside the fitting disc then pulls the quadratic
+ * down there, past the floor the known sky sets (100 − 10σ), with D still
+ * falling: no minimum lies within the bounds. */
+static void stalled_scene(mp_frame *f, double *x, double *y)
+{
+    fitrad5_frame(f, 1313000000ULL, 2e4, 0.0, 3.0, x, y);
+    for (long j = 0; j < F5_NPX; j++)
+        for (long i = 0; i < F5_NPX; i++) {
+            double dx = (double)(i + 1) - *x, dy = (double)(j + 1) - *y;
+            f->im.pix[j * F5_NPX + i] += (float)(10.0 * (dx * dx + dy * dy));
+        }
+    for (int j = 0; j < 2; j++)
+        for (int i = 0; i < 2; i++)
+            f->im.pix[(lround(*y) + 2 + j) * F5_NPX + lround(*x) + 2 + i] -= 1000.0f;
+}
+
+/* What a fit of stalled_scene must end with: converged, at an order below
+ * the stalled quadratic, its sky within the floor, a positive flux. */
+static void assert_stall_dropped(const mp_star *st)
+{
+    assert_false(st->flags & MP_FLAG_NOCONV);
+    assert_true(st->sky_order < 2);
+    assert_true(st->sky >= 100.0 - 10.0 * sqrt(109.0) - 1e-9);
+    assert_true(isfinite(st->flux) && st->flux > 0);
+}
+
 /* A sky order that stalls on the sky's bounds is dropped (fit_group.c's
- * fit_orders, levmar.c's LM_SKY_STALL).  A bowl sky (10 e⁻/px² of
- * curvature about the star) makes the score test raise the order to
- * quadratic; a 2×2 block of pixels 1000 e⁻ low inside the fitting disc
- * then pulls the quadratic down there, past the floor the known sky sets
- * (100 − 10σ), with D still falling: no minimum lies within the bounds,
- * and before the fallback the loop crawled against them until maxiter
- * (flagged not converged, order 2, 34 iterations).  The fit must end
- * converged, at an order below the stalled one, its sky within the floor.
+ * fit_orders, levmar.c's LM_SKY_STALL): stalled_scene, the order left to
+ * auto.  Before the fallback the quadratic's loop crawled against the
+ * bounds until maxiter (flagged not converged, order 2, 34 iterations).
  * Deterministic (one seed). */
 static void test_sky_order_stalled_dropped(void **state)
 {
     (void)state;
     mp_frame f;
     double x, y;
-    fitrad5_frame(&f, 1313000000ULL, 2e4, 0.0, 3.0, &x, &y);
-    for (long j = 0; j < F5_NPX; j++)
-        for (long i = 0; i < F5_NPX; i++) {
-            double dx = (double)(i + 1) - x, dy = (double)(j + 1) - y;
-            f.im.pix[j * F5_NPX + i] += (float)(10.0 * (dx * dx + dy * dy));
-        }
-    for (int j = 0; j < 2; j++)
-        for (int i = 0; i < 2; i++)
-            f.im.pix[(lround(y) + 2 + j) * F5_NPX + lround(x) + 2 + i] -= 1000.0f;
+    stalled_scene(&f, &x, &y);
     mp_star st = fitrad5_fit(&f, x, y, MP_SKY_AUTO, 100.0);
-    assert_false(st.flags & MP_FLAG_NOCONV);
-    assert_true(st.sky_order < 2);
-    assert_true(st.sky >= 100.0 - 10.0 * sqrt(109.0) - 1e-9);
-    assert_true(isfinite(st.flux) && st.flux > 0);
+    assert_stall_dropped(&st);
     frame_drop(&f);
 }
 
-/* The same scene as test_sky_order_stalled_dropped, refitted warm: the
- * star comes back at order 2 (o.warm_sky, as a frame's later rounds
- * start), so the first loop is the stalled one; the fit starts again
- * from a constant sky, its order capped below 2 (fit_orders).  It must
- * end converged below order 2, as the cold fit does. */
+/* stalled_scene refitted warm: the star comes back at order 2
+ * (o.warm_sky, as a frame's later rounds start), so the first loop is
+ * the stalled one; the fit starts again from a constant sky, its order
+ * capped below 2 (fit_orders).  It must end as the cold fit does. */
 static void test_sky_order_stalled_warm(void **state)
 {
     (void)state;
     mp_frame f;
     double x, y;
-    fitrad5_frame(&f, 1313000000ULL, 2e4, 0.0, 3.0, &x, &y);
-    for (long j = 0; j < F5_NPX; j++)
-        for (long i = 0; i < F5_NPX; i++) {
-            double dx = (double)(i + 1) - x, dy = (double)(j + 1) - y;
-            f.im.pix[j * F5_NPX + i] += (float)(10.0 * (dx * dx + dy * dy));
-        }
-    for (int j = 0; j < 2; j++)
-        for (int i = 0; i < 2; i++)
-            f.im.pix[(lround(y) + 2 + j) * F5_NPX + lround(x) + 2 + i] -= 1000.0f;
+    stalled_scene(&f, &x, &y);
     mp_psf gau;
     mp_psf_gauss(3.0, &gau);
     mp_prf_model m = {&gau, NULL, 10};
@@ -657,10 +661,7 @@ static void test_sky_order_stalled_warm(void **state)
     mp_star st = {.x = x, .y = y, .flux = 2e4, .sky = 100.0, .sky_order = 2};
     char err[MP_ERRLEN];
     assert_int_equal(mp_fit_group(&f, &m, &o, NAN, &st, 1, err), 0);
-    assert_false(st.flags & MP_FLAG_NOCONV);
-    assert_true(st.sky_order < 2);
-    assert_true(st.sky >= 100.0 - 10.0 * sqrt(109.0) - 1e-9);
-    assert_true(isfinite(st.flux) && st.flux > 0);
+    assert_stall_dropped(&st);
     frame_drop(&f);
 }
 
