@@ -507,8 +507,9 @@ typedef struct {
                         * fitting region changed by less than refittol in
                         * √Σ(Δ/σ)² since its last fit (that bounds the
                         * change of its fitted parameters to refittol of
-                        * their σ); 0: refit every group every pass
-                        * (economy=no) */
+                        * their σ), as an upper bound of that change says
+                        * (fit/frame_bound.c); 0: refit every group every
+                        * pass (economy=no) */
     const struct mp_ss_level_s *ss;  /* economy: nss coarser samplings of the
                         * model's table, coarsest first; each group is fitted
                         * with the coarsest whose linearised bias at its
@@ -630,8 +631,9 @@ typedef struct {
                         * NULL: exact renders) */
 } mp_frame_report;
 
-/* What every star's fit saw, so a later pass or pipeline round can tell
- * whether refitting it could change anything (economy, frame_refit.c). */
+/* Every star's last fit and how far its neighbours' light has moved
+ * since, so a later pipeline round can tell whether refitting it could
+ * change anything (economy, fit/frame_bound.c). */
 typedef struct mp_fit_memory mp_fit_memory;
 
 /* mp_fit_memory_new: an empty memory; NULL when out of memory. */

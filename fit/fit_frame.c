@@ -85,6 +85,7 @@ static int read_stars(const mp_table *t, int whole, double maxnum, star_state *s
         st[i].number = maxnum >= 0 ? mp_table_get(t, i, cn) : (double)i;
         double g = cg >= 0 ? mp_table_get(t, i, cg) : NAN;
         st[i].id = whole ? 0.0 : (isfinite(g) ? g : -1.0 - (double)i);
+        st[i].bound = INFINITY;          /* not fitted yet */
     }
     qsort(st, n, sizeof *st, cmp_group);
     *ng = 0;
@@ -160,6 +161,23 @@ static int fit_pass(const mp_frame *f, const mp_prf_model *m, mp_frame_opts *oc,
     return 0;
 }
 
+/* The refit bounds brought up to date for the neighbours' model as
+ * ff_all_stars paints it now (oc's grid, R's flux limit), the stars gone
+ * from the table counted once. */
+static int update_bounds(const mp_frame *f, const mp_prf_model *m, const crop_rule *crop,
+                         const mp_frame_opts *oc, const frame_rules *R, paint_rule *held,
+                         star_state *st, size_t n, const size_t *gs, size_t ng, star_state **gone,
+                         size_t *ngone)
+{
+    paint_rule now = {oc->grid, R->gemax, 1};
+    int rc = ff_update_bounds(f, m, crop, &now, held, oc->fit.fitrad, st, n, gs, ng, *gone,
+                              *ngone);
+    free(*gone);
+    *gone = NULL;
+    *ngone = 0;
+    return rc;
+}
+
 /* What the report says of the fit as it ends: the live stars not
  * converged, and each group's sky order as it stands (kept groups keep
  * theirs). */
@@ -233,6 +251,8 @@ int mp_fit_table_mem(const mp_frame *f, const mp_prf_model *m, const mp_frame_op
     star_state *st = calloc(n ? n : 1, sizeof *st);
     size_t *gs = malloc((n + 1) * sizeof *gs);
     float *all = NULL;
+    star_state *gone = NULL;     /* stars mem held that t does not */
+    size_t ngone = 0;
     /* The model image: in the caller's lent buffer when there is one. */
     size_t npix = (size_t)f->im.nx * (size_t)f->im.ny;
     float *lent = mem && mem->scratch && mem->nscratch >= npix ? mem->scratch : NULL;
@@ -287,8 +307,11 @@ int mp_fit_table_mem(const mp_frame *f, const mp_prf_model *m, const mp_frame_op
     /* Economy: a star refitted only when its surroundings changed
      * (o->refittol); never in whole-frame fits. */
     int economy = o->refittol > 0 && !whole && ng > 1;
-    if (economy && maxnum >= 0)
-        ff_recall(mem, t, st, n);
+    paint_rule held = {0};
+    if (economy && maxnum >= 0 && ff_recall(mem, t, st, n, &held, &gone, &ngone)) {
+        snprintf(err, MP_ERRLEN, "out of memory");
+        goto done;
+    }
     for (int pass = 0; pass < passes; pass++) {
         /* Neighbours are subtracted with the latest values; in the first
          * pass only those with a start flux (find's FLUX) can be. */
@@ -297,6 +320,10 @@ int mp_fit_table_mem(const mp_frame *f, const mp_prf_model *m, const mp_frame_op
         all = NULL;
         if (!alone && !(all = ff_all_stars(f, m, st, n, &crop, o, &R, lent, &rep->cropped))) {
             snprintf(err, MP_ERRLEN, "out of memory for the model image");
+            goto done;
+        }
+        if (economy && update_bounds(f, m, &crop, &oc, &R, &held, st, n, gs, ng, &gone, &ngone)) {
+            snprintf(err, MP_ERRLEN, "out of memory");
             goto done;
         }
         mp_frame_report pr = {0};
@@ -311,15 +338,20 @@ int mp_fit_table_mem(const mp_frame *f, const mp_prf_model *m, const mp_frame_op
         }
     }
     final_counts(st, n, gs, ng, rep);
-    if (mem && maxnum >= 0 && ff_remember(mem, st, n, maxnum)) {
+    /* The last pass's changes too: the next call starts from them. */
+    if (economy && mem && maxnum >= 0 &&
+        update_bounds(f, m, &crop, &oc, &R, &held, st, n, gs, ng, &gone, &ngone)) {
+        snprintf(err, MP_ERRLEN, "out of memory");
+        goto done;
+    }
+    if (mem && maxnum >= 0 && ff_remember(mem, st, n, maxnum, &held)) {
         snprintf(err, MP_ERRLEN, "out of memory");
         goto done;
     }
     rep->grid = oc.grid;
     rc = ff_write_columns(t, st, n, o->magzero, err);
 done:
-    for (size_t i = 0; st && i < n; i++)
-        free(st[i].seen);
+    free(gone);
     if (!lent)
         free(all);
     ff_rules_free(&R);

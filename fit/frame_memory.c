@@ -1,5 +1,5 @@
-/* frame_memory.c — what each star was fitted against, kept across calls
- * by NUMBER (mp_fit_memory: the pipeline's rounds). */
+/* frame_memory.c — each star's last fit and refit bound, kept across
+ * calls by NUMBER (mp_fit_memory: the pipeline's rounds). */
 
 #include <math.h>
 #include <stdio.h>
@@ -22,8 +22,6 @@ void mp_fit_memory_free(mp_fit_memory *mem)
 {
     if (!mem)
         return;
-    for (size_t i = 0; i < mem->ns; i++)
-        free(mem->s[i].seen);
     free(mem->s);
     free(mem->at);
     free(mem);
@@ -61,20 +59,6 @@ static int grow_index(mp_fit_memory *mem, double maxnum)
     return 0;
 }
 
-/* The entries that still hold a disc (stars not in this call's table)
- * moved to the front, in place, and indexed anew. */
-static void compact(mp_fit_memory *mem)
-{
-    size_t j = 0;
-    for (size_t i = 0; i < mem->ns; i++)
-        if (mem->s[i].seen) {
-            mem->s[j] = mem->s[i];
-            mem->at[mem->s[j].number] = (uint32_t)(j + 1);
-            j++;
-        }
-    mem->ns = j;
-}
-
 /* The fit's columns of a table (ff_write_columns), in mp_star's order
  * below; nonzero when one is missing. */
 enum { NFIT = 18 };
@@ -91,7 +75,7 @@ static int fit_columns(const mp_table *t, int *c)
 }
 
 /* Star s as its row r of t and its entry e hold it. */
-static void star_from(const mp_table *t, size_t r, const int *c, const star_seen *e, mp_star *s)
+static void star_from(const mp_table *t, size_t r, const int *c, const star_memo *e, mp_star *s)
 {
     double v[NFIT];
     for (int k = 0; k < NFIT; k++)
@@ -105,84 +89,103 @@ static void star_from(const mp_table *t, size_t r, const int *c, const star_seen
     s->flags = e->flags, s->dofstar = e->dofstar, s->sky_order = e->sky_order;
 }
 
+static int same_value(double a, double b)
+{
+    return a == b || (isnan(a) && isnan(b));
+}
+
+/* A star's light as its entry e painted it, pending as a change
+ * (MOVED_CALL) from there. */
+static void pending_from(const star_memo *e, star_state *s)
+{
+    s->moved = MOVED_CALL;
+    s->olight = 1;
+    s->ox = e->x, s->oy = e->y, s->oflux = e->flux, s->osky = e->sky;
+}
+
 /* Give back to the stars of the table their last fits from mem (the
  * pipeline's earlier rounds): a star whose row still holds that fit's
- * values gets its errors and its patch back, so it need not be refitted
- * when its surroundings have not changed.  The entries of the table's
- * stars are then forgotten (ff_remember would replace them): the fit
- * holds the patches meanwhile, not the memory too. */
-void ff_recall(mp_fit_memory *mem, const mp_table *t, star_state *st, size_t n)
+ * values gets its errors and its bound back, so it need not be refitted
+ * when its surroundings have not changed.  Every other star's light is a
+ * change since the bounds were made: from its entry's (a row changed
+ * since), from none (a star new to mem), or to none (an entry whose star
+ * is not in t: in *gone). */
+int ff_recall(mp_fit_memory *mem, const mp_table *t, star_state *st, size_t n,
+              paint_rule *held, star_state **gone, size_t *ngone)
 {
     int c[NFIT];
     int cols = !fit_columns(t, c);
+    *held = mem->paint;
+    *gone = NULL;
+    *ngone = 0;
     for (size_t i = 0; i < n; i++) {
         size_t k = (size_t)st[i].number;
-        if (k >= mem->nat || !mem->at[k])
+        star_memo *r = k < mem->nat && mem->at[k] ? &mem->s[mem->at[k] - 1] : NULL;
+        st[i].bound = INFINITY;
+        st[i].moved = MOVED_CALL;     /* new to mem: from no light */
+        st[i].olight = 0;
+        if (!r)
             continue;
-        star_seen *r = &mem->s[mem->at[k] - 1];
         mem->at[k] = 0;
-        if (cols && r->seen && r->x == st[i].s.x && r->y == st[i].s.y &&
-            r->flux == st[i].s.flux) {
+        r->number = UINT32_MAX;       /* taken */
+        if (cols && r->x == st[i].s.x && r->y == st[i].s.y && r->flux == st[i].s.flux &&
+            same_value(r->sky, st[i].s.sky)) {
             star_from(t, (size_t)st[i].row, c, r, &st[i].s);
-            st[i].seen = r->seen;
-            st[i].cx = r->cx;
-            st[i].cy = r->cy;
-            st[i].sx0 = r->sx0;
-            st[i].sy0 = r->sy0;
-            st[i].sw = r->sw;
+            st[i].bound = r->bound;
+            st[i].moved = 0;
         } else {
-            free(r->seen);
+            pending_from(r, &st[i]);
         }
-        r->seen = NULL;
     }
-    compact(mem);
+    for (size_t e = 0; e < mem->ns; e++)
+        *ngone += mem->s[e].number != UINT32_MAX;
+    if (*ngone && !(*gone = calloc(*ngone, sizeof **gone)))
+        return 1;
+    for (size_t e = 0, q = 0; e < mem->ns; e++)
+        if (mem->s[e].number != UINT32_MAX)
+            pending_from(&mem->s[e], &(*gone)[q++]);
+    for (size_t e = 0; e < mem->ns; e++)
+        if (mem->s[e].number != UINT32_MAX)
+            mem->at[mem->s[e].number] = 0;
+    mem->ns = 0;
+    return 0;
 }
 
-/* Keep every live star's fit and patch in mem, by NUMBER: each star of
- * this call forgets its earlier entry, the others' stay, the live ones
- * are appended. */
-int ff_remember(mp_fit_memory *mem, star_state *st, size_t n, double maxnum)
+/* Keep every live star's fit and bound in mem, by NUMBER, in place of
+ * what it held: the stars of the table as the call ends. */
+int ff_remember(mp_fit_memory *mem, const star_state *st, size_t n, double maxnum,
+                const paint_rule *held)
 {
+    for (size_t e = 0; e < mem->ns; e++)
+        if (mem->s[e].number < mem->nat)
+            mem->at[mem->s[e].number] = 0;
+    mem->ns = 0;
     if (grow_index(mem, maxnum))
         return 1;
     size_t live = 0;
-    for (size_t i = 0; i < n; i++) {
-        size_t k = (size_t)st[i].number;
-        if (mem->at[k]) {
-            star_seen *r = &mem->s[mem->at[k] - 1];
-            free(r->seen);
-            r->seen = NULL;
-            mem->at[k] = 0;
-        }
-        live += st[i].alive && st[i].seen;
-    }
-    compact(mem);
-    size_t ns = mem->ns + live;
-    star_seen *s = ns ? realloc(mem->s, ns * sizeof *s) : NULL;
-    if (ns && !s)
+    for (size_t i = 0; i < n; i++)
+        live += st[i].alive;
+    star_memo *s = live ? realloc(mem->s, live * sizeof *s) : NULL;
+    if (live && !s)
         return 1;
-    if (!ns)
+    if (!live)
         free(mem->s);
     mem->s = s;
+    mem->paint = *held;
     for (size_t i = 0; i < n; i++) {
-        if (!st[i].alive || !st[i].seen)
+        if (!st[i].alive)
             continue;
-        star_seen *r = &mem->s[mem->ns];
+        star_memo *r = &mem->s[mem->ns];
         r->x = st[i].s.x;
         r->y = st[i].s.y;
         r->flux = st[i].s.flux;
+        r->sky = st[i].s.sky;
+        r->bound = st[i].bound;
         r->flags = st[i].s.flags;
         r->dofstar = st[i].s.dofstar;
         r->sky_order = st[i].s.sky_order;
-        r->seen = st[i].seen;
-        r->cx = st[i].cx;
-        r->cy = st[i].cy;
-        r->sx0 = st[i].sx0;
-        r->sy0 = st[i].sy0;
-        r->sw = st[i].sw;
         r->number = (uint32_t)st[i].number;
         mem->at[r->number] = (uint32_t)(++mem->ns);
-        st[i].seen = NULL;
     }
     return 0;
 }

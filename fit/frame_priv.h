@@ -18,17 +18,28 @@ typedef struct {
     long row;
     double number;      /* NUMBER (the memory's key across calls), or row */
     int alive;
-    /* Economy: the light of every other star on its fitting region (the
-     * frame's pixels within fitrad of (cx, cy), its fitted place then) when
-     * it was last fitted, in raster order (ff_disc_next); its patch, the
-     * square of side sw at (sx0, sy0) holding that disc and a pixel more;
-     * NULL: not fitted yet.  The disc only, in single precision: the
-     * memory is held for every star between rounds (issue 14). */
-    float *seen;
-    double cx, cy;
-    long sx0, sy0;
-    int sw;
+    /* Economy (frame_bound.c): an upper bound of √Σ((others' light now −
+     * then)/σ)² over its fitting region (the frame's pixels within fitrad
+     * of it) since it was last fitted; INFINITY: not fitted yet.  A bound,
+     * not the light seen then: 8 bytes a star where the disc of that light
+     * was ~330, held for every star between rounds (issue 14). */
+    double bound;
+    /* Its light changed since the bounds were last brought up to date:
+     * MOVED_FIT by its group's fit, MOVED_CALL between calls (0: not);
+     * from (ox, oy, oflux, osky), or from none when !olight. */
+    unsigned char moved, olight;
+    double ox, oy, oflux, osky;
 } star_state;
+
+enum { MOVED_FIT = 1, MOVED_CALL = 2 };
+
+/* The paint the bounds hold for (ff_all_stars'): its phase grid and flux
+ * limit; set: 0 until the bounds hold for one. */
+typedef struct {
+    const struct mp_prf_cache_s *grid;
+    double gemax;
+    int set;
+} paint_rule;
 
 typedef mp_prf_crop crop_rule;
 
@@ -73,27 +84,27 @@ typedef struct {
 
 /* A star's last fit, by NUMBER, across calls: what its table row does
  * not hold (the row holds the rest of its mp_star, as ff_write_columns
- * wrote it: ff_recall reads it back), and its position and flux, by
- * which a row still holding that fit is known.  Issue 14: the whole
- * mp_star here was 200 bytes a star held between rounds. */
+ * wrote it: ff_recall reads it back), its refit bound, and its position,
+ * flux and sky, by which a row still holding that fit is known (and its
+ * light then painted when it does not).  Issue 14: the whole mp_star
+ * here was 200 bytes a star held between rounds, the disc of the light
+ * it saw ~330 more. */
 typedef struct {
-    double x, y, flux;
-    float *seen;
-    double cx, cy;
-    long sx0, sy0;
-    int sw;
+    double x, y, flux, sky;
+    double bound;        /* star_state.bound as the call ended */
     uint32_t number;     /* its NUMBER (ff_max_number: below 1e8) */
     int dofstar, sky_order, flags;
-} star_seen;
+} star_memo;
 
 /* The stars remembered, dense, and where each NUMBER's is: NUMBERs run to
  * ~3x the stars kept (find numbers its candidates before the screen), so
  * an array of entries indexed by NUMBER was 3x the room (issue 14). */
 struct mp_fit_memory {
-    star_seen *s;        /* ns entries, each with a disc */
+    star_memo *s;        /* ns entries */
     size_t ns;
     uint32_t *at;        /* by NUMBER: 1 + its entry in s, or 0 */
     size_t nat;
+    paint_rule paint;    /* the paint the entries' bounds hold for */
     float *scratch;      /* lent: room for the model of every star */
     size_t nscratch;
 };
@@ -160,14 +171,34 @@ int ff_fit_group_local(const mp_frame *f, const mp_prf_model *m, const mp_frame_
                        const crop_rule *crop, star_state *st, int n, int may_keep, int economy,
                        mp_frame_report *rep, char *err);
 
+/* frame_bound.c.  ff_update_bounds: every star's refit bound brought up
+ * to date for the neighbours' model painted with rule now (ff_all_stars'):
+ * each pending change of a star j's light (star_state.moved) adds its
+ * norm over star k's fitting region (radius r) to k's bound, unless j
+ * changed in k's own group fit (that fit saw it); the changes are then
+ * cleared; so are the changes gone[0..ngone-1] (stars no longer in the
+ * table: their light gone).  When now is not the rule the bounds hold for
+ * (*held), every bound is INFINITY instead, and *held becomes now.  Stars
+ * sorted by group as gs says (ng groups).  Nonzero when out of memory. */
+int ff_update_bounds(const mp_frame *f, const mp_prf_model *m, const crop_rule *crop,
+                     const paint_rule *now, paint_rule *held, double r, star_state *st, size_t n,
+                     const size_t *gs, size_t ng, const star_state *gone, size_t ngone);
+
 /* frame_memory.c.  ff_max_number: the table's largest NUMBER, or -1 when
  * it has none (or one not a whole number ≥ 0).  ff_recall: each star's
- * last fit from mem and its row of t (the fit's columns), the entries of
- * t's stars then forgotten; ff_remember: kept there (nonzero when out of
+ * last fit and refit bound from mem and its row of t (the fit's columns);
+ * a star whose row no longer holds that fit gets the change of its light
+ * pending (MOVED_CALL), a star new to mem its light; the stars mem holds
+ * that t does not come back in *gone (*ngone of them, their light gone:
+ * the caller frees it); mem is then emptied, and *held gets the rule its
+ * bounds hold for.  Nonzero when out of memory.  ff_remember: every live
+ * star's fit and bound kept in mem, for the rule held (nonzero when out of
  * memory). */
 double ff_max_number(const mp_table *t);
-void ff_recall(mp_fit_memory *mem, const mp_table *t, star_state *st, size_t n);
-int ff_remember(mp_fit_memory *mem, star_state *st, size_t n, double maxnum);
+int ff_recall(mp_fit_memory *mem, const mp_table *t, star_state *st, size_t n,
+              paint_rule *held, star_state **gone, size_t *ngone);
+int ff_remember(mp_fit_memory *mem, const star_state *st, size_t n, double maxnum,
+                const paint_rule *held);
 
 /* frame_columns.c: the fitted columns of the live stars written into t
  * (MAG_PSF with magzero); nonzero with err on failure. */
