@@ -220,10 +220,14 @@ static int increments_of(const mp_frame *f, const mp_prf_model *m, const crop_ru
     return 0;
 }
 
-/* The changes ch[0..nch-1] added to the bounds, CHUNK at a time. */
+/* The changes of the stars who[0..nch-1] added to the bounds, CHUNK at a
+ * time (who[c] ≥ n: gone[who[c] − n]).  Each change is drawn from its
+ * star as it is handled: an array of them held 180 B a star at the whole
+ * frame's peak. */
 static int add_changes(const mp_frame *f, const mp_prf_model *m, const crop_rule *crop,
-                       const paint_rule *now, double r, star_state *st, const star_cells *C,
-                       const light_change *ch, size_t nch)
+                       const paint_rule *now, double r, star_state *st, size_t n,
+                       const size_t *gs, size_t ng, const star_state *gone,
+                       const star_cells *C, const size_t *who, size_t nch)
 {
     increment *inc[CHUNK];
     size_t ninc[CHUNK];
@@ -239,9 +243,12 @@ static int add_changes(const mp_frame *f, const mp_prf_model *m, const crop_rule
             float *win = NULL;
             size_t cap = 0, nwin = 0;
 #pragma omp for schedule(dynamic, 16)
-            for (size_t c = c0; c < c1; c++)
-                nomem |= increments_of(f, m, crop, r, st, C, &ch[c], &wk, &buf, &cap, &win, &nwin,
+            for (size_t c = c0; c < c1; c++) {
+                size_t j = who[c];
+                light_change ch = j < n ? change_of(&st[j], j, gs, ng) : change_of(&gone[j - n], n, gs, 0);
+                nomem |= increments_of(f, m, crop, r, st, C, &ch, &wk, &buf, &cap, &win, &nwin,
                                        &inc[c - c0], &ninc[c - c0]);
+            }
             free(buf);
             free(win);
             mp_prf_work_free(&wk);
@@ -269,21 +276,21 @@ int ff_update_bounds(const mp_frame *f, const mp_prf_model *m, const crop_rule *
     }
     *held = *now;
     held->set = 1;
-    light_change *ch = any && nch ? malloc(nch * sizeof *ch) : NULL;
+    size_t *who = any && nch ? malloc(nch * sizeof *who) : NULL;
     star_cells C = {0};
-    int rc = any && nch && (!ch || file_stars(f, st, n, &C));
-    if (!rc && ch) {
+    int rc = any && nch && (!who || file_stars(f, st, n, &C));
+    if (!rc && who) {
         size_t q = 0;
         for (size_t k = 0; k < n; k++)
             if (st[k].moved)
-                ch[q++] = change_of(&st[k], k, gs, ng);
+                who[q++] = k;
         for (size_t k = 0; k < ngone; k++)
-            ch[q++] = change_of(&gone[k], n, gs, 0);
-        rc = add_changes(f, m, crop, now, r, st, &C, ch, nch);
+            who[q++] = n + k;
+        rc = add_changes(f, m, crop, now, r, st, n, gs, ng, gone, &C, who, nch);
     }
     for (size_t k = 0; k < n; k++)
         st[k].moved = 0;
-    free(ch);
+    free(who);
     free(C.cell0);
     free(C.idx);
     return rc;

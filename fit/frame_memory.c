@@ -147,6 +147,8 @@ int ff_recall(mp_fit_memory *mem, const mp_table *t, star_state *st, size_t n,
     for (size_t e = 0; e < mem->ns; e++)
         if (mem->s[e].number != UINT32_MAX)
             mem->at[mem->s[e].number] = 0;
+    free(mem->s);                /* not held through the fit (issue 14) */
+    mem->s = NULL;
     mem->ns = 0;
     return 0;
 }
