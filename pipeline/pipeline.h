@@ -84,9 +84,10 @@ int mp_pipeline_run_tiled(const char *image, const char *root, const mp_pipeline
  * sets the tiles from maxmem.  Measured (issue 14, session 8: peak RSS,
  * OMP 1, crowded frames of 3.7e-3 stars a pixel, FWHM 3, x2 table):
  * 4096², 61 600 stars, 218.5 MiB = 13.65 B/px; 8192², 246 500 stars,
- * 808.2 MiB = 12.63 B/px.  Per pixel 8 (frame and residual, floats; the
- * mask is paged in only where a pixel is masked), per star ~1.2 kB at
- * the peak (~4.5 B/px at this density: table, patches, fit state), and
+ * 808.2 MiB = 12.63 B/px (session 23, the refit bound: 756.0 MiB, 11.8
+ * B/px).  Per pixel 8 (frame and residual, floats; the mask is paged in
+ * only where a pixel is masked), per star ~0.9 kB at the peak (~3.5 B/px
+ * at this density: table, fit state), and
  * ~22 MiB whatever the frame (libraries, the PSF's tables), which the
  * 4096² ratio, rounded up, covers for frames of 4096² and more; a
  * budget under ~200 MB is met less well (that fixed part dominates). */
