@@ -42,9 +42,15 @@ static int col_any(const mp_table *t, const char *a, const char *b)
     return c >= 0 ? c : (b ? mp_table_col(t, b) : -1);
 }
 
+/* A star's place in the fit's order: by group, then by row. */
+typedef struct {
+    double id;
+    long row;
+} group_key;
+
 static int cmp_group(const void *a, const void *b)
 {
-    const star_state *x = a, *y = b;
+    const group_key *x = a, *y = b;
     if (x->id != y->id)
         return (x->id > y->id) - (x->id < y->id);
     return (x->row > y->row) - (x->row < y->row);
@@ -71,23 +77,40 @@ static int read_stars(const mp_table *t, int whole, double maxnum, star_state *s
     int cf = col_any(t, "FLUX_PSF", "FLUX"), cs = col_any(t, "SKY_PSF", "BACKGROUND");
     int cg = mp_table_col(t, "GROUP_ID"), cn = mp_table_col(t, "NUMBER");
     size_t n = t->nrow;
+    /* The keys sorted, not the states (232 B each: the sort was a sixth
+     * of the fit's serial time, issue 14). */
+    group_key *key = malloc((n ? n : 1) * sizeof *key);
+    if (!key) {
+        snprintf(err, MP_ERRLEN, "out of memory");
+        return 1;
+    }
     for (size_t i = 0; i < n; i++) {
-        st[i].row = (long)i;
-        st[i].alive = 1;
-        st[i].s.x = mp_table_get(t, i, cx);
-        st[i].s.y = mp_table_get(t, i, cy);
-        if (!isfinite(st[i].s.x) || !isfinite(st[i].s.y)) {
+        if (!isfinite(mp_table_get(t, i, cx)) || !isfinite(mp_table_get(t, i, cy))) {
             snprintf(err, MP_ERRLEN, "row %zu: position is not a finite number", i + 1);
+            free(key);
             return 1;
         }
-        st[i].s.flux = cf >= 0 ? mp_table_get(t, i, cf) : NAN;
-        st[i].s.sky = cs >= 0 ? mp_table_get(t, i, cs) : NAN;
-        st[i].number = maxnum >= 0 ? mp_table_get(t, i, cn) : (double)i;
         double g = cg >= 0 ? mp_table_get(t, i, cg) : NAN;
-        st[i].id = whole ? 0.0 : (isfinite(g) ? g : -1.0 - (double)i);
-        st[i].bound = INFINITY;          /* not fitted yet */
+        key[i].id = whole ? 0.0 : (isfinite(g) ? g : -1.0 - (double)i);
+        key[i].row = (long)i;
     }
-    qsort(st, n, sizeof *st, cmp_group);
+    qsort(key, n, sizeof *key, cmp_group);
+    /* In parallel: the first touch of the states' pages (calloc's) was
+     * most of what read_stars cost. */
+#pragma omp parallel for schedule(static)
+    for (size_t k = 0; k < n; k++) {
+        size_t i = (size_t)key[k].row;
+        st[k].row = key[k].row;
+        st[k].id = key[k].id;
+        st[k].alive = 1;
+        st[k].s.x = mp_table_get(t, i, cx);
+        st[k].s.y = mp_table_get(t, i, cy);
+        st[k].s.flux = cf >= 0 ? mp_table_get(t, i, cf) : NAN;
+        st[k].s.sky = cs >= 0 ? mp_table_get(t, i, cs) : NAN;
+        st[k].number = maxnum >= 0 ? mp_table_get(t, i, cn) : (double)i;
+        st[k].bound = INFINITY;          /* not fitted yet */
+    }
+    free(key);
     *ng = 0;
     for (size_t i = 0; i < n; i++)
         if (i == 0 || st[i].id != st[i - 1].id)

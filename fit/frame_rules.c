@@ -193,12 +193,6 @@ int ff_kernel_for(const kernel_rule *k, int hwfull, double e, mp_frame_report *c
     return hw;
 }
 
-static int cmp_double(const void *a, const void *b)
-{
-    double x = *(const double *)a, y = *(const double *)b;
-    return (x > y) - (x < y);
-}
-
 /* Median of the finite, positive start skies of the stars [e-]; 0 when
  * none (the kernel choice's safe side: less sky, less noise). */
 static double median_sky(const star_state *st, size_t n)
@@ -210,11 +204,7 @@ static double median_sky(const star_state *st, size_t n)
     for (size_t i = 0; i < n; i++)
         if (isfinite(st[i].s.sky) && st[i].s.sky > 0)
             v[k++] = st[i].s.sky;
-    double med = 0.0;
-    if (k) {
-        qsort(v, k, sizeof *v, cmp_double);
-        med = v[k / 2];
-    }
+    double med = k ? mp_select_kth(v, k, k / 2) : 0.0;   /* serial: no sort (issue 14) */
     free(v);
     return med;
 }

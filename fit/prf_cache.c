@@ -321,37 +321,47 @@ static void product(const mp_prf_cache *c, const mp_prf_axis *ax, const mp_prf_a
 }
 
 /* Every node: per x node A = T·Xᵀ and T·X'ᵀ, then per y node the PRF
- * Y·A, ∂/∂x Y·(T·X'ᵀ) and ∂/∂y Y'·A; buf holds npix + 2·ny·uw. */
-static int nodes_sep(const mp_prf_model *m, mp_prf_cache *c, double *buf)
+ * Y·A, ∂/∂x Y·(T·X'ᵀ) and ∂/∂y Y'·A.  The x nodes in parallel (their
+ * planes are disjoint), each thread with its own npix + 2·ny·uw: built
+ * serially, the grids were a quarter of the frame fit's serial time
+ * (issue 14, bench/SCALING.md). */
+static int nodes_sep(const mp_prf_model *m, mp_prf_cache *c)
 {
-    int na = c->gb + 3, NA = c->os * na, rc = 1;
-    size_t np = c->npix;
-    double scale = m->drf ? m->drf->volume : 1.0, *A = buf + np,
-           *Ad = A + (size_t)m->psf->ny * c->uw;
-    mp_prf_axis *ay = calloc((size_t)NA, sizeof *ay), ax = {0};
-    for (int Y = 0; ay && Y < NA; Y++)
-        if (axis_op(m, c, 1, ref_coord(c, Y / na, (Y % na - 1.0) / c->gb),
-                    ref_coord(c, Y / na, 0.5), &ay[Y]))
-            goto done;
-    for (int X = 0; ay && X < NA; X++) {
-        if (axis_op(m, c, 0, ref_coord(c, X / na, (X % na - 1.0) / c->gb),
-                    ref_coord(c, X / na, 0.5), &ax))
-            goto done;
-        mp_prf_axis_rows(m->psf, &ax, 0, A);
-        mp_prf_axis_rows(m->psf, &ax, 1, Ad);
-        for (int Y = 0; Y < NA; Y++) {
-            float *pl = c->img + 3 * ((size_t)Y * NA + (size_t)X) * np;
-            for (int k = 0; k < 3; k++) {
-                product(c, &ax, &ay[Y], k == 2, k == 1 ? Ad : A, scale, buf);
-                for (size_t i = 0; i < np; i++)
-                    pl[k * np + i] = (float)buf[i];
+    int na = c->gb + 3, NA = c->os * na, rc = 0;
+    size_t np = c->npix, nA = (size_t)m->psf->ny * c->uw;
+    double scale = m->drf ? m->drf->volume : 1.0;
+    mp_prf_axis *ay = calloc((size_t)NA, sizeof *ay);
+    for (int Y = 0; ay && Y < NA && !rc; Y++)
+        rc = axis_op(m, c, 1, ref_coord(c, Y / na, (Y % na - 1.0) / c->gb),
+                     ref_coord(c, Y / na, 0.5), &ay[Y]);
+    rc = rc || !ay;
+#pragma omp parallel if (!rc) reduction(| : rc)
+    {
+        mp_prf_axis ax = {0};
+        double *buf = malloc((np + 2 * nA) * sizeof *buf), *A = buf + np, *Ad = A + nA;
+        rc |= !buf;
+#pragma omp for schedule(dynamic)
+        for (int X = 0; X < NA; X++) {
+            if (!buf || axis_op(m, c, 0, ref_coord(c, X / na, (X % na - 1.0) / c->gb),
+                                ref_coord(c, X / na, 0.5), &ax)) {
+                rc = 1;
+                continue;
             }
+            mp_prf_axis_rows(m->psf, &ax, 0, A);
+            mp_prf_axis_rows(m->psf, &ax, 1, Ad);
+            for (int Y = 0; Y < NA; Y++) {
+                float *pl = c->img + 3 * ((size_t)Y * NA + (size_t)X) * np;
+                for (int k = 0; k < 3; k++) {
+                    product(c, &ax, &ay[Y], k == 2, k == 1 ? Ad : A, scale, buf);
+                    for (size_t i = 0; i < np; i++)
+                        pl[k * np + i] = (float)buf[i];
+                }
+            }
+            mp_prf_axis_free(&ax);
         }
         mp_prf_axis_free(&ax);
+        free(buf);
     }
-    rc = !ay;
-done:
-    mp_prf_axis_free(&ax);
     for (int Y = 0; ay && Y < NA; Y++)
         mp_prf_axis_free(&ay[Y]);
     free(ay);
@@ -359,39 +369,48 @@ done:
 }
 
 /* The cells' exact renders (natural alignment) the same way, then the
- * error as measure() takes it; buf holds 2·npix + ny·uw. */
-static int measure_sep(const mp_prf_model *m, mp_prf_cache *c, double *buf)
+ * error as measure() takes it; the x cells in parallel, each thread with
+ * its own 2·npix + ny·uw. */
+static int measure_sep(const mp_prf_model *m, mp_prf_cache *c)
 {
-    int ng = c->os * c->gb, rc = 1;
-    double scale = m->drf ? m->drf->volume : 1.0, *ex = buf, *cur = buf + c->npix,
-           *A = cur + c->npix;
-    mp_prf_axis *ay = calloc((size_t)ng, sizeof *ay), ax = {0};
-    for (int iy = 0; ay && iy < ng; iy++) {
+    int ng = c->os * c->gb, rc = 0;
+    size_t np = c->npix, nA = (size_t)m->psf->ny * c->uw;
+    double scale = m->drf ? m->drf->volume : 1.0;
+    mp_prf_axis *ay = calloc((size_t)ng, sizeof *ay);
+    for (int iy = 0; ay && iy < ng && !rc; iy++) {
         double y = ref_coord(c, iy / c->gb, (iy % c->gb + 0.5) / c->gb);
-        if (axis_op(m, c, 1, y, y, &ay[iy]))
-            goto done;
+        rc = axis_op(m, c, 1, y, y, &ay[iy]);
     }
-    for (int ix = 0; ay && ix < ng; ix++) {
-        double x = ref_coord(c, ix / c->gb, (ix % c->gb + 0.5) / c->gb);
-        if (axis_op(m, c, 0, x, x, &ax))
-            goto done;
-        mp_prf_axis_rows(m->psf, &ax, 0, A);
-        for (int iy = 0; iy < ng; iy++) {
-            double y = ref_coord(c, iy / c->gb, (iy % c->gb + 0.5) / c->gb);
-            size_t ph = (size_t)iy * ng + ix;
-            product(c, &ax, &ay[iy], 0, A, scale, ex);
-            interp(c, x, y, REF + c->ux0, REF + c->uy0, c->uw, c->uh, cur, NULL, NULL);
-            float *p = c->p + ph * c->npix, *d = c->d2 + ph * c->npix;
-            for (size_t i = 0; i < c->npix; i++) {
-                p[i] = (float)ex[i];
-                d[i] = (float)((cur[i] - ex[i]) * (cur[i] - ex[i]));
+    rc = rc || !ay;
+#pragma omp parallel if (!rc) reduction(| : rc)
+    {
+        mp_prf_axis ax = {0};
+        double *ex = malloc((2 * np + nA) * sizeof *ex), *cur = ex + np, *A = cur + np;
+        rc |= !ex;
+#pragma omp for schedule(dynamic)
+        for (int ix = 0; ix < ng; ix++) {
+            double x = ref_coord(c, ix / c->gb, (ix % c->gb + 0.5) / c->gb);
+            if (!ex || axis_op(m, c, 0, x, x, &ax)) {
+                rc = 1;
+                continue;
             }
+            mp_prf_axis_rows(m->psf, &ax, 0, A);
+            for (int iy = 0; iy < ng; iy++) {
+                double y = ref_coord(c, iy / c->gb, (iy % c->gb + 0.5) / c->gb);
+                size_t ph = (size_t)iy * ng + ix;
+                product(c, &ax, &ay[iy], 0, A, scale, ex);
+                interp(c, x, y, REF + c->ux0, REF + c->uy0, c->uw, c->uh, cur, NULL, NULL);
+                float *p = c->p + ph * np, *d = c->d2 + ph * np;
+                for (size_t i = 0; i < np; i++) {
+                    p[i] = (float)ex[i];
+                    d[i] = (float)((cur[i] - ex[i]) * (cur[i] - ex[i]));
+                }
+            }
+            mp_prf_axis_free(&ax);
         }
         mp_prf_axis_free(&ax);
+        free(ex);
     }
-    rc = !ay;
-done:
-    mp_prf_axis_free(&ax);
     for (int iy = 0; ay && iy < ng; iy++)
         mp_prf_axis_free(&ay[iy]);
     free(ay);
@@ -423,18 +442,17 @@ static int build(const mp_prf_model *m, int G, int sep, mp_prf_cache *c, char *e
     c->p = malloc((size_t)c->nph * c->npix * sizeof *c->p);
     c->d2 = malloc((size_t)c->nph * c->npix * sizeof *c->d2);
     sep = sep && mp_prf_separable(&me);
-    size_t nbuf = sep ? 2 * c->npix + 2 * (size_t)m->psf->ny * c->uw : 6 * c->npix;
-    double *buf = malloc(nbuf * sizeof *buf);
+    double *buf = sep ? NULL : malloc(6 * c->npix * sizeof *buf);
     mp_prf_work wk = {0};
     int rc = 1;
-    if (!c->img || !c->p || !c->d2 || !buf) {
+    if (!c->img || !c->p || !c->d2 || (!sep && !buf)) {
         snprintf(err, MP_ERRLEN, "out of memory for the PRF phase grid (%d x %d phases, %dx%d px)",
                  NA, NA, c->uw, c->uh);
         goto done;
     }
     c->psf = m->psf;
     c->drf = m->drf;
-    if (sep ? nodes_sep(&me, c, buf) || measure_sep(&me, c, buf)
+    if (sep ? nodes_sep(&me, c) || measure_sep(&me, c)
             : render_nodes(&me, c, buf, &wk) ||
                   measure(&me, c, buf, buf + c->npix, buf + 2 * c->npix, &wk)) {
         snprintf(err, MP_ERRLEN, "out of memory rendering the PRF phase grid");
