@@ -198,11 +198,6 @@ static void count_fit(mp_pipeline_report *rep, const mp_frame_report *fr, size_t
  * fit's measured render windows (~40 px a side on 47 Tuc), where a choice
  * on fitrad's windows declines it (47 Tuc, Tiny Tim's table: every star
  * of the test rendered exactly, ~36 s a round against the fit's 37). */
-static int cmp_double(const void *a, const void *b)
-{
-    double x = *(const double *)a, y = *(const double *)b;
-    return (x > y) - (x < y);
-}
 
 static const mp_prf_cache *phase_grid(run_state *s, double *gemax)
 {
@@ -227,9 +222,7 @@ static const mp_prf_cache *phase_grid(run_state *s, double *gemax)
         if (isfinite(b) && b > 0)
             v[k++] = b;
     }
-    if (k)
-        qsort(v, k, sizeof *v, cmp_double);
-    double sky = k ? v[k / 2] : 0.0;
+    double sky = k ? mp_select_kth(v, k, k / 2) : 0.0;   /* the median, unsorted */
     free(v);
     *gemax = mp_prf_cache_limit(oe.grid, sky, s->f.rdnoise, oe.sincfrac);
     return oe.grid;
