@@ -209,19 +209,30 @@ static int spline_rows(const double *v, const axis_grid *gx, const axis_grid *gy
             vt[(size_t)bx * nby + by] = v[(size_t)by * nbx + bx];
         mpf_spline_init(gy->c, vt + (size_t)bx * nby, nby, d2col + (size_t)bx * nby, work);
     }
-    for (long y = 0; y < ny; y++) {
-        double *row = vals + (size_t)y * (size_t)nbx;
-        for (int bx = 0; bx < nbx; bx++) {
-            int k = 0;
-            row[bx] = mpf_spline_eval(gy->c, vt + (size_t)bx * nby, d2col + (size_t)bx * nby,
-                                      nby, (double)y, &k);
+    /* The rows in parallel (serial, they were a tenth of the background's
+     * time: issue 14), each thread with its own work array. */
+    int nomem = 0;
+#pragma omp parallel reduction(| : nomem)
+    {
+        double *wk = malloc((size_t)(nby > nbx ? nby : nbx) * sizeof *wk);
+        nomem |= !wk;
+#pragma omp for schedule(static)
+        for (long y = 0; y < ny; y++) {
+            double *row = vals + (size_t)y * (size_t)nbx;
+            for (int bx = 0; bx < nbx; bx++) {
+                int k = 0;
+                row[bx] = mpf_spline_eval(gy->c, vt + (size_t)bx * nby, d2col + (size_t)bx * nby,
+                                          nby, (double)y, &k);
+            }
+            if (wk)
+                mpf_spline_init(gx->c, row, nbx, d2 + (size_t)y * (size_t)nbx, wk);
         }
-        mpf_spline_init(gx->c, row, nbx, d2 + (size_t)y * (size_t)nbx, work);
+        free(wk);
     }
     free(work);
     free(vt);
     free(d2col);
-    return 0;
+    return nomem;
 }
 
 void mp_bkg_free(mp_bkg *b)
