@@ -405,6 +405,10 @@ typedef struct {
     double fitrad;     /* radius fitted around each star [px]; NaN: whole frame */
     double tol;        /* converged when every |step| < tol·σ */
     int maxiter;
+    double stop_pair;  /* end the fit, not converged, when a step from the
+                        * 10th on leaves two stars closer than this [px]
+                        * (the frame fit's merge radius: it merges them and
+                        * fits again; fit/levmar.c LM_PAIR_AFTER); 0: never */
     int fit_sky;       /* 0: sky fixed at the start value */
     const mp_prf_crop *crop;   /* economy: each star rendered out to its
                                 * crop radius only (NULL: its whole box) */

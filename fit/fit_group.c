@@ -16,6 +16,7 @@ void mp_fit_opts_default(mp_fit_opts *o)
     o->fitrad = NAN;
     o->tol = 1e-3;
     o->maxiter = 50;
+    o->stop_pair = 0.0;
     o->fit_sky = 1;
     o->crop = NULL;
     o->grid = NULL;
@@ -443,13 +444,17 @@ static void set_order(group *G, int order)
  * lower-order state it rose from, or, when the stalled order was a warm
  * start's, starts again from a constant sky below it (47 Tuc 256², PSF
  * built from the frame: 2 groups of 26 and 42 stars crawled to maxiter
- * with λ at 1e5-1e8; GLIMPSE: one of 53).  Nonzero when out of memory. */
+ * with λ at 1e5-1e8; GLIMPSE: one of 53).  A loop that ends on a close
+ * pair (G->paired, o->stop_pair) ends the fit there: the frame fit merges
+ * the pair and fits the group again.  Nonzero when out of memory. */
 static int fit_orders(group *G, const mp_fit_opts *o, const mp_star *stars, double sky,
                       int *order, int *iter, int *converged)
 {
     int cap = MP_SKY_MAXORDER;
     if (lm_levmar(G, o, 0, iter, converged))
         return 1;
+    if (G->paired)
+        return 0;               /* the caller merges the pair and fits again */
     if (!*converged && G->skystall && *order > 0) {
         cap = *order - 1;
         *order = 0;
@@ -469,6 +474,8 @@ static int fit_orders(group *G, const mp_fit_opts *o, const mp_star *stars, doub
         *order = to;
         if (lm_levmar(G, o, o->reuse_pairs, iter, converged))
             return 1;
+        if (G->paired)
+            return 0;
         if (*converged || !G->skystall)
             continue;
         *order = from;

@@ -250,6 +250,7 @@ int ff_fit_one_group(const mp_frame *f, const mp_prf_model *m, const mp_frame_op
          * bound allows the brightest star (a star without a flux: the
          * exact render). */
         mp_fit_opts fo = o->fit;
+        fo.stop_pair = mergerad > 0 ? mergerad : 0.0;   /* merged below */
         fo.grid = ff_group_grid(R, o->grid, l, e, &fo.grid_emax, rep);
         int cached = mp_prf_cache_usable(fo.grid, &mh);
         rep->kcache += cached;

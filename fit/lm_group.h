@@ -73,6 +73,8 @@ typedef struct {
     int outside;                /* the last trial left the sky's bounds */
     int skystall;               /* the last loop stalled on the sky's bounds
                                  * (levmar.c, LM_SKY_STALL) */
+    int paired;                 /* the last loop brought two stars within
+                                 * o->stop_pair (levmar.c) */
     double *psave;              /* npmax: a converged state kept while a
                                  * higher sky order is tried */
     double *fx, *fy;            /* n each */

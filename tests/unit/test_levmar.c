@@ -665,6 +665,53 @@ static void test_sky_order_stalled_warm(void **state)
     frame_drop(&f);
 }
 
+/* A blend that is one star (2·10⁴ e⁻, FWHM 3, RON 3, sky 100), started as
+ * two of 10⁴ e⁻ 0.9 px apart: the fit crawls along the pair's degenerate
+ * direction.  With stop_pair 1.2 px (0.4 FWHM, the frame fit's merge
+ * radius) the loop ends, flagged not converged, at its LM_PAIR_AFTER-th
+ * (10th) step with the two stars still within it; without, it goes on past
+ * it.  Eight seeds, deterministic. */
+static void test_close_pair_ends_loop(void **state)
+{
+    (void)state;
+    const int NP = 40;
+    mp_psf gau;
+    mp_psf_gauss(3.0, &gau);
+    mp_prf_model m = {&gau, NULL, 10};
+    mp_sim_prf sp = {.kind = MP_SIM_GAUSS, .sigma = fwhm_to_sigma(3.0), .volume = 1.0};
+    mp_frame f;
+    frame_make(&f, NP, 3.0);
+    for (int seed = 1; seed <= 8; seed++) {
+        mp_rng r;
+        mp_rng_seed(&r, 900 + (uint64_t)seed);
+        double x = 20.3, y = 19.8;
+        for (long i = 0; i < NP * NP; i++)
+            f.im.pix[i] = 100.0;
+        assert_int_equal(mp_sim_add_star_float(&sp, x, y, 2e4, f.im.pix, NP, NP), 0);
+        mp_sim_add_noise_float(&r, f.im.pix, NP * NP, 3.0);
+        for (int stop = 0; stop < 2; stop++) {
+            mp_fit_opts o;
+            mp_fit_opts_default(&o);
+            o.fitrad = 5.0;
+            o.sky_order = 0;
+            o.stop_pair = stop ? 1.2 : 0.0;
+            mp_star s[2] = {{.x = x - 0.45, .y = y, .flux = 1e4, .sky = 100.0},
+                            {.x = x + 0.45, .y = y + 0.1, .flux = 1e4, .sky = 100.0}};
+            char err[MP_ERRLEN];
+            assert_int_equal(mp_fit_group(&f, &m, &o, NAN, s, 2, err), 0);
+            double d = hypot(s[0].x - s[1].x, s[0].y - s[1].y);
+            if (stop) {
+                assert_int_equal(s[0].niter, 10);
+                assert_true(s[0].flags & MP_FLAG_NOCONV);
+                assert_true(d < 1.2);
+            } else {
+                assert_true(s[0].niter > 10);
+            }
+        }
+    }
+    frame_drop(&f);
+}
+
 /* fit.par's skymodel: auto is the default and chooses per group under
  * economy=yes and economy=no alike (the order is a choice of the model
  * from the data, not an economy: issue 10); an explicit order is honoured
@@ -1254,6 +1301,7 @@ int main(void)
         cmocka_unit_test(test_refit_flags_are_this_fit),
         cmocka_unit_test(test_star_chi2_own_disc),
         cmocka_unit_test(test_overshoot_shortened),
+        cmocka_unit_test(test_close_pair_ends_loop),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }
