@@ -186,9 +186,10 @@ static int increments_of(const mp_frame *f, const mp_prf_model *m, const crop_ru
     size_t need = (size_t)w * (size_t)h;
     if (need > *nwin) {
         free(*win);
-        *nwin = need;
+        *nwin = 0;
         if (!(*win = malloc(need * sizeof **win)))
             return 1;
+        *nwin = need;
     }
     memset(*win, 0, need * sizeof **win);
     if ((hn && ff_paint(m, &c->now, +1.0, rn, *win, b[0], b[2], w, h, wk, buf, cap, NULL)) ||

@@ -61,9 +61,10 @@ static int paint_window(const mp_prf_model *m, const mp_star *s, double sign, do
     size_t need = (size_t)(wx1 - wx0) * (size_t)(wy1 - wy0);
     if (need > *cap) {
         free(*buf);
-        *cap = need;
-        if (!(*buf = malloc(*cap * sizeof **buf)))
+        *cap = 0;                   /* a failed malloc leaves no room behind */
+        if (!(*buf = malloc(need * sizeof **buf)))
             return 1;
+        *cap = need;
     }
     long rx0, ry0;
     int rw, rh;
