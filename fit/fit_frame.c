@@ -261,6 +261,99 @@ static double plan_window(const mp_frame *f, const mp_prf_model *m, const crop_r
     return cnt ? sqrt(sum / (double)cnt) : 0.0;
 }
 
+/* What one frame fit shares among its steps (mp_fit_table_mem). */
+typedef struct {
+    const mp_frame *f;
+    const mp_prf_model *m;
+    mp_frame_opts oc;            /* the options with economy's tables and the crop */
+    frame_rules R;
+    crop_rule crop;
+    star_state *st;              /* n stars, sorted by group */
+    size_t n, *gs, ng;           /* group g: st[gs[g] .. gs[g + 1]) */
+    double mergerad, runfits, maxnum;
+    int passes, alone, economy;
+    paint_rule held;             /* the paint the refit bounds hold for */
+    star_state *gone;            /* stars mem held that the table does not */
+    size_t ngone;
+    float *all, *lent;           /* the model image, in the caller's buffer when lent */
+} frame_fit;
+
+/* The economy tables that pay for this run's star fits (the run's planned
+ * count or this frame's stars), built on first need; the table and kernel
+ * choices on the frame's median start sky (0, the safe side, when no star
+ * has one); the limits tables only when cheaper than each group's own
+ * evaluation (rule_init); the crop the group fits render each star to.
+ * One group (a whole-frame fit, or one star) has nobody else's light to
+ * subtract, so neither the neighbours' model nor its crop envelope is
+ * built (economy's crop would cost a PSF render per ¼-px phase per frame
+ * and save nothing).  Nonzero with err on failure. */
+static int set_rules(frame_fit *F, const mp_frame_opts *o, mp_frame_report *rep, char *err)
+{
+    F->alone = F->ng <= 1;
+    F->passes = F->alone ? 1 : (o->passes < 1 ? 1 : o->passes);
+    if (!F->alone && ff_crop_init(F->f, F->m, o->cropfrac, &F->crop)) {
+        snprintf(err, MP_ERRLEN, "out of memory");
+        return 1;
+    }
+    rep->envelopes += F->crop.env != NULL;
+    mp_frame_opts oe = *o;
+    if (o->cache && !(oe.win > 0))
+        oe.win = plan_window(F->f, F->m, &F->crop, F->st, F->gs, F->ng, o->fit.fitrad);
+    F->runfits = o->fits > (double)F->n ? o->fits : (double)F->n;
+    if (mp_econ_choose(o->cache, F->runfits, o->fit.fitrad, &oe, &rep->ops_tables, err))
+        return 1;
+    F->R.ops_full = oe.cache ? mp_econ_render_ops(F->m, F->m->sinc_hw, oe.fit.fitrad) : 0.0;
+    rep->ops_render = F->R.ops_full;
+    if (ff_rules_setup(&F->R, F->f, &oe, F->st, F->n, F->ng, F->runfits, rep)) {
+        snprintf(err, MP_ERRLEN, "out of memory");
+        return 1;
+    }
+    F->oc = oe;
+    F->oc.fit.crop = F->crop.env ? &F->crop : NULL;
+    return 0;
+}
+
+/* The refit bounds brought up to date (update_bounds) for F's paint. */
+static int bounds_now(frame_fit *F, char *err)
+{
+    if (update_bounds(F->f, F->m, &F->crop, &F->oc, &F->R, &F->held, F->st, F->n, F->gs, F->ng,
+                      &F->gone, &F->ngone)) {
+        snprintf(err, MP_ERRLEN, "out of memory");
+        return 1;
+    }
+    return 0;
+}
+
+/* The passes: each subtracts every neighbour with its latest values (in
+ * the first only those with a start flux, find's FLUX, can be) and fits
+ * the groups; economy ends them when no group was refitted (every later
+ * pass would see the same light).  Nonzero with err on failure. */
+static int run_passes(frame_fit *F, mp_frame_report *rep, char *err)
+{
+    for (int pass = 0; pass < F->passes; pass++) {
+        if (!F->lent)
+            free(F->all);
+        F->all = NULL;
+        if (!F->alone && !(F->all = ff_all_stars(F->f, F->m, F->st, F->n, &F->crop, &F->oc, &F->R,
+                                                 F->lent, &rep->cropped))) {
+            snprintf(err, MP_ERRLEN, "out of memory for the model image");
+            return 1;
+        }
+        if (F->economy && bounds_now(F, err))
+            return 1;
+        mp_frame_report pr = {0};
+        if (fit_pass(F->f, F->m, &F->oc, &F->R, F->all, &F->crop, F->st, F->n, F->gs, F->ng,
+                     F->mergerad, F->economy, F->runfits, pass + 1 < F->passes, &pr, err))
+            return 1;
+        add_report(rep, &pr);
+        if (F->economy && pr.fits == 0) {
+            rep->kept += (long)F->ng * (F->passes - pass - 1);
+            break;
+        }
+    }
+    return 0;
+}
+
 int mp_fit_table_mem(const mp_frame *f, const mp_prf_model *m, const mp_frame_opts *o,
                      mp_table *t, mp_fit_memory *mem, mp_frame_report *rep, char *err)
 {
@@ -268,118 +361,55 @@ int mp_fit_table_mem(const mp_frame *f, const mp_prf_model *m, const mp_frame_op
     if (!rep)
         rep = &dummy;
     memset(rep, 0, sizeof *rep);
-    int whole = !isfinite(o->fit.fitrad);
-    double maxnum = mem ? ff_max_number(t) : -1.0;
-    size_t n = t->nrow, ng = 0;
-    star_state *st = calloc(n ? n : 1, sizeof *st);
-    size_t *gs = malloc((n + 1) * sizeof *gs);
-    float *all = NULL;
-    star_state *gone = NULL;     /* stars mem held that t does not */
-    size_t ngone = 0;
-    /* The model image: in the caller's lent buffer when there is one. */
+    frame_fit F;
+    memset(&F, 0, sizeof F);
+    F.f = f;
+    F.m = m;
+    F.n = t->nrow;
+    F.maxnum = mem ? ff_max_number(t) : -1.0;
+    F.st = calloc(F.n ? F.n : 1, sizeof *F.st);
+    F.gs = malloc((F.n + 1) * sizeof *F.gs);
     size_t npix = (size_t)f->im.nx * (size_t)f->im.ny;
-    float *lent = mem && mem->scratch && mem->nscratch >= npix ? mem->scratch : NULL;
-    frame_rules R;
-    memset(&R, 0, sizeof R);
-    crop_rule crop = {0};
-    int rc = 1;
-    if (!st || !gs) {
+    F.lent = mem && mem->scratch && mem->nscratch >= npix ? mem->scratch : NULL;
+    int whole = !isfinite(o->fit.fitrad), rc = 1;
+    if (!F.st || !F.gs) {
         snprintf(err, MP_ERRLEN, "out of memory");
         goto done;
     }
-    if (read_stars(t, whole, maxnum, st, gs, &ng, err))
+    if (read_stars(t, whole, F.maxnum, F.st, F.gs, &F.ng, err))
         goto done;
-    rep->nstars = (long)n;
-    rep->ngroups = (long)ng;
-    double mergerad = isfinite(o->mergerad) ? o->mergerad : 0.4 * mp_prf_fwhm(m);
-    /* Economy: the tables that pay for this run's star fits (the run's
-     * planned count or this frame's stars), built on first need; the
-     * table and kernel choices on the frame's median start sky (0, the
-     * safe side, when no star has one); the limits tables only when
-     * cheaper than each group's own evaluation (rule_init). */
-    int passes = o->passes < 1 ? 1 : o->passes;
-    /* One group (a whole-frame fit, or one star): nobody else's light to
-     * subtract, so neither the neighbours' model nor its crop envelope is
-     * built (economy's crop would cost a PSF render per ¼-px phase per
-     * frame and save nothing). */
-    int alone = ng <= 1;
-    if (alone)
-        passes = 1;
-    if (!alone && ff_crop_init(f, m, o->cropfrac, &crop)) {
-        snprintf(err, MP_ERRLEN, "out of memory");
+    rep->nstars = (long)F.n;
+    rep->ngroups = (long)F.ng;
+    F.mergerad = isfinite(o->mergerad) ? o->mergerad : 0.4 * mp_prf_fwhm(m);
+    if (set_rules(&F, o, rep, err))
         goto done;
-    }
-    rep->envelopes += crop.env != NULL;
-    mp_frame_opts oe = *o;
-    if (o->cache && !(oe.win > 0))
-        oe.win = plan_window(f, m, &crop, st, gs, ng, o->fit.fitrad);
-    double runfits = o->fits > (double)n ? o->fits : (double)n;
-    if (mp_econ_choose(o->cache, runfits, o->fit.fitrad, &oe, &rep->ops_tables, err))
-        goto done;
-    o = &oe;
-    R.ops_full = o->cache ? mp_econ_render_ops(m, m->sinc_hw, o->fit.fitrad) : 0.0;
-    rep->ops_render = R.ops_full;
-    if (ff_rules_setup(&R, f, o, st, n, ng, runfits, rep)) {
-        snprintf(err, MP_ERRLEN, "out of memory");
-        goto done;
-    }
-    /* The group fits render each star as far as it is subtracted. */
-    mp_frame_opts oc = *o;
-    oc.fit.crop = crop.env ? &crop : NULL;
-    o = &oc;
     /* Economy: a star refitted only when its surroundings changed
-     * (o->refittol); never in whole-frame fits. */
-    int economy = o->refittol > 0 && !whole && ng > 1;
-    paint_rule held = {0};
-    if (economy && maxnum >= 0 && ff_recall(mem, t, st, n, &held, &gone, &ngone)) {
+     * (refittol); never in whole-frame fits. */
+    F.economy = F.oc.refittol > 0 && !whole && F.ng > 1;
+    int memory = mem && F.maxnum >= 0;
+    if (F.economy && memory && ff_recall(mem, t, F.st, F.n, &F.held, &F.gone, &F.ngone)) {
         snprintf(err, MP_ERRLEN, "out of memory");
         goto done;
     }
-    for (int pass = 0; pass < passes; pass++) {
-        /* Neighbours are subtracted with the latest values; in the first
-         * pass only those with a start flux (find's FLUX) can be. */
-        if (!lent)
-            free(all);
-        all = NULL;
-        if (!alone && !(all = ff_all_stars(f, m, st, n, &crop, o, &R, lent, &rep->cropped))) {
-            snprintf(err, MP_ERRLEN, "out of memory for the model image");
-            goto done;
-        }
-        if (economy && update_bounds(f, m, &crop, &oc, &R, &held, st, n, gs, ng, &gone, &ngone)) {
-            snprintf(err, MP_ERRLEN, "out of memory");
-            goto done;
-        }
-        mp_frame_report pr = {0};
-        if (fit_pass(f, m, &oc, &R, all, &crop, st, n, gs, ng, mergerad, economy, runfits,
-                     pass + 1 < passes, &pr, err))
-            goto done;
-        add_report(rep, &pr);
-        /* No group refitted: every later pass would see the same light. */
-        if (economy && pr.fits == 0) {
-            rep->kept += (long)ng * (passes - pass - 1);
-            break;
-        }
-    }
-    final_counts(st, n, gs, ng, rep);
+    if (run_passes(&F, rep, err))
+        goto done;
+    final_counts(F.st, F.n, F.gs, F.ng, rep);
     /* The last pass's changes too: the next call starts from them. */
-    if (economy && mem && maxnum >= 0 &&
-        update_bounds(f, m, &crop, &oc, &R, &held, st, n, gs, ng, &gone, &ngone)) {
+    if (F.economy && memory && bounds_now(&F, err))
+        goto done;
+    if (memory && ff_remember(mem, F.st, F.n, F.maxnum, &F.held)) {
         snprintf(err, MP_ERRLEN, "out of memory");
         goto done;
     }
-    if (mem && maxnum >= 0 && ff_remember(mem, st, n, maxnum, &held)) {
-        snprintf(err, MP_ERRLEN, "out of memory");
-        goto done;
-    }
-    rep->grid = oc.grid;
-    rc = ff_write_columns(t, st, n, o->magzero, err);
+    rep->grid = F.oc.grid;
+    rc = ff_write_columns(t, F.st, F.n, F.oc.magzero, err);
 done:
-    free(gone);
-    if (!lent)
-        free(all);
-    ff_rules_free(&R);
-    free(st);
-    free(gs);
-    free(crop.env);
+    free(F.gone);
+    if (!F.lent)
+        free(F.all);
+    ff_rules_free(&F.R);
+    free(F.st);
+    free(F.gs);
+    free(F.crop.env);
     return rc;
 }
