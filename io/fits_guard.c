@@ -97,9 +97,16 @@ static long long data_bytes(const hdu_sizes *h)
             return -1;
         n *= h->n[j];
     }
+    /* Bounded before any product: a fuzzed PCOUNT of 2⁶³ − 1 overflowed. */
+    if (h->bitpix < -64 || h->bitpix > 64 || h->pcount < 0 || h->pcount > (1LL << 60) ||
+        h->gcount > (1LL << 30))
+        return -1;
     long long b = (h->bitpix < 0 ? -h->bitpix : h->bitpix) / 8;
     long long g = h->gcount > 0 ? h->gcount : 1;
-    long long bytes = b * g * (h->pcount + n);
+    long long w = h->pcount + n;                 /* ≤ 2⁶¹ */
+    if (b > 0 && w > (1LL << 61) / (b * g))
+        return -1;
+    long long bytes = b * g * w;                 /* ≤ 2⁶¹ */
     return (bytes + 2879) / 2880 * 2880;
 }
 

@@ -922,6 +922,36 @@ static void test_tmp_sweep(void **state)
  * BAD_C2D (cfitsio's own conversion aborts on a long garbage value, the
  * fuzz regression psf_field/nypsfs_long_garbage_value); an absent key as
  * KEY_NO_EXIST; a status set on entry left alone. */
+/* The guard's walk over a header whose sizes are absurd (found by
+ * tests/fuzz/fuzz_psf_field: PCOUNT = 2⁶³ − 1 overflowed the data size, a
+ * signed overflow UBSan stops on): it stops walking and leaves the file to
+ * cfitsio (0), and a bad string card in the next header is then not seen;
+ * with PCOUNT sane the walk reaches that card (1).  The teeth are the
+ * sanitizer build's. */
+static void test_guard_absurd_sizes(void **state)
+{
+    (void)state;
+    static const char *cards[] = {"SIMPLE  =                    T", "BITPIX  =                    8",
+                                  "NAXIS   =                    1", "NAXIS1  =                   10",
+                                  NULL, "GCOUNT  =                    1", "END"};
+    const char *pc[2] = {"PCOUNT  =  9223372036854775807", "PCOUNT  =                    0"};
+    for (int k = 0; k < 2; k++) {
+        unsigned char b[3 * 2880];
+        memset(b, ' ', sizeof b);
+        for (int c = 0; c < 7; c++) {
+            const char *t = cards[c] ? cards[c] : pc[k];
+            memcpy(b + 80 * c, t, strlen(t));
+        }
+        /* the data area (one record), then an extension with a broken
+         * XTENSION string */
+        const char *x = "XTENSION= 'IMAGE";
+        memcpy(b + 2 * 2880, x, strlen(x));
+        memcpy(b + 2 * 2880 + 80, "END", 3);
+        char why[MP_GUARD_LEN];
+        assert_int_equal(mp_fits_guard_mem(b, sizeof b, why), k);
+    }
+}
+
 static void test_key_number(void **state)
 {
     (void)state;
@@ -976,6 +1006,7 @@ int main(void)
         cmocka_unit_test_setup_teardown(test_outfile, setup, teardown),
         cmocka_unit_test_setup_teardown(test_tmp_sweep, setup, teardown),
         cmocka_unit_test(test_key_number),
+        cmocka_unit_test(test_guard_absurd_sizes),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }
