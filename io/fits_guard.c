@@ -54,16 +54,24 @@ static int scan_record(const unsigned char *r, hdu_sizes *h, char *bad)
         const unsigned char *c = r + 80 * k;
         if (memcmp(c, "END     ", 8) == 0)
             return 1;
-        if (c[8] != '=')
+        /* A structural keyword's card with an '=' elsewhere than column 9
+         * is read by cfitsio as a long keyword name and its value, which
+         * overflows the same buffer (found by tests/fuzz: "TTYPE7  l=" and
+         * 70 bytes of garbage). */
+        int misplaced = c[8] != '=' && memchr(c, '=', 80) != NULL;
+        if (c[8] != '=' && !misplaced)
             continue;
         for (size_t s = 0; s < sizeof strings / sizeof strings[0]; s++)
-            if (strncmp((const char *)c, strings[s], strlen(strings[s])) == 0 && !string_ok(c)) {
+            if (strncmp((const char *)c, strings[s], strlen(strings[s])) == 0 &&
+                (misplaced || !string_ok(c))) {
                 memcpy(bad, c, 8);
                 bad[8] = '\0';
                 for (int i = 7; i >= 0 && bad[i] == ' '; i--)
                     bad[i] = '\0';
                 return -1;
             }
+        if (c[8] != '=')
+            continue;
         if (memcmp(c, "BITPIX  ", 8) == 0)
             h->bitpix = card_int(c);
         else if (memcmp(c, "PCOUNT  ", 8) == 0)

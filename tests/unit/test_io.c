@@ -952,6 +952,26 @@ static void test_guard_absurd_sizes(void **state)
     }
 }
 
+/* A structural keyword whose '=' is not in column 9 (found by
+ * tests/fuzz/fuzz_psf_field: "TTYPE7  l=" then 70 bytes of garbage, which
+ * cfitsio reads as a long keyword name and copies into a 70-byte buffer:
+ * glibc aborts) is refused; a commentary card holding '=' is not. */
+static void test_guard_misplaced_equals(void **state)
+{
+    (void)state;
+    const char *odd[2] = {"TTYPE7  l= 'abcdefghijklmnopqrstuvwxyz'", "COMMENT a = b"};
+    for (int k = 0; k < 2; k++) {
+        unsigned char b[2880];
+        memset(b, ' ', sizeof b);
+        const char *cards[] = {"SIMPLE  =                    T", "BITPIX  =                    8",
+                               "NAXIS   =                    0", odd[k], "END"};
+        for (int c = 0; c < 5; c++)
+            memcpy(b + 80 * c, cards[c], strlen(cards[c]));
+        char why[MP_GUARD_LEN];
+        assert_int_equal(mp_fits_guard_mem(b, sizeof b, why), k == 0);
+    }
+}
+
 static void test_key_number(void **state)
 {
     (void)state;
@@ -1007,6 +1027,7 @@ int main(void)
         cmocka_unit_test_setup_teardown(test_tmp_sweep, setup, teardown),
         cmocka_unit_test(test_key_number),
         cmocka_unit_test(test_guard_absurd_sizes),
+        cmocka_unit_test(test_guard_misplaced_equals),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }
