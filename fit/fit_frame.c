@@ -184,23 +184,6 @@ static int fit_pass(const mp_frame *f, const mp_prf_model *m, mp_frame_opts *oc,
     return 0;
 }
 
-/* The refit bounds brought up to date for the neighbours' model as
- * ff_all_stars paints it now (oc's grid, R's flux limit), the stars gone
- * from the table counted once. */
-static int update_bounds(const mp_frame *f, const mp_prf_model *m, const crop_rule *crop,
-                         const mp_frame_opts *oc, const frame_rules *R, paint_rule *held,
-                         star_state *st, size_t n, const size_t *gs, size_t ng, star_state **gone,
-                         size_t *ngone)
-{
-    paint_rule now = {oc->grid, R->gemax, 1};
-    int rc = ff_update_bounds(f, m, crop, &now, held, oc->fit.fitrad, st, n, gs, ng, *gone,
-                              *ngone);
-    free(*gone);
-    *gone = NULL;
-    *ngone = 0;
-    return rc;
-}
-
 /* What the report says of the fit as it ends: the live stars not
  * converged, and each group's sky order as it stands (kept groups keep
  * theirs). */
@@ -313,15 +296,20 @@ static int set_rules(frame_fit *F, const mp_frame_opts *o, mp_frame_report *rep,
     return 0;
 }
 
-/* The refit bounds brought up to date (update_bounds) for F's paint. */
+/* The refit bounds brought up to date for the neighbours' model as
+ * ff_all_stars paints it now (F's grid and flux limit), the stars gone
+ * from the table counted once.  Nonzero with err when out of memory. */
 static int bounds_now(frame_fit *F, char *err)
 {
-    if (update_bounds(F->f, F->m, &F->crop, &F->oc, &F->R, &F->held, F->st, F->n, F->gs, F->ng,
-                      &F->gone, &F->ngone)) {
+    paint_rule now = {F->oc.grid, F->R.gemax, 1};
+    int rc = ff_update_bounds(F->f, F->m, &F->crop, &now, &F->held, F->oc.fit.fitrad, F->st, F->n,
+                              F->gs, F->ng, F->gone, F->ngone);
+    free(F->gone);
+    F->gone = NULL;
+    F->ngone = 0;
+    if (rc)
         snprintf(err, MP_ERRLEN, "out of memory");
-        return 1;
-    }
-    return 0;
+    return rc;
 }
 
 /* The passes: each subtracts every neighbour with its latest values (in

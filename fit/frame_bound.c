@@ -24,14 +24,7 @@
 
 static int same_rule(const paint_rule *a, const paint_rule *b)
 {
-    return a->set && b->set && a->grid == b->grid &&
-           (a->gemax == b->gemax || (isnan(a->gemax) && isnan(b->gemax)));
-}
-
-/* Whether s is painted at all (ff_paint's and paint_frame's test). */
-static int lit(const mp_star *s)
-{
-    return isfinite(s->flux) && s->flux != 0.0 && fabs(s->x) < 1e9 && fabs(s->y) < 1e9;
+    return a->set && b->set && a->grid == b->grid && ff_same_value(a->gemax, b->gemax);
 }
 
 /* The pixels b[0]..b[1] × b[2]..b[3] (1-based) that a paint of s out to
@@ -145,10 +138,10 @@ static light_change change_of(const star_state *s, size_t j, const size_t *gs, s
     light_change c;
     memset(&c, 0, sizeof c);
     c.now = s->s;
-    c.has_now = s->alive && lit(&s->s);
+    c.has_now = s->alive && ff_painted(&s->s);
     c.old = s->s;
     c.old.x = s->ox, c.old.y = s->oy, c.old.flux = s->oflux, c.old.sky = s->osky;
-    c.has_old = s->olight && lit(&c.old);
+    c.has_old = s->olight && ff_painted(&c.old);
     c.j = j;
     c.g0 = c.g1 = 0;
     if (s->moved == MOVED_FIT && ng) {

@@ -89,11 +89,6 @@ static void star_from(const mp_table *t, size_t r, const int *c, const star_memo
     s->flags = e->flags, s->dofstar = e->dofstar, s->sky_order = e->sky_order;
 }
 
-static int same_value(double a, double b)
-{
-    return a == b || (isnan(a) && isnan(b));
-}
-
 /* A star's light as its entry e painted it, pending as a change
  * (MOVED_CALL) from there. */
 static void pending_from(const star_memo *e, star_state *s)
@@ -129,7 +124,7 @@ int ff_recall(mp_fit_memory *mem, const mp_table *t, star_state *st, size_t n,
         mem->at[k] = 0;
         r->number = UINT32_MAX;       /* taken */
         if (cols && r->x == st[i].s.x && r->y == st[i].s.y && r->flux == st[i].s.flux &&
-            same_value(r->sky, st[i].s.sky)) {
+            ff_same_value(r->sky, st[i].s.sky)) {
             star_from(t, (size_t)st[i].row, c, r, &st[i].s);
             st[i].bound = r->bound;
             st[i].moved = 0;
@@ -142,11 +137,10 @@ int ff_recall(mp_fit_memory *mem, const mp_table *t, star_state *st, size_t n,
     if (*ngone && !(*gone = calloc(*ngone, sizeof **gone)))
         return 1;
     for (size_t e = 0, q = 0; e < mem->ns; e++)
-        if (mem->s[e].number != UINT32_MAX)
+        if (mem->s[e].number != UINT32_MAX) {
             pending_from(&mem->s[e], &(*gone)[q++]);
-    for (size_t e = 0; e < mem->ns; e++)
-        if (mem->s[e].number != UINT32_MAX)
             mem->at[mem->s[e].number] = 0;
+        }
     free(mem->s);                /* not held through the fit (issue 14) */
     mem->s = NULL;
     mem->ns = 0;

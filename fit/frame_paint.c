@@ -22,11 +22,16 @@ static int paint_window(const mp_prf_model *m, const mp_star *s, double sign, do
                         float *img, long x0, long y0, long w, long h, mp_prf_work *wk,
                         double **buf, size_t *cap, int *cut);
 
+int ff_painted(const mp_star *s)
+{
+    return isfinite(s->flux) && s->flux != 0.0 && fabs(s->x) < 1e9 && fabs(s->y) < 1e9;
+}
+
 int ff_paint(const mp_prf_model *m, const mp_star *s, double sign, double rad, float *img,
                  long x0, long y0, long w, long h, mp_prf_work *wk, double **buf, size_t *cap,
                  int *cut)
 {
-    if (!isfinite(s->flux) || !isfinite(s->x) || !isfinite(s->y) || s->flux == 0.0)
+    if (!ff_painted(s))
         return 0;
     /* Economy: from the phase grid when the star is within its bound. */
     const struct mp_prf_cache_s *grid = wk->grid;
@@ -127,7 +132,7 @@ static int paint_frame(const mp_prf_model *m, const mp_star *const *s, size_t n,
         long r0 = 1, r1 = 0;         /* none: what paint leaves undrawn */
         const mp_star *p = s[k];
         rad[k] = ff_crop_radius(crop, p);
-        if (isfinite(p->flux) && p->flux != 0.0 && fabs(p->x) < 1e9 && fabs(p->y) < 1e9)
+        if (ff_painted(p))
             star_rows(m, p, rad[k], ny, &r0, &r1);
         b0[k] = r1 >= r0 ? (r0 - 1) / PAINT_BAND : 1;
         b1[k] = r1 >= r0 ? (r1 - 1) / PAINT_BAND : 0;

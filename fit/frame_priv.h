@@ -43,6 +43,12 @@ typedef struct {
 
 typedef mp_prf_crop crop_rule;
 
+/* Equal, NaN equal to NaN (a star's sky may be NaN: none measured). */
+static inline int ff_same_value(double a, double b)
+{
+    return a == b || (a != a && b != b);
+}
+
 /* Economy's kernel choice on one frame (fit/sinc_choice.c): each group gets
  * the shortest half-width whose bound at its brightest star is ≤ frac on
  * the frame's sky.  With many groups the flux limits of every half-width
@@ -140,11 +146,13 @@ int ff_kernel_for(const kernel_rule *k, int hwfull, double e, mp_frame_report *c
 /* frame_paint.c.  ff_crop_init: the crop rule of cropfrac (nonzero when
  * out of memory).  ff_crop_radius: how far star s is painted.
  * ff_paint: star s times sign added to img (a window at (x0, y0), w × h)
- * out to rad.  ff_all_stars: every live star with a flux painted on one
+ * out to rad; ff_painted: whether it paints anything at all (a finite,
+ * nonzero flux at a sane place).  ff_all_stars: every live star with a flux painted on one
  * image (lent, or allocated; NULL when out of memory), the cropped
  * paints counted in *cut. */
 int ff_crop_init(const mp_frame *f, const mp_prf_model *m, double cropfrac, crop_rule *c);
 double ff_crop_radius(const crop_rule *c, const mp_star *s);
+int ff_painted(const mp_star *s);
 int ff_paint(const mp_prf_model *m, const mp_star *s, double sign, double rad, float *img,
              long x0, long y0, long w, long h, mp_prf_work *wk, double **buf, size_t *cap,
              int *cut);

@@ -18,7 +18,7 @@ static void note_fitted(star_state *sub, const mp_star *old, int n)
         star_state *s = &sub[k];
         s->bound = 0.0;
         if (s->alive && s->s.x == old[k].x && s->s.y == old[k].y && s->s.flux == old[k].flux &&
-            (s->s.sky == old[k].sky || (isnan(s->s.sky) && isnan(old[k].sky))))
+            ff_same_value(s->s.sky, old[k].sky))
             continue;
         if (!s->moved) {
             s->ox = old[k].x, s->oy = old[k].y, s->oflux = old[k].flux, s->osky = old[k].sky;
