@@ -331,6 +331,38 @@ int mp_prf_cache_render_at(const mp_prf_cache *c, const mp_prf_model *m, double 
                            const mp_span *sp, const size_t *at, int ns, double *prf, double *ddx,
                            double *ddy);
 
+/* ---- How strongly two stars' fits are coupled (fit/coupling.c) ---------- */
+
+/* κ, the largest canonical correlation between the parameters (flux, x, y)
+ * of one star and those of another in their joint fit: fitted apart, the
+ * other held at its estimate, a star's parameters move by at most κ of
+ * their σ for each σ of the other's error, and their variance misses at
+ * most a fraction κ² (the pipeline cuts a component too large to fit at
+ * once at its weakest κ, pipeline/coupled.c).  Tabulated once per PSF and sky: nd separations every dstep px
+ * below crit, na fluxes E = (B + RON²)·10^(a0 + astep·i) each, the largest
+ * over eight directions; made conservative (non-increasing in the
+ * separation, non-decreasing in each flux), so a lookup at the node at or
+ * below d and at or above each flux bounds κ between the nodes.  The
+ * fitting discs are the pixels within fitrad of each star; the sky is left
+ * out (each group fits its own). */
+typedef struct {
+    int nd, na;
+    double dstep, a0, astep, crit, beff;
+    float *k;          /* nd × na × na */
+} mp_coupling;
+
+/* mp_coupling_build: c for model m (a variable PSF: at its field's origin),
+ * fitting radius fitrad, separations below crit, sky [e-/px] and ron [e-].
+ * Nonzero with err on bad arguments or out of memory (c then empty). */
+int mp_coupling_build(const mp_prf_model *m, double fitrad, double crit, double sky, double ron,
+                      mp_coupling *c, char *err);
+
+/* mp_coupling_kappa: the bound on κ of two stars d px apart with fluxes Ea
+ * and Eb [e-] (not finite: the brightest node; ≤ 0: the faintest); 0 from
+ * crit on, 1 for a d that is not a number ≥ 0. */
+double mp_coupling_kappa(const mp_coupling *c, double d, double Ea, double Eb);
+void mp_coupling_free(mp_coupling *c);
+
 /* ---- Performance model (paper §2) ----------------------------------------- */
 
 typedef struct {
@@ -514,6 +546,13 @@ typedef struct {
                         * their σ), as an upper bound of that change says
                         * (fit/frame_bound.c); 0: refit every group every
                         * pass (economy=no) */
+    double couplefrac; /* economy: the pipeline cuts a component of more
+                        * than maxgroup stars at its weakest couplings, κ
+                        * (mp_coupling), and flags 2 the stars of a cut link
+                        * with κ ≥ couplefrac (fitted apart, each moves by
+                        * more than that many σ per σ of the other's error);
+                        * 0: at its median (economy=no, DAOPHOT GROUP's
+                        * rule and group.h's split) */
     const struct mp_ss_level_s *ss;  /* economy: nss coarser samplings of the
                         * model's table, coarsest first; each group is fitted
                         * with the coarsest whose linearised bias at its
@@ -714,6 +753,9 @@ typedef struct {
     const char *tables;        /* economy's tables (mp_econ_summary; may be NULL) */
     long kbounds, envelopes;   /* economy's own cost: kernel-bound evaluations
                                 * and crop envelopes built (mp_frame_report) */
+    long pairs_close, pairs_coupled;  /* the pipeline's grouping: pairs within
+                                * psfrad + fitrad, and of them coupled (0 0:
+                                * DAOPHOT GROUP's rule) */
     char detection[384];       /* the pipeline's detection limit in words ("": no
                                 * line; pipeline/outputs.c fills it) */
 } mp_run_report;

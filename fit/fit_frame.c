@@ -20,6 +20,7 @@ void mp_frame_opts_default(mp_frame_opts *o)
     o->passes = 2;
     o->cropfrac = 0.02;
     o->refittol = 0.1;
+    o->couplefrac = 0.1;
     o->sinc = NULL;
     o->sincfrac = 0.1;
     o->grid = NULL;

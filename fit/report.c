@@ -144,6 +144,10 @@ static void report_lines(FILE *fp, const char *prefix, const mp_run_report *r)
             r->kept, r->cropped, r->kshort, r->kcalls,
             r->kcalls > 0 ? r->khw / (double)r->kcalls : 0.0, r->kcoarse, r->kcache, r->kbounds,
             r->envelopes);
+    if (r->pairs_close > 0)
+        fprintf(fp, "%s  groups: components above maxgroup cut at their weakest couplings "
+                "(%ld pairs within psfrad + fitrad, %ld of them coupled), summed over rounds\n",
+                prefix, r->pairs_close, r->pairs_coupled);
     if (r->detection[0])
         fprintf(fp, "%s  detection: %s\n", prefix, r->detection);
     if (r->tables && r->tables[0]) {

@@ -359,6 +359,7 @@ int mp_fit_setup_read(const mp_parset *ps, mp_fit_setup *s, char *err)
         decide(s, "economy=no: every part of the model forced on");
         s->opts.cropfrac = 0.0;     /* economy=no: the full work, to compare */
         s->opts.refittol = 0.0;
+        s->opts.couplefrac = 0.0;
     }
     warn_undersampled(s);
     variable_psf_decision(s);

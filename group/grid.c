@@ -9,7 +9,9 @@
  *
  *   - Two stars in one cell are at most h·√2 ≈ 0.71·crit apart, so a cell is
  *     a clique: its stars are linked without a single distance test.  Many
- *     stars at one point cost O(n), not O(n²).
+ *     stars at one point cost O(n), not O(n²).  (With a link test of the
+ *     pairs' own, mp_group_opts.link, no cell is a clique: every pair
+ *     within crit is tested.)
  *   - Two stars closer than crit (< 2h) lie at most 2 cells apart along each
  *     axis, so each cell is compared with the cells of its 5×5 neighbourhood,
  *     each pair of cells once (the cells after it in raster order: the next
@@ -55,6 +57,8 @@ typedef struct {
     cell *c;
     int bx;                  /* bits of the column part of a key */
     mp_uf uf;                /* over sorted positions */
+    mp_group_link_fn link;   /* the pairs' own test (NULL: none) */
+    void *ctx;
     size_t work;             /* cell pairs + distance tests + unions */
 } grid;
 
@@ -177,7 +181,7 @@ static int grid_build(grid *g, const double *x, const double *y, size_t n, doubl
             c->start = p;
             c->x0 = c->x1 = xr;
             c->y0 = c->y1 = yr;
-            c->clique = 1;
+            c->clique = !g->link;
         }
         cell *c = &g->c[g->nc - 1];
         c->end = p + 1;
@@ -196,6 +200,16 @@ done:
     return rc;
 }
 
+/* Whether sorted stars s and t are linked: closer than crit and, with a
+ * link test, passing it. */
+static int linked(const grid *g, size_t s, size_t t, double c2)
+{
+    if (!mp_close(g->x[s], g->y[s], g->x[t], g->y[t], c2))
+        return 0;
+    return !g->link || g->link(g->ctx, g->row[s], g->row[t],
+                               hypot(g->x[s] - g->x[t], g->y[s] - g->y[t]));
+}
+
 /* Link the stars of one cell among themselves. */
 static void link_within(grid *g, const cell *a, double c2)
 {
@@ -207,7 +221,7 @@ static void link_within(grid *g, const cell *a, double c2)
     for (size_t s = a->start; s < a->end; s++)
         for (size_t t = s + 1; t < a->end; t++) {
             g->work++;
-            if (mp_close(g->x[s], g->y[s], g->x[t], g->y[t], c2))
+            if (linked(g, s, t, c2))
                 g->work += (size_t)mp_uf_union(&g->uf, s, t);
         }
 }
@@ -235,7 +249,7 @@ static void link_between(grid *g, const cell *a, const cell *b, double c2)
     for (size_t s = a->start; s < a->end; s++)
         for (size_t t = b->start; t < b->end; t++) {
             g->work++;
-            if (mp_close(g->x[s], g->y[s], g->x[t], g->y[t], c2)) {
+            if (linked(g, s, t, c2)) {
                 g->work += (size_t)mp_uf_union(&g->uf, s, t);
                 if (cliques)
                     return;       /* one close pair joins two cliques */
@@ -265,8 +279,8 @@ static void sweep(grid *g, double c2)
     }
 }
 
-int mp_grid_link(const double *x, const double *y, size_t n, double crit, size_t *label,
-                 size_t *work)
+int mp_grid_link(const double *x, const double *y, size_t n, double crit,
+                 mp_group_link_fn link, void *ctx, size_t *label, size_t *work)
 {
     if (work)
         *work = 0;
@@ -274,6 +288,8 @@ int mp_grid_link(const double *x, const double *y, size_t n, double crit, size_t
         return 0;
     grid g;
     memset(&g, 0, sizeof g);
+    g.link = link;
+    g.ctx = ctx;
     if (grid_build(&g, x, y, n, crit * SIDE)) {
         grid_free(&g);
         return 1;

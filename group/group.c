@@ -16,6 +16,8 @@ void mp_group_opts_default(mp_group_opts *o)
     o->fitrad = 5.0;
     o->psfrad = 10.0;
     o->maxgroup = 60;
+    o->link = NULL;
+    o->link_ctx = NULL;
 }
 
 static int check_opts(const mp_group_opts *o, char *err)
@@ -161,7 +163,7 @@ int mp_group_table(mp_table *t, const mp_group_opts *o, char *err)
         w.x[i] = mp_table_get(t, i, cx);
         w.y[i] = mp_table_get(t, i, cy);
     }
-    if (mp_grid_link(w.x, w.y, n, o->psfrad + o->fitrad, w.label, NULL))
+    if (mp_grid_link(w.x, w.y, n, o->psfrad + o->fitrad, o->link, o->link_ctx, w.label, NULL))
         goto oom;
     for (size_t i = 0; i < n; i++)
         w.count[w.label[i]]++;

@@ -29,7 +29,9 @@
  * DAOPHOT's ALLSTAR rule (regroup with smaller critical separations, then
  * drop the faintest star): it needs no fluxes, always ends (stars at one
  * point are still split), drops no star, gives balanced parts, and costs
- * O(m log m) for a group of m stars.
+ * O(m log m) for a group of m stars.  The pipeline, which knows the PSF and
+ * the fluxes, cuts such a component at its weakest couplings instead
+ * (mp_group_capped with κ of fit.h's mp_coupling; pipeline/coupled.c).
  *
  * Errors: functions return 0 on success, nonzero on failure with one line in
  * err (MP_ERRLEN bytes).
@@ -42,13 +44,21 @@
 /* Options of the grouping.  Critical separation = psfrad + fitrad (DAOPHOT
  * GROUP: a star's PSF reaches another's fitting region); maxgroup default 60
  * as DAOPHOT's daopars. */
+/* mp_group_link_fn: whether two stars closer than the critical separation
+ * are linked after all: rows ra and rb of the table, d their separation
+ * [pixel] (< crit); nonzero links them.  The pipeline's test is the
+ * coupling of their fits (fit.h, mp_coupling). */
+typedef int (*mp_group_link_fn)(void *ctx, size_t ra, size_t rb, double d);
+
 typedef struct {
     double fitrad, psfrad;   /* [pixel], finite, >= 0, sum > 0 */
     int maxgroup;            /* >= 1 */
+    mp_group_link_fn link;   /* NULL: every pair closer than crit linked */
+    void *link_ctx;
 } mp_group_opts;
 
 /* mp_group_opts_default: fitrad 5 (fit.par's default), psfrad 10,
- * maxgroup 60 (group.par's defaults). */
+ * maxgroup 60 (group.par's defaults), no link test. */
 void mp_group_opts_default(mp_group_opts *o);
 
 /* mp_group_table: group the stars of t.  Positions are XPSF_IMAGE/YPSF_IMAGE
@@ -62,6 +72,21 @@ void mp_group_opts_default(mp_group_opts *o);
  * whose position is not finite (named by its 1-based row), out of memory.
  * A table of 0 rows is fine (the columns are added). */
 int mp_group_table(mp_table *t, const mp_group_opts *o, char *err);
+
+/* A link between rows a and b of weight w (mp_group_capped). */
+typedef struct {
+    size_t a, b;
+    double w;
+} mp_group_pair;
+
+/* mp_group_capped: label[i] (i < n) = a representative row of i's set,
+ * the sets built by taking the np links of p strongest first (ties in row
+ * order) and joining two sets only when together they hold at most
+ * maxgroup rows (a maximum spanning forest with capped trees); p is
+ * sorted.  When cut is not NULL, cut[a] and cut[b] are set for each link
+ * of weight ≥ cutw refused by the cap.  Nonzero when out of memory. */
+int mp_group_capped(size_t n, mp_group_pair *p, size_t np, int maxgroup, size_t *label,
+                    unsigned char *cut, double cutw);
 
 /* The "matphot group INPUT [output=...] [fitrad=...] ..." task
  * (params/group.par): read a table (- = stdin), group it, write it (empty

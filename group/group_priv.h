@@ -7,6 +7,8 @@
 
 #include <stddef.h>
 
+#include "group/group.h"
+
 /* ---- union_find.c ------------------------------------------------------ */
 
 /* Disjoint sets over 0..n-1 with path compression and union by rank
@@ -41,14 +43,15 @@ static inline int mp_close(double xa, double ya, double xb, double yb, double c2
 }
 
 /* mp_grid_link: label the n points (x, y) (finite) by connected component
- * of the relation mp_close(·, ·, crit²) (crit finite, > 0): label[i] = the
+ * of the relation mp_close(·, ·, crit²) (crit finite, > 0) and, when link is
+ * not NULL, link(ctx, i, j, d) (cells are then no cliques): label[i] = the
  * row of one member of i's component, the same for all its members.
  * When work is not NULL it receives the operations done after the sort:
  * cell pairs compared + distance tests + unions — a machine-independent
  * measure of cost, so a test can check linearity without a clock.
  * Nonzero when out of memory. */
-int mp_grid_link(const double *x, const double *y, size_t n, double crit, size_t *label,
-                 size_t *work);
+int mp_grid_link(const double *x, const double *y, size_t n, double crit,
+                 mp_group_link_fn link, void *ctx, size_t *label, size_t *work);
 
 /* ---- split.c ----------------------------------------------------------- */
 

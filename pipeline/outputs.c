@@ -137,6 +137,8 @@ static void report_counts(const mp_pipeline_report *rep, const mp_table *t, mp_r
     run->kcoarse = rep->kcoarse;
     run->kcache = rep->kcache;
     run->envelopes = rep->envelopes;
+    run->pairs_close = rep->pairs_close;
+    run->pairs_coupled = rep->pairs_coupled;
     run->ops_tables = rep->ops_tables;
     run->ops_saved = rep->ops_saved;
     run->ops_render = rep->ops_render;

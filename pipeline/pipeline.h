@@ -57,6 +57,7 @@ typedef struct {
     long kbounds, envelopes;      /* economy's own cost (mp_frame_report) */
     long kcoarse;                 /* LM fits with a coarser table */
     long kcache;                  /* LM fits with the PRF from the phase grid */
+    long pairs_close, pairs_coupled;  /* grouping (mp_pl_group), summed over rounds */
     double ops_tables, ops_saved, ops_render;  /* economy's tables' cost and saving
                                    * (mp_frame_report), summed over rounds */
     long sky_groups[MP_SKY_MAXORDER + 1];  /* last round's groups by sky order */

@@ -36,6 +36,21 @@ mp_pl_star *mp_pl_stars_by_flux(const mp_table *t, long skipflags, size_t *n);
 int mp_pl_star_excess(const mp_frame *f, mp_bkg *b, const mp_table *t, const mp_prf_model *m,
                       int *nring, size_t *nkept, char *err);
 
+/* mp_pl_group: t grouped as mp_group_table does with go; with couplefrac
+ * > 0 a component of more than go->maxgroup stars is cut at its weakest
+ * couplings instead of its median (pipeline/coupled.c: κ of model m at each
+ * pair's FLUX_PSF, else FLUX, on the median SKY_PSF, else BACKGROUND, with
+ * read noise ron [e-]), its stars whose link of κ ≥ couplefrac was cut
+ * flagged 2.  *tested, *linked: the pairs within the critical separation
+ * in such components, and of them those of κ ≥ couplefrac.  Nonzero with
+ * err as mp_group_table, or when out of memory. */
+int mp_pl_group(mp_table *t, const mp_group_opts *go, const mp_prf_model *m, double couplefrac,
+                double ron, long *tested, long *linked, char *err);
+
+/* mp_pl_group_decision: mp_pl_group's rule added to fs's economy decisions
+ * (none with couplefrac 0). */
+void mp_pl_group_decision(mp_fit_setup *fs);
+
 /* mp_pl_median_sky: the median fitted sky (SKY_PSF) of t's stars with a
  * finite one; 0 when there is none (or no memory to sort them). */
 double mp_pl_median_sky(const mp_table *t);

@@ -233,8 +233,12 @@ static int group_and_fit(run_state *s, int round, char *err)
 {
     const mp_pipeline_opts *o = s->o;
     double t0 = mp_seconds();
-    if (mp_group_table(&s->t, &o->group, err))
+    long close, coupled;
+    if (mp_pl_group(&s->t, &o->group, &s->fit->model, s->fit->opts.couplefrac, s->f.rdnoise,
+                    &close, &coupled, err))
         return 1;
+    s->rep->pairs_close += close;
+    s->rep->pairs_coupled += coupled;
     s->rep->t_group += mp_seconds() - t0;
     if (!s->quiet && mp_pl_write_named(s->root, ".grp", &s->t, o->fit.fmt, err))
         return 1;
@@ -493,6 +497,8 @@ static int build_psf(run_state *s, int pass, char *err)
     }
     if (!rc && !(rc = mp_params_set(o->ps, "psf", path, err))) {
         rc = mp_fit_setup_read(o->ps, &s->own, err);
+        if (!rc)
+            mp_pl_group_decision(&s->own);
         s->have_own = !rc;
         char e3[MP_ERRLEN];
         mp_params_set(o->ps, "psf", "", e3);

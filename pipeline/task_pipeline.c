@@ -35,6 +35,7 @@ int mp_pl_opts_read(mp_parset *ps, mp_pipeline_opts *o, char *err)
     memset(o, 0, sizeof *o);
     if (mp_fit_setup_read(ps, &o->fit, err))
         return 1;
+    mp_pl_group_decision(&o->fit);
     psf_build_opts(ps, o);
     mp_find_opts_default(&o->find);
     o->find.fwhm = mp_prf_fwhm(&o->fit.model);   /* the PSF's own width */

@@ -196,6 +196,7 @@ static void add_report(mp_pipeline_report *s, const mp_pipeline_report *r)
     s->kept += r->kept; s->cropped += r->cropped; s->kcalls += r->kcalls;
     s->kshort += r->kshort; s->kbounds += r->kbounds; s->envelopes += r->envelopes;
     s->kcoarse += r->kcoarse; s->khw += r->khw;
+    s->pairs_close += r->pairs_close; s->pairs_coupled += r->pairs_coupled;
     s->ops_tables += r->ops_tables; s->ops_saved += r->ops_saved; s->ops_render = r->ops_render;
     s->threshold = r->threshold;     /* one frame: the same in every tile */
     s->rdnoise = r->rdnoise;

@@ -48,7 +48,7 @@ static void make_table(mp_table *t, const double *x, const double *y, size_t n)
 
 static mp_group_opts opts(double fitrad, double psfrad, int maxgroup)
 {
-    mp_group_opts o = { fitrad, psfrad, maxgroup };
+    mp_group_opts o = { fitrad, psfrad, maxgroup, NULL, NULL };
     return o;
 }
 
@@ -438,7 +438,8 @@ static void test_errors(void **state)
     assert_non_null(strstr(err, "row 4"));
     mp_table_set(&t, 3, 1, 4);
     assert_int_equal(mp_group_table(&t, &o, err), 0);
-    const mp_group_opts bad[] = { { -1, 10, 60 }, { 5, NAN, 60 }, { 0, 0, 60 }, { 5, 10, 0 } };
+    const mp_group_opts bad[] = { { -1, 10, 60, NULL, NULL }, { 5, NAN, 60, NULL, NULL },
+                                   { 0, 0, 60, NULL, NULL }, { 5, 10, 0, NULL, NULL } };
     const char *name[] = { "fitrad", "psfrad", "critical", "maxgroup" };
     for (size_t k = 0; k < 4; k++) {
         assert_int_not_equal(mp_group_table(&t, &bad[k], err), 0);
@@ -481,7 +482,7 @@ static size_t work_of_grouping(size_t n, int one_point)
         x[i] = one_point ? 7.0 : side * urand(&s);
         y[i] = one_point ? 7.0 : side * urand(&s);
     }
-    assert_int_equal(mp_grid_link(x, y, n, 15.0, label, &work), 0);
+    assert_int_equal(mp_grid_link(x, y, n, 15.0, NULL, NULL, label, &work), 0);
     free(x);
     free(y);
     free(label);
@@ -507,6 +508,66 @@ static void test_linear_work(void **state)
     assert_true(wp <= 2 * (size_t)1000000);
 }
 
+/* A link test (mp_group_opts.link): a pair it refuses is not linked,
+ * though closer than crit; stars of one cell are tested pair by pair (no
+ * clique).  Four stars 2 px apart in a row (one or two cells of side
+ * crit/2 = 7.5 px), the test refusing every pair across the middle: {1,2}
+ * and {3,4}, its 6 pairs each tested once; without it, one group. */
+static int refuse_middle(void *ctx, size_t a, size_t b, double d)
+{
+    int *calls = ctx;
+    (*calls)++;
+    assert_true(d < 15.0 && d > 0.0);
+    return (a <= 1) == (b <= 1);
+}
+
+static void test_link_test(void **state)
+{
+    (void)state;
+    char err[MP_ERRLEN];
+    mp_table t;
+    double x[] = {10, 12, 14, 16}, y[] = {10, 10, 10, 10};
+    make_table(&t, x, y, 4);
+    int calls = 0;
+    mp_group_opts o = opts(5, 10, 60);
+    o.link = refuse_middle;
+    o.link_ctx = &calls;
+    assert_int_equal(mp_group_table(&t, &o, err), 0);
+    assert_int_equal(calls, 6);
+    assert_true(get(&t, 0, "GROUP_ID") == get(&t, 1, "GROUP_ID"));
+    assert_true(get(&t, 2, "GROUP_ID") == get(&t, 3, "GROUP_ID"));
+    assert_true(get(&t, 1, "GROUP_ID") != get(&t, 2, "GROUP_ID"));
+    assert_true(get(&t, 0, "GROUP_SIZE") == 2.0);
+    o.link = NULL;
+    assert_int_equal(mp_group_table(&t, &o, err), 0);
+    assert_true(get(&t, 0, "GROUP_SIZE") == 4.0);
+    mp_table_free(&t);
+}
+
+/* mp_group_capped: the strongest links first, no set above the cap, and
+ * the strong links the cap refused reported.  A chain 0-1-2-3-4-5 with
+ * weights 0.9, 0.1, 0.8, 0.7, 0.05 (links 0-1, 1-2, 2-3, 3-4, 4-5), cap 3:
+ * 0-1 (0.9), then 2-3 (0.8), 3-4 (0.7) make {2,3,4}; 1-2 (0.1) would make
+ * 5: refused (its weight ≥ cutw 0.1 marks 1 and 2); 4-5 refused too (4
+ * sets) but below cutw.  So {0,1}, {2,3,4}, {5}.  With cap 6 one set. */
+static void test_capped(void **state)
+{
+    (void)state;
+    mp_group_pair p[] = {{4, 5, 0.05}, {1, 2, 0.1}, {0, 1, 0.9}, {3, 4, 0.7}, {2, 3, 0.8}};
+    size_t label[6];
+    unsigned char cut[6] = {0};
+    assert_int_equal(mp_group_capped(6, p, 5, 3, label, cut, 0.1), 0);
+    assert_true(label[0] == label[1]);
+    assert_true(label[2] == label[3] && label[3] == label[4]);
+    assert_true(label[1] != label[2] && label[4] != label[5] && label[0] != label[5]);
+    unsigned char want[6] = {0, 1, 1, 0, 0, 0};
+    assert_memory_equal(cut, want, 6);
+    assert_true(p[0].w == 0.9 && p[4].w == 0.05);      /* sorted strongest first */
+    assert_int_equal(mp_group_capped(6, p, 5, 6, label, NULL, 0.1), 0);
+    for (int i = 1; i < 6; i++)
+        assert_true(label[i] == label[0]);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
@@ -523,6 +584,8 @@ int main(void)
         cmocka_unit_test(test_errors),
         cmocka_unit_test(test_union_find),
         cmocka_unit_test(test_linear_work),
+        cmocka_unit_test(test_link_test),
+        cmocka_unit_test(test_capped),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }
