@@ -19,6 +19,8 @@ typedef struct {
     mp_find_opts find;
     int mesh, filter;        /* background mesh and filter */
     mp_group_opts group;
+    int groupcut_median;     /* groupcut=median: a group above maxgroup cut at
+                              * its median, not its weakest couplings */
     int niter;
     double matchrad;         /* [px]; NaN: 0.5 FWHM */
     mp_table_format catfmt;

@@ -234,8 +234,8 @@ static int group_and_fit(run_state *s, int round, char *err)
     const mp_pipeline_opts *o = s->o;
     double t0 = mp_seconds();
     long close, coupled;
-    if (mp_pl_group(&s->t, &o->group, &s->fit->model, s->fit->opts.couplefrac, s->f.rdnoise,
-                    &close, &coupled, err))
+    double cf = o->groupcut_median ? 0.0 : s->fit->opts.couplefrac;
+    if (mp_pl_group(&s->t, &o->group, &s->fit->model, cf, s->f.rdnoise, &close, &coupled, err))
         return 1;
     s->rep->pairs_close += close;
     s->rep->pairs_coupled += coupled;
@@ -497,7 +497,7 @@ static int build_psf(run_state *s, int pass, char *err)
     }
     if (!rc && !(rc = mp_params_set(o->ps, "psf", path, err))) {
         rc = mp_fit_setup_read(o->ps, &s->own, err);
-        if (!rc)
+        if (!rc && !o->groupcut_median)
             mp_pl_group_decision(&s->own);
         s->have_own = !rc;
         char e3[MP_ERRLEN];

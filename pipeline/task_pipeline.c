@@ -35,7 +35,6 @@ int mp_pl_opts_read(mp_parset *ps, mp_pipeline_opts *o, char *err)
     memset(o, 0, sizeof *o);
     if (mp_fit_setup_read(ps, &o->fit, err))
         return 1;
-    mp_pl_group_decision(&o->fit);
     psf_build_opts(ps, o);
     mp_find_opts_default(&o->find);
     o->find.fwhm = mp_prf_fwhm(&o->fit.model);   /* the PSF's own width */
@@ -53,6 +52,10 @@ int mp_pl_opts_read(mp_parset *ps, mp_pipeline_opts *o, char *err)
     mp_par_real(ps, "psfrad", &psfrad);
     o->group.psfrad = isfinite(psfrad) ? psfrad : 2.0 * o->find.fwhm;
     mp_par_int(ps, "maxgroup", &o->group.maxgroup);
+    o->groupcut_median = strcmp(mp_par_string(ps, "groupcut"), "median") == 0;
+    if (o->groupcut_median)
+        o->fit.opts.couplefrac = 0.0;
+    mp_pl_group_decision(&o->fit);
     mp_par_int(ps, "niter", &o->niter);
     mp_par_real(ps, "matchrad", &o->matchrad);
     mp_par_bool(ps, "regions", &o->regions);

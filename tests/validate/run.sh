@@ -51,6 +51,7 @@ for a in "$@"; do
 done
 if [ "$ONLY" = all ] || [ "$ONLY" = crowded ]; then
     BUILD=$BUILD CC=$CC sh tests/validate/crowded/crowded.sh || { [ $rc -ne 0 ] || rc=1; }
+    BUILD=$BUILD CC=$CC sh tests/validate/crowded/dense.sh || { [ $rc -ne 0 ] || rc=1; }
 fi
 # The real frames only on request for now: the pipeline takes far too long on
 # them yet (GLIMPSE and 47 Tuc: tens of CPU-minutes), see validate/REPORT.md.
@@ -66,6 +67,6 @@ if [ "$ONLY" = real ]; then
 fi
 if [ "$ONLY" != paper ] && [ -f validate/REPORT.md ] &&
    ! grep -q '^## The staged reduction' validate/REPORT.md; then
-    printf '\n## The staged reduction\n\nThe crowded field: [CROWDED.md](CROWDED.md) (tests/validate/crowded).  The real frames: REAL.md after VALIDATE_ONLY=real (tests/validate/real).  The PSF built from the frame: [PSFBUILD.md](PSFBUILD.md), beside IRAF DAOPHOT and SExtractor + PSFEx: [PSFPEERS.md](PSFPEERS.md), on real frames: [PSFREAL.md](PSFREAL.md).\n' >> validate/REPORT.md
+    printf '\n## The staged reduction\n\nThe crowded field: [CROWDED.md](CROWDED.md), a dense one: [DENSE.md](DENSE.md) (tests/validate/crowded).  The real frames: REAL.md after VALIDATE_ONLY=real (tests/validate/real).  The PSF built from the frame: [PSFBUILD.md](PSFBUILD.md), beside IRAF DAOPHOT and SExtractor + PSFEx: [PSFPEERS.md](PSFPEERS.md), on real frames: [PSFREAL.md](PSFREAL.md).\n' >> validate/REPORT.md
 fi
 exit $rc
