@@ -115,6 +115,16 @@ static double kappa_dirs(double d, double ea, double eb)
     return k;
 }
 
+/* The table of the analytic Gaussian of FWHM 3 px (mp_psf_gauss). */
+static void gauss_table(mp_coupling *c)
+{
+    mp_psf p;
+    mp_psf_gauss(3.0, &p);
+    mp_prf_model m = {&p, NULL, 10};
+    char err[MP_ERRLEN];
+    assert_int_equal(mp_coupling_build(&m, FITRAD, CRIT, SKY, RON, c, err), 0);
+}
+
 /* At the nodes the table holds the exact κ made conservative: at least
  * the exact value there, and at most the largest exact value over the
  * nodes it stands for (the same or fainter fluxes, the same or larger
@@ -124,12 +134,8 @@ static double kappa_dirs(double d, double ea, double eb)
 static void test_kappa_at_nodes(void **state)
 {
     (void)state;
-    mp_psf p;
-    mp_psf_gauss(3.0, &p);
-    mp_prf_model m = {&p, NULL, 10};
     mp_coupling c;
-    char err[MP_ERRLEN];
-    assert_int_equal(mp_coupling_build(&m, FITRAD, CRIT, SKY, RON, &c, err), 0);
+    gauss_table(&c);
     assert_true(c.nd >= 10 && c.na >= 5);
     const int na = c.na, fl[] = {0, c.na / 2, c.na - 1};
     double *ex = malloc((size_t)c.nd * na * na * sizeof *ex);
@@ -170,12 +176,8 @@ static void test_kappa_at_nodes(void **state)
 static void test_kappa_between_nodes(void **state)
 {
     (void)state;
-    mp_psf p;
-    mp_psf_gauss(3.0, &p);
-    mp_prf_model m = {&p, NULL, 10};
     mp_coupling c;
-    char err[MP_ERRLEN];
-    assert_int_equal(mp_coupling_build(&m, FITRAD, CRIT, SKY, RON, &c, err), 0);
+    gauss_table(&c);
     unsigned s = 12345u;
     for (int k = 0; k < 40; k++) {
         s = s * 1103515245u + 12345u;
