@@ -3,8 +3,9 @@
 # crowded.sh): 512×512 px, 6000 stars (0.023 a px², past where DAOPHOT
 # GROUP's rule makes one component of the frame), FWHM 2.5, mag −13 … −7,
 # `matphot sim` with two seeds, reduced with the true ×2 table on one thread
-# with a component above maxgroup cut at its weakest couplings (the
-# default) and at its median (groupcut=median, DAOPHOT's split), scored
+# with the defaults (a component above maxgroup = 30 cut at its weakest
+# couplings), with maxgroup=60, and as before session 24 (groupcut=median
+# maxgroup=60: DAOPHOT's split of a component above 60), scored
 # against the truth by dense.c.  Writes validate/DENSE.md; work files in
 # $BUILD/validate/dense/.  Exit 0 unless a build or a program failed.
 set -u
@@ -30,16 +31,20 @@ for seed in 7 8; do
     "$MATPHOT" sim "$F.fits" nx=512 ny=512 mode=crowded nstars=6000 fwhm=2.5 magmin=-13 \
         magmax=-7 seed=$seed psfout="$F.psf.fits" psfos=2 > "$F.sim.log" 2>&1 ||
         { echo "dense: sim failed (seed $seed)" >&2; rc=1; continue; }
-    for cut in coupling median; do
-        R="$F.$cut"
+    for run in "defaults:" "coupling, maxgroup=60:maxgroup=60" \
+               "median, maxgroup=60 (before session 24):groupcut=median maxgroup=60"; do
+        label=${run%%:*}
+        args=${run#*:}
+        R="$F.$(echo "$label" | tr -c 'a-z0-9' '_' | cut -c1-24)"
+        # shellcheck disable=SC2086
         if ! OMP_NUM_THREADS=1 /usr/bin/time -f '%U %S' -o "$R.cpu" "$MATPHOT" pipeline \
-            "$F.fits" psf="$F.psf.fits" groupcut=$cut root="$R" > "$R.log" 2>&1; then
-            echo "dense: pipeline failed (seed $seed, $cut)" >&2
+            "$F.fits" psf="$F.psf.fits" root="$R" $args > "$R.log" 2>&1; then
+            echo "dense: pipeline failed (seed $seed, $label)" >&2
             rc=1
             continue
         fi
         cpu=$(awk '{printf "%.2f", $1 + $2}' "$R.cpu")
-        "$OUT/dense" score "$F.truth" "$R.cat" "seed $seed, groupcut=$cut" "$cpu" >> "$ROWS" ||
+        "$OUT/dense" score "$F.truth" "$R.cat" "seed $seed, $label" "$cpu" >> "$ROWS" ||
             rc=1
     done
 done
@@ -48,7 +53,7 @@ done
     echo
     echo "Generated $(date -u '+%Y-%m-%d %H:%M') UTC by \`tests/validate/crowded/dense.sh\` ($(( $(date +%s) - T0 )) s wall in all; $(nproc) processors).  Back to [REPORT.md](REPORT.md)."
     echo
-    echo "The scene: \`matphot sim s\$SEED.fits nx=512 ny=512 mode=crowded nstars=6000 fwhm=2.5 magmin=-13 magmax=-7 seed=\$SEED psfout=s\$SEED.psf.fits psfos=2\` (seeds 7 and 8): 0.023 stars a px², a Gaussian PSF of FWHM 2.5 px, sky 100 e⁻, read noise 3 e⁻.  DAOPHOT GROUP's rule (two stars closer than psfrad + fitrad = 2 FWHM + 5 px) joins nearly the whole frame into one component, which the fit cannot take at once (maxgroup 60).  Each frame reduced with its true ×2 table, one thread: \`OMP_NUM_THREADS=1 matphot pipeline s\$SEED.fits psf=s\$SEED.psf.fits groupcut=coupling|median\`.  *coupling* (the default): the component re-formed from its links strongest first by κ, the largest canonical correlation of two stars' fits, sets joined while they hold at most maxgroup stars (pipeline/coupled.c, fit/coupling.c); *median*: cut at the median of its longer axis, again and again (group.h, DAOPHOT's split)."
+    echo "The scene: \`matphot sim s\$SEED.fits nx=512 ny=512 mode=crowded nstars=6000 fwhm=2.5 magmin=-13 magmax=-7 seed=\$SEED psfout=s\$SEED.psf.fits psfos=2\` (seeds 7 and 8): 0.023 stars a px², a Gaussian PSF of FWHM 2.5 px, sky 100 e⁻, read noise 3 e⁻.  DAOPHOT GROUP's rule (two stars closer than psfrad + fitrad = 2 FWHM + 5 px) joins nearly the whole frame into one component, which the fit cannot take at once (maxgroup: 30 in the pipeline, 60 in DAOPHOT).  Each frame reduced with its true ×2 table, one thread: \`OMP_NUM_THREADS=1 matphot pipeline s\$SEED.fits psf=s\$SEED.psf.fits [args]\`.  *defaults*: a component above maxgroup = 30 re-formed from its links strongest first by κ, the largest canonical correlation of two stars' fits, sets joined while they hold at most maxgroup stars (pipeline/coupled.c, fit/coupling.c); *coupling, maxgroup=60*: the same with sets of up to 60; *median, maxgroup=60*: the pipeline before session 24, a component above 60 cut at the median of its longer axis, again and again (group.h, DAOPHOT's split)."
     echo
     echo "Scoring (tests/validate/crowded/dense.c): each true star matched to the nearest catalog entry within 1 px, one to one, closest pairs first; *false*: entries left unmatched; rσ: 1.4826 × the median absolute deviation, of z = (FLUX_PSF − FLUX_TRUE)/FLUXERR_PSF over the matched stars and of ΔE/E_true per bin of true magnitude.  CPU: user + sys seconds."
     echo
