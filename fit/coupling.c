@@ -94,6 +94,9 @@ static int kappa_at(const mp_prf_model *m, double xc, double yc, double d, doubl
 {
     size_t n = (size_t)W * W;
     double *gb[3] = {buf, buf + n, buf + 2 * n}, *tmp = buf + 3 * n;
+    double E[NA];                 /* the flux nodes */
+    for (int i = 0; i < NA; i++)
+        E[i] = beff * pow(10.0, A0 + ASTEP * i);
     for (int t = 0; t < NA * NA; t++)
         k[t] = 0.0f;
     for (int dir = 0; dir < NDIR; dir++) {
@@ -110,9 +113,7 @@ static int kappa_at(const mp_prf_model *m, double xc, double yc, double d, doubl
         const double *g[6] = {ga[0], ga[1], ga[2], gb[0], gb[1], gb[2]};
         for (int ia = 0; ia < NA; ia++)
             for (int ib = 0; ib < NA; ib++) {
-                double ea = beff * pow(10.0, A0 + ASTEP * ia);
-                double eb = beff * pow(10.0, A0 + ASTEP * ib);
-                double kap = pair_kappa(g, ga[0], gb[0], at, nat, beff, ea, eb);
+                double kap = pair_kappa(g, ga[0], gb[0], at, nat, beff, E[ia], E[ib]);
                 float *o = &k[ia * NA + ib];
                 *o = kap > *o ? (float)kap : *o;
             }

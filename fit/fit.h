@@ -338,9 +338,10 @@ int mp_prf_cache_render_at(const mp_prf_cache *c, const mp_prf_model *m, double 
  * other held at its estimate, a star's parameters move by at most κ of
  * their σ for each σ of the other's error, and their variance misses at
  * most a fraction κ² (the pipeline cuts a component too large to fit at
- * once at its weakest κ, pipeline/coupled.c).  Tabulated once per PSF and sky: nd separations every dstep px
- * below crit, na fluxes E = (B + RON²)·10^(a0 + astep·i) each, the largest
- * over eight directions; made conservative (non-increasing in the
+ * once at its weakest κ, pipeline/coupled.c).  Tabulated once per PSF and
+ * sky: nd separations every dstep px below crit, na fluxes
+ * E = (B + RON²)·10^(a0 + astep·i) each, the largest over eight
+ * directions; made conservative (non-increasing in the
  * separation, non-decreasing in each flux), so a lookup at the node at or
  * below d and at or above each flux bounds κ between the nodes.  The
  * fitting discs are the pixels within fitrad of each star; the sky is left

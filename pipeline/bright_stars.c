@@ -45,6 +45,22 @@ double mp_pl_median_sky(const mp_table *t)
     return m;
 }
 
+double mp_pl_median_positive(const mp_table *t, const char *name)
+{
+    int c = mp_table_col(t, name);
+    double *v = malloc((t->nrow + 1) * sizeof *v), m = 0.0;
+    size_t k = 0;
+    for (size_t r = 0; v && c >= 0 && r < t->nrow; r++) {
+        double b = mp_table_get(t, r, c);
+        if (isfinite(b) && b > 0)
+            v[k++] = b;
+    }
+    if (k)
+        m = mp_select_kth(v, k, k / 2);      /* the upper median, unsorted */
+    free(v);
+    return m;
+}
+
 int mp_pl_star_excess(const mp_frame *f, mp_bkg *b, const mp_table *t, const mp_prf_model *m,
                       int *nring, size_t *nkept, char *err)
 {

@@ -86,23 +86,6 @@ static double *fluxes_of(const mp_table *t)
     return E;
 }
 
-/* The median of column name over its finite positive values (0: none). */
-static double median_of(const mp_table *t, const char *name)
-{
-    int c = mp_table_col(t, name);
-    double *v = malloc((t->nrow + 1) * sizeof *v), m = 0.0;
-    size_t k = 0;
-    for (size_t r = 0; v && c >= 0 && r < t->nrow; r++) {
-        double b = mp_table_get(t, r, c);
-        if (isfinite(b) && b > 0)
-            v[k++] = b;
-    }
-    if (k)
-        m = mp_select_kth(v, k, k / 2);
-    free(v);
-    return m;
-}
-
 /* FLAGS bit 2 (group split) on the rows whose strong link the cap cut. */
 static void flag_cut(mp_table *t, const unsigned char *cut)
 {
@@ -119,8 +102,8 @@ static void flag_cut(mp_table *t, const unsigned char *cut)
 static int capped_sets(mp_table *t, const mp_group_opts *go, const mp_prf_model *m, double frac,
                        double ron, pair_list *L, size_t *label, unsigned char *cut, char *err)
 {
-    double sky = median_of(t, "SKY_PSF");
-    sky = sky > 0 ? sky : median_of(t, "BACKGROUND");
+    double sky = mp_pl_median_positive(t, "SKY_PSF");
+    sky = sky > 0 ? sky : mp_pl_median_positive(t, "BACKGROUND");
     mp_coupling c;
     double *E = NULL;
     int rc = mp_coupling_build(m, go->fitrad, go->psfrad + go->fitrad, sky, ron, &c, err);

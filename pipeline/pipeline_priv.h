@@ -51,6 +51,11 @@ int mp_pl_group(mp_table *t, const mp_group_opts *go, const mp_prf_model *m, dou
  * (none with couplefrac 0). */
 void mp_pl_group_decision(mp_fit_setup *fs);
 
+/* mp_pl_median_positive: the (upper) median of column name over t's rows
+ * where it is finite and > 0; 0 when there is none, no such column or no
+ * memory. */
+double mp_pl_median_positive(const mp_table *t, const char *name);
+
 /* mp_pl_median_sky: the median fitted sky (SKY_PSF) of t's stars with a
  * finite one; 0 when there is none (or no memory to sort them). */
 double mp_pl_median_sky(const mp_table *t);

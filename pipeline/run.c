@@ -214,16 +214,7 @@ static const mp_prf_cache *phase_grid(run_state *s, double *gemax)
             !mp_prf_cache_usable(oe.grid, &s->fit->model))
             return NULL;
     }
-    int cs = mp_table_col(&s->t, "SKY_PSF");
-    double *v = malloc((s->t.nrow + 1) * sizeof *v);
-    size_t k = 0;
-    for (size_t r = 0; v && cs >= 0 && r < s->t.nrow; r++) {
-        double b = mp_table_get(&s->t, r, cs);
-        if (isfinite(b) && b > 0)
-            v[k++] = b;
-    }
-    double sky = k ? mp_select_kth(v, k, k / 2) : 0.0;   /* the median, unsorted */
-    free(v);
+    double sky = mp_pl_median_positive(&s->t, "SKY_PSF");
     *gemax = mp_prf_cache_limit(oe.grid, sky, s->f.rdnoise, oe.sincfrac);
     return oe.grid;
 }
