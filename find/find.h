@@ -294,6 +294,18 @@ enum {
 int mp_find_stars(const mp_frame *f, const mp_bkg *b, const mp_find_opts *o,
                   mp_table *t, char *err);
 
+/*
+ * mp_find_sharpness: the SHARPNESS mp_find_stars would measure of the star
+ * in img (nx × ny, row-major, sky-free and noiseless) with o's kernel: at
+ * the pixel of largest h among those whose footprint lies inside img.
+ * What the shape cut sees of a PSF itself, phase by phase: a PSF sharper
+ * than the kernel's Gaussian (an undersampled one) can exceed sharphi at
+ * some phases with no noise at all (pipeline/sharp_limits.c).  Errors:
+ * a bad kernel, out of memory, no positive h.
+ */
+int mp_find_sharpness(const double *img, long nx, long ny, const mp_find_opts *o,
+                      double *sharp, char *err);
+
 /* The `matphot find` task: IMAGE → table (params/find.par).  argv[0] is
  * "find".  Returns the exit status: 0, 1 (error, one line on stderr),
  * 2 (usage). */

@@ -190,6 +190,8 @@ static void detection_line(const mp_fit_setup *fit, const mp_pipeline_report *re
     if (k > 0 && (size_t)k < n && s > 0 && cut > 0)
         k += snprintf(run->detection + k, n - (size_t)k, ", a linear fit at each keeps S/N "
                       ">= %g", cut);
+    if (k > 0 && (size_t)k < n && rep->sharp[0])
+        k += snprintf(run->detection + k, n - (size_t)k, "; %s", rep->sharp);
     double beta = col_median(t, "BETA_PSF"), B = col_median(t, "SKY_PSF");
     double v = beta * (fmax(B, 0.0) + rep->rdnoise * rep->rdnoise);
     if (k > 0 && (size_t)k < n && s > 0 && isfinite(v) && v > 0) {

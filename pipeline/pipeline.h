@@ -66,6 +66,8 @@ typedef struct {
     double khw;                   /* their half-widths summed over all group fits */
     double threshold, rdnoise;    /* find's threshold [σ] and the frame's read noise
                                    * [e-], for the report's detection line (0: unknown) */
+    char sharp[200];              /* find's last sharpness limits and why
+                                   * (mp_pl_sharp_limits), for that line too */
 } mp_pipeline_report;
 
 /* mp_pipeline_run: reduce one image; root names the outputs. */

@@ -14,6 +14,19 @@
  * value; o->fit is then to be freed with mp_fit_setup_free all the same. */
 int mp_pl_opts_read(mp_parset *ps, mp_pipeline_opts *o, char *err);
 
+/* ---- sharp_limits.c ---------------------------------------------------- */
+
+/* mp_pl_sharp_limits: o's sharpness limits, set by the user for stars of
+ * the kernel's Gaussian (whose SHARPNESS over subpixel phases spans
+ * [g0, g1]), widened so that stars of m (spanning [p0, p1]; over the
+ * frame's centre and quarter points when m's PSF varies, nx × ny the
+ * frame) keep the same margins: sharplo = min(sharplo, p0 − (g0 −
+ * sharplo)), sharphi = max(sharphi, p1 + (sharphi − g1)).  A limit that is
+ * NaN, or does not bracket the Gaussian's range, is kept.  why: one line
+ * for the report.  Errors: out of memory, a bad kernel. */
+int mp_pl_sharp_limits(const mp_prf_model *m, long nx, long ny, mp_find_opts *o, char *why,
+                       size_t nwhy, char *err);
+
 /* ---- bright_stars.c ---------------------------------------------------- */
 
 /* A fitted star: position, flux (e-) and FLAGS. */

@@ -132,6 +132,15 @@ static int screen(run_state *s, const mp_frame *on, const float *data, mp_table 
     return 0;
 }
 
+/* find's options for stars of the model now fitted: sharpness limits
+ * that keep this PSF's own stars (sharp_limits.c). */
+static int find_opts_for_model(run_state *s, mp_find_opts *fo, char *err)
+{
+    *fo = s->o->find;
+    return mp_pl_sharp_limits(&s->fit->model, s->f.im.nx, s->f.im.ny, fo, s->rep->sharp,
+                              sizeof s->rep->sharp, err);
+}
+
 /* Sky and noise maps, the first detection, root.coo. */
 static int find_stars(run_state *s, char *err)
 {
@@ -140,7 +149,8 @@ static int find_stars(run_state *s, char *err)
         return 1;
     s->rep->t_bkg = mp_seconds() - t0;
     t0 = mp_seconds();
-    if (mp_find_stars(&s->f, &s->bkg, &s->o->find, &s->t, err))
+    mp_find_opts fo;
+    if (find_opts_for_model(s, &fo, err) || mp_find_stars(&s->f, &s->bkg, &fo, &s->t, err))
         return 1;
     s->rep->threshold = s->o->find.threshold;
     if (screen(s, &s->f, s->f.im.pix, &s->t))
@@ -294,7 +304,9 @@ static int find_on_residual(run_state *s, int round, long *added, char *err)
     /* A star half-hidden by a neighbour's fit leaves a lopsided residual
      * peak: relax the roundness limits there (the fit then keeps or rejects
      * what was found, by its significance). */
-    mp_find_opts ro = o->find;
+    mp_find_opts ro;
+    if (find_opts_for_model(s, &ro, err))
+        return 1;
     ro.roundlo = fmin(ro.roundlo, -2.0);
     ro.roundhi = fmax(ro.roundhi, 2.0);
     /* The screen as detection goes (its candidates never all held). */

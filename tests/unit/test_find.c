@@ -406,6 +406,59 @@ static void test_noiseless_star(void **state)
     }
 }
 
+/* mp_find_sharpness: (a) a star all in one pixel has SHARPNESS 1/w₀, w₀
+ * the lowered kernel's central weight (ref_kernel, derived apart); (b) on
+ * a noiseless star at three phases it is what mp_find_stars writes;
+ * (c) an image with no star is an error. */
+static void test_star_sharpness(void **state)
+{
+    (void)state;
+    char err[MP_ERRLEN];
+    mp_find_opts o;
+    mp_find_opts_default(&o);
+    enum { S = 15 };
+    double img[S * S] = {0};
+    img[7 * S + 7] = 1.0;
+    ref_kernel k;
+    ref_kernel_make(o.fwhm, o.nsigma, &k);
+    double w0 = NAN, sh;
+    for (int t = 0; t < k.n; t++)
+        if (!k.dx[t] && !k.dy[t])
+            w0 = k.w[t];
+    assert_int_equal(mp_find_sharpness(img, S, S, &o, &sh, err), 0);
+    assert_true(fabs(sh * w0 - 1.0) < 1e-12);
+
+    const double off[][2] = {{0.0, 0.0}, {0.3, -0.2}, {-0.45, 0.45}};
+    for (int c = 0; c < 3; c++) {
+        mp_frame f;
+        frame_make(&f, 64, 64, 0.0);
+        fill(&f, 100.0);
+        mp_sim_prf p = gauss_prf(1.2);
+        double x = 32.0 + off[c][0], y = 31.0 + off[c][1];
+        assert_int_equal(mp_sim_add_star_float(&p, x, y, 2e4, f.im.pix, 64, 64), 0);
+        double *star = malloc(64 * 64 * sizeof *star);
+        assert_non_null(star);
+        for (long i = 0; i < 64 * 64; i++)
+            star[i] = f.im.pix[i] - 100.0;
+        mp_find_opts nc = o;
+        no_cuts(&nc);
+        mp_bkg b;
+        mp_table t;
+        run_find(&f, &nc, &b, &t);
+        assert_int_equal(t.nrow, 1);
+        assert_int_equal(mp_find_sharpness(star, 64, 64, &o, &sh, err), 0);
+        double want = mp_table_get(&t, 0, col(&t, "SHARPNESS"));
+        assert_true(fabs(sh - want) < 1e-5 * want);   /* float pixels */
+        mp_table_free(&t);
+        mp_bkg_free(&b);
+        frame_drop(&f);
+        free(star);
+    }
+    memset(img, 0, sizeof img);
+    assert_int_equal(mp_find_sharpness(img, S, S, &o, &sh, err), 1);
+    assert_non_null(strstr(err, "sharpness"));
+}
+
 /* Φ(x), the standard normal distribution function. */
 static double Phi(double x)
 {
@@ -1110,6 +1163,7 @@ int main(void)
         cmocka_unit_test(test_noise_from_model),
         cmocka_unit_test(test_star_excess),
         cmocka_unit_test(test_nan_columns),
+        cmocka_unit_test(test_star_sharpness),
         cmocka_unit_test(test_append_and_errors),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
