@@ -23,7 +23,9 @@ int mp_pl_opts_read(mp_parset *ps, mp_pipeline_opts *o, char *err);
  * frame) keep the same margins: sharplo = min(sharplo, p0 − (g0 −
  * sharplo)), sharphi = max(sharphi, p1 + (sharphi − g1)).  A limit that is
  * NaN, or does not bracket the Gaussian's range, is kept.  why: one line
- * for the report.  Errors: out of memory, a bad kernel. */
+ * for the report.  A PSF or kernel whose sharpness find cannot measure (no
+ * positive height, a bad kernel) keeps the limits as given, and why says
+ * so: the run goes on.  Errors: out of memory. */
 int mp_pl_sharp_limits(const mp_prf_model *m, long nx, long ny, mp_find_opts *o, char *why,
                        size_t nwhy, char *err);
 

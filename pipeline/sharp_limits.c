@@ -17,7 +17,8 @@
 #define PHASES 8            /* per axis: offsets −1/2, −3/8, …, 3/8 px */
 
 /* The range [*lo, *hi] of SHARPNESS of m's noiseless star at (x, y) plus
- * every phase. */
+ * every phase.  1: out of memory; 2: find cannot measure it (err says
+ * why). */
 static int sharpness_range(const mp_prf_model *m, double x, double y, const mp_find_opts *o,
                            double *lo, double *hi, char *err)
 {
@@ -49,11 +50,12 @@ static int sharpness_range(const mp_prf_model *m, double x, double y, const mp_f
             for (int u = 0; u < pw; u++)
                 img[(v + pad) * sw + u + pad] = prf[v * pw + u];
         double s;
-        rc = mp_find_sharpness(img, sw, sh, o, &s, err);
-        if (!rc) {
-            *lo = j ? fmin(*lo, s) : s;
-            *hi = j ? fmax(*hi, s) : s;
+        if (mp_find_sharpness(img, sw, sh, o, &s, err)) {
+            rc = 2;             /* not measurable: the limits stay */
+            break;
         }
+        *lo = j ? fmin(*lo, s) : s;
+        *hi = j ? fmax(*hi, s) : s;
     }
     mp_prf_work_free(&w);
     free(prf);
@@ -69,19 +71,25 @@ int mp_pl_sharp_limits(const mp_prf_model *m, long nx, long ny, mp_find_opts *o,
     mp_prf_model gm = {&g, NULL, m->sinc_hw};
     double cx = 0.5 * (double)(nx + 1), cy = 0.5 * (double)(ny + 1);
     double g0, g1, p0, p1;
-    if (sharpness_range(&gm, cx, cy, o, &g0, &g1, err) ||
-        sharpness_range(m, cx, cy, o, &p0, &p1, err))
-        return 1;
+    int rc = sharpness_range(&gm, cx, cy, o, &g0, &g1, err);
+    rc = rc ? rc : sharpness_range(m, cx, cy, o, &p0, &p1, err);
     /* A variable PSF: its range over the frame (centre and the quarter
      * points). */
-    for (int q = 0; q < 4 && m->psf->field; q++) {
+    for (int q = 0; q < 4 && !rc && m->psf->field; q++) {
         double a, b;
-        if (sharpness_range(m, (q & 1 ? 0.75 : 0.25) * (double)nx,
-                            (q & 2 ? 0.75 : 0.25) * (double)ny, o, &a, &b, err))
-            return 1;
-        p0 = fmin(p0, a);
-        p1 = fmax(p1, b);
+        rc = sharpness_range(m, (q & 1 ? 0.75 : 0.25) * (double)nx,
+                             (q & 2 ? 0.75 : 0.25) * (double)ny, o, &a, &b, err);
+        p0 = rc ? p0 : fmin(p0, a);
+        p1 = rc ? p1 : fmax(p1, b);
     }
+    if (rc == 2) {              /* a kernel or PSF find cannot measure */
+        snprintf(why, nwhy, "sharpness %g..%g as given (the PSF's own not measured: %.100s)",
+                 o->sharplo, o->sharphi, err);
+        err[0] = '\0';
+        return 0;
+    }
+    if (rc)
+        return 1;
     double lo = o->sharplo, hi = o->sharphi;
     if (isfinite(lo) && lo < g0)
         o->sharplo = fmin(lo, p0 - (g0 - lo));

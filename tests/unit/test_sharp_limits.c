@@ -91,6 +91,13 @@ static void test_undersampled_widened(void **state)
     o.sharphi = NAN;
     assert_int_equal(mp_pl_sharp_limits(&m, 300, 200, &o, why, sizeof why, err), 0);
     assert_true(isnan(o.sharphi));
+    /* What find cannot measure (here a kernel it refuses) keeps the
+     * limits as given and says so: the run goes on. */
+    mp_find_opts_default(&o);
+    o.nsigma = -1.0;
+    assert_int_equal(mp_pl_sharp_limits(&m, 300, 200, &o, why, sizeof why, err), 0);
+    assert_true(o.sharplo == 0.2 && o.sharphi == 1.0);
+    assert_non_null(strstr(why, "as given"));
 }
 
 int main(void)
