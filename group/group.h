@@ -88,6 +88,16 @@ typedef struct {
 int mp_group_capped(size_t n, mp_group_pair *p, size_t np, int maxgroup, size_t *label,
                     unsigned char *cut, double cutw);
 
+/* mp_group_budget: as mp_group_capped, but a link joins its two sets only
+ * while one of its stars still has more than budget of Σw² outside its
+ * set (each w² counted outside until its link is reached, strongest
+ * first, or found inside a set: a conservative count).  With w = κ, the
+ * fraction of a star's variance its fit misses when one neighbour is held
+ * is at most κ²: the groups are then as small as a budget of that per
+ * star allows.  cut as mp_group_capped's (links refused by the cap). */
+int mp_group_budget(size_t n, mp_group_pair *p, size_t np, int maxgroup, double budget,
+                    size_t *label, unsigned char *cut, double cutw);
+
 /* The "matphot group INPUT [output=...] [fitrad=...] ..." task
  * (params/group.par): read a table (- = stdin), group it, write it (empty
  * output = stdout); with verbose=yes, a histogram of group sizes on stderr.

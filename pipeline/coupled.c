@@ -100,7 +100,8 @@ static void flag_cut(mp_table *t, const unsigned char *cut)
 /* The pairs of the oversized components and their κ (L), their capped
  * sets (label) and the rows whose strong link was cut. */
 static int capped_sets(mp_table *t, const mp_group_opts *go, const mp_prf_model *m, double frac,
-                       double ron, pair_list *L, size_t *label, unsigned char *cut, char *err)
+                       double budget, double ron, pair_list *L, size_t *label, unsigned char *cut,
+                       char *err)
 {
     double sky = mp_pl_median_positive(t, "SKY_PSF");
     sky = sky > 0 ? sky : mp_pl_median_positive(t, "BACKGROUND");
@@ -117,7 +118,9 @@ static int capped_sets(mp_table *t, const mp_group_opts *go, const mp_prf_model 
     o.link_ctx = L;
     rc = rc ? rc : mp_group_table(t, &o, err);
     rc = rc ? rc : L->oom ? -1 : 0;
-    if (!rc && mp_group_capped(t->nrow, L->p, L->n, go->maxgroup, label, cut, frac))
+    if (!rc && (budget > 0 ? mp_group_budget(t->nrow, L->p, L->n, go->maxgroup, budget, label,
+                                             cut, frac)
+                           : mp_group_capped(t->nrow, L->p, L->n, go->maxgroup, label, cut, frac)))
         rc = -1;
     free(E);
     mp_coupling_free(&c);
@@ -125,7 +128,7 @@ static int capped_sets(mp_table *t, const mp_group_opts *go, const mp_prf_model 
 }
 
 int mp_pl_group(mp_table *t, const mp_group_opts *go, const mp_prf_model *m, double couplefrac,
-                double ron, long *tested, long *linked, char *err)
+                double budget, double ron, long *tested, long *linked, char *err)
 {
     *tested = *linked = 0;
     if (!(couplefrac > 0))
@@ -137,9 +140,13 @@ int mp_pl_group(mp_table *t, const mp_group_opts *go, const mp_prf_model *m, dou
     unsigned char *big = calloc(2 * n + 1, 1), *cut = big ? big + n : NULL;
     size_t *label = malloc((n + 1) * sizeof *label);
     int rc = big && label ? mp_group_table(t, &o, err) : -1;
-    if (!rc && oversized(t, go->maxgroup, big)) {
+    /* With a budget every component is re-formed, not only those above
+     * maxgroup. */
+    if (!rc && (oversized(t, go->maxgroup, big) || budget > 0)) {
+        if (budget > 0)
+            memset(big, 1, n);
         pair_list L = {NULL, NULL, big, NULL, 0, 0, 0};
-        rc = capped_sets(t, go, m, couplefrac, ron, &L, label, cut, err);
+        rc = capped_sets(t, go, m, couplefrac, budget, ron, &L, label, cut, err);
         for (size_t k = 0; k < L.n; k++)
             *linked += L.p[k].w >= couplefrac;
         *tested = (long)L.n;
@@ -159,14 +166,22 @@ int mp_pl_group(mp_table *t, const mp_group_opts *go, const mp_prf_model *m, dou
     return rc != 0;
 }
 
-void mp_pl_group_decision(mp_fit_setup *fs)
+void mp_pl_group_decision(mp_fit_setup *fs, double budget)
 {
     if (!(fs->opts.couplefrac > 0))
         return;
     size_t l = strlen(fs->decisions);
-    snprintf(fs->decisions + l, sizeof fs->decisions - l, "%sgroups: a component above "
-             "maxgroup cut at its weakest couplings (the canonical correlation of two stars' "
-             "fits), not at its median; a cut link of %.2g or more flags its stars 2 "
-             "(fit/coupling.c)", l ? "; " : "", fs->opts.couplefrac);
+    if (budget > 0)
+        snprintf(fs->decisions + l, sizeof fs->decisions - l, "%sgroups: every component "
+                 "re-formed from its strongest couplings (the canonical correlation kappa of "
+                 "two stars' fits), a link joined only while one of its stars has more than "
+                 "%.3g of sum kappa^2 outside its group (groupcut=budget); a link of %.2g or "
+                 "more cut by maxgroup flags its stars 2 (fit/coupling.c)", l ? "; " : "",
+                 budget, fs->opts.couplefrac);
+    else
+        snprintf(fs->decisions + l, sizeof fs->decisions - l, "%sgroups: a component above "
+                 "maxgroup cut at its weakest couplings (the canonical correlation of two "
+                 "stars' fits), not at its median; a cut link of %.2g or more flags its stars 2 "
+                 "(fit/coupling.c)", l ? "; " : "", fs->opts.couplefrac);
     fs->ndecisions++;
 }

@@ -21,6 +21,9 @@ typedef struct {
     mp_group_opts group;
     int groupcut_median;     /* groupcut=median: a group above maxgroup cut at
                               * its median, not its weakest couplings */
+    double couplebudget;     /* groupcut=budget: every component re-formed, a
+                              * link joined only while a star has more than
+                              * this of Σκ² outside its group (0: not so) */
     int niter;
     double matchrad;         /* [px]; NaN: 0.5 FWHM */
     mp_table_format catfmt;

@@ -56,15 +56,17 @@ int mp_pl_star_excess(const mp_frame *f, mp_bkg *b, const mp_table *t, const mp_
  * couplings instead of its median (pipeline/coupled.c: κ of model m at each
  * pair's FLUX_PSF, else FLUX, on the median SKY_PSF, else BACKGROUND, with
  * read noise ron [e-]), its stars whose link of κ ≥ couplefrac was cut
- * flagged 2.  *tested, *linked: the pairs within the critical separation
- * in such components, and of them those of κ ≥ couplefrac.  Nonzero with
- * err as mp_group_table, or when out of memory. */
+ * flagged 2.  With budget > 0 (groupcut=budget) every component is
+ * re-formed so, its links joined only as mp_group_budget needs.  *tested,
+ * *linked: the pairs within the critical separation in such components,
+ * and of them those of κ ≥ couplefrac.  Nonzero with err as
+ * mp_group_table, or when out of memory. */
 int mp_pl_group(mp_table *t, const mp_group_opts *go, const mp_prf_model *m, double couplefrac,
-                double ron, long *tested, long *linked, char *err);
+                double budget, double ron, long *tested, long *linked, char *err);
 
-/* mp_pl_group_decision: mp_pl_group's rule added to fs's economy decisions
- * (none with couplefrac 0). */
-void mp_pl_group_decision(mp_fit_setup *fs);
+/* mp_pl_group_decision: mp_pl_group's rule (budget as its) added to fs's
+ * economy decisions (none with couplefrac 0). */
+void mp_pl_group_decision(mp_fit_setup *fs, double budget);
 
 /* mp_pl_median_positive: the (upper) median of column name over t's rows
  * where it is finite and > 0; 0 when there is none, no such column or no

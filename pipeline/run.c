@@ -236,7 +236,8 @@ static int group_and_fit(run_state *s, int round, char *err)
     double t0 = mp_seconds();
     long close, coupled;
     double cf = o->groupcut_median ? 0.0 : s->fit->opts.couplefrac;
-    if (mp_pl_group(&s->t, &o->group, &s->fit->model, cf, s->f.rdnoise, &close, &coupled, err))
+    if (mp_pl_group(&s->t, &o->group, &s->fit->model, cf, cf > 0 ? o->couplebudget : 0.0,
+                    s->f.rdnoise, &close, &coupled, err))
         return 1;
     s->rep->pairs_close += close;
     s->rep->pairs_coupled += coupled;
@@ -501,7 +502,7 @@ static int build_psf(run_state *s, int pass, char *err)
     if (!rc && !(rc = mp_params_set(o->ps, "psf", path, err))) {
         rc = mp_fit_setup_read(o->ps, &s->own, err);
         if (!rc && !o->groupcut_median)
-            mp_pl_group_decision(&s->own);
+            mp_pl_group_decision(&s->own, o->couplebudget);
         s->have_own = !rc;
         char e3[MP_ERRLEN];
         mp_params_set(o->ps, "psf", "", e3);

@@ -55,7 +55,9 @@ int mp_pl_opts_read(mp_parset *ps, mp_pipeline_opts *o, char *err)
     o->groupcut_median = strcmp(mp_par_string(ps, "groupcut"), "median") == 0;
     if (o->groupcut_median)
         o->fit.opts.couplefrac = 0.0;
-    mp_pl_group_decision(&o->fit);
+    if (strcmp(mp_par_string(ps, "groupcut"), "budget") == 0)
+        mp_par_real(ps, "couplebudget", &o->couplebudget);
+    mp_pl_group_decision(&o->fit, o->couplebudget);
     mp_par_int(ps, "niter", &o->niter);
     mp_par_real(ps, "matchrad", &o->matchrad);
     mp_par_bool(ps, "regions", &o->regions);

@@ -568,6 +568,39 @@ static void test_capped(void **state)
         assert_true(label[i] == label[0]);
 }
 
+/* mp_group_budget: links joined strongest first only while one of their
+ * stars has more than the budget of Σw² outside its set.  Stars 0..3,
+ * Σw²: 0.2504, 0.2516, 0.0916, 0.0904.  Budget 0.003: 0-1 and 2-3 join,
+ * after which every star has ≤ 0.0016 outside and 1-2 (0.04) and 0-3
+ * (0.02) stay cut.  Budget 0.001: 1-2 joins too (star 1 still has 0.0016
+ * out), 0-3 is then inside.  With a cap of 2 that join is refused and its
+ * stars flagged (w 0.04 ≥ cutw 0.03); 0-3, never needed, is not.  A
+ * budget of 1: nothing is needed. */
+static void test_budget(void **state)
+{
+    (void)state;
+    const mp_group_pair p0[] = {{0, 1, 0.5}, {1, 2, 0.04}, {2, 3, 0.3}, {0, 3, 0.02}};
+    mp_group_pair p[4];
+    size_t label[4];
+    unsigned char cut[4] = {0};
+    memcpy(p, p0, sizeof p);
+    assert_int_equal(mp_group_budget(4, p, 4, 10, 0.003, label, NULL, 0.03), 0);
+    assert_true(label[0] == label[1] && label[2] == label[3] && label[1] != label[2]);
+    memcpy(p, p0, sizeof p);
+    assert_int_equal(mp_group_budget(4, p, 4, 10, 0.001, label, NULL, 0.03), 0);
+    assert_true(label[0] == label[1] && label[1] == label[2] && label[2] == label[3]);
+    memcpy(p, p0, sizeof p);
+    assert_int_equal(mp_group_budget(4, p, 4, 2, 0.001, label, cut, 0.03), 0);
+    assert_true(label[0] == label[1] && label[2] == label[3] && label[1] != label[2]);
+    unsigned char want[4] = {0, 1, 1, 0};
+    assert_memory_equal(cut, want, 4);
+    memcpy(p, p0, sizeof p);
+    assert_int_equal(mp_group_budget(4, p, 4, 10, 1.0, label, NULL, 0.03), 0);
+    for (int i = 0; i < 4; i++)
+        for (int j = i + 1; j < 4; j++)
+            assert_true(label[i] != label[j]);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
@@ -586,6 +619,7 @@ int main(void)
         cmocka_unit_test(test_linear_work),
         cmocka_unit_test(test_link_test),
         cmocka_unit_test(test_capped),
+        cmocka_unit_test(test_budget),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }
