@@ -11,7 +11,10 @@
  * at most maxgroup stars (mp_group_capped): what is cut is what the fits
  * least share.  A cut link with κ ≥ couplefrac (the fits then move by more
  * than couplefrac of their σ per σ of the other's error) flags its stars
- * 2, as a split did.  Components within maxgroup are DAOPHOT's groups. */
+ * 2, as a split did.  Components within maxgroup are DAOPHOT's groups;
+ * with groupcut=budget every component is re-formed, a link joined only
+ * while a star has more than the budget of Σκ² outside its group
+ * (mp_group_budget). */
 #include <limits.h>
 #include <math.h>
 #include <stdio.h>
@@ -97,8 +100,9 @@ static void flag_cut(mp_table *t, const unsigned char *cut)
     }
 }
 
-/* The pairs of the oversized components and their κ (L), their capped
- * sets (label) and the rows whose strong link was cut. */
+/* The pairs of the components marked big and their κ (L), their capped
+ * sets (label; with budget > 0 as mp_group_budget forms them) and the
+ * rows whose strong link the cap cut. */
 static int capped_sets(mp_table *t, const mp_group_opts *go, const mp_prf_model *m, double frac,
                        double budget, double ron, pair_list *L, size_t *label, unsigned char *cut,
                        char *err)
