@@ -159,52 +159,91 @@ static void row4(double *restrict out, const float *restrict a0, const float *re
             out[i] = w0 * a0[i] + w1 * a1[i] + w2 * a2[i] + w3 * a3[i];
 }
 
-/* The interpolated PRF on pixels [x0, x0+w) of row y (1-based), each of
- * the three optional; pixels outside the cached union box are zero.  Plane pl holds
- * the PRF at img[3·pl·npix], then ∂/∂x, then ∂/∂y. */
-static void interp_row(const mp_prf_cache *c, const star_pos *s, long x0, long y, int w,
-                       double *pr, double *gx, double *gy)
+/* Where a span of row y (1-based), pixels [x0, x0+w), meets the cached
+ * union box: its columns [i0, i1) inside, and the offset q0 + i0 of the
+ * first of them in a plane; inside is 0 when none is. */
+typedef struct { long i0, i1, off; int inside; } span_at;
+
+static span_at span_in_box(const mp_prf_cache *c, const star_pos *s, long x0, long y, int w)
+{
+    span_at a;
+    long q0 = x0 - s->px.kq - c->ux0, row = y - s->py.kq - c->uy0;
+    a.i0 = q0 < 0 ? -q0 : 0;
+    a.i1 = q0 + w > c->uw ? c->uw - q0 : w;
+    a.inside = a.i1 > a.i0 && row >= 0 && row < c->uh;
+    a.off = row * c->uw + q0 + a.i0;
+    return a;
+}
+
+/* The span's ends beyond the box (all of it when it misses the box) set
+ * to zero in each of the three optional outputs. */
+static void zero_outside(const span_at *a, int w, double *out[3])
+{
+    for (int k = 0; k < 3; k++)
+        if (out[k] && !a->inside)
+            memset(out[k], 0, (size_t)w * sizeof *out[k]);
+        else if (out[k]) {
+            memset(out[k], 0, (size_t)a->i0 * sizeof *out[k]);
+            memset(out[k] + a->i1, 0, (size_t)(w - a->i1) * sizeof *out[k]);
+        }
+}
+
+/* The interpolated PRF on ns spans of frame pixels (rows, 1-based), span
+ * k's values at index at[k] of each output (at NULL: one after the other),
+ * each of the three outputs optional; pixels outside the cached union box
+ * are zero.  Plane pl holds the PRF at img[3·pl·npix], then ∂/∂x, then
+ * ∂/∂y.  The node rows are the outer loop: one node row's four planes are
+ * read over every span before the next (a few regular strided streams the
+ * prefetcher follows, not 48 short ones a row), and the outputs, a star's
+ * window, stay in L1 between the passes.  Each element's sum keeps its
+ * order (node row kb = 0..3), so the values are those of a row-by-row pass
+ * bit for bit. */
+static void interp_spans(const mp_prf_cache *c, const star_pos *s, const mp_span *sp,
+                         const size_t *at, int ns, double *pr, double *gx, double *gy)
 {
     int na = c->gb + 3, NA = c->os * na;
-    /* Columns of the span inside the union box: i ∈ [i0, i1). */
-    long q0 = x0 - s->px.kq - c->ux0, row = y - s->py.kq - c->uy0;
-    long i0 = q0 < 0 ? -q0 : 0, i1 = q0 + w > c->uw ? c->uw - q0 : w;
-    int inside = i1 > i0 && row >= 0 && row < c->uh;
-    double *out[3] = {pr, gx, gy};
-    for (int k = 0; k < 3; k++)
-        if (out[k] && !inside)
-            memset(out[k], 0, (size_t)w * sizeof *out[k]);
-        else if (out[k]) {          /* the span's ends beyond the box */
-            memset(out[k], 0, (size_t)i0 * sizeof *out[k]);
-            memset(out[k] + i1, 0, (size_t)(w - i1) * sizeof *out[k]);
-        }
-    if (!inside)
-        return;
+    size_t step = 3 * c->npix;          /* the next node along x */
     for (int kb = 0; kb < 4; kb++) {
         /* node a − 1 + ka of branch beta is plane beta·na + a + ka */
         size_t pl = (size_t)(s->py.beta * na + s->py.a + kb) * NA +
                     (size_t)(s->px.beta * na + s->px.a);
-        const float *sp = c->img + 3 * pl * c->npix + (size_t)row * c->uw + (size_t)q0 + i0;
-        size_t step = 3 * c->npix;      /* the next node along x */
+        const float *p0 = c->img + 3 * pl * c->npix;
         double wv[4];
         for (int ka = 0; ka < 4; ka++)
             wv[ka] = s->Ly[kb] * s->Lx[ka];
-        for (int k = 0; k < 3; k++)
-            if (out[k]) {
-                const float *a = sp + (size_t)k * c->npix;
-                row4(out[k] + i0, a, a + step, a + 2 * step, a + 3 * step, wv, i1 - i0, kb > 0);
-            }
+        size_t o = 0;
+        for (int k = 0; k < ns; k++) {
+            o = at ? at[k] : o;
+            double *out[3] = {pr ? pr + o : NULL, gx ? gx + o : NULL, gy ? gy + o : NULL};
+            span_at a = span_in_box(c, s, sp[k].x0, sp[k].y, sp[k].n);
+            o += (size_t)sp[k].n;
+            if (kb == 0)
+                zero_outside(&a, sp[k].n, out);
+            if (!a.inside)
+                continue;
+            for (int q = 0; q < 3; q++)
+                if (out[q]) {
+                    const float *v = p0 + (size_t)q * c->npix + (size_t)a.off;
+                    row4(out[q] + a.i0, v, v + step, v + 2 * step, v + 3 * step, wv,
+                         a.i1 - a.i0, kb > 0);
+                }
+        }
     }
 }
 
-/* The interpolated PRF on box [x0, x0+w) × [y0, y0+h), row by row. */
+/* The interpolated PRF on box [x0, x0+w) × [y0, y0+h): its rows as spans. */
 static void interp(const mp_prf_cache *c, double x, double y, long x0, long y0, int w, int h,
                    double *prf, double *ddx, double *ddy)
 {
     star_pos s = star_of(c, x, y);
-    for (int j = 0; j < h; j++) {
+    enum { CHUNK = 64 };
+    mp_span rows[CHUNK];
+    for (int j = 0; j < h; j += CHUNK) {
+        int n = h - j < CHUNK ? h - j : CHUNK;
+        for (int t = 0; t < n; t++)
+            rows[t] = (mp_span){x0, y0 + j + t, w};
         size_t o = (size_t)j * w;
-        interp_row(c, &s, x0, y0 + j, w, prf + o, ddx ? ddx + o : NULL, ddy ? ddy + o : NULL);
+        interp_spans(c, &s, rows, NULL, n, prf + o, ddx ? ddx + o : NULL, ddy ? ddy + o : NULL);
     }
 }
 
@@ -229,13 +268,7 @@ int mp_prf_cache_render_at(const mp_prf_cache *c, const mp_prf_model *m, double 
     if (!mp_prf_cache_usable(c, m))
         return 1;
     star_pos s = star_of(c, x, y);
-    size_t o = 0;
-    for (int k = 0; k < ns; k++) {
-        o = at ? at[k] : o;
-        interp_row(c, &s, sp[k].x0, sp[k].y, sp[k].n, prf ? prf + o : NULL, ddx ? ddx + o : NULL,
-                   ddy ? ddy + o : NULL);
-        o += (size_t)sp[k].n;
-    }
+    interp_spans(c, &s, sp, at, ns, prf, ddx, ddy);
     return 0;
 }
 
