@@ -673,6 +673,9 @@ typedef struct {
     const struct mp_prf_cache_s *grid;  /* the phase grid the last pass drew
                         * its groups' PRFs from (economy's, kept for the run;
                         * NULL: exact renders) */
+    double win;        /* the window side [px] economy priced its tables on
+                        * (mp_frame_opts.win, measured on the frame's stars);
+                        * 0: none */
 } mp_frame_report;
 
 /* Every star's last fit and how far its neighbours' light has moved

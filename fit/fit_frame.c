@@ -283,6 +283,7 @@ static int set_rules(frame_fit *F, const mp_frame_opts *o, mp_frame_report *rep,
     mp_frame_opts oe = *o;
     if (o->cache && !(oe.win > 0))
         oe.win = plan_window(F->f, F->m, &F->crop, F->st, F->gs, F->ng, o->fit.fitrad);
+    rep->win = oe.win;
     F->runfits = o->fits > (double)F->n ? o->fits : (double)F->n;
     if (mp_econ_choose(o->cache, F->runfits, o->fit.fitrad, &oe, &rep->ops_tables, err))
         return 1;
