@@ -34,7 +34,10 @@ grep -q "seconds: read" "$T/log" || no "pipeline printed no stage times"
 # skymodel=auto: the report counts the groups by the order the data chose
 grep -q "sky: constant in [1-9][0-9]* groups, plane in [0-9]*, quadratic in [0-9]*" "$T/f.report" ||
     no "pipeline report has no per-group sky orders"
-awk -v out="$T/match" '
+# recovered CAT: the catalog's stars against the truth (within 1 px), into
+# $T/match; false when fewer than 98 % are found or more than 3 extra.
+recovered() {
+    awk -v out="$T/match" '
   FNR == 1 { file++ }
   /^#/ { c[file, $3] = $2; next }
   file == 1 { n1++; x[n1] = $(c[1, "XPSF_IMAGE"]); y[n1] = $(c[1, "YPSF_IMAGE"]); next }
@@ -42,7 +45,22 @@ awk -v out="$T/match" '
     for (i = 1; i <= n1; i++) if ((x[i] - tx)^2 + (y[i] - ty)^2 < 1) { hit = 1; break }
     m += hit }
   END { printf "%d %d %d\n", m, n2, n1 > out; exit !(m >= 0.98 * n2 && n1 <= n2 + 3) }
-' "$T/f.cat" "$T/f.truth" || no "pipeline recovered too few stars or too many (matched, truth, catalog): $(cat "$T/match")"
+' "$1" "$T/f.truth"
+}
+recovered "$T/f.cat" || no "pipeline recovered too few stars or too many (matched, truth, catalog): $(cat "$T/match")"
+
+# No psf=: the PSF built from the frame.  Round 1 is fitted once when a
+# round follows (the next fits every star with the second pass's PSF; the
+# residual searched in between is drawn again with it), twice with
+# niter=1 (its last fit then is with that PSF); the stars recovered as
+# with the true table.
+"$M" pipeline "$T/f.fits" root="$T/b" 2>"$T/blog" || no "built: $(tail -n 1 "$T/blog")"
+grep -q "PSF pass 2" "$T/blog" || no "built: no second PSF pass"
+[ "$(grep -c 'round 1: .* stars fitted' "$T/blog")" -eq 1 ] || no "built: round 1 fitted again"
+recovered "$T/b.cat" || no "built: too few stars or too many: $(cat "$T/match")"
+"$M" pipeline "$T/f.fits" root="$T/b1" niter=1 2>"$T/b1log" || no "built, niter=1"
+[ "$(grep -c 'round 1: .* stars fitted' "$T/b1log")" -eq 2 ] ||
+    no "built, niter=1: round 1 not fitted with the second pass's PSF"
 
 # halo=yes: reported, and on a frame whose PSF has no halo its significance
 # test (one-sided false rate 1e-3, test_halo.c) takes nothing off, so the
