@@ -200,19 +200,17 @@ static void count_fit(mp_pipeline_report *rep, const mp_frame_report *fr, size_t
 
 /* The phase grid the fit draws its groups' PRFs from — the one the last
  * fit used (mp_frame_report.grid), else economy's own decision for this
- * run (mp_econ_choose with the fit's count of star fits and the window
- * the last fit measured: after the PSF's second pass, with no fit yet on
- * the new table, a choice on fitrad's windows declined it and the
- * residual search of the 47 Tuc 256² crop drew its stars exactly, 0.24 →
- * 1.32 s) — and its flux
+ * run (mp_econ_choose with the fit's count of star fits) — and its flux
  * limit on the stars' median sky, as the fit sets it (fit/frame_rules.c).
  * The residual and the one-or-two test draw the stars within that limit
  * from it, as the fit's paints of the neighbours do (issue 12: 15 % of 47
  * Tuc's CPU was the test's exact renders).  NULL (exact renders) without
- * economy or a grid.  The last fit's first: economy priced it on the
- * fit's measured render windows (~40 px a side on 47 Tuc), where a choice
- * on fitrad's windows declines it (47 Tuc, Tiny Tim's table: every star
- * of the test rendered exactly, ~36 s a round against the fit's 37). */
+ * economy or a grid.  Economy's own decision is priced on the render
+ * windows the last fit measured (mp_frame_report.win, ~40 px a side on 47
+ * Tuc), as the fit's was: on fitrad's windows it declines the grid (47
+ * Tuc with Tiny Tim's table: every star of the test rendered exactly, ~36
+ * s a round against the fit's 37; after the PSF's second pass, with no
+ * fit yet on the new table, the 256² crop's search 0.24 → 1.32 s). */
 
 static const mp_prf_cache *phase_grid(run_state *s, double *gemax)
 {
