@@ -70,11 +70,17 @@ static void usage(FILE *fp)
  * one stage stay in the heap, holding their pages after they are freed
  * (issue 14: peak RSS at 2048^2, 15 600 stars, 89.4 -> 81.4 MiB, the
  * heap's own peak being 70.6 MB; CPU unchanged within 1 %).  A fixed
- * threshold also fixes the trim threshold, as mallopt(3) says. */
+ * threshold also fixes the trim threshold, as mallopt(3) says, at 128 KiB:
+ * the heap then gave back and faulted in again 320 MB of pages on 47 Tuc
+ * 512^2 (82 000 of its 148 000 page faults; at 16 threads 5 s of system
+ * time, the faults serialised on the process's memory map).  Up to 4 MiB
+ * of free heap is kept instead: 66 000 faults, system time 0.7 -> 0.2 s,
+ * peak RSS +0.8 MB (bench/SCALING.md, session of 2026-11-30 20:55). */
 static void malloc_policy(void)
 {
 #ifdef __GLIBC__
     (void)mallopt(M_MMAP_THRESHOLD, 1 << 20);
+    (void)mallopt(M_TRIM_THRESHOLD, 4 << 20);
 #endif
 }
 

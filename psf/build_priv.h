@@ -9,16 +9,14 @@
 #define MP_EPSF_ANNULUS(r) ((r) / 2 > 4.0 ? (r) / 2 : 4.0)
 
 /* The SIRT step's work: per star the back-projected residual (G) and its
- * weight (H) on the table grid, and the scratch of one render. */
+ * weight (H) on the table grid.  (Each thread renders into scratch of its
+ * own: sirt.c.) */
 typedef struct {
     size_t nstar, nel;
     double *G, *H;         /* nstar × nel */
-    double *a, *b, *tmp;   /* nel each */
+    double *chi2s;         /* nstar: each star's Σ W ρ², summed in order */
+    double *tmp;           /* nel */
     unsigned char *mask;   /* nstar × nel: MP_EPSF_MASKED, MP_EPSF_HIT */
-    double *prf;           /* a star's box */
-    size_t nprf;
-    mp_prf_work pw;
-    mp_psf tab;
     double chi2;           /* Σ W ρ² of the last step */
     double ridge;          /* added to each element's normal equations */
     int steps;             /* steps taken by the last mp_epsf_sirt_run */
@@ -76,8 +74,8 @@ int mp_epsf_sirt_init(mp_epsf_sirt *w, const mp_epsf *e, size_t nstar, char *err
  * lone hit is noise), and the hits are cleared: what only one star
  * shows beyond its core, a neighbour too faint to be found, is left out
  * of that star's share of the table, its wings with it (the 4 σ clip
- * takes only its core). */
-void mp_epsf_sirt_dilate(mp_epsf_sirt *w, const mp_epsf *e, size_t n, double rd);
+ * takes only its core).  Stars in parallel; 1 when out of memory. */
+int mp_epsf_sirt_dilate(mp_epsf_sirt *w, const mp_epsf *e, size_t n, double rd);
 void mp_epsf_sirt_free(mp_epsf_sirt *w);
 
 /* mp_epsf_sirt_run: up to o->sirt steps on e's planes from the used stars'

@@ -87,11 +87,14 @@ static int start_planes(const mp_epsf_opts *o, int os, int order, mp_epsf *e, in
  * the cut-out as cut; then the cut-out less the neighbours' models
  * (mp_epsf_clean).  With hold, the neighbours keep their last fit: the
  * cut-out less their models drawn with this table first, then the star
- * alone on it (with them it is a group fit of up to 13 stars). */
-static int fit_star(mp_epsf_star *s, const mp_epsf *e, const mp_epsf_opts *o, mp_epsf_fitter *z,
-                    int hold, char *err)
+ * alone on it (with them it is a group fit of up to 13 stars).  tab is
+ * z's table at order 0, else the caller's own (the table at the star's
+ * place is drawn into it); *grid is raised when the phase grid served
+ * the fit.  1 when out of memory. */
+static int fit_star(mp_epsf_star *s, const mp_epsf *e, const mp_epsf_opts *o,
+                    const mp_epsf_fitter *z, mp_psf *tab, int hold, long *grid)
 {
-    mp_psf *tab = &z->tab;
+    char err[MP_ERRLEN];
     if (!z->order0 && mp_epsf_table(e, s->x, s->y, tab, err))
         return 1;
     mp_prf_model m = {tab, NULL, 10};
@@ -99,8 +102,7 @@ static int fit_star(mp_epsf_star *s, const mp_epsf *e, const mp_epsf_opts *o, mp
     mp_fit_opts_default(&fo);
     fo.grid = mp_epsf_fitter_grid(z, s);
     fo.crop = z->order0 && z->crop.env ? &z->crop : NULL;
-    z->fits++;
-    z->fits_grid += fo.grid != NULL;
+    *grid += fo.grid != NULL;
     fo.sky_order = 0;
     fo.fitrad = o->fitrad;
     fo.fit_sky = 0;             /* the annulus's (mp_epsf_cutouts) */
@@ -119,7 +121,7 @@ static int fit_star(mp_epsf_star *s, const mp_epsf *e, const mp_epsf_opts *o, mp
     int nfit = 1 + s->nnb;
     if (hold && s->raw) {
         if (mp_epsf_clean(s, tab, fo.grid, o->psfrad))
-            return oom(err);
+            return 1;
         nfit = 1;
     } else if (s->raw) {
         raw.im.pix = s->raw;
@@ -154,9 +156,33 @@ static int fit_star(mp_epsf_star *s, const mp_epsf *e, const mp_epsf_opts *o, mp
             s->nbf[j] = st[1 + j].flux;
         }
     }
-    if (nfit > 1 && mp_epsf_clean(s, tab, fo.grid, o->psfrad))
-        return oom(err);
-    return 0;
+    return nfit > 1 && mp_epsf_clean(s, tab, fo.grid, o->psfrad);
+}
+
+/* Every used star fitted (fit_star), in parallel: a fit reads the table
+ * and z and writes only its own star, so the stars' fits do not depend on
+ * the number of threads. */
+static int fit_stars(mp_epsf_star *s, size_t n, const mp_epsf *e, const mp_epsf_opts *o,
+                     mp_epsf_fitter *z, int hold, char *err)
+{
+    long fits = 0, grid = 0;
+    int failed = 0;
+#pragma omp parallel reduction(+ : fits, grid) reduction(| : failed)
+    {
+        mp_psf own;             /* the table at a star's place (order > 0) */
+        memset(&own, 0, sizeof own);
+        mp_psf *tab = z->order0 ? &z->tab : &own;
+#pragma omp for schedule(dynamic)
+        for (size_t k = 0; k < n; k++)
+            if (s[k].used && !failed) {
+                fits++;
+                failed = fit_star(&s[k], e, o, z, tab, hold, &grid);
+            }
+        mp_psf_free(&own);
+    }
+    z->fits += fits;
+    z->fits_grid += grid;
+    return failed ? oom(err) : 0;
 }
 
 /* Stars whose χ² stands out among stars of their brightness (a blend, a
@@ -234,9 +260,8 @@ int mp_epsf_rounds(mp_epsf_star *s, size_t n, const mp_epsf_opts *o, int os, int
          * bright companion's fit to the Gaussian spoils the table,
          * test_psf_build's test_neighbours_fitted) and in the stars' last
          * fit (mp_epsf_refit); the rounds between hold them. */
-        for (size_t k = 0; k < n; k++)
-            if (s[k].used && fit_star(&s[k], e, o, &z, it >= hold_from, err))
-                goto done;
+        if (fit_stars(s, n, e, o, &z, it >= hold_from, err))
+            goto done;
         if (it >= 2)
             reject_chi2(s, n, tmp);
         size_t m = count_used(s, n);
@@ -280,10 +305,7 @@ int mp_epsf_refit(mp_epsf_star *s, size_t n, const mp_epsf_opts *o, mp_epsf *e, 
     mp_epsf_fitter z;
     memset(&z, 0, sizeof z);
     z.mode = o->grid;
-    int rc = mp_epsf_fitter_set(&z, e, s, n, err);
-    for (size_t k = 0; k < n && !rc; k++)
-        if (s[k].used)
-            rc = fit_star(&s[k], e, o, &z, 0, err);
+    int rc = mp_epsf_fitter_set(&z, e, s, n, err) || fit_stars(s, n, e, o, &z, 0, err);
     e->nstar = (int)count_used(s, n);
     e->fits += z.fits;
     e->fits_grid += z.fits_grid;

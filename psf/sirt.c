@@ -4,7 +4,10 @@
  * Σ_s S_δ(T)[os(p−1) + s + n0], S_δ the damped sinc shift by δ, whose
  * transpose is the shift by −δ), then combined over the stars element by
  * element: a weighted fit of the polynomial in position, clipped at 4
- * robust σ (the robust mean of Anderson & King 2000, §4). */
+ * robust σ (the robust mean of Anderson & King 2000, §4).  The stars'
+ * passes and the elements' combination run in parallel; each writes its
+ * own star's or element's share, and χ² is summed star by star in order,
+ * so the table does not depend on the number of threads. */
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -18,11 +21,10 @@ int mp_epsf_sirt_init(mp_epsf_sirt *w, const mp_epsf *e, size_t nstar, char *err
     w->nel = (size_t)e->nx * e->ny;
     w->G = malloc(nstar * w->nel * sizeof *w->G);
     w->H = malloc(nstar * w->nel * sizeof *w->H);
-    w->a = malloc(w->nel * sizeof *w->a);
-    w->b = malloc(w->nel * sizeof *w->b);
+    w->chi2s = malloc((nstar + 1) * sizeof *w->chi2s);
     w->tmp = malloc(w->nel * sizeof *w->tmp);
     w->mask = calloc(nstar * w->nel + 1, 1);
-    if (!w->G || !w->H || !w->a || !w->b || !w->tmp || !w->mask) {
+    if (!w->G || !w->H || !w->chi2s || !w->tmp || !w->mask) {
         mp_epsf_sirt_free(w);
         snprintf(err, MP_ERRLEN, "psf build: out of memory");
         return 1;
@@ -34,14 +36,36 @@ void mp_epsf_sirt_free(mp_epsf_sirt *w)
 {
     free(w->G);
     free(w->H);
-    free(w->a);
-    free(w->b);
+    free(w->chi2s);
     free(w->tmp);
     free(w->mask);
-    free(w->prf);
-    mp_prf_work_free(&w->pw);
-    mp_psf_free(&w->tab);
     memset(w, 0, sizeof *w);
+}
+
+/* A thread's scratch for its stars: the table at a star's place, the
+ * star's box, a render's work, and the shift's two tables. */
+typedef struct {
+    mp_psf tab;
+    double *prf, *a, *tmp;
+    size_t nprf;
+    mp_prf_work pw;
+} scratch;
+
+static int scratch_init(scratch *c, size_t nel)
+{
+    memset(c, 0, sizeof *c);
+    c->a = malloc(nel * sizeof *c->a);
+    c->tmp = malloc(nel * sizeof *c->tmp);
+    return !c->a || !c->tmp;
+}
+
+static void scratch_free(scratch *c)
+{
+    mp_psf_free(&c->tab);
+    free(c->prf);
+    free(c->a);
+    free(c->tmp);
+    mp_prf_work_free(&c->pw);
 }
 
 /* Where the fit's render puts a star at x (cut-out coordinates) on the
@@ -56,12 +80,13 @@ static void axis_of(int n, int os, double x, long *n0, double *delta)
 
 /* One star: G = Aᵀ W ρ before its sub-element shift (unshifted, below),
  * H = Aᵀ W (the weight each element gets), with ρ the residual per unit
- * flux and W = F²/σ² its information; adds Σ r²/σ² to *chi2.  The shift,
+ * flux and W = F²/σ² its information; Σ r²/σ² into *chi2.  The shift,
  * half the work, waits until a step is taken: the pass that ends a run is
- * read only for its χ². */
-static int backproject(mp_epsf_sirt *w, const mp_epsf_star *s, const mp_epsf *e, double psfrad,
-                       double *G, double *H, double delta[2], double *chi2, char *err)
+ * read only for its χ².  1 when out of memory. */
+static int backproject(scratch *w, const mp_epsf_star *s, const mp_epsf *e, double psfrad,
+                       double *G, double *H, double delta[2], double *chi2)
 {
+    char err[MP_ERRLEN];
     if (mp_epsf_table(e, s->x, s->y, &w->tab, err))
         return 1;
     mp_prf_model m = {&w->tab, NULL, 10};
@@ -74,15 +99,12 @@ static int backproject(mp_epsf_sirt *w, const mp_epsf_star *s, const mp_epsf *e,
         free(w->prf);
         if (!(w->prf = malloc(nb * sizeof *w->prf))) {
             w->nprf = 0;
-            snprintf(err, MP_ERRLEN, "psf build: out of memory");
             return 1;
         }
         w->nprf = nb;
     }
-    if (mp_prf_render(&m, xs, ys, w->prf, NULL, NULL, &w->pw)) {
-        snprintf(err, MP_ERRLEN, "psf build: out of memory");
+    if (mp_prf_render(&m, xs, ys, w->prf, NULL, NULL, &w->pw))
         return 1;
-    }
     int os = e->os, nx = e->nx, ny = e->ny;
     long n0x, n0y;
     double dx, dy;
@@ -90,8 +112,10 @@ static int backproject(mp_epsf_sirt *w, const mp_epsf_star *s, const mp_epsf *e,
     axis_of(ny, os, ys, &n0y, &dy);
     delta[0] = dx;
     delta[1] = dy;
-    memset(G, 0, w->nel * sizeof *G);
-    memset(H, 0, w->nel * sizeof *H);
+    size_t nel = (size_t)nx * ny;
+    memset(G, 0, nel * sizeof *G);
+    memset(H, 0, nel * sizeof *H);
+    *chi2 = 0.0;
     const mp_frame *f = &s->f;
     double ron2 = fmax(f->rdnoise * f->rdnoise, 1e-2), F = s->flux, sky = fmax(s->sky, 0.0);
     for (int j = 0; j < bh; j++) {
@@ -129,10 +153,36 @@ static int backproject(mp_epsf_sirt *w, const mp_epsf_star *s, const mp_epsf *e,
 
 /* G = Aᵀ W ρ: backproject's sum shifted by the transpose of the render's
  * sub-element shift (the weights H only normalise: they need none). */
-static void unshifted(mp_epsf_sirt *w, const mp_epsf *e, const double delta[2], double *G)
+static void unshifted(scratch *w, const mp_epsf *e, const double delta[2], double *G)
 {
     mp_shift_table(G, e->nx, e->ny, -delta[0], -delta[1], 10, w->a, w->tmp);
-    memcpy(G, w->a, w->nel * sizeof *G);
+    memcpy(G, w->a, (size_t)e->nx * e->ny * sizeof *G);
+}
+
+/* The used stars' back-projections (backproject; with shift, each shifted
+ * back: unshifted), in parallel; 1 when out of memory. */
+static int stars_pass(mp_epsf_sirt *w, const mp_epsf_star *s, size_t n, const mp_epsf *e,
+                      double psfrad, double *delta, int shift)
+{
+    size_t nel = w->nel;
+    int failed = 0;
+#pragma omp parallel reduction(| : failed)
+    {
+        scratch c;
+        failed = scratch_init(&c, nel);
+#pragma omp for schedule(dynamic)
+        for (size_t k = 0; k < n; k++) {
+            if (failed || !s[k].used)
+                continue;
+            if (shift)
+                unshifted(&c, e, delta + 2 * k, w->G + k * nel);
+            else
+                failed = backproject(&c, &s[k], e, psfrad, w->G + k * nel, w->H + k * nel,
+                                     delta + 2 * k, &w->chi2s[k]);
+        }
+        scratch_free(&c);
+    }
+    return failed;
 }
 
 /* Weighted least squares of g_k = G_k/H_k on the terms over the stars in
@@ -248,17 +298,56 @@ static void null_filter(double *u, int nx, int ny, int os, double *tmp)
     }
 }
 
+/* The step's update upd (nterms planes) of every element within rmax of
+ * the centre (combine_element; the stars' hits flagged beyond rcore), in
+ * parallel, and the ridge it is solved with; 1 when out of memory. */
+static int combine_elements(mp_epsf_sirt *w, const mp_epsf_star *s, size_t n, const mp_epsf *e,
+                            const double *terms, double rmax, double rcore, double *upd)
+{
+    size_t nel = w->nel;
+    int nt = e->nterms, failed = 0;
+    double hmax = 0;
+#pragma omp parallel for schedule(static) reduction(max : hmax)
+    for (size_t el = 0; el < nel; el++) {
+        double h = 0;
+        for (size_t k = 0; k < n; k++)
+            if (s[k].used)
+                h += w->H[k * nel + el];
+        hmax = h > hmax ? h : hmax;
+    }
+    w->ridge = 1e-9 * hmax;
+    memset(upd, 0, (size_t)nt * nel * sizeof *upd);
+#pragma omp parallel reduction(| : failed)
+    {
+        double *dev = malloc(2 * (n + 1) * sizeof *dev);
+        size_t *idx = malloc((n + 1) * sizeof *idx);
+        failed = !dev || !idx;
+#pragma omp for schedule(dynamic, 64)
+        for (size_t el = 0; el < nel; el++) {
+            int i = (int)(el % (size_t)e->nx), j = (int)(el / (size_t)e->nx);
+            double r = hypot(i - (e->nx - 1) / 2, j - (e->ny - 1) / 2);
+            if (failed || r > rmax)
+                continue;
+            double c[MP_EPSF_MAXT];
+            combine_element(w, el, s, n, terms, nt, idx, dev, c, r > rcore);
+            for (int t = 0; t < nt; t++)
+                upd[(size_t)t * nel + el] = c[t];
+        }
+        free(dev);
+        free(idx);
+    }
+    return failed;
+}
+
 int mp_epsf_sirt_run(mp_epsf_sirt *w, const mp_epsf_star *s, size_t n, const mp_epsf_opts *o,
                      mp_epsf *e, char *err)
 {
     int nt = e->nterms, rc = 1;
     size_t nel = w->nel;
     double *terms = malloc(n * MP_EPSF_MAXT * sizeof *terms);
-    double *dev = malloc(2 * (n + 1) * sizeof *dev);
-    size_t *idx = malloc((n + 1) * sizeof *idx);
     double *upd = malloc((size_t)nt * nel * sizeof *upd);
     double *delta = malloc(2 * (n + 1) * sizeof *delta);
-    if (!terms || !dev || !idx || !upd || !delta) {
+    if (!terms || !upd || !delta) {
         snprintf(err, MP_ERRLEN, "psf build: out of memory");
         goto done;
     }
@@ -283,40 +372,27 @@ int mp_epsf_sirt_run(mp_epsf_sirt *w, const mp_epsf_star *s, size_t n, const mp_
     double step = 1.0 / ((double)e->os * e->os);
     w->steps = 0;
     for (int it = 0; it <= o->sirt; it++) {
+        if (stars_pass(w, s, n, e, o->psfrad, delta, 0)) {
+            snprintf(err, MP_ERRLEN, "psf build: out of memory");
+            goto done;
+        }
         double chi2 = 0.0;
         for (size_t k = 0; k < n; k++)
-            if (s[k].used && backproject(w, &s[k], e, o->psfrad, w->G + k * nel, w->H + k * nel,
-                                         delta + 2 * k, &chi2, err))
-                goto done;
+            chi2 += s[k].used ? w->chi2s[k] : 0.0;
         w->chi2 = chi2;
         /* A step that no longer lowers χ² by one fits only noise. */
         if (it == o->sirt || prev - chi2 < 1.0)
             break;
         prev = chi2;
-        for (size_t k = 0; k < n; k++)
-            if (s[k].used)
-                unshifted(w, e, delta + 2 * k, w->G + k * nel);
-        double hmax = 0;
-        for (size_t el = 0; el < nel; el++) {
-            double h = 0;
-            for (size_t k = 0; k < n; k++)
-                if (s[k].used)
-                    h += w->H[k * nel + el];
-            hmax = h > hmax ? h : hmax;
+        if (stars_pass(w, s, n, e, o->psfrad, delta, 1)) {
+            snprintf(err, MP_ERRLEN, "psf build: out of memory");
+            goto done;
         }
-        w->ridge = 1e-9 * hmax;
-        memset(upd, 0, (size_t)nt * nel * sizeof *upd);
-        for (size_t el = 0; el < nel; el++) {
-            int i = (int)(el % (size_t)e->nx), j = (int)(el / (size_t)e->nx);
-            double r = hypot(i - (e->nx - 1) / 2, j - (e->ny - 1) / 2);
-            if (r > rmax)
-                continue;
-            double c[MP_EPSF_MAXT];
-            combine_element(w, el, s, n, terms, nt, idx, dev, c, r > rcore);
-            for (int t = 0; t < nt; t++)
-                upd[(size_t)t * nel + el] = c[t];
+        if (combine_elements(w, s, n, e, terms, rmax, rcore, upd) ||
+            mp_epsf_sirt_dilate(w, e, n, 0.75 * o->fwhm * e->os)) {
+            snprintf(err, MP_ERRLEN, "psf build: out of memory");
+            goto done;
         }
-        mp_epsf_sirt_dilate(w, e, n, 0.75 * o->fwhm * e->os);
         for (int t = 0; t < nt; t++) {
             null_filter(upd + (size_t)t * nel, e->nx, e->ny, e->os, w->tmp);
             for (size_t el = 0; el < nel; el++)
@@ -327,8 +403,6 @@ int mp_epsf_sirt_run(mp_epsf_sirt *w, const mp_epsf_star *s, size_t n, const mp_
     rc = 0;
 done:
     free(terms);
-    free(dev);
-    free(idx);
     free(upd);
     free(delta);
     return rc;

@@ -22,38 +22,51 @@ static int cluster(const unsigned char *m, int nx, int ny, int i, int j, int nee
     return c >= need;
 }
 
-void mp_epsf_sirt_dilate(mp_epsf_sirt *w, const mp_epsf *e, size_t n, double rd)
+/* One star's mask m: the clusters of hits dilated by h, rows first
+ * (row marks the row-dilation), then columns. */
+static void dilate_star(unsigned char *m, int nx, int ny, int h, int need, double *row)
+{
+    for (int j = 0; j < ny; j++) {
+        int last = -h - 1;       /* last cluster column seen */
+        for (int i = 0; i < nx; i++)
+            row[(size_t)j * nx + i] = 0.0;
+        for (int i = 0; i < nx + h; i++) {
+            if (i < nx && cluster(m, nx, ny, i, j, need))
+                last = i;
+            int t = i - h;      /* covered by a cluster within h on the left or right */
+            if (t >= 0 && t < nx && i - last <= 2 * h)
+                row[(size_t)j * nx + t] = 1.0;
+        }
+    }
+    for (size_t el = 0; el < (size_t)nx * ny; el++)
+        m[el] = 0;
+    for (int i = 0; i < nx; i++) {
+        int last = -h - 1;
+        for (int j = 0; j < ny + h; j++) {
+            if (j < ny && row[(size_t)j * nx + i] > 0)
+                last = j;
+            int t = j - h;
+            if (t >= 0 && t < ny && j - last <= 2 * h)
+                m[(size_t)t * nx + i] = MP_EPSF_MASKED;
+        }
+    }
+}
+
+int mp_epsf_sirt_dilate(mp_epsf_sirt *w, const mp_epsf *e, size_t n, double rd)
 {
     int nx = e->nx, ny = e->ny, h = (int)ceil(rd);
     int need = (e->os * e->os < 3 ? e->os * e->os : 3) - 1;
     size_t nel = w->nel;
-    for (size_t k = 0; k < n; k++) {
-        unsigned char *m = w->mask + k * nel;
-        /* Rows first: tmp marks the clusters' row-dilation. */
-        double *row = w->tmp;
-        for (int j = 0; j < ny; j++) {
-            int last = -h - 1;       /* last cluster column seen */
-            for (int i = 0; i < nx; i++)
-                row[(size_t)j * nx + i] = 0.0;
-            for (int i = 0; i < nx + h; i++) {
-                if (i < nx && cluster(m, nx, ny, i, j, need))
-                    last = i;
-                int t = i - h;      /* covered by a cluster within h on the left or right */
-                if (t >= 0 && t < nx && i - last <= 2 * h)
-                    row[(size_t)j * nx + t] = 1.0;
-            }
-        }
-        for (size_t el = 0; el < nel; el++)
-            m[el] = 0;
-        for (int i = 0; i < nx; i++) {
-            int last = -h - 1;
-            for (int j = 0; j < ny + h; j++) {
-                if (j < ny && row[(size_t)j * nx + i] > 0)
-                    last = j;
-                int t = j - h;
-                if (t >= 0 && t < ny && j - last <= 2 * h)
-                    m[(size_t)t * nx + i] = MP_EPSF_MASKED;
-            }
-        }
+    int failed = 0;
+#pragma omp parallel reduction(| : failed)
+    {
+        double *row = malloc(nel * sizeof *row);
+        failed = !row;
+#pragma omp for schedule(static)
+        for (size_t k = 0; k < n; k++)
+            if (row)
+                dilate_star(w->mask + k * nel, nx, ny, h, need, row);
+        free(row);
     }
+    return failed;
 }
