@@ -13,6 +13,7 @@
 #include <lapacke.h>
 
 #include "fit/fit.h"
+#include "fit/spd.h"
 
 #define DSTEP 0.5    /* separations tabulated every DSTEP px */
 #define NDIR 8       /* directions of the pair, the largest κ kept */
@@ -48,9 +49,10 @@ static double pair_kappa(const double *g[6], const double *pa, const double *pb,
     for (int r = 0; r < 3; r++)
         for (int c = 0; c < 3; c++)
             X[3 * r + c] = Iab[3 * c + r];
-    if (LAPACKE_dpotrf(LAPACK_ROW_MAJOR, 'U', 3, Ibb, 3) ||
-        LAPACKE_dpotrs(LAPACK_ROW_MAJOR, 'U', 3, 3, Ibb, 3, X, 3))
+    if (mp_spd_factor(Ibb, 3))
         return 1.0;            /* degenerate: count the pair as coupled */
+    for (int c = 0; c < 3; c++)
+        mp_spd_solve_factored(Ibb, 3, X + c, 3);
     double C[9], lam[3];
     for (int r = 0; r < 3; r++)
         for (int c = 0; c < 3; c++)

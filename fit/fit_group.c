@@ -9,6 +9,7 @@
 #include <stdlib.h>
 #include <string.h>
 #include "fit/lm_group.h"
+#include "fit/spd.h"
 
 void mp_fit_opts_default(mp_fit_opts *o)
 {
@@ -105,13 +106,8 @@ static int covariance(group *G)
             G->M[(size_t)a * np + b] = G->A[(size_t)a * np + b] / (d[a] * d[b]);
     int rc = 0;
     /* (The row-major upper triangle is the column-major lower one: no
-     * transposed copy, as in levmar.c's lm_step.) */
-    if (LAPACKE_dpotrf(LAPACK_COL_MAJOR, 'L', np, G->M, np) == 0 &&
-        LAPACKE_dpotri(LAPACK_COL_MAJOR, 'L', np, G->M, np) == 0) {
-        for (int a = 0; a < np; a++)
-            for (int b = 0; b < a; b++)
-                G->M[(size_t)a * np + b] = G->M[(size_t)b * np + a];
-    } else {
+     * transposed copy, as in levmar.c's lm_step; fit/spd.h.) */
+    if (mp_spd_inverse(G->M, np) != 0) {
         rc = 1;
         double *ev = malloc((size_t)np * sizeof *ev), *V = malloc((size_t)np * np * sizeof *V);
         if (!ev || !V) {
@@ -409,7 +405,7 @@ static void warm_sky_start(group *G, const mp_star *st)
         }
         m++;
     }
-    if (m < ns || LAPACKE_dposv(LAPACK_COL_MAJOR, 'L', ns, 1, N, ns, b, ns) != 0 ||
+    if (m < ns || mp_spd_solve(N, ns, b) != 0 ||
         !all_finite(b, ns))
         return;
     double c0[6];

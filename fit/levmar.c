@@ -20,12 +20,12 @@
  * Steps are also bounded (positions 1 px, fluxes ×10 up, sky a few σ of a
  * pixel), and a fit that stalls or runs out of iterations before its steps
  * are below tol·σ keeps its best (last accepted) state and is flagged. */
-#include <lapacke.h>
 #include <math.h>
 #include <stddef.h>
 #include <stdlib.h>
 #include <string.h>
 #include "fit/lm_group.h"
+#include "fit/spd.h"
 
 /* Solve (A + λ diag A) δ = g by Cholesky; nonzero when not positive definite. */
 static int lm_step(group *G, double lambda)
@@ -38,9 +38,9 @@ static int lm_step(group *G, double lambda)
     }
     memcpy(G->step, G->g, (size_t)np * sizeof *G->step);
     /* M is symmetric: its row-major upper triangle is the column-major
-     * lower one, so LAPACK reads it in place (LAPACK_ROW_MAJOR made
-     * LAPACKE transpose it at every step: 4 % of frame C's CPU). */
-    return LAPACKE_dposv(LAPACK_COL_MAJOR, 'L', np, 1, G->M, np, G->step, np) != 0;
+     * lower one that mp_spd_solve reads in place (fit/spd.h: not LAPACK,
+     * whose per-call lock serialised the threads). */
+    return mp_spd_solve(G->M, np, G->step) != 0;
 }
 
 /* The sky's lower bound (bound_step, sky_in_bounds): 10 σ below the sky

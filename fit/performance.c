@@ -1,10 +1,10 @@
 /* performance.c — the paper's performance model (§2.3.4, §2.4.4) and the
  * exact Cramér–Rao bound it approximates (design.md §6). */
-#include <lapacke.h>
 #include <math.h>
 #include <stdlib.h>
 #include <string.h>
 #include "fit/fit.h"
+#include "fit/spd.h"
 
 void mp_prf_stats_of(const double *prf, size_t n, mp_prf_stats *s)
 {
@@ -67,9 +67,7 @@ int mp_crlb(const double *prf, const double *dx, const double *dy, size_t n,
                 F[a * 4 + b] += g[a] * g[b] / var;
     }
     /* F is symmetric positive definite for any star with light and sky. */
-    if (LAPACKE_dpotrf(LAPACK_ROW_MAJOR, 'U', 4, F, 4) != 0)
-        return 1;
-    if (LAPACKE_dpotri(LAPACK_ROW_MAJOR, 'U', 4, F, 4) != 0)
+    if (mp_spd_inverse(F, 4) != 0)
         return 1;
     for (int a = 0; a < 4; a++)
         sd[a] = sqrt(F[a * 4 + a]);

@@ -2,12 +2,12 @@
  * score test of higher sky terms at a converged fit, on the fitted pixels
  * the stars leave dark and a ring around the group. */
 
-#include <lapacke.h>
 #include <math.h>
 #include <stddef.h>
 #include <stdlib.h>
 #include <string.h>
 #include "fit/lm_group.h"
+#include "fit/spd.h"
 
 /* gᵀA⁻¹g for the np×np matrix A (row stride np), by Cholesky of the
  * equilibrated D⁻¹AD⁻¹ (D² = diag A) in M; x (np) is scratch.  NaN when A
@@ -27,7 +27,7 @@ static double inverse_quad_form(const double *A, const double *g, int np, double
         x[a] = g[a] / sqrt(A[(size_t)a * np + a]);
     double *y = x + np;
     memcpy(y, x, (size_t)np * sizeof *y);
-    if (LAPACKE_dposv(LAPACK_ROW_MAJOR, 'U', np, 1, M, np, y, 1) != 0)
+    if (mp_spd_solve(M, np, y) != 0)
         return NAN;
     double q = 0.0;
     for (int a = 0; a < np; a++)
