@@ -6,29 +6,86 @@
 #include <string.h>
 #include "fit/spd.h"
 
-int mp_spd_factor(double *a, int n)
+/* Column j: its diagonal's square root, the column below it scaled, and
+ * the columns j+1..k1-1 less its outer product (rank 1).  0, or j + 1. */
+static int factor_column(double *a, int n, int j, int k1)
 {
-    for (int j = 0; j < n; j++) {
-        double *cj = a + (size_t)j * n;
-        double d = cj[j];
-        if (!(d > 0.0) || !isfinite(d))
-            return j + 1;
-        d = sqrt(d);
-        cj[j] = d;
-        for (int i = j + 1; i < n; i++)
-            cj[i] /= d;
-        /* the trailing lower triangle less column j's outer product */
-        for (int k = j + 1; k < n; k++) {
-            double *ck = a + (size_t)k * n, f = cj[k];
-            for (int i = k; i < n; i++)
-                ck[i] -= cj[i] * f;
-        }
+    double *cj = a + (size_t)j * n;
+    double d = cj[j];
+    if (!(d > 0.0) || !isfinite(d))
+        return j + 1;
+    d = sqrt(d);
+    cj[j] = d;
+    double r = 1.0 / d;
+#pragma omp simd
+    for (int i = j + 1; i < n; i++)
+        cj[i] *= r;
+    for (int k = j + 1; k < k1; k++) {
+        double *ck = a + (size_t)k * n, f = cj[k];
+#pragma omp simd
+        for (int i = k; i < n; i++)
+            ck[i] -= cj[i] * f;
     }
     return 0;
 }
 
+int mp_spd_factor(double *a, int n)
+{
+    /* Right-looking by panels of four columns: each panel factored with
+     * rank-1 updates among its own columns, then the trailing columns less
+     * the panel's rank-4 product in one pass (a quarter of the passes over
+     * the trailing triangle the column-by-column loop makes). */
+    int j0 = 0;
+    for (; j0 + 4 <= n; j0 += 4) {
+        for (int j = j0; j < j0 + 4; j++) {
+            int rc = factor_column(a, n, j, j0 + 4);
+            if (rc)
+                return rc;
+        }
+        const double *c0 = a + (size_t)j0 * n, *c1 = c0 + n, *c2 = c1 + n, *c3 = c2 + n;
+        for (int k = j0 + 4; k < n; k++) {
+            double *ck = a + (size_t)k * n;
+            double f0 = c0[k], f1 = c1[k], f2 = c2[k], f3 = c3[k];
+#pragma omp simd
+            for (int i = k; i < n; i++)
+                ck[i] -= c0[i] * f0 + c1[i] * f1 + c2[i] * f2 + c3[i] * f3;
+        }
+    }
+    for (int j = j0; j < n; j++) {
+        int rc = factor_column(a, n, j, n);
+        if (rc)
+            return rc;
+    }
+    return 0;
+}
+
+/* mp_spd_solve_factored for a contiguous b: the loops vectorised. */
+static void solve_contiguous(const double *a, int n, double *b)
+{
+    for (int j = 0; j < n; j++) {
+        const double *cj = a + (size_t)j * n;
+        double y = b[j] / cj[j];
+        b[j] = y;
+#pragma omp simd
+        for (int i = j + 1; i < n; i++)
+            b[i] -= cj[i] * y;
+    }
+    for (int j = n - 1; j >= 0; j--) {
+        const double *cj = a + (size_t)j * n;
+        double s = 0.0;
+#pragma omp simd reduction(+ : s)
+        for (int i = j + 1; i < n; i++)
+            s += cj[i] * b[i];
+        b[j] = (b[j] - s) / cj[j];
+    }
+}
+
 void mp_spd_solve_factored(const double *a, int n, double *b, size_t inc)
 {
+    if (inc == 1) {
+        solve_contiguous(a, n, b);
+        return;
+    }
     /* L y = b, by columns: y_j, then its share out of the rows below */
     for (int j = 0; j < n; j++) {
         const double *cj = a + (size_t)j * n;
@@ -51,7 +108,7 @@ int mp_spd_solve(double *a, int n, double *b)
 {
     int rc = mp_spd_factor(a, n);
     if (rc == 0)
-        mp_spd_solve_factored(a, n, b, 1);
+        solve_contiguous(a, n, b);
     return rc;
 }
 
@@ -73,6 +130,7 @@ int mp_spd_inverse(double *a, int n)
             const double *ck = a + (size_t)k * n;
             double y = xj[k] / ck[k];
             xj[k] = y;
+#pragma omp simd
             for (int i = k + 1; i < n; i++)
                 xj[i] -= ck[i] * y;
         }
@@ -81,6 +139,7 @@ int mp_spd_inverse(double *a, int n)
         for (int i = j; i < n; i++) {
             const double *xi = x + (size_t)i * n, *xj = x + (size_t)j * n;
             double s = 0.0;
+#pragma omp simd reduction(+ : s)
             for (int k = i; k < n; k++)
                 s += xi[k] * xj[k];
             a[(size_t)j * n + i] = s;

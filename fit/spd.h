@@ -10,8 +10,13 @@
  * thread, 21 k/s per thread on 16 (all 16 together 0.34 M/s, fewer than
  * one thread alone); by the loop below 2.07 M/s and 1.37 M/s per thread.
  * The group fits then ran 2.2× slower each on 16 threads than on one, and
- * no faster on 16 than on 8.  The eigen-decompositions (dsyev, dsygv)
- * stay with LAPACK: they are rare.
+ * no faster on 16 than on 8.  On one thread the loops here (panels of
+ * four columns, vectorised) are as fast as OpenBLAS's: a solve 0.38 µs
+ * against dposv's 1.29 µs at n = 7, 4.0 against 6.3 at 31, 87 against 83
+ * at 96 (the largest group, 30 stars and a quadratic sky); the inverse
+ * 0.65 against 1.50 µs at 7, 241 against 181 at 96 (once a group fit).
+ * The eigen-decompositions (dsyev, dsygv) stay with LAPACK: they are
+ * rare.
  *
  * Storage: an n×n array whose column-major lower triangle holds the
  * matrix (element (i, j), i ≥ j, at a[i + j·n]) — the same memory as a
