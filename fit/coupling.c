@@ -10,7 +10,6 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
-#include <lapacke.h>
 
 #include "fit/fit.h"
 #include "fit/spd.h"
@@ -20,6 +19,37 @@
 #define A0 (-1.0)    /* log10(E / (B + RON²)) of the first flux node */
 #define ASTEP 1.0
 #define NA 9         /* flux nodes: E/(B + RON²) from 0.1 to 10^7 */
+
+/* The largest eigenvalue of the symmetric 3×3 s (row-major), by the
+ * trigonometric solution of its characteristic cubic (Smith 1961, CACM
+ * 4, 168).  Not LAPACK's dsygv: Debian's OpenBLAS took its process-wide
+ * buffer lock 280 000 times a 47 Tuc 512² run in this one call
+ * (dsygs2's dsyr2 and dtrsv, dpotrf), and the coupling build, parallel
+ * over pairs, ran as long on 16 threads as on one (fit/spd.h). */
+static double sym3_max_eigen(const double s[9])
+{
+    double p1 = s[1] * s[1] + s[2] * s[2] + s[5] * s[5];
+    double q = (s[0] + s[4] + s[8]) / 3.0;
+    if (p1 == 0.0)
+        return fmax(s[0], fmax(s[4], s[8]));
+    double d0 = s[0] - q, d1 = s[4] - q, d2 = s[8] - q;
+    double p = sqrt((d0 * d0 + d1 * d1 + d2 * d2 + 2.0 * p1) / 6.0);
+    /* r = det((s − q I)/p)/2, within [−1, 1] but for rounding */
+    double det = d0 * (d1 * d2 - s[5] * s[5]) - s[1] * (s[1] * d2 - s[5] * s[2]) +
+                 s[2] * (s[1] * s[5] - d1 * s[2]);
+    double r = det / (2.0 * p * p * p);
+    r = r < -1.0 ? -1.0 : (r > 1.0 ? 1.0 : r);
+    return q + 2.0 * p * cos(acos(r) / 3.0);
+}
+
+/* y = L⁻¹ v for the 3×3 lower factor l of mp_spd_factor (L(i, j) at
+ * l[i + 3j]); v and y with stride inc. */
+static void lower3_solve(const double l[9], const double *v, size_t inc, double y[3])
+{
+    y[0] = v[0] / l[0];
+    y[1] = (v[inc] - l[1] * y[0]) / l[4];
+    y[2] = (v[2 * inc] - l[2] * y[0] - l[5] * y[1]) / l[8];
+}
 
 /* κ of one pair from its information, the sums Σ w g gᵀ over the pixels
  * at[0..nat-1] of both discs for the 6 gradients (a's three, then b's). */
@@ -53,14 +83,31 @@ static double pair_kappa(const double *g[6], const double *pa, const double *pb,
         return 1.0;            /* degenerate: count the pair as coupled */
     for (int c = 0; c < 3; c++)
         mp_spd_solve_factored(Ibb, 3, X + c, 3);
-    double C[9], lam[3];
+    double C[9];
     for (int r = 0; r < 3; r++)
         for (int c = 0; c < 3; c++)
             C[3 * r + c] = Iab[3 * r] * X[c] + Iab[3 * r + 1] * X[3 + c] +
                            Iab[3 * r + 2] * X[6 + c];
-    if (LAPACKE_dsygv(LAPACK_ROW_MAJOR, 1, 'N', 'U', 3, C, 3, Iaa, 3, lam))
+    /* C v = λ Iaa v with Iaa = L Lᵀ: the eigenvalues of S = L⁻¹ C L⁻ᵀ,
+     * M = L⁻¹ C by columns, then S's columns L⁻¹ (M's rows). */
+    if (mp_spd_factor(Iaa, 3))
         return 1.0;
-    return lam[2] > 0 ? fmin(sqrt(lam[2]), 1.0) : 0.0;
+    double M[9], S[9], y[3];
+    for (int c = 0; c < 3; c++) {
+        lower3_solve(Iaa, C + c, 3, y);
+        for (int r = 0; r < 3; r++)
+            M[3 * r + c] = y[r];
+    }
+    for (int c = 0; c < 3; c++) {
+        lower3_solve(Iaa, M + 3 * c, 1, y);
+        for (int r = 0; r < 3; r++)
+            S[3 * r + c] = y[r];
+    }
+    for (int r = 0; r < 3; r++)
+        for (int c = 0; c < r; c++)
+            S[3 * r + c] = S[3 * c + r] = 0.5 * (S[3 * r + c] + S[3 * c + r]);
+    double lam = sym3_max_eigen(S);
+    return lam > 0 ? fmin(sqrt(lam), 1.0) : 0.0;
 }
 
 /* Scatter a rendered box into the window (zero elsewhere). */

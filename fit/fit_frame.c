@@ -160,19 +160,26 @@ static int fit_pass(const mp_frame *f, const mp_prf_model *m, mp_frame_opts *oc,
         double before = pr->render_ops;
         int failed = 0;
         char ferr[MP_ERRLEN] = "";
-#pragma omp parallel for schedule(dynamic) reduction(+ : failed)
-        for (size_t g = g0; g < g1; g++) {
-            char e[MP_ERRLEN];
-            mp_frame_report r = {0};
-            int k = (int)(gs[g + 1] - gs[g]);
-            if (ff_fit_group_local(f, m, oc, mergerad, R, all, crop, st + gs[g], k, economy,
-                                   economy, &r, e)) {
-                failed++;
+        /* Each thread sums its groups' counts, then adds them once: a
+         * lock per group was 9 600 entries a 2048² run from every thread. */
+#pragma omp parallel reduction(+ : failed)
+        {
+            mp_frame_report mine = {0};
+#pragma omp for schedule(dynamic)
+            for (size_t g = g0; g < g1; g++) {
+                char e[MP_ERRLEN];
+                mp_frame_report r = {0};
+                int k = (int)(gs[g + 1] - gs[g]);
+                if (ff_fit_group_local(f, m, oc, mergerad, R, all, crop, st + gs[g], k, economy,
+                                       economy, &r, e)) {
+                    failed++;
 #pragma omp critical(fit_table_error)
-                snprintf(ferr, sizeof ferr, "%s", e);
+                    snprintf(ferr, sizeof ferr, "%s", e);
+                }
+                add_report(&mine, &r);
             }
 #pragma omp critical(fit_table_report)
-            add_report(pr, &r);
+            add_report(pr, &mine);
         }
         if (failed) {
             snprintf(err, MP_ERRLEN, "%s", ferr);

@@ -61,27 +61,47 @@ static void fill_limits(const void *c, int kind, double sky, double ron, double 
     }
 }
 
+/* The entry of the first n of cache for these arguments, or NULL. */
+static double *find_limits(const mp_econ_cache *cache, int n, const void *c, int kind,
+                           double sky, double ron, double frac)
+{
+    for (int i = 0; i < n; i++)
+        if (cache->e[i].c == c && cache->e[i].kind == kind && cache->e[i].sky == sky &&
+            cache->e[i].ron == ron && cache->e[i].frac == frac)
+            return cache->e[i].emax;
+    return NULL;
+}
+
+/* The flux limits for these arguments, computed once a run.  Every group
+ * fit asks (about three times): the entries published are read without a
+ * lock (an entry is filled before the count that shows it is stored, both
+ * under the lock), and only a miss takes it — the lock on every call was
+ * 33 000 entries a 2048² run, from every thread (bench/SCALING.md). */
 static double *cached_limits(mp_econ_cache *cache, const void *c, int kind, double sky,
                              double ron, double frac, mp_frame_report *cost)
 {
     size_t n = kind != ECON_LIM_SINC ? 1 : (size_t)((const mp_sinc_choice *)c)->hwmax;
-    double *emax = NULL;
+    int shown;
+#pragma omp atomic read seq_cst
+    shown = cache->n;
+    double *emax = find_limits(cache, shown, c, kind, sky, ron, frac);
+    if (emax)
+        return emax;
 #pragma omp critical(mp_econ_limits)
     {
-        for (int i = 0; i < cache->n && !emax; i++)
-            if (cache->e[i].c == c && cache->e[i].kind == kind && cache->e[i].sky == sky &&
-                cache->e[i].ron == ron && cache->e[i].frac == frac)
-                emax = cache->e[i].emax;
+        emax = find_limits(cache, cache->n, c, kind, sky, ron, frac);
         if (!emax && cache->n < MP_ECON_CACHE_MAX &&
             (emax = malloc(n * sizeof *emax))) {
             fill_limits(c, kind, sky, ron, frac, emax, cost);
-            int i = cache->n++;
+            int i = cache->n;
             cache->e[i].c = c;
             cache->e[i].kind = kind;
             cache->e[i].sky = sky;
             cache->e[i].ron = ron;
             cache->e[i].frac = frac;
             cache->e[i].emax = emax;
+#pragma omp atomic write seq_cst
+            cache->n = i + 1;
         }
     }
     return emax;
