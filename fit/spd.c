@@ -59,10 +59,11 @@ int mp_spd_factor(double *a, int n)
     return 0;
 }
 
-/* mp_spd_solve_factored for a contiguous b: the loops vectorised. */
-static void solve_contiguous(const double *a, int n, double *b)
+/* L y = b in place, by columns (y_j, then its share out of the rows
+ * below), b zero above row from. */
+static void forward(const double *a, int n, double *b, int from)
 {
-    for (int j = 0; j < n; j++) {
+    for (int j = from; j < n; j++) {
         const double *cj = a + (size_t)j * n;
         double y = b[j] / cj[j];
         b[j] = y;
@@ -70,6 +71,12 @@ static void solve_contiguous(const double *a, int n, double *b)
         for (int i = j + 1; i < n; i++)
             b[i] -= cj[i] * y;
     }
+}
+
+/* mp_spd_solve_factored for a contiguous b: the loops vectorised. */
+static void solve_contiguous(const double *a, int n, double *b)
+{
+    forward(a, n, b, 0);
     for (int j = n - 1; j >= 0; j--) {
         const double *cj = a + (size_t)j * n;
         double s = 0.0;
@@ -124,16 +131,8 @@ int mp_spd_inverse(double *a, int n)
     if (!x)
         return -1;
     for (int j = 0; j < n; j++) {
-        double *xj = x + (size_t)j * n;
-        xj[j] = 1.0;
-        for (int k = j; k < n; k++) {
-            const double *ck = a + (size_t)k * n;
-            double y = xj[k] / ck[k];
-            xj[k] = y;
-#pragma omp simd
-            for (int i = k + 1; i < n; i++)
-                xj[i] -= ck[i] * y;
-        }
+        x[(size_t)j * n + j] = 1.0;
+        forward(a, n, x + (size_t)j * n, j);
     }
     for (int j = 0; j < n; j++)
         for (int i = j; i < n; i++) {

@@ -714,6 +714,21 @@ static void neighbour_table(const tstar *ts, const tstar *cs, mp_table *t)
     }
 }
 
+/* make_frame(13, grad) with add_companions(14) at 3.5 px, 0.2–0.4 of
+ * their star's flux: the frame, the options of a build to rad 6 px, and
+ * the companions' table t (neighbour_table). */
+static void companion_scene(double grad, mp_frame *f, tstar *ts, tstar *cs, mp_epsf_opts *o,
+                            mp_table *t)
+{
+    const double rad = 6.0;
+    make_frame(13, grad, 0, rad, f, ts);
+    add_companions(14, rad, 3.5, 0.2, 0.4, f, ts, cs);
+    mp_epsf_opts_default(2.6, NX, NX, o);
+    o->psfrad = rad;
+    o->fitrad = 4.0;
+    neighbour_table(ts, cs, t);
+}
+
 /* Stars with a companion inside their table: fitted with it (the
  * neighbours of mp_epsf_neighbours), the build recovers the truth within
  * the noise (CHI2_TOL, as the lone stars'); built as if alone, the
@@ -729,16 +744,11 @@ static void test_neighbours_fitted(void **state)
     const double rad = 6.0;
     mp_frame f;
     tstar ts[NSTAR], cs[NSTAR];
-    make_frame(13, 0.0, 0, rad, &f, ts);
-    add_companions(14, rad, 3.5, 0.2, 0.4, &f, ts, cs);
     mp_epsf_opts o;
-    mp_epsf_opts_default(2.6, NX, NX, &o);
-    o.psfrad = rad;
-    o.fitrad = 4.0;
+    mp_table t;
+    companion_scene(0.0, &f, ts, cs, &o, &t);
     mp_psf truth;
     truth_table(0.0, 0, 0.0, rad, &truth);
-    mp_table t;
-    neighbour_table(ts, cs, &t);
     char err[MP_ERRLEN];
     double chi2[2];
     int np;
@@ -897,17 +907,11 @@ static void test_faint_neighbours_masked(void **state)
 static void test_build_same_on_any_threads(void **state)
 {
     (void)state;
-    const double rad = 6.0;
     mp_frame f;
     tstar ts[NSTAR], cs[NSTAR];
-    make_frame(13, 0.15, 0, rad, &f, ts);
-    add_companions(14, rad, 3.5, 0.2, 0.4, &f, ts, cs);
     mp_epsf_opts o;
-    mp_epsf_opts_default(2.6, NX, NX, &o);
-    o.psfrad = rad;
-    o.fitrad = 4.0;
     mp_table t;
-    neighbour_table(ts, cs, &t);
+    companion_scene(0.15, &f, ts, cs, &o, &t);
     char err[MP_ERRLEN];
     int nt = omp_get_max_threads();
     for (int order = 0; order <= 1; order++) {
