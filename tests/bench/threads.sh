@@ -11,6 +11,11 @@
 # little: say so when quoting them).
 #   sh tests/bench/threads.sh            # 1024^2, 3 900 stars, 3 reps
 #   N=2048 NSTARS=15600 REPS=5 THREADS="1 2 4 8 16" sh tests/bench/threads.sh
+# With CEILING=1, first what the machine itself gives: as many one-thread
+# runs at once as the largest thread count, against one alone (a core's
+# slowdown when all are busy: clock, shared cache, memory), and the
+# speed-up that bounds (bench/SCALING.md, session of 2026-11-30 20:55:
+# 1.29 on a 16-core Xeon, ~12.4x).
 M=${MATPHOT:-./matphot}
 [ -x "$M" ] || { echo "threads: $M not built"; exit 77; }
 case $M in /*) ;; *) M=$(pwd)/$M ;; esac
@@ -23,6 +28,23 @@ trap 'rm -rf "$T"' EXIT INT TERM
 cd "$T" || exit 1
 "$M" sim f.fits mode=crowded nx="$N" ny="$N" nstars="$NSTARS" fwhm=3 magmin=-13 magmax=-8 \
     seed=12 psfout=psf.fits psfos=2 >/dev/null 2>&1 || { echo "threads: sim failed"; exit 1; }
+if [ "${CEILING:-0}" = 1 ]; then
+    P=0
+    for t in $THREADS; do [ "$t" -gt "$P" ] && P=$t; done
+    OMP_NUM_THREADS=1 /usr/bin/time -o c0 -f '%e' "$M" pipeline f.fits psf=psf.fits root=c0 \
+        >/dev/null 2>&1 || { echo "threads: run failed"; exit 1; }
+    i=1
+    while [ "$i" -le "$P" ]; do
+        OMP_NUM_THREADS=1 /usr/bin/time -o "c$i" -f '%e' "$M" pipeline f.fits psf=psf.fits \
+            root="c$i" >/dev/null 2>&1 &
+        i=$((i + 1))
+    done
+    wait
+    i=1
+    while [ "$i" -le "$P" ]; do cat "c$i"; i=$((i + 1)); done | awk -v a="$(cat c0)" -v p="$P" '
+        { s += $1; if ($1 > m) m = $1 }
+        END { printf "machine: one run alone %.2f s; %d at once %.2f s on average (slowest %.2f): a core %.2fx slower, at most %.1fx from %d threads\n\n", a, p, s / NR, m, s / NR / a, p * a / (s / NR), p }'
+fi
 load0=$(cut -d' ' -f1-3 /proc/loadavg)
 for r in $(seq 1 "$REPS"); do
     for t in $THREADS; do
