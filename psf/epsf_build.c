@@ -102,6 +102,7 @@ static int fit_star(mp_epsf_star *s, const mp_epsf *e, const mp_epsf_opts *o,
     mp_fit_opts_default(&fo);
     fo.grid = mp_epsf_fitter_grid(z, s);
     fo.crop = z->order0 && z->crop.env ? &z->crop : NULL;
+    const mp_prf_cache *faint = z->order0 && z->grid.G > 0 ? &z->grid : NULL;
     *grid += fo.grid != NULL;
     fo.sky_order = 0;
     fo.fitrad = o->fitrad;
@@ -120,7 +121,7 @@ static int fit_star(mp_epsf_star *s, const mp_epsf *e, const mp_epsf_opts *o,
     mp_frame raw = s->f;
     int nfit = 1 + s->nnb;
     if (hold && s->raw) {
-        if (mp_epsf_clean(s, tab, fo.grid, o->psfrad))
+        if (mp_epsf_clean(s, tab, fo.grid, faint, o->psfrad))
             return 1;
         nfit = 1;
     } else if (s->raw) {
@@ -156,7 +157,7 @@ static int fit_star(mp_epsf_star *s, const mp_epsf *e, const mp_epsf_opts *o,
             s->nbf[j] = st[1 + j].flux;
         }
     }
-    return nfit > 1 && mp_epsf_clean(s, tab, fo.grid, o->psfrad);
+    return nfit > 1 && mp_epsf_clean(s, tab, fo.grid, faint, o->psfrad);
 }
 
 /* Every used star fitted (fit_star), in parallel: a fit reads the table
