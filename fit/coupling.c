@@ -74,20 +74,19 @@ static double pair_kappa(const double *g[6], const double *pa, const double *pb,
             Ibb[3 * r + c] = r <= c ? Fi[r + 3][c + 3] : Fi[c + 3][r + 3];
             Iab[3 * r + c] = Fi[r][c + 3];
         }
-    /* X = Ibb⁻¹ Iba, C = Iab X; κ² the largest λ of C v = λ Iaa v */
-    double X[9];
-    for (int r = 0; r < 3; r++)
-        for (int c = 0; c < 3; c++)
-            X[3 * r + c] = Iab[3 * c + r];
+    /* X = Ibb⁻¹ Iba, C = Iab X; κ² the largest λ of C v = λ Iaa v.
+     * Column c of Iba is row c of Iab: Xt holds X's columns as rows. */
+    double Xt[9];
+    memcpy(Xt, Iab, sizeof Xt);
     if (mp_spd_factor(Ibb, 3))
         return 1.0;            /* degenerate: count the pair as coupled */
     for (int c = 0; c < 3; c++)
-        mp_spd_solve_factored(Ibb, 3, X + c, 3);
+        mp_spd_solve_factored(Ibb, 3, Xt + 3 * c);
     double C[9];
     for (int r = 0; r < 3; r++)
         for (int c = 0; c < 3; c++)
-            C[3 * r + c] = Iab[3 * r] * X[c] + Iab[3 * r + 1] * X[3 + c] +
-                           Iab[3 * r + 2] * X[6 + c];
+            C[3 * r + c] = Iab[3 * r] * Xt[3 * c] + Iab[3 * r + 1] * Xt[3 * c + 1] +
+                           Iab[3 * r + 2] * Xt[3 * c + 2];
     /* C v = λ Iaa v with Iaa = L Lᵀ: the eigenvalues of S = L⁻¹ C L⁻ᵀ,
      * M = L⁻¹ C by columns, then S's columns L⁻¹ (M's rows). */
     if (mp_spd_factor(Iaa, 3))

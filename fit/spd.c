@@ -73,10 +73,10 @@ static void forward(const double *a, int n, double *b, int from)
     }
 }
 
-/* mp_spd_solve_factored for a contiguous b: the loops vectorised. */
-static void solve_contiguous(const double *a, int n, double *b)
+void mp_spd_solve_factored(const double *a, int n, double *b)
 {
     forward(a, n, b, 0);
+    /* Lᵀ x = y: row j of Lᵀ is column j of L */
     for (int j = n - 1; j >= 0; j--) {
         const double *cj = a + (size_t)j * n;
         double s = 0.0;
@@ -87,35 +87,11 @@ static void solve_contiguous(const double *a, int n, double *b)
     }
 }
 
-void mp_spd_solve_factored(const double *a, int n, double *b, size_t inc)
-{
-    if (inc == 1) {
-        solve_contiguous(a, n, b);
-        return;
-    }
-    /* L y = b, by columns: y_j, then its share out of the rows below */
-    for (int j = 0; j < n; j++) {
-        const double *cj = a + (size_t)j * n;
-        double y = b[j * inc] / cj[j];
-        b[j * inc] = y;
-        for (int i = j + 1; i < n; i++)
-            b[i * inc] -= cj[i] * y;
-    }
-    /* Lᵀ x = y: row j of Lᵀ is column j of L */
-    for (int j = n - 1; j >= 0; j--) {
-        const double *cj = a + (size_t)j * n;
-        double s = b[j * inc];
-        for (int i = j + 1; i < n; i++)
-            s -= cj[i] * b[i * inc];
-        b[j * inc] = s / cj[j];
-    }
-}
-
 int mp_spd_solve(double *a, int n, double *b)
 {
     int rc = mp_spd_factor(a, n);
     if (rc == 0)
-        solve_contiguous(a, n, b);
+        mp_spd_solve_factored(a, n, b);
     return rc;
 }
 

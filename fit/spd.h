@@ -25,16 +25,14 @@
 #ifndef MATPHOT_FIT_SPD_H
 #define MATPHOT_FIT_SPD_H
 
-#include <stddef.h>
-
 /* mp_spd_factor: a = L Lᵀ, L into the lower triangle (Cholesky, right-
- * looking by columns).  0, or j + 1 when the leading minor of order j + 1
- * is not positive (or not finite): LAPACK dpotrf's info. */
+ * looking, by panels of four columns).  0, or j + 1 when the leading
+ * minor of order j + 1 is not positive (or not finite): LAPACK dpotrf's
+ * info. */
 int mp_spd_factor(double *a, int n);
 
-/* mp_spd_solve_factored: b ← A⁻¹ b with a holding L (mp_spd_factor); b's
- * elements b[i·inc], i < n. */
-void mp_spd_solve_factored(const double *a, int n, double *b, size_t inc);
+/* mp_spd_solve_factored: b ← A⁻¹ b with a holding L (mp_spd_factor). */
+void mp_spd_solve_factored(const double *a, int n, double *b);
 
 /* mp_spd_solve: factor a (overwritten by L) and solve for b in place; the
  * factor's return value (b untouched when it is nonzero).  LAPACK dposv. */

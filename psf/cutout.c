@@ -274,7 +274,6 @@ int mp_epsf_clean(mp_epsf_star *s, const mp_psf *tab, const mp_prf_cache *grid,
     mp_prf_model m = {tab, NULL, 10};
     mp_prf_work w;
     memset(&w, 0, sizeof w);
-    w.grid = grid;
     double *prf = NULL, *buf = malloc(2 * np * sizeof *buf);
     size_t nprf = 0;
     int rc = !buf;

@@ -96,9 +96,9 @@ static void test_solve_and_inverse_match_lapack(void **state)
     assert_true(worst_inv < 1e-11);
 }
 
-/* A factored solve with a stride: the columns of a row-major right-hand
- * side (coupling.c's use), against LAPACKE_dpotrs. */
-static void test_strided_right_hand_sides(void **state)
+/* One factor, several right-hand sides solved in turn (coupling.c's use:
+ * its three columns), against LAPACKE_dpotrs on all of them at once. */
+static void test_several_right_hand_sides(void **state)
 {
     (void)state;
     mp_rng r;
@@ -110,9 +110,9 @@ static void test_strided_right_hand_sides(void **state)
         B[i] = X[i] = mp_rng_normal(&r);
     assert_int_equal(mp_spd_factor(a, n), 0);
     for (int c = 0; c < k; c++)
-        mp_spd_solve_factored(a, n, X + c, (size_t)k);
-    assert_int_equal(LAPACKE_dpotrf(LAPACK_ROW_MAJOR, 'U', n, l, n), 0);
-    assert_int_equal(LAPACKE_dpotrs(LAPACK_ROW_MAJOR, 'U', n, k, l, n, B, k), 0);
+        mp_spd_solve_factored(a, n, X + (size_t)c * n);
+    assert_int_equal(LAPACKE_dpotrf(LAPACK_COL_MAJOR, 'L', n, l, n), 0);
+    assert_int_equal(LAPACKE_dpotrs(LAPACK_COL_MAJOR, 'L', n, k, l, n, B, n), 0);
     assert_true(rel_diff(X, B, n * k) < 1e-11);
     free(a);
 }
@@ -146,7 +146,7 @@ int main(void)
 {
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(test_solve_and_inverse_match_lapack),
-        cmocka_unit_test(test_strided_right_hand_sides),
+        cmocka_unit_test(test_several_right_hand_sides),
         cmocka_unit_test(test_not_positive_definite),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
