@@ -54,19 +54,26 @@ void mp_econ_cache_free(mp_econ_cache *c)
 
 /* Multiply-adds of one render of a table of nx × ny elements (OVERSAMP
  * os) with half-width hw over a window of side W detector px (INFINITY:
- * the whole box): the x-pass over the window's elements and the hw rows
- * the y-pass reads, the y-pass, the block-sum (and five-point derivatives). */
-static double render_ops(int nx, int ny, int os, int hw, int derivs, double W)
+ * the whole box), by the cheaper of render_table's two ways (sep: the
+ * model's DRF allows the axis operators; fit/prf_axis.c mp_prf_axis_ops). */
+static double render_ops(int nx, int ny, int os, int hw, int derivs, double W, int sep)
 {
-    double ex = fmin(W * os + 4.0, (double)nx), ey = fmin(W * os + 4.0, (double)ny);
-    double taps = 2.0 * hw + 1.0, ty = fmin(ey + 2.0 * hw, (double)ny);
-    return ex * (ty + ey) * taps + ex * ey * (derivs ? 9.0 : 1.0);
+    double d = mp_prf_axis_ops(nx, ny, os, hw, derivs, W, W, 0);
+    return sep ? fmin(d, mp_prf_axis_ops(nx, ny, os, hw, derivs, W, W, 1)) : d;
 }
 
-static double psf_ops(const mp_psf *p, int hw, int derivs, double W)
+static double psf_ops(const mp_psf *p, int hw, int derivs, double W, int sep)
 {
-    return render_ops(p->nx, p->ny, p->os, hw, derivs, W);
+    return render_ops(p->nx, p->ny, p->os, hw, derivs, W, sep);
 }
+
+/* Whether a model's renders may take the axis operators (a DRF uniform
+ * over the pixel, or none). */
+static int renders_separable(const mp_prf_model *m)
+{
+    return !m->drf || m->drf->k == 0;
+}
+#define RSEP(c) renders_separable(&(c)->model0)
 
 /* The coarser level's table size (mp_psf_rebin: ceil, kept odd). */
 static void level_size(const mp_psf *p, int factor, int *nx, int *ny)
@@ -133,21 +140,21 @@ static double min_evals(double fits, double limits)
 
 /* The kernel choice of a table: 16 phases × (the full render and every
  * shorter half-width). */
-static double sinc_build_ops(int nx, int ny, int os, int hw)
+static double sinc_build_ops(int nx, int ny, int os, int hw, int sep)
 {
     double s = 0.0;
     for (int h = 0; h <= hw; h++)
-        s += render_ops(nx, ny, os, h, 0, INFINITY);
+        s += render_ops(nx, ny, os, h, 0, INFINITY, sep);
     return NPH * s;
 }
 
 /* The kernel choice of table p (the model's, or a coarser level's). */
-static econ_cost cost_sinc(const mp_psf *p, int hw, double fits, double W)
+static econ_cost cost_sinc(const mp_psf *p, int hw, double fits, double W, int sep)
 {
     econ_cost k;
-    k.build = k.real = sinc_build_ops(p->nx, p->ny, p->os, hw);
+    k.build = k.real = sinc_build_ops(p->nx, p->ny, p->os, hw, sep);
     k.decide = min_evals(fits, MP_SINC_LIMITS_EVALS) * hw * 3.0 * NPH * box_pixels(p);
-    k.save = psf_ops(p, hw, 1, W) - psf_ops(p, 0, 1, W);
+    k.save = psf_ops(p, hw, 1, W, sep) - psf_ops(p, 0, 1, W, sep);
     return k;
 }
 
@@ -162,10 +169,11 @@ static econ_cost cost_level(const mp_econ_cache *c, int l, double fits, double W
     int os = c->lev_os[l];
     double npix = box_pixels(p) + 2.0 * sqrt(box_pixels(p)) + 1.0;
     econ_cost k;
-    k.build = NPH * (psf_ops(p, hw, 1, INFINITY) + render_ops(nx, ny, os, hw, 0, INFINITY));
+    int sep = RSEP(c);
+    k.build = NPH * (psf_ops(p, hw, 1, INFINITY, sep) + render_ops(nx, ny, os, hw, 0, INFINITY, sep));
     k.real = k.build;
     k.decide = min_evals(fits, MP_SS_LIMITS_EVALS) * 22.0 * NPH * npix;
-    k.save = psf_ops(p, hw, 1, W) - render_ops(nx, ny, os, hw, 1, W);
+    k.save = psf_ops(p, hw, 1, W, sep) - render_ops(nx, ny, os, hw, 1, W, sep);
     return k;
 }
 
@@ -182,19 +190,20 @@ static econ_cost cost_level(const mp_econ_cache *c, int l, double fits, double W
 /* Whether the run's grids are drawn by the axis operators. */
 #define SEP(c) mp_prf_separable(&(c)->model0)
 
-static econ_cost cost_grid(const mp_psf *p, int sep, int G, int hw, double fits, double W)
+static econ_cost cost_grid(const mp_psf *p, int sep, int rsep, int G, int hw, double fits,
+                           double W)
 {
     int os = p->os, gb = (G + os - 1) / os;
     double na = (double)os * (gb + 3), ng = (double)os * gb, npix = box_pixels(p);
     double w2 = fmin(W * W, npix), bw = os + 2.0 * hw + 4.0, side = sqrt(npix);
     econ_cost k;
-    k.build = na * na * psf_ops(p, hw, 1, INFINITY) +
-              ng * ng * (psf_ops(p, hw, 0, INFINITY) + 16.0 * npix);
+    k.build = na * na * psf_ops(p, hw, 1, INFINITY, rsep) +
+              ng * ng * (psf_ops(p, hw, 0, INFINITY, rsep) + 16.0 * npix);
     k.real = !sep ? k.build
                   : na * 2.0 * p->ny * side * bw + na * na * 3.0 * npix * bw +
                         ng * p->ny * side * bw + ng * ng * (npix * bw + 16.0 * npix);
     k.decide = min_evals(fits, MP_SINC_LIMITS_EVALS) * 3.0 * ng * ng * npix;
-    k.save = psf_ops(p, hw, 1, W) - 48.0 * w2;
+    k.save = psf_ops(p, hw, 1, W, rsep) - 48.0 * w2;
     return k;
 }
 
@@ -217,7 +226,7 @@ static int build_sinc(mp_econ_cache *c, char *err)
     int rc = mp_sinc_choice_build(&c->model0, &c->sinc, err);
     c->sinc_state = rc ? ECON_FAILED : ECON_BUILT;
     if (!rc)
-        c->spent += sinc_build_ops(c->psf0.nx, c->psf0.ny, c->psf0.os, c->model0.sinc_hw);
+        c->spent += sinc_build_ops(c->psf0.nx, c->psf0.ny, c->psf0.os, c->model0.sinc_hw, RSEP(c));
     return rc;
 }
 
@@ -242,7 +251,8 @@ static int build_level(mp_econ_cache *c, int l, char *err)
     }
     lv->os = c->lev_os[l];
     c->lev_state[l] = ECON_BUILT;
-    c->spent += NPH * (psf_ops(&c->psf0, hw, 1, INFINITY) + psf_ops(&lv->psf, hw, 0, INFINITY));
+    c->spent += NPH * (psf_ops(&c->psf0, hw, 1, INFINITY, RSEP(c)) +
+                       psf_ops(&lv->psf, hw, 0, INFINITY, RSEP(c)));
     return 0;
 }
 
@@ -259,7 +269,7 @@ static int build_level_sinc(mp_econ_cache *c, int l, char *err)
     mo.psf = &po;
     if (mp_sinc_choice_build(&mo, &lv->sinc, err))
         return 1;
-    c->spent += sinc_build_ops(lv->psf.nx, lv->psf.ny, lv->psf.os, c->model0.sinc_hw);
+    c->spent += sinc_build_ops(lv->psf.nx, lv->psf.ny, lv->psf.os, c->model0.sinc_hw, RSEP(c));
     return 0;
 }
 
@@ -274,7 +284,7 @@ static int build_grid(mp_econ_cache *c, char *err)
     c->grid_state = rc ? ECON_FAILED : ECON_BUILT;
     if (!rc)
         c->spent +=
-            cost_grid(&c->psf0, SEP(c), c->grid_g, c->model0.sinc_hw, 0.0, INFINITY).real;
+            cost_grid(&c->psf0, SEP(c), RSEP(c), c->grid_g, c->model0.sinc_hw, 0.0, INFINITY).real;
     return rc;
 }
 
@@ -294,7 +304,7 @@ static int build_level_grid(mp_econ_cache *c, int l, char *err)
         lv->grid = NULL;
         return 1;
     }
-    c->spent += cost_grid(&lv->psf, SEP(c), c->grid_g, c->model0.sinc_hw, 0.0, INFINITY).real;
+    c->spent += cost_grid(&lv->psf, SEP(c), RSEP(c), c->grid_g, c->model0.sinc_hw, 0.0, INFINITY).real;
     return 0;
 }
 
@@ -306,10 +316,10 @@ static int choose_locked(mp_econ_cache *c, double fits, double fitrad, mp_frame_
     double W = o->win > 0 ? o->win : (isfinite(fitrad) ? 2.0 * ceil(fitrad) + 3.0 : INFINITY);
     /* What the run has already rendered counts too (a sequential run's own
      * history: deterministic). */
-    double learned = o->learn ? c->ops_done : 0.0, full = psf_ops(&c->psf0, c->model0.sinc_hw, 1, W);
+    double learned = o->learn ? c->ops_done : 0.0, full = psf_ops(&c->psf0, c->model0.sinc_hw, 1, W, RSEP(c));
     c->fits_max = fits > c->fits_max ? fits : c->fits_max;
     int hw = c->model0.sinc_hw;
-    if (c->want_sinc && !o->sinc && pays(cost_sinc(&c->psf0, hw, fits, W), fits, learned, full)) {
+    if (c->want_sinc && !o->sinc && pays(cost_sinc(&c->psf0, hw, fits, W, RSEP(c)), fits, learned, full)) {
         if (build_sinc(c, err))
             return 1;
         o->sinc = c->sinc.nph > 0 ? &c->sinc : NULL;
@@ -324,7 +334,7 @@ static int choose_locked(mp_econ_cache *c, double fits, double fitrad, mp_frame_
                 return 1;
             /* Decided for this frame, like every table: one built for an
              * earlier frame serves only where this frame's count pays. */
-            if (c->want_sinc && pays(cost_sinc(&c->ss[n].psf, hw, fits, W), fits, learned, full)) {
+            if (c->want_sinc && pays(cost_sinc(&c->ss[n].psf, hw, fits, W, RSEP(c)), fits, learned, full)) {
                 if (build_level_sinc(c, n, err))
                     return 1;
                 bits |= 1 << n;
@@ -341,14 +351,14 @@ static int choose_locked(mp_econ_cache *c, double fits, double fitrad, mp_frame_
      * 1975 LM fits of 47 Tuc with the PSF built from the frame). */
     for (int l = 0; o->ss == c->ss && l < o->nss && c->grid_g > 0; l++)
         if (!((o->ss_grid >> l) & 1) &&
-            pays(cost_grid(&c->ss[l].psf, SEP(c), c->grid_g, hw, fits, W), fits, learned,
+            pays(cost_grid(&c->ss[l].psf, SEP(c), RSEP(c), c->grid_g, hw, fits, W), fits, learned,
                  full)) {
             if (build_level_grid(c, l, err))
                 return 1;
             o->ss_grid |= (c->ss[l].grid->G > 0) << l;
         }
     if (!o->grid && c->grid_g > 0 &&
-        pays(cost_grid(&c->psf0, SEP(c), c->grid_g, hw, fits, W), fits, learned, full)) {
+        pays(cost_grid(&c->psf0, SEP(c), RSEP(c), c->grid_g, hw, fits, W), fits, learned, full)) {
         if (build_grid(c, err))
             return 1;
         o->grid = c->grid.G > 0 ? &c->grid : NULL;
@@ -395,7 +405,7 @@ double mp_econ_render_ops(const mp_prf_model *m, int hw, double fitrad)
     if (m->psf->kind != MP_PSF_TABLE)
         return 0.0;
     double W = isfinite(fitrad) ? 2.0 * ceil(fitrad) + 3.0 : INFINITY;
-    return psf_ops(m->psf, hw, 1, W);
+    return psf_ops(m->psf, hw, 1, W, renders_separable(m));
 }
 
 double mp_econ_grid_render_ops(const mp_prf_model *m, double fitrad)

@@ -89,6 +89,8 @@ typedef struct {
                             * (fit/prf_cache.c); NULL: exact renders */
     double grid_emax;      /* the frame fit's paint of a star (frame_paint.c)
                             * uses grid only up to this flux, its bound */
+    struct mp_prf_axes_s *axes;  /* the separable render's two axis operators
+                            * (fit/prf.c), kept between renders */
 } mp_prf_work;
 
 void mp_prf_work_free(mp_prf_work *w);
@@ -119,6 +121,17 @@ int mp_prf_render_window(const mp_prf_model *m, double x, double y,
                          long wx0, long wy0, long ww, long wh,
                          long *x0, long *y0, int *w, int *h,
                          double *prf, double *dprf_dx, double *dprf_dy, mp_prf_work *work);
+
+/* mp_prf_adjoint: the transpose of mp_prf_render's PRF (the values, a
+ * table PSF) for a star at (x, y): g (the table's nx × ny elements,
+ * overwritten) = Aᵀ·r with r an image on the detector box [x0, x0+w) ×
+ * [y0, y0+h) (row-major) and A the render (damped-sinc shift by the
+ * star's sub-element phase, DRF, block-sum): every pixel's value spread
+ * back over the elements it was drawn from, with the same weights — the
+ * back-projection of an effective-PSF build (psf/sirt.c).  Nonzero when
+ * out of memory or the PSF is not a table. */
+int mp_prf_adjoint(const mp_prf_model *m, double x, double y, long x0, long y0, int w, int h,
+                   const double *r, double *g, mp_prf_work *work);
 
 /* ---- Interpolation effort per star (fit/sinc_choice.c, issue 5) ---------- */
 
@@ -263,6 +276,8 @@ typedef struct mp_prf_cache_s {
     float *img;            /* (os(gb+3))² planes of 3 npix: PRF, ∂/∂x, ∂/∂y */
     int nph;               /* measured phases (G²) */
     float *p, *d2;         /* nph × npix: exact PRF and δP² at cell centres */
+    double d2max;          /* the largest Σ δP² of a cell (over its pixels) */
+    double pmin, pmax;     /* the least and the largest P of any cell's pixel */
     const mp_psf *psf;     /* what it was built from (mp_prf_cache_usable) */
     const mp_drf *drf;
 } mp_prf_cache;
@@ -287,6 +302,13 @@ void mp_prf_cache_free(mp_prf_cache *c);
  * on |bias|/σ_CRLB of a star's flux, position and sky from drawing its PRF
  * from the grid (the argument of fit/sinc_choice.c); INFINITY without a grid. */
 double mp_prf_cache_bound(const mp_prf_cache *c, double E, double B, double ron);
+
+/* mp_prf_cache_serves: whether mp_prf_cache_bound(c, E, B, ron) ≤ frac,
+ * decided first by two bounds on the sum that need no pass over the cells
+ * (each pixel's variance between B + ron² + E·pmin and B + ron² + E·pmax):
+ * a faint star is served and a bright one refused at once, only the stars
+ * between sum every cell (0 without a grid). */
+int mp_prf_cache_serves(const mp_prf_cache *c, double E, double B, double ron, double frac);
 
 /* mp_prf_cache_limit: the largest flux whose bound is ≤ frac on sky B
  * (0 when none, INFINITY when all). */

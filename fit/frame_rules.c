@@ -24,7 +24,7 @@ int ff_grid_serves(const frame_rules *R, const mp_prf_cache *g, double e,
     if (!isnan(R->gemax))
         return e <= R->gemax;
     charge(cost, 1, g, ECON_LIM_GRID);
-    return mp_prf_cache_bound(g, e, R->gsky, R->gron) <= R->gfrac;
+    return mp_prf_cache_serves(g, e, R->gsky, R->gron, R->gfrac);
 }
 
 const mp_prf_cache *ff_group_grid(const frame_rules *R, const mp_prf_cache *g, int l, double e,
@@ -40,7 +40,7 @@ const mp_prf_cache *ff_group_grid(const frame_rules *R, const mp_prf_cache *g, i
         return lim > 0 ? t : NULL;
     }
     charge(cost, 1, t, ECON_LIM_GRID);
-    return mp_prf_cache_bound(t, e, R->gsky, R->gron) <= R->gfrac ? t : NULL;
+    return mp_prf_cache_serves(t, e, R->gsky, R->gron, R->gfrac) ? t : NULL;
 }
 
 /* The limits of c on sky level sky (already rounded), computed on a miss:

@@ -6,10 +6,20 @@
 #include <string.h>
 #include "fit/prf_axis.h"
 
+/* The axis operators of render_table's separable path. */
+struct mp_prf_axes_s {
+    mp_prf_axis x, y;
+};
+
 void mp_prf_work_free(mp_prf_work *w)
 {
     if (!w)
         return;
+    if (w->axes) {
+        mp_prf_axis_free(&w->axes->x);
+        mp_prf_axis_free(&w->axes->y);
+        free(w->axes);
+    }
     free(w->a);
     free(w->b);
     free(w->c);
@@ -212,6 +222,70 @@ static void weights(double shift, int hw, double *wt)
         wt[k + hw] = mp_damped_sinc((double)k - shift);
 }
 
+/* render_table by the axis operators (fit/prf_axis.c): the x operator on
+ * the table rows the y operator reads (A = T·Xᵀ, and T·X'ᵀ for ∂/∂x), then
+ * the y operator on A's columns (Y·A, Y·(T·X'ᵀ), Y'·A).  The same values up
+ * to the order of the sums; a DRF uniform over the pixel is a scale. */
+static int render_sep(const mp_prf_model *m, double x, double y, double xr, double yr, box bx,
+                      int hw, double *prf, double *ddx, double *ddy, mp_prf_work *w)
+{
+    const mp_psf *p = m->psf;
+    int nx = p->nx, deriv = ddx || ddy;
+    if (!w->axes && !(w->axes = calloc(1, sizeof *w->axes)))
+        return 1;
+    mp_prf_axis *ax = &w->axes->x, *ay = &w->axes->y;
+    if (mp_prf_axis_refill(nx, p->os, p->offset, x, xr, bx.x0, bx.w, hw, ddx != NULL, ax) ||
+        mp_prf_axis_refill(p->ny, p->os, p->offset, y, yr, bx.y0, bx.h, hw, ddy != NULL, ay))
+        return 1;
+    if (ax->w == 0 || ay->w == 0)
+        return 0;
+    /* The rows Y reads and the columns X reads (lo and lo + len never
+     * decrease along an axis). */
+    long j0 = ay->lo[0], j1 = ay->lo[ay->w - 1] + ay->len[ay->w - 1];
+    long i0 = ax->lo[0], i1 = ax->lo[ax->w - 1] + ax->len[ax->w - 1];
+    if (j1 <= j0 || i1 <= i0)
+        return 0;
+    size_t na = (size_t)(j1 - j0) * ax->w;
+    if (work_reserve(w, na > (size_t)nx * p->ny ? na : (size_t)nx * p->ny))
+        return 1;
+    const double *T = star_table(m, x, y, i0, i1, j0, j1, w);
+    if (!T)
+        return 1;
+    double *A = w->c, *Ad = w->d;
+    for (long j = j0; j < j1; j++) {
+        const double *row = T + (size_t)j * nx;
+        double *a = A + (size_t)(j - j0) * ax->w, *ad = Ad + (size_t)(j - j0) * ax->w;
+        for (int q = 0; q < ax->w; q++) {
+            const double *t = row + ax->lo[q], *v = ax->v + (size_t)q * ax->bw;
+            double sv = 0.0, sd = 0.0;
+            if (ddx) {
+                const double *d = ax->d + (size_t)q * ax->bw;
+#pragma omp simd reduction(+ : sv, sd)
+                for (int i = 0; i < ax->len[q]; i++) {
+                    sv += t[i] * v[i];
+                    sd += t[i] * d[i];
+                }
+                ad[q] = sd;
+            } else {
+#pragma omp simd reduction(+ : sv)
+                for (int i = 0; i < ax->len[q]; i++)
+                    sv += t[i] * v[i];
+            }
+            a[q] = sv;
+        }
+    }
+    w->ops += mp_prf_axis_ops(nx, p->ny, p->os, hw, deriv, (double)ax->w, (double)ay->w, 1);
+    double scale = drf_weight(m->drf, p->os, 0, 0);
+    long oy = ay->p0 - bx.y0, ox = ax->p0 - bx.x0;
+    w->nskip += (ax->bw == p->os + 4) + (ay->bw == p->os + 4);   /* shifts on the grid */
+    mp_prf_axis_cols(ay, 0, A, j0, ax->w, scale, prf, oy, ox, bx.w);
+    if (ddx)
+        mp_prf_axis_cols(ay, 0, Ad, j0, ax->w, scale, ddx, oy, ox, bx.w);
+    if (ddy)
+        mp_prf_axis_cols(ay, 1, A, j0, ax->w, scale, ddy, oy, ox, bx.w);
+    return 0;
+}
+
 /* The table aligned as for a star at (xr, yr), shifted to (x, y): the
  * natural render has xr = x, yr = y (|delta| ≤ ½); prf_cache.c renders the
  * phases just past a branch's ends with its alignment (branch below). */
@@ -220,6 +294,22 @@ static int render_table(const mp_prf_model *m, double x, double y, double xr, do
 {
     const mp_psf *p = m->psf;
     int os = p->os, nx = p->nx, ny = p->ny;
+    int hws = m->sinc_hw > 0 ? (m->sinc_hw < 64 ? m->sinc_hw : 64) : 0;
+    /* The axis operators where they cost less than the shift of the
+     * table's elements (OVERSAMP ≥ 2 on all but the smallest boxes; a DRF
+     * that varies within the pixel is not a product of two axes). */
+    if ((!m->drf || m->drf->k == 0) && bx.w > 0 && bx.h > 0 &&
+        mp_prf_axis_ops(nx, ny, os, hws, ddx || ddy, (double)bx.w, (double)bx.h, 1) <
+            mp_prf_axis_ops(nx, ny, os, hws, ddx || ddy, (double)bx.w, (double)bx.h, 0)) {
+        size_t nb = (size_t)bx.w * bx.h;
+        memset(prf, 0, nb * sizeof *prf);
+        if (ddx)
+            memset(ddx, 0, nb * sizeof *ddx);
+        if (ddy)
+            memset(ddy, 0, nb * sizeof *ddy);
+        w->nshift += 2;
+        return render_sep(m, x, y, xr, yr, bx, hws, prf, ddx, ddy, w);
+    }
     if (work_reserve(w, (size_t)nx * ny))
         return 1;
     /* The central element sits at the star minus the table's offset. */
@@ -336,6 +426,87 @@ static int render_table(const mp_prf_model *m, double x, double y, double xr, do
             }
         }
     }
+    return 0;
+}
+
+/* mp_prf_adjoint by the axis operators: RX = R·X on the rows Y reads, then
+ * g = Yᵀ·RX (fit/prf_axis.c; a DRF uniform over the pixel is a scale). */
+static int adjoint_sep(const mp_prf_model *m, double x, double y, box bx, const double *r,
+                       double *g, mp_prf_work *w)
+{
+    const mp_psf *p = m->psf;
+    int nx = p->nx, hw = m->sinc_hw > 0 ? (m->sinc_hw < 64 ? m->sinc_hw : 64) : 0;
+    if (!w->axes && !(w->axes = calloc(1, sizeof *w->axes)))
+        return 1;
+    mp_prf_axis *ax = &w->axes->x, *ay = &w->axes->y;
+    if (mp_prf_axis_refill(nx, p->os, p->offset, x, x, bx.x0, bx.w, hw, 0, ax) ||
+        mp_prf_axis_refill(p->ny, p->os, p->offset, y, y, bx.y0, bx.h, hw, 0, ay) ||
+        work_reserve(w, (size_t)(ay->w > 0 ? ay->w : 1) * nx))
+        return 1;
+    if (ax->w == 0 || ay->w == 0)
+        return 0;
+    long i0 = ax->lo[0], i1 = ax->lo[ax->w - 1] + ax->len[ax->w - 1];
+    double scale = drf_weight(m->drf, p->os, 0, 0);
+    for (int q = 0; q < ay->w; q++) {
+        const double *rq = r + (size_t)(ay->p0 - bx.y0 + q) * bx.w + (ax->p0 - bx.x0);
+        double *rx = w->c + (size_t)q * nx;
+        memset(rx + i0, 0, (size_t)(i1 - i0) * sizeof *rx);
+        for (int c = 0; c < ax->w; c++) {
+            double v = scale * rq[c];
+            if (v == 0.0)
+                continue;
+            const double *wt = ax->v + (size_t)c * ax->bw;
+            double *dst = rx + ax->lo[c];
+#pragma omp simd
+            for (int i = 0; i < ax->len[c]; i++)
+                dst[i] += v * wt[i];
+        }
+        const double *wy = ay->v + (size_t)q * ay->bw;
+        for (int k = 0; k < ay->len[q]; k++) {
+            double *dst = g + (size_t)(ay->lo[q] + k) * nx, c = wy[k];
+#pragma omp simd
+            for (long i = i0; i < i1; i++)
+                dst[i] += c * rx[i];
+        }
+    }
+    w->ops += (double)ay->w * ax->w * ax->bw + (double)ay->w * ay->bw * (double)(i1 - i0);
+    return 0;
+}
+
+int mp_prf_adjoint(const mp_prf_model *m, double x, double y, long x0, long y0, int w, int h,
+                   const double *r, double *g, mp_prf_work *work)
+{
+    const mp_psf *p = m->psf;
+    if (p->kind != MP_PSF_TABLE)
+        return 1;
+    int os = p->os, nx = p->nx, ny = p->ny;
+    size_t nel = (size_t)nx * ny;
+    memset(g, 0, nel * sizeof *g);
+    box bx = {x0, y0, w, h};
+    if (!m->drf || m->drf->k == 0)
+        return adjoint_sep(m, x, y, bx, r, g, work);
+    /* A DRF with a QE map: each pixel's value spread over its block with
+     * the subpixels' QE, then shifted by the transpose of the render's
+     * shift (the damped sinc is even: the shift by −δ). */
+    if (work_reserve(work, nel))
+        return 1;
+    double *U = work->a;
+    memset(U, 0, nel * sizeof *U);
+    axis_geom ax = table_axis_ref(nx, os, x - p->offset, x - p->offset);
+    axis_geom ay = table_axis_ref(ny, os, y - p->offset, y - p->offset);
+    for (int j = 0; j < h; j++)
+        for (int i = 0; i < w; i++) {
+            double v = r[(size_t)j * w + i];
+            for (int sy = 0; v != 0.0 && sy < os; sy++) {
+                long my = os * (y0 + j - 1) + sy + ay.n0;
+                for (int sx = 0; my >= 0 && my < ny && sx < os; sx++) {
+                    long mx = os * (x0 + i - 1) + sx + ax.n0;
+                    if (mx >= 0 && mx < nx)
+                        U[(size_t)my * nx + mx] += drf_weight(m->drf, os, sx, sy) * v;
+                }
+            }
+        }
+    mp_shift_table(U, nx, ny, -ax.delta, -ay.delta, m->sinc_hw, g, work->b);
     return 0;
 }
 

@@ -57,10 +57,37 @@ static void add_shifted(double *row, long lo, long j, double c, const double *wt
             row[j + k - lo] += c * wt[k + h];
 }
 
-int mp_prf_axis_build(int n, int os, double offset, double x, double xr, long wp0, long ww,
-                      int hw, mp_prf_axis *a)
+/* Grow a's arrays to w pixels of bw weights (and the derivative's). */
+static int reserve(mp_prf_axis *a, int w, int bw, int deriv)
 {
-    memset(a, 0, sizeof *a);
+    size_t nw = w > 0 ? (size_t)w : 1, nv = 2 * nw * (size_t)bw;
+    if (nw > a->capw) {
+        long *lo = realloc(a->lo, nw * sizeof *lo);
+        if (lo)
+            a->lo = lo;
+        int *len = realloc(a->len, nw * sizeof *len);
+        if (len)
+            a->len = len;
+        if (!lo || !len)
+            return 1;
+        a->capw = nw;
+    }
+    if (nv > a->capv) {
+        double *v = realloc(a->v, nv * sizeof *v);
+        if (!v)
+            return 1;
+        a->v = v;
+        a->capv = nv;
+    }
+    size_t used = (deriv ? 2 : 1) * nw * (size_t)bw;
+    memset(a->v, 0, used * sizeof *a->v);
+    a->d = deriv ? a->v + nw * (size_t)bw : NULL;
+    return 0;
+}
+
+int mp_prf_axis_refill(int n, int os, double offset, double x, double xr, long wp0, long ww,
+                       int hw, int deriv, mp_prf_axis *a)
+{
     long n0, bp0;
     double delta;
     int bwid;
@@ -74,15 +101,8 @@ int mp_prf_axis_build(int n, int os, double offset, double x, double xr, long wp
     for (int k = -h; k <= h && h > 0; k++)
         wt[k + h] = mp_damped_sinc((double)k - delta);
     a->bw = os + 2 * h + 4;
-    size_t nw = a->w > 0 ? (size_t)a->w : 1;
-    a->lo = malloc(nw * sizeof *a->lo);
-    a->len = malloc(nw * sizeof *a->len);
-    a->v = calloc(2 * nw * (size_t)a->bw, sizeof *a->v);
-    if (!a->lo || !a->len || !a->v) {
-        mp_prf_axis_free(a);
+    if (reserve(a, a->w, a->bw, deriv))
         return 1;
-    }
-    a->d = a->v + nw * (size_t)a->bw;
     /* The five-point derivative's weights on S[m−2..m+2] (render_table:
      * the table index moves by −os per +1 px of the star). */
     static const int dd[4] = {-2, -1, 1, 2};
@@ -93,14 +113,40 @@ int mp_prf_axis_build(int n, int os, double offset, double x, double xr, long wp
         hi = hi > n ? n : hi;
         a->lo[q] = lo;
         a->len[q] = hi > lo ? (int)(hi - lo) : 0;
-        double *v = a->v + (size_t)q * a->bw, *d = a->d + (size_t)q * a->bw;
+        double *v = a->v + (size_t)q * a->bw;
         for (long m = mb0 < 0 ? 0 : mb0; m < mb0 + os && m < n; m++) {
             add_shifted(v, lo, m, 1.0, wt, h, n);
-            for (int t = 0; t < 4; t++)
-                add_shifted(d, lo, m + dd[t], cd[t], wt, h, n);
+            for (int t = 0; deriv && t < 4; t++)
+                add_shifted(a->d + (size_t)q * a->bw, lo, m + dd[t], cd[t], wt, h, n);
         }
     }
     return 0;
+}
+
+int mp_prf_axis_build(int n, int os, double offset, double x, double xr, long wp0, long ww,
+                      int hw, mp_prf_axis *a)
+{
+    memset(a, 0, sizeof *a);
+    if (mp_prf_axis_refill(n, os, offset, x, xr, wp0, ww, hw, 1, a)) {
+        mp_prf_axis_free(a);
+        return 1;
+    }
+    return 0;
+}
+
+double mp_prf_axis_ops(int nx, int ny, int os, int hw, int derivs, double w, double h, int sep)
+{
+    double taps = 2.0 * hw + 1.0;
+    if (!sep) {
+        double ex = fmin(w * os + 4.0, (double)nx), ey = fmin(h * os + 4.0, (double)ny);
+        double ty = fmin(ey + 2.0 * hw, (double)ny);
+        return ex * (ty + ey) * taps + ex * ey * (derivs ? 9.0 : 1.0);
+    }
+    double bw = os + 2.0 * hw + 4.0, rows = fmin(h * os + bw, (double)ny);
+    w = fmin(w, nx / (double)os + 2.0);
+    h = fmin(h, ny / (double)os + 2.0);
+    return (w + h) * os * taps * (derivs ? 5.0 : 1.0) + rows * w * bw * (derivs ? 2.0 : 1.0) +
+           h * w * bw * (derivs ? 3.0 : 1.0);
 }
 
 void mp_prf_axis_rows(const mp_psf *p, const mp_prf_axis *ax, int deriv, double *A)
@@ -119,8 +165,8 @@ void mp_prf_axis_rows(const mp_psf *p, const mp_prf_axis *ax, int deriv, double 
     }
 }
 
-void mp_prf_axis_cols(const mp_prf_axis *ay, int deriv, const double *A, int ax_w, double scale,
-                      double *out, long oy, long ox, long ostride)
+void mp_prf_axis_cols(const mp_prf_axis *ay, int deriv, const double *A, long row0, int ax_w,
+                      double scale, double *out, long oy, long ox, long ostride)
 {
     const double *W = deriv ? ay->d : ay->v;
     for (int q = 0; q < ay->w; q++) {
@@ -129,8 +175,9 @@ void mp_prf_axis_cols(const mp_prf_axis *ay, int deriv, const double *A, int ax_
         for (int i = 0; i < ax_w; i++)
             o[i] = 0.0;
         for (int k = 0; k < ay->len[q]; k++) {
-            const double *a = A + (size_t)(ay->lo[q] + k) * ax_w;
+            const double *a = A + (size_t)(ay->lo[q] - row0 + k) * ax_w;
             double c = w[k];
+#pragma omp simd
             for (int i = 0; i < ax_w; i++)
                 o[i] += c * a[i];
         }

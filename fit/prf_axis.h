@@ -17,7 +17,8 @@ typedef struct {
     int w, bw;
     long *lo;
     int *len;
-    double *v, *d;
+    double *v, *d;         /* d: NULL when built without the derivative */
+    size_t capw, capv;     /* what lo, len and v hold (mp_prf_axis_refill) */
 } mp_prf_axis;
 
 /* mp_prf_axis_geom: one axis of a table star (n elements, OVERSAMP os) at
@@ -33,7 +34,20 @@ void mp_prf_axis_geom(int n, int os, double x, double xr, long *n0, double *delt
  * ww), with a half-width hw sinc.  Nonzero when out of memory. */
 int mp_prf_axis_build(int n, int os, double offset, double x, double xr, long wp0, long ww,
                       int hw, mp_prf_axis *a);
+
+/* mp_prf_axis_refill: the same into a, whose arrays are kept and grown as
+ * needed (a zeroed mp_prf_axis, or one built before); the derivative's
+ * weights only with deriv (a->d NULL without).  Nonzero when out of memory. */
+int mp_prf_axis_refill(int n, int os, double offset, double x, double xr, long wp0, long ww,
+                       int hw, int deriv, mp_prf_axis *a);
 void mp_prf_axis_free(mp_prf_axis *a);
+
+/* mp_prf_axis_ops: multiply-adds of one table render (n_x × n_y elements,
+ * OVERSAMP os, half-width hw) on a box of w × h detector pixels by the axis
+ * operators (sep), or by render_table's shift of the table's elements then
+ * block-sum (fit/prf.c), with the derivatives or without: what render_table
+ * chooses between, and economy's plan prices (fit/econ_plan.c). */
+double mp_prf_axis_ops(int nx, int ny, int os, int hw, int derivs, double w, double h, int sep);
 
 /* mp_prf_separable: whether m's renders are the product of its two axes'
  * operators (a constant table; a DRF uniform over the pixel, or none). */
@@ -45,8 +59,8 @@ void mp_prf_axis_rows(const mp_psf *p, const mp_prf_axis *ax, int deriv, double 
 
 /* mp_prf_axis_cols: out = scale · Y·A (ay->w × ax_w, the y operator's PRF
  * weights or, deriv, its derivative's), written at (oy, ox) of an image of
- * stride ostride. */
-void mp_prf_axis_cols(const mp_prf_axis *ay, int deriv, const double *A, int ax_w, double scale,
-                      double *out, long oy, long ox, long ostride);
+ * stride ostride; A's first row is the table's row row0. */
+void mp_prf_axis_cols(const mp_prf_axis *ay, int deriv, const double *A, long row0, int ax_w,
+                      double scale, double *out, long oy, long ox, long ostride);
 
 #endif

@@ -349,7 +349,7 @@ static void product(const mp_prf_cache *c, const mp_prf_axis *ax, const mp_prf_a
                     int yderiv, const double *A, double scale, double *img)
 {
     memset(img, 0, c->npix * sizeof *img);
-    mp_prf_axis_cols(ay, yderiv, A, ax->w, scale, img, ay->p0 - REF - c->uy0,
+    mp_prf_axis_cols(ay, yderiv, A, 0, ax->w, scale, img, ay->p0 - REF - c->uy0,
                      ax->p0 - REF - c->ux0, c->uw);
 }
 
@@ -450,6 +450,25 @@ static int measure_sep(const mp_prf_model *m, mp_prf_cache *c)
     return rc;
 }
 
+/* What mp_prf_cache_serves bounds the cells' sums with: the largest Σ δP²
+ * of a cell, and the least and largest P. */
+static void cell_extremes(mp_prf_cache *c)
+{
+    c->d2max = 0.0;
+    c->pmin = INFINITY;
+    c->pmax = -INFINITY;
+    for (int ph = 0; ph < c->nph; ph++) {
+        const float *d = c->d2 + (size_t)ph * c->npix, *p = c->p + (size_t)ph * c->npix;
+        double s = 0.0;
+        for (size_t i = 0; i < c->npix; i++) {
+            s += d[i];
+            c->pmin = p[i] < c->pmin ? p[i] : c->pmin;
+            c->pmax = p[i] > c->pmax ? p[i] : c->pmax;
+        }
+        c->d2max = s > c->d2max ? s : c->d2max;
+    }
+}
+
 /* The grid, its nodes and cells rendered by the axis operators when the
  * model allows (sep), else by fit/prf.c's render. */
 static int build(const mp_prf_model *m, int G, int sep, mp_prf_cache *c, char *err)
@@ -492,6 +511,7 @@ static int build(const mp_prf_model *m, int G, int sep, mp_prf_cache *c, char *e
         goto done;
     }
     c->G = ng;
+    cell_extremes(c);
     rc = 0;
 done:
     free(buf);
@@ -527,6 +547,23 @@ double mp_prf_cache_bound(const mp_prf_cache *c, double E, double B, double ron)
         worst = s > worst ? s : worst;
     }
     return E * sqrt(worst);
+}
+
+int mp_prf_cache_serves(const mp_prf_cache *c, double E, double B, double ron, double frac)
+{
+    if (!c || !c->d2 || !(E >= 0))
+        return 0;
+    /* With every pixel's variance v in [lo, hi] (lo > 0: no pixel is
+     * skipped), the largest cell's Σ δP²/v lies in [d2max/hi, d2max/lo].
+     * The margin keeps the decision the summed bound's where the two
+     * meet within the sums' rounding. */
+    double v0 = B + ron * ron, lo = v0 + E * fmin(c->pmin, 0.0), hi = v0 + E * fmax(c->pmax, 0.0);
+    double f2 = frac * frac / (E * E);
+    if (lo > 0 && c->d2max / lo <= f2 * (1.0 - 1e-9))
+        return 1;
+    if (lo > 0 && c->d2max / hi > f2 * (1.0 + 1e-9))
+        return 0;
+    return mp_prf_cache_bound(c, E, B, ron) <= frac;
 }
 
 /* q(E) increases with E (each term E²δP²/(E P + v) does): bisection in log E. */

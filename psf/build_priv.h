@@ -14,6 +14,10 @@
 typedef struct {
     size_t nstar, nel;
     double *G, *H;         /* nstar × nel */
+    double *R;             /* nstar × nR: each star's W·ρ on its box */
+    size_t nR;             /* the largest box's pixels */
+    double *geo;           /* nstar × 6: the box (x0, y0, w, h) and the
+                            * star (x, y) in its cut-out's coordinates */
     double *chi2s;         /* nstar: each star's Σ W ρ², summed in order */
     double *tmp;           /* nel */
     unsigned char *mask;   /* nstar × nel: MP_EPSF_MASKED, MP_EPSF_HIT */

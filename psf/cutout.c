@@ -297,8 +297,8 @@ int mp_epsf_clean(mp_epsf_star *s, const mp_psf *tab, const mp_prf_cache *grid,
          * neighbours uses; the star's light only adds noise there). */
         w.grid = grid;
         if (!grid && faint &&
-            mp_prf_cache_bound(faint, (s->fitted ? 1.0 : 2.0) * s->nbf[j], fmax(s->sky, 0.0),
-                               f->rdnoise) <= MP_EPSF_GRID_FRAC)
+            mp_prf_cache_serves(faint, (s->fitted ? 1.0 : 2.0) * s->nbf[j], fmax(s->sky, 0.0),
+                                f->rdnoise, MP_EPSF_GRID_FRAC))
             w.grid = faint;
         if ((rc = mp_prf_render(&m, xs, ys, prf, NULL, NULL, &w)) != 0)
             break;

@@ -19,12 +19,15 @@ int mp_epsf_sirt_init(mp_epsf_sirt *w, const mp_epsf *e, size_t nstar, char *err
     memset(w, 0, sizeof *w);
     w->nstar = nstar;
     w->nel = (size_t)e->nx * e->ny;
+    w->nR = (size_t)(e->nx / e->os + 2) * (size_t)(e->ny / e->os + 2);
     w->G = malloc(nstar * w->nel * sizeof *w->G);
     w->H = malloc(nstar * w->nel * sizeof *w->H);
+    w->R = malloc(nstar * w->nR * sizeof *w->R);
+    w->geo = malloc(6 * (nstar + 1) * sizeof *w->geo);
     w->chi2s = malloc((nstar + 1) * sizeof *w->chi2s);
     w->tmp = malloc(w->nel * sizeof *w->tmp);
     w->mask = calloc(nstar * w->nel + 1, 1);
-    if (!w->G || !w->H || !w->chi2s || !w->tmp || !w->mask) {
+    if (!w->G || !w->H || !w->R || !w->geo || !w->chi2s || !w->tmp || !w->mask) {
         mp_epsf_sirt_free(w);
         snprintf(err, MP_ERRLEN, "psf build: out of memory");
         return 1;
@@ -36,6 +39,8 @@ void mp_epsf_sirt_free(mp_epsf_sirt *w)
 {
     free(w->G);
     free(w->H);
+    free(w->R);
+    free(w->geo);
     free(w->chi2s);
     free(w->tmp);
     free(w->mask);
@@ -43,28 +48,18 @@ void mp_epsf_sirt_free(mp_epsf_sirt *w)
 }
 
 /* A thread's scratch for its stars: the table at a star's place, the
- * star's box, a render's work, and the shift's two tables. */
+ * star's box and a render's work. */
 typedef struct {
     mp_psf tab;
-    double *prf, *a, *tmp;
+    double *prf;
     size_t nprf;
     mp_prf_work pw;
 } scratch;
-
-static int scratch_init(scratch *c, size_t nel)
-{
-    memset(c, 0, sizeof *c);
-    c->a = malloc(nel * sizeof *c->a);
-    c->tmp = malloc(nel * sizeof *c->tmp);
-    return !c->a || !c->tmp;
-}
 
 static void scratch_free(scratch *c)
 {
     mp_psf_free(&c->tab);
     free(c->prf);
-    free(c->a);
-    free(c->tmp);
     mp_prf_work_free(&c->pw);
 }
 
@@ -78,13 +73,14 @@ static void axis_of(int n, int os, double x, long *n0, double *delta)
     *delta = c0 - (double)*n0;
 }
 
-/* One star: G = Aᵀ W ρ before its sub-element shift (unshifted, below),
- * H = Aᵀ W (the weight each element gets), with ρ the residual per unit
- * flux and W = F²/σ² its information; Σ r²/σ² into *chi2.  The shift,
- * half the work, waits until a step is taken: the pass that ends a run is
- * read only for its χ².  1 when out of memory. */
+/* One star: R = W ρ on its box (ρ the residual per unit flux, W = F²/σ²
+ * its information; zero where masked or beyond psfrad) and its box in
+ * geo, H = Aᵀ W (the weight each element gets, unshifted: it only
+ * normalises), Σ r²/σ² into *chi2.  G = Aᵀ W ρ (projected, below) waits
+ * until a step is taken: the pass that ends a run is read only for its
+ * χ².  1 when out of memory. */
 static int backproject(scratch *w, const mp_epsf_star *s, const mp_epsf *e, double psfrad,
-                       double *G, double *H, double delta[2], double *chi2)
+                       double *R, double *geo, double *H, double *chi2)
 {
     char err[MP_ERRLEN];
     if (mp_epsf_table(e, s->x, s->y, &w->tab, err))
@@ -94,7 +90,7 @@ static int backproject(scratch *w, const mp_epsf_star *s, const mp_epsf *e, doub
     long bx0, by0;
     int bw, bh;
     mp_prf_box(&m, xs, ys, &bx0, &by0, &bw, &bh);
-    size_t nb = (size_t)bw * bh;
+    size_t nb = (size_t)bw * bh;       /* ≤ nR: a box is ≤ n/os + 2 a side */
     if (nb > w->nprf) {
         free(w->prf);
         if (!(w->prf = malloc(nb * sizeof *w->prf))) {
@@ -110,10 +106,10 @@ static int backproject(scratch *w, const mp_epsf_star *s, const mp_epsf *e, doub
     double dx, dy;
     axis_of(nx, os, xs, &n0x, &dx);
     axis_of(ny, os, ys, &n0y, &dy);
-    delta[0] = dx;
-    delta[1] = dy;
+    const double g[6] = {(double)bx0, (double)by0, bw, bh, xs, ys};
+    memcpy(geo, g, sizeof g);
     size_t nel = (size_t)nx * ny;
-    memset(G, 0, nel * sizeof *G);
+    memset(R, 0, nb * sizeof *R);
     memset(H, 0, nel * sizeof *H);
     *chi2 = 0.0;
     const mp_frame *f = &s->f;
@@ -134,6 +130,7 @@ static int backproject(scratch *w, const mp_epsf_star *s, const mp_epsf *e, doub
             double var = fmax(mod + sky, sky) + ron2;
             double W = F * F / var, rho = r / F;
             *chi2 += r * r / var;
+            R[(size_t)j * bw + i] = W * rho;
             for (int sy = 0; sy < os; sy++) {
                 long my = os * (py - 1) + sy + n0y;
                 if (my < 0 || my >= ny)
@@ -142,7 +139,6 @@ static int backproject(scratch *w, const mp_epsf_star *s, const mp_epsf *e, doub
                     long mx = os * (px - 1) + sx + n0x;
                     if (mx < 0 || mx >= nx)
                         continue;
-                    G[(size_t)my * nx + mx] += W * rho;
                     H[(size_t)my * nx + mx] += W;
                 }
             }
@@ -151,34 +147,38 @@ static int backproject(scratch *w, const mp_epsf_star *s, const mp_epsf *e, doub
     return 0;
 }
 
-/* G = Aᵀ W ρ: backproject's sum shifted by the transpose of the render's
- * sub-element shift (the weights H only normalise: they need none). */
-static void unshifted(scratch *w, const mp_epsf *e, const double delta[2], double *G)
+/* G = Aᵀ W ρ: the render's transpose applied to the star's R
+ * (mp_prf_adjoint: each pixel spread back over the elements it is drawn
+ * from, with the damped sinc's weights; a fifth of the work of spreading
+ * it over its block and shifting the whole table back, at ×4). */
+static int projected(scratch *w, const mp_epsf *e, const double *R, const double *geo, double *G)
 {
-    mp_shift_table(G, e->nx, e->ny, -delta[0], -delta[1], 10, w->a, w->tmp);
-    memcpy(G, w->a, (size_t)e->nx * e->ny * sizeof *G);
+    mp_psf geom = {.kind = MP_PSF_TABLE, .nx = e->nx, .ny = e->ny, .os = e->os, .sum = 1.0};
+    mp_prf_model m = {&geom, NULL, 10};
+    return mp_prf_adjoint(&m, geo[4], geo[5], (long)geo[0], (long)geo[1], (int)geo[2],
+                          (int)geo[3], R, G, &w->pw);
 }
 
-/* The used stars' back-projections (backproject; with shift, each shifted
- * back: unshifted), in parallel; 1 when out of memory. */
+/* The used stars' back-projections (backproject; with project, G from
+ * their R: projected), in parallel; 1 when out of memory. */
 static int stars_pass(mp_epsf_sirt *w, const mp_epsf_star *s, size_t n, const mp_epsf *e,
-                      double psfrad, double *delta, int shift)
+                      double psfrad, int project)
 {
     size_t nel = w->nel;
     int failed = 0;
 #pragma omp parallel reduction(| : failed)
     {
         scratch c;
-        failed = scratch_init(&c, nel);
+        memset(&c, 0, sizeof c);
 #pragma omp for schedule(dynamic)
         for (size_t k = 0; k < n; k++) {
             if (failed || !s[k].used)
                 continue;
-            if (shift)
-                unshifted(&c, e, delta + 2 * k, w->G + k * nel);
+            if (project)
+                failed = projected(&c, e, w->R + k * w->nR, w->geo + 6 * k, w->G + k * nel);
             else
-                failed = backproject(&c, &s[k], e, psfrad, w->G + k * nel, w->H + k * nel,
-                                     delta + 2 * k, &w->chi2s[k]);
+                failed = backproject(&c, &s[k], e, psfrad, w->R + k * w->nR, w->geo + 6 * k,
+                                     w->H + k * nel, &w->chi2s[k]);
         }
         scratch_free(&c);
     }
@@ -346,8 +346,7 @@ int mp_epsf_sirt_run(mp_epsf_sirt *w, const mp_epsf_star *s, size_t n, const mp_
     size_t nel = w->nel;
     double *terms = malloc(n * MP_EPSF_MAXT * sizeof *terms);
     double *upd = malloc((size_t)nt * nel * sizeof *upd);
-    double *delta = malloc(2 * (n + 1) * sizeof *delta);
-    if (!terms || !upd || !delta) {
+    if (!terms || !upd) {
         snprintf(err, MP_ERRLEN, "psf build: out of memory");
         goto done;
     }
@@ -372,7 +371,7 @@ int mp_epsf_sirt_run(mp_epsf_sirt *w, const mp_epsf_star *s, size_t n, const mp_
     double step = 1.0 / ((double)e->os * e->os);
     w->steps = 0;
     for (int it = 0; it <= o->sirt; it++) {
-        if (stars_pass(w, s, n, e, o->psfrad, delta, 0)) {
+        if (stars_pass(w, s, n, e, o->psfrad, 0)) {
             snprintf(err, MP_ERRLEN, "psf build: out of memory");
             goto done;
         }
@@ -384,7 +383,7 @@ int mp_epsf_sirt_run(mp_epsf_sirt *w, const mp_epsf_star *s, size_t n, const mp_
         if (it == o->sirt || prev - chi2 < 1.0)
             break;
         prev = chi2;
-        if (stars_pass(w, s, n, e, o->psfrad, delta, 1)) {
+        if (stars_pass(w, s, n, e, o->psfrad, 1)) {
             snprintf(err, MP_ERRLEN, "psf build: out of memory");
             goto done;
         }
@@ -404,6 +403,5 @@ int mp_epsf_sirt_run(mp_epsf_sirt *w, const mp_epsf_star *s, size_t n, const mp_
 done:
     free(terms);
     free(upd);
-    free(delta);
     return rc;
 }

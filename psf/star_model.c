@@ -94,7 +94,8 @@ const mp_prf_cache *mp_epsf_fitter_grid(const mp_epsf_fitter *z, const mp_epsf_s
     double E = s->flux;
     for (int j = 0; j < s->nnb; j++)
         E = fmax(E, s->nbf[j]);
-    double q = mp_prf_cache_bound(&z->grid, (s->fitted ? 1.0 : 2.0) * E, fmax(s->sky, 0.0),
-                                  s->f.rdnoise);
-    return q <= MP_EPSF_GRID_FRAC ? &z->grid : NULL;
+    return mp_prf_cache_serves(&z->grid, (s->fitted ? 1.0 : 2.0) * E, fmax(s->sky, 0.0),
+                               s->f.rdnoise, MP_EPSF_GRID_FRAC)
+               ? &z->grid
+               : NULL;
 }

@@ -13,6 +13,7 @@
 #include <string.h>
 
 #include "fit/fit.h"
+#include "fit/prf_axis.h"
 
 /* A Gaussian table, FWHM 2.5 px, ×2, ±8 px: smooth, so the cubic's error
  * term sets the grid's error. */
@@ -198,6 +199,173 @@ static void test_separable_build_is_exact(void **state)
     mp_drf_free(&d);
 }
 
+/* fit/prf.c's two exact renders: the table's elements shifted then
+ * block-summed, and the axis operators (Y·T·Xᵀ), which render_table takes
+ * where they cost fewer multiply-adds (a DRF with a QE map forces the
+ * first: one QE of 1 a pixel is the perfect detector).  On the lopsided
+ * table at ×2, ×3, ×4, constant and as an order-1 field, whole and through
+ * a window cut at the star, with and without the derivatives: the values
+ * agree to 1e-12 of the peak (the order of the sums), and the axis path
+ * was taken (its counted work is less). */
+static void test_render_paths_agree(void **state)
+{
+    (void)state;
+    char err[MP_ERRLEN];
+    double one = 1.0;
+    mp_drf d1 = {1, &one, 1.0};
+    for (int t = 0; t < 4; t++) {
+        mp_psf p;
+        lopsided(t < 3 ? t + 2 : 4, &p);
+        mp_psf_field f;
+        if (t == 3) {
+            assert_int_equal(mp_psf_field_new(1, p.nx, p.ny, p.os, 60.0, 40.0, 50.0, 50.0, &f, err), 0);
+            size_t nel = (size_t)p.nx * p.ny;
+            for (size_t i = 0; i < nel; i++) {
+                f.planes[i] = p.t[i];
+                f.planes[nel + i] = 0.1 * p.t[(i * 7) % nel];
+                f.planes[2 * nel + i] = -0.05 * p.t[(i * 3) % nel];
+            }
+            p.field = &f;
+        }
+        mp_prf_model ms = {&p, NULL, 10}, md = {&p, &d1, 10};
+        size_t cap = (size_t)(p.nx + 4) * (p.ny + 4);
+        double *a = malloc(3 * cap * sizeof *a), *b = malloc(3 * cap * sizeof *b);
+        assert_non_null(a);
+        assert_non_null(b);
+        double worst = 0.0, peak = 0.0;
+        int nsep = 0;
+        for (int k = 0; k < 24; k++) {
+            double x = 50.0 + 0.137 * k, y = 40.0 + 0.291 * k;
+            int deriv = k % 2, cut = (k / 2) % 2;
+            long wx0 = cut ? (long)x - 1 : 1, wy0 = cut ? (long)y - 2 : 1, ww = cut ? 5 : 200;
+            long x0, y0, x1, y1;
+            int w0, h0, w1, h1;
+            mp_prf_work ws = {0}, wd = {0};
+            assert_int_equal(mp_prf_render_window(&ms, x, y, wx0, wy0, ww, ww, &x0, &y0, &w0, &h0,
+                                                  a, deriv ? a + cap : NULL,
+                                                  deriv ? a + 2 * cap : NULL, &ws), 0);
+            assert_int_equal(mp_prf_render_window(&md, x, y, wx0, wy0, ww, ww, &x1, &y1, &w1, &h1,
+                                                  b, deriv ? b + cap : NULL,
+                                                  deriv ? b + 2 * cap : NULL, &wd), 0);
+            assert_true(x0 == x1 && y0 == y1 && w0 == w1 && h0 == h1 && w0 > 0 && h0 > 0);
+            /* the path render_table's count chose on this box */
+            int sep = mp_prf_axis_ops(p.nx, p.ny, p.os, 10, deriv, w0, h0, 1) <
+                      mp_prf_axis_ops(p.nx, p.ny, p.os, 10, deriv, w0, h0, 0);
+            assert_true(sep ? ws.ops < wd.ops : ws.ops == wd.ops);
+            nsep += sep;
+            for (int pl = 0; pl < (deriv ? 3 : 1); pl++)
+                for (size_t i = 0; i < (size_t)w0 * h0; i++) {
+                    worst = fmax(worst, fabs(a[pl * cap + i] - b[pl * cap + i]));
+                    peak = fmax(peak, fabs(b[i]));
+                }
+            mp_prf_work_free(&ws);
+            mp_prf_work_free(&wd);
+        }
+        assert_true(peak > 0.01);
+        assert_true(worst <= 1e-12 * peak);
+        assert_true(nsep >= 6);
+        free(a);
+        free(b);
+        if (t == 3)
+            mp_psf_field_free(&f);
+        mp_psf_free(&p);
+    }
+}
+
+/* mp_prf_cache_serves decides as the summed bound does, over 10 decades
+ * of flux (faint stars served and bright ones refused by its shortcuts,
+ * the ones between by the sum), three skies and three thresholds, on a
+ * table with negative elements (the lopsided one less a ring). */
+static void test_serves_as_the_bound(void **state)
+{
+    (void)state;
+    char err[MP_ERRLEN];
+    mp_psf p;
+    lopsided(2, &p);
+    int c0 = (p.nx - 1) / 2;
+    for (int j = 0; j < p.ny; j++)
+        for (int i = 0; i < p.nx; i++) {
+            double r = hypot(i - c0, j - c0) / p.os;
+            p.t[(size_t)j * p.nx + i] -= 2e-3 * exp(-0.5 * (r - 4.0) * (r - 4.0));
+        }
+    mp_prf_model m = {&p, NULL, 10};
+    mp_prf_cache c;
+    assert_int_equal(mp_prf_cache_build(&m, 16, &c, err), 0);
+    assert_true(c.pmin < 0 && c.pmax > 0 && c.d2max > 0);
+    const double sky[3] = {0.0, 10.0, 1000.0}, frac[3] = {0.01, 0.1, 1.0};
+    int yes = 0, no = 0;
+    for (int b = 0; b < 3; b++)
+        for (int f = 0; f < 3; f++)
+            for (int k = 0; k <= 200; k++) {
+                double E = pow(10.0, k / 20.0);
+                int want = mp_prf_cache_bound(&c, E, sky[b], 3.0) <= frac[f];
+                assert_int_equal(mp_prf_cache_serves(&c, E, sky[b], 3.0, frac[f]), want);
+                yes += want;
+                no += !want;
+            }
+    assert_true(yes > 100 && no > 100);
+    assert_false(mp_prf_cache_serves(NULL, 1.0, 1.0, 1.0, 1.0));
+    mp_prf_cache_free(&c);
+    mp_psf_free(&p);
+}
+
+/* mp_prf_adjoint is the render's transpose: for any image r on a star's
+ * box, Σ r·render(T) = Σ adjoint(r)·T, at ×2 and ×4, with no DRF (the
+ * axis operators), a QE map of 1 and one of four unequal subpixels (the
+ * spread-and-shift path), at phases on and off the table's grid; r and T
+ * pseudo-random, so no symmetry hides a transposed index.  The two sides
+ * agree to 1e-12 of Σ|r·render(T)|. */
+static void test_adjoint_is_transpose(void **state)
+{
+    (void)state;
+    double one = 1.0, qe4[4] = {0.8, 1.1, 0.95, 1.15};
+    mp_drf d1 = {1, &one, 1.0}, d2 = {2, qe4, 1.0};
+    const mp_drf *drfs[3] = {NULL, &d1, &d2};
+    unsigned long long z = 12345;
+    for (int t = 0; t < 6; t++) {
+        mp_psf p;
+        lopsided(t % 2 ? 4 : 2, &p);
+        for (size_t i = 0; i < (size_t)p.nx * p.ny; i++) {
+            z = z * 6364136223846793005ULL + 1442695040888963407ULL;
+            p.t[i] += 1e-3 * ((double)(z >> 11) / 9007199254740992.0 - 0.5);
+        }
+        mp_prf_model m = {&p, drfs[t / 2], 10};
+        size_t nel = (size_t)p.nx * p.ny;
+        double *g = malloc(nel * sizeof *g);
+        assert_non_null(g);
+        for (int k = 0; k < 4; k++) {
+            double x = 30.0 + (k == 0 ? 0.0 : 0.137 * k), y = 20.0 + (k == 0 ? 0.0 : 0.311 * k);
+            long x0, y0;
+            int w, h;
+            mp_prf_box(&m, x, y, &x0, &y0, &w, &h);
+            double *prf = malloc((size_t)w * h * sizeof *prf), *r = malloc((size_t)w * h * sizeof *r);
+            assert_non_null(prf);
+            assert_non_null(r);
+            for (size_t i = 0; i < (size_t)w * h; i++) {
+                z = z * 6364136223846793005ULL + 1442695040888963407ULL;
+                r[i] = (double)(z >> 11) / 9007199254740992.0 - 0.5;
+            }
+            mp_prf_work wk = {0};
+            assert_int_equal(mp_prf_render(&m, x, y, prf, NULL, NULL, &wk), 0);
+            assert_int_equal(mp_prf_adjoint(&m, x, y, x0, y0, w, h, r, g, &wk), 0);
+            double lhs = 0.0, rhs = 0.0, mag = 0.0;
+            for (size_t i = 0; i < (size_t)w * h; i++) {
+                lhs += r[i] * prf[i];
+                mag += fabs(r[i] * prf[i]);
+            }
+            for (size_t i = 0; i < nel; i++)
+                rhs += g[i] * p.t[i];
+            assert_true(mag > 0.1);
+            assert_true(fabs(lhs - rhs) <= 1e-12 * mag);
+            mp_prf_work_free(&wk);
+            free(prf);
+            free(r);
+        }
+        free(g);
+        mp_psf_free(&p);
+    }
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
@@ -205,6 +373,9 @@ int main(void)
         cmocka_unit_test(test_bound_falls_as_h4),
         cmocka_unit_test(test_grid_only_for_its_model),
         cmocka_unit_test(test_separable_build_is_exact),
+        cmocka_unit_test(test_render_paths_agree),
+        cmocka_unit_test(test_serves_as_the_bound),
+        cmocka_unit_test(test_adjoint_is_transpose),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }
