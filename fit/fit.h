@@ -276,8 +276,11 @@ typedef struct mp_prf_cache_s {
     float *img;            /* (os(gb+3))² planes of 3 npix: PRF, ∂/∂x, ∂/∂y */
     int nph;               /* measured phases (G²) */
     float *p, *d2;         /* nph × npix: exact PRF and δP² at cell centres */
-    double d2max;          /* the largest Σ δP² of a cell (over its pixels) */
     double pmin, pmax;     /* the least and the largest P of any cell's pixel */
+    double *d2bin;         /* nph × MP_PRF_CACHE_NBIN: each cell's Σ δP² over
+                            * its pixels by P (mp_prf_cache_serves): bin 0
+                            * P ≤ 0, bin b ≥ 1 P in (pmax·2^−b, pmax·2^(1−b)],
+                            * the last down to 0 */
     const mp_psf *psf;     /* what it was built from (mp_prf_cache_usable) */
     const mp_drf *drf;
 } mp_prf_cache;
@@ -294,6 +297,9 @@ int mp_prf_cache_build(const mp_prf_model *m, int G, mp_prf_cache *c, char *err)
  * equal up to the order of the sums: test_prf_cache compares them). */
 int mp_prf_cache_build_exact(const mp_prf_model *m, int G, mp_prf_cache *c, char *err);
 
+/* The bins of mp_prf_cache.d2bin. */
+#define MP_PRF_CACHE_NBIN 16
+
 /* The grid economy=yes builds by default (fit/setup.c; parameter phasegrid). */
 #define MP_PRF_CACHE_G 16
 void mp_prf_cache_free(mp_prf_cache *c);
@@ -304,10 +310,10 @@ void mp_prf_cache_free(mp_prf_cache *c);
 double mp_prf_cache_bound(const mp_prf_cache *c, double E, double B, double ron);
 
 /* mp_prf_cache_serves: whether mp_prf_cache_bound(c, E, B, ron) ≤ frac,
- * decided first by two bounds on the sum that need no pass over the cells
- * (each pixel's variance between B + ron² + E·pmin and B + ron² + E·pmax):
- * a faint star is served and a bright one refused at once, only the stars
- * between sum every cell (0 without a grid). */
+ * decided first by bounds on each cell's sum from its δP² binned by P
+ * (d2bin: within a bin a pixel's variance B + ron² + E·P lies between the
+ * bin's ends), within a factor 2 of each other: only a flux within that of
+ * the limit sums every pixel (0 without a grid). */
 int mp_prf_cache_serves(const mp_prf_cache *c, double E, double B, double ron, double frac);
 
 /* mp_prf_cache_limit: the largest flux whose bound is ≤ frac on sky B

@@ -53,6 +53,7 @@ void mp_prf_cache_free(mp_prf_cache *c)
     free(c->img);
     free(c->p);
     free(c->d2);
+    free(c->d2bin);
     memset(c, 0, sizeof *c);
 }
 
@@ -450,23 +451,34 @@ static int measure_sep(const mp_prf_model *m, mp_prf_cache *c)
     return rc;
 }
 
-/* What mp_prf_cache_serves bounds the cells' sums with: the largest Σ δP²
- * of a cell, and the least and largest P. */
-static void cell_extremes(mp_prf_cache *c)
+/* The bin of a pixel of PRF value v (d2bin's, pmax > 0). */
+static int bin_of(double v, double pmax)
 {
-    c->d2max = 0.0;
+    if (!(v > 0))
+        return 0;
+    int b = 1 + (int)floor(-log2(v / pmax));
+    return b < 1 ? 1 : b > MP_PRF_CACHE_NBIN - 1 ? MP_PRF_CACHE_NBIN - 1 : b;
+}
+
+/* What mp_prf_cache_serves bounds the cells' sums with: the least and the
+ * largest P, and each cell's Σ δP² binned by P.  Nonzero when out of memory. */
+static int cell_bins(mp_prf_cache *c)
+{
     c->pmin = INFINITY;
     c->pmax = -INFINITY;
-    for (int ph = 0; ph < c->nph; ph++) {
-        const float *d = c->d2 + (size_t)ph * c->npix, *p = c->p + (size_t)ph * c->npix;
-        double s = 0.0;
-        for (size_t i = 0; i < c->npix; i++) {
-            s += d[i];
-            c->pmin = p[i] < c->pmin ? p[i] : c->pmin;
-            c->pmax = p[i] > c->pmax ? p[i] : c->pmax;
-        }
-        c->d2max = s > c->d2max ? s : c->d2max;
+    for (size_t i = 0; i < (size_t)c->nph * c->npix; i++) {
+        c->pmin = c->p[i] < c->pmin ? c->p[i] : c->pmin;
+        c->pmax = c->p[i] > c->pmax ? c->p[i] : c->pmax;
     }
+    if (!(c->d2bin = calloc((size_t)c->nph * MP_PRF_CACHE_NBIN, sizeof *c->d2bin)))
+        return 1;
+    for (int ph = 0; ph < c->nph && c->pmax > 0; ph++) {
+        const float *d = c->d2 + (size_t)ph * c->npix, *p = c->p + (size_t)ph * c->npix;
+        double *bin = c->d2bin + (size_t)ph * MP_PRF_CACHE_NBIN;
+        for (size_t i = 0; i < c->npix; i++)
+            bin[bin_of(p[i], c->pmax)] += d[i];
+    }
+    return 0;
 }
 
 /* The grid, its nodes and cells rendered by the axis operators when the
@@ -510,8 +522,11 @@ static int build(const mp_prf_model *m, int G, int sep, mp_prf_cache *c, char *e
         snprintf(err, MP_ERRLEN, "out of memory rendering the PRF phase grid");
         goto done;
     }
+    if (cell_bins(c)) {
+        snprintf(err, MP_ERRLEN, "out of memory for the PRF phase grid's bound");
+        goto done;
+    }
     c->G = ng;
-    cell_extremes(c);
     rc = 0;
 done:
     free(buf);
@@ -551,18 +566,41 @@ double mp_prf_cache_bound(const mp_prf_cache *c, double E, double B, double ron)
 
 int mp_prf_cache_serves(const mp_prf_cache *c, double E, double B, double ron, double frac)
 {
-    if (!c || !c->d2 || !(E >= 0))
+    if (!c || !c->d2 || !c->d2bin || !(E >= 0))
         return 0;
-    /* With every pixel's variance v in [lo, hi] (lo > 0: no pixel is
-     * skipped), the largest cell's Σ δP²/v lies in [d2max/hi, d2max/lo].
-     * The margin keeps the decision the summed bound's where the two
-     * meet within the sums' rounding. */
-    double v0 = B + ron * ron, lo = v0 + E * fmin(c->pmin, 0.0), hi = v0 + E * fmax(c->pmax, 0.0);
-    double f2 = frac * frac / (E * E);
-    if (lo > 0 && c->d2max / lo <= f2 * (1.0 - 1e-9))
-        return 1;
-    if (lo > 0 && c->d2max / hi > f2 * (1.0 + 1e-9))
-        return 0;
+    /* Within bin b ≥ 1 a pixel's variance lies in [v0 + E·pmax·2^−b,
+     * v0 + E·pmax·2^(1−b)] (the last bin's lower end v0), in bin 0 in
+     * [v0 + E·pmin, v0]: each cell's Σ δP²/v, and so their largest, lies
+     * between the sums over bins at the ends.  With every lower end
+     * positive (no pixel skipped) the bounds decide; the margin keeps the
+     * decision the summed bound's where the two meet within rounding. */
+    double v0 = B + ron * ron, f2 = frac * frac / (E * E);
+    double lo0 = v0 + E * fmin(c->pmin, 0.0);
+    if (lo0 > 0 && c->pmax > 0) {
+        double inv_lo[MP_PRF_CACHE_NBIN], inv_hi[MP_PRF_CACHE_NBIN];
+        inv_lo[0] = 1.0 / lo0;
+        inv_hi[0] = 1.0 / v0;
+        for (int b = 1; b < MP_PRF_CACHE_NBIN; b++) {
+            double top = c->pmax * exp2(1 - b), bot = b < MP_PRF_CACHE_NBIN - 1 ? 0.5 * top : 0.0;
+            inv_lo[b] = 1.0 / (v0 + E * bot);
+            inv_hi[b] = 1.0 / (v0 + E * top);
+        }
+        double up = 0.0, low = 0.0;
+        for (int ph = 0; ph < c->nph; ph++) {
+            const double *bin = c->d2bin + (size_t)ph * MP_PRF_CACHE_NBIN;
+            double su = 0.0, sl = 0.0;
+            for (int b = 0; b < MP_PRF_CACHE_NBIN; b++) {
+                su += bin[b] * inv_lo[b];
+                sl += bin[b] * inv_hi[b];
+            }
+            up = su > up ? su : up;
+            low = sl > low ? sl : low;
+        }
+        if (up <= f2 * (1.0 - 1e-9))
+            return 1;
+        if (low > f2 * (1.0 + 1e-9))
+            return 0;
+    }
     return mp_prf_cache_bound(c, E, B, ron) <= frac;
 }
 

@@ -291,7 +291,7 @@ static void test_serves_as_the_bound(void **state)
     mp_prf_model m = {&p, NULL, 10};
     mp_prf_cache c;
     assert_int_equal(mp_prf_cache_build(&m, 16, &c, err), 0);
-    assert_true(c.pmin < 0 && c.pmax > 0 && c.d2max > 0);
+    assert_true(c.pmin < 0 && c.pmax > 0 && c.d2bin);
     const double sky[3] = {0.0, 10.0, 1000.0}, frac[3] = {0.01, 0.1, 1.0};
     int yes = 0, no = 0;
     for (int b = 0; b < 3; b++)
