@@ -234,17 +234,71 @@ static void set_core(group *G, const double *p, int k)
     G->cy1[k] = (int)ceil(p[3 * k + 2] + h) + 1 - (int)G->by0;
 }
 
+/* pair_sums over the whole box into s and, in the same pass, over the
+ * box columns [x0, x1) and rows [y0, y1) into c: each row's overlap cut
+ * at the core's ends, its three parts summed once (not the core twice). */
+static int pair_sums_core(const group *G, const rstar *rk, const rstar *rl, int x0, int x1,
+                          int y0, int y1, double s[3][3], double c[3][3])
+{
+    int j0 = rk->j0 > rl->j0 ? rk->j0 : rl->j0, j1 = rk->j1 < rl->j1 ? rk->j1 : rl->j1;
+    int c0 = rk->i0 > rl->i0 ? rk->i0 : rl->i0, c1 = rk->i1 < rl->i1 ? rk->i1 : rl->i1;
+    memset(s, 0, 9 * sizeof s[0][0]);
+    memset(c, 0, 9 * sizeof c[0][0]);
+    if (j0 >= j1 || c0 >= c1)
+        return 0;
+    int core_cols = x0 < c1 && x1 > c0;
+    for (int j = j0; j < j1; j++) {
+        int tk = j - rk->j0, tl = j - rl->j0;
+        int a0 = rk->pp[tk] > rl->pp[tl] ? rk->pp[tk] : rl->pp[tl];
+        int a1 = rk->pp[tk] + rk->pn[tk], e1 = rl->pp[tl] + rl->pn[tl];
+        a1 = a1 < e1 ? a1 : e1;
+        if (a0 >= a1)
+            continue;
+        /* the row's parts: [a0, m0) outside, [m0, m1) in the core, [m1, a1) */
+        int m0 = a1, m1 = a1;
+        if (core_cols && j >= y0 && j < y1) {
+            m0 = packed_at(G, j, x0);
+            m1 = packed_at(G, j, x1);
+            m0 = m0 < a0 ? a0 : m0 > a1 ? a1 : m0;
+            m1 = m1 < m0 ? m0 : m1 > a1 ? a1 : m1;
+        }
+        const int cut[4] = {a0, m0, m1, a1};
+        for (int part = 0; part < 3; part++) {
+            int b0 = cut[part], b1 = cut[part + 1];
+            if (b0 >= b1)
+                continue;
+            size_t u = (size_t)(rk->pb[tk] + b0 - rk->pp[tk]);
+            size_t v = (size_t)(rl->pb[tl] + b0 - rl->pp[tl]);
+            double q[3][3];
+            row_sums(G->wt + b0, rk->prf + u, rk->dx + u, rk->dy + u, rl->prf + v, rl->dx + v,
+                     rl->dy + v, b1 - b0, q);
+            for (int a = 0; a < 3; a++)
+                for (int b = 0; b < 3; b++) {
+                    s[a][b] += q[a][b];
+                    if (part == 1)
+                        c[a][b] += q[a][b];
+                }
+        }
+    }
+    return 1;
+}
+
 /* Pair k < l summed exactly into A when their windows meet, and listed
  * with its sums outside its core in G->tail (when G->core_hw > 0: the
  * cores as set_core fixed them).  Nonzero when out of memory. */
 static int pair_exact(group *G, const double *p, const rstar *r, int k, int l)
 {
     double s[3][3], c[3][3];
-    if (!pair_sums(G, &r[k], &r[l], 0, 0, G->bw, 0, G->bh, s))
+    if (!(G->core_hw > 0)) {
+        if (pair_sums(G, &r[k], &r[l], 0, 0, G->bw, 0, G->bh, s))
+            put_pair(G, p, k, l, s);
+        return 0;
+    }
+    int x0, x1, y0, y1;
+    pair_core(G, k, l, &x0, &x1, &y0, &y1);
+    if (!pair_sums_core(G, &r[k], &r[l], x0, x1, y0, y1, s, c))
         return 0;
     put_pair(G, p, k, l, s);
-    if (!(G->core_hw > 0))
-        return 0;
     if (G->npair == G->cappair) {
         int cap = G->cappair ? 2 * G->cappair : 64;
         int *a = realloc(G->pk, (size_t)cap * sizeof *a);
@@ -263,9 +317,6 @@ static int pair_exact(group *G, const double *p, const rstar *r, int k, int l)
             return 1;
         G->cappair = cap;
     }
-    int x0, x1, y0, y1;
-    pair_core(G, k, l, &x0, &x1, &y0, &y1);
-    pair_sums(G, &r[k], &r[l], 0, x0, x1, y0, y1, c);
     double *t = G->tail + (size_t)G->npair * 9, *u = G->pfull + (size_t)G->npair * 9;
     for (int a = 0; a < 9; a++) {
         t[a] = s[a / 3][a % 3] - c[a / 3][a % 3];

@@ -180,6 +180,8 @@ static span_at span_in_box(const mp_prf_cache *c, const star_pos *s, long x0, lo
  * to zero in each of the three optional outputs. */
 static void zero_outside(const span_at *a, int w, double *out[3])
 {
+    if (a->inside && a->i0 == 0 && a->i1 == w)
+        return;                     /* most spans: a call per plane saved */
     for (int k = 0; k < 3; k++)
         if (out[k] && !a->inside)
             memset(out[k], 0, (size_t)w * sizeof *out[k]);
