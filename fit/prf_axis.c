@@ -107,18 +107,33 @@ int mp_prf_axis_refill(int n, int os, double offset, double x, double xr, long w
      * the table index moves by −os per +1 px of the star). */
     static const int dd[4] = {-2, -1, 1, 2};
     const double cd[4] = {-os / 12.0, 8.0 * os / 12.0, -8.0 * os / 12.0, os / 12.0};
+    /* A pixel whose elements and taps all lie inside the table has the
+     * same weights as any other such pixel (they depend on the element's
+     * place within the pixel only): computed for the first, copied to the
+     * rest, bit for bit the same sums. */
+    int have = -1;
     for (int q = 0; q < a->w; q++) {
         long mb0 = (p0 + q - 1) * os + n0;      /* the pixel's first element */
         long lo = mb0 - h - 2 < 0 ? 0 : mb0 - h - 2, hi = mb0 + os + h + 2;
+        int inner = mb0 - h - 2 >= 0 && hi <= n;
         hi = hi > n ? n : hi;
         a->lo[q] = lo;
         a->len[q] = hi > lo ? (int)(hi - lo) : 0;
         double *v = a->v + (size_t)q * a->bw;
+        if (inner && have >= 0) {
+            memcpy(v, a->v + (size_t)have * a->bw, (size_t)a->bw * sizeof *v);
+            if (deriv)
+                memcpy(a->d + (size_t)q * a->bw, a->d + (size_t)have * a->bw,
+                       (size_t)a->bw * sizeof *v);
+            continue;
+        }
         for (long m = mb0 < 0 ? 0 : mb0; m < mb0 + os && m < n; m++) {
             add_shifted(v, lo, m, 1.0, wt, h, n);
             for (int t = 0; deriv && t < 4; t++)
                 add_shifted(a->d + (size_t)q * a->bw, lo, m + dd[t], cd[t], wt, h, n);
         }
+        if (inner)
+            have = q;
     }
     return 0;
 }
@@ -142,11 +157,13 @@ double mp_prf_axis_ops(int nx, int ny, int os, int hw, int derivs, double w, dou
         double ty = fmin(ey + 2.0 * hw, (double)ny);
         return ex * (ty + ey) * taps + ex * ey * (derivs ? 9.0 : 1.0);
     }
+    /* the weights of a pixel inside the table once per axis, of the rest
+     * copied (mp_prf_axis_refill); the rows T·Xᵀ; the columns Y·A */
     double bw = os + 2.0 * hw + 4.0, rows = fmin(h * os + bw, (double)ny);
     w = fmin(w, nx / (double)os + 2.0);
     h = fmin(h, ny / (double)os + 2.0);
-    return (w + h) * os * taps * (derivs ? 5.0 : 1.0) + rows * w * bw * (derivs ? 2.0 : 1.0) +
-           h * w * bw * (derivs ? 3.0 : 1.0);
+    return 2.0 * os * taps * (derivs ? 5.0 : 1.0) + (w + h) * bw * (derivs ? 2.0 : 1.0) +
+           rows * w * bw * (derivs ? 2.0 : 1.0) + h * w * bw * (derivs ? 3.0 : 1.0);
 }
 
 void mp_prf_axis_rows(const mp_psf *p, const mp_prf_axis *ax, int deriv, double *A)
