@@ -163,6 +163,16 @@ static void row_sums(const double *restrict w, const double *restrict k0,
     q[2][2] = q22;
 }
 
+/* row_sums of stars k and l on packed pixels [b0, b1) of their rows tk, tl. */
+static void pair_row(const group *G, const rstar *rk, const rstar *rl, int tk, int tl, int b0,
+                     int b1, double q[3][3])
+{
+    size_t u = (size_t)(rk->pb[tk] + b0 - rk->pp[tk]);
+    size_t v = (size_t)(rl->pb[tl] + b0 - rl->pp[tl]);
+    row_sums(G->wt + b0, rk->prf + u, rk->dx + u, rk->dy + u, rl->prf + v, rl->dx + v, rl->dy + v,
+             b1 - b0, q);
+}
+
 /* Σ w J_k,a J_l,b over the fitted pixels where the windows of stars k and
  * l meet, within box columns [x0, x1) and rows [y0, y1); s is 3×3, only
  * b ≥ a when k == l.  Nonzero when they meet there at all. */
@@ -189,11 +199,8 @@ static int pair_sums(const group *G, const rstar *rk, const rstar *rl, int same,
         }
         if (a0 >= a1)
             continue;
-        size_t u = (size_t)(rk->pb[tk] + a0 - rk->pp[tk]);
-        size_t v = (size_t)(rl->pb[tl] + a0 - rl->pp[tl]);
         double q[3][3];
-        row_sums(G->wt + a0, rk->prf + u, rk->dx + u, rk->dy + u, rl->prf + v, rl->dx + v,
-                 rl->dy + v, a1 - a0, q);
+        pair_row(G, rk, rl, tk, tl, a0, a1, q);
         for (int a = 0; a < 3; a++)
             for (int b = (same ? a : 0); b < 3; b++)
                 s[a][b] += q[a][b];
@@ -267,11 +274,8 @@ static int pair_sums_core(const group *G, const rstar *rk, const rstar *rl, int 
             int b0 = cut[part], b1 = cut[part + 1];
             if (b0 >= b1)
                 continue;
-            size_t u = (size_t)(rk->pb[tk] + b0 - rk->pp[tk]);
-            size_t v = (size_t)(rl->pb[tl] + b0 - rl->pp[tl]);
             double q[3][3];
-            row_sums(G->wt + b0, rk->prf + u, rk->dx + u, rk->dy + u, rl->prf + v, rl->dx + v,
-                     rl->dy + v, b1 - b0, q);
+            pair_row(G, rk, rl, tk, tl, b0, b1, q);
             for (int a = 0; a < 3; a++)
                 for (int b = 0; b < 3; b++) {
                     s[a][b] += q[a][b];

@@ -294,27 +294,6 @@ static int render_table(const mp_prf_model *m, double x, double y, double xr, do
 {
     const mp_psf *p = m->psf;
     int os = p->os, nx = p->nx, ny = p->ny;
-    int hws = m->sinc_hw > 0 ? (m->sinc_hw < 64 ? m->sinc_hw : 64) : 0;
-    /* The axis operators where they cost less than the shift of the
-     * table's elements (OVERSAMP ≥ 2 on all but the smallest boxes; a DRF
-     * that varies within the pixel is not a product of two axes). */
-    if ((!m->drf || m->drf->k == 0) && bx.w > 0 && bx.h > 0 &&
-        mp_prf_axis_ops(nx, ny, os, hws, ddx || ddy, (double)bx.w, (double)bx.h, 1) <
-            mp_prf_axis_ops(nx, ny, os, hws, ddx || ddy, (double)bx.w, (double)bx.h, 0)) {
-        size_t nb = (size_t)bx.w * bx.h;
-        memset(prf, 0, nb * sizeof *prf);
-        if (ddx)
-            memset(ddx, 0, nb * sizeof *ddx);
-        if (ddy)
-            memset(ddy, 0, nb * sizeof *ddy);
-        w->nshift += 2;
-        return render_sep(m, x, y, xr, yr, bx, hws, prf, ddx, ddy, w);
-    }
-    if (work_reserve(w, (size_t)nx * ny))
-        return 1;
-    /* The central element sits at the star minus the table's offset. */
-    axis_geom ax = table_axis_ref(nx, os, x - p->offset, xr - p->offset);
-    axis_geom ay = table_axis_ref(ny, os, y - p->offset, yr - p->offset);
     int hw = m->sinc_hw > 0 ? (m->sinc_hw < 64 ? m->sinc_hw : 64) : 0;
     size_t nb = (size_t)bx.w * bx.h;
     memset(prf, 0, nb * sizeof *prf);
@@ -324,6 +303,20 @@ static int render_table(const mp_prf_model *m, double x, double y, double xr, do
         memset(ddy, 0, nb * sizeof *ddy);
     if (nb == 0)
         return 0;
+    /* The axis operators where they cost less than the shift of the
+     * table's elements (OVERSAMP ≥ 2 on all but the smallest boxes; a DRF
+     * that varies within the pixel is not a product of two axes). */
+    if ((!m->drf || m->drf->k == 0) &&
+        mp_prf_axis_ops(nx, ny, os, hw, ddx || ddy, (double)bx.w, (double)bx.h, 1) <
+            mp_prf_axis_ops(nx, ny, os, hw, ddx || ddy, (double)bx.w, (double)bx.h, 0)) {
+        w->nshift += 2;
+        return render_sep(m, x, y, xr, yr, bx, hw, prf, ddx, ddy, w);
+    }
+    if (work_reserve(w, (size_t)nx * ny))
+        return 1;
+    /* The central element sits at the star minus the table's offset. */
+    axis_geom ax = table_axis_ref(nx, os, x - p->offset, xr - p->offset);
+    axis_geom ay = table_axis_ref(ny, os, y - p->offset, yr - p->offset);
     /* Table elements that land in the box: fine g = os(p − 1) + s ↔ m = g + n0.
      * Only they are block-summed; the shift needs 2 more on each side for the
      * five-point derivative, and the x-pass hw more rows for the y-pass. */
