@@ -606,17 +606,18 @@ int mp_prf_cache_serves(const mp_prf_cache *c, double E, double B, double ron, d
     return mp_prf_cache_bound(c, E, B, ron) <= frac;
 }
 
-/* q(E) increases with E (each term E²δP²/(E P + v) does): bisection in log E. */
+/* q(E) increases with E (each term E²δP²/(E P + v) does): bisection in log E,
+ * each flux decided as mp_prf_cache_serves decides it. */
 double mp_prf_cache_limit(const mp_prf_cache *c, double B, double ron, double frac)
 {
     double lo = 1e-3, hi = 1e15;
-    if (!c || !c->d2 || mp_prf_cache_bound(c, lo, B, ron) > frac)
+    if (!c || !c->d2 || !mp_prf_cache_serves(c, lo, B, ron, frac))
         return 0.0;
-    if (mp_prf_cache_bound(c, hi, B, ron) <= frac)
+    if (mp_prf_cache_serves(c, hi, B, ron, frac))
         return INFINITY;
     for (int it = 0; it < MP_SINC_LIMITS_EVALS - 2; it++) {  /* 18 decades: E to 0.25 % */
         double mid = sqrt(lo * hi);
-        if (mp_prf_cache_bound(c, mid, B, ron) <= frac)
+        if (mp_prf_cache_serves(c, mid, B, ron, frac))
             lo = mid;
         else
             hi = mid;

@@ -271,8 +271,15 @@ int mp_ss_level_serves(const mp_ss_level *lv, double E, double B, double ron, do
 {
     if (!lv->bias.p || !(E > 0))
         return 0;
-    double lam, q = mp_ss_level_bias(lv, E, B, ron, &lam);
-    return q <= frac && lam <= MP_SS_CHI2MAX;
+    /* mp_ss_level_bias's largest q and λ against their limits, phase by
+     * phase: the first phase over either decides (half the bisection's
+     * fluxes, mp_ss_level_emax). */
+    for (int ph = 0; ph < lv->bias.nph; ph++) {
+        double l, q = phase_bias(&lv->bias, ph, E, B, ron, &l);
+        if (!(q <= frac && l <= MP_SS_CHI2MAX))
+            return 0;
+    }
+    return 1;
 }
 
 /* Bisection in log E (as mp_sinc_choice_limits), then — the criterion is
