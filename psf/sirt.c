@@ -1,8 +1,8 @@
 /* sirt.c — one step of the table's reconstruction (build.h): each used
  * star's residual per unit flux, back-projected onto the table grid by
- * the transpose of the fit's render (fit/prf.c: pixel p holds
- * Σ_s S_δ(T)[os(p−1) + s + n0], S_δ the damped sinc shift by δ, whose
- * transpose is the shift by −δ), then combined over the stars element by
+ * the transpose of the fit's render (fit/prf.c mp_prf_adjoint: pixel p
+ * holds Σ_s S_δ(T)[os(p−1) + s + n0], S_δ the damped sinc shift by δ,
+ * whose transpose is the shift by −δ), then combined over the stars element by
  * element: a weighted fit of the polynomial in position, clipped at 4
  * robust σ (the robust mean of Anderson & King 2000, §4).  The stars'
  * passes and the elements' combination run in parallel; each writes its
