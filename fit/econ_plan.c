@@ -67,13 +67,8 @@ static double psf_ops(const mp_psf *p, int hw, int derivs, double W, int sep)
     return render_ops(p->nx, p->ny, p->os, hw, derivs, W, sep);
 }
 
-/* Whether a model's renders may take the axis operators (a DRF uniform
- * over the pixel, or none). */
-static int renders_separable(const mp_prf_model *m)
-{
-    return !m->drf || m->drf->k == 0;
-}
-#define RSEP(c) renders_separable(&(c)->model0)
+/* Whether the run's renders may take the axis operators. */
+#define RSEP(c) mp_prf_axes_apply(&(c)->model0)
 
 /* The coarser level's table size (mp_psf_rebin: ceil, kept odd). */
 static void level_size(const mp_psf *p, int factor, int *nx, int *ny)
@@ -170,7 +165,8 @@ static econ_cost cost_level(const mp_econ_cache *c, int l, double fits, double W
     double npix = box_pixels(p) + 2.0 * sqrt(box_pixels(p)) + 1.0;
     econ_cost k;
     int sep = RSEP(c);
-    k.build = NPH * (psf_ops(p, hw, 1, INFINITY, sep) + render_ops(nx, ny, os, hw, 0, INFINITY, sep));
+    k.build = NPH * (psf_ops(p, hw, 1, INFINITY, sep) +
+                     render_ops(nx, ny, os, hw, 0, INFINITY, sep));
     k.real = k.build;
     k.decide = min_evals(fits, MP_SS_LIMITS_EVALS) * 22.0 * NPH * npix;
     k.save = psf_ops(p, hw, 1, W, sep) - render_ops(nx, ny, os, hw, 1, W, sep);
@@ -304,7 +300,8 @@ static int build_level_grid(mp_econ_cache *c, int l, char *err)
         lv->grid = NULL;
         return 1;
     }
-    c->spent += cost_grid(&lv->psf, SEP(c), RSEP(c), c->grid_g, c->model0.sinc_hw, 0.0, INFINITY).real;
+    c->spent +=
+        cost_grid(&lv->psf, SEP(c), RSEP(c), c->grid_g, c->model0.sinc_hw, 0.0, INFINITY).real;
     return 0;
 }
 
@@ -316,10 +313,13 @@ static int choose_locked(mp_econ_cache *c, double fits, double fitrad, mp_frame_
     double W = o->win > 0 ? o->win : (isfinite(fitrad) ? 2.0 * ceil(fitrad) + 3.0 : INFINITY);
     /* What the run has already rendered counts too (a sequential run's own
      * history: deterministic). */
-    double learned = o->learn ? c->ops_done : 0.0, full = psf_ops(&c->psf0, c->model0.sinc_hw, 1, W, RSEP(c));
+    int rs = RSEP(c);
+    double learned = o->learn ? c->ops_done : 0.0;
+    double full = psf_ops(&c->psf0, c->model0.sinc_hw, 1, W, rs);
     c->fits_max = fits > c->fits_max ? fits : c->fits_max;
     int hw = c->model0.sinc_hw;
-    if (c->want_sinc && !o->sinc && pays(cost_sinc(&c->psf0, hw, fits, W, RSEP(c)), fits, learned, full)) {
+    if (c->want_sinc && !o->sinc &&
+        pays(cost_sinc(&c->psf0, hw, fits, W, rs), fits, learned, full)) {
         if (build_sinc(c, err))
             return 1;
         o->sinc = c->sinc.nph > 0 ? &c->sinc : NULL;
@@ -334,7 +334,8 @@ static int choose_locked(mp_econ_cache *c, double fits, double fitrad, mp_frame_
                 return 1;
             /* Decided for this frame, like every table: one built for an
              * earlier frame serves only where this frame's count pays. */
-            if (c->want_sinc && pays(cost_sinc(&c->ss[n].psf, hw, fits, W, RSEP(c)), fits, learned, full)) {
+            if (c->want_sinc &&
+                pays(cost_sinc(&c->ss[n].psf, hw, fits, W, rs), fits, learned, full)) {
                 if (build_level_sinc(c, n, err))
                     return 1;
                 bits |= 1 << n;
@@ -351,14 +352,14 @@ static int choose_locked(mp_econ_cache *c, double fits, double fitrad, mp_frame_
      * 1975 LM fits of 47 Tuc with the PSF built from the frame). */
     for (int l = 0; o->ss == c->ss && l < o->nss && c->grid_g > 0; l++)
         if (!((o->ss_grid >> l) & 1) &&
-            pays(cost_grid(&c->ss[l].psf, SEP(c), RSEP(c), c->grid_g, hw, fits, W), fits, learned,
+            pays(cost_grid(&c->ss[l].psf, SEP(c), rs, c->grid_g, hw, fits, W), fits, learned,
                  full)) {
             if (build_level_grid(c, l, err))
                 return 1;
             o->ss_grid |= (c->ss[l].grid->G > 0) << l;
         }
     if (!o->grid && c->grid_g > 0 &&
-        pays(cost_grid(&c->psf0, SEP(c), RSEP(c), c->grid_g, hw, fits, W), fits, learned, full)) {
+        pays(cost_grid(&c->psf0, SEP(c), rs, c->grid_g, hw, fits, W), fits, learned, full)) {
         if (build_grid(c, err))
             return 1;
         o->grid = c->grid.G > 0 ? &c->grid : NULL;
@@ -405,7 +406,7 @@ double mp_econ_render_ops(const mp_prf_model *m, int hw, double fitrad)
     if (m->psf->kind != MP_PSF_TABLE)
         return 0.0;
     double W = isfinite(fitrad) ? 2.0 * ceil(fitrad) + 3.0 : INFINITY;
-    return psf_ops(m->psf, hw, 1, W, renders_separable(m));
+    return psf_ops(m->psf, hw, 1, W, mp_prf_axes_apply(m));
 }
 
 double mp_econ_grid_render_ops(const mp_prf_model *m, double fitrad)

@@ -173,6 +173,18 @@ static void pair_row(const group *G, const rstar *rk, const rstar *rl, int tk, i
              b1 - b0, q);
 }
 
+/* Where the windows of stars k and l meet on box row j: packed pixels
+ * [*a0, *a1) (empty when *a0 ≥ *a1), their rows *tk, *tl. */
+static void row_overlap(const rstar *rk, const rstar *rl, int j, int *tk, int *tl, int *a0,
+                        int *a1)
+{
+    *tk = j - rk->j0;
+    *tl = j - rl->j0;
+    int e0 = rk->pp[*tk] + rk->pn[*tk], e1 = rl->pp[*tl] + rl->pn[*tl];
+    *a0 = rk->pp[*tk] > rl->pp[*tl] ? rk->pp[*tk] : rl->pp[*tl];
+    *a1 = e0 < e1 ? e0 : e1;
+}
+
 /* Σ w J_k,a J_l,b over the fitted pixels where the windows of stars k and
  * l meet, within box columns [x0, x1) and rows [y0, y1); s is 3×3, only
  * b ≥ a when k == l.  Nonzero when they meet there at all. */
@@ -188,10 +200,8 @@ static int pair_sums(const group *G, const rstar *rk, const rstar *rl, int same,
     if (j0 >= j1 || c0 >= c1 || x0 >= c1 || x1 <= c0)
         return 0;
     for (int j = j0; j < j1; j++) {
-        int tk = j - rk->j0, tl = j - rl->j0;
-        int a0 = rk->pp[tk] > rl->pp[tl] ? rk->pp[tk] : rl->pp[tl];
-        int a1 = rk->pp[tk] + rk->pn[tk], e1 = rl->pp[tl] + rl->pn[tl];
-        a1 = a1 < e1 ? a1 : e1;
+        int tk, tl, a0, a1;
+        row_overlap(rk, rl, j, &tk, &tl, &a0, &a1);
         if (!full) {
             int q0 = packed_at(G, j, x0), q1 = packed_at(G, j, x1);
             a0 = a0 > q0 ? a0 : q0;
@@ -255,10 +265,8 @@ static int pair_sums_core(const group *G, const rstar *rk, const rstar *rl, int 
         return 0;
     int core_cols = x0 < c1 && x1 > c0;
     for (int j = j0; j < j1; j++) {
-        int tk = j - rk->j0, tl = j - rl->j0;
-        int a0 = rk->pp[tk] > rl->pp[tl] ? rk->pp[tk] : rl->pp[tl];
-        int a1 = rk->pp[tk] + rk->pn[tk], e1 = rl->pp[tl] + rl->pn[tl];
-        a1 = a1 < e1 ? a1 : e1;
+        int tk, tl, a0, a1;
+        row_overlap(rk, rl, j, &tk, &tl, &a0, &a1);
         if (a0 >= a1)
             continue;
         /* the row's parts: [a0, m0) outside, [m0, m1) in the core, [m1, a1) */

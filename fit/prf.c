@@ -252,28 +252,7 @@ static int render_sep(const mp_prf_model *m, double x, double y, double xr, doub
     if (!T)
         return 1;
     double *A = w->c, *Ad = w->d;
-    for (long j = j0; j < j1; j++) {
-        const double *row = T + (size_t)j * nx;
-        double *a = A + (size_t)(j - j0) * ax->w, *ad = Ad + (size_t)(j - j0) * ax->w;
-        for (int q = 0; q < ax->w; q++) {
-            const double *t = row + ax->lo[q], *v = ax->v + (size_t)q * ax->bw;
-            double sv = 0.0, sd = 0.0;
-            if (ddx) {
-                const double *d = ax->d + (size_t)q * ax->bw;
-#pragma omp simd reduction(+ : sv, sd)
-                for (int i = 0; i < ax->len[q]; i++) {
-                    sv += t[i] * v[i];
-                    sd += t[i] * d[i];
-                }
-                ad[q] = sd;
-            } else {
-#pragma omp simd reduction(+ : sv)
-                for (int i = 0; i < ax->len[q]; i++)
-                    sv += t[i] * v[i];
-            }
-            a[q] = sv;
-        }
-    }
+    mp_prf_axis_rows(T, nx, j0, j1, ax, A, ddx ? Ad : NULL);
     w->ops += mp_prf_axis_ops(nx, p->ny, p->os, hw, deriv, (double)ax->w, (double)ay->w, 1);
     double scale = drf_weight(m->drf, p->os, 0, 0);
     long oy = ay->p0 - bx.y0, ox = ax->p0 - bx.x0;
@@ -306,7 +285,7 @@ static int render_table(const mp_prf_model *m, double x, double y, double xr, do
     /* The axis operators where they cost less than the shift of the
      * table's elements (OVERSAMP ≥ 2 on all but the smallest boxes; a DRF
      * that varies within the pixel is not a product of two axes). */
-    if ((!m->drf || m->drf->k == 0) &&
+    if (mp_prf_axes_apply(m) &&
         mp_prf_axis_ops(nx, ny, os, hw, ddx || ddy, (double)bx.w, (double)bx.h, 1) <
             mp_prf_axis_ops(nx, ny, os, hw, ddx || ddy, (double)bx.w, (double)bx.h, 0)) {
         w->nshift += 2;
@@ -476,7 +455,7 @@ int mp_prf_adjoint(const mp_prf_model *m, double x, double y, long x0, long y0, 
     size_t nel = (size_t)nx * ny;
     memset(g, 0, nel * sizeof *g);
     box bx = {x0, y0, w, h};
-    if (!m->drf || m->drf->k == 0)
+    if (mp_prf_axes_apply(m))
         return adjoint_sep(m, x, y, bx, r, g, work);
     /* A DRF with a QE map: each pixel's value spread over its block with
      * the subpixels' QE, then shifted by the transpose of the render's

@@ -41,9 +41,14 @@ void mp_prf_axis_free(mp_prf_axis *a)
     memset(a, 0, sizeof *a);
 }
 
+int mp_prf_axes_apply(const mp_prf_model *m)
+{
+    return !m->drf || m->drf->k == 0;
+}
+
 int mp_prf_separable(const mp_prf_model *m)
 {
-    return m->psf->kind == MP_PSF_TABLE && !m->psf->field && (!m->drf || m->drf->k == 0);
+    return m->psf->kind == MP_PSF_TABLE && !m->psf->field && mp_prf_axes_apply(m);
 }
 
 /* c·S[j] added to a pixel's row, S the shifted table (zero beyond [0, n)):
@@ -166,18 +171,29 @@ double mp_prf_axis_ops(int nx, int ny, int os, int hw, int derivs, double w, dou
            rows * w * bw * (derivs ? 2.0 : 1.0) + h * w * bw * (derivs ? 3.0 : 1.0);
 }
 
-void mp_prf_axis_rows(const mp_psf *p, const mp_prf_axis *ax, int deriv, double *A)
+void mp_prf_axis_rows(const double *T, int nx, long j0, long j1, const mp_prf_axis *ax,
+                      double *A, double *Ad)
 {
-    const double *W = deriv ? ax->d : ax->v;
-    for (int j = 0; j < p->ny; j++) {
-        const double *T = p->t + (size_t)j * p->nx;
-        double *out = A + (size_t)j * ax->w;
+    for (long j = j0; j < j1; j++) {
+        const double *row = T + (size_t)j * nx;
+        double *a = A + (size_t)(j - j0) * ax->w, *ad = Ad ? Ad + (size_t)(j - j0) * ax->w : NULL;
         for (int q = 0; q < ax->w; q++) {
-            const double *t = T + ax->lo[q], *w = W + (size_t)q * ax->bw;
-            double s = 0.0;
-            for (int i = 0; i < ax->len[q]; i++)
-                s += t[i] * w[i];
-            out[q] = s;
+            const double *t = row + ax->lo[q], *v = ax->v + (size_t)q * ax->bw;
+            double sv = 0.0, sd = 0.0;
+            if (ad) {
+                const double *d = ax->d + (size_t)q * ax->bw;
+#pragma omp simd reduction(+ : sv, sd)
+                for (int i = 0; i < ax->len[q]; i++) {
+                    sv += t[i] * v[i];
+                    sd += t[i] * d[i];
+                }
+                ad[q] = sd;
+            } else {
+#pragma omp simd reduction(+ : sv)
+                for (int i = 0; i < ax->len[q]; i++)
+                    sv += t[i] * v[i];
+            }
+            a[q] = sv;
         }
     }
 }

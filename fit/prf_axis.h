@@ -49,13 +49,22 @@ void mp_prf_axis_free(mp_prf_axis *a);
  * chooses between, and economy's plan prices (fit/econ_plan.c). */
 double mp_prf_axis_ops(int nx, int ny, int os, int hw, int derivs, double w, double h, int sep);
 
-/* mp_prf_separable: whether m's renders are the product of its two axes'
- * operators (a constant table; a DRF uniform over the pixel, or none). */
+/* mp_prf_axes_apply: whether one render of m is the product of its two
+ * axes' operators (a DRF uniform over the pixel, or none); a variable
+ * PSF is, once evaluated at the star. */
+int mp_prf_axes_apply(const mp_prf_model *m);
+
+/* mp_prf_separable: whether every render of m is the product of the same
+ * two axes' operators (mp_prf_axes_apply, and a constant table): the
+ * phase grid's build. */
 int mp_prf_separable(const mp_prf_model *m);
 
-/* mp_prf_axis_rows: A = T·Xᵀ over every table row (ny × ax->w, row-major):
- * the x operator applied, its PRF weights (deriv 0) or its derivative's. */
-void mp_prf_axis_rows(const mp_psf *p, const mp_prf_axis *ax, int deriv, double *A);
+/* mp_prf_axis_rows: A = T·Xᵀ on table rows [j0, j1) of T (stride nx),
+ * (j1 − j0) × ax->w row-major: the x operator's PRF weights, and with Ad
+ * (not NULL; ax built with the derivative) its derivative's, in one pass
+ * over the rows. */
+void mp_prf_axis_rows(const double *T, int nx, long j0, long j1, const mp_prf_axis *ax,
+                      double *A, double *Ad);
 
 /* mp_prf_axis_cols: out = scale · Y·A (ay->w × ax_w, the y operator's PRF
  * weights or, deriv, its derivative's), written at (oy, ox) of an image of

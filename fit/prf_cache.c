@@ -383,8 +383,7 @@ static int nodes_sep(const mp_prf_model *m, mp_prf_cache *c)
                 rc = 1;
                 continue;
             }
-            mp_prf_axis_rows(m->psf, &ax, 0, A);
-            mp_prf_axis_rows(m->psf, &ax, 1, Ad);
+            mp_prf_axis_rows(m->psf->t, m->psf->nx, 0, m->psf->ny, &ax, A, Ad);
             for (int Y = 0; Y < NA; Y++) {
                 float *pl = c->img + 3 * ((size_t)Y * NA + (size_t)X) * np;
                 for (int k = 0; k < 3; k++) {
@@ -430,7 +429,7 @@ static int measure_sep(const mp_prf_model *m, mp_prf_cache *c)
                 rc = 1;
                 continue;
             }
-            mp_prf_axis_rows(m->psf, &ax, 0, A);
+            mp_prf_axis_rows(m->psf->t, m->psf->nx, 0, m->psf->ny, &ax, A, NULL);
             for (int iy = 0; iy < ng; iy++) {
                 double y = ref_coord(c, iy / c->gb, (iy % c->gb + 0.5) / c->gb);
                 size_t ph = (size_t)iy * ng + ix;

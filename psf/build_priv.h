@@ -67,6 +67,11 @@ int mp_epsf_fitter_set(mp_epsf_fitter *z, const mp_epsf *e, const mp_epsf_star *
  * or NULL: none built, or its bound at twice the group's brightest flux
  * above MP_EPSF_GRID_FRAC. */
 const mp_prf_cache *mp_epsf_fitter_grid(const mp_epsf_fitter *z, const mp_epsf_star *s);
+
+/* mp_epsf_grid_serves: whether grid g may draw light E around PSF star s:
+ * its bias bound, on s's sky, at E (twice E until a fit of the build has
+ * set the fluxes) is at most MP_EPSF_GRID_FRAC of its σ. */
+int mp_epsf_grid_serves(const mp_prf_cache *g, const mp_epsf_star *s, double E);
 void mp_epsf_fitter_free(mp_epsf_fitter *z);
 
 int mp_epsf_sirt_init(mp_epsf_sirt *w, const mp_epsf *e, size_t nstar, char *err);

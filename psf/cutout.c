@@ -296,9 +296,7 @@ int mp_epsf_clean(mp_epsf_star *s, const mp_psf *tab, const mp_prf_cache *grid,
          * grid on their own light (the bound the frame fit's painting of
          * neighbours uses; the star's light only adds noise there). */
         w.grid = grid;
-        if (!grid && faint &&
-            mp_prf_cache_serves(faint, (s->fitted ? 1.0 : 2.0) * s->nbf[j], fmax(s->sky, 0.0),
-                                f->rdnoise, MP_EPSF_GRID_FRAC))
+        if (!grid && faint && mp_epsf_grid_serves(faint, s, s->nbf[j]))
             w.grid = faint;
         if ((rc = mp_prf_render(&m, xs, ys, prf, NULL, NULL, &w)) != 0)
             break;

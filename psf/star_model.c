@@ -94,8 +94,11 @@ const mp_prf_cache *mp_epsf_fitter_grid(const mp_epsf_fitter *z, const mp_epsf_s
     double E = s->flux;
     for (int j = 0; j < s->nnb; j++)
         E = fmax(E, s->nbf[j]);
-    return mp_prf_cache_serves(&z->grid, (s->fitted ? 1.0 : 2.0) * E, fmax(s->sky, 0.0),
-                               s->f.rdnoise, MP_EPSF_GRID_FRAC)
-               ? &z->grid
-               : NULL;
+    return mp_epsf_grid_serves(&z->grid, s, E) ? &z->grid : NULL;
+}
+
+int mp_epsf_grid_serves(const mp_prf_cache *g, const mp_epsf_star *s, double E)
+{
+    return mp_prf_cache_serves(g, (s->fitted ? 1.0 : 2.0) * E, fmax(s->sky, 0.0), s->f.rdnoise,
+                               MP_EPSF_GRID_FRAC);
 }
