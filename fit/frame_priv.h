@@ -185,8 +185,10 @@ int ff_fit_group_local(const mp_frame *f, const mp_prf_model *m, const mp_frame_
  * norm over star k's fitting region (radius r) to k's bound, unless j
  * changed in k's own group fit (that fit saw it); the changes are then
  * cleared; so are the changes gone[0..ngone-1] (stars no longer in the
- * table: their light gone).  When now is not the rule the bounds hold for
- * (*held), every bound is INFINITY instead, and *held becomes now.  Stars
+ * table: their light gone).  When now does not paint these stars as the
+ * rule the bounds hold for (*held) did — another grid, or a flux limit
+ * that draws one of them another way — every bound is INFINITY instead,
+ * and *held becomes now.  Stars
  * sorted by group as gs says (ng groups).  Nonzero when out of memory. */
 int ff_update_bounds(const mp_frame *f, const mp_prf_model *m, const crop_rule *crop,
                      const paint_rule *now, paint_rule *held, double r, star_state *st, size_t n,

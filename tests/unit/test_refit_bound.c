@@ -98,6 +98,62 @@ static void scene(mp_frame *f, star_state *st, size_t *gs, size_t *ng, star_stat
     gone->moved = MOVED_CALL;
 }
 
+/* The bounds of st (no change pending) after a call with rule now,
+ * the bounds having been made under held: kept (all finite and as they
+ * were) or all INFINITY, and held becomes now. */
+static int bounds_kept(const mp_frame *f, const mp_prf_model *m, const crop_rule *crop,
+                       paint_rule now, paint_rule held, star_state *st, const size_t *gs,
+                       size_t ng)
+{
+    double before[NST];
+    for (int k = 0; k < NST; k++)
+        before[k] = st[k].bound;
+    assert_int_equal(ff_update_bounds(f, m, crop, &now, &held, FITRAD, st, NST, gs, ng, NULL, 0),
+                     0);
+    assert_ptr_equal(held.grid, now.grid);
+    assert_true(held.gemax == now.gemax || (isnan(held.gemax) && isnan(now.gemax)));
+    int kept = 1, gone = 1;
+    for (int k = 0; k < NST; k++) {
+        kept &= st[k].bound == before[k];
+        gone &= isinf(st[k].bound) != 0;
+        st[k].bound = before[k];
+    }
+    assert_true(kept != gone);
+    return kept;
+}
+
+/* When the bounds hold under another rule: only when it paints every star
+ * as the first did (the grid is never read: no change is pending). */
+static void paint_rules_checked(const mp_frame *f, const mp_prf_model *m, const crop_rule *crop,
+                                star_state *st, const size_t *gs, size_t ng)
+{
+    mp_prf_cache g1, g2;             /* two grids, told apart by address */
+    double Emin = INFINITY, Emax = 0;
+    for (int k = 0; k < NST; k++) {
+        Emin = fmin(Emin, fabs(st[k].s.flux));
+        Emax = fmax(Emax, fabs(st[k].s.flux));
+    }
+    double mid = sqrt(Emin * Emax);
+    /* No grid: the limit draws nobody another way. */
+    assert_true(bounds_kept(f, m, crop, (paint_rule){NULL, 1e3, 1}, (paint_rule){NULL, NAN, 1},
+                            st, gs, ng));
+    /* One grid, both limits above every star (or both below). */
+    assert_true(bounds_kept(f, m, crop, (paint_rule){&g1, 2 * Emax, 1},
+                            (paint_rule){&g1, 3 * Emax, 1}, st, gs, ng));
+    assert_true(bounds_kept(f, m, crop, (paint_rule){&g1, 0.5 * Emin, 1},
+                            (paint_rule){&g1, 0.2 * Emin, 1}, st, gs, ng));
+    /* A star between the limits, the grid against none, another grid,
+     * bounds never made: none holds. */
+    assert_false(bounds_kept(f, m, crop, (paint_rule){&g1, mid, 1},
+                             (paint_rule){&g1, 2 * Emax, 1}, st, gs, ng));
+    assert_false(bounds_kept(f, m, crop, (paint_rule){&g1, 2 * Emax, 1},
+                             (paint_rule){NULL, 2 * Emax, 1}, st, gs, ng));
+    assert_false(bounds_kept(f, m, crop, (paint_rule){&g2, 2 * Emax, 1},
+                             (paint_rule){&g1, 2 * Emax, 1}, st, gs, ng));
+    assert_false(bounds_kept(f, m, crop, (paint_rule){&g1, 2 * Emax, 1},
+                             (paint_rule){&g1, 2 * Emax, 0}, st, gs, ng));
+}
+
 static void test_bound_sums_the_changes(void **state)
 {
     (void)state;
@@ -148,13 +204,7 @@ static void test_bound_sums_the_changes(void **state)
                   several);
     assert_true(single >= 2);    /* the scene tests both cases */
     assert_true(several >= 2);
-    /* Another paint rule: no bound holds. */
-    paint_rule other = {NULL, 1e3, 1};
-    assert_int_equal(ff_update_bounds(&f, &m, &crop, &other, &held, FITRAD, st, NST, gs, ng,
-                                      NULL, 0), 0);
-    for (int k = 0; k < NST; k++)
-        assert_true(isinf(st[k].bound));
-    assert_true(held.gemax == 1e3);
+    paint_rules_checked(&f, &m, &crop, st, gs, ng);
     for (int j = 0; j <= NST; j++)
         free(d[j]);
     free(sum);
