@@ -184,6 +184,8 @@ typedef struct {
     const mp_prf_model *m;
     double fitrad, snrmin;
     long dropped;
+    const mp_prf_cache *grid;    /* NULL: exact renders; else the candidates */
+    double gemax;                /* whose fitted flux is within gemax from it */
 } mp_pl_screen;
 int mp_pl_screen_sieve(void *ctx, mp_find_cand *c, size_t n);
 

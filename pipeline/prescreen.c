@@ -10,27 +10,13 @@
 #include <string.h>
 #include "pipeline/pipeline_priv.h"
 
-/* Linear weighted fit of E·P + B over the pixels within r of (x, y):
- * E and its σ from the 2×2 normal equations, weights 1/rms².  NaN when
- * the window holds too little. */
-static double linear_snr(const mp_frame *f, const mp_bkg *b, const float *res,
-                         const mp_prf_model *m, double x, double y, double r, double *prf,
-                         mp_prf_work *wk, double *flux)
+/* The sums of the linear fit of E·P + B over the pixels within r of
+ * (x, y), P rendered on box (rx0, ry0, rw × rh): E and its S/N.  NaN
+ * when the window holds too little. */
+static double snr_of(const mp_frame *f, const mp_bkg *b, const float *res, double x, double y,
+                     double r, const double *prf, long rx0, long ry0, int rw, int rh,
+                     double *flux)
 {
-    long wx0 = (long)ceil(x - r), wy0 = (long)ceil(y - r);
-    long wx1 = (long)floor(x + r) + 1, wy1 = (long)floor(y + r) + 1;
-    wx0 = wx0 < 1 ? 1 : wx0;
-    wy0 = wy0 < 1 ? 1 : wy0;
-    wx1 = wx1 > f->im.nx + 1 ? f->im.nx + 1 : wx1;
-    wy1 = wy1 > f->im.ny + 1 ? f->im.ny + 1 : wy1;
-    *flux = NAN;
-    if (wx1 <= wx0 || wy1 <= wy0)
-        return NAN;
-    long rx0, ry0;
-    int rw, rh;
-    if (mp_prf_render_window(m, x, y, wx0, wy0, wx1 - wx0, wy1 - wy0, &rx0, &ry0, &rw, &rh, prf,
-                             NULL, NULL, wk))
-        return NAN;
     double spp = 0, sp = 0, s1 = 0, spd = 0, sd = 0;
     for (long j = 0; j < rh; j++)
         for (long i = 0; i < rw; i++) {
@@ -51,10 +37,48 @@ static double linear_snr(const mp_frame *f, const mp_bkg *b, const float *res,
             sd += w * res[k];
         }
     double det = spp * s1 - sp * sp;
+    *flux = NAN;
     if (!(det > 0) || s1 <= 0)
         return NAN;
     *flux = (s1 * spd - sp * sd) / det;
     return *flux / sqrt(s1 / det);
+}
+
+/* Linear weighted fit of E·P + B over the pixels within r of (x, y):
+ * E and its σ from the 2×2 normal equations, weights 1/rms².  P from the
+ * phase grid when one is given and the fitted E lies within its flux
+ * limit gemax (its bias then below the fit's own bound, issue 12: the
+ * exact renders were a tenth of a simulated crowded frame's run), else
+ * exact.  NaN when the window holds too little. */
+static double linear_snr(const mp_frame *f, const mp_bkg *b, const float *res,
+                         const mp_prf_model *m, const mp_prf_cache *grid, double gemax,
+                         double x, double y, double r, double *prf, mp_prf_work *wk,
+                         double *flux)
+{
+    long wx0 = (long)ceil(x - r), wy0 = (long)ceil(y - r);
+    long wx1 = (long)floor(x + r) + 1, wy1 = (long)floor(y + r) + 1;
+    wx0 = wx0 < 1 ? 1 : wx0;
+    wy0 = wy0 < 1 ? 1 : wy0;
+    wx1 = wx1 > f->im.nx + 1 ? f->im.nx + 1 : wx1;
+    wy1 = wy1 > f->im.ny + 1 ? f->im.ny + 1 : wy1;
+    *flux = NAN;
+    if (wx1 <= wx0 || wy1 <= wy0)
+        return NAN;
+    double snr = NAN;
+    for (int exact = grid == NULL; exact <= 1; exact++) {
+        long rx0, ry0;
+        int rw, rh;
+        wk->grid = exact ? NULL : grid;
+        int rc = mp_prf_render_window(m, x, y, wx0, wy0, wx1 - wx0, wy1 - wy0, &rx0, &ry0, &rw,
+                                      &rh, prf, NULL, NULL, wk);
+        wk->grid = NULL;
+        if (rc)
+            return NAN;
+        snr = snr_of(f, b, res, x, y, r, prf, rx0, ry0, rw, rh, flux);
+        if (!exact && fabs(*flux) <= gemax)
+            break;
+    }
+    return snr;
 }
 
 long mp_pl_prescreen(const mp_frame *f, const mp_bkg *b, const float *res,
@@ -81,7 +105,7 @@ long mp_pl_prescreen(const mp_frame *f, const mp_bkg *b, const float *res,
             double x = mp_table_get(found, (size_t)r, fx), y = mp_table_get(found, (size_t)r, fy);
             if (!prf || !isfinite(x) || !isfinite(y))
                 continue;
-            double e, snr = linear_snr(f, b, res, m, x, y, fitrad, prf, &wk, &e);
+            double e, snr = linear_snr(f, b, res, m, NULL, 0.0, x, y, fitrad, prf, &wk, &e);
             mp_table_set(found, (size_t)r, fs, snr);
             /* A saturated plateau is a star whatever the screen says: its
              * core is masked, and the first model's shape on the pixels
@@ -123,8 +147,8 @@ int mp_pl_screen_sieve(void *ctx, mp_find_cand *c, size_t n)
             if (!prf || !isfinite(c[i].x) || !isfinite(c[i].y))
                 continue;
             double e;
-            c[i].snr = linear_snr(sc->f, sc->b, sc->res, sc->m, c[i].x, c[i].y, sc->fitrad, prf,
-                                  &wk, &e);
+            c[i].snr = linear_snr(sc->f, sc->b, sc->res, sc->m, sc->grid, sc->gemax, c[i].x,
+                                  c[i].y, sc->fitrad, prf, &wk, &e);
             if (isfinite(c[i].snr) && c[i].snr < sc->snrmin) {
                 c[i].keep = 0;
                 dropped++;

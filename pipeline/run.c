@@ -315,9 +315,14 @@ static int find_on_residual(run_state *s, int round, long *added, char *err)
         return 1;
     ro.roundlo = fmin(ro.roundlo, -2.0);
     ro.roundhi = fmax(ro.roundhi, 2.0);
-    /* The screen as detection goes (its candidates never all held). */
-    double cut = s->fit->opts.minsnr - MP_PL_SCREEN_SLACK;
-    mp_pl_screen sc = {&R, &s->bkg, s->res, &s->fit->model, s->fit->opts.fit.fitrad, cut, 0};
+    /* The screen as detection goes (its candidates never all held), its
+     * PRFs from the phase grid the fit drew from, as the one-or-two
+     * test's below. */
+    double cut = s->fit->opts.minsnr - MP_PL_SCREEN_SLACK, gemax;
+    const mp_prf_cache *grid = phase_grid(s, &gemax);
+    mp_pl_screen sc = {.f = &R, .b = &s->bkg, .res = s->res, .m = &s->fit->model,
+                       .fitrad = s->fit->opts.fit.fitrad, .snrmin = cut, .grid = grid,
+                       .gemax = gemax};
     struct mp_find_sieve sv = {mp_pl_screen_sieve, &sc, MP_PL_SNR_COL};
     ro.sieve = cut > 0 ? &sv : NULL;
     int frc = mp_find_stars(&R, &s->bkg, &ro, &s->found, err);
@@ -341,8 +346,6 @@ static int find_on_residual(run_state *s, int round, long *added, char *err)
      * is: at minsnr 2 a Δχ² of 4 proposed noise (validate frame: 142 false
      * detections against 30 from find alone). */
     double splitsnr = fmax(s->fit->opts.minsnr, MP_PL_SPLIT_MINSNR);
-    double gemax;
-    const mp_prf_cache *grid = phase_grid(s, &gemax);
     if (s->fit->opts.minsnr > 0 &&
         mp_pl_split_candidates(&s->f, &s->bkg, s->res, &s->fit->model, grid, gemax, &s->t,
                                o->fit.opts.fit.fitrad, 1.05 * mergerad, fmax(matchrad, 1.1 * mergerad),
