@@ -176,11 +176,90 @@ static void test_prescreen_plateau(void **state)
     free(f.mask);
 }
 
+/* The residual search's screen with the fit's phase grid: a candidate's
+ * PRF from the grid moves its S/N by at most the grid's bias bound (0.1
+ * of the flux's σ, mp_prf_cache_limit) where the screen decides — faint
+ * candidates, whose own light adds little to the noise — so the kept set
+ * differs only within that of the cut; brighter candidates beyond the
+ * grid's limit are rendered exactly, as without it. */
+static void test_screen_from_grid(void **state)
+{
+    (void)state;
+    enum { M = 96, NS = 40 };
+    const double sky = 100.0, ron = 3.0, fwhm = 3.0, frac = 0.1, cut = 3.0;
+    char err[MP_ERRLEN];
+    mp_psf p;
+    assert_int_equal(mp_psf_gauss_table(fwhm, 2, 8.0, &p, err), 0);
+    mp_prf_model m = {&p, NULL, 10};
+    mp_prf_cache c;
+    assert_int_equal(mp_prf_cache_build(&m, 16, &c, err), 0);
+    /* the grid's own limit, lowered so that bright candidates meet it */
+    double gemax = fmin(mp_prf_cache_limit(&c, sky, ron, frac), 3000.0);
+    mp_frame f;
+    memset(&f, 0, sizeof f);
+    f.im.nx = f.im.ny = M;
+    f.im.pix = malloc(sizeof *f.im.pix * M * M);
+    f.mask = calloc(M * M, 1);
+    assert_true(f.im.pix && f.mask);
+    f.rdnoise = ron;
+    mp_rng r;
+    mp_rng_seed(&r, 917);
+    for (int i = 0; i < M * M; i++)
+        f.im.pix[i] = (float)sky;
+    mp_sim_prf prf = {.kind = MP_SIM_GAUSS, .sigma = fwhm / 2.3548200450309493, .volume = 1.0};
+    mp_find_cand a[NS], b[NS];
+    for (int k = 0; k < NS; k++) {  /* a star every other candidate, S/N ~1..300 */
+        double x = 8.0 + (M - 16) * mp_rng_uniform(&r), y = 8.0 + (M - 16) * mp_rng_uniform(&r);
+        double e = k % 2 ? 0.0 : 40.0 * pow(10.0, 3.0 * mp_rng_uniform(&r));
+        if (e > 0)
+            assert_int_equal(mp_sim_add_star_float(&prf, x, y, e, f.im.pix, M, M), 0);
+        a[k] = (mp_find_cand){.x = x, .y = y, .flux = NAN, .snr = NAN, .keep = 1};
+    }
+    mp_sim_add_noise_float(&r, f.im.pix, M * M, ron);
+    for (int i = 0; i < M * M; i++)         /* Poisson, as a Gaussian */
+        f.im.pix[i] += (float)(sqrt(fmax(f.im.pix[i], 0.0)) * mp_rng_normal(&r));
+    mp_bkg bk;
+    memset(&bk, 0, sizeof bk);
+    assert_int_equal(mp_bkg_estimate(&f, 32, 1, &bk, err), 0);
+    memcpy(b, a, sizeof a);
+    mp_pl_screen exact = {.f = &f, .b = &bk, .res = f.im.pix, .m = &m, .fitrad = 5.0,
+                          .snrmin = cut};
+    mp_pl_screen grid = exact;
+    grid.grid = &c;
+    grid.gemax = gemax;
+    assert_int_equal(mp_pl_screen_sieve(&exact, a, NS), 0);
+    assert_int_equal(mp_pl_screen_sieve(&grid, b, NS), 0);
+    int near = 0, served = 0, beyond = 0;
+    for (int k = 0; k < NS; k++) {
+        assert_true(isfinite(a[k].snr) && isfinite(b[k].snr));
+        if (fabs(a[k].snr) < 10.0) {        /* where the screen decides */
+            assert_true(fabs(a[k].snr - b[k].snr) <= frac);
+            near++;
+        }
+        if (b[k].keep && fabs(b[k].flux) > gemax) {     /* beyond the grid: exact */
+            assert_true(a[k].snr == b[k].snr);
+            beyond++;
+        }
+        served += a[k].snr != b[k].snr;
+        if (a[k].keep != b[k].keep)
+            assert_true(fabs(a[k].snr - cut) <= frac);
+    }
+    print_message("%d candidates near the cut, %d drawn from the grid, %d beyond it\n", near,
+                  served, beyond);
+    assert_true(near >= 10 && served >= 10 && beyond >= 5);    /* every case met */
+    mp_bkg_free(&bk);
+    mp_prf_cache_free(&c);
+    mp_psf_free(&p);
+    free(f.im.pix);
+    free(f.mask);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(test_new_stars_grid),
         cmocka_unit_test(test_prescreen_plateau),
+        cmocka_unit_test(test_screen_from_grid),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }
