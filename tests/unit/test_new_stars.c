@@ -13,6 +13,7 @@
 #include <string.h>
 #include "pipeline/pipeline_priv.h"
 #include "sim/sim.h"
+#include "stiff_common.h"
 
 enum { NX = 500, NY = 400 };
 
@@ -123,21 +124,14 @@ static void test_prescreen_plateau(void **state)
     assert_int_equal(mp_psf_gauss_table(fwhm, 2, 8.0, &p, err), 0);
     mp_prf_model m = {&p, NULL, 10};
     mp_frame f;
-    memset(&f, 0, sizeof f);
-    f.im.nx = f.im.ny = M;
-    f.im.pix = malloc(sizeof *f.im.pix * M * M);
-    f.mask = calloc(M * M, 1);
-    assert_true(f.im.pix && f.mask);
-    f.rdnoise = ron;
+    sf_frame_make(&f, M, M, ron);
     mp_rng r;
     mp_rng_seed(&r, 4242);
-    for (int i = 0; i < M * M; i++)
-        f.im.pix[i] = (float)sky;
-    mp_sim_add_noise_float(&r, f.im.pix, M * M, ron);
+    sf_render(&f, sky, fwhm, NULL, NULL, NULL, 0, &r, ron);
     mp_bkg b;
     memset(&b, 0, sizeof b);
     assert_int_equal(mp_bkg_estimate(&f, M, 1, &b, err), 0);
-    mp_sim_prf prf = {.kind = MP_SIM_GAUSS, .sigma = fwhm / 2.3548200450309493, .volume = 1.0};
+    mp_sim_prf prf = {.kind = MP_SIM_GAUSS, .sigma = fwhm / FWHM_SIGMA, .volume = 1.0};
     assert_int_equal(mp_sim_add_star_float(&prf, xs, ys, e, f.im.pix, M, M), 0);
     for (int j = 0; j < M; j++)
         for (int i = 0; i < M; i++)
@@ -172,8 +166,7 @@ static void test_prescreen_plateau(void **state)
     mp_table_free(&t);
     mp_bkg_free(&b);
     mp_psf_free(&p);
-    free(f.im.pix);
-    free(f.mask);
+    sf_frame_drop(&f);
 }
 
 /* The residual search's screen with the fit's phase grid: a candidate's
@@ -196,26 +189,18 @@ static void test_screen_from_grid(void **state)
     /* the grid's own limit, lowered so that bright candidates meet it */
     double gemax = fmin(mp_prf_cache_limit(&c, sky, ron, frac), 3000.0);
     mp_frame f;
-    memset(&f, 0, sizeof f);
-    f.im.nx = f.im.ny = M;
-    f.im.pix = malloc(sizeof *f.im.pix * M * M);
-    f.mask = calloc(M * M, 1);
-    assert_true(f.im.pix && f.mask);
-    f.rdnoise = ron;
+    sf_frame_make(&f, M, M, ron);
     mp_rng r;
     mp_rng_seed(&r, 917);
-    for (int i = 0; i < M * M; i++)
-        f.im.pix[i] = (float)sky;
-    mp_sim_prf prf = {.kind = MP_SIM_GAUSS, .sigma = fwhm / 2.3548200450309493, .volume = 1.0};
     mp_find_cand a[NS], b[NS];
+    double xs[NS], ys[NS], es[NS];
     for (int k = 0; k < NS; k++) {  /* a star every other candidate, S/N ~1..300 */
-        double x = 8.0 + (M - 16) * mp_rng_uniform(&r), y = 8.0 + (M - 16) * mp_rng_uniform(&r);
-        double e = k % 2 ? 0.0 : 40.0 * pow(10.0, 3.0 * mp_rng_uniform(&r));
-        if (e > 0)
-            assert_int_equal(mp_sim_add_star_float(&prf, x, y, e, f.im.pix, M, M), 0);
-        a[k] = (mp_find_cand){.x = x, .y = y, .flux = NAN, .snr = NAN, .keep = 1};
+        xs[k] = 8.0 + (M - 16) * mp_rng_uniform(&r);
+        ys[k] = 8.0 + (M - 16) * mp_rng_uniform(&r);
+        es[k] = k % 2 ? 0.0 : 40.0 * pow(10.0, 3.0 * mp_rng_uniform(&r));
+        a[k] = (mp_find_cand){.x = xs[k], .y = ys[k], .flux = NAN, .snr = NAN, .keep = 1};
     }
-    mp_sim_add_noise_float(&r, f.im.pix, M * M, ron);
+    sf_render(&f, sky, fwhm, xs, ys, es, NS, &r, ron);
     for (int i = 0; i < M * M; i++)         /* Poisson, as a Gaussian */
         f.im.pix[i] += (float)(sqrt(fmax(f.im.pix[i], 0.0)) * mp_rng_normal(&r));
     mp_bkg bk;
@@ -250,8 +235,7 @@ static void test_screen_from_grid(void **state)
     mp_bkg_free(&bk);
     mp_prf_cache_free(&c);
     mp_psf_free(&p);
-    free(f.im.pix);
-    free(f.mask);
+    sf_frame_drop(&f);
 }
 
 int main(void)
