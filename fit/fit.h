@@ -719,6 +719,12 @@ typedef struct mp_fit_memory mp_fit_memory;
 mp_fit_memory *mp_fit_memory_new(void);
 void mp_fit_memory_free(mp_fit_memory *mem);
 
+/* mp_fit_memory_forget: every remembered fit and bound dropped (a new
+ * PSF, or light taken off the frame: every group is fitted afresh), but
+ * each star's sky order kept, from which its group's next fit starts
+ * (the frame fit's warm start, as after any remembered fit). */
+void mp_fit_memory_forget(mp_fit_memory *mem);
+
 /* mp_fit_memory_scratch: lend the fit a buffer of n floats it may
  * overwrite with the model of every star (the neighbours subtracted from
  * each group) instead of allocating one of the frame's size: the

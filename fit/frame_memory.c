@@ -27,6 +27,14 @@ void mp_fit_memory_free(mp_fit_memory *mem)
     free(mem);
 }
 
+void mp_fit_memory_forget(mp_fit_memory *mem)
+{
+    if (!mem)
+        return;
+    memset(&mem->paint, 0, sizeof mem->paint);
+    mem->forgot = 1;
+}
+
 /* Numbers of the rows (NUMBER) when every row has a distinct-looking
  * whole one the memory can index, else −1 (no memory across calls). */
 double ff_max_number(const mp_table *t)
@@ -123,6 +131,11 @@ int ff_recall(mp_fit_memory *mem, const mp_table *t, star_state *st, size_t n,
             continue;
         mem->at[k] = 0;
         r->number = UINT32_MAX;       /* taken */
+        if (mem->forgot) {      /* as new, its sky order its start (none
+                                 * where first_order would not take it) */
+            st[i].s.sky_order = r->flags & (MP_FLAG_SATURATED | MP_FLAG_NOCONV) ? 0 : r->sky_order;
+            continue;
+        }
         if (cols && r->x == st[i].s.x && r->y == st[i].s.y && r->flux == st[i].s.flux &&
             ff_same_value(r->sky, st[i].s.sky)) {
             star_from(t, (size_t)st[i].row, c, r, &st[i].s);
@@ -132,15 +145,17 @@ int ff_recall(mp_fit_memory *mem, const mp_table *t, star_state *st, size_t n,
             pending_from(r, &st[i]);
         }
     }
-    for (size_t e = 0; e < mem->ns; e++)
+    for (size_t e = 0; e < mem->ns && !mem->forgot; e++)
         *ngone += mem->s[e].number != UINT32_MAX;
     if (*ngone && !(*gone = calloc(*ngone, sizeof **gone)))
         return 1;
     for (size_t e = 0, q = 0; e < mem->ns; e++)
         if (mem->s[e].number != UINT32_MAX) {
-            pending_from(&mem->s[e], &(*gone)[q++]);
+            if (!mem->forgot)
+                pending_from(&mem->s[e], &(*gone)[q++]);
             mem->at[mem->s[e].number] = 0;
         }
+    mem->forgot = 0;
     free(mem->s);                /* not held through the fit (issue 14) */
     mem->s = NULL;
     mem->ns = 0;

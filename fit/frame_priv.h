@@ -111,6 +111,7 @@ struct mp_fit_memory {
     uint32_t *at;        /* by NUMBER: 1 + its entry in s, or 0 */
     size_t nat;
     paint_rule paint;    /* the paint the entries' bounds hold for */
+    int forgot;          /* mp_fit_memory_forget: only the sky orders hold */
     float *scratch;      /* lent: room for the model of every star */
     size_t nscratch;
 };

@@ -518,9 +518,7 @@ static int build_psf(run_state *s, int pass, char *err)
     if (!rc) {
         s->fit = mp_fit_setup_local(&s->own, (double)s->offx, (double)s->offy, &s->local);
         s->fwhm = mp_prf_fwhm(&s->own.model);
-        mp_fit_memory_free(s->mem);
-        if (!(s->mem = mp_fit_memory_new()))
-            rc = oom(err);
+        mp_fit_memory_forget(s->mem);
         size_t l = strlen(s->own.decisions);
         snprintf(s->own.decisions + l, sizeof s->own.decisions - l, "%sPSF built from the frame "
                  "(pass %d, %s): %s%s%s", l ? "; " : "", pass, path, s->tabwhy,
@@ -549,9 +547,7 @@ static int take_halo(run_state *s, char *err)
         fprintf(stderr, "matphot pipeline: %s: %s, %.2f s\n", s->image, what, mp_seconds() - t0);
     if (!(z > MP_PL_HALO_Z))
         return 0;                       /* nothing taken off: the fit stands */
-    mp_fit_memory_free(s->mem);
-    if (!(s->mem = mp_fit_memory_new()))
-        return oom(err);
+    mp_fit_memory_forget(s->mem);
     s->rep->t_fit += mp_seconds() - t0;
     return s->o->build_psf ? 0 : group_and_fit(s, 1, err);
 }
@@ -570,9 +566,7 @@ static int take_lookup(run_state *s, char *err)
         return 1;
     if (!s->quiet)
         fprintf(stderr, "matphot pipeline: %s: %s, %.2f s\n", s->image, what, mp_seconds() - t0);
-    mp_fit_memory_free(s->mem);
-    if (!(s->mem = mp_fit_memory_new()))
-        return oom(err);
+    mp_fit_memory_forget(s->mem);
     s->rep->t_fit += mp_seconds() - t0;
     return group_and_fit(s, 1, err);
 }
