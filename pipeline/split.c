@@ -19,7 +19,10 @@
  * exact shift of a x4 table.  The grid's error is below 0.1 sigma of the
  * star's own fit, so the shape error it puts into sqrt(dchi2) is below
  * that fraction of the star's S/N divided by its flux: far below the
- * test's own noise of 1 (measured on 47 Tuc: bench/PROFILE.md). */
+ * test's own noise of 1 (measured on 47 Tuc: bench/PROFILE.md).  The trial
+ * stars are drawn from the grid by their own flux (best_second): beside a
+ * star too bright for the grid, a second one is mostly not (the segmented
+ * scene of make validate: the exact trials were 10 % of its CPU). */
 #include <math.h>
 #include <stdlib.h>
 #include <string.h>
@@ -31,6 +34,12 @@
 typedef struct {
     long x0, y0, w, h;    /* the window: pixels within fitrad of the star */
     double *p0, *dx, *dy, *pt, *wt, *r;
+    /* the window's weighted pixels (wt > 0), in its order: nc of them,
+     * as ns spans of frame pixels, at box index idx[i] */
+    mp_span *sp;
+    size_t *idx;
+    int ns, nc;
+    mp_prf_work wk;       /* the renders' (wk.grid: the phase grid, or NULL) */
 } split_work;
 
 /* Solve the 4×4 symmetric system G a = b by Gauss–Jordan with partial
@@ -95,19 +104,18 @@ static int render(const mp_prf_model *m, double x, double y, const split_work *s
     return 0;
 }
 
-/* The best second star beside the star at (x, y): its place, Δχ² and
- * linear flux; Δχ² NaN when none could be tried. */
-static double best_second(const mp_frame *f, const mp_bkg *b, const float *res,
-                          const mp_prf_model *m, double x, double y, double fitrad,
-                          const double *rings, split_work *s, double *scratch, mp_prf_work *wk,
-                          double *bx, double *by, double *bflux, double *bpeak)
+/* The weights of the window's pixels (those within fitrad of (x, y),
+ * unmasked, with a noise) and the residual there, the pixels weighted
+ * gathered as spans and indices (s->sp, s->idx), and the star's PRF and
+ * derivatives, the weights and the residual packed onto them, in the
+ * window's order (the zero weights' terms of every sum left out: the
+ * sums are those over the whole window bit for bit). */
+static void weighted_pixels(const mp_frame *f, const mp_bkg *b, const float *res, double x,
+                            double y, double fitrad, split_work *s)
 {
-    size_t n = (size_t)(s->w * s->h);
-    double *buf = scratch, *bdx = scratch + n, *bdy = scratch + 2 * n;
-    if (render(m, x, y, s, s->p0, s->dx, s->dy, buf, bdx, bdy, wk))
-        return NAN;
-    /* weights: the pixels within fitrad, unmasked, with a noise */
-    for (long j = 0; j < s->h; j++)
+    s->ns = s->nc = 0;
+    for (long j = 0; j < s->h; j++) {
+        int open = 0;
         for (long i = 0; i < s->w; i++) {
             size_t k = (size_t)(j * s->w + i);
             long gx = s->x0 + i, gy = s->y0 + j;
@@ -117,27 +125,75 @@ static double best_second(const mp_frame *f, const mp_bkg *b, const float *res,
                      isfinite(res[g]) && (rms = mp_bkg_rms(b, g)) > 0;
             s->wt[k] = ok ? 1.0 / (rms * rms) : 0.0;
             s->r[k] = ok ? res[g] : 0.0;
-        }
-    const double *B[4] = {s->p0, s->dx, s->dy, NULL};
-    double G[4][4] = {{0}}, Br[4] = {0}, a[4];
-    for (size_t k = 0; k < n; k++) {
-        double v[4] = {s->p0[k], s->dx[k], s->dy[k], 1.0};
-        for (int i = 0; i < 4; i++) {
-            Br[i] += s->wt[k] * v[i] * s->r[k];
-            for (int j = 0; j < 4; j++)
-                G[i][j] += s->wt[k] * v[i] * v[j];
+            if (!ok) {
+                open = 0;
+                continue;
+            }
+            if (!open)
+                s->sp[s->ns++] = (mp_span){gx, gy, 0};
+            s->sp[s->ns - 1].n++;
+            open = 1;
+            s->idx[s->nc++] = k;
         }
     }
-    (void)B;
-    double best = NAN;
+    for (int q = 0; q < s->nc; q++) {     /* packed in place: idx[q] >= q */
+        size_t k = s->idx[q];
+        s->p0[q] = s->p0[k];
+        s->dx[q] = s->dx[k];
+        s->dy[q] = s->dy[k];
+        s->wt[q] = s->wt[k];
+        s->r[q] = s->r[k];
+    }
+}
+
+/* A trial star's PRF at (px, py) on the weighted pixels, packed (s->pt):
+ * from the phase grid on their spans when it serves m (the same values as
+ * a render of the window, pixel for pixel), else rendered on the window
+ * and packed. */
+static int trial_prf(const mp_prf_model *m, double px, double py, split_work *s,
+                     double *scratch, mp_prf_work *wk)
+{
+    if (mp_prf_cache_usable(wk->grid, m))
+        return mp_prf_cache_render_spans(wk->grid, m, px, py, s->sp, s->ns, s->pt, NULL, NULL);
+    size_t n = (size_t)(s->w * s->h);
+    double *full = scratch + 3 * n;
+    if (render(m, px, py, s, full, NULL, NULL, scratch, scratch + n, scratch + 2 * n, wk))
+        return 1;
+    for (int q = 0; q < s->nc; q++)
+        s->pt[q] = full[s->idx[q]];
+    return 0;
+}
+
+/* The peak of a star's PRF at (px, py) over the window. */
+static double window_peak(const mp_prf_model *m, double px, double py, split_work *s,
+                          double *scratch, mp_prf_work *wk)
+{
+    size_t n = (size_t)(s->w * s->h);
+    double *full = scratch + 3 * n, pk = 0.0;
+    if (render(m, px, py, s, full, NULL, NULL, scratch, scratch + n, scratch + 2 * n, wk))
+        return NAN;
+    for (size_t k = 0; k < n; k++)
+        pk = fmax(pk, full[k]);
+    return pk;
+}
+
+/* The trials of best_second on the rings around (x, y), their PRFs drawn
+ * through wk (the phase grid when it holds one), from the sums of the
+ * star's own terms G, Br: the best place, Δχ² and linear flux (Δχ² NaN
+ * when none could be tried). */
+static double trials(const mp_prf_model *m, double x, double y, const double *rings,
+                     split_work *s, double *scratch, mp_prf_work *wk, double G[4][4],
+                     const double Br[4], double *bx, double *by, double *bflux)
+{
+    double best = NAN, a[4];
     for (int q = 0; q < NRING; q++)
         for (int t = 0; t < NANG; t++) {
             double ang = 2.0 * M_PI * (t + 0.5 * (q % 2)) / NANG;
             double px = x + rings[q] * cos(ang), py = y + rings[q] * sin(ang);
-            if (render(m, px, py, s, s->pt, NULL, NULL, buf, bdx, bdy, wk))
+            if (trial_prf(m, px, py, s, scratch, wk))
                 return NAN;
             double c[4] = {0}, pp = 0, pr = 0;
-            for (size_t k = 0; k < n; k++) {
+            for (int k = 0; k < s->nc; k++) {
                 double wp = s->wt[k] * s->pt[k];
                 c[0] += wp * s->p0[k];
                 c[1] += wp * s->dx[k];
@@ -147,7 +203,7 @@ static double best_second(const mp_frame *f, const mp_bkg *b, const float *res,
                 pr += wp * s->r[k];
             }
             double G2[4][4];
-            memcpy(G2, G, sizeof G);
+            memcpy(G2, G, sizeof G2);
             if (solve4(G2, c, a))
                 continue;
             double norm = pp, u = pr;
@@ -163,12 +219,49 @@ static double best_second(const mp_frame *f, const mp_bkg *b, const float *res,
                 *bx = px;
                 *by = py;
                 *bflux = u / norm;
-                double pk = 0;
-                for (size_t k = 0; k < n; k++)
-                    pk = fmax(pk, s->pt[k]);
-                *bpeak = *bflux * pk;
             }
         }
+    return best;
+}
+
+/* The best second star beside the star at (x, y) of flux e: its place,
+ * Δχ², linear flux and peak; Δχ² NaN when none could be tried.  The star
+ * itself is drawn from the phase grid when e is within its limit gemax,
+ * the trial stars when theirs is: a trial's error enters √Δχ², its own
+ * S/N, as the grid's bound at its own flux (below 0.1 within the limit),
+ * so the trials beside a star too bright for the grid are drawn from it
+ * too, and all of them again exactly when the best one's flux is beyond
+ * the limit.  scratch holds 4 n. */
+static double best_second(const mp_frame *f, const mp_bkg *b, const float *res,
+                          const mp_prf_model *m, double x, double y, double e, double fitrad,
+                          const double *rings, split_work *s, double *scratch,
+                          const mp_prf_cache *grid, double gemax, double *bx, double *by,
+                          double *bflux, double *bpeak)
+{
+    size_t n = (size_t)(s->w * s->h);
+    double *buf = scratch, *bdx = scratch + n, *bdy = scratch + 2 * n;
+    mp_prf_work *wk = &s->wk;
+    wk->grid = grid && e <= gemax ? grid : NULL;
+    if (render(m, x, y, s, s->p0, s->dx, s->dy, buf, bdx, bdy, wk))
+        return NAN;
+    weighted_pixels(f, b, res, x, y, fitrad, s);
+    double G[4][4] = {{0}}, Br[4] = {0};
+    for (int k = 0; k < s->nc; k++) {
+        double v[4] = {s->p0[k], s->dx[k], s->dy[k], 1.0};
+        for (int i = 0; i < 4; i++) {
+            Br[i] += s->wt[k] * v[i] * s->r[k];
+            for (int j = 0; j < 4; j++)
+                G[i][j] += s->wt[k] * v[i] * v[j];
+        }
+    }
+    wk->grid = grid;
+    double best = trials(m, x, y, rings, s, scratch, wk, G, Br, bx, by, bflux);
+    if (grid && !(*bflux <= gemax)) {
+        wk->grid = NULL;
+        best = trials(m, x, y, rings, s, scratch, wk, G, Br, bx, by, bflux);
+    }
+    if (isfinite(best))
+        *bpeak = *bflux * window_peak(m, *bx, *by, s, scratch, wk);
     return best;
 }
 
@@ -200,8 +293,14 @@ long mp_pl_split_candidates(const mp_frame *f, const mp_bkg *b, const float *res
 #pragma omp parallel if (!failed) reduction(| : failed)
     {
         split_work s;
-        mp_prf_work wk = {0};
-        double *mem = malloc(9 * n * sizeof *mem);
+        s.wk = (mp_prf_work){0};
+        double *mem = malloc(10 * n * sizeof *mem);
+        s.sp = malloc(n * sizeof *s.sp);
+        s.idx = malloc(n * sizeof *s.idx);
+        if (!s.sp || !s.idx) {
+            free(mem);
+            mem = NULL;
+        }
         failed |= !mem;
         if (mem) {
             s.p0 = mem;
@@ -224,13 +323,14 @@ long mp_pl_split_candidates(const mp_frame *f, const mp_bkg *b, const float *res
             s.w = s.h = side;
             if (s.x0 < 1 || s.y0 < 1 || s.x0 + side - 1 > f->im.nx || s.y0 + side - 1 > f->im.ny)
                 continue;       /* at the frame's edge: left to find */
-            wk.grid = grid && e <= gemax ? grid : NULL;
-            double d2 = best_second(f, b, res, m, x, y, fitrad, rings, &s, mem + 6 * n, &wk,
-                                    &cx[r], &cy[r], &cf[r], &cp[r]);
+            double d2 = best_second(f, b, res, m, x, y, e, fitrad, rings, &s, mem + 6 * n, grid,
+                                    gemax, &cx[r], &cy[r], &cf[r], &cp[r]);
             cs[r] = d2 >= snrmin * snrmin ? sqrt(d2) : NAN;
         }
         free(mem);
-        mp_prf_work_free(&wk);
+        free(s.sp);
+        free(s.idx);
+        mp_prf_work_free(&s.wk);
     }
     long added = 0;
     for (long r = 0; !failed && r < nrow; r++) {

@@ -107,8 +107,10 @@ int mp_epsf_select(const mp_frame *f, const mp_table *t, const mp_epsf_opts *o, 
         for (size_t q = 0; q < n && alone; q++) {
             if (q == c[k].row)
                 continue;
-            double d = hypot(mp_table_get(t, q, cx) - x, mp_table_get(t, q, cy) - y);
-            if (d <= o->fitrad && !(mp_table_get(t, q, cf) < c[k].flux))
+            double dx = mp_table_get(t, q, cx) - x, dy = mp_table_get(t, q, cy) - y;
+            if (fabs(dx) > o->fitrad || fabs(dy) > o->fitrad)
+                continue;       /* beyond fitrad on an axis: beyond it (hypot's cost) */
+            if (hypot(dx, dy) <= o->fitrad && !(mp_table_get(t, q, cf) < c[k].flux))
                 alone = 0;
         }
         if (alone)

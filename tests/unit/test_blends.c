@@ -19,7 +19,9 @@
  * And the test itself drawn from the phase grid (economy, issue 12) on a
  * x2 table against exact renders: the same place proposed, √Δχ² the same
  * to 1e-4 (the grid's error bound, 0.1 σ of a star within its limit,
- * moves √Δχ² by less than 0.1·σ_E/E ≈ 1e-3 of it here; measured 4e-7). */
+ * moves √Δχ² by less than 0.1·σ_E/E ≈ 1e-3 of it here; measured 4e-7);
+ * and with the star beyond the grid's limit but its second within it
+ * (the trials from the grid), the same; both beyond: exact, bit for bit. */
 #include <setjmp.h>
 #include <stdarg.h>
 #include <stddef.h>
@@ -202,6 +204,26 @@ static void test_split_from_grid(void **state)
     assert_true(se >= 5.0);
     assert_true(fabs(sg - se) <= 1e-4 * se);
     assert_true(sg != se);            /* the grid drew it: not the exact renders */
+    /* The star beyond the limit (gemax below E), its second within it
+     * (above 1.6·10⁴ e-): the star exact, the trials from the grid, the
+     * same answer; the second beyond it too: all exact, bit for bit. */
+    mp_table fb, fx;
+    mp_table_init(&fb);
+    mp_table_init(&fx);
+    assert_int_equal(mp_pl_split_candidates(&f, &b, f.im.pix, &m, &c, 0.5 * E, &t, 5.0, 0.4 * FWHM,
+                                            0.75 * FWHM, 5.0, &fb), 1);
+    assert_int_equal(mp_pl_split_candidates(&f, &b, f.im.pix, &m, &c, 0.1 * e2, &t, 5.0,
+                                            0.4 * FWHM, 0.75 * FWHM, 5.0, &fx), 1);
+    double sb = mp_table_get(&fb, 0, ss);
+    print_message("split: exact %.9g, grid %.9g, grid trials %.9g\n", se, sg, sb);
+    assert_true(mp_table_get(&fb, 0, sx) == mp_table_get(&fe, 0, sx));
+    assert_true(mp_table_get(&fb, 0, sy) == mp_table_get(&fe, 0, sy));
+    assert_true(fabs(sb - se) <= 1e-4 * se);
+    assert_true(sb != se);            /* the trials from the grid */
+    assert_true(mp_table_get(&fx, 0, ss) == se);
+    assert_true(mp_table_get(&fx, 0, sx) == mp_table_get(&fe, 0, sx));
+    mp_table_free(&fb);
+    mp_table_free(&fx);
     mp_table_free(&fe);
     mp_table_free(&fg);
     mp_table_free(&t);
