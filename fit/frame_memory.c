@@ -183,6 +183,7 @@ int ff_remember(mp_fit_memory *mem, const star_state *st, size_t n, double maxnu
         free(mem->s);
     mem->s = s;
     mem->paint = *held;
+    mem->forgot = 0;             /* the fits of this call: remembered whole */
     for (size_t i = 0; i < n; i++) {
         if (!st[i].alive)
             continue;

@@ -61,17 +61,26 @@ static void next_states(const star_state *last, star_state *st, int n)
     }
 }
 
+/* A memory holding the fits of fitted_table's stars (their paint rule
+ * set), t and last as fitted_table made them. */
+static mp_fit_memory *remembered(mp_table *t, star_state *last)
+{
+    fitted_table(t, last);
+    mp_fit_memory *mem = mp_fit_memory_new();
+    assert_non_null(mem);
+    paint_rule held = {NULL, 1e6, 1};
+    assert_int_equal(ff_remember(mem, last, NSTAR, NSTAR, &held), 0);
+    return mem;
+}
+
 /* Remembered, then recalled unchanged: the bounds and sky orders back. */
 static void test_recall_gives_back(void **state)
 {
     (void)state;
     mp_table t;
     star_state last[NSTAR], st[NSTAR];
-    fitted_table(&t, last);
-    mp_fit_memory *mem = mp_fit_memory_new();
-    assert_non_null(mem);
-    paint_rule held = {NULL, 1e6, 1}, back;
-    assert_int_equal(ff_remember(mem, last, NSTAR, NSTAR, &held), 0);
+    mp_fit_memory *mem = remembered(&t, last);
+    paint_rule back;
     next_states(last, st, NSTAR);
     star_state *gone;
     size_t ngone;
@@ -97,11 +106,8 @@ static void test_forget_keeps_sky_orders(void **state)
     (void)state;
     mp_table t;
     star_state last[NSTAR], st[NSTAR];
-    fitted_table(&t, last);
-    mp_fit_memory *mem = mp_fit_memory_new();
-    assert_non_null(mem);
-    paint_rule held = {NULL, 1e6, 1}, back;
-    assert_int_equal(ff_remember(mem, last, NSTAR, NSTAR, &held), 0);
+    mp_fit_memory *mem = remembered(&t, last);
+    paint_rule back;
     mp_fit_memory_forget(mem);
     next_states(last, st, NSTAR - 1);
     t.nrow = NSTAR - 1;
