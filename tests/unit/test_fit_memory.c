@@ -4,7 +4,8 @@
  * mp_fit_memory_forget) gives back no bound and no light to account for,
  * only each star's sky order as its next fit's start — none where its
  * last fit was saturated or did not converge, as first_order would not
- * take it — and only once.  Deterministic: hand-made states. */
+ * take it — and only once (a memory remembered again holds its new fits
+ * whole).  Deterministic: hand-made states. */
 #include <setjmp.h>
 #include <stdarg.h>
 #include <stddef.h>
@@ -136,11 +137,35 @@ static void test_forget_keeps_sky_orders(void **state)
     mp_table_free(&t);
 }
 
+/* Forgotten, then remembered again by a call that did not recall it (no
+ * economy there): the new fits are remembered whole, bounds and all. */
+static void test_remember_after_forget(void **state)
+{
+    (void)state;
+    mp_table t;
+    star_state last[NSTAR], st[NSTAR];
+    mp_fit_memory *mem = remembered(&t, last);
+    paint_rule held = {NULL, 1e6, 1}, back;
+    mp_fit_memory_forget(mem);
+    assert_int_equal(ff_remember(mem, last, NSTAR, NSTAR, &held), 0);
+    next_states(last, st, NSTAR);
+    star_state *gone;
+    size_t ngone;
+    assert_int_equal(ff_recall(mem, &t, st, NSTAR, &back, &gone, &ngone), 0);
+    assert_int_equal(back.set, 1);
+    for (int k = 0; k < NSTAR; k++)
+        assert_true(st[k].bound == 0.01);
+    free(gone);
+    mp_fit_memory_free(mem);
+    mp_table_free(&t);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(test_recall_gives_back),
         cmocka_unit_test(test_forget_keeps_sky_orders),
+        cmocka_unit_test(test_remember_after_forget),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }
