@@ -256,7 +256,7 @@ static double best_second(const mp_frame *f, const mp_bkg *b, const float *res,
     }
     wk->grid = grid;
     double best = trials(m, x, y, rings, s, scratch, wk, G, Br, bx, by, bflux);
-    if (grid && !(*bflux <= gemax)) {
+    if (grid && isfinite(best) && !(*bflux <= gemax)) {
         wk->grid = NULL;
         best = trials(m, x, y, rings, s, scratch, wk, G, Br, bx, by, bflux);
     }
