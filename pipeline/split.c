@@ -147,12 +147,13 @@ static void weighted_pixels(const mp_frame *f, const mp_bkg *b, const float *res
 }
 
 /* A trial star's PRF at (px, py) on the weighted pixels, packed (s->pt):
- * from the phase grid on their spans when it serves m (the same values as
- * a render of the window, pixel for pixel), else rendered on the window
+ * from s->wk's phase grid on their spans when it serves m (the same values
+ * as a render of the window, pixel for pixel), else rendered on the window
  * and packed. */
 static int trial_prf(const mp_prf_model *m, double px, double py, split_work *s,
-                     double *scratch, mp_prf_work *wk)
+                     double *scratch)
 {
+    mp_prf_work *wk = &s->wk;
     if (mp_prf_cache_usable(wk->grid, m))
         return mp_prf_cache_render_spans(wk->grid, m, px, py, s->sp, s->ns, s->pt, NULL, NULL);
     size_t n = (size_t)(s->w * s->h);
@@ -166,11 +167,11 @@ static int trial_prf(const mp_prf_model *m, double px, double py, split_work *s,
 
 /* The peak of a star's PRF at (px, py) over the window. */
 static double window_peak(const mp_prf_model *m, double px, double py, split_work *s,
-                          double *scratch, mp_prf_work *wk)
+                          double *scratch)
 {
     size_t n = (size_t)(s->w * s->h);
     double *full = scratch + 3 * n, pk = 0.0;
-    if (render(m, px, py, s, full, NULL, NULL, scratch, scratch + n, scratch + 2 * n, wk))
+    if (render(m, px, py, s, full, NULL, NULL, scratch, scratch + n, scratch + 2 * n, &s->wk))
         return NAN;
     for (size_t k = 0; k < n; k++)
         pk = fmax(pk, full[k]);
@@ -178,19 +179,19 @@ static double window_peak(const mp_prf_model *m, double px, double py, split_wor
 }
 
 /* The trials of best_second on the rings around (x, y), their PRFs drawn
- * through wk (the phase grid when it holds one), from the sums of the
+ * through s->wk (the phase grid when it holds one), from the sums of the
  * star's own terms G, Br: the best place, Δχ² and linear flux (Δχ² NaN
  * when none could be tried). */
 static double trials(const mp_prf_model *m, double x, double y, const double *rings,
-                     split_work *s, double *scratch, mp_prf_work *wk, double G[4][4],
-                     const double Br[4], double *bx, double *by, double *bflux)
+                     split_work *s, double *scratch, double G[4][4], const double Br[4],
+                     double *bx, double *by, double *bflux)
 {
     double best = NAN, a[4];
     for (int q = 0; q < NRING; q++)
         for (int t = 0; t < NANG; t++) {
             double ang = 2.0 * M_PI * (t + 0.5 * (q % 2)) / NANG;
             double px = x + rings[q] * cos(ang), py = y + rings[q] * sin(ang);
-            if (trial_prf(m, px, py, s, scratch, wk))
+            if (trial_prf(m, px, py, s, scratch))
                 return NAN;
             double c[4] = {0}, pp = 0, pr = 0;
             for (int k = 0; k < s->nc; k++) {
@@ -254,14 +255,14 @@ static double best_second(const mp_frame *f, const mp_bkg *b, const float *res,
                 G[i][j] += s->wt[k] * v[i] * v[j];
         }
     }
-    wk->grid = grid;
-    double best = trials(m, x, y, rings, s, scratch, wk, G, Br, bx, by, bflux);
-    if (grid && isfinite(best) && !(*bflux <= gemax)) {
-        wk->grid = NULL;
-        best = trials(m, x, y, rings, s, scratch, wk, G, Br, bx, by, bflux);
+    wk->grid = mp_prf_cache_usable(grid, m) ? grid : NULL;
+    double best = trials(m, x, y, rings, s, scratch, G, Br, bx, by, bflux);
+    if (wk->grid && isfinite(best) && !(*bflux <= gemax)) {
+        wk->grid = NULL;        /* the trials were from the grid: exactly */
+        best = trials(m, x, y, rings, s, scratch, G, Br, bx, by, bflux);
     }
     if (isfinite(best))
-        *bpeak = *bflux * window_peak(m, *bx, *by, s, scratch, wk);
+        *bpeak = *bflux * window_peak(m, *bx, *by, s, scratch);
     return best;
 }
 
