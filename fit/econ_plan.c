@@ -269,14 +269,23 @@ static int build_level_sinc(mp_econ_cache *c, int l, char *err)
     return 0;
 }
 
-static int build_grid(mp_econ_cache *c, char *err)
+/* The box the fit draws a star's derivatives within, measured on grid g
+ * of model m for fitting radius fitrad (none when it is not finite). */
+static int deriv_box(mp_prf_cache *g, const mp_prf_model *m, double fitrad, char *err)
+{
+    int rc = isfinite(fitrad) && mp_prf_cache_deriv_box(g, m, fitrad, MP_DBOX_SHARE, err);
+    return rc;
+}
+
+static int build_grid(mp_econ_cache *c, double fitrad, char *err)
 {
     if (c->grid_state)
         return c->grid_state < 0;
     /* Built for the model's own PSF (mp_prf_cache_usable checks it). */
     mp_prf_model m = c->model0;
     m.psf = c->psf;
-    int rc = mp_prf_cache_build(&m, c->grid_g, &c->grid, err);
+    int rc = mp_prf_cache_build(&m, c->grid_g, &c->grid, err) ||
+             deriv_box(&c->grid, &m, fitrad, err);
     c->grid_state = rc ? ECON_FAILED : ECON_BUILT;
     if (!rc)
         c->spent +=
@@ -286,7 +295,7 @@ static int build_grid(mp_econ_cache *c, char *err)
 
 /* Level l's own phase grid, on its table as the fit uses it (a constant
  * PSF only: the grid is never offered for a field). */
-static int build_level_grid(mp_econ_cache *c, int l, char *err)
+static int build_level_grid(mp_econ_cache *c, int l, double fitrad, char *err)
 {
     mp_ss_level *lv = &c->ss[l];
     if (lv->grid)
@@ -295,7 +304,9 @@ static int build_level_grid(mp_econ_cache *c, int l, char *err)
         snprintf(err, MP_ERRLEN, "out of memory for a phase grid");
         return 1;
     }
-    if (mp_prf_cache_build(&lv->model, c->grid_g, lv->grid, err)) {
+    if (mp_prf_cache_build(&lv->model, c->grid_g, lv->grid, err) ||
+        deriv_box(lv->grid, &lv->model, fitrad, err)) {
+        mp_prf_cache_free(lv->grid);
         free(lv->grid);
         lv->grid = NULL;
         return 1;
@@ -354,13 +365,13 @@ static int choose_locked(mp_econ_cache *c, double fits, double fitrad, mp_frame_
         if (!((o->ss_grid >> l) & 1) &&
             pays(cost_grid(&c->ss[l].psf, SEP(c), rs, c->grid_g, hw, fits, W), fits, learned,
                  full)) {
-            if (build_level_grid(c, l, err))
+            if (build_level_grid(c, l, fitrad, err))
                 return 1;
             o->ss_grid |= (c->ss[l].grid->G > 0) << l;
         }
     if (!o->grid && c->grid_g > 0 &&
         pays(cost_grid(&c->psf0, SEP(c), rs, c->grid_g, hw, fits, W), fits, learned, full)) {
-        if (build_grid(c, err))
+        if (build_grid(c, fitrad, err))
             return 1;
         o->grid = c->grid.G > 0 ? &c->grid : NULL;
     }
@@ -416,6 +427,19 @@ double mp_econ_grid_render_ops(const mp_prf_model *m, double fitrad)
     return 48.0 * fmin(W * W, box_pixels(p));
 }
 
+/* A phase grid's derivatives' box for the summary, "; ..." ("" when none). */
+static const char *dbox_note(const mp_prf_cache *g, char *s, size_t n)
+{
+    if (!(g->dbox_hw > 0))
+        snprintf(s, n, "; derivatives on whole windows");
+    else if (isinf(g->dbox_u))
+        snprintf(s, n, "; derivatives within %.0f px for every flux", g->dbox_hw);
+    else
+        snprintf(s, n, "; derivatives within %.0f px up to E/(B+RON^2) = %.3g", g->dbox_hw,
+                 g->dbox_u);
+    return s;
+}
+
 void mp_econ_summary(const mp_econ_cache *c, double ops_render, char *buf, size_t n)
 {
     buf[0] = '\0';
@@ -434,13 +458,16 @@ void mp_econ_summary(const mp_econ_cache *c, double ops_render, char *buf, size_
             ADD("%s the x%d table's bias table", any ? "," : "", c->lev_os[l]);
             any = 1;
         }
+    char d[96];
     if (c->grid_state > 0 && c->grid.G > 0) {
-        ADD("%s the phase grid (%d per pixel)", any ? "," : "", c->grid.G);
+        ADD("%s the phase grid (%d per pixel%s)", any ? "," : "", c->grid.G,
+            dbox_note(&c->grid, d, sizeof d));
         any = 1;
     }
     for (int l = 0; l < c->nlev; l++)
         if (c->lev_state[l] > 0 && c->ss[l].grid && c->ss[l].grid->G > 0) {
-            ADD("%s the x%d table's phase grid", any ? "," : "", c->lev_os[l]);
+            ADD("%s the x%d table's phase grid (%s)", any ? "," : "", c->lev_os[l],
+                dbox_note(c->ss[l].grid, d, sizeof d) + 2);
             any = 1;
         }
     if (!any)

@@ -283,6 +283,9 @@ typedef struct mp_prf_cache_s {
                             * the last down to 0 */
     const mp_psf *psf;     /* what it was built from (mp_prf_cache_usable) */
     const mp_drf *drf;
+    /* Position derivatives drawn within a box alone (mp_prf_cache_deriv_box):
+     * its half-width [px] and the largest E/(B + RON²) served; 0: none. */
+    double dbox_hw, dbox_u;
 } mp_prf_cache;
 
 /* mp_prf_cache_build: the grid of model m (its full sinc_hw; m->cache is
@@ -319,6 +322,25 @@ int mp_prf_cache_serves(const mp_prf_cache *c, double E, double B, double ron, d
 /* mp_prf_cache_limit: the largest flux whose bound is ≤ frac on sky B
  * (0 when none, INFINITY when all). */
 double mp_prf_cache_limit(const mp_prf_cache *c, double B, double ron, double frac);
+
+/* mp_prf_cache_deriv_box: for a group fit with fitting radius fitrad, sets
+ * c->dbox_hw = h = mp_fit_core_halfwidth(fitrad) and c->dbox_u, the
+ * largest u = E/(B + RON²) at which an isolated star loses at most the
+ * fraction smax of its Fisher information on x and on y when its
+ * derivatives are drawn within [floor(x − h), ceil(x + h)] × the same in y
+ * alone: I_out/(I_disc + I_out) ≤ smax, with I = Σ E²(∂P/∂x)²/(E·P + B +
+ * RON²) over the pixels beyond that box (I_out) and within fitrad − 1 px
+ * of the star (I_disc: its own fitting disc, which the group's fitted
+ * pixels always hold, after a move of up to 1 px).  Drawn from the grid at
+ * 4 × 4 subpixel phases, on a grid of 8 u a decade from 1e-2 to 1e9 (the
+ * limit is the last u at and below which every phase passes: 0 when the
+ * faintest does not, INFINITY when all do).  A fit that draws the
+ * derivatives within the box alone (fit/lm_render.c) has a position σ at
+ * most 1/sqrt(1 − smax) of its whole window's.  Nonzero with err when out
+ * of memory. */
+#define MP_DBOX_SHARE 0.01
+int mp_prf_cache_deriv_box(mp_prf_cache *c, const mp_prf_model *m, double fitrad,
+                           double smax, char *err);
 
 /* mp_prf_render_branch: as mp_prf_render_window, the
  * table aligned (its element nearest the star, and so the box) as for a
@@ -502,6 +524,11 @@ typedef struct {
                                 * loop's exact pass (fit/lm_normal.c
                                 * NE_REUSE); 0: sums them again (tests
                                 * compare: the same bytes) */
+    int stats;                 /* 1, the default: each star's PRF statistics
+                                * and model errors (st, fluxerr_model,
+                                * poserr_model) set; 0: left for the caller
+                                * (a frame fit sets them once, at its end:
+                                * mp_star_model_errors) */
     int warm_sky;              /* 1 in frame fits (mp_frame_opts_default),
                                 * 0 here: under MP_SKY_AUTO a group starts
                                 * at the highest sky order its stars were
@@ -538,9 +565,17 @@ typedef struct {
     double chi2star;
     int dofstar;
     int sky_order;                  /* the order the group's sky was fitted with */
+    int npix;                       /* its group's fitted pixels at its last fit */
     mp_prf_stats st;                /* of the PRF at the fitted position */
     double fluxerr_model, poserr_model;
 } mp_star;
+
+/* mp_star_model_errors: s->st, the statistics of the whole PRF of model m
+ * at (s->x, s->y) (zero when not finite), and s->fluxerr_model,
+ * s->poserr_model from them (mp_perf_model with s->flux, at least 1,
+ * s->sky and s->npix); w as mp_prf_stats_at's.  Nonzero when out of
+ * memory. */
+int mp_star_model_errors(const mp_prf_model *m, double ron, mp_star *s, mp_prf_work *w);
 
 /* mp_fit_group: fit n stars (one group) with their sky on frame f.
  * sky0 is the starting sky level (NaN: estimated from the fitted pixels).
@@ -551,6 +586,13 @@ typedef struct {
  * chosen under MP_SKY_AUTO). */
 int mp_fit_group(const mp_frame *f, const mp_prf_model *m, const mp_fit_opts *o,
                  double sky0, mp_star *stars, int n, char *err);
+
+/* mp_fit_core_halfwidth: the half-width [px] of the box around a star
+ * within which a group fit with fitting radius fitrad redraws it while its
+ * wings are frozen, and draws its position derivatives when the phase
+ * grid's mp_prf_cache_deriv_box, measured for this half-width or less,
+ * serves it (fit/lm_frozen.c, fit/lm_render.c). */
+double mp_fit_core_halfwidth(double fitrad);
 
 /* ---- A whole frame ------------------------------------------------------- */
 

@@ -302,6 +302,7 @@ static int set_rules(frame_fit *F, const mp_frame_opts *o, mp_frame_report *rep,
     }
     F->oc = oe;
     F->oc.fit.crop = F->crop.env ? &F->crop : NULL;
+    F->oc.fit.stats = 0;        /* once, at the end (model_errors) */
     return 0;
 }
 
@@ -325,6 +326,35 @@ static int bounds_now(frame_fit *F, char *err)
  * the first only those with a start flux, find's FLUX, can be) and fits
  * the groups; economy ends them when no group was refitted (every later
  * pass would see the same light).  Nonzero with err on failure. */
+/* Each live star fitted in this call (the passes leave its PRF statistics
+ * unset: mp_fit_opts.stats) given them and its model errors, once, on
+ * the model's own table: a star fitted in several passes was rendered
+ * whole, for them alone, after each (47 Tuc 512² with Tiny Tim's table:
+ * 19 462 renders of the ±40 px PRF for 7 130 stars over three rounds,
+ * 5.7 % of the instructions).  Nonzero with err when out of memory. */
+static int model_errors(frame_fit *F, char *err)
+{
+    int nomem = 0;
+#pragma omp parallel
+    {
+        mp_prf_work wk = {0};
+        wk.grid = F->oc.grid;
+#pragma omp for schedule(dynamic, 16)
+        for (size_t i = 0; i < F->n; i++) {
+            mp_star *s = &F->st[i].s;
+            if (F->st[i].alive && s->npix > 0 && !(s->st.volume != 0.0) &&
+                mp_star_model_errors(F->m, F->f->rdnoise, s, &wk)) {
+#pragma omp atomic write
+                nomem = 1;
+            }
+        }
+        mp_prf_work_free(&wk);
+    }
+    if (nomem)
+        snprintf(err, MP_ERRLEN, "out of memory");
+    return nomem;
+}
+
 static int run_passes(frame_fit *F, mp_frame_report *rep, char *err)
 {
     for (int pass = 0; pass < F->passes; pass++) {
@@ -388,7 +418,7 @@ int mp_fit_table_mem(const mp_frame *f, const mp_prf_model *m, const mp_frame_op
         snprintf(err, MP_ERRLEN, "out of memory");
         goto done;
     }
-    if (run_passes(&F, rep, err))
+    if (run_passes(&F, rep, err) || model_errors(&F, err))
         goto done;
     final_counts(F.st, F.n, F.gs, F.ng, rep);
     /* The last pass's changes too: the next call starts from them. */

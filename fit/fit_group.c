@@ -28,6 +28,7 @@ void mp_fit_opts_default(mp_fit_opts *o)
     o->refresh_movers = 1;
     o->reuse_pairs = 1;
     o->warm_sky = 0;
+    o->stats = 1;
 }
 
 static void group_free(group *G)
@@ -51,6 +52,7 @@ static void group_free(group *G)
     free(G->soff);
     free(G->fx);
     free(G->ongrid);
+    free(G->dwhole);
     free(G->settled);
     free(G->moved);
     free(G->calm);
@@ -74,6 +76,8 @@ static void group_free(group *G)
             free(r[k].dx);
             free(r[k].dy);
             free(r[k].pp);
+            free(r[k].dp0);
+            free(r[k].dp1);
             free(r[k].pn);
             free(r[k].pb);
         }
@@ -178,9 +182,12 @@ static int alloc_stars(group *G)
             r[k].dx = malloc(G->cap * sizeof(double));
             r[k].dy = malloc(G->cap * sizeof(double));
             r[k].pp = malloc(((size_t)G->bh + 1) * sizeof(int));
+            r[k].dp0 = malloc(((size_t)G->bh + 1) * sizeof(int));
+            r[k].dp1 = malloc(((size_t)G->bh + 1) * sizeof(int));
             r[k].pn = malloc(((size_t)G->bh + 1) * sizeof(int));
             r[k].pb = malloc(((size_t)G->bh + 1) * sizeof(int));
-            if (!r[k].prf || !r[k].dx || !r[k].dy || !r[k].pp || !r[k].pn || !r[k].pb)
+            if (!r[k].prf || !r[k].dx || !r[k].dy || !r[k].pp || !r[k].pn || !r[k].pb ||
+                !r[k].dp0 || !r[k].dp1)
                 return 1;
         }
     }
@@ -191,6 +198,7 @@ static int alloc_stars(group *G)
     G->stail = calloc((size_t)G->n * 27, sizeof *G->stail);
     G->fx = malloc((size_t)G->n * sizeof *G->fx);
     G->ongrid = calloc((size_t)G->n, 1);
+    G->dwhole = calloc((size_t)G->n, 1);
     G->settled = calloc((size_t)G->n, 1);
     G->moved = calloc((size_t)G->n, 1);
     G->calm = calloc((size_t)G->n, sizeof *G->calm);
@@ -204,7 +212,7 @@ static int alloc_stars(group *G)
     G->g = malloc(np * sizeof *G->g);
     G->step = malloc(np * sizeof *G->step);
     G->psave = malloc(np * sizeof *G->psave);
-    return !G->psave || !G->scr || !G->ongrid || !G->settled || !G->moved || !G->calm || !G->stail || !G->fx || !G->fy || !G->cx0 || !G->cx1 || !G->cy0 || !G->cy1 || !G->p || !G->pt || !G->A || !G->M || !G->g || !G->step;
+    return !G->psave || !G->scr || !G->ongrid || !G->dwhole || !G->settled || !G->moved || !G->calm || !G->stail || !G->fx || !G->fy || !G->cx0 || !G->cx1 || !G->cy0 || !G->cy1 || !G->p || !G->pt || !G->A || !G->M || !G->g || !G->step;
 }
 
 /* The data's range over the fitted pixels and the largest flux a star may
@@ -326,14 +334,7 @@ static int store_star(group *G, int k, mp_star *s, int converged, int cv, double
     for (int a = 0; a < G->nsky; a++)
         for (int b = 0; b < G->nsky; b++)
             vs += c[a] * c[b] * G->M[(size_t)(3 * n + a) * np + 3 * n + b];
-    /* The performance model wants the whole PRF, not the fitted window. */
-    if (!isfinite(out[0]) || !isfinite(out[1]))
-        memset(&s->st, 0, sizeof s->st);
-    else if (mp_prf_stats_at(G->m, out[0], out[1], &s->st, &G->work))
-        return 1;
-    double se, sx;
-    double E = out[2] > 1.0 ? out[2] : 1.0;
-    mp_perf_model(&s->st, E, skyv > 0 ? skyv : 0.0, G->f->rdnoise, (double)G->npix, &se, &sx);
+    s->npix = (int)G->npix;
     if (!converged)
         s->flags |= MP_FLAG_NOCONV;
     if (cv)
@@ -355,8 +356,11 @@ static int store_star(group *G, int k, mp_star *s, int converged, int cv, double
     own_disc_chi2(G, fitrad, s->x, s->y, &s->chi2star, &s->dofstar);
     s->niter = iter;
     s->sky_order = order;
-    s->fluxerr_model = isfinite(se) ? se : 0.0;
-    s->poserr_model = isfinite(sx) ? sx : 0.0;
+    /* The performance model wants the whole PRF, not the fitted window. */
+    if (G->stats)
+        return mp_star_model_errors(G->m, G->f->rdnoise, s, &G->work);
+    memset(&s->st, 0, sizeof s->st);
+    s->fluxerr_model = s->poserr_model = 0.0;
     return 0;
 }
 
@@ -493,6 +497,7 @@ int mp_fit_group(const mp_frame *f, const mp_prf_model *m, const mp_fit_opts *o,
     G.m = m;
     G.crop = isfinite(o->fitrad) ? o->crop : NULL;
     G.work.grid = o->grid;      /* every render of the group through G.work */
+    G.stats = o->stats;
     G.crop_min = o->fitrad + 1.0;
     G.core_hw = G.crop_min;     /* NaN (whole frame): every pass exact */
     G.n = n;

@@ -20,16 +20,36 @@
 #define LM_CORE 1.0
 #define LM_MOVE 0.5
 
+double mp_fit_core_halfwidth(double fitrad)
+{
+    return fitrad + 1.0 + LM_CORE;      /* G->core_hw + LM_CORE (fit_group.c) */
+}
+
+double lm_box_halfwidth(const group *G)
+{
+    return G->core_hw + LM_CORE;
+}
+
+void lm_box_at(const group *G, double x, double y, int b[4])
+{
+    double h = lm_box_halfwidth(G);
+    b[0] = (int)floor(x - h) - (int)G->bx0;
+    b[1] = (int)ceil(x + h) + 1 - (int)G->bx0;
+    b[2] = (int)floor(y - h) - (int)G->by0;
+    b[3] = (int)ceil(y + h) + 1 - (int)G->by0;
+}
+
 /* Freeze every star's wings where it is now: its core box, and the trial
  * buffers as the current ones (the same windows and wing values). */
 static void core_box(group *G, int k)
 {
-    double h = G->core_hw + LM_CORE, x = G->p[3 * k + 1], y = G->p[3 * k + 2];
+    int b[4];
     rstar *c = &G->cur[k];
-    c->ci0 = (int)floor(x - h) - (int)G->bx0;
-    c->ci1 = (int)ceil(x + h) + 1 - (int)G->bx0;
-    c->cj0 = (int)floor(y - h) - (int)G->by0;
-    c->cj1 = (int)ceil(y + h) + 1 - (int)G->by0;
+    lm_box_at(G, G->p[3 * k + 1], G->p[3 * k + 2], b);
+    c->ci0 = b[0];
+    c->ci1 = b[1];
+    c->cj0 = b[2];
+    c->cj1 = b[3];
 }
 
 /* Whether freezing pays: the stars' windows hold LM_PAYS times the

@@ -21,7 +21,11 @@
 typedef struct {
     int i0, i1, j0, j1;
     int ci0, ci1, cj0, cj1;     /* its core while the wings are frozen (levmar) */
+    int di0, di1, dj0, dj1;     /* where dx, dy are drawn (zero beyond, not
+                                 * stored: lm_render.c); its window when whole */
     int *pp, *pn, *pb;          /* bh each */
+    int *dp0, *dp1;             /* bh each: row j0 + t's packed pixels where
+                                 * dx, dy may be nonzero, [dp0[t], dp1[t]) */
     double *prf, *dx, *dy;      /* cap each */
 } rstar;
 
@@ -84,6 +88,9 @@ typedef struct {
     uint8_t *moved;             /* n: redrawn by lm_refresh_movers */
     int *calm;                  /* n: steps running below tol */
     int nsettled;
+    uint8_t *dwhole;            /* n: its derivatives drawn on its whole
+                                 * window from now to the fit's end
+                                 * (lm_render.c deriv_in_box) */
     uint8_t *ongrid;            /* n: star drawn from the phase grid (its
                                  * start flux within o->grid_emax), else
                                  * exactly (set with G->work.grid) */
@@ -98,6 +105,7 @@ typedef struct {
     double *stail;              /* 27 a star: its sky and self sums outside its core */
     int *cx0, *cx1, *cy0, *cy1;
     double core_hw;
+    int stats;                  /* mp_fit_opts.stats */
     size_t cap;                 /* per-star capacity (packed pixels) */
     size_t boxcap;              /* an exact render's box (scr: 3 of them) */
     double *scr;
@@ -190,6 +198,9 @@ int lm_render_all(group *G, const double *p, rstar *r, int what);
  * nonzero when the window overflows its buffers. */
 int lm_render_star(group *G, const double *p, rstar *r, int k);
 int lm_core_rows(group *G, const rstar *r, int c[4]);
+/* lm_render.c: lm_core_rows for the box b (box columns b[0]..b[1] − 1,
+ * rows b[2]..b[3] − 1) in place of the core. */
+int lm_box_rows(group *G, const rstar *r, const int b[4], int c[4]);
 
 /* lm_render.c: render src copied into dst (dst's own arrays kept). */
 void lm_render_copy(rstar *dst, const rstar *src);
@@ -222,6 +233,13 @@ int lm_normal_equations(group *G, const double *p, const rstar *r, int exact);
  * and redrawn too when open), D in *D, exact normal equations, frozen
  * again when again; nonzero when out of memory. */
 int lm_freezing_pays(group *G);
+/* lm_frozen.c: the box (columns b[0]..b[1] − 1, rows b[2]..b[3] − 1 of the
+ * group box) within mp_fit_core_halfwidth px of (x, y): a star's core
+ * there. */
+void lm_box_at(const group *G, double x, double y, int b[4]);
+/* lm_frozen.c: that half-width, mp_fit_core_halfwidth of the fit's fitrad
+ * (NaN when the group is fitted on the whole frame). */
+double lm_box_halfwidth(const group *G);
 void lm_freeze(group *G);
 int lm_moved_far(const group *G);
 int lm_refresh(group *G, double *D, int again, int open);

@@ -36,29 +36,35 @@ static void ne_sky(group *G)
 }
 
 /* One row's star–sky sums in one pass over m pixels (the row read once,
- * not 3 + 3·ns times: star_sky_sums was 6 % of 47 Tuc's CPU): with gq,
- * gq[c] = Σ wr·jk_c; aq[c][b] = Σ (w·jk_c)·cb_b for b < ns.  Each sum adds
- * its terms in the order of i, so the values are those of separate loops,
- * bit for bit.  Called with a constant ns (sky_row), so the sums stay in
- * registers. */
+ * not 3 + 3·ns times: star_sky_sums was 6 % of 47 Tuc's CPU) over the
+ * star's first nj columns (3, or 1 beyond its derivatives' box, where they
+ * are zero): with gq, gq[c] = Σ wr·jk_c; aq[c][b] = Σ (w·jk_c)·cb_b for
+ * b < ns (0 for c ≥ nj).  Each sum adds its terms in the order of i, so
+ * the values are those of separate loops, bit for bit.  Called with
+ * constant nj and ns (sky_row), so the sums stay in registers. */
 static inline void row_sky(const double *restrict wr, const double *restrict w,
                            const double *restrict j0, const double *restrict j1,
-                           const double *restrict j2, const double *const cb[6], int ns, int m,
-                           double *gq, double aq[3][6])
+                           const double *restrict j2, const double *const cb[6], int nj, int ns,
+                           int m, double *gq, double aq[3][6])
 {
     double g0 = 0, g1 = 0, g2 = 0, q[3][6] = {{0}};
     for (int i = 0; i < m; i++) {
         if (gq) {
             g0 += wr[i] * j0[i];
-            g1 += wr[i] * j1[i];
-            g2 += wr[i] * j2[i];
+            if (nj == 3) {
+                g1 += wr[i] * j1[i];
+                g2 += wr[i] * j2[i];
+            }
         }
-        double a0 = w[i] * j0[i], a1 = w[i] * j1[i], a2 = w[i] * j2[i];
+        double a0 = w[i] * j0[i], a1 = nj == 3 ? w[i] * j1[i] : 0.0;
+        double a2 = nj == 3 ? w[i] * j2[i] : 0.0;
         for (int b = 0; b < ns; b++) {
             double c = cb[b][i];
             q[0][b] += a0 * c;
-            q[1][b] += a1 * c;
-            q[2][b] += a2 * c;
+            if (nj == 3) {
+                q[1][b] += a1 * c;
+                q[2][b] += a2 * c;
+            }
         }
     }
     if (gq) {
@@ -71,28 +77,33 @@ static inline void row_sky(const double *restrict wr, const double *restrict w,
             aq[c][b] = q[c][b];
 }
 
-/* row_sky with ns a constant at each call (a sky of order 0, 1, 2 has 1,
- * 3, 6 terms; none when the sky is not fitted). */
+/* row_sky with nj and ns constants at each call (a sky of order 0, 1, 2
+ * has 1, 3, 6 terms; none when the sky is not fitted). */
+#define SKY_CASE(NJ, NS)                                                                 \
+    case (NJ) * 8 + (NS):                                                                \
+        row_sky(wr, w, jk[0], jk[1], jk[2], cb, NJ, NS, m, gq, aq);                      \
+        break;
 static void sky_row(const double *wr, const double *w, const double *const jk[3],
-                    const double *const cb[6], int ns, int m, double *gq, double aq[3][6])
+                    const double *const cb[6], int nj, int ns, int m, double *gq,
+                    double aq[3][6])
 {
-    switch (ns) {
-    case 0:
-        row_sky(wr, w, jk[0], jk[1], jk[2], cb, 0, m, gq, aq);
-        break;
-    case 1:
-        row_sky(wr, w, jk[0], jk[1], jk[2], cb, 1, m, gq, aq);
-        break;
-    case 3:
-        row_sky(wr, w, jk[0], jk[1], jk[2], cb, 3, m, gq, aq);
-        break;
-    case 6:
-        row_sky(wr, w, jk[0], jk[1], jk[2], cb, 6, m, gq, aq);
-        break;
+    switch (nj * 8 + ns) {
+        SKY_CASE(3, 0) SKY_CASE(3, 1) SKY_CASE(3, 3) SKY_CASE(3, 6)
+        SKY_CASE(1, 0) SKY_CASE(1, 1) SKY_CASE(1, 3) SKY_CASE(1, 6)
     default:                /* no other sky today; correct, only slower */
-        row_sky(wr, w, jk[0], jk[1], jk[2], cb, ns, m, gq, aq);
+        row_sky(wr, w, jk[0], jk[1], jk[2], cb, nj, ns, m, gq, aq);
         break;
     }
+}
+#undef SKY_CASE
+
+/* Where star r's derivatives may be nonzero on box row j, within its
+ * packed pixels [o, e): [*m0, *m1) (rstar.dp0, dp1). */
+static inline void deriv_span(const rstar *r, int j, int o, int e, int *m0, int *m1)
+{
+    int t = j - r->j0, a = r->dp0[t], b = r->dp1[t];
+    *m0 = a < o ? o : a > e ? e : a;
+    *m1 = b < *m0 ? *m0 : b > e ? e : b;
 }
 
 /* Star r's sums over the fitted pixels of its window within box columns
@@ -113,17 +124,26 @@ static void star_sky_sums(const group *G, const rstar *rk, int x0, int x1, int y
         }
         if (o >= e)
             continue;
-        size_t u = (size_t)(rk->pb[t] + o - rk->pp[t]);
-        const double *jk[3] = {rk->prf + u, rk->dx + u, rk->dy + u}, *cb[6] = {0};
-        for (int b = 0; b < ns; b++)
-            cb[b] = G->basis + (size_t)b * N + o;
-        double gq[3], aq[3][6];
-        sky_row(G->wres + o, G->wt + o, jk, cb, ns, e - o, g ? gq : NULL, aq);
-        for (int c = 0; c < 3; c++) {
-            if (g)
-                g[c] += gq[c];
+        /* the row's parts: [o, m0) and [m1, e) the PRF's alone */
+        int cut[4] = {o, 0, 0, e};
+        deriv_span(rk, j, o, e, &cut[1], &cut[2]);
+        for (int part = 0; part < 3; part++) {
+            int s = cut[part], z = cut[part + 1];
+            if (s >= z)
+                continue;
+            size_t u = (size_t)(rk->pb[t] + s - rk->pp[t]);
+            const double *jk[3] = {rk->prf + u, rk->dx + u, rk->dy + u}, *cb[6] = {0};
             for (int b = 0; b < ns; b++)
-                a[c][b] += aq[c][b];
+                cb[b] = G->basis + (size_t)b * N + s;
+            double gq[3], aq[3][6];
+            sky_row(G->wres + s, G->wt + s, jk, cb, part == 1 ? 3 : 1, ns, z - s,
+                    g ? gq : NULL, aq);
+            for (int c = 0; c < 3; c++) {
+                if (g)
+                    g[c] += gq[c];
+                for (int b = 0; b < ns; b++)
+                    a[c][b] += aq[c][b];
+            }
         }
     }
 }
@@ -163,14 +183,74 @@ static void row_sums(const double *restrict w, const double *restrict k0,
     q[2][2] = q22;
 }
 
-/* row_sums of stars k and l on packed pixels [b0, b1) of their rows tk, tl. */
+/* One row's sums over m pixels of (w·a1)·b and (w·a2)·b into out: a
+ * star's derivatives against the other's PRF (or its derivatives) where
+ * those are drawn. */
+static void row_two(const double *restrict w, const double *restrict a1,
+                    const double *restrict a2, const double *restrict b, int m, double out[2])
+{
+    double s1 = 0, s2 = 0;
+    for (int i = 0; i < m; i++) {
+        double wb = w[i] * b[i];
+        s1 += wb * a1[i];
+        s2 += wb * a2[i];
+    }
+    out[0] = s1;
+    out[1] = s2;
+}
+
+/* One row's Σ (w_i·a_i)·b_i over m pixels. */
+static double row_dot(const double *restrict w, const double *restrict a,
+                      const double *restrict b, int m)
+{
+    double s = 0;
+    for (int i = 0; i < m; i++)
+        s += w[i] * a[i] * b[i];
+    return s;
+}
+
+/* The sums of stars k and l on packed pixels [b0, b1) of their rows tk,
+ * tl into q: row_sums where both stars' derivatives are drawn on the
+ * whole span; else each block of q over where its columns are nonzero
+ * (lm_render.c: a star's derivatives drawn on its core box alone) — the
+ * PRFs' over the span, k's derivatives against l's PRF over k's box, l's
+ * against k's over l's, the derivatives' over both boxes — one call each,
+ * not one per piece of the span. */
 static void pair_row(const group *G, const rstar *rk, const rstar *rl, int tk, int tl, int b0,
                      int b1, double q[3][3])
 {
-    size_t u = (size_t)(rk->pb[tk] + b0 - rk->pp[tk]);
-    size_t v = (size_t)(rl->pb[tl] + b0 - rl->pp[tl]);
-    row_sums(G->wt + b0, rk->prf + u, rk->dx + u, rk->dy + u, rl->prf + v, rl->dx + v, rl->dy + v,
-             b1 - b0, q);
+    int j = rk->j0 + tk, k0, k1, l0, l1;
+    deriv_span(rk, j, b0, b1, &k0, &k1);
+    deriv_span(rl, j, b0, b1, &l0, &l1);
+    size_t u = (size_t)(rk->pb[tk] - rk->pp[tk]), v = (size_t)(rl->pb[tl] - rl->pp[tl]);
+    const double *w = G->wt, *pk = rk->prf + u, *xk = rk->dx + u, *yk = rk->dy + u;
+    const double *pl = rl->prf + v, *xl = rl->dx + v, *yl = rl->dy + v;
+    if (k0 == b0 && k1 == b1 && l0 == b0 && l1 == b1) {
+        row_sums(w + b0, pk + b0, xk + b0, yk + b0, pl + b0, xl + b0, yl + b0, b1 - b0, q);
+        return;
+    }
+    double t[2];
+    memset(q, 0, 9 * sizeof q[0][0]);
+    q[0][0] = row_dot(w + b0, pk + b0, pl + b0, b1 - b0);
+    if (k0 < k1) {
+        row_two(w + k0, xk + k0, yk + k0, pl + k0, k1 - k0, t);
+        q[1][0] = t[0];
+        q[2][0] = t[1];
+    }
+    if (l0 < l1) {
+        row_two(w + l0, xl + l0, yl + l0, pk + l0, l1 - l0, t);
+        q[0][1] = t[0];
+        q[0][2] = t[1];
+    }
+    int c0 = k0 > l0 ? k0 : l0, c1 = k1 < l1 ? k1 : l1;
+    if (c0 < c1) {
+        row_two(w + c0, xk + c0, yk + c0, xl + c0, c1 - c0, t);
+        q[1][1] = t[0];
+        q[2][1] = t[1];
+        row_two(w + c0, xk + c0, yk + c0, yl + c0, c1 - c0, t);
+        q[1][2] = t[0];
+        q[2][2] = t[1];
+    }
 }
 
 /* Where the windows of stars k and l meet on box row j: packed pixels

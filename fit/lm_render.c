@@ -1,6 +1,8 @@
 /* lm_render.c — a group fit's renders: each star's PRF and derivatives on
  * the fitted pixels of its window (or of its core while the wings are
- * frozen), from the phase grid or exactly (issue 12). */
+ * frozen), from the phase grid or exactly (issue 12); its derivatives on
+ * its core alone where the grid's measured bound allows it
+ * (fit/prf_deriv_box.c). */
 
 #include <math.h>
 #include <stddef.h>
@@ -60,17 +62,17 @@ static int render_exact(group *G, double x, double y, int i0, int i1, int j0, in
     return 0;
 }
 
-/* Star r's core — its box [ci0, ci1) × [cj0, cj1) within its window — as
- * spans of frame pixels in G->spans, each with its index in r's arrays in
- * G->soff, and the core's box clipped to the window in c; returns the
+/* Star r's box b — columns [b[0], b[1]) and rows [b[2], b[3]) of the
+ * group box, clipped to its window in c — as spans of frame pixels in
+ * G->spans, each with its index in r's arrays in G->soff; returns the
  * number of spans. */
-int lm_core_rows(group *G, const rstar *r, int c[4])
+int lm_box_rows(group *G, const rstar *r, const int b[4], int c[4])
 {
     int ns = 0;
-    c[0] = r->ci0 > r->i0 ? r->ci0 : r->i0;
-    c[1] = r->ci1 < r->i1 ? r->ci1 : r->i1;
-    c[2] = r->cj0 > r->j0 ? r->cj0 : r->j0;
-    c[3] = r->cj1 < r->j1 ? r->cj1 : r->j1;
+    c[0] = b[0] > r->i0 ? b[0] : r->i0;
+    c[1] = b[1] < r->i1 ? b[1] : r->i1;
+    c[2] = b[2] > r->j0 ? b[2] : r->j0;
+    c[3] = b[3] < r->j1 ? b[3] : r->j1;
     for (int j = c[2]; j < c[3] && c[0] < c[1]; j++) {
         int t = j - r->j0;
         for (int q = G->rrow[j]; q < G->rrow[j + 1] && r->pn[t] > 0; q++) {
@@ -82,6 +84,12 @@ int lm_core_rows(group *G, const rstar *r, int c[4])
         }
     }
     return ns;
+}
+
+int lm_core_rows(group *G, const rstar *r, int c[4])
+{
+    const int b[4] = {r->ci0, r->ci1, r->cj0, r->cj1};
+    return lm_box_rows(G, r, b, c);
 }
 
 /* render_all while the wings are frozen: each star on its core only. */
@@ -105,6 +113,67 @@ static int render_core(group *G, const double *p, rstar *r, int what)
             return 1;
     }
     return 0;
+}
+
+/* Star r's derivatives drawn on box columns [i0, i1) and rows [j0, j1)
+ * of its window: that box, and its packed pixels row by row (rstar.dp0,
+ * dp1; empty rows at the row's end). */
+static void deriv_rows(const group *G, rstar *r, int i0, int i1, int j0, int j1)
+{
+    r->di0 = i0;
+    r->di1 = i1;
+    r->dj0 = j0;
+    r->dj1 = j1;
+    for (int t = 0; t < r->j1 - r->j0; t++) {
+        int j = r->j0 + t, e = r->pp[t] + r->pn[t];
+        if (j < j0 || j >= j1 || i0 >= i1) {
+            r->dp0[t] = r->dp1[t] = e;
+            continue;
+        }
+        int a = i0 <= r->i0 ? r->pp[t] : packed_at(G, j, i0);
+        int b = i1 >= r->i1 ? e : packed_at(G, j, i1);
+        r->dp0[t] = a < r->pp[t] ? r->pp[t] : a > e ? e : a;
+        r->dp1[t] = b < r->dp0[t] ? r->dp0[t] : b > e ? e : b;
+    }
+}
+
+/* Whether star k of p has its position derivatives drawn within its core
+ * box alone (issue 12): when the phase grid measured, for a box no larger,
+ * that the pixels beyond hold at most MP_DBOX_SHARE of an isolated star's
+ * information on x and y at its E/(B + RON²) (mp_prf_cache_deriv_box; B
+ * the group's sky at the star, RON² without the error plane's extra
+ * variance, which only lowers the share).  The fit then solves the normal
+ * equations of that Jacobian, an estimating equation as unbiased, with a
+ * position σ at most 1/sqrt(1 − MP_DBOX_SHARE) of the whole window's (the
+ * covariance it reports is its own).  A star found brighter than that is
+ * drawn whole to the fit's end, so its Jacobian changes at most once. */
+static int deriv_in_box(group *G, const double *p, int k)
+{
+    const mp_prf_cache *c = G->work.grid;
+    if (G->dwhole[k] || !(c->dbox_hw > 0) || !(c->dbox_hw <= lm_box_halfwidth(G)))
+        return 0;
+    double B = sky_at(G, p, p[3 * k + 1], p[3 * k + 2]);
+    if (fabs(p[3 * k]) <= c->dbox_u * ((B > 0 ? B : 0.0) + G->ron2))
+        return 1;
+    G->dwhole[k] = 1;
+    return 0;
+}
+
+/* Star r drawn from the grid at (x, y) on the ns spans of its window (set
+ * in G->spans): its PRF there (unless what is RENDER_DERIVS), its
+ * derivatives on its core box alone (taken as zero beyond, where nothing
+ * reads them: rstar.dp0, dp1). */
+static int render_in_box(group *G, double x, double y, rstar *rk, int ns, int what)
+{
+    int b[4], c[4];
+    if (what != RENDER_DERIVS && mp_prf_cache_render_spans(G->work.grid, G->m, x, y, G->spans,
+                                                           ns, rk->prf, NULL, NULL))
+        return 1;
+    lm_box_at(G, x, y, b);
+    int nb = lm_box_rows(G, rk, b, c);
+    deriv_rows(G, rk, c[0], c[1], c[2], c[3]);
+    return nb > 0 && mp_prf_cache_render_at(G->work.grid, G->m, x, y, G->spans, G->soff, nb,
+                                            NULL, rk->dx, rk->dy);
 }
 
 /* Star k of p rendered into r[k] on the fitted pixels of its whole
@@ -140,6 +209,10 @@ static int render_window(group *G, const double *p, rstar *r, int k, int what, i
     int ns = window_rows(G, rk);
     if (ns <= 0)
         return ns < 0;
+    if (what != RENDER_PRF || !grid)        /* an exact render draws them all */
+        deriv_rows(G, rk, rk->i0, rk->i1, rk->j0, rk->j1);
+    if (grid && what != RENDER_PRF && deriv_in_box(G, p, k))
+        return render_in_box(G, x, y, rk, ns, what);
     return grid ? mp_prf_cache_render_spans(G->work.grid, G->m, x, y, G->spans, ns,
                                             what == RENDER_DERIVS ? NULL : rk->prf,
                                             what == RENDER_PRF ? NULL : rk->dx,
@@ -173,12 +246,14 @@ int lm_render_star(group *G, const double *p, rstar *r, int k)
  * own. */
 void lm_render_copy(rstar *dst, const rstar *src)
 {
-    int *pp = dst->pp, *pn = dst->pn, *pb = dst->pb;
+    int *pp = dst->pp, *pn = dst->pn, *pb = dst->pb, *dp0 = dst->dp0, *dp1 = dst->dp1;
     double *prf = dst->prf, *dx = dst->dx, *dy = dst->dy;
     *dst = *src;
     dst->pp = pp;
     dst->pn = pn;
     dst->pb = pb;
+    dst->dp0 = dp0;
+    dst->dp1 = dp1;
     dst->prf = prf;
     dst->dx = dx;
     dst->dy = dy;
@@ -188,6 +263,8 @@ void lm_render_copy(rstar *dst, const rstar *src)
         memcpy(pp, src->pp, (size_t)rows * sizeof *pp);
         memcpy(pn, src->pn, (size_t)rows * sizeof *pn);
         memcpy(pb, src->pb, (size_t)rows * sizeof *pb);
+        memcpy(dp0, src->dp0, (size_t)rows * sizeof *dp0);
+        memcpy(dp1, src->dp1, (size_t)rows * sizeof *dp1);
     }
     memcpy(prf, src->prf, len * sizeof *prf);
     memcpy(dx, src->dx, len * sizeof *dx);

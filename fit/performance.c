@@ -35,6 +35,19 @@ int mp_prf_stats_at(const mp_prf_model *m, double x, double y, mp_prf_stats *s, 
     return rc;
 }
 
+int mp_star_model_errors(const mp_prf_model *m, double ron, mp_star *s, mp_prf_work *w)
+{
+    if (!isfinite(s->x) || !isfinite(s->y))
+        memset(&s->st, 0, sizeof s->st);
+    else if (mp_prf_stats_at(m, s->x, s->y, &s->st, w))
+        return 1;
+    double se, sx, E = s->flux > 1.0 ? s->flux : 1.0;
+    mp_perf_model(&s->st, E, s->sky > 0 ? s->sky : 0.0, ron, (double)s->npix, &se, &sx);
+    s->fluxerr_model = isfinite(se) ? se : 0.0;
+    s->poserr_model = isfinite(sx) ? sx : 0.0;
+    return 0;
+}
+
 void mp_perf_model(const mp_prf_stats *s, double E, double B, double ron, double npix,
                    double *sigma_e, double *sigma_x)
 {

@@ -127,6 +127,11 @@ static void phase_grids(mp_fit_setup *s, const mp_parset *ps)
              "%.2g sigma, exact renders for brighter ones (fit/prf_cache.c)", grid,
              s->opts.sincfrac);
     decide(s, why);
+    snprintf(why, sizeof why, "position derivatives: drawn from the grid within fitrad + 2 px of "
+             "a star whose pixels beyond hold at most %.2g of its information on x and y (its "
+             "sigma grows <= %.2g %%), on its whole window for brighter ones "
+             "(fit/prf_deriv_box.c)", MP_DBOX_SHARE, 100.0 * (1.0 / sqrt(1.0 - MP_DBOX_SHARE) - 1.0));
+    decide(s, why);
 }
 
 /* economy=yes: leave out what cannot change the answer (issue 5); every

@@ -138,8 +138,9 @@ static void test_uniform_drf_becomes_scalar(void **state)
     assert_int_equal(s.opts.ss[0].os, 1);
     assert_int_equal(s.opts.ss[1].os, 2);
     assert_non_null(strstr(s.decisions, "supersampling: per group, the coarsest table"));
-    /* + the kernel, phase-grid, tables, neighbour crop and refit rules */
-    assert_int_equal(s.ndecisions, 2 + 5);
+    /* + the kernel, phase-grid, derivatives' box, tables, neighbour crop
+     * and refit rules */
+    assert_int_equal(s.ndecisions, 2 + 6);
     assert_counted(&s);
     mp_fit_setup_free(&s);
 
@@ -203,7 +204,7 @@ static void test_report_prints_decisions(void **state)
     assert_non_null(fp);
     int found = 0;
     while (fgets(line, sizeof line, fp))
-        found |= strstr(line, "economy: 6 decisions: supersampling: per group, the coarsest "
+        found |= strstr(line, "economy: 7 decisions: supersampling: per group, the coarsest "
                               "table whose linearised bias") != NULL &&
                  strstr(line, "offered at x1, the x2 table above") != NULL;
     fclose(fp);

@@ -111,6 +111,42 @@ static void test_second_pass_kept_when_isolated(void **state)
     sf_frame_drop(&f);
 }
 
+/* A frame fit leaves each group fit's PRF statistics unset
+ * (mp_fit_opts.stats) and sets them once at its end, for every star it
+ * fitted: the output columns are the statistics of the whole PRF at the
+ * fitted position, as mp_prf_stats_at gives them, and the model errors
+ * are set. */
+static void test_model_errors_at_the_end(void **state)
+{
+    (void)state;
+    char err[MP_ERRLEN];
+    mp_psf p;
+    mp_psf_gauss(FWHM, &p);
+    mp_prf_model m = {&p, NULL, 10};
+    mp_frame f;
+    frame6(&f, 5);
+    mp_frame_opts o;
+    mp_frame_opts_default(&o);
+    mp_table t;
+    table_n(&t, 5);
+    mp_frame_report r;
+    assert_int_equal(mp_fit_table(&f, &m, &o, &t, &r, err), 0);
+    assert_int_equal(t.nrow, 5);
+    for (size_t i = 0; i < t.nrow; i++) {
+        mp_prf_stats st;
+        assert_int_equal(mp_prf_stats_at(&m, get(&t, i, "XPSF_IMAGE"), get(&t, i, "YPSF_IMAGE"),
+                                         &st, NULL), 0);
+        assert_true(st.beta > 0);
+        assert_true(get(&t, i, "BETA_PSF") == st.beta);
+        assert_true(get(&t, i, "SHARP_PRF") == st.sharp);
+        assert_true(get(&t, i, "LSCALE_PRF") == st.lscale);
+        assert_true(get(&t, i, "VOLUME_PRF") == st.volume);
+        assert_true(get(&t, i, "FLUXERR_MODEL") > 0 && get(&t, i, "POSERR_MODEL") > 0);
+    }
+    mp_table_free(&t);
+    sf_frame_drop(&f);
+}
+
 /* Across calls (the pipeline's rounds): a new star joins group 2; group 1,
  * 50 px away, is not refitted (its fit is kept bit for bit), group 2 is.
  * Against a full refit of the same table, group 1 differs by less than the
@@ -637,6 +673,7 @@ int main(void)
 {
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(test_second_pass_kept_when_isolated),
+        cmocka_unit_test(test_model_errors_at_the_end),
         cmocka_unit_test(test_round_refits_only_touched_group),
         cmocka_unit_test(test_changed_neighbour_refitted),
         cmocka_unit_test(test_envelope_bounds_prf),
