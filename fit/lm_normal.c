@@ -222,32 +222,35 @@ static void pair_row(const group *G, const rstar *rk, const rstar *rl, int tk, i
     int j = rk->j0 + tk, k0, k1, l0, l1;
     deriv_span(rk, j, b0, b1, &k0, &k1);
     deriv_span(rl, j, b0, b1, &l0, &l1);
-    size_t u = (size_t)(rk->pb[tk] - rk->pp[tk]), v = (size_t)(rl->pb[tl] - rl->pp[tl]);
-    const double *w = G->wt, *pk = rk->prf + u, *xk = rk->dx + u, *yk = rk->dy + u;
+    /* the span's first pixel in each array (b0 ≥ both rows' starts), the
+     * rest by their distance from it */
+    size_t u = (size_t)(rk->pb[tk] + b0 - rk->pp[tk]), v = (size_t)(rl->pb[tl] + b0 - rl->pp[tl]);
+    const double *w = G->wt + b0, *pk = rk->prf + u, *xk = rk->dx + u, *yk = rk->dy + u;
     const double *pl = rl->prf + v, *xl = rl->dx + v, *yl = rl->dy + v;
     if (k0 == b0 && k1 == b1 && l0 == b0 && l1 == b1) {
-        row_sums(w + b0, pk + b0, xk + b0, yk + b0, pl + b0, xl + b0, yl + b0, b1 - b0, q);
+        row_sums(w, pk, xk, yk, pl, xl, yl, b1 - b0, q);
         return;
     }
     double t[2];
     memset(q, 0, 9 * sizeof q[0][0]);
-    q[0][0] = row_dot(w + b0, pk + b0, pl + b0, b1 - b0);
+    q[0][0] = row_dot(w, pk, pl, b1 - b0);
+    int a = k0 - b0, c = l0 - b0;
     if (k0 < k1) {
-        row_two(w + k0, xk + k0, yk + k0, pl + k0, k1 - k0, t);
+        row_two(w + a, xk + a, yk + a, pl + a, k1 - k0, t);
         q[1][0] = t[0];
         q[2][0] = t[1];
     }
     if (l0 < l1) {
-        row_two(w + l0, xl + l0, yl + l0, pk + l0, l1 - l0, t);
+        row_two(w + c, xl + c, yl + c, pk + c, l1 - l0, t);
         q[0][1] = t[0];
         q[0][2] = t[1];
     }
-    int c0 = k0 > l0 ? k0 : l0, c1 = k1 < l1 ? k1 : l1;
+    int c0 = k0 > l0 ? k0 : l0, c1 = k1 < l1 ? k1 : l1, d = c0 - b0;
     if (c0 < c1) {
-        row_two(w + c0, xk + c0, yk + c0, xl + c0, c1 - c0, t);
+        row_two(w + d, xk + d, yk + d, xl + d, c1 - c0, t);
         q[1][1] = t[0];
         q[2][1] = t[1];
-        row_two(w + c0, xk + c0, yk + c0, yl + c0, c1 - c0, t);
+        row_two(w + d, xk + d, yk + d, yl + d, c1 - c0, t);
         q[1][2] = t[0];
         q[2][2] = t[1];
     }
