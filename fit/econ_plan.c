@@ -273,8 +273,7 @@ static int build_level_sinc(mp_econ_cache *c, int l, char *err)
  * of model m for fitting radius fitrad (none when it is not finite). */
 static int deriv_box(mp_prf_cache *g, const mp_prf_model *m, double fitrad, char *err)
 {
-    int rc = isfinite(fitrad) && mp_prf_cache_deriv_box(g, m, fitrad, MP_DBOX_SHARE, err);
-    return rc;
+    return isfinite(fitrad) && mp_prf_cache_deriv_box(g, m, fitrad, MP_DBOX_SHARE, err);
 }
 
 static int build_grid(mp_econ_cache *c, double fitrad, char *err)

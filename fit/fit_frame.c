@@ -342,7 +342,7 @@ static int model_errors(frame_fit *F, char *err)
 #pragma omp for schedule(dynamic, 16)
         for (size_t i = 0; i < F->n; i++) {
             mp_star *s = &F->st[i].s;
-            if (F->st[i].alive && s->npix > 0 && !(s->st.volume != 0.0) &&
+            if (F->st[i].alive && s->npix > 0 && s->st.volume == 0.0 &&
                 mp_star_model_errors(F->m, F->f->rdnoise, s, &wk)) {
 #pragma omp atomic write
                 nomem = 1;

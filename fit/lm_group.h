@@ -21,11 +21,10 @@
 typedef struct {
     int i0, i1, j0, j1;
     int ci0, ci1, cj0, cj1;     /* its core while the wings are frozen (levmar) */
-    int di0, di1, dj0, dj1;     /* where dx, dy are drawn (zero beyond, not
-                                 * stored: lm_render.c); its window when whole */
     int *pp, *pn, *pb;          /* bh each */
     int *dp0, *dp1;             /* bh each: row j0 + t's packed pixels where
-                                 * dx, dy may be nonzero, [dp0[t], dp1[t]) */
+                                 * dx, dy are drawn, [dp0[t], dp1[t]) (zero
+                                 * beyond, not stored: lm_render.c) */
     double *prf, *dx, *dy;      /* cap each */
 } rstar;
 

@@ -116,14 +116,10 @@ static int render_core(group *G, const double *p, rstar *r, int what)
 }
 
 /* Star r's derivatives drawn on box columns [i0, i1) and rows [j0, j1)
- * of its window: that box, and its packed pixels row by row (rstar.dp0,
- * dp1; empty rows at the row's end). */
+ * of its window: that box's packed pixels row by row (rstar.dp0, dp1;
+ * empty rows at the row's end). */
 static void deriv_rows(const group *G, rstar *r, int i0, int i1, int j0, int j1)
 {
-    r->di0 = i0;
-    r->di1 = i1;
-    r->dj0 = j0;
-    r->dj1 = j1;
     for (int t = 0; t < r->j1 - r->j0; t++) {
         int j = r->j0 + t, e = r->pp[t] + r->pn[t];
         if (j < j0 || j >= j1 || i0 >= i1) {
@@ -209,10 +205,10 @@ static int render_window(group *G, const double *p, rstar *r, int k, int what, i
     int ns = window_rows(G, rk);
     if (ns <= 0)
         return ns < 0;
-    if (what != RENDER_PRF || !grid)        /* an exact render draws them all */
-        deriv_rows(G, rk, rk->i0, rk->i1, rk->j0, rk->j1);
     if (grid && what != RENDER_PRF && deriv_in_box(G, p, k))
         return render_in_box(G, x, y, rk, ns, what);
+    if (what != RENDER_PRF || !grid)        /* an exact render draws them all */
+        deriv_rows(G, rk, rk->i0, rk->i1, rk->j0, rk->j1);
     return grid ? mp_prf_cache_render_spans(G->work.grid, G->m, x, y, G->spans, ns,
                                             what == RENDER_DERIVS ? NULL : rk->prf,
                                             what == RENDER_PRF ? NULL : rk->dx,

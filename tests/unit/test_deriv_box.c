@@ -11,10 +11,10 @@
 #include <math.h>
 #include <stdlib.h>
 #include <string.h>
-#include <stdio.h>
 
 #include "fit/fit.h"
 #include "sim/sim.h"
+#include "tests/unit/stiff_common.h"
 
 /* A core with a halo: 0.9 of a FWHM 2.5 px Gaussian and 0.1 of a FWHM
  * 8 px one, ×2, ±12 px — wings that hold position information several
@@ -125,14 +125,7 @@ static void test_fit_within_bound(void **state)
     double E1 = 0.5 * cb.dbox_u * (B + RON * RON), E2 = 2e4;
     assert_true(E1 > 1e4 && isfinite(E1));
     mp_frame f;
-    memset(&f, 0, sizeof f);
-    f.im.nx = f.im.ny = NP;
-    f.im.pix = calloc(NP * NP, sizeof *f.im.pix);
-    assert_non_null(f.im.pix);
-    f.gain = 1.0;
-    f.rdnoise = RON;
-    f.saturate = INFINITY;
-    f.exptime = 1.0;
+    sf_frame_make(&f, NP, NP, RON);
     mp_fit_opts o;
     mp_fit_opts_default(&o);
     o.fitrad = fitrad;
@@ -178,7 +171,6 @@ static void test_fit_within_bound(void **state)
             const double vb[2] = {sb[k].x, sb[k].y}, vw[2] = {sw[k].x, sw[k].y};
             for (int a = 0; a < 2; a++) {
                 double q = 1.0 / sqrt(1.0 - MP_DBOX_SHARE), sd = ew[a] * sqrt(q * q - 1.0);
-                if (getenv("DBG")) fprintf(stderr, "s%d k%d a%d eb/ew-1 %.3g dx/sd %.3g\n", s, k, a, eb[a] / ew[a] - 1, (vb[a] - vw[a]) / sd);
                 assert_true(eb[a] <= ew[a] * q && eb[a] >= ew[a] / q);
                 assert_true(fabs(vb[a] - vw[a]) <= 4.5 * sd + 2.0 * o.tol * (eb[a] + ew[a]));
             }
@@ -187,7 +179,7 @@ static void test_fit_within_bound(void **state)
     }
     assert_true(grew == NF);
     free(buf);
-    free(f.im.pix);
+    sf_frame_drop(&f);
     mp_prf_work_free(&w);
     mp_prf_cache_free(&cb);
     mp_psf_free(&p);
