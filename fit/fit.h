@@ -264,8 +264,10 @@ double mp_prf_crop_radius(const mp_prf_crop *c, double E, double sky);
  * on a grid of phases, G per pixel, kept per alignment branch (1/os px wide,
  * Gb = G/os intervals, nodes −1..Gb+1 with the branch's alignment); a star's
  * PRF and derivatives are the tensor-product 4-point Lagrange interpolation
- * between the 4×4 nodes around its phase.  The error this adds to the PRF,
- * δP, is measured at the centre of each of the G² cells. */
+ * between the 4×4 nodes around its phase, or, for a star faint enough,
+ * the bilinear one between the 2×2 nodes around it (a quarter of the
+ * reads and sums, a larger error).  The error each adds to the PRF, δP,
+ * is measured at the centre of each of the G² cells, where both peak. */
 typedef struct mp_prf_cache_s {
     int G;                 /* phases per pixel (os·gb); 0: no cache */
     int os, gb;            /* the table's OVERSAMP; intervals per branch */
@@ -276,11 +278,13 @@ typedef struct mp_prf_cache_s {
     float *img;            /* (os(gb+3))² planes of 3 npix: PRF, ∂/∂x, ∂/∂y */
     int nph;               /* measured phases (G²) */
     float *p, *d2;         /* nph × npix: exact PRF and δP² at cell centres */
+    float *d2l;            /* nph × npix: the bilinear interpolation's δP² */
     double pmin, pmax;     /* the least and the largest P of any cell's pixel */
     double *d2bin;         /* nph × MP_PRF_CACHE_NBIN: each cell's Σ δP² over
                             * its pixels by P (mp_prf_cache_serves): bin 0
                             * P ≤ 0, bin b ≥ 1 P in (pmax·2^−b, pmax·2^(1−b)],
                             * the last down to 0 */
+    double *d2lbin;        /* the same of d2l */
     const mp_psf *psf;     /* what it was built from (mp_prf_cache_usable) */
     const mp_drf *drf;
     /* Position derivatives drawn within a box alone (mp_prf_cache_deriv_box):
@@ -322,6 +326,11 @@ int mp_prf_cache_serves(const mp_prf_cache *c, double E, double B, double ron, d
 /* mp_prf_cache_limit: the largest flux whose bound is ≤ frac on sky B
  * (0 when none, INFINITY when all). */
 double mp_prf_cache_limit(const mp_prf_cache *c, double B, double ron, double frac);
+
+/* mp_prf_cache_bound_lin, mp_prf_cache_limit_lin: the same of the bilinear
+ * interpolation (mp_prf_cache_render_at with lin): its δP is the d2l's. */
+double mp_prf_cache_bound_lin(const mp_prf_cache *c, double E, double B, double ron);
+double mp_prf_cache_limit_lin(const mp_prf_cache *c, double B, double ron, double frac);
 
 /* mp_prf_cache_deriv_box: for a group fit with fitting radius fitrad, sets
  * c->dbox_hw = h = mp_fit_core_halfwidth(fitrad) and c->dbox_u, the
@@ -376,10 +385,12 @@ int mp_prf_cache_render_spans(const mp_prf_cache *c, const mp_prf_model *m, doub
 
 /* mp_prf_cache_render_at: as mp_prf_cache_render_spans, span k's values at
  * index at[k] of each array (at NULL: one span after the other), so that a
- * part of a star's window is rendered in place (lm_render.c's core renders). */
+ * part of a star's window is rendered in place (lm_render.c's core
+ * renders); lin nonzero: the bilinear interpolation (its derivatives
+ * interpolated as well: the grid's, not the interpolant's). */
 int mp_prf_cache_render_at(const mp_prf_cache *c, const mp_prf_model *m, double x, double y,
                            const mp_span *sp, const size_t *at, int ns, double *prf, double *ddx,
-                           double *ddy);
+                           double *ddy, int lin);
 
 /* ---- How strongly two stars' fits are coupled (fit/coupling.c) ---------- */
 
@@ -505,6 +516,11 @@ typedef struct {
     double grid_emax;          /* economy: a star whose start flux exceeds this
                                 * (the grid's bias bound) is rendered exactly,
                                 * its neighbours from grid (INFINITY: all) */
+    double grid_lemax;         /* economy: a star whose flux stays within this
+                                * (the bilinear interpolation's bound,
+                                * mp_prf_cache_limit_lin) is drawn bilinearly;
+                                * once above, cubically to its fit's end (0:
+                                * never) */
     double *work;              /* not NULL: the multiply-adds of the group's
                                 * exact table renders are added to *work (the
                                 * caller's own, per thread; economy's plan) */
@@ -727,6 +743,9 @@ typedef struct {
     long kcalls;       /* LM fits of groups (a group refits after a merge) */
     long kshort;       /* of them, with a sinc kernel shorter than sinchw */
     long kcache;       /* of them, with the PRF from the phase grid */
+    long klin;         /* star fits in them drawn bilinearly (final flux
+                        * within the bilinear limit) */
+    long kstars;       /* star fits in the LM fits */
     double khw;        /* their half-widths, summed */
     long kbounds;      /* the kernel and table choices' cost: bound
                         * evaluations (mp_sinc_choice_bound,
@@ -831,6 +850,8 @@ typedef struct {
     long kcalls, kshort;       /* LM fits of groups, and of them with a shorter
                                 * sinc kernel */
     long kcache;               /* LM fits with the PRF from the phase grid */
+    long klin, kstars;         /* star fits in LM fits drawn bilinearly, and
+                                * all star fits */
     double khw;                /* their half-widths, summed */
     long kcoarse;              /* LM fits with a coarser table */
     double ops_tables, ops_saved, ops_render;  /* mp_frame_report's */

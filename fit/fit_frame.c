@@ -135,6 +135,8 @@ static void add_report(mp_frame_report *d, const mp_frame_report *r)
     d->kbounds += r->kbounds;
     d->kcoarse += r->kcoarse;
     d->kcache += r->kcache;
+    d->klin += r->klin;
+    d->kstars += r->kstars;
     d->ops_tables += r->ops_tables;
     d->ops_saved += r->ops_saved;
     d->render_ops += r->render_ops;

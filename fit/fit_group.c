@@ -22,6 +22,7 @@ void mp_fit_opts_default(mp_fit_opts *o)
     o->crop = NULL;
     o->grid = NULL;
     o->grid_emax = INFINITY;
+    o->grid_lemax = 0.0;
     o->work = NULL;
     o->exact_lm = 0;
     o->settle = 1;
@@ -535,8 +536,11 @@ int mp_fit_group(const mp_frame *f, const mp_prf_model *m, const mp_fit_opts *o,
     int converged = 0, iter = 0;
     /* Economy: a star brighter than the grid's bound is drawn exactly
      * (its own bias bound, fit/prf_cache.c), the others from the grid. */
+    G.lemax = o->grid_lemax;
     for (int k = 0; k < n; k++)
-        G.ongrid[k] = !(fabs(stars[k].flux) > o->grid_emax);
+        G.ongrid[k] = fabs(stars[k].flux) > o->grid_emax ? 0
+                      : fabs(stars[k].flux) <= G.lemax  ? GRID_LIN
+                                                        : 1;
     if (start_state(&G, stars, sky))
         goto nomem;
     if (order > 0 && o->warm_sky)

@@ -251,7 +251,7 @@ int ff_fit_one_group(const mp_frame *f, const mp_prf_model *m, const mp_frame_op
          * exact render). */
         mp_fit_opts fo = o->fit;
         fo.stop_pair = mergerad > 0 ? mergerad : 0.0;   /* merged below */
-        fo.grid = ff_group_grid(R, o->grid, l, e, &fo.grid_emax, rep);
+        fo.grid = ff_group_grid(R, o->grid, l, e, &fo.grid_emax, &fo.grid_lemax, rep);
         int cached = mp_prf_cache_usable(fo.grid, &mh);
         rep->kcache += cached;
         rep->kcalls++;
@@ -263,6 +263,9 @@ int ff_fit_one_group(const mp_frame *f, const mp_prf_model *m, const mp_frame_op
             goto done;
         rep->iterations += live[0].niter;
         rep->render_ops += gops;
+        rep->kstars += nl;
+        for (int k = 0; cached && k < nl; k++)
+            rep->klin += fabs(live[k].flux) <= fo.grid_lemax;
         /* What economy saved on this fit's renders (the plan's unit). */
         if (R->ops_full > 0) {
             double used = cached ? mp_econ_grid_render_ops(m, o->fit.fitrad)

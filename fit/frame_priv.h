@@ -85,6 +85,8 @@ typedef struct {
     const mp_prf_cache *lgrid[MP_SS_MAXLEVELS];  /* ss[l]'s own phase grid (NULL:
                                  * its groups render exactly) */
     double lgemax[MP_SS_MAXLEVELS];  /* its flux limit, as gemax */
+    double glemax, lglemax[MP_SS_MAXLEVELS];  /* the same of the bilinear
+                                 * interpolation (0: never) */
     double ops_full;            /* a render of the model as given (economy's unit) */
 } frame_rules;
 
@@ -139,9 +141,11 @@ int ff_grid_serves(const frame_rules *R, const mp_prf_cache *g, double e, mp_fra
  * renders), and in *emax the largest start flux of a star it serves (the
  * others are drawn exactly); with the frame's flux limit, any group with
  * a star of flux e > 0; without it (few groups), the group whose brightest
- * star e passes the bound, *emax INFINITY.  Charges as ff_grid_serves. */
+ * star e passes the bound, *emax INFINITY; in *lemax the largest flux
+ * of a star it draws bilinearly (0 without the frame's limit).  Charges
+ * as ff_grid_serves. */
 const mp_prf_cache *ff_group_grid(const frame_rules *R, const mp_prf_cache *g, int l, double e,
-                                  double *emax, mp_frame_report *cost);
+                                  double *emax, double *lemax, mp_frame_report *cost);
 int ff_kernel_for(const kernel_rule *k, int hwfull, double e, mp_frame_report *cost);
 
 /* frame_paint.c.  ff_crop_init: the crop rule of cropfrac (nonzero when

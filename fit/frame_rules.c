@@ -28,15 +28,17 @@ int ff_grid_serves(const frame_rules *R, const mp_prf_cache *g, double e,
 }
 
 const mp_prf_cache *ff_group_grid(const frame_rules *R, const mp_prf_cache *g, int l, double e,
-                                  double *emax, mp_frame_report *cost)
+                                  double *emax, double *lemax, mp_frame_report *cost)
 {
     const mp_prf_cache *t = l >= R->nss ? g : R->lgrid[l];
     double lim = l >= R->nss ? R->gemax : R->lgemax[l];
     *emax = INFINITY;
+    *lemax = 0.0;
     if (!t || !(e > 0))
         return NULL;
     if (!isnan(lim)) {          /* per star: the brighter ones exactly */
         *emax = lim;
+        *lemax = l >= R->nss ? R->glemax : R->lglemax[l];
         return lim > 0 ? t : NULL;
     }
     charge(cost, 1, t, ECON_LIM_GRID);
@@ -54,7 +56,8 @@ static void fill_limits(const void *c, int kind, double sky, double ron, double 
         charge(cost, MP_SS_LIMITS_EVALS, c, kind);
     } else if (kind == ECON_LIM_GRID) {
         emax[0] = mp_prf_cache_limit(c, sky, ron, frac);
-        charge(cost, MP_SINC_LIMITS_EVALS, c, kind);
+        emax[1] = mp_prf_cache_limit_lin(c, sky, ron, frac);
+        charge(cost, 2 * MP_SINC_LIMITS_EVALS, c, kind);
     } else {
         mp_sinc_choice_limits(c, sky, ron, frac, emax);
         charge(cost, (long)((const mp_sinc_choice *)c)->hwmax * MP_SINC_LIMITS_EVALS, c, kind);
@@ -80,7 +83,9 @@ static double *find_limits(const mp_econ_cache *cache, int n, const void *c, int
 static double *cached_limits(mp_econ_cache *cache, const void *c, int kind, double sky,
                              double ron, double frac, mp_frame_report *cost)
 {
-    size_t n = kind != ECON_LIM_SINC ? 1 : (size_t)((const mp_sinc_choice *)c)->hwmax;
+    size_t n = kind == ECON_LIM_SINC   ? (size_t)((const mp_sinc_choice *)c)->hwmax
+               : kind == ECON_LIM_GRID ? 2
+                                       : 1;
     int shown;
 #pragma omp atomic read seq_cst
     shown = cache->n;
@@ -161,19 +166,25 @@ static int level_init(level_rule *k, const mp_ss_level *lv, double sky, double r
 
 /* The phase grid's flux limit on the frame's sky, as the kernel's: from
  * the run's cache, the frame's own, or NaN: each group evaluates its bound
- * (and neighbours are painted exactly). */
+ * (and neighbours are painted exactly); *lemax the bilinear
+ * interpolation's (0 with NaN). */
 static double grid_limit(const mp_prf_cache *g, double sky, double ron, double frac, size_t ng,
-                         mp_econ_cache *cache, double runfits, mp_frame_report *cost)
+                         mp_econ_cache *cache, double runfits, mp_frame_report *cost,
+                         double *lemax)
 {
+    *lemax = 0.0;
     if (!g)
         return 0.0;
     if (cache && runfits > MP_SINC_LIMITS_EVALS) {
         const double *e = cached_limits(cache, g, ECON_LIM_GRID, cache_sky(sky), ron, frac, cost);
-        if (e)
+        if (e) {
+            *lemax = e[1];
             return e[0];
+        }
     }
     if (ng > MP_SINC_LIMITS_EVALS) {
-        charge(cost, MP_SINC_LIMITS_EVALS, g, ECON_LIM_GRID);
+        charge(cost, 2 * MP_SINC_LIMITS_EVALS, g, ECON_LIM_GRID);
+        *lemax = mp_prf_cache_limit_lin(g, sky, ron, frac);
         return mp_prf_cache_limit(g, sky, ron, frac);
     }
     return NAN;
@@ -262,10 +273,11 @@ int ff_rules_setup(frame_rules *R, const mp_frame *f, const mp_frame_opts *o,
     R->gsky = o->grid || lgrids ? median_sky(st, n) : 0.0;
     R->gron = f->rdnoise;
     R->gfrac = o->sincfrac;
-    R->gemax = grid_limit(o->grid, R->gsky, f->rdnoise, o->sincfrac, ng, o->cache, runfits, rep);
+    R->gemax = grid_limit(o->grid, R->gsky, f->rdnoise, o->sincfrac, ng, o->cache, runfits, rep,
+                          &R->glemax);
     for (int l = 0; l < R->nss; l++)
         R->lgemax[l] = grid_limit(R->lgrid[l], R->gsky, f->rdnoise, o->sincfrac, ng, o->cache,
-                                  runfits, rep);
+                                  runfits, rep, &R->lglemax[l]);
     return nomem;
 }
 

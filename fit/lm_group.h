@@ -92,7 +92,10 @@ typedef struct {
                                  * (lm_render.c deriv_in_box) */
     uint8_t *ongrid;            /* n: star drawn from the phase grid (its
                                  * start flux within o->grid_emax), else
-                                 * exactly (set with G->work.grid) */
+                                 * exactly (set with G->work.grid); GRID_LIN:
+                                 * bilinearly while its flux stays within
+                                 * lemax (lm_render.c grid_lin) */
+    double lemax;               /* o->grid_lemax */
     /* Star pairs between exact normal equations (normal_equations): the
      * pairs whose windows meet, each pair's sums outside its core (9 a
      * pair, unscaled), and each star's core, [cx0, cx1) × [cy0, cy1) of
@@ -187,6 +190,9 @@ static inline int lm_cmp_double(const void *a, const void *b)
  * derivatives of a step taken, whose PRF is there); exact renders always
  * draw all three. */
 enum { RENDER_ALL, RENDER_PRF, RENDER_DERIVS };
+
+/* group.ongrid's value of a star drawn bilinearly (1: cubically). */
+enum { GRID_LIN = 2 };
 
 /* lm_render.c.  lm_render_all: every star of p into r on its window (or
  * core, while frozen); nonzero when a window overflows its buffers.

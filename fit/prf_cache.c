@@ -32,7 +32,16 @@
  * grid in both axes — where the cubic's error term (f+1)f(f−1)(f−2) peaks —
  * and the worst cell counts; mp_prf_cache_limit turns q ≤ frac into the
  * largest flux served on a given sky, and brighter stars are rendered
- * exactly (frame_paint.c). */
+ * exactly (frame_paint.c).
+ *
+ * A faint star's bound leaves room for a cruder interpolation: the
+ * bilinear one between the 2×2 nodes around its phase reads a quarter of
+ * the nodes and writes each output once (about half the instructions of a
+ * cubic render in 47 Tuc's group fits), with an error, f(1 − f)·h²·P''/2
+ * an axis, that grows as h², not h⁴.  Its δP² is measured at the same
+ * cell centres, where it too peaks, and bounded the same way
+ * (mp_prf_cache_limit_lin); a group fit draws a star bilinearly while its
+ * flux stays within that limit (fit/lm_render.c). */
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -54,6 +63,8 @@ void mp_prf_cache_free(mp_prf_cache *c)
     free(c->p);
     free(c->d2);
     free(c->d2bin);
+    free(c->d2l);
+    free(c->d2lbin);
     memset(c, 0, sizeof *c);
 }
 
@@ -128,11 +139,13 @@ static void weights(double f, double L[4])
 typedef struct {
     axis_pos px, py;
     double Lx[4], Ly[4];
+    int lin;            /* bilinear (bilinear_spans), else cubic */
 } star_pos;
 
-static star_pos star_of(const mp_prf_cache *c, double x, double y)
+static star_pos star_of(const mp_prf_cache *c, double x, double y, int lin)
 {
     star_pos s;
+    s.lin = lin;
     s.px = axis_of(c, x);
     s.py = axis_of(c, y);
     weights(s.px.f, s.Lx);
@@ -160,12 +173,24 @@ static void row4(double *restrict out, const float *restrict a0, const float *re
             out[i] = w0 * a0[i] + w1 * a1[i] + w2 * a2[i] + w3 * a3[i];
 }
 
+/* One plane's row, bilinear: out[i] = Σ w[k]·a_k[i] over the 2×2 nodes
+ * around the star's phase, in one pass. */
+static void row_bilinear(double *restrict out, const float *restrict a00,
+                         const float *restrict a01, const float *restrict a10,
+                         const float *restrict a11, const double w[4], long n)
+{
+    double w0 = w[0], w1 = w[1], w2 = w[2], w3 = w[3];
+#pragma omp simd
+    for (long i = 0; i < n; i++)
+        out[i] = w0 * a00[i] + w1 * a01[i] + w2 * a10[i] + w3 * a11[i];
+}
+
 /* Where a span of row y (1-based), pixels [x0, x0+w), meets the cached
  * union box: its columns [i0, i1) inside, and the offset q0 + i0 of the
  * first of them in a plane; inside is 0 when none is. */
 typedef struct { long i0, i1, off; int inside; } span_at;
 
-static span_at span_in_box(const mp_prf_cache *c, const star_pos *s, long x0, long y, int w)
+static inline span_at span_in_box(const mp_prf_cache *c, const star_pos *s, long x0, long y, int w)
 {
     span_at a;
     long q0 = x0 - s->px.kq - c->ux0, row = y - s->py.kq - c->uy0;
@@ -178,7 +203,7 @@ static span_at span_in_box(const mp_prf_cache *c, const star_pos *s, long x0, lo
 
 /* The span's ends beyond the box (all of it when it misses the box) set
  * to zero in each of the three optional outputs. */
-static void zero_outside(const span_at *a, int w, double *out[3])
+static inline void zero_outside(const span_at *a, int w, double *out[3])
 {
     if (a->inside && a->i0 == 0 && a->i1 == w)
         return;                     /* most spans: a call per plane saved */
@@ -189,6 +214,35 @@ static void zero_outside(const span_at *a, int w, double *out[3])
             memset(out[k], 0, (size_t)a->i0 * sizeof *out[k]);
             memset(out[k] + a->i1, 0, (size_t)(w - a->i1) * sizeof *out[k]);
         }
+}
+
+/* interp_spans' bilinear interpolation: the nodes a, a + 1 of each axis
+ * (Lagrange's 0 and 1), every output written once. */
+static void bilinear_spans(const mp_prf_cache *c, const star_pos *s, const mp_span *sp,
+                           const size_t *at, int ns, double *pr, double *gx, double *gy)
+{
+    int na = c->gb + 3, NA = c->os * na;
+    size_t step = 3 * c->npix, row = (size_t)NA * step;    /* next node along x, y */
+    size_t pl = (size_t)(s->py.beta * na + s->py.a + 1) * NA + (size_t)(s->px.beta * na + s->px.a + 1);
+    const float *p0 = c->img + 3 * pl * c->npix;
+    double fx = s->px.f, fy = s->py.f;
+    double wv[4] = {(1 - fy) * (1 - fx), (1 - fy) * fx, fy * (1 - fx), fy * fx};
+    size_t o = 0;
+    for (int k = 0; k < ns; k++) {
+        o = at ? at[k] : o;
+        double *out[3] = {pr ? pr + o : NULL, gx ? gx + o : NULL, gy ? gy + o : NULL};
+        span_at a = span_in_box(c, s, sp[k].x0, sp[k].y, sp[k].n);
+        o += (size_t)sp[k].n;
+        zero_outside(&a, sp[k].n, out);
+        if (!a.inside)
+            continue;
+        for (int q = 0; q < 3; q++)
+            if (out[q]) {
+                const float *v = p0 + (size_t)q * c->npix + (size_t)a.off;
+                row_bilinear(out[q] + a.i0, v, v + step, v + row, v + row + step, wv,
+                             a.i1 - a.i0);
+            }
+    }
 }
 
 /* The interpolated PRF on ns spans of frame pixels (rows, 1-based), span
@@ -206,6 +260,10 @@ static void interp_spans(const mp_prf_cache *c, const star_pos *s, const mp_span
 {
     int na = c->gb + 3, NA = c->os * na;
     size_t step = 3 * c->npix;          /* the next node along x */
+    if (s->lin) {
+        bilinear_spans(c, s, sp, at, ns, pr, gx, gy);
+        return;
+    }
     for (int kb = 0; kb < 4; kb++) {
         /* node a − 1 + ka of branch beta is plane beta·na + a + ka */
         size_t pl = (size_t)(s->py.beta * na + s->py.a + kb) * NA +
@@ -236,9 +294,9 @@ static void interp_spans(const mp_prf_cache *c, const star_pos *s, const mp_span
 
 /* The interpolated PRF on box [x0, x0+w) × [y0, y0+h): its rows as spans. */
 static void interp(const mp_prf_cache *c, double x, double y, long x0, long y0, int w, int h,
-                   double *prf, double *ddx, double *ddy)
+                   double *prf, double *ddx, double *ddy, int lin)
 {
-    star_pos s = star_of(c, x, y);
+    star_pos s = star_of(c, x, y, lin);
     enum { CHUNK = 64 };
     mp_span rows[CHUNK];
     for (int j = 0; j < h; j += CHUNK) {
@@ -260,17 +318,17 @@ int mp_prf_cache_render(const mp_prf_cache *c, const mp_prf_model *m, double x, 
 {
     if (!mp_prf_cache_usable(c, m))
         return 1;
-    interp(c, x, y, x0, y0, w, h, prf, ddx, ddy);
+    interp(c, x, y, x0, y0, w, h, prf, ddx, ddy, 0);
     return 0;
 }
 
 int mp_prf_cache_render_at(const mp_prf_cache *c, const mp_prf_model *m, double x, double y,
                            const mp_span *sp, const size_t *at, int ns, double *prf, double *ddx,
-                           double *ddy)
+                           double *ddy, int lin)
 {
     if (!mp_prf_cache_usable(c, m))
         return 1;
-    star_pos s = star_of(c, x, y);
+    star_pos s = star_of(c, x, y, lin);
     interp_spans(c, &s, sp, at, ns, prf, ddx, ddy);
     return 0;
 }
@@ -278,7 +336,7 @@ int mp_prf_cache_render_at(const mp_prf_cache *c, const mp_prf_model *m, double 
 int mp_prf_cache_render_spans(const mp_prf_cache *c, const mp_prf_model *m, double x, double y,
                               const mp_span *sp, int ns, double *prf, double *ddx, double *ddy)
 {
-    return mp_prf_cache_render_at(c, m, x, y, sp, NULL, ns, prf, ddx, ddy);
+    return mp_prf_cache_render_at(c, m, x, y, sp, NULL, ns, prf, ddx, ddy, 0);
 }
 
 /* The nodes: branch (bx, by), node (a − 1, b − 1), aligned as the branch;
@@ -307,6 +365,23 @@ static int render_nodes(const mp_prf_model *m, mp_prf_cache *c, double *buf, mp_
     return 0;
 }
 
+/* Cell ph's error at its centre (x, y): p (the natural exact render ex)
+ * and δP² of the cubic and of the bilinear interpolation (cur: npix of
+ * scratch). */
+static void cell_errors(mp_prf_cache *c, double x, double y, size_t ph, const double *ex,
+                        double *cur)
+{
+    float *p = c->p + ph * c->npix;
+    for (size_t i = 0; i < c->npix; i++)
+        p[i] = (float)ex[i];
+    for (int lin = 0; lin < 2; lin++) {
+        float *d = (lin ? c->d2l : c->d2) + ph * c->npix;
+        interp(c, x, y, REF + c->ux0, REF + c->uy0, c->uw, c->uh, cur, NULL, NULL, lin);
+        for (size_t i = 0; i < c->npix; i++)
+            d[i] = (float)((cur[i] - ex[i]) * (cur[i] - ex[i]));
+    }
+}
+
 /* The error at the centre of every cell of every branch: p (the natural
  * exact render) and δP² per phase. */
 static int measure(const mp_prf_model *m, mp_prf_cache *c, double *buf, double *ex,
@@ -323,12 +398,7 @@ static int measure(const mp_prf_model *m, mp_prf_cache *c, double *buf, double *
                                  &h, buf, NULL, NULL, wk))
             return 1;
         place(c, x0, y0, w, h, buf, ex);
-        interp(c, x, y, REF + c->ux0, REF + c->uy0, c->uw, c->uh, cur, NULL, NULL);
-        float *p = c->p + (size_t)ph * c->npix, *d = c->d2 + (size_t)ph * c->npix;
-        for (size_t i = 0; i < c->npix; i++) {
-            p[i] = (float)ex[i];
-            d[i] = (float)((cur[i] - ex[i]) * (cur[i] - ex[i]));
-        }
+        cell_errors(c, x, y, (size_t)ph, ex, cur);
     }
     return 0;
 }
@@ -434,12 +504,7 @@ static int measure_sep(const mp_prf_model *m, mp_prf_cache *c)
                 double y = ref_coord(c, iy / c->gb, (iy % c->gb + 0.5) / c->gb);
                 size_t ph = (size_t)iy * ng + ix;
                 product(c, &ax, &ay[iy], 0, A, scale, ex);
-                interp(c, x, y, REF + c->ux0, REF + c->uy0, c->uw, c->uh, cur, NULL, NULL);
-                float *p = c->p + ph * np, *d = c->d2 + ph * np;
-                for (size_t i = 0; i < np; i++) {
-                    p[i] = (float)ex[i];
-                    d[i] = (float)((cur[i] - ex[i]) * (cur[i] - ex[i]));
-                }
+                cell_errors(c, x, y, ph, ex, cur);
             }
             mp_prf_axis_free(&ax);
         }
@@ -462,7 +527,8 @@ static int bin_of(double v, double pmax)
 }
 
 /* What mp_prf_cache_serves bounds the cells' sums with: the least and the
- * largest P, and each cell's Σ δP² binned by P.  Nonzero when out of memory. */
+ * largest P, and each cell's Σ δP² binned by P, for each interpolation.
+ * Nonzero when out of memory. */
 static int cell_bins(mp_prf_cache *c)
 {
     c->pmin = INFINITY;
@@ -471,13 +537,18 @@ static int cell_bins(mp_prf_cache *c)
         c->pmin = c->p[i] < c->pmin ? c->p[i] : c->pmin;
         c->pmax = c->p[i] > c->pmax ? c->p[i] : c->pmax;
     }
-    if (!(c->d2bin = calloc((size_t)c->nph * MP_PRF_CACHE_NBIN, sizeof *c->d2bin)))
+    c->d2bin = calloc((size_t)c->nph * MP_PRF_CACHE_NBIN, sizeof *c->d2bin);
+    c->d2lbin = calloc((size_t)c->nph * MP_PRF_CACHE_NBIN, sizeof *c->d2lbin);
+    if (!c->d2bin || !c->d2lbin)
         return 1;
     for (int ph = 0; ph < c->nph && c->pmax > 0; ph++) {
-        const float *d = c->d2 + (size_t)ph * c->npix, *p = c->p + (size_t)ph * c->npix;
-        double *bin = c->d2bin + (size_t)ph * MP_PRF_CACHE_NBIN;
-        for (size_t i = 0; i < c->npix; i++)
-            bin[bin_of(p[i], c->pmax)] += d[i];
+        const float *p = c->p + (size_t)ph * c->npix;
+        for (int lin = 0; lin < 2; lin++) {
+            const float *d = (lin ? c->d2l : c->d2) + (size_t)ph * c->npix;
+            double *bin = (lin ? c->d2lbin : c->d2bin) + (size_t)ph * MP_PRF_CACHE_NBIN;
+            for (size_t i = 0; i < c->npix; i++)
+                bin[bin_of(p[i], c->pmax)] += d[i];
+        }
     }
     return 0;
 }
@@ -498,7 +569,7 @@ static int build(const mp_prf_model *m, int G, int sep, mp_prf_cache *c, char *e
     c->npix = (size_t)c->uw * c->uh;
     c->nph = ng * ng;
     double bytes = (double)c->npix * (3.0 * NA * NA * sizeof *c->img +
-                                      2.0 * c->nph * sizeof *c->p);
+                                      3.0 * c->nph * sizeof *c->p);
     if (bytes > CACHE_MAX_BYTES) {
         memset(c, 0, sizeof *c);        /* too big to pay: exact renders */
         return 0;
@@ -506,11 +577,12 @@ static int build(const mp_prf_model *m, int G, int sep, mp_prf_cache *c, char *e
     c->img = malloc(3 * (size_t)NA * NA * c->npix * sizeof *c->img);
     c->p = malloc((size_t)c->nph * c->npix * sizeof *c->p);
     c->d2 = malloc((size_t)c->nph * c->npix * sizeof *c->d2);
+    c->d2l = malloc((size_t)c->nph * c->npix * sizeof *c->d2l);
     sep = sep && mp_prf_separable(&me);
     double *buf = sep ? NULL : malloc(6 * c->npix * sizeof *buf);
     mp_prf_work wk = {0};
     int rc = 1;
-    if (!c->img || !c->p || !c->d2 || (!sep && !buf)) {
+    if (!c->img || !c->p || !c->d2 || !c->d2l || (!sep && !buf)) {
         snprintf(err, MP_ERRLEN, "out of memory for the PRF phase grid (%d x %d phases, %dx%d px)",
                  NA, NA, c->uw, c->uh);
         goto done;
@@ -547,13 +619,25 @@ int mp_prf_cache_build_exact(const mp_prf_model *m, int G, mp_prf_cache *c, char
     return build(m, G, 0, c, err);
 }
 
-double mp_prf_cache_bound(const mp_prf_cache *c, double E, double B, double ron)
+/* The δP² of an interpolation (lin: the bilinear one) and their bins. */
+static const float *d2_of(const mp_prf_cache *c, int lin)
 {
-    if (!c || !c->d2)
+    return c ? (lin ? c->d2l : c->d2) : NULL;
+}
+
+static const double *bins_of(const mp_prf_cache *c, int lin)
+{
+    return c ? (lin ? c->d2lbin : c->d2bin) : NULL;
+}
+
+static double bound_of(const mp_prf_cache *c, int lin, double E, double B, double ron)
+{
+    const float *d2 = d2_of(c, lin);
+    if (!d2)
         return INFINITY;
     double worst = 0.0, var0 = B + ron * ron;
     for (int ph = 0; ph < c->nph; ph++) {
-        const float *d = c->d2 + (size_t)ph * c->npix, *p = c->p + (size_t)ph * c->npix;
+        const float *d = d2 + (size_t)ph * c->npix, *p = c->p + (size_t)ph * c->npix;
         double s = 0.0;
         for (size_t i = 0; i < c->npix; i++) {
             double v = E * p[i] + var0;
@@ -565,9 +649,20 @@ double mp_prf_cache_bound(const mp_prf_cache *c, double E, double B, double ron)
     return E * sqrt(worst);
 }
 
-int mp_prf_cache_serves(const mp_prf_cache *c, double E, double B, double ron, double frac)
+double mp_prf_cache_bound(const mp_prf_cache *c, double E, double B, double ron)
 {
-    if (!c || !c->d2 || !c->d2bin || !(E >= 0))
+    return bound_of(c, 0, E, B, ron);
+}
+
+double mp_prf_cache_bound_lin(const mp_prf_cache *c, double E, double B, double ron)
+{
+    return bound_of(c, 1, E, B, ron);
+}
+
+static int serves_of(const mp_prf_cache *c, int lin, double E, double B, double ron, double frac)
+{
+    const double *bins = bins_of(c, lin);
+    if (!d2_of(c, lin) || !bins || !(E >= 0))
         return 0;
     /* Within bin b ≥ 1 a pixel's variance lies in [v0 + E·pmax·2^−b,
      * v0 + E·pmax·2^(1−b)] (the last bin's lower end v0), in bin 0 in
@@ -588,7 +683,7 @@ int mp_prf_cache_serves(const mp_prf_cache *c, double E, double B, double ron, d
         }
         double up = 0.0, low = 0.0;
         for (int ph = 0; ph < c->nph; ph++) {
-            const double *bin = c->d2bin + (size_t)ph * MP_PRF_CACHE_NBIN;
+            const double *bin = bins + (size_t)ph * MP_PRF_CACHE_NBIN;
             double su = 0.0, sl = 0.0;
             for (int b = 0; b < MP_PRF_CACHE_NBIN; b++) {
                 su += bin[b] * inv_lo[b];
@@ -602,24 +697,39 @@ int mp_prf_cache_serves(const mp_prf_cache *c, double E, double B, double ron, d
         if (low > f2 * (1.0 + 1e-9))
             return 0;
     }
-    return mp_prf_cache_bound(c, E, B, ron) <= frac;
+    return bound_of(c, lin, E, B, ron) <= frac;
+}
+
+int mp_prf_cache_serves(const mp_prf_cache *c, double E, double B, double ron, double frac)
+{
+    return serves_of(c, 0, E, B, ron, frac);
 }
 
 /* q(E) increases with E (each term E²δP²/(E P + v) does): bisection in log E,
  * each flux decided as mp_prf_cache_serves decides it. */
-double mp_prf_cache_limit(const mp_prf_cache *c, double B, double ron, double frac)
+static double limit_of(const mp_prf_cache *c, int lin, double B, double ron, double frac)
 {
     double lo = 1e-3, hi = 1e15;
-    if (!c || !c->d2 || !mp_prf_cache_serves(c, lo, B, ron, frac))
+    if (!serves_of(c, lin, lo, B, ron, frac))
         return 0.0;
-    if (mp_prf_cache_serves(c, hi, B, ron, frac))
+    if (serves_of(c, lin, hi, B, ron, frac))
         return INFINITY;
     for (int it = 0; it < MP_SINC_LIMITS_EVALS - 2; it++) {  /* 18 decades: E to 0.25 % */
         double mid = sqrt(lo * hi);
-        if (mp_prf_cache_serves(c, mid, B, ron, frac))
+        if (serves_of(c, lin, mid, B, ron, frac))
             lo = mid;
         else
             hi = mid;
     }
     return lo;
+}
+
+double mp_prf_cache_limit(const mp_prf_cache *c, double B, double ron, double frac)
+{
+    return limit_of(c, 0, B, ron, frac);
+}
+
+double mp_prf_cache_limit_lin(const mp_prf_cache *c, double B, double ron, double frac)
+{
+    return limit_of(c, 1, B, ron, frac);
 }

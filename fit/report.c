@@ -139,11 +139,11 @@ static void report_lines(FILE *fp, const char *prefix, const mp_run_report *r)
             d[0] && r->sky[0] ? "; " : "", r->sky);
     fprintf(fp, "%s  work: %ld group fits, %ld left out (neighbours' light unchanged), "
             "%ld star paints cropped; %ld of %ld LM fits with a shorter sinc kernel (mean "
-            "half-width %.1f), %ld with a coarser table, %ld with the PRF from the phase grid; "
-            "economy's own cost: %ld bound evaluations, %ld crop envelopes\n", prefix, r->fits,
-            r->kept, r->cropped, r->kshort, r->kcalls,
-            r->kcalls > 0 ? r->khw / (double)r->kcalls : 0.0, r->kcoarse, r->kcache, r->kbounds,
-            r->envelopes);
+            "half-width %.1f), %ld with a coarser table, %ld with the PRF from the phase grid "
+            "(%ld of their %ld star fits bilinear); economy's own cost: %ld bound evaluations, "
+            "%ld crop envelopes\n", prefix, r->fits, r->kept, r->cropped, r->kshort, r->kcalls,
+            r->kcalls > 0 ? r->khw / (double)r->kcalls : 0.0, r->kcoarse, r->kcache, r->klin,
+            r->kstars, r->kbounds, r->envelopes);
     if (r->pairs_close > 0)
         fprintf(fp, "%s  groups: components above maxgroup cut at their weakest couplings "
                 "(%ld pairs within psfrad + fitrad, %ld of them coupled), summed over rounds\n",

@@ -121,11 +121,12 @@ static void phase_grids(mp_fit_setup *s, const mp_parset *ps)
     if (grid <= 0 || s->field.order > 0 || s->psf.kind != MP_PSF_TABLE)
         return;
     s->econ_grid = grid;
-    char why[256];
+    char why[512];
     snprintf(why, sizeof why, "PRF from a grid of %d subpixel phases per pixel (cubic, five-point "
              "derivatives interpolated) for groups whose brightest star's bias bound stays below "
-             "%.2g sigma, exact renders for brighter ones (fit/prf_cache.c)", grid,
-             s->opts.sincfrac);
+             "%.2g sigma, exact renders for brighter ones, and bilinear (a quarter of the reads) for "
+             "a star whose own bound with it stays below %.2g sigma (fit/prf_cache.c)", grid,
+             s->opts.sincfrac, s->opts.sincfrac);
     decide(s, why);
     snprintf(why, sizeof why, "position derivatives: drawn from the grid within fitrad + 2 px of "
              "a star whose pixels beyond hold at most %.2g of its information on x and y (its "

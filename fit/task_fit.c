@@ -79,6 +79,8 @@ static int fit_one(const mp_fit_setup *s, const char *image, const char *coords,
     run.kcalls = rep.kcalls;
     run.kshort = rep.kshort;
     run.kcache = rep.kcache;
+    run.klin = rep.klin;
+    run.kstars = rep.kstars;
     run.khw = rep.khw;
     run.kbounds = rep.kbounds;
     run.kcoarse = rep.kcoarse;

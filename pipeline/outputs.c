@@ -136,6 +136,8 @@ static void report_counts(const mp_pipeline_report *rep, const mp_table *t, mp_r
     run->kbounds = rep->kbounds;
     run->kcoarse = rep->kcoarse;
     run->kcache = rep->kcache;
+    run->klin = rep->klin;
+    run->kstars = rep->kstars;
     run->envelopes = rep->envelopes;
     run->pairs_close = rep->pairs_close;
     run->pairs_coupled = rep->pairs_coupled;

@@ -62,6 +62,7 @@ typedef struct {
     long kbounds, envelopes;      /* economy's own cost (mp_frame_report) */
     long kcoarse;                 /* LM fits with a coarser table */
     long kcache;                  /* LM fits with the PRF from the phase grid */
+    long klin, kstars;            /* star fits in LM fits drawn bilinearly, and all */
     long pairs_close, pairs_coupled;  /* grouping (mp_pl_group), summed over rounds */
     double ops_tables, ops_saved, ops_render;  /* economy's tables' cost and saving
                                    * (mp_frame_report), summed over rounds */

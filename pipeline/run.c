@@ -193,6 +193,8 @@ static void count_fit(mp_pipeline_report *rep, const mp_frame_report *fr, size_t
     rep->ops_saved += fr->ops_saved;
     rep->ops_render = fr->ops_render;
     rep->kcache += fr->kcache;
+    rep->klin += fr->klin;
+    rep->kstars += fr->kstars;
     rep->envelopes += fr->envelopes;
     rep->ngroups = fr->ngroups;
     rep->fitted = (long)nrow;

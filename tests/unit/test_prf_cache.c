@@ -14,6 +14,7 @@
 
 #include "fit/fit.h"
 #include "fit/prf_axis.h"
+#include "tests/unit/stiff_common.h"
 
 /* A Gaussian table, FWHM 2.5 px, ×2, ±8 px: smooth, so the cubic's error
  * term sets the grid's error. */
@@ -102,6 +103,168 @@ static void test_bound_falls_as_h4(void **state)
     assert_true(mp_prf_cache_bound(&c16, e16, 100.0, 3.0) <= 0.1);
     mp_prf_cache_free(&c8);
     mp_prf_cache_free(&c16);
+    mp_psf_free(&p);
+}
+
+/* The largest |δP| of the bilinear interpolation measured at the cells'
+ * centres. */
+static double measured_max_lin(const mp_prf_cache *c)
+{
+    double m = 0.0;
+    for (size_t i = 0; i < (size_t)c->nph * c->npix; i++)
+        m = c->d2l[i] > m ? c->d2l[i] : m;
+    return sqrt(m);
+}
+
+/* The bilinear interpolation (mp_prf_cache_render_at with lin) at 60
+ * positions over all phases: its PRF within twice the largest error
+ * measured at the cell centres (its error term f(1 − f)·h²·P''/2 peaks
+ * there; 2 covers P'''s change across a cell), its derivatives within 3
+ * times that (their own scale against the PRF's, 3 /px here), and that
+ * error above the cubic's (else the limits below say nothing). */
+static void test_bilinear_matches_exact(void **state)
+{
+    (void)state;
+    char err[MP_ERRLEN];
+    mp_psf p;
+    table(&p);
+    mp_prf_model m = {&p, NULL, 10};
+    mp_prf_cache c;
+    assert_int_equal(mp_prf_cache_build(&m, 16, &c, err), 0);
+    double tol = 2.0 * measured_max_lin(&c);
+    assert_true(tol > 4.0 * measured_max(&c) && tol < 1e-3);
+    mp_prf_work we = {0};
+    size_t cap = (size_t)c.uw * c.uh;
+    double *a = malloc(3 * cap * sizeof *a), *b = malloc(3 * cap * sizeof *b);
+    mp_span *sp = malloc((size_t)c.uh * sizeof *sp);
+    assert_true(a && b && sp);
+    double worst = 0.0, worstd = 0.0;
+    for (int k = 0; k < 60; k++) {
+        double x = 50.0 + 0.0173 * k * 7.0, y = 40.0 + 0.0291 * k * 5.0;
+        long x0, y0;
+        int w, h;
+        assert_int_equal(mp_prf_render_window(&m, x, y, 1, 1, 200, 200, &x0, &y0, &w, &h, a,
+                                              a + cap, a + 2 * cap, &we), 0);
+        for (int j = 0; j < h; j++)
+            sp[j] = (mp_span){x0, y0 + j, w};
+        size_t n = (size_t)w * h;
+        assert_int_equal(mp_prf_cache_render_at(&c, &m, x, y, sp, NULL, h, b, b + n, b + 2 * n, 1),
+                         0);
+        for (size_t i = 0; i < n; i++) {
+            worst = fmax(worst, fabs(a[i] - b[i]));
+            worstd = fmax(worstd, fmax(fabs(a[cap + i] - b[n + i]), fabs(a[2 * cap + i] - b[2 * n + i])));
+        }
+    }
+    assert_true(worst <= tol);
+    assert_true(worstd <= 3.0 * tol);
+    free(a);
+    free(b);
+    free(sp);
+    mp_prf_work_free(&we);
+    mp_prf_cache_free(&c);
+    mp_psf_free(&p);
+}
+
+/* Halving the phase step divides the bilinear interpolation's error by
+ * about 2²: its bound for a 10⁶ e⁻ star falls by 3 to 5.3 from G = 8 to
+ * G = 16 (4 expected; the cubic's falls by more than 8), it stays above
+ * the cubic's, and its flux limit is below the cubic's and meets its
+ * bound. */
+static void test_bilinear_bound_falls_as_h2(void **state)
+{
+    (void)state;
+    char err[MP_ERRLEN];
+    mp_psf p;
+    table(&p);
+    mp_prf_model m = {&p, NULL, 10};
+    mp_prf_cache c8, c16;
+    assert_int_equal(mp_prf_cache_build(&m, 8, &c8, err), 0);
+    assert_int_equal(mp_prf_cache_build(&m, 16, &c16, err), 0);
+    double q8 = mp_prf_cache_bound_lin(&c8, 1e6, 100.0, 3.0);
+    double q16 = mp_prf_cache_bound_lin(&c16, 1e6, 100.0, 3.0);
+    assert_true(q16 > 0 && q8 / q16 > 3.0 && q8 / q16 < 5.3);
+    assert_true(q16 > mp_prf_cache_bound(&c16, 1e6, 100.0, 3.0));
+    double el = mp_prf_cache_limit_lin(&c16, 100.0, 3.0, 0.1);
+    assert_true(el > 0 && el < mp_prf_cache_limit(&c16, 100.0, 3.0, 0.1));
+    assert_true(mp_prf_cache_bound_lin(&c16, el, 100.0, 3.0) <= 0.1);
+    assert_true(mp_prf_cache_bound_lin(&c16, 1.01 * el, 100.0, 3.0) > 0.1);
+    mp_prf_cache_free(&c8);
+    mp_prf_cache_free(&c16);
+    mp_psf_free(&p);
+}
+
+/* A noiseless star of flux E at the bilinear limit on sky B, fitted with
+ * its PRF drawn bilinearly (grid_lemax ∞) and cubically (grid_lemax 0)
+ * from the grid, and exactly (no grid), which returns the truth: each
+ * grid fit's flux, x and y lie within its bound (0.1 σ, the σ the exact
+ * fit reports) of the exact fit's, plus the fits' tolerance (2·tol σ),
+ * and the bilinear fit's offset is the larger (it was drawn bilinearly),
+ * at each of 8 subpixel positions. */
+static void test_bilinear_fit_within_bound(void **state)
+{
+    (void)state;
+    enum { NP = 31 };
+    const double B = 100.0, RON = 3.0;
+    char err[MP_ERRLEN];
+    mp_psf p;
+    table(&p);
+    mp_prf_model m = {&p, NULL, 10};
+    mp_prf_cache c;
+    assert_int_equal(mp_prf_cache_build(&m, 16, &c, err), 0);
+    double E = mp_prf_cache_limit_lin(&c, B, RON, 0.1);
+    assert_true(E > 1e3 && E < mp_prf_cache_limit(&c, B, RON, 0.1));
+    mp_frame f;
+    sf_frame_make(&f, NP, NP, RON);
+    mp_prf_work w = {0};
+    long x0, y0;
+    int bw, bh;
+    mp_prf_box(&m, 16.0, 16.0, &x0, &y0, &bw, &bh);
+    double *buf = malloc((size_t)(bw + 2) * (bh + 2) * sizeof *buf);
+    assert_non_null(buf);
+    mp_fit_opts o;
+    mp_fit_opts_default(&o);
+    o.fitrad = 4.0;
+    o.sky_order = 0;
+    o.tol = 1e-4;
+    double worse = 0.0;
+    for (int k = 0; k < 8; k++) {
+        double X = 16.0 + 0.13 * k, Y = 16.0 + 0.29 * (k % 3) + 0.05 * k;
+        for (long i = 0; i < NP * NP; i++)
+            f.im.pix[i] = (float)B;
+        mp_prf_box(&m, X, Y, &x0, &y0, &bw, &bh);
+        assert_int_equal(mp_prf_render(&m, X, Y, buf, NULL, NULL, &w), 0);
+        for (int j = 0; j < bh; j++)
+            for (int i = 0; i < bw; i++) {
+                long XX = x0 + i, YY = y0 + j;
+                if (XX >= 1 && YY >= 1 && XX <= NP && YY <= NP)
+                    f.im.pix[(YY - 1) * NP + XX - 1] += (float)(E * buf[(size_t)j * bw + i]);
+            }
+        mp_star st[3];
+        for (int v = 0; v < 3; v++) {
+            st[v] = (mp_star){.x = X + 0.2, .y = Y - 0.1, .flux = 0.8 * E};
+            o.grid = v < 2 ? &c : NULL;
+            o.grid_lemax = v == 0 ? INFINITY : 0.0;
+            assert_int_equal(mp_fit_group(&f, &m, &o, B, &st[v], 1, err), 0);
+            assert_int_equal(st[v].flags & MP_FLAG_NOCONV, 0);
+        }
+        const mp_star *ex = &st[2];
+        double off[2];
+        for (int v = 0; v < 2; v++) {
+            const double d[3] = {(st[v].flux - ex->flux) / ex->eflux, (st[v].x - ex->x) / ex->ex,
+                                 (st[v].y - ex->y) / ex->ey};
+            off[v] = 0.0;
+            for (int a = 0; a < 3; a++) {
+                assert_true(fabs(d[a]) <= 0.1 + 2.0 * o.tol);
+                off[v] = fmax(off[v], fabs(d[a]));
+            }
+        }
+        worse += off[0] > off[1];
+    }
+    assert_true(worse == 8);
+    free(buf);
+    sf_frame_drop(&f);
+    mp_prf_work_free(&w);
+    mp_prf_cache_free(&c);
     mp_psf_free(&p);
 }
 
@@ -371,6 +534,9 @@ int main(void)
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(test_grid_matches_exact),
         cmocka_unit_test(test_bound_falls_as_h4),
+        cmocka_unit_test(test_bilinear_matches_exact),
+        cmocka_unit_test(test_bilinear_bound_falls_as_h2),
+        cmocka_unit_test(test_bilinear_fit_within_bound),
         cmocka_unit_test(test_grid_only_for_its_model),
         cmocka_unit_test(test_separable_build_is_exact),
         cmocka_unit_test(test_render_paths_agree),
