@@ -22,28 +22,40 @@ static int cluster(const unsigned char *m, int nx, int ny, int i, int j, int nee
     return c >= need;
 }
 
-/* One star's mask m: the clusters of hits dilated by h, rows first
- * (row marks the row-dilation), then columns. */
-static void dilate_star(unsigned char *m, int nx, int ny, int h, int need, double *row)
+/* Whether row j of m holds a hit. */
+static int row_hit(const unsigned char *m, int nx, int j)
 {
+    for (int i = 0; i < nx; i++)
+        if (m[(size_t)j * nx + i] & MP_EPSF_HIT)
+            return 1;
+    return 0;
+}
+
+/* One star's mask m: the clusters of hits dilated by h, rows first
+ * (row marks the row-dilation; a row without a hit has no cluster), then
+ * columns; a star without a hit (most, in most steps) only cleared. */
+static void dilate_star(unsigned char *m, int nx, int ny, int h, int need, unsigned char *row)
+{
+    int any = 0;
     for (int j = 0; j < ny; j++) {
+        memset(row + (size_t)j * nx, 0, (size_t)nx);
+        if (!row_hit(m, nx, j))
+            continue;
+        any = 1;
         int last = -h - 1;       /* last cluster column seen */
-        for (int i = 0; i < nx; i++)
-            row[(size_t)j * nx + i] = 0.0;
         for (int i = 0; i < nx + h; i++) {
             if (i < nx && cluster(m, nx, ny, i, j, need))
                 last = i;
             int t = i - h;      /* covered by a cluster within h on the left or right */
             if (t >= 0 && t < nx && i - last <= 2 * h)
-                row[(size_t)j * nx + t] = 1.0;
+                row[(size_t)j * nx + t] = 1;
         }
     }
-    for (size_t el = 0; el < (size_t)nx * ny; el++)
-        m[el] = 0;
-    for (int i = 0; i < nx; i++) {
+    memset(m, 0, (size_t)nx * ny);
+    for (int i = 0; any && i < nx; i++) {
         int last = -h - 1;
         for (int j = 0; j < ny + h; j++) {
-            if (j < ny && row[(size_t)j * nx + i] > 0)
+            if (j < ny && row[(size_t)j * nx + i])
                 last = j;
             int t = j - h;
             if (t >= 0 && t < ny && j - last <= 2 * h)
@@ -60,7 +72,7 @@ int mp_epsf_sirt_dilate(mp_epsf_sirt *w, const mp_epsf *e, size_t n, double rd)
     int failed = 0;
 #pragma omp parallel reduction(| : failed)
     {
-        double *row = malloc(nel * sizeof *row);
+        unsigned char *row = malloc(nel);
         failed = !row;
 #pragma omp for schedule(static)
         for (size_t k = 0; k < n; k++)
