@@ -542,12 +542,13 @@ static int cell_bins(mp_prf_cache *c)
     if (!c->d2bin || !c->d2lbin)
         return 1;
     for (int ph = 0; ph < c->nph && c->pmax > 0; ph++) {
-        const float *p = c->p + (size_t)ph * c->npix;
-        for (int lin = 0; lin < 2; lin++) {
-            const float *d = (lin ? c->d2l : c->d2) + (size_t)ph * c->npix;
-            double *bin = (lin ? c->d2lbin : c->d2bin) + (size_t)ph * MP_PRF_CACHE_NBIN;
-            for (size_t i = 0; i < c->npix; i++)
-                bin[bin_of(p[i], c->pmax)] += d[i];
+        size_t o = (size_t)ph * c->npix;
+        double *bin = c->d2bin + (size_t)ph * MP_PRF_CACHE_NBIN;
+        double *binl = c->d2lbin + (size_t)ph * MP_PRF_CACHE_NBIN;
+        for (size_t i = 0; i < c->npix; i++) {
+            int b = bin_of(c->p[o + i], c->pmax);
+            bin[b] += c->d2[o + i];
+            binl[b] += c->d2l[o + i];
         }
     }
     return 0;
