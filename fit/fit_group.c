@@ -489,6 +489,25 @@ static int fit_orders(group *G, const mp_fit_opts *o, const mp_star *stars, doub
     return 0;
 }
 
+/* A fit that stopped unconverged with stars drawn bilinearly, continued
+ * from where it stopped with every star drawn cubically: the bilinear
+ * PRF bends at every grid phase (its derivatives are the grid's, smooth),
+ * which can keep LM's last steps from meeting tol (GLIMPSE built: a
+ * 28-star group at maxiter that converged cubically).  Nonzero when out
+ * of memory. */
+static int cubic_again(group *G, const mp_fit_opts *o, int *iter, int *converged)
+{
+    int lin = 0;
+    for (int k = 0; !*converged && !G->paired && k < G->n; k++)
+        if (G->ongrid[k] == GRID_LIN) {
+            G->ongrid[k] = 1;
+            lin = 1;
+        }
+    if (!lin)
+        return 0;
+    return lm_render_all(G, G->p, G->cur, RENDER_ALL) || lm_levmar(G, o, 0, iter, converged);
+}
+
 int mp_fit_group(const mp_frame *f, const mp_prf_model *m, const mp_fit_opts *o,
                  double sky0, mp_star *stars, int n, char *err)
 {
@@ -545,7 +564,8 @@ int mp_fit_group(const mp_frame *f, const mp_prf_model *m, const mp_fit_opts *o,
         goto nomem;
     if (order > 0 && o->warm_sky)
         warm_sky_start(&G, stars);
-    if (fit_orders(&G, o, stars, sky, &order, &iter, &converged))
+    if (fit_orders(&G, o, stars, sky, &order, &iter, &converged) ||
+        (!converged && cubic_again(&G, o, &iter, &converged)))
         goto nomem;
     int cv = covariance(&G);
     if (cv == 2)
