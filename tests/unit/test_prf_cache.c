@@ -24,13 +24,59 @@ static void table(mp_psf *p)
     assert_int_equal(mp_psf_gauss_table(2.5, 2, 8.0, p, err), 0);
 }
 
-/* The largest |δP| the grid measured at its cell centres. */
-static double measured_max(const mp_prf_cache *c)
+/* The largest |δP| the grid measured at its cell centres: of its cubic
+ * interpolation, or (lin) its bilinear one. */
+static double measured_max(const mp_prf_cache *c, int lin)
 {
+    const float *d2 = lin ? c->d2l : c->d2;
     double m = 0.0;
     for (size_t i = 0; i < (size_t)c->nph * c->npix; i++)
-        m = c->d2[i] > m ? c->d2[i] : m;
+        m = d2[i] > m ? d2[i] : m;
     return sqrt(m);
+}
+
+/* The largest differences between the exact render and the grid's, PRF
+ * (*worst) and derivatives (*worstd), at 60 positions spread over all
+ * phases: the grid's drawn through a render's work (mp_prf_render_window,
+ * cubic) or, with lin, by mp_prf_cache_render_at bilinearly on the box's
+ * rows. */
+static void against_exact(const mp_prf_model *m, const mp_prf_cache *c, int lin, double *worst,
+                          double *worstd)
+{
+    mp_prf_work we = {0}, wg = {0};
+    wg.grid = c;
+    size_t cap = (size_t)c->uw * c->uh;
+    double *a = malloc(3 * cap * sizeof *a), *b = malloc(3 * cap * sizeof *b);
+    mp_span *sp = malloc((size_t)c->uh * sizeof *sp);
+    assert_true(a && b && sp);
+    *worst = *worstd = 0.0;
+    for (int k = 0; k < 60; k++) {
+        double x = 50.0 + 0.0173 * k * 7.0, y = 40.0 + 0.0291 * k * 5.0;
+        long x0, y0, x1, y1;
+        int w0, h0, w1, h1;
+        assert_int_equal(mp_prf_render_window(m, x, y, 1, 1, 200, 200, &x0, &y0, &w0, &h0, a,
+                                              a + cap, a + 2 * cap, &we), 0);
+        size_t n = (size_t)w0 * h0;
+        if (lin) {
+            for (int j = 0; j < h0; j++)
+                sp[j] = (mp_span){x0, y0 + j, w0};
+            assert_int_equal(mp_prf_cache_render_at(c, m, x, y, sp, NULL, h0, b, b + cap,
+                                                    b + 2 * cap, 1), 0);
+        } else {
+            assert_int_equal(mp_prf_render_window(m, x, y, 1, 1, 200, 200, &x1, &y1, &w1, &h1, b,
+                                                  b + cap, b + 2 * cap, &wg), 0);
+            assert_true(x0 == x1 && y0 == y1 && w0 == w1 && h0 == h1);
+        }
+        for (size_t i = 0; i < n; i++) {
+            *worst = fmax(*worst, fabs(a[i] - b[i]));
+            *worstd = fmax(*worstd, fmax(fabs(a[cap + i] - b[cap + i]), fabs(a[2 * cap + i] - b[2 * cap + i])));
+        }
+    }
+    free(a);
+    free(b);
+    free(sp);
+    mp_prf_work_free(&we);
+    mp_prf_work_free(&wg);
 }
 
 /* At 60 positions spread over all phases, the grid's PRF is the exact one
@@ -49,35 +95,11 @@ static void test_grid_matches_exact(void **state)
     mp_prf_cache c;
     assert_int_equal(mp_prf_cache_build(&m, 16, &c, err), 0);
     assert_int_equal(c.G, 16);
-    double tol = 2.0 * measured_max(&c);
+    double tol = 2.0 * measured_max(&c, 0), worst, worstd;
     assert_true(tol > 0 && tol < 1e-4);
-    mp_prf_work we = {0}, wg = {0};
-    wg.grid = &c;
-    size_t cap = (size_t)c.uw * c.uh;
-    double *a = malloc(3 * cap * sizeof *a), *b = malloc(3 * cap * sizeof *b);
-    assert_non_null(a);
-    assert_non_null(b);
-    double worst = 0.0, worstd = 0.0;
-    for (int k = 0; k < 60; k++) {
-        double x = 50.0 + 0.0173 * k * 7.0, y = 40.0 + 0.0291 * k * 5.0;
-        long x0, y0, x1, y1;
-        int w0, h0, w1, h1;
-        assert_int_equal(mp_prf_render_window(&m, x, y, 1, 1, 200, 200, &x0, &y0, &w0, &h0, a,
-                                              a + cap, a + 2 * cap, &we), 0);
-        assert_int_equal(mp_prf_render_window(&m, x, y, 1, 1, 200, 200, &x1, &y1, &w1, &h1, b,
-                                              b + cap, b + 2 * cap, &wg), 0);
-        assert_true(x0 == x1 && y0 == y1 && w0 == w1 && h0 == h1);
-        for (size_t i = 0; i < (size_t)w0 * h0; i++) {
-            worst = fmax(worst, fabs(a[i] - b[i]));
-            worstd = fmax(worstd, fmax(fabs(a[cap + i] - b[cap + i]), fabs(a[2 * cap + i] - b[2 * cap + i])));
-        }
-    }
+    against_exact(&m, &c, 0, &worst, &worstd);
     assert_true(worst <= tol);
     assert_true(worstd <= 3.0 * tol);
-    free(a);
-    free(b);
-    mp_prf_work_free(&we);
-    mp_prf_work_free(&wg);
     mp_prf_cache_free(&c);
     mp_psf_free(&p);
 }
@@ -106,16 +128,6 @@ static void test_bound_falls_as_h4(void **state)
     mp_psf_free(&p);
 }
 
-/* The largest |δP| of the bilinear interpolation measured at the cells'
- * centres. */
-static double measured_max_lin(const mp_prf_cache *c)
-{
-    double m = 0.0;
-    for (size_t i = 0; i < (size_t)c->nph * c->npix; i++)
-        m = c->d2l[i] > m ? c->d2l[i] : m;
-    return sqrt(m);
-}
-
 /* The bilinear interpolation (mp_prf_cache_render_at with lin) at 60
  * positions over all phases: its PRF within twice the largest error
  * measured at the cell centres (its error term f(1 − f)·h²·P''/2 peaks
@@ -131,36 +143,11 @@ static void test_bilinear_matches_exact(void **state)
     mp_prf_model m = {&p, NULL, 10};
     mp_prf_cache c;
     assert_int_equal(mp_prf_cache_build(&m, 16, &c, err), 0);
-    double tol = 2.0 * measured_max_lin(&c);
-    assert_true(tol > 4.0 * measured_max(&c) && tol < 1e-3);
-    mp_prf_work we = {0};
-    size_t cap = (size_t)c.uw * c.uh;
-    double *a = malloc(3 * cap * sizeof *a), *b = malloc(3 * cap * sizeof *b);
-    mp_span *sp = malloc((size_t)c.uh * sizeof *sp);
-    assert_true(a && b && sp);
-    double worst = 0.0, worstd = 0.0;
-    for (int k = 0; k < 60; k++) {
-        double x = 50.0 + 0.0173 * k * 7.0, y = 40.0 + 0.0291 * k * 5.0;
-        long x0, y0;
-        int w, h;
-        assert_int_equal(mp_prf_render_window(&m, x, y, 1, 1, 200, 200, &x0, &y0, &w, &h, a,
-                                              a + cap, a + 2 * cap, &we), 0);
-        for (int j = 0; j < h; j++)
-            sp[j] = (mp_span){x0, y0 + j, w};
-        size_t n = (size_t)w * h;
-        assert_int_equal(mp_prf_cache_render_at(&c, &m, x, y, sp, NULL, h, b, b + n, b + 2 * n, 1),
-                         0);
-        for (size_t i = 0; i < n; i++) {
-            worst = fmax(worst, fabs(a[i] - b[i]));
-            worstd = fmax(worstd, fmax(fabs(a[cap + i] - b[n + i]), fabs(a[2 * cap + i] - b[2 * n + i])));
-        }
-    }
+    double tol = 2.0 * measured_max(&c, 1), worst, worstd;
+    assert_true(tol > 4.0 * measured_max(&c, 0) && tol < 1e-3);
+    against_exact(&m, &c, 1, &worst, &worstd);
     assert_true(worst <= tol);
     assert_true(worstd <= 3.0 * tol);
-    free(a);
-    free(b);
-    free(sp);
-    mp_prf_work_free(&we);
     mp_prf_cache_free(&c);
     mp_psf_free(&p);
 }
