@@ -497,8 +497,10 @@ static int fit_orders(group *G, const mp_fit_opts *o, const mp_star *stars, doub
  * of memory. */
 static int cubic_again(group *G, const mp_fit_opts *o, int *iter, int *converged)
 {
+    if (*converged || G->paired)
+        return 0;
     int lin = 0;
-    for (int k = 0; !*converged && !G->paired && k < G->n; k++)
+    for (int k = 0; k < G->n; k++)
         if (G->ongrid[k] == GRID_LIN) {
             G->ongrid[k] = 1;
             lin = 1;
