@@ -106,6 +106,13 @@ void mp_prf_box(const mp_prf_model *m, double x, double y,
 int mp_prf_render(const mp_prf_model *m, double x, double y,
                   double *prf, double *dprf_dx, double *dprf_dy, mp_prf_work *w);
 
+/* mp_merge_sig: the separation, in units of its σ, from which a pair
+ * closer than mergerad is two stars, not one (the frame fit's merge):
+ * minsnr, the level at which the one-or-two test proposes a second star
+ * (Δχ² ≥ minsnr², pipeline/split.c), at least 2; INFINITY when
+ * minsnr ≤ 0 (nothing rejected: mergerad merges every pair). */
+double mp_merge_sig(double minsnr);
+
 /* mp_prf_fwhm: the PRF's equivalent FWHM, 2.3548·L at a pixel centre (L,
  * the critical-sampling scale length, is the σ of a Gaussian of the same
  * sharpness, paper §2.4.2); what find's kernel and the merge radius use. */
@@ -619,9 +626,11 @@ double mp_fit_core_halfwidth(double fitrad);
 typedef struct {
     mp_fit_opts fit;
     double magzero;    /* MAG_PSF = −2.5 log10(FLUX_PSF) + magzero */
-    double mergerad;   /* merge stars closer than this [px]; NaN: 0.4 FWHM
-                        * of the PSF; 0: never.  Pairs closer than twice the
-                        * error of their separation are merged too. */
+    double mergerad;   /* merge stars closer than this [px], unless they
+                        * are separated by mp_merge_sig(minsnr) or more of
+                        * their separation's σ; NaN: 0.4 FWHM of the PSF;
+                        * 0: never.  Pairs closer than twice the error of
+                        * their separation are merged too. */
     double minsnr;     /* reject stars with FLUX_PSF/FLUXERR_PSF below this */
     int passes;        /* fits of every group; from the 2nd on, neighbours'
                         * light comes from the previous pass */
