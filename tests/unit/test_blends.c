@@ -127,6 +127,12 @@ static void test_pair_2fwhm(void **state) { pair_at(state, 2.0, 1e4); }
 static void test_pair_1fwhm(void **state) { pair_at(state, 1.0, 1e4); }
 static void test_pair_half_fwhm(void **state) { pair_at(state, 0.5, 4e4); }
 
+/* Inside the merge radius (0.4 FWHM = 1.2 px): a pair 0.35 FWHM apart,
+ * 4·10⁵ and 1.6·10⁵ e- (S/N ≈ 600 and 390).  Its separation, 1.05 px, is
+ * some 20 times its fitted σ, far above mp_merge_sig's 5: two stars, not
+ * one (the merge radius alone merged them before 2026-12-01). */
+static void test_pair_inside_mergerad(void **state) { pair_at(state, 0.35, 4e5); }
+
 static void test_single_star(void **state)
 {
     const setup *s = *state;
@@ -241,6 +247,7 @@ int main(void)
         cmocka_unit_test(test_pair_2fwhm),
         cmocka_unit_test(test_pair_1fwhm),
         cmocka_unit_test(test_pair_half_fwhm),
+        cmocka_unit_test(test_pair_inside_mergerad),
         cmocka_unit_test(test_split_from_grid),
     };
     return cmocka_run_group_tests(tests, setup_opts, teardown_opts);
