@@ -28,7 +28,8 @@ double mp_merge_sig(double minsnr)
 /* Two stars to merge: not significantly separated (d < 2 σ of their
  * separation), or closer than mergerad unless their separation is
  * significant at the level the one-or-two test proposes a second star at
- * (d ≥ sig·σ: Δχ² ≥ minsnr², pipeline/split.c).  A pair that well
+ * (d ≥ sig·σ: Δχ² ≥ minsnr², pipeline/split.c; σ widened by the discs'
+ * misfit).  A pair that well
  * resolved is two stars, whatever the merge radius: on the segmented
  * scene of make validate (CROWDED.md) a 0.58-FWHM pair of −13.6 and −12.8
  * mag, separated by 67 σ, was merged (mergerad is 0.4 of the PSF's
@@ -76,7 +77,12 @@ static merge_pair *merge_candidates(const mp_star *s, const int *alive, int n, d
             double d = hypot(s[i].x - s[j].x, s[i].y - s[j].y);
             double es = sqrt(s[i].ex * s[i].ex + s[i].ey * s[i].ey + s[j].ex * s[j].ex +
                              s[j].ey * s[j].ey);
-            if (!(d < 2.0 * es || (d < mergerad && !(d >= sig * es))))
+            /* Within mergerad the separation's σ is widened by the misfit
+             * of the pair's own discs, as least squares does (√(χ²/dof)
+             * when above 1): a companion that only takes up a PSF's error
+             * is not kept by its formal σ. */
+            double phi = fmax(1.0, fmax(s[i].chi2star, s[j].chi2star));
+            if (!(d < 2.0 * es || (d < mergerad && !(d >= sig * es * sqrt(phi)))))
                 continue;
             if (m == cap) {
                 cap = cap ? 2 * cap : 8;
