@@ -106,7 +106,8 @@ void mp_prf_box(const mp_prf_model *m, double x, double y,
 int mp_prf_render(const mp_prf_model *m, double x, double y,
                   double *prf, double *dprf_dx, double *dprf_dy, mp_prf_work *w);
 
-/* mp_merge_sig: the separation, in units of its σ, from which a pair
+/* mp_merge_sig: the separation, in units of its σ (widened by
+ * √(CHI2STAR_PSF) of the pair's discs when above 1), from which a pair
  * closer than mergerad is two stars, not one (the frame fit's merge):
  * minsnr, the level at which the one-or-two test proposes a second star
  * (Δχ² ≥ minsnr², pipeline/split.c), at least 2; INFINITY when
