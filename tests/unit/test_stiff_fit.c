@@ -179,8 +179,9 @@ static void test_faint_and_negative(void **state)
  * 2·10⁵ e⁻; 1 FWHM must give both stars, each within 4σ of its truth in
  * flux and position.  At 0.25 FWHM (0.75 px, within mergerad: about 7σ
  * of separation here, two stars since 2026-12-01) and 0.5 FWHM (1.5 px,
- * above it) either outcome obeys the rule, checked on what comes out.  Every error is positive and finite: no negative variance from
- * the near-singular covariance. */
+ * above it) either outcome obeys the rule, checked on what comes out.
+ * Every error is positive and finite: no negative variance from the
+ * near-singular covariance. */
 static void test_close_pairs(void **state)
 {
     (void)state;
