@@ -47,6 +47,12 @@ static int group_kept(const star_state *st, int n, double refittol)
 /* L: the window (x0, y0, w × h) of f less every other star's light: the
  * data less all, with the group's own stars sub[0..n-1] painted back
  * with the crop all_stars took them off with, so it cancels exactly.
+ * The light taken off stays in the pixels' noise: its Poisson variance
+ * (data − L, clipped at 0) joins L's xvar, as the halo's and the lookup's
+ * do (pipeline/halo.c), so a pixel under a bright neighbour's wing is
+ * weighed by all the light it holds — without it the group's weights
+ * counted only its own model, and beside a bright star a lump of the
+ * neighbour's noise could pass minsnr as a star (issue 13).
  * Nonzero when out of memory. */
 static int local_frame(const mp_frame *f, const mp_prf_model *m, const crop_rule *crop,
                        const float *all, const star_state *sub, int n, long x0, long y0, long w,
@@ -56,8 +62,8 @@ static int local_frame(const mp_frame *f, const mp_prf_model *m, const crop_rule
     L->im.ny = h;
     L->im.pix = malloc((size_t)(w * h) * sizeof *L->im.pix);
     L->mask = malloc((size_t)(w * h));
-    L->xvar = f->xvar ? malloc((size_t)(w * h) * sizeof *L->xvar) : NULL;
-    if (!L->im.pix || !L->mask || (f->xvar && !L->xvar))
+    L->xvar = f->xvar || all ? malloc((size_t)(w * h) * sizeof *L->xvar) : NULL;
+    if (!L->im.pix || !L->mask || ((f->xvar || all) && !L->xvar))
         return 1;
     for (long j = 0; j < h; j++)
         for (long i = 0; i < w; i++) {
@@ -65,12 +71,19 @@ static int local_frame(const mp_frame *f, const mp_prf_model *m, const crop_rule
             L->im.pix[j * w + i] = (float)(f->im.pix[g] - (all ? (double)all[g] : 0.0));
             L->mask[j * w + i] = f->mask ? f->mask[g] : 0;
             if (L->xvar)
-                L->xvar[j * w + i] = f->xvar[g];
+                L->xvar[j * w + i] = f->xvar ? f->xvar[g] : 0.0f;
         }
     for (int k = 0; all && k < n; k++)
         if (sub[k].alive && ff_paint(m, &sub[k].s, +1.0, ff_crop_radius(crop, &sub[k].s),
                                      L->im.pix, x0, y0, w, h, wk, buf, cap, NULL))
             return 1;
+    for (long j = 0; all && j < h; j++)
+        for (long i = 0; i < w; i++) {
+            size_t g = (size_t)(y0 - 1 + j) * f->im.nx + (size_t)(x0 - 1 + i);
+            double off = (double)f->im.pix[g] - (double)L->im.pix[j * w + i];
+            if (off > 0.0)
+                L->xvar[j * w + i] += (float)off;
+        }
     return 0;
 }
 
