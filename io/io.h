@@ -167,7 +167,9 @@ typedef struct {
     long nbad, nsat;       /* counts of masked and saturated pixels */
     /* xvar: nx*ny, the variance [e-²] the error plane holds beyond
      * max(data, 0) + RON², at least 0; NULL without errplane.  A fit's
-     * pixel weight is 1/(max(m, S) + RON² + xvar) (fit/lm_model.c).  A copy
+     * pixel weight is 1/(max(m, S) + RON² + xvar) (fit/lm_model.c); a
+     * group's local frame adds the neighbours' light it took off to its
+     * xvar (fit/frame_refit.c).  A copy
      * of a frame onto other pixels must crop it too, or set it NULL. */
     float *xvar;
 } mp_frame;

@@ -876,6 +876,77 @@ static void test_star_chi2_own_disc(void **state)
     frame_drop(&f);
 }
 
+/* The neighbours' light in a group's weights (fit/frame_refit.c
+ * local_frame, issue 13).  A star A of 2e6 e- and a star B of 2e4 e-
+ * (Gaussian FWHM 3, sky 100, RON 3) 7.5 px apart, given as two groups, so
+ * that each is fitted on the data less the other's light: B's fitrad-5
+ * disc reaches 2.5 px from A, where A puts ~3e4 e- a pixel.  Those pixels
+ * hold A's Poisson noise whether or not A is subtracted, so B's own-disc
+ * reduced chi2 averages 1 only when the weights count A's light (before,
+ * they counted B's model and the sky alone: CHI2STAR ~ 20).  K = 20 frames;
+ * the mean's sigma is sqrt(2 / (20 * 75)) = 0.037 plus A's fitted
+ * light's own error in B's disc (below 0.01: A's flux and position are
+ * measured to 1e-3 of themselves); asserted within 0.18 (~5 sigma,
+ * false-failure rate below 1e-6). */
+static void test_neighbour_light_weighs(void **state)
+{
+    (void)state;
+    enum { N = SKY_NP, K = 20 };
+    mp_sim_prf sp = {.kind = MP_SIM_GAUSS, .sigma = fwhm_to_sigma(3.0), .volume = 1.0};
+    mp_psf gau;
+    mp_psf_gauss(3.0, &gau);
+    mp_prf_model m = {&gau, NULL, 10};
+    mp_frame_opts fo;
+    mp_frame_opts_default(&fo);
+    fo.fit.sky_order = 0;
+    fo.fit.fitrad = 5.0;
+    const double xs[2] = {12.3, 19.8}, ys[2] = {20.4, 19.7}, es[2] = {2e6, 2e4};
+    char err[MP_ERRLEN];
+    mp_frame f;
+    frame_make(&f, N, 3.0);
+    mp_rng r;
+    mp_rng_seed(&r, 7207);
+    double ca = 0.0, cb = 0.0;
+    for (int k = 0; k < K; k++) {
+        for (long i = 0; i < N * N; i++)
+            f.im.pix[i] = 100.0;
+        for (int s = 0; s < 2; s++)
+            assert_int_equal(mp_sim_add_star_float(&sp, xs[s], ys[s], es[s], f.im.pix, N, N), 0);
+        mp_sim_add_noise_float(&r, f.im.pix, N * N, 3.0);
+        mp_table t;
+        mp_table_init(&t);
+        int cn = mp_table_add_col(&t, "NUMBER"), cx = mp_table_add_col(&t, "X_IMAGE"),
+            cy = mp_table_add_col(&t, "Y_IMAGE"), cf = mp_table_add_col(&t, "FLUX"),
+            cg = mp_table_add_col(&t, "GROUP_ID");
+        assert_true(cn >= 0 && cx >= 0 && cy >= 0 && cf >= 0 && cg >= 0);
+        for (int s = 0; s < 2; s++) {
+            long row = mp_table_add_row(&t);
+            assert_true(row >= 0);
+            mp_table_set(&t, (size_t)row, cn, s + 1);
+            mp_table_set(&t, (size_t)row, cx, xs[s] + 0.2);
+            mp_table_set(&t, (size_t)row, cy, ys[s] - 0.1);
+            mp_table_set(&t, (size_t)row, cf, es[s]);
+            mp_table_set(&t, (size_t)row, cg, s + 1);
+        }
+        assert_int_equal(mp_fit_table(&f, &m, &fo, &t, NULL, err), 0);
+        assert_int_equal(t.nrow, 2);
+        int kx = mp_table_col(&t, "XPSF_IMAGE"), kc = mp_table_col(&t, "CHI2STAR_PSF");
+        assert_true(kx >= 0 && kc >= 0);
+        for (size_t i = 0; i < 2; i++) {
+            double c = mp_table_get(&t, i, kc);
+            if (mp_table_get(&t, i, kx) < 16.0)
+                ca += c / K;
+            else
+                cb += c / K;
+        }
+        mp_table_free(&t);
+    }
+    print_message("own-disc chi2 beside a subtracted neighbour: A %.3f, B %.3f\n", ca, cb);
+    assert_float_equal(ca, 1.0, 0.18);
+    assert_float_equal(cb, 1.0, 0.18);
+    frame_drop(&f);
+}
+
 /* A frame of N² px on a sky of 100 e⁻ (RON 3) and a Gaussian table of
  * the given FWHM (×2, ±halfw px) whose windows are cropped where a star's
  * light falls below 0.02 σ of a sky pixel: the scene of the frozen-wings
@@ -1300,6 +1371,7 @@ int main(void)
         cmocka_unit_test(test_settled_stars_same_fit),
         cmocka_unit_test(test_refit_flags_are_this_fit),
         cmocka_unit_test(test_star_chi2_own_disc),
+        cmocka_unit_test(test_neighbour_light_weighs),
         cmocka_unit_test(test_overshoot_shortened),
         cmocka_unit_test(test_close_pair_ends_loop),
     };
