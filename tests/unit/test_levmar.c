@@ -284,6 +284,15 @@ static void test_lambda_exit_flagged(void **state)
     mp_psf_free(&tab);
 }
 
+/* The FWHM-3 Gaussian scene of the tests below: the star drawn (sp) and
+ * the analytic model fitted (m, on gau). */
+static mp_sim_prf gauss3_scene(mp_psf *gau, mp_prf_model *m)
+{
+    mp_psf_gauss(3.0, gau);
+    *m = (mp_prf_model){gau, NULL, 10};
+    return (mp_sim_prf){.kind = MP_SIM_GAUSS, .sigma = fwhm_to_sigma(3.0), .volume = 1.0};
+}
+
 /* Sky scenes: NP×NP frames, one star of 10⁴ e⁻ near the centre, analytic
  * FWHM 3 px model (exact), RON 3, the whole frame fitted.  The background
  * is b0 + gx·(x − c) + q·((x − c)² + (y − c)²) e⁻/px, c the frame centre. */
@@ -303,10 +312,9 @@ static double sky_value(const sky_truth *s, double x, double y)
 static mp_star sky_fit(const sky_truth *sk, uint64_t seed, int order, mp_frame *f,
                        double *xt, double *yt)
 {
-    mp_sim_prf sp = {.kind = MP_SIM_GAUSS, .sigma = fwhm_to_sigma(3.0), .volume = 1.0};
     mp_psf gau;
-    mp_psf_gauss(3.0, &gau);
-    mp_prf_model m = {&gau, NULL, 10};
+    mp_prf_model m;
+    mp_sim_prf sp = gauss3_scene(&gau, &m);
     mp_rng r;
     mp_rng_seed(&r, seed);
     double x = 20.0 + mp_rng_uniform(&r), y = 20.0 + mp_rng_uniform(&r);
@@ -762,10 +770,9 @@ static void test_error_plane_weights(void **state)
 {
     (void)state;
     enum { N = SKY_NP, K = 20 };
-    mp_sim_prf sp = {.kind = MP_SIM_GAUSS, .sigma = fwhm_to_sigma(3.0), .volume = 1.0};
     mp_psf gau;
-    mp_psf_gauss(3.0, &gau);
-    mp_prf_model m = {&gau, NULL, 10};
+    mp_prf_model m;
+    mp_sim_prf sp = gauss3_scene(&gau, &m);
     mp_fit_opts o;
     mp_fit_opts_default(&o);
     o.sky_order = 0;
@@ -838,10 +845,9 @@ static void test_star_chi2_own_disc(void **state)
 {
     (void)state;
     enum { N = SKY_NP, K = 20 };
-    mp_sim_prf sp = {.kind = MP_SIM_GAUSS, .sigma = fwhm_to_sigma(3.0), .volume = 1.0};
     mp_psf gau;
-    mp_psf_gauss(3.0, &gau);
-    mp_prf_model m = {&gau, NULL, 10};
+    mp_prf_model m;
+    mp_sim_prf sp = gauss3_scene(&gau, &m);
     mp_fit_opts o;
     mp_fit_opts_default(&o);
     o.sky_order = 0;
@@ -883,7 +889,7 @@ static void test_star_chi2_own_disc(void **state)
  * disc reaches 2.5 px from A, where A puts ~3e4 e- a pixel.  Those pixels
  * hold A's Poisson noise whether or not A is subtracted, so B's own-disc
  * reduced chi2 averages 1 only when the weights count A's light (before,
- * they counted B's model and the sky alone: CHI2STAR ~ 20).  K = 20 frames;
+ * they counted B's model and the sky alone: 1.6).  K = 20 frames;
  * the mean's sigma is sqrt(2 / (20 * 75)) = 0.037 plus A's fitted
  * light's own error in B's disc (below 0.01: A's flux and position are
  * measured to 1e-3 of themselves); asserted within 0.18 (~5 sigma,
@@ -892,10 +898,9 @@ static void test_neighbour_light_weighs(void **state)
 {
     (void)state;
     enum { N = SKY_NP, K = 20 };
-    mp_sim_prf sp = {.kind = MP_SIM_GAUSS, .sigma = fwhm_to_sigma(3.0), .volume = 1.0};
     mp_psf gau;
-    mp_psf_gauss(3.0, &gau);
-    mp_prf_model m = {&gau, NULL, 10};
+    mp_prf_model m;
+    mp_sim_prf sp = gauss3_scene(&gau, &m);
     mp_frame_opts fo;
     mp_frame_opts_default(&fo);
     fo.fit.sky_order = 0;
