@@ -19,6 +19,11 @@
  *       (E_true over its joint bound) is kept when its normalised error
  *       z ≥ MINSNR − s, so the found stars' z follow the mixture of
  *       normals truncated there; its robust σ is the one to expect.
+ *       A second table splits the found stars of each bin by whether a
+ *       true star the catalog missed lies within 2 FWHM (ROOT_ne.dat's
+ *       sixth column, snr_miss: the largest S/N at the joint bound of
+ *       those missed stars): the rσ of each part, and how many of those
+ *       missed stars could have been found at all (S/N ≥ MINSNR).
  */
 #include <math.h>
 #include <stdio.h>
@@ -79,14 +84,16 @@ int main(int argc, char **argv)
     }
     double minsnr = atof(argv[1]);
     long cap = 1 << 16, n[NB] = {0};
-    double *ne[NB], *nr[NB], *cut[NB], *nj[NB];
-    long nn[NB] = {0}, nrr[NB] = {0}, nnj[NB] = {0};
+    double *ne[NB], *nr[NB], *cut[NB], *nj[NB], *nb[NB], *sm[NB];
+    long nn[NB] = {0}, nrr[NB] = {0}, nnj[NB] = {0}, nnb[NB] = {0}, nsm5[NB] = {0};
     for (int b = 0; b < NB; b++) {
         ne[b] = malloc(sizeof(double) * (size_t)cap);
         nr[b] = malloc(sizeof(double) * (size_t)cap);
         cut[b] = malloc(sizeof(double) * (size_t)cap);
         nj[b] = malloc(sizeof(double) * (size_t)cap);
-        if (!ne[b] || !nr[b] || !cut[b] || !nj[b])
+        nb[b] = malloc(sizeof(double) * (size_t)cap);
+        sm[b] = malloc(sizeof(double) * (size_t)cap);
+        if (!ne[b] || !nr[b] || !cut[b] || !nj[b] || !nb[b] || !sm[b])
             return fprintf(stderr, "crowdpool: out of memory\n"), 1;
     }
     for (int a = 2; a < argc; a++) {
@@ -95,8 +102,9 @@ int main(int argc, char **argv)
         if (!f)
             return fprintf(stderr, "crowdpool: %s: cannot read\n", argv[a]), 1;
         while (fgets(line, sizeof line, f)) {
-            double m, e, r, s, j = NAN;
-            if (line[0] == '#' || sscanf(line, "%lf %lf %lf %lf %lf", &m, &e, &r, &s, &j) < 4)
+            double m, e, r, s, j = NAN, x = NAN;
+            if (line[0] == '#' ||
+                sscanf(line, "%lf %lf %lf %lf %lf %lf", &m, &e, &r, &s, &j, &x) < 4)
                 continue;
             int b = (int)lround(m) - MB0;
             if (b < 0 || b >= NB || n[b] >= cap)
@@ -108,6 +116,11 @@ int main(int argc, char **argv)
                 nr[b][nrr[b]++] = r;
             if (isfinite(j))
                 nj[b][nnj[b]++] = j;
+            if (isfinite(e) && !isfinite(r)) {     /* found, beside a missed star */
+                nb[b][nnb[b]] = e;
+                sm[b][nnb[b]++] = x;
+                nsm5[b] += x >= minsnr;
+            }
         }
         fclose(f);
     }
@@ -125,7 +138,18 @@ int main(int argc, char **argv)
                MB0 + b, nn[b], rsig(ne[b], nn[b]), nrr[b], quant(nr[b], nrr[b], 0.5), rs, se,
                (rs - 1.0) / se, rsig(nj[b], nnj[b]), q2, (q3 - q1) / 1.349);
     }
+    printf("\n| mag | found | rσ (E−Et)/σE ± 1.17/√N | resolved: rσ | beside a missed star (≤ 2 FWHM) | "
+           "their rσ | the missed stars' S/N at their joint bound: median | of them ≥ %g |\n"
+           "|---:|---:|---:|---:|---:|---:|---:|---:|\n", minsnr);
+    for (int b = 0; b < NB; b++) {
+        if (nn[b] == 0)
+            continue;
+        double med = quant(sm[b], nnb[b], 0.5);    /* before rsig sorts nb */
+        printf("| %d | %ld | %.3f ± %.3f | %.3f | %ld | %.3f | %.1f | %ld |\n", MB0 + b, nn[b],
+               rsig(ne[b], nn[b]), 1.17 / sqrt((double)nn[b]), rsig(nr[b], nrr[b]), nnb[b],
+               rsig(nb[b], nnb[b]), med, nsm5[b]);
+    }
     for (int b = 0; b < NB; b++)
-        free(ne[b]), free(nr[b]), free(cut[b]), free(nj[b]);
+        free(ne[b]), free(nr[b]), free(cut[b]), free(nj[b]), free(nb[b]), free(sm[b]);
     return 0;
 }
