@@ -227,6 +227,62 @@ static int stopped_on_pair(const mp_star *s, int n, double r)
     return 0;
 }
 
+/* One LM fit of the live stars live[0..nl-1] of a group (on f, whose
+ * coordinates are the frame's shifted by (dx, dy)), with economy's
+ * choices for its brightest star: the coarsest table and the shortest
+ * sinc kernel its bias bound allows, and the phase grid when the bound
+ * serves it; stopped on a pair within mergerad unless unstopped.  What it
+ * did is added to rep.  Nonzero with err on failure. */
+static int fit_live(const mp_frame *f, const mp_prf_model *m, const mp_frame_opts *o,
+                    double mergerad, int unstopped, const frame_rules *R, mp_star *live, int nl,
+                    double dx, double dy, mp_frame_report *rep, char *err)
+{
+    double sky0 = nl == 1 ? live[0].sky : NAN;
+    double e = 0.0;
+    for (int k = 0; k < nl; k++)
+        e = isfinite(live[k].flux) && live[k].flux > e ? live[k].flux : e;
+    int l = 0;
+    while (l < R->nss && !ff_level_serves(&R->level[l], e, rep))
+        l++;
+    mp_prf_model mh = l < R->nss ? R->ss[l].model : *m;
+    /* The group is fitted on a sub-image offset by (dx, dy): a variable
+     * PSF must still be read at each star's frame position (a run's
+     * coarser level also at the sub-frame's, o->psfdx). */
+    mp_psf lp;
+    mp_psf_field lf;
+    if (mh.psf->field) {    /* (a constant table keeps its pointer: the cache's key) */
+        double ox = l < R->nss ? o->psfdx : 0.0, oy = l < R->nss ? o->psfdy : 0.0;
+        mp_psf_local(mh.psf, dx + ox, dy + oy, &lp, &lf);
+        mh.psf = &lp;
+    }
+    mh.sinc_hw = ff_kernel_for(&R->kern[l], mh.sinc_hw, e, rep);
+    rep->kcoarse += l < R->nss;
+    mp_fit_opts fo = o->fit;
+    fo.stop_pair = mergerad > 0 && !unstopped ? mergerad : 0.0;   /* merged by the caller */
+    fo.grid = ff_group_grid(R, o->grid, l, e, &fo.grid_emax, &fo.grid_lemax, rep);
+    int cached = mp_prf_cache_usable(fo.grid, &mh);
+    rep->kcache += cached;
+    rep->kcalls++;
+    rep->khw += mh.sinc_hw;
+    rep->kshort += mh.sinc_hw < m->sinc_hw;
+    double gops = 0.0;
+    fo.work = &gops;
+    if (mp_fit_group(f, &mh, &fo, sky0, live, nl, err))
+        return 1;
+    rep->iterations += live[0].niter;
+    rep->render_ops += gops;
+    rep->kstars += nl;
+    for (int k = 0; cached && k < nl; k++)
+        rep->klin += fabs(live[k].flux) <= fo.grid_lemax;
+    /* What economy saved on this fit's renders (the plan's unit). */
+    if (R->ops_full > 0) {
+        double used = cached ? mp_econ_grid_render_ops(m, o->fit.fitrad)
+                             : mp_econ_render_ops(&mh, mh.sinc_hw, o->fit.fitrad);
+        rep->ops_saved += (live[0].niter + 1.0) * fmax(R->ops_full - used, 0.0) * nl;
+    }
+    return 0;
+}
+
 /* Fit one group (members st[0..n-1]) on frame f: merge/reject until
  * stable.  Local copies of the stars move in the frame's coordinates
  * shifted by (dx, dy). */
@@ -250,6 +306,9 @@ int ff_fit_one_group(const mp_frame *f, const mp_prf_model *m, const mp_frame_op
     /* Each round removes a star or ends (one more may refit unstopped),
      * so n + 2 rounds suffice. */
     double sig = mp_merge_sig(o->minsnr);
+    /* 2 FWHM: 5 default merge radii (0.4 FWHM), or from the PSF when
+     * merging is off */
+    double sepind = mergerad > 0 ? 5.0 * mergerad : 2.0 * mp_prf_fwhm(m);
     int unstopped = 0;
     for (int round = 0; round <= n + 1; round++) {
         int nl = 0;
@@ -260,62 +319,13 @@ int ff_fit_one_group(const mp_frame *f, const mp_prf_model *m, const mp_frame_op
             }
         if (nl == 0)
             break;
-        double sky0 = nl == 1 ? live[0].sky : NAN;
-        /* Economy: the coarsest table and the shortest kernel the
-         * group's brightest star allows. */
-        double e = 0.0;
-        for (int k = 0; k < nl; k++)
-            e = isfinite(live[k].flux) && live[k].flux > e ? live[k].flux : e;
-        int l = 0;
-        while (l < R->nss && !ff_level_serves(&R->level[l], e, rep))
-            l++;
-        mp_prf_model mh = l < R->nss ? R->ss[l].model : *m;
-        /* The group is fitted on a sub-image offset by (dx, dy): a
-         * variable PSF must still be read at each star's frame position
-         * (a run's coarser level also at the sub-frame's, o->psfdx). */
-        mp_psf lp;
-        mp_psf_field lf;
-        if (mh.psf->field) {    /* (a constant table keeps its pointer: the cache's key) */
-            double ox = l < R->nss ? o->psfdx : 0.0, oy = l < R->nss ? o->psfdy : 0.0;
-            mp_psf_local(mh.psf, dx + ox, dy + oy, &lp, &lf);
-            mh.psf = &lp;
-        }
-        mh.sinc_hw = ff_kernel_for(&R->kern[l], mh.sinc_hw, e, rep);
-        rep->kcoarse += l < R->nss;
-        /* Economy: the phase grid of the table the group uses, when its
-         * bound allows the brightest star (a star without a flux: the
-         * exact render). */
-        mp_fit_opts fo = o->fit;
-        fo.stop_pair = mergerad > 0 && !unstopped ? mergerad : 0.0;   /* merged below */
-        fo.grid = ff_group_grid(R, o->grid, l, e, &fo.grid_emax, &fo.grid_lemax, rep);
-        int cached = mp_prf_cache_usable(fo.grid, &mh);
-        rep->kcache += cached;
-        rep->kcalls++;
-        rep->khw += mh.sinc_hw;
-        rep->kshort += mh.sinc_hw < m->sinc_hw;
-        double gops = 0.0;
-        fo.work = &gops;
-        if (mp_fit_group(f, &mh, &fo, sky0, live, nl, err))
+        if (fit_live(f, m, o, mergerad, unstopped, R, live, nl, dx, dy, rep, err))
             goto done;
-        rep->iterations += live[0].niter;
-        rep->render_ops += gops;
-        rep->kstars += nl;
-        for (int k = 0; cached && k < nl; k++)
-            rep->klin += fabs(live[k].flux) <= fo.grid_lemax;
-        /* What economy saved on this fit's renders (the plan's unit). */
-        if (R->ops_full > 0) {
-            double used = cached ? mp_econ_grid_render_ops(m, o->fit.fitrad)
-                                 : mp_econ_render_ops(&mh, mh.sinc_hw, o->fit.fitrad);
-            rep->ops_saved += (live[0].niter + 1.0) * fmax(R->ops_full - used, 0.0) * nl;
-        }
         for (int k = 0; k < nl; k++) {
             int keep = s[map[k]].flags & MP_FLAG_MERGED;
             s[map[k]] = live[k];
             s[map[k]].flags |= keep;
         }
-        /* 2 FWHM: 5 default merge radii (0.4 FWHM), or from the PSF when
-         * merging is off */
-        double sepind = mergerad > 0 ? 5.0 * mergerad : 2.0 * mp_prf_fwhm(m);
         int nmerged = mergerad > 0 ? merge_close(s, alive, n, mergerad, sig, sepind) : 0;
         if (nmerged > 0) {
             rep->merged += nmerged;
@@ -332,7 +342,7 @@ int ff_fit_one_group(const mp_frame *f, const mp_prf_model *m, const mp_frame_op
          * stays as it was (refitting those as well took GLIMPSE built's
          * LM iterations up 11 %, against 4 % for these alone, before the
          * misfit widening left it none). */
-        if (fo.stop_pair > 0 && stopped_on_pair(live, nl, fo.stop_pair)) {
+        if (mergerad > 0 && !unstopped && stopped_on_pair(live, nl, mergerad)) {
             unstopped = 1;
             continue;
         }
