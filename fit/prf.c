@@ -265,6 +265,134 @@ static int render_sep(const mp_prf_model *m, double x, double y, double xr, doub
     return 0;
 }
 
+/* The element ranges of one render of the table (nx × ny, stride nx):
+ * [mi0, mi1) × [mj0, mj1) land in the box; [si0, si1) × [sj0, sj1) are
+ * shifted (two more a side for the five-point derivative); the x-pass
+ * reads rows [tj0, tj1) (hw more a side, for the y-pass). */
+typedef struct { long mi0, mi1, mj0, mj1, si0, si1, sj0, sj1, tj0, tj1; } table_span;
+
+/* The x-pass of the damped-sinc shift by delta, T into tmp over rows
+ * [tj0, tj1) and columns [si0, si1) (a copy for a shift on the grid,
+ * where the sinc is the identity: mp_shift_on_grid).  Tap by tap over the
+ * row, so the inner loop runs over contiguous elements; each element sums
+ * its taps in the order k = −hw..hw, so the values are those of a
+ * per-element sum, bit for bit.  gcc 12 at -O2 left these loops scalar
+ * until told (omp simd: no element depends on another, and T and tmp are
+ * distinct buffers). */
+static void shift_rows(const double *T, double *tmp, long nx, const table_span *r, int hw,
+                       double delta)
+{
+    if (mp_shift_on_grid(delta) || hw == 0) {
+        for (long j = r->tj0; j < r->tj1; j++)
+            memcpy(tmp + (size_t)j * nx + r->si0, T + (size_t)j * nx + r->si0,
+                   (size_t)(r->si1 - r->si0) * sizeof *tmp);
+        return;
+    }
+    double wt[2 * 64 + 1];
+    weights(delta, hw, wt);
+    for (long j = r->tj0; j < r->tj1; j++) {
+        const double *src = T + (size_t)j * nx;
+        double *dst = tmp + (size_t)j * nx;
+        for (long i = r->si0; i < r->si1; i++)
+            dst[i] = 0.0;
+        for (long k = -hw; k <= hw; k++) {
+            long ia = r->si0 > -k ? r->si0 : -k, ib = r->si1 < nx - k ? r->si1 : nx - k;
+            double c = wt[k + hw];
+#pragma omp simd
+            for (long i = ia; i < ib; i++)
+                dst[i] += src[i + k] * c;
+        }
+    }
+}
+
+/* The y-pass, tmp into S over rows [sj0, sj1), as shift_rows. */
+static void shift_cols(const double *tmp, double *S, long nx, long ny, const table_span *r,
+                       int hw, double delta)
+{
+    if (mp_shift_on_grid(delta) || hw == 0) {
+        for (long j = r->sj0; j < r->sj1; j++)
+            memcpy(S + (size_t)j * nx + r->si0, tmp + (size_t)j * nx + r->si0,
+                   (size_t)(r->si1 - r->si0) * sizeof *S);
+        return;
+    }
+    double wt[2 * 64 + 1];
+    weights(delta, hw, wt);
+    for (long j = r->sj0; j < r->sj1; j++) {
+        long k0 = j - hw < 0 ? -j : -hw, k1 = j + hw > ny - 1 ? ny - 1 - j : hw;
+        double *dst = S + (size_t)j * nx;
+        for (long i = r->si0; i < r->si1; i++)
+            dst[i] = 0.0;
+        for (long k = k0; k <= k1; k++) {
+            const double *src = tmp + (size_t)(j + k) * nx;
+            double c = wt[k + hw];
+#pragma omp simd
+            for (long i = r->si0; i < r->si1; i++)
+                dst[i] += src[i] * c;
+        }
+    }
+}
+
+/* The shifted table S block-summed into the box's pixels through the DRF,
+ * and the five-point derivatives (paper §3.2) on it, zero beyond its
+ * edge.  The table index moves by −os per +1 px of the star, hence the
+ * factor −os. */
+static void block_sum(const mp_prf_model *m, const double *S, const table_span *r, long n0x,
+                      long n0y, box bx, double *prf, double *ddx, double *ddy)
+{
+    long os = m->psf->os, nx = m->psf->nx, ny = m->psf->ny;
+    for (long mj = r->mj0; mj < r->mj1; mj++) {
+        long fj = mj - n0y - (bx.y0 - 1) * os;     /* fine row within the box */
+        long bj = fj / os;
+        int sy = (int)(fj % os);
+        const double *Sr = S + (size_t)mj * nx;
+        for (long mi = r->mi0; mi < r->mi1; mi++) {
+            long fi = mi - n0x - (bx.x0 - 1) * os;
+            long bi = fi / os;
+            int sx = (int)(fi % os);
+            double q = drf_weight(m->drf, (int)os, sx, sy);
+            size_t o = (size_t)bj * bx.w + (size_t)bi;
+            prf[o] += q * Sr[mi];
+            if (ddx) {
+                double f2 = mi >= 2 ? Sr[mi - 2] : 0.0, f1 = mi >= 1 ? Sr[mi - 1] : 0.0;
+                double g1 = mi + 1 < nx ? Sr[mi + 1] : 0.0, g2 = mi + 2 < nx ? Sr[mi + 2] : 0.0;
+                ddx[o] -= q * os * (f2 - 8.0 * f1 + 8.0 * g1 - g2) / 12.0;
+            }
+            if (ddy) {
+                double f2 = mj >= 2 ? S[(size_t)(mj - 2) * nx + mi] : 0.0;
+                double f1 = mj >= 1 ? S[(size_t)(mj - 1) * nx + mi] : 0.0;
+                double g1 = mj + 1 < ny ? S[(size_t)(mj + 1) * nx + mi] : 0.0;
+                double g2 = mj + 2 < ny ? S[(size_t)(mj + 2) * nx + mi] : 0.0;
+                ddy[o] -= q * os * (f2 - 8.0 * f1 + 8.0 * g1 - g2) / 12.0;
+            }
+        }
+    }
+}
+
+/* The element ranges a render of box bx reads (table_span); 0 when no
+ * element lands in the box.  Table elements that land in the box: fine
+ * g = os(p − 1) + s ↔ m = g + n0; only they are block-summed. */
+static int span_of(const mp_psf *p, box bx, long n0x, long n0y, int hw, table_span *r)
+{
+    long os = p->os, nx = p->nx, ny = p->ny;
+    r->mi0 = (bx.x0 - 1) * os + n0x;
+    r->mi1 = r->mi0 + bx.w * os;
+    r->mj0 = (bx.y0 - 1) * os + n0y;
+    r->mj1 = r->mj0 + bx.h * os;
+    r->mi0 = r->mi0 < 0 ? 0 : r->mi0;
+    r->mj0 = r->mj0 < 0 ? 0 : r->mj0;
+    r->mi1 = r->mi1 > nx ? nx : r->mi1;
+    r->mj1 = r->mj1 > ny ? ny : r->mj1;
+    if (r->mi0 >= r->mi1 || r->mj0 >= r->mj1)
+        return 0;
+    r->si0 = r->mi0 - 2 < 0 ? 0 : r->mi0 - 2;
+    r->si1 = r->mi1 + 2 > nx ? nx : r->mi1 + 2;
+    r->sj0 = r->mj0 - 2 < 0 ? 0 : r->mj0 - 2;
+    r->sj1 = r->mj1 + 2 > ny ? ny : r->mj1 + 2;
+    r->tj0 = r->sj0 - hw < 0 ? 0 : r->sj0 - hw;
+    r->tj1 = r->sj1 + hw > ny ? ny : r->sj1 + hw;
+    return 1;
+}
+
 /* The table aligned as for a star at (xr, yr), shifted to (x, y): the
  * natural render has xr = x, yr = y (|delta| ≤ ½); prf_cache.c renders the
  * phases just past a branch's ends with its alignment (branch below). */
@@ -296,108 +424,24 @@ static int render_table(const mp_prf_model *m, double x, double y, double xr, do
     /* The central element sits at the star minus the table's offset. */
     axis_geom ax = table_axis_ref(nx, os, x - p->offset, xr - p->offset);
     axis_geom ay = table_axis_ref(ny, os, y - p->offset, yr - p->offset);
-    /* Table elements that land in the box: fine g = os(p − 1) + s ↔ m = g + n0.
-     * Only they are block-summed; the shift needs 2 more on each side for the
-     * five-point derivative, and the x-pass hw more rows for the y-pass. */
-    long mi0 = (bx.x0 - 1) * os + ax.n0, mi1 = mi0 + bx.w * os;
-    long mj0 = (bx.y0 - 1) * os + ay.n0, mj1 = mj0 + bx.h * os;
-    mi0 = mi0 < 0 ? 0 : mi0;
-    mj0 = mj0 < 0 ? 0 : mj0;
-    mi1 = mi1 > nx ? nx : mi1;
-    mj1 = mj1 > ny ? ny : mj1;
-    if (mi0 >= mi1 || mj0 >= mj1)
+    table_span r;
+    if (!span_of(p, bx, ax.n0, ay.n0, hw, &r))
         return 0;
-    long si0 = mi0 - 2 < 0 ? 0 : mi0 - 2, si1 = mi1 + 2 > nx ? nx : mi1 + 2;
-    long sj0 = mj0 - 2 < 0 ? 0 : mj0 - 2, sj1 = mj1 + 2 > ny ? ny : mj1 + 2;
-    long tj0 = sj0 - hw < 0 ? 0 : sj0 - hw, tj1 = sj1 + hw > ny ? ny : sj1 + hw;
     double *S = w->a, *tmp = w->b;          /* both laid out with stride nx */
-    const double *T = star_table(m, x, y, si0 - hw < 0 ? 0 : si0 - hw,
-                                 si1 + hw > nx ? nx : si1 + hw, tj0, tj1, w);
+    const double *T = star_table(m, x, y, r.si0 - hw < 0 ? 0 : r.si0 - hw,
+                                 r.si1 + hw > nx ? nx : r.si1 + hw, r.tj0, r.tj1, w);
     if (!T)
         return 1;
-    double wt[2 * 64 + 1];
-    /* The work, for economy's plan (fit/econ_plan.c). */
-    w->ops += (double)(si1 - si0) * (double)((tj1 - tj0) + (sj1 - sj0)) * (2.0 * hw + 1.0) +
-              (double)(mi1 - mi0) * (double)(mj1 - mj0) * (ddx || ddy ? 9.0 : 1.0);
-    /* x-pass (skipped for a shift on the grid, where the sinc is the
-     * identity: mp_shift_on_grid; counted in the work for the report) */
+    /* The work, for economy's plan (fit/econ_plan.c), and the shifts on
+     * the grid skipped (counted for the report). */
+    w->ops += (double)(r.si1 - r.si0) * (double)((r.tj1 - r.tj0) + (r.sj1 - r.sj0)) *
+                  (2.0 * hw + 1.0) +
+              (double)(r.mi1 - r.mi0) * (double)(r.mj1 - r.mj0) * (ddx || ddy ? 9.0 : 1.0);
     w->nshift += 2;
     w->nskip += (mp_shift_on_grid(ax.delta) || hw == 0) + (mp_shift_on_grid(ay.delta) || hw == 0);
-    if (!mp_shift_on_grid(ax.delta) && hw > 0) {
-        weights(ax.delta, hw, wt);
-        /* Tap by tap over the row, so the inner loop runs over contiguous
-         * elements; each element sums its taps in the order k = −hw..hw, so
-         * the values are those of a per-element sum, bit for bit.  gcc 12 at
-         * -O2 left these loops scalar until told (omp simd: no element
-         * depends on another, and T, tmp and S are distinct buffers). */
-        for (long j = tj0; j < tj1; j++) {
-            const double *src = T + (size_t)j * nx;
-            double *dst = tmp + (size_t)j * nx;
-            for (long i = si0; i < si1; i++)
-                dst[i] = 0.0;
-            for (long k = -hw; k <= hw; k++) {
-                long ia = si0 > -k ? si0 : -k, ib = si1 < nx - k ? si1 : nx - k;
-                double c = wt[k + hw];
-#pragma omp simd
-                for (long i = ia; i < ib; i++)
-                    dst[i] += src[i + k] * c;
-            }
-        }
-    } else {
-        for (long j = tj0; j < tj1; j++)
-            memcpy(tmp + (size_t)j * nx + si0, T + (size_t)j * nx + si0,
-                   (size_t)(si1 - si0) * sizeof *tmp);
-    }
-    /* y-pass */
-    if (!mp_shift_on_grid(ay.delta) && hw > 0) {
-        weights(ay.delta, hw, wt);
-        for (long j = sj0; j < sj1; j++) {
-            long k0 = j - hw < 0 ? -j : -hw, k1 = j + hw > ny - 1 ? ny - 1 - j : hw;
-            double *dst = S + (size_t)j * nx;
-            for (long i = si0; i < si1; i++)
-                dst[i] = 0.0;
-            for (long k = k0; k <= k1; k++) {
-                const double *src = tmp + (size_t)(j + k) * nx;
-                double c = wt[k + hw];
-#pragma omp simd
-                for (long i = si0; i < si1; i++)
-                    dst[i] += src[i] * c;
-            }
-        }
-    } else {
-        for (long j = sj0; j < sj1; j++)
-            memcpy(S + (size_t)j * nx + si0, tmp + (size_t)j * nx + si0,
-                   (size_t)(si1 - si0) * sizeof *S);
-    }
-    /* Block-sum, and the five-point derivatives (paper §3.2) on the shifted
-     * table, zero beyond its edge.  The table index moves by −os per +1 px of
-     * the star, hence the factor −os. */
-    for (long mj = mj0; mj < mj1; mj++) {
-        long fj = mj - ay.n0 - (bx.y0 - 1) * os;     /* fine row within the box */
-        long bj = fj / os;
-        int sy = (int)(fj % os);
-        const double *Sr = S + (size_t)mj * nx;
-        for (long mi = mi0; mi < mi1; mi++) {
-            long fi = mi - ax.n0 - (bx.x0 - 1) * os;
-            long bi = fi / os;
-            int sx = (int)(fi % os);
-            double q = drf_weight(m->drf, os, sx, sy);
-            size_t o = (size_t)bj * bx.w + (size_t)bi;
-            prf[o] += q * Sr[mi];
-            if (ddx) {
-                double f2 = mi >= 2 ? Sr[mi - 2] : 0.0, f1 = mi >= 1 ? Sr[mi - 1] : 0.0;
-                double g1 = mi + 1 < nx ? Sr[mi + 1] : 0.0, g2 = mi + 2 < nx ? Sr[mi + 2] : 0.0;
-                ddx[o] -= q * os * (f2 - 8.0 * f1 + 8.0 * g1 - g2) / 12.0;
-            }
-            if (ddy) {
-                double f2 = mj >= 2 ? S[(size_t)(mj - 2) * nx + mi] : 0.0;
-                double f1 = mj >= 1 ? S[(size_t)(mj - 1) * nx + mi] : 0.0;
-                double g1 = mj + 1 < ny ? S[(size_t)(mj + 1) * nx + mi] : 0.0;
-                double g2 = mj + 2 < ny ? S[(size_t)(mj + 2) * nx + mi] : 0.0;
-                ddy[o] -= q * os * (f2 - 8.0 * f1 + 8.0 * g1 - g2) / 12.0;
-            }
-        }
-    }
+    shift_rows(T, tmp, nx, &r, hw, ax.delta);
+    shift_cols(tmp, S, nx, ny, &r, hw, ay.delta);
+    block_sum(m, S, &r, ax.n0, ay.n0, bx, prf, ddx, ddy);
     return 0;
 }
 
