@@ -39,94 +39,99 @@ static void robust(double *v, size_t n, double *med, double *sig)
     *sig = 1.4826 * mp_epsf_median(v, n);
 }
 
-int mp_epsf_select(const mp_frame *f, const mp_table *t, const mp_epsf_opts *o, size_t *idx,
-                   size_t *nout, char *err)
+/* The table's columns the selection reads (−1: absent). */
+typedef struct { int x, y, f, b, s, r, g; } cols;
+
+/* Bright enough to shape the table (S/N ≥ 20 on its fitting region),
+ * unflagged, and clean within psfrad (clean_around): the candidates into
+ * c; returns how many. */
+static size_t bright_clean(const mp_frame *f, const mp_table *t, const cols *k,
+                           const mp_epsf_opts *o, cand *c)
 {
-    *nout = 0;
-    int cx = mp_table_col(t, "X_IMAGE"), cy = mp_table_col(t, "Y_IMAGE");
-    int cf = mp_table_col(t, "FLUX"), cb = mp_table_col(t, "BACKGROUND");
-    int cs = mp_table_col(t, "SHARPNESS"), cr = mp_table_col(t, "ROUNDNESS");
-    int cg = mp_table_col(t, "FLAGS");
-    if (cx < 0 || cy < 0 || cf < 0) {
-        snprintf(err, MP_ERRLEN, "psf select: the star table needs X_IMAGE, Y_IMAGE, FLUX");
-        return 1;
-    }
-    size_t n = t->nrow;
-    cand *c = malloc((n + 1) * sizeof *c);
-    double *v = malloc((n + 1) * sizeof *v);
-    if (!c || !v) {
-        free(c);
-        free(v);
-        snprintf(err, MP_ERRLEN, "psf select: out of memory");
-        return 1;
-    }
-    /* Bright enough to shape the table: S/N ≥ 20 on its fitting region. */
     double area = M_PI * o->fitrad * o->fitrad, ron2 = f->rdnoise * f->rdnoise;
     size_t m = 0;
-    for (size_t k = 0; k < n; k++) {
-        double x = mp_table_get(t, k, cx), y = mp_table_get(t, k, cy);
-        double F = mp_table_get(t, k, cf), B = cb >= 0 ? mp_table_get(t, k, cb) : 0.0;
-        int flags = cg >= 0 && isfinite(mp_table_get(t, k, cg)) ? (int)mp_table_get(t, k, cg) : 0;
+    for (size_t q = 0; q < t->nrow; q++) {
+        double x = mp_table_get(t, q, k->x), y = mp_table_get(t, q, k->y);
+        double F = mp_table_get(t, q, k->f), B = k->b >= 0 ? mp_table_get(t, q, k->b) : 0.0;
+        int flags = k->g >= 0 && isfinite(mp_table_get(t, q, k->g)) ? (int)mp_table_get(t, q, k->g)
+                                                                     : 0;
         if (!isfinite(x) || !isfinite(y) || !(F > 0) || flags)
             continue;
         if (F / sqrt(F + area * (fmax(B, 0.0) + ron2)) < 20.0)
             continue;
         if (!clean_around(f, x, y, o->psfrad))
             continue;
-        c[m++] = (cand){k, F, 0};
+        c[m++] = (cand){q, F, 0};
     }
-    /* Star-like: sharpness and roundness within 3 robust σ of the
-     * candidates' (a galaxy, a blend or a cosmic ray stands out). */
+    return m;
+}
+
+/* Star-like: sharpness and roundness within 3 robust σ of the
+ * candidates' (a galaxy, a blend or a cosmic ray stands out); v is
+ * scratch for m values.  Returns the candidates kept, first in c. */
+static size_t star_like(const mp_table *t, const cols *k, cand *c, size_t m, double *v)
+{
     for (int q = 0; q < 2 && m >= 5; q++) {
-        int col = q ? cr : cs;
+        int col = q ? k->r : k->s;
         if (col < 0)
             continue;
-        for (size_t k = 0; k < m; k++)
-            v[k] = mp_table_get(t, c[k].row, col);
+        for (size_t i = 0; i < m; i++)
+            v[i] = mp_table_get(t, c[i].row, col);
         double med, sig;
         robust(v, m, &med, &sig);
         size_t kept = 0;
-        for (size_t k = 0; k < m; k++) {
-            double s = mp_table_get(t, c[k].row, col);
+        for (size_t i = 0; i < m; i++) {
+            double s = mp_table_get(t, c[i].row, col);
             if (!(sig > 0) || fabs(s - med) <= 3.0 * sig)
-                c[kept++] = c[k];
+                c[kept++] = c[i];
         }
         m = kept;
     }
-    /* Alone: no brighter detection within fitrad, where star and
-     * neighbour would be one blend.  Beyond it a neighbour, brighter or
-     * fainter, is fitted with the star at every fit of the build and its
-     * model taken out (mp_epsf_neighbours, mp_epsf_clean), and what it
-     * leaves is masked (mp_epsf_sirt_dilate): DAOPHOT's psfrad rule left
-     * ~100 of a crowded frame's 400 stars, too few for an order-3 field
-     * (MP_EPSF_PER_TERM). */
+    return m;
+}
+
+/* Alone: no brighter detection within fitrad, where star and neighbour
+ * would be one blend.  Beyond it a neighbour, brighter or fainter, is
+ * fitted with the star at every fit of the build and its model taken out
+ * (mp_epsf_neighbours, mp_epsf_clean), and what it leaves is masked
+ * (mp_epsf_sirt_dilate): DAOPHOT's psfrad rule left ~100 of a crowded
+ * frame's 400 stars, too few for an order-3 field (MP_EPSF_PER_TERM).
+ * Returns the candidates kept, first in c. */
+static size_t alone(const mp_table *t, const cols *k, double fitrad, cand *c, size_t m)
+{
     size_t kept = 0;
-    for (size_t k = 0; k < m; k++) {
-        double x = mp_table_get(t, c[k].row, cx), y = mp_table_get(t, c[k].row, cy);
-        int alone = 1;
-        for (size_t q = 0; q < n && alone; q++) {
-            if (q == c[k].row)
+    for (size_t i = 0; i < m; i++) {
+        double x = mp_table_get(t, c[i].row, k->x), y = mp_table_get(t, c[i].row, k->y);
+        int lone = 1;
+        for (size_t q = 0; q < t->nrow && lone; q++) {
+            if (q == c[i].row)
                 continue;
-            double dx = mp_table_get(t, q, cx) - x, dy = mp_table_get(t, q, cy) - y;
-            if (fabs(dx) > o->fitrad || fabs(dy) > o->fitrad)
+            double dx = mp_table_get(t, q, k->x) - x, dy = mp_table_get(t, q, k->y) - y;
+            if (fabs(dx) > fitrad || fabs(dy) > fitrad)
                 continue;       /* beyond fitrad on an axis: beyond it (hypot's cost) */
-            if (hypot(dx, dy) <= o->fitrad && !(mp_table_get(t, q, cf) < c[k].flux))
-                alone = 0;
+            if (hypot(dx, dy) <= fitrad && !(mp_table_get(t, q, k->f) < c[i].flux))
+                lone = 0;
         }
-        if (alone)
-            c[kept++] = c[k];
+        if (lone)
+            c[kept++] = c[i];
     }
-    m = kept;
-    /* Spread: a grid of about maxnpsf/4 cells; the brightest of each
-     * cell in turn until maxnpsf. */
-    int g = (int)ceil(sqrt(o->maxnpsf / 4.0));
+    return kept;
+}
+
+/* Spread: a grid of about maxnpsf/4 cells; the brightest of each cell in
+ * turn until maxnpsf, their rows into idx.  Returns how many, or −1 when
+ * out of memory. */
+static long spread(const mp_frame *f, const mp_table *t, const cols *k, int maxnpsf, cand *c,
+                   size_t m, size_t *idx)
+{
+    int g = (int)ceil(sqrt(maxnpsf / 4.0));
     g = g < 1 ? 1 : g;
-    for (size_t k = 0; k < m; k++) {
-        double x = mp_table_get(t, c[k].row, cx), y = mp_table_get(t, c[k].row, cy);
+    for (size_t i = 0; i < m; i++) {
+        double x = mp_table_get(t, c[i].row, k->x), y = mp_table_get(t, c[i].row, k->y);
         int gx = (int)((x - 0.5) / f->im.nx * g), gy = (int)((y - 0.5) / f->im.ny * g);
         gx = gx < 0 ? 0 : gx >= g ? g - 1 : gx;
         gy = gy < 0 ? 0 : gy >= g ? g - 1 : gy;
-        c[k].cell = gy * g + gx;
+        c[i].cell = gy * g + gx;
     }
     qsort(c, m, sizeof *c, by_flux);
     int *taken = calloc((size_t)g * g, sizeof *taken);
@@ -134,25 +139,50 @@ int mp_epsf_select(const mp_frame *f, const mp_table *t, const mp_epsf_opts *o, 
     if (!taken || !done) {
         free(taken);
         free(done);
-        free(c);
-        free(v);
+        return -1;
+    }
+    size_t out = 0;
+    while (out < (size_t)maxnpsf && out < m) {
+        memset(taken, 0, (size_t)g * g * sizeof *taken);
+        for (size_t i = 0; i < m && out < (size_t)maxnpsf; i++)
+            if (!done[i] && !taken[c[i].cell]) {
+                taken[c[i].cell] = 1;
+                done[i] = 1;
+                idx[out++] = c[i].row;
+            }
+    }
+    free(taken);
+    free(done);
+    return (long)out;
+}
+
+int mp_epsf_select(const mp_frame *f, const mp_table *t, const mp_epsf_opts *o, size_t *idx,
+                   size_t *nout, char *err)
+{
+    *nout = 0;
+    cols k = {mp_table_col(t, "X_IMAGE"),    mp_table_col(t, "Y_IMAGE"),
+              mp_table_col(t, "FLUX"),       mp_table_col(t, "BACKGROUND"),
+              mp_table_col(t, "SHARPNESS"),  mp_table_col(t, "ROUNDNESS"),
+              mp_table_col(t, "FLAGS")};
+    if (k.x < 0 || k.y < 0 || k.f < 0) {
+        snprintf(err, MP_ERRLEN, "psf select: the star table needs X_IMAGE, Y_IMAGE, FLUX");
+        return 1;
+    }
+    cand *c = malloc((t->nrow + 1) * sizeof *c);
+    double *v = malloc((t->nrow + 1) * sizeof *v);
+    long out = -1;
+    if (c && v) {
+        size_t m = bright_clean(f, t, &k, o, c);
+        m = star_like(t, &k, c, m, v);
+        m = alone(t, &k, o->fitrad, c, m);
+        out = spread(f, t, &k, o->maxnpsf, c, m, idx);
+    }
+    free(c);
+    free(v);
+    if (out < 0) {
         snprintf(err, MP_ERRLEN, "psf select: out of memory");
         return 1;
     }
-    size_t out = 0;
-    for (int round = 0; out < (size_t)o->maxnpsf && out < m; round++) {
-        memset(taken, 0, (size_t)g * g * sizeof *taken);
-        for (size_t k = 0; k < m && out < (size_t)o->maxnpsf; k++)
-            if (!done[k] && !taken[c[k].cell]) {
-                taken[c[k].cell] = 1;
-                done[k] = 1;
-                idx[out++] = c[k].row;
-            }
-    }
-    *nout = out;
-    free(taken);
-    free(done);
-    free(c);
-    free(v);
+    *nout = (size_t)out;
     return 0;
 }
