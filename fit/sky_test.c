@@ -122,66 +122,64 @@ static int octant(double dx, double dy)
     return dx >= 0 ? (near_x ? 7 : 6) : (near_x ? 4 : 5);
 }
 
-/* The ring's cells (see above): each cell's median residual, at the mean
- * of its basis, with variance π/2 times its mean V over its count.
- * Nonzero: out of memory. */
-static int ring_sums(group *G, double fitrad, sky_sums *S)
+/* The ring's box [x0, x1) × [y0, y1) (the window grown by R − fitrad + 1,
+ * clipped to the frame), its scratch, and the cells' sums. */
+typedef struct {
+    double R, rmid;
+    long x0, y0, x1, y1, w, h;
+    double *light, *buf, *res;          /* w × h each */
+    int *cell;
+    double sumc[RING_CELLS][6], sumv[RING_CELLS];
+    size_t cnt[RING_CELLS];
+} ring;
+
+/* The group's own stars over the ring into r->light, from their fitted
+ * values, with a 5-tap kernel: only light below a pixel's σ is used,
+ * where a few per cent of it is far below the noise of a cell's median,
+ * and the ring is several times the window, so the full kernel would cost
+ * more than the fit (bench isolated scene: +45 % CPU per star).  Nonzero
+ * when out of memory. */
+static int ring_light(group *G, ring *r)
 {
-    double R = MP_SKY_TEST_RADIUS * fitrad, rmid = 0.5 * (fitrad + R);
-    if (!isfinite(R) || !(R > fitrad))
-        return 0;
-    long nx = G->f->im.nx, ny = G->f->im.ny, pad = (long)ceil(R - fitrad) + 1;
-    long x0 = G->bx0 - pad, y0 = G->by0 - pad, x1 = G->bx0 + G->bw + pad, y1 = G->by0 + G->bh + pad;
-    x0 = x0 < 1 ? 1 : x0;
-    y0 = y0 < 1 ? 1 : y0;
-    x1 = x1 > nx + 1 ? nx + 1 : x1;
-    y1 = y1 > ny + 1 ? ny + 1 : y1;
-    long w = x1 - x0, h = y1 - y0;
-    if (w <= 0 || h <= 0)
-        return 0;
-    size_t nb = (size_t)(w * h);
-    double *light = calloc(nb, sizeof *light), *buf = malloc(nb * sizeof *buf);
-    double *res = malloc(nb * sizeof *res);
-    int *cell = malloc(nb * sizeof *cell);
-    int rc = 1;
-    if (!light || !buf || !res || !cell)
-        goto done;
-    /* The group's own stars over the ring, from their fitted values, with
-     * a 5-tap kernel: only light below a pixel's σ is used, where a few
-     * per cent of it is far below the noise of a cell's median, and the
-     * ring is several times the window, so the full kernel would cost
-     * more than the fit (bench isolated scene: +45 % CPU per star). */
     mp_prf_model mr = *G->m;
     mr.sinc_hw = mr.sinc_hw < 2 ? mr.sinc_hw : 2;
     for (int k = 0; k < G->n; k++) {
         long sx, sy, kx0, ky0, kx1, ky1;    /* the ring's part within R of star k */
         int sw, sh;
         double xk = G->p[3 * k + 1], yk = G->p[3 * k + 2];
-        kx0 = (long)floor(xk - R);
-        ky0 = (long)floor(yk - R);
-        kx1 = (long)ceil(xk + R) + 1;
-        ky1 = (long)ceil(yk + R) + 1;
-        kx0 = kx0 < x0 ? x0 : kx0;
-        ky0 = ky0 < y0 ? y0 : ky0;
-        kx1 = kx1 > x1 ? x1 : kx1;
-        ky1 = ky1 > y1 ? y1 : ky1;
+        kx0 = (long)floor(xk - r->R);
+        ky0 = (long)floor(yk - r->R);
+        kx1 = (long)ceil(xk + r->R) + 1;
+        ky1 = (long)ceil(yk + r->R) + 1;
+        kx0 = kx0 < r->x0 ? r->x0 : kx0;
+        ky0 = ky0 < r->y0 ? r->y0 : ky0;
+        kx1 = kx1 > r->x1 ? r->x1 : kx1;
+        ky1 = ky1 > r->y1 ? r->y1 : ky1;
         if (kx1 <= kx0 || ky1 <= ky0)
             continue;
-        if (mp_prf_render_window(&mr, xk, yk, kx0, ky0, kx1 - kx0, ky1 - ky0, &sx, &sy, &sw, &sh, buf,
-                                 NULL, NULL, &G->work))
-            goto done;
+        if (mp_prf_render_window(&mr, xk, yk, kx0, ky0, kx1 - kx0, ky1 - ky0, &sx, &sy, &sw, &sh,
+                                 r->buf, NULL, NULL, &G->work))
+            return 1;
         for (int j = 0; j < sh; j++)
             for (int i = 0; i < sw; i++)
-                light[(sy - y0 + j) * w + (sx - x0 + i)] += G->p[3 * k] * buf[(size_t)j * sw + i];
+                r->light[(sy - r->y0 + j) * r->w + (sx - r->x0 + i)] +=
+                    G->p[3 * k] * r->buf[(size_t)j * sw + i];
     }
-    double sumc[RING_CELLS][6] = {{0}}, sumv[RING_CELLS] = {0};
-    size_t cnt[RING_CELLS] = {0};
+    return 0;
+}
+
+/* Each pixel of the ring's box its cell (−1: a fitted pixel, masked,
+ * beyond R of every star, or where the stars' light is above its σ) and
+ * its residual; the cells' basis and variance sums. */
+static void ring_cells(group *G, ring *r)
+{
+    long nx = G->f->im.nx;
     const uint8_t *mask = G->f->mask;
-    for (long Y = y0; Y < y1; Y++)
-        for (long X = x0; X < x1; X++) {
-            size_t q = (size_t)((Y - y0) * w + (X - x0));
+    for (long Y = r->y0; Y < r->y1; Y++)
+        for (long X = r->x0; X < r->x1; X++) {
+            size_t q = (size_t)((Y - r->y0) * r->w + (X - r->x0));
             long i = X - G->bx0, j = Y - G->by0;
-            cell[q] = -1;
+            r->cell[q] = -1;
             if (i >= 0 && i < G->bw && j >= 0 && j < G->bh && G->sel[(size_t)j * G->bw + i])
                 continue;                       /* a fitted pixel: window_sums */
             if (mask && mask[(size_t)(Y - 1) * nx + (size_t)(X - 1)])
@@ -191,39 +189,79 @@ static int ring_sums(group *G, double fitrad, sky_sums *S)
                 double dx = X - G->p[3 * k + 1], dy = Y - G->p[3 * k + 2];
                 d2 = fmin(d2, dx * dx + dy * dy);
             }
-            double sky = sky_at(G, G->p, (double)X, (double)Y), star = light[q];
+            double sky = sky_at(G, G->p, (double)X, (double)Y), star = r->light[q];
             double v = (sky + star > G->vfloor ? sky + star : G->vfloor) + ron2_at(G, X, Y);
-            if (d2 > R * R || star * star > v)
+            if (d2 > r->R * r->R || star * star > v)
                 continue;
-            int cl = octant((double)X - G->xc, (double)Y - G->yc) + (d2 > rmid * rmid ? RING_SECTORS : 0);
+            int cl = octant((double)X - G->xc, (double)Y - G->yc) +
+                     (d2 > r->rmid * r->rmid ? RING_SECTORS : 0);
             double c[6];
             sky_basis(G, (double)X, (double)Y, c);
             for (int a = 0; a < 6; a++)
-                sumc[cl][a] += c[a];
-            sumv[cl] += v;
-            cnt[cl]++;
-            cell[q] = cl;
-            res[q] = pixel(G, X, Y) - sky - star;
+                r->sumc[cl][a] += c[a];
+            r->sumv[cl] += v;
+            r->cnt[cl]++;
+            r->cell[q] = cl;
+            r->res[q] = pixel(G, X, Y) - sky - star;
         }
+}
+
+/* Each cell's median residual into S, at the mean of its basis, with
+ * variance π/2 times its mean V over its count. */
+static void ring_terms(const ring *r, sky_sums *S)
+{
+    size_t nb = (size_t)(r->w * r->h);
     for (int cl = 0; cl < RING_CELLS; cl++) {
-        if (cnt[cl] < RING_MIN)
+        if (r->cnt[cl] < RING_MIN)
             continue;
         size_t n = 0;
         for (size_t q = 0; q < nb; q++)
-            if (cell[q] == cl)
-                buf[n++] = res[q];
-        qsort(buf, n, sizeof *buf, lm_cmp_double);
-        double med = n % 2 ? buf[n / 2] : 0.5 * (buf[n / 2 - 1] + buf[n / 2]), c[6];
+            if (r->cell[q] == cl)
+                r->buf[n++] = r->res[q];
+        qsort(r->buf, n, sizeof *r->buf, lm_cmp_double);
+        double med = n % 2 ? r->buf[n / 2] : 0.5 * (r->buf[n / 2 - 1] + r->buf[n / 2]), c[6];
         for (int a = 0; a < 6; a++)
-            c[a] = sumc[cl][a] / (double)n;
-        add_sky_term(S, c, med, 0.5 * M_PI * sumv[cl] / ((double)n * (double)n));
+            c[a] = r->sumc[cl][a] / (double)n;
+        add_sky_term(S, c, med, 0.5 * M_PI * r->sumv[cl] / ((double)n * (double)n));
     }
-    rc = 0;
-done:
-    free(light);
-    free(buf);
-    free(res);
-    free(cell);
+}
+
+/* The ring's cells (see above) into S.  Nonzero: out of memory. */
+static int ring_sums(group *G, double fitrad, sky_sums *S)
+{
+    ring r;
+    memset(&r, 0, sizeof r);
+    r.R = MP_SKY_TEST_RADIUS * fitrad;
+    r.rmid = 0.5 * (fitrad + r.R);
+    if (!isfinite(r.R) || !(r.R > fitrad))
+        return 0;
+    long nx = G->f->im.nx, ny = G->f->im.ny, pad = (long)ceil(r.R - fitrad) + 1;
+    r.x0 = G->bx0 - pad;
+    r.y0 = G->by0 - pad;
+    r.x1 = G->bx0 + G->bw + pad;
+    r.y1 = G->by0 + G->bh + pad;
+    r.x0 = r.x0 < 1 ? 1 : r.x0;
+    r.y0 = r.y0 < 1 ? 1 : r.y0;
+    r.x1 = r.x1 > nx + 1 ? nx + 1 : r.x1;
+    r.y1 = r.y1 > ny + 1 ? ny + 1 : r.y1;
+    r.w = r.x1 - r.x0;
+    r.h = r.y1 - r.y0;
+    if (r.w <= 0 || r.h <= 0)
+        return 0;
+    size_t nb = (size_t)(r.w * r.h);
+    r.light = calloc(nb, sizeof *r.light);
+    r.buf = malloc(nb * sizeof *r.buf);
+    r.res = malloc(nb * sizeof *r.res);
+    r.cell = malloc(nb * sizeof *r.cell);
+    int rc = !r.light || !r.buf || !r.res || !r.cell || ring_light(G, &r);
+    if (!rc) {
+        ring_cells(G, &r);
+        ring_terms(&r, S);
+    }
+    free(r.light);
+    free(r.buf);
+    free(r.res);
+    free(r.cell);
     return rc;
 }
 
