@@ -510,83 +510,33 @@ static int cubic_again(group *G, const mp_fit_opts *o, int *iter, int *converged
     return lm_render_all(G, G->p, G->cur, RENDER_ALL) || lm_levmar(G, o, 0, iter, converged);
 }
 
-int mp_fit_group(const mp_frame *f, const mp_prf_model *m, const mp_fit_opts *o,
-                 double sky0, mp_star *stars, int n, char *err)
+/* G set up for n stars of model m on frame f, its sky at the given
+ * order (the options' crop, grid and statistics; its parameter counts). */
+static void group_setup(group *G, const mp_frame *f, const mp_prf_model *m, const mp_fit_opts *o,
+                        int n, int order)
 {
-    group G;
-    memset(&G, 0, sizeof G);
-    G.f = f;
-    G.m = m;
-    G.crop = isfinite(o->fitrad) ? o->crop : NULL;
-    G.work.grid = o->grid;      /* every render of the group through G.work */
-    G.stats = o->stats;
-    G.crop_min = o->fitrad + 1.0;
-    G.core_hw = G.crop_min;     /* NaN (whole frame): every pass exact */
-    G.n = n;
-    int order = first_order(o, stars, n);
-    G.nsky = o->fit_sky ? nsky_of(order) : 0;
-    G.np = 3 * n + (G.nsky ? G.nsky : 1);   /* a fixed sky still has a slot */
-    G.npmax = 3 * n + nsky_of(MP_SKY_MAXORDER);
-    G.ron2 = f->rdnoise * f->rdnoise > 1e-2 ? f->rdnoise * f->rdnoise : 1e-2;
-    int rc = 1;
-    for (int k = 0; k < n; k++) {
-        stars[k].flags = 0;
-        stars[k].niter = 0;
-        stars[k].chi2star = 0.0;
-        stars[k].dofstar = 0;
-        stars[k].sky_order = order;
-    }
-    int sp = lm_select_pixels(&G, o, stars);
-    data_range(&G);
-    if (sp == 2 || alloc_stars(&G)) {
-        snprintf(err, MP_ERRLEN, "fit: out of memory for a group of %d stars", n);
-        goto done;
-    }
-    if (sp == 1 || G.npix <= (size_t)(3 * n + G.nsky)) {
-        for (int k = 0; k < n; k++)
-            stars[k].flags |= MP_FLAG_NOCONV | MP_FLAG_EDGE;
-        rc = 0;
-        goto finish_flagged;
-    }
-    double sky = isfinite(sky0) ? sky0 : start_sky(&G);
-    /* S of the variance function, and the sky's lower bound: a group's own
-     * median is neither (in a crowded group it sits well above the sky,
-     * and a floor above the sky reweights every sky pixel). */
-    G.sknown = known_sky(stars, n);
-    G.vfloor = G.sknown > 0 ? G.sknown : 0.0;
-    int converged = 0, iter = 0;
-    /* Economy: a star brighter than the grid's bound is drawn exactly
-     * (its own bias bound, fit/prf_cache.c), the others from the grid. */
-    G.lemax = o->grid_lemax;
-    for (int k = 0; k < n; k++)
-        G.ongrid[k] = fabs(stars[k].flux) > o->grid_emax ? 0
-                      : fabs(stars[k].flux) <= G.lemax  ? GRID_LIN
-                                                        : 1;
-    if (start_state(&G, stars, sky))
-        goto nomem;
-    if (order > 0 && o->warm_sky)
-        warm_sky_start(&G, stars);
-    if (fit_orders(&G, o, stars, sky, &order, &iter, &converged) ||
-        (!converged && cubic_again(&G, o, &iter, &converged)))
-        goto nomem;
-    int cv = covariance(&G);
-    if (cv == 2)
-        goto nomem;
-    double chi2f = lm_chi2_with(&G, G.var);
-    int dof = (int)G.npix - (3 * n + G.nsky);
-    for (int k = 0; k < n; k++)
-        if (store_star(&G, k, &stars[k], converged, cv, chi2f, dof, iter, order, o->fitrad))
-            goto nomem;
-    rc = 0;
-    goto done;
+    memset(G, 0, sizeof *G);
+    G->f = f;
+    G->m = m;
+    G->crop = isfinite(o->fitrad) ? o->crop : NULL;
+    G->work.grid = o->grid;     /* every render of the group through G->work */
+    G->stats = o->stats;
+    G->crop_min = o->fitrad + 1.0;
+    G->core_hw = G->crop_min;   /* NaN (whole frame): every pass exact */
+    G->n = n;
+    G->nsky = o->fit_sky ? nsky_of(order) : 0;
+    G->np = 3 * n + (G->nsky ? G->nsky : 1);   /* a fixed sky still has a slot */
+    G->npmax = 3 * n + nsky_of(MP_SKY_MAXORDER);
+    G->ron2 = f->rdnoise * f->rdnoise > 1e-2 ? f->rdnoise * f->rdnoise : 1e-2;
+}
 
-nomem:
-    snprintf(err, MP_ERRLEN, "fit: out of memory for a group of %d stars", n);
-    rc = 1;
-    goto done;
-finish_flagged:
+/* A group with too few pixels to fit: every star flagged not converged
+ * and at the edge, its errors and χ² zero, a NaN flux or sky zero. */
+static void flag_unfitted(mp_star *stars, int n)
+{
     for (int k = 0; k < n; k++) {
         mp_star *s = &stars[k];
+        s->flags |= MP_FLAG_NOCONV | MP_FLAG_EDGE;
         s->ex = s->ey = s->eflux = s->esky = 0.0;
         s->chi2 = s->chi2star = 0.0;
         s->dof = s->dofstar = 0;
@@ -595,7 +545,70 @@ finish_flagged:
         if (!isfinite(s->sky))
             s->sky = 0.0;
     }
-done:
+}
+
+/* The fit of G's stars from their start (sky0, or the group's own), its
+ * covariance, and every star's results stored.  Nonzero when out of
+ * memory. */
+static int fit_and_store(group *G, const mp_fit_opts *o, mp_star *stars, double sky0, int order)
+{
+    int n = G->n;
+    double sky = isfinite(sky0) ? sky0 : start_sky(G);
+    /* S of the variance function, and the sky's lower bound: a group's own
+     * median is neither (in a crowded group it sits well above the sky,
+     * and a floor above the sky reweights every sky pixel). */
+    G->sknown = known_sky(stars, n);
+    G->vfloor = G->sknown > 0 ? G->sknown : 0.0;
+    int converged = 0, iter = 0;
+    /* Economy: a star brighter than the grid's bound is drawn exactly
+     * (its own bias bound, fit/prf_cache.c), the others from the grid. */
+    G->lemax = o->grid_lemax;
+    for (int k = 0; k < n; k++)
+        G->ongrid[k] = fabs(stars[k].flux) > o->grid_emax ? 0
+                       : fabs(stars[k].flux) <= G->lemax ? GRID_LIN
+                                                         : 1;
+    if (start_state(G, stars, sky))
+        return 1;
+    if (order > 0 && o->warm_sky)
+        warm_sky_start(G, stars);
+    if (fit_orders(G, o, stars, sky, &order, &iter, &converged) ||
+        (!converged && cubic_again(G, o, &iter, &converged)))
+        return 1;
+    int cv = covariance(G);
+    if (cv == 2)
+        return 1;
+    double chi2f = lm_chi2_with(G, G->var);
+    int dof = (int)G->npix - (3 * n + G->nsky);
+    for (int k = 0; k < n; k++)
+        if (store_star(G, k, &stars[k], converged, cv, chi2f, dof, iter, order, o->fitrad))
+            return 1;
+    return 0;
+}
+
+int mp_fit_group(const mp_frame *f, const mp_prf_model *m, const mp_fit_opts *o,
+                 double sky0, mp_star *stars, int n, char *err)
+{
+    group G;
+    int order = first_order(o, stars, n);
+    group_setup(&G, f, m, o, n, order);
+    for (int k = 0; k < n; k++) {
+        stars[k].flags = 0;
+        stars[k].niter = 0;
+        stars[k].chi2star = 0.0;
+        stars[k].dofstar = 0;
+        stars[k].sky_order = order;
+    }
+    int rc = 0;
+    int sp = lm_select_pixels(&G, o, stars);
+    data_range(&G);
+    if (sp == 2 || alloc_stars(&G))
+        rc = 1;
+    else if (sp == 1 || G.npix <= (size_t)(3 * n + G.nsky))
+        flag_unfitted(stars, n);
+    else
+        rc = fit_and_store(&G, o, stars, sky0, order);
+    if (rc)
+        snprintf(err, MP_ERRLEN, "fit: out of memory for a group of %d stars", n);
     if (o->work)
         *o->work += G.work.ops;     /* the exact renders' work (economy's plan) */
     group_free(&G);
