@@ -10,6 +10,52 @@
 #include "fit/fit.h"
 #include "params/params.h"
 
+/* The residual of t's fits on f written to residual, in ADU as the input
+ * (GAIN and RDNOISE in its header).  Nonzero with err on failure. */
+static int write_residual(const mp_frame *f, const mp_fit_setup *s, const mp_table *t,
+                          const char *residual, char *err)
+{
+    float *res = malloc((size_t)f->im.nx * f->im.ny * sizeof *res);
+    if (!res) {
+        snprintf(err, MP_ERRLEN, "%s: out of memory for the residual", residual);
+        return 1;
+    }
+    int rc = mp_fit_residual(f, &s->model, t, s->opts.cropfrac, res, err);
+    if (!rc) {
+        for (long i = 0; i < f->im.nx * f->im.ny; i++)
+            res[i] /= f->gain;                  /* back to ADU, as the input */
+        mp_card cards[2] = {{"GAIN", f->gain, NULL, "e-/ADU"}, {"RDNOISE", f->rdnoise, NULL, "e-"}};
+        rc = mp_image_write_float(residual, res, f->im.nx, f->im.ny, cards, 2, err);
+    }
+    free(res);
+    return rc;
+}
+
+/* The frame fit's counts into the run report. */
+static void counts_of(const mp_frame_report *rep, mp_run_report *run)
+{
+    run->ngroups = rep->ngroups;
+    run->iterations = rep->iterations;
+    run->merged = rep->merged;
+    run->rejected = rep->rejected;
+    run->noconv = rep->noconv;
+    run->fits = rep->fits;
+    run->kept = rep->kept;
+    run->cropped = rep->cropped;
+    run->kcalls = rep->kcalls;
+    run->kshort = rep->kshort;
+    run->kcache = rep->kcache;
+    run->klin = rep->klin;
+    run->kstars = rep->kstars;
+    run->khw = rep->khw;
+    run->kbounds = rep->kbounds;
+    run->kcoarse = rep->kcoarse;
+    run->envelopes = rep->envelopes;
+    run->ops_tables = rep->ops_tables;
+    run->ops_saved = rep->ops_saved;
+    run->ops_render = rep->ops_render;
+}
+
 /* Fit one image with one coordinate table; write the table and residual.
  * nframes: the run's frames, so that economy plans its tables for the
  * whole @list (this table's stars in every frame, fit/econ_plan.c). */
@@ -21,7 +67,6 @@ static int fit_one(const mp_fit_setup *s, const char *image, const char *coords,
     mp_table t;
     mp_table_init(&t);
     int rc = 1;
-    float *res = NULL;
     char *report = NULL;
     mp_run_report run;
     memset(&run, 0, sizeof run);
@@ -50,44 +95,13 @@ static int fit_one(const mp_fit_setup *s, const char *image, const char *coords,
     }
     run.t_fit = mp_seconds() - t0;
     t0 = mp_seconds();
-    if (residual && residual[0]) {
-        res = malloc((size_t)f.im.nx * f.im.ny * sizeof *res);
-        if (!res) {
-            snprintf(err, MP_ERRLEN, "%s: out of memory for the residual", residual);
-            goto done;
-        }
-        if (mp_fit_residual(&f, &s->model, &t, s->opts.cropfrac, res, err))
-            goto done;
-        for (long i = 0; i < f.im.nx * f.im.ny; i++)
-            res[i] /= f.gain;                   /* back to ADU, as the input */
-        mp_card cards[2] = {{"GAIN", f.gain, NULL, "e-/ADU"}, {"RDNOISE", f.rdnoise, NULL, "e-"}};
-        if (mp_image_write_float(residual, res, f.im.nx, f.im.ny, cards, 2, err))
-            goto done;
-    }
+    if (residual && residual[0] && write_residual(&f, s, &t, residual, err))
+        goto done;
     if (mp_table_write(output, &t, s->fmt, err))
         goto done;
     run.t_write = mp_seconds() - t0;
     run.nstars = (long)t.nrow;
-    run.ngroups = rep.ngroups;
-    run.iterations = rep.iterations;
-    run.merged = rep.merged;
-    run.rejected = rep.rejected;
-    run.noconv = rep.noconv;
-    run.fits = rep.fits;
-    run.kept = rep.kept;
-    run.cropped = rep.cropped;
-    run.kcalls = rep.kcalls;
-    run.kshort = rep.kshort;
-    run.kcache = rep.kcache;
-    run.klin = rep.klin;
-    run.kstars = rep.kstars;
-    run.khw = rep.khw;
-    run.kbounds = rep.kbounds;
-    run.kcoarse = rep.kcoarse;
-    run.envelopes = rep.envelopes;
-    run.ops_tables = rep.ops_tables;
-    run.ops_saved = rep.ops_saved;
-    run.ops_render = rep.ops_render;
+    counts_of(&rep, &run);
     char tables[512];
     mp_econ_summary(s->cache, rep.ops_render, tables, sizeof tables);
     run.tables = tables;
@@ -105,7 +119,6 @@ static int fit_one(const mp_fit_setup *s, const char *image, const char *coords,
     rc = 0;
 done:
     free(report);
-    free(res);
     mp_table_free(&t);
     mp_frame_free(&f);
     return rc;
