@@ -187,74 +187,72 @@ static int stars_selected(const psf_task *t, const mp_frame *f, const mp_table *
     return 0;
 }
 
-static int run(psf_task *t, char *err)
+/* The frame's polynomial origin and scales (its centre and half-sizes),
+ * and its detections into found (the sky map into b). */
+static int detect(psf_task *t, const mp_frame *f, mp_bkg *b, mp_table *found, char *err)
 {
-    mp_frame f;
-    memset(&f, 0, sizeof f);
-    mp_bkg b;
-    memset(&b, 0, sizeof b);
-    mp_table found;
-    mp_table_init(&found);
-    mp_epsf e;
-    memset(&e, 0, sizeof e);
-    mp_psf_field fld;
-    memset(&fld, 0, sizeof fld);
-    mp_psf tab;
-    memset(&tab, 0, sizeof tab);
-    mp_psf_star *ps = NULL;
-    double *x = NULL, *y = NULL, *fl = NULL;
-    float *res = NULL;
-    size_t n = 0;
-    char *named = NULL;
-    int rc = 1;
-    mp_epsf_report rep;
-    memset(&rep, 0, sizeof rep);
-    if (mp_frame_read(t->image, &t->dp, &f, err))
-        goto done;
-    t->o.x0 = 0.5 * (double)(f.im.nx + 1);
-    t->o.y0 = 0.5 * (double)(f.im.ny + 1);
-    t->o.xs = f.im.nx > 1 ? 0.5 * (double)f.im.nx : 1.0;
-    t->o.ys = f.im.ny > 1 ? 0.5 * (double)f.im.ny : 1.0;
+    t->o.x0 = 0.5 * (double)(f->im.nx + 1);
+    t->o.y0 = 0.5 * (double)(f->im.ny + 1);
+    t->o.xs = f->im.nx > 1 ? 0.5 * (double)f->im.nx : 1.0;
+    t->o.ys = f->im.ny > 1 ? 0.5 * (double)f->im.ny : 1.0;
     mp_find_opts fo;
     mp_find_opts_default(&fo);
     fo.fwhm = t->o.fwhm;
     fo.threshold = t->threshold;
-    if (mp_bkg_estimate(&f, t->mesh, t->filter, &b, err) || mp_find_stars(&f, &b, &fo, &found, err))
-        goto done;
-    if (t->stars && t->stars[0] ? stars_from_list(t, &f, &x, &y, &fl, &n, err)
-                                : stars_selected(t, &f, &found, &x, &y, &fl, &n, err))
-        goto done;
+    return mp_bkg_estimate(f, t->mesh, t->filter, b, err) || mp_find_stars(f, b, &fo, found, err);
+}
+
+/* The second pass (DAOPHOT's): every detection fitted with the first
+ * pass's table and subtracted, the PSF stars put back one by one and the
+ * table built again from the residual (its order from the first pass's,
+ * raised if needed, unless given); its PSF stars into *ps. */
+static int second_pass(const psf_task *t, const mp_frame *f, mp_table *found,
+                       const double *x, const double *y, const double *fl, size_t n, mp_epsf *e,
+                       mp_epsf_report *rep, mp_psf_star **ps, char *err)
+{
+    mp_psf_field fld;
+    memset(&fld, 0, sizeof fld);
+    mp_psf tab;
+    memset(&tab, 0, sizeof tab);
+    mp_prf_model m;
+    float *res = NULL;
     char e2[MP_ERRLEN];
-    /* The PSF stars used go into the file (PSFSTARS): the last pass's. */
-    if (mp_epsf_pass(&f, f.im.pix, 0, &found, NULL, x, y, fl, n, &t->o, &e, &rep,
-                     t->passes > 1 ? NULL : &ps, e2)) {
-        snprintf(err, MP_ERRLEN, "%s: %.400s", t->image, e2);
+    int rc = 1;
+    if (mp_epsf_field(e, &fld, err) || mp_epsf_model(&fld, &tab, &m, err))
+        goto done;
+    if (!(res = malloc((size_t)f->im.nx * f->im.ny * sizeof *res))) {
+        snprintf(err, MP_ERRLEN, "out of memory");
         goto done;
     }
-    fprintf(stderr, "matphot psf: %s: pass 1: %s\n", t->image, rep.what);
-    if (t->passes > 1) {
-        mp_prf_model m;
-        if (mp_epsf_field(&e, &fld, err) || mp_epsf_model(&fld, &tab, &m, err))
-            goto done;
-        if (!(res = malloc((size_t)f.im.nx * f.im.ny * sizeof *res))) {
-            snprintf(err, MP_ERRLEN, "out of memory");
-            goto done;
-        }
-        if (fit_all(&f, t, &found, &m, res, err))
-            goto done;
-        mp_epsf_opts o2 = t->o;
-        o2.order = -1;     /* from the first pass's order, raised if needed */
-        if (t->o.order >= 0)
-            o2.order = t->o.order;
-        if (mp_epsf_pass(&f, res, 1, &found, &m, x, y, fl, n, &o2, &e, &rep, &ps, e2)) {
-            snprintf(err, MP_ERRLEN, "%s: pass 2: %.400s", t->image, e2);
-            goto done;
-        }
-        fprintf(stderr, "matphot psf: %s: pass 2 (neighbours subtracted): %s\n", t->image, rep.what);
-        mp_psf_field_free(&fld);
-        mp_psf_free(&tab);
+    if (fit_all(f, t, found, &m, res, err))
+        goto done;
+    mp_epsf_opts o2 = t->o;
+    o2.order = -1;     /* from the first pass's order, raised if needed */
+    if (t->o.order >= 0)
+        o2.order = t->o.order;
+    if (mp_epsf_pass(f, res, 1, found, &m, x, y, fl, n, &o2, e, rep, ps, e2)) {
+        snprintf(err, MP_ERRLEN, "%s: pass 2: %.400s", t->image, e2);
+        goto done;
     }
-    if (mp_epsf_field(&e, &fld, err))
+    fprintf(stderr, "matphot psf: %s: pass 2 (neighbours subtracted): %s\n", t->image, rep->what);
+    rc = 0;
+done:
+    free(res);
+    mp_psf_field_free(&fld);
+    mp_psf_free(&tab);
+    return rc;
+}
+
+/* The table e written as the PSF file (output=, or the image's name with
+ * .psf.fits), with its PSF stars ps[0..n). */
+static int write_psf(const psf_task *t, const mp_epsf *e, const mp_psf_star *ps, size_t n,
+                     char *err)
+{
+    mp_psf_field fld;
+    memset(&fld, 0, sizeof fld);
+    char *named = NULL;
+    int rc = 1;
+    if (mp_epsf_field(e, &fld, err))
         goto done;
     const char *out = t->output;
     if (!out || !out[0]) {
@@ -272,13 +270,49 @@ static int run(psf_task *t, char *err)
     rc = 0;
 done:
     free(named);
+    mp_psf_field_free(&fld);
+    return rc;
+}
+
+/* matphot psf: read, detect, pick the PSF stars (or take the list), build
+ * (pass 1, and pass 2 with the neighbours subtracted), write. */
+static int run(psf_task *t, char *err)
+{
+    mp_frame f;
+    memset(&f, 0, sizeof f);
+    mp_bkg b;
+    memset(&b, 0, sizeof b);
+    mp_table found;
+    mp_table_init(&found);
+    mp_epsf e;
+    memset(&e, 0, sizeof e);
+    mp_psf_star *ps = NULL;
+    double *x = NULL, *y = NULL, *fl = NULL;
+    size_t n = 0;
+    int rc = 1;
+    mp_epsf_report rep;
+    memset(&rep, 0, sizeof rep);
+    if (mp_frame_read(t->image, &t->dp, &f, err) || detect(t, &f, &b, &found, err))
+        goto done;
+    if (t->stars && t->stars[0] ? stars_from_list(t, &f, &x, &y, &fl, &n, err)
+                                : stars_selected(t, &f, &found, &x, &y, &fl, &n, err))
+        goto done;
+    char e2[MP_ERRLEN];
+    /* The PSF stars used go into the file (PSFSTARS): the last pass's. */
+    if (mp_epsf_pass(&f, f.im.pix, 0, &found, NULL, x, y, fl, n, &t->o, &e, &rep,
+                     t->passes > 1 ? NULL : &ps, e2)) {
+        snprintf(err, MP_ERRLEN, "%s: %.400s", t->image, e2);
+        goto done;
+    }
+    fprintf(stderr, "matphot psf: %s: pass 1: %s\n", t->image, rep.what);
+    if (t->passes > 1 && second_pass(t, &f, &found, x, y, fl, n, &e, &rep, &ps, err))
+        goto done;
+    rc = write_psf(t, &e, ps, n, err);
+done:
     free(ps);
     free(x);
     free(y);
     free(fl);
-    free(res);
-    mp_psf_free(&tab);
-    mp_psf_field_free(&fld);
     mp_epsf_free(&e);
     mp_table_free(&found);
     mp_bkg_free(&b);
