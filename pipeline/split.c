@@ -266,6 +266,73 @@ static double best_second(const mp_frame *f, const mp_bkg *b, const float *res,
     return best;
 }
 
+/* A thread's scratch for boxes of n pixels (split_work's arrays, and
+ * best_second's four more after them); NULL when out of memory. */
+static double *work_alloc(split_work *s, size_t n)
+{
+    s->wk = (mp_prf_work){0};
+    double *mem = malloc(10 * n * sizeof *mem);
+    s->sp = malloc(n * sizeof *s->sp);
+    s->idx = malloc(n * sizeof *s->idx);
+    if (!mem || !s->sp || !s->idx) {
+        free(mem);
+        return NULL;
+    }
+    s->p0 = mem;
+    s->dx = mem + n;
+    s->dy = mem + 2 * n;
+    s->pt = mem + 3 * n;
+    s->wt = mem + 4 * n;
+    s->r = mem + 5 * n;
+    return mem;
+}
+
+static void work_free(split_work *s, double *mem)
+{
+    free(mem);
+    free(s->sp);
+    free(s->idx);
+    mp_prf_work_free(&s->wk);
+}
+
+/* The second stars proposed (cs[r] finite: their S/N; place, flux, peak)
+ * added to found as find's rows: the sky under each, no shape measured
+ * (sharpness, roundness 0), flags 0.  Returns how many, −1 when out of
+ * memory. */
+static long add_proposed(const mp_frame *f, const mp_bkg *b, const double *cx, const double *cy,
+                         const double *cf, const double *cs, const double *cp, long nrow,
+                         mp_table *found)
+{
+    int fx = mp_table_add_col(found, "X_IMAGE"), fy = mp_table_add_col(found, "Y_IMAGE");
+    int ff = mp_table_add_col(found, "FLUX"), fs = mp_table_add_col(found, MP_PL_SNR_COL);
+    int fm = mp_table_add_col(found, "FLUX_MAX"), fb = mp_table_add_col(found, "BACKGROUND");
+    int fsh = mp_table_add_col(found, "SHARPNESS"), fro = mp_table_add_col(found, "ROUNDNESS");
+    int ffl = mp_table_add_col(found, "FLAGS");
+    if (fx < 0 || fy < 0 || ff < 0 || fs < 0 || fm < 0 || fb < 0 || fsh < 0 || fro < 0 || ffl < 0)
+        return -1;
+    long added = 0;
+    for (long r = 0; r < nrow; r++) {
+        if (!isfinite(cs[r]))
+            continue;
+        long row = mp_table_add_row(found);
+        if (row < 0)
+            return -1;
+        mp_table_set(found, (size_t)row, fx, cx[r]);
+        mp_table_set(found, (size_t)row, fy, cy[r]);
+        mp_table_set(found, (size_t)row, ff, cf[r]);
+        mp_table_set(found, (size_t)row, fs, cs[r]);
+        long px = lround(cx[r]), py = lround(cy[r]);
+        size_t g = (size_t)(py - 1) * (size_t)f->im.nx + (size_t)(px - 1);
+        mp_table_set(found, (size_t)row, fm, cp[r]);
+        mp_table_set(found, (size_t)row, fb, mp_bkg_sky(b, g));
+        mp_table_set(found, (size_t)row, fsh, 0.0);
+        mp_table_set(found, (size_t)row, fro, 0.0);
+        mp_table_set(found, (size_t)row, ffl, 0.0);
+        added++;
+    }
+    return added;
+}
+
 long mp_pl_split_candidates(const mp_frame *f, const mp_bkg *b, const float *res,
                             const mp_prf_model *m, const mp_prf_cache *grid, double gemax,
                             const mp_table *t, double fitrad, double rmin, double rmax,
@@ -275,15 +342,6 @@ long mp_pl_split_candidates(const mp_frame *f, const mp_bkg *b, const float *res
     int tf = mp_table_col(t, "FLUX_PSF"), te = mp_table_col(t, "FLUXERR_PSF");
     if (tx < 0 || ty < 0 || tf < 0 || te < 0 || !(snrmin > 0) || t->nrow == 0)
         return 0;
-    int fx = mp_table_add_col(found, "X_IMAGE"), fy = mp_table_add_col(found, "Y_IMAGE");
-    int ff = mp_table_add_col(found, "FLUX"), fs = mp_table_add_col(found, MP_PL_SNR_COL);
-    /* find's measures of a candidate the test proposes: its peak and the
-     * sky under it; no shape measured (sharpness, roundness 0), flags 0 */
-    int fm = mp_table_add_col(found, "FLUX_MAX"), fb = mp_table_add_col(found, "BACKGROUND");
-    int fsh = mp_table_add_col(found, "SHARPNESS"), fro = mp_table_add_col(found, "ROUNDNESS");
-    int ffl = mp_table_add_col(found, "FLAGS");
-    if (fx < 0 || fy < 0 || ff < 0 || fs < 0 || fm < 0 || fb < 0 || fsh < 0 || fro < 0 || ffl < 0)
-        return -1;
     const double rings[NRING] = {rmin, 0.5 * (rmin + rmax), rmax};
     long side = 2 * (long)ceil(fitrad) + 3, nrow = (long)t->nrow;
     size_t n = (size_t)(side * side);
@@ -294,23 +352,8 @@ long mp_pl_split_candidates(const mp_frame *f, const mp_bkg *b, const float *res
 #pragma omp parallel if (!failed) reduction(| : failed)
     {
         split_work s;
-        s.wk = (mp_prf_work){0};
-        double *mem = malloc(10 * n * sizeof *mem);
-        s.sp = malloc(n * sizeof *s.sp);
-        s.idx = malloc(n * sizeof *s.idx);
-        if (!s.sp || !s.idx) {
-            free(mem);
-            mem = NULL;
-        }
+        double *mem = work_alloc(&s, n);
         failed |= !mem;
-        if (mem) {
-            s.p0 = mem;
-            s.dx = mem + n;
-            s.dy = mem + 2 * n;
-            s.pt = mem + 3 * n;
-            s.wt = mem + 4 * n;
-            s.r = mem + 5 * n;
-        }
 #pragma omp for schedule(dynamic, 32)
         for (long r = 0; r < nrow; r++) {
             cs[r] = NAN;
@@ -328,37 +371,13 @@ long mp_pl_split_candidates(const mp_frame *f, const mp_bkg *b, const float *res
                                     gemax, &cx[r], &cy[r], &cf[r], &cp[r]);
             cs[r] = d2 >= snrmin * snrmin ? sqrt(d2) : NAN;
         }
-        free(mem);
-        free(s.sp);
-        free(s.idx);
-        mp_prf_work_free(&s.wk);
+        work_free(&s, mem);
     }
-    long added = 0;
-    for (long r = 0; !failed && r < nrow; r++) {
-        if (!isfinite(cs[r]))
-            continue;
-        long row = mp_table_add_row(found);
-        if (row < 0) {
-            failed = 1;
-            break;
-        }
-        mp_table_set(found, (size_t)row, fx, cx[r]);
-        mp_table_set(found, (size_t)row, fy, cy[r]);
-        mp_table_set(found, (size_t)row, ff, cf[r]);
-        mp_table_set(found, (size_t)row, fs, cs[r]);
-        long px = lround(cx[r]), py = lround(cy[r]);
-        size_t g = (size_t)(py - 1) * (size_t)f->im.nx + (size_t)(px - 1);
-        mp_table_set(found, (size_t)row, fm, cp[r]);
-        mp_table_set(found, (size_t)row, fb, mp_bkg_sky(b, g));
-        mp_table_set(found, (size_t)row, fsh, 0.0);
-        mp_table_set(found, (size_t)row, fro, 0.0);
-        mp_table_set(found, (size_t)row, ffl, 0.0);
-        added++;
-    }
+    long added = failed ? -1 : add_proposed(f, b, cx, cy, cf, cs, cp, nrow, found);
     free(cx);
     free(cy);
     free(cf);
     free(cs);
     free(cp);
-    return failed ? -1 : added;
+    return added;
 }
