@@ -447,6 +447,54 @@ static int table_radius(run_state *s, char *err)
     return 0;
 }
 
+/* The PSF just built (s->psf) written to path, it and its PSF stars
+ * used[0..np) in frame coordinates (the field's origin).  Nonzero with
+ * err on failure. */
+static int write_psf_file(run_state *s, mp_psf_star *used, const char *path, char *err)
+{
+    for (size_t k = 0; k < s->np; k++) {
+        used[k].x += (double)s->offx;
+        used[k].y += (double)s->offy;
+    }
+    mp_psf_field fld;
+    mp_epsf inframe = s->psf;
+    inframe.x0 += (double)s->offx;
+    inframe.y0 += (double)s->offy;
+    if (mp_epsf_field(&inframe, &fld, err))
+        return 1;
+    int rc = mp_psf_field_write(path, &fld, used, (int)s->np, err);
+    mp_psf_field_free(&fld);
+    return rc;
+}
+
+/* The fit set up as `fit psf=PATH` sets it up (economy's decisions
+ * measured on this table) and taken as the run's; psf is then empty
+ * again for the next image.  Nonzero with err on failure. */
+static int adopt_psf(run_state *s, const char *path, char *err)
+{
+    const mp_pipeline_opts *o = s->o;
+    if (s->have_own) {
+        mp_fit_setup_free(&s->own);
+        s->have_own = 0;
+        s->grid = NULL;         /* it was the freed setup's */
+    }
+    int rc = mp_params_set(o->ps, "psf", path, err);
+    if (!rc) {
+        rc = mp_fit_setup_read(o->ps, &s->own, err);
+        if (!rc && !o->groupcut_median)
+            mp_pl_group_decision(&s->own, o->couplebudget);
+        s->have_own = !rc;
+        char e3[MP_ERRLEN];
+        mp_params_set(o->ps, "psf", "", e3);
+    }
+    if (!rc) {
+        s->fit = mp_fit_setup_local(&s->own, (double)s->offx, (double)s->offy, &s->local);
+        s->fwhm = mp_prf_fwhm(&s->own.model);
+        mp_fit_memory_forget(s->mem);
+    }
+    return rc;
+}
+
 /* Build (pass 1: the frame as it is) or rebuild (pass 2: every fitted
  * star but the PSF stars' own subtracted) the PSF, write root.psf.fits,
  * and set the fit up from it as `fit psf=root.psf.fits` would be; every
@@ -487,40 +535,10 @@ static int build_psf(run_state *s, int pass, char *err)
         snprintf(err, MP_ERRLEN, "%s: PSF: %.400s", s->image, e2);
         return 1;
     }
-    /* PSFSTARS in frame coordinates, as the field's origin. */
-    for (size_t k = 0; k < s->np; k++) {
-        used[k].x += (double)s->offx;
-        used[k].y += (double)s->offy;
-    }
-    mp_psf_field fld;
     char *path = mp_name_after(s->root, ".psf.fits");
-    mp_epsf inframe = s->psf;         /* written in frame coordinates */
-    inframe.x0 += (double)s->offx;
-    inframe.y0 += (double)s->offy;
-    int rc = !path ? oom(err) : mp_epsf_field(&inframe, &fld, err);
+    int rc = !path ? oom(err)
+                   : write_psf_file(s, used, path, err) || adopt_psf(s, path, err);
     if (!rc) {
-        rc = mp_psf_field_write(path, &fld, used, (int)s->np, err);
-        mp_psf_field_free(&fld);
-    }
-    /* The fit as `fit psf=root.psf.fits` sets it up (economy's decisions
-     * measured on this table); then psf is empty again for the next image. */
-    if (!rc && s->have_own) {
-        mp_fit_setup_free(&s->own);
-        s->have_own = 0;
-        s->grid = NULL;         /* it was the freed setup's */
-    }
-    if (!rc && !(rc = mp_params_set(o->ps, "psf", path, err))) {
-        rc = mp_fit_setup_read(o->ps, &s->own, err);
-        if (!rc && !o->groupcut_median)
-            mp_pl_group_decision(&s->own, o->couplebudget);
-        s->have_own = !rc;
-        char e3[MP_ERRLEN];
-        mp_params_set(o->ps, "psf", "", e3);
-    }
-    if (!rc) {
-        s->fit = mp_fit_setup_local(&s->own, (double)s->offx, (double)s->offy, &s->local);
-        s->fwhm = mp_prf_fwhm(&s->own.model);
-        mp_fit_memory_forget(s->mem);
         size_t l = strlen(s->own.decisions);
         snprintf(s->own.decisions + l, sizeof s->own.decisions - l, "%sPSF built from the frame "
                  "(pass %d, %s): %s%s%s", l ? "; " : "", pass, path, s->tabwhy,
