@@ -279,6 +279,27 @@ static int group_and_fit(run_state *s, int round, char *err)
     return 0;
 }
 
+/* The residual's noise model as detection measured it (find/noise_model.c,
+ * mp_pl_star_excess), for the round's line. */
+typedef struct {
+    double kscale, proferr;  /* × Poisson (NaN: the residual's mesh map); profile error */
+    int nring;               /* rings of the flux-squared error */
+    size_t nexcess;          /* stars it is added around */
+} residual_noise;
+
+/* The round's line on stderr: the new stars, the noise they were found on. */
+static void say_new_stars(const run_state *s, int round, long added, const residual_noise *nz)
+{
+    if (isfinite(nz->kscale))
+        fprintf(stderr, "matphot pipeline: %s: round %d: %ld new stars on the residual "
+                "(noise: %.3f x Poisson, profile error %.1f %%, the error growing as flux "
+                "squared on %d rings around %zu stars)\n", s->image, round, added, nz->kscale,
+                100.0 * nz->proferr, nz->nring, nz->nexcess);
+    else
+        fprintf(stderr, "matphot pipeline: %s: round %d: %ld new stars on the residual "
+                "(noise: the residual's mesh map)\n", s->image, round, added);
+}
+
 /* Detect on the residual and add what is new; *added gets how many.
  *
  * The residual keeps the sky.  Its sky is measured anew (the star light is
@@ -301,13 +322,11 @@ static int find_on_residual(run_state *s, int round, long *added, char *err)
     mp_table_free(&s->found);
     mp_table_init(&s->found);
     mp_bkg_free(&s->bkg);
-    double kscale, proferr;
-    int nring = 0;
-    size_t nexcess = 0;
+    residual_noise nz = {NAN, 0.0, 0, 0};
     if (mp_bkg_estimate(&R, o->mesh, o->filter, &s->bkg, err) ||
         mp_bkg_noise_from_model(&s->bkg, &s->f, s->res, (int)lround(fmax(1.0, s->fwhm)),
-                                &kscale, &proferr, err) ||
-        mp_pl_star_excess(&s->f, &s->bkg, &s->t, &s->fit->model, &nring, &nexcess, err))
+                                &nz.kscale, &nz.proferr, err) ||
+        mp_pl_star_excess(&s->f, &s->bkg, &s->t, &s->fit->model, &nz.nring, &nz.nexcess, err))
         return 1;
     /* A star half-hidden by a neighbour's fit leaves a lopsided residual
      * peak: relax the roundness limits there (the fit then keeps or rejects
@@ -365,16 +384,8 @@ static int find_on_residual(run_state *s, int round, long *added, char *err)
      * too (they were counted in no stage: 47 Tuc with Tiny Tim's table,
      * ~40 of its ~350 s fell outside the report's seconds) */
     s->rep->t_find += mp_seconds() - t0;
-    if (s->quiet)
-        return 0;
-    if (isfinite(kscale))
-        fprintf(stderr, "matphot pipeline: %s: round %d: %ld new stars on the residual "
-                "(noise: %.3f x Poisson, profile error %.1f %%, the error growing as flux "
-                "squared on %d rings around %zu stars)\n", s->image, round, *added, kscale,
-                100.0 * proferr, nring, nexcess);
-    else
-        fprintf(stderr, "matphot pipeline: %s: round %d: %ld new stars on the residual "
-                "(noise: the residual's mesh map)\n", s->image, round, *added);
+    if (!s->quiet)
+        say_new_stars(s, round, *added, &nz);
     return 0;
 }
 
