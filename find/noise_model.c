@@ -94,6 +94,83 @@ static double normalised_sigma(samples *s, double k, double eps)
     return robust_sigma(s->z, s->n);
 }
 
+/* k from block × block sums over blocks where the stars' light is below
+ * its Poisson noise in every pixel (a profile error cannot show there);
+ * all holds room for cap samples.  Blocks of about the detection kernel's
+ * size make k describe the noise at the scale detection works on:
+ * resampled (mosaic) frames have correlated noise, which a pixel's rms
+ * under-states there.  NaN with fewer than 10 usable blocks. */
+static double noise_scale(const mp_bkg *b, const mp_frame *f, const float *res, int block,
+                          samples *all, size_t cap)
+{
+    long nx = f->im.nx, ny = f->im.ny, nbx = nx / block, nby = ny / block;
+    size_t bstep = (size_t)nbx * (size_t)nby / cap + 1;
+    size_t nsel = ((size_t)nbx * (size_t)nby + bstep - 1) / bstep;
+    /* Every bstep-th block into its own slot, in parallel; the unusable
+     * ones (p < 0) then dropped in order, so the samples do not depend on
+     * the threads. */
+#pragma omp parallel for schedule(static)
+    for (size_t j = 0; j < nsel; j++)
+        block_sample(b, f, res, block, nbx, j * bstep, all, j);
+    all->n = compact(all, nsel);
+    /* The blocks whose star light is below its noise; in a field so
+     * crowded that fewer than a quarter are, the quarter with the least
+     * (47 Tuc's core: star light everywhere). */
+    if (all->n >= 10) {
+        memcpy(all->z, all->m, all->n * sizeof *all->z);
+        double q25 = quantile_of(all->z, all->n, 0.25), cut = q25 > 1.0 ? q25 : 1.0;
+        size_t kept = 0;
+        for (size_t i = 0; i < all->n; i++)
+            if (all->m[i] <= cut) {
+                all->r[kept] = all->r[i];
+                all->p[kept] = all->p[i];
+                all->m[kept++] = 0.0;
+            }
+        all->n = kept;
+    }
+    return all->n >= 10 ? normalised_sigma(all, 1.0, 0.0) : NAN;
+}
+
+/* ε: the profile error (DAOPHOT's proferr, here measured) that makes the
+ * normalised residual's robust σ 1 where the stars' light dominates (the
+ * star samples); 0 for an exact PSF.  Only a significant excess counts:
+ * the robust σ's own sampling error is 1.166/√n (3 of them: false alarm
+ * ~1e-3). */
+static double profile_error(samples *star, double k)
+{
+    if (!(k > 0) || !isfinite(k) || star->n < 10 ||
+        !(normalised_sigma(star, k, 0.0) > 1.0 + 3.0 * 1.166 / sqrt((double)star->n)))
+        return 0.0;
+    double lo = 0.0, hi = 1.0;
+    if (normalised_sigma(star, k, hi) > 1.0)
+        lo = hi;                       /* worse than 100 %: cap */
+    for (int it = 0; it < 30 && hi - lo > 1e-4; it++) {
+        double mid = 0.5 * (lo + hi);
+        if (normalised_sigma(star, k, mid) > 1.0)
+            lo = mid;
+        else
+            hi = mid;
+    }
+    return 0.5 * (lo + hi);
+}
+
+/* b's rms taken from the model (k, eps) from now on: no map, each pixel's
+ * noise formed where it is used (find.h). */
+static void adopt_model(mp_bkg *b, const mp_frame *f, const float *res, double k, double eps)
+{
+    b->model = 1;
+    b->k = k;
+    b->eps = eps;
+    b->ron2 = f->rdnoise * f->rdnoise;
+    b->pix = f->im.pix;
+    b->res = res;
+    /* The mesh rms rows (the second half of vals) are no longer read:
+     * given back (issue 14: 16 bytes a pixel / mesh, 8.4 MB at 4096²). */
+    double *v = realloc(b->vals, 2 * (size_t)b->ny * (size_t)b->nbx * sizeof *v);
+    if (v)
+        b->vals = v;
+}
+
 int mp_bkg_noise_from_model(mp_bkg *b, const mp_frame *f, const float *res, int block,
                             double *scale, double *proferr, char *err)
 {
@@ -114,79 +191,19 @@ int mp_bkg_noise_from_model(mp_bkg *b, const mp_frame *f, const float *res, int 
     /* The star samples are drawn once k is known: the same room. */
     all.r = buf, all.p = buf + cap, all.m = buf + 2 * cap, all.z = buf + 3 * cap;
     star.r = all.r, star.p = all.p, star.m = all.m, star.z = all.z;
-    /* k from block × block sums over blocks where the stars' light is
-     * below its Poisson noise in every pixel (a profile error cannot show
-     * there).  Blocks of about the detection kernel's size make k describe
-     * the noise at the scale detection works on: resampled (mosaic) frames
-     * have correlated noise, which a pixel's rms under-states there. */
-    long nx = f->im.nx, ny = f->im.ny, nbx = nx / block, nby = ny / block;
-    size_t bstep = (size_t)nbx * (size_t)nby / cap + 1;
-    size_t nsel = ((size_t)nbx * (size_t)nby + bstep - 1) / bstep;
-    /* Every bstep-th block into its own slot, in parallel; the unusable
-     * ones (p < 0) then dropped in order, so the samples do not depend on
-     * the threads. */
-#pragma omp parallel for schedule(static)
-    for (size_t j = 0; j < nsel; j++)
-        block_sample(b, f, res, block, nbx, j * bstep, &all, j);
-    all.n = compact(&all, nsel);
-    /* The blocks whose star light is below its noise; in a field so
-     * crowded that fewer than a quarter are, the quarter with the least
-     * (47 Tuc's core: star light everywhere). */
-    if (all.n >= 10) {
-        memcpy(all.z, all.m, all.n * sizeof *all.z);
-        double q25 = quantile_of(all.z, all.n, 0.25), cut = q25 > 1.0 ? q25 : 1.0;
-        size_t kept = 0;
-        for (size_t i = 0; i < all.n; i++)
-            if (all.m[i] <= cut) {
-                all.r[kept] = all.r[i];
-                all.p[kept] = all.p[i];
-                all.m[kept++] = 0.0;
-            }
-        all.n = kept;
-    }
-    double k = all.n >= 10 ? normalised_sigma(&all, 1.0, 0.0) : NAN;
-    /* Those where it is above 3 k-scaled σ measure ε (where a profile error
-     * shows, above the noise that k describes). */
+    double k = noise_scale(b, f, res, block, &all, cap);
+    /* Those where the stars' light is above 3 k-scaled σ measure ε (where
+     * a profile error shows, above the noise that k describes). */
     size_t nstar = k > 0 ? (npix + step - 1) / step : 0;
 #pragma omp parallel for schedule(static)
     for (size_t j = 0; j < nstar; j++)
         star_sample(b, f, res, j * step, k, &star, j);
     star.n = compact(&star, nstar);
-    /* ε: the profile error (DAOPHOT's proferr, here measured) that makes
-     * the normalised residual's robust σ 1 where the stars' light
-     * dominates; 0 for an exact PSF.  Only a significant excess counts:
-     * the robust σ's own sampling error is 1.166/√n (3 of them: false
-     * alarm ~1e-3). */
-    double eps = 0.0;
-    if (k > 0 && isfinite(k) && star.n >= 10 &&
-        normalised_sigma(&star, k, 0.0) > 1.0 + 3.0 * 1.166 / sqrt((double)star.n)) {
-        double lo = 0.0, hi = 1.0;
-        if (normalised_sigma(&star, k, hi) > 1.0)
-            lo = hi;                       /* worse than 100 %: cap */
-        for (int it = 0; it < 30 && hi - lo > 1e-4; it++) {
-            double mid = 0.5 * (lo + hi);
-            if (normalised_sigma(&star, k, mid) > 1.0)
-                lo = mid;
-            else
-                hi = mid;
-        }
-        eps = 0.5 * (lo + hi);
-    }
+    double eps = profile_error(&star, k);
     if (k > 0 && isfinite(k)) {
         *scale = k;
         *proferr = eps;
-        /* no map: each pixel's noise is formed where it is used (find.h) */
-        b->model = 1;
-        b->k = k;
-        b->eps = eps;
-        b->ron2 = f->rdnoise * f->rdnoise;
-        b->pix = f->im.pix;
-        b->res = res;
-        /* The mesh rms rows (the second half of vals) are no longer read:
-         * given back (issue 14: 16 bytes a pixel / mesh, 8.4 MB at 4096²). */
-        double *v = realloc(b->vals, 2 * (size_t)b->ny * (size_t)b->nbx * sizeof *v);
-        if (v)
-            b->vals = v;
+        adopt_model(b, f, res, k, eps);
     }
     free(buf);
     return 0;
