@@ -193,37 +193,82 @@ static int grid_positions(fitsfile *fp, const char *name, int stdpsf, long nz, d
     return 0;
 }
 
+/* An STDPSF's sampling (OVERSAMP, default 4) as *step, and the ×1 table's
+ * sizes mx × my its whole-pixel samples make.  Nonzero with err when the
+ * sizes are even or the sampling outside 1..8. */
+static int stdpsf_sizes(fitsfile *fp, const char *name, long nx, long ny, int *step, int *mx,
+                        int *my, char *err)
+{
+    int st = 0;
+    double o = 4.0;
+    mp_fits_key_number(fp, "OVERSAMP", &o, &st);
+    fits_clear_errmsg();
+    if (!(o >= 1 && o <= 8 && o == floor(o)) || nx % 2 == 0 || ny % 2 == 0 || nx > 4096 ||
+        ny > 4096) {
+        snprintf(err, MP_ERRLEN, "%s: STDPSF of %ldx%ld elements at %g per pixel: sizes must "
+                 "be odd, sampling 1..8", name, nx, ny, o);
+        return 1;
+    }
+    *step = (int)o;
+    *mx = 2 * (int)(((nx - 1) / 2) / *step) + 1;
+    *my = 2 * (int)(((ny - 1) / 2) / *step) + 1;
+    return 0;
+}
+
+/* Plane k of the cube v (nx × ny each) into its grid point's plane of f
+ * (mx × my): an STDPSF's whole-pixel samples (every step-th element
+ * about the centre), else the table padded by pad. */
+static void fill_plane(mp_psf_field *f, const double *v, long k, long nx, long ny, int stdpsf,
+                       int step, int pad, int i, int j, int ngx)
+{
+    int mx = f->nx, my = f->ny;
+    double *dst = f->planes + (size_t)(j * ngx + i) * mx * my;
+    const double *src = v + (size_t)k * nx * ny;
+    if (!stdpsf) {
+        copy_padded(src, nx, ny, pad, dst, mx);
+        return;
+    }
+    int cx = (int)(nx - 1) / 2, cy = (int)(ny - 1) / 2, hx = mx / 2, hy = my / 2;
+    for (int b = -hy; b <= hy; b++)
+        for (int a = -hx; a <= hx; a++)
+            dst[(b + hy) * mx + a + hx] = src[(cy + b * step) * nx + cx + a * step];
+}
+
+/* f's light (its first plane's sum) into f->sum; photutils' ePSF
+ * convention scales an oversampled table to sum os², matphot's sums to
+ * the light it holds: such a grid is divided by os² (returns 1). */
+static int grid_sum(mp_psf_field *f, int os, long nz)
+{
+    size_t nel = (size_t)f->nx * f->ny;
+    double s = 0.0;
+    for (size_t i = 0; i < nel; i++)
+        s += f->planes[i];
+    int rescaled = os > 1 && s > 0.5 * os * os;
+    if (rescaled) {
+        for (size_t i = 0; i < nel * (size_t)nz; i++)
+            f->planes[i] /= (double)os * os;
+        s /= (double)os * os;
+    }
+    f->sum = s;
+    return rescaled;
+}
+
 int grid_read(fitsfile *fp, const char *name, int stdpsf, const long naxes[3], mp_psf_field *f,
               char *warn, char *err)
 {
     long nx = naxes[0], ny = naxes[1], nz = naxes[2];
-    int os = 1, mx, my, pad, step = 1;
+    int os = 1, mx, my, pad = 0, step = 1;
     if (nz > MP_PSF_MAXTERMS) {
         snprintf(err, MP_ERRLEN, "%s: %ld PSFs in the grid; at most %d", name, nz, MP_PSF_MAXTERMS);
         return 1;
     }
-    if (stdpsf) {
-        /* Anderson's ePSF: the pixel-convolved PSF point-sampled every 1/4
-         * px (or 1/OVERSAMP), its centre at element (n−1)/2.  Its samples at
-         * whole-pixel steps are a ×1 table exactly; finer, matphot's
-         * block-sum would convolve with the pixel a second time. */
-        int st = 0;
-        double o = 4.0;
-        mp_fits_key_number(fp, "OVERSAMP", &o, &st);
-        fits_clear_errmsg();
-        if (!(o >= 1 && o <= 8 && o == floor(o)) || nx % 2 == 0 || ny % 2 == 0 || nx > 4096 ||
-            ny > 4096) {
-            snprintf(err, MP_ERRLEN, "%s: STDPSF of %ldx%ld elements at %g per pixel: sizes must "
-                     "be odd, sampling 1..8", name, nx, ny, o);
-            return 1;
-        }
-        step = (int)o;
-        mx = 2 * (int)(((nx - 1) / 2) / step) + 1;
-        my = 2 * (int)(((ny - 1) / 2) / step) + 1;
-        pad = 0;
-    } else if (oversamp_of(fp, name, &os, err) || pad_sizes(name, nx, ny, &mx, &my, &pad, err)) {
+    /* Anderson's ePSF: the pixel-convolved PSF point-sampled every 1/4 px
+     * (or 1/OVERSAMP), its centre at element (n−1)/2.  Its samples at
+     * whole-pixel steps are a ×1 table exactly; finer, matphot's
+     * block-sum would convolve with the pixel a second time. */
+    if (stdpsf ? stdpsf_sizes(fp, name, nx, ny, &step, &mx, &my, err)
+               : oversamp_of(fp, name, &os, err) || pad_sizes(name, nx, ny, &mx, &my, &pad, err))
         return 1;
-    }
     double *px = malloc((size_t)nz * sizeof *px), *py = malloc((size_t)nz * sizeof *py);
     double gx[MP_PSF_MAXGRID], gy[MP_PSF_MAXGRID];
     double *v = NULL;
@@ -249,31 +294,10 @@ int grid_read(fitsfile *fp, const char *name, int stdpsf, const long naxes[3], m
         goto done;
     }
     f->offset = pad ? 0.5 / os : 0.0;
-    for (long k = 0; k < nz; k++) {
-        int i = index_of(gx, ngx, px[k]), j = index_of(gy, ngy, py[k]);
-        double *dst = f->planes + (size_t)(j * ngx + i) * mx * my;
-        const double *src = v + (size_t)k * nx * ny;
-        if (stdpsf) {
-            int cx = (int)(nx - 1) / 2, cy = (int)(ny - 1) / 2, hx = mx / 2, hy = my / 2;
-            for (int b = -hy; b <= hy; b++)
-                for (int a = -hx; a <= hx; a++)
-                    dst[(b + hy) * mx + a + hx] = src[(cy + b * step) * nx + cx + a * step];
-        } else {
-            copy_padded(src, nx, ny, pad, dst, mx);
-        }
-    }
-    double s = 0.0;
-    for (long i = 0; i < (long)mx * my; i++)
-        s += f->planes[i];
-    /* photutils' ePSF convention scales an oversampled table to sum os²;
-     * matphot's sums to the light it holds. */
-    int rescaled = os > 1 && s > 0.5 * os * os;
-    if (rescaled) {
-        for (size_t i = 0; i < (size_t)mx * my * nz; i++)
-            f->planes[i] /= (double)os * os;
-        s /= (double)os * os;
-    }
-    f->sum = s;
+    for (long k = 0; k < nz; k++)
+        fill_plane(f, v, k, nx, ny, stdpsf, step, pad, index_of(gx, ngx, px[k]),
+                   index_of(gy, ngy, py[k]), ngx);
+    int rescaled = grid_sum(f, os, nz);
     if (warn && stdpsf)
         snprintf(warn, MP_ERRLEN, "%s: STDPSF grid %dx%d: the ePSFs sampled at whole pixels "
                  "(OVERSAMP 1, %dx%d), interpolated bilinearly between grid points", name, ngx,
