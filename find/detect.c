@@ -398,6 +398,54 @@ static int measure_and_cut(const mp_frame *f, const mp_bkg *b, const mpf_kernel 
     return nomem || mpf_sieve(o, l->stars, l->keys, n0, &l->n);
 }
 
+/* The strips of rows searched (strip_search) and their candidates
+ * measured and cut (measure_and_cut) into kl; *most: the peak bytes held.
+ * 0, 1 with err, or 2 when out of memory. */
+static int search_strips(const mp_frame *f, const mp_bkg *b, const mpf_kernel *k,
+                         const mp_find_opts *o, long rows, kept_list *kl, size_t *most, char *err)
+{
+    long nx = f->im.nx, ny = f->im.ny;
+    cand_list cand = {0};
+    size_t bytes = 0;
+    /* The convolved image in strips of rows, never whole, and only the
+     * kept detections held across strips (issue 14). */
+    strip st = {0};
+    int rc = strip_alloc(&st, rows, k->nh, nx, &bytes) ? 2 : 0;
+    int bad = mpf_any_bad(f);
+    for (long y0 = 0; !rc && y0 < ny; y0 += rows) {
+        cand.n = 0;
+        if (strip_search(f, b, k, bad, o->threshold, y0, rows, &st, &cand, err))
+            rc = 1;
+        else if (measure_and_cut(f, b, k, o, &cand, kl))
+            rc = 2;
+        size_t now = bytes + cand.cap * sizeof *cand.v + kl->mcap * sizeof *kl->meas +
+                     kl->cap * (sizeof *kl->stars + sizeof *kl->keys);
+        *most = now > *most ? now : *most;
+    }
+    strip_free(&st);
+    free(cand.v);
+    return rc;
+}
+
+/* The n kept stars appended to t in the order of their keys (the frame's
+ * raster order, whatever the strips).  0, 1 with err, or 2 when out of
+ * memory. */
+static int append_ordered(mp_table *t, mpf_star *stars, const long *keys, size_t n,
+                          const mp_find_opts *o, char *err)
+{
+    ordered *ord = malloc((n ? n : 1) * sizeof *ord);
+    if (!ord)
+        return 2;
+    for (size_t i = 0; i < n; i++) {
+        ord[i].key = keys[i];
+        ord[i].s = &stars[i];
+    }
+    qsort(ord, n, sizeof *ord, cmp_ordered);
+    int rc = append(t, ord, n, o->sieve ? o->sieve->col : NULL, err) ? 1 : 0;
+    free(ord);
+    return rc;
+}
+
 int mpf_find_stars_strips(const mp_frame *f, const mp_bkg *b, const mp_find_opts *o,
                           long rows, mp_table *t, size_t *work, char *err)
 {
@@ -418,70 +466,29 @@ int mpf_find_stars_strips(const mp_frame *f, const mp_bkg *b, const mp_find_opts
     mpf_kernel k;
     if (mpf_kernel_make(o->fwhm, o->nsigma, &k, err))
         return 1;
-    long nx = f->im.nx, ny = f->im.ny;
-    if (rows < 1)
-        rows = 1;
-    if (rows > ny)
-        rows = ny;
-    int rc = 1;
-    cand_list cand = {0};
+    rows = rows < 1 ? 1 : rows > f->im.ny ? f->im.ny : rows;
     kept_list kl = {0};
-    ordered *ord = NULL;
-    size_t bytes = 0, most = 0;
-    /* The convolved image in strips of rows, never whole, and only the
-     * kept detections held across strips (issue 14). */
-    strip st = {0};
-    if (strip_alloc(&st, rows, k.nh, nx, &bytes))
-        goto nomem;
-    int bad = mpf_any_bad(f);
-    for (long y0 = 0; y0 < ny; y0 += rows) {
-        cand.n = 0;
-        if (strip_search(f, b, &k, bad, o->threshold, y0, rows, &st, &cand, err)) {
-            strip_free(&st);
-            goto done;
-        }
-        if (measure_and_cut(f, b, &k, o, &cand, &kl)) {
-            strip_free(&st);
-            goto nomem;
-        }
-        size_t now = bytes + cand.cap * sizeof *cand.v + kl.mcap * sizeof *kl.meas +
-                     kl.cap * (sizeof *kl.stars + sizeof *kl.keys);
-        most = now > most ? now : most;
-    }
-    strip_free(&st);
-    free(cand.v);
-    cand.v = NULL;
+    size_t most = 0;
+    int rc = search_strips(f, b, &k, o, rows, &kl, &most, err);
     free(kl.meas);
     kl.meas = NULL;
-    /* Plateaus come after the shape cuts (they have none). */
-    size_t n = kl.n;
-    mpf_star *stars = kl.stars;
-    long *keys = kl.keys;
-    int prc = find_plateaus(f, b, &k, &stars, &keys, &n);
-    kl.stars = stars;
-    kl.keys = keys;
-    if (prc || mpf_sieve(o, stars, keys, kl.n, &n))
-        goto nomem;
-    ord = malloc((n ? n : 1) * sizeof *ord);
-    if (!ord)
-        goto nomem;
-    for (size_t i = 0; i < n; i++) {
-        ord[i].key = keys[i];
-        ord[i].s = &stars[i];
+    if (!rc) {
+        /* Plateaus come after the shape cuts (they have none). */
+        size_t n = kl.n;
+        mpf_star *stars = kl.stars;
+        long *keys = kl.keys;
+        int prc = find_plateaus(f, b, &k, &stars, &keys, &n);
+        kl.stars = stars;
+        kl.keys = keys;
+        rc = prc || mpf_sieve(o, stars, keys, kl.n, &n) ? 2
+                                                        : append_ordered(t, stars, keys, n, o, err);
     }
-    qsort(ord, n, sizeof *ord, cmp_ordered);
-    if (append(t, ord, n, o->sieve ? o->sieve->col : NULL, err))
-        goto done;
-    rc = 0;
-    goto done;
-nomem:
-    snprintf(err, MP_ERRLEN, "out of memory for detection (%ld x %ld pixels)", nx, ny);
-done:
+    if (rc == 2)
+        snprintf(err, MP_ERRLEN, "out of memory for detection (%ld x %ld pixels)", f->im.nx,
+                 f->im.ny);
     mpf_kernel_free(&k);
-    free(cand.v);
     kept_free(&kl);
-    free(ord);
     if (work)
         *work = most;
-    return rc;
+    return rc != 0;
 }
