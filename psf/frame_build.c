@@ -274,6 +274,53 @@ static int choose_order(mp_epsf_star *s, size_t n, const mp_epsf_opts *o, mp_eps
     return 0;
 }
 
+/* The table at its sampling: chosen (OVERSAMP auto, choose_os) in a first
+ * pass, else the first pass's or the one given, built at order 0 (or the
+ * first pass's order).  Nonzero with err on failure. */
+static int build_sampled(mp_epsf_star *s, size_t n, const mp_epsf_opts *o, const mp_frame *f,
+                         mp_epsf *e, mp_epsf_report *rep, char *err)
+{
+    if (!e->planes && o->os == 0)
+        return choose_os(s, n, o, f, e, rep, err);
+    int os = e->planes ? e->os : o->os;
+    snprintf(rep->what, sizeof rep->what, "OVERSAMP %d (%s); ", os,
+             e->planes ? "as the first pass" : "given");
+    /* With the first pass's filter to apply, the stars' last fit is the
+     * one with the filtered table (a fit with the build's own before it
+     * was a fifth of the second pass), and the order test sees that
+     * table, as the first pass's does. */
+    return e->have_wiener ? mp_epsf_rounds(s, n, o, os, e->planes ? e->order : 0, e, err) ||
+                                filter_refit(s, n, o, e, err)
+                          : mp_epsf_build(s, n, o, os, e->planes ? e->order : 0, e, err);
+}
+
+/* The table's polynomial order: the one given (varorder), else raised
+ * while the data demand it (choose_order).  Nonzero with err on failure. */
+static int build_order(mp_epsf_star *s, size_t n, const mp_epsf_opts *o, mp_epsf *e,
+                       mp_epsf_report *rep, char *err)
+{
+    if (o->order < 0)
+        return choose_order(s, n, o, e, rep, err);
+    if (e->order != o->order && mp_epsf_build(s, n, o, e->os, o->order, e, err))
+        return 1;
+    snprintf(e->why, sizeof e->why, "order %d as given (varorder=%d)", o->order, o->order);
+    return 0;
+}
+
+/* The PSF stars as the file's PSFSTARS lists them (their fluxes total
+ * fluxes: × PSFSUM) into *stars.  Nonzero with err when out of memory. */
+static int stars_out(const mp_epsf_star *s, size_t n, const mp_epsf *e, mp_psf_star **stars,
+                     char *err)
+{
+    if (!(*stars = malloc((n + 1) * sizeof **stars))) {
+        snprintf(err, MP_ERRLEN, "psf build: out of memory");
+        return 1;
+    }
+    for (size_t k = 0; k < n; k++)
+        (*stars)[k] = (mp_psf_star){s[k].x, s[k].y, s[k].flux * e->sum, s[k].used};
+    return 0;
+}
+
 int mp_epsf_pass(const mp_frame *f, const float *img, int residual, const mp_table *fitted,
                  const mp_prf_model *m, const double *x, const double *y, const double *flux,
                  size_t n, const mp_epsf_opts *o, mp_epsf *e, mp_epsf_report *rep,
@@ -299,29 +346,8 @@ int mp_epsf_pass(const mp_frame *f, const float *img, int residual, const mp_tab
         goto done;
     rep->nsel = n;
     e->why[0] = '\0';
-    if (!e->planes && o->os == 0) {
-        if (choose_os(s, n, o, f, e, rep, err))
-            goto done;
-    } else {
-        int os = e->planes ? e->os : o->os;
-        snprintf(rep->what, sizeof rep->what, "OVERSAMP %d (%s); ", os,
-                 e->planes ? "as the first pass" : "given");
-        /* With the first pass's filter to apply, the stars' last fit is
-         * the one with the filtered table (a fit with the build's own
-         * before it was a fifth of the second pass), and the order test
-         * sees that table, as the first pass's does. */
-        if (e->have_wiener ? mp_epsf_rounds(s, n, o, os, e->planes ? e->order : 0, e, err) ||
-                                 filter_refit(s, n, o, e, err)
-                           : mp_epsf_build(s, n, o, os, e->planes ? e->order : 0, e, err))
-            goto done;
-    }
-    if (o->order >= 0) {
-        if (e->order != o->order && mp_epsf_build(s, n, o, e->os, o->order, e, err))
-            goto done;
-        snprintf(e->why, sizeof e->why, "order %d as given (varorder=%d)", o->order, o->order);
-    } else if (choose_order(s, n, o, e, rep, err)) {
+    if (build_sampled(s, n, o, f, e, rep, err) || build_order(s, n, o, e, rep, err))
         goto done;
-    }
     /* a table built since (a higher order, or the order given) */
     if (filter_refit(s, n, o, e, err))
         goto done;
@@ -337,15 +363,7 @@ int mp_epsf_pass(const mp_frame *f, const float *img, int residual, const mp_tab
              "%zu of %zu stars used (median chi2 %.2f); %s; PSFSUM %.4f +- %.4f from %d stars; "
              "%ld star fits, %ld from the phase grid", rep->nused, n, rep->chi2, e->why, e->sum,
              e->sum_err, e->ngrowth, e->fits, e->fits_grid);
-    if (stars) {
-        if (!(*stars = malloc((n + 1) * sizeof **stars))) {
-            snprintf(err, MP_ERRLEN, "psf build: out of memory");
-            goto done;
-        }
-        for (size_t k = 0; k < n; k++)
-            (*stars)[k] = (mp_psf_star){s[k].x, s[k].y, s[k].flux * e->sum, s[k].used};
-    }
-    rc = 0;
+    rc = stars ? stars_out(s, n, e, stars, err) : 0;
 done:
     free(sky);
     mp_epsf_stars_free(s, n);
