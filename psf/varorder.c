@@ -87,6 +87,53 @@ static int residuals(const mp_epsf_star *s, const mp_epsf *e, int R, double fitr
     return 0;
 }
 
+/* The terms of the order after e's at (x, y) into t, the current order's
+ * first (as columns 0..nt0−1) so that the reduced model is the first nt0
+ * columns.  PSFEx order is y power outer: the terms of total degree
+ * e->order + 1 are the last of each row of y power; moved to the end, the
+ * rest kept in order. */
+static void next_terms(const mp_epsf *e, double x, double y, double *t)
+{
+    mp_epsf next = *e;
+    next.order = e->order + 1;
+    double t1[MP_EPSF_MAXT];
+    mp_epsf_terms(&next, x, y, t1);
+    int a = 0, b = e->nterms, q1 = 0;
+    for (int j = 0; j <= next.order; j++)
+        for (int i = 0; i + j <= next.order; i++, q1++)
+            t[i + j == next.order ? b++ : a++] = t1[q1];
+}
+
+/* Σ over the np pixel offsets of the new terms' F statistic (z: nu stars
+ * × np, NaN where not measured; a pixel measured on fewer than nt1 + 9
+ * stars is left out), and its mean and variance under F(q, d) a pixel;
+ * zc, idx scratch for nu.  Returns the pixels used. */
+static int f_sum(const double *z, const double *terms, size_t nu, int np, int nt0, int nt1,
+                 double *zc, size_t *idx, double *sum, double *mean, double *var)
+{
+    int q = nt1 - nt0, npix = 0;
+    *sum = *mean = *var = 0.0;
+    for (int pix = 0; pix < np; pix++) {
+        size_t m = 0;
+        for (size_t k = 0; k < nu; k++)
+            if (isfinite(z[k * np + pix])) {
+                zc[m] = z[k * np + pix];
+                idx[m++] = k;
+            }
+        int d = (int)m - nt1;
+        if (d <= 8)
+            continue;
+        double r0 = rss(zc, terms, idx, m, nt0), r1 = rss(zc, terms, idx, m, nt1);
+        if (!isfinite(r0) || !isfinite(r1) || !(r1 > 0))
+            continue;
+        *sum += ((r0 - r1) / q) / (r1 / d);
+        *mean += (double)d / (d - 2);
+        *var += 2.0 * d * d * (q + d - 2.0) / (q * (d - 2.0) * (d - 2.0) * (d - 4.0));
+        npix++;
+    }
+    return npix;
+}
+
 int mp_epsf_order_test(const mp_epsf_star *s, size_t n, const mp_epsf *e, double fitrad,
                        double *p, double *stat, char *err)
 {
@@ -94,7 +141,7 @@ int mp_epsf_order_test(const mp_epsf_star *s, size_t n, const mp_epsf *e, double
     *stat = 0.0;
     if (e->order >= MP_PSF_MAXORDER)
         return 0;
-    int nt0 = e->nterms, nt1 = (e->order + 2) * (e->order + 3) / 2, q = nt1 - nt0;
+    int nt0 = e->nterms, nt1 = (e->order + 2) * (e->order + 3) / 2;
     int R = (int)ceil(fitrad), side = 2 * R + 1, np = side * side;
     size_t nu = 0;
     for (size_t k = 0; k < n; k++)
@@ -114,47 +161,17 @@ int mp_epsf_order_test(const mp_epsf_star *s, size_t n, const mp_epsf *e, double
         snprintf(err, MP_ERRLEN, "psf build: out of memory");
         goto done;
     }
-    /* The next order's terms with the current order's first (as columns
-     * 0..nt0−1) so that the reduced model is the first nt0 columns. */
-    mp_epsf next = *e;
-    next.order = e->order + 1;
     size_t u = 0;
     for (size_t k = 0; k < n; k++) {
         if (!s[k].used)
             continue;
-        double t1[MP_EPSF_MAXT], *t = terms + u * MP_EPSF_MAXT;
-        mp_epsf_terms(&next, s[k].x, s[k].y, t1);
-        /* PSFEx order is y power outer: the terms of total degree
-         * next.order are the last of each row of y power; move them to
-         * the end, keeping the rest in order. */
-        int a = 0, b = nt0, q1 = 0;
-        for (int j = 0; j <= next.order; j++)
-            for (int i = 0; i + j <= next.order; i++, q1++)
-                t[i + j == next.order ? b++ : a++] = t1[q1];
+        next_terms(e, s[k].x, s[k].y, terms + u * MP_EPSF_MAXT);
         if (residuals(&s[k], e, R, fitrad, z + u * np, &tab, &w, err))
             goto done;
         u++;
     }
-    double sum = 0, mean = 0, var = 0;
-    int npix = 0;
-    for (int pix = 0; pix < np; pix++) {
-        size_t m = 0;
-        for (size_t k = 0; k < nu; k++)
-            if (isfinite(z[k * np + pix])) {
-                zc[m] = z[k * np + pix];
-                idx[m++] = k;
-            }
-        int d = (int)m - nt1;
-        if (d <= 8)
-            continue;
-        double r0 = rss(zc, terms, idx, m, nt0), r1 = rss(zc, terms, idx, m, nt1);
-        if (!isfinite(r0) || !isfinite(r1) || !(r1 > 0))
-            continue;
-        sum += ((r0 - r1) / q) / (r1 / d);
-        mean += (double)d / (d - 2);
-        var += 2.0 * d * d * (q + d - 2.0) / (q * (d - 2.0) * (d - 2.0) * (d - 4.0));
-        npix++;
-    }
+    double sum, mean, var;
+    int npix = f_sum(z, terms, nu, np, nt0, nt1, zc, idx, &sum, &mean, &var);
     if (npix > 0 && var > 0) {
         *stat = (sum - mean) / sqrt(var);
         *p = 0.5 * erfc(*stat / M_SQRT2);
