@@ -283,6 +283,34 @@ static int fit_live(const mp_frame *f, const mp_prf_model *m, const mp_frame_opt
     return 0;
 }
 
+/* The live stars of s[0..n) copied into live (their indices in map);
+ * returns how many. */
+static int live_of(const mp_star *s, const int *alive, int n, mp_star *live, int *map)
+{
+    int nl = 0;
+    for (int k = 0; k < n; k++)
+        if (alive[k]) {
+            live[nl] = s[k];
+            map[nl++] = k;
+        }
+    return nl;
+}
+
+/* The group's stars back into the frame's states, in frame coordinates;
+ * the live ones not converged counted in rep. */
+static void store_back(star_state *st, const mp_star *s, const int *alive, int n, double dx,
+                       double dy, mp_frame_report *rep)
+{
+    for (int k = 0; k < n; k++) {
+        st[k].s = s[k];
+        st[k].s.x += dx;
+        st[k].s.y += dy;
+        st[k].alive = alive[k];
+        if (alive[k] && (s[k].flags & MP_FLAG_NOCONV))
+            rep->noconv++;
+    }
+}
+
 /* Fit one group (members st[0..n-1]) on frame f: merge/reject until
  * stable.  Local copies of the stars move in the frame's coordinates
  * shifted by (dx, dy). */
@@ -311,12 +339,7 @@ int ff_fit_one_group(const mp_frame *f, const mp_prf_model *m, const mp_frame_op
     double sepind = mergerad > 0 ? 5.0 * mergerad : 2.0 * mp_prf_fwhm(m);
     int unstopped = 0;
     for (int round = 0; round <= n + 1; round++) {
-        int nl = 0;
-        for (int k = 0; k < n; k++)
-            if (alive[k]) {
-                live[nl] = s[k];
-                map[nl++] = k;
-            }
+        int nl = live_of(s, alive, n, live, map);
         if (nl == 0)
             break;
         if (fit_live(f, m, o, mergerad, unstopped, R, live, nl, dx, dy, rep, err))
@@ -348,14 +371,7 @@ int ff_fit_one_group(const mp_frame *f, const mp_prf_model *m, const mp_frame_op
         }
         break;
     }
-    for (int k = 0; k < n; k++) {
-        st[k].s = s[k];
-        st[k].s.x += dx;
-        st[k].s.y += dy;
-        st[k].alive = alive[k];
-        if (alive[k] && (s[k].flags & MP_FLAG_NOCONV))
-            rep->noconv++;
-    }
+    store_back(st, s, alive, n, dx, dy, rep);
     rc = 0;
 done:
     free(s);
