@@ -300,56 +300,38 @@ static void say_new_stars(const run_state *s, int round, long added, const resid
                 "(noise: the residual's mesh map)\n", s->image, round, added);
 }
 
-/* Detect on the residual and add what is new; *added gets how many.
- *
- * The residual keeps the sky.  Its sky is measured anew (the star light is
- * gone from the boxes) and its noise map comes from the fitted model: in a
- * crowded frame the first map's boxes average star light into the rms
- * (frame C of the DAOPHOT comparison: 13.4 e- against the sky's 10.4),
- * which hides faint stars in the gaps and under-states the noise on bright
- * stars, all the more when the PSF does not match them (GLIMPSE: spurious
- * companions at 0.7 FWHM taking 15-40 % of bright stars' light). */
-static int find_on_residual(run_state *s, int round, long *added, char *err)
+/* The residual R's detections into s->found: find with the model's
+ * sharpness limits, the roundness relaxed (a star half-hidden by a
+ * neighbour's fit leaves a lopsided residual peak; the fit then keeps or
+ * rejects what was found, by its significance), and the screen as
+ * detection goes (its candidates never all held), its PRFs from the phase
+ * grid the fit drew from, as the one-or-two test's.  Nonzero with err. */
+static int residual_detections(run_state *s, const mp_frame *R, const mp_prf_cache *grid,
+                               double gemax, char *err)
 {
-    const mp_pipeline_opts *o = s->o;
-    double t0 = mp_seconds();
-    mp_frame R = s->f;
-    R.im.pix = s->res;
-    size_t npix = (size_t)s->f.im.nx * s->f.im.ny;
-    for (size_t i = 0; i < npix; i++)
-        if (!isfinite(s->res[i]))
-            s->res[i] = 0.0;
-    mp_table_free(&s->found);
-    mp_table_init(&s->found);
-    mp_bkg_free(&s->bkg);
-    residual_noise nz = {NAN, 0.0, 0, 0};
-    if (mp_bkg_estimate(&R, o->mesh, o->filter, &s->bkg, err) ||
-        mp_bkg_noise_from_model(&s->bkg, &s->f, s->res, (int)lround(fmax(1.0, s->fwhm)),
-                                &nz.kscale, &nz.proferr, err) ||
-        mp_pl_star_excess(&s->f, &s->bkg, &s->t, &s->fit->model, &nz.nring, &nz.nexcess, err))
-        return 1;
-    /* A star half-hidden by a neighbour's fit leaves a lopsided residual
-     * peak: relax the roundness limits there (the fit then keeps or rejects
-     * what was found, by its significance). */
     mp_find_opts ro;
     if (find_opts_for_model(s, &ro, err))
         return 1;
     ro.roundlo = fmin(ro.roundlo, -2.0);
     ro.roundhi = fmax(ro.roundhi, 2.0);
-    /* The screen as detection goes (its candidates never all held), its
-     * PRFs from the phase grid the fit drew from, as the one-or-two
-     * test's below. */
-    double cut = s->fit->opts.minsnr - MP_PL_SCREEN_SLACK, gemax;
-    const mp_prf_cache *grid = phase_grid(s, &gemax);
-    mp_pl_screen sc = {.f = &R, .b = &s->bkg, .res = s->res, .m = &s->fit->model,
+    double cut = s->fit->opts.minsnr - MP_PL_SCREEN_SLACK;
+    mp_pl_screen sc = {.f = R, .b = &s->bkg, .res = s->res, .m = &s->fit->model,
                        .fitrad = s->fit->opts.fit.fitrad, .snrmin = cut, .grid = grid,
                        .gemax = gemax};
     struct mp_find_sieve sv = {mp_pl_screen_sieve, &sc, MP_PL_SNR_COL};
     ro.sieve = cut > 0 ? &sv : NULL;
-    int frc = mp_find_stars(&R, &s->bkg, &ro, &s->found, err);
+    int frc = mp_find_stars(R, &s->bkg, &ro, &s->found, err);
     s->rep->screened += sc.dropped;
-    if (frc)
-        return 1;
+    return frc;
+}
+
+/* The one-or-two test's second stars added to s->found, and the new
+ * detections added to the star list (*added of them).  Nonzero with err
+ * when out of memory. */
+static int split_and_add(run_state *s, const mp_prf_cache *grid, double gemax, long *added,
+                         char *err)
+{
+    const mp_pipeline_opts *o = s->o;
     /* Half a FWHM: a detection beyond it goes to the fit, which keeps the
      * pair when their separation is significant and both reach minsnr
      * (frame_group.c), else merges it.  At 1 FWHM the companions of close
@@ -379,6 +361,41 @@ static int find_on_residual(run_state *s, int round, long *added, char *err)
     mp_table_init(&s->found);
     if (*added < 0 || mp_table_shrink(&s->t))
         return oom(err);
+    return 0;
+}
+
+/* Detect on the residual and add what is new; *added gets how many.
+ *
+ * The residual keeps the sky.  Its sky is measured anew (the star light is
+ * gone from the boxes) and its noise map comes from the fitted model: in a
+ * crowded frame the first map's boxes average star light into the rms
+ * (frame C of the DAOPHOT comparison: 13.4 e- against the sky's 10.4),
+ * which hides faint stars in the gaps and under-states the noise on bright
+ * stars, all the more when the PSF does not match them (GLIMPSE: spurious
+ * companions at 0.7 FWHM taking 15-40 % of bright stars' light). */
+static int find_on_residual(run_state *s, int round, long *added, char *err)
+{
+    const mp_pipeline_opts *o = s->o;
+    double t0 = mp_seconds();
+    mp_frame R = s->f;
+    R.im.pix = s->res;
+    size_t npix = (size_t)s->f.im.nx * s->f.im.ny;
+    for (size_t i = 0; i < npix; i++)
+        if (!isfinite(s->res[i]))
+            s->res[i] = 0.0;
+    mp_table_free(&s->found);
+    mp_table_init(&s->found);
+    mp_bkg_free(&s->bkg);
+    residual_noise nz = {NAN, 0.0, 0, 0};
+    if (mp_bkg_estimate(&R, o->mesh, o->filter, &s->bkg, err) ||
+        mp_bkg_noise_from_model(&s->bkg, &s->f, s->res, (int)lround(fmax(1.0, s->fwhm)),
+                                &nz.kscale, &nz.proferr, err) ||
+        mp_pl_star_excess(&s->f, &s->bkg, &s->t, &s->fit->model, &nz.nring, &nz.nexcess, err))
+        return 1;
+    double gemax;
+    const mp_prf_cache *grid = phase_grid(s, &gemax);
+    if (residual_detections(s, &R, grid, gemax, err) || split_and_add(s, grid, gemax, added, err))
+        return 1;
     s->rep->added += *added;
     /* the one-or-two test and the new stars' bookkeeping are detection's
      * too (they were counted in no stage: 47 Tuc with Tiny Tim's table,
