@@ -359,7 +359,7 @@ int ff_fit_one_group(const mp_frame *f, const mp_prf_model *m, const mp_frame_op
             rep->rejected += nrej;
             continue;
         }
-        /* The fit stopped on a pair within mergerad (fo.stop_pair) that is
+        /* The fit stopped on a pair within mergerad (fit_live's stop_pair) that is
          * two stars after all (separated by sig σ or more): fitted again
          * to the end, once.  A group not converged for another reason
          * stays as it was (refitting those as well took GLIMPSE built's
