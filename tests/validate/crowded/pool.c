@@ -22,8 +22,9 @@
  *       A second table splits the found stars of each bin by whether a
  *       true star the catalog missed lies within 2 FWHM (ROOT_ne.dat's
  *       sixth column, snr_miss: the largest S/N at the joint bound of
- *       those missed stars): the rσ of each part, and how many of those
- *       missed stars could have been found at all (S/N ≥ MINSNR).
+ *       those missed stars): the rσ of each part, the median of snr_miss
+ *       over the stars beside a missed one, and how many of them have a
+ *       missed neighbour that could have been found at all (S/N ≥ MINSNR).
  */
 #include <math.h>
 #include <stdio.h>
@@ -139,12 +140,12 @@ int main(int argc, char **argv)
                (rs - 1.0) / se, rsig(nj[b], nnj[b]), q2, (q3 - q1) / 1.349);
     }
     printf("\n| mag | found | rσ (E−Et)/σE ± 1.17/√N | resolved: rσ | beside a missed star (≤ 2 FWHM) | "
-           "their rσ | the missed stars' S/N at their joint bound: median | of them ≥ %g |\n"
+           "their rσ | the brightest missed star's S/N at its joint bound: median | of them, ≥ %g |\n"
            "|---:|---:|---:|---:|---:|---:|---:|---:|\n", minsnr);
     for (int b = 0; b < NB; b++) {
         if (nn[b] == 0)
             continue;
-        double med = quant(sm[b], nnb[b], 0.5);    /* before rsig sorts nb */
+        double med = quant(sm[b], nnb[b], 0.5);
         printf("| %d | %ld | %.3f ± %.3f | %.3f | %ld | %.3f | %.1f | %ld |\n", MB0 + b, nn[b],
                rsig(ne[b], nn[b]), 1.17 / sqrt((double)nn[b]), rsig(nr[b], nrr[b]), nnb[b],
                rsig(nb[b], nnb[b]), med, nsm5[b]);
