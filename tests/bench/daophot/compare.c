@@ -758,7 +758,7 @@ static int frame_stats(const char *workdir, cmp_frame *fr)
             continue;
         }
         xym c = { 0, NULL, NULL, NULL };
-        if (i < 2) {
+        if (strncmp(names[i], "mp", 2) == 0) {     /* matphot's tables; DAOPHOT's .als */
             double *cv[3];
             rc = read_table_cols(p2, mcols, 3, &c.n, cv);
             if (!rc) { c.x = cv[0]; c.y = cv[1]; c.m = cv[2]; }

@@ -556,15 +556,16 @@ int cmp_report(const char *stats_path, const char *out)
                fmtv(b2, sizeof b2, ratio(&T, "mp", "dao", 1), "%.2f"),
                fmtv(b3, sizeof b3, ratio(&T, "mpd", "dao", 0), "%.2f"),
                fmtv(b4, sizeof b4, ratio(&T, "mpd", "dao", 1), "%.2f"));
-            if (tool_ok(F, "mpb") && tool_ok(F, "daopsf"))
+            if (tool_ok(F, "mpb"))     /* "daopsf" is a time, not a catalogue */
                 el(&S, "  time matphot with its PSF built from the frame / DAOPHOT %d passes + psf: "
                        "wall %s, CPU %s", n, fmtv(b1, sizeof b1, ratio(&T, "mpb", "daopsf", 0), "%.2f"),
                    fmtv(b2, sizeof b2, ratio(&T, "mpb", "daopsf", 1), "%.2f"));
-            static const char *const sl[4] = { "matphot fitrad=FWHM", "matphot default    ",
-                                               "DAOPHOT varorder 0 ", "DAOPHOT analytic   " };
-            static const char *const st_[4] = { "mp", "mpd", "dao", "daoa" };
-            for (int k = 0; k < 4; k++) {
-                if (k == 3 && !tool_ok(F, "daoa")) continue;
+            static const char *const sl[5] = { "matphot fitrad=FWHM", "matphot default    ",
+                                               "matphot PSF built  ", "DAOPHOT varorder 0 ",
+                                               "DAOPHOT analytic   " };
+            static const char *const st_[5] = { "mp", "mpd", "mpb", "dao", "daoa" };
+            for (int k = 0; k < 5; k++) {
+                if (k >= 2 && k != 3 && !tool_ok(F, st_[k])) continue;
                 const cmp_tool *U = tool_get(F, st_[k]);
                 el(&S, "  %s completeness %s%%, NN <1/1-2/2-3/>3 FWHM ", sl[k],
                    pct(b1, sizeof b1, some(U->compl)));
