@@ -240,10 +240,9 @@ done:
     return *status;
 }
 
-int mp_table_write_fits(const char *path, const mp_table *t, const mp_ldac_head *ldac,
-                        char *err)
+/* A FITS table can be written to path: a file name, 1..999 columns. */
+static int check_writable(const char *path, const mp_table *t, const char *kind, char *err)
 {
-    const char *kind = ldac ? "FITS_LDAC" : "FITS";
     if (!path || !*path || strcmp(path, "-") == 0) {
         snprintf(err, MP_ERRLEN, "%s: a %s table needs an output file name (not stdout)",
                  path && *path ? "stdout" : "(no name)", kind);
@@ -257,6 +256,54 @@ int mp_table_write_fits(const char *path, const mp_table *t, const mp_ldac_head 
         snprintf(err, MP_ERRLEN, "%s: %zu columns: a FITS table holds at most 999", path, t->ncol);
         return 1;
     }
+    return 0;
+}
+
+/* The file written as tmp (registered: an interrupt removes it,
+ * io/cleanup.c) and renamed to path when whole; no file left on failure. */
+static int write_and_rename(const char *tmp, const char *path, const mp_table *t,
+                            const colspec *spec, const char *cards, int ncards, int ldac,
+                            char *err)
+{
+    /* The disk-file driver takes the name literally (no extended-name
+     * parsing of brackets in the user's path). */
+    unlink(tmp);
+    (void)mp_tmp_register(tmp);
+    errno = 0;
+    fitsfile *fp = NULL;
+    int status = 0;
+    if (fits_create_diskfile(&fp, tmp, &status)) {
+        int en = errno;
+        fits_clear_errmsg();
+        snprintf(err, MP_ERRLEN, "%s: cannot create: %s", path,
+                 en ? strerror(en) : "cfitsio could not create the file");
+        return 1;
+    }
+    fits_create_img(fp, BYTE_IMG, 0, NULL, &status);   /* empty primary HDU */
+    if (ldac)
+        write_imhead(fp, cards, ncards, &status);
+    write_objects(fp, t, spec, ldac ? "LDAC_OBJECTS" : "OBJECTS", &status);
+    int wstatus = status;
+    fits_close_file(fp, &status);   /* closes even after an error */
+    if (wstatus || status) {
+        fits_message(path, "cannot write the table", wstatus ? wstatus : status, err);
+        unlink(tmp);
+        return 1;
+    }
+    if (rename(tmp, path) != 0) {
+        snprintf(err, MP_ERRLEN, "%s: cannot rename the temporary file into place: %s",
+                 path, strerror(errno));
+        unlink(tmp);
+        return 1;
+    }
+    return 0;
+}
+
+int mp_table_write_fits(const char *path, const mp_table *t, const mp_ldac_head *ldac,
+                        char *err)
+{
+    if (check_writable(path, t, ldac ? "FITS_LDAC" : "FITS", err))
+        return 1;
     colspec *spec = malloc(t->ncol * sizeof *spec);
     char *cards = NULL;
     int ncards = 0;
@@ -272,46 +319,12 @@ int mp_table_write_fits(const char *path, const mp_table *t, const mp_ldac_head 
     }
     for (size_t c = 0; c < t->ncol; c++)
         spec_of(t, (int)c, &spec[c]);
-
     int rc = 1;
     char *tmp = mp_tmp_name(path);
-    if (!tmp) {
+    if (!tmp)
         snprintf(err, MP_ERRLEN, "%s: out of memory", path);
-        goto done;
-    }
-    /* The disk-file driver takes the name literally (no extended-name
-     * parsing of brackets in the user's path). */
-    unlink(tmp);
-    (void)mp_tmp_register(tmp);   /* an interrupt removes it (io/cleanup.c) */
-    errno = 0;
-    fitsfile *fp = NULL;
-    int status = 0;
-    if (fits_create_diskfile(&fp, tmp, &status)) {
-        int en = errno;
-        fits_clear_errmsg();
-        snprintf(err, MP_ERRLEN, "%s: cannot create: %s", path,
-                 en ? strerror(en) : "cfitsio could not create the file");
-        goto done;
-    }
-    fits_create_img(fp, BYTE_IMG, 0, NULL, &status);   /* empty primary HDU */
-    if (ldac)
-        write_imhead(fp, cards, ncards, &status);
-    write_objects(fp, t, spec, ldac ? "LDAC_OBJECTS" : "OBJECTS", &status);
-    int wstatus = status;
-    fits_close_file(fp, &status);   /* closes even after an error */
-    if (wstatus || status) {
-        fits_message(path, "cannot write the table", wstatus ? wstatus : status, err);
-        unlink(tmp);
-        goto done;
-    }
-    if (rename(tmp, path) != 0) {
-        snprintf(err, MP_ERRLEN, "%s: cannot rename the temporary file into place: %s",
-                 path, strerror(errno));
-        unlink(tmp);
-        goto done;
-    }
-    rc = 0;
-done:
+    else
+        rc = write_and_rename(tmp, path, t, spec, cards, ncards, ldac != NULL, err);
     mp_tmp_unregister(tmp);
     free(tmp);
     free(cards);

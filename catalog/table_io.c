@@ -87,6 +87,64 @@ static void one_line(char *err)
             *p = '?';
 }
 
+/* The text table on L: the first non-blank line tells the format: "#"
+ * starts ASCII_HEAD's column definitions, anything else is a CSV header
+ * row. */
+static int read_text(mp_lines *L, mp_table *t, char *err)
+{
+    int r;
+    while ((r = mp_lines_next(L, err)) == 1) {
+        if (L->lineno == 1 && L->len >= 3 && memcmp(L->line, "\xEF\xBB\xBF", 3) == 0) {
+            /* A UTF-8 byte-order mark, as spreadsheets write before a CSV;
+             * dropped before the blank test, so a blank first line stays
+             * blank. */
+            memmove(L->line, L->line + 3, (size_t)L->len - 2);
+            L->len -= 3;
+        }
+        if (!is_blank(L->line))
+            break;
+    }
+    if (r == 0)
+        snprintf(err, MP_ERRLEN, "%s: empty file", L->name);
+    if (r != 1)
+        return 1;
+    L->pending = 1;
+    const char *p = L->line;
+    while (*p == ' ' || *p == '\t')
+        p++;
+    return *p == '#' ? mp_ascii_head_read(L, t, err) : mp_csv_read(L, t, err);
+}
+
+/* FITS tables start with "SIMPLE  =".  A first 'S' has the stream read
+ * into memory (*mem), where cfitsio reads a FITS table from (*done: its
+ * status in *rc); text starting with S (a CSV header) is then read from
+ * that copy (*fp reopened on it).  Nonzero with err on failure. */
+static int fits_or_copy(FILE **fp, const char *name, mp_table *t, char **mem, int *done,
+                        int *rc, char *err)
+{
+    size_t mlen = 0;
+    int c0 = getc(*fp);
+    if (c0 != EOF)
+        ungetc(c0, *fp);
+    if (c0 != 'S')
+        return 0;
+    int bad = slurp(*fp, name, mem, &mlen, err);
+    mp_close_input(*fp);
+    *fp = NULL;
+    if (bad)
+        return 1;
+    if (mlen >= 9 && memcmp(*mem, "SIMPLE  =", 9) == 0) {
+        *rc = mp_table_read_fits(name, *mem, mlen, t, err);
+        *done = 1;
+        return 0;
+    }
+    if (!(*fp = fmemopen(*mem, mlen, "r"))) {
+        snprintf(err, MP_ERRLEN, "%s: %s", name, strerror(errno));
+        return 1;
+    }
+    return 0;
+}
+
 int mp_table_read(const char *path, mp_table *t, char *err)
 {
     mp_table_init(t);
@@ -95,66 +153,22 @@ int mp_table_read(const char *path, mp_table *t, char *err)
     if (!fp)
         return 1;
     const char *name = is_stdin ? "stdin" : path;
-
-    /* (Added) FITS tables start with "SIMPLE  =".  A first 'S' has the
-     * stream read into memory, where cfitsio reads a FITS table from; text
-     * starting with S (a CSV header) is then read from that copy. */
     char *mem = NULL;
-    size_t mlen = 0;
-    int c0 = getc(fp);
-    if (c0 != EOF)
-        ungetc(c0, fp);
-    if (c0 == 'S') {
-        int bad = slurp(fp, name, &mem, &mlen, err);
-        mp_close_input(fp);
-        if (bad)
-            return 1;
-        if (mlen >= 9 && memcmp(mem, "SIMPLE  =", 9) == 0) {
-            int frc = mp_table_read_fits(name, mem, mlen, t, err);
-            if (frc)
-                one_line(err);
-            free(mem);
-            return frc;
-        }
-        if (!(fp = fmemopen(mem, mlen, "r"))) {
-            snprintf(err, MP_ERRLEN, "%s: %s", name, strerror(errno));
-            free(mem);
-            return 1;
-        }
-    }
-    mp_lines L = {.fp = fp, .name = name};
-
-    /* The first non-blank line tells the format: "#" starts ASCII_HEAD's
-     * column definitions, anything else is a CSV header row. */
-    int r;
-    while ((r = mp_lines_next(&L, err)) == 1) {
-        if (L.lineno == 1 && L.len >= 3 && memcmp(L.line, "\xEF\xBB\xBF", 3) == 0) {
-            /* A UTF-8 byte-order mark, as spreadsheets write before a CSV;
-             * dropped before the blank test, so a blank first line stays
-             * blank. */
-            memmove(L.line, L.line + 3, (size_t)L.len - 2);
-            L.len -= 3;
-        }
-        if (!is_blank(L.line))
-            break;
-    }
-    int rc = 1;
-    if (r == 0)
-        snprintf(err, MP_ERRLEN, "%s: empty file", L.name);
-    if (r == 1) {
-        L.pending = 1;
-        const char *p = L.line;
-        while (*p == ' ' || *p == '\t')
-            p++;
-        rc = *p == '#' ? mp_ascii_head_read(&L, t, err) : mp_csv_read(&L, t, err);
-    }
-    free(L.line);
-    if (mem) {
-        fclose(fp);
+    int done = 0, rc = 1;
+    if (fits_or_copy(&fp, name, t, &mem, &done, &rc, err)) {
         free(mem);
-    } else {
-        mp_close_input(fp);
+        return 1;
     }
+    if (!done) {
+        mp_lines L = {.fp = fp, .name = name};
+        rc = read_text(&L, t, err);
+        free(L.line);
+        if (mem)
+            fclose(fp);
+        else
+            mp_close_input(fp);
+    }
+    free(mem);
     if (rc) {
         mp_table_free(t);
         one_line(err);

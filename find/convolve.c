@@ -74,72 +74,86 @@ int mpf_any_bad(const mp_frame *f)
     return 0;
 }
 
+/* near[x]: a bad pixel lies in the (2nh+1)² box around (x, y); colbad
+ * holds nx flags of work. */
+static void near_bad(const mp_frame *f, long nh, long y, unsigned char *colbad,
+                     unsigned char *near)
+{
+    long nx = f->im.nx;
+    memset(colbad, 0, (size_t)nx);
+    for (long j = y - nh; j <= y + nh; j++)
+        for (long x = 0; x < nx; x++)
+            colbad[x] |= (unsigned char)mpf_bad(f, (size_t)j * (size_t)nx + (size_t)x);
+    long run = 0;    /* bad columns in [x - nh, x + nh] */
+    for (long x = 0; x < nh && x < nx; x++)
+        run += colbad[x];
+    for (long x = 0; x < nx; x++) {
+        if (x + nh < nx)
+            run += colbad[x + nh];
+        if (x - nh - 1 >= 0)
+            run -= colbad[x - nh - 1];
+        near[x] = run > 0;
+    }
+}
+
+/* Row y of h into ho: the fixed kernel where its footprint is whole and
+ * clean, h_slow elsewhere.  o holds nx doubles of work (a row summed in
+ * double, kept in single precision: h is an image of the frame's size,
+ * issue 14's memory); colbad and near nx flags each when bad. */
+static void convolve_row(const mp_frame *f, const sky_rows *b, const mpf_kernel *k, int bad,
+                         long y, double *o, unsigned char *colbad, unsigned char *near,
+                         float *ho)
+{
+    long nx = f->im.nx, ny = f->im.ny, nh = k->nh;
+    long x0 = nh, x1 = nx - nh;     /* whole footprints: [x0, x1) */
+    if (y < nh || y >= ny - nh || x1 <= x0) {
+        for (long x = 0; x < nx; x++)
+            ho[x] = (float)h_slow(f, b, k, x, y);
+        return;
+    }
+    for (long x = x0; x < x1; x++)
+        o[x] = 0.0;
+    for (int t = 0; t < k->n; t++) {
+        size_t off = (size_t)(y + k->dy[t]) * (size_t)nx;
+        size_t soff = (size_t)(y + k->dy[t] - b->s0) * (size_t)nx;
+        tap_row(o + x0, f->im.pix + off + k->dx[t] + x0, b->sky + soff + k->dx[t] + x0,
+                k->kl[t], x1 - x0);
+    }
+    for (long x = 0; x < x0; x++)
+        o[x] = h_slow(f, b, k, x, y);
+    for (long x = x1; x < nx; x++)
+        o[x] = h_slow(f, b, k, x, y);
+    if (bad) {
+        near_bad(f, nh, y, colbad, near);
+        for (long x = x0; x < x1; x++)
+            if (near[x])
+                o[x] = h_slow(f, b, k, x, y);
+    }
+    for (long x = 0; x < nx; x++)
+        ho[x] = (float)o[x];
+}
+
 int mpf_convolve_rows(const mp_frame *f, const float *sky, long s0, const mpf_kernel *k,
                       int bad, long y0, long y1, float *h, char *err)
 {
-    long nx = f->im.nx, ny = f->im.ny, nh = k->nh;
-    const sky_rows srows = {sky, s0}, *b = &srows;
+    long nx = f->im.nx;
+    const sky_rows srows = {sky, s0};
     int nomem = 0;
 #pragma omp parallel
     {
-        /* near[x]: a bad pixel lies in the (2nh+1)² box around (x, y). */
         unsigned char *colbad = bad ? malloc((size_t)nx) : NULL;
         unsigned char *near = bad ? malloc((size_t)nx) : NULL;
-        /* A row summed in double, kept in single precision (h is an
-         * image of the frame's size: issue 14's memory). */
         double *o = malloc((size_t)nx * sizeof *o);
-        if ((bad && (!colbad || !near)) || !o) {
+        int ok = !(bad && (!colbad || !near)) && o;
+        if (!ok) {
 #pragma omp atomic write
             nomem = 1;
         }
 #pragma omp for schedule(static)
-        for (long y = y0; y < y1; y++) {
-            if ((bad && (!colbad || !near)) || !o)
-                continue;
-            float *ho = h + (size_t)(y - y0) * (size_t)nx;
-            long x0 = nh, x1 = nx - nh;     /* whole footprints: [x0, x1) */
-            if (y < nh || y >= ny - nh || x1 <= x0) {
-                for (long x = 0; x < nx; x++)
-                    ho[x] = (float)h_slow(f, b, k, x, y);
-                continue;
-            }
-            for (long x = x0; x < x1; x++)
-                o[x] = 0.0;
-            for (int t = 0; t < k->n; t++) {
-                size_t off = (size_t)(y + k->dy[t]) * (size_t)nx;
-                size_t soff = (size_t)(y + k->dy[t] - s0) * (size_t)nx;
-                tap_row(o + x0, f->im.pix + off + k->dx[t] + x0, sky + soff + k->dx[t] + x0,
-                        k->kl[t], x1 - x0);
-            }
-            for (long x = 0; x < x0; x++)
-                o[x] = h_slow(f, b, k, x, y);
-            for (long x = x1; x < nx; x++)
-                o[x] = h_slow(f, b, k, x, y);
-            if (!bad) {
-                for (long x = 0; x < nx; x++)
-                    ho[x] = (float)o[x];
-                continue;
-            }
-            memset(colbad, 0, (size_t)nx);
-            for (long j = y - nh; j <= y + nh; j++)
-                for (long x = 0; x < nx; x++)
-                    colbad[x] |= (unsigned char)mpf_bad(f, (size_t)j * (size_t)nx + (size_t)x);
-            long run = 0;    /* bad columns in [x - nh, x + nh] */
-            for (long x = 0; x < nh && x < nx; x++)
-                run += colbad[x];
-            for (long x = 0; x < nx; x++) {
-                if (x + nh < nx)
-                    run += colbad[x + nh];
-                if (x - nh - 1 >= 0)
-                    run -= colbad[x - nh - 1];
-                near[x] = run > 0;
-            }
-            for (long x = x0; x < x1; x++)
-                if (near[x])
-                    o[x] = h_slow(f, b, k, x, y);
-            for (long x = 0; x < nx; x++)
-                ho[x] = (float)o[x];
-        }
+        for (long y = y0; y < y1; y++)
+            if (ok)
+                convolve_row(f, &srows, k, bad, y, o, colbad, near,
+                             h + (size_t)(y - y0) * (size_t)nx);
         free(o);
         free(colbad);
         free(near);

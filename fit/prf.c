@@ -598,49 +598,37 @@ static double drf_max(const mp_drf *d)
     return q;
 }
 
-double *mp_prf_envelope(const mp_prf_model *m, int *nr)
+/* The Gaussian's envelope: a pixel's integral is at most the density at
+ * its nearest point, which lies within √½ px of its centre. */
+static double *gauss_envelope(const mp_prf_model *m, int *nr)
 {
-    const mp_psf *p = m->psf;
-    if (p->kind == MP_PSF_GAUSS) {
-        double qmax = drf_max(m->drf);
-        /* A pixel's integral is at most the density at its nearest point,
-         * which lies within √½ px of its centre. */
-        double s = p->sigma;
-        int n = (int)ceil(M_SQRT2 * gauss_halfbox(s)) + 2;
-        double *env = malloc((size_t)n * sizeof *env);
-        if (!env)
-            return NULL;
-        for (int r = 0; r < n; r++) {
-            double rho = r - M_SQRT1_2 > 0 ? r - M_SQRT1_2 : 0.0;
-            env[r] = qmax * exp(-0.5 * rho * rho / (s * s)) / (2.0 * M_PI * s * s);
-        }
-        *nr = n;
-        return env;
+    double qmax = drf_max(m->drf), s = m->psf->sigma;
+    int n = (int)ceil(M_SQRT2 * gauss_halfbox(s)) + 2;
+    double *env = malloc((size_t)n * sizeof *env);
+    if (!env)
+        return NULL;
+    for (int r = 0; r < n; r++) {
+        double rho = r - M_SQRT1_2 > 0 ? r - M_SQRT1_2 : 0.0;
+        env[r] = qmax * exp(-0.5 * rho * rho / (s * s)) / (2.0 * M_PI * s * s);
     }
-    /* Table: measured.  The PRF is rendered at 5×5 subpixel phases (steps
-     * of ¼ px) and the largest |value| kept per whole-pixel distance bin;
-     * env[r] is twice the largest beyond r − 1 px.  The slack covers the
-     * phases between the grid's (a quarter pixel moves a pixel's distance
-     * by a quarter pixel, and the value by far less than 2× where it
-     * matters); the sinc shift's ringing (paper §3.1) is in the renders, so
-     * it is bounded too — a worst-case bound on it from the taps alone
-     * would be orders of magnitude above what a smooth table rings. */
-    long x0, y0;
-    int bw, bh;
-    mp_prf_box(m, 100.0, 100.0, &x0, &y0, &bw, &bh);
-    int nb = (int)ceil(hypot(bw, bh)) + 2, n = nb + 2;
-    size_t cap = (size_t)(bw + 2) * (bh + 2);
-    double *bin = calloc((size_t)nb, sizeof *bin), *env = malloc((size_t)n * sizeof *env);
-    double *prf = malloc(cap * sizeof *prf);
-    mp_prf_work w = {0};
-    int bad = !bin || !env || !prf;
-    /* A variable PSF: the largest over its origin and the eight points
-     * ±POLSCAL/2 from it (PSFEx's and matphot's scale is the PSF stars'
-     * range, so these are the field's corners and edge midpoints). */
+    *nr = n;
+    return env;
+}
+
+/* The largest |PRF| per whole-pixel distance bin (nb bins, the last
+ * holding all beyond) over 5×5 subpixel phases (steps of ¼ px) at one
+ * point, or, for a variable PSF, at its origin and the eight points
+ * ±POLSCAL/2 from it (PSFEx's and matphot's scale is the PSF stars'
+ * range, so these are the field's corners and edge midpoints).  prf
+ * holds cap values.  Nonzero when a render fails. */
+static int phase_maxima(const mp_prf_model *m, double *prf, size_t cap, double *bin, int nb)
+{
     const mp_psf_field *fd = m->psf->field;
-    int npt = fd && fd->order > 0 ? 9 : 1;
+    int npt = fd && fd->order > 0 ? 9 : 1, bad = 0;
+    mp_prf_work w = {0};
     for (int pt = 0; pt < npt * 25 && !bad; pt++) {
-        int sx = pt % 5, sy = pt / 5 % 5, q = pt / 25;
+        int sx = pt % 5, sy = pt / 5 % 5, q = pt / 25, bw, bh;
+        long x0, y0;
         double cx = npt > 1 ? floor(fd->x0 + (q % 3 - 1) * 0.5 * fd->xscale) : 100.0;
         double cy = npt > 1 ? floor(fd->y0 + (q / 3 - 1) * 0.5 * fd->yscale) : 100.0;
         double x = cx - 0.5 + 0.25 * sx, y = cy - 0.5 + 0.25 * sy;
@@ -658,6 +646,28 @@ double *mp_prf_envelope(const mp_prf_model *m, int *nr)
             }
     }
     mp_prf_work_free(&w);
+    return bad;
+}
+
+double *mp_prf_envelope(const mp_prf_model *m, int *nr)
+{
+    if (m->psf->kind == MP_PSF_GAUSS)
+        return gauss_envelope(m, nr);
+    /* Table: measured (phase_maxima); env[r] is twice the largest beyond
+     * r − 1 px.  The slack covers the phases between the grid's (a
+     * quarter pixel moves a pixel's distance by a quarter pixel, and the
+     * value by far less than 2× where it matters); the sinc shift's
+     * ringing (paper §3.1) is in the renders, so it is bounded too — a
+     * worst-case bound on it from the taps alone would be orders of
+     * magnitude above what a smooth table rings. */
+    long x0, y0;
+    int bw, bh;
+    mp_prf_box(m, 100.0, 100.0, &x0, &y0, &bw, &bh);
+    int nb = (int)ceil(hypot(bw, bh)) + 2, n = nb + 2;
+    size_t cap = (size_t)(bw + 2) * (bh + 2);
+    double *bin = calloc((size_t)nb, sizeof *bin), *env = malloc((size_t)n * sizeof *env);
+    double *prf = malloc(cap * sizeof *prf);
+    int bad = !bin || !env || !prf || phase_maxima(m, prf, cap, bin, nb);
     free(prf);
     if (bad) {
         free(bin);

@@ -289,30 +289,25 @@ static int grow_bleeds(mp_frame *f, int g, const char *name, char *err)
     return 0;
 }
 
-int mp_frame_read(const char *name, const mp_datapars *dp, mp_frame *f, char *err)
+/* Gain, read noise, saturation and exposure time: the parameter's, else
+ * the header's, else the default; a bad value named by where it came
+ * from (the header or the parameter). */
+static int resolve_datapars(const char *name, const mp_datapars *dp, mp_frame *f, char *err)
 {
-    memset(f, 0, sizeof *f);
-    const mp_datapars none = {NAN, NAN, NAN, NAN, "", 0, 0, 0, "", 0, 0};
-    if (!dp)
-        dp = &none;
-    if (mp_fimage_read(name, &f->im, err))
-        return 1;
     mp_image hv = mp_fimage_header(&f->im);
-
     int hg, hr, hs, he;
     if (resolve(name, &hv, dp->gain, "GAIN", 1.0, &f->gain, &hg, err) ||
         resolve(name, &hv, dp->rdnoise, "RDNOISE", 0.0, &f->rdnoise, &hr, err) ||
         resolve(name, &hv, dp->saturate, "SATURATE", INFINITY, &f->saturate, &hs, err) ||
         resolve(name, &hv, dp->exptime, "EXPTIME", 1.0, &f->exptime, &he, err))
-        goto fail;
-    /* Name where a bad value came from: the header or the parameter. */
+        return 1;
     if (!(f->gain > 0) || !isfinite(f->gain)) {
         if (hg)
             snprintf(err, MP_ERRLEN, "%s: header GAIN = %g; the gain must be positive "
                      "(set gain= to override)", name, f->gain);
         else
             snprintf(err, MP_ERRLEN, "gain: %g is not a positive number of e-/ADU", f->gain);
-        goto fail;
+        return 1;
     }
     if (!(f->rdnoise >= 0) || !isfinite(f->rdnoise)) {
         if (hr)
@@ -320,19 +315,24 @@ int mp_frame_read(const char *name, const mp_datapars *dp, mp_frame *f, char *er
                      "(set rdnoise= to override)", name, f->rdnoise);
         else
             snprintf(err, MP_ERRLEN, "rdnoise: %g is not a read noise >= 0 e-", f->rdnoise);
-        goto fail;
+        return 1;
     }
-    (void)hs;
-    (void)he;
+    return 0;
+}
 
+/* The mask: the DQ plane's flags, non-finite pixels bad (and zero), the
+ * pixels at SATURATE (judged in ADU, as it is given) saturated, grown
+ * along bleeds and around; the pixels scaled to electrons. */
+static int mask_pixels(const char *name, const mp_datapars *dp, mp_frame *f, char *err)
+{
     size_t n = (size_t)f->im.nx * (size_t)f->im.ny;
     f->mask = calloc(n ? n : 1, 1);
     if (!f->mask) {
         snprintf(err, MP_ERRLEN, "%s: out of memory for the mask", name);
-        goto fail;
+        return 1;
     }
     if (dp->dqmask[0] && (dp->dqsat || dp->dqbad) && apply_dq(name, dp, f, err))
-        goto fail;
+        return 1;
     for (size_t i = 0; i < n; i++) {
         double adu = f->im.pix[i];
         if (!isfinite(adu) || (f->mask[i] & MP_MASK_BAD)) {
@@ -341,15 +341,24 @@ int mp_frame_read(const char *name, const mp_datapars *dp, mp_frame *f, char *er
             f->nbad++;
             continue;
         }
-        /* Saturation is judged in ADU, as SATURATE is given. */
         if (adu >= f->saturate)
             f->mask[i] = MP_MASK_SATURATED;
         f->nsat += f->mask[i] == MP_MASK_SATURATED;
         f->im.pix[i] = adu * f->gain;
     }
-    if (dp->bleedgrow > 0 && f->nsat && grow_bleeds(f, dp->bleedgrow, name, err))
-        goto fail;
-    if (dp->satgrow > 0 && f->nsat && grow_saturated(f, dp->satgrow, name, err))
+    return (dp->bleedgrow > 0 && f->nsat && grow_bleeds(f, dp->bleedgrow, name, err)) ||
+           (dp->satgrow > 0 && f->nsat && grow_saturated(f, dp->satgrow, name, err));
+}
+
+int mp_frame_read(const char *name, const mp_datapars *dp, mp_frame *f, char *err)
+{
+    memset(f, 0, sizeof *f);
+    const mp_datapars none = {NAN, NAN, NAN, NAN, "", 0, 0, 0, "", 0, 0};
+    if (!dp)
+        dp = &none;
+    if (mp_fimage_read(name, &f->im, err))
+        return 1;
+    if (resolve_datapars(name, dp, f, err) || mask_pixels(name, dp, f, err))
         goto fail;
     mp_datapars dpe = *dp;
     if (strcmp(dp->errplane, "auto") == 0)

@@ -379,6 +379,49 @@ static int check_range(const char *name, const mp_psf_field *f, char *err)
     return 0;
 }
 
+/* Close fp, quietly (the file was read or has failed already). */
+static void close_quietly(fitsfile *fp)
+{
+    int s = 0;
+    if (fp)
+        fits_close_file(fp, &s);
+    fits_clear_errmsg();
+}
+
+/* A gridded PSF or WebbPSF's file (image_format's kind img), checked. */
+static int read_gridded(fitsfile *fp, const char *name, int img, const long naxes[3],
+                        int normalize, mp_psf_field *f, char *warn, char *err)
+{
+    int rc = img == FMT_WEBBPSF ? webbpsf_read(fp, name, naxes[0], naxes[1], f, warn, err)
+                                : grid_read(fp, name, img == FMT_STDPSF, naxes, f, warn, err);
+    return rc || check_sum(name, f, normalize, err);
+}
+
+/* matphot's own layout: a 2-D table (or anything else: mp_psf_read names
+ * what is wrong) or the polynomial cube, and the PSF stars when asked. */
+static int read_own(fitsfile *fp, const char *name, int naxis, const long naxes[3],
+                    int normalize, int oversamp, mp_psf_field *f, mp_psf_star **stars,
+                    int *nstars, char *warn, char *err)
+{
+    int rc = 1;
+    if (fp && naxis == 3 && naxes[2] > 1)
+        rc = read_cube(fp, name, naxes, normalize, oversamp, f, warn, err);
+    else {
+        mp_psf p;
+        if (!mp_psf_read(name, normalize, oversamp, &p, warn, err)) {
+            rc = mp_psf_field_from_table(&p, f, err);
+            mp_psf_free(&p);
+            if (!rc && fp)
+                rc = read_offset(fp, name, f, err);
+            if (!rc && fp)
+                build_keys(fp, f);
+        }
+        if (!fp)
+            return rc;
+    }
+    return rc || !stars ? rc : read_stars(fp, name, stars, nstars, err);
+}
+
 int mp_psf_field_read(const char *name, int normalize, int oversamp, mp_psf_field *f,
                       mp_psf_star **stars, int *nstars, char *warn, char *err)
 {
@@ -390,62 +433,19 @@ int mp_psf_field_read(const char *name, int normalize, int oversamp, mp_psf_fiel
     if (warn)
         warn[0] = '\0';
     fitsfile *fp = NULL;
-    int naxis = 0;
+    int naxis = 0, rc;
     long naxes[3];
-    int rc = 1;
-    if (!open_image(name, &fp, &naxis, naxes) && naxis == 0) {
-        /* Another program's PSF file, recognised from its content. */
-        int kind = other_format(&fp, name);
-        if (kind) {
-            rc = read_other(kind, fp, name, f, warn, err) || check_range(name, f, err);
-            int s = 0;
-            fits_close_file(fp, &s);
-            fits_clear_errmsg();
-            if (rc)
-                mp_psf_field_free(f);
-            return rc;
-        }
-    }
-    int img = fp ? image_format(fp, naxis) : FMT_NONE;
-    if (img != FMT_NONE) {
-        rc = img == FMT_WEBBPSF ? webbpsf_read(fp, name, naxes[0], naxes[1], f, warn, err)
-                                : grid_read(fp, name, img == FMT_STDPSF, naxes, f, warn, err);
-        if (!rc)
-            rc = check_sum(name, f, normalize, err);
-        int s = 0;
-        fits_close_file(fp, &s);
-        fits_clear_errmsg();
-        if (!rc)
-            rc = check_range(name, f, err);
-        if (rc)
-            mp_psf_field_free(f);
-        return rc;
-    }
-    int cube = fp && naxis == 3 && naxes[2] > 1;
-    if (!cube) {
-        /* A 2-D table (or anything else: mp_psf_read names what is wrong). */
-        mp_psf p;
-        if (!mp_psf_read(name, normalize, oversamp, &p, warn, err)) {
-            rc = mp_psf_field_from_table(&p, f, err);
-            mp_psf_free(&p);
-            if (!rc && fp)
-                rc = read_offset(fp, name, f, err);
-            if (!rc && fp)
-                build_keys(fp, f);
-        }
-        if (!rc && fp && stars)
-            rc = read_stars(fp, name, stars, nstars, err);
-    } else {
-        rc = read_cube(fp, name, naxes, normalize, oversamp, f, warn, err);
-        if (!rc && stars)
-            rc = read_stars(fp, name, stars, nstars, err);
-    }
-    if (fp) {
-        int s = 0;
-        fits_close_file(fp, &s);
-        fits_clear_errmsg();
-    }
-    if (!rc)
+    int kind = !open_image(name, &fp, &naxis, naxes) && naxis == 0 ? other_format(&fp, name)
+                                                                    : FMT_NONE;
+    int img = !kind && fp ? image_format(fp, naxis) : FMT_NONE;
+    if (kind)          /* another program's PSF file, recognised from its content */
+        rc = read_other(kind, fp, name, f, warn, err) || check_range(name, f, err);
+    else if (img != FMT_NONE)
+        rc = read_gridded(fp, name, img, naxes, normalize, f, warn, err);
+    else
+        rc = read_own(fp, name, naxis, naxes, normalize, oversamp, f, stars, nstars, warn, err);
+    close_quietly(fp);
+    if (!rc && !kind)
         rc = check_range(name, f, err);
     if (rc) {
         mp_psf_field_free(f);

@@ -350,80 +350,102 @@ static void keep_on_frame(mp_table *t, int nx, int ny)
     t->nrow = k;
 }
 
-static int run(const sim_config *c, char *err)
+/* The star's PRF: the Gaussian, a table given (psf=) or the segmented
+ * mirror's, seen through a DRF (drf=); *volume the frame's mean DRF
+ * volume; *seg the segmented table, to free.  Nonzero with err. */
+static int setup_prf(const sim_config *c, sim_inputs *in, mp_sim_prf *prf, double *volume,
+                     double **seg, char *err)
 {
-    mp_sim_prf prf = {.kind = MP_SIM_GAUSS, .volume = c->volume,
-                      .sigma = c->fwhm / (2.0 * sqrt(2.0 * log(2.0)))};
-    sim_inputs in;
-    memset(&in, 0, sizeof in);
-    mp_table t;
-    mp_table_init(&t);
-    double *img = NULL;
-    int rc = 1;
-    double volume = c->volume;
-
-    double *seg = NULL;
-    if (*c->psf && sim_load_psf(c->psf, &in, &prf, err))
-        goto done;
+    *prf = (mp_sim_prf){.kind = MP_SIM_GAUSS, .volume = c->volume,
+                        .sigma = c->fwhm / (2.0 * sqrt(2.0 * log(2.0)))};
+    *volume = c->volume;
+    if (*c->psf && sim_load_psf(c->psf, in, prf, err))
+        return 1;
     if (c->segmented) {
         /* The segmented mirror's table at psfos, drawn as any table star. */
         int n;
         char e[256];
-        if (mp_sim_segmented_psf(c->lod, c->band, c->psfos, 20.0, &seg, &n, e)) {
+        if (mp_sim_segmented_psf(c->lod, c->band, c->psfos, 20.0, seg, &n, e)) {
             snprintf(err, MP_ERRLEN, "pupil: %s", e);
-            goto done;
+            return 1;
         }
-        prf = (mp_sim_prf){.kind = MP_SIM_TABLE, .tab = seg, .tnx = n, .tny = n,
-                           .tos = c->psfos, .volume = c->volume};
+        *prf = (mp_sim_prf){.kind = MP_SIM_TABLE, .tab = *seg, .tnx = n, .tny = n,
+                            .tos = c->psfos, .volume = c->volume};
     }
     if (*c->drf) {
-        if (sim_load_drf(c->drf, &in, &prf, err))
-            goto done;
-        volume = in.drf_mean;
+        if (sim_load_drf(c->drf, in, prf, err))
+            return 1;
+        *volume = in->drf_mean;
     }
-    mp_rng rng;
-    mp_rng_seed(&rng, c->seed);
-    if (make_truth(c, &prf, &rng, &t, err))
-        goto done;
+    return 0;
+}
 
+/* The frame [image units]: the sky, the truth's stars, the noise, the
+ * gain and the saturation.  NULL with err when out of memory. */
+static double *draw_frame(const sim_config *c, const mp_sim_prf *prf, const mp_table *t,
+                          mp_rng *rng, char *err)
+{
     size_t npix = (size_t)c->nx * (size_t)c->ny;
-    img = malloc(npix * sizeof *img);
+    double *img = malloc(npix * sizeof *img);
     if (!img) {
         snprintf(err, MP_ERRLEN, "%s: out of memory for %d x %d pixels", c->output, c->nx, c->ny);
-        goto done;
+        return NULL;
     }
     for (size_t i = 0; i < npix; i++)
         img[i] = c->sky;
-    int cx = mp_table_col(&t, "X_IMAGE"), cy = mp_table_col(&t, "Y_IMAGE");
-    int cf = mp_table_col(&t, "FLUX_TRUE");
-    for (size_t k = 0; k < t.nrow; k++)
-        if (mp_sim_add_star(&prf, mp_table_get(&t, k, cx), mp_table_get(&t, k, cy),
-                            mp_table_get(&t, k, cf), img, c->nx, c->ny)) {
+    int cx = mp_table_col(t, "X_IMAGE"), cy = mp_table_col(t, "Y_IMAGE");
+    int cf = mp_table_col(t, "FLUX_TRUE");
+    for (size_t k = 0; k < t->nrow; k++)
+        if (mp_sim_add_star(prf, mp_table_get(t, k, cx), mp_table_get(t, k, cy),
+                            mp_table_get(t, k, cf), img, c->nx, c->ny)) {
             snprintf(err, MP_ERRLEN, "%s: cannot draw star %zu (out of memory?)",
                      c->output, k + 1);
-            goto done;
+            free(img);
+            return NULL;
         }
     if (c->noise)
-        mp_sim_add_noise(&rng, img, (long)npix, c->rdnoise);
+        mp_sim_add_noise(rng, img, (long)npix, c->rdnoise);
     for (size_t i = 0; i < npix; i++) {
         img[i] /= c->gain;
         if (img[i] > c->saturate)      /* never true for INDEF (NaN) */
             img[i] = c->saturate;
     }
-    if (write_frame(c, &prf, volume, img, err))
-        goto done;
-    keep_on_frame(&t, c->nx, c->ny);
-    if (mp_table_write(c->truth, &t, MP_TAB_ASCII_HEAD, err)) {
+    return img;
+}
+
+/* The frame, its truth (the stars on it) and the PSF table asked for: all
+ * of them or none (a failed write removes the ones written). */
+static int write_outputs(const sim_config *c, const mp_sim_prf *prf, double volume,
+                         const double *img, mp_table *t, char *err)
+{
+    if (write_frame(c, prf, volume, img, err))
+        return 1;
+    keep_on_frame(t, c->nx, c->ny);
+    if (mp_table_write(c->truth, t, MP_TAB_ASCII_HEAD, err)) {
         remove(c->output);           /* no frame without its truth */
-        goto done;
+        return 1;
     }
-    if (c->psfout && *c->psfout && write_psf(c, &prf, err)) {
+    if (c->psfout && *c->psfout && write_psf(c, prf, err)) {
         remove(c->output);
         remove(c->truth);
-        goto done;
+        return 1;
     }
-    rc = 0;
-done:
+    return 0;
+}
+
+static int run(const sim_config *c, char *err)
+{
+    mp_sim_prf prf;
+    sim_inputs in;
+    memset(&in, 0, sizeof in);
+    mp_table t;
+    mp_table_init(&t);
+    double *img = NULL, *seg = NULL, volume;
+    mp_rng rng;
+    mp_rng_seed(&rng, c->seed);
+    int rc = setup_prf(c, &in, &prf, &volume, &seg, err) || make_truth(c, &prf, &rng, &t, err) ||
+             !(img = draw_frame(c, &prf, &t, &rng, err)) ||
+             write_outputs(c, &prf, volume, img, &t, err);
     free(seg);
     free(img);
     mp_table_free(&t);
