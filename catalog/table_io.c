@@ -116,29 +116,25 @@ static int read_text(mp_lines *L, mp_table *t, char *err)
 }
 
 /* FITS tables start with "SIMPLE  =".  A first 'S' has the stream read
- * into memory (*mem), where cfitsio reads a FITS table from (*done: its
- * status in *rc); text starting with S (a CSV header) is then read from
- * that copy (*fp reopened on it).  Nonzero with err on failure. */
-static int fits_or_copy(FILE **fp, const char *name, mp_table *t, char **mem, int *done,
-                        int *rc, char *err)
+ * into memory (*mem, *mlen bytes), where cfitsio reads a FITS table from;
+ * text starting with S (a CSV header) is then read from that copy (*fp
+ * reopened on it).  Returns 0: text to read from *fp; 1: failed (err);
+ * 2: a FITS table in *mem. */
+static int sniff(FILE **fp, const char *name, char **mem, size_t *mlen, char *err)
 {
-    size_t mlen = 0;
     int c0 = getc(*fp);
     if (c0 != EOF)
         ungetc(c0, *fp);
     if (c0 != 'S')
         return 0;
-    int bad = slurp(*fp, name, mem, &mlen, err);
+    int bad = slurp(*fp, name, mem, mlen, err);
     mp_close_input(*fp);
     *fp = NULL;
     if (bad)
         return 1;
-    if (mlen >= 9 && memcmp(*mem, "SIMPLE  =", 9) == 0) {
-        *rc = mp_table_read_fits(name, *mem, mlen, t, err);
-        *done = 1;
-        return 0;
-    }
-    if (!(*fp = fmemopen(*mem, mlen, "r"))) {
+    if (*mlen >= 9 && memcmp(*mem, "SIMPLE  =", 9) == 0)
+        return 2;
+    if (!(*fp = fmemopen(*mem, *mlen, "r"))) {
         snprintf(err, MP_ERRLEN, "%s: %s", name, strerror(errno));
         return 1;
     }
@@ -154,12 +150,15 @@ int mp_table_read(const char *path, mp_table *t, char *err)
         return 1;
     const char *name = is_stdin ? "stdin" : path;
     char *mem = NULL;
-    int done = 0, rc = 1;
-    if (fits_or_copy(&fp, name, t, &mem, &done, &rc, err)) {
+    size_t mlen = 0;
+    int how = sniff(&fp, name, &mem, &mlen, err), rc;
+    if (how == 1) {
         free(mem);
         return 1;
     }
-    if (!done) {
+    if (how == 2)
+        rc = mp_table_read_fits(name, mem, mlen, t, err);
+    else {
         mp_lines L = {.fp = fp, .name = name};
         rc = read_text(&L, t, err);
         free(L.line);

@@ -398,7 +398,8 @@ static int read_gridded(fitsfile *fp, const char *name, int img, const long naxe
 }
 
 /* matphot's own layout: a 2-D table (or anything else: mp_psf_read names
- * what is wrong) or the polynomial cube, and the PSF stars when asked. */
+ * what is wrong) or the polynomial cube, and the PSF stars when asked
+ * (only from a file cfitsio opened). */
 static int read_own(fitsfile *fp, const char *name, int naxis, const long naxes[3],
                     int normalize, int oversamp, mp_psf_field *f, mp_psf_star **stars,
                     int *nstars, char *warn, char *err)
@@ -416,10 +417,8 @@ static int read_own(fitsfile *fp, const char *name, int naxis, const long naxes[
             if (!rc && fp)
                 build_keys(fp, f);
         }
-        if (!fp)
-            return rc;
     }
-    return rc || !stars ? rc : read_stars(fp, name, stars, nstars, err);
+    return rc || !stars || !fp ? rc : read_stars(fp, name, stars, nstars, err);
 }
 
 int mp_psf_field_read(const char *name, int normalize, int oversamp, mp_psf_field *f,

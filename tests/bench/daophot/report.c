@@ -565,7 +565,7 @@ int cmp_report(const char *stats_path, const char *out)
                                                "DAOPHOT analytic   " };
             static const char *const st_[5] = { "mp", "mpd", "mpb", "dao", "daoa" };
             for (int k = 0; k < 5; k++) {
-                if (k >= 2 && k != 3 && !tool_ok(F, st_[k])) continue;
+                if (!tool_ok(F, st_[k])) continue;   /* mp, mpd, dao: checked above */
                 const cmp_tool *U = tool_get(F, st_[k]);
                 el(&S, "  %s completeness %s%%, NN <1/1-2/2-3/>3 FWHM ", sl[k],
                    pct(b1, sizeof b1, some(U->compl)));
