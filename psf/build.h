@@ -197,14 +197,23 @@ int mp_epsf_build(mp_epsf_star *s, size_t n, const mp_epsf_opts *o, int os, int 
  * needs 30 stars, order 2 60, order 3 100. */
 #define MP_EPSF_PER_TERM 10
 
+/* Permutations of the stars' positions behind the order test's second
+ * null (psf/varorder.c). */
+#define MP_EPSF_NPERM 99
+
 /* mp_epsf_order_test: is order+1 demanded by the data?  The stars'
  * normalised residuals (d − model)/σ per pixel offset are regressed on the
  * next order's new terms of position; the F statistics of the pixels are
- * summed and compared with their null distribution (normal approximation):
- * *p the p-value, *stat the standardised sum.  Nonzero only on out of
- * memory; *p = 1 when too few stars to test (fewer than 3 × the terms + 5). */
+ * summed and compared with their null distribution if the pixels were
+ * independent (normal approximation): *stat the standardised sum.  When
+ * that rejects at alpha, the sum is compared again with its distribution
+ * over MP_EPSF_NPERM permutations of the stars' positions (a star's misfit
+ * is coherent over its pixels), *zperm its normal deviate there (NaN when
+ * not run), and *p is the larger of the two p-values.  Nonzero only on out
+ * of memory; *p = 1 when too few stars to test (fewer than 3 × the terms
+ * + 5).  zperm may be NULL. */
 int mp_epsf_order_test(const mp_epsf_star *s, size_t n, const mp_epsf *e, double fitrad,
-                       double *p, double *stat, char *err);
+                       double alpha, double *p, double *stat, double *zperm, char *err);
 
 /* mp_epsf_oversamp_error: the largest over ¼-px phases of
  * E·sqrt(Σ δP²/(E·P + B + ron²)) with δP the difference between the PRF
@@ -334,6 +343,7 @@ typedef struct {
     double ptest[MP_PSF_MAXORDER + 1];   /* order test p-values k→k+1 (index k;
                               * NaN: not run) */
     double ztest[MP_PSF_MAXORDER + 1];   /* their standardised statistics */
+    double zperm[MP_PSF_MAXORDER + 1];   /* against the permuted null (NaN: not run) */
     char what[512];          /* one line: stars, OVERSAMP, order, sum, why */
 } mp_epsf_report;
 

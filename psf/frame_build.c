@@ -236,11 +236,12 @@ static int choose_order(mp_epsf_star *s, size_t n, const mp_epsf_opts *o, mp_eps
     int short_of = 0;
     size_t nu = 0;
     for (;;) {
-        double p, z;
-        if (mp_epsf_order_test(s, n, e, o->fitrad, &p, &z, err))
+        double p, z, zp;
+        if (mp_epsf_order_test(s, n, e, o->fitrad, o->alpha, &p, &z, &zp, err))
             return 1;
         rep->ptest[e->order] = p;
         rep->ztest[e->order] = z;
+        rep->zperm[e->order] = zp;
         if (e->order >= MP_PSF_MAXORDER || !(p < o->alpha))
             break;
         int was = e->order;
@@ -259,9 +260,14 @@ static int choose_order(mp_epsf_star *s, size_t n, const mp_epsf_opts *o, mp_eps
         if (isnan(rep->ptest[k]))      /* raised in the first pass */
             snprintf(e->why + l, sizeof e->why - l, "%s order %d->%d in the first pass",
                      k ? ";" : " (", k, k + 1);
-        else
+        else if (isnan(rep->zperm[k]))
             snprintf(e->why + l, sizeof e->why - l, "%s order %d->%d p=%.2g (z %.1f)%s",
                      k ? ";" : " (", k, k + 1, rep->ptest[k], rep->ztest[k],
+                     rep->ptest[k] < o->alpha ? " <" : " >=");
+        else
+            snprintf(e->why + l, sizeof e->why - l,
+                     "%s order %d->%d p=%.2g (z %.1f, permuted %.1f)%s", k ? ";" : " (", k,
+                     k + 1, rep->ptest[k], rep->ztest[k], rep->zperm[k],
                      rep->ptest[k] < o->alpha ? " <" : " >=");
     }
     l = strlen(e->why);
@@ -331,7 +337,7 @@ int mp_epsf_pass(const mp_frame *f, const float *img, int residual, const mp_tab
     int rc = 1;
     rep->what[0] = '\0';
     for (int k = 0; k <= MP_PSF_MAXORDER; k++)
-        rep->ptest[k] = rep->ztest[k] = NAN;
+        rep->ptest[k] = rep->ztest[k] = rep->zperm[k] = NAN;
     if (!sky) {
         snprintf(err, MP_ERRLEN, "psf build: out of memory");
         return 1;
