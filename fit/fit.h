@@ -781,6 +781,13 @@ typedef struct {
                         * 0: none */
 } mp_frame_report;
 
+/* mp_frame_report_add: the counts of r added to d — the sums (iterations,
+ * merges and rejections, group and LM fits, economy's work and cost,
+ * paints cropped, envelopes); what stands for the last pass (nstars,
+ * ngroups, noconv, sky_groups, ops_render, grid, win) is left to the
+ * caller. */
+void mp_frame_report_add(mp_frame_report *d, const mp_frame_report *r);
+
 /* Every star's last fit and how far its neighbours' light has moved
  * since, so a later pipeline round can tell whether refitting it could
  * change anything (economy, fit/frame_bound.c). */
@@ -874,6 +881,11 @@ typedef struct {
     char detection[640];       /* the pipeline's detection limit in words ("": no
                                 * line; pipeline/outputs.c fills it) */
 } mp_run_report;
+
+/* mp_report_counts: the frame fit's counts (fr) into the run's report:
+ * groups, iterations, merges, rejections, not converged, and what economy
+ * did and cost. */
+void mp_report_counts(const mp_frame_report *fr, mp_run_report *r);
 
 /* mp_report_from_table: the medians, from a fitted table. */
 void mp_report_from_table(const mp_table *t, mp_run_report *r);

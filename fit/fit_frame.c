@@ -120,9 +120,7 @@ static int read_stars(const mp_table *t, int whole, double maxnum, star_state *s
     return 0;
 }
 
-/* The counts of r added to d (the groups' reports into a pass's, a pass's
- * into the frame's). */
-static void add_report(mp_frame_report *d, const mp_frame_report *r)
+void mp_frame_report_add(mp_frame_report *d, const mp_frame_report *r)
 {
     d->merged += r->merged;
     d->rejected += r->rejected;
@@ -137,6 +135,8 @@ static void add_report(mp_frame_report *d, const mp_frame_report *r)
     d->kcache += r->kcache;
     d->klin += r->klin;
     d->kstars += r->kstars;
+    d->cropped += r->cropped;
+    d->envelopes += r->envelopes;
     d->ops_tables += r->ops_tables;
     d->ops_saved += r->ops_saved;
     d->render_ops += r->render_ops;
@@ -178,10 +178,10 @@ static int fit_pass(const mp_frame *f, const mp_prf_model *m, mp_frame_opts *oc,
 #pragma omp critical(fit_table_error)
                     snprintf(ferr, sizeof ferr, "%s", e);
                 }
-                add_report(&mine, &r);
+                mp_frame_report_add(&mine, &r);
             }
 #pragma omp critical(fit_table_report)
-            add_report(pr, &mine);
+            mp_frame_report_add(pr, &mine);
         }
         if (failed) {
             snprintf(err, MP_ERRLEN, "%s", ferr);
@@ -374,7 +374,7 @@ static int run_passes(frame_fit *F, mp_frame_report *rep, char *err)
         if (fit_pass(F->f, F->m, &F->oc, &F->R, F->all, &F->crop, F->st, F->n, F->gs, F->ng,
                      F->mergerad, F->economy, F->runfits, pass + 1 < F->passes, &pr, err))
             return 1;
-        add_report(rep, &pr);
+        mp_frame_report_add(rep, &pr);
         if (F->economy && pr.fits == 0) {
             rep->kept += (long)F->ng * (F->passes - pass - 1);
             break;

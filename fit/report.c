@@ -40,6 +40,30 @@ static double median_of(const mp_table *t, int a, int b, int ratio)
     return m;
 }
 
+void mp_report_counts(const mp_frame_report *fr, mp_run_report *r)
+{
+    r->ngroups = fr->ngroups;
+    r->iterations = fr->iterations;
+    r->merged = fr->merged;
+    r->rejected = fr->rejected;
+    r->noconv = fr->noconv;
+    r->fits = fr->fits;
+    r->kept = fr->kept;
+    r->cropped = fr->cropped;
+    r->kcalls = fr->kcalls;
+    r->kshort = fr->kshort;
+    r->kcache = fr->kcache;
+    r->klin = fr->klin;
+    r->kstars = fr->kstars;
+    r->khw = fr->khw;
+    r->kbounds = fr->kbounds;
+    r->kcoarse = fr->kcoarse;
+    r->envelopes = fr->envelopes;
+    r->ops_tables = fr->ops_tables;
+    r->ops_saved = fr->ops_saved;
+    r->ops_render = fr->ops_render;
+}
+
 void mp_report_from_table(const mp_table *t, mp_run_report *r)
 {
     r->chi2_median = median_of(t, mp_table_col(t, "CHI2_PSF"), -1, 0);

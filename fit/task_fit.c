@@ -31,31 +31,6 @@ static int write_residual(const mp_frame *f, const mp_fit_setup *s, const mp_tab
     return rc;
 }
 
-/* The frame fit's counts into the run report. */
-static void counts_of(const mp_frame_report *rep, mp_run_report *run)
-{
-    run->ngroups = rep->ngroups;
-    run->iterations = rep->iterations;
-    run->merged = rep->merged;
-    run->rejected = rep->rejected;
-    run->noconv = rep->noconv;
-    run->fits = rep->fits;
-    run->kept = rep->kept;
-    run->cropped = rep->cropped;
-    run->kcalls = rep->kcalls;
-    run->kshort = rep->kshort;
-    run->kcache = rep->kcache;
-    run->klin = rep->klin;
-    run->kstars = rep->kstars;
-    run->khw = rep->khw;
-    run->kbounds = rep->kbounds;
-    run->kcoarse = rep->kcoarse;
-    run->envelopes = rep->envelopes;
-    run->ops_tables = rep->ops_tables;
-    run->ops_saved = rep->ops_saved;
-    run->ops_render = rep->ops_render;
-}
-
 /* Fit one image with one coordinate table; write the table and residual.
  * nframes: the run's frames, so that economy plans its tables for the
  * whole @list (this table's stars in every frame, fit/econ_plan.c). */
@@ -101,7 +76,7 @@ static int fit_one(const mp_fit_setup *s, const char *image, const char *coords,
         goto done;
     run.t_write = mp_seconds() - t0;
     run.nstars = (long)t.nrow;
-    counts_of(&rep, &run);
+    mp_report_counts(&rep, &run);
     char tables[512];
     mp_econ_summary(s->cache, rep.ops_render, tables, sizeof tables);
     run.tables = tables;

@@ -121,29 +121,10 @@ static void report_counts(const mp_pipeline_report *rep, const mp_table *t, mp_r
     run->t_group = rep->t_group;
     run->t_fit = rep->t_fit;
     run->t_write = rep->t_write;
+    mp_report_counts(&rep->fit, run);
     run->nstars = (long)t->nrow;
-    run->ngroups = rep->ngroups;
-    run->iterations = rep->iterations;
-    run->merged = rep->merged;
-    run->rejected = rep->rejected;
-    run->noconv = rep->noconv;
-    run->fits = rep->fits;
-    run->kept = rep->kept;
-    run->cropped = rep->cropped;
-    run->kcalls = rep->kcalls;
-    run->kshort = rep->kshort;
-    run->khw = rep->khw;
-    run->kbounds = rep->kbounds;
-    run->kcoarse = rep->kcoarse;
-    run->kcache = rep->kcache;
-    run->klin = rep->klin;
-    run->kstars = rep->kstars;
-    run->envelopes = rep->envelopes;
     run->pairs_close = rep->pairs_close;
     run->pairs_coupled = rep->pairs_coupled;
-    run->ops_tables = rep->ops_tables;
-    run->ops_saved = rep->ops_saved;
-    run->ops_render = rep->ops_render;
 }
 
 static int cmp_dbl(const void *a, const void *b)
@@ -214,13 +195,13 @@ int mp_pl_write_report(const char *image, const char *root,
     run.image = image;
     report_counts(rep, t, &run);
     mp_report_from_table(t, &run);
-    mp_frame_report last = {.nstars = (long)t->nrow, .ngroups = rep->ngroups};
-    memcpy(last.sky_groups, rep->sky_groups, sizeof last.sky_groups);
+    mp_frame_report last = {.nstars = (long)t->nrow, .ngroups = rep->fit.ngroups};
+    memcpy(last.sky_groups, rep->fit.sky_groups, sizeof last.sky_groups);
     mp_report_parts(&fit->model, &fit->opts, &last, &run);
     run.decisions = fit->decisions;
     run.ndecisions = fit->ndecisions;
     char tables[512];
-    mp_econ_summary(fit->cache, rep->ops_render, tables, sizeof tables);
+    mp_econ_summary(fit->cache, rep->fit.ops_render, tables, sizeof tables);
     run.tables = tables;
     detection_line(fit, rep, t, &run);
     size_t n = strlen(root) + 8;

@@ -54,20 +54,11 @@ typedef struct {
     double t_read, t_bkg, t_find, t_group, t_fit, t_write;
     int rounds;
     long screened;                /* candidates deep detection's screen dropped */
-    long found, added, fitted, merged, rejected, noconv;
-    long ngroups, iterations;     /* of the last round; summed over rounds */
-    long fits, kept, cropped;     /* group fits done and left out, star paints
-                                   * cropped (economy), summed over rounds */
-    long kcalls, kshort;          /* LM fits of groups; with a shorter sinc kernel */
-    long kbounds, envelopes;      /* economy's own cost (mp_frame_report) */
-    long kcoarse;                 /* LM fits with a coarser table */
-    long kcache;                  /* LM fits with the PRF from the phase grid */
-    long klin, kstars;            /* star fits in LM fits drawn bilinearly, and all */
+    long found, added, fitted;
+    mp_frame_report fit;          /* the rounds' frame fits: sums over rounds
+                                   * (mp_frame_report_add); ngroups, noconv,
+                                   * sky_groups and ops_render the last round's */
     long pairs_close, pairs_coupled;  /* grouping (mp_pl_group), summed over rounds */
-    double ops_tables, ops_saved, ops_render;  /* economy's tables' cost and saving
-                                   * (mp_frame_report), summed over rounds */
-    long sky_groups[MP_SKY_MAXORDER + 1];  /* last round's groups by sky order */
-    double khw;                   /* their half-widths summed over all group fits */
     double threshold, rdnoise;    /* find's threshold [σ] and the frame's read noise
                                    * [e-], for the report's detection line (0: unknown) */
     char sharp[200];              /* find's last sharpness limits and why

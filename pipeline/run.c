@@ -173,30 +173,15 @@ static int find_stars(run_state *s, char *err)
     return 0;
 }
 
-/* One round's frame-fit counts added to the run's. */
+/* One round's frame-fit counts added to the run's; its groups, stars not
+ * converged, sky orders and render unit stand for the run. */
 static void count_fit(mp_pipeline_report *rep, const mp_frame_report *fr, size_t nrow)
 {
-    rep->merged += fr->merged;
-    rep->rejected += fr->rejected;
-    rep->noconv = fr->noconv;
-    rep->iterations += fr->iterations;
-    rep->fits += fr->fits;
-    rep->kept += fr->kept;
-    rep->cropped += fr->cropped;
-    rep->kcalls += fr->kcalls;
-    rep->kshort += fr->kshort;
-    memcpy(rep->sky_groups, fr->sky_groups, sizeof rep->sky_groups);
-    rep->khw += fr->khw;
-    rep->kbounds += fr->kbounds;
-    rep->kcoarse += fr->kcoarse;
-    rep->ops_tables += fr->ops_tables;
-    rep->ops_saved += fr->ops_saved;
-    rep->ops_render = fr->ops_render;
-    rep->kcache += fr->kcache;
-    rep->klin += fr->klin;
-    rep->kstars += fr->kstars;
-    rep->envelopes += fr->envelopes;
-    rep->ngroups = fr->ngroups;
+    mp_frame_report_add(&rep->fit, fr);
+    rep->fit.noconv = fr->noconv;
+    rep->fit.ngroups = fr->ngroups;
+    memcpy(rep->fit.sky_groups, fr->sky_groups, sizeof rep->fit.sky_groups);
+    rep->fit.ops_render = fr->ops_render;
     rep->fitted = (long)nrow;
 }
 

@@ -191,17 +191,15 @@ static void add_report(mp_pipeline_report *s, const mp_pipeline_report *r)
     s->t_group += r->t_group; s->t_fit += r->t_fit;
     s->rounds = s->rounds > r->rounds ? s->rounds : r->rounds;
     s->screened += r->screened; s->found += r->found; s->added += r->added;
-    s->merged += r->merged; s->rejected += r->rejected; s->noconv += r->noconv;
-    s->ngroups += r->ngroups; s->iterations += r->iterations; s->fits += r->fits;
-    s->kept += r->kept; s->cropped += r->cropped; s->kcalls += r->kcalls;
-    s->kshort += r->kshort; s->kbounds += r->kbounds; s->envelopes += r->envelopes;
-    s->kcoarse += r->kcoarse; s->khw += r->khw;
+    mp_frame_report_add(&s->fit, &r->fit);
+    s->fit.noconv += r->fit.noconv;  /* the tiles' last rounds, summed */
+    s->fit.ngroups += r->fit.ngroups;
+    for (int i = 0; i <= MP_SKY_MAXORDER; i++)
+        s->fit.sky_groups[i] += r->fit.sky_groups[i];
+    s->fit.ops_render = r->fit.ops_render;
     s->pairs_close += r->pairs_close; s->pairs_coupled += r->pairs_coupled;
-    s->ops_tables += r->ops_tables; s->ops_saved += r->ops_saved; s->ops_render = r->ops_render;
     s->threshold = r->threshold;     /* one frame: the same in every tile */
     s->rdnoise = r->rdnoise;
-    for (int i = 0; i <= MP_SKY_MAXORDER; i++)
-        s->sky_groups[i] += r->sky_groups[i];
 }
 
 /* One tile: its section read and reduced, its stars and residual taken. */
