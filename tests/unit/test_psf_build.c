@@ -470,6 +470,30 @@ static void test_quadratic_and_star_count(void **state)
     free(f.mask);
 }
 
+/* An NX² frame, its pixels and mask allocated (mask clear), gain 1, read
+ * noise RON, no saturation. */
+static void blank_frame(mp_frame *f)
+{
+    memset(f, 0, sizeof *f);
+    f->im.nx = f->im.ny = NX;
+    f->im.pix = malloc(sizeof *f->im.pix * NX * NX);
+    f->mask = calloc((size_t)NX * NX, 1);
+    assert_non_null(f->im.pix);
+    assert_non_null(f->mask);
+    f->gain = 1.0;
+    f->rdnoise = RON;
+    f->saturate = INFINITY;
+    f->exptime = 1.0;
+}
+
+/* Table g as an order-0 field over the NX² frame (its planes g's own). */
+static mp_epsf order0_of(const mp_psf *g)
+{
+    return (mp_epsf){.order = 0, .nterms = 1, .nx = g->nx, .ny = g->ny, .os = BOS,
+                     .x0 = 0.5 * (NX + 1), .y0 = 0.5 * (NX + 1), .xs = 0.5 * NX,
+                     .ys = 0.5 * NX, .planes = g->t, .sum = g->sum};
+}
+
 /* ns PSF stars on a fresh frame f (NX², sky SKY, read noise RON), drawn
  * with the fit's own renderer from model ma, or from ma or mb at random
  * when mb is given (a misfit coherent over each star's pixels that does
@@ -532,9 +556,7 @@ static void test_order_test_false_raise(void **state)
     mp_psf g;
     assert_int_equal(mp_psf_gauss_table(2.6, BOS, rad, &g, err), 0);
     size_t nel = (size_t)g.nx * g.ny;
-    mp_epsf e0 = {.order = 0, .nterms = 1, .nx = g.nx, .ny = g.ny, .os = BOS,
-                  .x0 = 0.5 * (NX + 1), .y0 = 0.5 * (NX + 1), .xs = 0.5 * NX, .ys = 0.5 * NX,
-                  .planes = g.t, .sum = g.sum};
+    mp_epsf e0 = order0_of(&g);
     mp_epsf e2 = e0;
     e2.order = 2;
     e2.nterms = 6;
@@ -542,16 +564,7 @@ static void test_order_test_false_raise(void **state)
     assert_non_null(e2.planes);
     memcpy(e2.planes, g.t, nel * sizeof *g.t);
     mp_frame f;
-    memset(&f, 0, sizeof f);
-    f.im.nx = f.im.ny = NX;
-    f.im.pix = malloc(sizeof(double) * NX * NX);
-    f.mask = calloc((size_t)NX * NX, 1);
-    assert_non_null(f.im.pix);
-    assert_non_null(f.mask);
-    f.gain = 1.0;
-    f.rdnoise = RON;
-    f.saturate = INFINITY;
-    f.exptime = 1.0;
+    blank_frame(&f);
     mp_prf_model m = {&g, NULL, 10};
     mp_prf_work w;
     memset(&w, 0, sizeof w);
@@ -599,20 +612,9 @@ static void test_order_test_permuted_null(void **state)
     assert_int_equal(mp_psf_gauss_table(2.6, BOS, rad, &g, err), 0);
     assert_int_equal(mp_psf_gauss_table(2.45, BOS, rad, &ga, err), 0);
     assert_int_equal(mp_psf_gauss_table(2.75, BOS, rad, &gb, err), 0);
-    mp_epsf e0 = {.order = 0, .nterms = 1, .nx = g.nx, .ny = g.ny, .os = BOS,
-                  .x0 = 0.5 * (NX + 1), .y0 = 0.5 * (NX + 1), .xs = 0.5 * NX, .ys = 0.5 * NX,
-                  .planes = g.t, .sum = g.sum};
+    mp_epsf e0 = order0_of(&g);
     mp_frame f;
-    memset(&f, 0, sizeof f);
-    f.im.nx = f.im.ny = NX;
-    f.im.pix = malloc(sizeof(double) * NX * NX);
-    f.mask = calloc((size_t)NX * NX, 1);
-    assert_non_null(f.im.pix);
-    assert_non_null(f.mask);
-    f.gain = 1.0;
-    f.rdnoise = RON;
-    f.saturate = INFINITY;
-    f.exptime = 1.0;
+    blank_frame(&f);
     mp_prf_model ma = {&ga, NULL, 10}, mb = {&gb, NULL, 10};
     mp_prf_work w;
     memset(&w, 0, sizeof w);
