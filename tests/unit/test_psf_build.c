@@ -87,6 +87,22 @@ static void truth_fine(double grad, int cubic, double u, double rad, double *t, 
 
 typedef struct { double x, y, f; } tstar;
 
+/* An NX² frame, its pixels and mask allocated (mask clear), gain 1, read
+ * noise RON, no saturation. */
+static void blank_frame(mp_frame *f)
+{
+    memset(f, 0, sizeof *f);
+    f->im.nx = f->im.ny = NX;
+    f->im.pix = malloc(sizeof *f->im.pix * NX * NX);
+    f->mask = calloc((size_t)NX * NX, 1);
+    assert_non_null(f->im.pix);
+    assert_non_null(f->mask);
+    f->gain = 1.0;
+    f->rdnoise = RON;
+    f->saturate = INFINITY;
+    f->exptime = 1.0;
+}
+
 /* A frame of NSTAR stars whose core σx grows with x by grad (0:
  * constant), linearly or as P₃ (cubic; truth_fine), fluxes 2e4..4e5
  * log-uniform, on a grid with jitter so they do not overlap much. */
@@ -95,16 +111,7 @@ static void make_frame(uint64_t seed, double grad, int cubic, double rad, mp_fra
 {
     mp_rng r;
     mp_rng_seed(&r, seed);
-    memset(f, 0, sizeof *f);
-    f->im.nx = f->im.ny = NX;
-    f->im.pix = calloc((size_t)NX * NX, sizeof *f->im.pix);
-    f->mask = calloc((size_t)NX * NX, 1);
-    assert_non_null(f->im.pix);
-    assert_non_null(f->mask);
-    f->gain = 1.0;
-    f->rdnoise = RON;
-    f->saturate = INFINITY;
-    f->exptime = 1.0;
+    blank_frame(f);
     for (size_t i = 0; i < (size_t)NX * NX; i++)
         f->im.pix[i] = SKY;
     int side = 8;
@@ -470,22 +477,6 @@ static void test_quadratic_and_star_count(void **state)
     free(f.mask);
 }
 
-/* An NX² frame, its pixels and mask allocated (mask clear), gain 1, read
- * noise RON, no saturation. */
-static void blank_frame(mp_frame *f)
-{
-    memset(f, 0, sizeof *f);
-    f->im.nx = f->im.ny = NX;
-    f->im.pix = malloc(sizeof *f->im.pix * NX * NX);
-    f->mask = calloc((size_t)NX * NX, 1);
-    assert_non_null(f->im.pix);
-    assert_non_null(f->mask);
-    f->gain = 1.0;
-    f->rdnoise = RON;
-    f->saturate = INFINITY;
-    f->exptime = 1.0;
-}
-
 /* Table g as an order-0 field over the NX² frame (its planes g's own). */
 static mp_epsf order0_of(const mp_psf *g)
 {
@@ -499,10 +490,14 @@ static mp_epsf order0_of(const mp_psf *g)
  * when mb is given (a misfit coherent over each star's pixels that does
  * not depend on where it is), on an 8-wide grid of cells jittered, fluxes
  * 2e4..4e5; their cut-outs of radius rad at their true places, fluxes and
- * sky.  prf: room for a 64² render. */
+ * sky. */
 static mp_epsf_star *drawn_stars(mp_frame *f, const mp_prf_model *ma, const mp_prf_model *mb,
-                                 uint64_t seed, int ns, double rad, double *prf, mp_prf_work *w)
+                                 uint64_t seed, int ns, double rad)
 {
+    mp_prf_work w;
+    memset(&w, 0, sizeof w);
+    double *prf = malloc(sizeof(double) * 64 * 64);
+    assert_non_null(prf);
     mp_rng r;
     mp_rng_seed(&r, seed);
     double x[64], y[64], fl[64], sk[64];
@@ -520,13 +515,15 @@ static mp_epsf_star *drawn_stars(mp_frame *f, const mp_prf_model *ma, const mp_p
         int bw, bh;
         mp_prf_box(m, x[k], y[k], &bx, &by, &bw, &bh);
         assert_true(bw * bh <= 64 * 64);
-        assert_int_equal(mp_prf_render(m, x[k], y[k], prf, NULL, NULL, w), 0);
+        assert_int_equal(mp_prf_render(m, x[k], y[k], prf, NULL, NULL, &w), 0);
         for (int j = 0; j < bh; j++)
             for (int i = 0; i < bw; i++)
                 if (bx + i >= 1 && by + j >= 1 && bx + i <= NX && by + j <= NX)
                     f->im.pix[(size_t)(by + j - 1) * NX + (size_t)(bx + i - 1)] +=
                         fl[k] * prf[(size_t)j * bw + i];
     }
+    free(prf);
+    mp_prf_work_free(&w);
     mp_sim_add_noise_float(&r, f->im.pix, (long)NX * NX, RON);
     mp_epsf_star *s;
     char err[MP_ERRLEN];
@@ -566,13 +563,9 @@ static void test_order_test_false_raise(void **state)
     mp_frame f;
     blank_frame(&f);
     mp_prf_model m = {&g, NULL, 10};
-    mp_prf_work w;
-    memset(&w, 0, sizeof w);
-    double *prf = malloc(sizeof(double) * 64 * 64);
-    assert_non_null(prf);
     int low01 = 0, low23 = 0;
     for (int t = 0; t < NTRIAL; t++) {
-        mp_epsf_star *s = drawn_stars(&f, &m, NULL, 1000 + (uint64_t)t, NS, rad, prf, &w);
+        mp_epsf_star *s = drawn_stars(&f, &m, NULL, 1000 + (uint64_t)t, NS, rad);
         double p01, p23, z;
         assert_int_equal(mp_epsf_order_test(s, NS, &e0, 3.0, 1e-3, &p01, &z, NULL, err), 0);
         assert_int_equal(mp_epsf_order_test(s, NS, &e2, 3.0, 1e-3, &p23, &z, NULL, err), 0);
@@ -584,8 +577,6 @@ static void test_order_test_false_raise(void **state)
            "%d (2->3), expected 10 +- 3.1\n", NTRIAL, NS, low01, low23);
     assert_true(low01 <= 23);
     assert_true(low23 <= 23);
-    free(prf);
-    mp_prf_work_free(&w);
     free(e2.planes);
     mp_psf_free(&g);
     free(f.im.pix);
@@ -616,13 +607,9 @@ static void test_order_test_permuted_null(void **state)
     mp_frame f;
     blank_frame(&f);
     mp_prf_model ma = {&ga, NULL, 10}, mb = {&gb, NULL, 10};
-    mp_prf_work w;
-    memset(&w, 0, sizeof w);
-    double *prf = malloc(sizeof(double) * 64 * 64);
-    assert_non_null(prf);
     int formula = 0, permuted = 0;
     for (int t = 0; t < NTRIAL; t++) {
-        mp_epsf_star *s = drawn_stars(&f, &ma, &mb, 5000 + (uint64_t)t, NS, rad, prf, &w);
+        mp_epsf_star *s = drawn_stars(&f, &ma, &mb, 5000 + (uint64_t)t, NS, rad);
         double p0, p1, z, zp;
         assert_int_equal(mp_epsf_order_test(s, NS, &e0, 3.0, 0.0, &p0, &z, NULL, err), 0);
         assert_int_equal(mp_epsf_order_test(s, NS, &e0, 3.0, 1.0, &p1, &z, &zp, err), 0);
@@ -636,8 +623,6 @@ static void test_order_test_permuted_null(void **state)
            NTRIAL, NS, formula, permuted);
     assert_true(permuted <= 12);
     assert_true(permuted >= 1);
-    free(prf);
-    mp_prf_work_free(&w);
     mp_psf_free(&g);
     mp_psf_free(&ga);
     mp_psf_free(&gb);
