@@ -13,7 +13,9 @@
  * own: sirt.c.) */
 typedef struct {
     size_t nstar, nel;
-    double *G, *H;         /* nstar × nel */
+    float *G, *H;          /* nstar × nel (floats: the combination of
+                            * each element reads every star's, and at ×4
+                            * these arrays are tens of MB a step) */
     double *R;             /* nstar × nR: each star's W·ρ on its box */
     size_t nR;             /* the largest box's pixels */
     double *geo;           /* nstar × 6: the box (x0, y0, w, h) and the

@@ -53,6 +53,7 @@ typedef struct {
     mp_psf tab;
     double *prf;
     size_t nprf;
+    double *g;             /* a star's G in doubles (mp_prf_adjoint's) */
     mp_prf_work pw;
 } scratch;
 
@@ -60,6 +61,7 @@ static void scratch_free(scratch *c)
 {
     mp_psf_free(&c->tab);
     free(c->prf);
+    free(c->g);
     mp_prf_work_free(&c->pw);
 }
 
@@ -80,7 +82,7 @@ static void axis_of(int n, int os, double x, long *n0, double *delta)
  * until a step is taken: the pass that ends a run is read only for its
  * χ².  1 when out of memory. */
 static int backproject(scratch *w, const mp_epsf_star *s, const mp_epsf *e, double psfrad,
-                       double *R, double *geo, double *H, double *chi2)
+                       double *R, double *geo, float *H, double *chi2)
 {
     char err[MP_ERRLEN];
     if (mp_epsf_table(e, s->x, s->y, &w->tab, err))
@@ -139,7 +141,7 @@ static int backproject(scratch *w, const mp_epsf_star *s, const mp_epsf *e, doub
                     long mx = os * (px - 1) + sx + n0x;
                     if (mx < 0 || mx >= nx)
                         continue;
-                    H[(size_t)my * nx + mx] += W;
+                    H[(size_t)my * nx + mx] += (float)W;
                 }
             }
         }
@@ -151,12 +153,19 @@ static int backproject(scratch *w, const mp_epsf_star *s, const mp_epsf *e, doub
  * (mp_prf_adjoint: each pixel spread back over the elements it is drawn
  * from, with the damped sinc's weights; a fifth of the work of spreading
  * it over its block and shifting the whole table back, at ×4). */
-static int projected(scratch *w, const mp_epsf *e, const double *R, const double *geo, double *G)
+static int projected(scratch *w, const mp_epsf *e, const double *R, const double *geo, float *G)
 {
     mp_psf geom = {.kind = MP_PSF_TABLE, .nx = e->nx, .ny = e->ny, .os = e->os, .sum = 1.0};
     mp_prf_model m = {&geom, NULL, 10};
-    return mp_prf_adjoint(&m, geo[4], geo[5], (long)geo[0], (long)geo[1], (int)geo[2],
-                          (int)geo[3], R, G, &w->pw);
+    size_t nel = (size_t)e->nx * e->ny;
+    if (!w->g && !(w->g = malloc(nel * sizeof *w->g)))
+        return 1;
+    if (mp_prf_adjoint(&m, geo[4], geo[5], (long)geo[0], (long)geo[1], (int)geo[2], (int)geo[3],
+                       R, w->g, &w->pw))
+        return 1;
+    for (size_t i = 0; i < nel; i++)
+        G[i] = (float)w->g[i];
+    return 0;
 }
 
 /* The used stars' back-projections (backproject; with project, G from
