@@ -35,6 +35,13 @@ grep -q "warning: halo=yes not applied in tiles" "$T/t.log" || no "halo=yes in t
 for e in fit cat reg report res.fits; do [ -s "$T/t.$e" ] || no "tiled run wrote no t.$e"; done
 [ "$(wc -c <"$T/t.res.fits")" = "$(wc -c <"$T/w.res.fits")" ] || no "tiled residual is not the frame's size"
 grep -q ALPHAPSF_J2000 "$T/t.cat" || no "tiled catalog has no sky positions"
+# The tiles' report sums every tile's counts: the whole frame draws its
+# groups from the phase grid, so the tiles' sum must count such fits too
+# (it read 0 before the tiles summed kcache, klin and kstars).
+grid_fits() { sed -n 's/.* \([0-9][0-9]*\) with the PRF from the phase grid (.*/\1/p' "$1" | head -n 1; }
+gw=$(grid_fits "$T/w.report"); gt=$(grid_fits "$T/t.report")
+[ -n "$gw" ] && [ -n "$gt" ] || no "no phase-grid count in the reports ('$gw', '$gt')"
+[ "${gw:-0}" -gt 0 ] && [ "${gt:-0}" -eq 0 ] && no "the tiled report counts no phase-grid fits (whole frame: $gw)"
 
 # compare WHOLE.cat TILED.cat WHAT: every star in both, none twice, the
 # matched ones within the criterion above.
