@@ -260,15 +260,14 @@ static int choose_order(mp_epsf_star *s, size_t n, const mp_epsf_opts *o, mp_eps
         if (isnan(rep->ptest[k]))      /* raised in the first pass */
             snprintf(e->why + l, sizeof e->why - l, "%s order %d->%d in the first pass",
                      k ? ";" : " (", k, k + 1);
-        else if (isnan(rep->zperm[k]))
-            snprintf(e->why + l, sizeof e->why - l, "%s order %d->%d p=%.2g (z %.1f)%s",
-                     k ? ";" : " (", k, k + 1, rep->ptest[k], rep->ztest[k],
+        else {
+            char zp[32] = "";       /* the permuted null's, when it ran */
+            if (!isnan(rep->zperm[k]))
+                snprintf(zp, sizeof zp, ", permuted %.1f", rep->zperm[k]);
+            snprintf(e->why + l, sizeof e->why - l, "%s order %d->%d p=%.2g (z %.1f%s)%s",
+                     k ? ";" : " (", k, k + 1, rep->ptest[k], rep->ztest[k], zp,
                      rep->ptest[k] < o->alpha ? " <" : " >=");
-        else
-            snprintf(e->why + l, sizeof e->why - l,
-                     "%s order %d->%d p=%.2g (z %.1f, permuted %.1f)%s", k ? ";" : " (", k,
-                     k + 1, rep->ptest[k], rep->ztest[k], rep->zperm[k],
-                     rep->ptest[k] < o->alpha ? " <" : " >=");
+        }
     }
     l = strlen(e->why);
     snprintf(e->why + l, sizeof e->why - l, " alpha %.0e)", o->alpha);

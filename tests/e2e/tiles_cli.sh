@@ -41,7 +41,8 @@ grep -q ALPHAPSF_J2000 "$T/t.cat" || no "tiled catalog has no sky positions"
 grid_fits() { sed -n 's/.* \([0-9][0-9]*\) with the PRF from the phase grid (.*/\1/p' "$1" | head -n 1; }
 gw=$(grid_fits "$T/w.report"); gt=$(grid_fits "$T/t.report")
 [ -n "$gw" ] && [ -n "$gt" ] || no "no phase-grid count in the reports ('$gw', '$gt')"
-[ "${gw:-0}" -gt 0 ] && [ "${gt:-0}" -eq 0 ] && no "the tiled report counts no phase-grid fits (whole frame: $gw)"
+[ "${gw:-0}" -gt 0 ] || no "the whole frame's report counts no phase-grid fits: nothing to check the tiles' sum against"
+[ "${gt:-0}" -gt 0 ] || no "the tiled report counts no phase-grid fits (whole frame: $gw)"
 
 # compare WHOLE.cat TILED.cat WHAT: every star in both, none twice, the
 # matched ones within the criterion above.
