@@ -50,6 +50,7 @@ static const mp_col registry[] = {
     {"DELTA_J2000",    "Declination of barycenter (J2000)",          "deg", "%+11.7f", 0},
     {"SKY_PSF",        "Sky from PSF-fitting at the star position",  ELEC, "%12.7g", 0},
     {"SKYERR_PSF",     "RMS sky error from PSF-fitting",             ELEC, "%12.7g", 0},
+    {"SKYORD_PSF",     "Order of the group's sky polynomial (0 constant)", "", "%2.0f", 1},
     {"CHI2_PSF",       "Reduced chi2 from PSF-fitting",              "",   "%10.6g", 0},
     {"DOF_PSF",        "Degrees of freedom of the group fit",        "",   "%8.0f",  1},
     {"CHI2STAR_PSF",   "Reduced chi2 over the star's own fitting disc", "", "%10.6g", 0},

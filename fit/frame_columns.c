@@ -11,7 +11,7 @@ int ff_write_columns(mp_table *t, const star_state *st, size_t n, double magzero
 {
     static const char *const names[] = {
         "XPSF_IMAGE", "YPSF_IMAGE", "ERRX_PSF", "ERRY_PSF", "FLUX_PSF", "FLUXERR_PSF",
-        "MAG_PSF", "MAGERR_PSF", "SKY_PSF", "SKYERR_PSF", "CHI2_PSF", "DOF_PSF",
+        "MAG_PSF", "MAGERR_PSF", "SKY_PSF", "SKYERR_PSF", "SKYORD_PSF", "CHI2_PSF", "DOF_PSF",
         "CHI2STAR_PSF", "NITER_PSF", "BETA_PSF", "SHARP_PRF", "LSCALE_PRF", "VOLUME_PRF",
         "FLUXERR_MODEL", "POSERR_MODEL", "FLAGS"};
     enum { NCOL = sizeof names / sizeof names[0] };
@@ -42,7 +42,7 @@ int ff_write_columns(mp_table *t, const star_state *st, size_t n, double magzero
             s->x, s->y, s->ex, s->ey, s->flux, s->eflux,
             ok ? -2.5 * log10(s->flux) + magzero : 99.0,
             ok ? 2.5 / log(10.0) * s->eflux / s->flux : 99.0,
-            s->sky, s->esky, s->chi2, s->dof, s->chi2star, s->niter,
+            s->sky, s->esky, s->sky_order, s->chi2, s->dof, s->chi2star, s->niter,
             s->st.beta, s->st.sharp, s->st.lscale, s->st.volume,
             s->fluxerr_model, s->poserr_model, fl};
         for (int k = 0; k < NCOL; k++)

@@ -673,6 +673,62 @@ static void test_sky_order_stalled_warm(void **state)
     frame_drop(&f);
 }
 
+/* One star of 10⁴ e⁻ on a flat sky of 100 e⁻ (the sky scenes' frame,
+ * seed 7301) fitted by mp_fit_table from a table whose SKYORD_PSF says
+ * `order` (none when order < 0) and whose FLAGS say `flags`; the order the
+ * fit wrote back. */
+static int table_order_fit(int order, int flags)
+{
+    mp_psf gau;
+    mp_prf_model m;
+    mp_sim_prf sp = gauss3_scene(&gau, &m);
+    mp_frame f;
+    frame_make(&f, SKY_NP, 3.0);
+    for (long i = 0; i < SKY_NP * SKY_NP; i++)
+        f.im.pix[i] = 100.0;
+    assert_int_equal(mp_sim_add_star_float(&sp, 20.3, 19.6, 1e4, f.im.pix, SKY_NP, SKY_NP), 0);
+    mp_rng r;
+    mp_rng_seed(&r, 7301);
+    mp_sim_add_noise_float(&r, f.im.pix, SKY_NP * SKY_NP, 3.0);
+    mp_table t;
+    mp_table_init(&t);
+    const char *names[5] = {"X_IMAGE", "Y_IMAGE", "FLUX_PSF", "SKY_PSF", "FLAGS"};
+    const double v[5] = {20.5, 19.5, 1e4, 100.0, flags};
+    long row = mp_table_add_row(&t);
+    assert_true(row == 0);
+    for (int k = 0; k < 5; k++)
+        mp_table_set(&t, 0, mp_table_add_col(&t, names[k]), v[k]);
+    if (order >= 0)
+        mp_table_set(&t, 0, mp_table_add_col(&t, "SKYORD_PSF"), order);
+    mp_frame_opts fo;
+    mp_frame_opts_default(&fo);
+    char err[MP_ERRLEN];
+    assert_int_equal(mp_fit_table(&f, &m, &fo, &t, NULL, err), 0);
+    assert_int_equal(t.nrow, 1);
+    int c = mp_table_col(&t, "SKYORD_PSF");
+    assert_true(c >= 0);
+    int got = (int)mp_table_get(&t, 0, c);
+    mp_table_free(&t);
+    frame_drop(&f);
+    return got;
+}
+
+/* A table's SKYORD_PSF is where its groups' skies start (warm, as a
+ * pipeline's later rounds start from the fit's memory), so `fit` of a
+ * pipeline's catalog goes on from its last pass.  The score test only
+ * raises an order: a flat sky started at quadratic stays quadratic; with
+ * no column, or a star flagged not converged or saturated, it starts (and
+ * on this flat sky, one seed, stays) constant. */
+static void test_table_sky_order_warm(void **state)
+{
+    (void)state;
+    assert_int_equal(table_order_fit(-1, 0), 0);
+    assert_int_equal(table_order_fit(2, 0), 2);
+    assert_int_equal(table_order_fit(1, 0), 1);
+    assert_int_equal(table_order_fit(2, MP_FLAG_NOCONV), 0);
+    assert_int_equal(table_order_fit(2, MP_FLAG_SATURATED), 0);
+}
+
 /* A blend that is one star (2·10⁴ e⁻, FWHM 3, RON 3, sky 100), started as
  * two of 10⁴ e⁻ 0.9 px apart: the fit crawls along the pair's degenerate
  * direction.  With stop_pair 1.2 px (0.4 FWHM, the frame fit's merge
@@ -1368,6 +1424,7 @@ int main(void)
         cmocka_unit_test(test_sky_floor_from_found_sky),
         cmocka_unit_test(test_sky_order_stalled_dropped),
         cmocka_unit_test(test_sky_order_stalled_warm),
+        cmocka_unit_test(test_table_sky_order_warm),
         cmocka_unit_test(test_error_plane_weights),
         cmocka_unit_test(test_frozen_wings_same_fit),
         cmocka_unit_test(test_moved_stars_refresh_same_fit),
