@@ -142,9 +142,14 @@ static int merge_close(mp_star *s, int *alive, int n, double mergerad, double si
     return nm;
 }
 
+/* A star's S/N.  One without an error was not fitted (its group had too
+ * few pixels: off the frame or masked, fit_group.c flag_unfitted): it has
+ * no S/N, so it is below any cut.  (As +inf, it had passed every cut:
+ * GLIMPSE kept a star 7 px beyond the frame's edge, found from a
+ * truncated profile, at 3.5e5 e- with every error 0.) */
 static double snr_of(const mp_star *s)
 {
-    return s->eflux > 0 ? s->flux / s->eflux : (s->flux > 0 ? INFINITY : -INFINITY);
+    return s->eflux > 0 ? s->flux / s->eflux : -INFINITY;
 }
 
 /* Flag merged (16) the live star nearest to star w within 2·mergerad: a

@@ -729,6 +729,61 @@ static void test_table_sky_order_warm(void **state)
     assert_int_equal(table_order_fit(2, MP_FLAG_SATURATED), 0);
 }
 
+/* A star whose group has too few pixels to fit (here: started 6 px
+ * beyond the frame's edge, farther than fitrad) has no error, so no S/N:
+ * the frame fit rejects it under any minsnr, and keeps it, flagged
+ * unfitted (edge and not converged), with minsnr 0.  The star on the
+ * frame is fitted as ever.  (A row with every error 0 had passed every
+ * cut as S/N = +inf.) */
+static void test_unfitted_star_rejected(void **state)
+{
+    (void)state;
+    mp_psf gau;
+    mp_prf_model m;
+    mp_sim_prf sp = gauss3_scene(&gau, &m);
+    mp_frame f;
+    frame_make(&f, SKY_NP, 3.0);
+    for (long i = 0; i < SKY_NP * SKY_NP; i++)
+        f.im.pix[i] = 100.0;
+    assert_int_equal(mp_sim_add_star_float(&sp, 20.3, 19.6, 1e4, f.im.pix, SKY_NP, SKY_NP), 0);
+    mp_rng r;
+    mp_rng_seed(&r, 7302);
+    mp_sim_add_noise_float(&r, f.im.pix, SKY_NP * SKY_NP, 3.0);
+    for (int keep = 0; keep < 2; keep++) {
+        mp_table t;
+        mp_table_init(&t);
+        int cx = mp_table_add_col(&t, "X_IMAGE"), cy = mp_table_add_col(&t, "Y_IMAGE"),
+            cf = mp_table_add_col(&t, "FLUX");
+        const double xs[2] = {20.5, SKY_NP + 6.0}, ys[2] = {19.5, 20.0};
+        for (int k = 0; k < 2; k++) {
+            long row = mp_table_add_row(&t);
+            assert_true(row == k);
+            mp_table_set(&t, (size_t)row, cx, xs[k]);
+            mp_table_set(&t, (size_t)row, cy, ys[k]);
+            mp_table_set(&t, (size_t)row, cf, 1e4);
+        }
+        mp_frame_opts fo;
+        mp_frame_opts_default(&fo);
+        fo.fit.fitrad = 5.0;
+        fo.minsnr = keep ? 0.0 : 2.0;
+        char err[MP_ERRLEN];
+        assert_int_equal(mp_fit_table(&f, &m, &fo, &t, NULL, err), 0);
+        int kx = mp_table_col(&t, "XPSF_IMAGE"), ke = mp_table_col(&t, "FLUXERR_PSF"),
+            kg = mp_table_col(&t, "FLAGS");
+        assert_int_equal(t.nrow, keep ? 2 : 1);
+        for (size_t i = 0; i < t.nrow; i++) {
+            int off = mp_table_get(&t, i, kx) > SKY_NP;
+            int fl = (int)mp_table_get(&t, i, kg);
+            assert_int_equal(off, i == 1);
+            assert_true(off ? mp_table_get(&t, i, ke) == 0.0 : mp_table_get(&t, i, ke) > 0.0);
+            assert_int_equal(fl & (MP_FLAG_EDGE | MP_FLAG_NOCONV),
+                             off ? MP_FLAG_EDGE | MP_FLAG_NOCONV : 0);
+        }
+        mp_table_free(&t);
+    }
+    frame_drop(&f);
+}
+
 /* A blend that is one star (2·10⁴ e⁻, FWHM 3, RON 3, sky 100), started as
  * two of 10⁴ e⁻ 0.9 px apart: the fit crawls along the pair's degenerate
  * direction.  With stop_pair 1.2 px (0.4 FWHM, the frame fit's merge
@@ -1425,6 +1480,7 @@ int main(void)
         cmocka_unit_test(test_sky_order_stalled_dropped),
         cmocka_unit_test(test_sky_order_stalled_warm),
         cmocka_unit_test(test_table_sky_order_warm),
+        cmocka_unit_test(test_unfitted_star_rejected),
         cmocka_unit_test(test_error_plane_weights),
         cmocka_unit_test(test_frozen_wings_same_fit),
         cmocka_unit_test(test_moved_stars_refresh_same_fit),
