@@ -673,23 +673,29 @@ static void test_sky_order_stalled_warm(void **state)
     frame_drop(&f);
 }
 
-/* One star of 10⁴ e⁻ on a flat sky of 100 e⁻ (the sky scenes' frame,
- * seed 7301) fitted by mp_fit_table from a table whose SKYORD_PSF says
- * `order` (none when order < 0) and whose FLAGS say `flags`; the order the
- * fit wrote back. */
+/* The sky scenes' frame with one star of 10⁴ e⁻ at (20.3, 19.6) on a
+ * flat sky of 100 e⁻, noise from seed; m the model on gau. */
+static void one_star_frame(uint64_t seed, mp_frame *f, mp_psf *gau, mp_prf_model *m)
+{
+    mp_sim_prf sp = gauss3_scene(gau, m);
+    frame_make(f, SKY_NP, 3.0);
+    for (long i = 0; i < SKY_NP * SKY_NP; i++)
+        f->im.pix[i] = 100.0;
+    assert_int_equal(mp_sim_add_star_float(&sp, 20.3, 19.6, 1e4, f->im.pix, SKY_NP, SKY_NP), 0);
+    mp_rng r;
+    mp_rng_seed(&r, seed);
+    mp_sim_add_noise_float(&r, f->im.pix, SKY_NP * SKY_NP, 3.0);
+}
+
+/* one_star_frame (seed 7301) fitted by mp_fit_table from a table whose
+ * SKYORD_PSF says `order` (none when order < 0) and whose FLAGS say
+ * `flags`; the order the fit wrote back. */
 static int table_order_fit(int order, int flags)
 {
     mp_psf gau;
     mp_prf_model m;
-    mp_sim_prf sp = gauss3_scene(&gau, &m);
     mp_frame f;
-    frame_make(&f, SKY_NP, 3.0);
-    for (long i = 0; i < SKY_NP * SKY_NP; i++)
-        f.im.pix[i] = 100.0;
-    assert_int_equal(mp_sim_add_star_float(&sp, 20.3, 19.6, 1e4, f.im.pix, SKY_NP, SKY_NP), 0);
-    mp_rng r;
-    mp_rng_seed(&r, 7301);
-    mp_sim_add_noise_float(&r, f.im.pix, SKY_NP * SKY_NP, 3.0);
+    one_star_frame(7301, &f, &gau, &m);
     mp_table t;
     mp_table_init(&t);
     const char *names[5] = {"X_IMAGE", "Y_IMAGE", "FLUX_PSF", "SKY_PSF", "FLAGS"};
@@ -740,15 +746,8 @@ static void test_unfitted_star_rejected(void **state)
     (void)state;
     mp_psf gau;
     mp_prf_model m;
-    mp_sim_prf sp = gauss3_scene(&gau, &m);
     mp_frame f;
-    frame_make(&f, SKY_NP, 3.0);
-    for (long i = 0; i < SKY_NP * SKY_NP; i++)
-        f.im.pix[i] = 100.0;
-    assert_int_equal(mp_sim_add_star_float(&sp, 20.3, 19.6, 1e4, f.im.pix, SKY_NP, SKY_NP), 0);
-    mp_rng r;
-    mp_rng_seed(&r, 7302);
-    mp_sim_add_noise_float(&r, f.im.pix, SKY_NP * SKY_NP, 3.0);
+    one_star_frame(7302, &f, &gau, &m);
     for (int keep = 0; keep < 2; keep++) {
         mp_table t;
         mp_table_init(&t);
