@@ -531,17 +531,25 @@ static int bin_of(double v, double pmax)
  * Nonzero when out of memory. */
 static int cell_bins(mp_prf_cache *c)
 {
-    c->pmin = INFINITY;
-    c->pmax = -INFINITY;
-    for (size_t i = 0; i < (size_t)c->nph * c->npix; i++) {
-        c->pmin = c->p[i] < c->pmin ? c->p[i] : c->pmin;
-        c->pmax = c->p[i] > c->pmax ? c->p[i] : c->pmax;
+    /* In parallel (the phase grid's serial part, bench/SCALING.md); the
+     * least and largest and each cell's own sums do not depend on it. */
+    double pmin = INFINITY, pmax = -INFINITY;
+    size_t ntot = (size_t)c->nph * c->npix;
+#pragma omp parallel for schedule(static) reduction(min : pmin) reduction(max : pmax)
+    for (size_t i = 0; i < ntot; i++) {
+        pmin = c->p[i] < pmin ? c->p[i] : pmin;
+        pmax = c->p[i] > pmax ? c->p[i] : pmax;
     }
+    c->pmin = pmin;
+    c->pmax = pmax;
     c->d2bin = calloc((size_t)c->nph * MP_PRF_CACHE_NBIN, sizeof *c->d2bin);
     c->d2lbin = calloc((size_t)c->nph * MP_PRF_CACHE_NBIN, sizeof *c->d2lbin);
     if (!c->d2bin || !c->d2lbin)
         return 1;
-    for (int ph = 0; ph < c->nph && c->pmax > 0; ph++) {
+    if (!(c->pmax > 0))
+        return 0;
+#pragma omp parallel for schedule(static)
+    for (int ph = 0; ph < c->nph; ph++) {
         size_t o = (size_t)ph * c->npix;
         double *bin = c->d2bin + (size_t)ph * MP_PRF_CACHE_NBIN;
         double *binl = c->d2lbin + (size_t)ph * MP_PRF_CACHE_NBIN;
@@ -637,6 +645,11 @@ static double bound_of(const mp_prf_cache *c, int lin, double E, double B, doubl
     if (!d2)
         return INFINITY;
     double worst = 0.0, var0 = B + ron * ron;
+    /* In parallel over the cells: the flux limits' bisections call this
+     * from the frame fit's serial set-up (2.3 % of 47 Tuc built on one
+     * thread, bench/SCALING.md); inside a group fit's parallel loop it
+     * runs on that thread alone.  The largest is the same on any threads. */
+#pragma omp parallel for schedule(static) reduction(max : worst) if (c->nph * c->npix > 65536)
     for (int ph = 0; ph < c->nph; ph++) {
         const float *d = d2 + (size_t)ph * c->npix, *p = c->p + (size_t)ph * c->npix;
         double s = 0.0;

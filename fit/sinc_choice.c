@@ -121,6 +121,9 @@ double mp_sinc_choice_bound(const mp_sinc_choice *c, int hw, double E, double B,
 int mp_sinc_choice_limits(const mp_sinc_choice *c, double B, double ron, double frac,
                           double *emax)
 {
+    /* The half-widths in parallel, each its own bisection (the frame
+     * fit's serial set-up, bench/SCALING.md). */
+#pragma omp parallel for schedule(dynamic)
     for (int hw = 0; hw < c->hwmax; hw++) {
         double lo = 1e-3, hi = 1e15;
         if (mp_sinc_choice_bound(c, hw, lo, B, ron) > frac) {

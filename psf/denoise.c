@@ -13,40 +13,48 @@
 #include "psf/build_priv.h"
 
 /* In-place 2-D DFT of a (ny × nx, row-major), sign −1 forward, +1 back
- * (unnormalised): separable 1-D DFTs, O(n³) — tables are ≤ ~200 wide. */
+ * (unnormalised): separable 1-D DFTs, O(n³) — tables are ≤ ~200 wide.
+ * The rows (then the columns) in parallel, each into its own buffer: 1 %
+ * of 47 Tuc built ran here on one thread (bench/SCALING.md); every value
+ * is summed in the same order on any threads. */
 static int dft2(double complex *a, int nx, int ny, int sign)
 {
-    int n = nx > ny ? nx : ny;
-    double complex *row = malloc((size_t)n * sizeof *row), *tw = malloc((size_t)n * sizeof *tw);
-    if (!row || !tw) {
-        free(row);
-        free(tw);
+    int n = nx > ny ? nx : ny, failed = 0;
+    double complex *tw = malloc((size_t)n * sizeof *tw);
+    if (!tw)
         return 1;
-    }
-    for (int pass = 0; pass < 2; pass++) {
+    for (int pass = 0; pass < 2 && !failed; pass++) {
         int len = pass ? ny : nx, cnt = pass ? nx : ny;
         for (int k = 0; k < len; k++)
             tw[k] = cexp(sign * 2.0 * M_PI * I * k / len);
-        for (int c = 0; c < cnt; c++) {
-            for (int k = 0; k < len; k++) {
-                double complex s = 0;
-                for (int j = 0; j < len; j++) {
-                    double complex v = pass ? a[(size_t)j * nx + c] : a[(size_t)c * nx + j];
-                    s += v * tw[((long)j * k) % len];
+#pragma omp parallel reduction(| : failed)
+        {
+            double complex *row = malloc((size_t)n * sizeof *row);
+            failed = !row;
+#pragma omp for schedule(static)
+            for (int c = 0; c < cnt; c++) {
+                if (!row)
+                    continue;
+                for (int k = 0; k < len; k++) {
+                    double complex s = 0;
+                    for (int j = 0; j < len; j++) {
+                        double complex v = pass ? a[(size_t)j * nx + c] : a[(size_t)c * nx + j];
+                        s += v * tw[((long)j * k) % len];
+                    }
+                    row[k] = s;
                 }
-                row[k] = s;
+                for (int k = 0; k < len; k++) {
+                    if (pass)
+                        a[(size_t)k * nx + c] = row[k];
+                    else
+                        a[(size_t)c * nx + k] = row[k];
+                }
             }
-            for (int k = 0; k < len; k++) {
-                if (pass)
-                    a[(size_t)k * nx + c] = row[k];
-                else
-                    a[(size_t)c * nx + k] = row[k];
-            }
+            free(row);
         }
     }
-    free(row);
     free(tw);
-    return 0;
+    return failed;
 }
 
 /* Frequency of DFT index k of n, cycles per element. */
