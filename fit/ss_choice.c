@@ -277,12 +277,25 @@ int mp_ss_level_serves(const mp_ss_level *lv, double E, double B, double ron, do
     /* mp_ss_level_bias's largest q and λ against their limits, phase by
      * phase: the first phase over either decides (half the bisection's
      * fluxes, mp_ss_level_emax). */
+    int ok = 1;
+    /* In parallel over the phases (the coarser table's limit, 0.5 % of 47
+     * Tuc built, serial, bench/SCALING.md); a phase once one failed is
+     * skipped.  The answer is the same on any threads, and on one the
+     * phases run in order and stop at the first failure, as before. */
+#pragma omp parallel for schedule(static) if (lv->bias.nph * lv->bias.npix > 65536)
     for (int ph = 0; ph < lv->bias.nph; ph++) {
+        int on;
+#pragma omp atomic read
+        on = ok;
+        if (!on)
+            continue;
         double l, q = phase_bias(&lv->bias, ph, E, B, ron, &l);
-        if (!(q <= frac && l <= MP_SS_CHI2MAX))
-            return 0;
+        if (!(q <= frac && l <= MP_SS_CHI2MAX)) {
+#pragma omp atomic write
+            ok = 0;
+        }
     }
-    return 1;
+    return ok;
 }
 
 /* Bisection in log E (as mp_sinc_choice_limits), then — the criterion is
