@@ -69,16 +69,14 @@ int mp_fit_table(const mp_frame *f, const mp_prf_model *m, const mp_frame_opts *
  * catalog goes on from the pipeline's last pass instead of from a
  * constant sky (47 Tuc 512² built: 8.5 % of the stars moved by more than
  * 1 sigma without it).  0 where there is none, or where the star ended
- * saturated or not converged (FLAGS, column cf; first_order in
- * fit_group.c would not take it either). */
+ * saturated or not converged (FLAGS, column cf: ff_warm_order). */
 static int table_sky_order(const mp_table *t, size_t i, int co, int cf)
 {
     double v = co >= 0 ? mp_table_get(t, i, co) : NAN;
     double fl = cf >= 0 ? mp_table_get(t, i, cf) : 0.0;
-    if (!(v >= 1.0 && v <= MP_SKY_MAXORDER) || !isfinite(fl) ||
-        ((long)fl & (MP_FLAG_SATURATED | MP_FLAG_NOCONV)))
+    if (!(v >= 1.0 && v <= MP_SKY_MAXORDER) || !isfinite(fl))
         return 0;
-    return (int)v;
+    return ff_warm_order((int)fl, (int)v);
 }
 
 /* The stars of t into st (n rows, 0-based row order kept in row), sorted

@@ -133,7 +133,7 @@ int ff_recall(mp_fit_memory *mem, const mp_table *t, star_state *st, size_t n,
         r->number = UINT32_MAX;       /* taken */
         if (mem->forgot) {      /* as new, its sky order its start (none
                                  * where first_order would not take it) */
-            st[i].s.sky_order = r->flags & (MP_FLAG_SATURATED | MP_FLAG_NOCONV) ? 0 : r->sky_order;
+            st[i].s.sky_order = ff_warm_order(r->flags, r->sky_order);
             continue;
         }
         if (cols && r->x == st[i].s.x && r->y == st[i].s.y && r->flux == st[i].s.flux &&

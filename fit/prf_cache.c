@@ -648,7 +648,8 @@ static double bound_of(const mp_prf_cache *c, int lin, double E, double B, doubl
     /* In parallel over the cells: the flux limits' bisections call this
      * from the frame fit's serial set-up (2.3 % of 47 Tuc built on one
      * thread, bench/SCALING.md); inside a group fit's parallel loop it
-     * runs on that thread alone.  The largest is the same on any threads. */
+     * runs on that thread alone.  The largest is the same on any threads.
+     * (A small grid, under ~64k terms, is not worth starting a team.) */
 #pragma omp parallel for schedule(static) reduction(max : worst) if (c->nph * c->npix > 65536)
     for (int ph = 0; ph < c->nph; ph++) {
         const float *d = d2 + (size_t)ph * c->npix, *p = c->p + (size_t)ph * c->npix;

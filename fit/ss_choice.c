@@ -281,7 +281,8 @@ int mp_ss_level_serves(const mp_ss_level *lv, double E, double B, double ron, do
     /* In parallel over the phases (the coarser table's limit, 0.5 % of 47
      * Tuc built, serial, bench/SCALING.md); a phase once one failed is
      * skipped.  The answer is the same on any threads, and on one the
-     * phases run in order and stop at the first failure, as before. */
+     * phases run in order and stop at the first failure, as before.  (A
+     * small table, under ~64k terms, is not worth starting a team.) */
 #pragma omp parallel for schedule(static) if (lv->bias.nph * lv->bias.npix > 65536)
     for (int ph = 0; ph < lv->bias.nph; ph++) {
         int on;
