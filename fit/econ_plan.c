@@ -67,6 +67,17 @@ static double psf_ops(const mp_psf *p, int hw, int derivs, double W, int sep)
     return render_ops(p->nx, p->ny, p->os, hw, derivs, W, sep);
 }
 
+/* Multiply-adds of a variable PSF's evaluation at a star (fit/prf.c's
+ * star_table): every term over the table elements a window of side W
+ * reads (0 for a constant PSF). */
+static double field_ops(const mp_psf *p, const mp_psf_field *f, int hw, double W)
+{
+    if (!f)
+        return 0.0;
+    double side = W * p->os + 2.0 * hw + 1.0;
+    return (double)f->nterms * fmin(side, (double)p->nx) * fmin(side, (double)p->ny);
+}
+
 /* Whether the run's renders may take the axis operators. */
 #define RSEP(c) mp_prf_axes_apply(&(c)->model0)
 
@@ -116,7 +127,7 @@ int mp_econ_offer(mp_econ_cache *c, const mp_prf_model *m, int nlev, const int *
     c->nlev = nlev < MP_SS_MAXLEVELS ? nlev : MP_SS_MAXLEVELS;
     for (int l = 0; l < c->nlev; l++)
         c->lev_os[l] = lev_os[l];
-    c->grid_g = c->field ? 0 : grid_g;
+    c->grid_g = grid_g;
     return 0;
 }
 
@@ -187,8 +198,9 @@ static econ_cost cost_level(const mp_econ_cache *c, int l, double fits, double W
 #define SEP(c) mp_prf_separable(&(c)->model0)
 
 static econ_cost cost_grid(const mp_psf *p, int sep, int rsep, int G, int hw, double fits,
-                           double W)
+                           double W, const mp_psf_field *f)
 {
+    int nt = f ? f->nterms : 1;
     int os = p->os, gb = (G + os - 1) / os;
     double na = (double)os * (gb + 3), ng = (double)os * gb, npix = box_pixels(p);
     double w2 = fmin(W * W, npix), bw = os + 2.0 * hw + 4.0, side = sqrt(npix);
@@ -199,7 +211,11 @@ static econ_cost cost_grid(const mp_psf *p, int sep, int rsep, int G, int hw, do
                   : na * 2.0 * p->ny * side * bw + na * na * 3.0 * npix * bw +
                         ng * p->ny * side * bw + ng * ng * (npix * bw + 16.0 * npix);
     k.decide = min_evals(fits, MP_SINC_LIMITS_EVALS) * 3.0 * ng * ng * npix;
-    k.save = psf_ops(p, hw, 1, W, rsep) - 48.0 * w2;
+    k.save = psf_ops(p, hw, 1, W, rsep) + field_ops(p, f, hw, W) - 48.0 * w2 * nt;
+    /* A variable PSF's: a grid per term, a star drawn from each, and the
+     * exact render's evaluation of the field saved. */
+    k.build *= nt;
+    k.real *= nt;
     return k;
 }
 
@@ -288,12 +304,13 @@ static int build_grid(mp_econ_cache *c, double fitrad, char *err)
     c->grid_state = rc ? ECON_FAILED : ECON_BUILT;
     if (!rc)
         c->spent +=
-            cost_grid(&c->psf0, SEP(c), RSEP(c), c->grid_g, c->model0.sinc_hw, 0.0, INFINITY).real;
+            cost_grid(&c->psf0, SEP(c), RSEP(c), c->grid_g, c->model0.sinc_hw, 0.0, INFINITY, c->field)
+                .real;
     return rc;
 }
 
-/* Level l's own phase grid, on its table as the fit uses it (a constant
- * PSF only: the grid is never offered for a field). */
+/* Level l's own phase grid, on its table as the fit uses it (for a
+ * variable PSF, on its field block-summed: a grid per term). */
 static int build_level_grid(mp_econ_cache *c, int l, double fitrad, char *err)
 {
     mp_ss_level *lv = &c->ss[l];
@@ -311,7 +328,8 @@ static int build_level_grid(mp_econ_cache *c, int l, double fitrad, char *err)
         return 1;
     }
     c->spent +=
-        cost_grid(&lv->psf, SEP(c), RSEP(c), c->grid_g, c->model0.sinc_hw, 0.0, INFINITY).real;
+        cost_grid(&lv->psf, SEP(c), RSEP(c), c->grid_g, c->model0.sinc_hw, 0.0, INFINITY, c->field)
+            .real;
     return 0;
 }
 
@@ -325,7 +343,8 @@ static int choose_locked(mp_econ_cache *c, double fits, double fitrad, mp_frame_
      * history: deterministic). */
     int rs = RSEP(c);
     double learned = o->learn ? c->ops_done : 0.0;
-    double full = psf_ops(&c->psf0, c->model0.sinc_hw, 1, W, rs);
+    double full = psf_ops(&c->psf0, c->model0.sinc_hw, 1, W, rs) +
+                  field_ops(&c->psf0, c->field, c->model0.sinc_hw, W);
     c->fits_max = fits > c->fits_max ? fits : c->fits_max;
     int hw = c->model0.sinc_hw;
     if (c->want_sinc && !o->sinc &&
@@ -362,14 +381,14 @@ static int choose_locked(mp_econ_cache *c, double fits, double fitrad, mp_frame_
      * 1975 LM fits of 47 Tuc with the PSF built from the frame). */
     for (int l = 0; o->ss == c->ss && l < o->nss && c->grid_g > 0; l++)
         if (!((o->ss_grid >> l) & 1) &&
-            pays(cost_grid(&c->ss[l].psf, SEP(c), rs, c->grid_g, hw, fits, W), fits, learned,
+            pays(cost_grid(&c->ss[l].psf, SEP(c), rs, c->grid_g, hw, fits, W, c->field), fits, learned,
                  full)) {
             if (build_level_grid(c, l, fitrad, err))
                 return 1;
             o->ss_grid |= (c->ss[l].grid->G > 0) << l;
         }
     if (!o->grid && c->grid_g > 0 &&
-        pays(cost_grid(&c->psf0, SEP(c), rs, c->grid_g, hw, fits, W), fits, learned, full)) {
+        pays(cost_grid(&c->psf0, SEP(c), rs, c->grid_g, hw, fits, W, c->field), fits, learned, full)) {
         if (build_grid(c, fitrad, err))
             return 1;
         o->grid = c->grid.G > 0 ? &c->grid : NULL;
@@ -416,14 +435,14 @@ double mp_econ_render_ops(const mp_prf_model *m, int hw, double fitrad)
     if (m->psf->kind != MP_PSF_TABLE)
         return 0.0;
     double W = isfinite(fitrad) ? 2.0 * ceil(fitrad) + 3.0 : INFINITY;
-    return psf_ops(m->psf, hw, 1, W, mp_prf_axes_apply(m));
+    return psf_ops(m->psf, hw, 1, W, mp_prf_axes_apply(m)) + field_ops(m->psf, m->psf->field, hw, W);
 }
 
 double mp_econ_grid_render_ops(const mp_prf_model *m, double fitrad)
 {
     double W = isfinite(fitrad) ? 2.0 * ceil(fitrad) + 3.0 : INFINITY;
     const mp_psf *p = m->psf;
-    return 48.0 * fmin(W * W, box_pixels(p));
+    return 48.0 * fmin(W * W, box_pixels(p)) * (p->field ? p->field->nterms : 1);
 }
 
 /* A phase grid's derivatives' box for the summary, "; ..." ("" when none). */

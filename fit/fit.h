@@ -298,11 +298,26 @@ typedef struct mp_prf_cache_s {
     /* Position derivatives drawn within a box alone (mp_prf_cache_deriv_box):
      * its half-width [px] and the largest E/(B + RON²) served; 0: none. */
     double dbox_hw, dbox_u;
+    /* A variable PSF (psf->field): one grid per plane of the field (img,
+     * geometry; their own bounds freed), a star's PRF Σ c_t(x, y)·grid_t;
+     * this cache's own img is then NULL and its p, d2, d2l bound every
+     * combination the field takes (mp_prf_cache_build). */
+    int nt;
+    struct mp_prf_cache_s *term;
+    const double *planes;  /* the field's (mp_prf_cache_usable) */
 } mp_prf_cache;
 
 /* mp_prf_cache_build: the grid of model m (its full sinc_hw; m->cache is
  * ignored), at least G phases per pixel.  An analytic PSF, or a grid that
- * would take more than 256 MB, gets an empty cache (c->G = 0).
+ * would take more than 160 MB, gets an empty cache (c->G = 0).  A
+ * variable PSF (m->psf->field) gets a grid per plane of the field, and
+ * its bound holds for every star whose terms are at most 1 in size: a
+ * polynomial field's within its scales of the origin (|x − x0| ≤ xscale,
+ * |y − y0| ≤ yscale, where the PSF built from a frame holds the whole
+ * frame), any position of a grid of tables (its weights are a convex
+ * combination).  There δP = Σ c_t δP_t is at most Σ |δP_t| (a grid's:
+ * the largest |δP_t|) and P at least P_0 − Σ_{t≥1} |P_t| (a grid's: the
+ * least P_t), which the bound (mp_prf_cache_bound) takes.
  * Nonzero with err when out of memory. */
 int mp_prf_cache_build(const mp_prf_model *m, int G, mp_prf_cache *c, char *err);
 
@@ -368,9 +383,15 @@ int mp_prf_render_branch(const mp_prf_model *m, double x, double y, double xr, d
                          long wx0, long wy0, long ww, long wh, long *x0, long *y0, int *w,
                          int *h, double *prf, double *ddx, double *ddy, mp_prf_work *work);
 
-/* mp_prf_cache_usable: nonzero when c was built for m's psf and drf and the
- * PSF does not vary (psf->field NULL). */
+/* mp_prf_cache_usable: nonzero when c was built for m's psf and drf (for a
+ * variable PSF: for its field's planes, so that a view of it at a
+ * sub-image's place, mp_psf_local, is served too). */
 int mp_prf_cache_usable(const mp_prf_cache *c, const mp_prf_model *m);
+
+/* mp_prf_cache_covers: nonzero when c's bound holds for a star of model m
+ * at (x, y): always for a constant PSF and a grid of tables, within the
+ * field's scales of its origin for a polynomial one (mp_prf_cache_build). */
+int mp_prf_cache_covers(const mp_prf_cache *c, const mp_prf_model *m, double x, double y);
 
 /* mp_prf_cache_render: the interpolated PRF (and derivatives, may be NULL)
  * of model m on the box [x0, x0+w) × [y0, y0+h); nonzero when c is not

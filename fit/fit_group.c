@@ -564,7 +564,9 @@ static int fit_and_store(group *G, const mp_fit_opts *o, mp_star *stars, double 
      * (its own bias bound, fit/prf_cache.c), the others from the grid. */
     G->lemax = o->grid_lemax;
     for (int k = 0; k < n; k++)
-        G->ongrid[k] = fabs(stars[k].flux) > o->grid_emax ? 0
+        G->ongrid[k] = fabs(stars[k].flux) > o->grid_emax ||
+                               !mp_prf_cache_covers(o->grid, G->m, stars[k].x, stars[k].y)
+                           ? 0
                        : fabs(stars[k].flux) <= G->lemax ? GRID_LIN
                                                          : 1;
     if (start_state(G, stars, sky))

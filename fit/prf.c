@@ -531,7 +531,8 @@ static int render(const mp_prf_model *m, double x, double y, box bx,
 {
     if (m->psf->kind == MP_PSF_GAUSS)
         return render_gauss(m, x, y, bx, prf, ddx, ddy, w);
-    if (w && mp_prf_cache_usable(w->grid, m))   /* economy: the phase grid (prf_cache.c) */
+    if (w && mp_prf_cache_usable(w->grid, m) &&    /* economy: the phase grid (prf_cache.c) */
+        mp_prf_cache_covers(w->grid, m, x, y))
         return mp_prf_cache_render(w->grid, m, x, y, bx.x0, bx.y0, (int)bx.w, (int)bx.h, prf,
                                    ddx, ddy);
     return render_table(m, x, y, x, y, bx, prf, ddx, ddy, w);

@@ -59,6 +59,9 @@ void mp_prf_cache_free(mp_prf_cache *c)
 {
     if (!c)
         return;
+    for (int t = 0; c->term && t < c->nt; t++)
+        mp_prf_cache_free(&c->term[t]);
+    free(c->term);
     free(c->img);
     free(c->p);
     free(c->d2);
@@ -177,12 +180,17 @@ static void row4(double *restrict out, const float *restrict a0, const float *re
  * around the star's phase, in one pass. */
 static void row_bilinear(double *restrict out, const float *restrict a00,
                          const float *restrict a01, const float *restrict a10,
-                         const float *restrict a11, const double w[4], long n)
+                         const float *restrict a11, const double w[4], long n, int add)
 {
     double w0 = w[0], w1 = w[1], w2 = w[2], w3 = w[3];
+    if (add)
 #pragma omp simd
-    for (long i = 0; i < n; i++)
-        out[i] = w0 * a00[i] + w1 * a01[i] + w2 * a10[i] + w3 * a11[i];
+        for (long i = 0; i < n; i++)
+            out[i] += w0 * a00[i] + w1 * a01[i] + w2 * a10[i] + w3 * a11[i];
+    else
+#pragma omp simd
+        for (long i = 0; i < n; i++)
+            out[i] = w0 * a00[i] + w1 * a01[i] + w2 * a10[i] + w3 * a11[i];
 }
 
 /* Where a span of row y (1-based), pixels [x0, x0+w), meets the cached
@@ -217,30 +225,33 @@ static inline void zero_outside(const span_at *a, int w, double *out[3])
 }
 
 /* interp_spans' bilinear interpolation: the nodes a, a + 1 of each axis
- * (Lagrange's 0 and 1), every output written once. */
+ * (Lagrange's 0 and 1), every output written once (add: added to, the
+ * ends beyond the box left as they are), times k. */
 static void bilinear_spans(const mp_prf_cache *c, const star_pos *s, const mp_span *sp,
-                           const size_t *at, int ns, double *pr, double *gx, double *gy)
+                           const size_t *at, int ns, double *pr, double *gx, double *gy,
+                           double k, int add)
 {
     int na = c->gb + 3, NA = c->os * na;
     size_t step = 3 * c->npix, row = (size_t)NA * step;    /* next node along x, y */
     size_t pl = (size_t)(s->py.beta * na + s->py.a + 1) * NA + (size_t)(s->px.beta * na + s->px.a + 1);
     const float *p0 = c->img + 3 * pl * c->npix;
     double fx = s->px.f, fy = s->py.f;
-    double wv[4] = {(1 - fy) * (1 - fx), (1 - fy) * fx, fy * (1 - fx), fy * fx};
+    double wv[4] = {(1 - fy) * (1 - fx) * k, (1 - fy) * fx * k, fy * (1 - fx) * k, fy * fx * k};
     size_t o = 0;
-    for (int k = 0; k < ns; k++) {
-        o = at ? at[k] : o;
+    for (int n = 0; n < ns; n++) {
+        o = at ? at[n] : o;
         double *out[3] = {pr ? pr + o : NULL, gx ? gx + o : NULL, gy ? gy + o : NULL};
-        span_at a = span_in_box(c, s, sp[k].x0, sp[k].y, sp[k].n);
-        o += (size_t)sp[k].n;
-        zero_outside(&a, sp[k].n, out);
+        span_at a = span_in_box(c, s, sp[n].x0, sp[n].y, sp[n].n);
+        o += (size_t)sp[n].n;
+        if (!add)
+            zero_outside(&a, sp[n].n, out);
         if (!a.inside)
             continue;
         for (int q = 0; q < 3; q++)
             if (out[q]) {
                 const float *v = p0 + (size_t)q * c->npix + (size_t)a.off;
                 row_bilinear(out[q] + a.i0, v, v + step, v + row, v + row + step, wv,
-                             a.i1 - a.i0);
+                             a.i1 - a.i0, add);
             }
     }
 }
@@ -255,13 +266,14 @@ static void bilinear_spans(const mp_prf_cache *c, const star_pos *s, const mp_sp
  * window, stay in L1 between the passes.  Each element's sum keeps its
  * order (node row kb = 0..3), so the values are those of a row-by-row pass
  * bit for bit. */
-static void interp_spans(const mp_prf_cache *c, const star_pos *s, const mp_span *sp,
-                         const size_t *at, int ns, double *pr, double *gx, double *gy)
+static void interp_spans_k(const mp_prf_cache *c, const star_pos *s, const mp_span *sp,
+                           const size_t *at, int ns, double *pr, double *gx, double *gy,
+                           double k, int add)
 {
     int na = c->gb + 3, NA = c->os * na;
     size_t step = 3 * c->npix;          /* the next node along x */
     if (s->lin) {
-        bilinear_spans(c, s, sp, at, ns, pr, gx, gy);
+        bilinear_spans(c, s, sp, at, ns, pr, gx, gy, k, add);
         return;
     }
     for (int kb = 0; kb < 4; kb++) {
@@ -271,30 +283,56 @@ static void interp_spans(const mp_prf_cache *c, const star_pos *s, const mp_span
         const float *p0 = c->img + 3 * pl * c->npix;
         double wv[4];
         for (int ka = 0; ka < 4; ka++)
-            wv[ka] = s->Ly[kb] * s->Lx[ka];
+            wv[ka] = s->Ly[kb] * s->Lx[ka] * k;     /* k = 1: exact, the same bits */
         size_t o = 0;
-        for (int k = 0; k < ns; k++) {
-            o = at ? at[k] : o;
+        for (int n = 0; n < ns; n++) {
+            o = at ? at[n] : o;
             double *out[3] = {pr ? pr + o : NULL, gx ? gx + o : NULL, gy ? gy + o : NULL};
-            span_at a = span_in_box(c, s, sp[k].x0, sp[k].y, sp[k].n);
-            o += (size_t)sp[k].n;
-            if (kb == 0)
-                zero_outside(&a, sp[k].n, out);
+            span_at a = span_in_box(c, s, sp[n].x0, sp[n].y, sp[n].n);
+            o += (size_t)sp[n].n;
+            if (kb == 0 && !add)
+                zero_outside(&a, sp[n].n, out);
             if (!a.inside)
                 continue;
             for (int q = 0; q < 3; q++)
                 if (out[q]) {
                     const float *v = p0 + (size_t)q * c->npix + (size_t)a.off;
                     row4(out[q] + a.i0, v, v + step, v + 2 * step, v + 3 * step, wv,
-                         a.i1 - a.i0, kb > 0);
+                         a.i1 - a.i0, kb > 0 || add);
                 }
         }
     }
 }
 
-/* The interpolated PRF on box [x0, x0+w) × [y0, y0+h): its rows as spans. */
-static void interp(const mp_prf_cache *c, double x, double y, long x0, long y0, int w, int h,
-                   double *prf, double *ddx, double *ddy, int lin)
+/* The star's PRF on the spans: from c's own grid, or, for a variable PSF,
+ * Σ c_t·grid_t with the field's terms c_t at the star (m's field: a
+ * view's is moved to its sub-image, mp_psf_local). */
+static void interp_spans_at(const mp_prf_cache *c, const mp_prf_model *m, double x, double y,
+                            const star_pos *s, const mp_span *sp, const size_t *at, int ns,
+                            double *pr, double *gx, double *gy)
+{
+    if (!c->nt) {
+        interp_spans_k(c, s, sp, at, ns, pr, gx, gy, 1.0, 0);
+        return;
+    }
+    double ct[MP_PSF_MAXTERMS];
+    mp_psf_field_terms(m->psf->field, x, y, ct);
+    interp_spans_k(&c->term[0], s, sp, at, ns, pr, gx, gy, ct[0], 0);
+    for (int t = 1; t < c->nt; t++)
+        if (ct[t] != 0.0)           /* a grid of tables' far planes */
+            interp_spans_k(&c->term[t], s, sp, at, ns, pr, gx, gy, ct[t], 1);
+}
+
+static void interp_spans(const mp_prf_cache *c, const star_pos *s, const mp_span *sp,
+                         const size_t *at, int ns, double *pr, double *gx, double *gy)
+{
+    interp_spans_k(c, s, sp, at, ns, pr, gx, gy, 1.0, 0);
+}
+
+/* The interpolated PRF on box [x0, x0+w) × [y0, y0+h): its rows as spans
+ * (m NULL: c's own grid, never a variable PSF's). */
+static void interp(const mp_prf_cache *c, const mp_prf_model *m, double x, double y, long x0,
+                   long y0, int w, int h, double *prf, double *ddx, double *ddy, int lin)
 {
     star_pos s = star_of(c, x, y, lin);
     enum { CHUNK = 64 };
@@ -304,13 +342,30 @@ static void interp(const mp_prf_cache *c, double x, double y, long x0, long y0, 
         for (int t = 0; t < n; t++)
             rows[t] = (mp_span){x0, y0 + j + t, w};
         size_t o = (size_t)j * w;
-        interp_spans(c, &s, rows, NULL, n, prf + o, ddx ? ddx + o : NULL, ddy ? ddy + o : NULL);
+        double *gx = ddx ? ddx + o : NULL, *gy = ddy ? ddy + o : NULL;
+        if (m)
+            interp_spans_at(c, m, x, y, &s, rows, NULL, n, prf + o, gx, gy);
+        else
+            interp_spans(c, &s, rows, NULL, n, prf + o, gx, gy);
     }
 }
 
 int mp_prf_cache_usable(const mp_prf_cache *c, const mp_prf_model *m)
 {
-    return c && c->img && c->psf == m->psf && c->drf == m->drf && !m->psf->field;
+    if (!c || !c->G || c->drf != m->drf)
+        return 0;
+    const mp_psf_field *f = m->psf->field;
+    if (f)
+        return c->nt == f->nterms && c->planes == f->planes;
+    return c->img && c->psf == m->psf;
+}
+
+int mp_prf_cache_covers(const mp_prf_cache *c, const mp_prf_model *m, double x, double y)
+{
+    const mp_psf_field *f = m->psf->field;
+    if (!c || !c->nt || !f || f->order == MP_PSF_GRID || f->order == 0)
+        return 1;
+    return fabs(x - f->x0) <= f->xscale && fabs(y - f->y0) <= f->yscale;
 }
 
 int mp_prf_cache_render(const mp_prf_cache *c, const mp_prf_model *m, double x, double y,
@@ -318,7 +373,7 @@ int mp_prf_cache_render(const mp_prf_cache *c, const mp_prf_model *m, double x, 
 {
     if (!mp_prf_cache_usable(c, m))
         return 1;
-    interp(c, x, y, x0, y0, w, h, prf, ddx, ddy, 0);
+    interp(c, m, x, y, x0, y0, w, h, prf, ddx, ddy, 0);
     return 0;
 }
 
@@ -329,7 +384,7 @@ int mp_prf_cache_render_at(const mp_prf_cache *c, const mp_prf_model *m, double 
     if (!mp_prf_cache_usable(c, m))
         return 1;
     star_pos s = star_of(c, x, y, lin);
-    interp_spans(c, &s, sp, at, ns, prf, ddx, ddy);
+    interp_spans_at(c, m, x, y, &s, sp, at, ns, prf, ddx, ddy);
     return 0;
 }
 
@@ -376,7 +431,7 @@ static void cell_errors(mp_prf_cache *c, double x, double y, size_t ph, const do
         p[i] = (float)ex[i];
     for (int lin = 0; lin < 2; lin++) {
         float *d = (lin ? c->d2l : c->d2) + ph * c->npix;
-        interp(c, x, y, REF + c->ux0, REF + c->uy0, c->uw, c->uh, cur, NULL, NULL, lin);
+        interp(c, NULL, x, y, REF + c->ux0, REF + c->uy0, c->uw, c->uh, cur, NULL, NULL, lin);
         for (size_t i = 0; i < c->npix; i++)
             d[i] = (float)((cur[i] - ex[i]) * (cur[i] - ex[i]));
     }
@@ -562,6 +617,8 @@ static int cell_bins(mp_prf_cache *c)
     return 0;
 }
 
+static int build_field(const mp_prf_model *m, int G, int sep, mp_prf_cache *c, char *err);
+
 /* The grid, its nodes and cells rendered by the axis operators when the
  * model allows (sep), else by fit/prf.c's render. */
 static int build(const mp_prf_model *m, int G, int sep, mp_prf_cache *c, char *err)
@@ -569,6 +626,8 @@ static int build(const mp_prf_model *m, int G, int sep, mp_prf_cache *c, char *e
     memset(c, 0, sizeof *c);
     if (m->psf->kind != MP_PSF_TABLE || G < 1)
         return 0;                       /* the analytic Gaussian is rendered exactly */
+    if (m->psf->field)
+        return build_field(m, G, sep, c, err);
     mp_prf_model me = *m;               /* the nodes are exact renders (no grid in wk) */
     c->os = m->psf->os;
     c->offset = m->psf->offset;
@@ -616,6 +675,132 @@ done:
     if (rc)
         mp_prf_cache_free(c);
     return rc;
+}
+
+/* The first plane's grid as c's geometry, and its P and |δP| (of both
+ * interpolations) as the start of the bound's: nonzero when out of
+ * memory. */
+static int field_start(mp_prf_cache *c, const mp_prf_cache *t0)
+{
+    c->G = t0->G;
+    c->os = t0->os;
+    c->gb = t0->gb;
+    c->offset = t0->offset;
+    c->ux0 = t0->ux0;
+    c->uy0 = t0->uy0;
+    c->uw = t0->uw;
+    c->uh = t0->uh;
+    c->npix = t0->npix;
+    c->nph = t0->nph;
+    size_t n = (size_t)c->nph * c->npix;
+    c->p = malloc(n * sizeof *c->p);
+    c->d2 = malloc(n * sizeof *c->d2);
+    c->d2l = malloc(n * sizeof *c->d2l);
+    if (!c->p || !c->d2 || !c->d2l)
+        return 1;
+    for (size_t i = 0; i < n; i++) {
+        c->p[i] = t0->p[i];
+        c->d2[i] = sqrtf(t0->d2[i]);
+        c->d2l[i] = sqrtf(t0->d2l[i]);
+    }
+    return 0;
+}
+
+/* Plane t's P and |δP| into the bound's (d2 holds |δP| until
+ * field_finish): a polynomial's term is at most 1 in size, so |δP| adds
+ * and P loses |P_t| at most; a grid of tables' weights are a convex
+ * combination, so |δP| is at most the largest and P at least the least. */
+static void field_add(mp_prf_cache *c, const mp_prf_cache *t, int convex)
+{
+    size_t n = (size_t)c->nph * c->npix;
+    for (size_t i = 0; i < n; i++) {
+        float d = sqrtf(t->d2[i]), dl = sqrtf(t->d2l[i]);
+        if (convex) {
+            c->p[i] = fminf(c->p[i], t->p[i]);
+            c->d2[i] = fmaxf(c->d2[i], d);
+            c->d2l[i] = fmaxf(c->d2l[i], dl);
+        } else {
+            c->p[i] -= fabsf(t->p[i]);
+            c->d2[i] += d;
+            c->d2l[i] += dl;
+        }
+    }
+}
+
+/* |δP| squared, P at least 0 (a pixel whose least P is negative is
+ * bounded at the sky's variance alone), and the bins. */
+static int field_finish(mp_prf_cache *c)
+{
+    size_t n = (size_t)c->nph * c->npix;
+    for (size_t i = 0; i < n; i++) {
+        c->p[i] = fmaxf(c->p[i], 0.0f);
+        c->d2[i] *= c->d2[i];
+        c->d2l[i] *= c->d2l[i];
+    }
+    return cell_bins(c);
+}
+
+/* Plane t's grid's own bound tables, once added to the field's. */
+static void free_bound(mp_prf_cache *t)
+{
+    free(t->p);
+    free(t->d2);
+    free(t->d2l);
+    free(t->d2bin);
+    free(t->d2lbin);
+    t->p = t->d2 = t->d2l = NULL;
+    t->d2bin = t->d2lbin = NULL;
+}
+
+/* A variable PSF's grid (mp_prf_cache_build): a grid per plane of the
+ * field, each built as a constant table's, and the bound of any
+ * combination the field takes.  An empty cache when the planes are not
+ * the table's geometry or the grids would take more than the cap. */
+static int build_field(const mp_prf_model *m, int G, int sep, mp_prf_cache *c, char *err)
+{
+    const mp_psf *p = m->psf;
+    const mp_psf_field *f = p->field;
+    if (f->nx != p->nx || f->ny != p->ny || f->os != p->os || f->nterms < 1)
+        return 0;
+    if (!(c->term = calloc((size_t)f->nterms, sizeof *c->term))) {
+        snprintf(err, MP_ERRLEN, "out of memory for the PRF phase grid of a variable PSF");
+        return 1;
+    }
+    c->nt = f->nterms;
+    size_t plane = (size_t)f->nx * (size_t)f->ny;
+    int convex = f->order == MP_PSF_GRID, rc = 0;
+    for (int t = 0; t < c->nt && !rc; t++) {
+        mp_psf pt = *p;
+        pt.field = NULL;
+        pt.t = f->planes + (size_t)t * plane;
+        mp_prf_model mt = *m;
+        mt.psf = &pt;
+        mp_prf_cache *g = &c->term[t];
+        if (build(&mt, G, sep, g, err))
+            rc = 1;
+        else if (!g->G || 3.0 * c->nt * (double)g->os * (g->gb + 3) * g->os * (g->gb + 3) *
+                                  (double)g->npix * sizeof *g->img > CACHE_MAX_BYTES) {
+            mp_prf_cache_free(c);       /* too big to pay: exact renders */
+            return 0;
+        } else {
+            g->psf = NULL;              /* pt is gone; the field's cache is used */
+            if (t == 0 ? field_start(c, g) : (field_add(c, g, convex), 0))
+                rc = 2;
+            free_bound(g);
+        }
+    }
+    if (!rc && field_finish(c))
+        rc = 2;
+    if (rc) {
+        if (rc == 2)
+            snprintf(err, MP_ERRLEN, "out of memory for the PRF phase grid of a variable PSF");
+        mp_prf_cache_free(c);
+        return 1;
+    }
+    c->psf = p;
+    c->drf = m->drf;
+    c->planes = f->planes;
+    return 0;
 }
 
 int mp_prf_cache_build(const mp_prf_model *m, int G, mp_prf_cache *c, char *err)

@@ -78,9 +78,16 @@ int mp_prf_cache_deriv_box(mp_prf_cache *c, const mp_prf_model *m, double fitrad
         return 0;
     double lim = INFINITY, *buf = NULL;
     size_t cap = 0;
-    for (int b = 0; b < DB_PHASES * DB_PHASES; b++) {
-        double X = 1000.0 + (double)(b % DB_PHASES) / DB_PHASES;
-        double Y = 1000.0 + (double)(b / DB_PHASES) / DB_PHASES;
+    /* A variable PSF: at its origin and the eight points ±scale/2 from it
+     * (fit/prf.c's phase_maxima takes the same). */
+    const mp_psf_field *fd = m->psf->field;
+    int npt = fd && fd->order > 0 ? 9 : 1;
+    for (int b = 0; b < npt * DB_PHASES * DB_PHASES; b++) {
+        int q = b / (DB_PHASES * DB_PHASES);
+        double cx = npt > 1 ? floor(fd->x0 + (q % 3 - 1) * 0.5 * fd->xscale) : 1000.0;
+        double cy = npt > 1 ? floor(fd->y0 + (q / 3 - 1) * 0.5 * fd->yscale) : 1000.0;
+        double X = cx + (double)(b % DB_PHASES) / DB_PHASES;
+        double Y = cy + (double)(b / DB_PHASES % DB_PHASES) / DB_PHASES;
         long x0, y0;
         int w, bh;
         mp_prf_box(m, X, Y, &x0, &y0, &w, &bh);

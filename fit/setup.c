@@ -113,20 +113,24 @@ static void supersampling_levels(mp_fit_setup *s)
 /* The PRF from a grid of subpixel phases (fit/prf_cache.c) for the model as
  * given (its finest table, the costliest to render; a coarser sampling's
  * renders are os² times cheaper and keep the exact render); a variable PSF
- * keeps the exact renders. */
+ * gets a grid per term of its field. */
 static void phase_grids(mp_fit_setup *s, const mp_parset *ps)
 {
     int grid = MP_PRF_CACHE_G;
     mp_par_int(ps, "phasegrid", &grid);
-    if (grid <= 0 || s->field.order > 0 || s->psf.kind != MP_PSF_TABLE)
+    if (grid <= 0 || s->psf.kind != MP_PSF_TABLE)
         return;
     s->econ_grid = grid;
-    char why[512];
+    char why[640], terms[160] = "";
+    if (s->field.order > 0)
+        snprintf(terms, sizeof terms, "; for the variable PSF a grid per term (%d), a star's PRF "
+                 "their sum at its place, bounded for every place within the field's scales",
+                 s->field.nterms);
     snprintf(why, sizeof why, "PRF from a grid of %d subpixel phases per pixel (cubic, five-point "
              "derivatives interpolated) for groups whose brightest star's bias bound stays below "
              "%.2g sigma, exact renders for brighter ones, and bilinear (a quarter of the reads) for "
-             "a star whose own bound with it stays below %.2g sigma (fit/prf_cache.c)", grid,
-             s->opts.sincfrac, s->opts.sincfrac);
+             "a star whose own bound with it stays below %.2g sigma (fit/prf_cache.c)%s", grid,
+             s->opts.sincfrac, s->opts.sincfrac, terms);
     decide(s, why);
     snprintf(why, sizeof why, "position derivatives: drawn from the grid within fitrad + 2 px of "
              "a star whose pixels beyond hold at most %.2g of its information on x and y (its "

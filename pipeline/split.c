@@ -154,7 +154,7 @@ static int trial_prf(const mp_prf_model *m, double px, double py, split_work *s,
                      double *scratch)
 {
     mp_prf_work *wk = &s->wk;
-    if (mp_prf_cache_usable(wk->grid, m))
+    if (mp_prf_cache_usable(wk->grid, m) && mp_prf_cache_covers(wk->grid, m, px, py))
         return mp_prf_cache_render_spans(wk->grid, m, px, py, s->sp, s->ns, s->pt, NULL, NULL);
     size_t n = (size_t)(s->w * s->h);
     double *full = scratch + 3 * n;

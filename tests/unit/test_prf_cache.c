@@ -517,6 +517,141 @@ static void test_adjoint_is_transpose(void **state)
     }
 }
 
+/* A variable PSF's grid (a grid per term of its field): an order-2 field
+ * over a 200² frame (origin 100, 100, scales 100), its planes the ×2
+ * Gaussian of FWHM 2.5 and five differences of Gaussians, so that the
+ * FWHM changes by ~±15 % over the frame.  At cell centres (where the bound
+ * is measured) at nine places within the scales, Σ (grid − exact)² over
+ * the window is at most the bound's Σ δP² of that cell (|δP| ≤ Σ_t |δP_t|
+ * pixel by pixel when every term is at most 1); its flux limit is at most
+ * the origin's table's own grid's (the field's P is bounded below, its
+ * δP above); a view of the field at a sub-image (mp_psf_local) is served
+ * and draws the same PRF at the same frame place; another field's grid is
+ * not used; a place beyond the scales is not covered. */
+static void field_planes(mp_psf_field *f)
+{
+    char err[MP_ERRLEN];
+    static const double fw[6] = {2.5, 2.9, 2.2, 2.7, 3.0, 2.3};
+    static const double amp[6] = {1.0, 0.8, 0.5, 0.8, 0.3, 0.4};
+    mp_psf g0, g;
+    assert_int_equal(mp_psf_gauss_table(fw[0], 2, 8.0, &g0, err), 0);
+    assert_int_equal(mp_psf_field_new(2, g0.nx, g0.ny, 2, 100.0, 100.0, 100.0, 100.0, f, err),
+                     0);
+    size_t n = (size_t)g0.nx * g0.ny;
+    memcpy(f->planes, g0.t, n * sizeof *g0.t);
+    for (int t = 1; t < 6; t++) {
+        assert_int_equal(mp_psf_gauss_table(fw[t], 2, 8.0, &g, err), 0);
+        assert_true(g.nx == g0.nx && g.ny == g0.ny);
+        for (size_t i = 0; i < n; i++)
+            f->planes[(size_t)t * n + i] = amp[t] * (g.t[i] - g0.t[i]);
+        mp_psf_free(&g);
+    }
+    f->sum = g0.sum;
+    mp_psf_free(&g0);
+}
+
+/* Σ over the window of (grid − exact)² for a star at (x, y) of model m. */
+static double field_err2(const mp_prf_model *m, const mp_prf_cache *c, double x, double y)
+{
+    mp_prf_work we = {0}, wg = {0};
+    wg.grid = c;
+    size_t cap = (size_t)c->uw * c->uh;
+    double *a = malloc(cap * sizeof *a), *b = malloc(cap * sizeof *b);
+    assert_true(a && b);
+    long x0, y0, x1, y1;
+    int w0, h0, w1, h1;
+    assert_int_equal(mp_prf_render_window(m, x, y, -100, -100, 400, 400, &x0, &y0, &w0, &h0, a,
+                                          NULL, NULL, &we), 0);
+    assert_int_equal(mp_prf_render_window(m, x, y, -100, -100, 400, 400, &x1, &y1, &w1, &h1, b,
+                                          NULL, NULL, &wg), 0);
+    assert_true(x0 == x1 && y0 == y1 && w0 == w1 && h0 == h1);
+    double s = 0.0;
+    for (size_t i = 0; i < (size_t)w0 * h0; i++)
+        s += (a[i] - b[i]) * (a[i] - b[i]);
+    free(a);
+    free(b);
+    mp_prf_work_free(&we);
+    mp_prf_work_free(&wg);
+    return s;
+}
+
+static void test_field_grid_within_bound(void **state)
+{
+    (void)state;
+    char err[MP_ERRLEN];
+    mp_psf_field f, f2;
+    field_planes(&f);
+    field_planes(&f2);
+    mp_psf p, p2, p0;
+    assert_int_equal(mp_psf_field_eval(&f, f.x0, f.y0, &p, err), 0);
+    assert_int_equal(mp_psf_field_eval(&f2, f2.x0, f2.y0, &p2, err), 0);
+    assert_int_equal(mp_psf_field_eval(&f, f.x0, f.y0, &p0, err), 0);
+    p.field = &f;
+    p2.field = &f2;
+    mp_prf_model m = {&p, NULL, 10}, other = {&p2, NULL, 10}, m0 = {&p0, NULL, 10};
+    mp_prf_cache c, c0;
+    assert_int_equal(mp_prf_cache_build(&m, 16, &c, err), 0);
+    assert_int_equal(mp_prf_cache_build(&m0, 16, &c0, err), 0);
+    assert_int_equal(c.G, 16);
+    assert_int_equal(c.nt, 6);
+    assert_true(c.img == NULL && c.term != NULL);
+    assert_true(mp_prf_cache_usable(&c, &m));
+    assert_false(mp_prf_cache_usable(&c, &other));
+    assert_false(mp_prf_cache_usable(&c, &m0));
+    assert_false(mp_prf_cache_usable(&c0, &m));
+    assert_true(mp_prf_cache_covers(&c, &m, 150.0, 20.0));
+    assert_false(mp_prf_cache_covers(&c, &m, 201.0, 100.0));
+    assert_true(mp_prf_cache_limit(&c, 50.0, 5.0, 0.1) <= mp_prf_cache_limit(&c0, 50.0, 5.0, 0.1));
+    int ng = c.G, checked = 0;
+    for (int q = 0; q < 9; q++)
+        for (int ph = 0; ph < c.nph; ph += 37) {
+            int ix = ph % ng, iy = ph / ng;
+            double x = 10.0 + 90.0 * (q % 3) + 0.5 + (ix + 0.5) / ng;
+            double y = 10.0 + 90.0 * (q / 3) + 0.5 + (iy + 0.5) / ng;
+            double bound = 0.0;
+            for (size_t i = 0; i < c.npix; i++)
+                bound += c.d2[(size_t)ph * c.npix + i];
+            double e2 = field_err2(&m, &c, x, y);
+            assert_true(bound > 0);
+            assert_true(e2 <= bound * (1.0 + 1e-5) + 1e-20);
+            checked++;
+        }
+    assert_true(checked >= 9 * 6);
+    /* A sub-image whose pixel (1, 1) is frame (51, 31): the same PRF. */
+    mp_psf lp;
+    mp_psf_field lf;
+    mp_psf_local(&p, 50.0, 30.0, &lp, &lf);
+    mp_prf_model ml = {&lp, NULL, 10};
+    assert_true(mp_prf_cache_usable(&c, &ml));
+    size_t cap = (size_t)c.uw * c.uh;
+    double *a = malloc(cap * sizeof *a), *b = malloc(cap * sizeof *b);
+    assert_true(a && b);
+    mp_span sp[64];
+    long bx, by;
+    int bw, bh;
+    mp_prf_box(&m, 123.3, 77.8, &bx, &by, &bw, &bh);
+    assert_true(bh <= 64);
+    for (int j = 0; j < bh; j++)
+        sp[j] = (mp_span){bx, by + j, bw};
+    assert_int_equal(mp_prf_cache_render_at(&c, &m, 123.3, 77.8, sp, NULL, bh, a, NULL, NULL, 0),
+                     0);
+    for (int j = 0; j < bh; j++)
+        sp[j] = (mp_span){bx - 50, by - 30 + j, bw};
+    assert_int_equal(mp_prf_cache_render_at(&c, &ml, 73.3, 47.8, sp, NULL, bh, b, NULL, NULL, 0),
+                     0);
+    for (size_t i = 0; i < (size_t)bw * bh; i++)
+        assert_true(fabs(a[i] - b[i]) <= 1e-12);
+    free(a);
+    free(b);
+    mp_prf_cache_free(&c);
+    mp_prf_cache_free(&c0);
+    mp_psf_free(&p);
+    mp_psf_free(&p2);
+    mp_psf_free(&p0);
+    mp_psf_field_free(&f);
+    mp_psf_field_free(&f2);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
@@ -530,6 +665,7 @@ int main(void)
         cmocka_unit_test(test_render_paths_agree),
         cmocka_unit_test(test_serves_as_the_bound),
         cmocka_unit_test(test_adjoint_is_transpose),
+        cmocka_unit_test(test_field_grid_within_bound),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }
