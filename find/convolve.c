@@ -67,11 +67,15 @@ static void tap_row(double *restrict o, const float *restrict p, const float *re
 
 int mpf_any_bad(const mp_frame *f)
 {
+    /* In parallel, every pixel read (a frame without a bad pixel reads all
+     * of them anyway): 1 % of a 1024² crowded frame's detection, serial
+     * (issue 14, bench/SCALING.md session 39).  The answer is an or. */
     size_t n = (size_t)f->im.nx * (size_t)f->im.ny;
+    int bad = 0;
+#pragma omp parallel for schedule(static) reduction(| : bad) if (n > 65536)
     for (size_t i = 0; i < n; i++)
-        if (mpf_bad(f, i))
-            return 1;
-    return 0;
+        bad |= mpf_bad(f, i);
+    return bad;
 }
 
 /* near[x]: a bad pixel lies in the (2nh+1)² box around (x, y); colbad
