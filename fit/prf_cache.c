@@ -306,7 +306,7 @@ static void interp_spans_k(const mp_prf_cache *c, const star_pos *s, const mp_sp
 
 /* The star's PRF on the spans: from c's own grid, or, for a variable PSF,
  * Σ c_t·grid_t with the field's terms c_t at the star (m's field: a
- * view's is moved to its sub-image, mp_psf_local). */
+ * view's is moved to its sub-image, mp_psf_local; m is read only then). */
 static void interp_spans_at(const mp_prf_cache *c, const mp_prf_model *m, double x, double y,
                             const star_pos *s, const mp_span *sp, const size_t *at, int ns,
                             double *pr, double *gx, double *gy)
@@ -323,14 +323,8 @@ static void interp_spans_at(const mp_prf_cache *c, const mp_prf_model *m, double
             interp_spans_k(&c->term[t], s, sp, at, ns, pr, gx, gy, ct[t], 1);
 }
 
-static void interp_spans(const mp_prf_cache *c, const star_pos *s, const mp_span *sp,
-                         const size_t *at, int ns, double *pr, double *gx, double *gy)
-{
-    interp_spans_k(c, s, sp, at, ns, pr, gx, gy, 1.0, 0);
-}
-
 /* The interpolated PRF on box [x0, x0+w) × [y0, y0+h): its rows as spans
- * (m NULL: c's own grid, never a variable PSF's). */
+ * (m may be NULL for a constant PSF's grid). */
 static void interp(const mp_prf_cache *c, const mp_prf_model *m, double x, double y, long x0,
                    long y0, int w, int h, double *prf, double *ddx, double *ddy, int lin)
 {
@@ -342,11 +336,8 @@ static void interp(const mp_prf_cache *c, const mp_prf_model *m, double x, doubl
         for (int t = 0; t < n; t++)
             rows[t] = (mp_span){x0, y0 + j + t, w};
         size_t o = (size_t)j * w;
-        double *gx = ddx ? ddx + o : NULL, *gy = ddy ? ddy + o : NULL;
-        if (m)
-            interp_spans_at(c, m, x, y, &s, rows, NULL, n, prf + o, gx, gy);
-        else
-            interp_spans(c, &s, rows, NULL, n, prf + o, gx, gy);
+        interp_spans_at(c, m, x, y, &s, rows, NULL, n, prf + o, ddx ? ddx + o : NULL,
+                        ddy ? ddy + o : NULL);
     }
 }
 

@@ -525,7 +525,8 @@ static void test_adjoint_is_transpose(void **state)
  * the window is at most the bound's Σ δP² of that cell (|δP| ≤ Σ_t |δP_t|
  * pixel by pixel when every term is at most 1); its flux limit is at most
  * the origin's table's own grid's (the field's P is bounded below, its
- * δP above); a view of the field at a sub-image (mp_psf_local) is served
+ * δP above; so for this table, whose P is nowhere negative — a table whose
+ * sinc ringing is, skips those pixels in its own bound); a view of the field at a sub-image (mp_psf_local) is served
  * and draws the same PRF at the same frame place; another field's grid is
  * not used; a place beyond the scales is not covered. */
 static void field_planes(mp_psf_field *f)
