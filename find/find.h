@@ -123,19 +123,22 @@ int mp_bkg_estimate(const mp_frame *f, int mesh, int filter, mp_bkg *b, char *er
  * star light into one number per box), plus a profile error ε·M as
  * DAOPHOT's proferr (anchors.md §1.3), here measured, so that where the
  * PSF does not match the data its residual is not taken for new stars.
- * k is the robust σ (1.4826·MAD) of the residual normalised by the Poisson
- * model, summed over block × block pixels (block ≥ 1, about the detection
- * kernel's size) where M is below its own noise (or, when fewer than a
- * quarter of the blocks are, the quarter with the least): 1 for Poisson data in
- * electrons; it absorbs a wrong gain, extra noise, and noise correlated
- * between neighbouring pixels (resampled mosaics), as detection sees it;
+ * k is the robust σ (1.4826·MAD) of the residual's detection-kernel
+ * amplitude (DAOFIND's lowered Gaussian of fwhm and nsigma, as
+ * mp_find_stars) over its Poisson σ, at pixels whose footprint's M is
+ * below its own noise (or, when fewer than a quarter are, the quarter with
+ * the least): 1 for Poisson data in electrons; it absorbs a wrong gain,
+ * extra noise, and noise correlated between neighbouring pixels
+ * (resampled mosaics), as detection sees it, and not the structure
+ * smoother than the kernel (the lowered kernel sums to zero);
  * ε makes that robust σ 1 over the pixels where M is above 3 of k's σ,
  * and is 0 unless their excess is significant (3 sampling σ).  *scale receives k
  * (NaN, and rms left as it was, with fewer than 10 such pixels), *proferr
- * ε.  b->sky is used as the sky.  Errors: out of memory.
+ * ε.  b->sky is used as the sky.  Errors: fwhm or nsigma not positive
+ * (or a kernel too large), out of memory.
  */
-int mp_bkg_noise_from_model(mp_bkg *b, const mp_frame *f, const float *res, int block,
-                            double *scale, double *proferr, char *err);
+int mp_bkg_noise_from_model(mp_bkg *b, const mp_frame *f, const float *res, double fwhm,
+                            double nsigma, double *scale, double *proferr, char *err);
 
 /*
  * mp_bkg_star_excess: after mp_bkg_noise_from_model, the model's error

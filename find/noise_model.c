@@ -1,6 +1,7 @@
 /* noise_model.c — mp_bkg_noise_from_model (find.h): the noise map of a
  * fit's residual from the Poisson model of the fitted frame. */
 #include "find/find.h"
+#include "find/find_priv.h"
 
 #include <math.h>
 #include <stdlib.h>
@@ -36,27 +37,33 @@ typedef struct {
     size_t n;
 } samples;
 
-/* Block (bx, by) = (nb mod nbx, nb / nbx) of block × block pixels as
- * sample j of s: its sums of residual, Poisson variance and star light
- * over its noise, or p = −1 when a pixel is masked or unusable. */
-static void block_sample(const mp_bkg *b, const mp_frame *f, const float *res, long block,
-                         long nbx, size_t nb, samples *s, size_t j)
+/* Pixel (x, y) = (i mod nx, i / nx) as sample j of s through the
+ * detection kernel k: r its amplitude h = Σ kl·(residual − sky) there,
+ * p h's Poisson variance Σ kl²·v, m the stars' light over its noise in
+ * the footprint; p = −1 where the footprint leaves the frame or holds a
+ * masked or unusable pixel. */
+static void kernel_sample(const mp_bkg *b, const mp_frame *f, const float *res,
+                          const mpf_kernel *k, size_t i, samples *s, size_t j)
 {
-    long nx = f->im.nx, bx = (long)(nb % (size_t)nbx), by = (long)(nb / (size_t)nbx);
-    double sr = 0.0, sp = 0.0, sm = 0.0;
+    long nx = f->im.nx, ny = f->im.ny, x0 = (long)(i % (size_t)nx), y0 = (long)(i / (size_t)nx);
+    double h = 0.0, vh = 0.0, sp = 0.0, sm = 0.0;
     int ok = 1;
-    for (long y = by * block; ok && y < (by + 1) * block; y++)
-        for (long x = bx * block; ok && x < (bx + 1) * block; x++) {
-            size_t i = (size_t)y * (size_t)nx + (size_t)x;
-            double v = poisson_var(b, f, res, i);
-            ok = !f->mask[i] && v > 0 && isfinite(res[i]);
-            sr += res[i] - mp_bkg_sky(b, i);
-            sp += v;
-            sm += fmax(f->im.pix[i] - res[i], 0.0);
-        }
-    s->r[j] = sr;
-    s->p[j] = ok ? sp : -1.0;
-    s->m[j] = sm / sqrt(sp);   /* star light over its noise */
+    for (int t = 0; ok && t < k->n; t++) {
+        long x = x0 + k->dx[t], y = y0 + k->dy[t];
+        ok = x >= 0 && x < nx && y >= 0 && y < ny;
+        if (!ok)
+            break;
+        size_t q = (size_t)y * (size_t)nx + (size_t)x;
+        double v = poisson_var(b, f, res, q);
+        ok = !f->mask[q] && v > 0 && isfinite(res[q]);
+        h += k->kl[t] * (res[q] - mp_bkg_sky(b, q));
+        vh += k->kl[t] * k->kl[t] * v;
+        sp += v;
+        sm += fmax(f->im.pix[q] - res[q], 0.0);
+    }
+    s->r[j] = h;
+    s->p[j] = ok ? vh : -1.0;
+    s->m[j] = ok ? sm / sqrt(sp) : 0.0;   /* star light over its noise */
 }
 
 /* Pixel i as sample j of s when the stars' light there is above 3
@@ -94,26 +101,31 @@ static double normalised_sigma(samples *s, double k, double eps)
     return robust_sigma(s->z, s->n);
 }
 
-/* k from block × block sums over blocks where the stars' light is below
- * its Poisson noise in every pixel (a profile error cannot show there);
- * all holds room for cap samples.  Blocks of about the detection kernel's
- * size make k describe the noise at the scale detection works on:
- * resampled (mosaic) frames have correlated noise, which a pixel's rms
- * under-states there.  NaN with fewer than 10 usable blocks. */
-static double noise_scale(const mp_bkg *b, const mp_frame *f, const float *res, int block,
-                          samples *all, size_t cap)
+/* k from the detection kernel's amplitude at every step-th pixel where
+ * the stars' light in its footprint is below its Poisson noise (a profile
+ * error cannot show there); all holds room for cap samples.  The
+ * amplitude is what detection thresholds, so k describes the noise as
+ * detection sees it: noise correlated between neighbouring pixels
+ * (resampled mosaics) counts as the kernel weighs it; structure smoother
+ * than the kernel (a sky the local fits leave, the crowd's unresolved
+ * light) does not, as the lowered kernel sums to zero (47 Tuc's core:
+ * 3×3 block sums, which see that structure, read 6.5, the kernel 1.4).
+ * NaN with fewer than 10 usable samples. */
+static double noise_scale(const mp_bkg *b, const mp_frame *f, const float *res,
+                          const mpf_kernel *k, size_t step, samples *all, size_t cap)
 {
-    long nx = f->im.nx, ny = f->im.ny, nbx = nx / block, nby = ny / block;
-    size_t bstep = (size_t)nbx * (size_t)nby / cap + 1;
-    size_t nsel = ((size_t)nbx * (size_t)nby + bstep - 1) / bstep;
-    /* Every bstep-th block into its own slot, in parallel; the unusable
+    size_t npix = (size_t)f->im.nx * (size_t)f->im.ny;
+    size_t nsel = (npix + step - 1) / step;
+    if (nsel > cap)
+        nsel = cap;
+    /* Every step-th pixel into its own slot, in parallel; the unusable
      * ones (p < 0) then dropped in order, so the samples do not depend on
      * the threads. */
 #pragma omp parallel for schedule(static)
     for (size_t j = 0; j < nsel; j++)
-        block_sample(b, f, res, block, nbx, j * bstep, all, j);
+        kernel_sample(b, f, res, k, j * step, all, j);
     all->n = compact(all, nsel);
-    /* The blocks whose star light is below its noise; in a field so
+    /* The samples whose star light is below its noise; in a field so
      * crowded that fewer than a quarter are, the quarter with the least
      * (47 Tuc's core: star light everywhere). */
     if (all->n >= 10) {
@@ -171,27 +183,29 @@ static void adopt_model(mp_bkg *b, const mp_frame *f, const float *res, double k
         b->vals = v;
 }
 
-int mp_bkg_noise_from_model(mp_bkg *b, const mp_frame *f, const float *res, int block,
-                            double *scale, double *proferr, char *err)
+int mp_bkg_noise_from_model(mp_bkg *b, const mp_frame *f, const float *res, double fwhm,
+                            double nsigma, double *scale, double *proferr, char *err)
 {
     *scale = NAN;
     *proferr = 0.0;
     size_t npix = (size_t)f->im.nx * (size_t)f->im.ny;
-    if (block < 1)
-        block = 1;
+    mpf_kernel kern;
+    if (mpf_kernel_make(fwhm, nsigma, &kern, err))
+        return 1;
     /* A regular subsample keeps the sorts cheap on large frames; 2·10⁵
      * pixels pin k to ~0.3 % (the MAD's relative error 1.166/√n). */
     size_t step = npix / 200000 + 1, cap = npix / step + 1;
     samples all = {0}, star = {0};
     double *buf = malloc(4 * cap * sizeof *buf);
     if (!buf) {
+        mpf_kernel_free(&kern);
         snprintf(err, MP_ERRLEN, "out of memory for the residual noise map");
         return 1;
     }
     /* The star samples are drawn once k is known: the same room. */
     all.r = buf, all.p = buf + cap, all.m = buf + 2 * cap, all.z = buf + 3 * cap;
     star.r = all.r, star.p = all.p, star.m = all.m, star.z = all.z;
-    double k = noise_scale(b, f, res, block, &all, cap);
+    double k = noise_scale(b, f, res, &kern, step, &all, cap);
     /* Those where the stars' light is above 3 k-scaled σ measure ε (where
      * a profile error shows, above the noise that k describes). */
     size_t nstar = k > 0 ? (npix + step - 1) / step : 0;
@@ -206,5 +220,6 @@ int mp_bkg_noise_from_model(mp_bkg *b, const mp_frame *f, const float *res, int 
         adopt_model(b, f, res, k, eps);
     }
     free(buf);
+    mpf_kernel_free(&kern);
     return 0;
 }

@@ -373,7 +373,7 @@ static int find_on_residual(run_state *s, int round, long *added, char *err)
     mp_bkg_free(&s->bkg);
     residual_noise nz = {NAN, 0.0, 0, 0};
     if (mp_bkg_estimate(&R, o->mesh, o->filter, &s->bkg, err) ||
-        mp_bkg_noise_from_model(&s->bkg, &s->f, s->res, (int)lround(fmax(1.0, s->fwhm)),
+        mp_bkg_noise_from_model(&s->bkg, &s->f, s->res, o->find.fwhm, o->find.nsigma,
                                 &nz.kscale, &nz.proferr, err) ||
         mp_pl_star_excess(&s->f, &s->bkg, &s->t, &s->fit->model, &nz.nring, &nz.nexcess, err))
         return 1;

@@ -838,8 +838,10 @@ static void test_append_and_errors(void **state)
 /* ---------- the residual's noise map from the model ---------- */
 
 /* A Poisson frame of sky + bright stars, residual = data − the exact stars:
- * the normalised residual's robust σ is 1 (k within Z_TOL standard errors:
- * the MAD's σ estimate has a relative error 1.166/sqrt(n)) and no profile
+ * the detection kernel's normalised amplitude has robust σ 1 (k within
+ * Z_TOL standard errors: the MAD's σ estimate has a relative error
+ * 1.166/sqrt(n), n the samples' count over the sum of their squared
+ * correlations, kernel_corr) and no profile
  * error is found; with every deviation doubled k is 2; with an extra
  * ε·M·N(0,1) (a PSF that misses by 5 %) ε is measured and the map is
  * sqrt(k²(sky + M + RON²) + ε²M²) pixel by pixel.  Masked pixels are left
@@ -858,7 +860,8 @@ static void noise_frame(mp_frame *f, const double *stars, float *res, double sky
     /* corr: each deviation the half-sum of a 2×2 box of white ones (a
      * resampled frame): the pixel variance is kept, and a 3×3 sum holds
      * the white deviations of a 4×4 patch with weights (1,2,2,1)⊗(1,2,2,1)/2,
-     * variance Σw² = 10²/4 = 25 of them instead of 9. */
+     * variance Σw² = 10²/4 = 25 of them instead of 9; the covariance of two
+     * deviations (dx, dy) apart is c(dx)·c(dy), c(0) = 1, c(±1) = 1/2. */
     if (corr)
         for (long i = 0; i < n - nx - 1; i++)
             res[i] = 0.5 * (res[i] + res[i + 1] + res[i + nx] + res[i + nx + 1]);
@@ -866,6 +869,87 @@ static void noise_frame(mp_frame *f, const double *stars, float *res, double sky
         res[i] += sky;
         f->im.pix[i] = res[i] + stars[i];
     }
+}
+
+/* DAOFIND's kernel as find.h states it, written here from that
+ * definition: taps r ≤ max(2, nsigma·σ), weights g − mean(g) (their scale
+ * drops out of every ratio below).  Returns the taps' count (room 81). */
+static int daofind_kernel(double fwhm, double nsigma, int *dx, int *dy, double *w)
+{
+    double sg = fwhm / 2.3548200450309493, rad = fmax(2.0, nsigma * sg), mean = 0.0;
+    int n = 0;
+    for (int j = -4; j <= 4; j++)
+        for (int i = -4; i <= 4; i++)
+            if (i * i + j * j <= rad * rad * (1.0 + 1e-12)) {
+                dx[n] = i, dy[n] = j;
+                w[n] = exp(-0.5 * (i * i + j * j) / (sg * sg));
+                mean += w[n++];
+            }
+    for (int t = 0; t < n; t++)
+        w[t] -= mean / n;
+    return n;
+}
+
+/* The noise's covariance at lag (dx, dy) over its variance: white, or
+ * noise_frame's 2×2 half-sums (corr). */
+static double noise_cov(int dx, int dy, int corr)
+{
+    double cx = dx == 0 ? 1.0 : (corr && abs(dx) == 1 ? 0.5 : 0.0);
+    double cy = dy == 0 ? 1.0 : (corr && abs(dy) == 1 ? 0.5 : 0.0);
+    return cx * cy;
+}
+
+/* Covariance of the kernel's amplitude at two pixels (ox, oy) apart, over
+ * the variance white noise of the same pixel variance gives it. */
+static double amp_cov(const int *dx, const int *dy, const double *w, int n, int ox, int oy,
+                      int corr)
+{
+    double c = 0.0, white = 0.0;
+    for (int s = 0; s < n; s++) {
+        white += w[s] * w[s];
+        for (int t = 0; t < n; t++)
+            c += w[s] * w[t] * noise_cov(dx[t] + ox - dx[s], dy[t] + oy - dy[s], corr);
+    }
+    return c / white;
+}
+
+/* *k2: the amplitude's variance over white noise's (the k² that noise
+ * gives); returns Σ ρ² over every lag, ρ the amplitude's correlation
+ * between pixels: a robust σ over n such pixels has the relative error
+ * 1.166·sqrt(Σρ²/n). */
+static double kernel_corr(double fwhm, double nsigma, int corr, double *k2)
+{
+    int dx[81], dy[81];
+    double w[81], sum = 0.0;
+    int n = daofind_kernel(fwhm, nsigma, dx, dy, w);
+    *k2 = amp_cov(dx, dy, w, n, 0, 0, corr);
+    for (int oy = -10; oy <= 10; oy++)
+        for (int ox = -10; ox <= 10; ox++) {
+            double r = amp_cov(dx, dy, w, n, ox, oy, corr) / *k2;
+            sum += r * r;
+        }
+    return sum;
+}
+
+/* The pixels at least 2 px from the edge whose 5×5 box (the fwhm-3
+ * kernel's footprint, and a little more) holds no masked pixel and star
+ * light below its Poisson noise: about the samples k is measured on. */
+static long quiet_pixels(const mp_frame *f, const double *stars, double sky, double ron)
+{
+    long nx = f->im.nx, ny = f->im.ny, n = 0;
+    for (long y = 2; y < ny - 2; y++)
+        for (long x = 2; x < nx - 2; x++) {
+            double m = 0.0, v = 0.0;
+            int bad = 0;
+            for (long j = y - 2; j <= y + 2; j++)
+                for (long i = x - 2; i <= x + 2; i++) {
+                    m += stars[j * nx + i];
+                    v += sky + stars[j * nx + i] + ron * ron;
+                    bad |= f->mask[j * nx + i] != 0;
+                }
+            n += !bad && m * m < v;
+        }
+    return n;
 }
 
 static void test_noise_from_model(void **state)
@@ -890,20 +974,21 @@ static void test_noise_from_model(void **state)
     mp_bkg b;
     char err[MP_ERRLEN];
     double k, eps;
-    /* k expected: the scale, or 5/3 of it for the 2×2-correlated noise
-     * seen in 3×3 sums (sqrt(25/9)). */
-    const struct { double scale, eps; int corr; double k; } cs[] = {
-        {1.0, 0.0, 0, 1.0}, {2.0, 0.0, 0, 2.0}, {1.0, 0.05, 0, 1.0}, {1.0, 0.0, 1, 5.0 / 3.0}};
+    /* k expected: the scale, times the square root of the amplitude's
+     * variance over white noise's for the 2×2-correlated noise. */
+    const struct { double scale, eps; int corr; } cs[] = {
+        {1.0, 0.0, 0}, {2.0, 0.0, 0}, {1.0, 0.05, 0}, {1.0, 0.0, 1}};
     for (int c = 0; c < 4; c++) {
+        double k2, sumrho2 = kernel_corr(3.0, 1.5, cs[c].corr, &k2), kwant = cs[c].scale * sqrt(k2);
         noise_frame(&f, stars, res, sky, cs[c].scale, cs[c].eps, cs[c].corr, 7 + (uint64_t)c);
-        long nstar = 0;
-        for (long i = 0; i < nx * ny; i++)
-            nstar += stars[i] * stars[i] > sky + stars[i] + ron * ron;
         assert_int_equal(mp_bkg_estimate(&f, 64, 3, &b, err), 0);
         assert_int_equal(mp_bkg_set_flat(&b, nx, ny, sky, 0.0), 0);
-        assert_int_equal(mp_bkg_noise_from_model(&b, &f, res, 3, &k, &eps, err), 0);
-        /* k from 3×3 sums: at most (nx·ny − nstar)/9 of them */
-        assert_true(fabs(k / cs[c].k - 1.0) < Z_TOL * 1.166 / sqrt((double)(nx * ny - nstar) / 9.0));
+        assert_int_equal(mp_bkg_noise_from_model(&b, &f, res, 3.0, 1.5, &k, &eps, err), 0);
+        /* k from the kernel's amplitude at the pixels whose footprint
+         * holds no masked pixel and star light below its noise */
+        double nsamp = (double)quiet_pixels(&f, stars, sky, ron);
+        printf("# case %d: k %.4f, expected %.4f +- %.4f\n", c, k, kwant, 1.166 * sqrt(sumrho2 / nsamp) * kwant);
+        assert_true(fabs(k / kwant - 1.0) < Z_TOL * 1.166 * sqrt(sumrho2 / nsamp));
         if (cs[c].eps == 0.0)
             assert_true(eps == 0.0);   /* false alarm ~1e-3 per case, fixed seeds */
         else   /* ε's relative error ≈ (1.166/√nstar)·(total/profile variance): a few %
@@ -923,7 +1008,7 @@ static void test_noise_from_model(void **state)
     memset(f.mask, MP_MASK_BAD, (size_t)(nx * ny));
     assert_int_equal(mp_bkg_estimate(&f, 64, 3, &b, err), 0);
     double before = mp_bkg_rms(&b, 123);
-    assert_int_equal(mp_bkg_noise_from_model(&b, &f, res, 3, &k, &eps, err), 0);
+    assert_int_equal(mp_bkg_noise_from_model(&b, &f, res, 3.0, 1.5, &k, &eps, err), 0);
     assert_true(isnan(k));
     assert_true(mp_bkg_rms(&b, 123) == before);
     mp_bkg_free(&b);
@@ -989,7 +1074,7 @@ static void test_star_excess(void **state)
         double k, eps;
         assert_int_equal(mp_bkg_estimate(&f, 64, 3, &b, err), 0);
         assert_int_equal(mp_bkg_set_flat(&b, nx, ny, sky, 0.0), 0);
-        assert_int_equal(mp_bkg_noise_from_model(&b, &f, res, 3, &k, &eps, err), 0);
+        assert_int_equal(mp_bkg_noise_from_model(&b, &f, res, 3.0, 1.5, &k, &eps, err), 0);
         size_t peak = (size_t)lround(y[4]) * (size_t)nx + (size_t)lround(x[4] + 6.0);
         double before = mp_bkg_rms(&b, peak);
         int nring;
@@ -1125,7 +1210,7 @@ static void test_bkg_rows_points(void **state)
         double k, eps;
         if (model) {
             size_t before = mp_bkg_bytes(&b);
-            assert_int_equal(mp_bkg_noise_from_model(&b, &f, res, 3, &k, &eps, err), 0);
+            assert_int_equal(mp_bkg_noise_from_model(&b, &f, res, 3.0, 1.5, &k, &eps, err), 0);
             assert_true(isfinite(k));
             /* the mesh rms rows given back: half the rows' bytes */
             assert_int_equal(mp_bkg_bytes(&b), before - 2 * (size_t)ny * (size_t)b.nbx * 8);
