@@ -177,7 +177,7 @@ static int one_fake(const mp_frame *f, const mp_pipeline_opts *o, const mp_fakes
         snprintf(err, MP_ERRLEN, "out of memory");
     mp_table t;
     mp_table_init(&t);
-    if (!rc && !(rc = mp_pipeline_reduce(&c, ob, &t, err)))
+    if (!rc && !(rc = mp_pipeline_reduce(&c, ob, &t, NULL, err)))
         look_for(&t, x0, y0, b, fo->fakerad, fk);
     mp_table_free(&t);
     free(lo);

@@ -175,6 +175,10 @@ static void detection_line(const mp_fit_setup *fit, const mp_pipeline_report *re
                       ">= %g", cut);
     if (k > 0 && (size_t)k < n && rep->sharp[0])
         k += snprintf(run->detection + k, n - (size_t)k, "; %s", rep->sharp);
+    if (k > 0 && (size_t)k < n && (rep->escale[0] != 1.0 || rep->escale[1] != 1.0))
+        k += snprintf(run->detection + k, n - (size_t)k, "; the catalog's errors are the "
+                      "fit's x %.3g (flux), x %.3g (position), what the residual holds at the "
+                      "PSF's scale (its S/N that much lower)", rep->escale[0], rep->escale[1]);
     double beta = col_median(t, "BETA_PSF"), B = col_median(t, "SKY_PSF");
     double v = beta * (fmax(B, 0.0) + rep->rdnoise * rep->rdnoise);
     if (k > 0 && (size_t)k < n && s > 0 && isfinite(v) && v > 0) {

@@ -45,6 +45,9 @@ typedef struct {
     mp_sweeps *sweeps;       /* the directories this run (every frame of an
                               * @list) has swept of killed runs' temporaries
                               * (io.h mp_tmp_sweep); NULL: each frame sweeps */
+    double escale[2];        /* the errors' factors (flux, position) given,
+                              * not measured (fakes: the frame's own); 0:
+                              * measured on the residual (pipeline/error_scale.c) */
 } mp_pipeline_opts;
 
 /* Seconds and counts of every stage, for the report on stderr.  t_find
@@ -63,6 +66,11 @@ typedef struct {
                                    * [e-], for the report's detection line (0: unknown) */
     char sharp[200];              /* find's last sharpness limits and why
                                    * (mp_pl_sharp_limits), for that line too */
+    double escale[2], escale_raw[3];  /* the errors' factors (flux, position) from
+                                   * the residual at the PSF's scale, and as
+                                   * measured (flux, x, y; pipeline/error_scale.c;
+                                   * NaN: not measured) */
+    long escale_places;           /* the places they were measured at */
 } mp_pipeline_report;
 
 /* mp_pipeline_run: reduce one image; root names the outputs. */
@@ -101,10 +109,12 @@ int mp_pipeline_run_any(const char *image, const char *root, const mp_pipeline_o
 /* mp_pipeline_reduce: the same reduction of a frame already in memory
  * (not modified), with o's PSF (o->build_psf must be 0): t receives the
  * fitted stars (the table root.fit would hold; initialised here, the
- * caller frees it).  Nothing is written, nothing printed; safe to call
+ * caller frees it); rep, when not NULL, its report.  Nothing is written,
+ * nothing printed; safe to call
  * from several threads at once on different frames (artificial stars,
  * pipeline/fakes.c). */
-int mp_pipeline_reduce(const mp_frame *f, const mp_pipeline_opts *o, mp_table *t, char *err);
+int mp_pipeline_reduce(const mp_frame *f, const mp_pipeline_opts *o, mp_table *t,
+                       mp_pipeline_report *rep, char *err);
 
 /* The `matphot pipeline` task. */
 int mp_task_pipeline(int argc, char **argv);

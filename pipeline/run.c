@@ -391,6 +391,31 @@ static int find_on_residual(run_state *s, int round, long *added, char *err)
     return 0;
 }
 
+/* The fit's errors widened by what the last residual holds at the PSF's
+ * scale (pipeline/error_scale.c), said on stderr and in the report. */
+static int honest_errors(run_state *s, char *err)
+{
+    double t0 = mp_seconds();
+    const double *given = s->o->escale;
+    mp_pl_escale e = {{given[0], given[1]}, {NAN, NAN, NAN}, 0};
+    if (!(given[0] > 0 && given[1] > 0) &&
+        mp_pl_error_scale(&s->f, s->res, &s->t, &s->fit->model, s->fit->opts.fit.fitrad, s->fwhm,
+                          &e, err))
+        return 1;
+    mp_pl_apply_error_scale(&s->t, &e);
+    memcpy(s->rep->escale, e.k, sizeof e.k);
+    memcpy(s->rep->escale_raw, e.raw, sizeof e.raw);
+    s->rep->escale_places = (long)e.nplace;
+    s->rep->t_fit += mp_seconds() - t0;
+    if (!s->quiet)
+        fprintf(stderr, "matphot pipeline: %s: errors x %.3g (flux), %.3g (position): the "
+                "residual fitted as a star at %zu places away from the stars scatters by %.3g "
+                "(flux), %.3g, %.3g (x, y) of its sigma (used when beyond %.0f of its sampling "
+                "errors), %.2f s\n", s->image, e.k[0], e.k[1], e.nplace, e.raw[0], e.raw[1],
+                e.raw[2], MP_PL_ESCALE_Z, mp_seconds() - t0);
+    return 0;
+}
+
 /* root.fit, root.res.fits, root.cat (+ .reg), then the run report. */
 static int write_products(run_state *s, char *err)
 {
@@ -692,14 +717,15 @@ int mp_pipeline_run(const char *image, const char *root, const mp_pipeline_opts 
     mp_tmp_sweep(o->sweeps, root);   /* every output is root.*: one directory */
     int rc = read_frame(&s, err) || find_stars(&s, err) || (o->build_psf && build_psf(&s, 1, err));
     if (!rc)
-        rc = rounds(&s, err);
+        rc = rounds(&s, err) || honest_errors(&s, err);
     if (!rc)
         rc = write_products(&s, err);
     state_free(&s);
     return rc;
 }
 
-int mp_pipeline_reduce(const mp_frame *f, const mp_pipeline_opts *o, mp_table *t, char *err)
+int mp_pipeline_reduce(const mp_frame *f, const mp_pipeline_opts *o, mp_table *t,
+                       mp_pipeline_report *out, char *err)
 {
     run_state s;
     mp_pipeline_report rep;
@@ -712,11 +738,13 @@ int mp_pipeline_reduce(const mp_frame *f, const mp_pipeline_opts *o, mp_table *t
     s.quiet = 1;
     s.f = *f;                    /* borrowed: not freed below */
     if (!rc)
-        rc = find_stars(&s, err) || rounds(&s, err);
+        rc = find_stars(&s, err) || rounds(&s, err) || honest_errors(&s, err);
     if (!rc) {
         *t = s.t;
         mp_table_init(&s.t);
     }
+    if (out)
+        *out = rep;
     memset(&s.f, 0, sizeof s.f);
     state_free(&s);
     return rc;
@@ -730,7 +758,7 @@ int mp_pl_reduce(const char *image, const mp_pipeline_opts *o, mp_pipeline_repor
     s.quiet = 1;                 /* no root.coo, root.grp: the tiles' driver writes */
     if (!rc)
         rc = read_frame(&s, err) || find_stars(&s, err) || rounds(&s, err) ||
-             done(ctx, &s.f, &s.t, s.res, err);
+             honest_errors(&s, err) || done(ctx, &s.f, &s.t, s.res, err);
     state_free(&s);
     return rc;
 }

@@ -43,13 +43,19 @@ static int fakes_opts(mp_parset *ps, const mp_pipeline_opts *o, mp_fakes_opts *f
     return part_range(mp_par_string(ps, "part"), fo->nfake, lo, hi, err);
 }
 
-/* The frame's own stars; INDEF magnitude limits from them. */
-static int base_stars(const mp_frame *f, const mp_pipeline_opts *o, mp_fakes_opts *fo,
+/* The frame's own stars; INDEF magnitude limits from them; the factors
+ * its errors took from its residual (error_scale.c) given to the boxes'
+ * reductions, whose few places could not measure them, so that a fake's
+ * MAGERR_PSF is what the frame's catalog would say. */
+static int base_stars(const mp_frame *f, mp_pipeline_opts *o, mp_fakes_opts *fo,
                       mp_fakes_base *b, char *err)
 {
     mp_table t;
-    if (mp_pipeline_reduce(f, o, &t, err))
+    mp_pipeline_report rep;
+    if (mp_pipeline_reduce(f, o, &t, &rep, err))
         return 1;
+    o->escale[0] = rep.escale[0];
+    o->escale[1] = rep.escale[1];
     int cx = mp_table_col(&t, "XPSF_IMAGE"), cy = mp_table_col(&t, "YPSF_IMAGE");
     int cm = mp_table_col(&t, "MAG_PSF");
     size_t n = t.nrow;

@@ -133,7 +133,7 @@ static int reduce(const setup *s, double x, double y, double E, uint64_t seed, i
     free(img);
     mp_frame f;
     mp_table t;
-    if (mp_frame_read(path, &s->o.fit.dp, &f, err) || mp_pipeline_reduce(&f, &s->o, &t, err))
+    if (mp_frame_read(path, &s->o.fit.dp, &f, err) || mp_pipeline_reduce(&f, &s->o, &t, NULL, err))
         fail_msg("%s", err);
     int cx = mp_table_col(&t, "XPSF_IMAGE"), cy = mp_table_col(&t, "YPSF_IMAGE");
     int cf = mp_table_col(&t, "FLAGS"), within = 0;

@@ -92,7 +92,7 @@ static int reduce(const setup *s, const double (*st)[3], int n, uint64_t seed, i
     mp_sim_add_noise_float(&r, f.im.pix, N * N, RON);
     mp_table t;
     char err[MP_ERRLEN];
-    if (mp_pipeline_reduce(&f, &s->o, &t, err))
+    if (mp_pipeline_reduce(&f, &s->o, &t, NULL, err))
         fail_msg("mp_pipeline_reduce: %s", err);
     int cx = mp_table_col(&t, "XPSF_IMAGE"), cy = mp_table_col(&t, "YPSF_IMAGE");
     *near = 0;

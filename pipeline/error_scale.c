@@ -1,0 +1,281 @@
+/* error_scale.c — the fit's error bars widened by what the residual holds
+ * at the PSF's scale (mp_pl_error_scale, pipeline_priv.h).
+ *
+ * A star's fitted flux and position take up whatever the frame holds
+ * under its PSF beyond the stars and sky fitted: the light of stars too
+ * faint to find, the misfit of neighbours' tables.  The fit's errors count
+ * photon noise only, so on a crowded real frame they are too small
+ * (47 Tuc's core: artificial stars scatter by 1.5-3.9 of their
+ * MAGERR_PSF).  What a star at a random place would take up is measured
+ * directly, as artificial-star tests and the "random apertures" of deep
+ * fields do: the fit's own linear estimator (PSF, its two position
+ * derivatives and a constant sky, Poisson weights, the pixels within
+ * fitrad) applied to the final residual at places on a grid of windows
+ * that do not overlap, each estimate over its Poisson σ.  Their robust σ
+ * is the factor each error needs: 1 where the residual is noise. */
+#include <lapacke.h>
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "pipeline/pipeline_priv.h"
+
+enum { NPAR = 4 };              /* flux, x, y, sky */
+
+/* One place's window: the pixels within r of (x, y) (1-based), their
+ * residual less nothing, weight and the three templates. */
+typedef struct {
+    double *prf, *dx, *dy;      /* rendered on the window's box */
+    double *vals;               /* scratch: the window's residual values */
+    mp_prf_work wk;
+} place_work;
+
+/* The box [x0, x1) × [y0, y1) (1-based) of the pixels within r of (x, y),
+ * cut to the frame; 0 when it holds none. */
+static int window_box(const mp_frame *f, double x, double y, double r, long *x0, long *y0,
+                      long *x1, long *y1)
+{
+    *x0 = (long)ceil(x - r);
+    *y0 = (long)ceil(y - r);
+    *x1 = (long)floor(x + r) + 1;
+    *y1 = (long)floor(y + r) + 1;
+    return *x0 >= 1 && *y0 >= 1 && *x1 <= f->im.nx + 1 && *y1 <= f->im.ny + 1;
+}
+
+/* The median of the residual over the window's usable pixels: its sky,
+ * for the weights.  NaN when a pixel of the window is masked or not
+ * finite (the place is not used). */
+static double window_sky(const mp_frame *f, const float *res, double x, double y, double r,
+                         long x0, long y0, long x1, long y1, double *vals)
+{
+    size_t n = 0;
+    for (long gy = y0; gy < y1; gy++)
+        for (long gx = x0; gx < x1; gx++) {
+            if (hypot((double)gx - x, (double)gy - y) > r)
+                continue;
+            size_t k = (size_t)(gy - 1) * (size_t)f->im.nx + (size_t)(gx - 1);
+            if (f->mask[k] || !isfinite(res[k]) || !isfinite(f->im.pix[k]))
+                return NAN;
+            vals[n++] = res[k];
+        }
+    return n > NPAR ? mp_median_select(vals, n) : NAN;
+}
+
+/* z[0..2]: the weighted least-squares estimates of flux, x and y (the
+ * templates P, ∂P/∂x, ∂P/∂y with a constant sky) of the residual in the
+ * window, each over its σ.  Weights 1/(model light + sky + RON² + xvar),
+ * as the fit's.  Nonzero when the normal matrix is singular. */
+static int window_z(const mp_frame *f, const float *res, double x, double y, double r,
+                    double sky, const place_work *pw, long rx0, long ry0, int rw, int rh,
+                    double z[3])
+{
+    double a[NPAR * NPAR] = {0}, b[NPAR] = {0};
+    for (int j = 0; j < rh; j++)
+        for (int i = 0; i < rw; i++) {
+            long gx = rx0 + i, gy = ry0 + j;
+            if (hypot((double)gx - x, (double)gy - y) > r)
+                continue;
+            size_t k = (size_t)(gy - 1) * (size_t)f->im.nx + (size_t)(gx - 1);
+            double m = fmax((double)f->im.pix[k] - res[k], 0.0);
+            double v = m + fmax(sky, 0.0) + f->rdnoise * f->rdnoise + (f->xvar ? f->xvar[k] : 0.0);
+            if (!(v > 0))
+                continue;
+            size_t t = (size_t)j * (size_t)rw + (size_t)i;
+            double g[NPAR] = {pw->prf[t], pw->dx[t], pw->dy[t], 1.0};
+            for (int p = 0; p < NPAR; p++) {
+                b[p] += g[p] * (res[k] - sky) / v;
+                for (int q = 0; q <= p; q++)
+                    a[p * NPAR + q] += g[p] * g[q] / v;
+            }
+        }
+    if (LAPACKE_dpotrf(LAPACK_ROW_MAJOR, 'L', NPAR, a, NPAR) != 0)
+        return 1;
+    double sol[NPAR];
+    memcpy(sol, b, sizeof sol);
+    if (LAPACKE_dpotrs(LAPACK_ROW_MAJOR, 'L', NPAR, 1, a, NPAR, sol, 1) != 0 ||
+        LAPACKE_dpotri(LAPACK_ROW_MAJOR, 'L', NPAR, a, NPAR) != 0)
+        return 1;
+    for (int p = 0; p < 3; p++) {
+        if (!(a[p * NPAR + p] > 0))
+            return 1;
+        z[p] = sol[p] / sqrt(a[p * NPAR + p]);
+    }
+    return 0;
+}
+
+/* Place j's z into z[3j..3j+2], or NaN there when it is not usable. */
+static void place_z(const mp_frame *f, const float *res, const mp_prf_model *m, double r,
+                    double x, double y, place_work *pw, double *z)
+{
+    z[0] = z[1] = z[2] = NAN;
+    long x0, y0, x1, y1, rx0, ry0;
+    int rw, rh;
+    if (!window_box(f, x, y, r, &x0, &y0, &x1, &y1))
+        return;
+    double sky = window_sky(f, res, x, y, r, x0, y0, x1, y1, pw->vals);
+    if (!isfinite(sky) ||
+        mp_prf_render_window(m, x, y, x0, y0, x1 - x0, y1 - y0, &rx0, &ry0, &rw, &rh, pw->prf,
+                             pw->dx, pw->dy, &pw->wk) || rw == 0 || rh == 0)
+        return;
+    double zz[3];
+    if (!window_z(f, res, x, y, r, sky, pw, rx0, ry0, rw, rh, zz))
+        memcpy(z, zz, sizeof zz);
+}
+
+/* 1.4826·MAD of the finite values z[3i + c] over i < n (scratch v). */
+static double robust_sigma_of(const double *z, size_t n, int c, double *v, size_t *used)
+{
+    size_t m = 0;
+    for (size_t i = 0; i < n; i++)
+        if (isfinite(z[3 * i + (size_t)c]))
+            v[m++] = z[3 * i + (size_t)c];
+    *used = m;
+    if (m < 2)
+        return NAN;
+    double med = mp_median_select(v, m);
+    for (size_t i = 0; i < m; i++)
+        v[i] = fabs(v[i] - med);
+    return 1.482602218505602 * mp_median_select(v, m);
+}
+
+/* The pixel index of grid cell c's centre (gx cells a row). */
+static size_t centre_of(const mp_frame *f, long side, long gx, size_t c)
+{
+    long x = (long)(c % (size_t)gx) * side + side / 2, y = (long)(c / (size_t)gx) * side + side / 2;
+    return (size_t)y * (size_t)f->im.nx + (size_t)x;
+}
+
+/* near[i]: pixel i lies within rex of a fitted star of t, whose fit
+ * took up the noise there along its own PSF and derivatives (a place
+ * there would read low).  NULL when out of memory. */
+static unsigned char *near_stars(const mp_frame *f, const mp_table *t, double rex)
+{
+    long nx = f->im.nx, ny = f->im.ny;
+    unsigned char *near = calloc((size_t)nx * (size_t)ny + 1, 1);
+    int cx = mp_table_col(t, "XPSF_IMAGE"), cy = mp_table_col(t, "YPSF_IMAGE");
+    for (size_t r = 0; near && cx >= 0 && cy >= 0 && r < t->nrow; r++) {
+        double x = mp_table_get(t, r, cx), y = mp_table_get(t, r, cy);
+        if (!isfinite(x) || !isfinite(y))
+            continue;
+        for (long gy = (long)ceil(y - rex); gy <= (long)floor(y + rex); gy++)
+            for (long gx = (long)ceil(x - rex); gx <= (long)floor(x + rex); gx++)
+                if (gx >= 1 && gx <= nx && gy >= 1 && gy <= ny &&
+                    hypot((double)gx - x, (double)gy - y) <= rex)
+                    near[(size_t)(gy - 1) * (size_t)nx + (size_t)(gx - 1)] = 1;
+    }
+    return near;
+}
+
+/* The places: the centres of a grid of windows side px apart (so that no
+ * two share a pixel) not near a fitted star, every stride-th of them so
+ * that at most MP_PL_ESCALE_MAXPLACES are used. */
+static size_t grid_places(const mp_frame *f, long side, const unsigned char *near, double **px,
+                          double **py)
+{
+    long gx = f->im.nx / side, gy = f->im.ny / side;
+    size_t all = 0, cells = (size_t)(gx > 0 ? gx : 0) * (size_t)(gy > 0 ? gy : 0);
+    for (size_t c = 0; c < cells; c++)
+        all += !near[centre_of(f, side, gx, c)];
+    size_t stride = all / MP_PL_ESCALE_MAXPLACES + 1, n = (all + stride - 1) / stride;
+    *px = malloc((n ? n : 1) * sizeof **px);
+    *py = malloc((n ? n : 1) * sizeof **py);
+    if (!*px || !*py)
+        return (size_t)-1;
+    size_t j = 0, free_seen = 0;
+    for (size_t c = 0; c < cells && j < n; c++) {
+        if (near[centre_of(f, side, gx, c)] || free_seen++ % stride)
+            continue;
+        (*px)[j] = (double)((long)(c % (size_t)gx) * side + side / 2 + 1);
+        (*py)[j++] = (double)((long)(c / (size_t)gx) * side + side / 2 + 1);
+    }
+    return j;
+}
+
+/* z of every place, in parallel; nonzero when out of memory. */
+static int places_z(const mp_frame *f, const float *res, const mp_prf_model *m, double r,
+                    long side, const double *px, const double *py, size_t n, double *z)
+{
+    int failed = 0;
+#pragma omp parallel reduction(| : failed)
+    {
+        size_t box = (size_t)((side + 2) * (side + 2));
+        place_work pw = {0};
+        pw.prf = malloc(4 * box * sizeof *pw.prf);
+        failed |= !pw.prf;
+        if (pw.prf) {
+            pw.dx = pw.prf + box;
+            pw.dy = pw.prf + 2 * box;
+            pw.vals = pw.prf + 3 * box;
+        }
+#pragma omp for schedule(dynamic, 16)
+        for (size_t j = 0; j < n; j++)
+            if (pw.prf)
+                place_z(f, res, m, r, px[j], py[j], &pw, z + 3 * j);
+            else
+                z[3 * j] = z[3 * j + 1] = z[3 * j + 2] = NAN;
+        free(pw.prf);
+        mp_prf_work_free(&pw.wk);
+    }
+    return failed;
+}
+
+/* k, measured over n values, when it differs from 1 by more than
+ * MP_PL_ESCALE_Z of its sampling errors (1.166/√n relative), else 1. */
+static double significant(double k, size_t n)
+{
+    if (!isfinite(k) || n < MP_PL_ESCALE_MINPLACES)
+        return 1.0;
+    return fabs(k - 1.0) > MP_PL_ESCALE_Z * 1.166 / sqrt((double)n) ? k : 1.0;
+}
+
+int mp_pl_error_scale(const mp_frame *f, const float *res, const mp_table *t,
+                      const mp_prf_model *m, double fitrad, double fwhm, mp_pl_escale *e,
+                      char *err)
+{
+    memset(e, 0, sizeof *e);
+    e->k[0] = e->k[1] = 1.0;
+    e->raw[0] = e->raw[1] = e->raw[2] = NAN;
+    long side = 2 * (long)ceil(fitrad) + 1;
+    double *px = NULL, *py = NULL;
+    unsigned char *near = near_stars(f, t, MP_PL_ESCALE_REX * fwhm);
+    size_t n = near ? grid_places(f, side, near, &px, &py) : (size_t)-1;
+    free(near);
+    double *z = n == (size_t)-1 ? NULL : malloc(4 * (n ? n : 1) * sizeof *z);
+    if (!z || places_z(f, res, m, fitrad, side, px, py, n, z)) {
+        free(px);
+        free(py);
+        free(z);
+        snprintf(err, MP_ERRLEN, "out of memory for the error scale");
+        return 1;
+    }
+    for (int c = 0; c < 3; c++)
+        e->raw[c] = robust_sigma_of(z, n, c, z + 3 * n, &e->nplace);
+    e->k[0] = significant(e->raw[0], e->nplace);
+    e->k[1] = significant(sqrt(0.5 * (e->raw[1] * e->raw[1] + e->raw[2] * e->raw[2])),
+                          2 * e->nplace);
+    free(px);
+    free(py);
+    free(z);
+    return 0;
+}
+
+/* Column name's values times k, where the column exists. */
+static void scale_col(mp_table *t, const char *name, double k)
+{
+    int c = mp_table_col(t, name);
+    for (size_t r = 0; c >= 0 && r < t->nrow; r++)
+        mp_table_set(t, r, c, k * mp_table_get(t, r, c));
+}
+
+void mp_pl_apply_error_scale(mp_table *t, const mp_pl_escale *e)
+{
+    if (e->k[0] != 1.0) {
+        scale_col(t, "FLUXERR_PSF", e->k[0]);
+        scale_col(t, "MAGERR_PSF", e->k[0]);
+    }
+    if (e->k[1] != 1.0) {
+        scale_col(t, "ERRX_PSF", e->k[1]);
+        scale_col(t, "ERRY_PSF", e->k[1]);
+    }
+}
