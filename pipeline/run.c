@@ -136,7 +136,7 @@ static int screen(run_state *s, const mp_frame *on, const float *data, mp_table 
 /* find's options for stars of the model now fitted: its kernel of the
  * model's FWHM (DAOPHOT's fwhmpsf; with the PSF built from the frame, the
  * built one's, not the fwhm it started from: 47 Tuc 256² CHI2_PSF 3.75 ->
- * 3.65, the residual near the stars 0.61 -> 0.59 of DAOPHOT's) and
+ * 3.65, the residual near DAOPHOT's stars 0.679 -> 0.673 of DAOPHOT's) and
  * sharpness limits that keep this PSF's own stars (sharp_limits.c). */
 static int find_opts_for_model(run_state *s, mp_find_opts *fo, char *err)
 {
