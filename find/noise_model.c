@@ -20,16 +20,6 @@ static double poisson_var(const mp_bkg *b, const mp_frame *f, const float *res, 
     return fmax(mp_bkg_sky(b, i), 0.0) + fmax(f->im.pix[i] - res[i], 0.0) + f->rdnoise * f->rdnoise;
 }
 
-/* 1.4826·MAD of v[0..n-1] (reorders v): the σ of a Gaussian, robust to
- * the stars not yet found. */
-static double robust_sigma(double *v, size_t n)
-{
-    double med = mp_median_select(v, n);
-    for (size_t k = 0; k < n; k++)
-        v[k] = fabs(v[k] - med);
-    return 1.482602218505602 * mp_median_select(v, n);
-}
-
 /* The sampled pixels, as residual r (sky removed), Poisson variance p and
  * star model m. */
 typedef struct {
@@ -98,7 +88,7 @@ static double normalised_sigma(samples *s, double k, double eps)
 #pragma omp parallel for schedule(static) if (s->n > 10000)
     for (size_t i = 0; i < s->n; i++)
         s->z[i] = s->r[i] / sqrt(k * k * s->p[i] + eps * eps * s->m[i] * s->m[i]);
-    return robust_sigma(s->z, s->n);
+    return mp_mad_sigma(s->z, s->n);   /* robust to the stars not yet found */
 }
 
 /* k from the detection kernel's amplitude at every step-th pixel where

@@ -289,6 +289,11 @@ double mp_select_kth(double *v, size_t n, size_t k);
  * even n) by mp_select_kth, v left permuted, not sorted; NaN when n = 0. */
 double mp_median_select(double *v, size_t n);
 
+/* mp_mad_sigma: 1.4826 times the median absolute deviation of v[0..n)
+ * from its median, the σ of a Gaussian robust to outliers (v
+ * overwritten); NaN when n = 0. */
+double mp_mad_sigma(double *v, size_t n);
+
 /* mp_seconds: monotonic wall-clock seconds (differences only). */
 double mp_seconds(void);
 

@@ -41,6 +41,14 @@ double mp_select_kth(double *v, size_t n, size_t k)
     return v[k];
 }
 
+double mp_mad_sigma(double *v, size_t n)
+{
+    double med = mp_median_select(v, n);
+    for (size_t i = 0; i < n; i++)
+        v[i] = fabs(v[i] - med);
+    return 1.482602218505602 * mp_median_select(v, n);
+}
+
 double mp_median_select(double *v, size_t n)
 {
     if (n == 0)

@@ -23,16 +23,17 @@
 
 enum { NPAR = 4 };              /* flux, x, y, sky */
 
-/* One place's window: the pixels within r of (x, y) (1-based), their
- * residual less nothing, weight and the three templates. */
+/* A thread's room for one place: the three templates rendered on the
+ * window's box, scratch for the window's residual values, the render's
+ * work space. */
 typedef struct {
     double *prf, *dx, *dy;      /* rendered on the window's box */
     double *vals;               /* scratch: the window's residual values */
     mp_prf_work wk;
 } place_work;
 
-/* The box [x0, x1) × [y0, y1) (1-based) of the pixels within r of (x, y),
- * cut to the frame; 0 when it holds none. */
+/* The box [x0, x1) × [y0, y1) (1-based) of the pixels within r of (x, y);
+ * 0 when it leaves the frame (the place is not used). */
 static int window_box(const mp_frame *f, double x, double y, double r, long *x0, long *y0,
                       long *x1, long *y1)
 {
@@ -131,65 +132,71 @@ static double robust_sigma_of(const double *z, size_t n, int c, double *v, size_
         if (isfinite(z[3 * i + (size_t)c]))
             v[m++] = z[3 * i + (size_t)c];
     *used = m;
-    if (m < 2)
-        return NAN;
-    double med = mp_median_select(v, m);
-    for (size_t i = 0; i < m; i++)
-        v[i] = fabs(v[i] - med);
-    return 1.482602218505602 * mp_median_select(v, m);
+    return m < 2 ? NAN : mp_mad_sigma(v, m);
 }
 
-/* The pixel index of grid cell c's centre (gx cells a row). */
-static size_t centre_of(const mp_frame *f, long side, long gx, size_t c)
+/* The grid: gx × gy windows side px apart (so that no two share a
+ * pixel); cell c's centre (1-based pixel) into *x, *y. */
+static void cell_centre(long side, long gx, size_t c, double *x, double *y)
 {
-    long x = (long)(c % (size_t)gx) * side + side / 2, y = (long)(c / (size_t)gx) * side + side / 2;
-    return (size_t)y * (size_t)f->im.nx + (size_t)x;
+    *x = (double)((long)(c % (size_t)gx) * side + side / 2 + 1);
+    *y = (double)((long)(c / (size_t)gx) * side + side / 2 + 1);
 }
 
-/* near[i]: pixel i lies within rex of a fitted star of t, whose fit
- * took up the noise there along its own PSF and derivatives (a place
+/* near[c]: cell c's centre lies within rex of a fitted star of t, whose
+ * fit took up the noise there along its own PSF and derivatives (a place
  * there would read low).  NULL when out of memory. */
-static unsigned char *near_stars(const mp_frame *f, const mp_table *t, double rex)
+static unsigned char *near_stars(const mp_table *t, long side, long gx, long gy, double rex)
 {
-    long nx = f->im.nx, ny = f->im.ny;
-    unsigned char *near = calloc((size_t)nx * (size_t)ny + 1, 1);
+    unsigned char *near = calloc((size_t)gx * (size_t)gy + 1, 1);
     int cx = mp_table_col(t, "XPSF_IMAGE"), cy = mp_table_col(t, "YPSF_IMAGE");
     for (size_t r = 0; near && cx >= 0 && cy >= 0 && r < t->nrow; r++) {
         double x = mp_table_get(t, r, cx), y = mp_table_get(t, r, cy);
         if (!isfinite(x) || !isfinite(y))
             continue;
-        for (long gy = (long)ceil(y - rex); gy <= (long)floor(y + rex); gy++)
-            for (long gx = (long)ceil(x - rex); gx <= (long)floor(x + rex); gx++)
-                if (gx >= 1 && gx <= nx && gy >= 1 && gy <= ny &&
-                    hypot((double)gx - x, (double)gy - y) <= rex)
-                    near[(size_t)(gy - 1) * (size_t)nx + (size_t)(gx - 1)] = 1;
+        /* the cells whose centre i·side + side/2 + 1 can lie within rex */
+        double c0 = (double)(side / 2 + 1), w = (double)side;
+        long i0 = (long)ceil((x - rex - c0) / w), i1 = (long)floor((x + rex - c0) / w);
+        long j0 = (long)ceil((y - rex - c0) / w), j1 = (long)floor((y + rex - c0) / w);
+        for (long j = j0 < 0 ? 0 : j0; j <= j1 && j < gy; j++)
+            for (long i = i0 < 0 ? 0 : i0; i <= i1 && i < gx; i++) {
+                size_t c = (size_t)j * (size_t)gx + (size_t)i;
+                double px, py;
+                cell_centre(side, gx, c, &px, &py);
+                if (hypot(px - x, py - y) <= rex)
+                    near[c] = 1;
+            }
     }
     return near;
 }
 
-/* The places: the centres of a grid of windows side px apart (so that no
- * two share a pixel) not near a fitted star, every stride-th of them so
- * that at most MP_PL_ESCALE_MAXPLACES are used. */
-static size_t grid_places(const mp_frame *f, long side, const unsigned char *near, double **px,
-                          double **py)
+/* The places: the centres of the grid's cells not near a fitted star,
+ * every stride-th of them so that at most MP_PL_ESCALE_MAXPLACES are
+ * used; (size_t)-1 when out of memory. */
+static size_t grid_places(const mp_frame *f, const mp_table *t, long side, double rex,
+                          double **px, double **py)
 {
     long gx = f->im.nx / side, gy = f->im.ny / side;
-    size_t all = 0, cells = (size_t)(gx > 0 ? gx : 0) * (size_t)(gy > 0 ? gy : 0);
+    gx = gx > 0 ? gx : 0;
+    gy = gy > 0 ? gy : 0;
+    size_t all = 0, cells = (size_t)gx * (size_t)gy;
+    unsigned char *near = near_stars(t, side, gx, gy, rex);
+    if (!near)
+        return (size_t)-1;
     for (size_t c = 0; c < cells; c++)
-        all += !near[centre_of(f, side, gx, c)];
+        all += !near[c];
     size_t stride = all / MP_PL_ESCALE_MAXPLACES + 1, n = (all + stride - 1) / stride;
     *px = malloc((n ? n : 1) * sizeof **px);
     *py = malloc((n ? n : 1) * sizeof **py);
-    if (!*px || !*py)
-        return (size_t)-1;
     size_t j = 0, free_seen = 0;
-    for (size_t c = 0; c < cells && j < n; c++) {
-        if (near[centre_of(f, side, gx, c)] || free_seen++ % stride)
+    for (size_t c = 0; *px && *py && c < cells && j < n; c++) {
+        if (near[c] || free_seen++ % stride)
             continue;
-        (*px)[j] = (double)((long)(c % (size_t)gx) * side + side / 2 + 1);
-        (*py)[j++] = (double)((long)(c / (size_t)gx) * side + side / 2 + 1);
+        cell_centre(side, gx, c, &(*px)[j], &(*py)[j]);
+        j++;
     }
-    return j;
+    free(near);
+    return *px && *py ? j : (size_t)-1;
 }
 
 /* z of every place, in parallel; nonzero when out of memory. */
@@ -238,9 +245,7 @@ int mp_pl_error_scale(const mp_frame *f, const float *res, const mp_table *t,
     e->raw[0] = e->raw[1] = e->raw[2] = NAN;
     long side = 2 * (long)ceil(fitrad) + 1;
     double *px = NULL, *py = NULL;
-    unsigned char *near = near_stars(f, t, MP_PL_ESCALE_REX * fwhm);
-    size_t n = near ? grid_places(f, side, near, &px, &py) : (size_t)-1;
-    free(near);
+    size_t n = grid_places(f, t, side, MP_PL_ESCALE_REX * fwhm, &px, &py);
     double *z = n == (size_t)-1 ? NULL : malloc(4 * (n ? n : 1) * sizeof *z);
     if (!z || places_z(f, res, m, fitrad, side, px, py, n, z)) {
         free(px);
