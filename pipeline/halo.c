@@ -218,6 +218,16 @@ static double h_at(const double *h, int nb, double rin, double r)
     return (1 - t) * h[j] + t * h[j + 1];
 }
 
+/* ∫ h(r) 2πr dr out to where h ends, on 0.01-px rings (h_at is linear
+ * between ring centres, so this is exact to 1e-4 of the ring's light). */
+static double light_of(const double *h, int nb, double rin)
+{
+    double L = 0.0, dr = 0.01;
+    for (double r = 0.5 * dr; r < rin + nb; r += dr)
+        L += 2.0 * M_PI * r * dr * h_at(h, nb, rin, r);
+    return L;
+}
+
 /* Take E·h(r) of every star whose halo reaches a twentieth of a sky pixel's
  * σ off the frame and the residual, its variance into xvar; *nlit counts
  * them. */
@@ -249,8 +259,8 @@ static int subtract(mp_frame *f, float *res, const mp_pl_star *s, size_t ns, con
     return 0;
 }
 
-int mp_pl_halo(mp_frame *f, float *res, const mp_table *t, double fwhm, double *z, char *what,
-               size_t wlen, char *err)
+int mp_pl_halo(mp_frame *f, float *res, const mp_table *t, double fwhm, double *z, double *light,
+               char *what, size_t wlen, char *err)
 {
     double sky = mp_pl_median_sky(t);
     double rin = fmax(fwhm, 1.0), rout = 16.0 * rin;
@@ -261,6 +271,7 @@ int mp_pl_halo(mp_frame *f, float *res, const mp_table *t, double fwhm, double *
     int rc = 1, used = s && h ? measure(f, res, s, ns, rin, rout, h, nb, z) : -1;
     int significant = used > 0 && *z > MP_PL_HALO_Z;
     long nlit = 0;
+    *light = 0.0;
     double sig = sqrt(fmax(sky, 0.0) + f->rdnoise * f->rdnoise);
     if (used < 0 || (significant && subtract(f, res, s, ns, h, nb, rin, sig, &nlit))) {
         snprintf(err, MP_ERRLEN, "out of memory for the halo");
@@ -271,11 +282,13 @@ int mp_pl_halo(mp_frame *f, float *res, const mp_table *t, double fwhm, double *
     double frac = 0.0;
     for (int j = 0; used > 0 && j < nb; j++)
         frac += h[j] * ring_area(rin, j);
+    if (significant)
+        *light = light_of(h, nb, rin);
     snprintf(what, wlen, "halo from the %d brightest stars, r = %.3g..%.3g px: %.3g of a star's "
              "light beyond %.3g px (z %.1f: %s), %.3g per e- at %.3g px; taken off around %ld "
-             "stars", used, rin, rout, frac, rin, *z,
+             "stars, %.3g of each one's light", used, rin, rout, frac, rin, *z,
              significant ? "significant" : "not significant, nothing taken off",
-             used > 0 ? h_at(h, nb, rin, 4 * rin) : 0.0, 4 * rin, nlit);
+             used > 0 ? h_at(h, nb, rin, 4 * rin) : 0.0, 4 * rin, nlit, *light);
     rc = 0;
 done:
     free(s);

@@ -92,10 +92,13 @@ double mp_pl_median_sky(const mp_table *t);
  * 1e-3) is E·h(r) of every star whose halo reaches 0.05 σ of a sky pixel
  * taken off f's pixels and res, and its Poisson variance added to f->xvar
  * (allocated when NULL); otherwise nothing changes.  what: one line for the
- * report.  Nonzero with err when out of memory. */
+ * report.  *light: the light taken off a star per electron of its flux,
+ * ∫ h(r) 2πr dr (0 when nothing is taken off): a PSF built afterwards
+ * from f must count it in its PSFSUM, or every flux misses it.  Nonzero
+ * with err when out of memory. */
 #define MP_PL_HALO_Z 3.090
-int mp_pl_halo(mp_frame *f, float *res, const mp_table *t, double fwhm, double *z, char *what,
-               size_t wlen, char *err);
+int mp_pl_halo(mp_frame *f, float *res, const mp_table *t, double fwhm, double *z, double *light,
+               char *what, size_t wlen, char *err);
 
 /* ---- tablerad.c -------------------------------------------------------- */
 

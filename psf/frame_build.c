@@ -313,7 +313,8 @@ static int build_order(mp_epsf_star *s, size_t n, const mp_epsf_opts *o, mp_epsf
 }
 
 /* The PSF stars as the file's PSFSTARS lists them (their fluxes total
- * fluxes: × PSFSUM) into *stars.  Nonzero with err when out of memory. */
+ * fluxes: fitted with the table of sum 1, the light the table holds, so
+ * over PSFSUM) into *stars.  Nonzero with err when out of memory. */
 static int stars_out(const mp_epsf_star *s, size_t n, const mp_epsf *e, mp_psf_star **stars,
                      char *err)
 {
@@ -322,7 +323,7 @@ static int stars_out(const mp_epsf_star *s, size_t n, const mp_epsf *e, mp_psf_s
         return 1;
     }
     for (size_t k = 0; k < n; k++)
-        (*stars)[k] = (mp_psf_star){s[k].x, s[k].y, s[k].flux * e->sum, s[k].used};
+        (*stars)[k] = (mp_psf_star){s[k].x, s[k].y, s[k].flux / e->sum, s[k].used};
     return 0;
 }
 

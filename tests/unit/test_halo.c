@@ -120,8 +120,8 @@ static void test_halo_measured_and_taken_off(void **state)
     double before = ring_mean(f.im.pix, 10.0, 20.0, &n);
     assert_true(before > 40.0);
     char what[MP_ERRLEN], err[MP_ERRLEN];
-    double z;
-    assert_int_equal(mp_pl_halo(&f, res, &t, 3.0, &z, what, sizeof what, err), 0);
+    double z, light;
+    assert_int_equal(mp_pl_halo(&f, res, &t, 3.0, &z, &light, what, sizeof what, err), 0);
     assert_true(z > MP_PL_HALO_Z);
     assert_non_null(strstr(what, "taken off around 4 stars"));
     double after = ring_mean(f.im.pix, 10.0, 20.0, &n);
@@ -136,6 +136,79 @@ static void test_halo_measured_and_taken_off(void **state)
     mp_table_free(&t);
     free(res);
     free(orig);
+    free(f.im.pix);
+    free(f.mask);
+    free(f.xvar);
+}
+
+/* The light taken off, *light per electron: one star of 1e7 e- in the
+ * middle of the frame, so that every pixel its halo reaches (47.5 px,
+ * rin + nb - 0.5) is on it.  What left the frame over E is *light, the
+ * integral of the same profile, to 1 % (a pixel sum of a profile that is
+ * continuous and piecewise linear on 1-px rings, but for its last ring's
+ * step, against its integral).  And *light is the truth's light within
+ * 47.5 px less the sky ring's halo b1 over that disc (the measurement's
+ * known bias, as above), within the 1.5 e- a pixel the test above allows,
+ * over the disc's area. */
+static void test_halo_light_counted(void **state)
+{
+    (void)state;
+    const double X = 80.3, Y = 80.6, R = 47.5;
+    mp_frame f;
+    memset(&f, 0, sizeof f);
+    f.im.nx = f.im.ny = N;
+    f.im.pix = malloc(N * N * sizeof *f.im.pix);
+    f.mask = calloc(N * N, 1);
+    f.gain = 1.0;
+    f.rdnoise = 5.0;
+    float *res = malloc(N * N * sizeof *res);
+    assert_non_null(f.im.pix);
+    assert_non_null(f.mask);
+    assert_non_null(res);
+    double b1 = 0.0;
+    long nb1 = 0;
+    for (long y = 1; y <= N; y++)
+        for (long x = 1; x <= N; x++) {
+            double r = hypot(x - X, y - Y);
+            f.im.pix[(y - 1) * N + (x - 1)] = (float)(SKY + E * halo(r));
+            if (r >= 48.0 && r < 54.0) {
+                b1 += E * halo(r);
+                nb1++;
+            }
+        }
+    b1 /= (double)nb1;
+    mp_rng r;
+    mp_rng_seed(&r, 99);
+    mp_sim_add_noise_float(&r, f.im.pix, N * N, f.rdnoise);
+    memcpy(res, f.im.pix, N * N * sizeof *res);
+    double before = 0.0, after = 0.0;
+    for (long i = 0; i < N * N; i++)
+        before += f.im.pix[i];
+    mp_table t;
+    mp_table_init(&t);
+    int cx = mp_table_add_col(&t, "XPSF_IMAGE"), cy = mp_table_add_col(&t, "YPSF_IMAGE"),
+        ce = mp_table_add_col(&t, "FLUX_PSF"), cs = mp_table_add_col(&t, "SKY_PSF");
+    long row = mp_table_add_row(&t);
+    assert_true(row == 0);
+    mp_table_set(&t, 0, cx, X);
+    mp_table_set(&t, 0, cy, Y);
+    mp_table_set(&t, 0, ce, E);
+    mp_table_set(&t, 0, cs, SKY);
+    char what[MP_ERRLEN], err[MP_ERRLEN];
+    double z, light;
+    assert_int_equal(mp_pl_halo(&f, res, &t, 3.0, &z, &light, what, sizeof what, err), 0);
+    assert_true(z > MP_PL_HALO_Z);
+    for (long i = 0; i < N * N; i++)
+        after += f.im.pix[i];
+    double truth = 0.0, dr = 0.001;
+    for (double q = 0.5 * dr; q < R; q += dr)
+        truth += 2.0 * M_PI * q * dr * (halo(q) - b1 / E);
+    print_message("halo light %.5f per e-, taken off %.5f, truth less the sky ring's %.5f\n",
+                  light, (before - after) / E, truth);
+    assert_float_equal((before - after) / E, light, 0.01 * light);
+    assert_float_equal(light, truth, 1.5 * M_PI * R * R / E);
+    mp_table_free(&t);
+    free(res);
     free(f.im.pix);
     free(f.mask);
     free(f.xvar);
@@ -187,8 +260,8 @@ static void test_no_halo_not_taken_off(void **state)
         mp_sim_add_noise_float(&r, f.im.pix, N * N, f.rdnoise);
         memcpy(res, f.im.pix, N * N * sizeof *res);
         char what[MP_ERRLEN], err[MP_ERRLEN];
-        double z;
-        assert_int_equal(mp_pl_halo(&f, res, &t, 3.0, &z, what, sizeof what, err), 0);
+        double z, light = -1.0;
+        assert_int_equal(mp_pl_halo(&f, res, &t, 3.0, &z, &light, what, sizeof what, err), 0);
         s1 += z;
         s2 += z * z;
         if (z > MP_PL_HALO_Z) {
@@ -198,6 +271,7 @@ static void test_no_halo_not_taken_off(void **state)
             continue;
         }
         assert_non_null(strstr(what, "taken off around 0 stars"));
+        assert_true(light == 0.0);
         assert_null(f.xvar);
         assert_memory_equal(res, f.im.pix, N * N * sizeof *res);
     }
@@ -217,6 +291,7 @@ int main(void)
 {
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(test_halo_measured_and_taken_off),
+        cmocka_unit_test(test_halo_light_counted),
         cmocka_unit_test(test_no_halo_not_taken_off),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);

@@ -153,7 +153,8 @@ built16l|no psf=, tablerad=16 lookup=yes (the built table to ±16 px)|tablerad=1
 # pipeline has that parameter.
 if "$MATPHOT" params pipeline 2>/dev/null | grep -q '^halo,'; then
     SEGRUNS="$SEGRUNS
-cut8h|the table cut to ±8 px, halo=yes|psf=$SEG/psf8.fits halo=yes"
+cut8h|the table cut to ±8 px, halo=yes|psf=$SEG/psf8.fits halo=yes
+builth|no psf=, halo=yes (the halo's light counted in the built table's PSFSUM)|halo=yes"
 fi
 if [ -z "$REPORT_ONLY" ]; then
     rm -f "$SEG"/*
