@@ -14,6 +14,8 @@
 #include "group/group.h"
 #include "psf/build.h"
 
+enum { MP_PL_HALO_ASKED = 1, MP_PL_HALO_AUTO = 2 };
+
 typedef struct {
     mp_fit_setup fit;        /* PSF, model, fit options, datapars */
     mp_find_opts find;
@@ -34,7 +36,9 @@ typedef struct {
     int tablerad_auto;       /* tablerad=INDEF: the table's radius measured on
                               * the frame's stars (psf/tablerad.c) */
     int halo;                /* after the first round, model the bright stars'
-                              * light beyond the table (pipeline/halo.c) */
+                              * light beyond the table (pipeline/halo.c):
+                              * 0 no, MP_PL_HALO_ASKED (halo=yes),
+                              * MP_PL_HALO_AUTO (halo=auto, the PSF built) */
     int lookup;              /* after the first round, take off the PSF's mean
                               * residual around bright stars (pipeline/lookup.c) */
     mp_parset *ps;           /* the task's parameters: the fit is set up

@@ -660,10 +660,18 @@ static int take_lookup(run_state *s, char *err)
 }
 
 /* The residual drawn again from the table's fitted stars with the model
- * now in s->fit (the PSF's second pass), without fitting them. */
-static int redraw_residual(run_state *s, char *err)
+ * now in s->fit (the PSF's second pass), without fitting them.  Their
+ * fluxes were fitted with a table of sum sum1: with the new table's (its
+ * PSFSUM may count light beyond it, the halo's) they are restated to put
+ * the same light in the table, E·sum1/sum, or the residual keeps a share
+ * 1 − sum/sum1 of every star (47 Tuc with halo=yes: 7 %). */
+static int redraw_residual(run_state *s, double sum1, char *err)
 {
     double gemax, t0 = mp_seconds();
+    int cf = mp_table_col(&s->t, "FLUX_PSF");
+    if (cf >= 0 && sum1 > 0 && s->psf.sum > 0 && s->psf.sum != sum1)
+        for (size_t r = 0; r < s->t.nrow; r++)
+            mp_table_set(&s->t, r, cf, mp_table_get(&s->t, r, cf) * sum1 / s->psf.sum);
     const mp_prf_cache *grid = phase_grid(s, &gemax);
     s->grid = grid;             /* the residual search's, as a fit's would be */
     int rc = mp_fit_residual_grid(&s->f, &s->fit->model, &s->t, s->fit->opts.cropfrac, grid,
@@ -679,8 +687,12 @@ static int redraw_residual(run_state *s, char *err)
  * memory is cleared with the PSF), so round 1's refit only warmed its
  * start.  Without it the residual is drawn again with the new PSF at
  * round 1's fitted stars (redraw_residual, a fraction of a second) and
- * searched.  The refit stays where no round follows, or where the halo or
- * the look-up took light off the frame after round 1.  Measured against
+ * searched.  The refit stays where no round follows, or where the look-up
+ * took light off the frame after round 1 (its stars on a bright star's
+ * features must lose their light before the search).  The halo's light,
+ * taken off too, does not need it: it lies beyond the cores the stars'
+ * fluxes come from, and redraw_residual restates them for the table's
+ * new PSFSUM.  Measured against
  * the refit (bench/PROFILE.md, session of 2026-11-30 18:41): 47 Tuc with
  * its PSF built 0.86-0.94 of the CPU in three sequential pairs, 2513
  * stars (2510); GLIMPSE 0.89 (one pair), flux scatter against its
@@ -689,7 +701,7 @@ static int redraw_residual(run_state *s, char *err)
 static int refit_after_second_pass(const run_state *s, int round)
 {
     const mp_pipeline_opts *o = s->o;
-    return round == o->niter || (s->own_frame && (o->halo || o->lookup));
+    return round == o->niter || (s->own_frame && o->lookup);
 }
 
 /* The rounds: group and fit, find on the residual, until nothing new is
@@ -708,10 +720,11 @@ static int rounds(run_state *s, char *err)
          * the stars are fitted with it now or in the next round. */
         int stale = 0;
         if (!rc && round == 1 && o->build_psf) {
+            double sum1 = s->psf.sum;
             rc = build_psf(s, 2, err);
             stale = !rc && !refit_after_second_pass(s, round);
             if (!rc)
-                rc = stale ? redraw_residual(s, err) : group_and_fit(s, round, err);
+                rc = stale ? redraw_residual(s, sum1, err) : group_and_fit(s, round, err);
         }
         if (!rc && round == 1 && o->lookup && s->own_frame)
             rc = take_lookup(s, err);
@@ -729,10 +742,11 @@ static int rounds(run_state *s, char *err)
 void mp_pl_warn_whole_frame_only(const mp_pipeline_opts *o, const char *task, const char *image,
                                  const char *where)
 {
-    if (o->halo || o->lookup)
+    int halo = o->halo == MP_PL_HALO_ASKED;     /* halo=auto: silently */
+    if (halo || o->lookup)
         fprintf(stderr, "matphot %s: %s: warning: %s%s%s not applied %s (they are measured on "
-                "the whole frame's residual)\n", task, image, o->halo ? "halo=yes" : "",
-                o->halo && o->lookup ? " and " : "", o->lookup ? "lookup=yes" : "", where);
+                "the whole frame's residual)\n", task, image, halo ? "halo=yes" : "",
+                halo && o->lookup ? " and " : "", o->lookup ? "lookup=yes" : "", where);
 }
 
 int mp_pipeline_run(const char *image, const char *root, const mp_pipeline_opts *o,

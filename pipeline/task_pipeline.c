@@ -61,7 +61,15 @@ int mp_pl_opts_read(mp_parset *ps, mp_pipeline_opts *o, char *err)
     mp_par_int(ps, "niter", &o->niter);
     mp_par_real(ps, "matchrad", &o->matchrad);
     mp_par_bool(ps, "regions", &o->regions);
-    mp_par_bool(ps, "halo", &o->halo);
+    /* The halo by default where the table is built from the frame: its
+     * wings come out low there (each PSF star's sky ring holds its own
+     * light) and its growth curve can miss what the halo holds (47 Tuc:
+     * 7 % of the light); a table given is the user's (pipeline/halo.c). */
+    const char *halo = mp_par_string(ps, "halo");
+    o->halo = !halo ? 0
+              : !strcmp(halo, "yes")                   ? MP_PL_HALO_ASKED
+              : !strcmp(halo, "auto") && o->build_psf ? MP_PL_HALO_AUTO
+                                                        : 0;
     mp_par_bool(ps, "lookup", &o->lookup);
     int ts, tm;
     mp_par_int(ps, "tilesize", &ts);

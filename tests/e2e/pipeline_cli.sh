@@ -58,6 +58,10 @@ recovered "$T/f.cat" || no "pipeline recovered too few stars or too many (matche
 grep -q "PSF pass 2" "$T/blog" || no "built: no second PSF pass"
 [ "$(grep -c 'round 1: .* stars fitted' "$T/blog")" -eq 1 ] || no "built: round 1 fitted again"
 recovered "$T/b.cat" || no "built: too few stars or too many: $(cat "$T/match")"
+# halo=auto (the default): measured when the PSF is built, not with a table
+# given.
+grep -q "halo from the [0-9]* brightest stars" "$T/blog" || no "built: halo=auto not measured"
+! grep -q "halo from" "$T/log" || no "psf= given: halo=auto measured"
 "$M" pipeline "$T/f.fits" root="$T/b1" niter=1 2>"$T/b1log" || no "built, niter=1"
 [ "$(grep -c 'round 1: .* stars fitted' "$T/b1log")" -eq 2 ] ||
     no "built, niter=1: round 1 not fitted with the second pass's PSF"

@@ -60,8 +60,9 @@ colq() {
 
 # tuc_stamps IMG T PNG: validate/REAL.md's stamps (asinh((value - sky)/σ)
 # on one grey scale, sky and σ from a residual) on 100 × 100 px around the
-# brightest star of T/mph.cat: the frame, DAOPHOT's residual (when there),
-# matphot's without and with halo=yes.
+# brightest star of T/mpe.cat: the frame, DAOPHOT's residual (when there),
+# matphot's with the halo modelled (the default when the PSF is built) and
+# without it (halo=no).
 tuc_stamps() {
     command -v gnuplot > /dev/null 2>&1 || return 1
     # shellcheck disable=SC2046
@@ -69,12 +70,12 @@ tuc_stamps() {
         $c["FLUX_PSF"] > e { e = $c["FLUX_PSF"]; x = $c["XPSF_IMAGE"]; y = $c["YPSF_IMAGE"] }
         END { x0 = int(x) - 49; y0 = int(y) - 49
               if (x0 < 1) x0 = 1; if (y0 < 1) y0 = 1; if (x0 > 157) x0 = 157; if (y0 > 157) y0 = 157
-              print x0, y0 }' "$2/mph.cat")
+              print x0, y0 }' "$2/mpe.cat")
     x0=$4 y0=$5 n=100 d=$OUT/stamps
     mkdir -p "$d" || return 1
     "$OUT/real" stamp "$1" "$x0" "$y0" $n "$d/img.dat" > /dev/null || return 1
     st=$("$OUT/real" stamp "$2/mpe.res.fits" "$x0" "$y0" $n "$d/mpe.dat") || return 1
-    "$OUT/real" stamp "$2/mph.res.fits" "$x0" "$y0" $n "$d/mph.dat" > /dev/null || return 1
+    "$OUT/real" stamp "$2/mpn.res.fits" "$x0" "$y0" $n "$d/mpn.dat" > /dev/null || return 1
     dao=""
     [ -f "$2/dao/im.sub2.fits" ] && "$OUT/real" stamp "$2/dao/im.sub2.fits" "$x0" "$y0" $n "$d/dao.dat" > /dev/null && dao=yes
     sky=${st% *} sig=${st#* }
@@ -98,10 +99,10 @@ set title 'frame'
 plot '$d/img.dat' matrix $u
 set title '$t2'
 $p2
-set title 'matphot residual (cosmic rays masked)'
+set title 'matphot residual (cosmic rays masked; the halo modelled, the default)'
 plot '$d/mpe.dat' matrix $u
-set title 'matphot residual, and halo=yes'
-plot '$d/mph.dat' matrix $u
+set title 'matphot residual, halo=no'
+plot '$d/mpn.dat' matrix $u
 unset multiplot
 EOF
 }
@@ -115,16 +116,17 @@ tuc() {
     T="$OUT/tuc"
     mkdir -p "$T"
     # Every run masks the DQ plane's saturated pixels (2304, grown by
-    # satgrow 1).  mpg: session 7's defaults; mpe: and the cosmic-ray hits
+    # satgrow 1).  mpg: the defaults; mpe: and the cosmic-ray hits
     # grown by one pixel (dqbad=4096, AstroDrizzle's flag in the FLT;
     # badgrow=1): unmasked, those ~120 pixels held 28 % of the fitted
-    # pixels' chi2 (psfreal_notes.md); mph: and the bright stars' halo
-    # modelled (pipeline halo=yes).
-    for v in mpg mpe mph; do
+    # pixels' chi2 (psfreal_notes.md); mpn: as mpe but the bright stars'
+    # halo not modelled (halo=no; the default halo=auto models it when the
+    # PSF is built, as here).
+    for v in mpg mpe mpn; do
         say "47 Tuc: matphot pipeline, no psf= ($v)"
         set -- pipeline "$IMG" root="$T/$v" gain=1 rdnoise=4.71 saturate=151553.98 'dqmask=[DQ]' dqsat=2304 satgrow=1
         [ $v = mpg ] || set -- "$@" dqbad=4096 badgrow=1
-        [ $v = mph ] && set -- "$@" halo=yes
+        [ $v = mpn ] && set -- "$@" halo=no
         echo "./matphot $*" | sed "s|root=$T/$v|root=R|; s|$REALDATA|$REALDATA0|" > "$T/$v.cmd"
         timed "$T/$v.log" "$MP" "$@" || { tail -n 3 "$T/$v.log" >&2; rc=1; return 0; }
     done
@@ -142,7 +144,7 @@ tuc() {
     echo '```'
     cat "$T/noise.txt"
     echo '```'
-    for v in mpg mpe mph; do
+    for v in mpg mpe mpn; do
         echo
         echo '```'
         cat "$T/$v.cmd"
@@ -168,15 +170,15 @@ tuc() {
         echo
         echo '| residual | pixels near matphot'"'"'s stars | pixels near DAOPHOT'"'"'s stars | pixels near either |'
         echo '|---|---|---|---|'
-        for r in mpg mpe mph dao; do
+        for r in mpg mpe mpn dao; do
             res="$T/$r.res.fits"; [ $r = dao ] && res="$T/dao/im.sub2.fits"
             a=$("$OUT/psfb" resid "$IMG" "$res" "$T/mpe.cat" 3 4.71 | sed -n 's/.*residual \([0-9.]*\),.*/\1/p')
             b=$("$OUT/psfb" resid "$IMG" "$res" "$T/dao/dao.cat" 3 4.71 | sed -n 's/.*residual \([0-9.]*\),.*/\1/p')
             c=$("$OUT/psfb" resid "$IMG" "$res" "$T/mpe.cat" 3 4.71 "$T/dao/dao.cat" | sed -n 's/.*residual \([0-9.]*\),.*/\1/p')
             case $r in
-            mpg) n="matphot, its own PSF, session 7's defaults ($(grep -vc '^#' "$T/mpg.cat") stars)" ;;
+            mpg) n="matphot, its own PSF, the defaults ($(grep -vc '^#' "$T/mpg.cat") stars)" ;;
             mpe) n="matphot, and the cosmic rays masked (dqbad=4096 badgrow=1) ($(grep -vc '^#' "$T/mpe.cat") stars)" ;;
-            mph) n="matphot, and halo=yes ($(grep -vc '^#' "$T/mph.cat") stars)" ;;
+            mpn) n="matphot, the cosmic rays masked, halo=no ($(grep -vc '^#' "$T/mpn.cat") stars)" ;;
             *) n="IRAF DAOPHOT ($(grep -vc '^#' "$T/dao/dao.cat") stars)" ;;
             esac
             echo "| $n | $a | $b | $c |"
