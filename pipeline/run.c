@@ -40,6 +40,7 @@ typedef struct {
     int quiet;            /* mp_pipeline_reduce: no stderr lines, no files */
     int own_frame;        /* f read here, so the halo may be taken off it */
     int psf_pass;         /* the built PSF's last pass (0: none built) */
+    int one_pass;         /* the next group_and_fit in one pass (rounds) */
     double halo_light;    /* the light per e- the halo took off every star
                            * (mp_pl_halo), which the PSF's PSFSUM counts */
     const mp_prf_cache *grid;  /* the phase grid the last fit drew from */
@@ -249,13 +250,17 @@ static int group_and_fit(run_state *s, int round, char *err)
     if (need_residual(s, err))
         return 1;
     mp_frame_opts fo = s->fit->opts;
-    /* With the first pass's PSF the fit only places the neighbours the
-     * second pass takes off and draws the residual searched next; every
-     * star is fitted afresh with the second pass's PSF (round 1 again or
-     * round 2).  So one pass: its second refits the groups with their
-     * neighbours' fitted light, which the rebuild does not need (47 Tuc
-     * 512²: 740 group fits → 375, ~5 % of the run's CPU). */
-    if (s->psf_pass == 1)
+    /* One pass where a later fit takes the groups up again: with the
+     * first pass's PSF (its fit only places the neighbours the second
+     * pass takes off and draws the residual searched next; every star is
+     * fitted afresh with the second pass's PSF), and in a round a next
+     * one follows (rounds: its first pass refits every group whose
+     * neighbours' light changed since its fit, with the new stars'
+     * groups, as this round's second pass would have).  47 Tuc 512²
+     * built: round 1's 740 group fits → 375, round 2's 493 → 254 (round
+     * 3's 391 → 435), ~10 % of the run's CPU; validate/PSFREAL.md's
+     * psfreal_notes, session 41. */
+    if (s->psf_pass == 1 || s->one_pass)
         fo.passes = 1;
     if (mp_fit_table_mem(&s->f, &s->fit->model, &fo, &s->t, s->mem, &fr, err))
         return 1;
@@ -724,7 +729,10 @@ static int rounds(run_state *s, char *err)
     for (int round = 1; !rc && round <= o->niter; round++) {
         s->rep->rounds = round;
         long added = 0;
+        s->one_pass = round < o->niter;
         rc = group_and_fit(s, round, err);
+        int partial = s->one_pass;  /* in one pass: fitted again if no round follows */
+        s->one_pass = 0;
         if (!rc && round == 1 && o->halo && s->own_frame)
             rc = take_halo(s, err);
         /* DAOPHOT's second pass: the PSF again with every neighbour gone;
@@ -742,8 +750,8 @@ static int rounds(run_state *s, char *err)
         if (rc || round == o->niter)
             break;
         rc = find_on_residual(s, round, &added, err);
-        if (!rc && added == 0 && stale)
-            rc = group_and_fit(s, round, err);  /* no next round: fit with the last PSF */
+        if (!rc && added == 0 && (stale || partial))
+            rc = group_and_fit(s, round, err);  /* no next round: the last PSF, all passes */
         if (added == 0)
             break;           /* nothing new: the last fit and residual stand */
     }

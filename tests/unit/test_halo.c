@@ -52,6 +52,35 @@ static double sky_ring_halo(void)
     return s / (double)n;
 }
 
+/* An N × N frame (pixels unset, no mask, gain 1, read noise 5 e-). */
+static void frame_alloc(mp_frame *f)
+{
+    memset(f, 0, sizeof *f);
+    f->im.nx = f->im.ny = N;
+    f->im.pix = malloc(N * N * sizeof *f->im.pix);
+    f->mask = calloc(N * N, 1);
+    f->gain = 1.0;
+    f->rdnoise = 5.0;
+    assert_non_null(f->im.pix);
+    assert_non_null(f->mask);
+}
+
+/* A fitted-star table of n stars at (x, y) with fluxes e on the sky SKY. */
+static void star_table(mp_table *t, int n, const double *x, const double *y, const double *e)
+{
+    mp_table_init(t);
+    int cx = mp_table_add_col(t, "XPSF_IMAGE"), cy = mp_table_add_col(t, "YPSF_IMAGE"),
+        ce = mp_table_add_col(t, "FLUX_PSF"), cs = mp_table_add_col(t, "SKY_PSF");
+    for (int k = 0; k < n; k++) {
+        long row = mp_table_add_row(t);
+        assert_true(row >= 0);
+        mp_table_set(t, (size_t)row, cx, x[k]);
+        mp_table_set(t, (size_t)row, cy, y[k]);
+        mp_table_set(t, (size_t)row, ce, e[k]);
+        mp_table_set(t, (size_t)row, cs, SKY);
+    }
+}
+
 /* The mean of (pix - SKY) over the rings [r0, r1) of the NS stars. */
 static double ring_mean(const float *pix, double r0, double r1, long *n)
 {
@@ -84,14 +113,7 @@ static void test_halo_measured_and_taken_off(void **state)
 {
     (void)state;
     mp_frame f;
-    memset(&f, 0, sizeof f);
-    f.im.nx = f.im.ny = N;
-    f.im.pix = malloc(N * N * sizeof *f.im.pix);
-    f.mask = calloc(N * N, 1);
-    f.gain = 1.0;
-    f.rdnoise = 5.0;
-    assert_non_null(f.im.pix);
-    assert_non_null(f.mask);
+    frame_alloc(&f);
     for (long y = 1; y <= N; y++)
         for (long x = 1; x <= N; x++) {
             f.im.pix[(y - 1) * N + (x - 1)] = SKY + halo_all((double)x, (double)y);
@@ -105,17 +127,8 @@ static void test_halo_measured_and_taken_off(void **state)
     memcpy(res, f.im.pix, N * N * sizeof *res);
     memcpy(orig, f.im.pix, N * N * sizeof *orig);
     mp_table t;
-    mp_table_init(&t);
-    int cx = mp_table_add_col(&t, "XPSF_IMAGE"), cy = mp_table_add_col(&t, "YPSF_IMAGE"),
-        ce = mp_table_add_col(&t, "FLUX_PSF"), cs = mp_table_add_col(&t, "SKY_PSF");
-    for (int k = 0; k < NS; k++) {
-        long row = mp_table_add_row(&t);
-        assert_true(row >= 0);
-        mp_table_set(&t, (size_t)row, cx, SX[k]);
-        mp_table_set(&t, (size_t)row, cy, SY[k]);
-        mp_table_set(&t, (size_t)row, ce, E);
-        mp_table_set(&t, (size_t)row, cs, SKY);
-    }
+    const double es[NS] = {E, E, E, E};
+    star_table(&t, NS, SX, SY, es);
     long n;
     double before = ring_mean(f.im.pix, 10.0, 20.0, &n);
     assert_true(before > 40.0);
@@ -155,15 +168,8 @@ static void test_halo_light_counted(void **state)
     (void)state;
     const double X = 80.3, Y = 80.6, R = 47.5;
     mp_frame f;
-    memset(&f, 0, sizeof f);
-    f.im.nx = f.im.ny = N;
-    f.im.pix = malloc(N * N * sizeof *f.im.pix);
-    f.mask = calloc(N * N, 1);
-    f.gain = 1.0;
-    f.rdnoise = 5.0;
+    frame_alloc(&f);
     float *res = malloc(N * N * sizeof *res);
-    assert_non_null(f.im.pix);
-    assert_non_null(f.mask);
     assert_non_null(res);
     double b1 = 0.0;
     long nb1 = 0;
@@ -185,15 +191,7 @@ static void test_halo_light_counted(void **state)
     for (long i = 0; i < N * N; i++)
         before += f.im.pix[i];
     mp_table t;
-    mp_table_init(&t);
-    int cx = mp_table_add_col(&t, "XPSF_IMAGE"), cy = mp_table_add_col(&t, "YPSF_IMAGE"),
-        ce = mp_table_add_col(&t, "FLUX_PSF"), cs = mp_table_add_col(&t, "SKY_PSF");
-    long row = mp_table_add_row(&t);
-    assert_true(row == 0);
-    mp_table_set(&t, 0, cx, X);
-    mp_table_set(&t, 0, cy, Y);
-    mp_table_set(&t, 0, ce, E);
-    mp_table_set(&t, 0, cs, SKY);
+    star_table(&t, 1, &X, &Y, &E);
     char what[MP_ERRLEN], err[MP_ERRLEN];
     double z, light;
     assert_int_equal(mp_pl_halo(&f, res, &t, 3.0, &z, &light, what, sizeof what, err), 0);
@@ -228,28 +226,12 @@ static void test_no_halo_not_taken_off(void **state)
 {
     (void)state;
     mp_frame f;
-    memset(&f, 0, sizeof f);
-    f.im.nx = f.im.ny = N;
-    f.im.pix = malloc(N * N * sizeof *f.im.pix);
-    f.mask = calloc(N * N, 1);
-    f.gain = 1.0;
-    f.rdnoise = 5.0;
+    frame_alloc(&f);
     float *res = malloc(N * N * sizeof *res);
-    assert_non_null(f.im.pix);
-    assert_non_null(f.mask);
     assert_non_null(res);
     mp_table t;
-    mp_table_init(&t);
-    int cx = mp_table_add_col(&t, "XPSF_IMAGE"), cy = mp_table_add_col(&t, "YPSF_IMAGE"),
-        ce = mp_table_add_col(&t, "FLUX_PSF"), cs = mp_table_add_col(&t, "SKY_PSF");
-    for (int k = 0; k < NS; k++) {
-        long row = mp_table_add_row(&t);
-        assert_true(row >= 0);
-        mp_table_set(&t, (size_t)row, cx, SX[k]);
-        mp_table_set(&t, (size_t)row, cy, SY[k]);
-        mp_table_set(&t, (size_t)row, ce, E * (1.0 + 0.5 * k));
-        mp_table_set(&t, (size_t)row, cs, SKY);
-    }
+    const double es[NS] = {E, 1.5 * E, 2.0 * E, 2.5 * E};
+    star_table(&t, NS, SX, SY, es);
     mp_rng r;
     mp_rng_seed(&r, 777);
     double s1 = 0.0, s2 = 0.0;
