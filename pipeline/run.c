@@ -41,6 +41,7 @@ typedef struct {
     int own_frame;        /* f read here, so the halo may be taken off it */
     int psf_pass;         /* the built PSF's last pass (0: none built) */
     int one_pass;         /* the next group_and_fit in one pass (rounds) */
+    int last_partial;     /* the last group_and_fit took fewer passes than asked */
     double halo_light;    /* the light per e- the halo took off every star
                            * (mp_pl_halo), which the PSF's PSFSUM counts */
     const mp_prf_cache *grid;  /* the phase grid the last fit drew from */
@@ -262,6 +263,7 @@ static int group_and_fit(run_state *s, int round, char *err)
      * psfreal_notes, session 41. */
     if (s->psf_pass == 1 || s->one_pass)
         fo.passes = 1;
+    s->last_partial = fo.passes < s->fit->opts.passes;
     if (mp_fit_table_mem(&s->f, &s->fit->model, &fo, &s->t, s->mem, &fr, err))
         return 1;
     s->grid = fr.grid;
@@ -731,7 +733,6 @@ static int rounds(run_state *s, char *err)
         long added = 0;
         s->one_pass = round < o->niter;
         rc = group_and_fit(s, round, err);
-        int partial = s->one_pass;  /* in one pass: fitted again if no round follows */
         s->one_pass = 0;
         if (!rc && round == 1 && o->halo && s->own_frame)
             rc = take_halo(s, err);
@@ -750,8 +751,9 @@ static int rounds(run_state *s, char *err)
         if (rc || round == o->niter)
             break;
         rc = find_on_residual(s, round, &added, err);
-        if (!rc && added == 0 && (stale || partial))
-            rc = group_and_fit(s, round, err);  /* no next round: the last PSF, all passes */
+        /* No next round: the last PSF, all passes. */
+        if (!rc && added == 0 && (stale || s->last_partial))
+            rc = group_and_fit(s, round, err);
         if (added == 0)
             break;           /* nothing new: the last fit and residual stand */
     }
