@@ -149,12 +149,12 @@ built|no psf= (the PSF built from the frame, its table radius measured)|
 built22|no psf=, tablerad=22 (the built table to where the drawn light ends: its ±16 px square's corners, 22.6 px)|tablerad=22
 builtl|no psf=, lookup=yes (the PSF's mean residual around the bright stars taken off)|lookup=yes
 built16l|no psf=, tablerad=16 lookup=yes (the built table to ±16 px)|tablerad=16 lookup=yes"
-# The halo beyond the table modelled (pipeline halo=yes), when the
-# pipeline has that parameter.
+# The halo beyond a given table modelled (halo=yes), and the built table's
+# without it (halo=no; auto models it there), when the pipeline has that parameter.
 if "$MATPHOT" params pipeline 2>/dev/null | grep -q '^halo,'; then
     SEGRUNS="$SEGRUNS
 cut8h|the table cut to ±8 px, halo=yes|psf=$SEG/psf8.fits halo=yes
-builth|no psf=, halo=yes (the halo's light counted in the built table's PSFSUM)|halo=yes"
+builtnh|no psf=, halo=no (the built table's halo not modelled: the default before session 41)|halo=no"
 fi
 if [ -z "$REPORT_ONLY" ]; then
     rm -f "$SEG"/*
