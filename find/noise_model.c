@@ -14,10 +14,11 @@ static double quantile_of(double *v, size_t n, double q)
     return mp_select_kth(v, n, i < n ? i : n - 1);
 }
 
-/* Poisson variance [e-²] of pixel i: sky + stars + RON². */
-static double poisson_var(const mp_bkg *b, const mp_frame *f, const float *res, size_t i)
+/* Poisson variance [e-²] of pixel i of sky level sky: sky + stars + RON²
+ * (the sky given: the map's spline is read once a pixel). */
+static double poisson_var(const mp_frame *f, const float *res, size_t i, double sky)
 {
-    return fmax(mp_bkg_sky(b, i), 0.0) + fmax(f->im.pix[i] - res[i], 0.0) + f->rdnoise * f->rdnoise;
+    return fmax(sky, 0.0) + fmax(f->im.pix[i] - res[i], 0.0) + f->rdnoise * f->rdnoise;
 }
 
 /* The sampled pixels, as residual r (sky removed), Poisson variance p and
@@ -44,9 +45,10 @@ static void kernel_sample(const mp_bkg *b, const mp_frame *f, const float *res,
         if (!ok)
             break;
         size_t q = (size_t)y * (size_t)nx + (size_t)x;
-        double v = poisson_var(b, f, res, q);
+        float sky = mp_bkg_sky(b, q);
+        double v = poisson_var(f, res, q, sky);
         ok = !f->mask[q] && v > 0 && isfinite(res[q]);
-        h += k->kl[t] * (res[q] - mp_bkg_sky(b, q));
+        h += k->kl[t] * (res[q] - sky);
         vh += k->kl[t] * k->kl[t] * v;
         sp += v;
         sm += fmax(f->im.pix[q] - res[q], 0.0);
@@ -61,9 +63,10 @@ static void kernel_sample(const mp_bkg *b, const mp_frame *f, const float *res,
 static void star_sample(const mp_bkg *b, const mp_frame *f, const float *res, size_t i, double k,
                         samples *s, size_t j)
 {
-    double v = poisson_var(b, f, res, i), m = fmax(f->im.pix[i] - res[i], 0.0);
+    float sky = mp_bkg_sky(b, i);
+    double v = poisson_var(f, res, i, sky), m = fmax(f->im.pix[i] - res[i], 0.0);
     int ok = !f->mask[i] && v > 0 && isfinite(res[i]) && m * m > 9.0 * k * k * v;
-    s->r[j] = ok ? res[i] - mp_bkg_sky(b, i) : 0.0;
+    s->r[j] = ok ? res[i] - sky : 0.0;
     s->p[j] = ok ? v : -1.0;
     s->m[j] = m;
 }

@@ -40,8 +40,7 @@ typedef struct {
     int quiet;            /* mp_pipeline_reduce: no stderr lines, no files */
     int own_frame;        /* f read here, so the halo may be taken off it */
     int psf_pass;         /* the built PSF's last pass (0: none built) */
-    int one_pass;         /* the next group_and_fit in one pass (rounds) */
-    int last_partial;     /* the last group_and_fit took fewer passes than asked */
+    int last_partial;     /* the last group_and_fit took one pass of several */
     double halo_light;    /* the light per e- the halo took off every star
                            * (mp_pl_halo), which the PSF's PSFSUM counts */
     const mp_prf_cache *grid;  /* the phase grid the last fit drew from */
@@ -229,8 +228,16 @@ static const mp_prf_cache *phase_grid(run_state *s, double *gemax)
     return oe.grid;
 }
 
-/* Group the stars (root.grp), fit every group, and draw the residual. */
-static int group_and_fit(run_state *s, int round, char *err)
+/* Group the stars (root.grp), fit every group, and draw the residual.
+ * once: in one pass, not the fit's passes, where a later fit takes the
+ * groups up again (the fit's memory refits every group whose neighbours'
+ * light changed since): with the first pass's PSF, whose fit only places
+ * the neighbours the second pass takes off and draws the residual
+ * searched next, and in a round another follows, whose first pass refits
+ * what this one's second would have, with the new stars' groups.  47 Tuc
+ * 512² built: group fits 740 / 493 / 391 → 375 / 254 / 435 by round, ~10 %
+ * of the run's CPU (psfreal_notes.md, session 41). */
+static int group_and_fit(run_state *s, int round, int once, char *err)
 {
     const mp_pipeline_opts *o = s->o;
     double t0 = mp_seconds();
@@ -251,17 +258,7 @@ static int group_and_fit(run_state *s, int round, char *err)
     if (need_residual(s, err))
         return 1;
     mp_frame_opts fo = s->fit->opts;
-    /* One pass where a later fit takes the groups up again: with the
-     * first pass's PSF (its fit only places the neighbours the second
-     * pass takes off and draws the residual searched next; every star is
-     * fitted afresh with the second pass's PSF), and in a round a next
-     * one follows (rounds: its first pass refits every group whose
-     * neighbours' light changed since its fit, with the new stars'
-     * groups, as this round's second pass would have).  47 Tuc 512²
-     * built: round 1's 740 group fits → 375, round 2's 493 → 254 (round
-     * 3's 391 → 435), ~10 % of the run's CPU; validate/PSFREAL.md's
-     * psfreal_notes, session 41. */
-    if (s->psf_pass == 1 || s->one_pass)
+    if (once)
         fo.passes = 1;
     s->last_partial = fo.passes < s->fit->opts.passes;
     if (mp_fit_table_mem(&s->f, &s->fit->model, &fo, &s->t, s->mem, &fr, err))
@@ -655,7 +652,7 @@ static int take_halo(run_state *s, char *err)
         return 0;                       /* nothing taken off: the fit stands */
     mp_fit_memory_forget(s->mem);
     s->rep->t_fit += mp_seconds() - t0;
-    return s->o->build_psf ? 0 : group_and_fit(s, 1, err);
+    return s->o->build_psf ? 0 : group_and_fit(s, 1, 0, err);
 }
 
 /* What the PSF leaves around bright stars (lookup=yes, pipeline/lookup.c),
@@ -674,7 +671,7 @@ static int take_lookup(run_state *s, char *err)
         fprintf(stderr, "matphot pipeline: %s: %s, %.2f s\n", s->image, what, mp_seconds() - t0);
     mp_fit_memory_forget(s->mem);
     s->rep->t_fit += mp_seconds() - t0;
-    return group_and_fit(s, 1, err);
+    return group_and_fit(s, 1, 0, err);
 }
 
 /* The residual drawn again from the table's fitted stars with the model
@@ -731,9 +728,7 @@ static int rounds(run_state *s, char *err)
     for (int round = 1; !rc && round <= o->niter; round++) {
         s->rep->rounds = round;
         long added = 0;
-        s->one_pass = round < o->niter;
-        rc = group_and_fit(s, round, err);
-        s->one_pass = 0;
+        rc = group_and_fit(s, round, round < o->niter || s->psf_pass == 1, err);
         if (!rc && round == 1 && o->halo && s->own_frame)
             rc = take_halo(s, err);
         /* DAOPHOT's second pass: the PSF again with every neighbour gone;
@@ -744,7 +739,7 @@ static int rounds(run_state *s, char *err)
             rc = build_psf(s, 2, err);
             stale = !rc && !refit_after_second_pass(s, round);
             if (!rc)
-                rc = stale ? redraw_residual(s, sum1, err) : group_and_fit(s, round, err);
+                rc = stale ? redraw_residual(s, sum1, err) : group_and_fit(s, round, 0, err);
         }
         if (!rc && round == 1 && o->lookup && s->own_frame)
             rc = take_lookup(s, err);
@@ -753,7 +748,7 @@ static int rounds(run_state *s, char *err)
         rc = find_on_residual(s, round, &added, err);
         /* No next round: the last PSF, all passes. */
         if (!rc && added == 0 && (stale || s->last_partial))
-            rc = group_and_fit(s, round, err);
+            rc = group_and_fit(s, round, 0, err);
         if (added == 0)
             break;           /* nothing new: the last fit and residual stand */
     }
@@ -845,7 +840,7 @@ int mp_pl_psf_on(const char *section, const char *root, const mp_pipeline_opts *
         rc = read_frame(&s, err) || find_stars(&s, err) || build_psf(&s, 1, err);
     /* Pass 2 as a whole run makes it: every neighbour fitted and gone. */
     if (!rc && s.have_own)
-        rc = group_and_fit(&s, 1, err) || build_psf(&s, 2, err);
+        rc = group_and_fit(&s, 1, s.psf_pass == 1, err) || build_psf(&s, 2, err);
     *built = !rc && s.have_own;
     state_free(&s);
     return rc;

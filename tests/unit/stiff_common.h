@@ -1,6 +1,7 @@
-/* stiff_common.h — helpers shared by tests/unit/test_stiff_*.c: frames in
- * memory, simulated Gaussian stars (sim/, exact pixel integrals, never the
- * fitter's shifter), tables of start positions, and sampling statistics.
+/* stiff_common.h — helpers shared by tests/unit/test_stiff_*.c and other
+ * unit tests: frames in memory, simulated Gaussian stars (sim/, exact
+ * pixel integrals, never the fitter's shifter), tables of start positions
+ * and of fitted stars, and sampling statistics.
  * Every helper is static; each test file uses a subset. */
 #ifndef MATPHOT_STIFF_COMMON_H
 #define MATPHOT_STIFF_COMMON_H
@@ -78,6 +79,28 @@ static inline void sf_table(mp_table *t, const double *x, const double *y, const
             mp_table_set(t, (size_t)r, cg, gid);
         if (cf >= 0)
             mp_table_set(t, (size_t)r, cf, E[k]);
+    }
+}
+
+/* A fitted-star table, as the pipeline hands it on: XPSF_IMAGE,
+ * YPSF_IMAGE, FLUX_PSF (E NULL: none) and SKY_PSF (sky NaN: none). */
+static inline void sf_fitted_table(mp_table *t, const double *x, const double *y, const double *E,
+                                   double sky, int n)
+{
+    mp_table_init(t);
+    int cx = mp_table_add_col(t, "XPSF_IMAGE"), cy = mp_table_add_col(t, "YPSF_IMAGE");
+    int cf = E ? mp_table_add_col(t, "FLUX_PSF") : -1;
+    int cs = isfinite(sky) ? mp_table_add_col(t, "SKY_PSF") : -1;
+    assert_true(cx >= 0 && cy >= 0);
+    for (int k = 0; k < n; k++) {
+        long r = mp_table_add_row(t);
+        assert_true(r >= 0);
+        mp_table_set(t, (size_t)r, cx, x[k]);
+        mp_table_set(t, (size_t)r, cy, y[k]);
+        if (cf >= 0)
+            mp_table_set(t, (size_t)r, cf, E[k]);
+        if (cs >= 0)
+            mp_table_set(t, (size_t)r, cs, sky);
     }
 }
 

@@ -20,9 +20,8 @@
 #include <stdlib.h>
 #include <string.h>
 
-#include "catalog/catalog.h"
 #include "pipeline/pipeline_priv.h"
-#include "sim/sim.h"
+#include "tests/unit/stiff_common.h"
 
 #define N 440
 #define SKY 100.0
@@ -43,17 +42,9 @@ typedef struct {
 static void scene_make(scene *s, double scale, uint64_t seed)
 {
     memset(s, 0, sizeof *s);
-    s->f.im.nx = s->f.im.ny = N;
-    s->f.im.pix = malloc(sizeof(float) * N * N);
-    s->f.mask = calloc(N * N, 1);
+    sf_frame_make(&s->f, N, N, RON);
     s->res = malloc(sizeof(float) * N * N);
-    assert_non_null(s->f.im.pix);
-    assert_non_null(s->f.mask);
     assert_non_null(s->res);
-    s->f.gain = 1.0;
-    s->f.rdnoise = RON;
-    s->f.saturate = INFINITY;
-    s->f.exptime = 1.0;
     for (long i = 0; i < N * N; i++)
         s->f.im.pix[i] = (float)SKY;
     mp_rng r;
@@ -69,23 +60,8 @@ static void scene_make(scene *s, double scale, uint64_t seed)
 
 static void scene_drop(scene *s)
 {
-    free(s->f.im.pix);
-    free(s->f.mask);
+    sf_frame_drop(&s->f);
     free(s->res);
-}
-
-/* A table of n stars (XPSF_IMAGE, YPSF_IMAGE, 1-based) at xs, ys. */
-static void star_table(mp_table *t, const double *xs, const double *ys, int n)
-{
-    mp_table_init(t);
-    int cx = mp_table_add_col(t, "XPSF_IMAGE"), cy = mp_table_add_col(t, "YPSF_IMAGE");
-    assert_true(cx >= 0 && cy >= 0);
-    for (int k = 0; k < n; k++) {
-        long r = mp_table_add_row(t);
-        assert_true(r >= 0);
-        mp_table_set(t, (size_t)r, cx, xs[k]);
-        mp_table_set(t, (size_t)r, cy, ys[k]);
-    }
 }
 
 static void test_noise_and_doubled(void **state)
@@ -96,7 +72,7 @@ static void test_noise_and_doubled(void **state)
         scene s;
         scene_make(&s, scales[c], 77 + (uint64_t)c);
         mp_table t;
-        star_table(&t, NULL, NULL, 0);
+        sf_fitted_table(&t, NULL, NULL, NULL, NAN, 0);
         mp_pl_escale e;
         char err[MP_ERRLEN];
         assert_int_equal(mp_pl_error_scale(&s.f, s.res, &t, &s.m, FITRAD, FWHM, &e, err), 0);
@@ -132,7 +108,7 @@ static void test_places_near_stars_left_out(void **state)
         ys[k] = 1.0 + (N - 1) * mp_rng_uniform(&r);
     }
     mp_table t;
-    star_table(&t, xs, ys, 60);
+    sf_fitted_table(&t, xs, ys, NULL, NAN, 60);
     /* the windows' centres (11 px apart, 1-based 6, 17, ...) farther than
      * MP_PL_ESCALE_REX FWHM from every star */
     size_t want = 0;

@@ -10,11 +10,11 @@
 #include <stdlib.h>
 #include <string.h>
 #include "pipeline/pipeline_priv.h"
-#include "sim/sim.h"
+#include "tests/unit/stiff_common.h"
 
 enum { N = 160, NS = 4 };
 static const double SX[NS] = {40.3, 120.7, 40.1, 120.4}, SY[NS] = {40.6, 40.2, 120.5, 120.9};
-static const double E = 1e7, SKY = 100.0;
+static const double E = 1e7, SKY = 100.0, RON = 5.0;
 
 /* The true halo per electron: A / (1 + (r/8)²)^1.5, A = 5e-5 (45 e- at
  * 16 px from a star of 1e7 e-, 2 e- at 48 px). */
@@ -52,35 +52,6 @@ static double sky_ring_halo(void)
     return s / (double)n;
 }
 
-/* An N × N frame (pixels unset, no mask, gain 1, read noise 5 e-). */
-static void frame_alloc(mp_frame *f)
-{
-    memset(f, 0, sizeof *f);
-    f->im.nx = f->im.ny = N;
-    f->im.pix = malloc(N * N * sizeof *f->im.pix);
-    f->mask = calloc(N * N, 1);
-    f->gain = 1.0;
-    f->rdnoise = 5.0;
-    assert_non_null(f->im.pix);
-    assert_non_null(f->mask);
-}
-
-/* A fitted-star table of n stars at (x, y) with fluxes e on the sky SKY. */
-static void star_table(mp_table *t, int n, const double *x, const double *y, const double *e)
-{
-    mp_table_init(t);
-    int cx = mp_table_add_col(t, "XPSF_IMAGE"), cy = mp_table_add_col(t, "YPSF_IMAGE"),
-        ce = mp_table_add_col(t, "FLUX_PSF"), cs = mp_table_add_col(t, "SKY_PSF");
-    for (int k = 0; k < n; k++) {
-        long row = mp_table_add_row(t);
-        assert_true(row >= 0);
-        mp_table_set(t, (size_t)row, cx, x[k]);
-        mp_table_set(t, (size_t)row, cy, y[k]);
-        mp_table_set(t, (size_t)row, ce, e[k]);
-        mp_table_set(t, (size_t)row, cs, SKY);
-    }
-}
-
 /* The mean of (pix - SKY) over the rings [r0, r1) of the NS stars. */
 static double ring_mean(const float *pix, double r0, double r1, long *n)
 {
@@ -113,7 +84,7 @@ static void test_halo_measured_and_taken_off(void **state)
 {
     (void)state;
     mp_frame f;
-    frame_alloc(&f);
+    sf_frame_make(&f, N, N, RON);
     for (long y = 1; y <= N; y++)
         for (long x = 1; x <= N; x++) {
             f.im.pix[(y - 1) * N + (x - 1)] = SKY + halo_all((double)x, (double)y);
@@ -128,7 +99,7 @@ static void test_halo_measured_and_taken_off(void **state)
     memcpy(orig, f.im.pix, N * N * sizeof *orig);
     mp_table t;
     const double es[NS] = {E, E, E, E};
-    star_table(&t, NS, SX, SY, es);
+    sf_fitted_table(&t, SX, SY, es, SKY, NS);
     long n;
     double before = ring_mean(f.im.pix, 10.0, 20.0, &n);
     assert_true(before > 40.0);
@@ -149,9 +120,8 @@ static void test_halo_measured_and_taken_off(void **state)
     mp_table_free(&t);
     free(res);
     free(orig);
-    free(f.im.pix);
-    free(f.mask);
     free(f.xvar);
+    sf_frame_drop(&f);
 }
 
 /* The light taken off, *light per electron: one star of 1e7 e- in the
@@ -168,7 +138,7 @@ static void test_halo_light_counted(void **state)
     (void)state;
     const double X = 80.3, Y = 80.6, R = 47.5;
     mp_frame f;
-    frame_alloc(&f);
+    sf_frame_make(&f, N, N, RON);
     float *res = malloc(N * N * sizeof *res);
     assert_non_null(res);
     double b1 = 0.0;
@@ -191,7 +161,7 @@ static void test_halo_light_counted(void **state)
     for (long i = 0; i < N * N; i++)
         before += f.im.pix[i];
     mp_table t;
-    star_table(&t, 1, &X, &Y, &E);
+    sf_fitted_table(&t, &X, &Y, &E, SKY, 1);
     char what[MP_ERRLEN], err[MP_ERRLEN];
     double z, light;
     assert_int_equal(mp_pl_halo(&f, res, &t, 3.0, &z, &light, what, sizeof what, err), 0);
@@ -207,9 +177,8 @@ static void test_halo_light_counted(void **state)
     assert_float_equal(light, truth, 1.5 * M_PI * R * R / E);
     mp_table_free(&t);
     free(res);
-    free(f.im.pix);
-    free(f.mask);
     free(f.xvar);
+    sf_frame_drop(&f);
 }
 
 /* The significance test where there is no halo: NF frames of sky + noise
@@ -226,12 +195,12 @@ static void test_no_halo_not_taken_off(void **state)
 {
     (void)state;
     mp_frame f;
-    frame_alloc(&f);
+    sf_frame_make(&f, N, N, RON);
     float *res = malloc(N * N * sizeof *res);
     assert_non_null(res);
     mp_table t;
     const double es[NS] = {E, 1.5 * E, 2.0 * E, 2.5 * E};
-    star_table(&t, NS, SX, SY, es);
+    sf_fitted_table(&t, SX, SY, es, SKY, NS);
     mp_rng r;
     mp_rng_seed(&r, 777);
     double s1 = 0.0, s2 = 0.0;
@@ -265,8 +234,7 @@ static void test_no_halo_not_taken_off(void **state)
     assert_true(fired <= 3);
     mp_table_free(&t);
     free(res);
-    free(f.im.pix);
-    free(f.mask);
+    sf_frame_drop(&f);
 }
 
 int main(void)
