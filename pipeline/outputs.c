@@ -179,6 +179,11 @@ static void detection_line(const mp_fit_setup *fit, const mp_pipeline_report *re
         k += snprintf(run->detection + k, n - (size_t)k, "; the catalog's errors are the "
                       "fit's x %.3g (flux), x %.3g (position), what the residual holds at the "
                       "PSF's scale (its S/N that much lower)", rep->escale[0], rep->escale[1]);
+    if (k > 0 && (size_t)k < n && rep->cr_k > 0)
+        k += snprintf(run->detection + k, n - (size_t)k, "; %ld pixels masked as cosmic rays "
+                      "or hot pixels around %ld that no sum of stars makes (crmask: side "
+                      "neighbours under %.3g of the pixel by %.2f sigma)", rep->cr_masked,
+                      rep->cr_cores, rep->cr_s, rep->cr_k);
     double beta = col_median(t, "BETA_PSF"), B = col_median(t, "SKY_PSF");
     double v = beta * (fmax(B, 0.0) + rep->rdnoise * rep->rdnoise);
     if (k > 0 && (size_t)k < n && s > 0 && isfinite(v) && v > 0) {

@@ -39,6 +39,10 @@ typedef struct {
                               * light beyond the table (pipeline/halo.c):
                               * 0 no, MP_PL_HALO_ASKED (halo=yes),
                               * MP_PL_HALO_AUTO (halo=auto, the PSF built) */
+    int crmask;              /* after the first round's fit, mask the pixels no
+                              * sum of stars can make: cosmic rays, hot
+                              * pixels (pipeline/cosmics.c) */
+    int crgrow;              /* and the pixels within this many of each */
     int lookup;              /* after the first round, take off the PSF's mean
                               * residual around bright stars (pipeline/lookup.c) */
     mp_parset *ps;           /* the task's parameters: the fit is set up
@@ -75,6 +79,9 @@ typedef struct {
                                    * measured (flux, x, y; pipeline/error_scale.c;
                                    * NaN: not measured) */
     long escale_places;           /* the places they were measured at */
+    long cr_cores, cr_masked;     /* cosmic-ray pixels flagged, and masked with
+                                   * their growth (pipeline/cosmics.c) */
+    double cr_s, cr_D, cr_k;      /* its test's constants (0: not run) */
 } mp_pipeline_report;
 
 /* mp_pipeline_run: reduce one image; root names the outputs. */

@@ -77,6 +77,73 @@ double mp_pl_median_positive(const mp_table *t, const char *name);
  * finite one; 0 when there is none (or no memory to sort them). */
 double mp_pl_median_sky(const mp_table *t);
 
+/* ---- cosmics.c --------------------------------------------------------- */
+
+/* A PRF pixel enters the sharpness bound s when it holds at least this
+ * fraction of its star's peak pixel; the fainter ones are D's.  Any split
+ * keeps the test valid: it trades s (the test's reach) against D (the
+ * allowance near bright stars).  47 Tuc's built table: s 2.18, D 1.5e-4. */
+#define MP_PL_CR_CORE 0.02
+/* Pixels a frame that noise alone flags (mp_pl_cr_sigma). */
+#define MP_PL_CR_RATE 0.01
+
+/* mp_pl_cr_bound: the PSF's sharpness (cosmics.c): *s, the least ratio of
+ * a PRF pixel's four side neighbours to the pixel, over the pixels holding
+ * at least MP_PL_CR_CORE of the peak, 16 phases and 3 × 3 places of an
+ * nx × ny frame; *D, the most by which any PRF pixel's s·P exceeds its
+ * neighbours' sum, per electron.  Nonzero with err when out of memory. */
+int mp_pl_cr_bound(const mp_prf_model *m, long nx, long ny, double *s, double *D, char *err);
+
+/* mp_pl_cr_sigma: k with npix · Q(k) = rate (Q the normal upper tail): the
+ * threshold at which noise alone passes rate of npix pixels. */
+double mp_pl_cr_sigma(double npix, double rate);
+
+/* The test's constants: s and D (mp_pl_cr_bound), k [σ], the growth
+ * around each pixel flagged (a square of side 2 grow + 1), and the side of
+ * the box the sky under a pixel is taken from [px]. */
+typedef struct {
+    double s, D, k;
+    int grow, side;
+} mp_pl_cr_test;
+
+/* The stars whose wings D bounds: positions (1-based), |flux| [e-], their
+ * fitted sky [e-] (may be NULL), and the reach of their table [px]. */
+typedef struct {
+    const double *x, *y, *flux, *sky;
+    size_t n;
+    double reach;
+} mp_pl_cr_stars;
+
+/* mp_pl_cr_sharpness: how much sharper the frame's stars are than the
+ * model m says, as a factor on s: the least, over the MP_PL_CR_NSHARP
+ * brightest stars of st (sky given, their peak pixel's 3 × 3 unmasked), of
+ * their peak pixel's side-neighbour ratio, (Σ_nb d − 4 B) / (d_p − B),
+ * less 3 of its σ (Poisson and read noise), over the model's at the same
+ * pixel, from the stars that measure it within MP_PL_CR_SHARP_SIG of the
+ * model's; and with 10 such stars or more, no more than their median less
+ * z robust σ of their spread, z = mp_pl_cr_sigma(st->n, MP_PL_CR_RATE):
+ * every star of st, not only the measured ones, must stay above it; at
+ * most 1 (1 with no such star), at least 0.
+ * A model broader than some stars (a table smoothed as its noise needs;
+ * IRAC's undersampled stars, each sharp as its pixel phase makes it)
+ * would let their cores pass as cosmic rays.  A cosmic ray on a bright
+ * star's peak only costs the test its reach on that frame. */
+#define MP_PL_CR_NSHARP 100
+#define MP_PL_CR_SHARP_SIG 0.02
+double mp_pl_cr_sharpness(const mp_frame *f, const mp_prf_model *m, const mp_pl_cr_stars *st);
+
+/* mp_pl_mask_cosmics: every pixel of f whose excess over starlight,
+ * T = s·(d − B) − Σ of its four side neighbours' (d − B), exceeds
+ * k σ_T + D·Φ (Φ the flux of st's stars within reach; st may be NULL),
+ * with B the sky from below: the 10th percentile of the unmasked pixels in
+ * the box of side ct->side around it, at most b's sky there, with itself and its eight neighbours unmasked and on the
+ * frame, masked bad with the pixels within grow of it (unless masked
+ * already) and set NaN in res (may be NULL).  σ_T from max(d, 0) + RON² +
+ * xvar.  Returns the pixels masked, *cores those flagged; -1 when out of
+ * memory. */
+long mp_pl_mask_cosmics(mp_frame *f, const mp_bkg *b, float *res, const mp_pl_cr_stars *st,
+                        const mp_pl_cr_test *ct, long *cores);
+
 /* ---- halo.c ------------------------------------------------------------ */
 
 /* mp_pl_halo: the light of bright stars beyond what the PSF table holds

@@ -39,6 +39,8 @@ typedef struct {
     char tabwhy[480];     /* how (mp_epsf_rad.why), for the run report */
     int quiet;            /* mp_pipeline_reduce: no stderr lines, no files */
     int own_frame;        /* f read here, so the halo may be taken off it */
+    int borrowed;         /* f is the caller's (mp_pipeline_reduce): its mask
+                           * stays as given */
     int psf_pass;         /* the built PSF's last pass (0: none built) */
     int last_partial;     /* the last group_and_fit took one pass of several */
     double halo_light;    /* the light per e- the halo took off every star
@@ -655,6 +657,83 @@ static int take_halo(run_state *s, char *err)
     return s->o->build_psf ? 0 : group_and_fit(s, 1, 0, err);
 }
 
+/* The fitted stars' places, fluxes and skies (XPSF_IMAGE, YPSF_IMAGE,
+ * FLUX_PSF, SKY_PSF) into st's arrays (one allocation at st->x, freed by
+ * the caller); nonzero when out of memory. */
+static int fitted_stars(const mp_table *t, mp_pl_cr_stars *st)
+{
+    int c[4] = {mp_table_col(t, "XPSF_IMAGE"), mp_table_col(t, "YPSF_IMAGE"),
+                mp_table_col(t, "FLUX_PSF"), mp_table_col(t, "SKY_PSF")};
+    size_t n = c[0] >= 0 && c[1] >= 0 && c[2] >= 0 && c[3] >= 0 ? t->nrow : 0;
+    double *v = malloc(4 * (n ? n : 1) * sizeof *v);
+    if (!v)
+        return 1;
+    for (int a = 0; a < 4; a++)
+        for (size_t r = 0; r < n; r++)
+            v[(size_t)a * n + r] = mp_table_get(t, r, c[a]);
+    st->x = v;
+    st->y = v + n;
+    st->flux = v + 2 * n;
+    st->sky = v + 3 * n;
+    st->n = n;
+    return 0;
+}
+
+/* Cosmic rays and hot pixels (crmask=yes, pipeline/cosmics.c): the pixels
+ * no sum of stars can make, tested once round 1's fit gives every star's
+ * flux (their wings' allowance), masked on the frame and the residual; the
+ * next fit refits every group. */
+static int mask_cosmics(run_state *s, char *err)
+{
+    if (!s->o->crmask || s->borrowed)
+        return 0;
+    double t0 = mp_seconds();
+    const mp_prf_model *m = &s->fit->model;
+    mp_pl_cr_test ct = {.grow = s->o->crgrow, .side = s->o->mesh};
+    long nx = s->f.im.nx, ny = s->f.im.ny, bx, by, cores = 0;
+    int w, h;
+    if (mp_pl_cr_bound(m, nx, ny, &ct.s, &ct.D, err))
+        return 1;
+    ct.k = mp_pl_cr_sigma((double)nx * (double)ny, MP_PL_CR_RATE);
+    mp_prf_box(m, 0.5 * (double)nx, 0.5 * (double)ny, &bx, &by, &w, &h);
+    mp_pl_cr_stars st = {.reach = 0.5 * (w > h ? w : h) + 1.0};
+    if (fitted_stars(&s->t, &st))
+        return oom(err);
+    double sharp = mp_pl_cr_sharpness(&s->f, m, &st);
+    ct.s *= sharp;
+    /* the mesh sky of the residual (the frame less every fitted star) caps
+     * the sky from below (cosmics.c): a sky set high would pass starlight
+     * as excess, by (4 − s) times the error, so not the frame's own mesh,
+     * which a crowd raises (the residual is NaN only where masked, which
+     * the estimate skips) */
+    mp_frame R = s->f;
+    R.im.pix = s->res;
+    mp_bkg b;
+    memset(&b, 0, sizeof b);
+    long masked = -2;
+    if (!mp_bkg_estimate(&R, s->o->mesh, s->o->filter, &b, err))
+        masked = mp_pl_mask_cosmics(&s->f, &b, s->res, &st, &ct, &cores);
+    mp_bkg_free(&b);
+    free((double *)st.x);
+    if (masked < 0)
+        return masked == -1 ? oom(err) : 1;
+    s->rep->cr_cores += cores;
+    s->rep->cr_masked += masked;
+    s->rep->cr_s = ct.s;
+    s->rep->cr_D = ct.D;
+    s->rep->cr_k = ct.k;
+    if (masked > 0)
+        mp_fit_memory_forget(s->mem);
+    if (!s->quiet)
+        fprintf(stderr, "matphot pipeline: %s: cosmic rays: %ld pixels masked around %ld that no "
+                "sum of stars makes (side-neighbour ratio s %.3g: the PSF's x %.3g, its "
+                "brightest stars' against it; wings %.2g per e-; k %.2f sigma: %g false a "
+                "frame), %.2f s\n", s->image, masked, cores, ct.s, sharp, ct.D, ct.k,
+                MP_PL_CR_RATE, mp_seconds() - t0);
+    s->rep->t_fit += mp_seconds() - t0;
+    return 0;
+}
+
 /* What the PSF leaves around bright stars (lookup=yes, pipeline/lookup.c),
  * measured on the first round's last residual (after the PSF's second
  * pass) and taken off the frame; every group is then fitted afresh, so
@@ -729,6 +808,10 @@ static int rounds(run_state *s, char *err)
         s->rep->rounds = round;
         long added = 0;
         rc = group_and_fit(s, round, round < o->niter || s->psf_pass == 1, err);
+        if (!rc && round == 1)
+            rc = mask_cosmics(s, err);
+        if (!rc && round == 1 && s->rep->cr_masked > 0 && o->niter == 1 && !o->build_psf)
+            rc = group_and_fit(s, round, 0, err);    /* no later fit to take them */
         if (!rc && round == 1 && o->halo && s->own_frame)
             rc = take_halo(s, err);
         /* DAOPHOT's second pass: the PSF again with every neighbour gone;
@@ -796,6 +879,7 @@ int mp_pipeline_reduce(const mp_frame *f, const mp_pipeline_opts *o, mp_table *t
     }
     int rc = state_init(&s, "(in memory)", NULL, o, &rep, err);
     s.quiet = 1;
+    s.borrowed = 1;
     s.f = *f;                    /* borrowed: not freed below */
     if (!rc)
         rc = find_stars(&s, err) || rounds(&s, err) || honest_errors(&s, err);

@@ -71,6 +71,8 @@ int mp_pl_opts_read(mp_parset *ps, mp_pipeline_opts *o, char *err)
               : !strcmp(halo, "auto") && o->build_psf ? MP_PL_HALO_AUTO
                                                         : 0;
     mp_par_bool(ps, "lookup", &o->lookup);
+    mp_par_bool(ps, "crmask", &o->crmask);
+    mp_par_int(ps, "crgrow", &o->crgrow);
     int ts, tm;
     mp_par_int(ps, "tilesize", &ts);
     mp_par_int(ps, "tilemargin", &tm);

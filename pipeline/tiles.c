@@ -191,6 +191,8 @@ static void add_report(mp_pipeline_report *s, const mp_pipeline_report *r)
     s->t_group += r->t_group; s->t_fit += r->t_fit;
     s->rounds = s->rounds > r->rounds ? s->rounds : r->rounds;
     s->screened += r->screened; s->found += r->found; s->added += r->added;
+    s->cr_cores += r->cr_cores; s->cr_masked += r->cr_masked;
+    s->cr_s = r->cr_s; s->cr_D = r->cr_D; s->cr_k = r->cr_k;
     mp_frame_report_add(&s->fit, &r->fit);
     s->fit.noconv += r->fit.noconv;  /* the tiles' last rounds, summed */
     s->fit.ngroups += r->fit.ngroups;

@@ -116,16 +116,18 @@ tuc() {
     T="$OUT/tuc"
     mkdir -p "$T"
     # Every run masks the DQ plane's saturated pixels (2304, grown by
-    # satgrow 1).  mpg: the defaults; mpe: and the cosmic-ray hits
+    # satgrow 1).  mpg: the defaults (crmask=yes finds the cosmic rays
+    # itself); mpc: crmask=no (none masked); mpe: and the cosmic-ray hits
     # grown by one pixel (dqbad=4096, AstroDrizzle's flag in the FLT;
     # badgrow=1): unmasked, those ~120 pixels held 28 % of the fitted
     # pixels' chi2 (psfreal_notes.md); mpn: as mpe but the bright stars'
     # halo not modelled (halo=no; the default halo=auto models it when the
     # PSF is built, as here).
-    for v in mpg mpe mpn; do
+    for v in mpg mpc mpe mpn; do
         say "47 Tuc: matphot pipeline, no psf= ($v)"
         set -- pipeline "$IMG" root="$T/$v" gain=1 rdnoise=4.71 saturate=151553.98 'dqmask=[DQ]' dqsat=2304 satgrow=1
-        [ $v = mpg ] || set -- "$@" dqbad=4096 badgrow=1
+        [ $v = mpe ] || [ $v = mpn ] && set -- "$@" dqbad=4096 badgrow=1
+        [ $v = mpc ] && set -- "$@" crmask=no
         [ $v = mpn ] && set -- "$@" halo=no
         echo "./matphot $*" | sed "s|root=$T/$v|root=R|; s|$REALDATA|$REALDATA0|" > "$T/$v.cmd"
         timed "$T/$v.log" "$MP" "$@" || { tail -n 3 "$T/$v.log" >&2; rc=1; return 0; }
@@ -144,7 +146,7 @@ tuc() {
     echo '```'
     cat "$T/noise.txt"
     echo '```'
-    for v in mpg mpe mpn; do
+    for v in mpg mpc mpe mpn; do
         echo
         echo '```'
         cat "$T/$v.cmd"
@@ -153,7 +155,7 @@ tuc() {
         echo "$(cpu_of "$T/$v.log").  The PSF it built (its report):"
         echo
         echo '```'
-        grep -h 'PSF pass\|halo from' "$T/$v.log" | sed 's/^[^:]*: [^:]*: //' | cut -c1-400
+        grep -h 'PSF pass\|halo from\|cosmic rays:' "$T/$v.log" | sed 's/^[^:]*: [^:]*: //' | cut -c1-400
         echo '```'
         echo
         echo "Median CHI2_PSF (the group's) **$(colq "$T/$v.cat" CHI2_PSF 0.5)** (quartiles $(colq "$T/$v.cat" CHI2_PSF 0.25), $(colq "$T/$v.cat" CHI2_PSF 0.75)) over $(grep -vc '^#' "$T/$v.cat") stars; median CHI2STAR_PSF (each star's own fitting disc, DAOPHOT's CHI²) **$(colq "$T/$v.cat" CHI2STAR_PSF 0.5)** (quartiles $(colq "$T/$v.cat" CHI2STAR_PSF 0.25), $(colq "$T/$v.cat" CHI2STAR_PSF 0.75)).  Where it comes from (\`psfb chi2 CAT\`: by flux, by whether the group holds a saturated star, by group size; a PSF profile error makes CHI2 grow with the flux, neighbours and the noise model do not):"
@@ -170,13 +172,14 @@ tuc() {
         echo
         echo '| residual | pixels near matphot'"'"'s stars | pixels near DAOPHOT'"'"'s stars | pixels near either |'
         echo '|---|---|---|---|'
-        for r in mpg mpe mpn dao; do
+        for r in mpg mpc mpe mpn dao; do
             res="$T/$r.res.fits"; [ $r = dao ] && res="$T/dao/im.sub2.fits"
             a=$("$OUT/psfb" resid "$IMG" "$res" "$T/mpe.cat" 3 4.71 | sed -n 's/.*residual \([0-9.]*\),.*/\1/p')
             b=$("$OUT/psfb" resid "$IMG" "$res" "$T/dao/dao.cat" 3 4.71 | sed -n 's/.*residual \([0-9.]*\),.*/\1/p')
             c=$("$OUT/psfb" resid "$IMG" "$res" "$T/mpe.cat" 3 4.71 "$T/dao/dao.cat" | sed -n 's/.*residual \([0-9.]*\),.*/\1/p')
             case $r in
             mpg) n="matphot, its own PSF, the defaults ($(grep -vc '^#' "$T/mpg.cat") stars)" ;;
+            mpc) n="matphot, crmask=no ($(grep -vc '^#' "$T/mpc.cat") stars)" ;;
             mpe) n="matphot, and the cosmic rays masked (dqbad=4096 badgrow=1) ($(grep -vc '^#' "$T/mpe.cat") stars)" ;;
             mpn) n="matphot, the cosmic rays masked, halo=no ($(grep -vc '^#' "$T/mpn.cat") stars)" ;;
             *) n="IRAF DAOPHOT ($(grep -vc '^#' "$T/dao/dao.cat") stars)" ;;

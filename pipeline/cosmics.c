@@ -1,0 +1,371 @@
+/* cosmics.c — cosmic rays and hot pixels masked: pixels that no sum of
+ * stars can make (crmask=yes).
+ *
+ * Light that passed through the optics reaches a pixel's four side
+ * neighbours too: for every star at any phase and place, and every PRF
+ * pixel holding at least MP_PL_CR_CORE of the star's peak pixel, those
+ * neighbours hold at least s times the pixel (s measured on the PSF,
+ * mp_pl_cr_bound).  A sum of stars keeps that ratio, since each of them
+ * does: s·(d_p − B) − Σ_nb (d − B) ≤ 0 wherever starlight is all there
+ * is.  A cosmic ray, a charged particle's track through one or a few
+ * pixels, breaks it.  The fainter PRF pixels (a star's wings, where the
+ * ratio does not hold) are bounded by D per electron, the most by which
+ * any of them exceeds it, times the flux of the stars reaching p.  So the
+ * test flags p when T = s·(d_p − B) − Σ_nb (d − B) exceeds k σ_T + D·Φ_p,
+ * k such that noise alone flags 0.01 pixel a frame.  T grows with B by
+ * (4 − s)·B, so a sky set too high would pass starlight: B is taken from
+ * below.  And s is scaled by the frame's brightest stars' own ratio over
+ * the model's (mp_pl_cr_sharpness), so a model broader than the stars
+ * (a table smoothed as its noise needs) does not pass their cores.  The
+ * IRAF crutil task `cosmicrays` tests a pixel against its neighbours the
+ * same way, with a flux ratio the user guesses; here the PSF and the
+ * stars give it.  On 47 Tuc (FLT, DQ known) every pixel flagged is on or
+ * beside one the DQ plane marks as a cosmic ray (psfreal_notes.md). */
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include "pipeline/pipeline_priv.h"
+
+/* The least side-neighbour ratio over the PRF's brighter pixels of one
+ * render (prf, w × h; zero beyond it), or with s given (>= 0), the most by
+ * which s·P exceeds the neighbours' sum over all its pixels, per electron. */
+static double render_ratio(const double *prf, int w, int h, double s)
+{
+    double peak = 0.0, flux = 0.0, out = s < 0 ? 4.0 : 0.0;
+    for (int i = 0; i < w * h; i++) {
+        peak = prf[i] > peak ? prf[i] : peak;
+        flux += prf[i];
+    }
+    if (!(peak > 0) || !(flux > 0))
+        return out;
+    for (int j = 0; j < h; j++)
+        for (int i = 0; i < w; i++) {
+            double v = prf[j * w + i];
+            double nb = (i > 0 ? prf[j * w + i - 1] : 0.0) + (i < w - 1 ? prf[j * w + i + 1] : 0.0) +
+                        (j > 0 ? prf[(j - 1) * w + i] : 0.0) +
+                        (j < h - 1 ? prf[(j + 1) * w + i] : 0.0);
+            if (s < 0 && v >= MP_PL_CR_CORE * peak && nb / v < out)
+                out = nb / v;
+            if (s >= 0 && (s * v - nb) / flux > out)
+                out = (s * v - nb) / flux;
+        }
+    return out;
+}
+
+/* Phases a pixel's side: 0, ±1/4, ±1/2 (a star on a pixel's centre, its
+ * edge and its corner, where a symmetric PSF's ratio is least). */
+#define CR_NPH 5
+
+/* The ratio (s < 0) or the excess (s >= 0) of render_ratio for a star at
+ * place q (of 3 × 3 over the nx × ny frame) and phase (a, b), into *out. */
+static int ratio_at(const mp_prf_model *m, long nx, long ny, int q, int a, int b, double s,
+                    double **prf, mp_prf_work *wk, double *out)
+{
+    double x = (double)(1 + (q % 3) * (nx - 1) / 2) + (double)a / (CR_NPH - 1) - 0.5;
+    double y = (double)(1 + (q / 3) * (ny - 1) / 2) + (double)b / (CR_NPH - 1) - 0.5;
+    long bx, by;
+    int w, h;
+    mp_prf_box(m, x, y, &bx, &by, &w, &h);
+    double *p = realloc(*prf, (size_t)(w > 0 ? w : 1) * (size_t)(h > 0 ? h : 1) * sizeof *p);
+    if (!p)
+        return 1;
+    *prf = p;
+    if (mp_prf_render(m, x, y, p, NULL, NULL, wk))
+        return 1;
+    *out = render_ratio(p, w, h, s);
+    return 0;
+}
+
+int mp_pl_cr_bound(const mp_prf_model *m, long nx, long ny, double *s, double *D, char *err)
+{
+    double *prf = NULL, r[CR_NPH][CR_NPH];
+    mp_prf_work wk = {0};
+    int rc = 0;
+    *s = 4.0;
+    *D = 0.0;
+    /* the least ratio over the phase grid, less half its largest step
+     * between neighbouring phases: the ratio between grid phases can dip
+     * below the nodes by about that much */
+    for (int q = 0; q < 9 && !rc; q++) {
+        double lo = 4.0, step = 0.0;
+        for (int b = 0; b < CR_NPH && !rc; b++)
+            for (int a = 0; a < CR_NPH && !rc; a++) {
+                if ((rc = ratio_at(m, nx, ny, q, a, b, -1.0, &prf, &wk, &r[b][a])))
+                    break;
+                lo = fmin(lo, r[b][a]);
+                if (!rc && a > 0)
+                    step = fmax(step, fabs(r[b][a] - r[b][a - 1]));
+                if (!rc && b > 0)
+                    step = fmax(step, fabs(r[b][a] - r[b - 1][a]));
+            }
+        *s = fmin(*s, lo - 0.5 * step);
+    }
+    *s = fmax(*s, 0.0);
+    for (int q = 0; q < 9 && !rc; q++)
+        for (int b = 0; b < CR_NPH && !rc; b++)
+            for (int a = 0; a < CR_NPH && !rc; a++) {
+                double e = 0.0;
+                rc = ratio_at(m, nx, ny, q, a, b, *s, &prf, &wk, &e);
+                *D = fmax(*D, e);
+            }
+    free(prf);
+    mp_prf_work_free(&wk);
+    if (rc)
+        snprintf(err, MP_ERRLEN, "cosmic rays: out of memory for the PSF's renders");
+    return rc;
+}
+
+double mp_pl_cr_sigma(double npix, double rate)
+{
+    /* k with npix·Q(k) = rate, Q the normal upper tail (bisection) */
+    double lo = 0.0, hi = 40.0, q = npix > rate ? rate / npix : 0.5;
+    for (int it = 0; it < 100; it++) {
+        double mid = 0.5 * (lo + hi);
+        if (0.5 * erfc(mid / sqrt(2.0)) > q)
+            lo = mid;
+        else
+            hi = mid;
+    }
+    return 0.5 * (lo + hi);
+}
+
+/* p's 8 neighbours and itself: none masked or saturated, none off the
+ * frame (the test needs all four side neighbours, and a saturated
+ * neighbour's value is clipped). */
+static int testable(const mp_frame *f, long x, long y)
+{
+    long nx = f->im.nx, ny = f->im.ny;
+    if (x < 1 || y < 1 || x >= nx - 1 || y >= ny - 1)
+        return 0;
+    for (long j = y - 1; j <= y + 1; j++)
+        for (long i = x - 1; i <= x + 1; i++)
+            if (f->mask[j * nx + i])
+                return 0;
+    return 1;
+}
+
+static double var_at(const mp_frame *f, size_t k, double ron2)
+{
+    double d = f->im.pix[k];
+    return (d > 0 ? d : 0.0) + ron2 + (f->xvar ? f->xvar[k] : 0.0);
+}
+
+/* At p (0-based x, y): the starlight test's excess with no sky,
+ * s·d_p − Σ_nb d, into *t, and its σ into *sig. */
+static void excess_at(const mp_frame *f, long x, long y, double s, double *t, double *sig)
+{
+    long nx = f->im.nx;
+    size_t k = (size_t)(y * nx + x), nb[4] = {k - 1, k + 1, k - (size_t)nx, k + (size_t)nx};
+    double ron2 = f->rdnoise * f->rdnoise;
+    *t = s * f->im.pix[k];
+    double v = s * s * var_at(f, k, ron2);
+    for (int a = 0; a < 4; a++) {
+        *t -= f->im.pix[nb[a]];
+        v += var_at(f, nb[a], ron2);
+    }
+    *sig = sqrt(v);
+}
+
+/* The sky under p from below: the 10th percentile of the unmasked pixels
+ * of the box of side `side` around it (1.28 σ of a pixel under the sky
+ * between stars; in a crowd, under the mode), and no higher than bb, the
+ * sky of the mesh there, nor than the least pixel of p's 3 × 3 (where the
+ * sky dips under the box's, as on a mosaic's uneven background, a pixel
+ * above its lower neighbours would pass for a hit).  v: room for (2 (side / 2) + 1)² values. */
+static double sky_below(const mp_frame *f, double bb, long x, long y, int side, double *v)
+{
+    long nx = f->im.nx, ny = f->im.ny, h = side / 2;
+    size_t n = 0;
+    for (long j = y - h > 0 ? y - h : 0; j <= y + h && j < ny; j++)
+        for (long i = x - h > 0 ? x - h : 0; i <= x + h && i < nx; i++)
+            if (!f->mask[j * nx + i])
+                v[n++] = f->im.pix[j * nx + i];
+    double lo = bb;                   /* and the 3 × 3's least (a dip) */
+    for (long j = y - 1; j <= y + 1; j++)
+        for (long i = x - 1; i <= x + 1; i++)
+            lo = fmin(lo, f->im.pix[j * nx + i]);
+    return n ? fmin(lo, mp_select_kth(v, n, n / 10)) : lo;
+}
+
+/* Φ: the flux of the stars whose table reaches (x, y) (0-based). */
+static double flux_near(const mp_pl_cr_stars *st, double x, double y)
+{
+    double phi = 0.0;
+    for (size_t i = 0; i < st->n; i++)
+        if (fabs(st->x[i] - 1.0 - x) <= st->reach && fabs(st->y[i] - 1.0 - y) <= st->reach &&
+            isfinite(st->flux[i]))
+            phi += fabs(st->flux[i]);
+    return phi;
+}
+
+long mp_pl_mask_cosmics(mp_frame *f, const mp_bkg *b, float *res, const mp_pl_cr_stars *st,
+                        const mp_pl_cr_test *ct, long *cores)
+{
+    long nx = f->im.nx, ny = f->im.ny;
+    uint8_t *hit = calloc((size_t)(nx * ny), 1);
+    if (!hit)
+        return -1;
+    long nc = 0;
+    int failed = 0;
+    /* T = s·(d_p − B) − Σ_nb (d − B) grows with B by (4 − s) B: first
+     * with B at d_p + 3 σ_p, above any sky under p (most pixels end here),
+     * then at the mesh's sky, B's cap, then with the sky from below */
+#pragma omp parallel reduction(+ : nc) reduction(| : failed)
+    {
+        size_t box = 2 * (size_t)(ct->side / 2) + 1;
+        double *v = malloc(box * box * sizeof *v);
+        failed |= !v;
+#pragma omp for schedule(dynamic, 16)
+        for (long y = 1; y < ny - 1; y++)
+            for (long x = 1; x < nx - 1; x++) {
+                double t, sig;
+                if (!v || !testable(f, x, y))
+                    continue;
+                excess_at(f, x, y, ct->s, &t, &sig);
+                size_t k = (size_t)(y * nx + x);
+                double hi = f->im.pix[k] + 3.0 * sqrt(var_at(f, k, f->rdnoise * f->rdnoise));
+                if (!(t + (4.0 - ct->s) * hi > ct->k * sig))
+                    continue;
+                double bb = mp_bkg_sky(b, k);      /* B's cap: a test at it first */
+                if (!(t + (4.0 - ct->s) * bb > ct->k * sig))
+                    continue;
+                double B = sky_below(f, bb, x, y, ct->side, v);
+                /* and the wings' allowance */
+                double phi = st ? flux_near(st, (double)x, (double)y) : 0.0;
+                if (t + (4.0 - ct->s) * B - ct->D * phi > ct->k * sig) {
+                    hit[y * nx + x] = 1;
+                    nc++;
+                }
+            }
+        free(v);
+    }
+    if (failed) {
+        free(hit);
+        return -1;
+    }
+    long masked = 0;
+    int g = ct->grow;
+    for (long y = 0; y < ny; y++)
+        for (long x = 0; x < nx; x++) {
+            if (!hit[y * nx + x])
+                continue;
+            for (long j = y - g > 0 ? y - g : 0; j <= y + g && j < ny; j++)
+                for (long i = x - g > 0 ? x - g : 0; i <= x + g && i < nx; i++) {
+                    size_t k = (size_t)(j * nx + i);
+                    if (f->mask[k])
+                        continue;
+                    f->mask[k] = MP_MASK_BAD;
+                    f->nbad++;
+                    if (res)
+                        res[k] = NAN;
+                    masked++;
+                }
+        }
+    free(hit);
+    *cores = nc;
+    return masked;
+}
+
+static int cmp_desc_flux(const void *a, const void *b)
+{
+    double x = ((const double *)a)[0], y = ((const double *)b)[0];
+    return (x < y) - (x > y);
+}
+
+/* The side-neighbour ratio at pixel (px, py) (0-based) of image v on
+ * box (x0, y0, w × h) (0-based origin), less sky B, NaN off the box; with
+ * ron2 >= 0 its σ from the pixels' Poisson and read noise into *sig. */
+static double ratio_in(const double *v, long x0, long y0, int w, int h, long px, long py, double B,
+                       double ron2, double *sig)
+{
+    long i = px - x0, j = py - y0;
+    if (i < 1 || j < 1 || i >= w - 1 || j >= h - 1)
+        return NAN;
+    const double *c = v + j * w + i;
+    double n = c[-1] + c[1] + c[-w] + c[w] - 4.0 * B, p = c[0] - B, r = n / p;
+    if (ron2 >= 0) {
+        double vn = 4.0 * ron2, vp = fmax(c[0], 0.0) + ron2;
+        for (int a = 0; a < 4; a++)
+            vn += fmax(c[a == 0 ? -1 : a == 1 ? 1 : a == 2 ? -w : w], 0.0);
+        *sig = sqrt(vn + r * r * vp) / fabs(p);
+    }
+    return r;
+}
+
+/* One star's ratio observed over the model's at its peak pixel, and its
+ * σ into *sq (NaN when not measurable, or when that σ is above
+ * MP_PL_CR_SHARP_SIG: a faint star's ratio says more of its noise than of
+ * its shape). */
+static double star_sharpness(const mp_frame *f, const mp_prf_model *m, double x, double y,
+                             double B, double **prf, mp_prf_work *wk, double *sq)
+{
+    long nx = f->im.nx, bx, by;
+    int w, h;
+    mp_prf_box(m, x, y, &bx, &by, &w, &h);
+    double *p = realloc(*prf, (size_t)(w > 0 ? w : 1) * (size_t)(h > 0 ? h : 1) * sizeof *p);
+    if (!p)
+        return NAN;
+    *prf = p;
+    if (w < 3 || h < 3 || mp_prf_render(m, x, y, p, NULL, NULL, wk))
+        return NAN;
+    int top = 0;                      /* the model's peak pixel */
+    for (int i = 1; i < w * h; i++)
+        top = p[i] > p[top] ? i : top;
+    long px = bx - 1 + top % w, py = by - 1 + top / w;
+    if (!testable(f, px, py))
+        return NAN;
+    double obs[9];
+    for (int k = 0; k < 9; k++)
+        obs[k] = f->im.pix[(py - 1 + k / 3) * nx + px - 1 + k % 3];
+    for (int k = 0; k < 9; k++)
+        if (obs[k] > obs[4])
+            return NAN;               /* another star's light leads there */
+    double sig, rm = ratio_in(p, bx - 1, by - 1, w, h, px, py, 0.0, -1.0, &sig);
+    double ro = ratio_in(obs, px - 1, py - 1, 3, 3, px, py, B, f->rdnoise * f->rdnoise, &sig);
+    if (!(rm > 0) || !isfinite(ro) || !(sig / rm <= MP_PL_CR_SHARP_SIG))
+        return NAN;
+    *sq = sig / rm;
+    return ro / rm;
+}
+
+double mp_pl_cr_sharpness(const mp_frame *f, const mp_prf_model *m, const mp_pl_cr_stars *st)
+{
+    if (!st || !st->sky || st->n == 0)
+        return 1.0;
+    double *ord = malloc(2 * st->n * sizeof *ord), *q = malloc(MP_PL_CR_NSHARP * sizeof *q);
+    double *prf = NULL, out = 1.0, sq;
+    mp_prf_work wk = {0};
+    size_t nq = 0;
+    for (size_t i = 0; ord && q && i < st->n; i++) {
+        ord[2 * i] = isfinite(st->flux[i]) ? st->flux[i] : 0.0;
+        ord[2 * i + 1] = (double)i;
+    }
+    if (ord && q) {
+        qsort(ord, st->n, 2 * sizeof *ord, cmp_desc_flux);
+        for (size_t r = 0; r < st->n && nq < MP_PL_CR_NSHARP && ord[2 * r] > 0; r++) {
+            size_t i = (size_t)ord[2 * r + 1];
+            double v = star_sharpness(f, m, st->x[i], st->y[i], st->sky[i], &prf, &wk, &sq);
+            if (isfinite(v)) {
+                q[nq++] = v;
+                out = fmin(out, v - 3.0 * sq);    /* each star's own, from below */
+            }
+        }
+    }
+    /* and the frame's every star's, from the measured ones' spread: the
+     * median less z of their robust σ, z such that all n stars of st stay
+     * above it but for MP_PL_CR_RATE of a star (the spread holds the
+     * ratios' noise too, so it errs low) */
+    if (nq >= 10) {
+        double med = mp_select_kth(q, nq, nq / 2);
+        for (size_t i = 0; i < nq; i++)
+            q[i] = fabs(q[i] - med);
+        double sd = 1.4826 * mp_select_kth(q, nq, nq / 2);
+        out = fmin(out, med - mp_pl_cr_sigma((double)st->n, MP_PL_CR_RATE) * sd);
+    }
+    free(ord);
+    free(q);
+    free(prf);
+    mp_prf_work_free(&wk);
+    return out > 0 ? out : 0.0;
+}
