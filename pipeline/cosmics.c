@@ -42,7 +42,8 @@ static double render_ratio(const double *prf, int w, int h, double s)
     for (int j = 0; j < h; j++)
         for (int i = 0; i < w; i++) {
             double v = prf[j * w + i];
-            double nb = (i > 0 ? prf[j * w + i - 1] : 0.0) + (i < w - 1 ? prf[j * w + i + 1] : 0.0) +
+            double nb = (i > 0 ? prf[j * w + i - 1] : 0.0) +
+                        (i < w - 1 ? prf[j * w + i + 1] : 0.0) +
                         (j > 0 ? prf[(j - 1) * w + i] : 0.0) +
                         (j < h - 1 ? prf[(j + 1) * w + i] : 0.0);
             if (s < 0 && v >= MP_PL_CR_CORE * peak && nb / v < out)
@@ -172,7 +173,8 @@ static void excess_at(const mp_frame *f, long x, long y, double s, double *t, do
  * between stars; in a crowd, under the mode), and no higher than bb, the
  * sky of the mesh there, nor than the least pixel of p's 3 × 3 (where the
  * sky dips under the box's, as on a mosaic's uneven background, a pixel
- * above its lower neighbours would pass for a hit).  v: room for (2 (side / 2) + 1)² values. */
+ * above its lower neighbours would pass for a hit).  v: room for
+ * (2 (side / 2) + 1)² values. */
 static double sky_below(const mp_frame *f, double bb, long x, long y, int side, double *v)
 {
     long nx = f->im.nx, ny = f->im.ny, h = side / 2;
@@ -199,53 +201,35 @@ static double flux_near(const mp_pl_cr_stars *st, double x, double y)
     return phi;
 }
 
-long mp_pl_mask_cosmics(mp_frame *f, const mp_bkg *b, float *res, const mp_pl_cr_stars *st,
-                        const mp_pl_cr_test *ct, long *cores)
+/* Whether p (0-based x, y) is flagged: T = s·(d_p − B) − Σ_nb (d − B)
+ * grows with B by (4 − s)·B, so it is tried first with B at d_p + 3 σ_p,
+ * above any sky under p (most pixels end here), then at the mesh's sky,
+ * B's cap, then with the sky from below and the wings' allowance.  v:
+ * sky_below's room. */
+static int flagged(const mp_frame *f, const mp_bkg *b, const mp_pl_cr_stars *st,
+                   const mp_pl_cr_test *ct, long x, long y, double *v)
 {
-    long nx = f->im.nx, ny = f->im.ny;
-    uint8_t *hit = calloc((size_t)(nx * ny), 1);
-    if (!hit)
-        return -1;
-    long nc = 0;
-    int failed = 0;
-    /* T = s·(d_p − B) − Σ_nb (d − B) grows with B by (4 − s) B: first
-     * with B at d_p + 3 σ_p, above any sky under p (most pixels end here),
-     * then at the mesh's sky, B's cap, then with the sky from below */
-#pragma omp parallel reduction(+ : nc) reduction(| : failed)
-    {
-        size_t box = 2 * (size_t)(ct->side / 2) + 1;
-        double *v = malloc(box * box * sizeof *v);
-        failed |= !v;
-#pragma omp for schedule(dynamic, 16)
-        for (long y = 1; y < ny - 1; y++)
-            for (long x = 1; x < nx - 1; x++) {
-                double t, sig;
-                if (!v || !testable(f, x, y))
-                    continue;
-                excess_at(f, x, y, ct->s, &t, &sig);
-                size_t k = (size_t)(y * nx + x);
-                double hi = f->im.pix[k] + 3.0 * sqrt(var_at(f, k, f->rdnoise * f->rdnoise));
-                if (!(t + (4.0 - ct->s) * hi > ct->k * sig))
-                    continue;
-                double bb = mp_bkg_sky(b, k);      /* B's cap: a test at it first */
-                if (!(t + (4.0 - ct->s) * bb > ct->k * sig))
-                    continue;
-                double B = sky_below(f, bb, x, y, ct->side, v);
-                /* and the wings' allowance */
-                double phi = st ? flux_near(st, (double)x, (double)y) : 0.0;
-                if (t + (4.0 - ct->s) * B - ct->D * phi > ct->k * sig) {
-                    hit[y * nx + x] = 1;
-                    nc++;
-                }
-            }
-        free(v);
-    }
-    if (failed) {
-        free(hit);
-        return -1;
-    }
-    long masked = 0;
-    int g = ct->grow;
+    double t, sig;
+    if (!testable(f, x, y))
+        return 0;
+    excess_at(f, x, y, ct->s, &t, &sig);
+    size_t k = (size_t)(y * f->im.nx + x);
+    double hi = f->im.pix[k] + 3.0 * sqrt(var_at(f, k, f->rdnoise * f->rdnoise));
+    if (!(t + (4.0 - ct->s) * hi > ct->k * sig))
+        return 0;
+    double bb = mp_bkg_sky(b, k);
+    if (!(t + (4.0 - ct->s) * bb > ct->k * sig))
+        return 0;
+    double B = sky_below(f, bb, x, y, ct->side, v);
+    double phi = st ? flux_near(st, (double)x, (double)y) : 0.0;
+    return t + (4.0 - ct->s) * B - ct->D * phi > ct->k * sig;
+}
+
+/* The pixels within g of each hit masked bad (unless masked already) and
+ * NaN in res (may be NULL); returns how many. */
+static long mask_around(mp_frame *f, const uint8_t *hit, int g, float *res)
+{
+    long nx = f->im.nx, ny = f->im.ny, masked = 0;
     for (long y = 0; y < ny; y++)
         for (long x = 0; x < nx; x++) {
             if (!hit[y * nx + x])
@@ -262,6 +246,33 @@ long mp_pl_mask_cosmics(mp_frame *f, const mp_bkg *b, float *res, const mp_pl_cr
                     masked++;
                 }
         }
+    return masked;
+}
+
+long mp_pl_mask_cosmics(mp_frame *f, const mp_bkg *b, float *res, const mp_pl_cr_stars *st,
+                        const mp_pl_cr_test *ct, long *cores)
+{
+    long nx = f->im.nx, ny = f->im.ny;
+    uint8_t *hit = calloc((size_t)(nx * ny), 1);
+    if (!hit)
+        return -1;
+    long nc = 0;
+    int failed = 0;
+#pragma omp parallel reduction(+ : nc) reduction(| : failed)
+    {
+        size_t box = 2 * (size_t)(ct->side / 2) + 1;
+        double *v = malloc(box * box * sizeof *v);
+        failed |= !v;
+#pragma omp for schedule(dynamic, 16)
+        for (long y = 1; y < ny - 1; y++)
+            for (long x = 1; x < nx - 1; x++)
+                if (v && flagged(f, b, st, ct, x, y, v)) {
+                    hit[y * nx + x] = 1;
+                    nc++;
+                }
+        free(v);
+    }
+    long masked = failed ? -1 : mask_around(f, hit, ct->grow, res);
     free(hit);
     *cores = nc;
     return masked;

@@ -135,9 +135,10 @@ double mp_pl_cr_sharpness(const mp_frame *f, const mp_prf_model *m, const mp_pl_
 /* mp_pl_mask_cosmics: every pixel of f whose excess over starlight,
  * T = s·(d − B) − Σ of its four side neighbours' (d − B), exceeds
  * k σ_T + D·Φ (Φ the flux of st's stars within reach; st may be NULL),
- * with B the sky from below: the 10th percentile of the unmasked pixels in
- * the box of side ct->side around it, at most b's sky there, with itself and its eight neighbours unmasked and on the
- * frame, masked bad with the pixels within grow of it (unless masked
+ * with B the sky from below (the 10th percentile of the unmasked pixels in
+ * the box of side ct->side around it, at most b's sky there and the least
+ * pixel of its 3 × 3), itself and its eight neighbours unmasked and on the
+ * frame: masked bad with the pixels within grow of it (unless masked
  * already) and set NaN in res (may be NULL).  σ_T from max(d, 0) + RON² +
  * xvar.  Returns the pixels masked, *cores those flagged; -1 when out of
  * memory. */
