@@ -73,16 +73,23 @@ static void test_threshold_tail(void **state)
 
 /* A crowded frame of Gaussian stars (fluxes 1e2..1e7 e-, log-uniform, at
  * any phase), Poisson and read noise, the stars' true places and fluxes
- * for the wings' allowance. */
-static void crowded_frame(mp_frame *f, double *x, double *y, double *E, mp_rng *r)
+ * for the wings' allowance; the generator left for what a test adds. */
+typedef struct {
+    mp_rng r;
+    double x[NSTAR], y[NSTAR], E[NSTAR];
+    mp_frame f;
+} scene;
+
+static void scene_make(scene *sc)
 {
-    sf_frame_make(f, N, N, RON);
+    mp_rng_seed(&sc->r, 20261202);
+    sf_frame_make(&sc->f, N, N, RON);
     for (int k = 0; k < NSTAR; k++) {
-        x[k] = 4.0 + (N - 7.0) * mp_rng_uniform(r);
-        y[k] = 4.0 + (N - 7.0) * mp_rng_uniform(r);
-        E[k] = pow(10.0, 2.0 + 5.0 * mp_rng_uniform(r));
+        sc->x[k] = 4.0 + (N - 7.0) * mp_rng_uniform(&sc->r);
+        sc->y[k] = 4.0 + (N - 7.0) * mp_rng_uniform(&sc->r);
+        sc->E[k] = pow(10.0, 2.0 + 5.0 * mp_rng_uniform(&sc->r));
     }
-    sf_render(f, SKY, FWHM, x, y, E, NSTAR, r, RON);
+    sf_render(&sc->f, SKY, FWHM, sc->x, sc->y, sc->E, NSTAR, &sc->r, RON);
 }
 
 /* The pipeline's test on f with the model of FWHM fwhm; sharp: s scaled
@@ -119,17 +126,14 @@ static long mask_frame(mp_frame *f, const double *x, const double *y, const doub
 static void test_stars_never_flagged(void **state)
 {
     (void)state;
-    mp_rng r;
-    mp_rng_seed(&r, 20261202);
-    double x[NSTAR], y[NSTAR], E[NSTAR];
-    mp_frame f;
-    crowded_frame(&f, x, y, E, &r);
+    scene sc;
+    scene_make(&sc);
     long cores;
-    long masked = mask_frame(&f, x, y, E, FWHM, 1, &cores);
+    long masked = mask_frame(&sc.f, sc.x, sc.y, sc.E, FWHM, 1, &cores);
     printf("stars alone: %ld flagged, %ld masked\n", cores, masked);
     assert_int_equal(cores, 0);
     assert_int_equal(masked, 0);
-    sf_frame_drop(&f);
+    sf_frame_drop(&sc.f);
 }
 
 /* The same frame with cosmic rays: single pixels and two-pixel tracks of
@@ -141,20 +145,17 @@ static void test_stars_never_flagged(void **state)
 static void test_cosmic_rays_flagged(void **state)
 {
     (void)state;
-    mp_rng r;
-    mp_rng_seed(&r, 20261202);
-    double x[NSTAR], y[NSTAR], E[NSTAR];
-    mp_frame f;
-    crowded_frame(&f, x, y, E, &r);
+    scene sc;
+    scene_make(&sc);
     uint8_t *hit = calloc((size_t)N * N, 1);
     assert_non_null(hit);
     long placed = 0;
     while (placed < NCR) {
-        long cx = 3 + (long)((N - 6) * mp_rng_uniform(&r));
-        long cy = 3 + (long)((N - 6) * mp_rng_uniform(&r));
+        long cx = 3 + (long)((N - 6) * mp_rng_uniform(&sc.r));
+        long cy = 3 + (long)((N - 6) * mp_rng_uniform(&sc.r));
         int near = 0;
         for (int k = 0; k < NSTAR; k++)
-            near |= E[k] > 1e5 && fabs(x[k] - 1.0 - cx) < 3.0 && fabs(y[k] - 1.0 - cy) < 3.0;
+            near |= sc.E[k] > 1e5 && fabs(sc.x[k] - 1.0 - cx) < 3.0 && fabs(sc.y[k] - 1.0 - cy) < 3.0;
         for (long j = cy - 3; j <= cy + 3; j++)
             for (long i = cx - 3; i <= cx + 3; i++)
                 near |= hit[j * N + i];
@@ -162,29 +163,29 @@ static void test_cosmic_rays_flagged(void **state)
             continue;
         int len = placed % 4 == 0 ? 2 : 1;     /* every fourth a track */
         for (int a = 0; a < len; a++) {
-            f.im.pix[cy * N + cx + a] += (float)(1500.0 + 18500.0 * mp_rng_uniform(&r));
+            sc.f.im.pix[cy * N + cx + a] += (float)(1500.0 + 18500.0 * mp_rng_uniform(&sc.r));
             hit[cy * N + cx + a] = 1;
         }
         placed++;
     }
     long cores;
-    long masked = mask_frame(&f, x, y, E, FWHM, 1, &cores);
+    long masked = mask_frame(&sc.f, sc.x, sc.y, sc.E, FWHM, 1, &cores);
     printf("cosmic rays: %ld placed, %ld flagged, %ld masked\n", placed, cores, masked);
     long missed = 0, stray = 0;
     for (long j = 0; j < N; j++)
         for (long i = 0; i < N; i++) {
-            missed += hit[j * N + i] && !(f.mask[j * N + i] & MP_MASK_BAD);
+            missed += hit[j * N + i] && !(sc.f.mask[j * N + i] & MP_MASK_BAD);
             int by = 0;
             for (long b = j - 1; b <= j + 1; b++)
                 for (long a = i - 1; a <= i + 1; a++)
                     by |= b >= 0 && b < N && a >= 0 && a < N && hit[b * N + a];
-            stray += (f.mask[j * N + i] & MP_MASK_BAD) && !by;
+            stray += (sc.f.mask[j * N + i] & MP_MASK_BAD) && !by;
         }
     assert_int_equal(missed, 0);
     assert_int_equal(stray, 0);
     assert_true(cores >= NCR);
     free(hit);
-    sf_frame_drop(&f);
+    sf_frame_drop(&sc.f);
 }
 
 /* A model broader than the stars (FWHM 2.4 for stars of 2.0: a table
@@ -194,20 +195,17 @@ static void test_cosmic_rays_flagged(void **state)
 static void test_broad_model_scaled(void **state)
 {
     (void)state;
-    mp_rng r;
-    mp_rng_seed(&r, 20261202);
-    double x[NSTAR], y[NSTAR], E[NSTAR];
-    mp_frame f;
-    crowded_frame(&f, x, y, E, &r);
+    scene sc;
+    scene_make(&sc);
     long cores_raw, cores;
-    mask_frame(&f, x, y, E, 2.4, 0, &cores_raw);
-    memset(f.mask, 0, (size_t)N * N);
-    long masked = mask_frame(&f, x, y, E, 2.4, 1, &cores);
+    mask_frame(&sc.f, sc.x, sc.y, sc.E, 2.4, 0, &cores_raw);
+    memset(sc.f.mask, 0, (size_t)N * N);
+    long masked = mask_frame(&sc.f, sc.x, sc.y, sc.E, 2.4, 1, &cores);
     printf("broad model: %ld stars' pixels flagged unscaled, %ld scaled (%ld masked)\n",
            cores_raw, cores, masked);
     assert_true(cores_raw > 0);
     assert_int_equal(cores, 0);
-    sf_frame_drop(&f);
+    sf_frame_drop(&sc.f);
 }
 
 int main(void)
