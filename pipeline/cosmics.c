@@ -87,8 +87,10 @@ int mp_pl_cr_bound(const mp_prf_model *m, long nx, long ny, double *s, double *D
     *D = 0.0;
     /* the least ratio over the phase grid, less half its largest step
      * between neighbouring phases: the ratio between grid phases can dip
-     * below the nodes by about that much */
-    for (int q = 0; q < 9 && !rc; q++) {
+     * below the nodes by about that much; at the 3 × 3 places only when
+     * the PSF varies (else the centre's, place 4, is every place's) */
+    int q0 = m->psf && m->psf->field ? 0 : 4, q1 = q0 ? 5 : 9;
+    for (int q = q0; q < q1 && !rc; q++) {
         double lo = 4.0, step = 0.0;
         for (int b = 0; b < CR_NPH && !rc; b++)
             for (int a = 0; a < CR_NPH && !rc; a++) {
@@ -103,7 +105,7 @@ int mp_pl_cr_bound(const mp_prf_model *m, long nx, long ny, double *s, double *D
         *s = fmin(*s, lo - 0.5 * step);
     }
     *s = fmax(*s, 0.0);
-    for (int q = 0; q < 9 && !rc; q++)
+    for (int q = q0; q < q1 && !rc; q++)
         for (int b = 0; b < CR_NPH && !rc; b++)
             for (int a = 0; a < CR_NPH && !rc; a++) {
                 double e = 0.0;

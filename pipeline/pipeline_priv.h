@@ -89,9 +89,12 @@ double mp_pl_median_sky(const mp_table *t);
 
 /* mp_pl_cr_bound: the PSF's sharpness (cosmics.c): *s, the least ratio of
  * a PRF pixel's four side neighbours to the pixel, over the pixels holding
- * at least MP_PL_CR_CORE of the peak, 16 phases and 3 × 3 places of an
- * nx × ny frame; *D, the most by which any PRF pixel's s·P exceeds its
- * neighbours' sum, per electron.  Nonzero with err when out of memory. */
+ * at least MP_PL_CR_CORE of the peak, 5 × 5 phases (a pixel's centre,
+ * edges, corners and between) and, for a variable PSF, 3 × 3 places of an
+ * nx × ny frame, less half its largest step between neighbouring phases;
+ * *D, the most by which any PRF pixel's s·P exceeds its neighbours' sum
+ * (zero beyond the box), per electron.  Nonzero with err when out of
+ * memory. */
 int mp_pl_cr_bound(const mp_prf_model *m, long nx, long ny, double *s, double *D, char *err);
 
 /* mp_pl_cr_sigma: k with npix · Q(k) = rate (Q the normal upper tail): the
