@@ -359,22 +359,26 @@ double mp_pl_cr_sharpness(const mp_frame *f, const mp_prf_model *m, const mp_pl_
         for (size_t r = 0; r < st->n && nq < MP_PL_CR_NSHARP && ord[2 * r] > 0; r++) {
             size_t i = (size_t)ord[2 * r + 1];
             double v = star_sharpness(f, m, st->x[i], st->y[i], st->sky[i], &prf, &wk, &sq);
-            if (isfinite(v)) {
+            if (isfinite(v))
                 q[nq++] = v;
-                out = fmin(out, v - 3.0 * sq);    /* each star's own, from below */
-            }
         }
     }
-    /* and the frame's every star's, from the measured ones' spread: the
+    /* every star of the frame's, from the measured ones' spread: their
      * median less z of their robust σ, z such that all n stars of st stay
      * above it but for MP_PL_CR_RATE of a star (the spread holds the
-     * ratios' noise too, so it errs low) */
-    if (nq >= 10) {
+     * ratios' noise too, so it errs low).  Not their least: a hit the
+     * first round took for a bright star (a sharp one passes find's
+     * limits) has the ratio of a hit, near 0, and would switch the test
+     * off on the frames that need it; the median and its spread do not
+     * see a few. */
+    if (nq >= MP_PL_CR_NMIN) {
         double med = mp_select_kth(q, nq, nq / 2);
         for (size_t i = 0; i < nq; i++)
             q[i] = fabs(q[i] - med);
         double sd = 1.4826 * mp_select_kth(q, nq, nq / 2);
         out = fmin(out, med - mp_pl_cr_sigma((double)st->n, MP_PL_CR_RATE) * sd);
+    } else {
+        out = 0.0;          /* the model's sharpness unchecked: no test */
     }
     free(ord);
     free(q);

@@ -118,21 +118,21 @@ typedef struct {
 } mp_pl_cr_stars;
 
 /* mp_pl_cr_sharpness: how much sharper the frame's stars are than the
- * model m says, as a factor on s: the least, over the MP_PL_CR_NSHARP
- * brightest stars of st (sky given, their peak pixel's 3 × 3 unmasked), of
- * their peak pixel's side-neighbour ratio, (Σ_nb d − 4 B) / (d_p − B),
- * less 3 of its σ (Poisson and read noise), over the model's at the same
- * pixel, from the stars that measure it within MP_PL_CR_SHARP_SIG of the
- * model's; and with 10 such stars or more, no more than their median less
- * z robust σ of their spread, z = mp_pl_cr_sigma(st->n, MP_PL_CR_RATE):
- * every star of st, not only the measured ones, must stay above it; at
- * most 1 (1 with no such star), at least 0.
- * A model broader than some stars (a table smoothed as its noise needs;
- * IRAC's undersampled stars, each sharp as its pixel phase makes it)
- * would let their cores pass as cosmic rays.  A cosmic ray on a bright
- * star's peak only costs the test its reach on that frame. */
+ * model m says, as a factor on s.  At the peak pixel of each of the
+ * MP_PL_CR_NSHARP brightest stars of st (sky given, the pixel's 3 × 3
+ * unmasked and led by it), the side-neighbour ratio (Σ_nb d − 4 B) /
+ * (d_p − B) over the model's at the same pixel, from the stars that
+ * measure it within MP_PL_CR_SHARP_SIG; the factor is their median less z
+ * of their robust σ, z = mp_pl_cr_sigma(st->n, MP_PL_CR_RATE), so that
+ * every star of st stays above it, at most 1, at least 0; 0 (no test)
+ * with fewer than MP_PL_CR_NMIN such stars.  A model broader than the
+ * stars (a table smoothed as its noise needs; IRAC's undersampled stars,
+ * each sharp as its pixel phase makes it) would let their cores pass as
+ * cosmic rays; a hit the first round took for a star moves a median and
+ * its spread little. */
 #define MP_PL_CR_NSHARP 100
-#define MP_PL_CR_SHARP_SIG 0.02
+#define MP_PL_CR_SHARP_SIG 0.1
+#define MP_PL_CR_NMIN 10
 double mp_pl_cr_sharpness(const mp_frame *f, const mp_prf_model *m, const mp_pl_cr_stars *st);
 
 /* mp_pl_mask_cosmics: every pixel of f whose excess over starlight,

@@ -18,9 +18,9 @@
 typedef struct {
     const char *output, *psf, *drf, *psfout;
     char *truth;                      /* owned */
-    int nx, ny, crowded, nstars, noise, psfos, segmented;
+    int nx, ny, crowded, nstars, noise, psfos, segmented, ncosrays;
     int fieldnx, fieldny, x0, y0;     /* the field the frame looks at */
-    double magmin, magmax, sky, rdnoise, gain, fwhm, volume, saturate, lod, band;
+    double magmin, magmax, sky, rdnoise, gain, fwhm, volume, saturate, lod, band, crenergy;
     double ra, dec, pixscale;         /* TAN WCS at the field's centre; ra NaN: none */
     uint64_t seed;
 } sim_config;
@@ -78,7 +78,9 @@ static int read_numbers(const mp_parset *ps, sim_config *c, char *err)
            need_real(ps, "sky", &c->sky, err) || need_real(ps, "rdnoise", &c->rdnoise, err) ||
            need_real(ps, "gain", &c->gain, err) || need_real(ps, "fwhm", &c->fwhm, err) ||
            need_real(ps, "volume", &c->volume, err) || need_int(ps, "psfos", &c->psfos, err) ||
-           need_real(ps, "lod", &c->lod, err) || need_real(ps, "band", &c->band, err);
+           need_real(ps, "lod", &c->lod, err) || need_real(ps, "band", &c->band, err) ||
+           need_int(ps, "ncosrays", &c->ncosrays, err) ||
+           need_real(ps, "crenergy", &c->crenergy, err);
 }
 
 /* pupil=: gaussian, or segmented (which draws its own PSF). */
@@ -130,6 +132,11 @@ static int check_ranges(const sim_config *c, char *err)
     }
     if (!(c->gain > 0)) {
         snprintf(err, MP_ERRLEN, "gain: %g is not > 0", c->gain);
+        return 1;
+    }
+    if (c->ncosrays < 0 || !(c->crenergy > 0)) {
+        snprintf(err, MP_ERRLEN, c->ncosrays < 0 ? "ncosrays: %g is not >= 0" : "crenergy: %g is not > 0",
+                 c->ncosrays < 0 ? (double)c->ncosrays : c->crenergy);
         return 1;
     }
     if (c->sky < 0 || c->rdnoise < 0 || !(c->fwhm > 0) || !(c->volume > 0) || c->volume > 1) {
@@ -380,8 +387,29 @@ static int setup_prf(const sim_config *c, sim_inputs *in, mp_sim_prf *prf, doubl
     return 0;
 }
 
+/* ncosrays hits after the noise (IRAF artdata mknoise's ncosrays): each a
+ * straight track of 1-3 pixels (equally likely) in one of the 8 grid
+ * directions from a pixel anywhere on the frame, its charge uniform in
+ * 0.5..1.5 crenergy [e-], shared equally by its pixels (a track leaving
+ * the frame loses the rest).  No draw at all when there are none, so a
+ * frame without hits is the one made before they existed. */
+static void add_cosmic_rays(const sim_config *c, mp_rng *rng, double *img)
+{
+    static const int step[8][2] = {{1, 0}, {1, 1}, {0, 1}, {-1, 1},
+                                   {-1, 0}, {-1, -1}, {0, -1}, {1, -1}};
+    for (int h = 0; h < c->ncosrays; h++) {
+        long x = (long)(mp_rng_uniform(rng) * c->nx), y = (long)(mp_rng_uniform(rng) * c->ny);
+        int len = 1 + (int)(3.0 * mp_rng_uniform(rng)), d = (int)(8.0 * mp_rng_uniform(rng));
+        double q = c->crenergy * (0.5 + mp_rng_uniform(rng)) / len;
+        for (int a = 0; a < len; a++, x += step[d][0], y += step[d][1])
+            if (x >= 0 && y >= 0 && x < c->nx && y < c->ny)
+                img[y * c->nx + x] += q;
+    }
+}
+
 /* The frame [image units]: the sky, the truth's stars, the noise, the
- * gain and the saturation.  NULL with err when out of memory. */
+ * cosmic rays, the gain and the saturation.  NULL with err when out of
+ * memory. */
 static double *draw_frame(const sim_config *c, const mp_sim_prf *prf, const mp_table *t,
                           mp_rng *rng, char *err)
 {
@@ -405,6 +433,7 @@ static double *draw_frame(const sim_config *c, const mp_sim_prf *prf, const mp_t
         }
     if (c->noise)
         mp_sim_add_noise(rng, img, (long)npix, c->rdnoise);
+    add_cosmic_rays(c, rng, img);
     for (size_t i = 0; i < npix; i++) {
         img[i] /= c->gain;
         if (img[i] > c->saturate)      /* never true for INDEF (NaN) */

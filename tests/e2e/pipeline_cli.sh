@@ -66,6 +66,20 @@ grep -q "halo from the [0-9]* brightest stars" "$T/blog" || no "built: halo=auto
 [ "$(grep -c 'round 1: .* stars fitted' "$T/b1log")" -eq 2 ] ||
     no "built, niter=1: round 1 not fitted with the second pass's PSF"
 
+# crmask=yes (the default): nothing masked on the frame of stars alone; on
+# the same stars with 25 cosmic-ray tracks (sim ncosrays=, drawn after the
+# noise, so the truth is the same) every star is still recovered and no
+# hit is left as a star, where crmask=no keeps some of them as stars.
+grep -q "cosmic rays: 0 pixels masked" "$T/log" || no "crmask: masked pixels of stars alone"
+"$M" sim "$T/c.fits" mode=crowded nx=200 ny=200 nstars=120 fwhm=2.5 magmin=-13 magmax=-9 \
+    seed=21 ncosrays=25 || no "sim ncosrays"
+cmp -s "$T/c.truth" "$T/f.truth" || no "sim ncosrays: the stars changed"
+"$M" pipeline "$T/c.fits" "$P" root="$T/c" 2>"$T/clog" || no "crmask: $(tail -n 1 "$T/clog")"
+grep -q "[1-9][0-9]* pixels masked as cosmic rays" "$T/c.report" || no "crmask: no hit masked"
+recovered "$T/c.cat" || no "crmask: too few stars or too many: $(cat "$T/match")"
+"$M" pipeline "$T/c.fits" "$P" crmask=no root="$T/cn" 2>/dev/null || no "crmask=no"
+recovered "$T/cn.cat" && no "crmask=no: no hit kept as a star (the test above cannot fail)"
+
 # halo=yes: reported, and on a frame whose PSF has no halo its significance
 # test (one-sided false rate 1e-3, test_halo.c) takes nothing off, so the
 # catalog keeps as many stars as without it;
