@@ -206,8 +206,9 @@ static double flux_near(const mp_pl_cr_stars *st, double x, double y)
 /* Whether p (0-based x, y) is flagged: T = s·(d_p − B) − Σ_nb (d − B)
  * grows with B by (4 − s)·B, so it is tried first with B at d_p + 3 σ_p,
  * above any sky under p (most pixels end here), then at the mesh's sky,
- * B's cap, then with the sky from below and the wings' allowance.  v:
- * sky_below's room. */
+ * B's cap, then with the sky from below and the wings' allowance; never
+ * within MP_PL_CR_GUARD px of a guarded star (ct->guard).  v: sky_below's
+ * room. */
 static int flagged(const mp_frame *f, const mp_bkg *b, const mp_pl_cr_stars *st,
                    const mp_pl_cr_test *ct, long x, long y, double *v)
 {
@@ -222,6 +223,10 @@ static int flagged(const mp_frame *f, const mp_bkg *b, const mp_pl_cr_stars *st,
     double bb = mp_bkg_sky(b, k);
     if (!(t + (4.0 - ct->s) * bb > ct->k * sig))
         return 0;
+    for (size_t g = 0; st && g < ct->nguard; g++)
+        if (fabs(st->x[ct->guard[g]] - 1.0 - x) <= MP_PL_CR_GUARD &&
+            fabs(st->y[ct->guard[g]] - 1.0 - y) <= MP_PL_CR_GUARD)
+            return 0;
     double B = sky_below(f, bb, x, y, ct->side, v);
     double phi = st ? flux_near(st, (double)x, (double)y) : 0.0;
     return t + (4.0 - ct->s) * B - ct->D * phi > ct->k * sig;
@@ -342,8 +347,10 @@ static double star_sharpness(const mp_frame *f, const mp_prf_model *m, double x,
     return ro / rm;
 }
 
-double mp_pl_cr_sharpness(const mp_frame *f, const mp_prf_model *m, const mp_pl_cr_stars *st)
+double mp_pl_cr_sharpness(const mp_frame *f, const mp_prf_model *m, const mp_pl_cr_stars *st,
+                          size_t *guard, size_t *nguard)
 {
+    *nguard = 0;
     if (!st || !st->sky || st->n == 0)
         return 1.0;
     double *ord = malloc(2 * st->n * sizeof *ord), *q = malloc(MP_PL_CR_NSHARP * sizeof *q);
@@ -359,8 +366,10 @@ double mp_pl_cr_sharpness(const mp_frame *f, const mp_prf_model *m, const mp_pl_
         for (size_t r = 0; r < st->n && nq < MP_PL_CR_NSHARP && ord[2 * r] > 0; r++) {
             size_t i = (size_t)ord[2 * r + 1];
             double v = star_sharpness(f, m, st->x[i], st->y[i], st->sky[i], &prf, &wk, &sq);
-            if (isfinite(v))
+            if (isfinite(v)) {
+                guard[nq] = i;
                 q[nq++] = v;
+            }
         }
     }
     /* every star of the frame's, from the measured ones' spread: their
@@ -378,7 +387,7 @@ double mp_pl_cr_sharpness(const mp_frame *f, const mp_prf_model *m, const mp_pl_
         double sd = 1.4826 * mp_select_kth(q, nq, nq / 2);
         out = fmin(out, med - mp_pl_cr_sigma((double)st->n, MP_PL_CR_RATE) * sd);
     } else {
-        out = 0.0;          /* the model's sharpness unchecked: no test */
+        *nguard = nq;       /* too few to check the model on: kept out */
     }
     free(ord);
     free(q);

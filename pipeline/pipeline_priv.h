@@ -107,6 +107,9 @@ double mp_pl_cr_sigma(double npix, double rate);
 typedef struct {
     double s, D, k;
     int grow, side;
+    const size_t *guard;     /* stars of the mp_pl_cr_stars whose pixels within
+                              * MP_PL_CR_GUARD are not tested (NULL: none) */
+    size_t nguard;
 } mp_pl_cr_test;
 
 /* The stars whose wings D bounds: positions (1-based), |flux| [e-], their
@@ -124,16 +127,22 @@ typedef struct {
  * (d_p − B) over the model's at the same pixel, from the stars that
  * measure it within MP_PL_CR_SHARP_SIG; the factor is their median less z
  * of their robust σ, z = mp_pl_cr_sigma(st->n, MP_PL_CR_RATE), so that
- * every star of st stays above it, at most 1, at least 0; 0 (no test)
- * with fewer than MP_PL_CR_NMIN such stars.  A model broader than the
- * stars (a table smoothed as its noise needs; IRAC's undersampled stars,
- * each sharp as its pixel phase makes it) would let their cores pass as
- * cosmic rays; a hit the first round took for a star moves a median and
- * its spread little. */
+ * every star of st stays above it, at most 1, at least 0.  With fewer
+ * than MP_PL_CR_NMIN such stars the factor is 1 and those stars (indices
+ * into st) come back in guard (room for MP_PL_CR_NSHARP), *nguard of
+ * them: too few to check the model on, they are kept out of the test; the
+ * fainter stars, whose ratio no star measures within 10 %, hold too little
+ * light for a model's ratio too high by less than k × 10 % to pass their
+ * cores.  A model broader than the stars (a table smoothed as its
+ * noise needs; IRAC's undersampled stars, each sharp as its pixel phase
+ * makes it) would let their cores pass as cosmic rays; a hit the first
+ * round took for a star moves a median and its spread little. */
 #define MP_PL_CR_NSHARP 100
 #define MP_PL_CR_SHARP_SIG 0.1
 #define MP_PL_CR_NMIN 10
-double mp_pl_cr_sharpness(const mp_frame *f, const mp_prf_model *m, const mp_pl_cr_stars *st);
+#define MP_PL_CR_GUARD 2.0
+double mp_pl_cr_sharpness(const mp_frame *f, const mp_prf_model *m, const mp_pl_cr_stars *st,
+                          size_t *guard, size_t *nguard);
 
 /* mp_pl_mask_cosmics: every pixel of f whose excess over starlight,
  * T = s·(d − B) − Σ of its four side neighbours' (d − B), exceeds

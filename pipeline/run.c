@@ -699,8 +699,10 @@ static int mask_cosmics(run_state *s, char *err)
     mp_pl_cr_stars st = {.reach = 0.5 * (w > h ? w : h) + 1.0};
     if (fitted_stars(&s->t, &st))
         return oom(err);
-    double sharp = mp_pl_cr_sharpness(&s->f, m, &st);
+    size_t guard[MP_PL_CR_NSHARP];
+    double sharp = mp_pl_cr_sharpness(&s->f, m, &st, guard, &ct.nguard);
     ct.s *= sharp;
+    ct.guard = guard;
     /* the mesh sky of the residual (the frame less every fitted star) caps
      * the sky from below (cosmics.c): a sky set high would pass starlight
      * as excess, by (4 − s) times the error, so not the frame's own mesh,
@@ -726,10 +728,11 @@ static int mask_cosmics(run_state *s, char *err)
         mp_fit_memory_forget(s->mem);
     if (!s->quiet)
         fprintf(stderr, "matphot pipeline: %s: cosmic rays: %ld pixels masked around %ld that no "
-                "sum of stars makes (side-neighbour ratio s %.3g: the PSF's x %.3g, its "
-                "brightest stars' against it; wings %.2g per e-; k %.2f sigma: %g false a "
-                "frame), %.2f s\n", s->image, masked, cores, ct.s, sharp, ct.D, ct.k,
-                MP_PL_CR_RATE, mp_seconds() - t0);
+                "sum of stars makes (side-neighbour ratio s %.3g: the PSF's x %.3g, %s; wings "
+                "%.2g per e-; k %.2f sigma: %g false a frame), %.2f s\n", s->image, masked,
+                cores, ct.s, sharp, ct.nguard ? "too few stars to check it on, kept out"
+                                               : "its brightest stars' against it",
+                ct.D, ct.k, MP_PL_CR_RATE, mp_seconds() - t0);
     s->rep->t_fit += mp_seconds() - t0;
     return 0;
 }

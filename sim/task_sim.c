@@ -134,9 +134,12 @@ static int check_ranges(const sim_config *c, char *err)
         snprintf(err, MP_ERRLEN, "gain: %g is not > 0", c->gain);
         return 1;
     }
-    if (c->ncosrays < 0 || !(c->crenergy > 0)) {
-        snprintf(err, MP_ERRLEN, c->ncosrays < 0 ? "ncosrays: %g is not >= 0" : "crenergy: %g is not > 0",
-                 c->ncosrays < 0 ? (double)c->ncosrays : c->crenergy);
+    if (c->ncosrays < 0) {
+        snprintf(err, MP_ERRLEN, "ncosrays: %d is not >= 0", c->ncosrays);
+        return 1;
+    }
+    if (!(c->crenergy > 0)) {
+        snprintf(err, MP_ERRLEN, "crenergy: %g is not > 0", c->crenergy);
         return 1;
     }
     if (c->sky < 0 || c->rdnoise < 0 || !(c->fwhm > 0) || !(c->volume > 0) || c->volume > 1) {

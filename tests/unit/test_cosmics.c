@@ -92,9 +92,10 @@ static void scene_make(scene *sc)
     sf_render(&sc->f, SKY, FWHM, sc->x, sc->y, sc->E, NSTAR, &sc->r, RON);
 }
 
-/* The pipeline's test on f with the model of FWHM fwhm; sharp: s scaled
- * by the stars' own sharpness (mp_pl_cr_sharpness, as the pipeline). */
-static long mask_frame(mp_frame *f, const double *x, const double *y, const double *E,
+/* The pipeline's test on f (n stars at x, y of flux E) with the model of
+ * FWHM fwhm; sharp: s scaled by the stars' own sharpness, or those stars
+ * guarded (mp_pl_cr_sharpness, as the pipeline). */
+static long mask_frame(mp_frame *f, const double *x, const double *y, const double *E, int n,
                        double fwhm, int sharp, long *cores)
 {
     mp_psf p;
@@ -109,10 +110,13 @@ static long mask_frame(mp_frame *f, const double *x, const double *y, const doub
     double sky[NSTAR];
     for (int k = 0; k < NSTAR; k++)
         sky[k] = SKY;
-    mp_pl_cr_stars st = {x, y, E, sky, NSTAR, 8.0};
+    mp_pl_cr_stars st = {x, y, E, sky, (size_t)n, 8.0};
+    size_t guard[MP_PL_CR_NSHARP];
     if (sharp) {
-        double a = mp_pl_cr_sharpness(f, &m, &st);
-        printf("model FWHM %.2f for stars of %.2f: s x %.3f\n", fwhm, FWHM, a);
+        double a = mp_pl_cr_sharpness(f, &m, &st, guard, &ct.nguard);
+        ct.guard = guard;
+        printf("model FWHM %.2f for stars of %.2f: s x %.3f, %zu guarded\n", fwhm, FWHM, a,
+               ct.nguard);
         ct.s *= a;
     }
     long masked = mp_pl_mask_cosmics(f, &b, NULL, &st, &ct, cores);
@@ -129,7 +133,7 @@ static void test_stars_never_flagged(void **state)
     scene sc;
     scene_make(&sc);
     long cores;
-    long masked = mask_frame(&sc.f, sc.x, sc.y, sc.E, FWHM, 1, &cores);
+    long masked = mask_frame(&sc.f, sc.x, sc.y, sc.E, NSTAR, FWHM, 1, &cores);
     printf("stars alone: %ld flagged, %ld masked\n", cores, masked);
     assert_int_equal(cores, 0);
     assert_int_equal(masked, 0);
@@ -158,7 +162,8 @@ static void test_cosmic_rays_flagged(void **state)
         long cy = 3 + (long)((N - 6) * mp_rng_uniform(&sc.r));
         int near = 0;
         for (int k = 0; k < NSTAR; k++)
-            near |= sc.E[k] > 1e5 && fabs(sc.x[k] - 1.0 - cx) < 3.0 && fabs(sc.y[k] - 1.0 - cy) < 3.0;
+            near |= sc.E[k] > 1e5 && fabs(sc.x[k] - 1.0 - cx) < 3.0 &&
+                    fabs(sc.y[k] - 1.0 - cy) < 3.0;
         for (long j = cy - 3; j <= cy + 3; j++)
             for (long i = cx - 3; i <= cx + 3; i++)
                 near |= hit[j * N + i];
@@ -177,7 +182,7 @@ static void test_cosmic_rays_flagged(void **state)
         placed++;
     }
     long cores;
-    long masked = mask_frame(&sc.f, sc.x, sc.y, sc.E, FWHM, 1, &cores);
+    long masked = mask_frame(&sc.f, sc.x, sc.y, sc.E, NSTAR, FWHM, 1, &cores);
     printf("cosmic rays: %ld placed, %ld flagged, %ld masked\n", placed, cores, masked);
     long missed = 0, stray = 0;
     for (long j = 0; j < N; j++)
@@ -206,14 +211,49 @@ static void test_broad_model_scaled(void **state)
     scene sc;
     scene_make(&sc);
     long cores_raw, cores;
-    mask_frame(&sc.f, sc.x, sc.y, sc.E, 2.4, 0, &cores_raw);
+    mask_frame(&sc.f, sc.x, sc.y, sc.E, NSTAR, 2.4, 0, &cores_raw);
     memset(sc.f.mask, 0, (size_t)N * N);
-    long masked = mask_frame(&sc.f, sc.x, sc.y, sc.E, 2.4, 1, &cores);
+    long masked = mask_frame(&sc.f, sc.x, sc.y, sc.E, NSTAR, 2.4, 1, &cores);
     printf("broad model: %ld stars' pixels flagged unscaled, %ld scaled (%ld masked)\n",
            cores_raw, cores, masked);
     assert_true(cores_raw > 0);
     assert_int_equal(cores, 0);
     sf_frame_drop(&sc.f);
+}
+
+/* A sparse frame: six bright stars (too few to check the model on) and
+ * ten hits of 2000..20000 e-, the model broader than the stars.  Unscaled
+ * and unguarded the stars' cores pass for hits; with the six guarded
+ * (the pixels within MP_PL_CR_GUARD of them untested) only the hits are
+ * flagged, every one of them (each ~45 σ_T above the threshold). */
+static void test_sparse_guarded(void **state)
+{
+    (void)state;
+    enum { NS = 6, NH = 10 };
+    double x[NS] = {40.2, 100.7, 160.4, 40.9, 100.1, 160.6};
+    double y[NS] = {60.3, 60.8, 60.1, 140.6, 140.2, 140.9};
+    double E[NS] = {1e5, 2e5, 4e5, 6e5, 8e5, 1e6};
+    mp_rng r;
+    mp_rng_seed(&r, 20261202);
+    mp_frame f;
+    sf_frame_make(&f, N, N, RON);
+    sf_render(&f, SKY, FWHM, x, y, E, NS, &r, RON);
+    for (int h = 0; h < NH; h++)            /* a row of hits at y = 101 */
+        f.im.pix[100 * N + 10 + 18 * h] += (float)(2000.0 + 18000.0 * mp_rng_uniform(&r));
+    long raw, cores;
+    mask_frame(&f, x, y, E, NS, 2.4, 0, &raw);
+    memset(f.mask, 0, (size_t)N * N);
+    long masked = mask_frame(&f, x, y, E, NS, 2.4, 1, &cores);
+    long on_hits = 0;
+    for (int h = 0; h < NH; h++)
+        on_hits += (f.mask[100 * N + 10 + 18 * h] & MP_MASK_BAD) != 0;
+    printf("sparse: %ld flagged unguarded, %ld guarded (%ld masked, %ld of %d hits)\n", raw,
+           cores, masked, on_hits, NH);
+    assert_true(raw > NH);
+    assert_int_equal(cores, NH);
+    assert_int_equal(on_hits, NH);
+    assert_int_equal(masked, 9 * NH);
+    sf_frame_drop(&f);
 }
 
 int main(void)
@@ -224,6 +264,7 @@ int main(void)
         cmocka_unit_test(test_stars_never_flagged),
         cmocka_unit_test(test_cosmic_rays_flagged),
         cmocka_unit_test(test_broad_model_scaled),
+        cmocka_unit_test(test_sparse_guarded),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }
