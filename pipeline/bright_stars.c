@@ -15,7 +15,8 @@ static int by_flux_desc(const void *a, const void *b)
 mp_pl_star *mp_pl_stars_by_flux(const mp_table *t, long skipflags, size_t *n)
 {
     int cx = mp_table_col(t, "XPSF_IMAGE"), cy = mp_table_col(t, "YPSF_IMAGE"),
-        ce = mp_table_col(t, "FLUX_PSF"), cf = mp_table_col(t, "FLAGS");
+        ce = mp_table_col(t, "FLUX_PSF"), cf = mp_table_col(t, "FLAGS"),
+        cs = mp_table_col(t, "SKY_PSF");
     mp_pl_star *s = malloc((t->nrow ? t->nrow : 1) * sizeof *s);
     *n = 0;
     if (!s || cx < 0 || cy < 0 || ce < 0)
@@ -23,7 +24,7 @@ mp_pl_star *mp_pl_stars_by_flux(const mp_table *t, long skipflags, size_t *n)
     for (size_t r = 0; r < t->nrow; r++) {
         long fl = cf >= 0 ? (long)mp_table_get(t, r, cf) : 0;
         mp_pl_star h = {mp_table_get(t, r, cx), mp_table_get(t, r, cy),
-                        mp_table_get(t, r, ce), fl};
+                        mp_table_get(t, r, ce), fl, cs >= 0 ? mp_table_get(t, r, cs) : NAN};
         if (isfinite(h.x) && isfinite(h.y) && h.e > 0 && !(fl & skipflags))
             s[(*n)++] = h;
     }

@@ -197,9 +197,8 @@ static double flux_near(const mp_pl_cr_stars *st, double x, double y)
 {
     double phi = 0.0;
     for (size_t i = 0; i < st->n; i++)
-        if (fabs(st->x[i] - 1.0 - x) <= st->reach && fabs(st->y[i] - 1.0 - y) <= st->reach &&
-            isfinite(st->flux[i]))
-            phi += fabs(st->flux[i]);
+        if (fabs(st->s[i].x - 1.0 - x) <= st->reach && fabs(st->s[i].y - 1.0 - y) <= st->reach)
+            phi += st->s[i].e;
     return phi;
 }
 
@@ -224,8 +223,8 @@ static int flagged(const mp_frame *f, const mp_bkg *b, const mp_pl_cr_stars *st,
     if (!(t + (4.0 - ct->s) * bb > ct->k * sig))
         return 0;
     for (size_t g = 0; st && g < ct->nguard; g++)
-        if (fabs(st->x[ct->guard[g]] - 1.0 - x) <= MP_PL_CR_GUARD &&
-            fabs(st->y[ct->guard[g]] - 1.0 - y) <= MP_PL_CR_GUARD)
+        if (fabs(st->s[ct->guard[g]].x - 1.0 - x) <= MP_PL_CR_GUARD &&
+            fabs(st->s[ct->guard[g]].y - 1.0 - y) <= MP_PL_CR_GUARD)
             return 0;
     double B = sky_below(f, bb, x, y, ct->side, v);
     double phi = st ? flux_near(st, (double)x, (double)y) : 0.0;
@@ -283,12 +282,6 @@ long mp_pl_mask_cosmics(mp_frame *f, const mp_bkg *b, float *res, const mp_pl_cr
     free(hit);
     *cores = nc;
     return masked;
-}
-
-static int cmp_desc_flux(const void *a, const void *b)
-{
-    double x = ((const double *)a)[0], y = ((const double *)b)[0];
-    return (x < y) - (x > y);
 }
 
 /* The side-neighbour ratio at pixel (px, py) (0-based) of image v on
@@ -351,25 +344,18 @@ double mp_pl_cr_sharpness(const mp_frame *f, const mp_prf_model *m, const mp_pl_
                           size_t *guard, size_t *nguard)
 {
     *nguard = 0;
-    if (!st || !st->sky || st->n == 0)
+    if (!st || st->n == 0)
         return 1.0;
-    double *ord = malloc(2 * st->n * sizeof *ord), *q = malloc(MP_PL_CR_NSHARP * sizeof *q);
-    double *prf = NULL, out = 1.0, sq;
+    double q[MP_PL_CR_NSHARP], *prf = NULL, out = 1.0, sq;
     mp_prf_work wk = {0};
     size_t nq = 0;
-    for (size_t i = 0; ord && q && i < st->n; i++) {
-        ord[2 * i] = isfinite(st->flux[i]) ? st->flux[i] : 0.0;
-        ord[2 * i + 1] = (double)i;
-    }
-    if (ord && q) {
-        qsort(ord, st->n, 2 * sizeof *ord, cmp_desc_flux);
-        for (size_t r = 0; r < st->n && nq < MP_PL_CR_NSHARP && ord[2 * r] > 0; r++) {
-            size_t i = (size_t)ord[2 * r + 1];
-            double v = star_sharpness(f, m, st->x[i], st->y[i], st->sky[i], &prf, &wk, &sq);
-            if (isfinite(v)) {
-                guard[nq] = i;
-                q[nq++] = v;
-            }
+    for (size_t i = 0; i < st->n && nq < MP_PL_CR_NSHARP; i++) {
+        const mp_pl_star *p = &st->s[i];
+        double v = isfinite(p->sky) ? star_sharpness(f, m, p->x, p->y, p->sky, &prf, &wk, &sq)
+                                    : NAN;
+        if (isfinite(v)) {
+            guard[nq] = i;
+            q[nq++] = v;
         }
     }
     /* every star of the frame's, from the measured ones' spread: their
@@ -381,16 +367,11 @@ double mp_pl_cr_sharpness(const mp_frame *f, const mp_prf_model *m, const mp_pl_
      * off on the frames that need it; the median and its spread do not
      * see a few. */
     if (nq >= MP_PL_CR_NMIN) {
-        double med = mp_select_kth(q, nq, nq / 2);
-        for (size_t i = 0; i < nq; i++)
-            q[i] = fabs(q[i] - med);
-        double sd = 1.4826 * mp_select_kth(q, nq, nq / 2);
+        double med = mp_median_select(q, nq), sd = mp_mad_sigma(q, nq);
         out = fmin(out, med - mp_pl_cr_sigma((double)st->n, MP_PL_CR_RATE) * sd);
     } else {
         *nguard = nq;       /* too few to check the model on: kept out */
     }
-    free(ord);
-    free(q);
     free(prf);
     mp_prf_work_free(&wk);
     return out > 0 ? out : 0.0;

@@ -31,10 +31,11 @@ int mp_pl_sharp_limits(const mp_prf_model *m, long nx, long ny, mp_find_opts *o,
 
 /* ---- bright_stars.c ---------------------------------------------------- */
 
-/* A fitted star: position, flux (e-) and FLAGS. */
+/* A fitted star: position, flux (e-), FLAGS and sky (SKY_PSF; NaN: none). */
 typedef struct {
     double x, y, e;
     long flags;
+    double sky;
 } mp_pl_star;
 
 /* mp_pl_stars_by_flux: the rows of t with a finite XPSF/YPSF_IMAGE, a
@@ -112,17 +113,17 @@ typedef struct {
     size_t nguard;
 } mp_pl_cr_test;
 
-/* The stars whose wings D bounds: positions (1-based), |flux| [e-], their
- * fitted sky [e-] (may be NULL), and the reach of their table [px]. */
+/* The fitted stars (mp_pl_stars_by_flux: brightest first), whose light
+ * D bounds out to the reach of their table [px]. */
 typedef struct {
-    const double *x, *y, *flux, *sky;
+    const mp_pl_star *s;
     size_t n;
     double reach;
 } mp_pl_cr_stars;
 
 /* mp_pl_cr_sharpness: how much sharper the frame's stars are than the
  * model m says, as a factor on s.  At the peak pixel of each of the
- * MP_PL_CR_NSHARP brightest stars of st (sky given, the pixel's 3 × 3
+ * MP_PL_CR_NSHARP brightest stars of st (their sky known, the pixel's 3 × 3
  * unmasked and led by it), the side-neighbour ratio (Σ_nb d − 4 B) /
  * (d_p − B) over the model's at the same pixel, from the stars that
  * measure it within MP_PL_CR_SHARP_SIG; the factor is their median less z

@@ -657,28 +657,6 @@ static int take_halo(run_state *s, char *err)
     return s->o->build_psf ? 0 : group_and_fit(s, 1, 0, err);
 }
 
-/* The fitted stars' places, fluxes and skies (XPSF_IMAGE, YPSF_IMAGE,
- * FLUX_PSF, SKY_PSF) into st's arrays (one allocation at st->x, freed by
- * the caller); nonzero when out of memory. */
-static int fitted_stars(const mp_table *t, mp_pl_cr_stars *st)
-{
-    int c[4] = {mp_table_col(t, "XPSF_IMAGE"), mp_table_col(t, "YPSF_IMAGE"),
-                mp_table_col(t, "FLUX_PSF"), mp_table_col(t, "SKY_PSF")};
-    size_t n = c[0] >= 0 && c[1] >= 0 && c[2] >= 0 && c[3] >= 0 ? t->nrow : 0;
-    double *v = malloc(4 * (n ? n : 1) * sizeof *v);
-    if (!v)
-        return 1;
-    for (int a = 0; a < 4; a++)
-        for (size_t r = 0; r < n; r++)
-            v[(size_t)a * n + r] = mp_table_get(t, r, c[a]);
-    st->x = v;
-    st->y = v + n;
-    st->flux = v + 2 * n;
-    st->sky = v + 3 * n;
-    st->n = n;
-    return 0;
-}
-
 /* Cosmic rays and hot pixels (crmask=yes, pipeline/cosmics.c): the pixels
  * no sum of stars can make, tested once round 1's fit gives every star's
  * flux (their wings' allowance), masked on the frame and the residual; the
@@ -697,8 +675,10 @@ static int mask_cosmics(run_state *s, char *err)
     ct.k = mp_pl_cr_sigma((double)nx * (double)ny, MP_PL_CR_RATE);
     mp_prf_box(m, 0.5 * (double)nx, 0.5 * (double)ny, &bx, &by, &w, &h);
     mp_pl_cr_stars st = {.reach = 0.5 * (w > h ? w : h) + 1.0};
-    if (fitted_stars(&s->t, &st))
+    mp_pl_star *stars = mp_pl_stars_by_flux(&s->t, 0, &st.n);
+    if (!stars)
         return oom(err);
+    st.s = stars;
     size_t guard[MP_PL_CR_NSHARP];
     double sharp = mp_pl_cr_sharpness(&s->f, m, &st, guard, &ct.nguard);
     ct.s *= sharp;
@@ -716,7 +696,7 @@ static int mask_cosmics(run_state *s, char *err)
     if (!mp_bkg_estimate(&R, s->o->mesh, s->o->filter, &b, err))
         masked = mp_pl_mask_cosmics(&s->f, &b, s->res, &st, &ct, &cores);
     mp_bkg_free(&b);
-    free((double *)st.x);
+    free(stars);
     if (masked < 0)
         return masked == -1 ? oom(err) : 1;
     s->rep->cr_cores += cores;

@@ -107,10 +107,12 @@ static long mask_frame(mp_frame *f, const double *x, const double *y, const doub
     ct.k = mp_pl_cr_sigma((double)N * N, MP_PL_CR_RATE);
     mp_bkg b;
     assert_int_equal(mp_bkg_estimate(f, 64, 3, &b, err), 0);
-    double sky[NSTAR];
-    for (int k = 0; k < NSTAR; k++)
-        sky[k] = SKY;
-    mp_pl_cr_stars st = {x, y, E, sky, (size_t)n, 8.0};
+    mp_table t;                 /* as round 1's fit hands the stars on */
+    sf_fitted_table(&t, x, y, E, SKY, n);
+    mp_pl_cr_stars st = {.reach = 8.0};
+    mp_pl_star *stars = mp_pl_stars_by_flux(&t, 0, &st.n);
+    assert_non_null(stars);
+    st.s = stars;
     size_t guard[MP_PL_CR_NSHARP];
     if (sharp) {
         double a = mp_pl_cr_sharpness(f, &m, &st, guard, &ct.nguard);
@@ -121,6 +123,8 @@ static long mask_frame(mp_frame *f, const double *x, const double *y, const doub
     }
     long masked = mp_pl_mask_cosmics(f, &b, NULL, &st, &ct, cores);
     mp_bkg_free(&b);
+    free(stars);
+    mp_table_free(&t);
     return masked;
 }
 
