@@ -940,7 +940,8 @@ typedef struct {
                              * grid — built when they pay (opts.cache) */
     int econ_nlev, econ_os[MP_SS_MAXLEVELS], econ_sinc, econ_grid;  /* what it may
                              * build (mp_econ_offer's arguments) */
-    char decisions[2048];   /* economy decisions and their reasons */
+    char decisions[4096];   /* economy decisions and their reasons (a variable
+                             * PSF built from the frame: ~2.6 KB) */
     int ndecisions;
 } mp_fit_setup;
 

@@ -158,6 +158,49 @@ double mp_pl_cr_sharpness(const mp_frame *f, const mp_prf_model *m, const mp_pl_
 long mp_pl_mask_cosmics(mp_frame *f, const mp_bkg *b, float *res, const mp_pl_cr_stars *st,
                         const mp_pl_cr_test *ct, long *cores);
 
+/* ---- heldout.c --------------------------------------------------------- */
+
+/* The held-out stars' least S/N: their χ² then tells a table's shape from
+ * the noise (a star at S/N 20 holds 400 σ² of signal). */
+#define MP_PL_HELDOUT_SNR 20.0
+
+/* The held-out verdict that raises the order: z below −1.645, a one-sided
+ * 5 % test that the next order fits them better.  Where that order fits
+ * only the table's noise the stars fit it worse (z +2 to +6 on the
+ * constant scenes, psfbuild_notes.md), so it raises far more rarely than
+ * 5 %; a missed order costs the variable scene 10-40 % of its errors. */
+#define MP_PL_HELDOUT_Z 1.645
+
+/* The paired comparison of two tables on the held-out stars: their
+ * number, the mean of log(χ²_b/χ²_a) (CHI2STAR_PSF), and the mean over its
+ * standard error. */
+typedef struct {
+    size_t n;
+    double mean, z;
+} mp_pl_heldout;
+
+/* mp_pl_heldout_rows: sel[r] = 1 for t's held-out stars — FLAGS 0, S/N
+ * FLUX_PSF/FLUXERR_PSF ≥ MP_PL_HELDOUT_SNR, farther than 1 px from every
+ * PSF star (px, py)[0..np) — the brightest max of them; their number, −1
+ * when out of memory. */
+long mp_pl_heldout_rows(const mp_table *t, const double *px, const double *py, size_t np,
+                        size_t max, unsigned char *sel);
+
+/* mp_pl_rows_of: out (initialised here) = the rows r of t with !!sel[r]
+ * == want, every column (sel NULL: all rows).  Nonzero when out of memory. */
+int mp_pl_rows_of(const mp_table *t, const unsigned char *sel, int want, mp_table *out);
+
+/* mp_pl_heldout_fit: out (initialised here) = the rows of held grouped
+ * among themselves (go) and fitted on f as `fit psf=PSF` with the options
+ * of ps would fit them (ps's psf is set and put back to "").  Nonzero with
+ * err on failure. */
+int mp_pl_heldout_fit(const mp_frame *f, const mp_table *held, mp_parset *ps, const char *psf,
+                      const mp_group_opts *go, mp_table *out, char *err);
+
+/* mp_pl_heldout_compare: *h of the stars (by NUMBER) fitted in both a and
+ * b.  Nonzero when out of memory. */
+int mp_pl_heldout_compare(const mp_table *a, const mp_table *b, mp_pl_heldout *h);
+
 /* ---- halo.c ------------------------------------------------------------ */
 
 /* mp_pl_halo: the light of bright stars beyond what the PSF table holds

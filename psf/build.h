@@ -76,6 +76,10 @@ typedef struct {
     double fitrad;     /* radius of each star's fit [px] */
     double fwhm;       /* FWHM of the start (a Gaussian) [px] */
     int order;         /* 0..MP_PSF_MAXORDER; -1: auto (mp_epsf_order_test) */
+    int raise;         /* mp_epsf_pass with e built: order e->order + 1 built
+                        * from e as it is, its sampling and filter kept (the
+                        * pipeline's held-out test of the next order); 0:
+                        * order as above */
     double alpha;      /* the order test's false-alarm probability */
     int maxnpsf;       /* stars used at most (selection) */
     int outer;         /* star fits per pass at most (each followed by SIRT
@@ -357,7 +361,8 @@ typedef struct {
  * taken to the coarsest OVERSAMP whose aliasing error for the brightest
  * star is below 1 σ of its noise; of order o->order, or with −1 from e's
  * order (0 when e is empty) raised while mp_epsf_order_test rejects the
- * lower order at o->alpha; then PSFSUM by the growth curve out to
+ * lower order at o->alpha (with o->raise and e built: of order e->order + 1
+ * from e as it is); then PSFSUM by the growth curve out to
  * 2·psfrad.  e may hold the previous pass's table (its OVERSAMP and order
  * are kept as the start).  Errors: no usable PSF star, a star off the
  * frame, out of memory. */

@@ -327,6 +327,19 @@ static int stars_out(const mp_epsf_star *s, size_t n, const mp_epsf *e, mp_psf_s
     return 0;
 }
 
+/* o->raise: the next order built from e as it is (its OVERSAMP and
+ * filter), the stars' fits starting from e. */
+static int build_raised(mp_epsf_star *s, size_t n, const mp_epsf_opts *o, mp_epsf *e,
+                        mp_epsf_report *rep, char *err)
+{
+    int from = e->order;
+    snprintf(rep->what, sizeof rep->what, "OVERSAMP %d (as the first pass); ", e->os);
+    if (mp_epsf_build(s, n, o, e->os, from + 1, e, err))
+        return 1;
+    snprintf(e->why, sizeof e->why, "order %d, raised from %d", from + 1, from);
+    return 0;
+}
+
 int mp_epsf_pass(const mp_frame *f, const float *img, int residual, const mp_table *fitted,
                  const mp_prf_model *m, const double *x, const double *y, const double *flux,
                  size_t n, const mp_epsf_opts *o, mp_epsf *e, mp_epsf_report *rep,
@@ -352,7 +365,9 @@ int mp_epsf_pass(const mp_frame *f, const float *img, int residual, const mp_tab
         goto done;
     rep->nsel = n;
     e->why[0] = '\0';
-    if (build_sampled(s, n, o, f, e, rep, err) || build_order(s, n, o, e, rep, err))
+    if (o->raise && e->planes && e->order < MP_PSF_MAXORDER
+            ? build_raised(s, n, o, e, rep, err)
+            : build_sampled(s, n, o, f, e, rep, err) || build_order(s, n, o, e, rep, err))
         goto done;
     /* a table built since (a higher order, or the order given) */
     if (filter_refit(s, n, o, e, err))

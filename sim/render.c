@@ -25,7 +25,7 @@ static int prf_ok(const mp_sim_prf *p)
         return 0;
     }
     if (p->kind == MP_SIM_GAUSS)
-        return p->sigma > 0 && isfinite(p->sigma);
+        return p->sigma > 0 && isfinite(p->sigma) && p->sigy >= 0 && isfinite(p->sigy);
     if (p->kind == MP_SIM_TABLE)
         return p->tab && p->tnx >= 1 && p->tny >= 1 && p->tnx % 2 == 1 &&
                p->tny % 2 == 1 && p->tos >= 1 && (!p->drf || p->tos % p->dk == 0);
@@ -76,7 +76,8 @@ static long lmin(long a, long b) { return a < b ? a : b; }
 static int add_gauss(const mp_sim_prf *p, double x, double y, double flux,
                      sink img, long nx, long ny)
 {
-    double r = GAUSS_NSIGMA * p->sigma;
+    double sy = p->sigy > 0 ? p->sigy : p->sigma;
+    double r = GAUSS_NSIGMA * (sy > p->sigma ? sy : p->sigma);
     /* Pixels containing x-r .. x+r, clipped to the image. */
     double fx0 = floor(x - r + 0.5), fx1 = floor(x + r + 0.5);
     double fy0 = floor(y - r + 0.5), fy1 = floor(y + r + 0.5);
@@ -97,7 +98,7 @@ static int add_gauss(const mp_sim_prf *p, double x, double y, double flux,
         return 1;
     }
     axis_integrals(x, p->sigma, x0, x1, dk, ax);
-    axis_integrals(y, p->sigma, y0, y1, dk, ay);
+    axis_integrals(y, sy, y0, y1, dk, ay);
     /* w[j][px] = Σ_i qe(i,j)·ax(px,i): the x sums of each subpixel row,
      * so each pixel then costs dk products. */
     for (int j = 0; j < dk; j++)

@@ -29,12 +29,14 @@ typedef enum { MP_SIM_GAUSS, MP_SIM_TABLE } mp_sim_kind;
 /* How a star is drawn. */
 typedef struct {
     mp_sim_kind kind;
-    double sigma;            /* MP_SIM_GAUSS: Gaussian sigma [px] */
+    double sigma;            /* MP_SIM_GAUSS: Gaussian sigma [px] (along x) */
     const double *tab;       /* MP_SIM_TABLE: fine table, tnx*tny, row-major, */
     int tnx, tny, tos;       /*   odd sizes, star at the central element, OVERSAMP tos */
     const double *drf;       /* optional DRF, dk*dk subpixel QE (row-major, */
     int dk;                  /*   subpixel (0,0) at the pixel's low x,y corner); NULL = none */
     double volume;           /* uniform QE when drf is NULL (1 = perfect) */
+    double sigy;             /* MP_SIM_GAUSS: sigma along y [px]; 0: sigma (round;
+                              * last, so positional initialisers keep it 0) */
 } mp_sim_prf;
 
 /* mp_sim_snap: the nearest position to (x,y) on which a MP_SIM_TABLE star

@@ -22,6 +22,7 @@ typedef struct {
     int fieldnx, fieldny, x0, y0;     /* the field the frame looks at */
     double magmin, magmax, sky, rdnoise, gain, fwhm, volume, saturate, lod, band, crenergy;
     double ra, dec, pixscale;         /* TAN WCS at the field's centre; ra NaN: none */
+    double fwhmvar, stretch;          /* the Gaussian across the field (star_prf) */
     uint64_t seed;
 } sim_config;
 
@@ -80,7 +81,8 @@ static int read_numbers(const mp_parset *ps, sim_config *c, char *err)
            need_real(ps, "volume", &c->volume, err) || need_int(ps, "psfos", &c->psfos, err) ||
            need_real(ps, "lod", &c->lod, err) || need_real(ps, "band", &c->band, err) ||
            need_int(ps, "ncosrays", &c->ncosrays, err) ||
-           need_real(ps, "crenergy", &c->crenergy, err);
+           need_real(ps, "crenergy", &c->crenergy, err) ||
+           need_real(ps, "fwhmvar", &c->fwhmvar, err) || need_real(ps, "stretch", &c->stretch, err);
 }
 
 /* pupil=: gaussian, or segmented (which draws its own PSF). */
@@ -94,6 +96,11 @@ static int read_pupil(const mp_parset *ps, sim_config *c, char *err)
     }
     if (c->segmented && *c->psf) {
         snprintf(err, MP_ERRLEN, "pupil: segmented draws its own PSF; give no psf=");
+        return 1;
+    }
+    if ((c->fwhmvar != 0.0 || c->stretch != 0.0) && (c->segmented || *c->psf)) {
+        snprintf(err, MP_ERRLEN, "%s: only the Gaussian of fwhm varies across the field (no "
+                 "psf=, pupil=gaussian)", c->fwhmvar != 0.0 ? "fwhmvar" : "stretch");
         return 1;
     }
     return 0;
@@ -136,6 +143,11 @@ static int check_ranges(const sim_config *c, char *err)
     }
     if (c->ncosrays < 0) {
         snprintf(err, MP_ERRLEN, "ncosrays: %d is not >= 0", c->ncosrays);
+        return 1;
+    }
+    if (!(fabs(c->fwhmvar) < 1.0) || !(c->stretch >= 0.0)) {
+        snprintf(err, MP_ERRLEN, "%s: out of range", !(fabs(c->fwhmvar) < 1.0) ? "fwhmvar"
+                                                                               : "stretch");
         return 1;
     }
     if (!(c->crenergy > 0)) {
@@ -261,7 +273,7 @@ static int wcs_cards(const sim_config *c, mp_card *k)
 static int write_frame(const sim_config *c, const mp_sim_prf *prf, double volume,
                        const double *adu, char *err)
 {
-    mp_card cards[24];
+    mp_card cards[28];          /* 13 at most, and the WCS's 12 */
     int nc = 0;
     cards[nc++] = (mp_card){"BUNIT", 0, "ADU", "pixel unit"};
     cards[nc++] = (mp_card){"GAIN", c->gain, NULL, "[e-/ADU] gain"};
@@ -276,6 +288,10 @@ static int write_frame(const sim_config *c, const mp_sim_prf *prf, double volume
     else
         cards[nc++] = (mp_card){"PSF", 0, c->segmented ? "segmented mirror" : c->psf,
                                 "simulated PSF table"};
+    if (c->fwhmvar != 0.0 || c->stretch != 0.0) {
+        cards[nc++] = (mp_card){"FWHMVAR", c->fwhmvar, NULL, "FWHM x (1 + FWHMVAR u) across x"};
+        cards[nc++] = (mp_card){"STRETCH", c->stretch, NULL, "x (1+S v^2) along x, (1+S u^2) y"};
+    }
     if (*c->drf)
         cards[nc++] = (mp_card){"DRF", 0, c->drf, "simulated detector response"};
     cards[nc++] = (mp_card){"VOLUME", volume, NULL, "PRF volume (mean detector QE)"};
@@ -410,6 +426,24 @@ static void add_cosmic_rays(const sim_config *c, mp_rng *rng, double *img)
     }
 }
 
+/* The PRF of a star at frame pixel (x, y): the Gaussian of fwhm varying
+ * across the field as psfb.c's variable scene (issue 11's second case),
+ * with u, v from −1 to 1 across the field: σ_x = σ(1 + fwhmvar·u)(1 +
+ * stretch·v²), σ_y = σ(1 + fwhmvar·u)(1 + stretch·u²) — broader to the
+ * right, elongated along the edges; prf itself elsewhere. */
+static mp_sim_prf star_prf(const sim_config *c, const mp_sim_prf *prf, double x, double y)
+{
+    mp_sim_prf at = *prf;
+    if (prf->kind != MP_SIM_GAUSS || (c->fwhmvar == 0.0 && c->stretch == 0.0))
+        return at;
+    double u = (x + c->x0 - 0.5 * (c->fieldnx + 1)) / (0.5 * c->fieldnx);
+    double v = (y + c->y0 - 0.5 * (c->fieldny + 1)) / (0.5 * c->fieldny);
+    double s0 = prf->sigma * (1.0 + c->fwhmvar * u);
+    at.sigma = s0 * (1.0 + c->stretch * v * v);
+    at.sigy = s0 * (1.0 + c->stretch * u * u);
+    return at;
+}
+
 /* The frame [image units]: the sky, the truth's stars, the noise, the
  * cosmic rays, the gain and the saturation.  NULL with err when out of
  * memory. */
@@ -426,14 +460,16 @@ static double *draw_frame(const sim_config *c, const mp_sim_prf *prf, const mp_t
         img[i] = c->sky;
     int cx = mp_table_col(t, "X_IMAGE"), cy = mp_table_col(t, "Y_IMAGE");
     int cf = mp_table_col(t, "FLUX_TRUE");
-    for (size_t k = 0; k < t->nrow; k++)
-        if (mp_sim_add_star(prf, mp_table_get(t, k, cx), mp_table_get(t, k, cy),
-                            mp_table_get(t, k, cf), img, c->nx, c->ny)) {
+    for (size_t k = 0; k < t->nrow; k++) {
+        double x = mp_table_get(t, k, cx), y = mp_table_get(t, k, cy);
+        mp_sim_prf at = star_prf(c, prf, x, y);
+        if (mp_sim_add_star(&at, x, y, mp_table_get(t, k, cf), img, c->nx, c->ny)) {
             snprintf(err, MP_ERRLEN, "%s: cannot draw star %zu (out of memory?)",
                      c->output, k + 1);
             free(img);
             return NULL;
         }
+    }
     if (c->noise)
         mp_sim_add_noise(rng, img, (long)npix, c->rdnoise);
     add_cosmic_rays(c, rng, img);

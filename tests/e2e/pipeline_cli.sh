@@ -62,6 +62,11 @@ recovered "$T/b.cat" || no "built: too few stars or too many: $(cat "$T/match")"
 # given.
 grep -q "halo from the [0-9]* brightest stars" "$T/blog" || no "built: halo=auto not measured"
 ! grep -q "halo from" "$T/log" || no "psf= given: halo=auto measured"
+# varorder=auto's held-out step runs only where the residual test found the
+# PSF variable (pipeline/heldout.c; varorder_cli.sh runs it): not on this
+# frame's constant Gaussian.
+grep -q "PSF pass 2: .*auto: order 0 " "$T/blog" || no "built: the constant PSF not order 0"
+! grep -q "PSF order: held out" "$T/blog" || no "built: the held-out step ran at order 0"
 "$M" pipeline "$T/f.fits" root="$T/b1" niter=1 2>"$T/b1log" || no "built, niter=1"
 [ "$(grep -c 'round 1: .* stars fitted' "$T/b1log")" -eq 2 ] ||
     no "built, niter=1: round 1 not fitted with the second pass's PSF"

@@ -125,7 +125,7 @@ static void make_frame(uint64_t seed, double grad, int cubic, double rad, mp_fra
         double u = (x - 0.5 * (NX + 1)) / (0.5 * NX);
         int n;
         truth_fine(grad, cubic, u, rad, tab, &n);
-        mp_sim_prf p = {MP_SIM_TABLE, 0, tab, n, n, FOS, NULL, 0, 1.0};
+        mp_sim_prf p = {MP_SIM_TABLE, 0, tab, n, n, FOS, NULL, 0, 1.0, 0.0};
         mp_sim_snap(&p, &x, &y);
         assert_int_equal(mp_sim_add_star_float(&p, x, y, flux, f->im.pix, NX, NX), 0);
         ts[k] = (tstar){x, y, flux};
@@ -745,7 +745,7 @@ static void add_companions(uint64_t seed, double rad, double d0, double lo, doub
     assert_non_null(tab);
     int n;
     truth_fine(0.0, 0, 0.0, rad, tab, &n);
-    mp_sim_prf p = {MP_SIM_TABLE, 0, tab, n, n, FOS, NULL, 0, 1.0};
+    mp_sim_prf p = {MP_SIM_TABLE, 0, tab, n, n, FOS, NULL, 0, 1.0, 0.0};
     double *img = calloc((size_t)NX * NX, sizeof *img);
     assert_non_null(img);
     for (int k = 0; k < NSTAR; k++) {

@@ -72,7 +72,7 @@ static void make_frame(uint64_t seed, mp_frame *f, tstar *ts)
         double x = RAD + (k % side + 0.3 + 0.4 * mp_rng_uniform(&r)) * cell;
         double y = RAD + (k / side + 0.3 + 0.4 * mp_rng_uniform(&r)) * cell;
         double flux = 2e4 * pow(20.0, mp_rng_uniform(&r));
-        mp_sim_prf p = {MP_SIM_TABLE, 0, tab, n, n, FOS, NULL, 0, 1.0};
+        mp_sim_prf p = {MP_SIM_TABLE, 0, tab, n, n, FOS, NULL, 0, 1.0, 0.0};
         mp_sim_snap(&p, &x, &y);
         assert_int_equal(mp_sim_add_star_float(&p, x, y, flux, f->im.pix, NX, NX), 0);
         ts[k] = (tstar){x, y, flux};

@@ -234,7 +234,7 @@ static int do_sim(const char *dir)
     jb_star *js = malloc(sizeof *js * (size_t)n);
     if (!s || !img || !mean || !stamps || !je || !jx || !jy || !js)
         return fprintf(stderr, "crowdseg: out of memory\n"), 1;
-    mp_sim_prf prf = {MP_SIM_TABLE, 0, tab, tn, tn, TOS, NULL, 0, 1.0};
+    mp_sim_prf prf = {MP_SIM_TABLE, 0, tab, tn, tn, TOS, NULL, 0, 1.0, 0.0};
     mp_rng r;
     mp_rng_seed(&r, seed);
     for (int i = 0; i < n; i++) {

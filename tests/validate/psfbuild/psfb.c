@@ -228,7 +228,7 @@ static int do_sim(const char *dir, const char *kind, long seed)
             var_table(x, y, vt, &m);
             use = vt;
         }
-        mp_sim_prf p = {MP_SIM_TABLE, 0, use, m, m, TOS, NULL, 0, 1.0};
+        mp_sim_prf p = {MP_SIM_TABLE, 0, use, m, m, TOS, NULL, 0, 1.0, 0.0};
         mp_sim_snap(&p, &x, &y);
         mp_sim_add_star(&p, x, y, E, img, NX, NX);
         crlb_of(&p, x, y, E, &b[k], &b[NSTAR + k]);
@@ -1186,7 +1186,7 @@ static int do_ideal(const char *dir, const char *kind, int npsf, double fkeep, i
             continue;
         if (!seg)
             var_table(sx, sy, tab, &n);
-        mp_sim_prf p = {MP_SIM_TABLE, 0, tab, n, n, TOS, NULL, 0, 1.0};
+        mp_sim_prf p = {MP_SIM_TABLE, 0, tab, n, n, TOS, NULL, 0, 1.0, 0.0};
         mp_sim_add_star_float(&p, sx, sy, -mp_table_get(&tr, i, tf), f.im.pix, NX, NX);
     }
     mp_epsf_opts o;

@@ -109,7 +109,7 @@ for f in true built ideal; do "$OUT/psfb" ee "$OUT/segmented/$f.psf.fits"; done 
             echo '| mag | true | found | completeness | phot/joint | astro/joint | bias | phot/alone | astro/alone | phot/disc | astro/disc |'
             echo '|---|---|---|---|---|---|---|---|---|---|---|'
             sed -n 's/^[^:]*: \(-[0-9].*\)$/| \1 |/p' "$f"
-            grep 'PSF pass 2' "$OUT/$s/$r.log" | sed 's/^/    /' | cut -c1-600
+            grep -E 'PSF pass 2|PSF order' "$OUT/$s/$r.log" | sed 's/^/    /' | cut -c1-600
         done
         echo
         echo "Built against true: $(cat "$OUT/$s/cmp.txt")"
@@ -146,7 +146,7 @@ for f in true built ideal; do "$OUT/psfb" ee "$OUT/segmented/$f.psf.fits"; done 
                 awk -F'|' '{printf "| %s | %s | %s | %s | %s | %s | %s | %s |\n", $1, $2, $3, $4, $5, $8, $9, $10}'
             echo
             for s in $DRAWS; do
-                grep -h 'PSF pass 2' "$OUT/draws/$s/built.log" | sed "s/^/    /" | cut -c1-400
+                grep -hE 'PSF pass 2|PSF order' "$OUT/draws/$s/built.log" | sed "s/^/    /" | cut -c1-400
             done
             echo
             echo "The built fields of two draws against the truth at 3x3 places (\`psfb cmpvar\`):"
