@@ -182,6 +182,18 @@ static void test_halo_light_counted(void **state)
     sf_frame_drop(&f);
 }
 
+/* The frame, its residual's buffer and the fitted table of four stars at
+ * (x, y) with fluxes 1, 1.5, 2, 2.5 E, for the tests of frames without a
+ * halo. */
+static void four_stars(mp_frame *f, float **res, mp_table *t, const double *x, const double *y)
+{
+    sf_frame_make(f, N, N, RON);
+    *res = malloc(N * N * sizeof **res);
+    assert_non_null(*res);
+    const double es[NS] = {E, 1.5 * E, 2.0 * E, 2.5 * E};
+    sf_fitted_table(t, x, y, es, SKY, NS);
+}
+
 /* The significance test where there is no halo: NF frames of sky + noise
  * alone around the same four stars (fluxes 1, 1.5, 2, 2.5 e7).  z should
  * be about N(0, 1): its mean within 4/√NF of 0 and its standard deviation
@@ -196,12 +208,9 @@ static void test_no_halo_not_taken_off(void **state)
 {
     (void)state;
     mp_frame f;
-    sf_frame_make(&f, N, N, RON);
-    float *res = malloc(N * N * sizeof *res);
-    assert_non_null(res);
+    float *res;
     mp_table t;
-    const double es[NS] = {E, 1.5 * E, 2.0 * E, 2.5 * E};
-    sf_fitted_table(&t, SX, SY, es, SKY, NS);
+    four_stars(&f, &res, &t, SX, SY);
     mp_rng r;
     mp_rng_seed(&r, 777);
     double s1 = 0.0, s2 = 0.0;
@@ -256,12 +265,9 @@ static void test_lumpy_frame_no_halo(void **state)
 {
     (void)state;
     mp_frame f;
-    sf_frame_make(&f, N, N, RON);
-    float *res = malloc(N * N * sizeof *res);
-    assert_non_null(res);
+    float *res;
     mp_table t;
-    const double es[NS] = {E, 1.5 * E, 2.0 * E, 2.5 * E};
-    sf_fitted_table(&t, CX, CY, es, SKY, NS);
+    four_stars(&f, &res, &t, CX, CY);
     mp_rng r;
     mp_rng_seed(&r, 4343);
     int formula = 0, fired = 0;
