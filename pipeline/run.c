@@ -509,23 +509,29 @@ static int table_radius(run_state *s, char *err)
 }
 
 /* A PSF built here (e) written to path, it and its PSF stars used[0..np)
- * moved to frame coordinates (the field's origin).  Nonzero with err on
- * failure. */
-static int write_psf_file(run_state *s, const mp_epsf *e, mp_psf_star *used, const char *path,
-                          char *err)
+ * in frame coordinates (the field's origin; used itself stays in this
+ * image's).  Nonzero with err on failure. */
+static int write_psf_file(run_state *s, const mp_epsf *e, const mp_psf_star *used,
+                          const char *path, char *err)
 {
+    mp_psf_star *inf = malloc((s->np + 1) * sizeof *inf);
+    if (!inf)
+        return oom(err);
     for (size_t k = 0; k < s->np; k++) {
-        used[k].x += (double)s->offx;
-        used[k].y += (double)s->offy;
+        inf[k] = used[k];
+        inf[k].x += (double)s->offx;
+        inf[k].y += (double)s->offy;
     }
     mp_psf_field fld;
     mp_epsf inframe = *e;
     inframe.x0 += (double)s->offx;
     inframe.y0 += (double)s->offy;
-    if (mp_epsf_field(&inframe, &fld, err))
-        return 1;
-    int rc = mp_psf_field_write(path, &fld, used, (int)s->np, err);
-    mp_psf_field_free(&fld);
+    int rc = mp_epsf_field(&inframe, &fld, err);
+    if (!rc) {
+        rc = mp_psf_field_write(path, &fld, inf, (int)s->np, err);
+        mp_psf_field_free(&fld);
+    }
+    free(inf);
     return rc;
 }
 
@@ -862,7 +868,7 @@ static int rounds(run_state *s, char *err)
 static int heldout_applies(const run_state *s)
 {
     const mp_pipeline_opts *o = s->o;
-    return o->build_psf && o->psfb.order < 0 && s->own_frame && s->psf_pass == 2 &&
+    return o->build_psf && o->psfb.order < 0 && !s->borrowed && s->psf_pass == 2 &&
            s->psf.order >= 1 && s->psf.order < MP_PSF_MAXORDER && s->np > 0;
 }
 
@@ -976,22 +982,15 @@ static int compare_on_held(run_state *s, const unsigned char *sel, const table_p
     return rc;
 }
 
-/* The raised table (tp->e[1]) made the run's: written to path, the fit
- * set up from it (the report's decisions told how it was built), every
- * group fitted afresh. */
+/* The raised table (tp->e[1], its PSFORDWH now with the verdict) made the
+ * run's: written to path, the fit set up from it (the report's decisions
+ * told how it was built), every group fitted afresh. */
 static int adopt_raised(run_state *s, table_pair *tp, const char *path, char *err)
 {
     mp_epsf_free(&s->psf);
     s->psf = tp->e[1];
     memset(&tp->e[1], 0, sizeof tp->e[1]);
-    if (rename(tp->path[1], path)) {
-        snprintf(err, MP_ERRLEN, "%s: cannot rename %s to %s", s->image, tp->path[1], path);
-        return 1;
-    }
-    mp_tmp_unregister(tp->path[1]);
-    free(tp->path[1]);
-    tp->path[1] = NULL;
-    if (adopt_psf(s, path, err))
+    if (write_psf_file(s, &s->psf, tp->used[1], path, err) || adopt_psf(s, path, err))
         return 1;
     note_decision(s, "PSF built from the frame (the held-out step, %s): %s%s%s", path, s->tabwhy,
                   s->tabwhy[0] ? "; " : "", tp->what[1]);
@@ -1132,9 +1131,13 @@ int mp_pl_psf_on(const char *section, const char *root, const mp_pipeline_opts *
     mp_tmp_sweep(o->sweeps, root);   /* root.psf.fits */
     if (!rc)
         rc = read_frame(&s, err) || find_stars(&s, err) || build_psf(&s, 1, err);
-    /* Pass 2 as a whole run makes it: every neighbour fitted and gone. */
+    /* Pass 2 as a whole run makes it: every neighbour fitted and gone;
+     * then, where the PSF varies, the held-out stars' verdict on the next
+     * order, on the section fitted with it (PSFORDWH says which). */
     if (!rc && s.have_own)
         rc = group_and_fit(&s, 1, s.psf_pass == 1, err) || build_psf(&s, 2, err);
+    if (!rc && s.have_own && heldout_applies(&s))
+        rc = group_and_fit(&s, 1, 0, err) || heldout_order(&s, err);
     *built = !rc && s.have_own;
     state_free(&s);
     return rc;

@@ -8,8 +8,8 @@
 # Bad sim input: one line naming the parameter, exit 1, no frame.  The
 # verdict itself (2 -> 3 on this scene, z -3.6 to -4.3 over seeds 1-3) is
 # validate/PSFBUILD.md's; here only that the step runs and is obeyed.
-# Skipped under memcheck (a 400-star frame reduced twice over; the
-# sanitizers run it).
+# Skipped under memcheck (a 400-star frame reduced twice, whole and in
+# tiles; the sanitizers run it).
 M=${MATPHOT:-./matphot}
 [ -x "$M" ] || { echo "varorder_cli: $M not built"; exit 77; }
 case $M in *valgrind*) echo "varorder_cli: skipped under memcheck (sanitize runs it)"; exit 77 ;; esac
@@ -45,7 +45,20 @@ said=$(echo "$line" | sed -n 's/.*: order \([0-9]\), [0-9.]* s$/\1/p')
 file=$(grep -ao "PSFORDER= *[0-9]*" "$T/v.psf.fits" | sed 's/.*= *//')
 [ -n "$said" ] && [ "$said" = "$file" ] || no "the run said order '$said', the PSF file holds '$file'"
 grep -q "the stars held out of the build" "$T/v.report" || no "the report lacks the verdict"
-# raised: the catalog was fitted with the raised table (every group again)
-case $line in *"< -"*) [ "$(grep -c 'stars fitted in' "$T/log")" -ge 3 ] || no "raised, not refitted" ;; esac
+# raised: the catalog was fitted with the raised table (every group again),
+# and the file's PSFORDWH says why
+case $line in *"< -"*)
+    [ "$(grep -c 'stars fitted in' "$T/log")" -ge 3 ] || no "raised, not refitted"
+    grep -aq "held out" "$T/v.psf.fits" || no "raised: PSFORDWH lacks the verdict" ;;
+esac
+# In tiles the PSF is built once on the frame (mp_pl_psf_on), with the same
+# last step: the file is of order 3 or 2, and says so when raised.
+"$M" pipeline "$T/v.fits" root="$T/t" tilesize=128 2>"$T/tlog" || no "tiles: $(tail -n 1 "$T/tlog")"
+tfile=$(grep -ao "PSFORDER= *[0-9]*" "$T/t.psf.fits" | sed 's/.*= *//')
+case $tfile in
+    3) grep -aq "held out 2->3" "$T/t.psf.fits" || no "tiles: order 3 without the verdict" ;;
+    2) ;;
+    *) no "tiles: the PSF file is of order '$tfile'" ;;
+esac
 
 [ "$fails" -eq 0 ]
