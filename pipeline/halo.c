@@ -20,7 +20,7 @@
 
 enum { HALO_NSTAR = 10, HALO_MINPIX = 5 };
 
-/* The median and its standard error of the m values v (sorted here):
+/* The median and its standard error of the m values v (permuted here):
  * 1.2533 σ/√m with σ the robust scatter (IQR/1.349; the median of m
  * Gaussian values scatters √(π/2) more than their mean). */
 static void median_se(double *v, size_t m, double *med, double *se)

@@ -219,6 +219,15 @@ int mp_epsf_build(mp_epsf_star *s, size_t n, const mp_epsf_opts *o, int os, int 
 int mp_epsf_order_test(const mp_epsf_star *s, size_t n, const mp_epsf *e, double fitrad,
                        double alpha, double *p, double *stat, double *zperm, char *err);
 
+/* mp_epsf_order_test_to: the same for the terms of every degree above
+ * e's up to order `to` at once (e->order < to ≤ MP_PSF_MAXORDER; *p = 1
+ * otherwise).  to = e->order + 2 sees a variation with no terms of degree
+ * e->order + 1: a focus that changes as the square of the distance from
+ * the frame's centre, symmetric about it, has no linear term. */
+int mp_epsf_order_test_to(const mp_epsf_star *s, size_t n, const mp_epsf *e, int to,
+                          double fitrad, double alpha, double *p, double *stat, double *zperm,
+                          char *err);
+
 /* mp_epsf_oversamp_error: the largest over ¼-px phases of
  * E·sqrt(Σ δP²/(E·P + B + ron²)) with δP the difference between the PRF
  * of table e (at the origin) block-summed to OVERSAMP os_coarse and the
@@ -348,6 +357,9 @@ typedef struct {
                               * NaN: not run) */
     double ztest[MP_PSF_MAXORDER + 1];   /* their standardised statistics */
     double zperm[MP_PSF_MAXORDER + 1];   /* against the permuted null (NaN: not run) */
+    double ptest2[MP_PSF_MAXORDER + 1];  /* the test k→k+2 (index k) where k→k+1
+                              * kept order k; NaN: not run */
+    double ztest2[MP_PSF_MAXORDER + 1], zperm2[MP_PSF_MAXORDER + 1];
     char what[512];          /* one line: stars, OVERSAMP, order, sum, why */
 } mp_epsf_report;
 

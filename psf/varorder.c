@@ -101,21 +101,20 @@ static int residuals(const mp_epsf_star *s, const mp_epsf *e, int R, double fitr
     return 0;
 }
 
-/* The terms of the order after e's at (x, y) into t, the current order's
+/* The terms of order `to` (> e's) at (x, y) into t, the current order's
  * first (as columns 0..nt0−1) so that the reduced model is the first nt0
- * columns.  PSFEx order is y power outer: the terms of total degree
- * e->order + 1 are the last of each row of y power; moved to the end, the
- * rest kept in order. */
-static void next_terms(const mp_epsf *e, double x, double y, double *t)
+ * columns.  PSFEx order is y power outer: the terms of total degree above
+ * e->order are moved to the end, each group kept in order. */
+static void next_terms(const mp_epsf *e, int to, double x, double y, double *t)
 {
     mp_epsf next = *e;
-    next.order = e->order + 1;
+    next.order = to;
     double t1[MP_EPSF_MAXT];
     mp_epsf_terms(&next, x, y, t1);
     int a = 0, b = e->nterms, q1 = 0;
     for (int j = 0; j <= next.order; j++)
         for (int i = 0; i + j <= next.order; i++, q1++)
-            t[i + j == next.order ? b++ : a++] = t1[q1];
+            t[i + j > e->order ? b++ : a++] = t1[q1];
 }
 
 /* Σ over the np pixel offsets of the new terms' F statistic (z: nu stars
@@ -212,13 +211,20 @@ static double permuted_p(double sum, const double *sums, double *zp)
 int mp_epsf_order_test(const mp_epsf_star *s, size_t n, const mp_epsf *e, double fitrad,
                        double alpha, double *p, double *stat, double *zperm, char *err)
 {
+    return mp_epsf_order_test_to(s, n, e, e->order + 1, fitrad, alpha, p, stat, zperm, err);
+}
+
+int mp_epsf_order_test_to(const mp_epsf_star *s, size_t n, const mp_epsf *e, int to,
+                          double fitrad, double alpha, double *p, double *stat, double *zperm,
+                          char *err)
+{
     *p = 1.0;
     *stat = 0.0;
     if (zperm)
         *zperm = NAN;
-    if (e->order >= MP_PSF_MAXORDER)
+    if (to <= e->order || to > MP_PSF_MAXORDER)
         return 0;
-    int nt0 = e->nterms, nt1 = (e->order + 2) * (e->order + 3) / 2;
+    int nt0 = e->nterms, nt1 = (to + 1) * (to + 2) / 2;
     int R = (int)ceil(fitrad), side = 2 * R + 1, np = side * side;
     size_t nu = 0;
     for (size_t k = 0; k < n; k++)
@@ -242,7 +248,7 @@ int mp_epsf_order_test(const mp_epsf_star *s, size_t n, const mp_epsf *e, double
     for (size_t k = 0; k < n; k++) {
         if (!s[k].used)
             continue;
-        next_terms(e, s[k].x, s[k].y, terms + u * MP_EPSF_MAXT);
+        next_terms(e, to, s[k].x, s[k].y, terms + u * MP_EPSF_MAXT);
         if (residuals(&s[k], e, R, fitrad, z + u * np, &tab, &w, err))
             goto done;
         u++;

@@ -5,7 +5,9 @@
 # elongated along the edges), the residual test finds the PSF variable and
 # the stars held out of the build judge the next order; the run says so,
 # the report holds the verdict, and the PSF file is of the order it names.
-# Bad sim input: one line naming the parameter, exit 1, no frame.  The
+# A variation symmetric about the centre (stretch= alone) reaches order 2
+# through the 0->2 test.  Bad sim input: one line naming the parameter,
+# exit 1, no frame.  The
 # verdict itself (2 -> 3 on this scene, z -3.6 to -4.3 over seeds 1-3) is
 # validate/PSFBUILD.md's; here only that the step runs and is obeyed.
 # Skipped under memcheck (a 400-star frame reduced twice, whole and in
@@ -60,5 +62,15 @@ case $tfile in
     2) ;;
     *) no "tiles: the PSF file is of order '$tfile'" ;;
 esac
+
+# A variation symmetric about the frame's centre (stretch= alone: no
+# linear term) is seen by the 0->2 test where 0->1 sees nothing
+# (psf/frame_build.c choose_order): `matphot psf` builds order 2.
+"$M" sim "$T/s.fits" mode=crowded nx=256 ny=256 nstars=400 magmin=-14 magmax=-8 sky=100 \
+    rdnoise=3 fwhm=3 stretch=0.15 seed=2 >/dev/null 2>&1 || no "sim stretch"
+"$M" psf "$T/s.fits" output="$T/s.psf.fits" 2>"$T/slog" || no "psf stretch: $(tail -n 1 "$T/slog")"
+[ "$(grep -ao "PSFORDER= *[0-9]*" "$T/s.psf.fits" | sed 's/.*= *//')" = 2 ] ||
+    no "stretch: not order 2: $(grep -o 'auto: order.*alpha' "$T/slog")"
+grep -q "order 0->2 p=[^ ]* (z [^)]*) <" "$T/slog" || no "stretch: the 0->2 test did not raise"
 
 [ "$fails" -eq 0 ]

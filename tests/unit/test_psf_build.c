@@ -477,6 +477,58 @@ static void test_quadratic_and_star_count(void **state)
     free(f.mask);
 }
 
+/* The same P₂ frame from order 0: the truth is symmetric in the column
+ * position, so over the stars' symmetric spread it has no linear part and
+ * the 0→1 test holds its false rate (p ≥ alpha with probability 1 − 1e-3);
+ * the 0→2 test (the degree-1 and degree-2 terms at once) must see it, and
+ * varorder=auto must go on to order 2 through it (choose_order: a focus
+ * symmetric about the frame's centre, psfbuild_notes.md). */
+static void test_symmetric_quadratic_seen(void **state)
+{
+    (void)state;
+    const double rad = 6.0, grad = 0.15;
+    mp_frame f;
+    tstar ts[NSTAR];
+    make_frame(18, grad, 2, rad, &f, ts);
+    mp_epsf_opts o;
+    mp_epsf_opts_default(2.6, NX, NX, &o);
+    o.psfrad = rad;
+    o.fitrad = 4.0;
+    mp_epsf_star *s = stars_of(&f, ts, &o);
+    mp_epsf e;
+    memset(&e, 0, sizeof e);
+    char err[MP_ERRLEN];
+    double p1, z1, p2, z2;
+    assert_int_equal(mp_epsf_build(s, NSTAR, &o, BOS, 0, &e, err), 0);
+    assert_int_equal(mp_epsf_order_test(s, NSTAR, &e, o.fitrad, 1e-3, &p1, &z1, NULL, err), 0);
+    assert_int_equal(mp_epsf_order_test_to(s, NSTAR, &e, 2, o.fitrad, 1e-3, &p2, &z2, NULL, err),
+                     0);
+    printf("# symmetric quadratic: order 0->1 p %.3g (z %.1f), 0->2 p %.3g (z %.1f)\n", p1, z1,
+           p2, z2);
+    assert_true(p1 >= 1e-3);
+    assert_true(p2 < 1e-3);
+    mp_epsf_free(&e);
+    mp_epsf_stars_free(s, NSTAR);
+    double x[NSTAR], y[NSTAR], fl[NSTAR];
+    for (int k = 0; k < NSTAR; k++) {
+        x[k] = ts[k].x + 0.2;
+        y[k] = ts[k].y - 0.15;
+        fl[k] = ts[k].f;
+    }
+    o.os = BOS;
+    o.order = -1;
+    mp_epsf_report rep;
+    memset(&e, 0, sizeof e);
+    assert_int_equal(mp_epsf_pass(&f, f.im.pix, 0, NULL, NULL, x, y, fl, NSTAR, &o, &e, &rep,
+                                  NULL, err), 0);
+    printf("# symmetric quadratic, auto: %s\n", e.why);
+    assert_true(e.order >= 2);
+    assert_true(rep.ptest2[0] < 1e-3);
+    mp_epsf_free(&e);
+    free(f.im.pix);
+    free(f.mask);
+}
+
 /* Table g as an order-0 field over the NX² frame (its planes g's own). */
 static mp_epsf order0_of(const mp_psf *g)
 {
@@ -1044,6 +1096,7 @@ int main(void)
         cmocka_unit_test(test_median_select_is_the_median),
         cmocka_unit_test(test_recovers_constant_table),
         cmocka_unit_test(test_linear_variation),
+        cmocka_unit_test(test_symmetric_quadratic_seen),
         cmocka_unit_test(test_cubic_variation),
         cmocka_unit_test(test_quadratic_and_star_count),
         cmocka_unit_test(test_order_test_false_raise),
