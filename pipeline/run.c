@@ -1019,13 +1019,20 @@ static int heldout_order(run_state *s, char *err)
         snprintf(why, sizeof why, "held out %d->%d: %ld stars < %d, not run", k, k + 1, nh,
                  need);
     else if (!rc) {
-        rc = epsf_copy(&s->psf, &tp.e[0]) ? oom(err) : pair_build(s, &tp, 0, path, err);
-        rc = rc || (epsf_copy(&tp.e[0], &tp.e[1]) ? oom(err) : pair_build(s, &tp, 1, path, err)) ||
-             compare_on_held(s, sel, &tp, &h, err);
-        up = !rc && h.z < -MP_PL_HELDOUT_Z;
-        snprintf(why, sizeof why, "held out %d->%d: mean log chi2 ratio %.3g (z %.2f, %zu stars "
-                 "S/N >= %.0f) %s -%.3f", k, k + 1, h.mean, h.z, h.n, MP_PL_HELDOUT_SNR,
-                 up ? "<" : ">=", MP_PL_HELDOUT_Z);
+        /* the step only ever raises: where it cannot run, order k stands,
+         * and the report says why */
+        char e2[MP_ERRLEN];
+        int failed =
+            (epsf_copy(&s->psf, &tp.e[0]) ? oom(e2) : pair_build(s, &tp, 0, path, e2)) ||
+            (epsf_copy(&tp.e[0], &tp.e[1]) ? oom(e2) : pair_build(s, &tp, 1, path, e2)) ||
+            compare_on_held(s, sel, &tp, &h, e2);
+        up = !failed && h.z < -MP_PL_HELDOUT_Z;
+        if (failed)
+            snprintf(why, sizeof why, "held out %d->%d: not run (%.200s)", k, k + 1, e2);
+        else
+            snprintf(why, sizeof why, "held out %d->%d: mean log chi2 ratio %.3g (z %.2f, %zu "
+                     "stars S/N >= %.0f) %s -%.3f", k, k + 1, h.mean, h.z, h.n,
+                     MP_PL_HELDOUT_SNR, up ? "<" : ">=", MP_PL_HELDOUT_Z);
         if (up) {
             size_t l = strlen(tp.e[1].why);
             snprintf(tp.e[1].why + l, sizeof tp.e[1].why - l, "; %.150s", why);
