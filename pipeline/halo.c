@@ -284,11 +284,29 @@ static double light_of(const double *h, int nb, double rin)
     return L;
 }
 
+/* h in r²: 0.25 px² steps, read linearly (within ~1e-4 of h_at's light),
+ * for the copies' residual (clean_copy), where a statistic of ring medians
+ * cannot tell the difference and ~15 million pixels (47 Tuc's 1500 stars)
+ * then cost no square root. */
+typedef struct {
+    double *v, step;
+    size_t n;
+} r2_table;
+
+/* h at squared distance r2 from the table (0 beyond it). */
+static double r2_read(const r2_table *t, double r2)
+{
+    double u = r2 / t->step;
+    size_t q = (size_t)u;
+    return q + 1 >= t->n ? 0.0 : t->v[q] + (u - (double)q) * (t->v[q + 1] - t->v[q]);
+}
+
 /* E·h(r) of every star whose halo reaches a twentieth of a sky pixel's σ
- * taken off pix (and, when given, off res, and into xvar as variance); the
- * number of such stars. */
+ * taken off pix (and, when given, off res, and into xvar as variance); h
+ * read exactly (h_at), or from fast when given.  The number of such stars. */
 static long take_off(const mp_frame *f, float *pix, float *res, float *xvar, const mp_pl_star *s,
-                     size_t ns, const double *h, int nb, double rin, double sig)
+                     size_t ns, const double *h, int nb, double rin, double sig,
+                     const r2_table *fast)
 {
     double rmax = rin + nb - 0.5;
     long nlit = 0;
@@ -301,7 +319,9 @@ static long take_off(const mp_frame *f, float *pix, float *res, float *xvar, con
         for (long y = y0 < 1 ? 1 : y0; y <= y1 && y <= f->im.ny; y++)
             for (long x = x0 < 1 ? 1 : x0; x <= x1 && x <= f->im.nx; x++) {
                 size_t i = (size_t)(y - 1) * (size_t)f->im.nx + (size_t)(x - 1);
-                double l = s[k].e * h_at(h, nb, rin, hypot((double)x - s[k].x, (double)y - s[k].y));
+                double dx = (double)x - s[k].x, dy = (double)y - s[k].y;
+                double l = s[k].e * (fast ? r2_read(fast, dx * dx + dy * dy)
+                                          : h_at(h, nb, rin, hypot(dx, dy)));
                 if (f->mask[i] || l <= 0)
                     continue;
                 pix[i] -= l;
@@ -314,39 +334,22 @@ static long take_off(const mp_frame *f, float *pix, float *res, float *xvar, con
     return nlit;
 }
 
-/* The residual with the halo taken off for placebo_z's copies only: as
- * take_off, E·h(r) of the same stars, each star's profile read from a
- * table in r² (0.25 px² steps, linear: within ~1e-4 of h_at's light, which
- * a statistic of ring medians cannot tell) so that the ~15 million pixels
- * of 47 Tuc's 1500 stars cost no square root.  Nonzero when out of memory. */
+/* The residual with the halo taken off, for placebo_z's copies only (h
+ * from an r2_table).  Nonzero when out of memory. */
 static int clean_copy(const mp_frame *f, const float *res, const mp_pl_star *s, size_t ns,
                       const double *h, int nb, double rin, double sig, float *clean)
 {
     size_t npix = (size_t)f->im.nx * (size_t)f->im.ny;
     memcpy(clean, res, npix * sizeof *clean);
-    double rmax = rin + nb - 0.5, step = 0.25;
-    size_t nt = (size_t)(rmax * rmax / step) + 2;
-    double *tab = malloc(nt * sizeof *tab);
-    if (!tab)
+    double rmax = rin + nb - 0.5;
+    r2_table t = {NULL, 0.25, 0};
+    t.n = (size_t)(rmax * rmax / t.step) + 2;
+    if (!(t.v = malloc(t.n * sizeof *t.v)))
         return 1;
-    for (size_t q = 0; q < nt; q++)
-        tab[q] = h_at(h, nb, rin, sqrt((double)q * step));
-    for (size_t k = 0; k < ns; k++) {
-        if (!(s[k].e * h[0] >= 0.05 * sig))
-            break;                      /* brightest first, as take_off */
-        long x0 = (long)floor(s[k].x - rmax), x1 = (long)ceil(s[k].x + rmax);
-        long y0 = (long)floor(s[k].y - rmax), y1 = (long)ceil(s[k].y + rmax);
-        for (long y = y0 < 1 ? 1 : y0; y <= y1 && y <= f->im.ny; y++)
-            for (long x = x0 < 1 ? 1 : x0; x <= x1 && x <= f->im.nx; x++) {
-                size_t i = (size_t)(y - 1) * (size_t)f->im.nx + (size_t)(x - 1);
-                double dx = (double)x - s[k].x, dy = (double)y - s[k].y, u = (dx * dx + dy * dy) / step;
-                size_t q = (size_t)u;
-                if (q + 1 >= nt || f->mask[i])
-                    continue;
-                clean[i] -= (float)(s[k].e * (tab[q] + (u - (double)q) * (tab[q + 1] - tab[q])));
-            }
-    }
-    free(tab);
+    for (size_t q = 0; q < t.n; q++)
+        t.v[q] = h_at(h, nb, rin, sqrt((double)q * t.step));
+    take_off(f, clean, NULL, NULL, s, ns, h, nb, rin, sig, &t);
+    free(t.v);
     return 0;
 }
 
@@ -358,7 +361,7 @@ static int subtract(mp_frame *f, float *res, const mp_pl_star *s, size_t ns, con
     size_t npix = (size_t)f->im.nx * (size_t)f->im.ny;
     if (!f->xvar && !(f->xvar = calloc(npix ? npix : 1, sizeof *f->xvar)))
         return 1;
-    *nlit = take_off(f, f->im.pix, res, f->xvar, s, ns, h, nb, rin, sig);
+    *nlit = take_off(f, f->im.pix, res, f->xvar, s, ns, h, nb, rin, sig, NULL);
     return 0;
 }
 

@@ -872,17 +872,6 @@ static int heldout_applies(const run_state *s)
            s->psf.order >= 1 && s->psf.order < MP_PSF_MAXORDER && s->np > 0;
 }
 
-/* A copy of e (its planes its own).  Nonzero when out of memory. */
-static int epsf_copy(const mp_epsf *e, mp_epsf *c)
-{
-    *c = *e;
-    size_t n = (size_t)e->nterms * (size_t)e->nx * (size_t)e->ny;
-    if (!(c->planes = malloc((n ? n : 1) * sizeof *c->planes)))
-        return 1;
-    memcpy(c->planes, e->planes, n * sizeof *c->planes);
-    return 0;
-}
-
 /* The two tables compared, both built from the final residual (so that
  * neither is favoured by cleaner data): [0] order k as it stands, [1]
  * order k + 1 from it (mp_epsf_opts.raise); their PSF stars, and each
@@ -1023,8 +1012,8 @@ static int heldout_order(run_state *s, char *err)
          * and the report says why */
         char e2[MP_ERRLEN];
         int failed =
-            (epsf_copy(&s->psf, &tp.e[0]) ? oom(e2) : pair_build(s, &tp, 0, path, e2)) ||
-            (epsf_copy(&tp.e[0], &tp.e[1]) ? oom(e2) : pair_build(s, &tp, 1, path, e2)) ||
+            (mp_epsf_copy(&s->psf, &tp.e[0]) ? oom(e2) : pair_build(s, &tp, 0, path, e2)) ||
+            (mp_epsf_copy(&tp.e[0], &tp.e[1]) ? oom(e2) : pair_build(s, &tp, 1, path, e2)) ||
             compare_on_held(s, sel, &tp, &h, e2);
         up = !failed && h.z < -MP_PL_HELDOUT_Z;
         if (failed)

@@ -120,6 +120,9 @@ typedef struct {
 
 void mp_epsf_free(mp_epsf *e);
 
+/* mp_epsf_copy: *c = e with planes of its own.  Nonzero when out of memory. */
+int mp_epsf_copy(const mp_epsf *e, mp_epsf *c);
+
 /* mp_epsf_terms: the polynomial terms of the order at (x, y). */
 void mp_epsf_terms(const mp_epsf *e, double x, double y, double *terms);
 

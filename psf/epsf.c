@@ -33,6 +33,16 @@ void mp_epsf_free(mp_epsf *e)
     memset(e, 0, sizeof *e);
 }
 
+int mp_epsf_copy(const mp_epsf *e, mp_epsf *c)
+{
+    *c = *e;
+    size_t n = (size_t)e->nterms * (size_t)e->nx * (size_t)e->ny;
+    if (!(c->planes = malloc((n ? n : 1) * sizeof *c->planes)))
+        return 1;
+    memcpy(c->planes, e->planes, n * sizeof *c->planes);
+    return 0;
+}
+
 void mp_epsf_terms(const mp_epsf *e, double x, double y, double *t)
 {
     /* PSFEx order, as mp_psf_field_terms: y power outer, x power inner. */

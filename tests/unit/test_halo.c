@@ -194,6 +194,17 @@ static void four_stars(mp_frame *f, float **res, mp_table *t, const double *x, c
     sf_fitted_table(t, x, y, es, SKY, NS);
 }
 
+/* The noise added to f's expected pixels, res their copy, and the halo
+ * measured (mp_pl_halo with fwhm 3: *z, *light, what). */
+static void halo_of_noisy(mp_frame *f, float *res, const mp_table *t, mp_rng *r, double *z,
+                          double *light, char *what)
+{
+    char err[MP_ERRLEN];
+    mp_sim_add_noise_float(r, f->im.pix, N * N, f->rdnoise);
+    memcpy(res, f->im.pix, N * N * sizeof *res);
+    assert_int_equal(mp_pl_halo(f, res, t, 3.0, z, light, what, MP_ERRLEN, err), 0);
+}
+
 /* The significance test where there is no halo: NF frames of sky + noise
  * alone around the same four stars (fluxes 1, 1.5, 2, 2.5 e7).  z should
  * be about N(0, 1): its mean within 4/√NF of 0 and its standard deviation
@@ -218,11 +229,9 @@ static void test_no_halo_not_taken_off(void **state)
     for (int n = 0; n < NF; n++) {
         for (long i = 0; i < N * N; i++)
             f.im.pix[i] = (float)SKY;
-        mp_sim_add_noise_float(&r, f.im.pix, N * N, f.rdnoise);
-        memcpy(res, f.im.pix, N * N * sizeof *res);
-        char what[MP_ERRLEN], err[MP_ERRLEN];
+        char what[MP_ERRLEN];
         double z, light = -1.0;
-        assert_int_equal(mp_pl_halo(&f, res, &t, 3.0, &z, &light, what, sizeof what, err), 0);
+        halo_of_noisy(&f, res, &t, &r, &z, &light, what);
         s1 += z;
         s2 += z * z;
         if (z > MP_PL_HALO_Z) {
@@ -291,11 +300,9 @@ static void test_lumpy_frame_no_halo(void **state)
                         (float)(a[q] * exp(-0.5 * (dx * dx + dy * dy) / (sg[q] * sg[q])));
                 }
         }
-        mp_sim_add_noise_float(&r, f.im.pix, N * N, f.rdnoise);
-        memcpy(res, f.im.pix, N * N * sizeof *res);
-        char what[MP_ERRLEN], err[MP_ERRLEN];
+        char what[MP_ERRLEN];
         double z, light;
-        assert_int_equal(mp_pl_halo(&f, res, &t, 3.0, &z, &light, what, sizeof what, err), 0);
+        halo_of_noisy(&f, res, &t, &r, &z, &light, what);
         formula += strstr(what, "shifted copies") != NULL;
         if (z > MP_PL_HALO_Z) {
             fired++;

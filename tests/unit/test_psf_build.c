@@ -147,16 +147,22 @@ static void truth_table(double grad, int cubic, double u, double rad, mp_psf *p)
     free(tab);
 }
 
-static mp_epsf_star *stars_of(const mp_frame *f, const tstar *ts, const mp_epsf_opts *o)
+/* The first n stars' starts: a little off, as find would give them. */
+static void starts_of(const tstar *ts, int n, double *x, double *y, double *fl)
 {
-    double x[NSTAR], y[NSTAR], fl[NSTAR], sk[NSTAR];
-    for (int k = 0; k < NSTAR; k++) {
-        /* Start a little off, as find would. */
+    for (int k = 0; k < n; k++) {
         x[k] = ts[k].x + 0.2;
         y[k] = ts[k].y - 0.15;
         fl[k] = ts[k].f;
-        sk[k] = SKY;
     }
+}
+
+static mp_epsf_star *stars_of(const mp_frame *f, const tstar *ts, const mp_epsf_opts *o)
+{
+    double x[NSTAR], y[NSTAR], fl[NSTAR], sk[NSTAR];
+    starts_of(ts, NSTAR, x, y, fl);
+    for (int k = 0; k < NSTAR; k++)
+        sk[k] = SKY;
     mp_epsf_star *s;
     char err[MP_ERRLEN];
     assert_int_equal(mp_epsf_cutouts(f, f->im.pix, x, y, fl, sk, NSTAR, o->psfrad, &s, err), 0);
@@ -457,11 +463,7 @@ static void test_quadratic_and_star_count(void **state)
     enum { NFEW = 24 };
     make_frame(12, grad, 0, rad, &f, ts);
     double x[NFEW], y[NFEW], fl[NFEW];
-    for (int k = 0; k < NFEW; k++) {
-        x[k] = ts[k].x + 0.2;
-        y[k] = ts[k].y - 0.15;
-        fl[k] = ts[k].f;
-    }
+    starts_of(ts, NFEW, x, y, fl);
     o.os = BOS;
     o.order = -1;
     mp_epsf_report rep;
@@ -510,11 +512,7 @@ static void test_symmetric_quadratic_seen(void **state)
     mp_epsf_free(&e);
     mp_epsf_stars_free(s, NSTAR);
     double x[NSTAR], y[NSTAR], fl[NSTAR];
-    for (int k = 0; k < NSTAR; k++) {
-        x[k] = ts[k].x + 0.2;
-        y[k] = ts[k].y - 0.15;
-        fl[k] = ts[k].f;
-    }
+    starts_of(ts, NSTAR, x, y, fl);
     o.os = BOS;
     o.order = -1;
     mp_epsf_report rep;
