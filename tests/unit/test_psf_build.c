@@ -147,6 +147,17 @@ static void truth_table(double grad, int cubic, double u, double rad, mp_psf *p)
     free(tab);
 }
 
+/* The build's options on these frames: the defaults for FWHM 2.6 px on
+ * NX², psfrad rad, fitrad 4 px. */
+static mp_epsf_opts test_opts(double rad)
+{
+    mp_epsf_opts o;
+    mp_epsf_opts_default(2.6, NX, NX, &o);
+    o.psfrad = rad;
+    o.fitrad = 4.0;
+    return o;
+}
+
 /* The first n stars' starts: a little off, as find would give them. */
 static void starts_of(const tstar *ts, int n, double *x, double *y, double *fl)
 {
@@ -221,10 +232,7 @@ static void test_recovers_constant_table(void **state)
     mp_frame f;
     tstar ts[NSTAR];
     make_frame(11, 0.0, 0, rad, &f, ts);
-    mp_epsf_opts o;
-    mp_epsf_opts_default(2.6, NX, NX, &o);
-    o.psfrad = rad;
-    o.fitrad = 4.0;
+    mp_epsf_opts o = test_opts(rad);
     mp_epsf_star *s = stars_of(&f, ts, &o);
     mp_epsf e;
     memset(&e, 0, sizeof e);
@@ -287,10 +295,7 @@ static void test_linear_variation(void **state)
     mp_frame f;
     tstar ts[NSTAR];
     make_frame(12, grad, 0, rad, &f, ts);
-    mp_epsf_opts o;
-    mp_epsf_opts_default(2.6, NX, NX, &o);
-    o.psfrad = rad;
-    o.fitrad = 4.0;
+    mp_epsf_opts o = test_opts(rad);
     mp_epsf_star *s = stars_of(&f, ts, &o);
     mp_epsf e;
     memset(&e, 0, sizeof e);
@@ -376,10 +381,7 @@ static void test_cubic_variation(void **state)
     mp_frame f;
     tstar ts[NSTAR];
     make_frame(17, grad, 1, rad, &f, ts);
-    mp_epsf_opts o;
-    mp_epsf_opts_default(2.6, NX, NX, &o);
-    o.psfrad = rad;
-    o.fitrad = 4.0;
+    mp_epsf_opts o = test_opts(rad);
     mp_epsf_star *s = stars_of(&f, ts, &o);
     mp_epsf e;
     memset(&e, 0, sizeof e);
@@ -439,10 +441,7 @@ static void test_quadratic_and_star_count(void **state)
     mp_frame f;
     tstar ts[NSTAR];
     make_frame(18, grad, 2, rad, &f, ts);
-    mp_epsf_opts o;
-    mp_epsf_opts_default(2.6, NX, NX, &o);
-    o.psfrad = rad;
-    o.fitrad = 4.0;
+    mp_epsf_opts o = test_opts(rad);
     mp_epsf_star *s = stars_of(&f, ts, &o);
     mp_epsf e;
     memset(&e, 0, sizeof e);
@@ -492,10 +491,7 @@ static void test_symmetric_quadratic_seen(void **state)
     mp_frame f;
     tstar ts[NSTAR];
     make_frame(18, grad, 2, rad, &f, ts);
-    mp_epsf_opts o;
-    mp_epsf_opts_default(2.6, NX, NX, &o);
-    o.psfrad = rad;
-    o.fitrad = 4.0;
+    mp_epsf_opts o = test_opts(rad);
     mp_epsf_star *s = stars_of(&f, ts, &o);
     mp_epsf e;
     memset(&e, 0, sizeof e);
@@ -920,11 +916,8 @@ static void growth_matches_fluxes(const char *what, uint64_t seed, double psfrad
     mp_frame f;
     tstar ts[NSTAR];
     make_frame(seed, 0.0, 0, 10.0, &f, ts);
-    mp_epsf_opts o;
-    mp_epsf_opts_default(2.6, NX, NX, &o);
-    o.psfrad = psfrad;
+    mp_epsf_opts o = test_opts(psfrad);
     o.support = support;
-    o.fitrad = 4.0;
     mp_epsf_star *s = stars_of(&f, ts, &o);
     mp_epsf e;
     memset(&e, 0, sizeof e);
@@ -989,10 +982,7 @@ static void test_faint_neighbours_masked(void **state)
     tstar ts[NSTAR], cs[NSTAR];
     make_frame(16, 0.0, 0, rad, &f, ts);
     add_companions(17, rad, 5.5, 0.03, 0.08, &f, ts, cs);
-    mp_epsf_opts o;
-    mp_epsf_opts_default(2.6, NX, NX, &o);
-    o.psfrad = rad;
-    o.fitrad = 4.0;
+    mp_epsf_opts o = test_opts(rad);
     mp_psf truth, built;
     memset(&built, 0, sizeof built);
     truth_table(0.0, 0, 0.0, rad, &truth);
