@@ -91,6 +91,7 @@ static void group_free(group *G)
     free(G->M);
     free(G->step);
     free(G->psave);
+    free(G->sx);
     mp_prf_work_free(&G->work);
 }
 
@@ -213,7 +214,8 @@ static int alloc_stars(group *G)
     G->g = malloc(np * sizeof *G->g);
     G->step = malloc(np * sizeof *G->step);
     G->psave = malloc(np * sizeof *G->psave);
-    return !G->psave || !G->scr || !G->ongrid || !G->dwhole || !G->settled || !G->moved || !G->calm || !G->stail || !G->fx || !G->fy || !G->cx0 || !G->cx1 || !G->cy0 || !G->cy1 || !G->p || !G->pt || !G->A || !G->M || !G->g || !G->step;
+    G->sx = malloc(np * sizeof *G->sx);
+    return !G->psave || !G->sx || !G->scr || !G->ongrid || !G->dwhole || !G->settled || !G->moved || !G->calm || !G->stail || !G->fx || !G->fy || !G->cx0 || !G->cx1 || !G->cy0 || !G->cy1 || !G->p || !G->pt || !G->A || !G->M || !G->g || !G->step;
 }
 
 /* The data's range over the fitted pixels and the largest flux a star may

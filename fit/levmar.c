@@ -170,18 +170,30 @@ static double dispersion(const group *G, double D)
     return dof > 0 && D / dof > 1.0 ? D / dof : 1.0;
 }
 
-/* Overshoot (issue 12).  At χ²/dof ≫ 1 the expected Hessian JᵀV⁻¹J can
- * under-state D's curvature along a step (47 Tuc, PSF built from the
- * frame: a 5500 e⁻ star's y in a group of 48 stepped ±0.3 px for 25
- * iterations, each step 1.9× the distance to the minimum, D falling a
- * little every time, so LM never damped it).  D along the step,
+/* The step's length along its direction (issue 12).  D along the step,
  * D(α) ≈ D − 2α gᵀδ + c α² (−2g is D's gradient, exact), with c from D at
  * the step's end, puts its minimum at α = gᵀδ / c: 1 when the Hessian is
- * right.  When that is below LM_OVERSHOOT the step α·δ is tried and kept
- * when it lowers D further (one more render, against the iterations of a
- * slow 2-cycle).  *Dt, *z and G->step follow the step kept; the trial
- * buffers hold its render.  Nonzero when out of memory. */
+ * right.
+ * - Overshoot: at χ²/dof ≫ 1 the expected Hessian JᵀV⁻¹J can under-state
+ *   D's curvature (47 Tuc, PSF built from the frame: a 5500 e⁻ star's y in
+ *   a group of 48 stepped ±0.3 px for 25 iterations, each step 1.9× the
+ *   distance to the minimum, D falling a little every time, so LM never
+ *   damped it).  Below LM_OVERSHOOT the step α·δ is tried.
+ * - Undershoot: a star far from where it starts (a detection 1-3 px off,
+ *   the pair it was half of) walks there in short steps, the linearised
+ *   model seeing little of the light it moves to (47 Tuc built: the LM
+ *   loops in which a star moved more than 1 px were half the big groups'
+ *   star-iterations, 18 a loop; a star 3 px off in 0.15 px steps for 30
+ *   iterations, D falling by 20 each).  Above LM_UNDERSHOOT (or where D
+ *   has no minimum along δ) a step at most LM_LONGEST times δ is tried,
+ *   when it stays within bound_step's limits.
+ * Either is kept when it lowers D further (one more render, against
+ * iterations); *Dt, *z and G->step follow the step kept, and the trial
+ * buffers hold its render.  The fit's end is the same test on the same
+ * estimating equation: only the way there changes. */
 #define LM_OVERSHOOT 0.75
+#define LM_UNDERSHOOT 1.5
+#define LM_LONGEST 4.0
 
 /* The trial's model and the current one trade places (mod, modt). */
 static void swap_models(group *G)
@@ -209,25 +221,46 @@ static int render_trial(group *G, double alpha, double *Dt)
     return 0;
 }
 
-static int shorten_overshoot(group *G, double D, double *Dt, double *z)
+/* The step α·δ tried (step_length): kept when it lowers D below *Dt,
+ * else δ again, rendered.  A longer step that bound_step would cut is not
+ * tried.  Nonzero when out of memory. */
+static int try_length(group *G, double alpha, double *Dt, double *z)
 {
-    double gd = 0.0, Ds;
-    for (int a = 0; a < G->np; a++)
-        gd += G->g[a] * G->step[a];
-    double c = *Dt - D + 2.0 * gd, alpha = gd > 0 && c > 0 ? gd / c : 1.0;
-    if (!(alpha < LM_OVERSHOOT))
+    int np = G->np;
+    double Ds;
+    memcpy(G->sx, G->step, (size_t)np * sizeof *G->sx);
+    for (int a = 0; a < np; a++)
+        G->step[a] *= alpha;
+    if (alpha > 1.0 && bound_step(G)) {
+        memcpy(G->step, G->sx, (size_t)np * sizeof *G->step);
         return 0;
-    if (render_trial(G, alpha, &Ds))
+    }
+    if (render_trial(G, 1.0, &Ds))
         return 1;
     if (Ds < *Dt) {
-        for (int a = 0; a < G->np; a++)
-            G->step[a] *= alpha;
         *Dt = Ds;
         *z *= alpha;
         return 0;
     }
-    double Dfull;
-    return render_trial(G, 1.0, &Dfull);
+    memcpy(G->step, G->sx, (size_t)np * sizeof *G->step);
+    return render_trial(G, 1.0, &Ds);
+}
+
+/* The step δ, taken (D at its end *Dt), shortened or lengthened by D's
+ * parabola along it (above); not lengthened when bound_step cut it (z
+ * infinite).  Nonzero when out of memory. */
+static int step_length(group *G, double D, double *Dt, double *z)
+{
+    double gd = 0.0;
+    for (int a = 0; a < G->np; a++)
+        gd += G->g[a] * G->step[a];
+    double c = *Dt - D + 2.0 * gd;
+    double alpha = !(gd > 0) ? 1.0 : c > 0 ? gd / c : LM_LONGEST;
+    if (alpha < LM_OVERSHOOT)
+        return try_length(G, alpha, Dt, z);
+    if (alpha > LM_UNDERSHOOT && isfinite(*z))
+        return try_length(G, fmin(alpha, LM_LONGEST), Dt, z);
+    return 0;
 }
 
 /* Whether the step LM would take from G->p at λ is below tol·σ·√φ in
@@ -471,7 +504,7 @@ static int lm_iterate(group *G, const mp_fit_opts *o, lm_state *s, int *converge
         return LM_NOMEM;
     if (!(Dt < s->D))
         return step_refused(G, s, converged);
-    if (shorten_overshoot(G, s->D, &Dt, &z))
+    if (step_length(G, s->D, &Dt, &z))
         return LM_NOMEM;
     s->it++;
     s->since++;

@@ -78,6 +78,8 @@ typedef struct {
                                  * (levmar.c, LM_SKY_STALL) */
     int paired;                 /* the last loop brought two stars within
                                  * o->stop_pair (levmar.c) */
+    double *sx;                 /* npmax: the step while a longer or shorter
+                                 * one is tried (levmar.c, step_length) */
     double *psave;              /* npmax: a converged state kept while a
                                  * higher sky order is tried */
     double *fx, *fy;            /* n each */

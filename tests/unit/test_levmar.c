@@ -786,9 +786,12 @@ static void test_unfitted_star_rejected(void **state)
 /* A blend that is one star (2·10⁴ e⁻, FWHM 3, RON 3, sky 100), started as
  * two of 10⁴ e⁻ 0.9 px apart: the fit crawls along the pair's degenerate
  * direction.  With stop_pair 1.2 px (0.4 FWHM, the frame fit's merge
- * radius) the loop ends, flagged not converged, at its LM_PAIR_AFTER-th
- * (10th) step with the two stars still within it; without, it goes on past
- * it.  Eight seeds, deterministic. */
+ * radius) the loop ends, flagged not converged, at a step from its
+ * LM_PAIR_AFTER-th (10th) on with the two stars still within it; a fit
+ * whose pair parts beyond it before then is the fit without stop_pair,
+ * step for step.  Eight seeds, deterministic: at least six end at the 10th
+ * step (seven do; the one that does not converges at its 13th with the
+ * pair 1.7 px apart). */
 static void test_close_pair_ends_loop(void **state)
 {
     (void)state;
@@ -799,6 +802,7 @@ static void test_close_pair_ends_loop(void **state)
     mp_sim_prf sp = {.kind = MP_SIM_GAUSS, .sigma = fwhm_to_sigma(3.0), .volume = 1.0};
     mp_frame f;
     frame_make(&f, NP, 3.0);
+    int at10 = 0;
     for (int seed = 1; seed <= 8; seed++) {
         mp_rng r;
         mp_rng_seed(&r, 900 + (uint64_t)seed);
@@ -807,26 +811,30 @@ static void test_close_pair_ends_loop(void **state)
             f.im.pix[i] = 100.0;
         assert_int_equal(mp_sim_add_star_float(&sp, x, y, 2e4, f.im.pix, NP, NP), 0);
         mp_sim_add_noise_float(&r, f.im.pix, NP * NP, 3.0);
+        mp_star s[2][2];
         for (int stop = 0; stop < 2; stop++) {
             mp_fit_opts o;
             mp_fit_opts_default(&o);
             o.fitrad = 5.0;
             o.sky_order = 0;
             o.stop_pair = stop ? 1.2 : 0.0;
-            mp_star s[2] = {{.x = x - 0.45, .y = y, .flux = 1e4, .sky = 100.0},
-                            {.x = x + 0.45, .y = y + 0.1, .flux = 1e4, .sky = 100.0}};
+            mp_star *p = s[stop];
+            p[0] = (mp_star){.x = x - 0.45, .y = y, .flux = 1e4, .sky = 100.0};
+            p[1] = (mp_star){.x = x + 0.45, .y = y + 0.1, .flux = 1e4, .sky = 100.0};
             char err[MP_ERRLEN];
-            assert_int_equal(mp_fit_group(&f, &m, &o, NAN, s, 2, err), 0);
-            double d = hypot(s[0].x - s[1].x, s[0].y - s[1].y);
-            if (stop) {
-                assert_int_equal(s[0].niter, 10);
-                assert_true(s[0].flags & MP_FLAG_NOCONV);
-                assert_true(d < 1.2);
-            } else {
-                assert_true(s[0].niter > 10);
-            }
+            assert_int_equal(mp_fit_group(&f, &m, &o, NAN, p, 2, err), 0);
+        }
+        double d = hypot(s[1][0].x - s[1][1].x, s[1][0].y - s[1][1].y);
+        if (s[1][0].flags & MP_FLAG_NOCONV) {
+            assert_true(s[1][0].niter >= 10 && s[1][0].niter < s[0][0].niter);
+            assert_true(d < 1.2);
+            at10 += s[1][0].niter == 10;
+        } else {
+            assert_int_equal(s[1][0].niter, s[0][0].niter);
+            assert_true(s[1][0].x == s[0][0].x && s[1][1].y == s[0][1].y);
         }
     }
+    assert_true(at10 >= 6);
     frame_drop(&f);
 }
 
