@@ -3,58 +3,10 @@
  * practice, anchors.md §1.1), then the catalog.  mp_pipeline_run reads as
  * its list of steps; each step is a function of the run's state below. */
 #include <math.h>
-#include <stdarg.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
-#include "pipeline/pipeline_priv.h"
-
-/* Everything one run of one frame holds. */
-typedef struct {
-    const char *image, *root;
-    const mp_pipeline_opts *o;
-    mp_pipeline_report *rep;
-    mp_frame f;
-    mp_bkg bkg;
-    mp_table t;        /* the stars: found, then fitted, round by round */
-    mp_table found;    /* detections on the residual, this round */
-    mp_table gone;     /* where merged or rejected stars were */
-    mp_table before;   /* NUMBER and position of every row given to the fit */
-    float *res;        /* residual [e-], nx*ny, single precision as the frame */
-    mp_fit_memory *mem;   /* what every group was fitted against, so a round
-                           * refits only the groups new stars reach */
-    double fwhm;
-    const mp_fit_setup *fit;   /* the fit's setup: the task's, or own */
-    mp_fit_setup own;     /* set up from root.psf.fits when the PSF is built */
-    mp_fit_setup local;   /* own read at frame positions (a section: mp_pl_psf_on) */
-    int have_own;
-    long offx, offy;      /* the frame pixel of this image's (1, 1), less 1 */
-    long fnx, fny;        /* the whole frame's size (0: this image is the frame) */
-    mp_epsf psf;          /* the PSF built from the frame (build_psf) */
-    double *px, *py, *pf; /* its stars */
-    size_t np;
-    double tabrad;        /* its table's radius [px], measured in pass 1
-                           * with tablerad=INDEF (0: the option's) */
-    double tabsupport;    /* the reach measured when short of tabrad (the
-                           * table zero beyond it), else 0 */
-    char tabwhy[480];     /* how (mp_epsf_rad.why), for the run report */
-    int quiet;            /* mp_pipeline_reduce: no stderr lines, no files */
-    int own_frame;        /* f read here, so the halo may be taken off it */
-    int borrowed;         /* f is the caller's (mp_pipeline_reduce): its mask
-                           * stays as given */
-    int psf_pass;         /* the built PSF's last pass (0: none built) */
-    int last_partial;     /* the last group_and_fit took one pass of several */
-    double halo_light;    /* the light per e- the halo took off every star
-                           * (mp_pl_halo), which the PSF's PSFSUM counts */
-    const mp_prf_cache *grid;  /* the phase grid the last fit drew from */
-    double win;           /* the window side economy priced the last fit on */
-} run_state;
-
-static int oom(char *err)
-{
-    snprintf(err, MP_ERRLEN, "out of memory");
-    return 1;
-}
+#include "pipeline/run_state.h"
 
 static int state_init(run_state *s, const char *image, const char *root,
                       const mp_pipeline_opts *o, mp_pipeline_report *rep, char *err)
@@ -210,7 +162,7 @@ static void count_fit(mp_pipeline_report *rep, const mp_frame_report *fr, size_t
  * s a round against the fit's 37; after the PSF's second pass, with no
  * fit yet on the new table, the 256² crop's search 0.24 → 1.32 s). */
 
-static const mp_prf_cache *phase_grid(run_state *s, double *gemax)
+const mp_prf_cache *mp_run_phase_grid(run_state *s, double *gemax)
 {
     char err[MP_ERRLEN];         /* a failed build leaves the exact renders */
     *gemax = 0.0;
@@ -240,7 +192,7 @@ static const mp_prf_cache *phase_grid(run_state *s, double *gemax)
  * what this one's second would have, with the new stars' groups.  47 Tuc
  * 512² built: group fits 740 / 493 / 391 → 375 / 254 / 435 by round, ~10 %
  * of the run's CPU (psfreal_notes.md, session 41). */
-static int group_and_fit(run_state *s, int round, int once, char *err)
+int mp_run_group_and_fit(run_state *s, int round, int once, char *err)
 {
     const mp_pipeline_opts *o = s->o;
     double t0 = mp_seconds();
@@ -273,7 +225,7 @@ static int group_and_fit(run_state *s, int round, int once, char *err)
     mp_table_free(&s->before);   /* not held through the residual (issue 14) */
     mp_table_init(&s->before);
     double gemax;
-    const mp_prf_cache *grid = phase_grid(s, &gemax);
+    const mp_prf_cache *grid = mp_run_phase_grid(s, &gemax);
     if (mp_fit_residual_grid(&s->f, &s->fit->model, &s->t, s->fit->opts.cropfrac, grid, gemax,
                              s->res, err))
         return 1;
@@ -401,7 +353,7 @@ static int find_on_residual(run_state *s, int round, long *added, char *err)
         mp_pl_star_excess(&s->f, &s->bkg, &s->t, &s->fit->model, &nz.nring, &nz.nexcess, err))
         return 1;
     double gemax;
-    const mp_prf_cache *grid = phase_grid(s, &gemax);
+    const mp_prf_cache *grid = mp_run_phase_grid(s, &gemax);
     if (residual_detections(s, &R, grid, gemax, err) || split_and_add(s, grid, gemax, added, err))
         return 1;
     s->rep->added += *added;
@@ -451,225 +403,6 @@ static int write_products(run_state *s, char *err)
     return mp_pl_write_report(s->image, s->root, s->fit, s->rep, &s->t, err);
 }
 
-/* The PSF's stars, picked from the first detections (psf/build.h). */
-static int psf_stars(run_state *s, char *err)
-{
-    size_t *idx = malloc((size_t)(s->o->psfb.maxnpsf + 1) * sizeof *idx);
-    if (!idx)
-        return oom(err);
-    mp_epsf_opts po = s->o->psfb;
-    int rc = mp_epsf_select(&s->f, &s->t, &po, idx, &s->np, err);
-    if (!rc && s->np == 0) {
-        free(idx);
-        return 0;
-    }
-    if (!rc) {
-        s->px = malloc(s->np * sizeof *s->px);
-        s->py = malloc(s->np * sizeof *s->py);
-        s->pf = malloc(s->np * sizeof *s->pf);
-        if (!s->px || !s->py || !s->pf)
-            rc = oom(err);
-    }
-    int cx = mp_table_col(&s->t, "X_IMAGE"), cy = mp_table_col(&s->t, "Y_IMAGE");
-    int cf = mp_table_col(&s->t, "FLUX");
-    for (size_t k = 0; !rc && k < s->np; k++) {
-        s->px[k] = mp_table_get(&s->t, idx[k], cx);
-        s->py[k] = mp_table_get(&s->t, idx[k], cy);
-        s->pf[k] = cf >= 0 ? mp_table_get(&s->t, idx[k], cf) : NAN;
-    }
-    free(idx);
-    return rc;
-}
-
-/* tablerad=INDEF: the table's radius measured on the PSF stars and the
- * bright ones (pipeline/tablerad.c), said on stderr; kept for pass 2. */
-static int table_radius(run_state *s, char *err)
-{
-    if (!s->o->tablerad_auto || s->np == 0)
-        return 0;
-    mp_epsf_rad r;
-    if (mp_pl_tablerad(&s->f, &s->t, s->px, s->py, s->pf, s->np, &s->o->psfb, &r, err))
-        return 1;
-    s->tabrad = r.rad;
-    /* Short of the floor, the table is zero past what was measured, and
-     * ends a pixel later (what a shift and a block sum reach past it);
-     * the floor's extra rings would hold zeros only. */
-    s->tabsupport = r.reach > 0 && r.reach < r.rad ? r.reach : 0.0;
-    int l = snprintf(s->tabwhy, sizeof s->tabwhy, "%s", r.why);
-    if (s->tabsupport > 0) {
-        s->tabrad = ceil(s->tabsupport) + 1.0;
-        if (l > 0 && (size_t)l < sizeof s->tabwhy)
-            snprintf(s->tabwhy + l, sizeof s->tabwhy - (size_t)l,
-                     "; zero beyond %.0f px, its light in PSFSUM, so %.0f px", s->tabsupport,
-                     s->tabrad);
-    }
-    if (!s->quiet)
-        fprintf(stderr, "matphot pipeline: %s: %s\n", s->image, s->tabwhy);
-    return 0;
-}
-
-/* A PSF built here (e) written to path, it and its PSF stars used[0..np)
- * in frame coordinates (the field's origin; used itself stays in this
- * image's).  Nonzero with err on failure. */
-static int write_psf_file(run_state *s, const mp_epsf *e, const mp_psf_star *used,
-                          const char *path, char *err)
-{
-    mp_psf_star *inf = malloc((s->np + 1) * sizeof *inf);
-    if (!inf)
-        return oom(err);
-    for (size_t k = 0; k < s->np; k++) {
-        inf[k] = used[k];
-        inf[k].x += (double)s->offx;
-        inf[k].y += (double)s->offy;
-    }
-    mp_psf_field fld;
-    mp_epsf inframe = *e;
-    inframe.x0 += (double)s->offx;
-    inframe.y0 += (double)s->offy;
-    int rc = mp_epsf_field(&inframe, &fld, err);
-    if (!rc) {
-        rc = mp_psf_field_write(path, &fld, inf, (int)s->np, err);
-        mp_psf_field_free(&fld);
-    }
-    free(inf);
-    return rc;
-}
-
-/* A decision of the run's own (the PSF it built, its order), as printf
- * would format it, added to the report's economy decisions: on the setup
- * it adopted, and on the view the fit reads when the PSF varies
- * (mp_fit_setup_local copies them at adoption). */
-static void note_decision(run_state *s, const char *fmt, ...)
-{
-    size_t l = strlen(s->own.decisions);
-    if (l && l + 2 < sizeof s->own.decisions)
-        strcat(s->own.decisions, "; "), l += 2;
-    va_list ap;
-    va_start(ap, fmt);
-    vsnprintf(s->own.decisions + l, sizeof s->own.decisions - l, fmt, ap);
-    va_end(ap);
-    s->own.ndecisions++;
-    if (s->fit == &s->local) {
-        memcpy(s->local.decisions, s->own.decisions, sizeof s->local.decisions);
-        s->local.ndecisions = s->own.ndecisions;
-    }
-}
-
-/* The fit set up as `fit psf=PATH` sets it up (economy's decisions
- * measured on this table) and taken as the run's; psf is then empty
- * again for the next image.  Nonzero with err on failure. */
-static int adopt_psf(run_state *s, const char *path, char *err)
-{
-    const mp_pipeline_opts *o = s->o;
-    if (s->have_own) {
-        mp_fit_setup_free(&s->own);
-        s->have_own = 0;
-        s->grid = NULL;         /* it was the freed setup's */
-    }
-    int rc = mp_params_set(o->ps, "psf", path, err);
-    if (!rc) {
-        rc = mp_fit_setup_read(o->ps, &s->own, err);
-        if (!rc && !o->groupcut_median)
-            mp_pl_group_decision(&s->own, o->couplebudget);
-        s->have_own = !rc;
-        char e3[MP_ERRLEN];
-        mp_params_set(o->ps, "psf", "", e3);
-    }
-    if (!rc) {
-        s->fit = mp_fit_setup_local(&s->own, (double)s->offx, (double)s->offy, &s->local);
-        s->fwhm = mp_prf_fwhm(&s->own.model);
-        mp_fit_memory_forget(s->mem);
-    }
-    return rc;
-}
-
-/* A table built on a frame the halo was taken off (pass 2) holds a
- * star's light less E·H (H = s->halo_light per e-); its growth curve
- * measured the light beyond it without the halo too.  So that fluxes stay
- * total, its PSFSUM S (core over core and the rest) becomes 1/(1/S + H):
- * E·H more light a star for E·S in the table.  Without it every flux came
- * out H low (the segmented scene: 0.8 %, its flux errors 1.66 of the
- * bound against 1.04 without halo=yes). */
-static void count_halo_light(const run_state *s, mp_epsf *e, mp_epsf_report *rep,
-                             mp_psf_star *used)
-{
-    double H = s->halo_light, S = e->sum;
-    if (!(H > 0) || !(S > 0))
-        return;
-    double S2 = 1.0 / (1.0 / S + H);
-    e->sum_err *= (S2 / S) * (S2 / S);
-    e->sum = S2;
-    for (size_t k = 0; used && k < s->np; k++)
-        used[k].flux *= S / S2;     /* total fluxes: over PSFSUM */
-    size_t l = strlen(rep->what);
-    snprintf(rep->what + l, sizeof rep->what - l, "; PSFSUM %.4f with the halo's light "
-             "(%.4f per e- taken off)", S2, H);
-}
-
-/* The build's options for this frame: the pipeline's, with the
- * polynomial's origin and scales the whole frame's, in this image's pixels
- * (a section's: mp_pl_psf_on), and the measured table radius. */
-static mp_epsf_opts pass_opts(const run_state *s)
-{
-    mp_epsf_opts po = s->o->psfb;
-    long nx = s->fnx ? s->fnx : s->f.im.nx, ny = s->fny ? s->fny : s->f.im.ny;
-    po.x0 = 0.5 * (double)(nx + 1) - (double)s->offx;
-    po.y0 = 0.5 * (double)(ny + 1) - (double)s->offy;
-    po.xs = nx > 1 ? 0.5 * (double)nx : 1.0;
-    po.ys = ny > 1 ? 0.5 * (double)ny : 1.0;
-    if (s->tabrad > 0)
-        po.psfrad = s->tabrad;
-    po.support = s->tabsupport;
-    return po;
-}
-
-/* Build (pass 1: the frame as it is) or rebuild (pass 2: every fitted
- * star but the PSF stars' own subtracted) the PSF, write root.psf.fits,
- * and set the fit up from it as `fit psf=root.psf.fits` would be; every
- * group is then fitted afresh. */
-static int build_psf(run_state *s, int pass, char *err)
-{
-    double t0 = mp_seconds();
-    if (pass == 1 && (psf_stars(s, err) || table_radius(s, err)))
-        return 1;
-    mp_epsf_opts po = pass_opts(s);
-    /* A frame with no star fit to shape a PSF (an empty or tiny frame, a
-     * crowd of saturated stars) is still reduced: with the Gaussian of
-     * fwhm, as psf=gauss, said on stderr and in the report. */
-    if (s->np == 0) {
-        if (pass == 1 && s->t.nrow > 0)
-            fprintf(stderr, "matphot pipeline: %s: warning: no usable PSF star among %zu "
-                    "detections; fitting with the Gaussian of fwhm (psf=gauss)\n", s->image,
-                    s->t.nrow);
-        return 0;
-    }
-    mp_epsf_report rep;
-    memset(&rep, 0, sizeof rep);
-    char e2[MP_ERRLEN];
-    mp_psf_star *used = NULL;        /* the file's PSFSTARS */
-    if (mp_epsf_pass(&s->f, pass == 1 ? s->f.im.pix : s->res, pass > 1, &s->t, &s->fit->model,
-                     s->px, s->py, s->pf, s->np, &po, &s->psf, &rep, &used, e2)) {
-        snprintf(err, MP_ERRLEN, "%s: PSF: %.400s", s->image, e2);
-        return 1;
-    }
-    if (pass > 1)
-        count_halo_light(s, &s->psf, &rep, used);
-    char *path = mp_name_after(s->root, ".psf.fits");
-    int rc = !path ? oom(err)
-                   : write_psf_file(s, &s->psf, used, path, err) || adopt_psf(s, path, err);
-    if (!rc) {
-        s->psf_pass = pass;
-        note_decision(s, "PSF built from the frame (pass %d, %s): %s%s%s", pass, path, s->tabwhy,
-                      s->tabwhy[0] ? "; " : "", rep.what);
-        fprintf(stderr, "matphot pipeline: %s: PSF pass %d: %s, %.2f s\n", s->image, pass, rep.what,
-                mp_seconds() - t0);
-    }
-    s->rep->t_fit += mp_seconds() - t0;
-    free(used);
-    free(path);
-    return rc;
-}
-
 /* The bright stars' light beyond the table (halo=yes, pipeline/halo.c),
  * measured on the first round's residual and taken off the frame; every
  * group is then fitted afresh (after the PSF's second pass when the PSF is
@@ -686,7 +419,7 @@ static int take_halo(run_state *s, char *err)
         return 0;                       /* nothing taken off: the fit stands */
     mp_fit_memory_forget(s->mem);
     s->rep->t_fit += mp_seconds() - t0;
-    return s->o->build_psf ? 0 : group_and_fit(s, 1, 0, err);
+    return s->o->build_psf ? 0 : mp_run_group_and_fit(s, 1, 0, err);
 }
 
 /* Cosmic rays and hot pixels (crmask=yes, pipeline/cosmics.c): the pixels
@@ -765,7 +498,7 @@ static int take_lookup(run_state *s, char *err)
         fprintf(stderr, "matphot pipeline: %s: %s, %.2f s\n", s->image, what, mp_seconds() - t0);
     mp_fit_memory_forget(s->mem);
     s->rep->t_fit += mp_seconds() - t0;
-    return group_and_fit(s, 1, 0, err);
+    return mp_run_group_and_fit(s, 1, 0, err);
 }
 
 /* The residual drawn again from the table's fitted stars with the model
@@ -781,7 +514,7 @@ static int redraw_residual(run_state *s, double sum1, char *err)
     if (cf >= 0 && sum1 > 0 && s->psf.sum > 0 && s->psf.sum != sum1)
         for (size_t r = 0; r < s->t.nrow; r++)
             mp_table_set(&s->t, r, cf, mp_table_get(&s->t, r, cf) * sum1 / s->psf.sum);
-    const mp_prf_cache *grid = phase_grid(s, &gemax);
+    const mp_prf_cache *grid = mp_run_phase_grid(s, &gemax);
     s->grid = grid;             /* the residual search's, as a fit's would be */
     int rc = mp_fit_residual_grid(&s->f, &s->fit->model, &s->t, s->fit->opts.cropfrac, grid,
                                   gemax, s->res, err);
@@ -822,11 +555,11 @@ static int rounds(run_state *s, char *err)
     for (int round = 1; !rc && round <= o->niter; round++) {
         s->rep->rounds = round;
         long added = 0;
-        rc = group_and_fit(s, round, round < o->niter || s->psf_pass == 1, err);
+        rc = mp_run_group_and_fit(s, round, round < o->niter || s->psf_pass == 1, err);
         if (!rc && round == 1)
             rc = mask_cosmics(s, err);
         if (!rc && round == 1 && s->rep->cr_masked > 0 && o->niter == 1 && !o->build_psf)
-            rc = group_and_fit(s, round, 0, err);    /* no later fit to take them */
+            rc = mp_run_group_and_fit(s, round, 0, err);    /* no later fit to take them */
         if (!rc && round == 1 && o->halo && s->own_frame)
             rc = take_halo(s, err);
         /* DAOPHOT's second pass: the PSF again with every neighbour gone;
@@ -834,10 +567,10 @@ static int rounds(run_state *s, char *err)
         int stale = 0;
         if (!rc && round == 1 && o->build_psf) {
             double sum1 = s->psf.sum;
-            rc = build_psf(s, 2, err);
+            rc = mp_run_build_psf(s, 2, err);
             stale = !rc && !refit_after_second_pass(s, round);
             if (!rc)
-                rc = stale ? redraw_residual(s, sum1, err) : group_and_fit(s, round, 0, err);
+                rc = stale ? redraw_residual(s, sum1, err) : mp_run_group_and_fit(s, round, 0, err);
         }
         if (!rc && round == 1 && o->lookup && s->own_frame)
             rc = take_lookup(s, err);
@@ -846,200 +579,10 @@ static int rounds(run_state *s, char *err)
         rc = find_on_residual(s, round, &added, err);
         /* No next round: the last PSF, all passes. */
         if (!rc && added == 0 && (stale || s->last_partial))
-            rc = group_and_fit(s, round, 0, err);
+            rc = mp_run_group_and_fit(s, round, 0, err);
         if (added == 0)
             break;           /* nothing new: the last fit and residual stand */
     }
-    return rc;
-}
-
-/* ---- varorder=auto's last step: the next order judged by held-out stars */
-
-/* Whether the held-out test runs: the PSF built here at varorder=auto, in
- * its second pass, found variable by the residual test (order ≥ 1).  It
- * does not decide whether the PSF varies at all: its frame is the data
- * less every other star's model, and where the crowding changes across
- * the frame (47 Tuc's crop, the cluster's centre off it) the misfit of
- * that model does too, which a table varying with position takes up
- * (psfbuild_notes.md, session 39: it raised 47 Tuc to order 2 and worsened
- * every star's fit).  The residual test, calibrated by its permuted null,
- * decides that; once the PSF varies, the held-out stars judge whether the
- * next order's shape is the PSF's. */
-static int heldout_applies(const run_state *s)
-{
-    const mp_pipeline_opts *o = s->o;
-    return o->build_psf && o->psfb.order < 0 && !s->borrowed && s->psf_pass == 2 &&
-           s->psf.order >= 1 && s->psf.order < MP_PSF_MAXORDER && s->np > 0;
-}
-
-/* The two tables compared, both built from the final residual (so that
- * neither is favoured by cleaner data): [0] order k as it stands, [1]
- * order k + 1 from it (mp_epsf_opts.raise); their PSF stars, and each
- * written to its temporary file. */
-typedef struct {
-    mp_epsf e[2];
-    mp_psf_star *used[2];
-    char *path[2];
-    char what[2][512];       /* the build's line (mp_epsf_report.what) */
-} table_pair;
-
-static void table_pair_free(table_pair *tp)
-{
-    for (int i = 0; i < 2; i++) {
-        mp_epsf_free(&tp->e[i]);
-        free(tp->used[i]);
-        if (tp->path[i]) {
-            remove(tp->path[i]);
-            mp_tmp_unregister(tp->path[i]);
-        }
-        free(tp->path[i]);
-    }
-}
-
-/* Table i of tp built (from tp->e[i] as set by the caller) and written to
- * its temporary file beside path.  Nonzero with err on failure. */
-static int pair_build(run_state *s, table_pair *tp, int i, const char *path, char *err)
-{
-    mp_epsf_opts po = pass_opts(s);
-    po.order = s->psf.order;
-    po.raise = i;
-    mp_epsf_report rep;
-    memset(&rep, 0, sizeof rep);
-    char e2[MP_ERRLEN];
-    if (mp_epsf_pass(&s->f, s->res, 1, &s->t, &s->fit->model, s->px, s->py, s->pf, s->np, &po,
-                     &tp->e[i], &rep, &tp->used[i], e2)) {
-        snprintf(err, MP_ERRLEN, "%s: PSF (held-out test): %.400s", s->image, e2);
-        return 1;
-    }
-    count_halo_light(s, &tp->e[i], &rep, tp->used[i]);
-    snprintf(tp->what[i], sizeof tp->what[i], "%s", rep.what);
-    /* temporaries of root.psfk.fits and root.psf.fits (which the raised
-     * table becomes), so a killed run's are swept as any others */
-    char *base = i ? NULL : mp_name_after(s->root, ".psfk.fits");
-    if ((!i && !base) || !(tp->path[i] = mp_tmp_name(i ? path : base))) {
-        free(base);
-        return oom(err);
-    }
-    free(base);
-    mp_tmp_register(tp->path[i]);    /* full: the write goes on unprotected */
-    return write_psf_file(s, &tp->e[i], tp->used[i], tp->path[i], err);
-}
-
-/* The frame less every fitted star but the held-out ones (rest: the
- * others), drawn with the run's model, into pix (bad pixels 0, as a frame
- * holds them). */
-static int held_out_frame(run_state *s, const mp_table *rest, float *pix, char *err)
-{
-    double gemax;
-    const mp_prf_cache *grid = phase_grid(s, &gemax);
-    if (mp_fit_residual_grid(&s->f, &s->fit->model, rest, s->fit->opts.cropfrac, grid, gemax,
-                             pix, err))
-        return 1;
-    size_t npix = (size_t)s->f.im.nx * (size_t)s->f.im.ny;
-    for (size_t i = 0; i < npix; i++)
-        if (isnan(pix[i]))
-            pix[i] = 0.0f;
-    return 0;
-}
-
-/* The held-out stars (sel) fitted with both tables of tp on the frame
- * less the others; their comparison into *h. */
-static int compare_on_held(run_state *s, const unsigned char *sel, const table_pair *tp,
-                           mp_pl_heldout *h, char *err)
-{
-    size_t npix = (size_t)s->f.im.nx * (size_t)s->f.im.ny;
-    float *pix = malloc((npix ? npix : 1) * sizeof *pix);
-    mp_table held, rest, fit[2];
-    mp_table_init(&held);
-    mp_table_init(&rest);
-    mp_table_init(&fit[0]);
-    mp_table_init(&fit[1]);
-    mp_frame hf = s->f;
-    hf.im.pix = pix;
-    int rc = (!pix || mp_pl_rows_of(&s->t, sel, 1, &held) || mp_pl_rows_of(&s->t, sel, 0, &rest))
-                 ? oom(err)
-                 : held_out_frame(s, &rest, pix, err);
-    for (int i = 0; i < 2 && !rc; i++)
-        rc = mp_pl_heldout_fit(&hf, &held, s->o->ps, tp->path[i], &s->o->group, &fit[i], err);
-    if (!rc && mp_pl_heldout_compare(&fit[0], &fit[1], h))
-        rc = oom(err);
-    for (int i = 0; i < 2; i++)
-        mp_table_free(&fit[i]);
-    mp_table_free(&held);
-    mp_table_free(&rest);
-    free(pix);
-    return rc;
-}
-
-/* The raised table (tp->e[1], its PSFORDWH now with the verdict) made the
- * run's: written to path, the fit set up from it (the report's decisions
- * told how it was built), every group fitted afresh. */
-static int adopt_raised(run_state *s, table_pair *tp, const char *path, char *err)
-{
-    mp_epsf_free(&s->psf);
-    s->psf = tp->e[1];
-    memset(&tp->e[1], 0, sizeof tp->e[1]);
-    if (write_psf_file(s, &s->psf, tp->used[1], path, err) || adopt_psf(s, path, err))
-        return 1;
-    note_decision(s, "PSF built from the frame (the held-out step, %s): %s%s%s", path, s->tabwhy,
-                  s->tabwhy[0] ? "; " : "", tp->what[1]);
-    return group_and_fit(s, s->rep->rounds, 0, err);
-}
-
-/* varorder=auto's last step (heldout_applies): order k + 1 built on the
- * final residual and kept when the stars held out of the build fit it
- * better than order k built on the same residual (z < −MP_PL_HELDOUT_Z);
- * then every group is fitted again with it.  The verdict goes into the
- * run report's decisions either way. */
-static int heldout_order(run_state *s, char *err)
-{
-    if (!heldout_applies(s))
-        return 0;
-    double t0 = mp_seconds();
-    int k = s->psf.order, need = MP_EPSF_PER_TERM * mp_psf_nterms(k + 1);
-    unsigned char *sel = malloc(s->t.nrow + 1);
-    char *path = mp_name_after(s->root, ".psf.fits"), why[300];
-    table_pair tp;
-    memset(&tp, 0, sizeof tp);
-    long nh = sel ? mp_pl_heldout_rows(&s->t, s->px, s->py, s->np, 2 * s->np, sel) : -1;
-    int rc = nh < 0 || !path ? oom(err) : 0, up = 0;
-    mp_pl_heldout h = {0, 0.0, 0.0};
-    if (!rc && nh < need)
-        snprintf(why, sizeof why, "held out %d->%d: %ld stars < %d, not run", k, k + 1, nh,
-                 need);
-    else if (!rc) {
-        /* the step only ever raises: where it cannot run, order k stands,
-         * and the report says why */
-        char e2[MP_ERRLEN];
-        int failed =
-            (mp_epsf_copy(&s->psf, &tp.e[0]) ? oom(e2) : pair_build(s, &tp, 0, path, e2)) ||
-            (mp_epsf_copy(&tp.e[0], &tp.e[1]) ? oom(e2) : pair_build(s, &tp, 1, path, e2)) ||
-            compare_on_held(s, sel, &tp, &h, e2);
-        up = !failed && h.z < -MP_PL_HELDOUT_Z;
-        if (failed)
-            snprintf(why, sizeof why, "held out %d->%d: not run (%.200s)", k, k + 1, e2);
-        else
-            snprintf(why, sizeof why, "held out %d->%d: mean log chi2 ratio %.3g (z %.2f, %zu "
-                     "stars S/N >= %.0f) %s -%.3f", k, k + 1, h.mean, h.z, h.n,
-                     MP_PL_HELDOUT_SNR, up ? "<" : ">=", MP_PL_HELDOUT_Z);
-        if (up) {
-            size_t l = strlen(tp.e[1].why);
-            snprintf(tp.e[1].why + l, sizeof tp.e[1].why - l, "; %.150s", why);
-        }
-    }
-    if (!rc && up)
-        rc = adopt_raised(s, &tp, path, err);
-    if (!rc) {
-        note_decision(s, "PSF order (varorder auto, the stars held out of the build): %s: order "
-                      "%d", why, s->psf.order);
-        if (!s->quiet)
-            fprintf(stderr, "matphot pipeline: %s: PSF order: %s: order %d, %.2f s\n", s->image,
-                    why, s->psf.order, mp_seconds() - t0);
-    }
-    s->rep->t_fit += mp_seconds() - t0;
-    table_pair_free(&tp);
-    free(sel);
-    free(path);
     return rc;
 }
 
@@ -1063,9 +606,9 @@ int mp_pipeline_run(const char *image, const char *root, const mp_pipeline_opts 
     }
     s.own_frame = 1;
     mp_tmp_sweep(o->sweeps, root);   /* every output is root.*: one directory */
-    int rc = read_frame(&s, err) || find_stars(&s, err) || (o->build_psf && build_psf(&s, 1, err));
+    int rc = read_frame(&s, err) || find_stars(&s, err) || (o->build_psf && mp_run_build_psf(&s, 1, err));
     if (!rc)
-        rc = rounds(&s, err) || heldout_order(&s, err) || honest_errors(&s, err);
+        rc = rounds(&s, err) || mp_run_heldout_order(&s, err) || honest_errors(&s, err);
     if (!rc)
         rc = write_products(&s, err);
     state_free(&s);
@@ -1126,14 +669,14 @@ int mp_pl_psf_on(const char *section, const char *root, const mp_pipeline_opts *
     s.fny = fny;
     mp_tmp_sweep(o->sweeps, root);   /* root.psf.fits */
     if (!rc)
-        rc = read_frame(&s, err) || find_stars(&s, err) || build_psf(&s, 1, err);
+        rc = read_frame(&s, err) || find_stars(&s, err) || mp_run_build_psf(&s, 1, err);
     /* Pass 2 as a whole run makes it: every neighbour fitted and gone;
      * then, where the PSF varies, the held-out stars' verdict on the next
      * order, on the section fitted with it (PSFORDWH says which). */
     if (!rc && s.have_own)
-        rc = group_and_fit(&s, 1, s.psf_pass == 1, err) || build_psf(&s, 2, err);
-    if (!rc && s.have_own && heldout_applies(&s))
-        rc = group_and_fit(&s, 1, 0, err) || heldout_order(&s, err);
+        rc = mp_run_group_and_fit(&s, 1, s.psf_pass == 1, err) || mp_run_build_psf(&s, 2, err);
+    if (!rc && s.have_own && mp_run_heldout_applies(&s))
+        rc = mp_run_group_and_fit(&s, 1, 0, err) || mp_run_heldout_order(&s, err);
     *built = !rc && s.have_own;
     state_free(&s);
     return rc;

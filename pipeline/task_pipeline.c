@@ -22,7 +22,7 @@ static void psf_build_opts(mp_parset *ps, mp_pipeline_opts *o)
      * the noise: cut short, a segmented mirror's rings and spikes beyond
      * it are found as stars (issue 13, validate/CROWDED.md's segmented
      * scene: 1130 false entries with ±12 px, 199 with ±16).  INDEF: that
-     * radius measured (run.c's build_psf, psf/tablerad.c). */
+     * radius measured (run_psf.c's mp_run_build_psf, psf/tablerad.c). */
     double tr = NAN;
     mp_par_real(ps, "tablerad", &tr);
     o->tablerad_auto = !isfinite(tr);

@@ -628,7 +628,7 @@ static void test_plan_prices_measured_windows(void **state)
 
 /* The frame fit names the phase grid its groups drew from
  * (mp_frame_report.grid), so the pipeline's residual and one-or-two test
- * draw from that same grid (pipeline/run.c phase_grid): asked afresh on
+ * draw from that same grid (pipeline/run.c mp_run_phase_grid): asked afresh on
  * fitrad's windows, economy declined the grid that the fit's measured
  * ~40-px windows paid for, and 47 Tuc's one-or-two test rendered every
  * star exactly.  Planned for 2^20 fits the grid pays on any window: the

@@ -1,0 +1,81 @@
+/*
+ * run_state.h — private to pipeline/run.c and pipeline/run_psf.c: what one
+ * run of one frame holds, and the steps each file gives the other.
+ */
+#ifndef MATPHOT_RUN_STATE_H
+#define MATPHOT_RUN_STATE_H
+
+#include <stdio.h>
+#include "pipeline/pipeline_priv.h"
+
+/* Everything one run of one frame holds. */
+typedef struct {
+    const char *image, *root;
+    const mp_pipeline_opts *o;
+    mp_pipeline_report *rep;
+    mp_frame f;
+    mp_bkg bkg;
+    mp_table t;        /* the stars: found, then fitted, round by round */
+    mp_table found;    /* detections on the residual, this round */
+    mp_table gone;     /* where merged or rejected stars were */
+    mp_table before;   /* NUMBER and position of every row given to the fit */
+    float *res;        /* residual [e-], nx*ny, single precision as the frame */
+    mp_fit_memory *mem;   /* what every group was fitted against, so a round
+                           * refits only the groups new stars reach */
+    double fwhm;
+    const mp_fit_setup *fit;   /* the fit's setup: the task's, or own */
+    mp_fit_setup own;     /* set up from root.psf.fits when the PSF is built */
+    mp_fit_setup local;   /* own read at frame positions (a section: mp_pl_psf_on) */
+    int have_own;
+    long offx, offy;      /* the frame pixel of this image's (1, 1), less 1 */
+    long fnx, fny;        /* the whole frame's size (0: this image is the frame) */
+    mp_epsf psf;          /* the PSF built from the frame (build_psf) */
+    double *px, *py, *pf; /* its stars */
+    size_t np;
+    double tabrad;        /* its table's radius [px], measured in pass 1
+                           * with tablerad=INDEF (0: the option's) */
+    double tabsupport;    /* the reach measured when short of tabrad (the
+                           * table zero beyond it), else 0 */
+    char tabwhy[480];     /* how (mp_epsf_rad.why), for the run report */
+    int quiet;            /* mp_pipeline_reduce: no stderr lines, no files */
+    int own_frame;        /* f read here, so the halo may be taken off it */
+    int borrowed;         /* f is the caller's (mp_pipeline_reduce): its mask
+                           * stays as given */
+    int psf_pass;         /* the built PSF's last pass (0: none built) */
+    int last_partial;     /* the last group_and_fit took one pass of several */
+    double halo_light;    /* the light per e- the halo took off every star
+                           * (mp_pl_halo), which the PSF's PSFSUM counts */
+    const mp_prf_cache *grid;  /* the phase grid the last fit drew from */
+    double win;           /* the window side economy priced the last fit on */
+} run_state;
+
+static inline int oom(char *err)
+{
+    snprintf(err, MP_ERRLEN, "out of memory");
+    return 1;
+}
+
+/* ---- run.c -------------------------------------------------------------- */
+
+/* mp_run_group_and_fit: group the stars (root.grp), fit every group (in
+ * one pass when once) and draw the residual. */
+int mp_run_group_and_fit(run_state *s, int round, int once, char *err);
+
+/* mp_run_phase_grid: the phase grid the fit draws its groups' PRFs from,
+ * and its flux limit in *gemax (NULL: exact renders). */
+const mp_prf_cache *mp_run_phase_grid(run_state *s, double *gemax);
+
+/* ---- run_psf.c ---------------------------------------------------------- */
+
+/* mp_run_build_psf: the PSF built from the frame (pass 1) or rebuilt with
+ * every neighbour gone (pass 2), written to root.psf.fits and adopted. */
+int mp_run_build_psf(run_state *s, int pass, char *err);
+
+/* mp_run_heldout_applies: whether varorder=auto's held-out step runs. */
+int mp_run_heldout_applies(const run_state *s);
+
+/* mp_run_heldout_order: varorder=auto's last step, the next order judged
+ * by the stars held out of the build. */
+int mp_run_heldout_order(run_state *s, char *err);
+
+#endif
