@@ -275,6 +275,11 @@ static int fit_live(const mp_frame *f, const mp_prf_model *m, const mp_frame_opt
     if (mp_fit_group(f, &mh, &fo, sky0, live, nl, err))
         return 1;
     rep->iterations += live[0].niter;
+    if (getenv("MP_GTIME")) {
+        int nc = 0;
+        for (int k = 0; k < nl; k++) nc += (live[k].flags & MP_FLAG_NOCONV) != 0;
+        fprintf(stderr, "LIVE n %d it %d ord %d noconv %d unst %d\n", nl, live[0].niter, live[0].sky_order, nc, unstopped);
+    }
     rep->render_ops += gops;
     rep->kstars += nl;
     for (int k = 0; cached && k < nl; k++)

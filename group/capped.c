@@ -17,10 +17,11 @@ static int by_weight(const void *p, const void *q)
     return (a->b > b->b) - (a->b < b->b);
 }
 
-/* Strongest first, capped; with budget ≥ 0 a link joins only while one
- * of its stars has more than budget of Σw² outside (mp_group_budget). */
-static int forest(size_t n, mp_group_pair *p, size_t np, int maxgroup, double budget,
-                  size_t *label, unsigned char *cut, double cutw)
+/* Strongest first, capped (a link below cutw at weakcap); with budget ≥ 0
+ * a link joins only while one of its stars has more than budget of Σw²
+ * outside (mp_group_budget). */
+static int forest(size_t n, mp_group_pair *p, size_t np, int maxgroup, int weakcap,
+                  double budget, size_t *label, unsigned char *cut, double cutw)
 {
     mp_uf u;
     size_t *size = calloc(n + 1, sizeof *size);
@@ -44,7 +45,8 @@ static int forest(size_t n, mp_group_pair *p, size_t np, int maxgroup, double bu
         int need = !out || out[p[k].a] > budget || out[p[k].b] > budget;
         if (ra != rb && !need)
             continue;               /* both within budget: left apart */
-        if (ra != rb && size[ra] + size[rb] > (size_t)maxgroup) {
+        int cap = p[k].w >= cutw ? maxgroup : weakcap;
+        if (ra != rb && size[ra] + size[rb] > (size_t)cap) {
             if (cut && p[k].w >= cutw)
                 cut[p[k].a] = cut[p[k].b] = 1;
             continue;
@@ -67,14 +69,15 @@ static int forest(size_t n, mp_group_pair *p, size_t np, int maxgroup, double bu
     return 0;
 }
 
-int mp_group_capped(size_t n, mp_group_pair *p, size_t np, int maxgroup, size_t *label,
-                    unsigned char *cut, double cutw)
+int mp_group_capped(size_t n, mp_group_pair *p, size_t np, int maxgroup, int weakcap,
+                    size_t *label, unsigned char *cut, double cutw)
 {
-    return forest(n, p, np, maxgroup, -1.0, label, cut, cutw);
+    weakcap = weakcap >= 1 && weakcap < maxgroup ? weakcap : maxgroup;
+    return forest(n, p, np, maxgroup, weakcap, -1.0, label, cut, cutw);
 }
 
 int mp_group_budget(size_t n, mp_group_pair *p, size_t np, int maxgroup, double budget,
                     size_t *label, unsigned char *cut, double cutw)
 {
-    return forest(n, p, np, maxgroup, budget < 0 ? 0.0 : budget, label, cut, cutw);
+    return forest(n, p, np, maxgroup, maxgroup, budget < 0 ? 0.0 : budget, label, cut, cutw);
 }

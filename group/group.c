@@ -16,6 +16,7 @@ void mp_group_opts_default(mp_group_opts *o)
     o->fitrad = 5.0;
     o->psfrad = 10.0;
     o->maxgroup = 60;
+    o->weakgroup = 0;
     o->link = NULL;
     o->link_ctx = NULL;
 }

@@ -53,6 +53,10 @@ typedef int (*mp_group_link_fn)(void *ctx, size_t ra, size_t rb, double d);
 typedef struct {
     double fitrad, psfrad;   /* [pixel], finite, >= 0, sum > 0 */
     int maxgroup;            /* >= 1 */
+    int weakgroup;           /* the pipeline's coupled groups: a link weaker
+                              * than its couplefrac joins sets only up to this
+                              * many stars (mp_group_capped's weakcap; 0:
+                              * maxgroup); the group task ignores it */
     mp_group_link_fn link;   /* NULL: every pair closer than crit linked */
     void *link_ctx;
 } mp_group_opts;
@@ -82,11 +86,13 @@ typedef struct {
 /* mp_group_capped: label[i] (i < n) = a representative row of i's set,
  * the sets built by taking the np links of p strongest first (ties in row
  * order) and joining two sets only when together they hold at most
- * maxgroup rows (a maximum spanning forest with capped trees); p is
- * sorted.  When cut is not NULL, cut[a] and cut[b] are set for each link
- * of weight ≥ cutw refused by the cap.  Nonzero when out of memory. */
-int mp_group_capped(size_t n, mp_group_pair *p, size_t np, int maxgroup, size_t *label,
-                    unsigned char *cut, double cutw);
+ * maxgroup rows, or weakcap rows for a link of weight below cutw (a
+ * maximum spanning forest with capped trees; weakcap outside 1..maxgroup:
+ * maxgroup); p is sorted.  When cut is not NULL, cut[a] and cut[b] are set
+ * for each link of weight ≥ cutw refused by the cap.  Nonzero when out of
+ * memory. */
+int mp_group_capped(size_t n, mp_group_pair *p, size_t np, int maxgroup, int weakcap,
+                    size_t *label, unsigned char *cut, double cutw);
 
 /* mp_group_budget: as mp_group_capped, but a link joins its two sets only
  * while one of its stars still has more than budget of Σw² outside its

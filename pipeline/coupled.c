@@ -9,7 +9,12 @@
  * first, by κ, the largest canonical correlation of two stars' fits
  * (fit/coupling.c), and two sets are joined only while together they hold
  * at most maxgroup stars (mp_group_capped): what is cut is what the fits
- * least share.  A cut link with κ ≥ couplefrac (the fits then move by more
+ * least share.  A link weaker than couplefrac joins sets only while they
+ * hold at most weakgroup stars (maxgroup/2 by default): held apart, such
+ * stars move by at most couplefrac of their σ per σ of the other's error,
+ * and a group of 30 whose last links are weak costs its fit's iterations
+ * for that (47 Tuc built: 0.80 of the CPU, a dense simulated frame 0.85,
+ * at the same precision; bench/PROFILE.md, session of 2026-12-02 15:17).  A cut link with κ ≥ couplefrac (the fits then move by more
  * than couplefrac of their σ per σ of the other's error) flags its stars
  * 2, as a split did.  Components within maxgroup are DAOPHOT's groups;
  * with groupcut=budget every component is re-formed, a link joined only
@@ -124,7 +129,8 @@ static int capped_sets(mp_table *t, const mp_group_opts *go, const mp_prf_model 
     rc = rc ? rc : L->oom ? -1 : 0;
     if (!rc && (budget > 0 ? mp_group_budget(t->nrow, L->p, L->n, go->maxgroup, budget, label,
                                              cut, frac)
-                           : mp_group_capped(t->nrow, L->p, L->n, go->maxgroup, label, cut, frac)))
+                           : mp_group_capped(t->nrow, L->p, L->n, go->maxgroup, go->weakgroup,
+                                             label, cut, frac)))
         rc = -1;
     free(E);
     mp_coupling_free(&c);
@@ -170,7 +176,7 @@ int mp_pl_group(mp_table *t, const mp_group_opts *go, const mp_prf_model *m, dou
     return rc != 0;
 }
 
-void mp_pl_group_decision(mp_fit_setup *fs, double budget)
+void mp_pl_group_decision(mp_fit_setup *fs, double budget, int weakgroup)
 {
     if (!(fs->opts.couplefrac > 0))
         return;
@@ -184,8 +190,11 @@ void mp_pl_group_decision(mp_fit_setup *fs, double budget)
                  budget, fs->opts.couplefrac);
     else
         snprintf(fs->decisions + l, sizeof fs->decisions - l, "%sgroups: a component above "
-                 "maxgroup cut at its weakest couplings (the canonical correlation of two "
-                 "stars' fits), not at its median; a cut link of %.2g or more flags its stars 2 "
-                 "(fit/coupling.c)", l ? "; " : "", fs->opts.couplefrac);
+                 "maxgroup cut at its weakest couplings (the canonical correlation kappa of two "
+                 "stars' fits), not at its median; a link below kappa %.2g joins sets only up "
+                 "to %d stars (weakgroup: held apart, each star moves by at most %.2g sigma per "
+                 "sigma of the other's error); a cut link of %.2g or more flags its stars 2 "
+                 "(fit/coupling.c)", l ? "; " : "", fs->opts.couplefrac, weakgroup,
+                 fs->opts.couplefrac, fs->opts.couplefrac);
     fs->ndecisions++;
 }

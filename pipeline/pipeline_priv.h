@@ -65,9 +65,10 @@ int mp_pl_star_excess(const mp_frame *f, mp_bkg *b, const mp_table *t, const mp_
 int mp_pl_group(mp_table *t, const mp_group_opts *go, const mp_prf_model *m, double couplefrac,
                 double budget, double ron, long *tested, long *linked, char *err);
 
-/* mp_pl_group_decision: mp_pl_group's rule (budget as its) added to fs's
- * economy decisions (none with couplefrac 0). */
-void mp_pl_group_decision(mp_fit_setup *fs, double budget);
+/* mp_pl_group_decision: mp_pl_group's rule (budget as its; weakgroup,
+ * go->weakgroup's cap on weak links, 0: none) added to fs's economy
+ * decisions (none with couplefrac 0). */
+void mp_pl_group_decision(mp_fit_setup *fs, double budget, int weakgroup);
 
 /* mp_pl_median_positive: the (upper) median of column name over t's rows
  * where it is finite and > 0; 0 when there is none, no such column or no

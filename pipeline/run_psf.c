@@ -128,7 +128,7 @@ static int adopt_psf(run_state *s, const char *path, char *err)
     if (!rc) {
         rc = mp_fit_setup_read(o->ps, &s->own, err);
         if (!rc && !o->groupcut_median)
-            mp_pl_group_decision(&s->own, o->couplebudget);
+            mp_pl_group_decision(&s->own, o->couplebudget, o->group.weakgroup);
         s->have_own = !rc;
         char e3[MP_ERRLEN];
         mp_params_set(o->ps, "psf", "", e3);

@@ -52,12 +52,15 @@ int mp_pl_opts_read(mp_parset *ps, mp_pipeline_opts *o, char *err)
     mp_par_real(ps, "psfrad", &psfrad);
     o->group.psfrad = isfinite(psfrad) ? psfrad : 2.0 * o->find.fwhm;
     mp_par_int(ps, "maxgroup", &o->group.maxgroup);
+    int wg;
+    mp_par_int(ps, "weakgroup", &wg);
+    o->group.weakgroup = wg == MP_PAR_INDEF_INT ? o->group.maxgroup / 2 : wg;
     o->groupcut_median = strcmp(mp_par_string(ps, "groupcut"), "median") == 0;
     if (o->groupcut_median)
         o->fit.opts.couplefrac = 0.0;
     if (strcmp(mp_par_string(ps, "groupcut"), "budget") == 0)
         mp_par_real(ps, "couplebudget", &o->couplebudget);
-    mp_pl_group_decision(&o->fit, o->couplebudget);
+    mp_pl_group_decision(&o->fit, o->couplebudget, o->group.weakgroup);
     mp_par_int(ps, "niter", &o->niter);
     mp_par_real(ps, "matchrad", &o->matchrad);
     mp_par_bool(ps, "regions", &o->regions);

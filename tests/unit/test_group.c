@@ -48,7 +48,7 @@ static void make_table(mp_table *t, const double *x, const double *y, size_t n)
 
 static mp_group_opts opts(double fitrad, double psfrad, int maxgroup)
 {
-    mp_group_opts o = { fitrad, psfrad, maxgroup, NULL, NULL };
+    mp_group_opts o = { fitrad, psfrad, maxgroup, 0, NULL, NULL };
     return o;
 }
 
@@ -438,8 +438,8 @@ static void test_errors(void **state)
     assert_non_null(strstr(err, "row 4"));
     mp_table_set(&t, 3, 1, 4);
     assert_int_equal(mp_group_table(&t, &o, err), 0);
-    const mp_group_opts bad[] = { { -1, 10, 60, NULL, NULL }, { 5, NAN, 60, NULL, NULL },
-                                   { 0, 0, 60, NULL, NULL }, { 5, 10, 0, NULL, NULL } };
+    const mp_group_opts bad[] = { { -1, 10, 60, 0, NULL, NULL }, { 5, NAN, 60, 0, NULL, NULL },
+                                   { 0, 0, 60, 0, NULL, NULL }, { 5, 10, 0, 0, NULL, NULL } };
     const char *name[] = { "fitrad", "psfrad", "critical", "maxgroup" };
     for (size_t k = 0; k < 4; k++) {
         assert_int_not_equal(mp_group_table(&t, &bad[k], err), 0);
@@ -549,23 +549,32 @@ static void test_link_test(void **state)
  * weights 0.9, 0.1, 0.8, 0.7, 0.05 (links 0-1, 1-2, 2-3, 3-4, 4-5), cap 3:
  * 0-1 (0.9), then 2-3 (0.8), 3-4 (0.7) make {2,3,4}; 1-2 (0.1) would make
  * 5: refused (its weight ≥ cutw 0.1 marks 1 and 2); 4-5 refused too (4
- * sets) but below cutw.  So {0,1}, {2,3,4}, {5}.  With cap 6 one set. */
+ * sets) but below cutw.  So {0,1}, {2,3,4}, {5}.  With cap 6 one set.
+ * With cap 6 and weakcap 3 the strong links make {0,...,4}, and 4-5
+ * (0.05, below cutw) is refused by the weak cap, unflagged: {5} apart. */
 static void test_capped(void **state)
 {
     (void)state;
     mp_group_pair p[] = {{4, 5, 0.05}, {1, 2, 0.1}, {0, 1, 0.9}, {3, 4, 0.7}, {2, 3, 0.8}};
     size_t label[6];
     unsigned char cut[6] = {0};
-    assert_int_equal(mp_group_capped(6, p, 5, 3, label, cut, 0.1), 0);
+    assert_int_equal(mp_group_capped(6, p, 5, 3, 0, label, cut, 0.1), 0);
     assert_true(label[0] == label[1]);
     assert_true(label[2] == label[3] && label[3] == label[4]);
     assert_true(label[1] != label[2] && label[4] != label[5] && label[0] != label[5]);
     unsigned char want[6] = {0, 1, 1, 0, 0, 0};
     assert_memory_equal(cut, want, 6);
     assert_true(p[0].w == 0.9 && p[4].w == 0.05);      /* sorted strongest first */
-    assert_int_equal(mp_group_capped(6, p, 5, 6, label, NULL, 0.1), 0);
+    assert_int_equal(mp_group_capped(6, p, 5, 6, 0, label, NULL, 0.1), 0);
     for (int i = 1; i < 6; i++)
         assert_true(label[i] == label[0]);
+    memset(cut, 0, sizeof cut);
+    assert_int_equal(mp_group_capped(6, p, 5, 6, 3, label, cut, 0.1), 0);
+    for (int i = 1; i < 5; i++)
+        assert_true(label[i] == label[0]);
+    assert_true(label[5] != label[0]);
+    unsigned char none[6] = {0};
+    assert_memory_equal(cut, none, 6);
 }
 
 /* mp_group_budget: links joined strongest first only while one of their
