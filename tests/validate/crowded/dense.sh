@@ -31,7 +31,8 @@ for seed in 7 8; do
     "$MATPHOT" sim "$F.fits" nx=512 ny=512 mode=crowded nstars=6000 fwhm=2.5 magmin=-13 \
         magmax=-7 seed=$seed psfout="$F.psf.fits" psfos=2 > "$F.sim.log" 2>&1 ||
         { echo "dense: sim failed (seed $seed)" >&2; rc=1; continue; }
-    for run in "defaults:" "coupling, maxgroup=60:maxgroup=60" \
+    for run in "defaults:" "weak links to 30 (before session 44):weakgroup=30" \
+               "coupling, maxgroup=60:maxgroup=60" \
                "median, maxgroup=60 (before session 24):groupcut=median maxgroup=60"; do
         label=${run%%:*}
         args=${run#*:}
@@ -53,7 +54,7 @@ done
     echo
     echo "Generated $(date -u '+%Y-%m-%d %H:%M') UTC by \`tests/validate/crowded/dense.sh\` ($(( $(date +%s) - T0 )) s wall in all; $(nproc) processors).  Back to [REPORT.md](REPORT.md)."
     echo
-    echo "The scene: \`matphot sim s\$SEED.fits nx=512 ny=512 mode=crowded nstars=6000 fwhm=2.5 magmin=-13 magmax=-7 seed=\$SEED psfout=s\$SEED.psf.fits psfos=2\` (seeds 7 and 8): 0.023 stars a px², a Gaussian PSF of FWHM 2.5 px, sky 100 e⁻, read noise 3 e⁻.  DAOPHOT GROUP's rule (two stars closer than psfrad + fitrad = 2 FWHM + 5 px) joins nearly the whole frame into one component, which the fit cannot take at once (maxgroup: 30 in the pipeline, 60 in DAOPHOT).  Each frame reduced with its true ×2 table, one thread: \`OMP_NUM_THREADS=1 matphot pipeline s\$SEED.fits psf=s\$SEED.psf.fits [args]\`.  *defaults*: a component above maxgroup = 30 re-formed from its links strongest first by κ, the largest canonical correlation of two stars' fits, sets joined while they hold at most maxgroup stars (pipeline/coupled.c, fit/coupling.c); *coupling, maxgroup=60*: the same with sets of up to 60; *median, maxgroup=60*: the pipeline before session 24, a component above 60 cut at the median of its longer axis, again and again (group.h, DAOPHOT's split)."
+    echo "The scene: \`matphot sim s\$SEED.fits nx=512 ny=512 mode=crowded nstars=6000 fwhm=2.5 magmin=-13 magmax=-7 seed=\$SEED psfout=s\$SEED.psf.fits psfos=2\` (seeds 7 and 8): 0.023 stars a px², a Gaussian PSF of FWHM 2.5 px, sky 100 e⁻, read noise 3 e⁻.  DAOPHOT GROUP's rule (two stars closer than psfrad + fitrad = 2 FWHM + 5 px) joins nearly the whole frame into one component, which the fit cannot take at once (maxgroup: 30 in the pipeline, 60 in DAOPHOT).  Each frame reduced with its true ×2 table, one thread: \`OMP_NUM_THREADS=1 matphot pipeline s\$SEED.fits psf=s\$SEED.psf.fits [args]\`.  *defaults*: a component above maxgroup = 30 re-formed from its links strongest first by κ, the largest canonical correlation of two stars' fits, sets joined while they hold at most maxgroup stars, and by a link weaker than κ 0.1 at most weakgroup = 15 (pipeline/coupled.c, fit/coupling.c); *weak links to 30*: weak links too joined up to maxgroup, the default before session 44; *coupling, maxgroup=60*: the same with sets of up to 60; *median, maxgroup=60*: the pipeline before session 24, a component above 60 cut at the median of its longer axis, again and again (group.h, DAOPHOT's split)."
     echo
     echo "Scoring (tests/validate/crowded/dense.c): each true star matched to the nearest catalog entry within 1 px, one to one, closest pairs first; *false*: entries left unmatched; rσ: 1.4826 × the median absolute deviation, of z = (FLUX_PSF − FLUX_TRUE)/FLUXERR_PSF over the matched stars and of ΔE/E_true per bin of true magnitude; *resolved*: matched stars with no unmatched true star within 2 FWHM (5 px), as in CROWDED.md; *the rest*: those with one, whose light the fit gives to the matched star.  CPU: user + sys seconds."
     echo
