@@ -14,9 +14,10 @@
  * stars move by at most couplefrac of their σ per σ of the other's error,
  * and a group of 30 whose last links are weak costs its fit's iterations
  * for that (47 Tuc built: 0.80 of the CPU, a dense simulated frame 0.85,
- * at the same precision; bench/PROFILE.md, session of 2026-12-02 15:17).  A cut link with κ ≥ couplefrac (the fits then move by more
- * than couplefrac of their σ per σ of the other's error) flags its stars
- * 2, as a split did.  Components within maxgroup are DAOPHOT's groups;
+ * at the same precision; bench/PROFILE.md, session of 2026-12-02 15:17).
+ * A cut link with κ ≥ couplefrac (the fits then move by more than
+ * couplefrac of their σ per σ of the other's error) flags its stars 2, as
+ * a split did.  Components within maxgroup are DAOPHOT's groups;
  * with groupcut=budget every component is re-formed, a link joined only
  * while a star has more than the budget of Σκ² outside its group
  * (mp_group_budget). */

@@ -54,7 +54,8 @@ int mp_pl_opts_read(mp_parset *ps, mp_pipeline_opts *o, char *err)
     mp_par_int(ps, "maxgroup", &o->group.maxgroup);
     int wg;
     mp_par_int(ps, "weakgroup", &wg);
-    o->group.weakgroup = wg == MP_PAR_INDEF_INT ? o->group.maxgroup / 2 : wg;
+    wg = wg == MP_PAR_INDEF_INT ? o->group.maxgroup / 2 : wg;
+    o->group.weakgroup = wg >= 1 && wg < o->group.maxgroup ? wg : o->group.maxgroup;
     o->groupcut_median = strcmp(mp_par_string(ps, "groupcut"), "median") == 0;
     if (o->groupcut_median)
         o->fit.opts.couplefrac = 0.0;
