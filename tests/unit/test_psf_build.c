@@ -180,6 +180,33 @@ static mp_epsf_star *stars_of(const mp_frame *f, const tstar *ts, const mp_epsf_
     return s;
 }
 
+/* make_frame(seed, grad, kind, rad)'s frame and true stars in f and ts,
+ * *o = test_opts(rad), *e empty; returns the stars' cut-outs. */
+static mp_epsf_star *scene_stars(uint64_t seed, double grad, int kind, double rad, mp_frame *f,
+                                 tstar *ts, mp_epsf_opts *o, mp_epsf *e)
+{
+    make_frame(seed, grad, kind, rad, f, ts);
+    *o = test_opts(rad);
+    memset(e, 0, sizeof *e);
+    return stars_of(f, ts, o);
+}
+
+/* varorder=auto through mp_epsf_pass on the first n stars of ts (frame
+ * f, options o as the test's, os BOS): the field in *e (emptied first),
+ * the pass's report in *rep. */
+static void auto_pass(const mp_frame *f, const tstar *ts, int n, mp_epsf_opts o, mp_epsf *e,
+                      mp_epsf_report *rep)
+{
+    double x[NSTAR], y[NSTAR], fl[NSTAR];
+    char err[MP_ERRLEN];
+    starts_of(ts, n, x, y, fl);
+    o.os = BOS;
+    o.order = -1;
+    memset(e, 0, sizeof *e);
+    assert_int_equal(mp_epsf_pass(f, f->im.pix, 0, NULL, NULL, x, y, fl, n, &o, e, rep, NULL,
+                                  err), 0);
+}
+
 /* χ² of the built PRF against the true one at a pixel centre and a half-
  * pixel phase, each pixel's variance the one NSTAR stars predict for an
  * estimate from the stars at one of BOS² phases:
@@ -231,11 +258,9 @@ static void test_recovers_constant_table(void **state)
     const double rad = 6.0;
     mp_frame f;
     tstar ts[NSTAR];
-    make_frame(11, 0.0, 0, rad, &f, ts);
-    mp_epsf_opts o = test_opts(rad);
-    mp_epsf_star *s = stars_of(&f, ts, &o);
+    mp_epsf_opts o;
     mp_epsf e;
-    memset(&e, 0, sizeof e);
+    mp_epsf_star *s = scene_stars(11, 0.0, 0, rad, &f, ts, &o, &e);
     char err[MP_ERRLEN];
     assert_int_equal(mp_epsf_build(s, NSTAR, &o, BOS, 0, &e, err), 0);
     mp_psf truth, built, start;
@@ -294,11 +319,9 @@ static void test_linear_variation(void **state)
     const double rad = 6.0, grad = 0.15;
     mp_frame f;
     tstar ts[NSTAR];
-    make_frame(12, grad, 0, rad, &f, ts);
-    mp_epsf_opts o = test_opts(rad);
-    mp_epsf_star *s = stars_of(&f, ts, &o);
+    mp_epsf_opts o;
     mp_epsf e;
-    memset(&e, 0, sizeof e);
+    mp_epsf_star *s = scene_stars(12, grad, 0, rad, &f, ts, &o, &e);
     char err[MP_ERRLEN];
     double p0, p1, st0, st1;
     assert_int_equal(mp_epsf_build(s, NSTAR, &o, BOS, 0, &e, err), 0);
@@ -380,11 +403,9 @@ static void test_cubic_variation(void **state)
     const double rad = 6.0, grad = 0.15;
     mp_frame f;
     tstar ts[NSTAR];
-    make_frame(17, grad, 1, rad, &f, ts);
-    mp_epsf_opts o = test_opts(rad);
-    mp_epsf_star *s = stars_of(&f, ts, &o);
+    mp_epsf_opts o;
     mp_epsf e;
-    memset(&e, 0, sizeof e);
+    mp_epsf_star *s = scene_stars(17, grad, 1, rad, &f, ts, &o, &e);
     char err[MP_ERRLEN];
     double p2, st2, p3, st3;
     assert_int_equal(mp_epsf_build(s, NSTAR, &o, BOS, 2, &e, err), 0);
@@ -440,11 +461,9 @@ static void test_quadratic_and_star_count(void **state)
     const double rad = 6.0, grad = 0.15;
     mp_frame f;
     tstar ts[NSTAR];
-    make_frame(18, grad, 2, rad, &f, ts);
-    mp_epsf_opts o = test_opts(rad);
-    mp_epsf_star *s = stars_of(&f, ts, &o);
+    mp_epsf_opts o;
     mp_epsf e;
-    memset(&e, 0, sizeof e);
+    mp_epsf_star *s = scene_stars(18, grad, 2, rad, &f, ts, &o, &e);
     char err[MP_ERRLEN];
     double p1, st1, p2, st2;
     assert_int_equal(mp_epsf_build(s, NSTAR, &o, BOS, 1, &e, err), 0);
@@ -461,14 +480,8 @@ static void test_quadratic_and_star_count(void **state)
     /* auto on the linear frame, too few stars for order 1 */
     enum { NFEW = 24 };
     make_frame(12, grad, 0, rad, &f, ts);
-    double x[NFEW], y[NFEW], fl[NFEW];
-    starts_of(ts, NFEW, x, y, fl);
-    o.os = BOS;
-    o.order = -1;
     mp_epsf_report rep;
-    memset(&e, 0, sizeof e);
-    assert_int_equal(mp_epsf_pass(&f, f.im.pix, 0, NULL, NULL, x, y, fl, NFEW, &o, &e, &rep,
-                                  NULL, err), 0);
+    auto_pass(&f, ts, NFEW, o, &e, &rep);
     printf("# linear, %d stars, auto: %s\n", NFEW, e.why);
     assert_int_equal(e.order, 0);
     assert_true(rep.ptest[0] < 1e-3);
@@ -490,11 +503,9 @@ static void test_symmetric_quadratic_seen(void **state)
     const double rad = 6.0, grad = 0.15;
     mp_frame f;
     tstar ts[NSTAR];
-    make_frame(18, grad, 2, rad, &f, ts);
-    mp_epsf_opts o = test_opts(rad);
-    mp_epsf_star *s = stars_of(&f, ts, &o);
+    mp_epsf_opts o;
     mp_epsf e;
-    memset(&e, 0, sizeof e);
+    mp_epsf_star *s = scene_stars(18, grad, 2, rad, &f, ts, &o, &e);
     char err[MP_ERRLEN];
     double p1, z1, p2, z2;
     assert_int_equal(mp_epsf_build(s, NSTAR, &o, BOS, 0, &e, err), 0);
@@ -507,14 +518,8 @@ static void test_symmetric_quadratic_seen(void **state)
     assert_true(p2 < 1e-3);
     mp_epsf_free(&e);
     mp_epsf_stars_free(s, NSTAR);
-    double x[NSTAR], y[NSTAR], fl[NSTAR];
-    starts_of(ts, NSTAR, x, y, fl);
-    o.os = BOS;
-    o.order = -1;
     mp_epsf_report rep;
-    memset(&e, 0, sizeof e);
-    assert_int_equal(mp_epsf_pass(&f, f.im.pix, 0, NULL, NULL, x, y, fl, NSTAR, &o, &e, &rep,
-                                  NULL, err), 0);
+    auto_pass(&f, ts, NSTAR, o, &e, &rep);
     printf("# symmetric quadratic, auto: %s\n", e.why);
     assert_true(e.order >= 2);
     assert_true(rep.ptest2[0] < 1e-3);
