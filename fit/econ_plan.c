@@ -353,18 +353,32 @@ static int choose_locked(mp_econ_cache *c, double fits, double fitrad, mp_frame_
             return 1;
         o->sinc = c->sinc.nph > 0 ? &c->sinc : NULL;
     }
+    /* The model's phase grid first: a group it serves whole is drawn from
+     * it (fit/frame_group.c fit_live), so the coarser levels serve only
+     * the groups too bright for it.  How many those are the plan cannot
+     * tell; the exact renders the run has done for them (learned) can, so
+     * with the grid built a level and its tables pay on those alone
+     * (47 Tuc with Tiny Tim's table: every group served by the grid, the
+     * levels' tables 15 % of the run and 110 MB for nothing). */
+    if (!o->grid && c->grid_g > 0 &&
+        pays(cost_grid(&c->psf0, SEP(c), rs, c->grid_g, hw, fits, W, c->field), fits, learned, full)) {
+        if (build_grid(c, fitrad, err))
+            return 1;
+        o->grid = c->grid.G > 0 ? &c->grid : NULL;
+    }
+    double lfits = o->grid ? 0.0 : fits;    /* the fits the levels can claim in advance */
     /* Coarsest first: a coarser level saves more and costs less than a
      * finer one, so the levels that pay are a prefix.  Each level's
      * kernel choice pays or not on its own table, as the model's does. */
     if (!o->ss && c->nlev > 0) {
         int n = 0, bits = 0;
-        while (n < c->nlev && pays(cost_level(c, n, fits, W), fits, learned, full)) {
+        while (n < c->nlev && pays(cost_level(c, n, fits, W), lfits, learned, full)) {
             if (build_level(c, n, err))
                 return 1;
             /* Decided for this frame, like every table: one built for an
              * earlier frame serves only where this frame's count pays. */
             if (c->want_sinc &&
-                pays(cost_sinc(&c->ss[n].psf, hw, fits, W, rs), fits, learned, full)) {
+                pays(cost_sinc(&c->ss[n].psf, hw, fits, W, rs), lfits, learned, full)) {
                 if (build_level_sinc(c, n, err))
                     return 1;
                 bits |= 1 << n;
@@ -381,18 +395,12 @@ static int choose_locked(mp_econ_cache *c, double fits, double fitrad, mp_frame_
      * 1975 LM fits of 47 Tuc with the PSF built from the frame). */
     for (int l = 0; o->ss == c->ss && l < o->nss && c->grid_g > 0; l++)
         if (!((o->ss_grid >> l) & 1) &&
-            pays(cost_grid(&c->ss[l].psf, SEP(c), rs, c->grid_g, hw, fits, W, c->field), fits, learned,
-                 full)) {
+            pays(cost_grid(&c->ss[l].psf, SEP(c), rs, c->grid_g, hw, fits, W, c->field), lfits,
+                 learned, full)) {
             if (build_level_grid(c, l, fitrad, err))
                 return 1;
             o->ss_grid |= (c->ss[l].grid->G > 0) << l;
         }
-    if (!o->grid && c->grid_g > 0 &&
-        pays(cost_grid(&c->psf0, SEP(c), rs, c->grid_g, hw, fits, W, c->field), fits, learned, full)) {
-        if (build_grid(c, fitrad, err))
-            return 1;
-        o->grid = c->grid.G > 0 ? &c->grid : NULL;
-    }
     return 0;
 }
 

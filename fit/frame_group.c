@@ -246,7 +246,10 @@ static int fit_live(const mp_frame *f, const mp_prf_model *m, const mp_frame_opt
     double e = 0.0;
     for (int k = 0; k < nl; k++)
         e = isfinite(live[k].flux) && live[k].flux > e ? live[k].flux : e;
-    int l = 0;
+    /* A group the model's phase grid serves whole is drawn from it: as
+     * cheap as a coarser level's grid, and from the finer table.  The
+     * coarser levels are for the brighter groups. */
+    int l = ff_grid_serves(R, o->grid, e, rep) ? R->nss : 0;
     while (l < R->nss && !ff_level_serves(&R->level[l], e, rep))
         l++;
     mp_prf_model mh = l < R->nss ? R->ss[l].model : *m;
@@ -275,11 +278,6 @@ static int fit_live(const mp_frame *f, const mp_prf_model *m, const mp_frame_opt
     if (mp_fit_group(f, &mh, &fo, sky0, live, nl, err))
         return 1;
     rep->iterations += live[0].niter;
-    if (getenv("MP_GTIME")) {
-        int nc = 0;
-        for (int k = 0; k < nl; k++) nc += (live[k].flags & MP_FLAG_NOCONV) != 0;
-        fprintf(stderr, "LIVE n %d it %d ord %d noconv %d unst %d\n", nl, live[0].niter, live[0].sky_order, nc, unstopped);
-    }
     rep->render_ops += gops;
     rep->kstars += nl;
     for (int k = 0; cached && k < nl; k++)

@@ -125,7 +125,9 @@ static void test_uniform_drf_becomes_scalar(void **state)
     write_psf(f, 1.5, 4);         /* undersampled: the table stays x4 */
     write_drf(f, qe, 4);
     mp_fit_setup s;
-    setup_with(f, 1, &s, (const char *)NULL);
+    /* No phase grid: with one, the levels pay only on the exact renders
+     * a run has done (test_levels_after_grid). */
+    setup_with(f, 1, &s, "phasegrid", "0", (const char *)NULL);
     assert_int_equal(s.drf.k, 0);
     assert_true(s.drf.volume == 0.8);
     assert_non_null(strstr(s.decisions, "DRF: the 4x4 map is uniform, used as the scalar V = 0.8"));
@@ -138,9 +140,9 @@ static void test_uniform_drf_becomes_scalar(void **state)
     assert_int_equal(s.opts.ss[0].os, 1);
     assert_int_equal(s.opts.ss[1].os, 2);
     assert_non_null(strstr(s.decisions, "supersampling: per group, the coarsest table"));
-    /* + the kernel, phase-grid, derivatives' box, tables, neighbour crop
-     * and refit rules */
-    assert_int_equal(s.ndecisions, 2 + 6);
+    /* + the kernel, tables, neighbour crop and refit rules (no phase
+     * grid, no derivatives' box) */
+    assert_int_equal(s.ndecisions, 2 + 4);
     assert_counted(&s);
     mp_fit_setup_free(&s);
 
@@ -151,6 +153,30 @@ static void test_uniform_drf_becomes_scalar(void **state)
     assert_int_equal(s.opts.nss, 0);
     assert_string_equal(s.decisions, "economy=no: every part of the model forced on");
     assert_int_equal(s.ndecisions, 1);
+    mp_fit_setup_free(&s);
+}
+
+/* With the model's phase grid built, a coarser level serves only the
+ * groups too bright for the grid (fit/frame_group.c fit_live): the plan
+ * does not claim the run's fits for it, the exact renders the run has
+ * done (mp_econ_learn) do. */
+static void test_levels_after_grid(void **state)
+{
+    files *f = *state;
+    write_psf(f, 1.5, 4);
+    mp_fit_setup s;
+    setup_with(f, 0, &s, (const char *)NULL);
+    plan_all(&s);
+    assert_non_null(s.opts.grid);
+    assert_int_equal(s.opts.nss, 0);
+    assert_null(s.opts.ss);
+    /* Exact renders done: as many as the plan claimed before, a billion
+     * fits' worth of whole-table renders. */
+    mp_econ_learn(s.cache, 1e9 * MP_ECON_RENDERS_PER_FIT * mp_econ_render_ops(&s.model, s.model.sinc_hw,
+                                                                              s.opts.fit.fitrad));
+    plan_all(&s);
+    assert_int_equal(s.opts.nss, 2);
+    assert_int_equal(s.opts.ss[0].os, 1);
     mp_fit_setup_free(&s);
 }
 
@@ -559,7 +585,7 @@ static void test_supersampling_by_bound(void **state)
     write_table(f, t, n, 2);
     free(t);
     mp_fit_setup s;
-    setup_with(f, 0, &s, (const char *)NULL);
+    setup_with(f, 0, &s, "phasegrid", "0", (const char *)NULL);
     plan_all(&s);
     double b = beta_of(&s.psf);
     print_message("segmented mirror x2: beta V^2 %.1f px^2, x1 serves E <= %.3g e- on sky 100\n", b,
@@ -582,7 +608,7 @@ static void test_supersampling_by_bound(void **state)
     mp_fit_setup_free(&s);
 
     write_psf(f, 3.0, 2);
-    setup_with(f, 0, &s, (const char *)NULL);
+    setup_with(f, 0, &s, "phasegrid", "0", (const char *)NULL);
     plan_all(&s);
     lv = &s.opts.ss[0];
     assert_int_equal(s.opts.nss, 1);
@@ -614,6 +640,7 @@ int main(void)
 {
     const struct CMUnitTest tests[] = {
         cmocka_unit_test_setup_teardown(test_uniform_drf_becomes_scalar, setup_dir, teardown_dir),
+        cmocka_unit_test_setup_teardown(test_levels_after_grid, setup_dir, teardown_dir),
         cmocka_unit_test_setup_teardown(test_gate_drf_kept, setup_dir, teardown_dir),
         cmocka_unit_test_setup_teardown(test_supersampling_by_bound, setup_dir, teardown_dir),
         cmocka_unit_test_setup_teardown(test_psfos_honoured, setup_dir, teardown_dir),
