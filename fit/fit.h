@@ -89,6 +89,9 @@ typedef struct {
                             * (fit/prf_cache.c); NULL: exact renders */
     double grid_emax;      /* the frame fit's paint of a star (frame_paint.c)
                             * uses grid only up to this flux, its bound */
+    double grid_lemax;     /* and bilinearly up to this one (0: never), the
+                            * bilinear interpolation's bound */
+    int grid_lin;          /* this render from grid bilinearly (ff_paint) */
     struct mp_prf_axes_s *axes;  /* the separable render's two axis operators
                             * (fit/prf.c), kept between renders */
 } mp_prf_work;
@@ -394,10 +397,12 @@ int mp_prf_cache_usable(const mp_prf_cache *c, const mp_prf_model *m);
 int mp_prf_cache_covers(const mp_prf_cache *c, const mp_prf_model *m, double x, double y);
 
 /* mp_prf_cache_render: the interpolated PRF (and derivatives, may be NULL)
- * of model m on the box [x0, x0+w) × [y0, y0+h); nonzero when c is not
- * usable for m. */
+ * of model m on the box [x0, x0+w) × [y0, y0+h), bilinearly when lin
+ * (within mp_prf_cache_limit_lin's bound); nonzero when c is not usable
+ * for m. */
 int mp_prf_cache_render(const mp_prf_cache *c, const mp_prf_model *m, double x, double y,
-                        long x0, long y0, int w, int h, double *prf, double *ddx, double *ddy);
+                        long x0, long y0, int w, int h, double *prf, double *ddx, double *ddy,
+                        int lin);
 
 /* A row span of detector pixels: [x0, x0 + n) of row y (1-based). */
 typedef struct {

@@ -331,7 +331,7 @@ static int set_rules(frame_fit *F, const mp_frame_opts *o, mp_frame_report *rep,
  * from the table counted once.  Nonzero with err when out of memory. */
 static int bounds_now(frame_fit *F, char *err)
 {
-    paint_rule now = {F->oc.grid, F->R.gemax, 1};
+    paint_rule now = {F->oc.grid, F->R.gemax, F->R.glemax, 1};
     int rc = ff_update_bounds(F->f, F->m, &F->crop, &now, &F->held, F->oc.fit.fitrad, F->st, F->n,
                               F->gs, F->ng, F->gone, F->ngone);
     free(F->gone);

@@ -23,10 +23,12 @@
 #define CHUNK 2048
 
 /* Whether a star of flux F is drawn the same way under both rules: from
- * the grid under both, or exactly under both (ff_paint's test). */
+ * the grid under both, bilinearly or not, or exactly under both
+ * (ff_paint's tests). */
 static int same_way(const paint_rule *a, const paint_rule *b, double F)
 {
-    return (fabs(F) <= a->gemax) == (fabs(F) <= b->gemax);
+    return (fabs(F) <= a->gemax) == (fabs(F) <= b->gemax) &&
+           (fabs(F) <= a->glemax) == (fabs(F) <= b->glemax);
 }
 
 /* Whether the bounds made under rule b hold under rule a: the same grid,
@@ -41,7 +43,7 @@ static int same_rule(const paint_rule *a, const paint_rule *b, const star_state 
 {
     if (!a->set || !b->set || a->grid != b->grid)
         return 0;
-    if (!a->grid || ff_same_value(a->gemax, b->gemax))
+    if (!a->grid || (ff_same_value(a->gemax, b->gemax) && ff_same_value(a->glemax, b->glemax)))
         return 1;
     for (size_t k = 0; k < n + ngone; k++) {
         const star_state *s = k < n ? &st[k] : &gone[k - n];
@@ -257,6 +259,7 @@ static int add_changes(const mp_frame *f, const mp_prf_model *m, const crop_rule
             mp_prf_work wk = {0};
             wk.grid = now->grid;
             wk.grid_emax = now->gemax;
+            wk.grid_lemax = now->glemax;
             double *buf = NULL;
             float *win = NULL;
             size_t cap = 0, nwin = 0;

@@ -34,10 +34,11 @@ typedef struct {
 enum { MOVED_FIT = 1, MOVED_CALL = 2 };
 
 /* The paint the bounds hold for (ff_all_stars'): its phase grid and flux
- * limit; set: 0 until the bounds hold for one. */
+ * limits (from the grid up to gemax, bilinearly up to glemax); set: 0
+ * until the bounds hold for one. */
 typedef struct {
     const struct mp_prf_cache_s *grid;
-    double gemax;
+    double gemax, glemax;
     int set;
 } paint_rule;
 

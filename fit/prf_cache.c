@@ -360,11 +360,12 @@ int mp_prf_cache_covers(const mp_prf_cache *c, const mp_prf_model *m, double x, 
 }
 
 int mp_prf_cache_render(const mp_prf_cache *c, const mp_prf_model *m, double x, double y,
-                        long x0, long y0, int w, int h, double *prf, double *ddx, double *ddy)
+                        long x0, long y0, int w, int h, double *prf, double *ddx, double *ddy,
+                        int lin)
 {
     if (!mp_prf_cache_usable(c, m))
         return 1;
-    interp(c, m, x, y, x0, y0, w, h, prf, ddx, ddy, 0);
+    interp(c, m, x, y, x0, y0, w, h, prf, ddx, ddy, lin);
     return 0;
 }
 

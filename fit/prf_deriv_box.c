@@ -100,7 +100,7 @@ int mp_prf_cache_deriv_box(mp_prf_cache *c, const mp_prf_model *m, double fitrad
             }
             cap = n;
         }
-        if (mp_prf_cache_render(c, m, X, Y, x0, y0, w, bh, buf, buf + n, buf + 2 * n)) {
+        if (mp_prf_cache_render(c, m, X, Y, x0, y0, w, bh, buf, buf + n, buf + 2 * n, 0)) {
             lim = 0.0;              /* not usable: none served */
             break;
         }

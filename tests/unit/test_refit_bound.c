@@ -112,6 +112,7 @@ static int bounds_kept(const mp_frame *f, const mp_prf_model *m, const crop_rule
                      0);
     assert_ptr_equal(held.grid, now.grid);
     assert_true(held.gemax == now.gemax || (isnan(held.gemax) && isnan(now.gemax)));
+    assert_true(held.glemax == now.glemax);
     int kept = 1, gone = 1;
     for (int k = 0; k < NST; k++) {
         kept &= st[k].bound == before[k];
@@ -135,23 +136,28 @@ static void paint_rules_checked(const mp_frame *f, const mp_prf_model *m, const 
     }
     double mid = sqrt(Emin * Emax);
     /* No grid: the limit draws nobody another way. */
-    assert_true(bounds_kept(f, m, crop, (paint_rule){NULL, 1e3, 1}, (paint_rule){NULL, NAN, 1},
-                            st, gs, ng));
+    assert_true(bounds_kept(f, m, crop, (paint_rule){NULL, 1e3, 0.0, 1},
+                            (paint_rule){NULL, NAN, 0.0, 1}, st, gs, ng));
     /* One grid, both limits above every star (or both below). */
-    assert_true(bounds_kept(f, m, crop, (paint_rule){&g1, 2 * Emax, 1},
-                            (paint_rule){&g1, 3 * Emax, 1}, st, gs, ng));
-    assert_true(bounds_kept(f, m, crop, (paint_rule){&g1, 0.5 * Emin, 1},
-                            (paint_rule){&g1, 0.2 * Emin, 1}, st, gs, ng));
+    assert_true(bounds_kept(f, m, crop, (paint_rule){&g1, 2 * Emax, 0.0, 1},
+                            (paint_rule){&g1, 3 * Emax, 0.0, 1}, st, gs, ng));
+    assert_true(bounds_kept(f, m, crop, (paint_rule){&g1, 0.5 * Emin, 0.0, 1},
+                            (paint_rule){&g1, 0.2 * Emin, 0.0, 1}, st, gs, ng));
     /* A star between the limits, the grid against none, another grid,
      * bounds never made: none holds. */
-    assert_false(bounds_kept(f, m, crop, (paint_rule){&g1, mid, 1},
-                             (paint_rule){&g1, 2 * Emax, 1}, st, gs, ng));
-    assert_false(bounds_kept(f, m, crop, (paint_rule){&g1, 2 * Emax, 1},
-                             (paint_rule){NULL, 2 * Emax, 1}, st, gs, ng));
-    assert_false(bounds_kept(f, m, crop, (paint_rule){&g2, 2 * Emax, 1},
-                             (paint_rule){&g1, 2 * Emax, 1}, st, gs, ng));
-    assert_false(bounds_kept(f, m, crop, (paint_rule){&g1, 2 * Emax, 1},
-                             (paint_rule){&g1, 2 * Emax, 0}, st, gs, ng));
+    assert_false(bounds_kept(f, m, crop, (paint_rule){&g1, mid, 0.0, 1},
+                             (paint_rule){&g1, 2 * Emax, 0.0, 1}, st, gs, ng));
+    assert_false(bounds_kept(f, m, crop, (paint_rule){&g1, 2 * Emax, 0.0, 1},
+                             (paint_rule){NULL, 2 * Emax, 0.0, 1}, st, gs, ng));
+    assert_false(bounds_kept(f, m, crop, (paint_rule){&g2, 2 * Emax, 0.0, 1},
+                             (paint_rule){&g1, 2 * Emax, 0.0, 1}, st, gs, ng));
+    assert_false(bounds_kept(f, m, crop, (paint_rule){&g1, 2 * Emax, 0.0, 1},
+                             (paint_rule){&g1, 2 * Emax, 0.0, 0}, st, gs, ng));
+    /* The bilinear limit alike: a star between, and none. */
+    assert_false(bounds_kept(f, m, crop, (paint_rule){&g1, 2 * Emax, mid, 1},
+                             (paint_rule){&g1, 2 * Emax, 0.0, 1}, st, gs, ng));
+    assert_true(bounds_kept(f, m, crop, (paint_rule){&g1, 2 * Emax, 2 * Emax, 1},
+                            (paint_rule){&g1, 2 * Emax, 3 * Emax, 1}, st, gs, ng));
 }
 
 static void test_bound_sums_the_changes(void **state)
@@ -167,7 +173,7 @@ static void test_bound_sums_the_changes(void **state)
     memcpy(ref, st, sizeof st);
     crop_rule crop;
     assert_int_equal(ff_crop_init(&f, &m, 0.02, &crop), 0);
-    paint_rule now = {NULL, NAN, 1}, held = now;
+    paint_rule now = {NULL, NAN, 0.0, 1}, held = now;
     assert_int_equal(ff_update_bounds(&f, &m, &crop, &now, &held, FITRAD, st, NST, gs, ng,
                                       &gone, 1), 0);
     float *d[NST + 1], *sum = malloc(NX * NX * sizeof *sum);
