@@ -214,9 +214,9 @@ int mp_pl_heldout_compare(const mp_table *a, const mp_table *b, mp_pl_heldout *h
  * against its own error (each ring median's from its pixels' robust
  * scatter, and each star's sky's, common to all its rings); N(0, 1) where
  * there is no halo; where that passes MP_PL_HALO_Z, the smaller of it and
- * the light's significance against 99 copies of the stars shifted together
- * over the frame (halo.c placebo_z: the residual's lumps that stars close
- * together share).  Only when z > MP_PL_HALO_Z (one-sided false rate
+ * the light's significance against up to 99 copies of the stars shifted
+ * together over the frame, read until it is decided (halo.c placebo_z:
+ * the residual's lumps that stars close together share).  Only when z > MP_PL_HALO_Z (one-sided false rate
  * 1e-3) is E·h(r) of every star whose halo reaches 0.05 σ of a sky pixel
  * taken off f's pixels and res, and its Poisson variance added to f->xvar
  * (allocated when NULL); otherwise nothing changes.  what: one line for the

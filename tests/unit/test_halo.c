@@ -265,7 +265,8 @@ static void test_no_halo_not_taken_off(void **state)
  * share, so its z passes MP_PL_HALO_Z in many frames (9 of NL with this
  * seed; the assertion asks 5, so that the scene exercises the case); the
  * shifted copies do (placebo_z), so the halo is taken off in at most 2 (a
- * one-sided 1e-3 over the copies' spread, which 99 copies estimate:
+ * one-sided 1e-3 over the copies' spread, which up to 99 copies estimate, an
+ * early stop adding at most the 1e-3 its decision allows:
  * t(98)'s tail 0.0013 a frame, P(>= 3 of 60) = 1e-4; the seed fixed). */
 enum { NL = 60, LUMPS = 40 };
 static const double LUMPA = 3.0;
