@@ -842,7 +842,7 @@ void mp_fit_memory_scratch(mp_fit_memory *mem, float *buf, size_t n);
  * one group when fit.fitrad is NaN), optional start FLUX_PSF or FLUX and
  * SKY_PSF or BACKGROUND, optional SKYORD_PSF (with fit.warm_sky and
  * MP_SKY_AUTO a group's sky starts at its stars' highest order, 0 for a
- * star whose FLAGS say saturated or not converged) — and add the fit's
+ * star whose FLAGS say not converged) — and add the fit's
  * columns of design.md §4 with CHI2STAR_PSF and SKYORD_PSF.  Merged and rejected stars leave the table (the survivor of a merge has
  * flag 16).  rep may be NULL. */
 int mp_fit_table(const mp_frame *f, const mp_prf_model *m, const mp_frame_opts *o,

@@ -68,8 +68,8 @@ int mp_fit_table(const mp_frame *f, const mp_prf_model *m, const mp_frame_opts *
  * pipeline's later rounds (frame_memory.c), so that `fit` of a pipeline's
  * catalog goes on from the pipeline's last pass instead of from a
  * constant sky (47 Tuc 512² built: 8.5 % of the stars moved by more than
- * 1 sigma without it).  0 where there is none, or where the star ended
- * saturated or not converged (FLAGS, column cf: ff_warm_order). */
+ * 1 sigma without it).  0 where there is none, or where the star's fit
+ * did not converge (FLAGS, column cf: ff_warm_order). */
 static int table_sky_order(const mp_table *t, size_t i, int co, int cf)
 {
     double v = co >= 0 ? mp_table_get(t, i, co) : NAN;

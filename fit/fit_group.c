@@ -275,19 +275,22 @@ static double known_sky(const mp_star *st, int n)
 
 /* The sky order to fit first: the one asked for; under auto, constant,
  * or with o->warm_sky the highest its stars were last fitted with (a star
- * never fitted reads 0).  Not when a star's last fit did not converge or
- * held saturated pixels: there the flux comes from the wings, which a
- * curved sky mimics, and the start from constant (the stars first, the
- * sky only with what they leave) is what pulls a saturated core's
- * fragments back into one star (the segmented scene with its PSF built:
- * 54 false entries, ~100 when such groups kept their order; bench/
- * PROFILE.md, session 20). */
+ * never fitted reads 0).  Not when a star's last fit did not converge:
+ * it starts again from constant.  A saturated star's group once started
+ * from constant as well, so that a saturated core's fragments merged
+ * (session 20: the segmented scene with its PSF built, 54 false entries,
+ * ~100 when such groups kept their order); since the plateau is kept as
+ * one star from the first detection (pipeline/prescreen.c, session 21)
+ * there are no fragments to merge, and the warm start leaves that
+ * scene's false entries where they were (beside a saturated star 231 →
+ * 232 over its nine runs) while 47 Tuc's refits stopped climbing from
+ * constant every time (bench/PROFILE.md, session 46). */
 static int first_order(const mp_fit_opts *o, const mp_star *st, int n)
 {
     if (o->sky_order == MP_SKY_AUTO) {
         int w = 0, warm = o->warm_sky && o->fit_sky;
         for (int k = 0; k < n && warm; k++) {
-            if (st[k].flags & (MP_FLAG_SATURATED | MP_FLAG_NOCONV))
+            if (st[k].flags & MP_FLAG_NOCONV)
                 return 0;
             w = st[k].sky_order > w && st[k].sky_order <= MP_SKY_MAXORDER ? st[k].sky_order : w;
         }

@@ -45,11 +45,11 @@ typedef struct {
 typedef mp_prf_crop crop_rule;
 
 /* The sky order a star's group may start at when it is fitted again
- * (warm_sky): its last one, unless that fit ended saturated or not
- * converged (as first_order in fit_group.c rules for a group). */
+ * (warm_sky): its last one, unless that fit did not converge (as
+ * first_order in fit_group.c rules for a group). */
 static inline int ff_warm_order(int flags, int order)
 {
-    return flags & (MP_FLAG_SATURATED | MP_FLAG_NOCONV) ? 0 : order;
+    return flags & MP_FLAG_NOCONV ? 0 : order;
 }
 
 /* Equal, NaN equal to NaN (a star's sky may be NaN: none measured). */

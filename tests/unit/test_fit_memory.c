@@ -3,8 +3,8 @@
  * that fit's bound and sky order back; a forgotten memory (a new PSF:
  * mp_fit_memory_forget) gives back no bound and no light to account for,
  * only each star's sky order as its next fit's start — none where its
- * last fit was saturated or did not converge, as first_order would not
- * take it — and only once (a memory remembered again holds its new fits
+ * last fit did not converge, as first_order would not take it, but a
+ * saturated star's, which it now takes — and only once (a memory remembered again holds its new fits
  * whole).  Deterministic: hand-made states. */
 #include <setjmp.h>
 #include <stdarg.h>
@@ -41,7 +41,8 @@ static void fitted_table(mp_table *t, star_state *st)
         st[k].alive = 1;
         st[k].bound = 0.01;
     }
-    st[1].s.flags = MP_FLAG_SATURATED;
+    st[0].s.flags = MP_FLAG_SATURATED;
+    st[1].s.flags = MP_FLAG_NOCONV;
     assert_int_equal(ff_write_columns(t, st, NSTAR, 0.0, (char[MP_ERRLEN]){0}), 0);
 }
 
@@ -100,7 +101,8 @@ static void test_recall_gives_back(void **state)
 
 /* Forgotten (the third star gone from the table too): every star as new
  * (no bound, from no light), no light gone to account for, no paint held,
- * and each sky order kept but the saturated star's; a second recall
+ * and each sky order kept (a saturated star's too) but the one not
+ * converged; a second recall
  * finds the memory empty. */
 static void test_forget_keeps_sky_orders(void **state)
 {
@@ -123,8 +125,8 @@ static void test_forget_keeps_sky_orders(void **state)
         assert_int_equal(st[k].moved, MOVED_CALL);
         assert_int_equal(st[k].olight, 0);
     }
-    assert_int_equal(st[0].s.sky_order, 2);
-    assert_int_equal(st[1].s.sky_order, 0);     /* saturated: from a constant */
+    assert_int_equal(st[0].s.sky_order, 2);     /* saturated: warm all the same */
+    assert_int_equal(st[1].s.sky_order, 0);     /* not converged: from a constant */
     next_states(last, st, NSTAR - 1);
     assert_int_equal(ff_recall(mem, &t, st, NSTAR - 1, &back, &gone, &ngone), 0);
     assert_int_equal(ngone, 0);

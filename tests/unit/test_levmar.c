@@ -722,9 +722,9 @@ static int table_order_fit(int order, int flags)
 /* A table's SKYORD_PSF is where its groups' skies start (warm, as a
  * pipeline's later rounds start from the fit's memory), so `fit` of a
  * pipeline's catalog goes on from its last pass.  The score test only
- * raises an order: a flat sky started at quadratic stays quadratic; with
- * no column, or a star flagged not converged or saturated, it starts (and
- * on this flat sky, one seed, stays) constant. */
+ * raises an order: a flat sky started at quadratic stays quadratic (a
+ * star flagged saturated too); with no column, or a star flagged not
+ * converged, it starts (and on this flat sky, one seed, stays) constant. */
 static void test_table_sky_order_warm(void **state)
 {
     (void)state;
@@ -732,7 +732,7 @@ static void test_table_sky_order_warm(void **state)
     assert_int_equal(table_order_fit(2, 0), 2);
     assert_int_equal(table_order_fit(1, 0), 1);
     assert_int_equal(table_order_fit(2, MP_FLAG_NOCONV), 0);
-    assert_int_equal(table_order_fit(2, MP_FLAG_SATURATED), 0);
+    assert_int_equal(table_order_fit(2, MP_FLAG_SATURATED), 2);
 }
 
 /* A star whose group has too few pixels to fit (here: started 6 px
@@ -1263,10 +1263,11 @@ static void test_reused_pair_sums_same_fit(void **state)
  * test, so they must agree to within the LM's tol (asserted at 0.05 σ,
  * as the tests above); the warm one at the first fit's order, and in
  * fewer steps than the cold one, whose constant-sky loop walks the stars
- * off and back (here 4 steps against 26).  With a star last flagged
- * saturated the refit is the cold one, bit for bit (fit_group.c
- * first_order).  Deterministic: fails when the order is not carried, or
- * it costs steps, or the answers part, or the flag is not heeded. */
+ * off and back (here 4 steps against 26).  With a star last flagged not
+ * converged the refit is the cold one, bit for bit; with one flagged
+ * saturated, the warm one (fit_group.c first_order).  Deterministic:
+ * fails when the order is not carried, or it costs steps, or the answers
+ * part, or a flag is not heeded. */
 static void test_warm_sky_refit(void **state)
 {
     (void)state;
@@ -1285,16 +1286,22 @@ static void test_warm_sky_refit(void **state)
         assert_int_equal(b[k].sky_order, a[k].sky_order);
     assert_true(b[0].niter < c[0].niter);
     assert_same_fits(b, c, FROZEN_K);
-    /* A star last flagged saturated: the group starts from constant, the
-     * cold refit's path step for step. */
+    /* A star last flagged not converged: the group starts from constant,
+     * the cold refit's path step for step; flagged saturated, the warm
+     * refit's. */
     mp_star s[FROZEN_K], d[FROZEN_K];
     memcpy(s, a, sizeof s);
-    s[FROZEN_K - 1].flags |= MP_FLAG_SATURATED;
+    s[FROZEN_K - 1].flags |= MP_FLAG_NOCONV;
     run.start = s;
     run.warm = 1;
     frozen_scene_run(&run, d, &wb);
     for (int k = 0; k < FROZEN_K; k++)
         assert_true(d[k].x == c[k].x && d[k].flux == c[k].flux && d[k].niter == c[k].niter);
+    memcpy(s, a, sizeof s);
+    s[FROZEN_K - 1].flags |= MP_FLAG_SATURATED;
+    frozen_scene_run(&run, d, &wb);
+    for (int k = 0; k < FROZEN_K; k++)
+        assert_true(d[k].x == b[k].x && d[k].flux == b[k].flux && d[k].niter == b[k].niter);
 }
 
 /* Settled stars (fit/lm_settle.c, issue 12).  A group of 16 stars, 12 on
