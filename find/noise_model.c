@@ -28,13 +28,60 @@ typedef struct {
     size_t n;
 } samples;
 
+/* The sky of the 2·nh + 1 rows a kernel footprint spans, kept as a
+ * thread's samples move down the frame: each row's spline evaluated once
+ * (mp_bkg_rows, the values of mp_bkg_sky), not once per tap (the taps'
+ * spline evaluations were most of noise_scale, a tenth of a 512² frame's
+ * run with its PSF built).  v NULL: each tap evaluates its own. */
+typedef struct {
+    float *v;
+    long *y;
+    long nrow, nx;
+} sky_rows;
+
+/* Row y's sky from c (computed into its slot when not there). */
+static const float *sky_row(const mp_bkg *b, sky_rows *c, long y)
+{
+    size_t slot = (size_t)(y % c->nrow);
+    if (c->y[slot] != y) {
+        mp_bkg_rows(b, y, y + 1, c->v + slot * (size_t)c->nx, NULL);
+        c->y[slot] = y;
+    }
+    return c->v + slot * (size_t)c->nx;
+}
+
+/* Room for the rows of a kernel of half-width nh on a frame nx wide;
+ * c->v NULL when there is none (the taps then evaluate their own). */
+static void sky_rows_init(sky_rows *c, int nh, long nx)
+{
+    c->nrow = 2L * nh + 1;
+    c->nx = nx;
+    c->v = malloc((size_t)c->nrow * (size_t)nx * sizeof *c->v);
+    c->y = malloc((size_t)c->nrow * sizeof *c->y);
+    if (!c->v || !c->y) {
+        free(c->v);
+        free(c->y);
+        c->v = NULL;
+        c->y = NULL;
+        return;
+    }
+    for (long r = 0; r < c->nrow; r++)
+        c->y[r] = -1;
+}
+
+static void sky_rows_free(sky_rows *c)
+{
+    free(c->v);
+    free(c->y);
+}
+
 /* Pixel (x, y) = (i mod nx, i / nx) as sample j of s through the
  * detection kernel k: r its amplitude h = Σ kl·(residual − sky) there,
  * p h's Poisson variance Σ kl²·v, m the stars' light over its noise in
  * the footprint; p = −1 where the footprint leaves the frame or holds a
- * masked or unusable pixel. */
+ * masked or unusable pixel.  The sky from c's rows (sky_row). */
 static void kernel_sample(const mp_bkg *b, const mp_frame *f, const float *res,
-                          const mpf_kernel *k, size_t i, samples *s, size_t j)
+                          const mpf_kernel *k, sky_rows *c, size_t i, samples *s, size_t j)
 {
     long nx = f->im.nx, ny = f->im.ny, x0 = (long)(i % (size_t)nx), y0 = (long)(i / (size_t)nx);
     double h = 0.0, vh = 0.0, sp = 0.0, sm = 0.0;
@@ -45,7 +92,7 @@ static void kernel_sample(const mp_bkg *b, const mp_frame *f, const float *res,
         if (!ok)
             break;
         size_t q = (size_t)y * (size_t)nx + (size_t)x;
-        float sky = mp_bkg_sky(b, q);
+        float sky = c->v ? sky_row(b, c, y)[x] : mp_bkg_sky(b, q);
         double v = poisson_var(f, res, q, sky);
         ok = !f->mask[q] && v > 0 && isfinite(res[q]);
         h += k->kl[t] * (res[q] - sky);
@@ -114,9 +161,15 @@ static double noise_scale(const mp_bkg *b, const mp_frame *f, const float *res,
     /* Every step-th pixel into its own slot, in parallel; the unusable
      * ones (p < 0) then dropped in order, so the samples do not depend on
      * the threads. */
-#pragma omp parallel for schedule(static)
-    for (size_t j = 0; j < nsel; j++)
-        kernel_sample(b, f, res, k, j * step, all, j);
+#pragma omp parallel
+    {
+        sky_rows c;
+        sky_rows_init(&c, k->nh, f->im.nx);
+#pragma omp for schedule(static)
+        for (size_t j = 0; j < nsel; j++)
+            kernel_sample(b, f, res, k, &c, j * step, all, j);
+        sky_rows_free(&c);
+    }
     all->n = compact(all, nsel);
     /* The samples whose star light is below its noise; in a field so
      * crowded that fewer than a quarter are, the quarter with the least
