@@ -147,6 +147,8 @@ static int covariance(group *G)
     return rc;
 }
 
+/* The median of the group's data, the upper one for even n (v[n/2] of
+ * the sorted values), by selection: a sort was 1 % of 47 Tuc's CPU. */
 static double start_sky(const group *G)
 {
     double *v = malloc((G->npix ? G->npix : 1) * sizeof *v);
@@ -154,8 +156,7 @@ static double start_sky(const group *G)
         return 0.0;
     size_t n = G->npix;
     memcpy(v, G->dat, n * sizeof *v);
-    qsort(v, n, sizeof *v, lm_cmp_double);
-    double s = n ? v[n / 2] : 0.0;
+    double s = n ? mp_select_kth(v, n, n / 2) : 0.0;
     free(v);
     return s;
 }

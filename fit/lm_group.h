@@ -176,13 +176,6 @@ static inline double sky_at(const group *G, const double *p, double x, double y)
     return s;
 }
 
-/* qsort's order of doubles. */
-static inline int lm_cmp_double(const void *a, const void *b)
-{
-    double x = *(const double *)a, y = *(const double *)b;
-    return (x > y) - (x < y);
-}
-
 /* Render every star of parameter vector p into r, on the fitted pixels of
  * its window only (the group's box, the star's PRF box and its crop
  * radius): the fit pays for its fitting region, not for the PSF's wings,

@@ -218,8 +218,7 @@ static void ring_terms(const ring *r, sky_sums *S)
         for (size_t q = 0; q < nb; q++)
             if (r->cell[q] == cl)
                 r->buf[n++] = r->res[q];
-        qsort(r->buf, n, sizeof *r->buf, lm_cmp_double);
-        double med = n % 2 ? r->buf[n / 2] : 0.5 * (r->buf[n / 2 - 1] + r->buf[n / 2]), c[6];
+        double med = mp_median_select(r->buf, n), c[6];     /* a sort's median, by selection */
         for (int a = 0; a < 6; a++)
             c[a] = r->sumc[cl][a] / (double)n;
         add_sky_term(S, c, med, 0.5 * M_PI * r->sumv[cl] / ((double)n * (double)n));
