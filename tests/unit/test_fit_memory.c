@@ -4,8 +4,9 @@
  * mp_fit_memory_forget) gives back no bound and no light to account for,
  * only each star's sky order as its next fit's start — none where its
  * last fit did not converge, as first_order would not take it, but a
- * saturated star's, which it now takes — and only once (a memory remembered again holds its new fits
- * whole).  Deterministic: hand-made states. */
+ * saturated star's, which it now takes — and only once (a memory
+ * remembered again holds its new fits whole).  Deterministic: hand-made
+ * states. */
 #include <setjmp.h>
 #include <stdarg.h>
 #include <stddef.h>
