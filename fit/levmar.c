@@ -27,16 +27,24 @@
 #include "fit/lm_group.h"
 #include "fit/spd.h"
 
-/* Solve (A + λ diag A) δ = g by Cholesky; nonzero when not positive definite. */
+/* Solve (A + λ diag A) δ = g by Cholesky, the constant sky held (its
+ * step 0, its row and column out of the system) when G->skyheld; nonzero
+ * when not positive definite. */
 static int lm_step(group *G, double lambda)
 {
-    int np = G->np;
+    int np = G->np, h = G->skyheld ? 3 * G->n : -1;
     memcpy(G->M, G->A, (size_t)np * np * sizeof *G->M);
     for (int a = 0; a < np; a++) {
         double d = G->A[(size_t)a * np + a];
         G->M[(size_t)a * np + a] = d * (1.0 + lambda) + (d > 0 ? 0.0 : 1e-300);
     }
     memcpy(G->step, G->g, (size_t)np * sizeof *G->step);
+    if (h >= 0) {
+        for (int a = 0; a < np; a++)
+            G->M[(size_t)a * np + h] = G->M[(size_t)h * np + a] = 0.0;
+        G->M[(size_t)h * np + h] = 1.0;
+        G->step[h] = 0.0;
+    }
     /* M is symmetric: its row-major upper triangle is the column-major
      * lower one that mp_spd_solve reads in place (fit/spd.h: not LAPACK,
      * whose per-call lock serialised the threads). */
@@ -107,7 +115,7 @@ static int bound_step(group *G)
             cut = 1;
         }
     }
-    if (G->nsky) {
+    if (G->nsky && !G->skyheld) {
         double B0 = G->p[3 * n], lo = sky_floor(G);
         if (B0 + G->step[3 * n] < lo || B0 + G->step[3 * n] > G->dhi) {
             G->step[3 * n] = (B0 + G->step[3 * n] < lo ? lo : G->dhi) - B0;
@@ -133,6 +141,39 @@ static int bound_step(group *G)
         }
     }
     return cut;
+}
+
+/* Whether the constant sky sits on one of bound_step's absolute bounds
+ * (sky_floor, dhi), the step G->step pushing it further out. */
+static int sky_pinned(const group *G)
+{
+    if (!G->nsky)
+        return 0;
+    double B0 = G->p[3 * G->n], d = G->step[3 * G->n];
+    double eps = 1e-9 * fmax(fabs(B0), 1.0);
+    return (d < 0 && B0 <= sky_floor(G) + eps) || (d > 0 && B0 >= G->dhi - eps);
+}
+
+/* The LM step at λ within bound_step's limits.  A constant sky on one of
+ * its absolute bounds that the step would push further is held there and
+ * the others' step solved without it: the step of the minimum on that
+ * bound, where D's gradient still points out of it.  Cut to the bound
+ * instead, every step counted as cut, so the fit could not converge
+ * however small the stars' steps (47 Tuc built: 74 loops ran to maxiter,
+ * nearly all on a sky pinned there, four loops of 50 steps each for
+ * some groups).  −1 when A + λ diag A is not positive definite, else
+ * whether bound_step cut the step. */
+static int bounded_step(group *G, double lambda)
+{
+    G->skyheld = 0;
+    if (lm_step(G, lambda))
+        return -1;
+    if (sky_pinned(G)) {
+        G->skyheld = 1;
+        if (lm_step(G, lambda))
+            return -1;
+    }
+    return bound_step(G);
 }
 
 /* The largest step of a fitted parameter in units of its σ, 1/sqrt(A_aa)
@@ -268,7 +309,7 @@ static int step_length(group *G, double D, double *Dt, double *z)
  * open): the fit has converged without taking it. */
 static int step_below_tol(group *G, double lambda, double rphi, double tol)
 {
-    if (lm_step(G, lambda) || bound_step(G))
+    if (bounded_step(G, lambda) != 0)
         return 0;
     return step_sigmas(G) * rphi * (1.0 + lambda) < tol;
 }
@@ -487,11 +528,11 @@ static int below_tol_untried(group *G, const mp_fit_opts *o, lm_state *s, int *c
 static int lm_iterate(group *G, const mp_fit_opts *o, lm_state *s, int *converged)
 {
     s->trials++;
-    if (lm_step(G, s->lambda)) {
+    int cut = bounded_step(G, s->lambda);
+    if (cut < 0) {
         s->lambda *= 10.0;
         return s->lambda > 1e12 ? LM_DONE : LM_ON;
     }
-    int cut = bound_step(G);
     double z = cut ? INFINITY : step_sigmas(G) * s->rphi, Dt;
     if (z * (1.0 + s->lambda) < o->tol)
         return below_tol_untried(G, o, s, converged);

@@ -74,6 +74,8 @@ typedef struct {
      * (fx, fy) — both buffers alike. */
     int freezing, frozen;       /* this fit freezes; frozen now */
     int outside;                /* the last trial left the sky's bounds */
+    int skyheld;                /* the constant sky held on its bound in the
+                                 * step now taken (levmar.c, bounded_step) */
     int skystall;               /* the last loop stalled on the sky's bounds
                                  * (levmar.c, LM_SKY_STALL) */
     int paired;                 /* the last loop brought two stars within

@@ -604,6 +604,47 @@ static void test_sky_floor_from_found_sky(void **state)
     frame_drop(&f);
 }
 
+/* A constant sky on its floor is a bound, not a reason to run on.  The
+ * hole of test_sky_floor_from_found_sky pulls the sky below the floor at
+ * every step; bound_step cut each step to the floor and counted it cut,
+ * so the loop could not converge however small the star's steps: 50
+ * iterations, flagged 8, the flux still moving (47 Tuc built: 74 loops
+ * ran to maxiter so, nearly all on a constant sky pinned at its floor).
+ * Held there (levmar.c, bounded_step), the star's steps are solved
+ * without it and meet tol: converged on the floor in a few steps, at the
+ * minimum on it — a fit with the sky fixed at the floor, started there,
+ * moves the flux and position by less than their σ. Deterministic (one
+ * seed). */
+static void test_sky_held_on_floor(void **state)
+{
+    (void)state;
+    mp_frame f;
+    double x, y;
+    fitrad5_frame(&f, 1313000000ULL, 2e4, 0.0, 3.0, &x, &y);
+    for (int j = 0; j < 6; j++)
+        for (int i = 0; i < 4; i++)
+            f.im.pix[(lround(y) - 4 + j) * F5_NPX + lround(x) + 1 + i] -= 3000.0;
+    mp_star st = fitrad5_fit(&f, x, y, 0, 100.0);
+    double floor = 100.0 - 10.0 * sqrt(109.0);
+    assert_false(st.flags & MP_FLAG_NOCONV);
+    assert_true(st.niter < 25);
+    assert_true(fabs(st.sky - floor) < 1e-6);
+    mp_psf gau;
+    mp_psf_gauss(3.0, &gau);
+    mp_prf_model m = {&gau, NULL, 10};
+    mp_fit_opts o;
+    mp_fit_opts_default(&o);
+    o.fitrad = 5.0;
+    o.fit_sky = 0;
+    mp_star fx = {.x = st.x, .y = st.y, .flux = st.flux, .sky = 100.0};
+    char err[MP_ERRLEN];
+    assert_int_equal(mp_fit_group(&f, &m, &o, floor, &fx, 1, err), 0);
+    assert_false(fx.flags & MP_FLAG_NOCONV);
+    assert_true(fabs(fx.flux - st.flux) < st.eflux);
+    assert_true(fabs(fx.x - st.x) < st.ex && fabs(fx.y - st.y) < st.ey);
+    frame_drop(&f);
+}
+
 /* The scene where a raised sky order stalls on the sky's bounds (fit
  * seed 1313000000): a bowl sky (10 e⁻/px² of curvature about the star)
  * makes the score test raise the order to quadratic; a 2×2 block of
@@ -1491,6 +1532,7 @@ int main(void)
         cmocka_unit_test(test_skymodel_parameter),
         cmocka_unit_test(test_negative_pixels_weigh_as_sky),
         cmocka_unit_test(test_sky_floor_from_found_sky),
+        cmocka_unit_test(test_sky_held_on_floor),
         cmocka_unit_test(test_sky_order_stalled_dropped),
         cmocka_unit_test(test_sky_order_stalled_warm),
         cmocka_unit_test(test_table_sky_order_warm),
