@@ -879,6 +879,68 @@ static void test_close_pair_ends_loop(void **state)
     frame_drop(&f);
 }
 
+/* The blend of test_close_pair_ends_loop, one group, fitted by the frame
+ * fit from a table whose SKYORD_PSF says 1 (a later round's warm start):
+ * the loop stops on the pair, the frame fit merges it and fits the one
+ * star again.  A loop cut short on a pair is not a failed fit, so that
+ * refit starts at the order the stopped one had, 1, where the score test
+ * (which only raises) leaves it on this flat sky; it started from
+ * constant before (frame_group.c), as after a fit that failed, and ended
+ * there on every seed — elsewhere it climbed again to where it had been
+ * (47 Tuc built: ~200 such refits a run, 13 LM steps each).  Eight
+ * seeds, deterministic: seven merge (the eighth's pair parts and
+ * converges). */
+static void test_pair_refit_warm(void **state)
+{
+    (void)state;
+    const int NP = 40;
+    mp_psf gau;
+    mp_psf_gauss(3.0, &gau);
+    mp_prf_model m = {&gau, NULL, 10};
+    mp_sim_prf sp = {.kind = MP_SIM_GAUSS, .sigma = fwhm_to_sigma(3.0), .volume = 1.0};
+    mp_frame f;
+    frame_make(&f, NP, 3.0);
+    int merged = 0;
+    for (int seed = 1; seed <= 8; seed++) {
+        mp_rng r;
+        mp_rng_seed(&r, 900 + (uint64_t)seed);
+        double x = 20.3, y = 19.8;
+        for (long i = 0; i < NP * NP; i++)
+            f.im.pix[i] = 100.0;
+        assert_int_equal(mp_sim_add_star_float(&sp, x, y, 2e4, f.im.pix, NP, NP), 0);
+        mp_sim_add_noise_float(&r, f.im.pix, NP * NP, 3.0);
+        mp_table t;
+        mp_table_init(&t);
+        const char *names[6] = {"X_IMAGE", "Y_IMAGE", "FLUX_PSF", "SKY_PSF", "SKYORD_PSF",
+                                "GROUP_ID"};
+        const double v[2][6] = {{x - 0.45, y, 1e4, 100.0, 1, 1},
+                                {x + 0.45, y + 0.1, 1e4, 100.0, 1, 1}};
+        for (int k = 0; k < 6; k++)
+            mp_table_add_col(&t, names[k]);
+        for (int i = 0; i < 2; i++) {
+            assert_true(mp_table_add_row(&t) == i);
+            for (int k = 0; k < 6; k++)
+                mp_table_set(&t, (size_t)i, k, v[i][k]);
+        }
+        mp_frame_opts fo;
+        mp_frame_opts_default(&fo);
+        fo.fit.fitrad = 5.0;
+        fo.passes = 1;
+        mp_frame_report rep;
+        char err[MP_ERRLEN];
+        assert_int_equal(mp_fit_table(&f, &m, &fo, &t, &rep, err), 0);
+        if (rep.merged == 1) {
+            merged++;
+            assert_int_equal(t.nrow, 1);
+            assert_int_equal((int)mp_table_get(&t, 0, mp_table_col(&t, "SKYORD_PSF")), 1);
+            assert_false((int)mp_table_get(&t, 0, mp_table_col(&t, "FLAGS")) & MP_FLAG_NOCONV);
+        }
+        mp_table_free(&t);
+    }
+    assert_true(merged >= 6);
+    frame_drop(&f);
+}
+
 /* fit.par's skymodel: auto is the default and chooses per group under
  * economy=yes and economy=no alike (the order is a choice of the model
  * from the data, not an economy: issue 10); an explicit order is honoured
@@ -1536,6 +1598,7 @@ int main(void)
         cmocka_unit_test(test_sky_order_stalled_dropped),
         cmocka_unit_test(test_sky_order_stalled_warm),
         cmocka_unit_test(test_table_sky_order_warm),
+        cmocka_unit_test(test_pair_refit_warm),
         cmocka_unit_test(test_unfitted_star_rejected),
         cmocka_unit_test(test_error_plane_weights),
         cmocka_unit_test(test_frozen_wings_same_fit),
