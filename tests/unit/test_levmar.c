@@ -824,6 +824,24 @@ static void test_unfitted_star_rejected(void **state)
     frame_drop(&f);
 }
 
+/* The blend scene of the pair tests: one star of 2·10⁴ e⁻ (FWHM 3) at
+ * (PAIR_X, PAIR_Y) on a sky of 100 e⁻, RON 3, on f (PAIR_NP² px), the
+ * noise of seed 900 + seed. */
+#define PAIR_NP 40
+#define PAIR_X 20.3
+#define PAIR_Y 19.8
+static void pair_scene(mp_frame *f, int seed)
+{
+    mp_sim_prf sp = {.kind = MP_SIM_GAUSS, .sigma = fwhm_to_sigma(3.0), .volume = 1.0};
+    mp_rng r;
+    mp_rng_seed(&r, 900 + (uint64_t)seed);
+    for (long i = 0; i < PAIR_NP * PAIR_NP; i++)
+        f->im.pix[i] = 100.0;
+    assert_int_equal(mp_sim_add_star_float(&sp, PAIR_X, PAIR_Y, 2e4, f->im.pix, PAIR_NP, PAIR_NP),
+                     0);
+    mp_sim_add_noise_float(&r, f->im.pix, PAIR_NP * PAIR_NP, 3.0);
+}
+
 /* A blend that is one star (2·10⁴ e⁻, FWHM 3, RON 3, sky 100), started as
  * two of 10⁴ e⁻ 0.9 px apart: the fit crawls along the pair's degenerate
  * direction.  With stop_pair 1.2 px (0.4 FWHM, the frame fit's merge
@@ -836,22 +854,15 @@ static void test_unfitted_star_rejected(void **state)
 static void test_close_pair_ends_loop(void **state)
 {
     (void)state;
-    const int NP = 40;
     mp_psf gau;
     mp_psf_gauss(3.0, &gau);
     mp_prf_model m = {&gau, NULL, 10};
-    mp_sim_prf sp = {.kind = MP_SIM_GAUSS, .sigma = fwhm_to_sigma(3.0), .volume = 1.0};
     mp_frame f;
-    frame_make(&f, NP, 3.0);
+    frame_make(&f, PAIR_NP, 3.0);
     int at10 = 0;
     for (int seed = 1; seed <= 8; seed++) {
-        mp_rng r;
-        mp_rng_seed(&r, 900 + (uint64_t)seed);
-        double x = 20.3, y = 19.8;
-        for (long i = 0; i < NP * NP; i++)
-            f.im.pix[i] = 100.0;
-        assert_int_equal(mp_sim_add_star_float(&sp, x, y, 2e4, f.im.pix, NP, NP), 0);
-        mp_sim_add_noise_float(&r, f.im.pix, NP * NP, 3.0);
+        pair_scene(&f, seed);
+        double x = PAIR_X, y = PAIR_Y;
         mp_star s[2][2];
         for (int stop = 0; stop < 2; stop++) {
             mp_fit_opts o;
@@ -893,22 +904,15 @@ static void test_close_pair_ends_loop(void **state)
 static void test_pair_refit_warm(void **state)
 {
     (void)state;
-    const int NP = 40;
     mp_psf gau;
     mp_psf_gauss(3.0, &gau);
     mp_prf_model m = {&gau, NULL, 10};
-    mp_sim_prf sp = {.kind = MP_SIM_GAUSS, .sigma = fwhm_to_sigma(3.0), .volume = 1.0};
     mp_frame f;
-    frame_make(&f, NP, 3.0);
+    frame_make(&f, PAIR_NP, 3.0);
     int merged = 0;
     for (int seed = 1; seed <= 8; seed++) {
-        mp_rng r;
-        mp_rng_seed(&r, 900 + (uint64_t)seed);
-        double x = 20.3, y = 19.8;
-        for (long i = 0; i < NP * NP; i++)
-            f.im.pix[i] = 100.0;
-        assert_int_equal(mp_sim_add_star_float(&sp, x, y, 2e4, f.im.pix, NP, NP), 0);
-        mp_sim_add_noise_float(&r, f.im.pix, NP * NP, 3.0);
+        pair_scene(&f, seed);
+        double x = PAIR_X, y = PAIR_Y;
         mp_table t;
         mp_table_init(&t);
         const char *names[6] = {"X_IMAGE", "Y_IMAGE", "FLUX_PSF", "SKY_PSF", "SKYORD_PSF",
