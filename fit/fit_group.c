@@ -278,8 +278,9 @@ static double known_sky(const mp_star *st, int n)
  * or with o->warm_sky the highest its stars were last fitted with (a star
  * never fitted reads 0).  Not when a star's last fit did not converge:
  * it starts again from constant (a fit cut short on a close pair is not
- * one of those: frame_group.c clears the flag for the fit after it).  A saturated star's group once started
- * from constant as well, so that a saturated core's fragments merged
+ * one of those: frame_group.c clears the flag for the fit after it).  A
+ * saturated star's group once started from constant as well, so that a
+ * saturated core's fragments merged
  * (session 20: the segmented scene with its PSF built, 54 false entries,
  * ~100 when such groups kept their order); since the plateau is kept as
  * one star from the first detection (pipeline/prescreen.c, session 21)

@@ -350,9 +350,10 @@ int ff_fit_one_group(const mp_frame *f, const mp_prf_model *m, const mp_frame_op
         int nl = live_of(s, alive, n, live, map);
         if (nl == 0)
             break;
-        /* A fit cut short on a close pair was not a failed one: the next
-         * (of the pair merged, or unstopped) starts at the sky order it
-         * had, not from constant (fit_group.c first_order).  From
+        /* A fit cut short on a close pair was not a failed one: the fit
+         * after it (the pair merged, a star rejected, or unstopped) starts
+         * at the sky order it had, not from constant (fit_group.c
+         * first_order).  From
          * constant, each climbed again to the order it had left (47 Tuc
          * built: ~200 such refits a run, 13 LM steps each). */
         for (int k = 0; paired && k < nl; k++)
