@@ -324,6 +324,13 @@ typedef struct mp_prf_cache_s {
  * Nonzero with err when out of memory. */
 int mp_prf_cache_build(const mp_prf_model *m, int G, mp_prf_cache *c, char *err);
 
+/* mp_prf_cache_build_reusing: the same, its blocks taken from spare (a
+ * grid built before, or zeroed) where spare holds one of the size it
+ * needs (spare's pointer then NULL); spare keeps the rest, for the caller
+ * to free (mp_prf_cache_free).  The values are mp_prf_cache_build's. */
+int mp_prf_cache_build_reusing(const mp_prf_model *m, int G, mp_prf_cache *c,
+                               mp_prf_cache *spare, char *err);
+
 /* mp_prf_cache_build_exact: the same grid with every node and cell drawn
  * by mp_prf_render_branch (the path a DRF with subpixel QE takes; the
  * others' are drawn as a product of per-axis operators, fit/prf_axis.c,

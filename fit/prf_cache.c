@@ -611,9 +611,26 @@ static int cell_bins(mp_prf_cache *c)
 
 static int build_field(const mp_prf_model *m, int G, int sep, mp_prf_cache *c, char *err);
 
+/* n floats: *b, taken from a spare grid, when it holds exactly n (have),
+ * else a new block.  A grid rebuilt for a table that changed (each round
+ * of the PSF build) fills the pages its last one had faulted in: as new
+ * blocks, above malloc's mmap threshold, the PSF build's grids were 40 %
+ * of 47 Tuc's page faults (bench/PROFILE.md, 2026-12-03). */
+static float *reused(float **b, size_t have, size_t n)
+{
+    if (b && *b && have == n) {
+        float *r = *b;
+        *b = NULL;
+        return r;
+    }
+    return malloc(n * sizeof **b);
+}
+
 /* The grid, its nodes and cells rendered by the axis operators when the
- * model allows (sep), else by fit/prf.c's render. */
-static int build(const mp_prf_model *m, int G, int sep, mp_prf_cache *c, char *err)
+ * model allows (sep), else by fit/prf.c's render; the blocks of spare
+ * (NULL: none) of the sizes it needs taken from it. */
+static int build(const mp_prf_model *m, int G, int sep, mp_prf_cache *c, mp_prf_cache *spare,
+                 char *err)
 {
     memset(c, 0, sizeof *c);
     if (m->psf->kind != MP_PSF_TABLE || G < 1)
@@ -634,10 +651,13 @@ static int build(const mp_prf_model *m, int G, int sep, mp_prf_cache *c, char *e
         memset(c, 0, sizeof *c);        /* too big to pay: exact renders */
         return 0;
     }
-    c->img = malloc(3 * (size_t)NA * NA * c->npix * sizeof *c->img);
-    c->p = malloc((size_t)c->nph * c->npix * sizeof *c->p);
-    c->d2 = malloc((size_t)c->nph * c->npix * sizeof *c->d2);
-    c->d2l = malloc((size_t)c->nph * c->npix * sizeof *c->d2l);
+    int sa = spare ? spare->os * (spare->gb + 3) : 0;
+    size_t simg = spare ? 3 * (size_t)sa * sa * spare->npix : 0;
+    size_t sp = spare ? (size_t)spare->nph * spare->npix : 0, np = (size_t)c->nph * c->npix;
+    c->img = reused(spare ? &spare->img : NULL, simg, 3 * (size_t)NA * NA * c->npix);
+    c->p = reused(spare ? &spare->p : NULL, sp, np);
+    c->d2 = reused(spare ? &spare->d2 : NULL, sp, np);
+    c->d2l = reused(spare ? &spare->d2l : NULL, sp, np);
     sep = sep && mp_prf_separable(&me);
     double *buf = sep ? NULL : malloc(6 * c->npix * sizeof *buf);
     mp_prf_work wk = {0};
@@ -768,7 +788,7 @@ static int build_field(const mp_prf_model *m, int G, int sep, mp_prf_cache *c, c
         mp_prf_model mt = *m;
         mt.psf = &pt;
         mp_prf_cache *g = &c->term[t];
-        if (build(&mt, G, sep, g, err))
+        if (build(&mt, G, sep, g, NULL, err))
             rc = 1;
         else if (!g->G || 3.0 * c->nt * (double)g->os * (g->gb + 3) * g->os * (g->gb + 3) *
                                   (double)g->npix * sizeof *g->img > CACHE_MAX_BYTES) {
@@ -797,12 +817,18 @@ static int build_field(const mp_prf_model *m, int G, int sep, mp_prf_cache *c, c
 
 int mp_prf_cache_build(const mp_prf_model *m, int G, mp_prf_cache *c, char *err)
 {
-    return build(m, G, 1, c, err);
+    return build(m, G, 1, c, NULL, err);
+}
+
+int mp_prf_cache_build_reusing(const mp_prf_model *m, int G, mp_prf_cache *c,
+                               mp_prf_cache *spare, char *err)
+{
+    return build(m, G, 1, c, spare, err);
 }
 
 int mp_prf_cache_build_exact(const mp_prf_model *m, int G, mp_prf_cache *c, char *err)
 {
-    return build(m, G, 0, c, err);
+    return build(m, G, 0, c, NULL, err);
 }
 
 /* The δP² of an interpolation (lin: the bilinear one) and their bins. */

@@ -379,9 +379,15 @@ static int build_raised(mp_epsf_star *s, size_t n, const mp_epsf_opts *o, mp_eps
 
 int mp_epsf_pass(const mp_frame *f, const float *img, int residual, const mp_table *fitted,
                  const mp_prf_model *m, const double *x, const double *y, const double *flux,
-                 size_t n, const mp_epsf_opts *o, mp_epsf *e, mp_epsf_report *rep,
+                 size_t n, const mp_epsf_opts *oin, mp_epsf *e, mp_epsf_report *rep,
                  mp_psf_star **stars, char *err)
 {
+    /* The pass's builds hand their blocks on (mp_epsf_keep). */
+    mp_epsf_keep keep;
+    memset(&keep, 0, sizeof keep);
+    mp_epsf_opts po = *oin;
+    po.keep = po.keep ? po.keep : &keep;
+    const mp_epsf_opts *o = &po;
     mp_epsf_star *s = NULL;
     double *sky = malloc((n + 1) * sizeof *sky);
     int rc = 1;
@@ -426,5 +432,6 @@ int mp_epsf_pass(const mp_frame *f, const float *img, int residual, const mp_tab
 done:
     free(sky);
     mp_epsf_stars_free(s, n);
+    mp_epsf_keep_free(&keep);
     return rc;
 }

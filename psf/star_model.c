@@ -27,6 +27,31 @@ void mp_epsf_fitter_free(mp_epsf_fitter *z)
     memset(z, 0, sizeof *z);
 }
 
+void mp_epsf_fitter_start(mp_epsf_fitter *z, int mode, mp_epsf_keep *keep)
+{
+    memset(z, 0, sizeof *z);
+    z->mode = mode;
+    if (keep) {
+        z->grid = keep->grid;
+        memset(&keep->grid, 0, sizeof keep->grid);
+    }
+}
+
+void mp_epsf_keep_free(mp_epsf_keep *k)
+{
+    mp_prf_cache_free(&k->grid);
+}
+
+void mp_epsf_fitter_done(mp_epsf_fitter *z, mp_epsf_keep *keep)
+{
+    if (keep) {
+        mp_prf_cache_free(&keep->grid);
+        keep->grid = z->grid;
+        memset(&z->grid, 0, sizeof z->grid);
+    }
+    mp_epsf_fitter_free(z);
+}
+
 /* Renders a grid of G phases per pixel costs: its nodes (os·(gb + 3) per
  * axis, gb = ⌈G/os⌉: fit/prf_cache.c) and the G² cells where its error is
  * measured. */
@@ -56,28 +81,32 @@ static double unserved(const mp_epsf_fitter *z, const mp_epsf_star *s, size_t n)
 int mp_epsf_fitter_set(mp_epsf_fitter *z, const mp_epsf *e, const mp_epsf_star *s, size_t n,
                        char *err)
 {
-    mp_prf_cache_free(&z->grid);
+    /* The last round's grid: its blocks are this one's when it is built
+     * at the same size (fit/prf_cache.c, page faults). */
+    mp_prf_cache spare = z->grid;
+    memset(&z->grid, 0, sizeof z->grid);
     mp_prf_crop_free(&z->crop);
     z->order0 = e->nterms == 1;
-    if (!z->order0)
-        return 0;
-    if (mp_epsf_table(e, e->x0, e->y0, &z->tab, err))
-        return 1;
+    int rc = 0;
+    if (z->order0 && mp_epsf_table(e, e->x0, e->y0, &z->tab, err))
+        rc = 1;
     mp_prf_model m = {&z->tab, NULL, 10};
-    if (n > 0 && mp_prf_crop_init(&m, MP_EPSF_CROPFRAC, s[0].f.rdnoise, &z->crop)) {
+    if (!rc && z->order0 && n > 0 &&
+        mp_prf_crop_init(&m, MP_EPSF_CROPFRAC, s[0].f.rdnoise, &z->crop)) {
         snprintf(err, MP_ERRLEN, "psf build: out of memory");
-        return 1;
+        rc = 1;
     }
-    for (int G = z->fine ? MP_PRF_CACHE_G : MP_EPSF_GRID_G; G <= MP_PRF_CACHE_G; G *= 2) {
+    for (int G = z->fine ? MP_PRF_CACHE_G : MP_EPSF_GRID_G;
+         !rc && z->order0 && G <= MP_PRF_CACHE_G; G *= 2) {
         double need = unserved(z, s, n);
         if (z->mode < 0 || need == 0.0 || (z->mode == 0 && need < grid_renders(G, e->os)))
-            return 0;
+            break;
         mp_prf_cache_free(&z->grid);
-        if (mp_prf_cache_build(&m, G, &z->grid, err))
-            return 1;
+        rc = mp_prf_cache_build_reusing(&m, G, &z->grid, &spare, err);
         z->fine = G == MP_PRF_CACHE_G;
     }
-    return 0;
+    mp_prf_cache_free(&spare);
+    return rc;
 }
 
 const mp_prf_cache *mp_epsf_fitter_grid(const mp_epsf_fitter *z, const mp_epsf_star *s)

@@ -350,6 +350,58 @@ static void test_separable_build_is_exact(void **state)
     mp_drf_free(&d);
 }
 
+/* Whether grids a and b hold the same values, byte for byte. */
+static int same_grid(const mp_prf_cache *a, const mp_prf_cache *b)
+{
+    int NA = a->os * (a->gb + 3);
+    size_t ni = 3 * (size_t)NA * NA * a->npix, nc = (size_t)a->nph * a->npix;
+    return a->G == b->G && a->npix == b->npix && a->nph == b->nph &&
+           !memcmp(a->img, b->img, ni * sizeof *a->img) &&
+           !memcmp(a->p, b->p, nc * sizeof *a->p) && !memcmp(a->d2, b->d2, nc * sizeof *a->d2) &&
+           !memcmp(a->d2l, b->d2l, nc * sizeof *a->d2l) &&
+           !memcmp(a->d2bin, b->d2bin, (size_t)a->nph * MP_PRF_CACHE_NBIN * sizeof *a->d2bin);
+}
+
+/* A grid built into the blocks of a spare one (the PSF build's rounds,
+ * psf/star_model.c) is the fresh build, byte for byte: a spare of the
+ * same size, built for another table (the last round's) and so holding
+ * other values, gives its blocks up (taken, its pointers NULL); one of
+ * another size keeps them, and the build is still the fresh one. */
+static void test_rebuild_in_spare_blocks(void **state)
+{
+    (void)state;
+    char err[MP_ERRLEN];
+    mp_psf p, q, r;
+    lopsided(2, &p);
+    assert_int_equal(mp_psf_gauss_table(2.5, 2, 7.0, &q, err), 0);
+    lopsided(3, &r);
+    assert_true(p.nx == q.nx && p.ny == q.ny && p.os == q.os);
+    mp_prf_model m = {&p, NULL, 10}, mq = {&q, NULL, 10}, mr = {&r, NULL, 10};
+    mp_prf_cache fresh, spare, c;
+    assert_int_equal(mp_prf_cache_build(&m, 8, &fresh, err), 0);
+    assert_int_equal(mp_prf_cache_build(&mq, 8, &spare, err), 0);
+    assert_true(fresh.npix == spare.npix && !same_grid(&fresh, &spare));
+    const float *img = spare.img, *pp = spare.p;
+    assert_int_equal(mp_prf_cache_build_reusing(&m, 8, &c, &spare, err), 0);
+    assert_true(c.img == img && c.p == pp && !spare.img && !spare.p && !spare.d2 && !spare.d2l);
+    assert_true(same_grid(&c, &fresh));
+    mp_prf_cache_free(&spare);
+    /* another size: the spare keeps its blocks */
+    assert_int_equal(mp_prf_cache_build(&mr, 8, &spare, err), 0);
+    mp_prf_cache d;
+    img = spare.img;
+    assert_true(spare.npix != fresh.npix || spare.os != fresh.os);
+    assert_int_equal(mp_prf_cache_build_reusing(&m, 8, &d, &spare, err), 0);
+    assert_true(spare.img == img && d.img != img && same_grid(&d, &fresh));
+    mp_prf_cache_free(&fresh);
+    mp_prf_cache_free(&spare);
+    mp_prf_cache_free(&c);
+    mp_prf_cache_free(&d);
+    mp_psf_free(&p);
+    mp_psf_free(&q);
+    mp_psf_free(&r);
+}
+
 /* fit/prf.c's two exact renders: the table's elements shifted then
  * block-summed, and the axis operators (Y·T·Xᵀ), which render_table takes
  * where they cost fewer multiply-adds (a DRF with a QE map forces the
@@ -663,6 +715,7 @@ int main(void)
         cmocka_unit_test(test_bilinear_fit_within_bound),
         cmocka_unit_test(test_grid_only_for_its_model),
         cmocka_unit_test(test_separable_build_is_exact),
+        cmocka_unit_test(test_rebuild_in_spare_blocks),
         cmocka_unit_test(test_render_paths_agree),
         cmocka_unit_test(test_serves_as_the_bound),
         cmocka_unit_test(test_adjoint_is_transpose),
