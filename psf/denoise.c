@@ -37,9 +37,13 @@ static int dft2(double complex *a, int nx, int ny, int sign)
                     continue;
                 for (int k = 0; k < len; k++) {
                     double complex s = 0;
-                    for (int j = 0; j < len; j++) {
+                    /* the twiddle's index j·k mod len, stepped by k (no
+                     * division a term: it was most of the transform) */
+                    for (int j = 0, t = 0; j < len; j++) {
                         double complex v = pass ? a[(size_t)j * nx + c] : a[(size_t)c * nx + j];
-                        s += v * tw[((long)j * k) % len];
+                        s += v * tw[t];
+                        t += k;
+                        t -= t >= len ? len : 0;
                     }
                     row[k] = s;
                 }
