@@ -49,7 +49,18 @@ void mp_econ_cache_free(mp_econ_cache *c)
     for (int l = 0; l < MP_SS_MAXLEVELS; l++)
         mp_ss_level_free(&c->ss[l]);
     mp_prf_cache_free(&c->grid);
+    mp_prf_cache_free(&c->spare);
     free(c);
+}
+
+void mp_econ_cache_hand_grid(mp_econ_cache *from, mp_econ_cache *to)
+{
+    if (!from || !to || from->grid_state != ECON_BUILT)
+        return;
+    mp_prf_cache_free(&to->spare);
+    to->spare = from->grid;
+    memset(&from->grid, 0, sizeof from->grid);
+    from->grid_state = ECON_UNASKED;
 }
 
 /* Multiply-adds of one render of a table of nx × ny elements (OVERSAMP
@@ -299,8 +310,9 @@ static int build_grid(mp_econ_cache *c, double fitrad, char *err)
     /* Built for the model's own PSF (mp_prf_cache_usable checks it). */
     mp_prf_model m = c->model0;
     m.psf = c->psf;
-    int rc = mp_prf_cache_build(&m, c->grid_g, &c->grid, err) ||
+    int rc = mp_prf_cache_build_reusing(&m, c->grid_g, &c->grid, &c->spare, err) ||
              deriv_box(&c->grid, &m, fitrad, err);
+    mp_prf_cache_free(&c->spare);
     c->grid_state = rc ? ECON_FAILED : ECON_BUILT;
     if (!rc)
         c->spent +=

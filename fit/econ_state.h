@@ -34,6 +34,8 @@ struct mp_econ_cache {
     mp_sinc_choice sinc;
     mp_ss_level ss[MP_SS_MAXLEVELS];
     mp_prf_cache grid;
+    mp_prf_cache spare;            /* an earlier cache's grid, its blocks for this
+                                    * one's (mp_econ_cache_hand_grid) */
     double spent;                  /* multiply-adds spent building tables */
     double fits_max;               /* the most star fits a frame was planned for */
     double ops_done;               /* exact-render work the run's fits did (mp_econ_learn) */

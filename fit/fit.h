@@ -515,6 +515,13 @@ typedef struct mp_econ_cache mp_econ_cache;
 #define MP_ECON_RENDERS_PER_FIT 4.0
 mp_econ_cache *mp_econ_cache_new(void);      /* NULL when out of memory */
 void mp_econ_cache_free(mp_econ_cache *c);
+/* mp_econ_cache_hand_grid: from's phase grid (if built) handed to to, whose
+ * own grid, when built, takes its blocks where they are of the size it
+ * needs (mp_prf_cache_build_reusing; the rest freed then or with to); from,
+ * left without one, is for freeing only.  A run whose PSF is built anew
+ * (the pipeline's second pass) builds the new grid in the old one's
+ * pages. */
+void mp_econ_cache_hand_grid(mp_econ_cache *from, mp_econ_cache *to);
 
 /* ---- The fit --------------------------------------------------------------- */
 

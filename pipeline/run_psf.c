@@ -119,10 +119,15 @@ static void note_decision(run_state *s, const char *fmt, ...)
 static int adopt_psf(run_state *s, const char *path, char *err)
 {
     const mp_pipeline_opts *o = s->o;
-    if (s->have_own) {
-        mp_fit_setup_free(&s->own);
+    /* The last setup kept until the new one is read: its phase grid's
+     * blocks go to the new one's (page faults, bench/SCALING.md). */
+    mp_fit_setup old;
+    int had = s->have_own;
+    if (had) {
+        old = s->own;
+        memset(&s->own, 0, sizeof s->own);
         s->have_own = 0;
-        s->grid = NULL;         /* it was the freed setup's */
+        s->grid = NULL;         /* it was the old setup's */
     }
     int rc = mp_params_set(o->ps, "psf", path, err);
     if (!rc) {
@@ -132,6 +137,11 @@ static int adopt_psf(run_state *s, const char *path, char *err)
         s->have_own = !rc;
         char e3[MP_ERRLEN];
         mp_params_set(o->ps, "psf", "", e3);
+    }
+    if (had) {
+        if (s->have_own)
+            mp_econ_cache_hand_grid(old.cache, s->own.cache);
+        mp_fit_setup_free(&old);
     }
     if (!rc) {
         s->fit = mp_fit_setup_local(&s->own, (double)s->offx, (double)s->offy, &s->local);

@@ -626,6 +626,51 @@ static void test_plan_prices_measured_windows(void **state)
     mp_psf_free(&p);
 }
 
+/* The grid economy built for one cache, planned for 2^20 fits, with its
+ * options' grid set; NULL when none was built. */
+static const mp_prf_cache *grid_built(mp_econ_cache *c, const mp_prf_model *m)
+{
+    char err[MP_ERRLEN];
+    mp_frame_opts o;
+    mp_frame_opts_default(&o);
+    assert_int_equal(mp_econ_offer(c, m, 0, NULL, 0, MP_PRF_CACHE_G), 0);
+    assert_int_equal(mp_econ_choose(c, 1048576.0, o.fit.fitrad, &o, NULL, err), 0);
+    return o.grid;
+}
+
+/* A cache handed an earlier one's grid (the pipeline's second pass,
+ * pipeline/run_psf.c adopt_psf) builds its own in that grid's blocks when
+ * they are of its size: the same blocks, and the values of a grid built
+ * afresh, byte for byte; the earlier cache is left without one. */
+static void test_grid_handed_on(void **state)
+{
+    (void)state;
+    char err[MP_ERRLEN];
+    mp_psf p, q;
+    assert_int_equal(mp_psf_gauss_table(FWHM, 2, 20.0, &p, err), 0);
+    assert_int_equal(mp_psf_gauss_table(1.1 * FWHM, 2, 20.0, &q, err), 0);
+    mp_prf_model mp = {&p, NULL, 10}, mq = {&q, NULL, 10};
+    mp_econ_cache *a = mp_econ_cache_new(), *b = mp_econ_cache_new(), *c = mp_econ_cache_new();
+    assert_true(a && b && c);
+    const mp_prf_cache *ga = grid_built(a, &mp);
+    assert_non_null(ga);
+    const float *img = ga->img;
+    mp_econ_cache_hand_grid(a, b);
+    const mp_prf_cache *gb = grid_built(b, &mq), *gc = grid_built(c, &mq);
+    assert_true(gb && gc && gb->img == img && gc->img != img);
+    int NA = gb->os * (gb->gb + 3);
+    size_t ni = 3 * (size_t)NA * NA * gb->npix, nc = (size_t)gb->nph * gb->npix;
+    assert_true(gb->npix == gc->npix && gb->nph == gc->nph);
+    assert_memory_equal(gb->img, gc->img, ni * sizeof *gb->img);
+    assert_memory_equal(gb->p, gc->p, nc * sizeof *gb->p);
+    assert_memory_equal(gb->d2, gc->d2, nc * sizeof *gb->d2);
+    mp_econ_cache_free(a);
+    mp_econ_cache_free(b);
+    mp_econ_cache_free(c);
+    mp_psf_free(&p);
+    mp_psf_free(&q);
+}
+
 /* The frame fit names the phase grid its groups drew from
  * (mp_frame_report.grid), so the pipeline's residual and one-or-two test
  * draw from that same grid (pipeline/run.c mp_run_phase_grid): asked afresh on
@@ -682,6 +727,7 @@ int main(void)
         cmocka_unit_test(test_coarse_table_per_group),
         cmocka_unit_test(test_tables_pay_for_themselves),
         cmocka_unit_test(test_plan_prices_measured_windows),
+        cmocka_unit_test(test_grid_handed_on),
         cmocka_unit_test(test_report_names_grid),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
