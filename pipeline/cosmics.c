@@ -232,12 +232,16 @@ static int flagged(const mp_frame *f, const mp_bkg *b, const mp_pl_cr_stars *st,
 }
 
 /* The pixels within g of each hit masked bad (unless masked already) and
- * NaN in res (may be NULL); returns how many. */
-static long mask_around(mp_frame *f, const uint8_t *hit, int g, float *res)
+ * NaN in res (may be NULL); returns how many.  Only the rows with a hit
+ * (rowhits) are read: the map is calloc'd, and reading its untouched
+ * pages faults them in on this kernel (a 64 MiB calloc read: RSS +65 MB),
+ * so a scan of the whole map held a frame's worth of bytes at 8192², the
+ * run's peak (bench/SCALING.md, session 48). */
+static long mask_around(mp_frame *f, const uint8_t *hit, const long *rowhits, int g, float *res)
 {
     long nx = f->im.nx, ny = f->im.ny, masked = 0;
     for (long y = 0; y < ny; y++)
-        for (long x = 0; x < nx; x++) {
+        for (long x = 0; x < nx && rowhits[y] > 0; x++) {
             if (!hit[y * nx + x])
                 continue;
             for (long j = y - g > 0 ? y - g : 0; j <= y + g && j < ny; j++)
@@ -260,8 +264,12 @@ long mp_pl_mask_cosmics(mp_frame *f, const mp_bkg *b, float *res, const mp_pl_cr
 {
     long nx = f->im.nx, ny = f->im.ny;
     uint8_t *hit = calloc((size_t)(nx * ny), 1);
-    if (!hit)
+    long *rowhits = calloc((size_t)ny, sizeof *rowhits);
+    if (!hit || !rowhits) {
+        free(hit);
+        free(rowhits);
         return -1;
+    }
     long nc = 0;
     int failed = 0;
 #pragma omp parallel reduction(+ : nc) reduction(| : failed)
@@ -274,12 +282,14 @@ long mp_pl_mask_cosmics(mp_frame *f, const mp_bkg *b, float *res, const mp_pl_cr
             for (long x = 1; x < nx - 1; x++)
                 if (v && flagged(f, b, st, ct, x, y, v)) {
                     hit[y * nx + x] = 1;
+                    rowhits[y]++;       /* row y is this thread's alone */
                     nc++;
                 }
         free(v);
     }
-    long masked = failed ? -1 : mask_around(f, hit, ct->grow, res);
+    long masked = failed ? -1 : mask_around(f, hit, rowhits, ct->grow, res);
     free(hit);
+    free(rowhits);
     *cores = nc;
     return masked;
 }
