@@ -241,7 +241,7 @@ static long mask_around(mp_frame *f, const uint8_t *hit, const long *rowhits, in
 {
     long nx = f->im.nx, ny = f->im.ny, masked = 0;
     for (long y = 0; y < ny; y++)
-        for (long x = 0; x < nx && rowhits[y] > 0; x++) {
+        for (long x = 0; x < nx && rowhits[y]; x++) {
             if (!hit[y * nx + x])
                 continue;
             for (long j = y - g > 0 ? y - g : 0; j <= y + g && j < ny; j++)

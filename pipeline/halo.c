@@ -324,11 +324,10 @@ static long take_off(const mp_frame *f, float *pix, float *res, float *xvar, con
         for (long y = y0 < 1 ? 1 : y0; y <= y1 && y <= f->im.ny; y++)
             for (long x = x0 < 1 ? 1 : x0; x <= x1 && x <= f->im.nx; x++) {
                 size_t i = (size_t)(y - 1) * (size_t)f->im.nx + (size_t)(x - 1);
-                double dx = (double)x - s[k].x, dy = (double)y - s[k].y;
-                if (f->mask[i] || dx * dx + dy * dy > r2out)
+                double dx = (double)x - s[k].x, dy = (double)y - s[k].y, r2 = dx * dx + dy * dy;
+                if (f->mask[i] || r2 > r2out)
                     continue;
-                double l = s[k].e * (fast ? r2_read(fast, dx * dx + dy * dy)
-                                          : h_at(h, nb, rin, hypot(dx, dy)));
+                double l = s[k].e * (fast ? r2_read(fast, r2) : h_at(h, nb, rin, hypot(dx, dy)));
                 if (l <= 0)
                     continue;
                 pix[i] -= l;

@@ -89,9 +89,11 @@ typedef struct {
                         * its bias bound (psf/star_model.c): 0 when it pays,
                         * 1 always, -1 never (exact renders; tests compare) */
     double x0, y0, xs, ys;   /* polynomial origin and scales [px] */
-    struct mp_epsf_keep_s *keep;   /* the blocks one build leaves to the
-                        * next (psf/build_priv.h): set by mp_epsf_pass
-                        * for its builds; NULL (the default): none */
+    mp_prf_cache *spare;   /* the phase grid one build of a pass leaves
+                        * to the next, whose grid takes its blocks when
+                        * of the same size (psf/star_model.c): set by
+                        * mp_epsf_pass for its builds; NULL (the
+                        * default): none */
 } mp_epsf_opts;
 
 /* mp_epsf_opts_default: os auto, psfrad 4·fwhm, fitrad 2·fwhm, order auto,

@@ -28,20 +28,6 @@ typedef struct {
     int steps;             /* steps taken by the last mp_epsf_sirt_run */
 } mp_epsf_sirt;
 
-/* What one build of a pass leaves to the next (mp_epsf_opts.keep, set by
- * mp_epsf_pass): the fitter's last phase grid, whose blocks the next
- * build's grid takes when it is built at the same size.  A pass builds
- * its table several times over (the two halves, the refits, the next
- * order), each build's rounds rebuilding the grid for the table as it
- * stands: fresh blocks each time, the PSF build's grids were 40 % of the
- * page faults of 47 Tuc 512² built (bench/PROFILE.md, 2026-12-03). */
-typedef struct mp_epsf_keep_s {
-    mp_prf_cache grid;     /* zeroed: none */
-} mp_epsf_keep;
-
-/* mp_epsf_keep_free: what k holds freed, k zeroed. */
-void mp_epsf_keep_free(mp_epsf_keep *k);
-
 /* Bits of mp_epsf_sirt.mask per star and element: left out of the
  * combination (a neighbour's light is there, mp_epsf_sirt_dilate), and
  * above 4 robust σ of the other stars in the last step. */
@@ -89,11 +75,15 @@ const mp_prf_cache *mp_epsf_fitter_grid(const mp_epsf_fitter *z, const mp_epsf_s
  * set the fluxes) is at most MP_EPSF_GRID_FRAC of its σ. */
 int mp_epsf_grid_serves(const mp_prf_cache *g, const mp_epsf_star *s, double E);
 void mp_epsf_fitter_free(mp_epsf_fitter *z);
-/* mp_epsf_fitter_start: z zeroed, with keep's grid (NULL: none) for its
- * first mp_epsf_fitter_set to rebuild in; mp_epsf_fitter_done: z freed,
- * its grid left in keep. */
-void mp_epsf_fitter_start(mp_epsf_fitter *z, int mode, mp_epsf_keep *keep);
-void mp_epsf_fitter_done(mp_epsf_fitter *z, mp_epsf_keep *keep);
+/* mp_epsf_fitter_start: z zeroed, with the grid in spare (NULL: none)
+ * for its first mp_epsf_fitter_set to rebuild in; mp_epsf_fitter_done: z
+ * freed, its grid left in spare (mp_epsf_opts.spare).  A pass builds its
+ * table several times over (the two halves, the refits, the next order),
+ * each round rebuilding the grid for the table as it stands: in fresh
+ * blocks each time, the PSF build's grids were 40 % of the page faults of
+ * 47 Tuc 512² built (bench/PROFILE.md, 2026-12-03). */
+void mp_epsf_fitter_start(mp_epsf_fitter *z, int mode, mp_prf_cache *spare);
+void mp_epsf_fitter_done(mp_epsf_fitter *z, mp_prf_cache *spare);
 
 int mp_epsf_sirt_init(mp_epsf_sirt *w, const mp_epsf *e, size_t nstar, char *err);
 

@@ -243,7 +243,7 @@ int mp_epsf_rounds(mp_epsf_star *s, size_t n, const mp_epsf_opts *o, int os, int
     if (mp_epsf_sirt_init(&w, e, n, err))
         return 1;
     mp_epsf_fitter z;
-    mp_epsf_fitter_start(&z, o->grid, o->keep);
+    mp_epsf_fitter_start(&z, o->grid, o->spare);
     int rc = 1;
     double prev = INFINITY;
     double *tmp = malloc((n + 1) * sizeof *tmp);
@@ -288,7 +288,7 @@ done:
     free(tmp);
     e->fits += z.fits;
     e->fits_grid += z.fits_grid;
-    mp_epsf_fitter_done(&z, o->keep);
+    mp_epsf_fitter_done(&z, o->spare);
     mp_epsf_sirt_free(&w);
     return rc;
 }
@@ -303,11 +303,11 @@ int mp_epsf_build(mp_epsf_star *s, size_t n, const mp_epsf_opts *o, int os, int 
 int mp_epsf_refit(mp_epsf_star *s, size_t n, const mp_epsf_opts *o, mp_epsf *e, char *err)
 {
     mp_epsf_fitter z;
-    mp_epsf_fitter_start(&z, o->grid, o->keep);
+    mp_epsf_fitter_start(&z, o->grid, o->spare);
     int rc = mp_epsf_fitter_set(&z, e, s, n, err) || fit_stars(s, n, e, o, &z, 0, err);
     e->nstar = (int)count_used(s, n);
     e->fits += z.fits;
     e->fits_grid += z.fits_grid;
-    mp_epsf_fitter_done(&z, o->keep);
+    mp_epsf_fitter_done(&z, o->spare);
     return rc;
 }

@@ -382,11 +382,11 @@ int mp_epsf_pass(const mp_frame *f, const float *img, int residual, const mp_tab
                  size_t n, const mp_epsf_opts *oin, mp_epsf *e, mp_epsf_report *rep,
                  mp_psf_star **stars, char *err)
 {
-    /* The pass's builds hand their blocks on (mp_epsf_keep). */
-    mp_epsf_keep keep;
-    memset(&keep, 0, sizeof keep);
+    /* The pass's builds hand their phase grid on (mp_epsf_opts.spare). */
+    mp_prf_cache spare;
+    memset(&spare, 0, sizeof spare);
     mp_epsf_opts po = *oin;
-    po.keep = po.keep ? po.keep : &keep;
+    po.spare = po.spare ? po.spare : &spare;
     const mp_epsf_opts *o = &po;
     mp_epsf_star *s = NULL;
     double *sky = malloc((n + 1) * sizeof *sky);
@@ -432,6 +432,6 @@ int mp_epsf_pass(const mp_frame *f, const float *img, int residual, const mp_tab
 done:
     free(sky);
     mp_epsf_stars_free(s, n);
-    mp_epsf_keep_free(&keep);
+    mp_prf_cache_free(&spare);
     return rc;
 }

@@ -27,26 +27,21 @@ void mp_epsf_fitter_free(mp_epsf_fitter *z)
     memset(z, 0, sizeof *z);
 }
 
-void mp_epsf_fitter_start(mp_epsf_fitter *z, int mode, mp_epsf_keep *keep)
+void mp_epsf_fitter_start(mp_epsf_fitter *z, int mode, mp_prf_cache *spare)
 {
     memset(z, 0, sizeof *z);
     z->mode = mode;
-    if (keep) {
-        z->grid = keep->grid;
-        memset(&keep->grid, 0, sizeof keep->grid);
+    if (spare) {
+        z->grid = *spare;
+        memset(spare, 0, sizeof *spare);
     }
 }
 
-void mp_epsf_keep_free(mp_epsf_keep *k)
+void mp_epsf_fitter_done(mp_epsf_fitter *z, mp_prf_cache *spare)
 {
-    mp_prf_cache_free(&k->grid);
-}
-
-void mp_epsf_fitter_done(mp_epsf_fitter *z, mp_epsf_keep *keep)
-{
-    if (keep) {
-        mp_prf_cache_free(&keep->grid);
-        keep->grid = z->grid;
+    if (spare) {
+        mp_prf_cache_free(spare);
+        *spare = z->grid;
         memset(&z->grid, 0, sizeof z->grid);
     }
     mp_epsf_fitter_free(z);
