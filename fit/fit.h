@@ -675,6 +675,14 @@ typedef struct {
     double minsnr;     /* reject stars with FLUX_PSF/FLUXERR_PSF below this */
     int passes;        /* fits of every group; from the 2nd on, neighbours'
                         * light comes from the previous pass */
+    double loosetol;   /* above fit.tol: the groups' fits stop at this tol
+                        * (a fit a full one follows, pipeline/run.c), but a
+                        * group whose loose fit leaves a merge or rejection
+                        * the fit to fit.tol might not make is fitted on to
+                        * fit.tol first (frame_group.c); a later fit with
+                        * the same memory never keeps a loose group (its
+                        * stars' refit bounds start at infinity, not 0).
+                        * 0: every fit to fit.tol */
     double cropfrac;   /* economy: a star's light is painted (neighbour
                         * subtraction, residual) out to the radius where it
                         * falls below cropfrac·σ of a sky pixel; 0: its

@@ -9,14 +9,16 @@
 #include "fit/frame_priv.h"
 
 /* After a group's fit: each fitted star's bound starts again from 0 (its
- * fit saw the light it is fitted against), and a star whose light changed
- * (its paint: position, flux, sky; or its death) holds that change for
- * ff_update_bounds, from its values before (old). */
-static void note_fitted(star_state *sub, const mp_star *old, int n)
+ * fit saw the light it is fitted against) — from infinity after a loose
+ * fit (mp_frame_opts.loosetol: not converged to the run's tol, so never
+ * kept) — and a star whose light changed (its paint: position, flux,
+ * sky; or its death) holds that change for ff_update_bounds, from its
+ * values before (old). */
+static void note_fitted(star_state *sub, const mp_star *old, int n, int loose)
 {
     for (int k = 0; k < n; k++) {
         star_state *s = &sub[k];
-        s->bound = 0.0;
+        s->bound = loose ? INFINITY : 0.0;
         if (s->alive && s->s.x == old[k].x && s->s.y == old[k].y && s->s.flux == old[k].flux &&
             ff_same_value(s->s.sky, old[k].sky))
             continue;
@@ -147,7 +149,7 @@ int ff_fit_group_local(const mp_frame *f, const mp_prf_model *m, const mp_frame_
                               (double)(y0 - 1), rep, err);
     }
     if (!rc && economy && all && isfinite(r))
-        note_fitted(sub, old, nact);
+        note_fitted(sub, old, nact, o->loosetol > o->fit.tol);
     for (int k = 0; k < nact; k++)
         st[idx[k]] = sub[k];
 done:

@@ -42,7 +42,8 @@ typedef struct {
     int borrowed;         /* f is the caller's (mp_pipeline_reduce): its mask
                            * stays as given */
     int psf_pass;         /* the built PSF's last pass (0: none built) */
-    int last_partial;     /* the last group_and_fit took one pass of several */
+    int last_partial;     /* the last group_and_fit took one pass of several,
+                           * or stopped at the loose tol (MP_PL_ROUND_TOL) */
     double halo_light;    /* the light per e- the halo took off every star
                            * (mp_pl_halo), which the PSF's PSFSUM counts */
     const mp_prf_cache *grid;  /* the phase grid the last fit drew from */

@@ -82,6 +82,16 @@ static int start_planes(const mp_epsf_opts *o, int os, int order, mp_epsf *e, in
     return 0;
 }
 
+/* The LM's tol (× each parameter's σ) for the stars' fits of a build's
+ * rounds before the stars' clip (its rounds 0 and 1): the table they are
+ * fitted against moves more in the round's SIRT steps than anything the
+ * fit could settle (47 Tuc 512²: the cold ×4 halves' χ² 2.3·10⁸ →
+ * 5.5·10⁷ over round 0), so the default's 1e-3 (mp_fit_opts_default,
+ * which the later rounds and the stars' last fit keep) only bought
+ * steps: ~9 a fit of 12 stars there against ~5.  The build's decisions
+ * come after (the χ² stopping rule from round 2, OVERSAMP, the order). */
+#define EARLY_TOL 0.1
+
 /* Fit one star (centre, flux; the sky its annulus's) with its table at
  * its place (z's model: star_model.c), together with its neighbours on
  * the cut-out as cut; then the cut-out less the neighbours' models
@@ -90,9 +100,10 @@ static int start_planes(const mp_epsf_opts *o, int os, int order, mp_epsf *e, in
  * alone on it (with them it is a group fit of up to 13 stars).  tab is
  * z's table at order 0, else the caller's own (the table at the star's
  * place is drawn into it); *grid is raised when the phase grid served
- * the fit.  1 when out of memory. */
+ * the fit.  early: a round before the stars' clip (EARLY_TOL).  1 when
+ * out of memory. */
 static int fit_star(mp_epsf_star *s, const mp_epsf *e, const mp_epsf_opts *o,
-                    const mp_epsf_fitter *z, mp_psf *tab, int hold, long *grid)
+                    const mp_epsf_fitter *z, mp_psf *tab, int hold, int early, long *grid)
 {
     char err[MP_ERRLEN];
     if (!z->order0 && mp_epsf_table(e, s->x, s->y, tab, err))
@@ -101,6 +112,8 @@ static int fit_star(mp_epsf_star *s, const mp_epsf *e, const mp_epsf_opts *o,
     mp_fit_opts fo;
     mp_fit_opts_default(&fo);
     fo.grid = mp_epsf_fitter_grid(z, s);
+    if (early)
+        fo.tol = EARLY_TOL;
     fo.crop = z->order0 && z->crop.env ? &z->crop : NULL;
     const mp_prf_cache *faint = z->order0 && z->grid.G > 0 ? &z->grid : NULL;
     *grid += fo.grid != NULL;
@@ -164,7 +177,7 @@ static int fit_star(mp_epsf_star *s, const mp_epsf *e, const mp_epsf_opts *o,
  * and z and writes only its own star, so the stars' fits do not depend on
  * the number of threads. */
 static int fit_stars(mp_epsf_star *s, size_t n, const mp_epsf *e, const mp_epsf_opts *o,
-                     mp_epsf_fitter *z, int hold, char *err)
+                     mp_epsf_fitter *z, int hold, int early, char *err)
 {
     long fits = 0, grid = 0;
     int failed = 0;
@@ -177,7 +190,7 @@ static int fit_stars(mp_epsf_star *s, size_t n, const mp_epsf *e, const mp_epsf_
         for (size_t k = 0; k < n; k++)
             if (s[k].used && !failed) {
                 fits++;
-                failed = fit_star(&s[k], e, o, z, tab, hold, &grid);
+                failed = fit_star(&s[k], e, o, z, tab, hold, early, &grid);
             }
         mp_psf_free(&own);
     }
@@ -260,7 +273,7 @@ int mp_epsf_rounds(mp_epsf_star *s, size_t n, const mp_epsf_opts *o, int os, int
          * bright companion's fit to the Gaussian spoils the table,
          * test_psf_build's test_neighbours_fitted) and in the stars' last
          * fit (mp_epsf_refit); the rounds between hold them. */
-        if (fit_stars(s, n, e, o, &z, it >= hold_from, err))
+        if (fit_stars(s, n, e, o, &z, it >= hold_from, it < 2, err))
             goto done;
         if (it >= 2)
             reject_chi2(s, n, tmp);
@@ -304,7 +317,7 @@ int mp_epsf_refit(mp_epsf_star *s, size_t n, const mp_epsf_opts *o, mp_epsf *e, 
 {
     mp_epsf_fitter z;
     mp_epsf_fitter_start(&z, o->grid, o->spare);
-    int rc = mp_epsf_fitter_set(&z, e, s, n, err) || fit_stars(s, n, e, o, &z, 0, err);
+    int rc = mp_epsf_fitter_set(&z, e, s, n, err) || fit_stars(s, n, e, o, &z, 0, 0, err);
     e->nstar = (int)count_used(s, n);
     e->fits += z.fits;
     e->fits_grid += z.fits_grid;

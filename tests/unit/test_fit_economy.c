@@ -209,6 +209,56 @@ static void test_round_refits_only_touched_group(void **state)
     sf_frame_drop(&f);
 }
 
+/* A loose fit (mp_frame_opts.loosetol: a round another follows, stopped
+ * at a tol above the run's) is never kept: a later call with the same memory
+ * and nothing changed refits both groups, and ends where a full fit of
+ * the same start does within 0.1 σ; after a fit at the run's tol the same
+ * later call keeps both (0 fits). */
+static void test_loose_fit_refitted(void **state)
+{
+    (void)state;
+    char err[MP_ERRLEN];
+    mp_psf p;
+    mp_psf_gauss(FWHM, &p);
+    mp_prf_model m = {&p, NULL, 10};
+    mp_frame f;
+    frame6(&f, 5);
+    mp_frame_opts eco, loose, full;
+    mp_frame_opts_default(&eco);
+    eco.fit.tol = 0.03;
+    loose = eco;
+    loose.passes = 1;
+    loose.loosetol = 0.3;
+    full = eco;
+    full.refittol = 0.0;
+    long fits[2];
+    for (int lo = 0; lo < 2; lo++) {
+        mp_fit_memory *mem = mp_fit_memory_new();
+        assert_non_null(mem);
+        mp_table t, u;
+        table_n(&t, 5);
+        table_n(&u, 5);
+        mp_frame_report r1, r2, r3;
+        assert_int_equal(mp_fit_table_mem(&f, &m, lo ? &loose : &eco, &t, mem, &r1, err), 0);
+        assert_int_equal(mp_fit_table_mem(&f, &m, &eco, &t, mem, &r2, err), 0);
+        assert_int_equal(mp_fit_table(&f, &m, &full, &u, &r3, err), 0);
+        fits[lo] = r2.fits;
+        for (size_t k = 0; lo && k < t.nrow; k++) {
+            double s = get(&u, k, "FLUXERR_PSF");
+            assert_true(s > 0);
+            assert_true(fabs(get(&t, k, "FLUX_PSF") - get(&u, k, "FLUX_PSF")) < 0.1 * s);
+        }
+        mp_fit_memory_free(mem);
+        mp_table_free(&t);
+        mp_table_free(&u);
+    }
+    print_message("the call after: %ld fits after a fit at tol, %ld after a loose one\n",
+                  fits[0], fits[1]);
+    assert_int_equal(fits[0], 0);
+    assert_true(fits[1] >= 2);
+    sf_frame_drop(&f);
+}
+
 /* Two groups 7 px apart (given separate GROUP_IDs, so each sees the other
  * as neighbour light): the first pass subtracts each with its start flux,
  * 20 % off; the fit changes that light by far more than 0.1 σ in the other
@@ -720,6 +770,7 @@ int main(void)
         cmocka_unit_test(test_second_pass_kept_when_isolated),
         cmocka_unit_test(test_model_errors_at_the_end),
         cmocka_unit_test(test_round_refits_only_touched_group),
+        cmocka_unit_test(test_loose_fit_refitted),
         cmocka_unit_test(test_changed_neighbour_refitted),
         cmocka_unit_test(test_envelope_bounds_prf),
         cmocka_unit_test(test_short_kernel_per_group),
