@@ -329,17 +329,20 @@ void mp_pl_drop_unset(mp_table *t);
  * them. */
 #define MP_PL_SCREEN_SLACK 2.0
 
-/* The LM's tol (× each parameter's σ) in a fit a full one follows (a
- * round another follows; round 1 with the PSF's first pass): what it
- * leaves is the residual the next search reads and the next fit's start,
- * and that fit refits every one of its groups to the run's tol
- * (mp_frame_opts.loosetol); its merges and rejections, which are for
- * good, are decided as a fit to the run's tol would.  A star 0.3 σ from
- * its optimum leaves in the residual a bump of S/N ≤ 0.3 at its place, a
- * tenth of the screen's cut (minsnr − MP_PL_SCREEN_SLACK = 3).  47 Tuc
- * 512² built: LM steps 13 434 → 11 244 (bench/PROFILE.md, session of
- * 2026-12-03 23:15); the crowded and dense frames' matched stars and
- * precision the same (validate/CROWDED.md, DENSE.md). */
+/* The LM's tol (× each parameter's σ) in the fit with the PSF's first
+ * pass (round 1 when the PSF is built): what it leaves places the
+ * neighbours the second pass takes off and is the next fit's start, and
+ * the next fit refits every group to the run's tol, the second pass's
+ * table coming with a forgotten fit memory (mp_frame_opts.loosetol);
+ * its merges and rejections, which are for good, are decided as a fit
+ * to the run's tol would.  A star 0.3 σ from its optimum leaves in the
+ * residual a bump of S/N ≤ 0.3 at its place, a tenth of the screen's
+ * cut (minsnr − MP_PL_SCREEN_SLACK = 3).  Every round another round
+ * follows was loose too, measured (bench/PROFILE.md, session of
+ * 2026-12-03 23:15): 47 Tuc built −7 % of the instructions, but where
+ * the next round keeps most groups (the simulated frames with their
+ * true table: frame B kept 2 750 of 3 116) refitting them cost more than
+ * the loose fits saved (+4 to +12 %). */
 #define MP_PL_ROUND_TOL 0.3
 
 /* ---- run.c ------------------------------------------------------------- */

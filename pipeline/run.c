@@ -191,8 +191,9 @@ const mp_prf_cache *mp_run_phase_grid(run_state *s, double *gemax)
  * searched next, and in a round another follows, whose first pass refits
  * what this one's second would have, with the new stars' groups.  47 Tuc
  * 512² built: group fits 740 / 493 / 391 → 375 / 254 / 435 by round, ~10 %
- * of the run's CPU (psfreal_notes.md, session 41).  Such a fit also stops
- * at MP_PL_ROUND_TOL, loose: the later fit refits every group of it. */
+ * of the run's CPU (psfreal_notes.md, session 41).  With the PSF's first
+ * pass it also stops at MP_PL_ROUND_TOL, loose: the second pass's table
+ * comes with a fit memory forgotten, so every group is fitted again. */
 int mp_run_group_and_fit(run_state *s, int round, int once, char *err)
 {
     const mp_pipeline_opts *o = s->o;
@@ -216,7 +217,8 @@ int mp_run_group_and_fit(run_state *s, int round, int once, char *err)
     mp_frame_opts fo = s->fit->opts;
     if (once) {
         fo.passes = 1;
-        fo.loosetol = MP_PL_ROUND_TOL;
+        if (s->psf_pass == 1)       /* the second pass's table refits every group */
+            fo.loosetol = MP_PL_ROUND_TOL;
     }
     s->last_partial = fo.passes < s->fit->opts.passes || fo.loosetol > fo.fit.tol;
     if (mp_fit_table_mem(&s->f, &s->fit->model, &fo, &s->t, s->mem, &fr, err))
