@@ -209,7 +209,7 @@ static void test_round_refits_only_touched_group(void **state)
     sf_frame_drop(&f);
 }
 
-/* A loose fit (mp_frame_opts.loosetol: a round another follows, stopped
+/* A loose fit (mp_frame_opts.loosetol: a fit a full one follows, stopped
  * at a tol above the run's) is never kept: a later call with the same memory
  * and nothing changed refits both groups, and ends where a full fit of
  * the same start does within 0.1 σ; after a fit at the run's tol the same
