@@ -17,17 +17,38 @@ static const double *row_d2(const mp_bkg *b, int m, long y)
     return b->vals + ((size_t)(2 * m + 1) * (size_t)b->ny + (size_t)y) * (size_t)b->nbx;
 }
 
-/* The residual's noise at pixel i given its sky: sqrt(k²·(sky + M + RON²)
- * + ε²M² + the stars' F²·v(r)), M = frame − residual (find.h,
- * mp_bkg_noise_from_model, mp_bkg_star_excess); the same arithmetic as
- * its map was formed with. */
-static float model_rms(const mp_bkg *b, size_t i, float sky)
+/* The residual's noise at pixel i given its sky and the stars' excess
+ * variance there, x: sqrt(k²·(sky + M + RON²) + ε²M² + x), M = frame −
+ * residual (find.h, mp_bkg_noise_from_model, mp_bkg_star_excess); the
+ * same arithmetic as its map was formed with. */
+static float rms_with(const mp_bkg *b, size_t i, float sky, double x)
 {
     double m = fmax(b->pix[i] - b->res[i], 0.0);
     double v = fmax(sky, 0.0) + m + b->ron2;
+    return (float)sqrt(b->k * b->k * v + b->eps * b->eps * m * m + x);
+}
+
+static float model_rms(const mp_bkg *b, size_t i, float sky)
+{
     double x = b->nxs ? mp_bkg_excess_var(b, (double)(i % (size_t)b->nx),
                                           (double)(i / (size_t)b->nx)) : 0.0;
-    return (float)sqrt(b->k * b->k * v + b->eps * b->eps * m * m + x);
+    return rms_with(b, i, sky, x);
+}
+
+/* Row y's model rms into r from its sky s: the stars' excess a span of
+ * pixels at a time (mp_bkg_excess_span). */
+enum { SPAN = 128 };
+static void model_rms_row(const mp_bkg *b, long y, const float *s, float *r)
+{
+    size_t nx = (size_t)b->nx, o = (size_t)y * nx;
+    double v[SPAN];
+    for (size_t x0 = 0; x0 < nx; x0 += SPAN) {
+        size_t x1 = x0 + SPAN < nx ? x0 + SPAN : nx;
+        if (b->nxs)
+            mp_bkg_excess_span(b, y, (long)x0, (long)x1, v);
+        for (size_t x = x0; x < x1; x++)
+            r[x] = rms_with(b, o + x, s[x], b->nxs ? v[x - x0] : 0.0);
+    }
 }
 
 float mp_bkg_sky(const mp_bkg *b, size_t i)
@@ -57,7 +78,6 @@ void mp_bkg_rows(const mp_bkg *b, long y0, long y1, float *sky, float *rms)
             mpf_spline_row(b->cx, row_vals(b, 1, y), row_d2(b, 1, y), b->nbx, r, b->nx, 1);
             continue;
         }
-        for (size_t x = 0; x < nx; x++)
-            r[x] = model_rms(b, (size_t)y * nx + x, s[x]);
+        model_rms_row(b, y, s, r);
     }
 }

@@ -38,6 +38,42 @@ double mp_bkg_excess_var(const mp_bkg *b, double x, double y)
     return add;
 }
 
+void mp_bkg_excess_span(const mp_bkg *b, long y, long x0, long x1, double *v)
+{
+    for (long x = x0; x < x1; x++)
+        v[x - x0] = 0.0;
+    long cy = cell_of((double)y, b->nxv, b->ncy);
+    for (long a = x0, e; a < x1; a = e) {
+        /* the pixels of one column of cells: the same nine cells each */
+        long cx = cell_of((double)a, b->nxv, b->ncx);
+        e = cx + 1 < b->ncx && (cx + 1) * b->nxv < x1 ? (cx + 1) * b->nxv : x1;
+        for (long j = cy - 1; j <= cy + 1; j++)
+            for (long i = cx - 1; i <= cx + 1; i++) {
+                if (i < 0 || j < 0 || i >= b->ncx || j >= b->ncy)
+                    continue;
+                size_t c = (size_t)j * (size_t)b->ncx + (size_t)i;
+                for (size_t s = b->cell0[c]; s < b->cell0[c + 1]; s++) {
+                    const double *st = b->xs + MP_BKG_XS * s;
+                    double dy = (double)y - st[1], dy2 = dy * dy;
+                    if (!(dy2 < st[4]))     /* then no dx² + dy² is below it */
+                        continue;
+                    /* the row's pixels within reach, a pixel to spare
+                     * each side; each tested as mp_bkg_excess_var does */
+                    double h = sqrt(st[4] - dy2);
+                    long lo = (long)floor(st[0] - h) - 1, hi = (long)ceil(st[0] + h) + 2;
+                    lo = lo < a ? a : lo;
+                    hi = hi > e ? e : hi;
+                    const double *xv = b->xv + (size_t)st[3] * (size_t)b->nxv;
+                    for (long x = lo; x < hi; x++) {
+                        double dx = (double)x - st[0], d2 = dx * dx + dy2;
+                        if (d2 < st[4])
+                            v[x - x0] += st[2] * xv[(size_t)sqrt(d2)];
+                    }
+                }
+            }
+    }
+}
+
 /* A ring's pixels: z² and F²/σ² each. */
 typedef struct {
     double z2, w;

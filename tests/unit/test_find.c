@@ -1104,6 +1104,19 @@ static void test_star_excess(void **state)
             assert_true(add > 0);
             assert_true(fabs(after * after - before * before - add) < 1e-3 * after * after);
         }
+        /* by rows (mp_bkg_excess_span) as by pixels, bit for bit */
+        float *sr = malloc((size_t)(nx * ny) * sizeof *sr);
+        float *rr = malloc((size_t)(nx * ny) * sizeof *rr);
+        assert_non_null(sr);
+        assert_non_null(rr);
+        mp_bkg_rows(&b, 0, ny, sr, rr);
+        for (long i = 0; i < nx * ny; i++) {
+            float r = mp_bkg_rms(&b, (size_t)i);
+            if (memcmp(&r, &rr[i], sizeof r))
+                fail_msg("pixel %ld: rms %.9g by pixel, %.9g by row", i, r, rr[i]);
+        }
+        free(sr);
+        free(rr);
         mp_bkg_free(&b);
     }
     free(stars);
