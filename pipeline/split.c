@@ -225,6 +225,28 @@ static double trials(const mp_prf_model *m, double x, double y, const double *ri
     return best;
 }
 
+/* Whether no trial can reach Δχ² = snrmin2: a trial's Δχ² is
+ * (P̃ᵀW r̃)² / (P̃ᵀW P̃), P̃ and r̃ projected off the star's own terms, so
+ * by Cauchy–Schwarz it is at most r̃ᵀW r̃ = rᵀW r − Brᵀ G⁻¹ Br, the
+ * residual's χ² left over them in the window (a margin of 1e-9 of rᵀW r
+ * for the rounding).  Where the window holds few pixels more than that
+ * χ² (fitrad ≈ FWHM) most stars end here, before their 36 trials. */
+static int below_any_trial(const split_work *s, double G[4][4], const double Br[4],
+                           double snrmin2)
+{
+    double rwr = 0.0, a[4], G2[4][4], b[4];
+    for (int k = 0; k < s->nc; k++)
+        rwr += s->wt[k] * s->r[k] * s->r[k];
+    memcpy(G2, G, sizeof G2);
+    memcpy(b, Br, sizeof b);
+    if (solve4(G2, b, a))
+        return 0;
+    double left = rwr;
+    for (int i = 0; i < 4; i++)
+        left -= a[i] * Br[i];
+    return left + 1e-9 * rwr < snrmin2;
+}
+
 /* The best second star beside the star at (x, y) of flux e: its place,
  * Δχ², linear flux and peak; Δχ² NaN when none could be tried.  The star
  * itself is drawn from the phase grid when e is within its limit gemax,
@@ -236,8 +258,8 @@ static double trials(const mp_prf_model *m, double x, double y, const double *ri
 static double best_second(const mp_frame *f, const mp_bkg *b, const float *res,
                           const mp_prf_model *m, double x, double y, double e, double fitrad,
                           const double *rings, split_work *s, double *scratch,
-                          const mp_prf_cache *grid, double gemax, double *bx, double *by,
-                          double *bflux, double *bpeak)
+                          const mp_prf_cache *grid, double gemax, double snrmin2, double *bx,
+                          double *by, double *bflux, double *bpeak)
 {
     size_t n = (size_t)(s->w * s->h);
     double *buf = scratch, *bdx = scratch + n, *bdy = scratch + 2 * n;
@@ -255,6 +277,8 @@ static double best_second(const mp_frame *f, const mp_bkg *b, const float *res,
                 G[i][j] += s->wt[k] * v[i] * v[j];
         }
     }
+    if (below_any_trial(s, G, Br, snrmin2))
+        return NAN;
     wk->grid = mp_prf_cache_usable(grid, m) ? grid : NULL;
     double best = trials(m, x, y, rings, s, scratch, G, Br, bx, by, bflux);
     if (wk->grid && isfinite(best) && !(*bflux <= gemax)) {
@@ -368,7 +392,7 @@ long mp_pl_split_candidates(const mp_frame *f, const mp_bkg *b, const float *res
             if (s.x0 < 1 || s.y0 < 1 || s.x0 + side - 1 > f->im.nx || s.y0 + side - 1 > f->im.ny)
                 continue;       /* at the frame's edge: left to find */
             double d2 = best_second(f, b, res, m, x, y, e, fitrad, rings, &s, mem + 6 * n, grid,
-                                    gemax, &cx[r], &cy[r], &cf[r], &cp[r]);
+                                    gemax, snrmin * snrmin, &cx[r], &cy[r], &cf[r], &cp[r]);
             cs[r] = d2 >= snrmin * snrmin ? sqrt(d2) : NAN;
         }
         work_free(&s, mem);
