@@ -135,16 +135,16 @@ static int render_into(const mp_prf_model *m, double xb, double yb, long wx0, lo
 }
 
 /* κ at separation d, every flux pair, the largest over NDIR directions,
- * into k[NA·NA]. */
+ * into k[NA·NA]; fluxes and variances in units of B + RON² (fit.h). */
 static int kappa_at(const mp_prf_model *m, double xc, double yc, double d, double fitrad,
-                    double beff, long wx0, long wy0, int W, const double *ga[3], double *buf,
-                    size_t *at, mp_prf_work *wk, float *k)
+                    long wx0, long wy0, int W, const double *ga[3], double *buf, size_t *at,
+                    mp_prf_work *wk, float *k)
 {
     size_t n = (size_t)W * W;
     double *gb[3] = {buf, buf + n, buf + 2 * n}, *tmp = buf + 3 * n;
     double E[NA];                 /* the flux nodes */
     for (int i = 0; i < NA; i++)
-        E[i] = beff * pow(10.0, A0 + ASTEP * i);
+        E[i] = pow(10.0, A0 + ASTEP * i);
     for (int t = 0; t < NA * NA; t++)
         k[t] = 0.0f;
     for (int dir = 0; dir < NDIR; dir++) {
@@ -161,7 +161,7 @@ static int kappa_at(const mp_prf_model *m, double xc, double yc, double d, doubl
         const double *g[6] = {ga[0], ga[1], ga[2], gb[0], gb[1], gb[2]};
         for (int ia = 0; ia < NA; ia++)
             for (int ib = 0; ib < NA; ib++) {
-                double kap = pair_kappa(g, ga[0], gb[0], at, nat, beff, E[ia], E[ib]);
+                double kap = pair_kappa(g, ga[0], gb[0], at, nat, 1.0, E[ia], E[ib]);
                 float *o = &k[ia * NA + ib];
                 *o = kap > *o ? (float)kap : *o;
             }
@@ -200,8 +200,8 @@ int mp_coupling_build(const mp_prf_model *m, double fitrad, double crit, double 
         return 1;
     }
     c->crit = crit;
-    c->beff = fmax(sky, 0.0) + ron * ron;
-    c->beff = c->beff > 0 ? c->beff : 1.0;
+    c->fitrad = fitrad;
+    mp_coupling_at(c, sky, ron);
     c->nd = (int)ceil(crit / DSTEP) + 1;
     c->na = NA;
     c->dstep = DSTEP;
@@ -232,8 +232,8 @@ int mp_coupling_build(const mp_prf_model *m, double fitrad, double crit, double 
 #pragma omp for schedule(dynamic)
         for (int id = 0; id < c->nd; id++)
             if (buf && at)
-                failed += kappa_at(m, xc, yc, id * DSTEP, fitrad, c->beff, wx0, wy0, W, cga,
-                                   buf, at, &wk, c->k + (size_t)id * NA * NA);
+                failed += kappa_at(m, xc, yc, id * DSTEP, fitrad, wx0, wy0, W, cga, buf, at,
+                                   &wk, c->k + (size_t)id * NA * NA);
         free(buf);
         free(at);
         mp_prf_work_free(&wk);
@@ -248,6 +248,12 @@ int mp_coupling_build(const mp_prf_model *m, double fitrad, double crit, double 
     }
     make_monotone(c);
     return 0;
+}
+
+void mp_coupling_at(mp_coupling *c, double sky, double ron)
+{
+    c->beff = fmax(sky, 0.0) + ron * ron;
+    c->beff = c->beff > 0 ? c->beff : 1.0;
 }
 
 /* The flux node at or above E (E not finite: the last). */

@@ -450,15 +450,23 @@ int mp_prf_cache_render_at(const mp_prf_cache *c, const mp_prf_model *m, double 
  * out (each group fits its own). */
 typedef struct {
     int nd, na;
-    double dstep, a0, astep, crit, beff;
+    double dstep, a0, astep, crit, fitrad, beff;
     float *k;          /* nd × na × na */
 } mp_coupling;
 
 /* mp_coupling_build: c for model m (a variable PSF: at its field's origin),
  * fitting radius fitrad, separations below crit, sky [e-/px] and ron [e-].
- * Nonzero with err on bad arguments or out of memory (c then empty). */
+ * κ depends on the fluxes only through E/(B + RON²) (a canonical
+ * correlation is the same for the information scaled by any constant),
+ * so the table is made in those units and serves any sky
+ * (mp_coupling_at).  Nonzero with err on bad arguments or out of memory
+ * (c then empty). */
 int mp_coupling_build(const mp_prf_model *m, double fitrad, double crit, double sky, double ron,
                       mp_coupling *c, char *err);
+
+/* mp_coupling_at: c's lookups for sky [e-/px] and ron [e-] from now on
+ * (the table as it was made: it holds for every sky). */
+void mp_coupling_at(mp_coupling *c, double sky, double ron);
 
 /* mp_coupling_kappa: the bound on κ of two stars d px apart with fluxes Ea
  * and Eb [e-] (not finite: the brightest node; ≤ 0: the faintest); 0 from

@@ -110,17 +110,25 @@ static void flag_cut(mp_table *t, const unsigned char *cut)
  * sets (label; with budget > 0 as mp_group_budget forms them) and the
  * rows whose strong link the cap cut. */
 static int capped_sets(mp_table *t, const mp_group_opts *go, const mp_prf_model *m, double frac,
-                       double budget, double ron, pair_list *L, size_t *label, unsigned char *cut,
-                       char *err)
+                       double budget, double ron, mp_coupling *kept, pair_list *L, size_t *label,
+                       unsigned char *cut, char *err)
 {
     double sky = mp_pl_median_positive(t, "SKY_PSF");
     sky = sky > 0 ? sky : mp_pl_median_positive(t, "BACKGROUND");
-    mp_coupling c;
-    double *E = NULL;
-    int rc = mp_coupling_build(m, go->fitrad, go->psfrad + go->fitrad, sky, ron, &c, err);
+    mp_coupling own = {0}, *c = kept ? kept : &own;
+    double *E = NULL, crit = go->psfrad + go->fitrad;
+    int rc = 0;
+    /* a table of the same model, fitrad and reach serves any sky */
+    if (c == &own || !c->k || c->fitrad != go->fitrad || c->crit != crit) {
+        if (c->k)
+            mp_coupling_free(c);
+        rc = mp_coupling_build(m, go->fitrad, crit, sky, ron, c, err);
+    } else {
+        mp_coupling_at(c, sky, ron);
+    }
     if (!rc && !(E = fluxes_of(t)))
         rc = -1;
-    L->c = &c;
+    L->c = c;
     L->E = E;
     mp_group_opts o = *go;
     o.maxgroup = INT_MAX;
@@ -134,12 +142,14 @@ static int capped_sets(mp_table *t, const mp_group_opts *go, const mp_prf_model 
                                              label, cut, frac)))
         rc = -1;
     free(E);
-    mp_coupling_free(&c);
+    if (c == &own)
+        mp_coupling_free(&own);
     return rc;
 }
 
 int mp_pl_group(mp_table *t, const mp_group_opts *go, const mp_prf_model *m, double couplefrac,
-                double budget, double ron, long *tested, long *linked, char *err)
+                double budget, double ron, mp_coupling *kept, long *tested, long *linked,
+                char *err)
 {
     *tested = *linked = 0;
     if (!(couplefrac > 0))
@@ -157,7 +167,7 @@ int mp_pl_group(mp_table *t, const mp_group_opts *go, const mp_prf_model *m, dou
         if (budget > 0)
             memset(big, 1, n);
         pair_list L = {NULL, NULL, big, NULL, 0, 0, 0};
-        rc = capped_sets(t, go, m, couplefrac, budget, ron, &L, label, cut, err);
+        rc = capped_sets(t, go, m, couplefrac, budget, ron, kept, &L, label, cut, err);
         for (size_t k = 0; k < L.n; k++)
             *linked += L.p[k].w >= couplefrac;
         *tested = (long)L.n;

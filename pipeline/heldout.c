@@ -100,7 +100,7 @@ int mp_pl_heldout_fit(const mp_frame *f, const mp_table *held, mp_parset *ps, co
     if ((rc = mp_pl_rows_of(held, NULL, 1, out)))
         snprintf(err, MP_ERRLEN, "held-out stars: out of memory");
     /* grouped among themselves: every other star is off the frame */
-    rc = rc || mp_pl_group(out, go, &su.model, 0.0, 0.0, f->rdnoise, &tested, &linked, err) ||
+    rc = rc || mp_pl_group(out, go, &su.model, 0.0, 0.0, f->rdnoise, NULL, &tested, &linked, err) ||
          mp_fit_table(f, &su.model, &su.opts, out, NULL, err);
     mp_fit_setup_free(&su);
     return rc;

@@ -60,10 +60,13 @@ int mp_pl_star_excess(const mp_frame *f, mp_bkg *b, const mp_table *t, const mp_
  * flagged 2.  With budget > 0 (groupcut=budget) every component is
  * re-formed so, its links joined only as mp_group_budget needs.  *tested,
  * *linked: the pairs within the critical separation in such components,
- * and of them those of κ ≥ couplefrac.  Nonzero with err as
- * mp_group_table, or when out of memory. */
+ * and of them those of κ ≥ couplefrac.  kept (may be NULL): the κ table
+ * of an earlier call with m, kept for the next (it holds for any sky:
+ * fit.h, mp_coupling_build; its owner frees it when m changes).  Nonzero
+ * with err as mp_group_table, or when out of memory. */
 int mp_pl_group(mp_table *t, const mp_group_opts *go, const mp_prf_model *m, double couplefrac,
-                double budget, double ron, long *tested, long *linked, char *err);
+                double budget, double ron, mp_coupling *kept, long *tested, long *linked,
+                char *err);
 
 /* mp_pl_group_decision: mp_pl_group's rule (budget as its; weakgroup,
  * go->weakgroup's cap on weak links, 0: none) added to fs's economy

@@ -45,6 +45,7 @@ static void state_free(run_state *s)
     mp_table_free(&s->gone);
     mp_table_free(&s->before);
     mp_bkg_free(&s->bkg);
+    mp_coupling_free(&s->coupling);
     mp_frame_free(&s->f);
 }
 
@@ -201,7 +202,7 @@ int mp_run_group_and_fit(run_state *s, int round, int once, char *err)
     long close, coupled;
     double cf = o->groupcut_median ? 0.0 : s->fit->opts.couplefrac;
     if (mp_pl_group(&s->t, &o->group, &s->fit->model, cf, cf > 0 ? o->couplebudget : 0.0,
-                    s->f.rdnoise, &close, &coupled, err))
+                    s->f.rdnoise, &s->coupling, &close, &coupled, err))
         return 1;
     s->rep->pairs_close += close;
     s->rep->pairs_coupled += coupled;

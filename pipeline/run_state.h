@@ -46,6 +46,9 @@ typedef struct {
                            * or stopped at the loose tol (MP_PL_ROUND_TOL) */
     double halo_light;    /* the light per e- the halo took off every star
                            * (mp_pl_halo), which the PSF's PSFSUM counts */
+    mp_coupling coupling; /* the κ table of the fit's model (mp_pl_group),
+                           * kept from round to round; freed when the model
+                           * changes (adopt_psf) */
     const mp_prf_cache *grid;  /* the phase grid the last fit drew from */
     double win;           /* the window side economy priced the last fit on */
 } run_state;

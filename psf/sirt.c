@@ -225,8 +225,8 @@ static int wls(const mp_epsf_sirt *w, size_t el, const size_t *idx, size_t m, co
 }
 
 /* Star k's deviation from the fit c at element el, in its σ. */
-static inline double deviation(const mp_epsf_sirt *w, size_t el, size_t k, const double *terms, int nt,
-                        const double *c)
+static inline double deviation(const mp_epsf_sirt *w, size_t el, size_t k,
+                               const double *terms, int nt, const double *c)
 {
     double h = w->H[k * w->nel + el], mod = 0;
     for (int t = 0; t < nt; t++)

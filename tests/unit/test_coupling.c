@@ -58,10 +58,12 @@ static void mul3(const double a[9], const double b[9], double r[9])
             r[3 * i + j] = a[3 * i] * b[j] + a[3 * i + 1] * b[3 + j] + a[3 * i + 2] * b[6 + j];
 }
 
-/* κ of stars at (xa, ya) and (xb, yb) with fluxes ea, eb. */
-static double kappa_exact(double xa, double ya, double xb, double yb, double ea, double eb)
+/* κ of stars at (xa, ya) and (xb, yb) with fluxes ea, eb on a sky and
+ * read noise of B + RON² = beff. */
+static double kappa_exact_on(double beff, double xa, double ya, double xb, double yb, double ea,
+                             double eb)
 {
-    double I[6][6] = {{0}}, beff = SKY + RON * RON;
+    double I[6][6] = {{0}};
     for (long Y = (long)ya - 12; Y <= (long)ya + 12; Y++)
         for (long X = (long)xa - 12; X <= (long)xa + 12; X++) {
             if (hypot(X - xa, Y - ya) > FITRAD && hypot(X - xb, Y - yb) > FITRAD)
@@ -104,15 +106,22 @@ static double kappa_exact(double xa, double ya, double xb, double yb, double ea,
     return sqrt(fmin(lam, 1.0));
 }
 
-/* The largest κ over the table's eight directions at node separation d. */
-static double kappa_dirs(double d, double ea, double eb)
+/* The largest κ over the table's eight directions at node separation d,
+ * on beff. */
+static double kappa_dirs_on(double beff, double d, double ea, double eb)
 {
     double k = 0.0;
     for (int dir = 0; dir < 8; dir++) {
         double th = 2.0 * M_PI * dir / 8;
-        k = fmax(k, kappa_exact(100.0, 100.0, 100.0 + d * cos(th), 100.0 + d * sin(th), ea, eb));
+        k = fmax(k, kappa_exact_on(beff, 100.0, 100.0, 100.0 + d * cos(th), 100.0 + d * sin(th),
+                                   ea, eb));
     }
     return k;
+}
+
+static double kappa_dirs(double d, double ea, double eb)
+{
+    return kappa_dirs_on(SKY + RON * RON, d, ea, eb);
 }
 
 /* The table of the analytic Gaussian of FWHM 3 px (mp_psf_gauss). */
@@ -191,11 +200,46 @@ static void test_kappa_between_nodes(void **state)
     mp_coupling_free(&c);
 }
 
+/* One table serves every sky (mp_coupling_at; the pipeline keeps it from
+ * round to round): κ depends on the fluxes only through E/(B + RON²), so
+ * a table made on another sky is the same table, and moved to a sky 30
+ * times brighter its lookups bound the exact κ there as a table made
+ * there would. */
+static void test_kappa_any_sky(void **state)
+{
+    (void)state;
+    mp_coupling c, d2;
+    gauss_table(&c);
+    mp_psf p;
+    mp_psf_gauss(3.0, &p);
+    mp_prf_model m = {&p, NULL, 10};
+    char err[MP_ERRLEN];
+    const double sky2 = 30.0 * SKY;
+    assert_int_equal(mp_coupling_build(&m, FITRAD, CRIT, sky2, RON, &d2, err), 0);
+    assert_int_equal(c.nd, d2.nd);
+    assert_int_equal(memcmp(c.k, d2.k, (size_t)c.nd * c.na * c.na * sizeof *c.k), 0);
+    mp_coupling_at(&c, sky2, RON);
+    assert_true(c.beff == d2.beff);
+    unsigned s = 777u;
+    for (int k = 0; k < 20; k++) {
+        s = s * 1103515245u + 12345u;
+        double d = 0.3 + (CRIT - 0.4) * ((s >> 8) & 0xffff) / 65536.0;
+        s = s * 1103515245u + 12345u;
+        double Ea = c.beff * pow(10.0, 6.0 * ((s >> 8) & 0xffff) / 65536.0);
+        s = s * 1103515245u + 12345u;
+        double Eb = c.beff * pow(10.0, 6.0 * ((s >> 8) & 0xffff) / 65536.0);
+        assert_true(mp_coupling_kappa(&c, d, Ea, Eb) >= kappa_dirs_on(c.beff, d, Ea, Eb) - 2e-3);
+    }
+    mp_coupling_free(&c);
+    mp_coupling_free(&d2);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(test_kappa_at_nodes),
         cmocka_unit_test(test_kappa_between_nodes),
+        cmocka_unit_test(test_kappa_any_sky),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }
