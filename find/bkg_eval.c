@@ -51,6 +51,26 @@ static void model_rms_row(const mp_bkg *b, long y, const float *s, float *r)
     }
 }
 
+void mp_bkg_rms_span(const mp_bkg *b, long y, long x0, long x1, float *rms)
+{
+    size_t o = (size_t)y * (size_t)b->nx;
+    if (!b->model) {
+        for (long x = x0; x < x1; x++)
+            rms[x - x0] = mp_bkg_rms(b, o + (size_t)x);
+        return;
+    }
+    double v[SPAN];
+    for (long a = x0; a < x1; a += SPAN) {
+        long e = a + SPAN < x1 ? a + SPAN : x1;
+        if (b->nxs)
+            mp_bkg_excess_span(b, y, a, e, v);
+        for (long x = a; x < e; x++) {
+            size_t i = o + (size_t)x;
+            rms[x - x0] = rms_with(b, i, mp_bkg_sky(b, i), b->nxs ? v[x - a] : 0.0);
+        }
+    }
+}
+
 float mp_bkg_sky(const mp_bkg *b, size_t i)
 {
     long y = (long)(i / (size_t)b->nx), x = (long)(i % (size_t)b->nx);

@@ -60,6 +60,12 @@ typedef struct {
 float mp_bkg_sky(const mp_bkg *b, size_t i);
 float mp_bkg_rms(const mp_bkg *b, size_t i);
 
+/* mp_bkg_rms_span: mp_bkg_rms of pixels [x0, x1) of row y (0-based) into
+ * rms[0 .. x1 − x0), bit for bit: the residual's noise model adds its
+ * stars' excess a span at a time (a star's window: the one-or-two test,
+ * the residual's screen). */
+void mp_bkg_rms_span(const mp_bkg *b, long y, long x0, long x1, float *rms);
+
 /* mp_bkg_rows: sky (and rms when not NULL) of the rows [y0, y1), nx values
  * a row, into sky[(y − y0)·nx + x] and rms[…]: the cheap way for whole rows. */
 void mp_bkg_rows(const mp_bkg *b, long y0, long y1, float *sky, float *rms);

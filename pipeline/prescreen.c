@@ -15,18 +15,27 @@
  * when the window holds too little. */
 static double snr_of(const mp_frame *f, const mp_bkg *b, const float *res, double x, double y,
                      double r, const double *prf, long rx0, long ry0, int rw, int rh,
-                     double *flux)
+                     unsigned char *in, float *rrow, double *flux)
 {
     double spp = 0, sp = 0, s1 = 0, spd = 0, sd = 0;
-    for (long j = 0; j < rh; j++)
+    for (long j = 0; j < rh; j++) {
+        long gy = ry0 + j, lo = rw, hi = -1;       /* 1-based */
         for (long i = 0; i < rw; i++) {
-            long gx = rx0 + i, gy = ry0 + j;       /* 1-based */
-            if (hypot((double)gx - x, (double)gy - y) > r)
+            in[i] = hypot((double)(rx0 + i) - x, (double)gy - y) <= r;
+            lo = in[i] && i < lo ? i : lo;
+            hi = in[i] ? i : hi;
+        }
+        /* the noise of the row's pixels within r, a span at once */
+        if (hi >= lo)
+            mp_bkg_rms_span(b, gy - 1, rx0 + lo - 1, rx0 + hi, rrow);
+        for (long i = 0; i < rw; i++) {
+            long gx = rx0 + i;
+            if (!in[i])
                 continue;
             size_t k = (size_t)(gy - 1) * (size_t)f->im.nx + (size_t)(gx - 1);
             if (f->mask[k] || !isfinite(res[k]))
                 continue;
-            float rms = mp_bkg_rms(b, k);
+            float rms = rrow[i - lo];
             if (!(rms > 0))
                 continue;
             double w = 1.0 / (rms * rms), p = prf[j * rw + i];
@@ -36,6 +45,7 @@ static double snr_of(const mp_frame *f, const mp_bkg *b, const float *res, doubl
             spd += w * p * res[k];
             sd += w * res[k];
         }
+    }
     double det = spp * s1 - sp * sp;
     *flux = NAN;
     if (!(det > 0) || s1 <= 0)
@@ -50,11 +60,35 @@ static double snr_of(const mp_frame *f, const mp_bkg *b, const float *res, doubl
  * limit gemax (its bias then below the fit's own bound, issue 12: the
  * exact renders were a tenth of a simulated crowded frame's run), else
  * exact.  NaN when the window holds too little. */
+/* A thread's room for linear_snr's windows of side × side pixels: the
+ * PRF, and a row's noise and pixels within r. */
+typedef struct {
+    double *prf;
+    float *rrow;
+    unsigned char *in;
+} window_room;
+
+static int room_alloc(window_room *w, long side)
+{
+    w->prf = malloc((size_t)(side * side) * sizeof *w->prf);
+    w->rrow = malloc((size_t)side * sizeof *w->rrow);
+    w->in = malloc((size_t)side);
+    return !w->prf || !w->rrow || !w->in;
+}
+
+static void room_free(window_room *w)
+{
+    free(w->prf);
+    free(w->rrow);
+    free(w->in);
+}
+
 static double linear_snr(const mp_frame *f, const mp_bkg *b, const float *res,
                          const mp_prf_model *m, const mp_prf_cache *grid, double gemax,
-                         double x, double y, double r, double *prf, mp_prf_work *wk,
+                         double x, double y, double r, window_room *room, mp_prf_work *wk,
                          double *flux)
 {
+    double *prf = room->prf;
     long wx0 = (long)ceil(x - r), wy0 = (long)ceil(y - r);
     long wx1 = (long)floor(x + r) + 1, wy1 = (long)floor(y + r) + 1;
     wx0 = wx0 < 1 ? 1 : wx0;
@@ -74,7 +108,7 @@ static double linear_snr(const mp_frame *f, const mp_bkg *b, const float *res,
         wk->grid = NULL;
         if (rc)
             return NAN;
-        snr = snr_of(f, b, res, x, y, r, prf, rx0, ry0, rw, rh, flux);
+        snr = snr_of(f, b, res, x, y, r, prf, rx0, ry0, rw, rh, room->in, room->rrow, flux);
         if (!exact && fabs(*flux) <= gemax)
             break;
     }
@@ -98,14 +132,15 @@ long mp_pl_prescreen(const mp_frame *f, const mp_bkg *b, const float *res,
 #pragma omp parallel reduction(+ : dropped) reduction(| : failed)
     {
         mp_prf_work wk = {0};
-        double *prf = malloc((size_t)(side * side) * sizeof *prf);
-        failed |= !prf;
+        window_room room;
+        int bad = room_alloc(&room, side);
+        failed |= bad;
 #pragma omp for schedule(dynamic, 64)
         for (long r = 0; r < nrow; r++) {
             double x = mp_table_get(found, (size_t)r, fx), y = mp_table_get(found, (size_t)r, fy);
-            if (!prf || !isfinite(x) || !isfinite(y))
+            if (bad || !isfinite(x) || !isfinite(y))
                 continue;
-            double e, snr = linear_snr(f, b, res, m, NULL, 0.0, x, y, fitrad, prf, &wk, &e);
+            double e, snr = linear_snr(f, b, res, m, NULL, 0.0, x, y, fitrad, &room, &wk, &e);
             mp_table_set(found, (size_t)r, fs, snr);
             /* A saturated plateau is a star whatever the screen says: its
              * core is masked, and the first model's shape on the pixels
@@ -125,7 +160,7 @@ long mp_pl_prescreen(const mp_frame *f, const mp_bkg *b, const float *res,
                 mp_table_set(found, (size_t)r, ff, e);
             }
         }
-        free(prf);
+        room_free(&room);
         mp_prf_work_free(&wk);
     }
     return failed ? -1 : dropped;
@@ -140,15 +175,16 @@ int mp_pl_screen_sieve(void *ctx, mp_find_cand *c, size_t n)
 #pragma omp parallel reduction(+ : dropped) reduction(| : failed)
     {
         mp_prf_work wk = {0};
-        double *prf = malloc((size_t)(side * side) * sizeof *prf);
-        failed |= !prf;
+        window_room room;
+        int bad = room_alloc(&room, side);
+        failed |= bad;
 #pragma omp for schedule(dynamic, 64)
         for (size_t i = 0; i < n; i++) {
-            if (!prf || !isfinite(c[i].x) || !isfinite(c[i].y))
+            if (bad || !isfinite(c[i].x) || !isfinite(c[i].y))
                 continue;
             double e;
             c[i].snr = linear_snr(sc->f, sc->b, sc->res, sc->m, sc->grid, sc->gemax, c[i].x,
-                                  c[i].y, sc->fitrad, prf, &wk, &e);
+                                  c[i].y, sc->fitrad, &room, &wk, &e);
             if (isfinite(c[i].snr) && c[i].snr < sc->snrmin) {
                 c[i].keep = 0;
                 dropped++;
@@ -156,7 +192,7 @@ int mp_pl_screen_sieve(void *ctx, mp_find_cand *c, size_t n)
                 c[i].flux = e;
             }
         }
-        free(prf);
+        room_free(&room);
         mp_prf_work_free(&wk);
     }
     sc->dropped += dropped;

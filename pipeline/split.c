@@ -38,6 +38,8 @@ typedef struct {
      * as ns spans of frame pixels, at box index idx[i] */
     mp_span *sp;
     size_t *idx;
+    float *rms;           /* a row's noise (weighted_pixels) */
+    unsigned char *in;    /* a row's pixels within fitrad */
     int ns, nc;
     mp_prf_work wk;       /* the renders' (wk.grid: the phase grid, or NULL) */
 } split_work;
@@ -115,14 +117,22 @@ static void weighted_pixels(const mp_frame *f, const mp_bkg *b, const float *res
 {
     s->ns = s->nc = 0;
     for (long j = 0; j < s->h; j++) {
+        long gy = s->y0 + j, lo = s->w, hi = -1;
+        for (long i = 0; i < s->w; i++) {
+            s->in[i] = hypot((double)(s->x0 + i) - x, (double)gy - y) <= fitrad;
+            lo = s->in[i] && i < lo ? i : lo;
+            hi = s->in[i] ? i : hi;
+        }
+        /* the noise of the row's pixels within fitrad, a span at once */
+        if (hi >= lo)
+            mp_bkg_rms_span(b, gy - 1, s->x0 + lo - 1, s->x0 + hi, s->rms);
         int open = 0;
         for (long i = 0; i < s->w; i++) {
             size_t k = (size_t)(j * s->w + i);
-            long gx = s->x0 + i, gy = s->y0 + j;
+            long gx = s->x0 + i;
             size_t g = (size_t)(gy - 1) * (size_t)f->im.nx + (size_t)(gx - 1);
             float rms = 0.0f;
-            int ok = hypot((double)gx - x, (double)gy - y) <= fitrad && !f->mask[g] &&
-                     isfinite(res[g]) && (rms = mp_bkg_rms(b, g)) > 0;
+            int ok = s->in[i] && !f->mask[g] && isfinite(res[g]) && (rms = s->rms[i - lo]) > 0;
             s->wt[k] = ok ? 1.0 / (rms * rms) : 0.0;
             s->r[k] = ok ? res[g] : 0.0;
             if (!ok) {
@@ -298,8 +308,18 @@ static double *work_alloc(split_work *s, size_t n)
     double *mem = malloc(10 * n * sizeof *mem);
     s->sp = malloc(n * sizeof *s->sp);
     s->idx = malloc(n * sizeof *s->idx);
-    if (!mem || !s->sp || !s->idx) {
+    s->rms = malloc(n * sizeof *s->rms);
+    s->in = malloc(n);
+    if (!mem || !s->sp || !s->idx || !s->rms || !s->in) {
         free(mem);
+        free(s->sp);
+        free(s->idx);
+        free(s->rms);
+        free(s->in);
+        s->sp = NULL;
+        s->idx = NULL;
+        s->rms = NULL;
+        s->in = NULL;
         return NULL;
     }
     s->p0 = mem;
@@ -316,6 +336,8 @@ static void work_free(split_work *s, double *mem)
     free(mem);
     free(s->sp);
     free(s->idx);
+    free(s->rms);
+    free(s->in);
     mp_prf_work_free(&s->wk);
 }
 
