@@ -1104,7 +1104,8 @@ static void test_star_excess(void **state)
             assert_true(add > 0);
             assert_true(fabs(after * after - before * before - add) < 1e-3 * after * after);
         }
-        /* by rows (mp_bkg_excess_span) as by pixels, bit for bit */
+        /* by rows and by spans (mp_bkg_excess_span) as by pixels, bit
+         * for bit; the spans of a window's width, anywhere on a row */
         float *sr = malloc((size_t)(nx * ny) * sizeof *sr);
         float *rr = malloc((size_t)(nx * ny) * sizeof *rr);
         assert_non_null(sr);
@@ -1115,6 +1116,13 @@ static void test_star_excess(void **state)
             if (memcmp(&r, &rr[i], sizeof r))
                 fail_msg("pixel %ld: rms %.9g by pixel, %.9g by row", i, r, rr[i]);
         }
+        for (long y = 0; y < ny; y++)
+            for (long x0 = y % 13; x0 < nx; x0 += 13) {
+                long x1 = x0 + 13 < nx ? x0 + 13 : nx;
+                mp_bkg_rms_span(&b, y, x0, x1, sr);
+                if (memcmp(sr, rr + y * nx + x0, (size_t)(x1 - x0) * sizeof *sr))
+                    fail_msg("row %ld, pixels %ld..%ld: the span differs", y, x0, x1 - 1);
+            }
         free(sr);
         free(rr);
         mp_bkg_free(&b);
