@@ -333,8 +333,8 @@ static int set_rules(frame_fit *F, const mp_frame_opts *o, mp_frame_report *rep,
 static int bounds_now(frame_fit *F, char *err)
 {
     paint_rule now = {F->oc.grid, F->R.gemax, F->R.glemax, 1};
-    int rc = ff_update_bounds(F->f, F->m, &F->crop, &now, &F->held, F->oc.fit.fitrad, F->st, F->n,
-                              F->gs, F->ng, F->gone, F->ngone);
+    int rc = ff_update_bounds(F->f, F->m, &F->crop, &now, &F->held, F->oc.fit.fitrad,
+                              F->oc.refittol, F->st, F->n, F->gs, F->ng, F->gone, F->ngone);
     free(F->gone);
     F->gone = NULL;
     F->ngone = 0;

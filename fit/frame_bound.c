@@ -182,10 +182,33 @@ static light_change change_of(const star_state *s, size_t j, const size_t *gs, s
     return c;
 }
 
+/* Whether a star of C within r of the box b (that c's change did not
+ * reach in its own group's fit) still has a bound below tol: a star at or
+ * above it refits its group whatever is added (group_kept), so a change
+ * that reaches none is not painted (GLIMPSE's last round: the second
+ * pass's bounds had a median of 6.6, and their sums were 6 % of its
+ * run). */
+static int any_open(const star_state *st, const star_cells *C, const light_change *c,
+                    const long b[4], double r, double tol)
+{
+    long cx0 = cell_of(b[0] - r, C->ncx), cx1 = cell_of(b[1] + r, C->ncx);
+    long cy0 = cell_of(b[2] - r, C->ncy), cy1 = cell_of(b[3] + r, C->ncy);
+    for (long cy = cy0; cy <= cy1; cy++)
+        for (long cx = cx0; cx <= cx1; cx++) {
+            size_t cc = (size_t)cy * (size_t)C->ncx + (size_t)cx;
+            for (size_t q = C->cell0[cc]; q < C->cell0[cc + 1]; q++) {
+                size_t k = C->idx[q];
+                if (k != c->j && !(k >= c->g0 && k < c->g1) && st[k].bound < tol)
+                    return 1;
+            }
+        }
+    return 0;
+}
+
 /* Paint c's Δ (now − old) on its box; the stars it reaches and by how
  * much into *inc (*ninc of them, allocated).  Nonzero when out of memory. */
 static int increments_of(const mp_frame *f, const mp_prf_model *m, const crop_rule *crop,
-                         double r, const star_state *st, const star_cells *C,
+                         double r, double tol, const star_state *st, const star_cells *C,
                          const light_change *c, mp_prf_work *wk, double **buf, size_t *cap,
                          float **win, size_t *nwin, increment **inc, size_t *ninc)
 {
@@ -201,6 +224,8 @@ static int increments_of(const mp_frame *f, const mp_prf_model *m, const crop_ru
         long a = ho ? bo[e] : bn[e], z = hn ? bn[e] : bo[e];
         b[e] = e % 2 ? (a > z ? a : z) : (a < z ? a : z);
     }
+    if (!any_open(st, C, c, b, r, tol))
+        return 0;                           /* not painted: no bound it could decide */
     long w = b[1] - b[0] + 1, h = b[3] - b[2] + 1;
     size_t need = (size_t)w * (size_t)h;
     if (need > *nwin) {
@@ -222,7 +247,7 @@ static int increments_of(const mp_frame *f, const mp_prf_model *m, const crop_ru
             size_t cc = (size_t)cy * (size_t)C->ncx + (size_t)cx;
             for (size_t q = C->cell0[cc]; q < C->cell0[cc + 1]; q++) {
                 size_t k = C->idx[q];
-                if (k == c->j || (k >= c->g0 && k < c->g1))
+                if (k == c->j || (k >= c->g0 && k < c->g1) || !(st[k].bound < tol))
                     continue;
                 double v = norm2_on_disc(f, *win, b, st[k].s.x, st[k].s.y, r);
                 if (!(v > 0.0))
@@ -245,7 +270,7 @@ static int increments_of(const mp_frame *f, const mp_prf_model *m, const crop_ru
  * star as it is handled: an array of them held 180 B a star at the whole
  * frame's peak. */
 static int add_changes(const mp_frame *f, const mp_prf_model *m, const crop_rule *crop,
-                       const paint_rule *now, double r, star_state *st, size_t n,
+                       const paint_rule *now, double r, double tol, star_state *st, size_t n,
                        const size_t *gs, size_t ng, const star_state *gone,
                        const star_cells *C, const size_t *who, size_t nch)
 {
@@ -267,8 +292,8 @@ static int add_changes(const mp_frame *f, const mp_prf_model *m, const crop_rule
             for (size_t c = c0; c < c1; c++) {
                 size_t j = who[c];
                 light_change ch = j < n ? change_of(&st[j], j, gs, ng) : change_of(&gone[j - n], n, gs, 0);
-                nomem |= increments_of(f, m, crop, r, st, C, &ch, &wk, &buf, &cap, &win, &nwin,
-                                       &inc[c - c0], &ninc[c - c0]);
+                nomem |= increments_of(f, m, crop, r, tol, st, C, &ch, &wk, &buf, &cap, &win,
+                                       &nwin, &inc[c - c0], &ninc[c - c0]);
             }
             free(buf);
             free(win);
@@ -284,13 +309,14 @@ static int add_changes(const mp_frame *f, const mp_prf_model *m, const crop_rule
 }
 
 int ff_update_bounds(const mp_frame *f, const mp_prf_model *m, const crop_rule *crop,
-                     const paint_rule *now, paint_rule *held, double r, star_state *st, size_t n,
-                     const size_t *gs, size_t ng, const star_state *gone, size_t ngone)
+                     const paint_rule *now, paint_rule *held, double r, double tol,
+                     star_state *st, size_t n, const size_t *gs, size_t ng,
+                     const star_state *gone, size_t ngone)
 {
     int same = same_rule(now, held, st, n, gone, ngone), any = 0;
     size_t nch = ngone;
     for (size_t k = 0; k < n; k++) {
-        if (!same)
+        if (!same || !(st[k].bound < tol))
             st[k].bound = INFINITY;
         any |= st[k].alive && isfinite(st[k].bound);
         nch += st[k].moved != 0;
@@ -307,10 +333,12 @@ int ff_update_bounds(const mp_frame *f, const mp_prf_model *m, const crop_rule *
                 who[q++] = k;
         for (size_t k = 0; k < ngone; k++)
             who[q++] = n + k;
-        rc = add_changes(f, m, crop, now, r, st, n, gs, ng, gone, &C, who, nch);
+        rc = add_changes(f, m, crop, now, r, tol, st, n, gs, ng, gone, &C, who, nch);
     }
-    for (size_t k = 0; k < n; k++)
+    for (size_t k = 0; k < n; k++) {
         st[k].moved = 0;
+        st[k].bound = st[k].bound < tol ? st[k].bound : INFINITY;
+    }
     free(who);
     free(C.cell0);
     free(C.idx);

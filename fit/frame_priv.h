@@ -202,11 +202,15 @@ int ff_fit_group_local(const mp_frame *f, const mp_prf_model *m, const mp_frame_
  * table: their light gone).  When now does not paint these stars as the
  * rule the bounds hold for (*held) did — another grid, or a flux limit
  * that draws one of them another way — every bound is INFINITY instead,
- * and *held becomes now.  Stars
+ * and *held becomes now.  A bound at or above tol (refittol) refits its
+ * group whatever is added to it (group_kept): it becomes INFINITY and
+ * takes no more (a change that reaches only such stars is not painted), so
+ * every bound ends below tol, exactly as summed, or INFINITY.  Stars
  * sorted by group as gs says (ng groups).  Nonzero when out of memory. */
 int ff_update_bounds(const mp_frame *f, const mp_prf_model *m, const crop_rule *crop,
-                     const paint_rule *now, paint_rule *held, double r, star_state *st, size_t n,
-                     const size_t *gs, size_t ng, const star_state *gone, size_t ngone);
+                     const paint_rule *now, paint_rule *held, double r, double tol,
+                     star_state *st, size_t n, const size_t *gs, size_t ng,
+                     const star_state *gone, size_t ngone);
 
 /* frame_memory.c.  ff_max_number: the table's largest NUMBER, or -1 when
  * it has none (or one not a whole number ≥ 0).  ff_recall: each star's

@@ -108,8 +108,8 @@ static int bounds_kept(const mp_frame *f, const mp_prf_model *m, const crop_rule
     double before[NST];
     for (int k = 0; k < NST; k++)
         before[k] = st[k].bound;
-    assert_int_equal(ff_update_bounds(f, m, crop, &now, &held, FITRAD, st, NST, gs, ng, NULL, 0),
-                     0);
+    assert_int_equal(
+        ff_update_bounds(f, m, crop, &now, &held, FITRAD, INFINITY, st, NST, gs, ng, NULL, 0), 0);
     assert_ptr_equal(held.grid, now.grid);
     assert_true(held.gemax == now.gemax || (isnan(held.gemax) && isnan(now.gemax)));
     assert_true(held.glemax == now.glemax);
@@ -174,8 +174,8 @@ static void test_bound_sums_the_changes(void **state)
     crop_rule crop;
     assert_int_equal(ff_crop_init(&f, &m, 0.02, &crop), 0);
     paint_rule now = {NULL, NAN, 0.0, 1}, held = now;
-    assert_int_equal(ff_update_bounds(&f, &m, &crop, &now, &held, FITRAD, st, NST, gs, ng,
-                                      &gone, 1), 0);
+    assert_int_equal(ff_update_bounds(&f, &m, &crop, &now, &held, FITRAD, INFINITY, st, NST, gs,
+                                      ng, &gone, 1), 0);
     float *d[NST + 1], *sum = malloc(NX * NX * sizeof *sum);
     assert_non_null(sum);
     for (int j = 0; j <= NST; j++) {
@@ -218,10 +218,62 @@ static void test_bound_sums_the_changes(void **state)
     sf_frame_drop(&f);
 }
 
+/* With refittol the bounds below it are the sums as without, bit for bit,
+ * and the others INFINITY (they refit their groups whatever is added):
+ * the groups kept are the same.  tol the median of the full bounds. */
+static void test_bound_capped_at_tol(void **state)
+{
+    (void)state;
+    mp_psf p;
+    mp_psf_gauss(3.0, &p);
+    mp_prf_model m = {&p, NULL, 10};
+    mp_frame f;
+    star_state st[NST], capped[NST], gone;
+    size_t gs[NST / 3 + 1], ng;
+    scene(&f, st, gs, &ng, &gone);
+    memcpy(capped, st, sizeof st);
+    crop_rule crop;
+    assert_int_equal(ff_crop_init(&f, &m, 0.02, &crop), 0);
+    paint_rule now = {NULL, NAN, 0.0, 1}, held = now, held2 = now;
+    assert_int_equal(ff_update_bounds(&f, &m, &crop, &now, &held, FITRAD, INFINITY, st, NST, gs,
+                                      ng, &gone, 1), 0);
+    double b[NST];
+    int nb = 0;
+    for (int k = 0; k < NST; k++)
+        if (st[k].alive && st[k].bound > 0)
+            b[nb++] = st[k].bound;
+    assert_true(nb >= 4);
+    for (int i = 1; i < nb; i++)            /* sorted: the median */
+        for (int j = i; j > 0 && b[j - 1] > b[j]; j--) {
+            double t = b[j];
+            b[j] = b[j - 1];
+            b[j - 1] = t;
+        }
+    double tol = b[nb / 2];
+    assert_int_equal(ff_update_bounds(&f, &m, &crop, &now, &held2, FITRAD, tol, capped, NST, gs,
+                                      ng, &gone, 1), 0);
+    int below = 0, above = 0;
+    for (int k = 0; k < NST; k++) {
+        if (!st[k].alive)
+            continue;
+        if (st[k].bound < tol) {
+            assert_true(memcmp(&st[k].bound, &capped[k].bound, sizeof st[k].bound) == 0);
+            below++;
+        } else {
+            assert_true(isinf(capped[k].bound));
+            above++;
+        }
+    }
+    assert_true(below >= 2 && above >= 2);
+    free(crop.env);
+    sf_frame_drop(&f);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(test_bound_sums_the_changes),
+        cmocka_unit_test(test_bound_capped_at_tol),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }
