@@ -51,6 +51,8 @@ void mp_epsf_sirt_free(mp_epsf_sirt *w)
  * star's box and a render's work. */
 typedef struct {
     mp_psf tab;
+    int tab0;              /* tab holds the pass's order-0 table (the same
+                            * at every star's place: drawn once) */
     double *prf;
     size_t nprf;
     double *g;             /* a star's G in doubles (mp_prf_adjoint's) */
@@ -85,8 +87,9 @@ static int backproject(scratch *w, const mp_epsf_star *s, const mp_epsf *e, doub
                        double *R, double *geo, float *H, double *chi2)
 {
     char err[MP_ERRLEN];
-    if (mp_epsf_table(e, s->x, s->y, &w->tab, err))
+    if (!(w->tab0 && e->nterms == 1) && mp_epsf_table(e, s->x, s->y, &w->tab, err))
         return 1;
+    w->tab0 = e->nterms == 1;
     mp_prf_model m = {&w->tab, NULL, 10};
     double xs = s->x - (double)(s->x0 - 1), ys = s->y - (double)(s->y0 - 1);
     long bx0, by0;
