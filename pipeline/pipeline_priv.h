@@ -385,16 +385,18 @@ int mp_pl_psf_on(const char *section, const char *root, const mp_pipeline_opts *
  * appended to found (X_IMAGE, Y_IMAGE, FLUX, MP_PL_SNR_COL = √Δχ²) when
  * Δχ² ≥ snrmin².  The PRFs of a star whose FLUX_PSF is at most gemax
  * are drawn from the phase grid (may be NULL: exact renders), as its
- * group's fit draws them (mp_frame_opts.grid).  Returns the number
- * appended, −1 when out of memory.  Threads over stars (OpenMP). */
+ * group's fit draws them (mp_frame_opts.grid); the trial stars' from it
+ * too, bilinearly while the best one's flux is within glemax (0: never),
+ * the bilinear interpolation's limit.  Returns the number appended, −1
+ * when out of memory.  Threads over stars (OpenMP). */
 /* The least √Δχ² at which a second star is proposed, whatever minsnr:
  * χ²(1) > 25 has probability 6e-7 at one place. */
 #define MP_PL_SPLIT_MINSNR 5.0
 
 long mp_pl_split_candidates(const mp_frame *f, const mp_bkg *b, const float *res,
                             const mp_prf_model *m, const mp_prf_cache *grid, double gemax,
-                            const mp_table *t, double fitrad, double rmin, double rmax,
-                            double snrmin, mp_table *found);
+                            double glemax, const mp_table *t, double fitrad, double rmin,
+                            double rmax, double snrmin, mp_table *found);
 
 /* ---- outputs.c --------------------------------------------------------- */
 

@@ -167,6 +167,7 @@ const mp_prf_cache *mp_run_phase_grid(run_state *s, double *gemax)
 {
     char err[MP_ERRLEN];         /* a failed build leaves the exact renders */
     *gemax = 0.0;
+    s->glemax = 0.0;
     mp_frame_opts oe = s->fit->opts;
     if (!oe.cache)
         return NULL;
@@ -181,6 +182,7 @@ const mp_prf_cache *mp_run_phase_grid(run_state *s, double *gemax)
     }
     double sky = mp_pl_median_positive(&s->t, "SKY_PSF");
     *gemax = mp_prf_cache_limit(oe.grid, sky, s->f.rdnoise, oe.sincfrac);
+    s->glemax = mp_prf_cache_limit_lin(oe.grid, sky, s->f.rdnoise, oe.sincfrac);
     return oe.grid;
 }
 
@@ -316,9 +318,9 @@ static int split_and_add(run_state *s, const mp_prf_cache *grid, double gemax, l
      * detections against 30 from find alone). */
     double splitsnr = fmax(s->fit->opts.minsnr, MP_PL_SPLIT_MINSNR);
     if (s->fit->opts.minsnr > 0 &&
-        mp_pl_split_candidates(&s->f, &s->bkg, s->res, &s->fit->model, grid, gemax, &s->t,
-                               o->fit.opts.fit.fitrad, 1.05 * mergerad, fmax(matchrad, 1.1 * mergerad),
-                               splitsnr, &s->found) < 0)
+        mp_pl_split_candidates(&s->f, &s->bkg, s->res, &s->fit->model, grid, gemax, s->glemax,
+                               &s->t, o->fit.opts.fit.fitrad, 1.05 * mergerad,
+                               fmax(matchrad, 1.1 * mergerad), splitsnr, &s->found) < 0)
         return oom(err);
     mp_bkg_free(&s->bkg);        /* as after the first detection */
     *added = mp_pl_add_new_stars(&s->t, &s->gone, &s->found, s->f.im.nx, s->f.im.ny, matchrad,

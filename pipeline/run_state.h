@@ -50,6 +50,8 @@ typedef struct {
                            * kept from round to round; freed when the model
                            * changes (adopt_psf) */
     const mp_prf_cache *grid;  /* the phase grid the last fit drew from */
+    double glemax;        /* the flux up to which mp_run_phase_grid's grid
+                           * serves bilinearly (0: none) */
     double win;           /* the window side economy priced the last fit on */
 } run_state;
 

@@ -39,6 +39,7 @@ typedef struct {
     mp_span *sp;
     size_t *idx;
     float *rms;           /* a row's noise (weighted_pixels) */
+    int lin;              /* the trials from the grid bilinearly */
     unsigned char *in;    /* a row's pixels within fitrad */
     int ns, nc;
     mp_prf_work wk;       /* the renders' (wk.grid: the phase grid, or NULL) */
@@ -165,7 +166,8 @@ static int trial_prf(const mp_prf_model *m, double px, double py, split_work *s,
 {
     mp_prf_work *wk = &s->wk;
     if (mp_prf_cache_usable(wk->grid, m) && mp_prf_cache_covers(wk->grid, m, px, py))
-        return mp_prf_cache_render_spans(wk->grid, m, px, py, s->sp, s->ns, s->pt, NULL, NULL);
+        return mp_prf_cache_render_at(wk->grid, m, px, py, s->sp, NULL, s->ns, s->pt, NULL, NULL,
+                                      s->lin);
     size_t n = (size_t)(s->w * s->h);
     double *full = scratch + 3 * n;
     if (render(m, px, py, s, full, NULL, NULL, scratch, scratch + n, scratch + 2 * n, wk))
@@ -268,8 +270,8 @@ static int below_any_trial(const split_work *s, double G[4][4], const double Br[
 static double best_second(const mp_frame *f, const mp_bkg *b, const float *res,
                           const mp_prf_model *m, double x, double y, double e, double fitrad,
                           const double *rings, split_work *s, double *scratch,
-                          const mp_prf_cache *grid, double gemax, double snrmin2, double *bx,
-                          double *by, double *bflux, double *bpeak)
+                          const mp_prf_cache *grid, double gemax, double glemax,
+                          double snrmin2, double *bx, double *by, double *bflux, double *bpeak)
 {
     size_t n = (size_t)(s->w * s->h);
     double *buf = scratch, *bdx = scratch + n, *bdy = scratch + 2 * n;
@@ -290,7 +292,13 @@ static double best_second(const mp_frame *f, const mp_bkg *b, const float *res,
     if (below_any_trial(s, G, Br, snrmin2))
         return NAN;
     wk->grid = mp_prf_cache_usable(grid, m) ? grid : NULL;
+    s->lin = wk->grid && glemax > 0;
     double best = trials(m, x, y, rings, s, scratch, G, Br, bx, by, bflux);
+    if (s->lin && isfinite(best) && !(*bflux <= glemax)) {
+        s->lin = 0;             /* bilinear beyond its limit: cubic */
+        best = trials(m, x, y, rings, s, scratch, G, Br, bx, by, bflux);
+    }
+    s->lin = 0;
     if (wk->grid && isfinite(best) && !(*bflux <= gemax)) {
         wk->grid = NULL;        /* the trials were from the grid: exactly */
         best = trials(m, x, y, rings, s, scratch, G, Br, bx, by, bflux);
@@ -381,8 +389,8 @@ static long add_proposed(const mp_frame *f, const mp_bkg *b, const double *cx, c
 
 long mp_pl_split_candidates(const mp_frame *f, const mp_bkg *b, const float *res,
                             const mp_prf_model *m, const mp_prf_cache *grid, double gemax,
-                            const mp_table *t, double fitrad, double rmin, double rmax,
-                            double snrmin, mp_table *found)
+                            double glemax, const mp_table *t, double fitrad, double rmin,
+                            double rmax, double snrmin, mp_table *found)
 {
     int tx = mp_table_col(t, "XPSF_IMAGE"), ty = mp_table_col(t, "YPSF_IMAGE");
     int tf = mp_table_col(t, "FLUX_PSF"), te = mp_table_col(t, "FLUXERR_PSF");
@@ -414,7 +422,8 @@ long mp_pl_split_candidates(const mp_frame *f, const mp_bkg *b, const float *res
             if (s.x0 < 1 || s.y0 < 1 || s.x0 + side - 1 > f->im.nx || s.y0 + side - 1 > f->im.ny)
                 continue;       /* at the frame's edge: left to find */
             double d2 = best_second(f, b, res, m, x, y, e, fitrad, rings, &s, mem + 6 * n, grid,
-                                    gemax, snrmin * snrmin, &cx[r], &cy[r], &cf[r], &cp[r]);
+                                    gemax, glemax, snrmin * snrmin, &cx[r], &cy[r], &cf[r],
+                                    &cp[r]);
             cs[r] = d2 >= snrmin * snrmin ? sqrt(d2) : NAN;
         }
         work_free(&s, mem);

@@ -198,9 +198,9 @@ static void test_split_from_grid(void **state)
     mp_table fe, fg;
     mp_table_init(&fe);
     mp_table_init(&fg);
-    assert_int_equal(mp_pl_split_candidates(&f, &b, f.im.pix, &m, NULL, 0.0, &t, 5.0, 0.4 * FWHM,
+    assert_int_equal(mp_pl_split_candidates(&f, &b, f.im.pix, &m, NULL, 0.0, 0.0, &t, 5.0, 0.4 * FWHM,
                                             0.75 * FWHM, 5.0, &fe), 1);
-    assert_int_equal(mp_pl_split_candidates(&f, &b, f.im.pix, &m, &c, gemax, &t, 5.0, 0.4 * FWHM,
+    assert_int_equal(mp_pl_split_candidates(&f, &b, f.im.pix, &m, &c, gemax, 0.0, &t, 5.0, 0.4 * FWHM,
                                             0.75 * FWHM, 5.0, &fg), 1);
     int sx = mp_table_col(&fe, "X_IMAGE"), sy = mp_table_col(&fe, "Y_IMAGE");
     int ss = mp_table_col(&fe, MP_PL_SNR_COL);
@@ -216,9 +216,9 @@ static void test_split_from_grid(void **state)
     mp_table fb, fx;
     mp_table_init(&fb);
     mp_table_init(&fx);
-    assert_int_equal(mp_pl_split_candidates(&f, &b, f.im.pix, &m, &c, 0.5 * E, &t, 5.0, 0.4 * FWHM,
+    assert_int_equal(mp_pl_split_candidates(&f, &b, f.im.pix, &m, &c, 0.5 * E, 0.0, &t, 5.0, 0.4 * FWHM,
                                             0.75 * FWHM, 5.0, &fb), 1);
-    assert_int_equal(mp_pl_split_candidates(&f, &b, f.im.pix, &m, &c, 0.1 * e2, &t, 5.0,
+    assert_int_equal(mp_pl_split_candidates(&f, &b, f.im.pix, &m, &c, 0.1 * e2, 0.0, &t, 5.0,
                                             0.4 * FWHM, 0.75 * FWHM, 5.0, &fx), 1);
     double sb = mp_table_get(&fb, 0, ss);
     print_message("split: exact %.9g, grid %.9g, grid trials %.9g\n", se, sg, sb);
@@ -228,6 +228,27 @@ static void test_split_from_grid(void **state)
     assert_true(sb != se);            /* the trials from the grid */
     assert_true(mp_table_get(&fx, 0, ss) == se);
     assert_true(mp_table_get(&fx, 0, sx) == mp_table_get(&fe, 0, sx));
+    /* The trials bilinearly within the bilinear limit: the same place,
+     * √Δχ² within 0.1 (the limit's bound at frac 0.1); a limit below the
+     * best trial's flux: cubic again, as without (bit for bit). */
+    double glemax = mp_prf_cache_limit_lin(&c, SKY, RON, 0.1);
+    assert_true(glemax >= e2);        /* else bilinear is never used: no test */
+    mp_table fl, fc;
+    mp_table_init(&fl);
+    mp_table_init(&fc);
+    assert_int_equal(mp_pl_split_candidates(&f, &b, f.im.pix, &m, &c, gemax, glemax, &t, 5.0,
+                                            0.4 * FWHM, 0.75 * FWHM, 5.0, &fl), 1);
+    assert_int_equal(mp_pl_split_candidates(&f, &b, f.im.pix, &m, &c, gemax, 0.1 * e2, &t, 5.0,
+                                            0.4 * FWHM, 0.75 * FWHM, 5.0, &fc), 1);
+    double sl = mp_table_get(&fl, 0, ss);
+    print_message("split: bilinear trials %.9g\n", sl);
+    assert_true(mp_table_get(&fl, 0, sx) == mp_table_get(&fe, 0, sx));
+    assert_true(mp_table_get(&fl, 0, sy) == mp_table_get(&fe, 0, sy));
+    assert_true(fabs(sl - se) <= 0.1);
+    assert_true(sl != sg);            /* bilinear drew them */
+    assert_true(mp_table_get(&fc, 0, ss) == sg);
+    mp_table_free(&fl);
+    mp_table_free(&fc);
     mp_table_free(&fb);
     mp_table_free(&fx);
     mp_table_free(&fe);
