@@ -30,9 +30,11 @@ static float rms_with(const mp_bkg *b, size_t i, float sky, double x)
 
 static float model_rms(const mp_bkg *b, size_t i, float sky)
 {
-    double x = b->nxs ? mp_bkg_excess_var(b, (double)(i % (size_t)b->nx),
-                                          (double)(i / (size_t)b->nx)) : 0.0;
-    return rms_with(b, i, sky, x);
+    long x = (long)(i % (size_t)b->nx);
+    double v = 0.0;
+    if (b->nxs)
+        mp_bkg_excess_span(b, (long)(i / (size_t)b->nx), x, x + 1, &v);
+    return rms_with(b, i, sky, v);
 }
 
 /* Row y's model rms into r from its sky s: the stars' excess a span of

@@ -47,15 +47,12 @@ void mpf_spline_row(const double *x, const double *y, const double *d2, int n,
 /* Values mp_bkg_star_excess keeps a star: x, y, F², class, reach². */
 #define MP_BKG_XS 5
 
-/* mp_bkg_excess_var: the variance b's flux-squared model error adds at
- * pixel (x, y) (mp_bkg_star_excess; star_excess.c). */
-double mp_bkg_excess_var(const mp_bkg *b, double x, double y);
-
-/* mp_bkg_excess_span: mp_bkg_excess_var at pixels [x0, x1) of row y
- * (0-based) into v[0 .. x1 − x0), bit for bit: each pixel's stars added
- * in the same order, but a star visits only the pixels its reach covers
- * on the row, where the pixel-by-pixel evaluation tested every star of
- * nine cells at every pixel (5.6 % of a 1024² simulated frame's run). */
+/* mp_bkg_excess_span: the variance b's flux-squared model error adds
+ * (mp_bkg_star_excess; star_excess.c) at pixels [x0, x1) of row y
+ * (0-based), into v[0 .. x1 − x0): every star of the nine cells around
+ * a pixel's, each visiting only the pixels its reach covers on the row
+ * (a pixel at a time, testing every star of the nine cells at every
+ * pixel, was 5.6 % of a 1024² simulated frame's run). */
 void mp_bkg_excess_span(const mp_bkg *b, long y, long x0, long x1, double *v);
 
 /* mpf_spline_at: out[t] of mpf_spline_row for one t, bit for bit. */

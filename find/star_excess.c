@@ -19,25 +19,6 @@ static long cell_of(double v, int size, long n)
     return c < 0 ? 0 : c >= n ? n - 1 : c;
 }
 
-double mp_bkg_excess_var(const mp_bkg *b, double x, double y)
-{
-    double add = 0.0;
-    long cx = cell_of(x, b->nxv, b->ncx), cy = cell_of(y, b->nxv, b->ncy);
-    for (long j = cy - 1; j <= cy + 1; j++)
-        for (long i = cx - 1; i <= cx + 1; i++) {
-            if (i < 0 || j < 0 || i >= b->ncx || j >= b->ncy)
-                continue;
-            size_t c = (size_t)j * (size_t)b->ncx + (size_t)i;
-            for (size_t s = b->cell0[c]; s < b->cell0[c + 1]; s++) {
-                const double *st = b->xs + MP_BKG_XS * s;
-                double dx = x - st[0], dy = y - st[1], d2 = dx * dx + dy * dy;
-                if (d2 < st[4])
-                    add += st[2] * b->xv[(size_t)st[3] * (size_t)b->nxv + (size_t)sqrt(d2)];
-            }
-        }
-    return add;
-}
-
 void mp_bkg_excess_span(const mp_bkg *b, long y, long x0, long x1, double *v)
 {
     for (long x = x0; x < x1; x++)
@@ -58,7 +39,7 @@ void mp_bkg_excess_span(const mp_bkg *b, long y, long x0, long x1, double *v)
                     if (!(dy2 < st[4]))     /* then no dx² + dy² is below it */
                         continue;
                     /* the row's pixels within reach, a pixel to spare
-                     * each side; each tested as mp_bkg_excess_var does */
+                     * each side; each tested exactly: d2 < reach² */
                     double h = sqrt(st[4] - dy2);
                     long lo = (long)floor(st[0] - h) - 1, hi = (long)ceil(st[0] + h) + 2;
                     lo = lo < a ? a : lo;

@@ -180,23 +180,27 @@ static void test_kappa_at_nodes(void **state)
 
 /* A lookup between the nodes bounds the exact κ there in the directions
  * tabulated: κ falls with separation and the table rounds the separation
- * down and each flux up.  Off-node separations and fluxes of a fixed seed;
- * the exact values at the table's eight directions. */
+ * down and each flux up.  n off-node separations and fluxes (units of c's
+ * B + RON²) of seed s; the exact values at the table's eight directions. */
+static void lookups_bound_exact(const mp_coupling *c, unsigned s, int n)
+{
+    for (int k = 0; k < n; k++) {
+        s = s * 1103515245u + 12345u;
+        double d = 0.3 + (CRIT - 0.4) * ((s >> 8) & 0xffff) / 65536.0;
+        s = s * 1103515245u + 12345u;
+        double Ea = c->beff * pow(10.0, 6.0 * ((s >> 8) & 0xffff) / 65536.0);
+        s = s * 1103515245u + 12345u;
+        double Eb = c->beff * pow(10.0, 6.0 * ((s >> 8) & 0xffff) / 65536.0);
+        assert_true(mp_coupling_kappa(c, d, Ea, Eb) >= kappa_dirs_on(c->beff, d, Ea, Eb) - 2e-3);
+    }
+}
+
 static void test_kappa_between_nodes(void **state)
 {
     (void)state;
     mp_coupling c;
     gauss_table(&c);
-    unsigned s = 12345u;
-    for (int k = 0; k < 40; k++) {
-        s = s * 1103515245u + 12345u;
-        double d = 0.3 + (CRIT - 0.4) * ((s >> 8) & 0xffff) / 65536.0;
-        s = s * 1103515245u + 12345u;
-        double Ea = c.beff * pow(10.0, 6.0 * ((s >> 8) & 0xffff) / 65536.0);
-        s = s * 1103515245u + 12345u;
-        double Eb = c.beff * pow(10.0, 6.0 * ((s >> 8) & 0xffff) / 65536.0);
-        assert_true(mp_coupling_kappa(&c, d, Ea, Eb) >= kappa_dirs(d, Ea, Eb) - 2e-3);
-    }
+    lookups_bound_exact(&c, 12345u, 40);
     mp_coupling_free(&c);
 }
 
@@ -220,16 +224,7 @@ static void test_kappa_any_sky(void **state)
     assert_int_equal(memcmp(c.k, d2.k, (size_t)c.nd * c.na * c.na * sizeof *c.k), 0);
     mp_coupling_at(&c, sky2, RON);
     assert_true(c.beff == d2.beff);
-    unsigned s = 777u;
-    for (int k = 0; k < 20; k++) {
-        s = s * 1103515245u + 12345u;
-        double d = 0.3 + (CRIT - 0.4) * ((s >> 8) & 0xffff) / 65536.0;
-        s = s * 1103515245u + 12345u;
-        double Ea = c.beff * pow(10.0, 6.0 * ((s >> 8) & 0xffff) / 65536.0);
-        s = s * 1103515245u + 12345u;
-        double Eb = c.beff * pow(10.0, 6.0 * ((s >> 8) & 0xffff) / 65536.0);
-        assert_true(mp_coupling_kappa(&c, d, Ea, Eb) >= kappa_dirs_on(c.beff, d, Ea, Eb) - 2e-3);
-    }
+    lookups_bound_exact(&c, 777u, 20);
     mp_coupling_free(&c);
     mp_coupling_free(&d2);
 }

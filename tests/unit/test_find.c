@@ -1116,6 +1116,22 @@ static void test_star_excess(void **state)
             if (memcmp(&r, &rr[i], sizeof r))
                 fail_msg("pixel %ld: rms %.9g by pixel, %.9g by row", i, r, rr[i]);
         }
+        /* and as its definition says, every kept star summed here
+         * directly: sqrt(k²(sky + M + RON²) + ε²M² + Σ F²·v(r)) */
+        for (long i = 0; i < nx * ny; i++) {
+            double add = 0.0, px = (double)(i % nx), py = (double)(i / nx);
+            for (size_t q = 0; q < b.nxs; q++) {
+                const double *st = b.xs + 5 * q;
+                double d2 = (px - st[0]) * (px - st[0]) + (py - st[1]) * (py - st[1]);
+                if (d2 < st[4])
+                    add += st[2] * b.xv[(size_t)st[3] * (size_t)b.nxv + (size_t)sqrt(d2)];
+            }
+            double mo = fmax(f.im.pix[i] - res[i], 0.0);
+            double want = sqrt(b.k * b.k * (fmax(mp_bkg_sky(&b, (size_t)i), 0.0) + mo + b.ron2) +
+                               b.eps * b.eps * mo * mo + add);
+            if (!(fabs(rr[i] - want) <= 1e-6 * want))
+                fail_msg("pixel %ld: rms %.9g, by its definition %.9g", i, rr[i], want);
+        }
         for (long y = 0; y < ny; y++)
             for (long x0 = y % 13; x0 < nx; x0 += 13) {
                 long x1 = x0 + 13 < nx ? x0 + 13 : nx;

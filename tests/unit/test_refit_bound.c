@@ -160,22 +160,45 @@ static void paint_rules_checked(const mp_frame *f, const mp_prf_model *m, const 
                             (paint_rule){&g1, 2 * Emax, 3 * Emax, 1}, st, gs, ng));
 }
 
+/* A scene's run: the Gaussian model, the frame, its stars as they were
+ * (before) and with their bounds summed without a cap (st). */
+typedef struct {
+    mp_psf p;
+    mp_prf_model m;
+    mp_frame f;
+    star_state st[NST], before[NST], gone;
+    size_t gs[NST / 3 + 1], ng;
+    crop_rule crop;
+} bound_case;
+
+static void summed_case(bound_case *c)
+{
+    mp_psf_gauss(3.0, &c->p);
+    c->m = (mp_prf_model){&c->p, NULL, 10};
+    scene(&c->f, c->st, c->gs, &c->ng, &c->gone);
+    memcpy(c->before, c->st, sizeof c->st);
+    assert_int_equal(ff_crop_init(&c->f, &c->m, 0.02, &c->crop), 0);
+    paint_rule now = {NULL, NAN, 0.0, 1}, held = now;
+    assert_int_equal(ff_update_bounds(&c->f, &c->m, &c->crop, &now, &held, FITRAD, INFINITY, c->st,
+                                      NST, c->gs, c->ng, &c->gone, 1), 0);
+}
+
+static void case_free(bound_case *c)
+{
+    free(c->crop.env);
+    sf_frame_drop(&c->f);
+}
+
 static void test_bound_sums_the_changes(void **state)
 {
     (void)state;
-    mp_psf p;
-    mp_psf_gauss(3.0, &p);
-    mp_prf_model m = {&p, NULL, 10};
-    mp_frame f;
-    star_state st[NST], ref[NST], gone;
-    size_t gs[NST / 3 + 1], ng;
-    scene(&f, st, gs, &ng, &gone);
-    memcpy(ref, st, sizeof st);
-    crop_rule crop;
-    assert_int_equal(ff_crop_init(&f, &m, 0.02, &crop), 0);
-    paint_rule now = {NULL, NAN, 0.0, 1}, held = now;
-    assert_int_equal(ff_update_bounds(&f, &m, &crop, &now, &held, FITRAD, INFINITY, st, NST, gs,
-                                      ng, &gone, 1), 0);
+    bound_case c;
+    summed_case(&c);
+    mp_prf_model m = c.m;
+    mp_frame f = c.f;
+    star_state *st = c.st, *ref = c.before, gone = c.gone;
+    const size_t *gs = c.gs, ng = c.ng;
+    crop_rule crop = c.crop;
     float *d[NST + 1], *sum = malloc(NX * NX * sizeof *sum);
     assert_non_null(sum);
     for (int j = 0; j <= NST; j++) {
@@ -214,8 +237,7 @@ static void test_bound_sums_the_changes(void **state)
     for (int j = 0; j <= NST; j++)
         free(d[j]);
     free(sum);
-    free(crop.env);
-    sf_frame_drop(&f);
+    case_free(&c);
 }
 
 /* With refittol the bounds below it are the sums as without, bit for bit,
@@ -224,19 +246,11 @@ static void test_bound_sums_the_changes(void **state)
 static void test_bound_capped_at_tol(void **state)
 {
     (void)state;
-    mp_psf p;
-    mp_psf_gauss(3.0, &p);
-    mp_prf_model m = {&p, NULL, 10};
-    mp_frame f;
-    star_state st[NST], capped[NST], gone;
-    size_t gs[NST / 3 + 1], ng;
-    scene(&f, st, gs, &ng, &gone);
-    memcpy(capped, st, sizeof st);
-    crop_rule crop;
-    assert_int_equal(ff_crop_init(&f, &m, 0.02, &crop), 0);
-    paint_rule now = {NULL, NAN, 0.0, 1}, held = now, held2 = now;
-    assert_int_equal(ff_update_bounds(&f, &m, &crop, &now, &held, FITRAD, INFINITY, st, NST, gs,
-                                      ng, &gone, 1), 0);
+    bound_case c;
+    summed_case(&c);
+    star_state *st = c.st, capped[NST];
+    memcpy(capped, c.before, sizeof capped);
+    paint_rule now = {NULL, NAN, 0.0, 1}, held = now;
     double b[NST];
     int nb = 0;
     for (int k = 0; k < NST; k++)
@@ -250,8 +264,8 @@ static void test_bound_capped_at_tol(void **state)
             b[j - 1] = t;
         }
     double tol = b[nb / 2];
-    assert_int_equal(ff_update_bounds(&f, &m, &crop, &now, &held2, FITRAD, tol, capped, NST, gs,
-                                      ng, &gone, 1), 0);
+    assert_int_equal(ff_update_bounds(&c.f, &c.m, &c.crop, &now, &held, FITRAD, tol, capped, NST,
+                                      c.gs, c.ng, &c.gone, 1), 0);
     int below = 0, above = 0;
     for (int k = 0; k < NST; k++) {
         if (!st[k].alive)
@@ -265,8 +279,7 @@ static void test_bound_capped_at_tol(void **state)
         }
     }
     assert_true(below >= 2 && above >= 2);
-    free(crop.env);
-    sf_frame_drop(&f);
+    case_free(&c);
 }
 
 int main(void)
