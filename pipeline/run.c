@@ -163,11 +163,12 @@ static void count_fit(mp_pipeline_report *rep, const mp_frame_report *fr, size_t
  * s a round against the fit's 37; after the PSF's second pass, with no
  * fit yet on the new table, the 256² crop's search 0.24 → 1.32 s). */
 
-const mp_prf_cache *mp_run_phase_grid(run_state *s, double *gemax)
+const mp_prf_cache *mp_run_phase_grid(run_state *s, double *gemax, double *glemax)
 {
     char err[MP_ERRLEN];         /* a failed build leaves the exact renders */
     *gemax = 0.0;
-    s->glemax = 0.0;
+    if (glemax)
+        *glemax = 0.0;
     mp_frame_opts oe = s->fit->opts;
     if (!oe.cache)
         return NULL;
@@ -182,7 +183,8 @@ const mp_prf_cache *mp_run_phase_grid(run_state *s, double *gemax)
     }
     double sky = mp_pl_median_positive(&s->t, "SKY_PSF");
     *gemax = mp_prf_cache_limit(oe.grid, sky, s->f.rdnoise, oe.sincfrac);
-    s->glemax = mp_prf_cache_limit_lin(oe.grid, sky, s->f.rdnoise, oe.sincfrac);
+    if (glemax)
+        *glemax = mp_prf_cache_limit_lin(oe.grid, sky, s->f.rdnoise, oe.sincfrac);
     return oe.grid;
 }
 
@@ -233,7 +235,7 @@ int mp_run_group_and_fit(run_state *s, int round, int once, char *err)
     mp_table_free(&s->before);   /* not held through the residual (issue 14) */
     mp_table_init(&s->before);
     double gemax;
-    const mp_prf_cache *grid = mp_run_phase_grid(s, &gemax);
+    const mp_prf_cache *grid = mp_run_phase_grid(s, &gemax, NULL);
     if (mp_fit_residual_grid(&s->f, &s->fit->model, &s->t, s->fit->opts.cropfrac, grid, gemax,
                              s->res, err))
         return 1;
@@ -296,8 +298,8 @@ static int residual_detections(run_state *s, const mp_frame *R, const mp_prf_cac
 /* The one-or-two test's second stars added to s->found, and the new
  * detections added to the star list (*added of them).  Nonzero with err
  * when out of memory. */
-static int split_and_add(run_state *s, const mp_prf_cache *grid, double gemax, long *added,
-                         char *err)
+static int split_and_add(run_state *s, const mp_prf_cache *grid, double gemax, double glemax,
+                         long *added, char *err)
 {
     const mp_pipeline_opts *o = s->o;
     /* Half a FWHM: a detection beyond it goes to the fit, which keeps the
@@ -318,7 +320,7 @@ static int split_and_add(run_state *s, const mp_prf_cache *grid, double gemax, l
      * detections against 30 from find alone). */
     double splitsnr = fmax(s->fit->opts.minsnr, MP_PL_SPLIT_MINSNR);
     if (s->fit->opts.minsnr > 0 &&
-        mp_pl_split_candidates(&s->f, &s->bkg, s->res, &s->fit->model, grid, gemax, s->glemax,
+        mp_pl_split_candidates(&s->f, &s->bkg, s->res, &s->fit->model, grid, gemax, glemax,
                                &s->t, o->fit.opts.fit.fitrad, 1.05 * mergerad,
                                fmax(matchrad, 1.1 * mergerad), splitsnr, &s->found) < 0)
         return oom(err);
@@ -360,9 +362,10 @@ static int find_on_residual(run_state *s, int round, long *added, char *err)
                                 &nz.kscale, &nz.proferr, err) ||
         mp_pl_star_excess(&s->f, &s->bkg, &s->t, &s->fit->model, &nz.nring, &nz.nexcess, err))
         return 1;
-    double gemax;
-    const mp_prf_cache *grid = mp_run_phase_grid(s, &gemax);
-    if (residual_detections(s, &R, grid, gemax, err) || split_and_add(s, grid, gemax, added, err))
+    double gemax, glemax;
+    const mp_prf_cache *grid = mp_run_phase_grid(s, &gemax, &glemax);
+    if (residual_detections(s, &R, grid, gemax, err) ||
+        split_and_add(s, grid, gemax, glemax, added, err))
         return 1;
     s->rep->added += *added;
     /* the one-or-two test and the new stars' bookkeeping are detection's
@@ -522,7 +525,7 @@ static int redraw_residual(run_state *s, double sum1, char *err)
     if (cf >= 0 && sum1 > 0 && s->psf.sum > 0 && s->psf.sum != sum1)
         for (size_t r = 0; r < s->t.nrow; r++)
             mp_table_set(&s->t, r, cf, mp_table_get(&s->t, r, cf) * sum1 / s->psf.sum);
-    const mp_prf_cache *grid = mp_run_phase_grid(s, &gemax);
+    const mp_prf_cache *grid = mp_run_phase_grid(s, &gemax, NULL);
     s->grid = grid;             /* the residual search's, as a fit's would be */
     int rc = mp_fit_residual_grid(&s->f, &s->fit->model, &s->t, s->fit->opts.cropfrac, grid,
                                   gemax, s->res, err);

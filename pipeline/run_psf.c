@@ -317,7 +317,7 @@ static int pair_build(run_state *s, table_pair *tp, int i, const char *path, cha
 static int held_out_frame(run_state *s, const mp_table *rest, float *pix, char *err)
 {
     double gemax;
-    const mp_prf_cache *grid = mp_run_phase_grid(s, &gemax);
+    const mp_prf_cache *grid = mp_run_phase_grid(s, &gemax, NULL);
     if (mp_fit_residual_grid(&s->f, &s->fit->model, rest, s->fit->opts.cropfrac, grid, gemax,
                              pix, err))
         return 1;
