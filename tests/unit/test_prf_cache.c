@@ -123,6 +123,12 @@ static void test_bound_falls_as_h4(void **state)
     double e8 = mp_prf_cache_limit(&c8, 100.0, 3.0, 0.1), e16 = mp_prf_cache_limit(&c16, 100.0, 3.0, 0.1);
     assert_true(e8 > 0 && e16 > e8);
     assert_true(mp_prf_cache_bound(&c16, e16, 100.0, 3.0) <= 0.1);
+    /* the largest such flux by the full bound, to the bisection's 0.25 %
+     * (its undecided steps sum only the cells that could be the largest) */
+    assert_true(mp_prf_cache_bound(&c16, 1.005 * e16, 100.0, 3.0) > 0.1);
+    double el = mp_prf_cache_limit_lin(&c16, 100.0, 3.0, 0.1);
+    assert_true(mp_prf_cache_bound_lin(&c16, el, 100.0, 3.0) <= 0.1);
+    assert_true(mp_prf_cache_bound_lin(&c16, 1.005 * el, 100.0, 3.0) > 0.1);
     mp_prf_cache_free(&c8);
     mp_prf_cache_free(&c16);
     mp_psf_free(&p);
