@@ -937,7 +937,8 @@ static int serves_of(const mp_prf_cache *c, int lin, double E, double B, double 
     /* Undecided: the cells summed pixel by pixel, but not those whose
      * upper bound is below the cut (their sums are: at most frac·√(1 −
      * 1e−9), so the largest, where the decision lies, is among the rest —
-     * the same decision for a tenth of the sums near the limit). */
+     * the same decision; 47 Tuc with Tiny Tim's table: its limits' 2.89 →
+     * 1.51·10⁹ instructions). */
     return bound_over(c, lin, E, B, ron, binned ? inv_lo : NULL, f2 * (1.0 - 1e-9)) <= frac;
 }
 
