@@ -28,39 +28,13 @@ static float rms_with(const mp_bkg *b, size_t i, float sky, double x)
     return (float)sqrt(b->k * b->k * v + b->eps * b->eps * m * m + x);
 }
 
-static float model_rms(const mp_bkg *b, size_t i, float sky)
-{
-    long x = (long)(i % (size_t)b->nx);
-    double v = 0.0;
-    if (b->nxs)
-        mp_bkg_excess_span(b, (long)(i / (size_t)b->nx), x, x + 1, &v);
-    return rms_with(b, i, sky, v);
-}
-
-/* Row y's model rms into r from its sky s: the stars' excess a span of
+/* The model rms of pixels [x0, x1) of row y into r, from their sky s
+ * (s[x − x0]; NULL: each pixel's mp_bkg_sky), the stars' excess a span of
  * pixels at a time (mp_bkg_excess_span). */
 enum { SPAN = 128 };
-static void model_rms_row(const mp_bkg *b, long y, const float *s, float *r)
-{
-    size_t nx = (size_t)b->nx, o = (size_t)y * nx;
-    double v[SPAN];
-    for (size_t x0 = 0; x0 < nx; x0 += SPAN) {
-        size_t x1 = x0 + SPAN < nx ? x0 + SPAN : nx;
-        if (b->nxs)
-            mp_bkg_excess_span(b, y, (long)x0, (long)x1, v);
-        for (size_t x = x0; x < x1; x++)
-            r[x] = rms_with(b, o + x, s[x], b->nxs ? v[x - x0] : 0.0);
-    }
-}
-
-void mp_bkg_rms_span(const mp_bkg *b, long y, long x0, long x1, float *rms)
+static void model_rms_span(const mp_bkg *b, long y, long x0, long x1, const float *s, float *r)
 {
     size_t o = (size_t)y * (size_t)b->nx;
-    if (!b->model) {
-        for (long x = x0; x < x1; x++)
-            rms[x - x0] = mp_bkg_rms(b, o + (size_t)x);
-        return;
-    }
     double v[SPAN];
     for (long a = x0; a < x1; a += SPAN) {
         long e = a + SPAN < x1 ? a + SPAN : x1;
@@ -68,9 +42,20 @@ void mp_bkg_rms_span(const mp_bkg *b, long y, long x0, long x1, float *rms)
             mp_bkg_excess_span(b, y, a, e, v);
         for (long x = a; x < e; x++) {
             size_t i = o + (size_t)x;
-            rms[x - x0] = rms_with(b, i, mp_bkg_sky(b, i), b->nxs ? v[x - a] : 0.0);
+            float sky = s ? s[x - x0] : mp_bkg_sky(b, i);
+            r[x - x0] = rms_with(b, i, sky, b->nxs ? v[x - a] : 0.0);
         }
     }
+}
+
+void mp_bkg_rms_span(const mp_bkg *b, long y, long x0, long x1, float *rms)
+{
+    if (b->model) {
+        model_rms_span(b, y, x0, x1, NULL, rms);
+        return;
+    }
+    for (long x = x0; x < x1; x++)
+        rms[x - x0] = mp_bkg_rms(b, (size_t)y * (size_t)b->nx + (size_t)x);
 }
 
 float mp_bkg_sky(const mp_bkg *b, size_t i)
@@ -82,8 +67,11 @@ float mp_bkg_sky(const mp_bkg *b, size_t i)
 float mp_bkg_rms(const mp_bkg *b, size_t i)
 {
     long y = (long)(i / (size_t)b->nx), x = (long)(i % (size_t)b->nx);
-    if (b->model)
-        return model_rms(b, i, mp_bkg_sky(b, i));
+    if (b->model) {
+        float r;
+        model_rms_span(b, y, x, x + 1, NULL, &r);
+        return r;
+    }
     return mpf_spline_at(b->cx, row_vals(b, 1, y), row_d2(b, 1, y), b->nbx, x, 1);
 }
 
@@ -100,6 +88,6 @@ void mp_bkg_rows(const mp_bkg *b, long y0, long y1, float *sky, float *rms)
             mpf_spline_row(b->cx, row_vals(b, 1, y), row_d2(b, 1, y), b->nbx, r, b->nx, 1);
             continue;
         }
-        model_rms_row(b, y, s, r);
+        model_rms_span(b, y, 0, b->nx, s, r);
     }
 }

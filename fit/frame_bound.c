@@ -20,7 +20,7 @@
 
 /* Changes handled at once: each one's additions are kept until they are
  * added in the changes' order, so the bounds do not depend on threads.
- * Between chunks the bounds that reached refittol close (any_open): 256
+ * Between chunks the bounds that reached refittol close (open_stars): 256
  * rather than 2048 took 47 Tuc with Tiny Tim's table 64.19 → 63.64·10⁹
  * instructions (64: 63.42, but 4 grabs of 16 a chunk for 16 threads). */
 #define CHUNK 256
@@ -185,24 +185,33 @@ static light_change change_of(const star_state *s, size_t j, const size_t *gs, s
     return c;
 }
 
-/* Whether a star of C within r of the box b (that c's change did not
- * reach in its own group's fit) still has a bound below tol: a star at or
- * above it refits its group whatever is added (group_kept), so a change
- * that reaches none is not painted (GLIMPSE's last round: the second
- * pass's bounds had a median of 6.6, and their sums were 6 % of its
- * run). */
-static int any_open(const star_state *st, const star_cells *C, const light_change *c,
-                    const long b[4], double r, double tol)
+/* The stars of C within r of the box b whose bound is still below tol
+ * (not those c's own group fit saw) into *inc, *ninc of them, their v
+ * unset.  A star at or above tol refits its group whatever is added
+ * (group_kept), so a change that reaches none is not painted (GLIMPSE's
+ * last round: the second pass's bounds had a median of 6.6, and their
+ * sums were 6 % of its run).  Nonzero when out of memory. */
+static int open_stars(const star_state *st, const star_cells *C, const light_change *c,
+                      const long b[4], double r, double tol, increment **inc, size_t *ninc)
 {
     long cx0 = cell_of(b[0] - r, C->ncx), cx1 = cell_of(b[1] + r, C->ncx);
     long cy0 = cell_of(b[2] - r, C->ncy), cy1 = cell_of(b[3] + r, C->ncy);
+    size_t have = 0;
     for (long cy = cy0; cy <= cy1; cy++)
         for (long cx = cx0; cx <= cx1; cx++) {
             size_t cc = (size_t)cy * (size_t)C->ncx + (size_t)cx;
             for (size_t q = C->cell0[cc]; q < C->cell0[cc + 1]; q++) {
                 size_t k = C->idx[q];
-                if (k != c->j && !(k >= c->g0 && k < c->g1) && st[k].bound < tol)
-                    return 1;
+                if (k == c->j || (k >= c->g0 && k < c->g1) || !(st[k].bound < tol))
+                    continue;
+                if (*ninc == have) {
+                    have = have ? 2 * have : 16;
+                    increment *t = realloc(*inc, have * sizeof *t);
+                    if (!t)
+                        return 1;
+                    *inc = t;
+                }
+                (*inc)[(*ninc)++] = (increment){k, 0.0};
             }
         }
     return 0;
@@ -227,7 +236,9 @@ static int increments_of(const mp_frame *f, const mp_prf_model *m, const crop_ru
         long a = ho ? bo[e] : bn[e], z = hn ? bn[e] : bo[e];
         b[e] = e % 2 ? (a > z ? a : z) : (a < z ? a : z);
     }
-    if (!any_open(st, C, c, b, r, tol))
+    if (open_stars(st, C, c, b, r, tol, inc, ninc))
+        return 1;
+    if (*ninc == 0)
         return 0;                           /* not painted: no bound it could decide */
     long w = b[1] - b[0] + 1, h = b[3] - b[2] + 1;
     size_t need = (size_t)w * (size_t)h;
@@ -242,29 +253,14 @@ static int increments_of(const mp_frame *f, const mp_prf_model *m, const crop_ru
     if ((hn && ff_paint(m, &c->now, +1.0, rn, *win, b[0], b[2], w, h, wk, buf, cap, NULL)) ||
         (ho && ff_paint(m, &c->old, -1.0, ro, *win, b[0], b[2], w, h, wk, buf, cap, NULL)))
         return 1;
-    long cx0 = cell_of(b[0] - r, C->ncx), cx1 = cell_of(b[1] + r, C->ncx);
-    long cy0 = cell_of(b[2] - r, C->ncy), cy1 = cell_of(b[3] + r, C->ncy);
-    size_t have = 0;
-    for (long cy = cy0; cy <= cy1; cy++)
-        for (long cx = cx0; cx <= cx1; cx++) {
-            size_t cc = (size_t)cy * (size_t)C->ncx + (size_t)cx;
-            for (size_t q = C->cell0[cc]; q < C->cell0[cc + 1]; q++) {
-                size_t k = C->idx[q];
-                if (k == c->j || (k >= c->g0 && k < c->g1) || !(st[k].bound < tol))
-                    continue;
-                double v = norm2_on_disc(f, *win, b, st[k].s.x, st[k].s.y, r);
-                if (!(v > 0.0))
-                    continue;
-                if (*ninc == have) {
-                    have = have ? 2 * have : 16;
-                    increment *t = realloc(*inc, have * sizeof *t);
-                    if (!t)
-                        return 1;
-                    *inc = t;
-                }
-                (*inc)[(*ninc)++] = (increment){k, sqrt(v)};
-            }
-        }
+    size_t kept = 0;                        /* those it reaches, in order */
+    for (size_t q = 0; q < *ninc; q++) {
+        size_t k = (*inc)[q].k;
+        double v = norm2_on_disc(f, *win, b, st[k].s.x, st[k].s.y, r);
+        if (v > 0.0)
+            (*inc)[kept++] = (increment){k, sqrt(v)};
+    }
+    *ninc = kept;
     return 0;
 }
 
