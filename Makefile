@@ -12,7 +12,7 @@ WARN    := -Wall -Wextra -Werror
 ifneq ($(findstring clang,$(CC)),)
 WARN    += -Wno-pass-failed
 endif
-OPT     ?= -O2 -g
+OPT     ?= -O3 -g
 SAN     ?=
 VALGRIND_JOBS ?= 2
 CPPFLAGS += -D_XOPEN_SOURCE=700 -I. $(shell pkg-config --cflags wcslib 2>/dev/null) \

@@ -135,7 +135,7 @@ static void star_sky_sums(const group *G, const rstar *rk, int x0, int x1, int y
             const double *jk[3] = {rk->prf + u, rk->dx + u, rk->dy + u}, *cb[6] = {0};
             for (int b = 0; b < ns; b++)
                 cb[b] = G->basis + (size_t)b * N + s;
-            double gq[3], aq[3][6];
+            double gq[3] = {0}, aq[3][6];
             sky_row(G->wres + s, G->wt + s, jk, cb, part == 1 ? 3 : 1, ns, z - s,
                     g ? gq : NULL, aq);
             for (int c = 0; c < 3; c++) {

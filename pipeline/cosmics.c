@@ -342,7 +342,7 @@ static double star_sharpness(const mp_frame *f, const mp_prf_model *m, double x,
     for (int k = 0; k < 9; k++)
         if (obs[k] > obs[4])
             return NAN;               /* another star's light leads there */
-    double sig, rm = ratio_in(p, bx - 1, by - 1, w, h, px, py, 0.0, -1.0, &sig);
+    double sig = NAN, rm = ratio_in(p, bx - 1, by - 1, w, h, px, py, 0.0, -1.0, &sig);
     double ro = ratio_in(obs, px - 1, py - 1, 3, 3, px, py, B, f->rdnoise * f->rdnoise, &sig);
     if (!(rm > 0) || !isfinite(ro) || !(sig / rm <= MP_PL_CR_SHARP_SIG))
         return NAN;
