@@ -9,6 +9,7 @@
  * value, so no fit is kept that the exact test would refit; the price is
  * refits where neighbours' changes cancel. */
 
+#include <limits.h>
 #include <math.h>
 #include <stdint.h>
 #include <stdlib.h>
@@ -217,6 +218,28 @@ static int open_stars(const star_state *st, const star_cells *C, const light_cha
     return 0;
 }
 
+/* The box b cut to the pixels within r of the stars inc[0..n-1]
+ * (norm2_on_disc's regions): a pixel outside all of them adds to no
+ * bound, and each pixel's painted value does not depend on the window it
+ * is painted in.  Empty (b[0] > b[1] or b[2] > b[3]) when none reaches. */
+static void discs_box(const star_state *st, const increment *inc, size_t n, double r, long b[4])
+{
+    long u[4] = {LONG_MAX, LONG_MIN, LONG_MAX, LONG_MIN};
+    for (size_t q = 0; q < n; q++) {
+        const mp_star *s = &st[inc[q].k].s;
+        long x0 = (long)ceil(s->x - r), x1 = (long)floor(s->x + r);
+        long y0 = (long)ceil(s->y - r), y1 = (long)floor(s->y + r);
+        u[0] = x0 < u[0] ? x0 : u[0];
+        u[1] = x1 > u[1] ? x1 : u[1];
+        u[2] = y0 < u[2] ? y0 : u[2];
+        u[3] = y1 > u[3] ? y1 : u[3];
+    }
+    b[0] = u[0] > b[0] ? u[0] : b[0];
+    b[1] = u[1] < b[1] ? u[1] : b[1];
+    b[2] = u[2] > b[2] ? u[2] : b[2];
+    b[3] = u[3] < b[3] ? u[3] : b[3];
+}
+
 /* Paint c's Δ (now − old) on its box; the stars it reaches and by how
  * much into *inc (*ninc of them, allocated).  Nonzero when out of memory. */
 static int increments_of(const mp_frame *f, const mp_prf_model *m, const crop_rule *crop,
@@ -240,6 +263,11 @@ static int increments_of(const mp_frame *f, const mp_prf_model *m, const crop_ru
         return 1;
     if (*ninc == 0)
         return 0;                           /* not painted: no bound it could decide */
+    discs_box(st, *inc, *ninc, r, b);
+    if (b[0] > b[1] || b[2] > b[3]) {
+        *ninc = 0;
+        return 0;
+    }
     long w = b[1] - b[0] + 1, h = b[3] - b[2] + 1;
     size_t need = (size_t)w * (size_t)h;
     if (need > *nwin) {
