@@ -550,14 +550,23 @@ enum { MP_SKY_AUTO = -1, MP_SKY_MAXORDER = 2 };
  * group's stars (sky_test.c ring_sums); a group's frame must hold it. */
 #define MP_SKY_TEST_RADIUS 2.0
 
+/* mp_frame_opts.decidetol's default: merges and rejections decided on fits
+ * whose last step is below 0.03 σ (the tasks' tol before session 51: a
+ * step of that size squared is 0.1 % of the variance).  The steps' own
+ * tol (the .par files' 0.1) alone lost 1-3 of the 4 600 stars of each
+ * crowded frame (validate/CROWDED.md), as loose rounds did before
+ * decision_pending. */
+#define MP_DECIDE_TOL 0.03
+
 typedef struct {
     int sky_order;     /* MP_SKY_AUTO, or 0 constant, 1 plane, 2 quadratic */
     double fitrad;     /* radius fitted around each star [px]; NaN: whole frame */
     double tol;        /* converged when every |step| < tol·σ (1e-3 here,
                         * which the PSF build's star fits keep; the tasks'
-                        * .par files say 0.03: a step of that size squared
-                        * is 0.1 % of the variance, and 47 Tuc's catalog
-                        * moves by p90 0.01 σ against 1e-3's) */
+                        * .par files say 0.1: a step of that size squared
+                        * is 1 % of the variance, the bound refittol holds
+                        * a kept group to, with merges and rejections
+                        * decided on fits to MP_DECIDE_TOL) */
     int maxiter;
     double stop_pair;  /* end the fit, not converged, when a step from the
                         * 10th on leaves two stars closer than this [px]
@@ -691,6 +700,12 @@ typedef struct {
                         * the same memory never keeps a loose group (its
                         * stars' refit bounds start at infinity, not 0).
                         * 0: every fit to fit.tol */
+    double decidetol;  /* below fit.tol: a group whose fit to fit.tol leaves
+                        * a merge or rejection pending (as for loosetol) is
+                        * fitted on to this tol first, so those decisions,
+                        * which are for good, are made on the same fits
+                        * whatever the steps' tol (MP_DECIDE_TOL; 0: at
+                        * fit.tol) */
     double cropfrac;   /* economy: a star's light is painted (neighbour
                         * subtraction, residual) out to the radius where it
                         * falls below cropfrac·σ of a sky pixel; 0: its

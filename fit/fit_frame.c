@@ -19,6 +19,7 @@ void mp_frame_opts_default(mp_frame_opts *o)
     o->minsnr = 2.0;
     o->passes = 2;
     o->loosetol = 0.0;
+    o->decidetol = MP_DECIDE_TOL;
     o->cropfrac = 0.02;
     o->refittol = 0.1;
     o->couplefrac = 0.1;

@@ -367,6 +367,7 @@ int ff_fit_one_group(const mp_frame *f, const mp_prf_model *m, const mp_frame_op
     double sepind = mergerad > 0 ? 5.0 * mergerad : 2.0 * mp_prf_fwhm(m);
     int unstopped = 0, paired = 0;
     double tol = fmax(o->fit.tol, o->loosetol);
+    double decide = o->decidetol > 0 ? fmin(o->fit.tol, o->decidetol) : o->fit.tol;
     for (int round = 0; round <= n + 2; round++) {
         int nl = live_of(s, alive, n, live, map);
         if (nl == 0)
@@ -388,14 +389,15 @@ int ff_fit_one_group(const mp_frame *f, const mp_prf_model *m, const mp_frame_op
             s[map[k]].flags |= keep;
         }
         /* A merge or a rejection is for good (the pipeline never adds a
-         * star again where one went): a loose fit (o->loosetol) that
-         * leaves one the fit to the run's tol might not make is fitted
-         * on first (decided at the loose tol, the crowded frames lost 1-3
-         * stars of 4 600 each; fitted on for every merge and rejection,
-         * 47 Tuc kept 1/8 of the gain). */
-        if (tol > o->fit.tol && !paired &&
+         * star again where one went): a fit stopped at a tol above the
+         * deciding one (a loose round's, o->loosetol, or the steps' own,
+         * fit.tol above o->decidetol) that leaves one a fit to the end
+         * might not make is fitted on first (decided at the loose tol,
+         * the crowded frames lost 1-3 stars of 4 600 each; fitted on for
+         * every merge and rejection, 47 Tuc kept 1/8 of the gain). */
+        if (tol > decide && !paired &&
             decision_pending(s, alive, n, mergerad, sig, o->minsnr, tol)) {
-            tol = o->fit.tol;
+            tol = decide;
             continue;
         }
         int nmerged = mergerad > 0 ? merge_close(s, alive, n, mergerad, sig, sepind) : 0;
