@@ -312,7 +312,10 @@ static long take_off(const mp_frame *f, float *pix, float *res, float *xvar, con
     /* h is 0 from rmax on (h_at), fast's from its last entry: the box's
      * corners beyond, by a margin far above the rounding of dx² + dy²,
      * are skipped before h is read (hypot's square root was a tenth of
-     * 47 Tuc built's halo; the same pixels change, by the same values) */
+     * 47 Tuc built's halo; the same pixels change, by the same values);
+     * the radius is √r2, within an ulp of hypot's, not hypot (its scaling
+     * guards against overflow that distances in a frame never reach: 47
+     * Tuc built wrote the same bytes, 0.7·10⁹ instructions fewer) */
     double r2out = (fast ? (double)(fast->n - 1) * fast->step : rmax * rmax) * (1.0 + 1e-9);
     long nlit = 0;
     for (size_t k = 0; k < ns; k++) {
@@ -327,7 +330,7 @@ static long take_off(const mp_frame *f, float *pix, float *res, float *xvar, con
                 double dx = (double)x - s[k].x, dy = (double)y - s[k].y, r2 = dx * dx + dy * dy;
                 if (f->mask[i] || r2 > r2out)
                     continue;
-                double l = s[k].e * (fast ? r2_read(fast, r2) : h_at(h, nb, rin, hypot(dx, dy)));
+                double l = s[k].e * (fast ? r2_read(fast, r2) : h_at(h, nb, rin, sqrt(r2)));
                 if (l <= 0)
                     continue;
                 pix[i] -= l;

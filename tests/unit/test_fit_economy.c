@@ -260,6 +260,69 @@ static void test_loose_fit_refitted(void **state)
     sf_frame_drop(&f);
 }
 
+/* The faintest star's S/N in t (its row in *row), or +inf when it is gone
+ * (rejected: flux NaN or flagged). */
+static double faintest_snr(const mp_table *t, size_t *row)
+{
+    double lo = INFINITY;
+    for (size_t k = 0; k < t->nrow; k++) {
+        double e = get(t, k, "FLUXERR_PSF"), s = get(t, k, "FLUX_PSF") / e;
+        if (e > 0 && s < lo) {
+            lo = s;
+            *row = k;
+        }
+    }
+    return lo;
+}
+
+/* The steps' tol above the deciding one (mp_frame_opts.decidetol): with
+ * minsnr 0.05 above the faintest star's S/N at tol 0.1, the rejection is
+ * pending at that tol, so the group is fitted on to decidetol 0.03 (one
+ * more LM fit of it than with decidetol 0, which decides at 0.1), and
+ * the star's fate (kept or rejected) is the one a fit to 0.03 gives. */
+static void test_decided_at_decidetol(void **state)
+{
+    (void)state;
+    char err[MP_ERRLEN];
+    mp_psf p;
+    mp_psf_gauss(FWHM, &p);
+    mp_prf_model m = {&p, NULL, 10};
+    mp_frame f;
+    frame6(&f, 3);
+    mp_frame_opts o;
+    mp_frame_opts_default(&o);
+    o.fit.tol = 0.1;
+    o.decidetol = 0.0;
+    o.passes = 1;
+    mp_table t;
+    table_n(&t, 3);
+    assert_int_equal(mp_fit_table(&f, &m, &o, &t, NULL, err), 0);
+    size_t row = 0;
+    double s01 = faintest_snr(&t, &row);
+    mp_table_free(&t);
+    assert_true(isfinite(s01));
+    o.minsnr = s01 + 0.05;
+    long calls[3], alive[3];
+    for (int run = 0; run < 3; run++) {      /* decide at 0.1; at 0.03; fit to 0.03 */
+        mp_frame_opts u = o;
+        u.decidetol = run == 1 ? 0.03 : 0.0;
+        u.fit.tol = run == 2 ? 0.03 : 0.1;
+        mp_frame_report rep;
+        table_n(&t, 3);
+        assert_int_equal(mp_fit_table(&f, &m, &u, &t, &rep, err), 0);
+        double e = get(&t, row, "FLUXERR_PSF");
+        alive[run] = e > 0 && get(&t, row, "FLUX_PSF") / e >= u.minsnr;
+        calls[run] = rep.kcalls;
+        mp_table_free(&t);
+    }
+    print_message("S/N %.3f at tol 0.1, minsnr %.3f: LM fits %ld / %ld / %ld, kept %ld / %ld / "
+                  "%ld (decided at 0.1, at 0.03, fitted to 0.03)\n", s01, o.minsnr, calls[0],
+                  calls[1], calls[2], alive[0], alive[1], alive[2]);
+    assert_int_equal(calls[1], calls[0] + 1);
+    assert_int_equal(alive[1], alive[2]);
+    sf_frame_drop(&f);
+}
+
 /* Two groups 7 px apart (given separate GROUP_IDs, so each sees the other
  * as neighbour light): the first pass subtracts each with its start flux,
  * 20 % off; the fit changes that light by far more than 0.1 σ in the other
@@ -772,6 +835,7 @@ int main(void)
         cmocka_unit_test(test_model_errors_at_the_end),
         cmocka_unit_test(test_round_refits_only_touched_group),
         cmocka_unit_test(test_loose_fit_refitted),
+        cmocka_unit_test(test_decided_at_decidetol),
         cmocka_unit_test(test_changed_neighbour_refitted),
         cmocka_unit_test(test_envelope_bounds_prf),
         cmocka_unit_test(test_short_kernel_per_group),
