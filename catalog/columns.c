@@ -10,6 +10,7 @@
  * (SExtractor's %12.7g).  Integer columns use "%N.0f" because values are
  * held as doubles; that never overflows, whatever the value.
  */
+#include <ctype.h>
 #include <math.h>
 #include <stdlib.h>
 #include <string.h>
@@ -154,10 +155,27 @@ static int fmt_width(const char *fmt)
     return atoi(p);
 }
 
+/* The width W of an integer column's "%W.0f", or -1 for any other
+ * format (flags, a precision, another conversion). */
+static int int_width(const char *fmt)
+{
+    if (fmt[0] != '%' || !isdigit((unsigned char)fmt[1]))
+        return -1;
+    char *end;
+    long w = strtol(fmt + 1, &end, 10);
+    return strcmp(end, ".0f") == 0 && w < 64 ? (int)w : -1;
+}
+
 int mp_format_value(const mp_col *c, double x, char *buf, size_t len)
 {
     /* %f of a huge value is long: callers give room for 330+ chars. */
-    int n;
+    int n, w;
+    /* An integral value of an integer column as an integer: the same
+     * characters as "%W.0f" (every integer below 2^53 is exact in both),
+     * without the float conversion's multi-precision digits (a table's
+     * text was 18 % of a 5000-star frame's run). */
+    if (c->is_int && fabs(x) < 9007199254740992.0 && x == floor(x) && (w = int_width(c->fmt)) >= 0)
+        return snprintf(buf, len, "%*lld", w, (long long)x);
     if (isnan(x))
         n = snprintf(buf, len, "%*s", fmt_width(c->fmt), "nan");
     else

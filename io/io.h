@@ -196,6 +196,11 @@ int mp_out_open(mp_outfile *o, const char *path, char *err);
 int mp_out_commit(mp_outfile *o, char *err);   /* flush, close, rename */
 void mp_out_abort(mp_outfile *o);              /* close, unlink temporary */
 
+/* mp_out_copy: the bytes of file from written atomically to path to (a
+ * table already formatted once: the pipeline's root.cat when it is
+ * root.fit's text).  0, or nonzero with err naming the file. */
+int mp_out_copy(const char *from, const char *to, char *err);
+
 /* mp_tmp_name: the temporary name used for path, "<dir>/.<base>.tmp.<host>.<pid>"
  * (caller frees; NULL when out of memory).  A name only: the temporaries
  * of killed runs are swept by mp_tmp_sweep. */

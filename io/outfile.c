@@ -233,6 +233,34 @@ int mp_out_commit(mp_outfile *o, char *err)
     return 0;
 }
 
+int mp_out_copy(const char *from, const char *to, char *err)
+{
+    FILE *in = fopen(from, "rb");
+    if (!in) {
+        snprintf(err, MP_ERRLEN, "%s: cannot open: %s", from, strerror(errno));
+        return 1;
+    }
+    mp_outfile o;
+    if (mp_out_open(&o, to, err)) {
+        fclose(in);
+        return 1;
+    }
+    char buf[65536];
+    size_t n;
+    int bad = 0;
+    while (!bad && (n = fread(buf, 1, sizeof buf, in)) > 0)
+        bad = fwrite(buf, 1, n, o.fp) != n;
+    int rerr = ferror(in);
+    fclose(in);
+    if (rerr || bad) {
+        snprintf(err, MP_ERRLEN, "%s: %s error: %s", rerr ? from : to, rerr ? "read" : "write",
+                 strerror(errno));
+        mp_out_abort(&o);
+        return 1;
+    }
+    return mp_out_commit(&o, err);
+}
+
 void mp_out_abort(mp_outfile *o)
 {
     if (!o)

@@ -33,13 +33,15 @@ static int has_wcs(const mp_image *im)
 }
 
 /* root.cat (sky positions when the frame has a WCS; FITS_LDAC carries the
- * frame's header as SExtractor's does) and the DS9 regions root.reg. */
+ * frame's header as SExtractor's does) and the DS9 regions root.reg;
+ * root.fit holds t in o->fit.fmt (written just before). */
 int mp_pl_write_catalog(const char *root, const mp_frame *f, mp_table *t,
                          const mp_pipeline_opts *o, char *err)
 {
     char e[MP_ERRLEN];
     mp_image hv = mp_fimage_header(&f->im);
-    if (has_wcs(&hv) && mp_table_add_sky(t, &hv, e))
+    int sky = has_wcs(&hv);
+    if (sky && mp_table_add_sky(t, &hv, e))
         fprintf(stderr, "matphot pipeline: warning: no sky positions: %s\n", e);
     size_t n = strlen(root) + 8;
     char *path = malloc(n);
@@ -54,6 +56,19 @@ int mp_pl_write_catalog(const char *root, const mp_frame *f, mp_table *t,
         mp_ldac_head h = {f->im.hdr, f->im.nkeys, extra, 2};
         snprintf(path, n, "%s.cat", root);
         rc = mp_table_write_fits(path, t, &h, err);
+    } else if (!sky && o->catfmt == o->fit.fmt && o->catfmt != MP_TAB_FITS) {
+        /* root.fit's text, the same table: copied, not formatted again
+         * (the text's numbers were most of a 5000-star frame's writes) */
+        char *fit = malloc(n);
+        rc = !fit;
+        if (fit) {
+            snprintf(fit, n, "%s.fit", root);
+            snprintf(path, n, "%s.cat", root);
+            rc = mp_out_copy(fit, path, err);
+        } else {
+            snprintf(err, MP_ERRLEN, "out of memory");
+        }
+        free(fit);
     } else {
         rc = mp_pl_write_named(root, ".cat", t, o->catfmt, err);
     }

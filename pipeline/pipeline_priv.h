@@ -405,7 +405,9 @@ int mp_pl_write_named(const char *root, const char *ext, const mp_table *t,
                       mp_table_format fmt, char *err);
 
 /* mp_pl_write_catalog: root.cat (sky positions when the frame has a WCS;
- * FITS_LDAC carries the frame's header) and, with o->regions, root.reg. */
+ * FITS_LDAC carries the frame's header) and, with o->regions, root.reg.
+ * root.fit must hold t, written in o->fit.fmt: a root.cat of the same
+ * text is its copy. */
 int mp_pl_write_catalog(const char *root, const mp_frame *f, mp_table *t,
                         const mp_pipeline_opts *o, char *err);
 

@@ -347,6 +347,32 @@ static void test_registry(void **state)
     assert_null(mp_col_registry_find("NO_SUCH_COLUMN"));
 }
 
+/* An integer column's values as printf's "%W.0f" writes them, the
+ * integral ones taken as integers (mp_format_value's fast path): the same
+ * characters for every value, whichever path it takes. */
+static void test_integer_columns(void **state)
+{
+    (void)state;
+    static const double v[] = {0.0, -0.0, 1.0, -1.0, 7.0, 4937.0, -12345.0, 1e9, -1e12,
+                               999999999999999.0, 9007199254740991.0, 9007199254740992.0,
+                               -9007199254740993.0, 1e17, 2.5, 3.5, -0.5, 1e-300, 123.4999};
+    int tested = 0;
+    for (size_t i = 0; i < mp_col_registry_count(); i++) {
+        const mp_col *c = mp_col_registry_at(i);
+        if (!c->is_int)
+            continue;
+        for (size_t k = 0; k < sizeof v / sizeof v[0]; k++) {
+            char got[512], want[512];
+            int n = mp_format_value(c, v[k], got, sizeof got);
+            int m = snprintf(want, sizeof want, c->fmt, v[k] == 0 ? 0.0 : v[k]);
+            if (n != m || strcmp(got, want) != 0)
+                fail_msg("%s %s of %.17g: '%s' against '%s'", c->name, c->fmt, v[k], got, want);
+            tested++;
+        }
+    }
+    assert_true(tested >= 6 * (int)(sizeof v / sizeof v[0]));   /* NUMBER, FLAGS, GROUP_ID, ... */
+}
+
 static void test_parse_value(void **state)
 {
     (void)state;
@@ -846,6 +872,7 @@ int main(void)
         cmocka_unit_test_setup_teardown(test_csv_quoted_header, setup, teardown),
         cmocka_unit_test_setup_teardown(test_errors, setup, teardown),
         cmocka_unit_test_setup_teardown(test_atomic_write, setup, teardown),
+        cmocka_unit_test(test_integer_columns),
         cmocka_unit_test(test_sample_out),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);

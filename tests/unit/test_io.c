@@ -846,6 +846,43 @@ static void test_outfile(void **state)
     assert_int_equal(count_files(s), 1);   /* only out.txt */
 }
 
+/* mp_out_copy: the same bytes under the new name (more than one 64 KiB
+ * buffer of them, with NULs), nothing left behind; a missing source is
+ * an error naming it, and the older copy stays whole. */
+static void test_out_copy(void **state)
+{
+    scratch *s = *state;
+    char err[MP_ERRLEN], from[700], to[700];
+    snprintf(from, sizeof from, "%s/a.fit", s->dir);
+    snprintf(to, sizeof to, "%s/a.cat", s->dir);
+    size_t n = 200000;
+    unsigned char *b = malloc(n), *got = malloc(n + 1);
+    assert_non_null(b);
+    assert_non_null(got);
+    for (size_t i = 0; i < n; i++)
+        b[i] = (unsigned char)(i * 2654435761u >> 13);
+    FILE *fp = fopen(from, "wb");
+    assert_int_equal(fwrite(b, 1, n, fp), n);
+    fclose(fp);
+    assert_int_equal(mp_out_copy(from, to, err), 0);
+    fp = fopen(to, "rb");
+    assert_non_null(fp);
+    assert_int_equal(fread(got, 1, n + 1, fp), n);
+    fclose(fp);
+    assert_memory_equal(got, b, n);
+    assert_int_equal(count_files(s), 2);
+    char gone[700];
+    snprintf(gone, sizeof gone, "%s/none.fit", s->dir);
+    assert_int_not_equal(mp_out_copy(gone, to, err), 0);
+    assert_non_null(strstr(err, gone));
+    fp = fopen(to, "rb");
+    assert_int_equal(fread(got, 1, n + 1, fp), n);
+    fclose(fp);
+    assert_int_equal(count_files(s), 2);
+    free(b);
+    free(got);
+}
+
 /* A killed run's temporary (its pid gone, this host) is swept when the
  * output is next written; a live process's and another host's stay. */
 static void test_tmp_sweep(void **state)
@@ -1024,6 +1061,7 @@ int main(void)
         cmocka_unit_test_setup_teardown(test_frame_err, setup, teardown),
         cmocka_unit_test_setup_teardown(test_frame_bleed, setup, teardown),
         cmocka_unit_test_setup_teardown(test_outfile, setup, teardown),
+        cmocka_unit_test_setup_teardown(test_out_copy, setup, teardown),
         cmocka_unit_test_setup_teardown(test_tmp_sweep, setup, teardown),
         cmocka_unit_test(test_key_number),
         cmocka_unit_test(test_guard_absurd_sizes),
