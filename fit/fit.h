@@ -66,6 +66,21 @@ void mp_five_point(const double *in, int nx, int ny, int axis, double *out);
 
 struct mp_prf_cache_s;
 
+/* How a star is drawn from a phase grid (fit/prf_cache.c; the mode of
+ * mp_prf_cache_render): the cubic interpolation, the bilinear one, or core
+ * tier k (cubic within a core of mp_prf_cache_core_radius(k), bilinear
+ * beyond). */
+#define MP_PRF_CUBIC 0
+#define MP_PRF_BILINEAR 1
+#define MP_PRF_NCORE 8
+#define MP_PRF_CORE(k) (2 + (k))
+
+/* The flux limits of a grid's cheaper modes on one sky: bilinear up to
+ * lin, core tier k up to core[k] (zeroed: cubic for every flux but 0). */
+typedef struct {
+    double lin, core[MP_PRF_NCORE];
+} mp_prf_tiers;
+
 /* What makes a model PRF, and which of its parts are used. */
 typedef struct {
     const mp_psf *psf;     /* the PSF; a variable one (psf->field) is
@@ -89,9 +104,9 @@ typedef struct {
                             * (fit/prf_cache.c); NULL: exact renders */
     double grid_emax;      /* the frame fit's paint of a star (frame_paint.c)
                             * uses grid only up to this flux, its bound */
-    double grid_lemax;     /* and bilinearly up to this one (0: never), the
-                            * bilinear interpolation's bound */
-    int grid_lin;          /* this render from grid bilinearly (ff_paint) */
+    mp_prf_tiers grid_tiers;  /* and in its cheaper modes up to these (zeroed:
+                            * cubic), their bounds */
+    int grid_mode;         /* this render's mode (ff_paint) */
     struct mp_prf_axes_s *axes;  /* the separable render's two axis operators
                             * (fit/prf.c), kept between renders */
 } mp_prf_work;
@@ -296,6 +311,8 @@ typedef struct mp_prf_cache_s {
                             * P ≤ 0, bin b ≥ 1 P in (pmax·2^−b, pmax·2^(1−b)],
                             * the last down to 0 */
     double *d2lbin;        /* the same of d2l */
+    double *d2cbin;        /* MP_PRF_NCORE × nph × MP_PRF_CACHE_NBIN: the same
+                            * of each core tier (mp_prf_cache_limit_core) */
     const mp_psf *psf;     /* what it was built from (mp_prf_cache_usable) */
     const mp_drf *drf;
     /* Position derivatives drawn within a box alone (mp_prf_cache_deriv_box):
@@ -365,6 +382,32 @@ double mp_prf_cache_limit(const mp_prf_cache *c, double B, double ron, double fr
 double mp_prf_cache_bound_lin(const mp_prf_cache *c, double E, double B, double ron);
 double mp_prf_cache_limit_lin(const mp_prf_cache *c, double B, double ron, double frac);
 
+/* mp_prf_cache_core_radius: core tier k's radius r (k in 0..MP_PRF_NCORE −
+ * 1, -1 beyond): a star drawn at MP_PRF_CORE(k) is drawn cubically on the
+ * pixels whose offsets from its own whole pixel are within [−r, r + 1] on
+ * both axes, bilinearly beyond.  mp_prf_cache_bound_core: that tier's
+ * bound, its δP² the cubic's within the core, the bilinear's beyond.
+ * mp_prf_cache_limit_core: the largest flux (to 0.25 %) whose bound the
+ * bins alone hold ≤ frac (mp_prf_cache_serves's test without its pixel
+ * sums: found without summing a pixel, and conservative — within each bin
+ * P spans a factor 2, so the bound at twice the limit is above frac where
+ * the last bin, P down to 0, spreads the variance little; no flux where
+ * the bins cannot bound, a PSF's negative pixels below −(B + ron²)/E). */
+int mp_prf_cache_core_radius(int k);
+double mp_prf_cache_bound_core(const mp_prf_cache *c, int k, double E, double B, double ron);
+double mp_prf_cache_limit_core(const mp_prf_cache *c, int k, double B, double ron, double frac);
+
+/* mp_prf_cache_tiers: c's tiers on sky B (mp_prf_cache_limit_lin and
+ * mp_prf_cache_limit_core). */
+void mp_prf_cache_tiers(const mp_prf_cache *c, double B, double ron, double frac, mp_prf_tiers *t);
+
+/* mp_prf_tier_mode: the cheapest mode whose limit in t holds |E|:
+ * MP_PRF_BILINEAR, the least core, else MP_PRF_CUBIC (t NULL: cubic).
+ * mp_prf_tier_mode_from: the same among from and the modes more exact
+ * than it (in the order bilinear, cores 0, 1, ..., cubic). */
+int mp_prf_tier_mode(const mp_prf_tiers *t, double E);
+int mp_prf_tier_mode_from(const mp_prf_tiers *t, double E, int from);
+
 /* mp_prf_cache_deriv_box: for a group fit with fitting radius fitrad, sets
  * c->dbox_hw = h = mp_fit_core_halfwidth(fitrad) and c->dbox_u, the
  * largest u = E/(B + RON²) at which an isolated star loses at most the
@@ -404,12 +447,12 @@ int mp_prf_cache_usable(const mp_prf_cache *c, const mp_prf_model *m);
 int mp_prf_cache_covers(const mp_prf_cache *c, const mp_prf_model *m, double x, double y);
 
 /* mp_prf_cache_render: the interpolated PRF (and derivatives, may be NULL)
- * of model m on the box [x0, x0+w) × [y0, y0+h), bilinearly when lin
- * (within mp_prf_cache_limit_lin's bound); nonzero when c is not usable
- * for m. */
+ * of model m on the box [x0, x0+w) × [y0, y0+h), in mode (MP_PRF_CUBIC,
+ * MP_PRF_BILINEAR within mp_prf_cache_limit_lin's bound, MP_PRF_CORE(k)
+ * within mp_prf_cache_limit_core's); nonzero when c is not usable for m. */
 int mp_prf_cache_render(const mp_prf_cache *c, const mp_prf_model *m, double x, double y,
                         long x0, long y0, int w, int h, double *prf, double *ddx, double *ddy,
-                        int lin);
+                        int mode);
 
 /* A row span of detector pixels: [x0, x0 + n) of row y (1-based). */
 typedef struct {
@@ -427,11 +470,11 @@ int mp_prf_cache_render_spans(const mp_prf_cache *c, const mp_prf_model *m, doub
 /* mp_prf_cache_render_at: as mp_prf_cache_render_spans, span k's values at
  * index at[k] of each array (at NULL: one span after the other), so that a
  * part of a star's window is rendered in place (lm_render.c's core
- * renders); lin nonzero: the bilinear interpolation (its derivatives
+ * renders); mode as mp_prf_cache_render's (the bilinear interpolation's derivatives
  * interpolated as well: the grid's, not the interpolant's). */
 int mp_prf_cache_render_at(const mp_prf_cache *c, const mp_prf_model *m, double x, double y,
                            const mp_span *sp, const size_t *at, int ns, double *prf, double *ddx,
-                           double *ddy, int lin);
+                           double *ddy, int mode);
 
 /* ---- How strongly two stars' fits are coupled (fit/coupling.c) ---------- */
 
@@ -581,11 +624,12 @@ typedef struct {
     double grid_emax;          /* economy: a star whose start flux exceeds this
                                 * (the grid's bias bound) is rendered exactly,
                                 * its neighbours from grid (INFINITY: all) */
-    double grid_lemax;         /* economy: a star whose flux stays within this
-                                * (the bilinear interpolation's bound,
-                                * mp_prf_cache_limit_lin) is drawn bilinearly;
-                                * once above, cubically to its fit's end (0:
-                                * never) */
+    mp_prf_tiers grid_tiers;   /* economy: a star whose flux stays within one
+                                * of these (the bounds of the bilinear
+                                * interpolation and the core tiers,
+                                * mp_prf_cache_tiers) is drawn in that mode;
+                                * once above, in the next to its fit's end
+                                * (zeroed: cubic) */
     double *work;              /* not NULL: the multiply-adds of the group's
                                 * exact table renders are added to *work (the
                                 * caller's own, per thread; economy's plan) */
@@ -826,6 +870,7 @@ typedef struct {
     long kcache;       /* of them, with the PRF from the phase grid */
     long klin;         /* star fits in them drawn bilinearly (final flux
                         * within the bilinear limit) */
+    long kcore;        /* ... and with a cubic core (within a core tier's) */
     long kstars;       /* star fits in the LM fits */
     double khw;        /* their half-widths, summed */
     long kbounds;      /* the kernel and table choices' cost: bound
@@ -942,6 +987,7 @@ typedef struct {
     long kcache;               /* LM fits with the PRF from the phase grid */
     long klin, kstars;         /* star fits in LM fits drawn bilinearly, and
                                 * all star fits */
+    long kcore;                /* star fits drawn with a cubic core */
     double khw;                /* their half-widths, summed */
     long kcoarse;              /* LM fits with a coarser table */
     double ops_tables, ops_saved, ops_render;  /* mp_frame_report's */

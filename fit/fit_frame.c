@@ -154,6 +154,7 @@ void mp_frame_report_add(mp_frame_report *d, const mp_frame_report *r)
     d->kcoarse += r->kcoarse;
     d->kcache += r->kcache;
     d->klin += r->klin;
+    d->kcore += r->kcore;
     d->kstars += r->kstars;
     d->cropped += r->cropped;
     d->envelopes += r->envelopes;
@@ -333,7 +334,7 @@ static int set_rules(frame_fit *F, const mp_frame_opts *o, mp_frame_report *rep,
  * from the table counted once.  Nonzero with err when out of memory. */
 static int bounds_now(frame_fit *F, char *err)
 {
-    paint_rule now = {F->oc.grid, F->R.gemax, F->R.glemax, 1};
+    paint_rule now = {F->oc.grid, F->R.gemax, F->R.gtiers, 1};
     int rc = ff_update_bounds(F->f, F->m, &F->crop, &now, &F->held, F->oc.fit.fitrad,
                               F->oc.refittol, F->st, F->n, F->gs, F->ng, F->gone, F->ngone);
     free(F->gone);

@@ -22,7 +22,7 @@ void mp_fit_opts_default(mp_fit_opts *o)
     o->crop = NULL;
     o->grid = NULL;
     o->grid_emax = INFINITY;
-    o->grid_lemax = 0.0;
+    memset(&o->grid_tiers, 0, sizeof o->grid_tiers);
     o->work = NULL;
     o->exact_lm = 0;
     o->settle = 1;
@@ -497,8 +497,9 @@ static int fit_orders(group *G, const mp_fit_opts *o, const mp_star *stars, doub
     return 0;
 }
 
-/* A fit that stopped unconverged with stars drawn bilinearly, continued
- * from where it stopped with every star drawn cubically: the bilinear
+/* A fit that stopped unconverged with stars drawn bilinearly (or beyond
+ * a cubic core), continued from where it stopped with every star drawn
+ * cubically: the bilinear
  * PRF bends at every grid phase (its derivatives are the grid's, smooth),
  * which can keep LM's last steps from meeting tol (GLIMPSE built: a
  * 28-star group at maxiter that converged cubically).  Nonzero when out
@@ -509,8 +510,8 @@ static int cubic_again(group *G, const mp_fit_opts *o, int *iter, int *converged
         return 0;
     int lin = 0;
     for (int k = 0; k < G->n; k++)
-        if (G->ongrid[k] == GRID_LIN) {
-            G->ongrid[k] = 1;
+        if (G->ongrid[k] > GRID_CUBIC) {    /* bilinear, or beyond a core */
+            G->ongrid[k] = GRID_CUBIC;
             lin = 1;
         }
     if (!lin)
@@ -570,13 +571,12 @@ static int fit_and_store(group *G, const mp_fit_opts *o, mp_star *stars, double 
     int converged = 0, iter = 0;
     /* Economy: a star brighter than the grid's bound is drawn exactly
      * (its own bias bound, fit/prf_cache.c), the others from the grid. */
-    G->lemax = o->grid_lemax;
+    G->tiers = o->grid_tiers;
     for (int k = 0; k < n; k++)
         G->ongrid[k] = fabs(stars[k].flux) > o->grid_emax ||
                                !mp_prf_cache_covers(o->grid, G->m, stars[k].x, stars[k].y)
                            ? 0
-                       : fabs(stars[k].flux) <= G->lemax ? GRID_LIN
-                                                         : 1;
+                           : (uint8_t)(1 + mp_prf_tier_mode(&G->tiers, stars[k].flux));
     if (start_state(G, stars, sky))
         return 1;
     if (order > 0 && o->warm_sky)

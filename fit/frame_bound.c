@@ -27,12 +27,21 @@
 #define CHUNK 256
 
 /* Whether a star of flux F is drawn the same way under both rules: from
- * the grid under both, bilinearly or not, or exactly under both
+ * the grid under both, in the same mode, or exactly under both
  * (ff_paint's tests). */
 static int same_way(const paint_rule *a, const paint_rule *b, double F)
 {
     return (fabs(F) <= a->gemax) == (fabs(F) <= b->gemax) &&
-           (fabs(F) <= a->glemax) == (fabs(F) <= b->glemax);
+           mp_prf_tier_mode(&a->tiers, F) == mp_prf_tier_mode(&b->tiers, F);
+}
+
+/* Whether two rules' tiers are the same limits. */
+static int same_tiers(const mp_prf_tiers *a, const mp_prf_tiers *b)
+{
+    int same = ff_same_value(a->lin, b->lin);
+    for (int k = 0; k < MP_PRF_NCORE; k++)
+        same = same && ff_same_value(a->core[k], b->core[k]);
+    return same;
 }
 
 /* Whether the bounds made under rule b hold under rule a: the same grid,
@@ -47,7 +56,7 @@ static int same_rule(const paint_rule *a, const paint_rule *b, const star_state 
 {
     if (!a->set || !b->set || a->grid != b->grid)
         return 0;
-    if (!a->grid || (ff_same_value(a->gemax, b->gemax) && ff_same_value(a->glemax, b->glemax)))
+    if (!a->grid || (ff_same_value(a->gemax, b->gemax) && same_tiers(&a->tiers, &b->tiers)))
         return 1;
     for (size_t k = 0; k < n + ngone; k++) {
         const star_state *s = k < n ? &st[k] : &gone[k - n];
@@ -311,7 +320,7 @@ static int add_changes(const mp_frame *f, const mp_prf_model *m, const crop_rule
             mp_prf_work wk = {0};
             wk.grid = now->grid;
             wk.grid_emax = now->gemax;
-            wk.grid_lemax = now->glemax;
+            wk.grid_tiers = now->tiers;
             double *buf = NULL;
             float *win = NULL;
             size_t cap = 0, nwin = 0;

@@ -287,7 +287,7 @@ static int fit_live(const mp_frame *f, const mp_prf_model *m, const mp_frame_opt
     mp_fit_opts fo = o->fit;
     fo.tol = tol;
     fo.stop_pair = mergerad > 0 && !unstopped ? mergerad : 0.0;   /* merged by the caller */
-    fo.grid = ff_group_grid(R, o->grid, l, e, &fo.grid_emax, &fo.grid_lemax, rep);
+    fo.grid = ff_group_grid(R, o->grid, l, e, &fo.grid_emax, &fo.grid_tiers, rep);
     int cached = mp_prf_cache_usable(fo.grid, &mh);
     rep->kcache += cached;
     rep->kcalls++;
@@ -300,8 +300,11 @@ static int fit_live(const mp_frame *f, const mp_prf_model *m, const mp_frame_opt
     rep->iterations += live[0].niter;
     rep->render_ops += gops;
     rep->kstars += nl;
-    for (int k = 0; cached && k < nl; k++)
-        rep->klin += fabs(live[k].flux) <= fo.grid_lemax;
+    for (int k = 0; cached && k < nl; k++) {
+        int mode = mp_prf_tier_mode(&fo.grid_tiers, live[k].flux);
+        rep->klin += mode == MP_PRF_BILINEAR;
+        rep->kcore += mode >= MP_PRF_CORE(0);
+    }
     /* What economy saved on this fit's renders (the plan's unit). */
     if (R->ops_full > 0) {
         double used = cached ? mp_econ_grid_render_ops(m, o->fit.fitrad)

@@ -39,10 +39,10 @@ int ff_paint(const mp_prf_model *m, const mp_star *s, double sign, double rad, f
     const struct mp_prf_cache_s *grid = wk->grid;
     if (grid && !(fabs(s->flux) <= wk->grid_emax))
         wk->grid = NULL;
-    wk->grid_lin = wk->grid && fabs(s->flux) <= wk->grid_lemax;
+    wk->grid_mode = wk->grid ? mp_prf_tier_mode(&wk->grid_tiers, s->flux) : MP_PRF_CUBIC;
     int rc = paint_window(m, s, sign, rad, img, x0, y0, w, h, wk, buf, cap, cut);
     wk->grid = grid;
-    wk->grid_lin = 0;
+    wk->grid_mode = MP_PRF_CUBIC;
     return rc;
 }
 
@@ -161,7 +161,7 @@ static int paint_frame(const mp_prf_model *m, const mp_star *const *s, size_t n,
         mp_prf_work wk = {0};
         wk.grid = proto->grid;
         wk.grid_emax = proto->grid_emax;
-        wk.grid_lemax = proto->grid_lemax;
+        wk.grid_tiers = proto->grid_tiers;
         double *buf = NULL;
         size_t cap = 0;
 #pragma omp for schedule(dynamic)
@@ -216,7 +216,7 @@ float *ff_all_stars(const mp_frame *f, const mp_prf_model *m, const star_state *
     mp_prf_work proto = {0};
     proto.grid = o->grid;
     proto.grid_emax = R->gemax;
-    proto.grid_lemax = R->glemax;
+    proto.grid_tiers = R->gtiers;
     if (all && (!live || paint_frame(m, live, nl, crop, +1.0, &proto, all, f->im.nx, f->im.ny,
                                      ncut))) {
         if (!lent)

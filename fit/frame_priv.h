@@ -34,11 +34,12 @@ typedef struct {
 enum { MOVED_FIT = 1, MOVED_CALL = 2 };
 
 /* The paint the bounds hold for (ff_all_stars'): its phase grid and flux
- * limits (from the grid up to gemax, bilinearly up to glemax); set: 0
- * until the bounds hold for one. */
+ * limits (from the grid up to gemax, in its cheaper modes up to tiers');
+ * set: 0 until the bounds hold for one. */
 typedef struct {
     const struct mp_prf_cache_s *grid;
-    double gemax, glemax;
+    double gemax;
+    mp_prf_tiers tiers;
     int set;
 } paint_rule;
 
@@ -94,8 +95,9 @@ typedef struct {
     const mp_prf_cache *lgrid[MP_SS_MAXLEVELS];  /* ss[l]'s own phase grid (NULL:
                                  * its groups render exactly) */
     double lgemax[MP_SS_MAXLEVELS];  /* its flux limit, as gemax */
-    double glemax, lglemax[MP_SS_MAXLEVELS];  /* the same of the bilinear
-                                 * interpolation (0: never) */
+    mp_prf_tiers gtiers, lgtiers[MP_SS_MAXLEVELS];  /* the same of the
+                                 * bilinear interpolation and the core tiers
+                                 * (zeroed: cubic) */
     double ops_full;            /* a render of the model as given (economy's unit) */
 } frame_rules;
 
@@ -150,11 +152,11 @@ int ff_grid_serves(const frame_rules *R, const mp_prf_cache *g, double e, mp_fra
  * renders), and in *emax the largest start flux of a star it serves (the
  * others are drawn exactly); with the frame's flux limit, any group with
  * a star of flux e > 0; without it (few groups), the group whose brightest
- * star e passes the bound, *emax INFINITY; in *lemax the largest flux
- * of a star it draws bilinearly (0 without the frame's limit).  Charges
- * as ff_grid_serves. */
+ * star e passes the bound, *emax INFINITY; in *tiers the limits of its
+ * cheaper modes (zeroed without the frame's limit).  Charges as
+ * ff_grid_serves. */
 const mp_prf_cache *ff_group_grid(const frame_rules *R, const mp_prf_cache *g, int l, double e,
-                                  double *emax, double *lemax, mp_frame_report *cost);
+                                  double *emax, mp_prf_tiers *tiers, mp_frame_report *cost);
 int ff_kernel_for(const kernel_rule *k, int hwfull, double e, mp_frame_report *cost);
 
 /* frame_paint.c.  ff_crop_init: the crop rule of cropfrac (nonzero when

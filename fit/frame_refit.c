@@ -108,7 +108,7 @@ int ff_fit_group_local(const mp_frame *f, const mp_prf_model *m, const mp_frame_
     mp_prf_work wk = {0};
     wk.grid = o->grid;
     wk.grid_emax = R->gemax;
-    wk.grid_lemax = R->glemax;
+    wk.grid_tiers = R->gtiers;
     double *buf = NULL;
     size_t cap = 0;
     star_state *sub = malloc((size_t)n * sizeof *sub);

@@ -28,17 +28,17 @@ int ff_grid_serves(const frame_rules *R, const mp_prf_cache *g, double e,
 }
 
 const mp_prf_cache *ff_group_grid(const frame_rules *R, const mp_prf_cache *g, int l, double e,
-                                  double *emax, double *lemax, mp_frame_report *cost)
+                                  double *emax, mp_prf_tiers *tiers, mp_frame_report *cost)
 {
     const mp_prf_cache *t = l >= R->nss ? g : R->lgrid[l];
     double lim = l >= R->nss ? R->gemax : R->lgemax[l];
     *emax = INFINITY;
-    *lemax = 0.0;
+    memset(tiers, 0, sizeof *tiers);
     if (!t || !(e > 0))
         return NULL;
     if (!isnan(lim)) {          /* per star: the brighter ones exactly */
         *emax = lim;
-        *lemax = l >= R->nss ? R->glemax : R->lglemax[l];
+        *tiers = l >= R->nss ? R->gtiers : R->lgtiers[l];
         return lim > 0 ? t : NULL;
     }
     charge(cost, 1, t, ECON_LIM_GRID);
@@ -55,8 +55,12 @@ static void fill_limits(const void *c, int kind, double sky, double ron, double 
         emax[0] = mp_ss_level_emax(c, sky, ron, frac);
         charge(cost, MP_SS_LIMITS_EVALS, c, kind);
     } else if (kind == ECON_LIM_GRID) {
+        /* The cubic's and the bilinear's limits; the core tiers' are the
+         * bins' alone, no pixel summed (not charged). */
         emax[0] = mp_prf_cache_limit(c, sky, ron, frac);
         emax[1] = mp_prf_cache_limit_lin(c, sky, ron, frac);
+        for (int k = 0; k < MP_PRF_NCORE; k++)
+            emax[2 + k] = mp_prf_cache_limit_core(c, k, sky, ron, frac);
         charge(cost, 2 * MP_SINC_LIMITS_EVALS, c, kind);
     } else {
         mp_sinc_choice_limits(c, sky, ron, frac, emax);
@@ -84,7 +88,7 @@ static double *cached_limits(mp_econ_cache *cache, const void *c, int kind, doub
                              double ron, double frac, mp_frame_report *cost)
 {
     size_t n = kind == ECON_LIM_SINC   ? (size_t)((const mp_sinc_choice *)c)->hwmax
-               : kind == ECON_LIM_GRID ? 2
+               : kind == ECON_LIM_GRID ? 2 + MP_PRF_NCORE
                                        : 1;
     int shown;
 #pragma omp atomic read seq_cst
@@ -166,25 +170,26 @@ static int level_init(level_rule *k, const mp_ss_level *lv, double sky, double r
 
 /* The phase grid's flux limit on the frame's sky, as the kernel's: from
  * the run's cache, the frame's own, or NaN: each group evaluates its bound
- * (and neighbours are painted exactly); *lemax the bilinear
- * interpolation's (0 with NaN). */
+ * (and neighbours are painted exactly); *tiers the cheaper modes' (zeroed
+ * with NaN). */
 static double grid_limit(const mp_prf_cache *g, double sky, double ron, double frac, size_t ng,
                          mp_econ_cache *cache, double runfits, mp_frame_report *cost,
-                         double *lemax)
+                         mp_prf_tiers *tiers)
 {
-    *lemax = 0.0;
+    memset(tiers, 0, sizeof *tiers);
     if (!g)
         return 0.0;
     if (cache && runfits > MP_SINC_LIMITS_EVALS) {
         const double *e = cached_limits(cache, g, ECON_LIM_GRID, cache_sky(sky), ron, frac, cost);
         if (e) {
-            *lemax = e[1];
+            tiers->lin = e[1];
+            memcpy(tiers->core, e + 2, sizeof tiers->core);
             return e[0];
         }
     }
     if (ng > MP_SINC_LIMITS_EVALS) {
         charge(cost, 2 * MP_SINC_LIMITS_EVALS, g, ECON_LIM_GRID);
-        *lemax = mp_prf_cache_limit_lin(g, sky, ron, frac);
+        mp_prf_cache_tiers(g, sky, ron, frac, tiers);
         return mp_prf_cache_limit(g, sky, ron, frac);
     }
     return NAN;
@@ -274,10 +279,10 @@ int ff_rules_setup(frame_rules *R, const mp_frame *f, const mp_frame_opts *o,
     R->gron = f->rdnoise;
     R->gfrac = o->sincfrac;
     R->gemax = grid_limit(o->grid, R->gsky, f->rdnoise, o->sincfrac, ng, o->cache, runfits, rep,
-                          &R->glemax);
+                          &R->gtiers);
     for (int l = 0; l < R->nss; l++)
         R->lgemax[l] = grid_limit(R->lgrid[l], R->gsky, f->rdnoise, o->sincfrac, ng, o->cache,
-                                  runfits, rep, &R->lglemax[l]);
+                                  runfits, rep, &R->lgtiers[l]);
     return nomem;
 }
 

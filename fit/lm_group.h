@@ -96,10 +96,11 @@ typedef struct {
                                  * (lm_render.c deriv_in_box) */
     uint8_t *ongrid;            /* n: star drawn from the phase grid (its
                                  * start flux within o->grid_emax), else
-                                 * exactly (set with G->work.grid); GRID_LIN:
-                                 * bilinearly while its flux stays within
-                                 * lemax (lm_render.c grid_lin) */
-    double lemax;               /* o->grid_lemax */
+                                 * exactly (0; set with G->work.grid);
+                                 * GRID_CUBIC, or a cheaper mode while its
+                                 * flux stays within that mode's limit in
+                                 * tiers (lm_render.c grid_mode) */
+    mp_prf_tiers tiers;         /* o->grid_tiers */
     /* Star pairs between exact normal equations (normal_equations): the
      * pairs whose windows meet, each pair's sums outside its core (9 a
      * pair, unscaled), and each star's core, [cx0, cx1) × [cy0, cy1) of
@@ -188,8 +189,10 @@ static inline double sky_at(const group *G, const double *p, double x, double y)
  * draw all three. */
 enum { RENDER_ALL, RENDER_PRF, RENDER_DERIVS };
 
-/* group.ongrid's value of a star drawn bilinearly (1: cubically). */
-enum { GRID_LIN = 2 };
+/* group.ongrid's values of a star drawn from the grid: 1 + its mode
+ * (mp_prf_cache_render's): cubically, bilinearly, core tier k. */
+enum { GRID_CUBIC = 1 + MP_PRF_CUBIC, GRID_LIN = 1 + MP_PRF_BILINEAR };
+#define GRID_CORE(k) (1 + MP_PRF_CORE(k))
 
 /* lm_render.c.  lm_render_all: every star of p into r on its window (or
  * core, while frozen); nonzero when a window overflows its buffers.

@@ -92,18 +92,15 @@ int lm_core_rows(group *G, const rstar *r, int c[4])
     return lm_box_rows(G, r, b, c);
 }
 
-/* Whether star k of p is drawn from the grid bilinearly: its flux within
- * the bilinear interpolation's limit (its bias bound, fit/prf_cache.c);
- * a star found brighter is drawn cubically to the fit's end, so that its
- * model changes at most once. */
-static int grid_lin(group *G, const double *p, int k)
+/* The mode star k of p is drawn from the grid in: its own while its flux
+ * stays within that mode's limit (its bias bound, fit/prf_cache.c); a
+ * star found brighter moves to the next mode that holds it, to the fit's
+ * end, so that its model changes at most a few times, each more exact. */
+static int grid_mode(group *G, const double *p, int k)
 {
-    if (G->ongrid[k] != GRID_LIN)
-        return 0;
-    if (fabs(p[3 * k]) <= G->lemax)
-        return 1;
-    G->ongrid[k] = 1;
-    return 0;
+    int mode = G->ongrid[k] - 1, now = mp_prf_tier_mode_from(&G->tiers, p[3 * k], mode);
+    G->ongrid[k] = (uint8_t)(1 + now);
+    return now;
 }
 
 /* render_all while the wings are frozen: each star on its core only. */
@@ -122,7 +119,7 @@ static int render_core(group *G, const double *p, rstar *r, int what)
                                                what == RENDER_DERIVS ? NULL : r[k].prf,
                                                what == RENDER_PRF ? NULL : r[k].dx,
                                                what == RENDER_PRF ? NULL : r[k].dy,
-                                               grid_lin(G, p, k))
+                                               grid_mode(G, p, k))
                       : render_exact(G, x, y, c[0], c[1], c[2], c[3], &r[k], ns, G->soff);
         if (rc)
             return 1;
@@ -174,17 +171,17 @@ static int deriv_in_box(group *G, const double *p, int k)
  * in G->spans): its PRF there (unless what is RENDER_DERIVS), its
  * derivatives on its core box alone (taken as zero beyond, where nothing
  * reads them: rstar.dp0, dp1). */
-static int render_in_box(group *G, double x, double y, rstar *rk, int ns, int what, int lin)
+static int render_in_box(group *G, double x, double y, rstar *rk, int ns, int what, int mode)
 {
     int b[4], c[4];
     if (what != RENDER_DERIVS && mp_prf_cache_render_at(G->work.grid, G->m, x, y, G->spans, NULL,
-                                                        ns, rk->prf, NULL, NULL, lin))
+                                                        ns, rk->prf, NULL, NULL, mode))
         return 1;
     lm_box_at(G, x, y, b);
     int nb = lm_box_rows(G, rk, b, c);
     deriv_rows(G, rk, c[0], c[1], c[2], c[3]);
     return nb > 0 && mp_prf_cache_render_at(G->work.grid, G->m, x, y, G->spans, G->soff, nb,
-                                            NULL, rk->dx, rk->dy, lin);
+                                            NULL, rk->dx, rk->dy, mode);
 }
 
 /* Star k of p rendered into r[k] on the fitted pixels of its whole
@@ -220,15 +217,15 @@ static int render_window(group *G, const double *p, rstar *r, int k, int what, i
     int ns = window_rows(G, rk);
     if (ns <= 0)
         return ns < 0;
-    int lin = grid && grid_lin(G, p, k);
+    int mode = grid ? grid_mode(G, p, k) : MP_PRF_CUBIC;
     if (grid && what != RENDER_PRF && deriv_in_box(G, p, k))
-        return render_in_box(G, x, y, rk, ns, what, lin);
+        return render_in_box(G, x, y, rk, ns, what, mode);
     if (what != RENDER_PRF || !grid)        /* an exact render draws them all */
         deriv_rows(G, rk, rk->i0, rk->i1, rk->j0, rk->j1);
     return grid ? mp_prf_cache_render_at(G->work.grid, G->m, x, y, G->spans, NULL, ns,
                                          what == RENDER_DERIVS ? NULL : rk->prf,
                                          what == RENDER_PRF ? NULL : rk->dx,
-                                         what == RENDER_PRF ? NULL : rk->dy, lin)
+                                         what == RENDER_PRF ? NULL : rk->dy, mode)
                 : render_exact(G, x, y, rk->i0, rk->i1, rk->j0, rk->j1, rk, ns, NULL);
 }
 

@@ -534,7 +534,7 @@ static int render(const mp_prf_model *m, double x, double y, box bx,
     if (w && mp_prf_cache_usable(w->grid, m) &&    /* economy: the phase grid (prf_cache.c) */
         mp_prf_cache_covers(w->grid, m, x, y))
         return mp_prf_cache_render(w->grid, m, x, y, bx.x0, bx.y0, (int)bx.w, (int)bx.h, prf,
-                                   ddx, ddy, w->grid_lin);
+                                   ddx, ddy, w->grid_mode);
     return render_table(m, x, y, x, y, bx, prf, ddx, ddy, w);
 }
 

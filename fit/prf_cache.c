@@ -41,7 +41,18 @@
  * an axis, that grows as h², not h⁴.  Its δP² is measured at the same
  * cell centres, where it too peaks, and bounded the same way
  * (mp_prf_cache_limit_lin); a group fit draws a star bilinearly while its
- * flux stays within that limit (fit/lm_render.c). */
+ * flux stays within that limit (fit/lm_render.c).
+ *
+ * Between the two, a star too bright for the bilinear interpolation is
+ * drawn cubically within a core of radius r around it and bilinearly
+ * beyond (the core tiers, mp_prf_cache_core_radius): the bilinear error
+ * goes as the PRF's curvature, which is largest in the core, while a
+ * bright star's box reaches far into its wings (Tiny Tim's ±40 px), where
+ * the cubic's 16 nodes read four times the bilinear's 4.  Each tier's δP²
+ * is the cubic's within its core and the bilinear's beyond, pixel by
+ * pixel, so its bound and flux limit are measured as the others' are
+ * (mp_prf_cache_limit_core), and a star is drawn at the tier of the
+ * least core whose limit holds its flux (mp_prf_tier_mode). */
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -68,6 +79,7 @@ void mp_prf_cache_free(mp_prf_cache *c)
     free(c->d2bin);
     free(c->d2l);
     free(c->d2lbin);
+    free(c->d2cbin);
     memset(c, 0, sizeof *c);
 }
 
@@ -142,13 +154,13 @@ static void weights(double f, double L[4])
 typedef struct {
     axis_pos px, py;
     double Lx[4], Ly[4];
-    int lin;            /* bilinear (bilinear_spans), else cubic */
+    int mode;           /* MP_PRF_CUBIC, MP_PRF_BILINEAR or MP_PRF_CORE(k) */
 } star_pos;
 
-static star_pos star_of(const mp_prf_cache *c, double x, double y, int lin)
+static star_pos star_of(const mp_prf_cache *c, double x, double y, int mode)
 {
     star_pos s;
-    s.lin = lin;
+    s.mode = mode;
     s.px = axis_of(c, x);
     s.py = axis_of(c, y);
     weights(s.px.f, s.Lx);
@@ -266,16 +278,12 @@ static void bilinear_spans(const mp_prf_cache *c, const star_pos *s, const mp_sp
  * window, stay in L1 between the passes.  Each element's sum keeps its
  * order (node row kb = 0..3), so the values are those of a row-by-row pass
  * bit for bit. */
-static void interp_spans_k(const mp_prf_cache *c, const star_pos *s, const mp_span *sp,
-                           const size_t *at, int ns, double *pr, double *gx, double *gy,
-                           double k, int add)
+static void cubic_spans(const mp_prf_cache *c, const star_pos *s, const mp_span *sp,
+                        const size_t *at, int ns, double *pr, double *gx, double *gy, double k,
+                        int add)
 {
     int na = c->gb + 3, NA = c->os * na;
     size_t step = 3 * c->npix;          /* the next node along x */
-    if (s->lin) {
-        bilinear_spans(c, s, sp, at, ns, pr, gx, gy, k, add);
-        return;
-    }
     for (int kb = 0; kb < 4; kb++) {
         /* node a − 1 + ka of branch beta is plane beta·na + a + ka */
         size_t pl = (size_t)(s->py.beta * na + s->py.a + kb) * NA +
@@ -304,6 +312,78 @@ static void interp_spans_k(const mp_prf_cache *c, const star_pos *s, const mp_sp
     }
 }
 
+static const int core_radius[MP_PRF_NCORE] = {0, 1, 2, 3, 4, 6, 9, 14};
+
+int mp_prf_cache_core_radius(int k)
+{
+    return k >= 0 && k < MP_PRF_NCORE ? core_radius[k] : -1;
+}
+
+/* Whether union-box pixel (i, j) of c lies in core k: both its offsets
+ * from the star's whole pixel (kq; the star within [kq + ½, kq + 3/2))
+ * within [−r, r + 1]. */
+static inline int in_core(long off, int r)
+{
+    return off >= -r && off <= r + 1;
+}
+
+/* A core tier's render (mode 2 + kc): each span cut where it crosses the
+ * core's columns, the parts in the core drawn by cubic_spans, the rest by
+ * bilinear_spans, each part to its own place of the outputs; up to CHUNK
+ * spans at a time. */
+static void core_spans(const mp_prf_cache *c, const star_pos *s, const mp_span *sp,
+                       const size_t *at, int ns, double *pr, double *gx, double *gy, double k,
+                       int add)
+{
+    enum { CHUNK = 64 };
+    int r = core_radius[s->mode - 2];
+    long cx0 = s->px.kq - r, cx1 = s->px.kq + r + 2;    /* frame columns [cx0, cx1) */
+    mp_span out[2 * CHUNK], core[CHUNK];
+    size_t oat[2 * CHUNK], cat[CHUNK], o = 0;
+    for (int n0 = 0; n0 < ns; n0 += CHUNK) {
+        int no = 0, nc = 0;
+        for (int n = n0; n < ns && n < n0 + CHUNK; n++) {
+            o = at ? at[n] : o;
+            long x0 = sp[n].x0, x1 = x0 + sp[n].n, y = sp[n].y;
+            long a = x0, b = x0;                    /* the core part [a, b) */
+            if (in_core(y - s->py.kq, r)) {
+                a = cx0 > x0 ? (cx0 < x1 ? cx0 : x1) : x0;
+                b = cx1 < x1 ? (cx1 > a ? cx1 : a) : x1;
+            }
+            if (a > x0) {
+                out[no] = (mp_span){x0, y, (int)(a - x0)};
+                oat[no++] = o;
+            }
+            if (b > a) {
+                core[nc] = (mp_span){a, y, (int)(b - a)};
+                cat[nc++] = o + (size_t)(a - x0);
+            }
+            if (x1 > b) {
+                out[no] = (mp_span){b, y, (int)(x1 - b)};
+                oat[no++] = o + (size_t)(b - x0);
+            }
+            o += (size_t)sp[n].n;
+        }
+        if (no)
+            bilinear_spans(c, s, out, oat, no, pr, gx, gy, k, add);
+        if (nc)
+            cubic_spans(c, s, core, cat, nc, pr, gx, gy, k, add);
+    }
+}
+
+/* The star's PRF on the spans at its mode, times k (add: added to). */
+static void interp_spans_k(const mp_prf_cache *c, const star_pos *s, const mp_span *sp,
+                           const size_t *at, int ns, double *pr, double *gx, double *gy,
+                           double k, int add)
+{
+    if (s->mode == MP_PRF_BILINEAR)
+        bilinear_spans(c, s, sp, at, ns, pr, gx, gy, k, add);
+    else if (s->mode >= 2 && s->mode < 2 + MP_PRF_NCORE)
+        core_spans(c, s, sp, at, ns, pr, gx, gy, k, add);
+    else
+        cubic_spans(c, s, sp, at, ns, pr, gx, gy, k, add);
+}
+
 /* The star's PRF on the spans: from c's own grid, or, for a variable PSF,
  * Σ c_t·grid_t with the field's terms c_t at the star (m's field: a
  * view's is moved to its sub-image, mp_psf_local; m is read only then). */
@@ -326,9 +406,9 @@ static void interp_spans_at(const mp_prf_cache *c, const mp_prf_model *m, double
 /* The interpolated PRF on box [x0, x0+w) × [y0, y0+h): its rows as spans
  * (m may be NULL for a constant PSF's grid). */
 static void interp(const mp_prf_cache *c, const mp_prf_model *m, double x, double y, long x0,
-                   long y0, int w, int h, double *prf, double *ddx, double *ddy, int lin)
+                   long y0, int w, int h, double *prf, double *ddx, double *ddy, int mode)
 {
-    star_pos s = star_of(c, x, y, lin);
+    star_pos s = star_of(c, x, y, mode);
     enum { CHUNK = 64 };
     mp_span rows[CHUNK];
     for (int j = 0; j < h; j += CHUNK) {
@@ -361,21 +441,21 @@ int mp_prf_cache_covers(const mp_prf_cache *c, const mp_prf_model *m, double x, 
 
 int mp_prf_cache_render(const mp_prf_cache *c, const mp_prf_model *m, double x, double y,
                         long x0, long y0, int w, int h, double *prf, double *ddx, double *ddy,
-                        int lin)
+                        int mode)
 {
     if (!mp_prf_cache_usable(c, m))
         return 1;
-    interp(c, m, x, y, x0, y0, w, h, prf, ddx, ddy, lin);
+    interp(c, m, x, y, x0, y0, w, h, prf, ddx, ddy, mode);
     return 0;
 }
 
 int mp_prf_cache_render_at(const mp_prf_cache *c, const mp_prf_model *m, double x, double y,
                            const mp_span *sp, const size_t *at, int ns, double *prf, double *ddx,
-                           double *ddy, int lin)
+                           double *ddy, int mode)
 {
     if (!mp_prf_cache_usable(c, m))
         return 1;
-    star_pos s = star_of(c, x, y, lin);
+    star_pos s = star_of(c, x, y, mode);
     interp_spans_at(c, m, x, y, &s, sp, at, ns, prf, ddx, ddy);
     return 0;
 }
@@ -573,6 +653,26 @@ static int bin_of(double v, double pmax)
     return b < 1 ? 1 : b > MP_PRF_CACHE_NBIN - 1 ? MP_PRF_CACHE_NBIN - 1 : b;
 }
 
+/* Cell ph's bins of each core tier: the bilinear one's, with the pixels
+ * of its core moved from the bilinear δP² to the cubic's (a core holds
+ * (2r + 2)² pixels, the cell npix). */
+static void core_bins(mp_prf_cache *c, int ph)
+{
+    size_t o = (size_t)ph * c->npix;
+    const double *binl = c->d2lbin + (size_t)ph * MP_PRF_CACHE_NBIN;
+    for (int k = 0; k < MP_PRF_NCORE; k++) {
+        int r = core_radius[k];
+        double *bin = c->d2cbin + ((size_t)k * c->nph + (size_t)ph) * MP_PRF_CACHE_NBIN;
+        memcpy(bin, binl, MP_PRF_CACHE_NBIN * sizeof *bin);
+        long j0 = -r - c->uy0, j1 = r + 2 - c->uy0, i0 = -r - c->ux0, i1 = r + 2 - c->ux0;
+        for (long j = j0 < 0 ? 0 : j0; j < j1 && j < c->uh; j++)
+            for (long i = i0 < 0 ? 0 : i0; i < i1 && i < c->uw; i++) {
+                size_t q = o + (size_t)j * c->uw + (size_t)i;
+                bin[bin_of(c->p[q], c->pmax)] += (double)c->d2[q] - (double)c->d2l[q];
+            }
+    }
+}
+
 /* What mp_prf_cache_serves bounds the cells' sums with: the least and the
  * largest P, and each cell's Σ δP² binned by P, for each interpolation.
  * Nonzero when out of memory. */
@@ -591,7 +691,8 @@ static int cell_bins(mp_prf_cache *c)
     c->pmax = pmax;
     c->d2bin = calloc((size_t)c->nph * MP_PRF_CACHE_NBIN, sizeof *c->d2bin);
     c->d2lbin = calloc((size_t)c->nph * MP_PRF_CACHE_NBIN, sizeof *c->d2lbin);
-    if (!c->d2bin || !c->d2lbin)
+    c->d2cbin = calloc((size_t)MP_PRF_NCORE * c->nph * MP_PRF_CACHE_NBIN, sizeof *c->d2cbin);
+    if (!c->d2bin || !c->d2lbin || !c->d2cbin)
         return 1;
     if (!(c->pmax > 0))
         return 0;
@@ -605,6 +706,7 @@ static int cell_bins(mp_prf_cache *c)
             bin[b] += c->d2[o + i];
             binl[b] += c->d2l[o + i];
         }
+        core_bins(c, ph);
     }
     return 0;
 }
@@ -760,8 +862,9 @@ static void free_bound(mp_prf_cache *t)
     free(t->d2l);
     free(t->d2bin);
     free(t->d2lbin);
+    free(t->d2cbin);
     t->p = t->d2 = t->d2l = NULL;
-    t->d2bin = t->d2lbin = NULL;
+    t->d2bin = t->d2lbin = t->d2cbin = NULL;
 }
 
 /* A variable PSF's grid (mp_prf_cache_build): a grid per plane of the
@@ -831,25 +934,49 @@ int mp_prf_cache_build_exact(const mp_prf_model *m, int G, mp_prf_cache *c, char
     return build(m, G, 0, c, NULL, err);
 }
 
-/* The δP² of an interpolation (lin: the bilinear one) and their bins. */
+/* The δP² of an interpolation (lin: the bilinear one) and the bins of a
+ * mode's (a core tier's: its own, core_bins). */
 static const float *d2_of(const mp_prf_cache *c, int lin)
 {
     return c ? (lin ? c->d2l : c->d2) : NULL;
 }
 
-static const double *bins_of(const mp_prf_cache *c, int lin)
+static const double *bins_of(const mp_prf_cache *c, int mode)
 {
-    return c ? (lin ? c->d2lbin : c->d2bin) : NULL;
+    if (!c)
+        return NULL;
+    if (mode >= 2)
+        return c->d2cbin ? c->d2cbin + (size_t)(mode - 2) * c->nph * MP_PRF_CACHE_NBIN : NULL;
+    return mode ? c->d2lbin : c->d2bin;
 }
 
 /* The bound over the cells, leaving out those whose sum over bins with
  * the variances inv_lo (serves_of's upper bounds of their sums) is at
  * most cut (inv_lo NULL: none left out). */
-static double bound_over(const mp_prf_cache *c, int lin, double E, double B, double ron,
+/* One cell's Σ δP²/v of a core tier: the cubic's δP² (d) within the
+ * core's rows and columns, the bilinear's (dl) elsewhere. */
+static double core_sum(const mp_prf_cache *c, int r, const float *p, const float *d,
+                       const float *dl, double E, double var0)
+{
+    double s = 0.0;
+    for (long j = 0; j < c->uh; j++) {
+        int row = in_core(j + c->uy0, r);
+        for (long i = 0; i < c->uw; i++) {
+            size_t q = (size_t)j * c->uw + (size_t)i;
+            double v = E * p[q] + var0;
+            if (v > 0)
+                s += (row && in_core(i + c->ux0, r) ? d[q] : dl[q]) / v;
+        }
+    }
+    return s;
+}
+
+static double bound_over(const mp_prf_cache *c, int mode, double E, double B, double ron,
                          const double *inv_lo, double cut)
 {
+    int lin = mode == MP_PRF_BILINEAR, core = mode >= 2;
     const float *d2 = d2_of(c, lin);
-    const double *bins = bins_of(c, lin);
+    const double *bins = bins_of(c, mode);
     if (!d2)
         return INFINITY;
     double worst = 0.0, var0 = B + ron * ron;
@@ -869,6 +996,11 @@ static double bound_over(const mp_prf_cache *c, int lin, double E, double B, dou
             if (s <= cut)
                 continue;
             s = 0.0;
+        }
+        if (core) {
+            s = core_sum(c, core_radius[mode - 2], p, d, c->d2l + (size_t)ph * c->npix, E, var0);
+            worst = s > worst ? s : worst;
+            continue;
         }
         for (size_t i = 0; i < c->npix; i++) {
             double v = E * p[i] + var0;
@@ -895,10 +1027,19 @@ double mp_prf_cache_bound_lin(const mp_prf_cache *c, double E, double B, double 
     return bound_of(c, 1, E, B, ron);
 }
 
-static int serves_of(const mp_prf_cache *c, int lin, double E, double B, double ron, double frac)
+double mp_prf_cache_bound_core(const mp_prf_cache *c, int k, double E, double B, double ron)
 {
-    const double *bins = bins_of(c, lin);
-    if (!d2_of(c, lin) || !bins || !(E >= 0))
+    return k >= 0 && k < MP_PRF_NCORE ? bound_of(c, 2 + k, E, B, ron) : INFINITY;
+}
+
+/* Whether mode's bound at E is ≤ frac: by the bins where they decide,
+ * else, with exact, by the pixels' sums, without, not (a core tier's
+ * limit: conservative, and no pixel summed). */
+static int serves_of(const mp_prf_cache *c, int mode, double E, double B, double ron, double frac,
+                     int exact)
+{
+    const double *bins = bins_of(c, mode);
+    if (!d2_of(c, mode) || !bins || !(E >= 0))
         return 0;
     /* Within bin b ≥ 1 a pixel's variance lies in [v0 + E·pmax·2^−b,
      * v0 + E·pmax·2^(1−b)] (the last bin's lower end v0), in bin 0 in
@@ -934,31 +1075,34 @@ static int serves_of(const mp_prf_cache *c, int lin, double E, double B, double 
         if (low > f2 * (1.0 + 1e-9))
             return 0;
     }
+    if (!exact)
+        return 0;
     /* Undecided: the cells summed pixel by pixel, but not those whose
      * upper bound is below the cut (their sums are: at most frac·√(1 −
      * 1e−9), so the largest, where the decision lies, is among the rest —
      * the same decision; 47 Tuc with Tiny Tim's table: its limits' 2.89 →
      * 1.51·10⁹ instructions). */
-    return bound_over(c, lin, E, B, ron, binned ? inv_lo : NULL, f2 * (1.0 - 1e-9)) <= frac;
+    return bound_over(c, mode, E, B, ron, binned ? inv_lo : NULL, f2 * (1.0 - 1e-9)) <= frac;
 }
 
 int mp_prf_cache_serves(const mp_prf_cache *c, double E, double B, double ron, double frac)
 {
-    return serves_of(c, 0, E, B, ron, frac);
+    return serves_of(c, 0, E, B, ron, frac, 1);
 }
 
 /* q(E) increases with E (each term E²δP²/(E P + v) does): bisection in log E,
  * each flux decided as mp_prf_cache_serves decides it. */
-static double limit_of(const mp_prf_cache *c, int lin, double B, double ron, double frac)
+static double limit_of(const mp_prf_cache *c, int mode, double B, double ron, double frac,
+                       int exact)
 {
     double lo = 1e-3, hi = 1e15;
-    if (!serves_of(c, lin, lo, B, ron, frac))
+    if (!serves_of(c, mode, lo, B, ron, frac, exact))
         return 0.0;
-    if (serves_of(c, lin, hi, B, ron, frac))
+    if (serves_of(c, mode, hi, B, ron, frac, exact))
         return INFINITY;
     for (int it = 0; it < MP_SINC_LIMITS_EVALS - 2; it++) {  /* 18 decades: E to 0.25 % */
         double mid = sqrt(lo * hi);
-        if (serves_of(c, lin, mid, B, ron, frac))
+        if (serves_of(c, mode, mid, B, ron, frac, exact))
             lo = mid;
         else
             hi = mid;
@@ -968,10 +1112,40 @@ static double limit_of(const mp_prf_cache *c, int lin, double B, double ron, dou
 
 double mp_prf_cache_limit(const mp_prf_cache *c, double B, double ron, double frac)
 {
-    return limit_of(c, 0, B, ron, frac);
+    return limit_of(c, 0, B, ron, frac, 1);
 }
 
 double mp_prf_cache_limit_lin(const mp_prf_cache *c, double B, double ron, double frac)
 {
-    return limit_of(c, 1, B, ron, frac);
+    return limit_of(c, 1, B, ron, frac, 1);
+}
+
+double mp_prf_cache_limit_core(const mp_prf_cache *c, int k, double B, double ron, double frac)
+{
+    return k >= 0 && k < MP_PRF_NCORE ? limit_of(c, 2 + k, B, ron, frac, 0) : 0.0;
+}
+
+void mp_prf_cache_tiers(const mp_prf_cache *c, double B, double ron, double frac, mp_prf_tiers *t)
+{
+    t->lin = mp_prf_cache_limit_lin(c, B, ron, frac);
+    for (int k = 0; k < MP_PRF_NCORE; k++)
+        t->core[k] = mp_prf_cache_limit_core(c, k, B, ron, frac);
+}
+
+int mp_prf_tier_mode_from(const mp_prf_tiers *t, double E, int from)
+{
+    double e = fabs(E);
+    if (!t || from == MP_PRF_CUBIC)
+        return MP_PRF_CUBIC;
+    if (from == MP_PRF_BILINEAR && e <= t->lin)
+        return MP_PRF_BILINEAR;
+    for (int k = from >= 2 ? from - 2 : 0; k < MP_PRF_NCORE; k++)
+        if (e <= t->core[k])
+            return MP_PRF_CORE(k);
+    return MP_PRF_CUBIC;
+}
+
+int mp_prf_tier_mode(const mp_prf_tiers *t, double E)
+{
+    return mp_prf_tier_mode_from(t, E, MP_PRF_BILINEAR);
 }

@@ -54,6 +54,7 @@ void mp_report_counts(const mp_frame_report *fr, mp_run_report *r)
     r->kshort = fr->kshort;
     r->kcache = fr->kcache;
     r->klin = fr->klin;
+    r->kcore = fr->kcore;
     r->kstars = fr->kstars;
     r->khw = fr->khw;
     r->kbounds = fr->kbounds;
@@ -164,10 +165,11 @@ static void report_lines(FILE *fp, const char *prefix, const mp_run_report *r)
     fprintf(fp, "%s  work: %ld group fits, %ld left out (neighbours' light unchanged), "
             "%ld star paints cropped; %ld of %ld LM fits with a shorter sinc kernel (mean "
             "half-width %.1f), %ld with a coarser table, %ld with the PRF from the phase grid "
-            "(%ld of their %ld star fits bilinear); economy's own cost: %ld bound evaluations, "
+            "(%ld of their %ld star fits bilinear, %ld with a cubic core); economy's own cost: "
+            "%ld bound evaluations, "
             "%ld crop envelopes\n", prefix, r->fits, r->kept, r->cropped, r->kshort, r->kcalls,
             r->kcalls > 0 ? r->khw / (double)r->kcalls : 0.0, r->kcoarse, r->kcache, r->klin,
-            r->kstars, r->kbounds, r->envelopes);
+            r->kstars, r->kcore, r->kbounds, r->envelopes);
     if (r->pairs_close > 0)
         fprintf(fp, "%s  groups: components above maxgroup cut at their weakest couplings "
                 "(%ld pairs within psfrad + fitrad, %ld of them coupled), summed over rounds\n",

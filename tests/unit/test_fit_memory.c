@@ -71,7 +71,7 @@ static mp_fit_memory *remembered(mp_table *t, star_state *last)
     fitted_table(t, last);
     mp_fit_memory *mem = mp_fit_memory_new();
     assert_non_null(mem);
-    paint_rule held = {NULL, 1e6, 0.0, 1};
+    paint_rule held = {NULL, 1e6, {0, {0}}, 1};
     assert_int_equal(ff_remember(mem, last, NSTAR, NSTAR, &held), 0);
     return mem;
 }
@@ -148,7 +148,7 @@ static void test_remember_after_forget(void **state)
     mp_table t;
     star_state last[NSTAR], st[NSTAR];
     mp_fit_memory *mem = remembered(&t, last);
-    paint_rule held = {NULL, 1e6, 0.0, 1}, back;
+    paint_rule held = {NULL, 1e6, {0, {0}}, 1}, back;
     mp_fit_memory_forget(mem);
     assert_int_equal(ff_remember(mem, last, NSTAR, NSTAR, &held), 0);
     next_states(last, st, NSTAR);

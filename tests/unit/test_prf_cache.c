@@ -187,7 +187,7 @@ static void test_bilinear_bound_falls_as_h2(void **state)
 }
 
 /* A noiseless star of flux E at the bilinear limit on sky B, fitted with
- * its PRF drawn bilinearly (grid_lemax ∞) and cubically (grid_lemax 0)
+ * its PRF drawn bilinearly (grid_tiers.lin ∞) and cubically (zeroed tiers)
  * from the grid, and exactly (no grid), which returns the truth: each
  * grid fit's flux, x and y lie within its bound (0.1 σ, the σ the exact
  * fit reports) of the exact fit's, plus the fits' tolerance (2·tol σ),
@@ -237,7 +237,8 @@ static void test_bilinear_fit_within_bound(void **state)
         for (int v = 0; v < 3; v++) {
             st[v] = (mp_star){.x = X + 0.2, .y = Y - 0.1, .flux = 0.8 * E};
             o.grid = v < 2 ? &c : NULL;
-            o.grid_lemax = v == 0 ? INFINITY : 0.0;
+            memset(&o.grid_tiers, 0, sizeof o.grid_tiers);
+            o.grid_tiers.lin = v == 0 ? INFINITY : 0.0;
             assert_int_equal(mp_fit_group(&f, &m, &o, B, &st[v], 1, err), 0);
             assert_int_equal(st[v].flags & MP_FLAG_NOCONV, 0);
         }
@@ -711,6 +712,197 @@ static void test_field_grid_within_bound(void **state)
     mp_psf_field_free(&f2);
 }
 
+/* The pixel offset a core is measured from: the star's whole pixel kq of
+ * fit/prf_cache.c, ⌊x − offset − ½⌋. */
+static long star_pixel(const mp_psf *p, double x)
+{
+    return (long)floor(x - p->offset - 0.5);
+}
+
+/* Each core tier's render, at 12 positions over all phases, is the cubic
+ * render on the pixels whose offsets from the star's whole pixel lie
+ * within [−r, r + 1] on both axes and the bilinear render elsewhere, bit
+ * for bit, PRF and derivatives: drawn on spans cut at varying columns and
+ * laid out in the outputs out of order (at), as a group fit's core
+ * renders are; and a variable PSF's, whose later terms are added. */
+static void test_core_tiers_compose(void **state)
+{
+    (void)state;
+    char err[MP_ERRLEN];
+    mp_psf p;
+    table(&p);
+    mp_prf_model m = {&p, NULL, 10};
+    mp_prf_cache c;
+    assert_int_equal(mp_prf_cache_build(&m, 16, &c, err), 0);
+    enum { W = 19, H = 19 };
+    double ref[2][3][W * H], got[3][W * H];
+    mp_span sp[2 * H];
+    size_t at[2 * H];
+    long checked = 0;
+    for (int q = 0; q < 12; q++) {
+        double x = 30.0 + 0.083 * q, y = 40.0 + 0.171 * q;
+        long x0 = star_pixel(&p, x) - 9, y0 = star_pixel(&p, y) - 9;
+        for (int v = 0; v < 2; v++)
+            assert_int_equal(mp_prf_cache_render(&c, &m, x, y, x0, y0, W, H, ref[v][0], ref[v][1],
+                                                 ref[v][2], v ? MP_PRF_BILINEAR : MP_PRF_CUBIC),
+                             0);
+        for (int k = 0; k < MP_PRF_NCORE; k++) {
+            int r = mp_prf_cache_core_radius(k), ns = 0;
+            assert_true(r >= 0);
+            for (int j = H - 1; j >= 0; j--) {      /* rows last to first */
+                int cut = (j * 7 + q + k) % W;
+                if (cut > 0) {
+                    sp[ns] = (mp_span){x0, y0 + j, cut};
+                    at[ns++] = (size_t)j * W;
+                }
+                sp[ns] = (mp_span){x0 + cut, y0 + j, W - cut};
+                at[ns++] = (size_t)j * W + (size_t)cut;
+            }
+            for (int a = 0; a < 3; a++)
+                for (int i = 0; i < W * H; i++)
+                    got[a][i] = NAN;
+            assert_int_equal(mp_prf_cache_render_at(&c, &m, x, y, sp, at, ns, got[0], got[1],
+                                                    got[2], MP_PRF_CORE(k)),
+                             0);
+            for (int j = 0; j < H; j++)
+                for (int i = 0; i < W; i++) {
+                    long ox = x0 + i - star_pixel(&p, x), oy = y0 + j - star_pixel(&p, y);
+                    int in = ox >= -r && ox <= r + 1 && oy >= -r && oy <= r + 1;
+                    for (int a = 0; a < 3; a++)
+                        assert_true(got[a][j * W + i] == ref[!in][a][j * W + i]);
+                    checked++;
+                }
+        }
+    }
+    assert_true(checked == 12L * MP_PRF_NCORE * W * H);
+    mp_prf_cache_free(&c);
+    mp_psf_free(&p);
+
+    /* A variable PSF: Σ c_t·grid_t, each term in the star's mode. */
+    mp_psf_field f;
+    field_planes(&f);
+    mp_psf pf;
+    assert_int_equal(mp_psf_field_eval(&f, f.x0, f.y0, &pf, err), 0);
+    pf.field = &f;
+    mp_prf_model mf = {&pf, NULL, 10};
+    assert_int_equal(mp_prf_cache_build(&mf, 16, &c, err), 0);
+    assert_true(c.nt == 6);
+    double x = 131.37, y = 62.81;
+    long x0 = star_pixel(&pf, x) - 9, y0 = star_pixel(&pf, y) - 9;
+    for (int v = 0; v < 2; v++)
+        assert_int_equal(mp_prf_cache_render(&c, &mf, x, y, x0, y0, W, H, ref[v][0], NULL, NULL,
+                                             v ? MP_PRF_BILINEAR : MP_PRF_CUBIC),
+                         0);
+    assert_int_equal(mp_prf_cache_render(&c, &mf, x, y, x0, y0, W, H, got[0], NULL, NULL,
+                                         MP_PRF_CORE(1)),
+                     0);
+    int r = mp_prf_cache_core_radius(1), differ = 0;
+    for (int j = 0; j < H; j++)
+        for (int i = 0; i < W; i++) {
+            long ox = x0 + i - star_pixel(&pf, x), oy = y0 + j - star_pixel(&pf, y);
+            int in = ox >= -r && ox <= r + 1 && oy >= -r && oy <= r + 1;
+            assert_true(got[0][j * W + i] == ref[!in][0][j * W + i]);
+            differ += ref[0][0][j * W + i] != ref[1][0][j * W + i];
+        }
+    assert_true(differ > W * H / 2);        /* the two interpolations do differ */
+    mp_prf_cache_free(&c);
+    mp_psf_free(&pf);
+    mp_psf_field_free(&f);
+}
+
+/* Each core tier's bound is what its render makes of the exact PRF: at
+ * every cell's centre, Σ (drawn − exact)²/(E·exact + B + RON²) over the
+ * union box, the largest of them, gives mp_prf_cache_bound_core (within
+ * the float storage of the grid's P and δP², 1e-4), as the cubic's gives
+ * mp_prf_cache_bound — a core placed one pixel off the render's would
+ * not.  Each tier's limit holds its bound, within the bins' factor where
+ * their last bin (P down to 0) holds little of the variance: the bound at
+ * twice the limit is above it (q² grows at least as E). */
+static void test_core_tiers_bound(void **state)
+{
+    (void)state;
+    const double E = 2e5, B = 100.0, RON = 3.0;
+    char err[MP_ERRLEN];
+    mp_psf p;
+    table(&p);
+    mp_prf_model m = {&p, NULL, 10};
+    mp_prf_cache c;
+    assert_int_equal(mp_prf_cache_build(&m, 16, &c, err), 0);
+    size_t n = c.npix;
+    double *ex = malloc(n * sizeof *ex), *buf = malloc(n * sizeof *buf), *dr = malloc(n * sizeof *dr);
+    assert_true(ex && buf && dr);
+    mp_prf_work w = {0};
+    int tight = 0;
+    for (int k = -1; k < MP_PRF_NCORE; k++) {
+        int mode = k < 0 ? MP_PRF_CUBIC : MP_PRF_CORE(k);
+        double worst = 0.0;
+        for (int ph = 0; ph < c.nph; ph++) {
+            int ix = ph % c.G, iy = ph / c.G;
+            double x = 40.0 + p.offset + 0.5 + (ix + 0.5) / c.G;
+            double y = 50.0 + p.offset + 0.5 + (iy + 0.5) / c.G;
+            long bx = star_pixel(&p, x) + c.ux0, by = star_pixel(&p, y) + c.uy0, rx, ry;
+            int rw, rh;
+            assert_int_equal(mp_prf_render_window(&m, x, y, bx, by, c.uw, c.uh, &rx, &ry, &rw, &rh,
+                                                  buf, NULL, NULL, &w), 0);
+            memset(ex, 0, n * sizeof *ex);
+            for (int j = 0; j < rh; j++)
+                for (int i = 0; i < rw; i++)
+                    ex[(size_t)(ry - by + j) * c.uw + (size_t)(rx - bx + i)] = buf[(size_t)j * rw + i];
+            assert_int_equal(mp_prf_cache_render(&c, &m, x, y, bx, by, c.uw, c.uh, dr, NULL, NULL,
+                                                 mode), 0);
+            double s = 0.0;
+            for (size_t i = 0; i < n; i++) {
+                double v = E * ex[i] + B + RON * RON;
+                if (v > 0)
+                    s += (dr[i] - ex[i]) * (dr[i] - ex[i]) / v;
+            }
+            worst = fmax(worst, s);
+        }
+        double q = E * sqrt(worst);
+        double b = k < 0 ? mp_prf_cache_bound(&c, E, B, RON) : mp_prf_cache_bound_core(&c, k, E, B, RON);
+        assert_true(q > 0 && fabs(b - q) <= 1e-4 * q);
+        if (k >= 0) {
+            double L = mp_prf_cache_limit_core(&c, k, B, RON, 0.1);
+            assert_true(L > 0 && isfinite(L));
+            assert_true(mp_prf_cache_bound_core(&c, k, L, B, RON) <= 0.1);
+            assert_true(k == 0 || L >= 0.5 * mp_prf_cache_limit_core(&c, k - 1, B, RON, 0.1));
+            /* where the last bin (P down to 0) spreads the variance little */
+            if (2.01 * L * c.pmax * exp2(2 - MP_PRF_CACHE_NBIN) <= 0.1 * (B + RON * RON)) {
+                assert_true(mp_prf_cache_bound_core(&c, k, 2.01 * L, B, RON) > 0.1);
+                tight++;
+            }
+        }
+    }
+    assert_true(tight >= 4);
+    free(ex);
+    free(buf);
+    free(dr);
+    mp_prf_work_free(&w);
+    mp_prf_cache_free(&c);
+    mp_psf_free(&p);
+}
+
+/* A star's mode: the cheapest whose limit holds its flux, and from a
+ * mode, never a cheaper one. */
+static void test_tier_modes(void **state)
+{
+    (void)state;
+    mp_prf_tiers t = {10.0, {20.0, 15.0, 40.0, 0.0, 80.0, 0.0, 0.0, 0.0}};
+    assert_int_equal(mp_prf_tier_mode(&t, 0.0), MP_PRF_BILINEAR);
+    assert_int_equal(mp_prf_tier_mode(&t, -10.0), MP_PRF_BILINEAR);
+    assert_int_equal(mp_prf_tier_mode(&t, 12.0), MP_PRF_CORE(0));
+    assert_int_equal(mp_prf_tier_mode(&t, 30.0), MP_PRF_CORE(2));
+    assert_int_equal(mp_prf_tier_mode(&t, 50.0), MP_PRF_CORE(4));
+    assert_int_equal(mp_prf_tier_mode(&t, 81.0), MP_PRF_CUBIC);
+    assert_int_equal(mp_prf_tier_mode_from(&t, 5.0, MP_PRF_CORE(1)), MP_PRF_CORE(1));
+    assert_int_equal(mp_prf_tier_mode_from(&t, 18.0, MP_PRF_CORE(1)), MP_PRF_CORE(2));
+    assert_int_equal(mp_prf_tier_mode_from(&t, 5.0, MP_PRF_CUBIC), MP_PRF_CUBIC);
+    assert_int_equal(mp_prf_tier_mode(NULL, 1.0), MP_PRF_CUBIC);
+    mp_prf_tiers z = {0};
+    assert_int_equal(mp_prf_tier_mode(&z, 1.0), MP_PRF_CUBIC);
+    assert_int_equal(mp_prf_tier_mode(&z, 0.0), MP_PRF_BILINEAR);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
@@ -726,6 +918,9 @@ int main(void)
         cmocka_unit_test(test_serves_as_the_bound),
         cmocka_unit_test(test_adjoint_is_transpose),
         cmocka_unit_test(test_field_grid_within_bound),
+        cmocka_unit_test(test_core_tiers_compose),
+        cmocka_unit_test(test_core_tiers_bound),
+        cmocka_unit_test(test_tier_modes),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }

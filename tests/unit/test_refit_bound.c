@@ -112,7 +112,7 @@ static int bounds_kept(const mp_frame *f, const mp_prf_model *m, const crop_rule
         ff_update_bounds(f, m, crop, &now, &held, FITRAD, INFINITY, st, NST, gs, ng, NULL, 0), 0);
     assert_ptr_equal(held.grid, now.grid);
     assert_true(held.gemax == now.gemax || (isnan(held.gemax) && isnan(now.gemax)));
-    assert_true(held.glemax == now.glemax);
+    assert_memory_equal(&held.tiers, &now.tiers, sizeof now.tiers);
     int kept = 1, gone = 1;
     for (int k = 0; k < NST; k++) {
         kept &= st[k].bound == before[k];
@@ -121,6 +121,13 @@ static int bounds_kept(const mp_frame *f, const mp_prf_model *m, const crop_rule
     }
     assert_true(kept != gone);
     return kept;
+}
+
+/* A paint rule: grid g up to gemax, bilinearly up to lin, no core tier. */
+static paint_rule rule(const mp_prf_cache *g, double gemax, double lin, int set)
+{
+    paint_rule r = {g, gemax, {lin, {0}}, set};
+    return r;
 }
 
 /* When the bounds hold under another rule: only when it paints every star
@@ -136,28 +143,35 @@ static void paint_rules_checked(const mp_frame *f, const mp_prf_model *m, const 
     }
     double mid = sqrt(Emin * Emax);
     /* No grid: the limit draws nobody another way. */
-    assert_true(bounds_kept(f, m, crop, (paint_rule){NULL, 1e3, 0.0, 1},
-                            (paint_rule){NULL, NAN, 0.0, 1}, st, gs, ng));
+    assert_true(bounds_kept(f, m, crop, rule(NULL, 1e3, 0.0, 1),
+                            rule(NULL, NAN, 0.0, 1), st, gs, ng));
     /* One grid, both limits above every star (or both below). */
-    assert_true(bounds_kept(f, m, crop, (paint_rule){&g1, 2 * Emax, 0.0, 1},
-                            (paint_rule){&g1, 3 * Emax, 0.0, 1}, st, gs, ng));
-    assert_true(bounds_kept(f, m, crop, (paint_rule){&g1, 0.5 * Emin, 0.0, 1},
-                            (paint_rule){&g1, 0.2 * Emin, 0.0, 1}, st, gs, ng));
+    assert_true(bounds_kept(f, m, crop, rule(&g1, 2 * Emax, 0.0, 1),
+                            rule(&g1, 3 * Emax, 0.0, 1), st, gs, ng));
+    assert_true(bounds_kept(f, m, crop, rule(&g1, 0.5 * Emin, 0.0, 1),
+                            rule(&g1, 0.2 * Emin, 0.0, 1), st, gs, ng));
     /* A star between the limits, the grid against none, another grid,
      * bounds never made: none holds. */
-    assert_false(bounds_kept(f, m, crop, (paint_rule){&g1, mid, 0.0, 1},
-                             (paint_rule){&g1, 2 * Emax, 0.0, 1}, st, gs, ng));
-    assert_false(bounds_kept(f, m, crop, (paint_rule){&g1, 2 * Emax, 0.0, 1},
-                             (paint_rule){NULL, 2 * Emax, 0.0, 1}, st, gs, ng));
-    assert_false(bounds_kept(f, m, crop, (paint_rule){&g2, 2 * Emax, 0.0, 1},
-                             (paint_rule){&g1, 2 * Emax, 0.0, 1}, st, gs, ng));
-    assert_false(bounds_kept(f, m, crop, (paint_rule){&g1, 2 * Emax, 0.0, 1},
-                             (paint_rule){&g1, 2 * Emax, 0.0, 0}, st, gs, ng));
+    assert_false(bounds_kept(f, m, crop, rule(&g1, mid, 0.0, 1),
+                             rule(&g1, 2 * Emax, 0.0, 1), st, gs, ng));
+    assert_false(bounds_kept(f, m, crop, rule(&g1, 2 * Emax, 0.0, 1),
+                             rule(NULL, 2 * Emax, 0.0, 1), st, gs, ng));
+    assert_false(bounds_kept(f, m, crop, rule(&g2, 2 * Emax, 0.0, 1),
+                             rule(&g1, 2 * Emax, 0.0, 1), st, gs, ng));
+    assert_false(bounds_kept(f, m, crop, rule(&g1, 2 * Emax, 0.0, 1),
+                             rule(&g1, 2 * Emax, 0.0, 0), st, gs, ng));
     /* The bilinear limit alike: a star between, and none. */
-    assert_false(bounds_kept(f, m, crop, (paint_rule){&g1, 2 * Emax, mid, 1},
-                             (paint_rule){&g1, 2 * Emax, 0.0, 1}, st, gs, ng));
-    assert_true(bounds_kept(f, m, crop, (paint_rule){&g1, 2 * Emax, 2 * Emax, 1},
-                            (paint_rule){&g1, 2 * Emax, 3 * Emax, 1}, st, gs, ng));
+    assert_false(bounds_kept(f, m, crop, rule(&g1, 2 * Emax, mid, 1),
+                             rule(&g1, 2 * Emax, 0.0, 1), st, gs, ng));
+    assert_true(bounds_kept(f, m, crop, rule(&g1, 2 * Emax, 2 * Emax, 1),
+                            rule(&g1, 2 * Emax, 3 * Emax, 1), st, gs, ng));
+    /* A core tier's limit alike: a star drawn within another core under
+     * the one rule than under the other, and every star in the same. */
+    paint_rule a = rule(&g1, 2 * Emax, 0.0, 1), b = a;
+    a.tiers.core[2] = b.tiers.core[3] = 2 * Emax;
+    assert_false(bounds_kept(f, m, crop, a, b, st, gs, ng));
+    b.tiers.core[2] = 3 * Emax;
+    assert_true(bounds_kept(f, m, crop, a, b, st, gs, ng));
 }
 
 /* A scene's run: the Gaussian model, the frame, its stars as they were
@@ -178,7 +192,7 @@ static void summed_case(bound_case *c)
     scene(&c->f, c->st, c->gs, &c->ng, &c->gone);
     memcpy(c->before, c->st, sizeof c->st);
     assert_int_equal(ff_crop_init(&c->f, &c->m, 0.02, &c->crop), 0);
-    paint_rule now = {NULL, NAN, 0.0, 1}, held = now;
+    paint_rule now = rule(NULL, NAN, 0.0, 1), held = now;
     assert_int_equal(ff_update_bounds(&c->f, &c->m, &c->crop, &now, &held, FITRAD, INFINITY, c->st,
                                       NST, c->gs, c->ng, &c->gone, 1), 0);
 }
@@ -250,7 +264,7 @@ static void test_bound_capped_at_tol(void **state)
     summed_case(&c);
     star_state *st = c.st, capped[NST];
     memcpy(capped, c.before, sizeof capped);
-    paint_rule now = {NULL, NAN, 0.0, 1}, held = now;
+    paint_rule now = rule(NULL, NAN, 0.0, 1), held = now;
     double b[NST];
     int nb = 0;
     for (int k = 0; k < NST; k++)
