@@ -397,9 +397,13 @@ int mp_prf_cache_core_radius(int k);
 double mp_prf_cache_bound_core(const mp_prf_cache *c, int k, double E, double B, double ron);
 double mp_prf_cache_limit_core(const mp_prf_cache *c, int k, double B, double ron, double frac);
 
-/* mp_prf_cache_tiers: c's tiers on sky B (mp_prf_cache_limit_lin and
- * mp_prf_cache_limit_core). */
-void mp_prf_cache_tiers(const mp_prf_cache *c, double B, double ron, double frac, mp_prf_tiers *t);
+/* mp_prf_cache_tiers: c's tiers on sky B: mp_prf_cache_limit_core's, and
+ * with exact mp_prf_cache_limit_lin, else the bilinear limit as the
+ * cores' are found, from the bins alone (conservative, and no pixel
+ * summed: mp_prf_cache_limit_lin's sums cost ~1 % of 47 Tuc's run a
+ * call). */
+void mp_prf_cache_tiers(const mp_prf_cache *c, double B, double ron, double frac, int exact,
+                        mp_prf_tiers *t);
 
 /* mp_prf_tier_mode: the cheapest mode whose limit in t holds |E|:
  * MP_PRF_BILINEAR, the least core, else MP_PRF_CUBIC (t NULL: cubic).
@@ -470,7 +474,7 @@ int mp_prf_cache_render_spans(const mp_prf_cache *c, const mp_prf_model *m, doub
 /* mp_prf_cache_render_at: as mp_prf_cache_render_spans, span k's values at
  * index at[k] of each array (at NULL: one span after the other), so that a
  * part of a star's window is rendered in place (lm_render.c's core
- * renders); mode as mp_prf_cache_render's (the bilinear interpolation's derivatives
+ * renders), in mode as mp_prf_cache_render (a bilinear part's derivatives
  * interpolated as well: the grid's, not the interpolant's). */
 int mp_prf_cache_render_at(const mp_prf_cache *c, const mp_prf_model *m, double x, double y,
                            const mp_span *sp, const size_t *at, int ns, double *prf, double *ddx,
@@ -870,7 +874,8 @@ typedef struct {
     long kcache;       /* of them, with the PRF from the phase grid */
     long klin;         /* star fits in them drawn bilinearly (final flux
                         * within the bilinear limit) */
-    long kcore;        /* ... and with a cubic core (within a core tier's) */
+    long kcore;        /* ... and with a cubic core (within a core tier's
+                        * limit) */
     long kstars;       /* star fits in the LM fits */
     double khw;        /* their half-widths, summed */
     long kbounds;      /* the kernel and table choices' cost: bound
@@ -957,10 +962,11 @@ int mp_fit_residual(const mp_frame *f, const mp_prf_model *m, const mp_table *t,
 /* mp_fit_residual_grid: as mp_fit_residual, the stars whose |FLUX_PSF| is
  * at most gemax painted from the phase grid (economy, fit/prf_cache.c: the
  * PRF within its bound of 0.1 σ of such a star's fit, as the fit's own
- * paints of the neighbours draw it); grid NULL: exact renders. */
+ * paints of the neighbours draw it), in the cheaper modes of tiers (NULL:
+ * cubic); grid NULL: exact renders. */
 int mp_fit_residual_grid(const mp_frame *f, const mp_prf_model *m, const mp_table *t,
-                         double cropfrac, const mp_prf_cache *grid, double gemax, float *res,
-                         char *err);
+                         double cropfrac, const mp_prf_cache *grid, double gemax,
+                         const mp_prf_tiers *tiers, float *res, char *err);
 
 /* ---- The run report ------------------------------------------------------ */
 

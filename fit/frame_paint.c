@@ -236,12 +236,12 @@ int ff_crop_init(const mp_frame *f, const mp_prf_model *m, double cropfrac, crop
 int mp_fit_residual(const mp_frame *f, const mp_prf_model *m, const mp_table *t,
                     double cropfrac, float *res, char *err)
 {
-    return mp_fit_residual_grid(f, m, t, cropfrac, NULL, 0.0, res, err);
+    return mp_fit_residual_grid(f, m, t, cropfrac, NULL, 0.0, NULL, res, err);
 }
 
 int mp_fit_residual_grid(const mp_frame *f, const mp_prf_model *m, const mp_table *t,
-                         double cropfrac, const mp_prf_cache *grid, double gemax, float *res,
-                         char *err)
+                         double cropfrac, const mp_prf_cache *grid, double gemax,
+                         const mp_prf_tiers *tiers, float *res, char *err)
 {
     long nx = f->im.nx, ny = f->im.ny;
     int cx = mp_table_col(t, "XPSF_IMAGE"), cy = mp_table_col(t, "YPSF_IMAGE");
@@ -267,6 +267,8 @@ int mp_fit_residual_grid(const mp_frame *f, const mp_prf_model *m, const mp_tabl
     mp_prf_work proto = {0};       /* economy: the grid as the fit's paints use it */
     proto.grid = grid;
     proto.grid_emax = gemax;
+    if (tiers)
+        proto.grid_tiers = *tiers;
     long ncut = 0;
     rc = rc || paint_frame(m, ps, n, &crop, -1.0, &proto, res, nx, ny, &ncut);
     free(st);

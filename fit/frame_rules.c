@@ -189,7 +189,7 @@ static double grid_limit(const mp_prf_cache *g, double sky, double ron, double f
     }
     if (ng > MP_SINC_LIMITS_EVALS) {
         charge(cost, 2 * MP_SINC_LIMITS_EVALS, g, ECON_LIM_GRID);
-        mp_prf_cache_tiers(g, sky, ron, frac, tiers);
+        mp_prf_cache_tiers(g, sky, ron, frac, 1, tiers);
         return mp_prf_cache_limit(g, sky, ron, frac);
     }
     return NAN;

@@ -319,15 +319,15 @@ int mp_prf_cache_core_radius(int k)
     return k >= 0 && k < MP_PRF_NCORE ? core_radius[k] : -1;
 }
 
-/* Whether union-box pixel (i, j) of c lies in core k: both its offsets
- * from the star's whole pixel (kq; the star within [kq + ½, kq + 3/2))
- * within [−r, r + 1]. */
+/* Whether a pixel's offset along one axis from the star's whole pixel
+ * (axis_pos.kq = ⌊x − offset − ½⌋) lies in a core of radius r: within
+ * [−r, r + 1], about the star (a pixel is in the core when both are). */
 static inline int in_core(long off, int r)
 {
     return off >= -r && off <= r + 1;
 }
 
-/* A core tier's render (mode 2 + kc): each span cut where it crosses the
+/* A core tier's render (MP_PRF_CORE(k)): each span cut where it crosses the
  * core's columns, the parts in the core drawn by cubic_spans, the rest by
  * bilinear_spans, each part to its own place of the outputs; up to CHUNK
  * spans at a time. */
@@ -1125,9 +1125,10 @@ double mp_prf_cache_limit_core(const mp_prf_cache *c, int k, double B, double ro
     return k >= 0 && k < MP_PRF_NCORE ? limit_of(c, 2 + k, B, ron, frac, 0) : 0.0;
 }
 
-void mp_prf_cache_tiers(const mp_prf_cache *c, double B, double ron, double frac, mp_prf_tiers *t)
+void mp_prf_cache_tiers(const mp_prf_cache *c, double B, double ron, double frac, int exact,
+                        mp_prf_tiers *t)
 {
-    t->lin = mp_prf_cache_limit_lin(c, B, ron, frac);
+    t->lin = limit_of(c, MP_PRF_BILINEAR, B, ron, frac, exact);
     for (int k = 0; k < MP_PRF_NCORE; k++)
         t->core[k] = mp_prf_cache_limit_core(c, k, B, ron, frac);
 }

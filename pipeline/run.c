@@ -163,12 +163,15 @@ static void count_fit(mp_pipeline_report *rep, const mp_frame_report *fr, size_t
  * s a round against the fit's 37; after the PSF's second pass, with no
  * fit yet on the new table, the 256² crop's search 0.24 → 1.32 s). */
 
-const mp_prf_cache *mp_run_phase_grid(run_state *s, double *gemax, double *glemax)
+const mp_prf_cache *mp_run_phase_grid(run_state *s, double *gemax, double *glemax,
+                                      mp_prf_tiers *tiers)
 {
     char err[MP_ERRLEN];         /* a failed build leaves the exact renders */
     *gemax = 0.0;
     if (glemax)
         *glemax = 0.0;
+    if (tiers)
+        memset(tiers, 0, sizeof *tiers);
     mp_frame_opts oe = s->fit->opts;
     if (!oe.cache)
         return NULL;
@@ -185,6 +188,8 @@ const mp_prf_cache *mp_run_phase_grid(run_state *s, double *gemax, double *glema
     *gemax = mp_prf_cache_limit(oe.grid, sky, s->f.rdnoise, oe.sincfrac);
     if (glemax)
         *glemax = mp_prf_cache_limit_lin(oe.grid, sky, s->f.rdnoise, oe.sincfrac);
+    if (tiers)
+        mp_prf_cache_tiers(oe.grid, sky, s->f.rdnoise, oe.sincfrac, 0, tiers);
     return oe.grid;
 }
 
@@ -235,9 +240,10 @@ int mp_run_group_and_fit(run_state *s, int round, int once, char *err)
     mp_table_free(&s->before);   /* not held through the residual (issue 14) */
     mp_table_init(&s->before);
     double gemax;
-    const mp_prf_cache *grid = mp_run_phase_grid(s, &gemax, NULL);
+    mp_prf_tiers tiers;
+    const mp_prf_cache *grid = mp_run_phase_grid(s, &gemax, NULL, &tiers);
     if (mp_fit_residual_grid(&s->f, &s->fit->model, &s->t, s->fit->opts.cropfrac, grid, gemax,
-                             s->res, err))
+                             &tiers, s->res, err))
         return 1;
     s->rep->t_fit += mp_seconds() - t0;
     count_fit(s->rep, &fr, s->t.nrow);
@@ -363,7 +369,7 @@ static int find_on_residual(run_state *s, int round, long *added, char *err)
         mp_pl_star_excess(&s->f, &s->bkg, &s->t, &s->fit->model, &nz.nring, &nz.nexcess, err))
         return 1;
     double gemax, glemax;
-    const mp_prf_cache *grid = mp_run_phase_grid(s, &gemax, &glemax);
+    const mp_prf_cache *grid = mp_run_phase_grid(s, &gemax, &glemax, NULL);
     if (residual_detections(s, &R, grid, gemax, err) ||
         split_and_add(s, grid, gemax, glemax, added, err))
         return 1;
@@ -525,10 +531,11 @@ static int redraw_residual(run_state *s, double sum1, char *err)
     if (cf >= 0 && sum1 > 0 && s->psf.sum > 0 && s->psf.sum != sum1)
         for (size_t r = 0; r < s->t.nrow; r++)
             mp_table_set(&s->t, r, cf, mp_table_get(&s->t, r, cf) * sum1 / s->psf.sum);
-    const mp_prf_cache *grid = mp_run_phase_grid(s, &gemax, NULL);
+    mp_prf_tiers tiers;
+    const mp_prf_cache *grid = mp_run_phase_grid(s, &gemax, NULL, &tiers);
     s->grid = grid;             /* the residual search's, as a fit's would be */
     int rc = mp_fit_residual_grid(&s->f, &s->fit->model, &s->t, s->fit->opts.cropfrac, grid,
-                                  gemax, s->res, err);
+                                  gemax, &tiers, s->res, err);
     s->rep->t_fit += mp_seconds() - t0;
     return rc;
 }

@@ -317,9 +317,10 @@ static int pair_build(run_state *s, table_pair *tp, int i, const char *path, cha
 static int held_out_frame(run_state *s, const mp_table *rest, float *pix, char *err)
 {
     double gemax;
-    const mp_prf_cache *grid = mp_run_phase_grid(s, &gemax, NULL);
+    mp_prf_tiers tiers;
+    const mp_prf_cache *grid = mp_run_phase_grid(s, &gemax, NULL, &tiers);
     if (mp_fit_residual_grid(&s->f, &s->fit->model, rest, s->fit->opts.cropfrac, grid, gemax,
-                             pix, err))
+                             &tiers, pix, err))
         return 1;
     size_t npix = (size_t)s->f.im.nx * (size_t)s->f.im.ny;
     for (size_t i = 0; i < npix; i++)

@@ -68,8 +68,11 @@ int mp_run_group_and_fit(run_state *s, int round, int once, char *err);
 /* mp_run_phase_grid: the phase grid the fit draws its groups' PRFs from,
  * and its flux limit in *gemax (NULL: exact renders); with glemax, its
  * bilinear interpolation's limit there too (each costs the grid's bound
- * summed over its cells at a few fluxes: ~1 % of 47 Tuc's run a call). */
-const mp_prf_cache *mp_run_phase_grid(run_state *s, double *gemax, double *glemax);
+ * summed over its cells at a few fluxes: ~1 % of 47 Tuc's run a call);
+ * with tiers, the cheaper modes' limits from the bins alone (no pixel
+ * summed: mp_prf_cache_tiers), for the residual's paint. */
+const mp_prf_cache *mp_run_phase_grid(run_state *s, double *gemax, double *glemax,
+                                      mp_prf_tiers *tiers);
 
 /* ---- run_psf.c ---------------------------------------------------------- */
 

@@ -143,7 +143,7 @@ static int fit_all(const mp_frame *f, const psf_task *t, mp_table *found,
     if (!rc)
         rc = grid ? mp_fit_residual_grid(f, m, found, 0.0, grid,
                                          mp_prf_cache_limit(grid, 0.0, f->rdnoise, fo.sincfrac),
-                                         res, err)
+                                         NULL, res, err)
                   : mp_fit_residual(f, m, found, 0.0, res, err);
     mp_econ_cache_free(fo.cache);
     return rc;
