@@ -840,6 +840,16 @@ int mp_econ_offer(mp_econ_cache *c, const mp_prf_model *m, int nlev, const int *
 int mp_econ_choose(mp_econ_cache *c, double fits, double fitrad, mp_frame_opts *o,
                    double *spent, char *err);
 
+/* mp_econ_grid_limits: the flux limits of phase grid g on sky level sky,
+ * computed once a run in cache as the frame fit's own are: the sky
+ * rounded down to a quarter octave (a lower limit, so one that holds on
+ * sky itself), the cubic interpolation's into *emax, the bilinear one's
+ * and the core tiers' into *tiers (either may be NULL).  Nonzero, and
+ * nothing set, when cache or g is NULL, the cache is full or out of
+ * memory. */
+int mp_econ_grid_limits(mp_econ_cache *cache, const mp_prf_cache *g, double sky, double ron,
+                        double frac, double *emax, mp_prf_tiers *tiers);
+
 /* mp_econ_learn: add ops (multiply-adds of the exact table renders the
  * run's fits have done) to what mp_econ_choose counts for options with
  * learn set: a table is also built once that work, times the fraction of

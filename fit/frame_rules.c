@@ -122,6 +122,25 @@ static double cache_sky(double sky)
     return sky > 1.0 ? exp2(floor(4.0 * log2(sky)) / 4.0) : 0.0;
 }
 
+int mp_econ_grid_limits(mp_econ_cache *cache, const mp_prf_cache *g, double sky, double ron,
+                        double frac, double *emax, mp_prf_tiers *tiers)
+{
+    mp_frame_report cost;
+    memset(&cost, 0, sizeof cost);
+    const double *e = cache && g ? cached_limits(cache, g, ECON_LIM_GRID, cache_sky(sky), ron,
+                                                 frac, &cost)
+                                 : NULL;
+    if (!e)
+        return 1;
+    if (emax)
+        *emax = e[0];
+    if (tiers) {
+        tiers->lin = e[1];
+        memcpy(tiers->core, e + 2, sizeof tiers->core);
+    }
+    return 0;
+}
+
 /* A rule on the frame's sky: the limits from the run's cache (the sky
  * rounded down) when the run's fits (runfits: its groups, at most) number
  * more than the limits cost evaluations, else the frame's own limits table

@@ -185,11 +185,15 @@ const mp_prf_cache *mp_run_phase_grid(run_state *s, double *gemax, double *glema
             return NULL;
     }
     double sky = mp_pl_median_positive(&s->t, "SKY_PSF");
-    *gemax = mp_prf_cache_limit(oe.grid, sky, s->f.rdnoise, oe.sincfrac);
+    mp_prf_tiers t;
+    if (mp_econ_grid_limits(oe.cache, oe.grid, sky, s->f.rdnoise, oe.sincfrac, gemax, &t)) {
+        *gemax = mp_prf_cache_limit(oe.grid, sky, s->f.rdnoise, oe.sincfrac);
+        mp_prf_cache_tiers(oe.grid, sky, s->f.rdnoise, oe.sincfrac, glemax != NULL, &t);
+    }
     if (glemax)
-        *glemax = mp_prf_cache_limit_lin(oe.grid, sky, s->f.rdnoise, oe.sincfrac);
+        *glemax = t.lin;
     if (tiers)
-        mp_prf_cache_tiers(oe.grid, sky, s->f.rdnoise, oe.sincfrac, 0, tiers);
+        *tiers = t;
     return oe.grid;
 }
 

@@ -67,10 +67,11 @@ int mp_run_group_and_fit(run_state *s, int round, int once, char *err);
 
 /* mp_run_phase_grid: the phase grid the fit draws its groups' PRFs from,
  * and its flux limit in *gemax (NULL: exact renders); with glemax, its
- * bilinear interpolation's limit there too (each costs the grid's bound
- * summed over its cells at a few fluxes: ~1 % of 47 Tuc's run a call);
- * with tiers, the cheaper modes' limits from the bins alone (no pixel
- * summed: mp_prf_cache_tiers), for the residual's paint. */
+ * bilinear interpolation's limit there too; with tiers, the cheaper
+ * modes' limits, for the residual's paint.  On the table's median sky,
+ * from the run's cache of limits (mp_econ_grid_limits: the sky rounded
+ * down, each limit found once a run; found afresh at each call, the
+ * limits cost ~1 % of 47 Tuc's run a call), else found here. */
 const mp_prf_cache *mp_run_phase_grid(run_state *s, double *gemax, double *glemax,
                                       mp_prf_tiers *tiers);
 

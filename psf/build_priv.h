@@ -39,6 +39,8 @@ enum { MP_EPSF_MASKED = 1, MP_EPSF_HIT = 2 };
 typedef struct {
     mp_psf tab;            /* order 0: the table; else the last star's */
     mp_prf_cache grid;     /* order 0: tab's phase grid (G 0: none) */
+    mp_prf_tiers tiers;    /* its cheaper modes' limits on the least sky of
+                            * the used stars (zeroed: cubic) */
     int order0;            /* tab is every star's table */
     int mode;              /* mp_epsf_opts.grid */
     int fine;              /* the last grid was MP_PRF_CACHE_G's */

@@ -112,6 +112,8 @@ static int fit_star(mp_epsf_star *s, const mp_epsf *e, const mp_epsf_opts *o,
     mp_fit_opts fo;
     mp_fit_opts_default(&fo);
     fo.grid = mp_epsf_fitter_grid(z, s);
+    if (fo.grid)
+        fo.grid_tiers = z->tiers;
     if (early)
         fo.tol = EARLY_TOL;
     fo.crop = z->order0 && z->crop.env ? &z->crop : NULL;

@@ -67,6 +67,21 @@ static double unserved(const mp_epsf_fitter *z, const mp_epsf_star *s, size_t n)
     return r;
 }
 
+/* The grid's cheaper modes (fit/prf_cache.c: bilinear, and cubic within
+ * a core only) for the stars' fits: their limits on the least sky of the
+ * used stars, where they are lowest, so that they hold on every star's
+ * (from the bins alone: no pixel summed, mp_prf_cache_tiers). */
+static void set_tiers(mp_epsf_fitter *z, const mp_epsf_star *s, size_t n)
+{
+    memset(&z->tiers, 0, sizeof z->tiers);
+    double sky = INFINITY;
+    for (size_t k = 0; k < n; k++)
+        if (s[k].used)
+            sky = fmin(sky, fmax(s[k].sky, 0.0));
+    if (z->grid.G > 0 && isfinite(sky))
+        mp_prf_cache_tiers(&z->grid, sky, s[0].f.rdnoise, MP_EPSF_GRID_FRAC, 0, &z->tiers);
+}
+
 /* The grid is built when the fits it would serve need more renders than it
  * costs: first at MP_EPSF_GRID_G phases (a quarter of the fit's nodes per
  * axis at ×4: the cubic's error grows 16-fold, and a PSF star's bound
@@ -100,6 +115,7 @@ int mp_epsf_fitter_set(mp_epsf_fitter *z, const mp_epsf *e, const mp_epsf_star *
         rc = mp_prf_cache_build_reusing(&m, G, &z->grid, &spare, err);
         z->fine = G == MP_PRF_CACHE_G;
     }
+    set_tiers(z, s, n);
     mp_prf_cache_free(&spare);
     return rc;
 }

@@ -903,6 +903,40 @@ static void test_tier_modes(void **state)
     assert_int_equal(mp_prf_tier_mode(&z, 0.0), MP_PRF_BILINEAR);
 }
 
+/* The run's cache of a grid's flux limits (mp_econ_grid_limits): each on
+ * the sky rounded down to a quarter octave, the same limits the grid's own
+ * functions find there, no higher than on the sky itself; found once
+ * (the second ask gives the same); no cache, no limits. */
+static void test_grid_limits_cached(void **state)
+{
+    (void)state;
+    const double B = 150.0, RON = 3.0;
+    char err[MP_ERRLEN];
+    mp_psf p;
+    table(&p);
+    mp_prf_model m = {&p, NULL, 10};
+    mp_prf_cache c;
+    assert_int_equal(mp_prf_cache_build(&m, 16, &c, err), 0);
+    mp_econ_cache *cache = mp_econ_cache_new();
+    assert_non_null(cache);
+    double e1 = -1, e2 = -1, Bq = exp2(floor(4.0 * log2(B)) / 4.0);
+    assert_true(Bq <= B && Bq > 0.8 * B);
+    mp_prf_tiers t1, t2;
+    assert_int_equal(mp_econ_grid_limits(cache, &c, B, RON, 0.1, &e1, &t1), 0);
+    assert_true(e1 == mp_prf_cache_limit(&c, Bq, RON, 0.1));
+    assert_true(e1 <= mp_prf_cache_limit(&c, B, RON, 0.1));
+    assert_true(t1.lin == mp_prf_cache_limit_lin(&c, Bq, RON, 0.1));
+    for (int k = 0; k < MP_PRF_NCORE; k++)
+        assert_true(t1.core[k] == mp_prf_cache_limit_core(&c, k, Bq, RON, 0.1));
+    assert_int_equal(mp_econ_grid_limits(cache, &c, B * 1.01, RON, 0.1, &e2, &t2), 0);
+    assert_true(e2 == e1);
+    assert_memory_equal(&t1, &t2, sizeof t1);
+    assert_int_not_equal(mp_econ_grid_limits(NULL, &c, B, RON, 0.1, &e2, NULL), 0);
+    mp_econ_cache_free(cache);
+    mp_prf_cache_free(&c);
+    mp_psf_free(&p);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
@@ -921,6 +955,7 @@ int main(void)
         cmocka_unit_test(test_core_tiers_compose),
         cmocka_unit_test(test_core_tiers_bound),
         cmocka_unit_test(test_tier_modes),
+        cmocka_unit_test(test_grid_limits_cached),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }
