@@ -499,11 +499,10 @@ static int fit_orders(group *G, const mp_fit_opts *o, const mp_star *stars, doub
 
 /* A fit that stopped unconverged with stars drawn bilinearly (or beyond
  * a cubic core), continued from where it stopped with every star drawn
- * cubically: the bilinear
- * PRF bends at every grid phase (its derivatives are the grid's, smooth),
- * which can keep LM's last steps from meeting tol (GLIMPSE built: a
- * 28-star group at maxiter that converged cubically).  Nonzero when out
- * of memory. */
+ * cubically: the bilinear PRF bends at every grid phase (its derivatives
+ * are the grid's, smooth), which can keep LM's last steps from meeting
+ * tol (GLIMPSE built: a 28-star group at maxiter that converged
+ * cubically).  Nonzero when out of memory. */
 static int cubic_again(group *G, const mp_fit_opts *o, int *iter, int *converged)
 {
     if (*converged || G->paired)
