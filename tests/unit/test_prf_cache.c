@@ -719,6 +719,15 @@ static long star_pixel(const mp_psf *p, double x)
     return (long)floor(x - p->offset - 0.5);
 }
 
+/* table()'s model *m and its grid at 16 phases a pixel into *c. */
+static void gauss_grid(mp_psf *p, mp_prf_model *m, mp_prf_cache *c)
+{
+    char err[MP_ERRLEN];
+    table(p);
+    *m = (mp_prf_model){p, NULL, 10};
+    assert_int_equal(mp_prf_cache_build(m, 16, c, err), 0);
+}
+
 /* Each core tier's render, at 12 positions over all phases, is the cubic
  * render on the pixels whose offsets from the star's whole pixel lie
  * within [−r, r + 1] on both axes and the bilinear render elsewhere, bit
@@ -730,10 +739,9 @@ static void test_core_tiers_compose(void **state)
     (void)state;
     char err[MP_ERRLEN];
     mp_psf p;
-    table(&p);
-    mp_prf_model m = {&p, NULL, 10};
+    mp_prf_model m;
     mp_prf_cache c;
-    assert_int_equal(mp_prf_cache_build(&m, 16, &c, err), 0);
+    gauss_grid(&p, &m, &c);
     enum { W = 19, H = 19 };
     double ref[2][3][W * H], got[3][W * H];
     mp_span sp[2 * H];
@@ -822,12 +830,10 @@ static void test_core_tiers_bound(void **state)
 {
     (void)state;
     const double E = 2e5, B = 100.0, RON = 3.0;
-    char err[MP_ERRLEN];
     mp_psf p;
-    table(&p);
-    mp_prf_model m = {&p, NULL, 10};
+    mp_prf_model m;
     mp_prf_cache c;
-    assert_int_equal(mp_prf_cache_build(&m, 16, &c, err), 0);
+    gauss_grid(&p, &m, &c);
     size_t n = c.npix;
     double *ex = malloc(n * sizeof *ex), *buf = malloc(n * sizeof *buf), *dr = malloc(n * sizeof *dr);
     assert_true(ex && buf && dr);
@@ -911,12 +917,10 @@ static void test_grid_limits_cached(void **state)
 {
     (void)state;
     const double B = 150.0, RON = 3.0;
-    char err[MP_ERRLEN];
     mp_psf p;
-    table(&p);
-    mp_prf_model m = {&p, NULL, 10};
+    mp_prf_model m;
     mp_prf_cache c;
-    assert_int_equal(mp_prf_cache_build(&m, 16, &c, err), 0);
+    gauss_grid(&p, &m, &c);
     mp_econ_cache *cache = mp_econ_cache_new();
     assert_non_null(cache);
     double e1 = -1, e2 = -1, Bq = exp2(floor(4.0 * log2(B)) / 4.0);
