@@ -950,9 +950,6 @@ static const double *bins_of(const mp_prf_cache *c, int mode)
     return mode ? c->d2lbin : c->d2bin;
 }
 
-/* The bound over the cells, leaving out those whose sum over bins with
- * the variances inv_lo (serves_of's upper bounds of their sums) is at
- * most cut (inv_lo NULL: none left out). */
 /* One cell's Σ δP²/v of a core tier: the cubic's δP² (d) within the
  * core's rows and columns, the bilinear's (dl) elsewhere. */
 static double core_sum(const mp_prf_cache *c, int r, const float *p, const float *d,
@@ -971,6 +968,9 @@ static double core_sum(const mp_prf_cache *c, int r, const float *p, const float
     return s;
 }
 
+/* The bound of mode over the cells, leaving out those whose sum over
+ * bins with the variances inv_lo (serves_of's upper bounds of their sums)
+ * is at most cut (inv_lo NULL: none left out). */
 static double bound_over(const mp_prf_cache *c, int mode, double E, double B, double ron,
                          const double *inv_lo, double cut)
 {
