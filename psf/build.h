@@ -94,6 +94,11 @@ typedef struct {
                         * of the same size (psf/star_model.c): set by
                         * mp_epsf_pass for its builds; NULL (the
                         * default): none */
+    int frame_nb;      /* the stars' neighbours as a fit of the frame with
+                        * the table the pass starts from placed them (a
+                        * pass on the residual: set by mp_epsf_pass), so
+                        * held in the stars' last fit as well; 0 (the
+                        * default): fitted again there */
 } mp_epsf_opts;
 
 /* mp_epsf_opts_default: os auto, psfrad 4·fwhm, fitrad 2·fwhm, order auto,

@@ -83,9 +83,9 @@ static int start_planes(const mp_epsf_opts *o, int os, int order, mp_epsf *e, in
 }
 
 /* The LM's tol (× each parameter's σ) for the stars' fits of a build's
- * rounds before the stars' clip (its rounds 0 and 1): the table they are
- * fitted against moves more in the round's SIRT steps than anything the
- * fit could settle (47 Tuc 512²: the cold ×4 halves' χ² 2.3·10⁸ →
+ * rounds before the stars' clip (rounds 0 and 1 from a Gaussian): the
+ * table they are fitted against moves more in the round's SIRT steps than
+ * anything the fit could settle (47 Tuc 512²: the cold ×4 halves' χ² 2.3·10⁸ →
  * 5.5·10⁷ over round 0), so the default's 1e-3 (mp_fit_opts_default,
  * which the later rounds and the stars' last fit keep) only bought
  * steps: ~9 a fit of 12 stars there against ~5.  The build's decisions
@@ -122,6 +122,8 @@ static int fit_star(mp_epsf_star *s, const mp_epsf *e, const mp_epsf_opts *o,
     fo.sky_order = 0;
     fo.fitrad = o->fitrad;
     fo.fit_sky = 0;             /* the annulus's (mp_epsf_cutouts) */
+    fo.stats = 0;               /* its PRF's statistics and model errors unread
+                                 * here: an exact render of each star a fit */
     mp_star st[1 + MP_EPSF_MAXNB];
     memset(st, 0, sizeof st);
     double ox = (double)(s->x0 - 1), oy = (double)(s->y0 - 1);
@@ -251,7 +253,9 @@ int mp_epsf_rounds(mp_epsf_star *s, size_t n, const mp_epsf_opts *o, int os, int
     int cold;
     if (start_planes(o, os, order, e, &cold, err))
         return 1;
-    int hold_from = cold ? 2 : 1;
+    /* The round from which the neighbours are held and the stars' clip
+     * runs, and the first the χ² rule may end (below). */
+    int held_from = cold ? 2 : 0, stop_from = cold ? 2 : 1;
     for (size_t k = 0; k < n; k++)
         s[k].used = !s[k].skip;
     mp_epsf_sirt w;
@@ -270,14 +274,21 @@ int mp_epsf_rounds(mp_epsf_star *s, size_t n, const mp_epsf_opts *o, int os, int
         if (mp_epsf_fitter_set(&z, e, s, n, err))
             goto done;
         /* The neighbours are fitted with their star while the table is
-         * far from made (the first round of a build from a table already
-         * made, the first two from a Gaussian: held from its round 1, a
-         * bright companion's fit to the Gaussian spoils the table,
-         * test_psf_build's test_neighbours_fitted) and in the stars' last
-         * fit (mp_epsf_refit); the rounds between hold them. */
-        if (fit_stars(s, n, e, o, &z, it >= hold_from, it < 2, err))
+         * far from made (the first two rounds from a Gaussian: held from
+         * its round 1, a bright companion's fit to the Gaussian spoils the
+         * table, test_psf_build's test_neighbours_fitted) and in the
+         * stars' last fit (mp_epsf_refit); the rounds between hold them.
+         * A build from a table already made (the second pass, an order
+         * raised) holds them from its first round: their last fit was
+         * with that table (the frame's fit, or the last build's stars'
+         * last fit), and fitting them again there was a quarter of 47
+         * Tuc's second pass.  Placed by the frame's fit (o->frame_nb),
+         * they are held in the stars' last fit as well: a fit of each
+         * with its star on the cut-out, as good at best, was another
+         * quarter (its fits five times the held ones'). */
+        if (fit_stars(s, n, e, o, &z, it >= held_from, it < held_from, err))
             goto done;
-        if (it >= 2)
+        if (it >= held_from)
             reject_chi2(s, n, tmp);
         size_t m = count_used(s, n);
         if (m < (size_t)(2 * e->nterms + 1)) {
@@ -288,11 +299,13 @@ int mp_epsf_rounds(mp_epsf_star *s, size_t n, const mp_epsf_opts *o, int os, int
         if (mp_epsf_sirt_run(&w, s, n, o, e, err))
             goto done;
         mp_epsf_normalise(e, o->fwhm, o->support);
-        /* The SIRT's own rule, one level up: once the stars' clip has run
-         * (it 2), a round of fits and steps that no longer lowers χ² by
-         * one fits only noise.  A build that starts from a table already
-         * made (the ×2 rebuild, the second pass) mostly stops at it 2. */
-        if (it >= 2 && !(prev - w.chi2 >= 1.0))
+        /* The SIRT's own rule, one level up: once the stars' clip has run,
+         * a round of fits and steps that no longer lowers χ² by one fits
+         * only noise.  From a Gaussian that is tested from round 2 on
+         * (against round 1, whose neighbours were fitted), from a table
+         * already made from round 1 (against round 0, held as well): such
+         * a build mostly stops there. */
+        if (it >= stop_from && !(prev - w.chi2 >= 1.0))
             break;
         prev = w.chi2;
     }
@@ -319,7 +332,7 @@ int mp_epsf_refit(mp_epsf_star *s, size_t n, const mp_epsf_opts *o, mp_epsf *e, 
 {
     mp_epsf_fitter z;
     mp_epsf_fitter_start(&z, o->grid, o->spare);
-    int rc = mp_epsf_fitter_set(&z, e, s, n, err) || fit_stars(s, n, e, o, &z, 0, 0, err);
+    int rc = mp_epsf_fitter_set(&z, e, s, n, err) || fit_stars(s, n, e, o, &z, o->frame_nb, 0, err);
     e->nstar = (int)count_used(s, n);
     e->fits += z.fits;
     e->fits_grid += z.fits_grid;

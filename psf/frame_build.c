@@ -387,6 +387,7 @@ int mp_epsf_pass(const mp_frame *f, const float *img, int residual, const mp_tab
     memset(&spare, 0, sizeof spare);
     mp_epsf_opts po = *oin;
     po.spare = po.spare ? po.spare : &spare;
+    po.frame_nb = residual && fitted && m;
     const mp_epsf_opts *o = &po;
     mp_epsf_star *s = NULL;
     double *sky = malloc((n + 1) * sizeof *sky);
