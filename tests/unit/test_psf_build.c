@@ -854,6 +854,54 @@ static void companion_scene(double grad, mp_frame *f, tstar *ts, tstar *cs, mp_e
     neighbour_table(ts, cs, t);
 }
 
+/* e's table (built from the stars s of f, ts their truth) against the
+ * truth: χ²/px of its PRF (prf_chi2, *np pixels); with growth, its
+ * PSFSUM by the growth curve to rad px must be what the fluxes lack
+ * (flux_ratio), within 3 σ of its and their median's errors combined
+ * (false failure 0.3 %). */
+static double table_check(const char *what, const mp_frame *f, mp_epsf_star *s, const tstar *ts,
+                          const mp_psf *truth, double rad, int growth, mp_epsf *e, int *np)
+{
+    char err[MP_ERRLEN];
+    mp_psf built;
+    memset(&built, 0, sizeof built);
+    assert_int_equal(mp_epsf_table(e, e->x0, e->y0, &built, err), 0);
+    double chi2 = prf_chi2(&built, truth, ts, 1.0, np);
+    mp_psf_free(&built);
+    if (!growth)
+        return chi2;
+    assert_int_equal(mp_epsf_growth(f, f->im.pix, NULL, NULL, s, NSTAR, rad, 10.0, e, err), 0);
+    double want = flux_ratio(s, ts), werr = flux_ratio_err(s, ts);
+    printf("# %s: growth sum %.4f +- %.4f from %d stars; fluxes' median ratio %.4f +- %.4f\n",
+           what, e->sum, e->sum_err, e->ngrowth, want, werr);
+    assert_true(e->ngrowth >= 3);
+    assert_true(fabs(e->sum - want) < 3.0 * hypot(e->sum_err, werr));
+    return chi2;
+}
+
+/* companion_scene(0) with the truth's table to its 6 px. */
+typedef struct {
+    mp_frame f;
+    tstar ts[NSTAR], cs[NSTAR];
+    mp_epsf_opts o;
+    mp_table t;
+    mp_psf truth;
+} companions;
+
+static void companions_make(companions *c)
+{
+    companion_scene(0.0, &c->f, c->ts, c->cs, &c->o, &c->t);
+    truth_table(0.0, 0, 0.0, c->o.psfrad, &c->truth);
+}
+
+static void companions_free(companions *c)
+{
+    mp_table_free(&c->t);
+    mp_psf_free(&c->truth);
+    free(c->f.im.pix);
+    free(c->f.mask);
+}
+
 /* Stars with a companion inside their table: fitted with it (the
  * neighbours of mp_epsf_neighbours), the build recovers the truth within
  * the noise (CHI2_TOL, as the lone stars'); built as if alone, the
@@ -866,42 +914,23 @@ static void companion_scene(double grad, mp_frame *f, tstar *ts, tstar *cs, mp_e
 static void test_neighbours_fitted(void **state)
 {
     (void)state;
-    const double rad = 6.0;
-    mp_frame f;
-    tstar ts[NSTAR], cs[NSTAR];
-    mp_epsf_opts o;
-    mp_table t;
-    companion_scene(0.0, &f, ts, cs, &o, &t);
-    mp_psf truth;
-    truth_table(0.0, 0, 0.0, rad, &truth);
+    companions c;
+    companions_make(&c);
+    const double rad = c.o.psfrad;
     char err[MP_ERRLEN];
     double chi2[2];
     int np;
     for (int with = 0; with < 2; with++) {
-        mp_epsf_star *s = stars_of(&f, ts, &o);
+        mp_epsf_star *s = stars_of(&c.f, c.ts, &c.o);
         if (with) {
-            assert_int_equal(mp_epsf_neighbours(s, NSTAR, &t, NULL, o.psfrad, err), 0);
+            assert_int_equal(mp_epsf_neighbours(s, NSTAR, &c.t, NULL, c.o.psfrad, err), 0);
             for (int k = 0; k < NSTAR; k++)
                 assert_int_equal(s[k].nnb, 1);
         }
         mp_epsf e;
         memset(&e, 0, sizeof e);
-        mp_psf built;
-        memset(&built, 0, sizeof built);
-        assert_int_equal(mp_epsf_build(s, NSTAR, &o, BOS, 0, &e, err), 0);
-        assert_int_equal(mp_epsf_table(&e, o.x0, o.y0, &built, err), 0);
-        chi2[with] = prf_chi2(&built, &truth, ts, 1.0, &np);
-        if (with) {
-            assert_int_equal(mp_epsf_growth(&f, f.im.pix, NULL, NULL, s, NSTAR, rad, 10.0, &e, err),
-                             0);
-            double want = flux_ratio(s, ts);
-            double werr = flux_ratio_err(s, ts);
-            printf("# companions: growth sum %.4f +- %.4f from %d stars; fluxes' median ratio "
-                   "%.4f +- %.4f\n", e.sum, e.sum_err, e.ngrowth, want, werr);
-            assert_true(e.ngrowth >= 3);
-            assert_true(fabs(e.sum - want) < 3.0 * hypot(e.sum_err, werr));
-        }
-        mp_psf_free(&built);
+        assert_int_equal(mp_epsf_build(s, NSTAR, &c.o, BOS, 0, &e, err), 0);
+        chi2[with] = table_check("companions", &c.f, s, c.ts, &c.truth, rad, with, &e, &np);
         mp_epsf_free(&e);
         mp_epsf_stars_free(s, NSTAR);
     }
@@ -909,10 +938,7 @@ static void test_neighbours_fitted(void **state)
            np);
     assert_true(chi2[1] < CHI2_TOL);
     assert_true(chi2[0] > 30.0);
-    mp_table_free(&t);
-    mp_psf_free(&truth);
-    free(f.im.pix);
-    free(f.mask);
+    companions_free(&c);
 }
 
 /* A build from a table already made (the pipeline's second pass, on the
@@ -929,47 +955,30 @@ static void test_neighbours_fitted(void **state)
 static void test_warm_build_holds_frame_neighbours(void **state)
 {
     (void)state;
-    const double rad = 6.0;
-    mp_frame f;
-    tstar ts[NSTAR], cs[NSTAR];
-    mp_epsf_opts o;
-    mp_table t;
-    companion_scene(0.0, &f, ts, cs, &o, &t);
-    mp_psf truth;
-    truth_table(0.0, 0, 0.0, rad, &truth);
+    companions c;
+    companions_make(&c);
+    const double rad = c.o.psfrad;
     char err[MP_ERRLEN];
-    mp_epsf_star *s = stars_of(&f, ts, &o);
-    assert_int_equal(mp_epsf_neighbours(s, NSTAR, &t, NULL, o.psfrad, err), 0);
+    mp_epsf_star *s = stars_of(&c.f, c.ts, &c.o);
+    assert_int_equal(mp_epsf_neighbours(s, NSTAR, &c.t, NULL, c.o.psfrad, err), 0);
     mp_epsf made;
     memset(&made, 0, sizeof made);
-    assert_int_equal(mp_epsf_build(s, NSTAR, &o, BOS, 0, &made, err), 0);
+    assert_int_equal(mp_epsf_build(s, NSTAR, &c.o, BOS, 0, &made, err), 0);
     mp_epsf_stars_free(s, NSTAR);
     mp_table exact;
-    companion_table(ts, cs, 0.0, 1.0, &exact);
-    o.frame_nb = 1;
+    companion_table(c.ts, c.cs, 0.0, 1.0, &exact);
+    c.o.frame_nb = 1;
     double chi2[2];
     int np;
     for (int found = 0; found < 2; found++) {
-        s = stars_of(&f, ts, &o);
-        assert_int_equal(mp_epsf_neighbours(s, NSTAR, found ? &t : &exact, NULL, o.psfrad, err),
-                         0);
+        s = stars_of(&c.f, c.ts, &c.o);
+        assert_int_equal(
+            mp_epsf_neighbours(s, NSTAR, found ? &c.t : &exact, NULL, c.o.psfrad, err), 0);
         mp_epsf e;
-        mp_psf built;
-        memset(&built, 0, sizeof built);
         assert_int_equal(mp_epsf_copy(&made, &e), 0);
-        assert_int_equal(mp_epsf_build(s, NSTAR, &o, BOS, 0, &e, err), 0);
-        assert_int_equal(mp_epsf_table(&e, o.x0, o.y0, &built, err), 0);
-        chi2[found] = prf_chi2(&built, &truth, ts, 1.0, &np);
-        if (!found) {
-            assert_int_equal(mp_epsf_growth(&f, f.im.pix, NULL, NULL, s, NSTAR, rad, 10.0, &e, err),
-                             0);
-            double want = flux_ratio(s, ts), werr = flux_ratio_err(s, ts);
-            printf("# warm build, the companions held: growth sum %.4f +- %.4f from %d stars; "
-                   "fluxes' median ratio %.4f +- %.4f\n", e.sum, e.sum_err, e.ngrowth, want, werr);
-            assert_true(e.ngrowth >= 3);
-            assert_true(fabs(e.sum - want) < 3.0 * hypot(e.sum_err, werr));
-        }
-        mp_psf_free(&built);
+        assert_int_equal(mp_epsf_build(s, NSTAR, &c.o, BOS, 0, &e, err), 0);
+        chi2[found] = table_check("warm build, the companions held", &c.f, s, c.ts, &c.truth,
+                                  rad, !found, &e, &np);
         mp_epsf_free(&e);
         mp_epsf_stars_free(s, NSTAR);
     }
@@ -979,10 +988,7 @@ static void test_warm_build_holds_frame_neighbours(void **state)
     assert_true(chi2[1] > 30.0);
     mp_epsf_free(&made);
     mp_table_free(&exact);
-    mp_table_free(&t);
-    mp_psf_free(&truth);
-    free(f.im.pix);
-    free(f.mask);
+    companions_free(&c);
 }
 
 /* The stars of make_frame(seed) out to 10 px, a table built to psfrad px
