@@ -184,13 +184,12 @@ int mp_epsf_neighbours(mp_epsf_star *s, size_t n, const mp_table *t, const mp_pr
                        double psfrad, char *err);
 
 /* mp_epsf_clean: f = raw less the neighbours' models drawn with table
- * tab (for the star at s->x, s->y; from grid when not NULL and built for
- * tab; else a neighbour from faint, tab's grid too, when that grid's bias
- * bound for the neighbour's own flux is at most MP_EPSF_GRID_FRAC of its
- * σ), and the star's sky again from the annulus of that; nothing without
- * neighbours.  Nonzero on out of memory. */
-int mp_epsf_clean(mp_epsf_star *s, const mp_psf *tab, const mp_prf_cache *grid,
-                  const mp_prf_cache *faint, double psfrad);
+ * tab (for the star at s->x, s->y; a neighbour from grid, tab's phase
+ * grid when not NULL, where its bias bound for the neighbour's own flux
+ * is at most MP_EPSF_GRID_FRAC of its σ), and the star's sky again from
+ * the annulus of that; nothing without neighbours.  Nonzero on out of
+ * memory. */
+int mp_epsf_clean(mp_epsf_star *s, const mp_psf *tab, const mp_prf_cache *grid, double psfrad);
 
 void mp_epsf_stars_free(mp_epsf_star *s, size_t n);
 

@@ -44,6 +44,9 @@ typedef struct {
     int order0;            /* tab is every star's table */
     int mode;              /* mp_epsf_opts.grid */
     int fine;              /* the last grid was MP_PRF_CACHE_G's */
+    int hold;              /* the fits hold the neighbours: a star is fitted
+                            * alone, each neighbour drawn once (the
+                            * mp_epsf_fitter_set that set this state) */
     mp_prf_crop crop;      /* order 0: each star rendered out to where its
                             * light falls below MP_EPSF_CROPFRAC of a sky
                             * pixel's σ (env NULL: its whole box) */
@@ -62,14 +65,15 @@ typedef struct {
 #define MP_EPSF_GRID_G 8
 
 /* mp_epsf_fitter_set: z for table e as it now is, before fitting the used
- * stars of s (the grid is built when their fits need more renders than
- * it costs).  Nonzero on out of memory. */
+ * stars of s, with their neighbours held (hold) or fitted beside them
+ * (the grid is built when their fits need more renders than it costs).
+ * Nonzero on out of memory. */
 int mp_epsf_fitter_set(mp_epsf_fitter *z, const mp_epsf *e, const mp_epsf_star *s, size_t n,
-                       char *err);
+                       int hold, char *err);
 
-/* mp_epsf_fitter_grid: the grid to fit star s (and its neighbours) from,
- * or NULL: none built, or its bound at twice the group's brightest flux
- * above MP_EPSF_GRID_FRAC. */
+/* mp_epsf_fitter_grid: the grid to fit star s (and its neighbours, when
+ * not held) from, or NULL: none built, or its bound at twice the fitted
+ * group's brightest flux above MP_EPSF_GRID_FRAC. */
 const mp_prf_cache *mp_epsf_fitter_grid(const mp_epsf_fitter *z, const mp_epsf_star *s);
 
 /* mp_epsf_grid_serves: whether grid g may draw light E around PSF star s:

@@ -117,7 +117,9 @@ static int fit_star(mp_epsf_star *s, const mp_epsf *e, const mp_epsf_opts *o,
     if (early)
         fo.tol = EARLY_TOL;
     fo.crop = z->order0 && z->crop.env ? &z->crop : NULL;
-    const mp_prf_cache *faint = z->order0 && z->grid.G > 0 ? &z->grid : NULL;
+    /* the neighbours taken off the cut-out from the grid, each by its own
+     * flux's bound (mp_epsf_clean) */
+    const mp_prf_cache *nbgrid = z->order0 && z->grid.G > 0 ? &z->grid : NULL;
     *grid += fo.grid != NULL;
     fo.sky_order = 0;
     fo.fitrad = o->fitrad;
@@ -138,7 +140,7 @@ static int fit_star(mp_epsf_star *s, const mp_epsf *e, const mp_epsf_opts *o,
     mp_frame raw = s->f;
     int nfit = 1 + s->nnb;
     if (hold && s->raw) {
-        if (mp_epsf_clean(s, tab, fo.grid, faint, o->psfrad))
+        if (mp_epsf_clean(s, tab, nbgrid, o->psfrad))
             return 1;
         nfit = 1;
     } else if (s->raw) {
@@ -174,7 +176,7 @@ static int fit_star(mp_epsf_star *s, const mp_epsf *e, const mp_epsf_opts *o,
             s->nbf[j] = st[1 + j].flux;
         }
     }
-    return nfit > 1 && mp_epsf_clean(s, tab, fo.grid, faint, o->psfrad);
+    return nfit > 1 && mp_epsf_clean(s, tab, nbgrid, o->psfrad);
 }
 
 /* Every used star fitted (fit_star), in parallel: a fit reads the table
@@ -271,7 +273,7 @@ int mp_epsf_rounds(mp_epsf_star *s, size_t n, const mp_epsf_opts *o, int os, int
         goto done;
     }
     for (int it = 0; it < o->outer; it++) {
-        if (mp_epsf_fitter_set(&z, e, s, n, err))
+        if (mp_epsf_fitter_set(&z, e, s, n, it >= held_from, err))
             goto done;
         /* The neighbours are fitted with their star while the table is
          * far from made (the first two rounds from a Gaussian: held from
@@ -332,7 +334,8 @@ int mp_epsf_refit(mp_epsf_star *s, size_t n, const mp_epsf_opts *o, mp_epsf *e, 
 {
     mp_epsf_fitter z;
     mp_epsf_fitter_start(&z, o->grid, o->spare);
-    int rc = mp_epsf_fitter_set(&z, e, s, n, err) || fit_stars(s, n, e, o, &z, o->frame_nb, 0, err);
+    int rc = mp_epsf_fitter_set(&z, e, s, n, o->frame_nb, err) ||
+             fit_stars(s, n, e, o, &z, o->frame_nb, 0, err);
     e->nstar = (int)count_used(s, n);
     e->fits += z.fits;
     e->fits_grid += z.fits_grid;

@@ -56,14 +56,22 @@ static double grid_renders(int G, int os)
     return (double)na * na + (double)ng * ng;
 }
 
-/* The renders of the used stars' fits (MP_ECON_RENDERS_PER_FIT per star of
- * a group, at least) that z's grid does not serve (all without one). */
+/* The renders of the used stars' fits that z's grid does not serve (all
+ * without one): MP_ECON_RENDERS_PER_FIT per star of a fitted group, at
+ * least; with the neighbours held, that for the star alone and one for
+ * each neighbour (its light taken off the cut-out, mp_epsf_clean, by its
+ * own flux's bound). */
 static double unserved(const mp_epsf_fitter *z, const mp_epsf_star *s, size_t n)
 {
     double r = 0.0;
-    for (size_t k = 0; k < n; k++)
-        if (s[k].used && !mp_epsf_fitter_grid(z, &s[k]))
-            r += MP_ECON_RENDERS_PER_FIT * (1.0 + s[k].nnb);
+    for (size_t k = 0; k < n; k++) {
+        if (!s[k].used)
+            continue;
+        if (!mp_epsf_fitter_grid(z, &s[k]))
+            r += MP_ECON_RENDERS_PER_FIT * (z->hold ? 1.0 : 1.0 + s[k].nnb);
+        for (int j = 0; z->hold && j < s[k].nnb; j++)
+            r += !(z->grid.G > 0 && mp_epsf_grid_serves(&z->grid, &s[k], s[k].nbf[j]));
+    }
     return r;
 }
 
@@ -89,8 +97,9 @@ static void set_tiers(mp_epsf_fitter *z, const mp_epsf_star *s, size_t n)
  * coarse grid leaves out pay for that; a table that needed the finer grid
  * starts there at the next step (the table changes little between steps). */
 int mp_epsf_fitter_set(mp_epsf_fitter *z, const mp_epsf *e, const mp_epsf_star *s, size_t n,
-                       char *err)
+                       int hold, char *err)
 {
+    z->hold = hold;
     /* The last round's grid: its blocks are this one's when it is built
      * at the same size (fit/prf_cache.c, page faults). */
     mp_prf_cache spare = z->grid;
@@ -130,9 +139,10 @@ const mp_prf_cache *mp_epsf_fitter_grid(const mp_epsf_fitter *z, const mp_epsf_s
      * and, the table changing little between rounds, about where it ends
      * (47 Tuc 256^2: a sixth of the PSF stars' fits were rendered exactly
      * for want of that, a fifth of the run's instructions; bench/
-     * PROFILE.md, session 20). */
+     * PROFILE.md, session 20).  Held, the neighbours are no part of the
+     * fit (mp_epsf_clean draws each by its own flux's bound). */
     double E = s->flux;
-    for (int j = 0; j < s->nnb; j++)
+    for (int j = 0; !z->hold && j < s->nnb; j++)
         E = fmax(E, s->nbf[j]);
     return mp_epsf_grid_serves(&z->grid, s, E) ? &z->grid : NULL;
 }

@@ -186,7 +186,10 @@ static void test_grid_same_table(void **state)
 /* By default (grid=0) the grid is built only when the fits need more
  * renders than it costs: 64 lone stars, MP_ECON_RENDERS_PER_FIT = 4
  * renders each, 256 renders a step, against the ×2 table's coarsest grid,
- * (2·(4 + 3))² nodes + 8² measured cells = 260 renders: exact renders. */
+ * (2·(4 + 3))² nodes + 8² measured cells = 260 renders: exact renders.
+ * 40 stars with a neighbour each: fitted beside them, 4 renders of both
+ * a fit, 320: the grid; held, 4 for the star and the neighbour's one,
+ * 200: none. */
 static void test_grid_only_when_it_pays(void **state)
 {
     (void)state;
@@ -211,9 +214,19 @@ static void test_grid_only_when_it_pays(void **state)
         s[k].nnb = 1;
     mp_epsf_fitter z;
     memset(&z, 0, sizeof z);
-    assert_int_equal(mp_epsf_fitter_set(&z, &e, s, NSTAR, err), 0);
+    assert_int_equal(mp_epsf_fitter_set(&z, &e, s, NSTAR, 0, err), 0);
     assert_true(z.grid.G > 0);
     mp_epsf_fitter_free(&z);
+    for (int k = 0; k < NSTAR; k++) {
+        s[k].used = k < 40;
+        s[k].nbf[0] = s[k].flux;
+    }
+    for (int hold = 0; hold < 2; hold++) {
+        memset(&z, 0, sizeof z);
+        assert_int_equal(mp_epsf_fitter_set(&z, &e, s, NSTAR, hold, err), 0);
+        assert_int_equal(z.grid.G > 0, !hold);
+        mp_epsf_fitter_free(&z);
+    }
     mp_epsf_free(&e);
     mp_epsf_stars_free(s, NSTAR);
     free(f.im.pix);
