@@ -80,6 +80,11 @@ const mp_prf_cache *mp_epsf_fitter_grid(const mp_epsf_fitter *z, const mp_epsf_s
  * its bias bound, on s's sky, at E (twice E until a fit of the build has
  * set the fluxes) is at most MP_EPSF_GRID_FRAC of its σ. */
 int mp_epsf_grid_serves(const mp_prf_cache *g, const mp_epsf_star *s, double E);
+
+/* mp_epsf_nb_grid: the grid g (NULL: none) when it may draw star s's
+ * neighbour j by that neighbour's own flux (mp_epsf_grid_serves), else
+ * NULL: how a held neighbour is taken off the cut-out (mp_epsf_clean). */
+const mp_prf_cache *mp_epsf_nb_grid(const mp_prf_cache *g, const mp_epsf_star *s, int j);
 void mp_epsf_fitter_free(mp_epsf_fitter *z);
 /* mp_epsf_fitter_start: z zeroed, with the grid in spare (NULL: none)
  * for its first mp_epsf_fitter_set to rebuild in; mp_epsf_fitter_done: z

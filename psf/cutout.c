@@ -320,7 +320,7 @@ int mp_epsf_clean(mp_epsf_star *s, const mp_psf *tab, const mp_prf_cache *grid, 
          * noise there): with the star's, a star too bright for the grid
          * had its neighbours drawn exactly, 151 of 173 samples of this
          * function on 47 Tuc (bench/PROFILE.md). */
-        w.grid = grid && mp_epsf_grid_serves(grid, s, s->nbf[j]) ? grid : NULL;
+        w.grid = mp_epsf_nb_grid(grid, s, j);
         if ((rc = mp_prf_render(&m, xs, ys, prf, NULL, NULL, &w)) != 0)
             break;
         for (int b = 0; b < bh; b++)

@@ -85,8 +85,8 @@ static int start_planes(const mp_epsf_opts *o, int os, int order, mp_epsf *e, in
 /* The LM's tol (× each parameter's σ) for the stars' fits of a build's
  * rounds before the stars' clip (rounds 0 and 1 from a Gaussian): the
  * table they are fitted against moves more in the round's SIRT steps than
- * anything the fit could settle (47 Tuc 512²: the cold ×4 halves' χ² 2.3·10⁸ →
- * 5.5·10⁷ over round 0), so the default's 1e-3 (mp_fit_opts_default,
+ * anything the fit could settle (47 Tuc 512²: the cold ×4 halves' χ²
+ * 2.3·10⁸ → 5.5·10⁷ over round 0), so the default's 1e-3 (mp_fit_opts_default,
  * which the later rounds and the stars' last fit keep) only bought
  * steps: ~9 a fit of 12 stars there against ~5.  The build's decisions
  * come after (the χ² stopping rule from round 2, OVERSAMP, the order). */

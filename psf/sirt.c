@@ -209,16 +209,11 @@ typedef struct {
     unsigned char *mk;
 } elem_block;
 
-/* The block of elements [e0, e0 + nb) of the used stars into b (room for
- * n stars × nb elements). */
-static void elements_block(const mp_epsf_sirt *w, const mp_epsf_star *s, size_t n, size_t e0,
-                           size_t nb, elem_block *b)
+/* The block of elements [e0, e0 + nb) of b's stars (b->us, set once a
+ * step: the used ones) into b (room for them × nb elements). */
+static void elements_block(const mp_epsf_sirt *w, size_t e0, size_t nb, elem_block *b)
 {
-    size_t nel = w->nel, m = 0;
-    for (size_t k = 0; k < n; k++)
-        if (s[k].used)
-            b->us[m++] = k;
-    b->m = m;
+    size_t nel = w->nel, m = b->m;
     for (size_t q = 0; q < m; q++) {
         const float *H = w->H + b->us[q] * nel + e0, *G = w->G + b->us[q] * nel + e0;
         const unsigned char *M = w->mask + b->us[q] * nel + e0;
@@ -421,20 +416,23 @@ static int combine_elements(mp_epsf_sirt *w, const mp_epsf_star *s, size_t n, co
                         malloc((n + 1) * ELEM_BLOCK * sizeof *b.g),
                         malloc((n + 1) * ELEM_BLOCK)};
         failed = !dev || !idx || !b.us || !b.h || !b.g || !b.mk;
+        for (size_t k = 0; !failed && k < n; k++)
+            if (s[k].used)
+                b.us[b.m++] = k;
 #pragma omp for schedule(dynamic, 1)
         for (size_t bk = 0; bk < nblk; bk++) {
             size_t e0 = bk * ELEM_BLOCK, nb = nel - e0 < ELEM_BLOCK ? nel - e0 : ELEM_BLOCK;
             if (failed)
                 continue;
-            elements_block(w, s, n, e0, nb, &b);
+            elements_block(w, e0, nb, &b);
             for (size_t i = 0; i < nb; i++) {
                 size_t el = e0 + i;
                 int x = (int)(el % (size_t)e->nx), y = (int)(el / (size_t)e->nx);
-                if (hypot(x - (e->nx - 1) / 2, y - (e->ny - 1) / 2) > rmax)
+                double r = hypot(x - (e->nx - 1) / 2, y - (e->ny - 1) / 2);
+                if (r > rmax)
                     continue;
                 double c[MP_EPSF_MAXT];
-                combine_element(w, el, &b, i, terms, nt, idx, dev, c,
-                                hypot(x - (e->nx - 1) / 2, y - (e->ny - 1) / 2) > rcore);
+                combine_element(w, el, &b, i, terms, nt, idx, dev, c, r > rcore);
                 for (int t = 0; t < nt; t++)
                     upd[(size_t)t * nel + el] = c[t];
             }

@@ -70,7 +70,7 @@ static double unserved(const mp_epsf_fitter *z, const mp_epsf_star *s, size_t n)
         if (!mp_epsf_fitter_grid(z, &s[k]))
             r += MP_ECON_RENDERS_PER_FIT * (z->hold ? 1.0 : 1.0 + s[k].nnb);
         for (int j = 0; z->hold && j < s[k].nnb; j++)
-            r += !(z->grid.G > 0 && mp_epsf_grid_serves(&z->grid, &s[k], s[k].nbf[j]));
+            r += !mp_epsf_nb_grid(z->grid.G > 0 ? &z->grid : NULL, &s[k], j);
     }
     return r;
 }
@@ -151,4 +151,9 @@ int mp_epsf_grid_serves(const mp_prf_cache *g, const mp_epsf_star *s, double E)
 {
     return mp_prf_cache_serves(g, (s->fitted ? 1.0 : 2.0) * E, fmax(s->sky, 0.0), s->f.rdnoise,
                                MP_EPSF_GRID_FRAC);
+}
+
+const mp_prf_cache *mp_epsf_nb_grid(const mp_prf_cache *g, const mp_epsf_star *s, int j)
+{
+    return g && mp_epsf_grid_serves(g, s, s->nbf[j]) ? g : NULL;
 }
