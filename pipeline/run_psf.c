@@ -202,6 +202,7 @@ int mp_run_build_psf(run_state *s, int pass, char *err)
     if (pass == 1 && (psf_stars(s, err) || table_radius(s, err)))
         return 1;
     mp_epsf_opts po = pass_opts(s);
+    po.first_pass = pass == 1;       /* the second always follows */
     /* A frame with no star fit to shape a PSF (an empty or tiny frame, a
      * crowd of saturated stars) is still reduced: with the Gaussian of
      * fwhm, as psf=gauss, said on stderr and in the report. */

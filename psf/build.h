@@ -99,6 +99,13 @@ typedef struct {
                         * pass on the residual: set by mp_epsf_pass), so
                         * held in the stars' last fit as well; 0 (the
                         * default): fitted again there */
+    int first_pass;    /* a pass on the residual follows (the pipeline's
+                        * first pass): the stars' last fit, which here
+                        * only the order test reads, holds their
+                        * neighbours as the build's rounds left them (that
+                        * test's permuted null takes a neighbour's misfit,
+                        * the same wherever the star lies), as frame_nb;
+                        * 0 (the default): fitted with each star there */
 } mp_epsf_opts;
 
 /* mp_epsf_opts_default: os auto, psfrad 4·fwhm, fitrad 2·fwhm, order auto,

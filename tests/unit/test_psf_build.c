@@ -991,6 +991,49 @@ static void test_warm_build_holds_frame_neighbours(void **state)
     companions_free(&c);
 }
 
+/* With mp_epsf_opts.first_pass the stars' last fit (mp_epsf_refit)
+ * holds their neighbours as the build's rounds left them; without it, it
+ * fits them with their star.  The companion scene with find's companions
+ * (0.2 px, 30 % off), after a build's rounds from a Gaussian (the
+ * neighbours fitted in rounds 0 and 1, held after): a refit with
+ * first_pass leaves every neighbour where it was, one without moves the
+ * neighbours of most stars.  Deterministic; fails when first_pass is
+ * ignored, or taken where it is not set. */
+static void test_first_pass_holds_neighbours(void **state)
+{
+    (void)state;
+    companions c;
+    companions_make(&c);
+    char err[MP_ERRLEN];
+    mp_epsf_star *s = stars_of(&c.f, c.ts, &c.o);
+    assert_int_equal(mp_epsf_neighbours(s, NSTAR, &c.t, NULL, c.o.psfrad, err), 0);
+    mp_epsf e;
+    memset(&e, 0, sizeof e);
+    assert_int_equal(mp_epsf_rounds(s, NSTAR, &c.o, BOS, 0, &e, err), 0);
+    double nb[NSTAR][3];
+    for (int k = 0; k < NSTAR; k++) {
+        assert_int_equal(s[k].nnb, 1);
+        nb[k][0] = s[k].nbx[0], nb[k][1] = s[k].nby[0], nb[k][2] = s[k].nbf[0];
+    }
+    c.o.first_pass = 1;
+    assert_int_equal(mp_epsf_refit(s, NSTAR, &c.o, &e, err), 0);
+    for (int k = 0; k < NSTAR; k++) {
+        assert_true(s[k].nbx[0] == nb[k][0] && s[k].nby[0] == nb[k][1]);
+        assert_true(s[k].nbf[0] == nb[k][2]);
+    }
+    c.o.first_pass = 0;
+    assert_int_equal(mp_epsf_refit(s, NSTAR, &c.o, &e, err), 0);
+    int moved = 0;
+    for (int k = 0; k < NSTAR; k++)
+        moved += s[k].used && (s[k].nbx[0] != nb[k][0] || s[k].nbf[0] != nb[k][2]);
+    printf("# first pass: %d of %d stars' neighbours moved by a refit that fits them\n", moved,
+           NSTAR);
+    assert_true(moved > NSTAR / 2);
+    mp_epsf_free(&e);
+    mp_epsf_stars_free(s, NSTAR);
+    companions_free(&c);
+}
+
 /* The stars of make_frame(seed) out to 10 px, a table built to psfrad px
  * (zero beyond support px when support > 0: every element there must be
  * 0), its growth counted from mp_epsf_growth_rin: the growth curve must
@@ -1180,6 +1223,7 @@ int main(void)
         cmocka_unit_test(test_order_test_permuted_null),
         cmocka_unit_test(test_neighbours_fitted),
         cmocka_unit_test(test_warm_build_holds_frame_neighbours),
+        cmocka_unit_test(test_first_pass_holds_neighbours),
         cmocka_unit_test(test_growth_finds_outer_light),
         cmocka_unit_test(test_support_light_in_growth),
         cmocka_unit_test(test_faint_neighbours_masked),
