@@ -21,6 +21,7 @@ static int state_init(run_state *s, const char *image, const char *root,
     mp_table_init(&s->found);
     mp_table_init(&s->gone);
     mp_table_init(&s->before);
+    mp_table_init(&s->grp);
     s->fit = &o->fit;
     s->fwhm = mp_prf_fwhm(&o->fit.model);
     /* Economy learns within this frame only: an @list's frame reduces as
@@ -44,6 +45,7 @@ static void state_free(run_state *s)
     mp_table_free(&s->found);
     mp_table_free(&s->gone);
     mp_table_free(&s->before);
+    mp_table_free(&s->grp);
     mp_bkg_free(&s->bkg);
     mp_coupling_free(&s->coupling);
     mp_frame_free(&s->f);
@@ -220,8 +222,11 @@ int mp_run_group_and_fit(run_state *s, int round, int once, char *err)
     s->rep->pairs_close += close;
     s->rep->pairs_coupled += coupled;
     s->rep->t_group += mp_seconds() - t0;
-    if (!s->quiet && mp_pl_write_named(s->root, ".grp", &s->t, o->fit.fmt, err))
-        return 1;
+    if (!s->quiet) {
+        mp_table_free(&s->grp);
+        if (mp_pl_rows_of(&s->t, NULL, 1, &s->grp))
+            return oom(err);
+    }
     t0 = mp_seconds();
     mp_frame_report fr;
     if (mp_pl_positions_of(&s->t, &s->before))
@@ -412,11 +417,13 @@ static int honest_errors(run_state *s, char *err)
     return 0;
 }
 
-/* root.fit, root.res.fits, root.cat (+ .reg), then the run report. */
+/* root.grp (but in a tile), root.fit, root.res.fits, root.cat (+ .reg),
+ * then the run report. */
 static int write_products(run_state *s, char *err)
 {
     double t0 = mp_seconds();
-    if (mp_pl_write_named(s->root, ".fit", &s->t, s->o->fit.fmt, err) ||
+    if ((!s->quiet && mp_pl_write_named(s->root, ".grp", &s->grp, s->o->fit.fmt, err)) ||
+        mp_pl_write_named(s->root, ".fit", &s->t, s->o->fit.fmt, err) ||
         mp_pl_write_residual(s->root, &s->f, s->res, err) ||
         mp_pl_write_catalog(s->root, &s->f, &s->t, s->o, err))
         return 1;

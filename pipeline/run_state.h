@@ -19,6 +19,10 @@ typedef struct {
     mp_table found;    /* detections on the residual, this round */
     mp_table gone;     /* where merged or rejected stars were */
     mp_table before;   /* NUMBER and position of every row given to the fit */
+    mp_table grp;      /* the stars as the last grouping left them: root.grp,
+                        * written with the products (each round's grouping
+                        * replaces the last's; its text, written every round,
+                        * was 1 % of 47 Tuc's CPU) */
     float *res;        /* residual [e-], nx*ny, single precision as the frame */
     mp_fit_memory *mem;   /* what every group was fitted against, so a round
                            * refits only the groups new stars reach */
