@@ -199,7 +199,8 @@ const mp_prf_cache *mp_run_phase_grid(run_state *s, double *gemax, double *glema
     return oe.grid;
 }
 
-/* Group the stars (root.grp), fit every group, and draw the residual.
+/* Group the stars (kept as s->grp for root.grp), fit every group, and draw
+ * the residual.
  * once: in one pass, not the fit's passes, where a later fit takes the
  * groups up again (the fit's memory refits every group whose neighbours'
  * light changed since): with the first pass's PSF, whose fit only places

@@ -65,8 +65,9 @@ static inline int oom(char *err)
 
 /* ---- run.c -------------------------------------------------------------- */
 
-/* mp_run_group_and_fit: group the stars (root.grp), fit every group (in
- * one pass when once) and draw the residual. */
+/* mp_run_group_and_fit: group the stars (kept for root.grp, written with
+ * the products), fit every group (in one pass when once) and draw the
+ * residual. */
 int mp_run_group_and_fit(run_state *s, int round, int once, char *err);
 
 /* mp_run_phase_grid: the phase grid the fit draws its groups' PRFs from,

@@ -894,6 +894,15 @@ static void companions_make(companions *c)
     truth_table(0.0, 0, 0.0, c->o.psfrad, &c->truth);
 }
 
+/* c's stars, find's companions (c->t) their neighbours. */
+static mp_epsf_star *found_neighbours(companions *c)
+{
+    char err[MP_ERRLEN];
+    mp_epsf_star *s = stars_of(&c->f, c->ts, &c->o);
+    assert_int_equal(mp_epsf_neighbours(s, NSTAR, &c->t, NULL, c->o.psfrad, err), 0);
+    return s;
+}
+
 static void companions_free(companions *c)
 {
     mp_table_free(&c->t);
@@ -959,8 +968,7 @@ static void test_warm_build_holds_frame_neighbours(void **state)
     companions_make(&c);
     const double rad = c.o.psfrad;
     char err[MP_ERRLEN];
-    mp_epsf_star *s = stars_of(&c.f, c.ts, &c.o);
-    assert_int_equal(mp_epsf_neighbours(s, NSTAR, &c.t, NULL, c.o.psfrad, err), 0);
+    mp_epsf_star *s = found_neighbours(&c);
     mp_epsf made;
     memset(&made, 0, sizeof made);
     assert_int_equal(mp_epsf_build(s, NSTAR, &c.o, BOS, 0, &made, err), 0);
@@ -1005,8 +1013,7 @@ static void test_first_pass_holds_neighbours(void **state)
     companions c;
     companions_make(&c);
     char err[MP_ERRLEN];
-    mp_epsf_star *s = stars_of(&c.f, c.ts, &c.o);
-    assert_int_equal(mp_epsf_neighbours(s, NSTAR, &c.t, NULL, c.o.psfrad, err), 0);
+    mp_epsf_star *s = found_neighbours(&c);
     mp_epsf e;
     memset(&e, 0, sizeof e);
     assert_int_equal(mp_epsf_rounds(s, NSTAR, &c.o, BOS, 0, &e, err), 0);
