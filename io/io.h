@@ -286,8 +286,8 @@ int mp_fits_guard_named(const char *path, const char *name, char *err);
 int mp_fits_key_number(void *fp, const char *key, double *v, int *status);
 
 /* mp_select_kth: the k-th smallest of v[0..n) (k < n), with v rearranged
- * so that v[0..k) ≤ v[k] ≤ v[k+1..n) (Hoare's selection, median-of-three
- * pivot; linear time on average).  For finite values. */
+ * so that v[0..k) ≤ v[k] ≤ v[k+1..n) (quickselect, median-of-three pivot,
+ * branch-free partitions; linear time on average).  For finite values. */
 double mp_select_kth(double *v, size_t n, size_t k);
 
 /* mp_median_select: the median of v[0..n) (the mean of the middle two for

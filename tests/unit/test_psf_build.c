@@ -1193,25 +1193,46 @@ static void test_build_same_on_any_threads(void **state)
     free(f.mask);
 }
 
-/* The selection median is the sorted one, exactly: sizes 1..200, values
- * drawn from a few levels (ties) or continuous, sorted and reversed
- * inputs (the partition's worst orders). */
+static int cmp_double(const void *x, const void *y)
+{
+    double a = *(const double *)x, b = *(const double *)y;
+    return (a > b) - (a < b);
+}
+
+/* The selection median is the sorted one, exactly, and every k-th
+ * smallest is the sorted array's k-th with the values left partitioned
+ * about it (v[0..k) ≤ v[k] ≤ v[k+1..n)): sizes 1..200, values drawn from
+ * a few levels (ties) or continuous, sorted and reversed inputs (the
+ * partitions' worst orders), and all equal (every pivot's split
+ * lopsided). */
 static void test_median_select_is_the_median(void **state)
 {
     (void)state;
     mp_rng r;
     mp_rng_seed(&r, 20261129);
-    double a[200], b[200];
+    double a[200], b[200], sorted[200];
     for (size_t n = 1; n <= 200; n++)
-        for (int kind = 0; kind < 4; kind++) {
+        for (int kind = 0; kind < 5; kind++) {
             for (size_t i = 0; i < n; i++) {
                 double u = mp_rng_uniform(&r);
-                a[i] = kind == 0 ? u : kind == 1 ? floor(4.0 * u) : (double)(kind == 2 ? i : n - i);
+                a[i] = kind == 0 ? u : kind == 1 ? floor(4.0 * u) : kind == 4 ? 1.0
+                                                                  : (double)(kind == 2 ? i : n - i);
                 b[i] = a[i];
             }
             double want = mp_epsf_median(a, n), got = mp_median_select(b, n);
             if (got != want)
                 fail_msg("n %zu kind %d: %.17g, sorted %.17g", n, kind, got, want);
+            memcpy(sorted, a, n * sizeof *a);
+            qsort(sorted, n, sizeof *sorted, cmp_double);
+            for (size_t k = 0; k < n; k++) {
+                memcpy(b, a, n * sizeof *a);
+                double v = mp_select_kth(b, n, k);
+                if (v != sorted[k] || b[k] != v)
+                    fail_msg("n %zu kind %d k %zu: %.17g, sorted %.17g", n, kind, k, v, sorted[k]);
+                for (size_t i = 0; i < n; i++)
+                    if (i < k ? b[i] > v : b[i] < v)
+                        fail_msg("n %zu kind %d k %zu: v[%zu] on the wrong side", n, kind, k, i);
+            }
         }
     assert_true(isnan(mp_median_select(a, 0)));
 }
