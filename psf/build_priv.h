@@ -143,9 +143,9 @@ int mp_epsf_rounds(mp_epsf_star *s, size_t n, const mp_epsf_opts *o, int os, int
                    mp_epsf *e, char *err);
 
 /* mp_epsf_refit: every used star (and its neighbours, unless
- * o->frame_nb or o->first_pass) fitted again with table e as it now is (after a filter or
- * a new order), e->nstar the stars still used: fluxes that go with the
- * table (growth.c). */
+ * o->frame_nb or o->first_pass) fitted again with table e as it now is
+ * (after a filter or a new order), e->nstar the stars still used: fluxes
+ * that go with the table (growth.c). */
 int mp_epsf_refit(mp_epsf_star *s, size_t n, const mp_epsf_opts *o, mp_epsf *e, char *err);
 
 /* mp_epsf_solve: the symmetric positive system A x = b of order m ≤ MP_EPSF_MAXT by
