@@ -301,46 +301,102 @@ static double r2_read(const r2_table *t, double r2)
     return q + 1 >= t->n ? 0.0 : t->v[q] + (u - (double)q) * (t->v[q + 1] - t->v[q]);
 }
 
+/* What take_off takes: the light E·h(r) of one star, h exact (h_at) or
+ * from fast, out to r2out (h is 0 from rmax on, fast's from its last
+ * entry: the box's corners beyond, by a margin far above the rounding of
+ * dx² + dy², are skipped before h is read; the radius is √r2, within an
+ * ulp of hypot's, whose scaling guards against overflow that distances
+ * in a frame never reach: 47 Tuc built wrote the same bytes, 0.7·10⁹
+ * instructions fewer). */
+typedef struct {
+    float *pix, *res, *xvar;
+    const double *h;
+    int nb;
+    double rin, rmax, r2out;
+    const r2_table *fast;
+} halo_cut;
+
+/* Star s's light taken off rows ya..yb (1-based, within the frame). */
+static void take_off_rows(const mp_frame *f, const halo_cut *c, const mp_pl_star *s, long ya, long yb)
+{
+    long x0 = (long)floor(s->x - c->rmax), x1 = (long)ceil(s->x + c->rmax);
+    x0 = x0 < 1 ? 1 : x0;
+    x1 = x1 > f->im.nx ? f->im.nx : x1;
+    for (long y = ya; y <= yb; y++)
+        for (long x = x0; x <= x1; x++) {
+            size_t i = (size_t)(y - 1) * (size_t)f->im.nx + (size_t)(x - 1);
+            double dx = (double)x - s->x, dy = (double)y - s->y, r2 = dx * dx + dy * dy;
+            if (f->mask[i] || r2 > c->r2out)
+                continue;
+            double l = s->e * (c->fast ? r2_read(c->fast, r2) : h_at(c->h, c->nb, c->rin, sqrt(r2)));
+            if (l <= 0)
+                continue;
+            c->pix[i] -= l;
+            if (c->res)
+                c->res[i] -= l;
+            if (c->xvar)
+                c->xvar[i] += (float)l;
+        }
+}
+
+/* Star s's rows within the frame, [*ya, *yb] (empty when *ya > *yb). */
+static void star_rows(const mp_frame *f, const mp_pl_star *s, double rmax, long *ya, long *yb)
+{
+    long y0 = (long)floor(s->y - rmax), y1 = (long)ceil(s->y + rmax);
+    *ya = y0 < 1 ? 1 : y0;
+    *yb = y1 > f->im.ny ? f->im.ny : y1;
+}
+
+enum { HALO_BAND = 16 };                /* rows a thread takes at a time */
+
 /* E·h(r) of every star whose halo reaches a twentieth of a sky pixel's σ
  * taken off pix (and, when given, off res, and into xvar as variance); h
- * read exactly (h_at), or from fast when given.  The number of such stars. */
+ * read exactly (h_at), or from fast when given.  The number of such
+ * stars; −1 when out of memory.  In parallel over bands of HALO_BAND
+ * rows, each band's stars in flux order: every pixel loses its stars'
+ * light in the same order on any number of threads (the same floats). */
 static long take_off(const mp_frame *f, float *pix, float *res, float *xvar, const mp_pl_star *s,
                      size_t ns, const double *h, int nb, double rin, double sig,
                      const r2_table *fast)
 {
-    double rmax = rin + nb - 0.5;
-    /* h is 0 from rmax on (h_at), fast's from its last entry: the box's
-     * corners beyond, by a margin far above the rounding of dx² + dy²,
-     * are skipped before h is read (hypot's square root was a tenth of
-     * 47 Tuc built's halo; the same pixels change, by the same values);
-     * the radius is √r2, within an ulp of hypot's, not hypot (its scaling
-     * guards against overflow that distances in a frame never reach: 47
-     * Tuc built wrote the same bytes, 0.7·10⁹ instructions fewer) */
-    double r2out = (fast ? (double)(fast->n - 1) * fast->step : rmax * rmax) * (1.0 + 1e-9);
-    long nlit = 0;
-    for (size_t k = 0; k < ns; k++) {
-        if (!(s[k].e * h[0] >= 0.05 * sig))
-            break;                      /* brightest first: none further */
-        nlit++;
-        long x0 = (long)floor(s[k].x - rmax), x1 = (long)ceil(s[k].x + rmax);
-        long y0 = (long)floor(s[k].y - rmax), y1 = (long)ceil(s[k].y + rmax);
-        for (long y = y0 < 1 ? 1 : y0; y <= y1 && y <= f->im.ny; y++)
-            for (long x = x0 < 1 ? 1 : x0; x <= x1 && x <= f->im.nx; x++) {
-                size_t i = (size_t)(y - 1) * (size_t)f->im.nx + (size_t)(x - 1);
-                double dx = (double)x - s[k].x, dy = (double)y - s[k].y, r2 = dx * dx + dy * dy;
-                if (f->mask[i] || r2 > r2out)
-                    continue;
-                double l = s[k].e * (fast ? r2_read(fast, r2) : h_at(h, nb, rin, sqrt(r2)));
-                if (l <= 0)
-                    continue;
-                pix[i] -= l;
-                if (res)
-                    res[i] -= l;
-                if (xvar)
-                    xvar[i] += (float)l;
-            }
+    halo_cut c = {pix, res, xvar, h, nb, rin, rin + nb - 0.5, 0.0, fast};
+    c.r2out = (fast ? (double)(fast->n - 1) * fast->step : c.rmax * c.rmax) * (1.0 + 1e-9);
+    size_t nlit = 0;
+    while (nlit < ns && s[nlit].e * h[0] >= 0.05 * sig)
+        nlit++;                         /* brightest first: none further */
+    size_t nband = ((size_t)f->im.ny + HALO_BAND - 1) / HALO_BAND, nidx = 0;
+    size_t *at = calloc(nband + 1, sizeof *at), *idx;
+    long ya, yb;
+    if (!at)
+        return -1;
+    for (size_t k = 0; k < nlit; k++) { /* each band's count, then where it starts */
+        star_rows(f, &s[k], c.rmax, &ya, &yb);
+        for (long b = (ya - 1) / HALO_BAND; ya <= yb && b <= (yb - 1) / HALO_BAND; b++, nidx++)
+            at[b + 1]++;
     }
-    return nlit;
+    for (size_t b = 0; b < nband; b++)
+        at[b + 1] += at[b];
+    if (!(idx = malloc((nidx ? nidx : 1) * sizeof *idx))) {
+        free(at);
+        return -1;
+    }
+    for (size_t k = 0; k < nlit; k++) {
+        star_rows(f, &s[k], c.rmax, &ya, &yb);
+        for (long b = (ya - 1) / HALO_BAND; ya <= yb && b <= (yb - 1) / HALO_BAND; b++)
+            idx[at[b]++] = k;
+    }
+    /* at[b] now ends band b, which starts at at[b − 1] (0 for b = 0) */
+#pragma omp parallel for schedule(dynamic) private(ya, yb)
+    for (size_t b = 0; b < nband; b++) {
+        long r0 = (long)(b * HALO_BAND) + 1, r1 = r0 + HALO_BAND - 1;
+        for (size_t q = b ? at[b - 1] : 0; q < at[b]; q++) {
+            star_rows(f, &s[idx[q]], c.rmax, &ya, &yb);
+            take_off_rows(f, &c, &s[idx[q]], ya > r0 ? ya : r0, yb < r1 ? yb : r1);
+        }
+    }
+    free(at);
+    free(idx);
+    return (long)nlit;
 }
 
 /* The residual with the halo taken off, for placebo_z's copies only (h
@@ -357,9 +413,9 @@ static int clean_copy(const mp_frame *f, const float *res, const mp_pl_star *s, 
         return 1;
     for (size_t q = 0; q < t.n; q++)
         t.v[q] = h_at(h, nb, rin, sqrt((double)q * t.step));
-    take_off(f, clean, NULL, NULL, s, ns, h, nb, rin, sig, &t);
+    long nlit = take_off(f, clean, NULL, NULL, s, ns, h, nb, rin, sig, &t);
     free(t.v);
-    return 0;
+    return nlit < 0;
 }
 
 /* The halo taken off the frame and the residual, its variance into xvar
@@ -371,7 +427,7 @@ static int subtract(mp_frame *f, float *res, const mp_pl_star *s, size_t ns, con
     if (!f->xvar && !(f->xvar = calloc(npix ? npix : 1, sizeof *f->xvar)))
         return 1;
     *nlit = take_off(f, f->im.pix, res, f->xvar, s, ns, h, nb, rin, sig, NULL);
-    return 0;
+    return *nlit < 0;
 }
 
 enum { HALO_NPLACEBO = 99, HALO_BATCH = 20 };
