@@ -16,9 +16,6 @@
 
 #include "catalog/table_priv.h"
 #include "io/io.h"
-#ifdef _OPENMP
-#include <omp.h>
-#endif
 
 /* Longest piece of an offending value quoted back in a message. */
 #define QUOTE_MAX 40
@@ -264,68 +261,23 @@ static int bad_name(const char *s)
     return 0;
 }
 
-/* A growing text buffer. */
-typedef struct {
-    char *s;
-    size_t n, cap;
-} text;
-
-/* Rows [r0, r1) of t, formatted as ASCII_HEAD rows, appended to b;
- * nonzero when out of memory. */
-static int format_rows(const mp_table *t, size_t r0, size_t r1, text *b)
+/* Rows [r0, r1) of the table t (ctx), formatted as ASCII_HEAD rows,
+ * appended to b (mp_rows_format); nonzero when out of memory. */
+static int format_rows(const void *ctx, size_t r0, size_t r1, mp_text *b)
 {
+    const mp_table *t = ctx;
     char buf[512];
     for (size_t r = r0; r < r1; r++)
         for (size_t c = 0; c < t->ncol; c++) {
             int w = mp_format_value(&t->cols[c], mp_table_get(t, r, (int)c), buf, sizeof buf);
             size_t len = w < 0 ? 0 : (size_t)w < sizeof buf ? (size_t)w : strlen(buf);
-            size_t need = b->n + len + 2;
-            if (need > b->cap) {
-                size_t cap = 2 * need > 65536 ? 2 * need : 65536;
-                char *s = realloc(b->s, cap);
-                if (!s)
-                    return 1;
-                b->s = s;
-                b->cap = cap;
-            }
-            memcpy(b->s + b->n, buf, len);
-            b->n += len;
-            /* a separator even when a value overflows its width */
-            b->s[b->n++] = c + 1 < t->ncol ? ' ' : '\n';
+            /* a separator even when a value overflows its width (len < 512:
+             * it takes the place of the terminating NUL at most) */
+            buf[len] = c + 1 < t->ncol ? ' ' : '\n';
+            if (mp_text_put(b, buf, len + 1))
+                return 1;
         }
     return 0;
-}
-
-/* The rows: formatted in parallel, a chunk of rows a thread, and written
- * in order, so the bytes do not depend on the threads (issue 14: the
- * writes were the largest serial part of a run, 2 % of its CPU). */
-enum { CHUNK_ROWS = 2048 };
-static int write_rows(FILE *fp, const char *name, const mp_table *t, char *err)
-{
-    int nb = 1;
-#ifdef _OPENMP
-    nb = omp_get_max_threads();
-#endif
-    text *b = calloc((size_t)nb, sizeof *b);
-    int failed = !b;
-    for (size_t r0 = 0; !failed && r0 < t->nrow; r0 += (size_t)nb * CHUNK_ROWS) {
-#pragma omp parallel for schedule(static, 1) reduction(| : failed)
-        for (int k = 0; k < nb; k++) {
-            size_t a = r0 + (size_t)k * CHUNK_ROWS, z = a + CHUNK_ROWS;
-            b[k].n = 0;
-            if (a < t->nrow)
-                failed |= format_rows(t, a, z < t->nrow ? z : t->nrow, &b[k]);
-        }
-        for (int k = 0; !failed && k < nb; k++)
-            if (b[k].n)
-                fwrite(b[k].s, 1, b[k].n, fp);
-    }
-    for (int k = 0; b && k < nb; k++)
-        free(b[k].s);
-    free(b);
-    if (failed)
-        snprintf(err, MP_ERRLEN, "%s: out of memory formatting the rows", name);
-    return failed;
 }
 
 int mp_ascii_head_write(FILE *fp, const char *name, const mp_table *t, char *err)
@@ -350,5 +302,9 @@ int mp_ascii_head_write(FILE *fp, const char *name, const mp_table *t, char *err
         fputc('\n', fp);
     }
 
-    return write_rows(fp, name, t, err);
+    if (mp_rows_write(fp, t->nrow, format_rows, t)) {
+        snprintf(err, MP_ERRLEN, "%s: out of memory formatting the rows", name);
+        return 1;
+    }
+    return 0;
 }

@@ -12,7 +12,7 @@
 #include <stdio.h>
 #include <string.h>
 
-#include "catalog/catalog.h"
+#include "catalog/table_priv.h"
 
 /* The first pair of columns the table has, or -1s. */
 static void find_pair(const mp_table *t, const char *const pairs[][2], int npairs,
@@ -27,6 +27,38 @@ static void find_pair(const mp_table *t, const char *const pairs[][2], int npair
             return;
         }
     }
+}
+
+/* What a region row is drawn from. */
+typedef struct {
+    const mp_table *t;
+    int cx, cy, cflags, cnum, fk5;
+    double radius;
+} region_rows;
+
+/* Rows [r0, r1) as DS9 circles appended to b (mp_rows_format): those with
+ * a finite position, green when FLAGS is 0, red else (a missing, NaN,
+ * FLAGS is not "clean"); nonzero when out of memory. */
+static int format_regions(const void *ctx, size_t r0, size_t r1, mp_text *b)
+{
+    const region_rows *g = ctx;
+    char line[2048];      /* three %.8f-wide values of up to 1e308: ~1000 */
+    for (size_t r = r0; r < r1; r++) {
+        double x = mp_table_get(g->t, r, g->cx), y = mp_table_get(g->t, r, g->cy);
+        if (!isfinite(x) || !isfinite(y))
+            continue;
+        double f = g->cflags >= 0 ? mp_table_get(g->t, r, g->cflags) : 0.0;
+        double num = g->cnum >= 0 ? mp_table_get(g->t, r, g->cnum) : NAN;
+        int n = g->fk5 ? snprintf(line, sizeof line, "circle(%.8f,%+.8f,%.6g\")", x, y, g->radius)
+                       : snprintf(line, sizeof line, "circle(%.5f,%.5f,%.6g)", x, y, g->radius);
+        n += snprintf(line + n, sizeof line - (size_t)n, " # color=%s", f == 0.0 ? "green" : "red");
+        if (isfinite(num))
+            n += snprintf(line + n, sizeof line - (size_t)n, " text={%.0f}", num);
+        n += snprintf(line + n, sizeof line - (size_t)n, "\n");
+        if (mp_text_put(b, line, (size_t)n))
+            return 1;
+    }
+    return 0;
 }
 
 int mp_regions_write(const char *path, const mp_table *t, const mp_region_opts *o,
@@ -67,22 +99,13 @@ int mp_regions_write(const char *path, const mp_table *t, const mp_region_opts *
                 "select=1 highlite=1 dash=0 fixed=0 edit=1 move=1 delete=1 include=1 source=1\n");
     fprintf(fp, "%s\n", o->fk5 ? "fk5" : "image");
     long n = 0;
-    for (size_t r = 0; r < t->nrow; r++) {
-        double x = mp_table_get(t, r, cx), y = mp_table_get(t, r, cy);
-        if (!isfinite(x) || !isfinite(y))
-            continue;
-        double f = cflags >= 0 ? mp_table_get(t, r, cflags) : 0.0;
-        /* A missing (NaN) FLAGS is not "clean": red, like a flagged star. */
-        const char *colour = f == 0.0 ? "green" : "red";
-        if (o->fk5)
-            fprintf(fp, "circle(%.8f,%+.8f,%.6g\")", x, y, o->radius);
-        else
-            fprintf(fp, "circle(%.5f,%.5f,%.6g)", x, y, o->radius);
-        fprintf(fp, " # color=%s", colour);
-        if (cnum >= 0 && isfinite(mp_table_get(t, r, cnum)))
-            fprintf(fp, " text={%.0f}", mp_table_get(t, r, cnum));
-        fputc('\n', fp);
-        n++;
+    for (size_t r = 0; r < t->nrow; r++)
+        n += isfinite(mp_table_get(t, r, cx)) && isfinite(mp_table_get(t, r, cy));
+    region_rows g = {t, cx, cy, cflags, cnum, o->fk5, o->radius};
+    if (mp_rows_write(fp, t->nrow, format_regions, &g)) {
+        snprintf(err, MP_ERRLEN, "%s: out of memory formatting the regions", name);
+        mp_out_abort(&out);
+        return 1;
     }
     if (ferror(fp)) {
         snprintf(err, MP_ERRLEN, "%s: write error: %s", name, errno ? strerror(errno) : "I/O error");

@@ -40,6 +40,24 @@ int mp_parse_value(const char *s, double *x);
  * "%+11.7f" never gives "+nan".  Returns the length. */
 int mp_format_value(const mp_col *c, double x, char *buf, size_t len);
 
+/* mp_text: a growing text buffer; mp_text_put appends len bytes of s,
+ * nonzero when out of memory (b unchanged then). */
+typedef struct {
+    char *s;
+    size_t n, cap;
+} mp_text;
+int mp_text_put(mp_text *b, const char *s, size_t len);
+
+/* mp_rows_format: rows [r0, r1) of what ctx holds, as text appended to b;
+ * nonzero when out of memory. */
+typedef int (*mp_rows_format)(const void *ctx, size_t r0, size_t r1, mp_text *b);
+
+/* mp_rows_write: rows 0..nrow formatted by fmt in parallel, a chunk of
+ * rows a thread, and written to fp in order, so the bytes do not depend
+ * on the threads (issue 14: the writes were the largest serial part of a
+ * run).  Nonzero when out of memory; write errors are left on fp. */
+int mp_rows_write(FILE *fp, size_t nrow, mp_rows_format fmt, const void *ctx);
+
 /* A line source that lets table_io.c look at the first line (to tell the
  * format) before handing the stream to a reader: `line` holds the pending
  * line when `pending` is set. */
