@@ -1237,10 +1237,69 @@ static void test_median_select_is_the_median(void **state)
     assert_true(isnan(mp_median_select(a, 0)));
 }
 
+/* Large samples take the parallel median (io/select.c, from 2¹⁶ values on
+ * more than one thread): the same value as the sorted array's, on 1, 2, 3
+ * and 7 threads, odd and even sizes, values continuous, tied on 4 levels,
+ * one spike far out (most values in one bin of the histogram), all equal,
+ * most at the largest value (the median in the last bin, with the top),
+ * and with a NaN (the serial selection then, as before); the values are
+ * left as they were, or permuted (never changed). */
+static void test_median_parallel_is_the_median(void **state)
+{
+    (void)state;
+    size_t sizes[2] = {(size_t)1 << 17, ((size_t)1 << 17) + 1};
+    double *a = malloc(sizes[1] * sizeof *a), *b = malloc(sizes[1] * sizeof *b);
+    double *c = malloc(sizes[1] * sizeof *c);
+    assert_non_null(a);
+    assert_non_null(b);
+    assert_non_null(c);
+    mp_rng r;
+    mp_rng_seed(&r, 20261204);
+    int nt = omp_get_max_threads(), threads[4] = {1, 2, 3, 7};
+    for (int si = 0; si < 2; si++)
+        for (int kind = 0; kind < 5; kind++) {
+            size_t n = sizes[si];
+            for (size_t i = 0; i < n; i++) {
+                double u = mp_rng_uniform(&r);
+                a[i] = kind == 0   ? u
+                       : kind == 1 ? floor(4.0 * u)
+                       : kind == 2 ? (i == 7 ? 1e30 : u)
+                       : kind == 3 ? 2.5
+                                   : (u < 0.3 ? u : 1.0);
+            }
+            memcpy(c, a, n * sizeof *a);
+            qsort(c, n, sizeof *c, cmp_double);
+            double want = n % 2 ? c[n / 2] : 0.5 * (c[n / 2 - 1] + c[n / 2]);
+            for (int ti = 0; ti < 4; ti++) {
+                omp_set_num_threads(threads[ti]);
+                memcpy(b, a, n * sizeof *a);
+                double got = mp_median_select(b, n);
+                if (got != want)
+                    fail_msg("n %zu kind %d threads %d: %.17g, sorted %.17g", n, kind, threads[ti],
+                             got, want);
+                qsort(b, n, sizeof *b, cmp_double);
+                assert_memory_equal(b, c, n * sizeof *b);
+            }
+        }
+    a[5] = NAN;                          /* not finite: the serial selection */
+    omp_set_num_threads(2);
+    memcpy(b, a, sizes[0] * sizeof *a);
+    double par = mp_median_select(b, sizes[0]);
+    omp_set_num_threads(1);
+    memcpy(b, a, sizes[0] * sizeof *a);
+    double ser = mp_median_select(b, sizes[0]);
+    assert_true(par == ser || (isnan(par) && isnan(ser)));
+    omp_set_num_threads(nt);
+    free(a);
+    free(b);
+    free(c);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(test_median_select_is_the_median),
+        cmocka_unit_test(test_median_parallel_is_the_median),
         cmocka_unit_test(test_recovers_constant_table),
         cmocka_unit_test(test_linear_variation),
         cmocka_unit_test(test_symmetric_quadratic_seen),
