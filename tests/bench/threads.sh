@@ -8,7 +8,9 @@
 # and the PSF work —, write), the process's user+system CPU and wall; the
 # table gives each's median and the speed-up median(1)/median(N), with
 # the load average before and after (a loaded machine's wall times say
-# little: say so when quoting them).
+# little: say so when quoting them), and the voluntary context switches
+# and minor page faults (threads queued on a lock, or on the process's
+# memory map, show there first; bench/SCALING.md).
 #   sh tests/bench/threads.sh            # 1024^2, 3 900 stars, 3 reps
 #   N=2048 NSTARS=15600 REPS=5 THREADS="1 2 4 8 16" sh tests/bench/threads.sh
 # With CEILING=1, first what the machine itself gives: as many one-thread
@@ -48,15 +50,16 @@ fi
 load0=$(cut -d' ' -f1-3 /proc/loadavg)
 for r in $(seq 1 "$REPS"); do
     for t in $THREADS; do
-        OMP_NUM_THREADS=$t /usr/bin/time -f 'TIME %U %S %e' "$M" pipeline f.fits psf=psf.fits \
+        OMP_NUM_THREADS=$t /usr/bin/time -f 'TIME %U %S %e %w %R' "$M" pipeline f.fits psf=psf.fits \
             root="r$t.$r" 2>"log$t.$r" >/dev/null || { echo "threads: run failed"; tail -n 2 "log$t.$r"; exit 1; }
         sed -n 's/.*seconds: read \([0-9.]*\), background \([0-9.]*\), find \([0-9.]*\), group \([0-9.]*\), fit \([0-9.]*\), write \([0-9.]*\), total \([0-9.]*\).*/\2 \3 \4 \5 \6 \7/p' \
             "log$t.$r" | head -n 1 >"s$t.$r"
-        awk '/^TIME/ { print $2 + $3, $4 }' "log$t.$r" >>"s$t.$r"
+        awk '/^TIME/ { print $2 + $3, $4, $5, $6 }' "log$t.$r" >>"s$t.$r"
     done
 done
 load1=$(cut -d' ' -f1-3 /proc/loadavg)
 # one line per thread count: medians of bkg find group fit write total cpu wall
+# switches faults
 for t in $THREADS; do
     for r in $(seq 1 "$REPS"); do tr '\n' ' ' <"s$t.$r"; echo; done >"all$t"
     awk -v t="$t" '{ for (i = 1; i <= NF; i++) v[i, NR] = $i; nf = NF }
@@ -64,16 +67,16 @@ for t in $THREADS; do
               for (i = 1; i <= nf; i++) { n = 0
                   for (r = 1; r <= NR; r++) a[++n] = v[i, r]
                   for (p = 1; p <= n; p++) for (q = p + 1; q <= n; q++) if (a[q] < a[p]) { x = a[p]; a[p] = a[q]; a[q] = x }
-                  printf " %.3f", (n % 2) ? a[(n + 1) / 2] : (a[n / 2] + a[n / 2 + 1]) / 2 }
+                  printf (i >= 9 ? " %d" : " %.3f"), (n % 2) ? a[(n + 1) / 2] : (a[n / 2] + a[n / 2 + 1]) / 2 }
               print "" }' "all$t"
 done >med
 echo "matphot pipeline, ${N}x${N}, $NSTARS stars, median of $REPS interleaved runs; load average $load0 before, $load1 after"
 echo
-echo "| threads | background | find | group | fit | write | total (report) | CPU user+sys | wall |"
-echo "|---:|---:|---:|---:|---:|---:|---:|---:|---:|"
+echo "| threads | background | find | group | fit | write | total (report) | CPU user+sys | wall | voluntary switches | minor faults |"
+echo "|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"
 awk '{ printf "| %s |", $1; for (i = 2; i <= NF; i++) printf " %s |", $i; print "" }' med
 echo
 echo "speed-up median(1 thread) / median(N threads), wall per stage (CPU: ratio of CPU seconds):"
 awk 'NR == 1 { for (i = 2; i <= NF; i++) b[i] = $i; next }
      { printf "| %s threads |", $1
-       for (i = 2; i <= NF; i++) printf " %s |", ($i > 0 ? sprintf("%.2f", b[i] / $i) : "-"); print "" }' med
+       for (i = 2; i <= 9; i++) printf " %s |", ($i > 0 ? sprintf("%.2f", b[i] / $i) : "-"); print "" }' med
