@@ -69,6 +69,11 @@ int mp_table_add_cols(mp_table *t, const char *const *names, int n, int *idx);
  * (the table unchanged). */
 int mp_table_shrink(mp_table *t);
 
+/* mp_table_reserve: room for at least rows rows (the rows' block grown,
+ * its values as they were; nrow unchanged), so that a copy of known size
+ * is one allocation; 0, or -1 when out of memory (the table unchanged). */
+int mp_table_reserve(mp_table *t, size_t rows);
+
 /* mp_table_col: index of a column, -1 when absent. */
 int mp_table_col(const mp_table *t, const char *name);
 

@@ -122,6 +122,21 @@ int mp_table_shrink(mp_table *t)
     return relayout(t, t->ncol);
 }
 
+int mp_table_reserve(mp_table *t, size_t rows)
+{
+    if (rows <= t->cap)
+        return 0;
+    if (t->ncol > 0) {
+        size_t n = n_values(rows, t->ncol);
+        double *v = n ? realloc(t->v, n * sizeof *v) : NULL;
+        if (!v)
+            return -1;
+        t->v = v;
+    }
+    t->cap = rows;
+    return 0;
+}
+
 long mp_table_add_row(mp_table *t)
 {
     if (t->nrow >= (size_t)LONG_MAX)

@@ -75,14 +75,22 @@ int mp_pl_rows_of(const mp_table *t, const unsigned char *sel, int want, mp_tabl
     for (size_t c = 0; c < t->ncol; c++)
         if (mp_table_add_col(out, t->cols[c].name) < 0)
             return 1;
-    for (size_t r = 0; r < t->nrow; r++) {
-        if (sel && !sel[r] != !want)
-            continue;
-        long k = mp_table_add_row(out);
-        if (k < 0)
-            return 1;
-        memcpy(out->v + (size_t)k * out->ncol, t->v + r * t->ncol, t->ncol * sizeof *t->v);
+    /* the rows counted first, their block allocated once and copied (row
+     * by row, a whole table's 6 MB of a 2048² frame's 15 600 stars was
+     * half a per cent of its run: doubling, NaN fills, copies) */
+    size_t m = 0;
+    for (size_t r = 0; r < t->nrow; r++)
+        m += !sel || !sel[r] == !want;
+    if (mp_table_reserve(out, m ? m : 1))
+        return 1;
+    if (!sel && t->ncol == out->ncol) {
+        memcpy(out->v, t->v, t->nrow * t->ncol * sizeof *t->v);
+        out->nrow = t->nrow;
+        return 0;
     }
+    for (size_t r = 0; r < t->nrow; r++)
+        if (!sel || !sel[r] == !want)
+            memcpy(out->v + out->nrow++ * out->ncol, t->v + r * t->ncol, t->ncol * sizeof *t->v);
     return 0;
 }
 

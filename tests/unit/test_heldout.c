@@ -62,6 +62,22 @@ static void test_rows_held_out(void **state)
     assert_int_equal((int)o.nrow, 6);
     assert_true(mp_table_get(&o, 4, 0) == 60.0);   /* order kept */
     mp_table_free(&o);
+    assert_int_equal(mp_pl_rows_of(&t, sel, 1, &o), 0);
+    assert_int_equal((int)o.nrow, 2);
+    assert_true(mp_table_get(&o, 0, 0) == 41.5 && mp_table_get(&o, 1, 0) == 50.0);
+    mp_table_free(&o);
+    /* the whole table (one block copy): every value, and rows append after */
+    assert_int_equal(mp_pl_rows_of(&t, NULL, 1, &o), 0);
+    assert_int_equal((int)o.nrow, 8);
+    assert_int_equal((int)o.ncol, 5);
+    for (size_t r = 0; r < 8; r++)
+        for (int c = 0; c < 5; c++) {
+            double a = mp_table_get(&t, r, c), b = mp_table_get(&o, r, c);
+            assert_true(a == b || (isnan(a) && isnan(b)));
+        }
+    assert_int_equal(mp_table_add_row(&o), 8);
+    assert_true(isnan(mp_table_get(&o, 8, 0)) && mp_table_get(&o, 7, 0) == 70.0);
+    mp_table_free(&o);
     mp_table_free(&t);
 }
 

@@ -10,6 +10,7 @@
 # stripped from (the same code); MODULE the name it ran under (default:
 # BINARY's file name).  A share p of N samples has a sampling error
 # sqrt(p(1-p)/N): 1 % for p = 10 % and N = 1000 (a 1-second run).
+# TOP (12) lines a list, each at least MIN (0.4) per cent.
 [ $# -ge 2 ] || { echo "usage: report.sh SAMPLES BINARY [MODULE]"; exit 2; }
 S=$1 B=$2 M=${3:-$(basename "$2")}
 command -v addr2line >/dev/null 2>&1 || { echo "report: addr2line (binutils) not installed"; exit 77; }
@@ -22,7 +23,7 @@ addr2line -a -f -i -e "$B" <"$T/offs" | awk '
     /^0x/ { if (a != "") print a, f; a = $1; sub(/^0x0*/, "", a); if (a == "") a = "0"; k = 0; next }
     { if (k++ % 2 == 0) f = $1 }
     END { if (a != "") print a, f }' >"$T/names"
-awk -v m="$M" -v top=12 '
+awk -v m="$M" -v top="${TOP:-12}" -v min="${MIN:-0.4}" '
     FNR == NR { name[$1] = $2; next }
     function fn(x,   p) {
         p = index(x, ":")
@@ -58,7 +59,7 @@ awk -v m="$M" -v top=12 '
         for (i = 1; i <= n; i++) for (j = i + 1; j <= n; j++)
             if (val[j] > val[i]) { t = val[i]; val[i] = val[j]; val[j] = t; t = key[i]; key[i] = key[j]; key[j] = t }
         for (i = 1; i <= n && i <= top; i++)
-            if (val[i] >= 0.004 * nsamp) printf "  %5.1f %%  %s\n", 100 * val[i] / nsamp, key[i]
+            if (val[i] >= min / 100 * nsamp) printf "  %5.1f %%  %s\n", 100 * val[i] / nsamp, key[i]
     }
     END {
         if (!nsamp) { print "no samples"; exit 1 }
