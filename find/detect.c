@@ -121,39 +121,46 @@ static int push_cand(cand_list *l, long p, float h)
     return 0;
 }
 
-static int cmp_cand(const void *a, const void *b)
-{
-    long x = ((const cand *)a)->p, y = ((const cand *)b)->p;
-    return (x > y) - (x < y);
-}
-
-/* The strip's candidates, appended to out in raster order. */
+/* The strip's candidates, appended to out in raster order: each thread
+ * takes its own block of rows, in thread order, so their lists follow one
+ * another in raster order (merged under a lock and sorted, they were a
+ * serial part of every strip: 1.4 % of a 2048² run on 16 threads). */
 static int find_candidates(const mp_frame *f, const strip *st, const mpf_kernel *k,
                            double thresh, cand_list *out)
 {
-    long nx = f->im.nx;
-    size_t n0 = out->n;
+    long nx = f->im.nx, rows = st->y1 - st->y0;
+    int nt = 1, used = 1;
+#ifdef _OPENMP
+    nt = omp_get_max_threads();
+#endif
+    cand_list *mine = calloc((size_t)nt, sizeof *mine);
     int nomem = 0;
-#pragma omp parallel
+    if (!mine)
+        return 1;
+#pragma omp parallel num_threads(nt)
     {
-        cand_list mine = {0};
-#pragma omp for schedule(static)
-        for (long y = st->y0; y < st->y1; y++)
+        int t = 0, T = 1;
+#ifdef _OPENMP
+        t = omp_get_thread_num();
+        T = omp_get_num_threads();
+#endif
+        if (t == 0)
+            used = T;
+        for (long y = st->y0 + rows * t / T; y < st->y0 + rows * (t + 1) / T; y++)
             for (long x = 0; x < nx; x++)
                 if (is_candidate(f, st, k, thresh, x, y) &&
-                    push_cand(&mine, y * nx + x,
+                    push_cand(&mine[t], y * nx + x,
                               st->h[(size_t)(y - st->h0) * (size_t)nx + (size_t)x])) {
 #pragma omp atomic write
                     nomem = 1;
                 }
-#pragma omp critical(find_merge)
-        for (size_t i = 0; i < mine.n && !nomem; i++)
-            if (push_cand(out, mine.v[i].p, mine.v[i].h))
-                nomem = 1;
-        free(mine.v);
     }
-    if (!nomem && out->n > n0)
-        qsort(out->v + n0, out->n - n0, sizeof *out->v, cmp_cand);
+    for (int t = 0; t < used && !nomem; t++)
+        for (size_t i = 0; i < mine[t].n && !nomem; i++)
+            nomem = push_cand(out, mine[t].v[i].p, mine[t].v[i].h);
+    for (int t = 0; t < nt; t++)
+        free(mine[t].v);
+    free(mine);
     return nomem;
 }
 
@@ -215,9 +222,11 @@ static int find_plateaus(const mp_frame *f, const mp_bkg *b, const mpf_kernel *k
 {
     long nx = f->im.nx, ny = f->im.ny;
     size_t npix = (size_t)nx * (size_t)ny;
-    size_t first = 0;
-    while (first < npix && !mpf_sat(f, first))
-        first++;
+    size_t first = npix;      /* the first saturated pixel, in parallel */
+#pragma omp parallel for schedule(static) reduction(min : first) if (npix > 65536)
+    for (size_t i = 0; i < npix; i++)
+        if (i < first && mpf_sat(f, i))
+            first = i;
     if (first == npix)
         return 0;
     /* one bit a pixel: saturated frames are the big ones (issue 14) */
