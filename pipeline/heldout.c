@@ -84,7 +84,10 @@ int mp_pl_rows_of(const mp_table *t, const unsigned char *sel, int want, mp_tabl
     if (mp_table_reserve(out, m ? m : 1))
         return 1;
     if (!sel && t->ncol == out->ncol) {
-        memcpy(out->v, t->v, t->nrow * t->ncol * sizeof *t->v);
+        size_t nv = t->nrow * t->ncol, blk = 1 << 16;   /* values, in blocks by thread */
+#pragma omp parallel for schedule(static) if (nv > blk)
+        for (size_t b = 0; b < nv; b += blk)
+            memcpy(out->v + b, t->v + b, (nv - b < blk ? nv - b : blk) * sizeof *t->v);
         out->nrow = t->nrow;
         return 0;
     }
