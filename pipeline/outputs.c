@@ -101,20 +101,29 @@ int mp_pl_residual_open(const char *root, const mp_frame *f, long nx, long ny,
 int mp_pl_residual_put(mp_image_out *out, const mp_frame *f, const float *res, long x1, long y1,
                        long w, long h, long ox, long oy, char *err)
 {
-    /* A row at a time, in ADU: no copy of the frame's size. */
-    double *row = malloc((size_t)w * sizeof *row);
-    if (!row) {
+    /* RES_ROWS rows at a time, in ADU: no copy of the frame's size; the
+     * rows converted in parallel and written by one call (a row a call,
+     * serial, was 3 % of a 2048² run's wall time on 16 threads). */
+    enum { RES_ROWS = 64 };
+    long nb = h < RES_ROWS ? h : RES_ROWS;
+    double *rows = malloc((size_t)w * (size_t)(nb > 0 ? nb : 1) * sizeof *rows);
+    if (!rows) {
         snprintf(err, MP_ERRLEN, "out of memory");
         return 1;
     }
     int rc = 0;
-    for (long j = 0; j < h && !rc; j++) {
-        size_t p = (size_t)(y1 - 1 - oy + j) * (size_t)f->im.nx + (size_t)(x1 - 1 - ox);
-        for (long i = 0; i < w; i++)
-            row[i] = (f->mask[p + i] & MP_MASK_BAD) ? NAN : res[p + i] / f->gain;
-        rc = mp_image_out_put(out, x1, y1 + j, w, 1, row, err);
+    for (long j0 = 0; j0 < h && !rc; j0 += nb) {
+        long m = h - j0 < nb ? h - j0 : nb;
+#pragma omp parallel for schedule(static) if ((size_t)w * (size_t)m > 65536)
+        for (long j = 0; j < m; j++) {
+            size_t p = (size_t)(y1 - 1 - oy + j0 + j) * (size_t)f->im.nx + (size_t)(x1 - 1 - ox);
+            double *row = rows + (size_t)j * (size_t)w;
+            for (long i = 0; i < w; i++)
+                row[i] = (f->mask[p + i] & MP_MASK_BAD) ? NAN : res[p + i] / f->gain;
+        }
+        rc = mp_image_out_put(out, x1, y1 + j0, w, m, rows, err);
     }
-    free(row);
+    free(rows);
     return rc;
 }
 
