@@ -10,7 +10,8 @@
 # stripped from (the same code); MODULE the name it ran under (default:
 # BINARY's file name).  A share p of N samples has a sampling error
 # sqrt(p(1-p)/N): 1 % for p = 10 % and N = 1000 (a 1-second run).
-# TOP (12) lines a list, each at least MIN (0.4) per cent.
+# TOP (12) lines a list, each at least MIN (0.4) per cent; INCL="f g ...":
+# the share of samples with each of those functions on the stack.
 [ $# -ge 2 ] || { echo "usage: report.sh SAMPLES BINARY [MODULE]"; exit 2; }
 S=$1 B=$2 M=${3:-$(basename "$2")}
 command -v addr2line >/dev/null 2>&1 || { echo "report: addr2line (binutils) not installed"; exit 77; }
@@ -23,7 +24,7 @@ addr2line -a -f -i -e "$B" <"$T/offs" | awk '
     /^0x/ { if (a != "") print a, f; a = $1; sub(/^0x0*/, "", a); if (a == "") a = "0"; k = 0; next }
     { if (k++ % 2 == 0) f = $1 }
     END { if (a != "") print a, f }' >"$T/names"
-awk -v m="$M" -v top="${TOP:-12}" -v min="${MIN:-0.4}" '
+awk -v m="$M" -v top="${TOP:-12}" -v min="${MIN:-0.4}" -v incl="${INCL:-}" '
     FNR == NR { name[$1] = $2; next }
     function fn(x,   p) {
         p = index(x, ":")
@@ -32,10 +33,12 @@ awk -v m="$M" -v top="${TOP:-12}" -v min="${MIN:-0.4}" '
     }
     /^S/ {
         nf = 0; first = ""; omp = ""; leaf = ""; ours = 0; chain = ""
+        delete seen
         for (i = 2; i <= NF; i++) {
             f = fn($i)
             if (i == 2) leaf = f
             if (f !~ /^\[/) {
+                if (!(f in seen)) { seen[f] = 1; on[f]++ }
                 if (first == "") first = f
                 if (omp == "" && f ~ /\._omp_fn\./) omp = f
                 if (ours < 4) chain = chain (ours ? " < " : "") f
@@ -66,6 +69,9 @@ awk -v m="$M" -v top="${TOP:-12}" -v min="${MIN:-0.4}" '
         printf "%d samples (1 ms of wall time each)\n", nsamp
         printf "  parallel work %5.1f %%, waits in libgomp %5.1f %%, serial %5.1f %%\n",
             100 * cls["par"] / nsamp, 100 * cls["wait"] / nsamp, 100 * cls["serial"] / nsamp
+        ni = split(incl, fi, " ")
+        for (i = 1; i <= ni; i++)
+            printf "  %5.1f %%  with %s on the stack\n", 100 * on[fi[i]] / nsamp, fi[i]
         list("waits, by the function that opened the region or hit the barrier", wait)
         list("parallel work, by region", par)
         list("serial, self", self)
