@@ -316,14 +316,16 @@ typedef struct {
     const r2_table *fast;
 } halo_cut;
 
-/* Star s's light taken off rows ya..yb (1-based, within the frame); c's
- * fields read into locals once (through c in the loop they cost 29 % more
- * instructions: the loop was no longer specialised for fast or exact). */
-static void take_off_rows(const mp_frame *f, const halo_cut *c, const mp_pl_star *s, long ya, long yb)
+/* Star s's light taken off rows ya..yb (1-based, within the frame) of
+ * pix, res and xvar (either NULL), h read from fast or exactly (NULL).
+ * Inlined where those are constants, so that each use has its own loop
+ * (through c's fields at run time, 47 Tuc built's take_off took 1.25e9
+ * instructions against 1.09e9 when it was inlined in its two callers). */
+static inline __attribute__((always_inline)) void
+cut_rows(const mp_frame *f, const halo_cut *c, const mp_pl_star *s, long ya, long yb, float *pix,
+         float *res, float *xvar, const r2_table *fast)
 {
-    float *pix = c->pix, *res = c->res, *xvar = c->xvar;
     const unsigned char *mask = f->mask;
-    const r2_table *fast = c->fast;
     const double *h = c->h, r2out = c->r2out, rin = c->rin, sx = s->x, sy = s->y, e = s->e;
     int nb = c->nb;
     long nx = f->im.nx, x0 = (long)floor(sx - c->rmax), x1 = (long)ceil(sx + c->rmax);
@@ -344,6 +346,18 @@ static void take_off_rows(const mp_frame *f, const halo_cut *c, const mp_pl_star
             if (xvar)
                 xvar[i] += (float)l;
         }
+}
+
+/* Star s's light taken off rows ya..yb: the copies' residual (fast, pix
+ * only), the frame (exact, with res and xvar), or any other mix. */
+static void take_off_rows(const mp_frame *f, const halo_cut *c, const mp_pl_star *s, long ya, long yb)
+{
+    if (c->fast && !c->res && !c->xvar)
+        cut_rows(f, c, s, ya, yb, c->pix, NULL, NULL, c->fast);
+    else if (!c->fast && c->res && c->xvar)
+        cut_rows(f, c, s, ya, yb, c->pix, c->res, c->xvar, NULL);
+    else
+        cut_rows(f, c, s, ya, yb, c->pix, c->res, c->xvar, c->fast);
 }
 
 /* Star s's rows within the frame, [*ya, *yb] (empty when *ya > *yb). */
