@@ -333,8 +333,8 @@ static int mask_pixels(const char *name, const mp_datapars *dp, mp_frame *f, cha
     }
     if (dp->dqmask[0] && (dp->dqsat || dp->dqbad) && apply_dq(name, dp, f, err))
         return 1;
-    /* In parallel, each pixel its own (serial, with the read, 2.8 % of a
-     * 2048² run's wall time on 16 threads). */
+    /* In parallel, each pixel its own (serial, this loop was 1.7 % of a
+     * 2048² run's wall time on 16 threads; cfitsio's read 1.1 % more). */
     long nbad = 0, nsat = 0;
 #pragma omp parallel for schedule(static) reduction(+ : nbad, nsat) if (n > 65536)
     for (size_t i = 0; i < n; i++) {

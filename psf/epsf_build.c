@@ -198,7 +198,7 @@ static int cmp_costliest(const void *a, const void *b)
  * and z and writes only its own star, so the stars' fits do not depend on
  * the number of threads or their order.  Those with the most neighbours
  * to fit are handed out first (at 16 threads 47 Tuc built waited 3.5 % of
- * its run at this loop's end for a crowded star started last). */
+ * its run at this loop's end). */
 static int fit_stars(mp_epsf_star *s, size_t n, const mp_epsf *e, const mp_epsf_opts *o,
                      mp_epsf_fitter *z, int hold, int early, char *err)
 {
