@@ -110,17 +110,28 @@ double mp_mad_sigma(double *v, size_t n)
 /* The parallel median's sizes: from PAR_MIN values on, PAR_BINS bins. */
 enum { PAR_MIN = 1 << 16, PAR_BINS = 4096 };
 
+/* The bin of value x on [lo, lo + PAR_BINS/scale] (the top one's end in
+ * it). */
+static inline size_t bin_of(double x, double lo, double scale)
+{
+    size_t c = (size_t)((x - lo) * scale);
+    return c < PAR_BINS ? c : PAR_BINS - 1;
+}
+
 /* The k-th smallest of v[0..n), all finite within [lo, hi], v unchanged,
- * into *out: a histogram of PAR_BINS bins over [lo, hi] in parallel (a
- * count a thread and bin), then the k-th among the values of the bin that
- * holds it, gathered in parallel (each thread's after the earlier
- * threads', in its own order) and selected (mp_select_kth).  The same
- * value as a selection on the whole.  Nonzero when out of memory. */
+ * into *out: a histogram of PAR_BINS bins over [lo, hi] (a count a thread
+ * and bin), then the k-th among the values of the bin that holds it,
+ * gathered (each thread's after the earlier threads', in its own order)
+ * and selected (mp_select_kth).  Both loops in one parallel region with
+ * the same static schedule, so each thread meets in the second the values
+ * it counted in the first (OpenMP's guarantee).  The same value as a
+ * selection on the whole.  Nonzero when out of memory. */
 static int kth_by_bins(const double *v, size_t n, size_t k, double lo, double hi, double *out)
 {
-    int nt = omp_get_max_threads();
-    double scale = hi > lo ? PAR_BINS / (hi - lo) : 0.0;
+    int nt = omp_get_max_threads(), failed = 0;
+    double scale = hi > lo ? PAR_BINS / (hi - lo) : 0.0, *buf = NULL;
     size_t *h = calloc((size_t)nt * PAR_BINS, sizeof *h), *off = calloc((size_t)nt, sizeof *off);
+    size_t b = 0, below = 0, m = 0;
     if (!h || !off) {
         free(h);
         free(off);
@@ -128,46 +139,37 @@ static int kth_by_bins(const double *v, size_t n, size_t k, double lo, double hi
     }
 #pragma omp parallel num_threads(nt)
     {
-        size_t *mine = h + (size_t)omp_get_thread_num() * PAR_BINS;
+        int t = omp_get_thread_num(), T = omp_get_num_threads();
+        size_t *mine = h + (size_t)t * PAR_BINS;
 #pragma omp for schedule(static)
-        for (size_t i = 0; i < n; i++) {
-            size_t b = (size_t)((v[i] - lo) * scale);
-            mine[b < PAR_BINS ? b : PAR_BINS - 1]++;
+        for (size_t i = 0; i < n; i++)
+            mine[bin_of(v[i], lo, scale)]++;
+#pragma omp single
+        {
+            for (;; b++) {              /* the bin of the k-th */
+                m = 0;
+                for (int u = 0; u < T; u++)
+                    m += h[(size_t)u * PAR_BINS + b];
+                if (k < below + m || b == PAR_BINS - 1)
+                    break;
+                below += m;
+            }
+            for (int u = 1; u < T; u++)
+                off[u] = off[u - 1] + h[(size_t)(u - 1) * PAR_BINS + b];
+            failed = !(buf = malloc((m ? m : 1) * sizeof *buf));
         }
-    }
-    size_t b = 0, below = 0, m = 0;
-    for (;; b++) {                      /* the bin of the k-th */
-        m = 0;
-        for (int t = 0; t < nt; t++)
-            m += h[(size_t)t * PAR_BINS + b];
-        if (k < below + m || b == PAR_BINS - 1)
-            break;
-        below += m;
-    }
-    for (int t = 1; t < nt; t++)
-        off[t] = off[t - 1] + h[(size_t)(t - 1) * PAR_BINS + b];
-    double *buf = malloc((m ? m : 1) * sizeof *buf);
-    if (!buf) {
-        free(h);
-        free(off);
-        return 1;
-    }
-    /* the same static schedule: each thread meets its own counted values */
-#pragma omp parallel num_threads(nt)
-    {
-        size_t at = off[omp_get_thread_num()];
+        size_t at = off[t];
 #pragma omp for schedule(static)
-        for (size_t i = 0; i < n; i++) {
-            size_t c = (size_t)((v[i] - lo) * scale);
-            if ((c < PAR_BINS ? c : PAR_BINS - 1) == b)
+        for (size_t i = 0; i < n; i++)
+            if (!failed && bin_of(v[i], lo, scale) == b)
                 buf[at++] = v[i];
-        }
     }
-    *out = mp_select_kth(buf, m, k - below);
+    if (!failed)
+        *out = mp_select_kth(buf, m, k - below);
     free(buf);
     free(h);
     free(off);
-    return 0;
+    return failed;
 }
 
 /* The median of v[0..n) in parallel (v unchanged), into *med: the upper

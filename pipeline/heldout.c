@@ -84,7 +84,7 @@ int mp_pl_rows_of(const mp_table *t, const unsigned char *sel, int want, mp_tabl
         m += !sel || !sel[r] == !want;
     if (mp_table_reserve(out, m ? m : 1))
         return 1;
-    if (!sel && t->ncol == out->ncol) {
+    if (!sel) {                             /* out has t's columns, in order */
         size_t nv = t->nrow * t->ncol, blk = 1 << 16;   /* values, in blocks by thread */
 #pragma omp parallel for schedule(static) if (nv > blk)
         for (size_t b = 0; b < nv; b += blk)
