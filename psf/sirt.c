@@ -284,17 +284,64 @@ static int within_clip(const double *dev, size_t m, double dmax)
 
 /* Whether a used star the mask left out deviates by more than dmax at
  * the block's element i (within_clip's bound holds for the flags then
- * too). */
-static int masked_above(const elem_block *b, size_t i, const double *terms, int nt,
-                        const double *c, double dmax)
+ * too); all: every star's deviation there (all_deviations). */
+static int masked_above(const elem_block *b, size_t i, const double *all, double dmax)
 {
-    const float *h = b->h + i * b->m, *g = b->g + i * b->m;
+    const float *h = b->h + i * b->m;
     const unsigned char *mk = b->mk + i * b->m;
     for (size_t q = 0; q < b->m; q++)
-        if (h[q] > 0 && (mk[q] & MP_EPSF_MASKED) &&
-            !(deviation(h[q], g[q], terms + b->us[q] * MP_EPSF_MAXT, nt, c) <= dmax))
+        if (h[q] > 0 && (mk[q] & MP_EPSF_MASKED) && !(all[q] <= dmax))
             return 1;
     return 0;
+}
+
+/* wls of the order-0 table (one term, 1 at every star) in its own
+ * arithmetic, bit for bit: Σg and Σh over the stars the mask leaves, in
+ * their order (a star left out adds +0, which no such sum can tell: it
+ * is never −0), Marquardt's factor and the ridge, and the 1×1 Cholesky's
+ * two divisions by √A.  The stars it leaves into idx[0..*m) (no branch
+ * on them: half are masked beyond the core).  1 when A is not positive,
+ * c then Σg as wls leaves it. */
+static int wls0(const float *h, const float *g, const unsigned char *mk, size_t n,
+                double ridge, size_t *idx, size_t *m, double *c)
+{
+    double sg = 0.0, sh = 0.0;
+    size_t k = 0;
+    for (size_t q = 0; q < n; q++) {
+        int in = h[q] > 0 && !(mk[q] & MP_EPSF_MASKED);
+        idx[k] = q;
+        k += (size_t)in;
+        sg += in ? (double)g[q] : 0.0;
+        sh += in ? (double)h[q] : 0.0;
+    }
+    *m = k;
+    c[0] = sg;
+    if (k == 0)
+        return 0;
+    double a = sh * (1.0 + 1e-3);
+    a += ridge;
+    if (!(a > 0))
+        return 1;
+    a = sqrt(a);
+    c[0] = sg / a / a;
+    return 0;
+}
+
+/* Every star's deviation from the fit c at the block's element i
+ * (deviation), into all[0..b->m): one dense pass the compiler
+ * vectorises, read through the kept stars' indices after. */
+static void all_deviations(const elem_block *b, size_t i, const double *terms, int nt,
+                           const double *c, double *restrict all)
+{
+    const float *h = b->h + i * b->m, *g = b->g + i * b->m;
+    if (nt == 1) {
+        double c0 = 0.0 + 1.0 * c[0];
+        for (size_t q = 0; q < b->m; q++)
+            all[q] = fabs((double)g[q] / (double)h[q] - c0) * sqrt((double)h[q]);
+        return;
+    }
+    for (size_t q = 0; q < b->m; q++)
+        all[q] = deviation(h[q], g[q], terms + b->us[q] * MP_EPSF_MAXT, nt, c);
 }
 
 /* The update of element el, the block's element i, robust: fit (leaving
@@ -308,23 +355,29 @@ static void combine_element(mp_epsf_sirt *w, size_t el, const elem_block *b, siz
 {
     const float *h = b->h + i * b->m, *g = b->g + i * b->m;
     const unsigned char *mk = b->mk + i * b->m;
+    double *all = dev + 2 * b->m;
     size_t m = 0;
-    for (size_t q = 0; q < b->m; q++)
-        if (h[q] > 0 && !(mk[q] & MP_EPSF_MASKED))
-            idx[m++] = q;
     for (int t = 0; t < nt; t++)
         c[t] = 0.0;
-    if (m < (size_t)nt || wls(h, g, b->us, idx, m, terms, nt, w->ridge, c))
-        return;
+    if (nt == 1) {
+        if (wls0(h, g, mk, b->m, w->ridge, idx, &m, c) || m == 0)
+            return;
+    } else {
+        for (size_t q = 0; q < b->m; q++)
+            if (h[q] > 0 && !(mk[q] & MP_EPSF_MASKED))
+                idx[m++] = q;
+        if (m < (size_t)nt || wls(h, g, b->us, idx, m, terms, nt, w->ridge, c))
+            return;
+    }
     if (m < 5)
         return;
+    all_deviations(b, i, terms, nt, c, all);
     double dmax = 0.0;
     for (size_t q = 0; q < m; q++) {
-        size_t u = idx[q];
-        dev[q] = deviation(h[u], g[u], terms + b->us[u] * MP_EPSF_MAXT, nt, c);
+        dev[q] = all[idx[q]];
         dmax = dev[q] > dmax || isnan(dev[q]) ? dev[q] : dmax;
     }
-    if (within_clip(dev, m, dmax) && !(flag && masked_above(b, i, terms, nt, c, dmax)))
+    if (within_clip(dev, m, dmax) && !(flag && masked_above(b, i, all, dmax)))
         return;
     double *tmp = dev + b->m;
     memcpy(tmp, dev, m * sizeof *dev);
@@ -332,8 +385,7 @@ static void combine_element(mp_epsf_sirt *w, size_t el, const elem_block *b, siz
     if (!(sig > 0))
         return;
     for (size_t q = 0; flag && q < b->m; q++)
-        if (h[q] > 0 &&
-            deviation(h[q], g[q], terms + b->us[q] * MP_EPSF_MAXT, nt, c) > 4.0 * sig)
+        if (h[q] > 0 && all[q] > 4.0 * sig)
             w->mask[b->us[q] * w->nel + el] |= MP_EPSF_HIT;
     size_t kept = 0;
     for (size_t q = 0; q < m; q++)
@@ -409,7 +461,7 @@ static int combine_elements(mp_epsf_sirt *w, const mp_epsf_star *s, size_t n, co
     memset(upd, 0, (size_t)nt * nel * sizeof *upd);
 #pragma omp parallel reduction(| : failed)
     {
-        double *dev = malloc(2 * (n + 1) * sizeof *dev);
+        double *dev = malloc(3 * (n + 1) * sizeof *dev);
         size_t *idx = malloc((n + 1) * sizeof *idx);
         elem_block b = {malloc((n + 1) * sizeof *b.us), 0,
                         malloc((n + 1) * ELEM_BLOCK * sizeof *b.h),

@@ -31,11 +31,25 @@ static int row_hit(const unsigned char *m, int nx, int j)
     return 0;
 }
 
+/* Whether m[0..n) holds a hit: one or-reduction the compiler vectorises
+ * (a star without a hit is most stars in most steps). */
+static int any_hit(const unsigned char *m, size_t n)
+{
+    unsigned char acc = 0;
+    for (size_t i = 0; i < n; i++)
+        acc |= m[i];
+    return (acc & MP_EPSF_HIT) != 0;
+}
+
 /* One star's mask m: the clusters of hits dilated by h, rows first
  * (row marks the row-dilation; a row without a hit has no cluster), then
- * columns; a star without a hit (most, in most steps) only cleared. */
+ * columns; a star without a hit only cleared. */
 static void dilate_star(unsigned char *m, int nx, int ny, int h, int need, unsigned char *row)
 {
+    if (!any_hit(m, (size_t)nx * ny)) {
+        memset(m, 0, (size_t)nx * ny);
+        return;
+    }
     int any = 0;
     for (int j = 0; j < ny; j++) {
         memset(row + (size_t)j * nx, 0, (size_t)nx);
