@@ -14,6 +14,9 @@
 #include "group/group.h"
 #include "params/params.h"
 #include "sim/sim.h"
+#ifdef _OPENMP
+#include <omp.h>
+#endif
 
 static double fwhm_to_sigma(double fwhm)
 {
@@ -240,6 +243,41 @@ static void test_crowded_group_no_runaway(void **state)
     mp_psf_free(&tab1);
     mp_psf_free(&tab2);
     frame_drop(&f);
+}
+
+/* The crowded frame's fit (its largest group 45 stars: the normal
+ * equations of a group of 16 or more shared out as tasks among the
+ * team's threads, lm_normal.c shared_out) is the same bits on one thread
+ * and on three: every flux, error, sky and flag.  Fails when a task
+ * writes another's entries of A or sums in another order. */
+static void test_crowded_group_threads_same(void **state)
+{
+    (void)state;
+#ifdef _OPENMP
+    mp_frame f;
+    truth_star tr[CR_N];
+    crowded_frame(&f, tr);
+    char err[MP_ERRLEN];
+    mp_psf tab;
+    assert_int_equal(mp_psf_gauss_table(3.0, 2, 10.0, &tab, err), 0);
+    mp_prf_model m = {&tab, NULL, 10};
+    double fl[2][CR_N], ef[2][CR_N], sk[2][CR_N], es[2][CR_N];
+    int flags[2][CR_N], was = omp_get_max_threads();
+    for (int r = 0; r < 2; r++) {
+        omp_set_num_threads(r ? 3 : 1);
+        crowded_fit(&f, &m, tr, 50, fl[r], ef[r], sk[r], es[r], flags[r]);
+    }
+    omp_set_num_threads(was);
+    assert_memory_equal(fl[0], fl[1], sizeof fl[0]);
+    assert_memory_equal(ef[0], ef[1], sizeof ef[0]);
+    assert_memory_equal(sk[0], sk[1], sizeof sk[0]);
+    assert_memory_equal(es[0], es[1], sizeof es[0]);
+    assert_memory_equal(flags[0], flags[1], sizeof flags[0]);
+    mp_psf_free(&tab);
+    frame_drop(&f);
+#else
+    skip();
+#endif
 }
 
 /* sinchw = 0 (nearest table element) makes the model a step function of
@@ -1591,6 +1629,7 @@ int main(void)
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(test_chi2_sf),
         cmocka_unit_test(test_crowded_group_no_runaway),
+        cmocka_unit_test(test_crowded_group_threads_same),
         cmocka_unit_test(test_lambda_exit_flagged),
         cmocka_unit_test(test_flat_sky_stays_constant),
         cmocka_unit_test(test_gradient_picks_plane),
