@@ -7,9 +7,6 @@
 #include <stdlib.h>
 #include <string.h>
 #include "fit/lm_group.h"
-#ifdef _OPENMP
-#include <omp.h>
-#endif
 
 /* The weights, the data term and the sky's block of the normal equations,
  * over all fitted pixels. */
@@ -452,26 +449,9 @@ static int pair_exact(group *G, const double *p, const rstar *r, int k, int l)
     return 0;
 }
 
-/* Whether a group's sums are shared out as tasks among the team's
- * threads: a group of NE_TASK_STARS stars or more in a team of several
- * (a pass's largest groups, which the other threads wait for at its end:
- * 47 Tuc built's 54 ms fits against ~10 ms a thread on 16).  Each task
- * writes its own star's or pair's entries of A, summed as one thread
- * sums them, so A is the same bits on any number of threads. */
-#define NE_TASK_STARS 16
-static int shared_out(const group *G)
-{
-#ifdef _OPENMP
-    return G->n >= NE_TASK_STARS && omp_in_parallel() && omp_get_num_threads() > 1;
-#else
-    (void)G;
-    return 0;
-#endif
-}
-
 /* The exact pass's pairs: every pair of open stars whose windows meet,
  * listed in order, then summed (pair_listed; shared out as tasks,
- * shared_out).  Nonzero when out of memory. */
+ * lm_shared_out).  Nonzero when out of memory. */
 static int pairs_exact(group *G, const double *p, const rstar *r)
 {
     G->npair = 0;
@@ -490,7 +470,7 @@ static int pairs_exact(group *G, const double *p, const rstar *r)
             G->pk[G->npair] = k;
             G->pl[G->npair++] = l;
         }
-    if (shared_out(G)) {
+    if (lm_shared_out(G)) {
 #pragma omp taskloop grainsize(4)
         for (size_t q = 0; q < (size_t)G->npair; q++)   /* size_t: clang's taskloop */
             pair_listed(G, p, r, (int)q);
@@ -517,10 +497,10 @@ static void pair_core_sums(group *G, const double *p, const rstar *r, int q)
     put_pair(G, p, k, l, s);
 }
 
-/* Every listed pair's (pair_core_sums; shared out as tasks, shared_out). */
+/* Every listed pair's (pair_core_sums; shared out as tasks, lm_shared_out). */
 static void pairs_core(group *G, const double *p, const rstar *r)
 {
-    if (shared_out(G)) {
+    if (lm_shared_out(G)) {
 #pragma omp taskloop grainsize(4)
         for (size_t q = 0; q < (size_t)G->npair; q++)
             pair_core_sums(G, p, r, (int)q);
@@ -642,7 +622,7 @@ int lm_normal_equations(group *G, const double *p, const rstar *r, int exact)
     for (int k = 0; k < n && G->core_hw > 0; k++)
         if (full || (movers && G->moved[k]))
             set_core(G, p, k);
-    if (shared_out(G)) {
+    if (lm_shared_out(G)) {
 #pragma omp taskloop grainsize(1)
         for (size_t k = 0; k < (size_t)n; k++)
             if (!G->settled[k])

@@ -144,9 +144,9 @@ static void start_table(const truth_star *tr, mp_table *t)
 }
 
 /* One fit of the crowded frame; the fitted fluxes by NUMBER (NaN: lost). */
-static void crowded_fit(const mp_frame *f, const mp_prf_model *m, const truth_star *tr,
-                        int maxiter, double *flux, double *eflux, double *sky, double *esky,
-                        int *flags)
+static void crowded_fit_with(const mp_frame *f, const mp_prf_model *m, const truth_star *tr,
+                             int maxiter, mp_econ_cache *cache, double *flux, double *eflux,
+                             double *sky, double *esky, int *flags)
 {
     mp_table t;
     start_table(tr, &t);
@@ -154,6 +154,8 @@ static void crowded_fit(const mp_frame *f, const mp_prf_model *m, const truth_st
     mp_frame_opts_default(&fo);
     fo.fit.sky_order = 0;
     fo.fit.maxiter = maxiter;
+    fo.cache = cache;
+    fo.fits = cache ? 1e4 : fo.fits;
     char err[MP_ERRLEN];
     assert_int_equal(mp_fit_table(f, m, &fo, &t, NULL, err), 0);
     int cn = mp_table_col(&t, "NUMBER"), cf = mp_table_col(&t, "FLUX_PSF"),
@@ -174,6 +176,14 @@ static void crowded_fit(const mp_frame *f, const mp_prf_model *m, const truth_st
         assert_true(isfinite(flux[k]) && isfinite(eflux[k]) && isfinite(sky[k]) && isfinite(esky[k]));
     }
     mp_table_free(&t);
+}
+
+/* crowded_fit_with, the frame fit's economy off (no run cache). */
+static void crowded_fit(const mp_frame *f, const mp_prf_model *m, const truth_star *tr,
+                        int maxiter, double *flux, double *eflux, double *sky, double *esky,
+                        int *flags)
+{
+    crowded_fit_with(f, m, tr, maxiter, NULL, flux, eflux, sky, esky, flags);
 }
 
 /* The degenerate large group stays put.  Fitted as the sweep fits it (the
@@ -245,11 +255,12 @@ static void test_crowded_group_no_runaway(void **state)
     frame_drop(&f);
 }
 
-/* The crowded frame's fit (its largest group 45 stars: the normal
- * equations of a group of 16 or more shared out as tasks among the
- * team's threads, lm_normal.c shared_out) is the same bits on one thread
- * and on three: every flux, error, sky and flag.  Fails when a task
- * writes another's entries of A or sums in another order. */
+/* The crowded frame's fit (its largest group 45 stars: the renders and
+ * normal equations of a group of 16 or more shared out as tasks among
+ * the team's threads, lm_group.h lm_shared_out), with the run's economy
+ * (a phase grid, whose renders are the ones shared out), is the same bits
+ * on one thread and on three: every flux, error, sky and flag.  Fails
+ * when a task writes another's values or computes them otherwise. */
 static void test_crowded_group_threads_same(void **state)
 {
     (void)state;
@@ -262,10 +273,14 @@ static void test_crowded_group_threads_same(void **state)
     assert_int_equal(mp_psf_gauss_table(3.0, 2, 10.0, &tab, err), 0);
     mp_prf_model m = {&tab, NULL, 10};
     double fl[2][CR_N], ef[2][CR_N], sk[2][CR_N], es[2][CR_N];
-    int flags[2][CR_N], was = omp_get_max_threads();
+    int flags[2][CR_N], was = omp_get_max_threads(), lev[1] = {1};
     for (int r = 0; r < 2; r++) {
+        mp_econ_cache *c = mp_econ_cache_new();
+        assert_non_null(c);
+        assert_int_equal(mp_econ_offer(c, &m, 1, lev, 1, MP_PRF_CACHE_G), 0);
         omp_set_num_threads(r ? 3 : 1);
-        crowded_fit(&f, &m, tr, 50, fl[r], ef[r], sk[r], es[r], flags[r]);
+        crowded_fit_with(&f, &m, tr, 50, c, fl[r], ef[r], sk[r], es[r], flags[r]);
+        mp_econ_cache_free(c);
     }
     omp_set_num_threads(was);
     assert_memory_equal(fl[0], fl[1], sizeof fl[0]);
