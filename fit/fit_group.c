@@ -51,8 +51,6 @@ static void group_free(group *G)
     free(G->basis);
     free(G->spans);
     free(G->soff);
-    free(G->tspans);
-    free(G->tsoff);
     free(G->fx);
     free(G->ongrid);
     free(G->dwhole);

@@ -12,9 +12,6 @@
 #include <stddef.h>
 #include <stdint.h>
 #include "fit/fit.h"
-#ifdef _OPENMP
-#include <omp.h>
-#endif
 
 /* One star's rendered PRF and derivatives on the fitted pixels of its
  * window, rows [j0, j1) and columns [i0, i1) of the group box: row j0 + t
@@ -72,10 +69,6 @@ typedef struct {
     double *basis;              /* 6 × npix: the sky basis at every pixel */
     mp_span *spans;             /* nrun: the spans a star is rendered on */
     size_t *soff;               /* nrun: where each span's values go (core renders) */
-    mp_span *tspans;            /* ntspans × nrun, and soff's: each thread's */
-    size_t *tsoff;              /* spans for the renders shared out as tasks
-                                 * (lm_render.c render_shared) */
-    int ntspans;
     /* Frozen wings (levmar): while set, a render redraws each star on its
      * core only, the rest of its window keeping the values drawn at
      * (fx, fy) — both buffers alike. */
@@ -127,24 +120,6 @@ typedef struct {
     double *p, *pt, *A, *g, *M, *step;
     mp_prf_work work;
 } group;
-
-/* Whether a group's renders and normal equations are shared out as tasks
- * among the team's threads: a group of LM_TASK_STARS stars or more fitted
- * in a team of several (a pass's largest groups, which the other threads
- * wait for at its end: 47 Tuc built's 54 ms fits against ~10 ms a thread
- * on 16).  Each task writes its own star's or pair's values, computed as
- * one thread computes them, so the fit is the same bits on any number of
- * threads. */
-#define LM_TASK_STARS 16
-static inline int lm_shared_out(const group *G)
-{
-#ifdef _OPENMP
-    return G->n >= LM_TASK_STARS && omp_in_parallel() && omp_get_num_threads() > 1;
-#else
-    (void)G;
-    return 0;
-#endif
-}
 
 static inline double pixel(const group *G, long x, long y)
 {

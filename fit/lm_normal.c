@@ -378,136 +378,78 @@ static int pair_sums_core(const group *G, const rstar *rk, const rstar *rl, int 
     return 1;
 }
 
-/* Whether the windows of stars k and l meet (pair_sums_core's test:
- * rows and columns of their boxes overlap). */
-static int windows_meet(const rstar *rk, const rstar *rl)
-{
-    int j0 = rk->j0 > rl->j0 ? rk->j0 : rl->j0, j1 = rk->j1 < rl->j1 ? rk->j1 : rl->j1;
-    int c0 = rk->i0 > rl->i0 ? rk->i0 : rl->i0, c1 = rk->i1 < rl->i1 ? rk->i1 : rl->i1;
-    return j0 < j1 && c0 < c1;
-}
-
-/* Room for cap listed pairs; nonzero when out of memory. */
-static int pairs_room(group *G, int cap)
-{
-    if (cap <= G->cappair)
-        return 0;
-    cap = cap > 2 * G->cappair ? cap : 2 * G->cappair;
-    cap = cap > 64 ? cap : 64;
-    int *a = realloc(G->pk, (size_t)cap * sizeof *a);
-    if (a)
-        G->pk = a;
-    int *b = realloc(G->pl, (size_t)cap * sizeof *b);
-    if (b)
-        G->pl = b;
-    double *t = realloc(G->tail, (size_t)cap * 9 * sizeof *t);
-    if (t)
-        G->tail = t;
-    double *u = realloc(G->pfull, (size_t)cap * 9 * sizeof *u);
-    if (u)
-        G->pfull = u;
-    if (!a || !b || !t || !u)
-        return 1;
-    G->cappair = cap;
-    return 0;
-}
-
-/* Listed pair q (its windows meet) summed exactly into A, with its sums
- * outside its core in G->tail and its whole sums in G->pfull (the cores as
- * set_core fixed them). */
-static void pair_listed(group *G, const double *p, const rstar *r, int q)
-{
-    int k = G->pk[q], l = G->pl[q], x0, x1, y0, y1;
-    double s[3][3], c[3][3];
-    pair_core(G, k, l, &x0, &x1, &y0, &y1);
-    pair_sums_core(G, &r[k], &r[l], x0, x1, y0, y1, s, c);
-    put_pair(G, p, k, l, s);
-    double *t = G->tail + (size_t)q * 9, *u = G->pfull + (size_t)q * 9;
-    for (int a = 0; a < 9; a++) {
-        t[a] = s[a / 3][a % 3] - c[a / 3][a % 3];
-        u[a] = s[a / 3][a % 3];
-    }
-}
-
-/* Pair k < l summed exactly into A when their windows meet, listed
- * (pair_listed) when G->core_hw > 0.  Nonzero when out of memory. */
+/* Pair k < l summed exactly into A when their windows meet, and listed
+ * with its sums outside its core in G->tail (when G->core_hw > 0: the
+ * cores as set_core fixed them).  Nonzero when out of memory. */
 static int pair_exact(group *G, const double *p, const rstar *r, int k, int l)
 {
+    double s[3][3], c[3][3];
     if (!(G->core_hw > 0)) {
-        double s[3][3];
         if (pair_sums(G, &r[k], &r[l], 0, 0, G->bw, 0, G->bh, s))
             put_pair(G, p, k, l, s);
         return 0;
     }
-    if (!windows_meet(&r[k], &r[l]))
+    int x0, x1, y0, y1;
+    pair_core(G, k, l, &x0, &x1, &y0, &y1);
+    if (!pair_sums_core(G, &r[k], &r[l], x0, x1, y0, y1, s, c))
         return 0;
-    if (pairs_room(G, G->npair + 1))
-        return 1;
+    put_pair(G, p, k, l, s);
+    if (G->npair == G->cappair) {
+        int cap = G->cappair ? 2 * G->cappair : 64;
+        int *a = realloc(G->pk, (size_t)cap * sizeof *a);
+        if (a)
+            G->pk = a;
+        int *b = realloc(G->pl, (size_t)cap * sizeof *b);
+        if (b)
+            G->pl = b;
+        double *t = realloc(G->tail, (size_t)cap * 9 * sizeof *t);
+        if (t)
+            G->tail = t;
+        double *u = realloc(G->pfull, (size_t)cap * 9 * sizeof *u);
+        if (u)
+            G->pfull = u;
+        if (!a || !b || !t || !u)
+            return 1;
+        G->cappair = cap;
+    }
+    double *t = G->tail + (size_t)G->npair * 9, *u = G->pfull + (size_t)G->npair * 9;
+    for (int a = 0; a < 9; a++) {
+        t[a] = s[a / 3][a % 3] - c[a / 3][a % 3];
+        u[a] = s[a / 3][a % 3];
+    }
     G->pk[G->npair] = k;
-    G->pl[G->npair] = l;
-    pair_listed(G, p, r, G->npair++);
+    G->pl[G->npair++] = l;
     return 0;
 }
 
-/* The exact pass's pairs: every pair of open stars whose windows meet,
- * listed in order, then summed (pair_listed; shared out as tasks,
- * lm_shared_out).  Nonzero when out of memory. */
+/* The exact pass's pairs: every pair of open stars whose windows meet.
+ * Nonzero when out of memory. */
 static int pairs_exact(group *G, const double *p, const rstar *r)
 {
     G->npair = 0;
     for (int k = 0; k < G->n; k++)
-        for (int l = k + 1; l < G->n; l++) {
-            if (G->settled[k] || G->settled[l])
-                continue;
-            if (!(G->core_hw > 0)) {
-                pair_exact(G, p, r, k, l);      /* summed, not listed */
-                continue;
-            }
-            if (!windows_meet(&r[k], &r[l]))
-                continue;
-            if (pairs_room(G, G->npair + 1))
+        for (int l = k + 1; l < G->n; l++)
+            if (!G->settled[k] && !G->settled[l] && pair_exact(G, p, r, k, l))
                 return 1;
-            G->pk[G->npair] = k;
-            G->pl[G->npair++] = l;
-        }
-    if (lm_shared_out(G)) {
-#pragma omp taskloop grainsize(4)
-        for (size_t q = 0; q < (size_t)G->npair; q++)   /* size_t: clang's taskloop */
-            pair_listed(G, p, r, (int)q);
-    } else {
-        for (int q = 0; q < G->npair; q++)
-            pair_listed(G, p, r, q);
-    }
     return 0;
 }
 
-/* Between exact passes: listed pair q's core summed afresh, its tail as
- * the exact pass left it. */
-static void pair_core_sums(group *G, const double *p, const rstar *r, int q)
-{
-    int k = G->pk[q], l = G->pl[q], x0, x1, y0, y1;
-    double s[3][3];
-    if (G->settled[k] || G->settled[l])
-        return;
-    const double *t = G->tail + (size_t)q * 9;
-    pair_core(G, k, l, &x0, &x1, &y0, &y1);
-    pair_sums(G, &r[k], &r[l], 0, x0, x1, y0, y1, s);
-    for (int a = 0; a < 9; a++)
-        s[a / 3][a % 3] += t[a];
-    put_pair(G, p, k, l, s);
-}
-
-/* Every listed pair's (pair_core_sums; shared out as tasks, lm_shared_out). */
+/* Between exact passes: each pair's core summed afresh, its tail as the
+ * exact pass left it. */
 static void pairs_core(group *G, const double *p, const rstar *r)
 {
-    if (lm_shared_out(G)) {
-#pragma omp taskloop grainsize(4)
-        for (size_t q = 0; q < (size_t)G->npair; q++)
-            pair_core_sums(G, p, r, (int)q);
-        return;
+    for (int q = 0; q < G->npair; q++) {
+        int k = G->pk[q], l = G->pl[q], x0, x1, y0, y1;
+        double s[3][3];
+        if (G->settled[k] || G->settled[l])
+            continue;
+        const double *t = G->tail + (size_t)q * 9;
+        pair_core(G, k, l, &x0, &x1, &y0, &y1);
+        pair_sums(G, &r[k], &r[l], 0, x0, x1, y0, y1, s);
+        for (int a = 0; a < 9; a++)
+            s[a / 3][a % 3] += t[a];
+        put_pair(G, p, k, l, s);
     }
-    for (int q = 0; q < G->npair; q++)
-        pair_core_sums(G, p, r, q);
 }
 
 /* The pairs of the last exact pass, their whole sums as it made them (the
@@ -622,17 +564,9 @@ int lm_normal_equations(group *G, const double *p, const rstar *r, int exact)
     for (int k = 0; k < n && G->core_hw > 0; k++)
         if (full || (movers && G->moved[k]))
             set_core(G, p, k);
-    if (lm_shared_out(G)) {
-#pragma omp taskloop grainsize(1)
-        for (size_t k = 0; k < (size_t)n; k++)
-            if (!G->settled[k])
-                star_terms(G, p, &r[k], (int)k,
-                           full || exact == NE_STARS || (movers && G->moved[k]));
-    } else {
-        for (int k = 0; k < n; k++)
-            if (!G->settled[k])
-                star_terms(G, p, &r[k], k, full || exact == NE_STARS || (movers && G->moved[k]));
-    }
+    for (int k = 0; k < n; k++)
+        if (!G->settled[k])
+            star_terms(G, p, &r[k], k, full || exact == NE_STARS || (movers && G->moved[k]));
     if (reuse)
         pairs_reuse(G, p);
     else if (full) {

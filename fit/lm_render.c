@@ -103,18 +103,28 @@ static int grid_mode(group *G, const double *p, int k)
     return now;
 }
 
-/* Star k of p on its core only (render_all while the wings are frozen). */
-static int core_star(group *G, const double *p, rstar *r, int k, int what, int grid)
+/* render_all while the wings are frozen: each star on its core only. */
+static int render_core(group *G, const double *p, rstar *r, int what)
 {
-    double x = p[3 * k + 1], y = p[3 * k + 2];
-    int c[4], ns = lm_core_rows(G, &r[k], c);
-    if (ns == 0)
-        return 0;
-    return grid ? mp_prf_cache_render_at(G->work.grid, G->m, x, y, G->spans, G->soff, ns,
-                                         what == RENDER_DERIVS ? NULL : r[k].prf,
-                                         what == RENDER_PRF ? NULL : r[k].dx,
-                                         what == RENDER_PRF ? NULL : r[k].dy, grid_mode(G, p, k))
-                : render_exact(G, x, y, c[0], c[1], c[2], c[3], &r[k], ns, G->soff);
+    int usable = mp_prf_cache_usable(G->work.grid, G->m);
+    for (int k = 0; k < G->n; k++) {
+        double x = p[3 * k + 1], y = p[3 * k + 2];
+        int grid = usable && G->ongrid[k];
+        if ((!grid && what == RENDER_DERIVS) || G->settled[k])
+            continue;       /* the exact render drew them with the PRF */
+        int c[4], ns = lm_core_rows(G, &r[k], c);
+        if (ns == 0)
+            continue;
+        int rc = grid ? mp_prf_cache_render_at(G->work.grid, G->m, x, y, G->spans, G->soff, ns,
+                                               what == RENDER_DERIVS ? NULL : r[k].prf,
+                                               what == RENDER_PRF ? NULL : r[k].dx,
+                                               what == RENDER_PRF ? NULL : r[k].dy,
+                                               grid_mode(G, p, k))
+                      : render_exact(G, x, y, c[0], c[1], c[2], c[3], &r[k], ns, G->soff);
+        if (rc)
+            return 1;
+    }
+    return 0;
 }
 
 /* Star r's derivatives drawn on box columns [i0, i1) and rows [j0, j1)
@@ -219,93 +229,17 @@ static int render_window(group *G, const double *p, rstar *r, int k, int what, i
                 : render_exact(G, x, y, rk->i0, rk->i1, rk->j0, rk->j1, rk, ns, NULL);
 }
 
-/* Star k of p rendered as lm_render_all renders it (render_window, or on
- * its core while the wings are frozen: core_star); nonzero when its
- * window overflows. */
-static int render_star_as(group *G, const double *p, rstar *r, int k, int what, int grid)
-{
-    return G->frozen ? core_star(G, p, r, k, what, grid) : render_window(G, p, r, k, what, grid);
-}
-
-/* Thread t's view of G for a render shared out: G with that thread's own
- * spans (the phase grid's renders write nothing else of G's but their
- * star's own entries). */
-static group thread_view(const group *G, int t)
-{
-    group V = *G;
-    V.spans = G->tspans + (size_t)t * (size_t)(G->nrun > 0 ? G->nrun : 1);
-    V.soff = G->tsoff + (size_t)t * (size_t)(G->nrun > 0 ? G->nrun : 1);
-    return V;
-}
-
-/* Room for each of the team's threads' spans; nonzero when out of memory. */
-static int thread_spans(group *G)
-{
-#ifdef _OPENMP
-    int nt = omp_get_num_threads();
-#else
-    int nt = 1;
-#endif
-    if (nt <= G->ntspans)
-        return 0;
-    size_t nr = (size_t)(G->nrun > 0 ? G->nrun : 1) * (size_t)nt;
-    mp_span *sp = realloc(G->tspans, nr * sizeof *sp);
-    if (sp)
-        G->tspans = sp;
-    size_t *so = realloc(G->tsoff, nr * sizeof *so);
-    if (so)
-        G->tsoff = so;
-    if (!sp || !so)
-        return 1;
-    G->ntspans = nt;
-    return 0;
-}
-
-/* The stars rendered in shares (lm_shared_out): the exact renders first,
- * in order, by this thread (they draw through G->work, whose counts of
- * work must add up in one order); then those from the phase grid as
- * tasks, each on its thread's spans (thread_view).  Every star's values
- * are those lm_render_all draws.  -1 when the threads' spans could not be
- * had (lm_render_all then renders them all itself). */
-static int render_shared(group *G, const double *p, rstar *r, int what, int usable)
-{
-    if (thread_spans(G))
-        return -1;
-    for (int k = 0; k < G->n; k++)
-        if (!(usable && G->ongrid[k]) && what != RENDER_DERIVS && !G->settled[k] &&
-            render_star_as(G, p, r, k, what, 0))
-            return 1;
-    int failed = 0;
-#pragma omp taskloop grainsize(1) shared(failed)
-    for (size_t k = 0; k < (size_t)G->n; k++)   /* size_t: clang's taskloop */
-        if (usable && G->ongrid[k] && !G->settled[k]) {
-#ifdef _OPENMP
-            group V = thread_view(G, omp_get_thread_num());
-#else
-            group V = thread_view(G, 0);
-#endif
-            if (render_star_as(&V, p, r, (int)k, what, 1)) {
-#pragma omp atomic write
-                failed = 1;
-            }
-        }
-    return failed;
-}
-
 int lm_render_all(group *G, const double *p, rstar *r, int what)
 {
+    if (G->frozen)
+        return render_core(G, p, r, what);
     int usable = mp_prf_cache_usable(G->work.grid, G->m);
-    if (lm_shared_out(G)) {
-        int rc = render_shared(G, p, r, what, usable);
-        if (rc >= 0)
-            return rc;
-    }
     for (int k = 0; k < G->n; k++) {
         int grid = usable && G->ongrid[k];
         if ((!grid && what == RENDER_DERIVS) || G->settled[k])
             continue;       /* the exact render drew them with the PRF;
                              * a settled star is drawn in both buffers */
-        if (render_star_as(G, p, r, k, what, grid))
+        if (render_window(G, p, r, k, what, grid))
             return 1;
     }
     return 0;

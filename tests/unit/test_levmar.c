@@ -255,12 +255,11 @@ static void test_crowded_group_no_runaway(void **state)
     frame_drop(&f);
 }
 
-/* The crowded frame's fit (its largest group 45 stars: the renders and
- * normal equations of a group of 16 or more shared out as tasks among
- * the team's threads, lm_group.h lm_shared_out), with the run's economy
- * (a phase grid, whose renders are the ones shared out), is the same bits
- * on one thread and on three: every flux, error, sky and flag.  Fails
- * when a task writes another's values or computes them otherwise. */
+/* The crowded frame's fit (its groups fitted in parallel, the largest of
+ * 45 stars) with the run's economy (a phase grid) is the same bits on one
+ * thread and on three: every flux, error, sky and flag.  (It failed when a
+ * share of a group's renders or pair sums, run as tasks on other threads
+ * in a trial of session 56, was drawn or summed otherwise.) */
 static void test_crowded_group_threads_same(void **state)
 {
     (void)state;
