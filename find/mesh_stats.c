@@ -33,12 +33,72 @@ static double double_of(uint64_t u)
     return x;
 }
 
+/* The bits of float x as an unsigned key that sorts as x does (key_of's
+ * rule on 32 bits). */
+static uint32_t key32_of(float x)
+{
+    uint32_t u;
+    memcpy(&u, &x, sizeof u);
+    return (u >> 31) ? ~u : u | (UINT32_C(1) << 31);
+}
+
+static float float_of(uint32_t u)
+{
+    u = (u >> 31) ? u & ~(UINT32_C(1) << 31) : ~u;
+    float x;
+    memcpy(&x, &u, sizeof x);
+    return x;
+}
+
+/* radix_sort of values that are all floats' (a frame's pixels): their
+ * 32-bit keys, the four bytes' counts taken in the same pass, four passes
+ * at most (half of the doubles' eight, whose low bytes are the zeros a
+ * float's mantissa leaves).  The same values in the same order. */
+static void radix_sort32(double *v, size_t n, uint32_t *work)
+{
+    uint32_t *a = work, *b = work + n;
+    size_t count[4][256] = {{0}};
+    for (size_t i = 0; i < n; i++) {
+        uint32_t k = key32_of((float)v[i]);
+        a[i] = k;
+        for (int p = 0; p < 4; p++)
+            count[p][(k >> (8 * p)) & 0xff]++;
+    }
+    for (int p = 0; p < 4; p++) {
+        int shift = 8 * p;
+        size_t *c = count[p];
+        if (c[(a[0] >> shift) & 0xff] == n)
+            continue;
+        size_t pos = 0;
+        for (int q = 0; q < 256; q++) {
+            size_t k = c[q];
+            c[q] = pos;
+            pos += k;
+        }
+        for (size_t i = 0; i < n; i++)
+            b[c[(a[i] >> shift) & 0xff]++] = a[i];
+        uint32_t *t = a;
+        a = b;
+        b = t;
+    }
+    for (size_t i = 0; i < n; i++)
+        v[i] = float_of(a[i]);
+}
+
 /* LSD radix sort of finite doubles, 8 bits a pass; a pass whose byte is
  * the same for every value (the sign and exponent of a sky, mostly) is
- * skipped.  Several times faster than qsort on a mesh of 4096 values, and
- * sorting is most of the background's time. */
+ * skipped; values that are all floats' by radix_sort32.  Several times
+ * faster than qsort on a mesh of 4096 values, and sorting is most of the
+ * background's time.  work: room for 2n keys. */
 static void radix_sort(double *v, size_t n, uint64_t *work)
 {
+    int single = 1;
+    for (size_t i = 0; i < n; i++)
+        single &= (double)(float)v[i] == v[i];
+    if (single) {
+        radix_sort32(v, n, (uint32_t *)work);
+        return;
+    }
     uint64_t *a = work, *b = work + n;
     for (size_t i = 0; i < n; i++)
         a[i] = key_of(v[i]);

@@ -28,70 +28,127 @@ typedef struct {
     size_t n;
 } samples;
 
-/* The sky of the 2·nh + 1 rows a kernel footprint spans, kept as a
- * thread's samples move down the frame: each row's spline evaluated once
- * (mp_bkg_rows, the values of mp_bkg_sky), not once per tap (the taps'
- * spline evaluations were most of noise_scale, a tenth of a 512² frame's
- * run with its PSF built).  It pays where the samples are dense: every
- * row is evaluated whole, npix values, against nsel·taps per tap (a
- * 4096² frame's 2·10⁵ samples are 84 px apart).  v NULL: each tap
- * evaluates its own. */
+/* A kernel tap's terms at each pixel of the 2·nh + 1 rows a footprint
+ * spans, kept as a thread's samples move down the frame: the residual
+ * less the sky d, the Poisson variance v, the stars' light m and whether
+ * the pixel is usable ok, each formed once a pixel (its row's sky from
+ * one spline evaluation of the row, mp_bkg_rows), not once per footprint
+ * it falls in (~n/2 of them, every other pixel a sample: the taps' own
+ * evaluations were three quarters of noise_scale, which was a sixth of a
+ * 512² frame's run with its PSF given).  It pays where the samples are
+ * dense: every row is formed whole, npix pixels, against nsel·taps (a
+ * 4096² frame's 2·10⁵ samples are 84 px apart).  sky NULL: each tap
+ * forms its own (kernel_sample). */
 typedef struct {
-    float *v;
+    float *sky, *d;
+    double *v, *m;
+    unsigned char *ok;
     long *y;
     long nrow, nx;
-} sky_rows;
+} pixel_rows;
 
-/* Row y's sky from c (computed into its slot when not there). */
-static const float *sky_row(const mp_bkg *b, sky_rows *c, long y)
+/* Row y's slot of c, its terms formed there when not yet (the same
+ * arithmetic as kernel_sample's own taps: d = res − sky in single
+ * precision, v = poisson_var, m = max(pix − res, 0)). */
+static size_t pixel_row(const mp_bkg *b, const mp_frame *f, const float *res, pixel_rows *c,
+                        long y)
 {
-    size_t slot = (size_t)(y % c->nrow);
-    if (c->y[slot] != y) {
-        mp_bkg_rows(b, y, y + 1, c->v + slot * (size_t)c->nx, NULL);
-        c->y[slot] = y;
+    size_t slot = (size_t)(y % c->nrow), o = slot * (size_t)c->nx;
+    if (c->y[slot] == y)
+        return o;
+    float *sky = c->sky + o;
+    mp_bkg_rows(b, y, y + 1, sky, NULL);
+    size_t q0 = (size_t)y * (size_t)c->nx;
+    for (long x = 0; x < c->nx; x++) {
+        size_t q = q0 + (size_t)x;
+        double v = poisson_var(f, res, q, sky[x]);
+        c->d[o + (size_t)x] = res[q] - sky[x];
+        c->v[o + (size_t)x] = v;
+        c->m[o + (size_t)x] = fmax(f->im.pix[q] - res[q], 0.0);
+        c->ok[o + (size_t)x] = !f->mask[q] && v > 0 && isfinite(res[q]);
     }
-    return c->v + slot * (size_t)c->nx;
+    c->y[slot] = y;
+    return o;
+}
+
+static void pixel_rows_free(pixel_rows *c)
+{
+    free(c->sky);
+    free(c->d);
+    free(c->v);
+    free(c->m);
+    free(c->ok);
+    free(c->y);
+    c->sky = NULL;
 }
 
 /* Room for the rows of a kernel of half-width nh on a frame nx wide
- * when use; c->v NULL when not, or when there is none (the taps then
- * evaluate their own). */
-static void sky_rows_init(sky_rows *c, int nh, long nx, int use)
+ * when use; c->sky NULL when not, or when there is none (the taps then
+ * form their own). */
+static void pixel_rows_init(pixel_rows *c, int nh, long nx, int use)
 {
+    memset(c, 0, sizeof *c);
     c->nrow = 2L * nh + 1;
     c->nx = nx;
-    c->v = NULL;
-    c->y = NULL;
     if (!use)
         return;
-    c->v = malloc((size_t)c->nrow * (size_t)nx * sizeof *c->v);
+    size_t n = (size_t)c->nrow * (size_t)nx;
+    c->sky = malloc(n * sizeof *c->sky);
+    c->d = malloc(n * sizeof *c->d);
+    c->v = malloc(n * sizeof *c->v);
+    c->m = malloc(n * sizeof *c->m);
+    c->ok = malloc(n);
     c->y = malloc((size_t)c->nrow * sizeof *c->y);
-    if (!c->v || !c->y) {
-        free(c->v);
-        free(c->y);
-        c->v = NULL;
-        c->y = NULL;
+    if (!c->sky || !c->d || !c->v || !c->m || !c->ok || !c->y) {
+        pixel_rows_free(c);
         return;
     }
     for (long r = 0; r < c->nrow; r++)
         c->y[r] = -1;
 }
 
-static void sky_rows_free(sky_rows *c)
+/* kernel_sample of a footprint inside the frame from c's rows: every
+ * tap's terms summed, ok when all are usable (where one is not, the
+ * sample is dropped, its sums unread: the same samples as the taps' own
+ * loop, which stops there). */
+static void inner_sample(const mp_bkg *b, const mp_frame *f, const float *res,
+                         const mpf_kernel *k, pixel_rows *c, long x0, long y0, samples *s,
+                         size_t j)
 {
-    free(c->v);
-    free(c->y);
+    size_t row[2 * 64 + 1];
+    for (int d = -k->nh; d <= k->nh; d++)
+        row[d + k->nh] = pixel_row(b, f, res, c, y0 + d) + (size_t)x0;
+    double h = 0.0, vh = 0.0, sp = 0.0, sm = 0.0;
+    unsigned char ok = 1;
+    for (int t = 0; t < k->n; t++) {
+        size_t o = row[k->dy[t] + k->nh] + (size_t)(long)k->dx[t];
+        double v = c->v[o];
+        ok &= c->ok[o];
+        h += k->kl[t] * c->d[o];
+        vh += k->kl[t] * k->kl[t] * v;
+        sp += v;
+        sm += c->m[o];
+    }
+    s->r[j] = h;
+    s->p[j] = ok ? vh : -1.0;
+    s->m[j] = ok ? sm / sqrt(sp) : 0.0;
 }
 
 /* Pixel (x, y) = (i mod nx, i / nx) as sample j of s through the
  * detection kernel k: r its amplitude h = Σ kl·(residual − sky) there,
  * p h's Poisson variance Σ kl²·v, m the stars' light over its noise in
  * the footprint; p = −1 where the footprint leaves the frame or holds a
- * masked or unusable pixel.  The sky from c's rows (sky_row). */
+ * masked or unusable pixel.  The taps' terms from c's rows (pixel_row;
+ * inner_sample inside the frame), else each tap's own. */
 static void kernel_sample(const mp_bkg *b, const mp_frame *f, const float *res,
-                          const mpf_kernel *k, sky_rows *c, size_t i, samples *s, size_t j)
+                          const mpf_kernel *k, pixel_rows *c, size_t i, samples *s, size_t j)
 {
     long nx = f->im.nx, ny = f->im.ny, x0 = (long)(i % (size_t)nx), y0 = (long)(i / (size_t)nx);
+    if (c->sky && k->nh <= 64 && x0 >= k->nh && x0 + k->nh < nx && y0 >= k->nh &&
+        y0 + k->nh < ny) {
+        inner_sample(b, f, res, k, c, x0, y0, s, j);
+        return;
+    }
     double h = 0.0, vh = 0.0, sp = 0.0, sm = 0.0;
     int ok = 1;
     for (int t = 0; ok && t < k->n; t++) {
@@ -99,8 +156,18 @@ static void kernel_sample(const mp_bkg *b, const mp_frame *f, const float *res,
         ok = x >= 0 && x < nx && y >= 0 && y < ny;
         if (!ok)
             break;
+        if (c->sky) {
+            size_t o = pixel_row(b, f, res, c, y) + (size_t)x;
+            double v = c->v[o];
+            ok = c->ok[o];
+            h += k->kl[t] * c->d[o];
+            vh += k->kl[t] * k->kl[t] * v;
+            sp += v;
+            sm += c->m[o];
+            continue;
+        }
         size_t q = (size_t)y * (size_t)nx + (size_t)x;
-        float sky = c->v ? sky_row(b, c, y)[x] : mp_bkg_sky(b, q);
+        float sky = mp_bkg_sky(b, q);
         double v = poisson_var(f, res, q, sky);
         ok = !f->mask[q] && v > 0 && isfinite(res[q]);
         h += k->kl[t] * (res[q] - sky);
@@ -171,12 +238,12 @@ static double noise_scale(const mp_bkg *b, const mp_frame *f, const float *res,
      * the threads. */
 #pragma omp parallel
     {
-        sky_rows c;
-        sky_rows_init(&c, k->nh, f->im.nx, npix < nsel * (size_t)k->n);
+        pixel_rows c;
+        pixel_rows_init(&c, k->nh, f->im.nx, npix < nsel * (size_t)k->n);
 #pragma omp for schedule(static)
         for (size_t j = 0; j < nsel; j++)
             kernel_sample(b, f, res, k, &c, j * step, all, j);
-        sky_rows_free(&c);
+        pixel_rows_free(&c);
     }
     all->n = compact(all, nsel);
     /* The samples whose star light is below its noise; in a field so
