@@ -22,15 +22,6 @@ static int cluster(const unsigned char *m, int nx, int ny, int i, int j, int nee
     return c >= need;
 }
 
-/* Whether row j of m holds a hit. */
-static int row_hit(const unsigned char *m, int nx, int j)
-{
-    for (int i = 0; i < nx; i++)
-        if (m[(size_t)j * nx + i] & MP_EPSF_HIT)
-            return 1;
-    return 0;
-}
-
 /* Whether m[0..n) holds a hit: one or-reduction the compiler vectorises
  * (a star without a hit is most stars in most steps). */
 static int any_hit(const unsigned char *m, size_t n)
@@ -43,38 +34,45 @@ static int any_hit(const unsigned char *m, size_t n)
 
 /* One star's mask m: the clusters of hits dilated by h, rows first
  * (row marks the row-dilation; a row without a hit has no cluster), then
- * columns; a star without a hit only cleared. */
-static void dilate_star(unsigned char *m, int nx, int ny, int h, int need, unsigned char *row)
+ * columns, a row at a time (last: each column's last marked row; every
+ * element of m written once, MP_EPSF_MASKED or 0: the loops run along
+ * rows, which the compiler vectorises); a star without a hit only
+ * cleared.  row: nx·ny bytes, last: nx ints. */
+static void dilate_star(unsigned char *m, int nx, int ny, int h, int need, unsigned char *row,
+                        int *last)
 {
     if (!any_hit(m, (size_t)nx * ny)) {
         memset(m, 0, (size_t)nx * ny);
         return;
     }
-    int any = 0;
     for (int j = 0; j < ny; j++) {
-        memset(row + (size_t)j * nx, 0, (size_t)nx);
-        if (!row_hit(m, nx, j))
+        unsigned char *rj = row + (size_t)j * nx;
+        memset(rj, 0, (size_t)nx);
+        if (!any_hit(m + (size_t)j * nx, (size_t)nx))
             continue;
-        any = 1;
-        int last = -h - 1;       /* last cluster column seen */
+        int lc = -h - 1;       /* last cluster column seen */
         for (int i = 0; i < nx + h; i++) {
             if (i < nx && cluster(m, nx, ny, i, j, need))
-                last = i;
+                lc = i;
             int t = i - h;      /* covered by a cluster within h on the left or right */
-            if (t >= 0 && t < nx && i - last <= 2 * h)
-                row[(size_t)j * nx + t] = 1;
+            if (t >= 0 && t < nx && i - lc <= 2 * h)
+                rj[t] = 1;
         }
     }
-    memset(m, 0, (size_t)nx * ny);
-    for (int i = 0; any && i < nx; i++) {
-        int last = -h - 1;
-        for (int j = 0; j < ny + h; j++) {
-            if (j < ny && row[(size_t)j * nx + i])
-                last = j;
-            int t = j - h;
-            if (t >= 0 && t < ny && j - last <= 2 * h)
-                m[(size_t)t * nx + i] = MP_EPSF_MASKED;
+    for (int i = 0; i < nx; i++)
+        last[i] = -h - 1;
+    for (int j = 0; j < ny + h; j++) {
+        if (j < ny) {
+            const unsigned char *rj = row + (size_t)j * nx;
+            for (int i = 0; i < nx; i++)
+                last[i] = rj[i] ? j : last[i];
         }
+        int t = j - h;         /* covered by a marked row within h above or below */
+        if (t < 0 || t >= ny)
+            continue;
+        unsigned char *mt = m + (size_t)t * nx;
+        for (int i = 0; i < nx; i++)
+            mt[i] = j - last[i] <= 2 * h ? MP_EPSF_MASKED : 0;
     }
 }
 
@@ -87,12 +85,14 @@ int mp_epsf_sirt_dilate(mp_epsf_sirt *w, const mp_epsf *e, size_t n, double rd)
 #pragma omp parallel reduction(| : failed)
     {
         unsigned char *row = malloc(nel);
-        failed = !row;
+        int *last = malloc((size_t)nx * sizeof *last);
+        failed = !row || !last;
 #pragma omp for schedule(static)
         for (size_t k = 0; k < n; k++)
-            if (row)
-                dilate_star(w->mask + k * nel, nx, ny, h, need, row);
+            if (row && last)
+                dilate_star(w->mask + k * nel, nx, ny, h, need, row, last);
         free(row);
+        free(last);
     }
     return failed;
 }
