@@ -84,9 +84,12 @@ static int reserve(mp_prf_axis *a, int w, int bw, int deriv)
         a->v = v;
         a->capv = nv;
     }
-    size_t used = (deriv ? 2 : 1) * nw * (size_t)bw;
-    memset(a->v, 0, used * sizeof *a->v);
     a->d = deriv ? a->v + nw * (size_t)bw : NULL;
+    if (w <= 0) {           /* no pixel: the one row there is, zero */
+        memset(a->v, 0, (size_t)bw * sizeof *a->v);
+        if (a->d)
+            memset(a->d, 0, (size_t)bw * sizeof *a->d);
+    }
     return 0;
 }
 
@@ -132,6 +135,11 @@ int mp_prf_axis_refill(int n, int os, double offset, double x, double xr, long w
                        (size_t)a->bw * sizeof *v);
             continue;
         }
+        /* a pixel's weights are sums from zero (its row cleared here, not
+         * the whole array: most rows are copies) */
+        memset(v, 0, (size_t)a->bw * sizeof *v);
+        if (deriv)
+            memset(a->d + (size_t)q * a->bw, 0, (size_t)a->bw * sizeof *v);
         for (long m = mb0 < 0 ? 0 : mb0; m < mb0 + os && m < n; m++) {
             add_shifted(v, lo, m, 1.0, wt, h, n);
             for (int t = 0; deriv && t < 4; t++)
