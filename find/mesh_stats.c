@@ -33,6 +33,17 @@ static double double_of(uint64_t u)
     return x;
 }
 
+/* Counts of a radix pass's 256 buckets turned into their first places. */
+static void bucket_starts(size_t *count)
+{
+    size_t pos = 0;
+    for (int c = 0; c < 256; c++) {
+        size_t k = count[c];
+        count[c] = pos;
+        pos += k;
+    }
+}
+
 /* The bits of float x as an unsigned key that sorts as x does (key_of's
  * rule on 32 bits). */
 static uint32_t key32_of(float x)
@@ -69,12 +80,7 @@ static void radix_sort32(double *v, size_t n, uint32_t *work)
         size_t *c = count[p];
         if (c[(a[0] >> shift) & 0xff] == n)
             continue;
-        size_t pos = 0;
-        for (int q = 0; q < 256; q++) {
-            size_t k = c[q];
-            c[q] = pos;
-            pos += k;
-        }
+        bucket_starts(c);
         for (size_t i = 0; i < n; i++)
             b[c[(a[i] >> shift) & 0xff]++] = a[i];
         uint32_t *t = a;
@@ -108,12 +114,7 @@ static void radix_sort(double *v, size_t n, uint64_t *work)
             count[(a[i] >> shift) & 0xff]++;
         if (count[(a[0] >> shift) & 0xff] == n)
             continue;
-        size_t pos = 0;
-        for (int c = 0; c < 256; c++) {
-            size_t k = count[c];
-            count[c] = pos;
-            pos += k;
-        }
+        bucket_starts(count);
         for (size_t i = 0; i < n; i++)
             b[count[(a[i] >> shift) & 0xff]++] = a[i];
         uint64_t *t = a;
