@@ -299,8 +299,8 @@ static int masked_above(const elem_block *b, size_t i, const double *all, double
  * arithmetic, bit for bit: Σg and Σh over the stars the mask leaves, in
  * their order (a star left out adds +0, which no such sum can tell: it
  * is never −0), Marquardt's factor and the ridge, and the 1×1 Cholesky's
- * two divisions by √A.  The stars it leaves into idx[0..*m) (no branch
- * on them: half are masked beyond the core).  1 when A is not positive,
+ * two divisions by √A.  The stars it leaves into idx[0..*m), with no
+ * branch on them.  1 when A is not positive,
  * c then Σg as wls leaves it. */
 static int wls0(const float *h, const float *g, const unsigned char *mk, size_t n,
                 double ridge, size_t *idx, size_t *m, double *c)
