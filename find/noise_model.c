@@ -34,11 +34,11 @@ typedef struct {
  * the pixel is usable ok, each formed once a pixel (its row's sky from
  * one spline evaluation of the row, mp_bkg_rows), not once per footprint
  * it falls in (~n/2 of them, every other pixel a sample: noise_scale
- * 319 -> 185·10⁶ instructions on a 512² frame, where it was 15 % of the
+ * 319 -> 154·10⁶ instructions on a 512² frame, where it was 15 % of the
  * run with the PSF given).  It pays where the samples are
  * dense: every row is formed whole, npix pixels, against nsel·taps (a
  * 4096² frame's 2·10⁵ samples are 84 px apart).  sky NULL: each tap
- * forms its own (kernel_sample). */
+ * forms its own (kernel_sample), as it does at the frame's edges. */
 typedef struct {
     float *sky, *d;
     double *v, *m;
@@ -138,8 +138,9 @@ static void inner_sample(const mp_bkg *b, const mp_frame *f, const float *res,
  * detection kernel k: r its amplitude h = Σ kl·(residual − sky) there,
  * p h's Poisson variance Σ kl²·v, m the stars' light over its noise in
  * the footprint; p = −1 where the footprint leaves the frame or holds a
- * masked or unusable pixel.  The taps' terms from c's rows (pixel_row;
- * inner_sample inside the frame), else each tap's own. */
+ * masked or unusable pixel.  A footprint inside the frame from c's rows
+ * (inner_sample), else each tap's own terms (mp_bkg_sky: the values of
+ * mp_bkg_rows, bit for bit). */
 static void kernel_sample(const mp_bkg *b, const mp_frame *f, const float *res,
                           const mpf_kernel *k, pixel_rows *c, size_t i, samples *s, size_t j)
 {
@@ -156,16 +157,6 @@ static void kernel_sample(const mp_bkg *b, const mp_frame *f, const float *res,
         ok = x >= 0 && x < nx && y >= 0 && y < ny;
         if (!ok)
             break;
-        if (c->sky) {
-            size_t o = pixel_row(b, f, res, c, y) + (size_t)x;
-            double v = c->v[o];
-            ok = c->ok[o];
-            h += k->kl[t] * c->d[o];
-            vh += k->kl[t] * k->kl[t] * v;
-            sp += v;
-            sm += c->m[o];
-            continue;
-        }
         size_t q = (size_t)y * (size_t)nx + (size_t)x;
         float sky = mp_bkg_sky(b, q);
         double v = poisson_var(f, res, q, sky);

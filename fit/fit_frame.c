@@ -163,19 +163,6 @@ void mp_frame_report_add(mp_frame_report *d, const mp_frame_report *r)
     d->render_ops += r->render_ops;
 }
 
-/* A group's place in a pass: its size, then its index. */
-typedef struct {
-    size_t k, g;
-} group_size;
-
-static int cmp_largest_first(const void *a, const void *b)
-{
-    const group_size *x = a, *y = b;
-    if (x->k != y->k)
-        return (x->k < y->k) - (x->k > y->k);
-    return (x->g > y->g) - (x->g < y->g);
-}
-
 /* by[0 .. g1 − g0): the groups g0..g1 of gs, largest first (ties in
  * order).  Handed out so (schedule dynamic), the long fits start first
  * and a pass does not wait on one started last: 47 Tuc built's twelve
@@ -183,11 +170,11 @@ static int cmp_largest_first(const void *a, const void *b)
  * take 0.269 s so against 0.309 s in index order (the bound, the largest
  * fit or the sum over 16 a pass, 0.268 s).  Which group a thread takes
  * does not change its fit, so neither does this order. */
-static void largest_first(const size_t *gs, size_t g0, size_t g1, group_size *by)
+static void largest_first(const size_t *gs, size_t g0, size_t g1, mp_work_item *by)
 {
     for (size_t g = g0; g < g1; g++)
-        by[g - g0] = (group_size){gs[g + 1] - gs[g], g};
-    qsort(by, g1 - g0, sizeof *by, cmp_largest_first);
+        by[g - g0] = (mp_work_item){gs[g + 1] - gs[g], g};
+    mp_costliest_first(by, g1 - g0);
 }
 
 /* One pass over the ng groups (gs, ff_fit_group_local), in parallel,
@@ -204,7 +191,7 @@ static int fit_pass(const mp_frame *f, const mp_prf_model *m, mp_frame_opts *oc,
                     int more, mp_frame_report *pr, char *err)
 {
     int learn = oc->cache && oc->learn;
-    group_size *by = malloc((ng ? ng : 1) * sizeof *by);
+    mp_work_item *by = malloc((ng ? ng : 1) * sizeof *by);
     if (!by) {
         snprintf(err, MP_ERRLEN, "out of memory");
         return 1;
@@ -225,8 +212,8 @@ static int fit_pass(const mp_frame *f, const mp_prf_model *m, mp_frame_opts *oc,
             for (size_t q = 0; q < g1 - g0; q++) {
                 char e[MP_ERRLEN];
                 mp_frame_report r = {0};
-                size_t g = by[q].g;
-                int k = (int)by[q].k;
+                size_t g = by[q].i;
+                int k = (int)by[q].cost;           /* its stars */
                 if (ff_fit_group_local(f, m, oc, mergerad, R, all, crop, st + gs[g], k, economy,
                                        economy, &r, e)) {
                     failed++;

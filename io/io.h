@@ -285,6 +285,17 @@ int mp_fits_guard_named(const char *path, const char *name, char *err);
  * this header does not include cfitsio's). */
 int mp_fits_key_number(void *fp, const char *key, double *v, int *status);
 
+/* A piece of work handed to threads: its cost (stars to fit, say) and
+ * its index. */
+typedef struct {
+    size_t cost, i;
+} mp_work_item;
+
+/* mp_costliest_first: w[0..n) sorted by cost, largest first, ties by
+ * index: the order to hand work out in (schedule dynamic), so that a long
+ * piece does not start last and keep the others waiting at the end. */
+void mp_costliest_first(mp_work_item *w, size_t n);
+
 /* mp_select_kth: the k-th smallest of v[0..n) (k < n), with v rearranged
  * so that v[0..k) ≤ v[k] ≤ v[k+1..n) (quickselect, median-of-three pivot,
  * branch-free partitions; linear time on average).  For finite values. */

@@ -230,3 +230,16 @@ double mp_median_select(double *v, size_t n)
         lo = v[i] > lo ? v[i] : lo;
     return 0.5 * (lo + hi);
 }
+
+static int cmp_costliest(const void *a, const void *b)
+{
+    const mp_work_item *x = a, *y = b;
+    if (x->cost != y->cost)
+        return (x->cost < y->cost) - (x->cost > y->cost);
+    return (x->i > y->i) - (x->i < y->i);
+}
+
+void mp_costliest_first(mp_work_item *w, size_t n)
+{
+    qsort(w, n, sizeof *w, cmp_costliest);
+}

@@ -179,21 +179,6 @@ static int fit_star(mp_epsf_star *s, const mp_epsf *e, const mp_epsf_opts *o,
     return nfit > 1 && mp_epsf_clean(s, tab, nbgrid, o->psfrad);
 }
 
-/* A used star's place in fit_stars' order: its fit's stars, then its
- * index. */
-typedef struct {
-    int nfit;
-    size_t k;
-} star_cost;
-
-static int cmp_costliest(const void *a, const void *b)
-{
-    const star_cost *x = a, *y = b;
-    if (x->nfit != y->nfit)
-        return y->nfit - x->nfit;
-    return (x->k > y->k) - (x->k < y->k);
-}
-
 /* Every used star fitted (fit_star), in parallel: a fit reads the table
  * and z and writes only its own star, so the stars' fits do not depend on
  * the number of threads or their order.  Those with the most neighbours
@@ -205,13 +190,13 @@ static int fit_stars(mp_epsf_star *s, size_t n, const mp_epsf *e, const mp_epsf_
     long fits = 0, grid = 0;
     int failed = 0;
     size_t nu = 0;
-    star_cost *by = malloc((n ? n : 1) * sizeof *by);
+    mp_work_item *by = malloc((n ? n : 1) * sizeof *by);
     if (!by)
         return oom(err);
-    for (size_t k = 0; k < n; k++)
+    for (size_t k = 0; k < n; k++)      /* its fit's stars */
         if (s[k].used)
-            by[nu++] = (star_cost){hold && s[k].raw ? 1 : 1 + s[k].nnb, k};
-    qsort(by, nu, sizeof *by, cmp_costliest);
+            by[nu++] = (mp_work_item){hold && s[k].raw ? 1 : 1 + (size_t)s[k].nnb, k};
+    mp_costliest_first(by, nu);
 #pragma omp parallel reduction(+ : fits, grid) reduction(| : failed)
     {
         mp_psf own;             /* the table at a star's place (order > 0) */
@@ -221,7 +206,7 @@ static int fit_stars(mp_epsf_star *s, size_t n, const mp_epsf *e, const mp_epsf_
         for (size_t q = 0; q < nu; q++)
             if (!failed) {
                 fits++;
-                failed = fit_star(&s[by[q].k], e, o, z, tab, hold, early, &grid);
+                failed = fit_star(&s[by[q].i], e, o, z, tab, hold, early, &grid);
             }
         mp_psf_free(&own);
     }

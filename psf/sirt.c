@@ -334,8 +334,8 @@ static void all_deviations(const elem_block *b, size_t i, const double *terms, i
                            const double *c, double *restrict all)
 {
     const float *h = b->h + i * b->m, *g = b->g + i * b->m;
-    if (nt == 1) {
-        double c0 = 0.0 + 1.0 * c[0];
+    if (nt == 1) {           /* deviation's value: |·| makes a zero c's sign moot */
+        double c0 = c[0];
         for (size_t q = 0; q < b->m; q++)
             all[q] = fabs((double)g[q] / (double)h[q] - c0) * sqrt((double)h[q]);
         return;
