@@ -90,23 +90,58 @@ static size_t star_like(const mp_table *t, const cols *k, cand *c, size_t m, dou
     return m;
 }
 
+/* A table's rows by X, for the neighbour searches of alone. */
+typedef struct { double x; size_t row; } by_x;
+
+static int by_x_order(const void *a, const void *b)
+{
+    double x = ((const by_x *)a)->x, y = ((const by_x *)b)->x;
+    return (x > y) - (x < y);
+}
+
+/* The first of o[0..n) (ascending x) with x >= v. */
+static size_t first_at_least(const by_x *o, size_t n, double v)
+{
+    size_t lo = 0, hi = n;
+    while (lo < hi) {
+        size_t mid = lo + (hi - lo) / 2;
+        if (o[mid].x < v)
+            lo = mid + 1;
+        else
+            hi = mid;
+    }
+    return lo;
+}
+
 /* Alone: no brighter detection within fitrad, where star and neighbour
  * would be one blend.  Beyond it a neighbour, brighter or fainter, is
  * fitted with the star at every fit of the build and its model taken out
  * (mp_epsf_neighbours, mp_epsf_clean), and what it leaves is masked
  * (mp_epsf_sirt_dilate): DAOPHOT's psfrad rule left ~100 of a crowded
  * frame's 400 stars, too few for an order-3 field (MP_EPSF_PER_TERM).
- * Returns the candidates kept, first in c. */
-static size_t alone(const mp_table *t, const cols *k, double fitrad, cand *c, size_t m)
+ * The rows are searched by X (o: the rows of finite X, sorted; a row of
+ * another X passes no test below), from a pixel beyond fitrad on either
+ * side: every candidate against every row was 1 % of frame B built
+ * (tests/bench/daophot).  Returns the candidates kept, first in c. */
+static size_t alone(const mp_table *t, const cols *k, double fitrad, cand *c, size_t m, by_x *o)
 {
+    size_t no = 0;
+    for (size_t q = 0; q < t->nrow; q++) {
+        double x = mp_table_get(t, q, k->x);
+        if (isfinite(x))
+            o[no++] = (by_x){x, q};
+    }
+    qsort(o, no, sizeof *o, by_x_order);
     size_t kept = 0;
     for (size_t i = 0; i < m; i++) {
         double x = mp_table_get(t, c[i].row, k->x), y = mp_table_get(t, c[i].row, k->y);
         int lone = 1;
-        for (size_t q = 0; q < t->nrow && lone; q++) {
+        for (size_t a = first_at_least(o, no, x - fitrad - 1.0);
+             a < no && o[a].x <= x + fitrad + 1.0 && lone; a++) {
+            size_t q = o[a].row;
             if (q == c[i].row)
                 continue;
-            double dx = mp_table_get(t, q, k->x) - x, dy = mp_table_get(t, q, k->y) - y;
+            double dx = o[a].x - x, dy = mp_table_get(t, q, k->y) - y;
             if (fabs(dx) > fitrad || fabs(dy) > fitrad)
                 continue;       /* beyond fitrad on an axis: beyond it (hypot's cost) */
             if (hypot(dx, dy) <= fitrad && !(mp_table_get(t, q, k->f) < c[i].flux))
@@ -170,15 +205,17 @@ int mp_epsf_select(const mp_frame *f, const mp_table *t, const mp_epsf_opts *o, 
     }
     cand *c = malloc((t->nrow + 1) * sizeof *c);
     double *v = malloc((t->nrow + 1) * sizeof *v);
+    by_x *ox = malloc((t->nrow + 1) * sizeof *ox);
     long out = -1;
-    if (c && v) {
+    if (c && v && ox) {
         size_t m = bright_clean(f, t, &k, o, c);
         m = star_like(t, &k, c, m, v);
-        m = alone(t, &k, o->fitrad, c, m);
+        m = alone(t, &k, o->fitrad, c, m, ox);
         out = spread(f, t, &k, o->maxnpsf, c, m, idx);
     }
     free(c);
     free(v);
+    free(ox);
     if (out < 0) {
         snprintf(err, MP_ERRLEN, "psf select: out of memory");
         return 1;
