@@ -93,9 +93,22 @@ static int reserve(mp_prf_axis *a, int w, int bw, int deriv)
     return 0;
 }
 
+/* Whether a's operator was last refilled with these arguments. */
+static int same_refill(const mp_prf_axis *a, int n, int os, double offset, double x, double xr,
+                       long wp0, long ww, int hw, int deriv)
+{
+    return a->last.made && a->last.n == n && a->last.os == os && a->last.hw == hw &&
+           a->last.deriv == deriv && a->last.offset == offset && a->last.x == x &&
+           a->last.xr == xr && a->last.wp0 == wp0 && a->last.ww == ww;
+}
+
 int mp_prf_axis_refill(int n, int os, double offset, double x, double xr, long wp0, long ww,
                        int hw, int deriv, mp_prf_axis *a)
 {
+    if (same_refill(a, n, os, offset, x, xr, wp0, ww, hw, deriv))
+        return 0;
+    a->last.made = 0;
+    int hw_given = hw;
     long n0, bp0;
     double delta;
     int bwid;
@@ -148,6 +161,16 @@ int mp_prf_axis_refill(int n, int os, double offset, double x, double xr, long w
         if (inner)
             have = q;
     }
+    a->last.n = n;
+    a->last.os = os;
+    a->last.hw = hw_given;
+    a->last.deriv = deriv;
+    a->last.offset = offset;
+    a->last.x = x;
+    a->last.xr = xr;
+    a->last.wp0 = wp0;
+    a->last.ww = ww;
+    a->last.made = 1;
     return 0;
 }
 

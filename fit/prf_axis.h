@@ -19,6 +19,11 @@ typedef struct {
     int *len;
     double *v, *d;         /* d: NULL when built without the derivative */
     size_t capw, capv;     /* what lo, len and v hold (mp_prf_axis_refill) */
+    struct {               /* the arguments of the last refill (made: 1) */
+        int made, n, os, hw, deriv;
+        double offset, x, xr;
+        long wp0, ww;
+    } last;
 } mp_prf_axis;
 
 /* mp_prf_axis_geom: one axis of a table star (n elements, OVERSAMP os) at
@@ -37,7 +42,10 @@ int mp_prf_axis_build(int n, int os, double offset, double x, double xr, long wp
 
 /* mp_prf_axis_refill: the same into a, whose arrays are kept and grown as
  * needed (a zeroed mp_prf_axis, or one built before); the derivative's
- * weights only with deriv (a->d NULL without).  Nonzero when out of memory. */
+ * weights only with deriv (a->d NULL without).  Arguments equal to the
+ * last refill's leave a as it is (the PSF build's SIRT renders and
+ * projects each star at one place through a run's steps).  Nonzero when
+ * out of memory. */
 int mp_prf_axis_refill(int n, int os, double offset, double x, double xr, long wp0, long ww,
                        int hw, int deriv, mp_prf_axis *a);
 void mp_prf_axis_free(mp_prf_axis *a);

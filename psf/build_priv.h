@@ -21,6 +21,9 @@ typedef struct {
     double *geo;           /* nstar × 6: the box (x0, y0, w, h) and the
                             * star (x, y) in its cut-out's coordinates */
     double *chi2s;         /* nstar: each star's Σ W ρ², summed in order */
+    struct mp_prf_axes_s **axes;  /* nstar: each star's render operators
+                            * (fit/prf.c), made at its first render of a
+                            * run and read by every step after */
     double *tmp;           /* nel */
     unsigned char *mask;   /* nstar × nel: MP_EPSF_MASKED, MP_EPSF_HIT */
     double chi2;           /* Σ W ρ² of the last step */

@@ -25,9 +25,11 @@ int mp_epsf_sirt_init(mp_epsf_sirt *w, const mp_epsf *e, size_t nstar, char *err
     w->R = malloc(nstar * w->nR * sizeof *w->R);
     w->geo = malloc(6 * (nstar + 1) * sizeof *w->geo);
     w->chi2s = malloc((nstar + 1) * sizeof *w->chi2s);
+    w->axes = calloc(nstar + 1, sizeof *w->axes);
     w->tmp = malloc(w->nel * sizeof *w->tmp);
     w->mask = calloc(nstar * w->nel + 1, 1);
-    if (!w->G || !w->H || !w->R || !w->geo || !w->chi2s || !w->tmp || !w->mask) {
+    if (!w->G || !w->H || !w->R || !w->geo || !w->chi2s || !w->axes || !w->tmp ||
+        !w->mask) {
         mp_epsf_sirt_free(w);
         snprintf(err, MP_ERRLEN, "psf build: out of memory");
         return 1;
@@ -42,6 +44,12 @@ void mp_epsf_sirt_free(mp_epsf_sirt *w)
     free(w->R);
     free(w->geo);
     free(w->chi2s);
+    for (size_t k = 0; w->axes && k < w->nstar; k++) {
+        mp_prf_work own = {0};
+        own.axes = w->axes[k];
+        mp_prf_work_free(&own);
+    }
+    free(w->axes);
     free(w->tmp);
     free(w->mask);
     memset(w, 0, sizeof *w);
@@ -84,7 +92,8 @@ static void axis_of(int n, int os, double x, long *n0, double *delta)
  * until a step is taken: the pass that ends a run is read only for its
  * χ².  1 when out of memory. */
 static int backproject(scratch *w, const mp_epsf_star *s, const mp_epsf *e, double psfrad,
-                       double *R, double *geo, float *H, double *chi2)
+                       struct mp_prf_axes_s **axes, double *R, double *geo, float *H,
+                       double *chi2)
 {
     char err[MP_ERRLEN];
     if (!(w->tab0 && e->nterms == 1) && mp_epsf_table(e, s->x, s->y, &w->tab, err))
@@ -104,7 +113,11 @@ static int backproject(scratch *w, const mp_epsf_star *s, const mp_epsf *e, doub
         }
         w->nprf = nb;
     }
-    if (mp_prf_render(&m, xs, ys, w->prf, NULL, NULL, &w->pw))
+    w->pw.axes = *axes;
+    int rc = mp_prf_render(&m, xs, ys, w->prf, NULL, NULL, &w->pw);
+    *axes = w->pw.axes;
+    w->pw.axes = NULL;
+    if (rc)
         return 1;
     int os = e->os, nx = e->nx, ny = e->ny;
     long n0x, n0y;
@@ -156,15 +169,20 @@ static int backproject(scratch *w, const mp_epsf_star *s, const mp_epsf *e, doub
  * (mp_prf_adjoint: each pixel spread back over the elements it is drawn
  * from, with the damped sinc's weights; a fifth of the work of spreading
  * it over its block and shifting the whole table back, at ×4). */
-static int projected(scratch *w, const mp_epsf *e, const double *R, const double *geo, float *G)
+static int projected(scratch *w, const mp_epsf *e, struct mp_prf_axes_s **axes, const double *R,
+                     const double *geo, float *G)
 {
     mp_psf geom = {.kind = MP_PSF_TABLE, .nx = e->nx, .ny = e->ny, .os = e->os, .sum = 1.0};
     mp_prf_model m = {&geom, NULL, 10};
     size_t nel = (size_t)e->nx * e->ny;
     if (!w->g && !(w->g = malloc(nel * sizeof *w->g)))
         return 1;
-    if (mp_prf_adjoint(&m, geo[4], geo[5], (long)geo[0], (long)geo[1], (int)geo[2], (int)geo[3],
-                       R, w->g, &w->pw))
+    w->pw.axes = *axes;
+    int rc = mp_prf_adjoint(&m, geo[4], geo[5], (long)geo[0], (long)geo[1], (int)geo[2],
+                            (int)geo[3], R, w->g, &w->pw);
+    *axes = w->pw.axes;
+    w->pw.axes = NULL;
+    if (rc)
         return 1;
     for (size_t i = 0; i < nel; i++)
         G[i] = (float)w->g[i];
@@ -187,10 +205,11 @@ static int stars_pass(mp_epsf_sirt *w, const mp_epsf_star *s, size_t n, const mp
             if (failed || !s[k].used)
                 continue;
             if (project)
-                failed = projected(&c, e, w->R + k * w->nR, w->geo + 6 * k, w->G + k * nel);
+                failed = projected(&c, e, &w->axes[k], w->R + k * w->nR, w->geo + 6 * k,
+                                   w->G + k * nel);
             else
-                failed = backproject(&c, &s[k], e, psfrad, w->R + k * w->nR, w->geo + 6 * k,
-                                     w->H + k * nel, &w->chi2s[k]);
+                failed = backproject(&c, &s[k], e, psfrad, &w->axes[k], w->R + k * w->nR,
+                                     w->geo + 6 * k, w->H + k * nel, &w->chi2s[k]);
         }
         scratch_free(&c);
     }

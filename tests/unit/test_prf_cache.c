@@ -913,6 +913,57 @@ static void test_tier_modes(void **state)
  * the sky rounded down to a quarter octave, the same limits the grid's own
  * functions find there, no higher than on the sky itself; found once
  * (the second ask gives the same); no cache, no limits. */
+/* Whether two axis operators are the same, bit for bit. */
+static int same_axis(const mp_prf_axis *a, const mp_prf_axis *b)
+{
+    if (a->p0 != b->p0 || a->w != b->w || a->bw != b->bw || !a->d != !b->d)
+        return 0;
+    size_t nv = (size_t)(a->w > 0 ? a->w : 1) * (size_t)a->bw;
+    for (int q = 0; q < a->w; q++)
+        if (a->lo[q] != b->lo[q] || a->len[q] != b->len[q])
+            return 0;
+    return memcmp(a->v, b->v, nv * sizeof *a->v) == 0 &&
+           (!a->d || memcmp(a->d, b->d, nv * sizeof *a->d) == 0);
+}
+
+/* The axis operator of arguments a (n, os, offset, x, xr, wp0, ww, hw,
+ * deriv) into ax. */
+static void refill_with(const double *a, mp_prf_axis *ax)
+{
+    assert_int_equal(mp_prf_axis_refill((int)a[0], (int)a[1], a[2], a[3], a[4], (long)a[5],
+                                        (long)a[6], (int)a[7], (int)a[8], ax), 0);
+}
+
+/* mp_prf_axis_refill keeps the last operator when its arguments are the
+ * same (the SIRT renders each star at one place a run): with each
+ * argument changed in turn (each change gives another operator, checked:
+ * the window lies inside the table, none clipped), a refill after the
+ * base's is the fresh build's operator, and so is the base's after it. */
+static void test_axis_refill_kept_only_when_same(void **state)
+{
+    (void)state;
+    const double base[9] = {37, 4, 0.0, 20.37, 20.37, 18, 4, 10, 1};
+    const double other[9] = {41, 2, 0.5, 20.61, 20.12, 19, 3, 6, 0};
+    mp_prf_axis kept = {0}, b = {0};
+    refill_with(base, &b);
+    for (int k = 0; k < 9; k++) {
+        double a[9];
+        memcpy(a, base, sizeof a);
+        a[k] = other[k];
+        mp_prf_axis fresh = {0};
+        refill_with(a, &fresh);
+        assert_false(same_axis(&fresh, &b));
+        refill_with(base, &kept);
+        refill_with(a, &kept);
+        assert_true(same_axis(&kept, &fresh));
+        refill_with(base, &kept);
+        assert_true(same_axis(&kept, &b));
+        mp_prf_axis_free(&fresh);
+    }
+    mp_prf_axis_free(&kept);
+    mp_prf_axis_free(&b);
+}
+
 static void test_grid_limits_cached(void **state)
 {
     (void)state;
@@ -960,6 +1011,7 @@ int main(void)
         cmocka_unit_test(test_core_tiers_bound),
         cmocka_unit_test(test_tier_modes),
         cmocka_unit_test(test_grid_limits_cached),
+        cmocka_unit_test(test_axis_refill_kept_only_when_same),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }
