@@ -310,6 +310,12 @@ double mp_median_select(double *v, size_t n);
  * overwritten); NaN when n = 0. */
 double mp_mad_sigma(double *v, size_t n);
 
+/* mp_within: hypot(dx, dy) <= r, the same answer always, with hypot
+ * only where the squared distance lies within 1e-9 of r² (elsewhere its
+ * side is certain: hypot errs by an ulp), or where a square is not
+ * finite or r is negative. */
+int mp_within(double dx, double dy, double r);
+
 /* mp_seconds: monotonic wall-clock seconds (differences only). */
 double mp_seconds(void);
 

@@ -53,7 +53,7 @@ static double window_sky(const mp_frame *f, const float *res, double x, double y
     size_t n = 0;
     for (long gy = y0; gy < y1; gy++)
         for (long gx = x0; gx < x1; gx++) {
-            if (hypot((double)gx - x, (double)gy - y) > r)
+            if (!mp_within((double)gx - x, (double)gy - y, r))
                 continue;
             size_t k = (size_t)(gy - 1) * (size_t)f->im.nx + (size_t)(gx - 1);
             if (f->mask[k] || !isfinite(res[k]) || !isfinite(f->im.pix[k]))
@@ -75,7 +75,7 @@ static int window_z(const mp_frame *f, const float *res, double x, double y, dou
     for (int j = 0; j < rh; j++)
         for (int i = 0; i < rw; i++) {
             long gx = rx0 + i, gy = ry0 + j;
-            if (hypot((double)gx - x, (double)gy - y) > r)
+            if (!mp_within((double)gx - x, (double)gy - y, r))
                 continue;
             size_t k = (size_t)(gy - 1) * (size_t)f->im.nx + (size_t)(gx - 1);
             double m = fmax((double)f->im.pix[k] - res[k], 0.0);

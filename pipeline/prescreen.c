@@ -21,7 +21,7 @@ static double snr_of(const mp_frame *f, const mp_bkg *b, const float *res, doubl
     for (long j = 0; j < rh; j++) {
         long gy = ry0 + j, lo = rw, hi = -1;       /* 1-based */
         for (long i = 0; i < rw; i++) {
-            in[i] = hypot((double)(rx0 + i) - x, (double)gy - y) <= r;
+            in[i] = mp_within((double)(rx0 + i) - x, (double)gy - y, r);
             lo = in[i] && i < lo ? i : lo;
             hi = in[i] ? i : hi;
         }

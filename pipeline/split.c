@@ -120,7 +120,7 @@ static void weighted_pixels(const mp_frame *f, const mp_bkg *b, const float *res
     for (long j = 0; j < s->h; j++) {
         long gy = s->y0 + j, lo = s->w, hi = -1;
         for (long i = 0; i < s->w; i++) {
-            s->in[i] = hypot((double)(s->x0 + i) - x, (double)gy - y) <= fitrad;
+            s->in[i] = mp_within((double)(s->x0 + i) - x, (double)gy - y, fitrad);
             lo = s->in[i] && i < lo ? i : lo;
             hi = s->in[i] ? i : hi;
         }

@@ -85,7 +85,7 @@ static void disc_set(const mp_frame *f, float *img, double x, double y, double r
     long y0 = (long)floor(y - r), y1 = (long)ceil(y + r);
     for (long j = y0 < 1 ? 1 : y0; j <= y1 && j <= f->im.ny; j++)
         for (long i = x0 < 1 ? 1 : x0; i <= x1 && i <= f->im.nx; i++)
-            if (hypot((double)i - x, (double)j - y) <= r) {
+            if (mp_within((double)i - x, (double)j - y, r)) {
                 size_t o = (size_t)(j - 1) * (size_t)f->im.nx + (size_t)(i - 1);
                 img[o] = restore ? f->im.pix[o] : NAN;
             }

@@ -499,11 +499,11 @@ static int combine_elements(mp_epsf_sirt *w, const mp_epsf_star *s, size_t n, co
             for (size_t i = 0; i < nb; i++) {
                 size_t el = e0 + i;
                 int x = (int)(el % (size_t)e->nx), y = (int)(el / (size_t)e->nx);
-                double r = hypot(x - (e->nx - 1) / 2, y - (e->ny - 1) / 2);
-                if (r > rmax)
+                double dx = x - (e->nx - 1) / 2, dy = y - (e->ny - 1) / 2;
+                if (!mp_within(dx, dy, rmax))
                     continue;
                 double c[MP_EPSF_MAXT];
-                combine_element(w, el, &b, i, terms, nt, idx, dev, c, r > rcore);
+                combine_element(w, el, &b, i, terms, nt, idx, dev, c, !mp_within(dx, dy, rcore));
                 for (int t = 0; t < nt; t++)
                     upd[(size_t)t * nel + el] = c[t];
             }

@@ -142,7 +142,7 @@ static int psf_stack(const mp_frame *f, const float *img, const double *x, const
             int bad = 0;
             for (int j = 0; j < s->w; j++)
                 for (int i = 0; i < s->w; i++)
-                    if (hypot(i - s->hw, j - s->hw) <= ra) {
+                    if (mp_within(i - s->hw, j - s->hw, ra)) {
                         double u = v[(size_t)j * s->w + i];
                         bad |= !isfinite(u);
                         A += u;

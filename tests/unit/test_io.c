@@ -1048,6 +1048,35 @@ static void test_key_number(void **state)
     unlink(path);
 }
 
+/* mp_within answers as hypot(dx, dy) <= r does, everywhere: on circles
+ * through whole pixels (3-4-5 and the like, where the squares are exact),
+ * one ulp either side of r, at fractional offsets, and for NaN, infinite,
+ * zero and negative radii. */
+static void test_within_is_hypot(void **state)
+{
+    (void)state;
+    const double rs[] = {0.0, 1.0, 2.5, 3.0, 5.0, 7.071067811865476, 12.0, 1e-200, 1e200,
+                         INFINITY, NAN, -1.0};
+    long n = 0;
+    for (size_t k = 0; k < sizeof rs / sizeof *rs; k++)
+        for (int s = -1; s <= 1; s++) {
+            double r = s < 0 ? nextafter(rs[k], 0.0) : s > 0 ? nextafter(rs[k], INFINITY) : rs[k];
+            for (int j = -13; j <= 13; j++)
+                for (int i = -13; i <= 13; i++)
+                    for (int f = 0; f < 3; f++) {
+                        double dx = i + (f == 1 ? 0.37 : 0.0), dy = j - (f == 2 ? 0.5 : 0.0);
+                        assert_int_equal(mp_within(dx, dy, r), hypot(dx, dy) <= r);
+                        n++;
+                    }
+        }
+    const double odd[][3] = {{NAN, 0, 1}, {INFINITY, 0, 1e300}, {1e200, 1e200, 1.5e200},
+                             {1e-200, 0, 1e-200}, {3e-160, 4e-160, 5e-160}};
+    for (size_t k = 0; k < sizeof odd / sizeof *odd; k++)
+        assert_int_equal(mp_within(odd[k][0], odd[k][1], odd[k][2]),
+                         hypot(odd[k][0], odd[k][1]) <= odd[k][2]);
+    assert_true(n > 20000);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
@@ -1066,6 +1095,7 @@ int main(void)
         cmocka_unit_test(test_key_number),
         cmocka_unit_test(test_guard_absurd_sizes),
         cmocka_unit_test(test_guard_misplaced_equals),
+        cmocka_unit_test(test_within_is_hypot),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }
