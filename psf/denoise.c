@@ -36,16 +36,21 @@ static int dft2(double complex *a, int nx, int ny, int sign)
                 if (!row)
                     continue;
                 for (int k = 0; k < len; k++) {
-                    double complex s = 0;
+                    double sr = 0.0, si = 0.0;
                     /* the twiddle's index j·k mod len, stepped by k (no
-                     * division a term: it was most of the transform) */
+                     * division a term: it was most of the transform);
+                     * each product as C's complex one forms it for finite
+                     * values (re = ac − bd, im = ad + bc), without its
+                     * test for an infinite part a term */
                     for (int j = 0, t = 0; j < len; j++) {
                         double complex v = pass ? a[(size_t)j * nx + c] : a[(size_t)c * nx + j];
-                        s += v * tw[t];
+                        double vr = creal(v), vi = cimag(v), tr = creal(tw[t]), ti = cimag(tw[t]);
+                        sr += vr * tr - vi * ti;
+                        si += vr * ti + vi * tr;
                         t += k;
                         t -= t >= len ? len : 0;
                     }
-                    row[k] = s;
+                    row[k] = CMPLX(sr, si);
                 }
                 for (int k = 0; k < len; k++) {
                     if (pass)
