@@ -50,7 +50,9 @@ static int dft2(double complex *a, int nx, int ny, int sign)
                         t += k;
                         t -= t >= len ? len : 0;
                     }
-                    row[k] = CMPLX(sr, si);
+                    double *rk = (double *)&row[k];  /* C11 6.2.5: re, im */
+                    rk[0] = sr;
+                    rk[1] = si;
                 }
                 for (int k = 0; k < len; k++) {
                     if (pass)
