@@ -445,6 +445,44 @@ static int render_table(const mp_prf_model *m, double x, double y, double xr, do
     return 0;
 }
 
+/* g += Yᵀ·RX: each table row R of g summed over the pixel rows q that
+ * read it (lo and lo + len never decrease: a run of q), in q's order as
+ * a loop over q then its rows adds them (the same bits), eight elements
+ * at a time in registers: g's rows were read and written once per q. */
+static void adjoint_cols(const mp_prf_axis *ay, const double *RX, int nx, long i0, long i1,
+                         double *g)
+{
+    long R1 = ay->lo[ay->w - 1] + ay->len[ay->w - 1];
+    int qa = 0, qb = 0;
+    for (long R = ay->lo[0]; R < R1; R++) {
+        while (qa < ay->w && ay->lo[qa] + ay->len[qa] <= R)
+            qa++;
+        while (qb < ay->w && ay->lo[qb] <= R)
+            qb++;
+        double *dst = g + (size_t)R * nx;
+        long i = i0;
+        for (; i + 8 <= i1; i += 8) {
+            double s[8];
+            for (int u = 0; u < 8; u++)
+                s[u] = dst[i + u];
+            for (int q = qa; q < qb; q++) {
+                const double *rx = RX + (size_t)q * nx + i;
+                double c = ay->v[(size_t)q * ay->bw + (R - ay->lo[q])];
+                for (int u = 0; u < 8; u++)
+                    s[u] += c * rx[u];
+            }
+            for (int u = 0; u < 8; u++)
+                dst[i + u] = s[u];
+        }
+        for (; i < i1; i++) {
+            double s = dst[i];
+            for (int q = qa; q < qb; q++)
+                s += ay->v[(size_t)q * ay->bw + (R - ay->lo[q])] * RX[(size_t)q * nx + i];
+            dst[i] = s;
+        }
+    }
+}
+
 /* mp_prf_adjoint by the axis operators: RX = R·X on the rows Y reads, then
  * g = Yᵀ·RX (fit/prf_axis.c; a DRF uniform over the pixel is a scale). */
 static int adjoint_sep(const mp_prf_model *m, double x, double y, box bx, const double *r,
@@ -477,14 +515,8 @@ static int adjoint_sep(const mp_prf_model *m, double x, double y, box bx, const 
             for (int i = 0; i < ax->len[c]; i++)
                 dst[i] += v * wt[i];
         }
-        const double *wy = ay->v + (size_t)q * ay->bw;
-        for (int k = 0; k < ay->len[q]; k++) {
-            double *dst = g + (size_t)(ay->lo[q] + k) * nx, c = wy[k];
-#pragma omp simd
-            for (long i = i0; i < i1; i++)
-                dst[i] += c * rx[i];
-        }
     }
+    adjoint_cols(ay, w->c, nx, i0, i1, g);
     w->ops += (double)ay->w * ax->w * ax->bw + (double)ay->w * ay->bw * (double)(i1 - i0);
     return 0;
 }
