@@ -21,6 +21,22 @@ static double poisson_var(const mp_frame *f, const float *res, size_t i, double 
     return fmax(sky, 0.0) + fmax(f->im.pix[i] - res[i], 0.0) + f->rdnoise * f->rdnoise;
 }
 
+/* A kernel tap's terms at pixel q of sky level sky: the residual less
+ * the sky d (in single precision), the Poisson variance v, the stars'
+ * light m and whether the pixel is usable. */
+typedef struct {
+    float d;
+    double v, m;
+    int ok;
+} tap_terms;
+
+static tap_terms pixel_terms(const mp_frame *f, const float *res, size_t q, float sky)
+{
+    double v = poisson_var(f, res, q, sky);
+    return (tap_terms){res[q] - sky, v, fmax(f->im.pix[q] - res[q], 0.0),
+                       !f->mask[q] && v > 0 && isfinite(res[q])};
+}
+
 /* The sampled pixels, as residual r (sky removed), Poisson variance p and
  * star model m. */
 typedef struct {
@@ -47,9 +63,8 @@ typedef struct {
     long nrow, nx;
 } pixel_rows;
 
-/* Row y's slot of c, its terms formed there when not yet (the same
- * arithmetic as kernel_sample's own taps: d = res − sky in single
- * precision, v = poisson_var, m = max(pix − res, 0)). */
+/* Row y's slot of c, its pixels' terms (pixel_terms, as kernel_sample's
+ * own taps form them) formed there when not yet. */
 static size_t pixel_row(const mp_bkg *b, const mp_frame *f, const float *res, pixel_rows *c,
                         long y)
 {
@@ -60,12 +75,11 @@ static size_t pixel_row(const mp_bkg *b, const mp_frame *f, const float *res, pi
     mp_bkg_rows(b, y, y + 1, sky, NULL);
     size_t q0 = (size_t)y * (size_t)c->nx;
     for (long x = 0; x < c->nx; x++) {
-        size_t q = q0 + (size_t)x;
-        double v = poisson_var(f, res, q, sky[x]);
-        c->d[o + (size_t)x] = res[q] - sky[x];
-        c->v[o + (size_t)x] = v;
-        c->m[o + (size_t)x] = fmax(f->im.pix[q] - res[q], 0.0);
-        c->ok[o + (size_t)x] = !f->mask[q] && v > 0 && isfinite(res[q]);
+        tap_terms p = pixel_terms(f, res, q0 + (size_t)x, sky[x]);
+        c->d[o + (size_t)x] = p.d;
+        c->v[o + (size_t)x] = p.v;
+        c->m[o + (size_t)x] = p.m;
+        c->ok[o + (size_t)x] = (unsigned char)p.ok;
     }
     c->y[slot] = y;
     return o;
@@ -158,13 +172,12 @@ static void kernel_sample(const mp_bkg *b, const mp_frame *f, const float *res,
         if (!ok)
             break;
         size_t q = (size_t)y * (size_t)nx + (size_t)x;
-        float sky = mp_bkg_sky(b, q);
-        double v = poisson_var(f, res, q, sky);
-        ok = !f->mask[q] && v > 0 && isfinite(res[q]);
-        h += k->kl[t] * (res[q] - sky);
-        vh += k->kl[t] * k->kl[t] * v;
-        sp += v;
-        sm += fmax(f->im.pix[q] - res[q], 0.0);
+        tap_terms p = pixel_terms(f, res, q, mp_bkg_sky(b, q));
+        ok = p.ok;
+        h += k->kl[t] * p.d;
+        vh += k->kl[t] * k->kl[t] * p.v;
+        sp += p.v;
+        sm += p.m;
     }
     s->r[j] = h;
     s->p[j] = ok ? vh : -1.0;
@@ -176,12 +189,11 @@ static void kernel_sample(const mp_bkg *b, const mp_frame *f, const float *res,
 static void star_sample(const mp_bkg *b, const mp_frame *f, const float *res, size_t i, double k,
                         samples *s, size_t j)
 {
-    float sky = mp_bkg_sky(b, i);
-    double v = poisson_var(f, res, i, sky), m = fmax(f->im.pix[i] - res[i], 0.0);
-    int ok = !f->mask[i] && v > 0 && isfinite(res[i]) && m * m > 9.0 * k * k * v;
-    s->r[j] = ok ? res[i] - sky : 0.0;
-    s->p[j] = ok ? v : -1.0;
-    s->m[j] = m;
+    tap_terms p = pixel_terms(f, res, i, mp_bkg_sky(b, i));
+    int ok = p.ok && p.m * p.m > 9.0 * k * k * p.v;
+    s->r[j] = ok ? p.d : 0.0;
+    s->p[j] = ok ? p.v : -1.0;
+    s->m[j] = p.m;
 }
 
 /* The usable samples of the first n (p ≥ 0) moved to the front, in

@@ -16,6 +16,7 @@
 #ifndef MATPHOT_IO_H
 #define MATPHOT_IO_H
 
+#include <math.h>
 #include <stddef.h>
 #include <stdint.h>
 #include <stdio.h>
@@ -313,8 +314,19 @@ double mp_mad_sigma(double *v, size_t n);
 /* mp_within: hypot(dx, dy) <= r, the same answer always, with hypot
  * only where the squared distance lies within 1e-9 of r² (elsewhere its
  * side is certain: hypot errs by an ulp), or where a square is not
- * finite or r is negative. */
-int mp_within(double dx, double dy, double r);
+ * finite or r is negative.  Inline: it is called on every row of a
+ * table and every pixel of a window. */
+static inline int mp_within(double dx, double dy, double r)
+{
+    double d2 = dx * dx + dy * dy, r2 = r * r;
+    if (isfinite(d2) && isfinite(r2) && r >= 0) {
+        if (d2 < r2 * (1.0 - 1e-9))
+            return 1;
+        if (d2 > r2 * (1.0 + 1e-9))
+            return 0;
+    }
+    return hypot(dx, dy) <= r;
+}
 
 /* mp_seconds: monotonic wall-clock seconds (differences only). */
 double mp_seconds(void);

@@ -243,15 +243,3 @@ void mp_costliest_first(mp_work_item *w, size_t n)
 {
     qsort(w, n, sizeof *w, cmp_costliest);
 }
-
-int mp_within(double dx, double dy, double r)
-{
-    double d2 = dx * dx + dy * dy, r2 = r * r;
-    if (isfinite(d2) && isfinite(r2) && r >= 0) {
-        if (d2 < r2 * (1.0 - 1e-9))
-            return 1;
-        if (d2 > r2 * (1.0 + 1e-9))
-            return 0;
-    }
-    return hypot(dx, dy) <= r;
-}

@@ -232,25 +232,19 @@ static void pick_neighbours(mp_epsf_star *s, const mp_table *t, int cx, int cy, 
                             double rmax)
 {
     s->nnb = 0;
-    /* A row farther than r on either axis is beyond r (hypot is within
-     * an ulp of the distance, and at least the larger side): the tests
-     * below skip it without a call, the frame's rows being mostly such
-     * (1.4 % of frame B built ran in these calls, tests/bench/daophot). */
-    double r1 = 1.0 * (1.0 + 1e-9), rm = rmax * (1.0 + 1e-9);
-    /* The star's own flux on the table's scale: its row within 1 px. */
+    /* The distances by mp_within (hypot on every row of the frame was
+     * 1.4 % of frame B built, tests/bench/daophot).  The star's own flux
+     * on the table's scale: its row within 1 px. */
     double F0 = s->flux;
-    for (size_t r = 0; r < t->nrow; r++) {
-        double dx = mp_table_get(t, r, cx) - s->xf, dy = mp_table_get(t, r, cy) - s->yf;
-        if (fabs(dx) <= r1 && fabs(dy) <= r1 && hypot(dx, dy) <= 1.0 &&
+    for (size_t r = 0; r < t->nrow; r++)
+        if (mp_within(mp_table_get(t, r, cx) - s->xf, mp_table_get(t, r, cy) - s->yf, 1.0) &&
             mp_table_get(t, r, cf) > 0)
             F0 = mp_table_get(t, r, cf);
-    }
     for (size_t r = 0; r < t->nrow; r++) {
         double x = mp_table_get(t, r, cx), y = mp_table_get(t, r, cy), F = mp_table_get(t, r, cf);
-        if (fabs(x - s->xf) > rm || fabs(y - s->yf) > rm)
-            continue;
-        double d = hypot(x - s->xf, y - s->yf);
-        if (!(F > 0) || !isfinite(F) || !(d > 1.0 && d <= rmax) || F < MP_EPSF_NBMIN * F0)
+        double dx = x - s->xf, dy = y - s->yf;
+        if (!mp_within(dx, dy, rmax) || mp_within(dx, dy, 1.0) || !(F > 0) || !isfinite(F) ||
+            F < MP_EPSF_NBMIN * F0)
             continue;
         if (s->nnb == MP_EPSF_MAXNB && s->nbf[MP_EPSF_MAXNB - 1] >= F)
             continue;

@@ -141,10 +141,8 @@ static size_t alone(const mp_table *t, const cols *k, double fitrad, cand *c, si
             size_t q = o[a].row;
             if (q == c[i].row)
                 continue;
-            double dx = o[a].x - x, dy = mp_table_get(t, q, k->y) - y;
-            if (fabs(dx) > fitrad || fabs(dy) > fitrad)
-                continue;       /* beyond fitrad on an axis: beyond it (hypot's cost) */
-            if (hypot(dx, dy) <= fitrad && !(mp_table_get(t, q, k->f) < c[i].flux))
+            if (mp_within(o[a].x - x, mp_table_get(t, q, k->y) - y, fitrad) &&
+                !(mp_table_get(t, q, k->f) < c[i].flux))
                 lone = 0;
         }
         if (lone)

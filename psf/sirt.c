@@ -92,8 +92,7 @@ static void axis_of(int n, int os, double x, long *n0, double *delta)
  * until a step is taken: the pass that ends a run is read only for its
  * χ².  1 when out of memory. */
 static int backproject(scratch *w, const mp_epsf_star *s, const mp_epsf *e, double psfrad,
-                       struct mp_prf_axes_s **axes, double *R, double *geo, float *H,
-                       double *chi2)
+                       double *R, double *geo, float *H, double *chi2)
 {
     char err[MP_ERRLEN];
     if (!(w->tab0 && e->nterms == 1) && mp_epsf_table(e, s->x, s->y, &w->tab, err))
@@ -113,11 +112,7 @@ static int backproject(scratch *w, const mp_epsf_star *s, const mp_epsf *e, doub
         }
         w->nprf = nb;
     }
-    w->pw.axes = *axes;
-    int rc = mp_prf_render(&m, xs, ys, w->prf, NULL, NULL, &w->pw);
-    *axes = w->pw.axes;
-    w->pw.axes = NULL;
-    if (rc)
+    if (mp_prf_render(&m, xs, ys, w->prf, NULL, NULL, &w->pw))
         return 1;
     int os = e->os, nx = e->nx, ny = e->ny;
     long n0x, n0y;
@@ -169,20 +164,15 @@ static int backproject(scratch *w, const mp_epsf_star *s, const mp_epsf *e, doub
  * (mp_prf_adjoint: each pixel spread back over the elements it is drawn
  * from, with the damped sinc's weights; a fifth of the work of spreading
  * it over its block and shifting the whole table back, at ×4). */
-static int projected(scratch *w, const mp_epsf *e, struct mp_prf_axes_s **axes, const double *R,
-                     const double *geo, float *G)
+static int projected(scratch *w, const mp_epsf *e, const double *R, const double *geo, float *G)
 {
     mp_psf geom = {.kind = MP_PSF_TABLE, .nx = e->nx, .ny = e->ny, .os = e->os, .sum = 1.0};
     mp_prf_model m = {&geom, NULL, 10};
     size_t nel = (size_t)e->nx * e->ny;
     if (!w->g && !(w->g = malloc(nel * sizeof *w->g)))
         return 1;
-    w->pw.axes = *axes;
-    int rc = mp_prf_adjoint(&m, geo[4], geo[5], (long)geo[0], (long)geo[1], (int)geo[2],
-                            (int)geo[3], R, w->g, &w->pw);
-    *axes = w->pw.axes;
-    w->pw.axes = NULL;
-    if (rc)
+    if (mp_prf_adjoint(&m, geo[4], geo[5], (long)geo[0], (long)geo[1], (int)geo[2], (int)geo[3],
+                       R, w->g, &w->pw))
         return 1;
     for (size_t i = 0; i < nel; i++)
         G[i] = (float)w->g[i];
@@ -190,7 +180,9 @@ static int projected(scratch *w, const mp_epsf *e, struct mp_prf_axes_s **axes, 
 }
 
 /* The used stars' back-projections (backproject; with project, G from
- * their R: projected), in parallel; 1 when out of memory. */
+ * their R: projected), in parallel, each star's render operators (w->axes,
+ * kept through the run) lent to the thread's work for its turn; 1 when
+ * out of memory. */
 static int stars_pass(mp_epsf_sirt *w, const mp_epsf_star *s, size_t n, const mp_epsf *e,
                       double psfrad, int project)
 {
@@ -204,12 +196,14 @@ static int stars_pass(mp_epsf_sirt *w, const mp_epsf_star *s, size_t n, const mp
         for (size_t k = 0; k < n; k++) {
             if (failed || !s[k].used)
                 continue;
+            c.pw.axes = w->axes[k];
             if (project)
-                failed = projected(&c, e, &w->axes[k], w->R + k * w->nR, w->geo + 6 * k,
-                                   w->G + k * nel);
+                failed = projected(&c, e, w->R + k * w->nR, w->geo + 6 * k, w->G + k * nel);
             else
-                failed = backproject(&c, &s[k], e, psfrad, &w->axes[k], w->R + k * w->nR,
-                                     w->geo + 6 * k, w->H + k * nel, &w->chi2s[k]);
+                failed = backproject(&c, &s[k], e, psfrad, w->R + k * w->nR, w->geo + 6 * k,
+                                     w->H + k * nel, &w->chi2s[k]);
+            w->axes[k] = c.pw.axes;
+            c.pw.axes = NULL;
         }
         scratch_free(&c);
     }
