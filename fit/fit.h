@@ -873,6 +873,12 @@ double mp_econ_grid_render_ops(const mp_prf_model *m, double fitrad);
  * their cost in renders of the model (ops_render multiply-adds each). */
 void mp_econ_summary(const mp_econ_cache *c, double ops_render, char *buf, size_t n);
 
+/* Why a group's LM fit ran again within its frame fit (fit/frame_group.c):
+ * a pair merged, stars rejected below minsnr, a merge or rejection that
+ * the fit at its tol left pending decided at the deciding tol, a fit cut
+ * short on a close pair that proved two stars fitted to its end. */
+enum { MP_REFIT_MERGE, MP_REFIT_REJECT, MP_REFIT_DECIDE, MP_REFIT_UNSTOPPED, MP_REFIT_CAUSES };
+
 /* What a frame fit did, for the run report. */
 typedef struct {
     long nstars, ngroups, merged, rejected, noconv;
@@ -880,6 +886,8 @@ typedef struct {
     long sky_groups[MP_SKY_MAXORDER + 1];  /* groups of the last pass by sky order */
     long fits;         /* group fits done, over passes (and rounds) */
     long kcalls;       /* LM fits of groups (a group refits after a merge) */
+    long refits[MP_REFIT_CAUSES];  /* of them, a group's fits again, by cause */
+    long refit_steps[MP_REFIT_CAUSES];  /* and their LM steps */
     long kshort;       /* of them, with a sinc kernel shorter than sinchw */
     long kcache;       /* of them, with the PRF from the phase grid */
     long klin;         /* star fits in them drawn bilinearly (final flux
@@ -1000,6 +1008,7 @@ typedef struct {
                                 * done and left out, star paints cropped */
     long kcalls, kshort;       /* LM fits of groups, and of them with a shorter
                                 * sinc kernel */
+    long refits[MP_REFIT_CAUSES], refit_steps[MP_REFIT_CAUSES];  /* mp_frame_report's */
     long kcache;               /* LM fits with the PRF from the phase grid */
     long klin, kstars;         /* star fits in LM fits drawn bilinearly, and
                                 * all star fits */

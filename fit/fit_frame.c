@@ -147,6 +147,10 @@ void mp_frame_report_add(mp_frame_report *d, const mp_frame_report *r)
     d->iterations += r->iterations;
     d->fits += r->fits;
     d->kcalls += r->kcalls;
+    for (int c = 0; c < MP_REFIT_CAUSES; c++) {
+        d->refits[c] += r->refits[c];
+        d->refit_steps[c] += r->refit_steps[c];
+    }
     d->kshort += r->kshort;
     d->khw += r->khw;
     d->kept += r->kept;

@@ -371,6 +371,7 @@ int ff_fit_one_group(const mp_frame *f, const mp_prf_model *m, const mp_frame_op
     int unstopped = 0, paired = 0;
     double tol = fmax(o->fit.tol, o->loosetol);
     double decide = o->decidetol > 0 ? fmin(o->fit.tol, o->decidetol) : o->fit.tol;
+    int cause = -1;                 /* why this fit is one again (MP_REFIT_*) */
     for (int round = 0; round <= n + 2; round++) {
         int nl = live_of(s, alive, n, live, map);
         if (nl == 0)
@@ -383,8 +384,13 @@ int ff_fit_one_group(const mp_frame *f, const mp_prf_model *m, const mp_frame_op
          * built: ~200 such refits a run, 13 LM steps each). */
         for (int k = 0; paired && k < nl; k++)
             live[k].flags &= ~MP_FLAG_NOCONV;
+        long steps = rep->iterations;
         if (fit_live(f, m, o, mergerad, unstopped, tol, R, live, nl, dx, dy, rep, err))
             goto done;
+        if (cause >= 0) {
+            rep->refits[cause]++;
+            rep->refit_steps[cause] += rep->iterations - steps;
+        }
         paired = mergerad > 0 && !unstopped && stopped_on_pair(live, nl, mergerad);
         for (int k = 0; k < nl; k++) {
             int keep = s[map[k]].flags & MP_FLAG_MERGED;
@@ -401,16 +407,19 @@ int ff_fit_one_group(const mp_frame *f, const mp_prf_model *m, const mp_frame_op
         if (tol > decide && !paired &&
             decision_pending(s, alive, n, mergerad, sig, o->minsnr, tol)) {
             tol = decide;
+            cause = MP_REFIT_DECIDE;
             continue;
         }
         int nmerged = mergerad > 0 ? merge_close(s, alive, n, mergerad, sig, sepind) : 0;
         if (nmerged > 0) {
             rep->merged += nmerged;
+            cause = MP_REFIT_MERGE;
             continue;
         }
         int nrej = o->minsnr > 0 ? reject_low(s, alive, n, o->minsnr, mergerad, sepind) : 0;
         if (nrej > 0) {
             rep->rejected += nrej;
+            cause = MP_REFIT_REJECT;
             continue;
         }
         /* The fit stopped on a pair within mergerad (fit_live's stop_pair) that is
@@ -421,6 +430,7 @@ int ff_fit_one_group(const mp_frame *f, const mp_prf_model *m, const mp_frame_op
          * misfit widening left it none). */
         if (paired) {
             unstopped = 1;
+            cause = MP_REFIT_UNSTOPPED;
             continue;
         }
         break;

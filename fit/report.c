@@ -51,6 +51,8 @@ void mp_report_counts(const mp_frame_report *fr, mp_run_report *r)
     r->kept = fr->kept;
     r->cropped = fr->cropped;
     r->kcalls = fr->kcalls;
+    memcpy(r->refits, fr->refits, sizeof r->refits);
+    memcpy(r->refit_steps, fr->refit_steps, sizeof r->refit_steps);
     r->kshort = fr->kshort;
     r->kcache = fr->kcache;
     r->klin = fr->klin;
@@ -170,6 +172,17 @@ static void report_lines(FILE *fp, const char *prefix, const mp_run_report *r)
             "%ld crop envelopes\n", prefix, r->fits, r->kept, r->cropped, r->kshort, r->kcalls,
             r->kcalls > 0 ? r->khw / (double)r->kcalls : 0.0, r->kcoarse, r->kcache, r->klin,
             r->kstars, r->kcore, r->kbounds, r->envelopes);
+    long nre = 0;
+    for (int c = 0; c < MP_REFIT_CAUSES; c++)
+        nre += r->refits[c];
+    if (nre > 0)
+        fprintf(fp, "%s  refits: %ld of the LM fits were a group's again within its fit: %ld "
+                "after merges (%ld LM steps), %ld after rejections (%ld), %ld to decide a pending "
+                "merge or rejection at the deciding tol (%ld), %ld fitted on past a close pair "
+                "(%ld)\n", prefix, nre, r->refits[MP_REFIT_MERGE], r->refit_steps[MP_REFIT_MERGE],
+                r->refits[MP_REFIT_REJECT], r->refit_steps[MP_REFIT_REJECT],
+                r->refits[MP_REFIT_DECIDE], r->refit_steps[MP_REFIT_DECIDE],
+                r->refits[MP_REFIT_UNSTOPPED], r->refit_steps[MP_REFIT_UNSTOPPED]);
     if (r->pairs_close > 0)
         fprintf(fp, "%s  groups: components above maxgroup cut at their weakest couplings "
                 "(%ld pairs within psfrad + fitrad, %ld of them coupled), summed over rounds\n",

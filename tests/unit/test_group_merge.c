@@ -10,7 +10,10 @@
  * merged, at their true positions; the five separated pairs go in the
  * first merge step with one of the two close ones, the other in the next,
  * so the group is fitted exactly three times.  (One merge a refit, the
- * code before, stopped after six fits with eight rows, four merged.) */
+ * code before, stopped after six fits with eight rows, four merged.)
+ * The run report counts the two refits as after merges (fit.h
+ * MP_REFIT_*); a candidate on empty sky beside a star, rejected, as one
+ * after a rejection. */
 #include <setjmp.h>
 #include <stdarg.h>
 #include <stddef.h>
@@ -22,6 +25,22 @@
 
 #define FWHM 3.0
 #define NTRUE 7
+
+/* The stars of t fitted on f with a Gaussian table of FWHM, one pass;
+ * minsnr > 0 replaces the default's. */
+static void fit_once(mp_frame *f, mp_table *t, double minsnr, mp_frame_report *rep)
+{
+    mp_psf p;
+    mp_psf_gauss(FWHM, &p);
+    mp_prf_model m = {&p, NULL, 10};
+    mp_frame_opts fo;
+    mp_frame_opts_default(&fo);
+    fo.passes = 1;
+    if (minsnr > 0)
+        fo.minsnr = minsnr;
+    char err[MP_ERRLEN];
+    assert_int_equal(mp_fit_table(f, &m, &fo, t, rep, err), 0);
+}
 
 static void test_separated_pairs_merge_together(void **state)
 {
@@ -44,17 +63,10 @@ static void test_separated_pairs_merge_together(void **state)
         one_e[k] = E;
     }
     sf_render(&f, 100.0, FWHM, tx, one_y, one_e, NTRUE, &r, 3.0);
-    mp_psf p;
-    mp_psf_gauss(FWHM, &p);
-    mp_prf_model m = {&p, NULL, 10};
-    mp_frame_opts fo;
-    mp_frame_opts_default(&fo);
-    fo.passes = 1;
     mp_table t;
     sf_table(&t, x, y, e, 2 * NTRUE, 1);
     mp_frame_report rep;
-    char err[MP_ERRLEN];
-    assert_int_equal(mp_fit_table(&f, &m, &fo, &t, &rep, err), 0);
+    fit_once(&f, &t, 0.0, &rep);
     print_message("%zu rows, %ld merged, %ld LM fits of the group\n", t.nrow, rep.merged,
                   rep.kcalls);
     assert_int_equal(t.nrow, NTRUE);
@@ -69,6 +81,40 @@ static void test_separated_pairs_merge_together(void **state)
         assert_true((int)sf_get(&t, i, "FLAGS") & MP_FLAG_MERGED);
     }
     assert_int_equal(rep.kcalls, 3);
+    assert_int_equal(rep.refits[MP_REFIT_MERGE], 2);
+    assert_int_equal(rep.refits[MP_REFIT_REJECT] + rep.refits[MP_REFIT_DECIDE] +
+                         rep.refits[MP_REFIT_UNSTOPPED], 0);
+    /* the first fit moves the halves of each pair: it has steps of its own */
+    assert_true(rep.refit_steps[MP_REFIT_MERGE] < rep.iterations);
+    mp_table_free(&t);
+    sf_frame_drop(&f);
+}
+
+/* One star (S/N ~100) and a candidate 8 px from it on empty sky: the
+ * candidate's flux is 0 ± its σ, below minsnr 5 but with probability
+ * 3·10⁻⁷, so it is rejected and the star fitted again once. */
+static void test_rejection_refit_counted(void **state)
+{
+    (void)state;
+    double x[2] = {20.3, 28.3}, y[2] = {20.4, 20.4}, e[2] = {2e4, 500.0}, one_e = 2e4;
+    mp_frame f;
+    sf_frame_make(&f, 48, 40, 3.0);
+    mp_rng r;
+    mp_rng_seed(&r, 72);
+    sf_render(&f, 100.0, FWHM, x, y, &one_e, 1, &r, 3.0);
+    mp_table t;
+    sf_table(&t, x, y, e, 2, 1);
+    mp_frame_report rep;
+    fit_once(&f, &t, 5.0, &rep);    /* the pipeline's minsnr (the default's: 2) */
+    print_message("%zu rows, %ld rejected, %ld LM fits, refits %ld/%ld/%ld/%ld\n", t.nrow,
+                  rep.rejected, rep.kcalls, rep.refits[MP_REFIT_MERGE],
+                  rep.refits[MP_REFIT_REJECT], rep.refits[MP_REFIT_DECIDE],
+                  rep.refits[MP_REFIT_UNSTOPPED]);
+    assert_int_equal(t.nrow, 1);
+    assert_int_equal(rep.rejected, 1);
+    assert_int_equal(rep.refits[MP_REFIT_REJECT], 1);
+    assert_int_equal(rep.refits[MP_REFIT_MERGE] + rep.refits[MP_REFIT_UNSTOPPED], 0);
+    assert_int_equal(rep.kcalls, 1 + rep.refits[MP_REFIT_REJECT] + rep.refits[MP_REFIT_DECIDE]);
     mp_table_free(&t);
     sf_frame_drop(&f);
 }
@@ -77,6 +123,7 @@ int main(void)
 {
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(test_separated_pairs_merge_together),
+        cmocka_unit_test(test_rejection_refit_counted),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }
