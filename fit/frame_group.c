@@ -342,6 +342,56 @@ static void store_back(star_state *st, const mp_star *s, const int *alive, int n
     }
 }
 
+/* A group's merge-and-reject loop (ff_fit_one_group): its rules and
+ * where it stands. */
+typedef struct {
+    double mergerad, sig, sepind, minsnr;
+    double tol, decide;     /* the fits' tol now; the deciding one */
+    int paired;             /* the last fit stopped on a close pair */
+    int unstopped;          /* fitted on past one */
+} group_loop;
+
+/* What follows a fit of the group's stars s[0..n): the fit again — to
+ * the deciding tol, after merges, after rejections, or past a close pair
+ * — its cause returned (MP_REFIT_*, with alive, L and rep's merges and
+ * rejections updated), or −1: the group is done. */
+static int next_fit(group_loop *L, mp_star *s, int *alive, int n, mp_frame_report *rep)
+{
+    /* A merge or a rejection is for good (the pipeline never adds a
+     * star again where one went): a fit stopped at a tol above the
+     * deciding one (a loose round's, o->loosetol, or the steps' own,
+     * fit.tol above o->decidetol) that leaves one a fit to the end
+     * might not make is fitted on first (decided at the loose tol,
+     * the crowded frames lost 1-3 stars of 4 600 each; fitted on for
+     * every merge and rejection, 47 Tuc kept 1/8 of the gain). */
+    if (L->tol > L->decide && !L->paired &&
+        decision_pending(s, alive, n, L->mergerad, L->sig, L->minsnr, L->tol)) {
+        L->tol = L->decide;
+        return MP_REFIT_DECIDE;
+    }
+    int nmerged = L->mergerad > 0 ? merge_close(s, alive, n, L->mergerad, L->sig, L->sepind) : 0;
+    if (nmerged > 0) {
+        rep->merged += nmerged;
+        return MP_REFIT_MERGE;
+    }
+    int nrej = L->minsnr > 0 ? reject_low(s, alive, n, L->minsnr, L->mergerad, L->sepind) : 0;
+    if (nrej > 0) {
+        rep->rejected += nrej;
+        return MP_REFIT_REJECT;
+    }
+    /* The fit stopped on a pair within mergerad (fit_live's stop_pair) that is
+     * two stars after all (separated by sig σ or more): fitted again
+     * to the end, once.  A group not converged for another reason
+     * stays as it was (refitting those as well took GLIMPSE built's
+     * LM iterations up 11 %, against 4 % for these alone, before the
+     * misfit widening left it none). */
+    if (L->paired) {
+        L->unstopped = 1;
+        return MP_REFIT_UNSTOPPED;
+    }
+    return -1;
+}
+
 /* Fit one group (members st[0..n-1]) on frame f: merge/reject until
  * stable.  Local copies of the stars move in the frame's coordinates
  * shifted by (dx, dy). */
@@ -362,15 +412,18 @@ int ff_fit_one_group(const mp_frame *f, const mp_prf_model *m, const mp_frame_op
         s[k].y -= dy;
         alive[k] = st[k].alive;     /* merged or rejected in an earlier pass: stays out */
     }
+    group_loop L = {
+        .mergerad = mergerad,
+        .sig = mp_merge_sig(o->minsnr),
+        /* 2 FWHM: 5 default merge radii (0.4 FWHM), or from the PSF
+         * when merging is off */
+        .sepind = mergerad > 0 ? 5.0 * mergerad : 2.0 * mp_prf_fwhm(m),
+        .minsnr = o->minsnr,
+        .tol = fmax(o->fit.tol, o->loosetol),
+        .decide = o->decidetol > 0 ? fmin(o->fit.tol, o->decidetol) : o->fit.tol,
+    };
     /* Each round removes a star or ends (one more may refit unstopped,
      * one more to the run's tol), so n + 3 rounds suffice. */
-    double sig = mp_merge_sig(o->minsnr);
-    /* 2 FWHM: 5 default merge radii (0.4 FWHM), or from the PSF when
-     * merging is off */
-    double sepind = mergerad > 0 ? 5.0 * mergerad : 2.0 * mp_prf_fwhm(m);
-    int unstopped = 0, paired = 0;
-    double tol = fmax(o->fit.tol, o->loosetol);
-    double decide = o->decidetol > 0 ? fmin(o->fit.tol, o->decidetol) : o->fit.tol;
     int cause = -1;                 /* why this fit is one again (MP_REFIT_*) */
     for (int round = 0; round <= n + 2; round++) {
         int nl = live_of(s, alive, n, live, map);
@@ -382,58 +435,23 @@ int ff_fit_one_group(const mp_frame *f, const mp_prf_model *m, const mp_frame_op
          * first_order).  From
          * constant, each climbed again to the order it had left (47 Tuc
          * built: ~200 such refits a run, 13 LM steps each). */
-        for (int k = 0; paired && k < nl; k++)
+        for (int k = 0; L.paired && k < nl; k++)
             live[k].flags &= ~MP_FLAG_NOCONV;
         long steps = rep->iterations;
-        if (fit_live(f, m, o, mergerad, unstopped, tol, R, live, nl, dx, dy, rep, err))
+        if (fit_live(f, m, o, mergerad, L.unstopped, L.tol, R, live, nl, dx, dy, rep, err))
             goto done;
         if (cause >= 0) {
             rep->refits[cause]++;
             rep->refit_steps[cause] += rep->iterations - steps;
         }
-        paired = mergerad > 0 && !unstopped && stopped_on_pair(live, nl, mergerad);
+        L.paired = mergerad > 0 && !L.unstopped && stopped_on_pair(live, nl, mergerad);
         for (int k = 0; k < nl; k++) {
             int keep = s[map[k]].flags & MP_FLAG_MERGED;
             s[map[k]] = live[k];
             s[map[k]].flags |= keep;
         }
-        /* A merge or a rejection is for good (the pipeline never adds a
-         * star again where one went): a fit stopped at a tol above the
-         * deciding one (a loose round's, o->loosetol, or the steps' own,
-         * fit.tol above o->decidetol) that leaves one a fit to the end
-         * might not make is fitted on first (decided at the loose tol,
-         * the crowded frames lost 1-3 stars of 4 600 each; fitted on for
-         * every merge and rejection, 47 Tuc kept 1/8 of the gain). */
-        if (tol > decide && !paired &&
-            decision_pending(s, alive, n, mergerad, sig, o->minsnr, tol)) {
-            tol = decide;
-            cause = MP_REFIT_DECIDE;
-            continue;
-        }
-        int nmerged = mergerad > 0 ? merge_close(s, alive, n, mergerad, sig, sepind) : 0;
-        if (nmerged > 0) {
-            rep->merged += nmerged;
-            cause = MP_REFIT_MERGE;
-            continue;
-        }
-        int nrej = o->minsnr > 0 ? reject_low(s, alive, n, o->minsnr, mergerad, sepind) : 0;
-        if (nrej > 0) {
-            rep->rejected += nrej;
-            cause = MP_REFIT_REJECT;
-            continue;
-        }
-        /* The fit stopped on a pair within mergerad (fit_live's stop_pair) that is
-         * two stars after all (separated by sig σ or more): fitted again
-         * to the end, once.  A group not converged for another reason
-         * stays as it was (refitting those as well took GLIMPSE built's
-         * LM iterations up 11 %, against 4 % for these alone, before the
-         * misfit widening left it none). */
-        if (paired) {
-            unstopped = 1;
-            cause = MP_REFIT_UNSTOPPED;
-            continue;
-        }
-        break;
+        if ((cause = next_fit(&L, s, alive, n, rep)) < 0)
+            break;
     }
     store_back(st, s, alive, n, dx, dy, rep);
     rc = 0;
