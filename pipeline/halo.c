@@ -287,16 +287,17 @@ static double light_of(const double *h, int nb, double rin)
 /* h in r²: 0.25 px² steps, read linearly (within ~1e-4 of h_at's light),
  * for the copies' residual (clean_copy), where a statistic of ring medians
  * cannot tell the difference and ~15 million pixels (47 Tuc's 1500 stars)
- * then cost no square root. */
+ * then cost no square root.  per, the entries a px², is a power of two:
+ * r2·per is r2 over the step to the bit, without a division a pixel. */
 typedef struct {
-    double *v, step;
+    double *v, per;
     size_t n;
 } r2_table;
 
 /* h at squared distance r2 from the table (0 beyond it). */
 static double r2_read(const r2_table *t, double r2)
 {
-    double u = r2 / t->step;
+    double u = r2 * t->per;
     size_t q = (size_t)u;
     return q + 1 >= t->n ? 0.0 : t->v[q] + (u - (double)q) * (t->v[q + 1] - t->v[q]);
 }
@@ -328,13 +329,21 @@ cut_rows(const mp_frame *f, const halo_cut *c, const mp_pl_star *s, long ya, lon
     const unsigned char *mask = f->mask;
     const double *h = c->h, r2out = c->r2out, rin = c->rin, sx = s->x, sy = s->y, e = s->e;
     int nb = c->nb;
-    long nx = f->im.nx, x0 = (long)floor(sx - c->rmax), x1 = (long)ceil(sx + c->rmax);
-    x0 = x0 < 1 ? 1 : x0;
-    x1 = x1 > nx ? nx : x1;
-    for (long y = ya; y <= yb; y++)
+    long nx = f->im.nx;
+    for (long y = ya; y <= yb; y++) {
+        /* the row's chord of the disc r2 <= r2out, a pixel wider than
+         * its rounding could reach: the corners of the star's box, which
+         * the test below would skip one by one, are not visited */
+        double dy = (double)y - sy, w = r2out - dy * dy;
+        if (w < 0)
+            continue;
+        w = sqrt(w) + 1.0;
+        long x0 = (long)floor(sx - w), x1 = (long)ceil(sx + w);
+        x0 = x0 < 1 ? 1 : x0;
+        x1 = x1 > nx ? nx : x1;
         for (long x = x0; x <= x1; x++) {
             size_t i = (size_t)(y - 1) * (size_t)nx + (size_t)(x - 1);
-            double dx = (double)x - sx, dy = (double)y - sy, r2 = dx * dx + dy * dy;
+            double dx = (double)x - sx, r2 = dx * dx + dy * dy;
             if (mask[i] || r2 > r2out)
                 continue;
             double l = e * (fast ? r2_read(fast, r2) : h_at(h, nb, rin, sqrt(r2)));
@@ -346,6 +355,7 @@ cut_rows(const mp_frame *f, const halo_cut *c, const mp_pl_star *s, long ya, lon
             if (xvar)
                 xvar[i] += (float)l;
         }
+    }
 }
 
 /* Star s's light taken off rows ya..yb: the copies' residual (fast, pix
@@ -381,7 +391,7 @@ static long take_off(const mp_frame *f, float *pix, float *res, float *xvar, con
                      const r2_table *fast)
 {
     halo_cut c = {pix, res, xvar, h, nb, rin, rin + nb - 0.5, 0.0, fast};
-    c.r2out = (fast ? (double)(fast->n - 1) * fast->step : c.rmax * c.rmax) * (1.0 + 1e-9);
+    c.r2out = (fast ? (double)(fast->n - 1) / fast->per : c.rmax * c.rmax) * (1.0 + 1e-9);
     size_t nlit = 0;
     while (nlit < ns && s[nlit].e * h[0] >= 0.05 * sig)
         nlit++;                         /* brightest first: none further */
@@ -428,12 +438,12 @@ static int clean_copy(const mp_frame *f, const float *res, const mp_pl_star *s, 
     size_t npix = (size_t)f->im.nx * (size_t)f->im.ny;
     memcpy(clean, res, npix * sizeof *clean);
     double rmax = rin + nb - 0.5;
-    r2_table t = {NULL, 0.25, 0};
-    t.n = (size_t)(rmax * rmax / t.step) + 2;
+    r2_table t = {NULL, 4.0, 0};
+    t.n = (size_t)(rmax * rmax * t.per) + 2;
     if (!(t.v = malloc(t.n * sizeof *t.v)))
         return 1;
     for (size_t q = 0; q < t.n; q++)
-        t.v[q] = h_at(h, nb, rin, sqrt((double)q * t.step));
+        t.v[q] = h_at(h, nb, rin, sqrt((double)q / t.per));
     long nlit = take_off(f, clean, NULL, NULL, s, ns, h, nb, rin, sig, &t);
     free(t.v);
     return nlit < 0;
