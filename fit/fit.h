@@ -886,8 +886,6 @@ typedef struct {
     long sky_groups[MP_SKY_MAXORDER + 1];  /* groups of the last pass by sky order */
     long fits;         /* group fits done, over passes (and rounds) */
     long kcalls;       /* LM fits of groups (a group refits after a merge) */
-    long refits[MP_REFIT_CAUSES];  /* of them, a group's fits again, by cause */
-    long refit_steps[MP_REFIT_CAUSES];  /* and their LM steps */
     long kshort;       /* of them, with a sinc kernel shorter than sinchw */
     long kcache;       /* of them, with the PRF from the phase grid */
     long klin;         /* star fits in them drawn bilinearly (final flux
@@ -900,6 +898,9 @@ typedef struct {
                         * evaluations (mp_sinc_choice_bound,
                         * mp_ss_level_serves), each nph × npix terms */
     long kcoarse;      /* LM fits with a coarser table (opts ss) */
+    long refits[MP_REFIT_CAUSES];       /* LM fits of a group again within its
+                        * fit, by cause (MP_REFIT_*) */
+    long refit_steps[MP_REFIT_CAUSES];  /* and their LM steps */
     double ops_tables; /* economy's tables built by this call (mp_econ_choose)
                         * and its bound evaluations [multiply-adds] */
     double ops_saved;  /* what the tables saved, counted per LM fit: its
