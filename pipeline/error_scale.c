@@ -231,8 +231,9 @@ static size_t grid_places(const mp_frame *f, const mp_table *t, long side, doubl
  * buf), when the PSF is one table and every place lies on a whole pixel
  * (place_templates); 0 when not shared (or out of memory: then each
  * place renders its own). */
-static int shared_templates(const mp_prf_model *m, double r, const double *px, const double *py,
-                            size_t n, size_t box, double *buf, place_templates *tp)
+static int shared_templates(const mp_frame *f, const mp_prf_model *m, double r, const double *px,
+                            const double *py, size_t n, size_t box, double *buf,
+                            place_templates *tp)
 {
     if (!buf || n == 0 || m->psf->field)
         return 0;
@@ -240,8 +241,8 @@ static int shared_templates(const mp_prf_model *m, double r, const double *px, c
         if (px[j] != floor(px[j]) || py[j] != floor(py[j]))
             return 0;
     double x = px[0], y = py[0];
-    long x0 = (long)ceil(x - r), y0 = (long)ceil(y - r);
-    long x1 = (long)floor(x + r) + 1, y1 = (long)floor(y + r) + 1;
+    long x0, y0, x1, y1;
+    (void)window_box(f, x, y, r, &x0, &y0, &x1, &y1);  /* inside or not: the same render */
     mp_prf_work wk = {0};
     *tp = (place_templates){x, y, buf, buf + box, buf + 2 * box, 0, 0, 0, 0};
     int rc = mp_prf_render_window(m, x, y, x0, y0, x1 - x0, y1 - y0, &tp->rx0, &tp->ry0, &tp->rw,
@@ -258,10 +259,10 @@ static int places_z(const mp_frame *f, const float *res, const mp_prf_model *m, 
     size_t tbox = (size_t)((side + 2) * (side + 2));
     double *tbuf = malloc(3 * tbox * sizeof *tbuf);
     place_templates t;
-    const place_templates *tp = shared_templates(m, r, px, py, n, tbox, tbuf, &t) ? &t : NULL;
+    const place_templates *tp = shared_templates(f, m, r, px, py, n, tbox, tbuf, &t) ? &t : NULL;
 #pragma omp parallel reduction(| : failed)
     {
-        size_t box = (size_t)((side + 2) * (side + 2));
+        size_t box = tbox;
         place_work pw = {0};
         pw.prf = malloc(4 * box * sizeof *pw.prf);
         failed |= !pw.prf;
