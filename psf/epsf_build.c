@@ -248,6 +248,19 @@ static void reject_chi2(mp_epsf_star *s, size_t n, double *tmp)
             s[k].used = 0;
 }
 
+double mp_epsf_common_drop(const mp_epsf_star *s, size_t n, const double *chi2s, double *last)
+{
+    double was = 0.0, now = 0.0;
+    for (size_t k = 0; k < n; k++) {
+        if (s[k].used && !isnan(last[k])) {
+            was += last[k];
+            now += chi2s[k];
+        }
+        last[k] = s[k].used ? chi2s[k] : NAN;
+    }
+    return was - now;
+}
+
 static size_t count_used(const mp_epsf_star *s, size_t n)
 {
     size_t m = 0;
@@ -277,12 +290,13 @@ int mp_epsf_rounds(mp_epsf_star *s, size_t n, const mp_epsf_opts *o, int os, int
     mp_epsf_fitter z;
     mp_epsf_fitter_start(&z, o->grid, o->spare);
     int rc = 1;
-    double prev = INFINITY;
-    double *tmp = malloc((n + 1) * sizeof *tmp);
-    if (!tmp) {
+    double *tmp = malloc((n + 1) * sizeof *tmp), *last = malloc((n + 1) * sizeof *last);
+    if (!tmp || !last) {
         oom(err);
         goto done;
     }
+    for (size_t k = 0; k < n; k++)
+        last[k] = NAN;      /* no round yet */
     for (int it = 0; it < o->outer; it++) {
         if (mp_epsf_fitter_set(&z, e, s, n, it >= held_from, err))
             goto done;
@@ -315,20 +329,21 @@ int mp_epsf_rounds(mp_epsf_star *s, size_t n, const mp_epsf_opts *o, int os, int
             goto done;
         mp_epsf_normalise(e, o->fwhm, o->support);
         /* The SIRT's own rule, one level up: once the stars' clip has run,
-         * a round of fits and steps that no longer lowers χ² by one fits
-         * only noise.  From a Gaussian that is tested from round 2 on
-         * (against round 1, whose neighbours were fitted), from a table
-         * already made from round 1 (against round 0, held as well): such
-         * a build mostly stops there. */
-        if (it >= stop_from && !(prev - w.chi2 >= 1.0))
+         * a round of fits and steps that no longer lowers the χ² of the
+         * stars it kept by one fits only noise.  From a Gaussian that is
+         * tested from round 2 on (against round 1, whose neighbours were
+         * fitted), from a table already made from round 1 (against round
+         * 0, held as well): such a build mostly stops there. */
+        double drop = mp_epsf_common_drop(s, n, w.chi2s, last);
+        if (it >= stop_from && !(drop >= 1.0))
             break;
-        prev = w.chi2;
     }
     e->filtered = 0;
     e->nstar = (int)count_used(s, n);
     rc = 0;
 done:
     free(tmp);
+    free(last);
     e->fits += z.fits;
     e->fits_grid += z.fits_grid;
     mp_epsf_fitter_done(&z, o->spare);

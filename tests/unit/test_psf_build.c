@@ -1199,6 +1199,32 @@ static int cmp_double(const void *x, const void *y)
     return (a > b) - (a < b);
 }
 
+/* The build's rounds stop on the χ² of the stars they kept
+ * (mp_epsf_common_drop): a star the clip takes out between two rounds
+ * drops out of both sums, however large its own χ²; a star kept adds
+ * its change; the first round has nothing to compare with.  (The whole
+ * sums', before 2026-12-05: 1006 − 603 here, a round that made the kept
+ * stars worse ran on.) */
+static void test_round_drop_over_kept_stars(void **state)
+{
+    (void)state;
+    mp_epsf_star s[3];
+    memset(s, 0, sizeof s);
+    double last[3], chi2[3] = {500.0, 3.0, 103.0};
+    for (int k = 0; k < 3; k++) {
+        s[k].used = 1;
+        last[k] = NAN;
+    }
+    assert_true(mp_epsf_common_drop(s, 3, chi2, last) == 0.0);
+    assert_true(last[0] == 500.0 && last[2] == 103.0);
+    s[0].used = 0;                      /* clipped: its 500 leaves both sums */
+    double next[3] = {1.0, 5.0, 98.0};
+    assert_true(mp_epsf_common_drop(s, 3, next, last) == (3.0 + 103.0) - (5.0 + 98.0));
+    assert_true(isnan(last[0]) && last[1] == 5.0 && last[2] == 98.0);
+    double again[3] = {0.0, 6.0, 99.0};
+    assert_true(mp_epsf_common_drop(s, 3, again, last) == -2.0);
+}
+
 /* The selection median is the sorted one, exactly, and every k-th
  * smallest is the sorted array's k-th with the values left partitioned
  * about it (v[0..k) ≤ v[k] ≤ v[k+1..n)): sizes 1..200, values drawn from
@@ -1299,6 +1325,7 @@ static void test_median_parallel_is_the_median(void **state)
 int main(void)
 {
     const struct CMUnitTest tests[] = {
+        cmocka_unit_test(test_round_drop_over_kept_stars),
         cmocka_unit_test(test_median_select_is_the_median),
         cmocka_unit_test(test_median_parallel_is_the_median),
         cmocka_unit_test(test_recovers_constant_table),
