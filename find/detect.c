@@ -54,10 +54,29 @@ typedef struct {
     float *h, *sky, *rms;
 } strip;
 
-/* Is pixel (x, y) of the strip a candidate: above threshold in the noise
- * of its own footprint, the maximum of h over the footprint (ties to the
- * first in raster order), and no saturated pixel within it (that star is
- * found as its plateau)? */
+/* Whether pixel x of the strip's row y is above threshold in its noise,
+ * for every x of the row into pass[] (one pass without branches the
+ * compiler vectorises: most pixels end here).  A noiseless frame has rms
+ * 0: there h must still beat the roundoff of subtracting the sky (a
+ * single-precision map: FLT_EPSILON of it through the kernel's weights,
+ * and h's own rounding), or every flat pixel would be a star. */
+static void above_noise(const strip *st, const mpf_kernel *k, double thresh, long nx, long y,
+                        unsigned char *restrict pass)
+{
+    const float *h = st->h + (size_t)(y - st->h0) * (size_t)nx;
+    const float *rms = st->rms + (size_t)(y - st->y0) * (size_t)nx;
+    const float *skyr = st->sky + (size_t)(y - st->s0) * (size_t)nx;
+    for (long x = 0; x < nx; x++) {
+        double hv = h[x], sky = fabs(skyr[x]);
+        pass[x] = (hv > 4.0 * FLT_EPSILON * (1.0 + sky) * (k->klsum + 1.0)) &
+                  !(hv < thresh * rms[x] * k->relerr);
+    }
+}
+
+/* Is pixel (x, y) of the strip, above threshold in its noise
+ * (above_noise), a candidate: the maximum of h over its footprint (ties
+ * to the first in raster order), and no saturated pixel within it (that
+ * star is found as its plateau)? */
 static int is_candidate(const mp_frame *f, const strip *st, const mpf_kernel *k,
                         double thresh, long x, long y)
 {
@@ -66,14 +85,6 @@ static int is_candidate(const mp_frame *f, const strip *st, const mpf_kernel *k,
     size_t sp = (size_t)(y - st->y0) * (size_t)nx + (size_t)x;
     double hv = st->h[(size_t)(y - st->h0) * (size_t)nx + (size_t)x];
     float rms = st->rms[sp];
-    /* A noiseless frame has rms 0: there h must still beat the roundoff
-     * of subtracting the sky (a single-precision map: FLT_EPSILON of it
-     * through the kernel's weights, and h's own rounding), or every flat
-     * pixel would be a star. */
-    double sky = fabs(st->sky[(size_t)(y - st->s0) * (size_t)nx + (size_t)x]);
-    if (!(hv > 4.0 * FLT_EPSILON * (1.0 + sky) * (k->klsum + 1.0)) ||
-        hv < thresh * rms * k->relerr)
-        return 0;
     for (int t = 0; t < k->n; t++) {
         long qx = x + k->dx[t], qy = y + k->dy[t];
         if (qx < 0 || qx >= nx || qy < 0 || qy >= ny || (qx == x && qy == y))
@@ -146,14 +157,22 @@ static int find_candidates(const mp_frame *f, const strip *st, const mpf_kernel 
 #endif
         if (t == 0)
             used = T;
-        for (long y = st->y0 + rows * t / T; y < st->y0 + rows * (t + 1) / T; y++)
+        unsigned char *pass = malloc((size_t)nx);
+        if (!pass) {
+#pragma omp atomic write
+            nomem = 1;
+        }
+        for (long y = st->y0 + rows * t / T; pass && y < st->y0 + rows * (t + 1) / T; y++) {
+            above_noise(st, k, thresh, nx, y, pass);
             for (long x = 0; x < nx; x++)
-                if (is_candidate(f, st, k, thresh, x, y) &&
+                if (pass[x] && is_candidate(f, st, k, thresh, x, y) &&
                     push_cand(&mine[t], y * nx + x,
                               st->h[(size_t)(y - st->h0) * (size_t)nx + (size_t)x])) {
 #pragma omp atomic write
                     nomem = 1;
                 }
+        }
+        free(pass);
     }
     for (int t = 0; t < used && !nomem; t++)
         for (size_t i = 0; i < mine[t].n && !nomem; i++)
