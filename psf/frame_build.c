@@ -47,7 +47,7 @@ static int put_back(mp_epsf_star *s, size_t n, const mp_table *t, const mp_prf_m
         for (size_t r = 0; r < t->nrow; r++) {
             double x = mp_table_get(t, r, cx), y = mp_table_get(t, r, cy);
             double F = mp_table_get(t, r, cf);
-            if (isfinite(F) && hypot(x - s[k].xf, y - s[k].yf) <= 1.0 &&
+            if (isfinite(F) && mp_within(x - s[k].xf, y - s[k].yf, 1.0) &&
                 mp_epsf_cutout_add(&s[k], m, x, y, F, err))
                 return 1;
         }

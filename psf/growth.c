@@ -182,7 +182,7 @@ static int own_light(const mp_table *t, const mp_prf_model *m, const mp_epsf *e,
     int back = m && cx >= 0 && cy >= 0 && cf >= 0;
     for (size_t r = 0; back && r < t->nrow; r++) {
         double x = mp_table_get(t, r, cx), y = mp_table_get(t, r, cy), F = mp_table_get(t, r, cf);
-        if (isfinite(F) && hypot(x - st->xf, y - st->yf) <= 1.0 &&
+        if (isfinite(F) && mp_within(x - st->xf, y - st->yf, 1.0) &&
             add_model(m, x, y, F, ox, oy, ow, oh, own, w))
             return 1;
     }
