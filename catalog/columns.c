@@ -167,25 +167,36 @@ static int int_width(const char *fmt)
     return strcmp(end, ".0f") == 0 && w < 64 ? (int)w : -1;
 }
 
-/* fmt "%W.Pc" (c one of e, f, g; no flags) as its width W and the
- * precision and conversion alone, "%.Pc", in pc (room for 24); −1 for any
- * other format. */
+/* The number of one or two decimal digits at *s, *s moved past them;
+ * −1 when none. */
+static int two_digits(const char **s)
+{
+    if (!isdigit((unsigned char)**s))
+        return -1;
+    int v = *(*s)++ - '0';
+    if (isdigit((unsigned char)**s))
+        v = 10 * v + (*(*s)++ - '0');
+    return v;
+}
+
+/* fmt "%W.Pc" (W and P of one or two digits, c one of e, f, g; no flags)
+ * as its width W and the precision and conversion alone, "%.Pc", in pc
+ * (room for 8); −1 for any other format.  Read by hand, a value a call:
+ * strtol here was 0.7 % of frame B built's instructions. */
 static int plain_width(const char *fmt, char *pc)
 {
-    if (fmt[0] != '%' || !isdigit((unsigned char)fmt[1]))
+    const char *s = fmt + 1;
+    if (fmt[0] != '%')
         return -1;
-    char *end;
-    long w = strtol(fmt + 1, &end, 10);
-    if (w >= 64 || end[0] != '.' || !isdigit((unsigned char)end[1]))
+    int w = two_digits(&s);
+    if (w < 0 || *s != '.')
         return -1;
-    char *conv;
-    long p = strtol(end + 1, &conv, 10);
-    if (p > 40 || conv[0] == '\0' || !strchr("efg", conv[0]) || conv[1] != '\0' ||
-        strlen(end) > 22)
+    const char *dot = s++;
+    if (two_digits(&s) < 0 || !(*s == 'e' || *s == 'f' || *s == 'g') || s[1] != '\0')
         return -1;
     pc[0] = '%';
-    strcpy(pc + 1, end);        /* ".Pc" */
-    return (int)w;
+    memcpy(pc + 1, dot, (size_t)(s - dot) + 2);        /* ".Pc" and its NUL */
+    return w;
 }
 
 /* x as snprintf's fmt writes it, for fmt "%W.Pc" (plain_width): libc's
@@ -196,7 +207,7 @@ static int plain_width(const char *fmt, char *pc)
  * "%12.7g".  −1 when fmt is not plain or the text would not fit. */
 static int plain_value(const char *fmt, double x, char *buf, size_t len)
 {
-    char pc[24];
+    char pc[8];
     int w = plain_width(fmt, pc);
     if (w < 0 || (size_t)w >= len)
         return -1;
