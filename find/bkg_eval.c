@@ -23,8 +23,8 @@ static const double *row_d2(const mp_bkg *b, int m, long y)
  * same arithmetic as its map was formed with. */
 static float rms_with(const mp_bkg *b, size_t i, float sky, double x)
 {
-    double m = fmax(b->pix[i] - b->res[i], 0.0);
-    double v = fmax(sky, 0.0) + m + b->ron2;
+    double m = mpf_nonneg(b->pix[i] - b->res[i]);
+    double v = mpf_nonneg(sky) + m + b->ron2;
     return (float)sqrt(b->k * b->k * v + b->eps * b->eps * m * m + x);
 }
 

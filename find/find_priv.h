@@ -166,4 +166,12 @@ static inline int mpf_sat(const mp_frame *f, size_t i)
     return f->mask && (f->mask[i] & MP_MASK_SATURATED) && !mpf_bad(f, i);
 }
 
+/* mpf_nonneg: fmax(x, 0.0) as glibc returns it (x when x >= 0, −0 kept;
+ * 0 for a negative or NaN x), inline: the noise model's calls to libm's
+ * fmax were 0.5 % of frame B built's instructions. */
+static inline double mpf_nonneg(double x)
+{
+    return x >= 0.0 ? x : 0.0;
+}
+
 #endif

@@ -18,7 +18,7 @@ static double quantile_of(double *v, size_t n, double q)
  * (the sky given: the map's spline is read once a pixel). */
 static double poisson_var(const mp_frame *f, const float *res, size_t i, double sky)
 {
-    return fmax(sky, 0.0) + fmax(f->im.pix[i] - res[i], 0.0) + f->rdnoise * f->rdnoise;
+    return mpf_nonneg(sky) + mpf_nonneg(f->im.pix[i] - res[i]) + f->rdnoise * f->rdnoise;
 }
 
 /* A kernel tap's terms at pixel q of sky level sky: the residual less
@@ -33,7 +33,7 @@ typedef struct {
 static tap_terms pixel_terms(const mp_frame *f, const float *res, size_t q, float sky)
 {
     double v = poisson_var(f, res, q, sky);
-    return (tap_terms){res[q] - sky, v, fmax(f->im.pix[q] - res[q], 0.0),
+    return (tap_terms){res[q] - sky, v, mpf_nonneg(f->im.pix[q] - res[q]),
                        !f->mask[q] && v > 0 && isfinite(res[q])};
 }
 
