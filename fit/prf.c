@@ -462,9 +462,7 @@ static void adjoint_cols(const mp_prf_axis *ay, const double *RX, int nx, long i
         double *dst = g + (size_t)R * nx;
         long i = i0;
         for (; i + 8 <= i1; i += 8) {
-            double s[8];
-            for (int u = 0; u < 8; u++)
-                s[u] = dst[i + u];
+            double s[8] = {0.0};
             for (int q = qa; q < qb; q++) {
                 const double *rx = RX + (size_t)q * nx + i;
                 double c = ay->v[(size_t)q * ay->bw + (R - ay->lo[q])];
@@ -475,12 +473,25 @@ static void adjoint_cols(const mp_prf_axis *ay, const double *RX, int nx, long i
                 dst[i + u] = s[u];
         }
         for (; i < i1; i++) {
-            double s = dst[i];
+            double s = 0.0;
             for (int q = qa; q < qb; q++)
                 s += ay->v[(size_t)q * ay->bw + (R - ay->lo[q])] * RX[(size_t)q * nx + i];
             dst[i] = s;
         }
     }
+}
+
+/* g (nx × ny) zeroed outside rows [r0, r1) × columns [c0, c1), the
+ * rectangle adjoint_cols writes whole (clearing all of g first was 0.7 %
+ * of frame B built's instructions, the SIRT's projections at ×4). */
+static void clear_outside(double *g, int nx, int ny, long r0, long r1, long c0, long c1)
+{
+    memset(g, 0, (size_t)r0 * nx * sizeof *g);
+    for (long R = r0; R < r1; R++) {
+        memset(g + (size_t)R * nx, 0, (size_t)c0 * sizeof *g);
+        memset(g + (size_t)R * nx + c1, 0, (size_t)(nx - c1) * sizeof *g);
+    }
+    memset(g + (size_t)r1 * nx, 0, (size_t)(ny - r1) * nx * sizeof *g);
 }
 
 /* mp_prf_adjoint by the axis operators: RX = R·X on the rows Y reads, then
@@ -497,9 +508,13 @@ static int adjoint_sep(const mp_prf_model *m, double x, double y, box bx, const 
         mp_prf_axis_refill(p->ny, p->os, p->offset, y, y, bx.y0, bx.h, hw, 0, ay) ||
         work_reserve(w, (size_t)(ay->w > 0 ? ay->w : 1) * nx))
         return 1;
-    if (ax->w == 0 || ay->w == 0)
+    size_t nel = (size_t)nx * p->ny;
+    if (ax->w == 0 || ay->w == 0) {
+        memset(g, 0, nel * sizeof *g);
         return 0;
+    }
     long i0 = ax->lo[0], i1 = ax->lo[ax->w - 1] + ax->len[ax->w - 1];
+    clear_outside(g, nx, p->ny, ay->lo[0], ay->lo[ay->w - 1] + ay->len[ay->w - 1], i0, i1);
     double scale = drf_weight(m->drf, p->os, 0, 0);
     for (int q = 0; q < ay->w; q++) {
         const double *rq = r + (size_t)(ay->p0 - bx.y0 + q) * bx.w + (ax->p0 - bx.x0);
@@ -529,10 +544,10 @@ int mp_prf_adjoint(const mp_prf_model *m, double x, double y, long x0, long y0, 
         return 1;
     int os = p->os, nx = p->nx, ny = p->ny;
     size_t nel = (size_t)nx * ny;
-    memset(g, 0, nel * sizeof *g);
     box bx = {x0, y0, w, h};
     if (mp_prf_axes_apply(m))
         return adjoint_sep(m, x, y, bx, r, g, work);
+    memset(g, 0, nel * sizeof *g);
     /* A DRF with a QE map: each pixel's value spread over its block with
      * the subpixels' QE, then shifted by the transpose of the render's
      * shift (the damped sinc is even: the shift by −δ). */
