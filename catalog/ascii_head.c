@@ -261,26 +261,70 @@ static int bad_name(const char *s)
     return 0;
 }
 
-/* Rows [r0, r1) of the table t (ctx), formatted as ASCII_HEAD rows,
- * appended to b (mp_rows_format); nonzero when out of memory. */
+/* What format_rows formats: the table, and the rows kept from the last
+ * one written (copied where the same: mp_text_kept_row), or NULL. */
+typedef struct {
+    const mp_table *t;
+    const mp_text_kept *prev;
+    int cnum;                   /* t's NUMBER column */
+} rows_ctx;
+
+/* Rows [r0, r1) of the table (ctx, a rows_ctx), formatted as ASCII_HEAD
+ * rows, appended to b (mp_rows_format); nonzero when out of memory. */
 static int format_rows(const void *ctx, size_t r0, size_t r1, mp_text *b)
 {
-    const mp_table *t = ctx;
+    const rows_ctx *x = ctx;
+    const mp_table *t = x->t;
     char buf[512];
-    for (size_t r = r0; r < r1; r++)
+    for (size_t r = r0; r < r1; r++) {
+        const char *s;
+        size_t len;
+        if (x->prev && mp_text_kept_row(x->prev, t, x->cnum, r, &s, &len)) {
+            if (mp_text_put(b, s, len))
+                return 1;
+            continue;
+        }
         for (size_t c = 0; c < t->ncol; c++) {
             int w = mp_format_value(&t->cols[c], mp_table_get(t, r, (int)c), buf, sizeof buf);
-            size_t len = w < 0 ? 0 : (size_t)w < sizeof buf ? (size_t)w : strlen(buf);
-            /* a separator even when a value overflows its width (len < 512:
+            size_t n = w < 0 ? 0 : (size_t)w < sizeof buf ? (size_t)w : strlen(buf);
+            /* a separator even when a value overflows its width (n < 512:
              * it takes the place of the terminating NUL at most) */
-            buf[len] = c + 1 < t->ncol ? ' ' : '\n';
-            if (mp_text_put(b, buf, len + 1))
+            buf[n] = c + 1 < t->ncol ? ' ' : '\n';
+            if (mp_text_put(b, buf, n + 1))
                 return 1;
         }
+    }
     return 0;
 }
 
+/* t's rows written to fp; with out, through a buffer kept there as t's
+ * rows (mp_text_kept_make).  Nonzero when out of memory. */
+static int write_rows(FILE *fp, const rows_ctx *x, mp_text_kept **out)
+{
+    if (!out)
+        return mp_rows_write(fp, x->t->nrow, format_rows, x);
+    char *text = NULL;
+    size_t len = 0;
+    FILE *ms = open_memstream(&text, &len);
+    if (!ms)
+        return 1;
+    int rc = mp_rows_write(ms, x->t->nrow, format_rows, x);
+    rc |= fclose(ms) != 0;
+    if (rc) {
+        free(text);
+        return 1;
+    }
+    fwrite(text, 1, len, fp);
+    return mp_text_kept_make(out, x->t, text, len);
+}
+
 int mp_ascii_head_write(FILE *fp, const char *name, const mp_table *t, char *err)
+{
+    return mp_ascii_head_write_kept(fp, name, t, NULL, NULL, err);
+}
+
+int mp_ascii_head_write_kept(FILE *fp, const char *name, const mp_table *t,
+                             const mp_text_kept *prev, mp_text_kept **out, char *err)
 {
     if (t->ncol == 0) {
         snprintf(err, MP_ERRLEN, "%s: table has no columns to write", name);
@@ -302,7 +346,9 @@ int mp_ascii_head_write(FILE *fp, const char *name, const mp_table *t, char *err
         fputc('\n', fp);
     }
 
-    if (mp_rows_write(fp, t->nrow, format_rows, t)) {
+    int cnum = mp_table_col(t, "NUMBER");
+    rows_ctx x = {t, cnum >= 0 && mp_text_kept_fits(prev, t) ? prev : NULL, cnum};
+    if (write_rows(fp, &x, out)) {
         snprintf(err, MP_ERRLEN, "%s: out of memory formatting the rows", name);
         return 1;
     }

@@ -99,6 +99,19 @@ int mp_table_read(const char *path, mp_table *t, char *err);
  * stdout. */
 int mp_table_write(const char *path, const mp_table *t, mp_table_format fmt, char *err);
 
+/* A table's ASCII_HEAD rows as mp_table_write_kept last wrote them. */
+typedef struct mp_text_kept mp_text_kept;
+
+/* mp_table_write_kept: mp_table_write, the same bytes, for tables written
+ * one after another with the same columns (root.grp, then root.fit): a
+ * row whose NUMBER prev (NULL: none) holds with the same values, bit for
+ * bit, is copied from there rather than formatted again.  With keep, *keep
+ * then holds t's rows (a copy of its values and its text; NULL unless
+ * ASCII_HEAD) until mp_text_kept_free. */
+int mp_table_write_kept(const char *path, const mp_table *t, mp_table_format fmt,
+                        const mp_text_kept *prev, mp_text_kept **keep, char *err);
+void mp_text_kept_free(mp_text_kept *k);
+
 /* mp_table_format_parse: "ascii_head"/"csv" (case-insensitive) → format;
  * nonzero when unknown. */
 int mp_table_format_parse(const char *s, mp_table_format *fmt);

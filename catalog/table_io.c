@@ -175,7 +175,10 @@ int mp_table_read(const char *path, mp_table *t, char *err)
     return rc;
 }
 
-int mp_table_write(const char *path, const mp_table *t, mp_table_format fmt, char *err)
+/* t written to path (mp_table_write_kept: the rows prev holds the same
+ * copied; t's rows kept into *keep when keep is set). */
+static int write_kept(const char *path, const mp_table *t, mp_table_format fmt,
+                      const mp_text_kept *prev, mp_text_kept **keep, char *err)
 {
     /* FITS is written by cfitsio to a named file, atomically on its own. */
     if (fmt == MP_TAB_FITS || fmt == MP_TAB_LDAC) {
@@ -188,7 +191,7 @@ int mp_table_write(const char *path, const mp_table *t, mp_table_format fmt, cha
     if (mp_out_open(&o, is_stdout ? "-" : path, err))
         return 1;
     int rc = fmt == MP_TAB_CSV ? mp_csv_write(o.fp, name, t, err)
-                               : mp_ascii_head_write(o.fp, name, t, err);
+                               : mp_ascii_head_write_kept(o.fp, name, t, prev, keep, err);
     if (!rc && ferror(o.fp)) {
         snprintf(err, MP_ERRLEN, "%s: write error: %s", name,
                  errno ? strerror(errno) : "I/O error");
@@ -199,6 +202,24 @@ int mp_table_write(const char *path, const mp_table *t, mp_table_format fmt, cha
         return 1;
     }
     return mp_out_commit(&o, err) ? 1 : 0;
+}
+
+int mp_table_write(const char *path, const mp_table *t, mp_table_format fmt, char *err)
+{
+    return mp_table_write_kept(path, t, fmt, NULL, NULL, err);
+}
+
+int mp_table_write_kept(const char *path, const mp_table *t, mp_table_format fmt,
+                        const mp_text_kept *prev, mp_text_kept **keep, char *err)
+{
+    if (keep)
+        *keep = NULL;
+    int rc = write_kept(path, t, fmt, prev, keep, err);
+    if (rc && keep) {
+        mp_text_kept_free(*keep);
+        *keep = NULL;
+    }
+    return rc;
 }
 
 int mp_table_format_parse(const char *s, mp_table_format *fmt)

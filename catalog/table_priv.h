@@ -81,8 +81,25 @@ int mp_ascii_head_read(mp_lines *L, mp_table *t, char *err);
 int mp_csv_read(mp_lines *L, mp_table *t, char *err);
 
 /* Writers: write t to fp; nonzero (err set, naming `name`) when t cannot be
- * written in that format. Stream errors are found by the caller at commit. */
+ * written in that format. Stream errors are found by the caller at commit.
+ * mp_ascii_head_write_kept: with prev (NULL: none), a row it holds the
+ * same (mp_text_kept_row) copied from it; with out, the rows' text kept
+ * there for the next table (NULL when it cannot be). */
 int mp_ascii_head_write(FILE *fp, const char *name, const mp_table *t, char *err);
+int mp_ascii_head_write_kept(FILE *fp, const char *name, const mp_table *t,
+                             const mp_text_kept *prev, mp_text_kept **out, char *err);
+
+/* text_kept.c.  mp_text_kept_fits: whether k's columns are t's (names,
+ * formats), and k can be looked up by NUMBER.  mp_text_kept_row: row r of
+ * t (NUMBER in column cnum) as k wrote it, when k holds that NUMBER with
+ * the same values bit for bit: its text into *s, *len (with its newline).
+ * mp_text_kept_make: *out for t from its rows' text (len bytes, taken
+ * over); left NULL when the text is not one line a row; nonzero when out
+ * of memory. */
+int mp_text_kept_fits(const mp_text_kept *k, const mp_table *t);
+int mp_text_kept_row(const mp_text_kept *k, const mp_table *t, int cnum, size_t r,
+                     const char **s, size_t *len);
+int mp_text_kept_make(mp_text_kept **out, const mp_table *t, char *text, size_t len);
 int mp_csv_write(FILE *fp, const char *name, const mp_table *t, char *err);
 
 #endif

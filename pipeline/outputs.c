@@ -9,7 +9,8 @@
 
 /* root + ext, written atomically in format fmt. */
 int mp_pl_write_named(const char *root, const char *ext, const mp_table *t,
-                       mp_table_format fmt, char *err)
+                      mp_table_format fmt, const mp_text_kept *prev, mp_text_kept **keep,
+                      char *err)
 {
     size_t n = strlen(root) + strlen(ext) + 1;
     char *path = malloc(n);
@@ -18,7 +19,7 @@ int mp_pl_write_named(const char *root, const char *ext, const mp_table *t,
         return 1;
     }
     snprintf(path, n, "%s%s", root, ext);
-    int rc = mp_table_write(path, t, fmt, err);
+    int rc = mp_table_write_kept(path, t, fmt, prev, keep, err);
     free(path);
     return rc;
 }
@@ -70,7 +71,7 @@ int mp_pl_write_catalog(const char *root, const mp_frame *f, mp_table *t,
         }
         free(fit);
     } else {
-        rc = mp_pl_write_named(root, ".cat", t, o->catfmt, err);
+        rc = mp_pl_write_named(root, ".cat", t, o->catfmt, NULL, NULL, err);
     }
     if (!rc && o->regions) {
         mp_region_opts ro = {3.0, 0, 1};

@@ -400,9 +400,12 @@ long mp_pl_split_candidates(const mp_frame *f, const mp_bkg *b, const float *res
 
 /* ---- outputs.c --------------------------------------------------------- */
 
-/* mp_pl_write_named: t written atomically to root + ext in format fmt. */
+/* mp_pl_write_named: t written atomically to root + ext in format fmt;
+ * the rows prev holds the same copied, t's rows kept into *keep when keep
+ * is set (mp_table_write_kept; NULL, NULL: plain). */
 int mp_pl_write_named(const char *root, const char *ext, const mp_table *t,
-                      mp_table_format fmt, char *err);
+                      mp_table_format fmt, const mp_text_kept *prev, mp_text_kept **keep,
+                      char *err);
 
 /* mp_pl_write_catalog: root.cat (sky positions when the frame has a WCS;
  * FITS_LDAC carries the frame's header) and, with o->regions, root.reg.

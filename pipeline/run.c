@@ -131,7 +131,7 @@ static int find_stars(run_state *s, char *err)
     /* Written first: a failed write is the run's only stderr line. */
     if (s->quiet)
         return 0;
-    if (mp_pl_write_named(s->root, ".coo", &s->t, s->o->fit.fmt, err))
+    if (mp_pl_write_named(s->root, ".coo", &s->t, s->o->fit.fmt, NULL, NULL, err))
         return 1;
     fprintf(stderr, "matphot pipeline: %s: %zu stars found (%ld candidates below the screen's "
             "S/N %g)\n", s->image, s->t.nrow, s->rep->screened,
@@ -418,14 +418,18 @@ static int honest_errors(run_state *s, char *err)
     return 0;
 }
 
-/* root.grp (but in a tile), root.fit, root.res.fits, root.cat (+ .reg),
- * then the run report. */
+/* root.grp (but in a tile), root.fit (its rows root.grp holds the same,
+ * the stars the last round did not refit, copied: mp_table_write_kept),
+ * root.res.fits, root.cat (+ .reg), then the run report. */
 static int write_products(run_state *s, char *err)
 {
     double t0 = mp_seconds();
-    if ((!s->quiet && mp_pl_write_named(s->root, ".grp", &s->grp, s->o->fit.fmt, err)) ||
-        mp_pl_write_named(s->root, ".fit", &s->t, s->o->fit.fmt, err) ||
-        mp_pl_write_residual(s->root, &s->f, s->res, err) ||
+    mp_text_kept *grp = NULL;
+    int rc = (!s->quiet &&
+              mp_pl_write_named(s->root, ".grp", &s->grp, s->o->fit.fmt, NULL, &grp, err)) ||
+             mp_pl_write_named(s->root, ".fit", &s->t, s->o->fit.fmt, grp, NULL, err);
+    mp_text_kept_free(grp);
+    if (rc || mp_pl_write_residual(s->root, &s->f, s->res, err) ||
         mp_pl_write_catalog(s->root, &s->f, &s->t, s->o, err))
         return 1;
     s->rep->t_write = mp_seconds() - t0;

@@ -510,6 +510,71 @@ static void round_trip(fixture *f, mp_table_format fmt, const char *name)
     assert_int_equal(count_entries(f->dir), 1);   /* no temporary left */
 }
 
+/* A table written with the last one's rows kept (mp_table_write_kept: the
+ * pipeline's root.grp, then root.fit) is the same bytes as written alone,
+ * with its rows in another order, one row's flux one ulp away, one row
+ * gone and one new; the rows copied are exactly those with the same
+ * NUMBER and values; a table of other columns copies none. */
+static void test_write_kept_same_bytes(void **state)
+{
+    fixture *f = *state;
+    char pa[512], pb[512], pc[512], err[MP_ERRLEN] = "";
+    path_in(f, "k.grp", pa, sizeof pa);
+    path_in(f, "k.fit", pb, sizeof pb);
+    path_in(f, "k.alone", pc, sizeof pc);
+    mp_table a, b;
+    sample_table(&a);
+    int cn = mp_table_col(&a, "NUMBER"), cf = mp_table_col(&a, "FLUX_PSF");
+    assert_true(cn >= 0 && cf >= 0);
+    static const double num[4] = {5, 3, 9, 1};
+    for (size_t r = 0; r < 4; r++)
+        mp_table_set(&a, r, cn, num[r]);
+    /* b: a's rows 3, 1, 0 (row 2 gone), row 1's flux one ulp up, NUMBER 7 new */
+    mp_table_init(&b);
+    for (size_t c = 0; c < a.ncol; c++)
+        assert_int_equal(mp_table_add_col(&b, a.cols[c].name), (int)c);
+    static const size_t from[3] = {3, 1, 0};
+    for (size_t q = 0; q < 4; q++) {
+        assert_int_equal(mp_table_add_row(&b), (long)q);
+        for (size_t c = 0; c < a.ncol; c++)
+            mp_table_set(&b, q, (int)c, mp_table_get(&a, q < 3 ? from[q] : 2, (int)c));
+    }
+    mp_table_set(&b, 1, cf, nextafter(mp_table_get(&b, 1, cf), INFINITY));
+    mp_table_set(&b, 3, cn, 7.0);
+    mp_text_kept *k = NULL;
+    assert_int_equal(mp_table_write_kept(pa, &a, MP_TAB_ASCII_HEAD, NULL, &k, err), 0);
+    assert_non_null(k);
+    assert_true(mp_text_kept_fits(k, &b));
+    const char *txt;
+    size_t len;
+    static const int copied[4] = {1, 0, 1, 0};
+    for (size_t q = 0; q < 4; q++)
+        assert_int_equal(mp_text_kept_row(k, &b, cn, q, &txt, &len), copied[q]);
+    assert_int_equal(mp_table_write_kept(pb, &b, MP_TAB_ASCII_HEAD, k, NULL, err), 0);
+    assert_int_equal(mp_table_write(pc, &b, MP_TAB_ASCII_HEAD, err), 0);
+    char *with = slurp(pb), *alone = slurp(pc), *first = slurp(pa);
+    assert_string_equal(with, alone);
+    char *again = NULL;            /* a's rows as kept: its file's tail */
+    assert_true(mp_text_kept_row(k, &a, cn, 0, &txt, &len));
+    assert_non_null(again = strstr(first, "\n         5 "));
+    assert_memory_equal(again + 1, txt, len);
+    /* other columns: nothing copied, the same bytes */
+    mp_table c1;
+    mp_table_init(&c1);
+    assert_true(mp_table_add_col(&c1, "NUMBER") == 0 && mp_table_add_col(&c1, "FLUX_PSF") == 1);
+    assert_int_equal(mp_table_add_row(&c1), 0);
+    mp_table_set(&c1, 0, 0, 5.0);
+    mp_table_set(&c1, 0, 1, 1.0);
+    assert_false(mp_text_kept_fits(k, &c1));
+    free(with);
+    free(alone);
+    free(first);
+    mp_text_kept_free(k);
+    mp_table_free(&a);
+    mp_table_free(&b);
+    mp_table_free(&c1);
+}
+
 static void test_round_trip_ascii(void **state) { round_trip(*state, MP_TAB_ASCII_HEAD, "rt.cat"); }
 static void test_round_trip_csv(void **state) { round_trip(*state, MP_TAB_CSV, "rt.csv"); }
 
@@ -915,6 +980,7 @@ int main(void)
         cmocka_unit_test_setup_teardown(test_atomic_write, setup, teardown),
         cmocka_unit_test(test_integer_columns),
         cmocka_unit_test(test_float_columns),
+        cmocka_unit_test_setup_teardown(test_write_kept_same_bytes, setup, teardown),
         cmocka_unit_test(test_sample_out),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
