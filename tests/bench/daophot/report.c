@@ -364,12 +364,12 @@ typedef struct {
 } timing;
 
 /* median over runs of tool a's time / tool b's (wall or CPU) */
-static cmp_opt ratio(timing *T, const char *a, const char *b, int cpu)
+/* The runs' ratios a/b (wall or CPU), each run's a against the same
+ * run's b, into T->r; their number. */
+static size_t run_ratios(timing *T, const char *a, const char *b, int cpu)
 {
-    cmp_opt o = { 0, 0.0 };
     size_t na = tool_runs(T->s, T->frame, a, T->ra, T->wa, T->ca);
     size_t nb = tool_runs(T->s, T->frame, b, T->rb, T->wb, T->cb);
-    if (!na || !nb) return o;
     size_t nr = 0;
     for (size_t i = 0; i < na; i++)
         for (size_t j = 0; j < nb; j++)
@@ -377,8 +377,29 @@ static cmp_opt ratio(timing *T, const char *a, const char *b, int cpu)
                 double num = cpu ? T->ca[i] : T->wa[i], den = cpu ? T->cb[j] : T->wb[j];
                 if (den > 0) T->r[nr++] = num / den;
             }
+    return nr;
+}
+
+static cmp_opt ratio(timing *T, const char *a, const char *b, int cpu)
+{
+    cmp_opt o = { 0, 0.0 };
+    size_t nr = run_ratios(T, a, b, cpu);
     if (nr) o = some(cmp_median(T->r, nr));
     return o;
+}
+
+/* The runs' ratios a/b as "lo–hi" into buf ("" without runs). */
+static const char *ratio_span(timing *T, const char *a, const char *b, int cpu, char *buf,
+                              size_t len)
+{
+    size_t nr = run_ratios(T, a, b, cpu);
+    double lo = INFINITY, hi = -INFINITY;
+    for (size_t i = 0; i < nr; i++) {
+        lo = T->r[i] < lo ? T->r[i] : lo;
+        hi = T->r[i] > hi ? T->r[i] : hi;
+    }
+    snprintf(buf, len, nr ? "%.3f-%.3f" : "", lo, hi);
+    return buf;
 }
 
 static int tool_ok(const cmp_frame *F, const char *name)
@@ -491,8 +512,8 @@ int cmp_report(const char *stats_path, const char *out)
         el(&B, "| ratio (median of per-run ratios; < 1: matphot faster) | wall | CPU |");
         el(&B, "|---|---:|---:|");
         for (int k = 0; k < NRATIO; k++)
-            el(&B, "| %s | %s | %s |", rl[k], fmtv(b1, sizeof b1, ratio(&T, ra_a[k], ra_b[k], 0), "%.2f"),
-               fmtv(b2, sizeof b2, ratio(&T, ra_a[k], ra_b[k], 1), "%.2f"));
+            el(&B, "| %s | %s | %s |", rl[k], fmtv(b1, sizeof b1, ratio(&T, ra_a[k], ra_b[k], 0), "%.3f"),
+               fmtv(b2, sizeof b2, ratio(&T, ra_a[k], ra_b[k], 1), "%.3f"));
         el(&B, "%s", "");
         el(&B, "### Detection and photometry (match radius 1 px)\n");
         el(&B, "| catalogue | rows | matched | completeness %% | unmatched rows "
@@ -552,14 +573,16 @@ int cmp_report(const char *stats_path, const char *out)
             el(&S, "frame %s: %s", F->name, F->desc);
             el(&S, "  time matphot/DAOPHOT (%d passes each): wall %s, CPU %s "
                    "(matphot default fitrad: wall %s, CPU %s)", n,
-               fmtv(b1, sizeof b1, ratio(&T, "mp", "dao", 0), "%.2f"),
-               fmtv(b2, sizeof b2, ratio(&T, "mp", "dao", 1), "%.2f"),
-               fmtv(b3, sizeof b3, ratio(&T, "mpd", "dao", 0), "%.2f"),
-               fmtv(b4, sizeof b4, ratio(&T, "mpd", "dao", 1), "%.2f"));
+               fmtv(b1, sizeof b1, ratio(&T, "mp", "dao", 0), "%.3f"),
+               fmtv(b2, sizeof b2, ratio(&T, "mp", "dao", 1), "%.3f"),
+               fmtv(b3, sizeof b3, ratio(&T, "mpd", "dao", 0), "%.3f"),
+               fmtv(b4, sizeof b4, ratio(&T, "mpd", "dao", 1), "%.3f"));
             if (tool_ok(F, "mpb"))     /* "daopsf" is a time, not a catalogue */
                 el(&S, "  time matphot with its PSF built from the frame / DAOPHOT %d passes + psf: "
-                       "wall %s, CPU %s", n, fmtv(b1, sizeof b1, ratio(&T, "mpb", "daopsf", 0), "%.2f"),
-                   fmtv(b2, sizeof b2, ratio(&T, "mpb", "daopsf", 1), "%.2f"));
+                       "wall %s, CPU %s (runs %s)", n,
+                   fmtv(b1, sizeof b1, ratio(&T, "mpb", "daopsf", 0), "%.3f"),
+                   fmtv(b2, sizeof b2, ratio(&T, "mpb", "daopsf", 1), "%.3f"),
+                   ratio_span(&T, "mpb", "daopsf", 1, b3, sizeof b3));
             static const char *const sl[5] = { "matphot fitrad=FWHM", "matphot default    ",
                                                "matphot PSF built  ", "DAOPHOT varorder 0 ",
                                                "DAOPHOT analytic   " };
