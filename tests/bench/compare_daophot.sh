@@ -10,8 +10,10 @@
 #     sh tests/bench/compare_daophot.sh
 # Environment:
 #     CC=cc, BUILD=build   compiler of the helper, where libmatphot.a is
-#     FRAMES="A B C"   which frames (A: 512^2 1000 stars FWHM 3; B: 1024^2
-#                      5000 stars FWHM 2.5; C: 512^2 3000 stars FWHM 3)
+#     FRAMES="A B C S" which frames (A: 512^2 1000 stars FWHM 3; B: 1024^2
+#                      5000 stars FWHM 2.5; C: 512^2 3000 stars FWHM 3;
+#                      S: 512^2 1250 stars, a segmented mirror's PSF, the
+#                      crowded validation's kind, tests/validate/crowded)
 #     REPS=3           timed runs per tool and frame (interleaved)
 #     NITER=3          detection rounds of both (matphot niter; DAOPHOT
 #                      daofind on the allstar residual + phot + pfmerge +
@@ -37,7 +39,7 @@ if ! command -v irafcl >/dev/null 2>&1; then
   exit 0
 fi
 
-FRAMES=${FRAMES:-A B C}
+FRAMES=${FRAMES:-A B C S}
 REPS=${REPS:-3}
 NITER=${NITER:-3}
 MATPHOT_THREADS=${MATPHOT_THREADS:-1}
@@ -179,13 +181,15 @@ EOF
 }
 
 # ---------------------------------------------------------------- frames
-# name nx ny nstars fwhm seed description
+# name nx ny nstars fwhm seed description (fwhm: DAOPHOT's and the
+# fitting radius; the segmented frame's PSF is the mirror's, drawn at ×4)
 frame_spec() {
   case $1 in
     A) echo "512 512 1000 3.0 1 512x512, 1000 stars, FWHM 3 px";;
     B) echo "1024 1024 5000 2.5 2 1024x1024, 5000 stars, FWHM 2.5 px";;
     C) echo "512 512 3000 3.0 3 512x512, 3000 stars, FWHM 3 px (dense: many blends)";;
-    *) die "unknown frame $1 (A, B or C)";;
+    S) echo "512 512 1250 2.3 4 512x512, 1250 stars, segmented mirror (18 hexagons, lambda/D 2 px, 50 % band; FWHM about 2.3 px)";;
+    *) die "unknown frame $1 (A, B, C or S)";;
   esac
 }
 MAGMIN=-13; MAGMAX=-7; SKY=100; RON=3; GAIN=1
@@ -215,7 +219,8 @@ for F in $FRAMES; do
   set -- $(frame_spec "$F")
   nx=$1; ny=$2; ns=$3; fw=$4; seed=$5; shift 5; desc="$*"
   FD="$W/$F"; mkdir -p "$FD/cat"
-  simcmd="matphot sim $F.fits nx=$nx ny=$ny mode=crowded nstars=$ns fwhm=$fw magmin=$MAGMIN magmax=$MAGMAX sky=$SKY rdnoise=$RON gain=$GAIN seed=$seed psfout=$F.psf.fits psfos=2"
+  pupil="psfos=2"; [ "$F" = S ] && pupil="pupil=segmented lod=2 band=0.5 psfos=4"
+  simcmd="matphot sim $F.fits nx=$nx ny=$ny mode=crowded nstars=$ns fwhm=$fw magmin=$MAGMIN magmax=$MAGMAX sky=$SKY rdnoise=$RON gain=$GAIN seed=$seed psfout=$F.psf.fits $pupil"
   say "frame $F: $desc"
   ( cd "$FD" && "$MP" ${simcmd#matphot } >sim.log 2>&1 ) || { cat "$FD/sim.log" >&2; die "sim of frame $F failed"; }
   sigma=$(awk -v s=$SKY -v r=$RON -v g=$GAIN 'BEGIN { printf "%.3f", sqrt(s*g + r*r)/g }')

@@ -398,7 +398,10 @@ static const char *ratio_span(timing *T, const char *a, const char *b, int cpu, 
         lo = T->r[i] < lo ? T->r[i] : lo;
         hi = T->r[i] > hi ? T->r[i] : hi;
     }
-    snprintf(buf, len, nr ? "%.3f-%.3f" : "", lo, hi);
+    if (nr)
+        snprintf(buf, len, "%.3f-%.3f", lo, hi);
+    else if (len)
+        buf[0] = '\0';
     return buf;
 }
 
