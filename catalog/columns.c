@@ -156,17 +156,6 @@ static int fmt_width(const char *fmt)
     return atoi(p);
 }
 
-/* The width W of an integer column's "%W.0f", or -1 for any other
- * format (flags, a precision, another conversion). */
-static int int_width(const char *fmt)
-{
-    if (fmt[0] != '%' || !isdigit((unsigned char)fmt[1]))
-        return -1;
-    char *end;
-    long w = strtol(fmt + 1, &end, 10);
-    return strcmp(end, ".0f") == 0 && w < 64 ? (int)w : -1;
-}
-
 /* The number of one or two decimal digits at *s, *s moved past them;
  * −1 when none. */
 static int two_digits(const char **s)
@@ -197,6 +186,15 @@ static int plain_width(const char *fmt, char *pc)
     pc[0] = '%';
     memcpy(pc + 1, dot, (size_t)(s - dot) + 2);        /* ".Pc" and its NUL */
     return w;
+}
+
+/* The width W of an integer column's "%W.0f", or -1 for any other
+ * format (flags, another precision or conversion): plain_width's read. */
+static int int_width(const char *fmt)
+{
+    char pc[8];
+    int w = plain_width(fmt, pc);
+    return w >= 0 && w < 64 && strcmp(pc, "%.0f") == 0 ? w : -1;
 }
 
 /* x as snprintf's fmt writes it, for fmt "%W.Pc" (plain_width): libc's

@@ -424,11 +424,11 @@ static int honest_errors(run_state *s, char *err)
 static int write_products(run_state *s, char *err)
 {
     double t0 = mp_seconds();
-    mp_text_kept *grp = NULL;
+    mp_text_kept *grp_text = NULL;
     int rc = (!s->quiet &&
-              mp_pl_write_named(s->root, ".grp", &s->grp, s->o->fit.fmt, NULL, &grp, err)) ||
-             mp_pl_write_named(s->root, ".fit", &s->t, s->o->fit.fmt, grp, NULL, err);
-    mp_text_kept_free(grp);
+              mp_pl_write_named(s->root, ".grp", &s->grp, s->o->fit.fmt, NULL, &grp_text, err)) ||
+             mp_pl_write_named(s->root, ".fit", &s->t, s->o->fit.fmt, grp_text, NULL, err);
+    mp_text_kept_free(grp_text);
     if (rc || mp_pl_write_residual(s->root, &s->f, s->res, err) ||
         mp_pl_write_catalog(s->root, &s->f, &s->t, s->o, err))
         return 1;
