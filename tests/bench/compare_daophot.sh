@@ -10,10 +10,14 @@
 #     sh tests/bench/compare_daophot.sh
 # Environment:
 #     CC=cc, BUILD=build   compiler of the helper, where libmatphot.a is
-#     FRAMES="A B C S" which frames (A: 512^2 1000 stars FWHM 3; B: 1024^2
-#                      5000 stars FWHM 2.5; C: 512^2 3000 stars FWHM 3;
-#                      S: 512^2 1250 stars, a segmented mirror's PSF, the
-#                      crowded validation's kind, tests/validate/crowded)
+#     FRAMES="A B C S G V" which frames (A: 512^2 1000 stars FWHM 3; B:
+#                      1024^2 5000 stars FWHM 2.5; C: 512^2 3000 stars FWHM
+#                      3; S: 512^2 1250 stars, a segmented mirror's PSF, the
+#                      crowded validation's kind; G and V: the crowded
+#                      frames of make validate themselves, drawn by
+#                      tests/validate/crowded's crowded.c and segmented.c
+#                      with their seeds (validate/CROWDED.md): saturated
+#                      stars, DAOPHOT given datamax = their SATURATE)
 #     REPS=3           timed runs per tool and frame (interleaved)
 #     NITER=3          detection rounds of both (matphot niter; DAOPHOT
 #                      daofind on the allstar residual + phot + pfmerge +
@@ -39,7 +43,7 @@ if ! command -v irafcl >/dev/null 2>&1; then
   exit 0
 fi
 
-FRAMES=${FRAMES:-A B C S}
+FRAMES=${FRAMES:-A B C S G V}
 REPS=${REPS:-3}
 NITER=${NITER:-3}
 MATPHOT_THREADS=${MATPHOT_THREADS:-1}
@@ -99,7 +103,7 @@ cl_head() {
   fw=$2; fitrad=$2
   psfrad=$(awk -v f="$fw" 'BEGIN { printf "%.2f", 4*f }')
   cl_env "$1"
-  cl_pars "$fw" "$3" "$4" "$5" INDEF "$fitrad" gauss "$6" "$psfrad" "$fitrad"
+  cl_pars "$fw" "$3" "$4" "$5" "$DATAMAX" "$fitrad" gauss "$6" "$psfrad" "$fitrad"
 }
 
 # run_cl DIR NAME: irafcl -f DIR/NAME.cl, no stdin, log in DIR/NAME.log.
@@ -189,10 +193,35 @@ frame_spec() {
     B) echo "1024 1024 5000 2.5 2 1024x1024, 5000 stars, FWHM 2.5 px";;
     C) echo "512 512 3000 3.0 3 512x512, 3000 stars, FWHM 3 px (dense: many blends)";;
     S) echo "512 512 1250 2.3 4 512x512, 1250 stars, segmented mirror (18 hexagons, lambda/D 2 px, 50 % band; FWHM about 2.3 px)";;
-    *) die "unknown frame $1 (A, B, C or S)";;
+    G) echo "1024 1024 5000 3.0 - make validate's crowded frame (validate/CROWDED.md): 1024x1024, 5000 stars (200 close pairs, 20 saturated), Gaussian FWHM 3 px, sky a plane 100-150 e-";;
+    V) echo "512 512 1258 2.2 - make validate's segmented scene (validate/CROWDED.md): 512x512, 1258 stars (8 saturated with bleed trails), segmented mirror, lambda/D 2 px, FWHM about 2.2 px";;
+    *) die "unknown frame $1 (A, B, C, S, G or V)";;
   esac
 }
 MAGMIN=-13; MAGMAX=-7; SKY=100; RON=3; GAIN=1
+
+# The crowded validation's helpers (frames G and V), built when asked for.
+VAL_CFLAGS="-std=c17 -Wall -Wextra -Werror -O2 -fopenmp -D_XOPEN_SOURCE=700 -I. $(pkg-config --cflags wcslib)"
+VAL_LIBS="-fopenmp $LIBMP -lcfitsio $(pkg-config --libs wcslib) -lcsv -llapacke -lopenblas -lm"
+# validate_frame F DIR: draw frame G or V into DIR/F.fits, DIR/F.psf.fits
+# and DIR/F.truth (its truth.dat with X_IMAGE, Y_IMAGE for X_TRUE,
+# Y_TRUE, as compare.c reads a truth); DIR/F.pst.truth the same without
+# the stars that saturate alone (SAT_SELF), DAOPHOT's PSF-star pool.
+validate_frame() {
+  case $1 in G) src=crowded.c; prog=crowded;; *) src=segmented.c; prog=crowdseg;; esac
+  if [ ! -x "$W/$prog" ]; then
+    # shellcheck disable=SC2086
+    ${CC:-cc} $VAL_CFLAGS -o "$W/$prog" "tests/validate/crowded/$src" \
+      tests/validate/crowded/joint_bound.c $VAL_LIBS || die "cannot build tests/validate/crowded/$src"
+  fi
+  mkdir -p "$2/val" && "$W/$prog" sim "$2/val" >"$2/sim.log" 2>&1 || return 1
+  mv "$2/val/frame.fits" "$2/$1.fits" && mv "$2/val/psf.fits" "$2/$1.psf.fits" || return 1
+  sed -e 's/^#   2 X_TRUE /#   2 X_IMAGE/' -e 's/^#   3 Y_TRUE /#   3 Y_IMAGE/' \
+    "$2/val/truth.dat" > "$2/$1.truth"
+  awk '/^#/ { print; if ($3 == "SAT_SELF") c = $2; next } !c || $c == 0' "$2/$1.truth" \
+    > "$2/$1.pst.truth"
+  rm -rf "$2/val"
+}
 
 HOSTN=$(uname -n 2>/dev/null || echo "?")
 NCPU=$(nproc 2>/dev/null || echo "?")
@@ -221,14 +250,25 @@ for F in $FRAMES; do
   FD="$W/$F"; mkdir -p "$FD/cat"
   pupil="psfos=2"; [ "$F" = S ] && pupil="pupil=segmented lod=2 band=0.5 psfos=4"
   simcmd="matphot sim $F.fits nx=$nx ny=$ny mode=crowded nstars=$ns fwhm=$fw magmin=$MAGMIN magmax=$MAGMAX sky=$SKY rdnoise=$RON gain=$GAIN seed=$seed psfout=$F.psf.fits $pupil"
+  fmin=$MAGMIN; fmax=$MAGMAX; DATAMAX=INDEF; pst=$FD/$F.truth; skyv=$SKY
   say "frame $F: $desc"
-  ( cd "$FD" && "$MP" ${simcmd#matphot } >sim.log 2>&1 ) || { cat "$FD/sim.log" >&2; die "sim of frame $F failed"; }
-  sigma=$(awk -v s=$SKY -v r=$RON -v g=$GAIN 'BEGIN { printf "%.3f", sqrt(s*g + r*r)/g }')
+  case $F in
+  G|V)
+    # the validation's own frame, its stars -14..-6 mag (the saturated
+    # ones brighter), SATURATE 60000
+    simcmd="build/validate/crowded/$( [ "$F" = G ] && echo crowded || echo crowdseg ) sim DIR   # tests/validate/crowded/crowded.sh's frame, its fixed seed"
+    fmin=-14; fmax=-6; DATAMAX=60000; pst=$FD/$F.pst.truth
+    [ "$F" = G ] && skyv=125     # the plane's mean
+    validate_frame "$F" "$FD" || { cat "$FD/sim.log" >&2; die "sim of frame $F failed"; };;
+  *)
+    ( cd "$FD" && "$MP" ${simcmd#matphot } >sim.log 2>&1 ) || { cat "$FD/sim.log" >&2; die "sim of frame $F failed"; };;
+  esac
+  sigma=$(awk -v s=$skyv -v r=$RON -v g=$GAIN 'BEGIN { printf "%.3f", sqrt(s*g + r*r)/g }')
   # PSF stars for DAOPHOT: the 25 least contaminated bright stars (truth)
   psfrad=$(awk -v f="$fw" 'BEGIN { printf "%.2f", 4*f }')
-  "$CMP" pststars "$FD/$F.truth" "$fw" "$psfrad" "$nx" "$ny" 25 "$FD/pst.coo" 2>"$FD/pst.log" \
+  "$CMP" pststars "$pst" "$fw" "$psfrad" "$nx" "$ny" 25 "$FD/pst.coo" 2>"$FD/pst.log" \
     || { cat "$FD/pst.log" >&2; die "PSF star selection failed"; }
-  printf '%s\t%s\t%s\t%s\t%s\t%s\n' "$F" "$fw" "$MAGMIN" "$MAGMAX" "$desc" "$simcmd" >> "$W/frames.tsv"
+  printf '%s\t%s\t%s\t%s\t%s\t%s\n' "$F" "$fw" "$fmin" "$fmax" "$desc" "$simcmd" >> "$W/frames.tsv"
   mpcmd="matphot pipeline $F.fits psf=$F.psf.fits fitrad=$fw threshold=4 niter=$NITER"
   mpdcmd="matphot pipeline $F.fits psf=$F.psf.fits threshold=4 niter=$NITER"
   # the PSF built from the frame (no psf=), as DAOPHOT builds its own
@@ -239,7 +279,7 @@ for F in $FRAMES; do
     echo "OMP_NUM_THREADS=$MATPHOT_THREADS $mpcmd    # matphot, fitrad = FWHM (as DAOPHOT)"
     echo "OMP_NUM_THREADS=$MATPHOT_THREADS $mpdcmd    # matphot, default fitrad"
     echo "OMP_NUM_THREADS=$MATPHOT_THREADS $mpbcmd    # matphot, fitrad = FWHM, PSF built from the frame"
-    echo "irafcl -f find.cl; irafcl -f psf.cl; irafcl -f als1.cl; irafcl -f refind.cl   # DAOPHOT, varorder 0 (sigma=$sigma, fitrad=$fw, psfrad=$psfrad)"
+    echo "irafcl -f find.cl; irafcl -f psf.cl; irafcl -f als1.cl; irafcl -f refind.cl   # DAOPHOT, varorder 0 (sigma=$sigma, fitrad=$fw, psfrad=$psfrad, datamax=$DATAMAX)"
     echo "irafcl -f find.cl; irafcl -f psf.cl; irafcl -f als1.cl; irafcl -f refind.cl   # the same with varorder -1 (analytic PSF)"
   } >> "$W/commands.txt"
 
