@@ -136,6 +136,8 @@ t1=$(date +%s)
     echo "## Where the CPU goes with the PSF built from the frame (issue 12)"
     echo
     echo "Generated $(date -u '+%Y-%m-%d %H:%M UTC') by \`tests/bench/profile.sh\` (part of \`make bench\`), matphot $(git -C "$TOP" rev-parse --short HEAD 2>/dev/null || echo '?')$([ -n "$B" ] && echo ", before: BEFORE=$BEFORE_ID"), $(nproc 2>/dev/null || echo '?') cores, load $(cut -d' ' -f1-3 /proc/loadavg 2>/dev/null || echo '?'); $((t1 - t0)) s wall.  \`perf record -F $HZ --call-graph dwarf\` of one-thread runs (a share p of N samples, N about $HZ a CPU second, has a sampling error of sqrt(p(1-p)/N)); the time of matphot against DAOPHOT on the same frame is tests/bench/daophot/REPORT.md's (frame C, row \"PSF built from the frame\") and bench/REAL.md's (tucb)."
+    echo
+    echo "Before issue 12's work (a6190c5, 2026-11-24; bench/PROFILE.md \"Before\"): 47 Tuc's 256² crop with Tiny Tim's table took 22.9 s of CPU (its 512² crop 514 s against DAOPHOT's 8), self time \`render_table\` 77.7 % (the damped-sinc shift of the ×4 table per star per LM trial, on the group's whole box) and \`normal_equations\` 16.3 %.  The runs below show where the time went since; bench/PROFILE.md holds the changes between, session by session."
     for F in $FRAMES; do
         [ -f "$T/$F.md" ] || continue
         echo
