@@ -50,7 +50,42 @@ void mp_econ_cache_free(mp_econ_cache *c)
         mp_ss_level_free(&c->ss[l]);
     mp_prf_cache_free(&c->grid);
     mp_prf_cache_free(&c->spare);
+    free(c->env);
     free(c);
+}
+
+double *mp_econ_envelope(mp_econ_cache *c, const mp_prf_model *m, int *nr)
+{
+    /* The cache's own model only: a local view (a section's field) or
+     * another model is measured afresh. */
+    if (!c || !c->offered || m->psf != c->psf || m->drf != c->model0.drf ||
+        m->sinc_hw != c->model0.sinc_hw)
+        return mp_prf_envelope(m, nr);
+    int have;
+#pragma omp critical(mp_econ_cache)
+    have = c->env != NULL;
+    if (!have) {
+        /* Measured outside the lock (its renders run in parallel); a
+         * thread that lost the race frees its own. */
+        int n;
+        double *e = mp_prf_envelope(m, &n);
+        if (!e)
+            return NULL;
+#pragma omp critical(mp_econ_cache)
+        if (!c->env) {
+            c->env = e;
+            c->env_nr = n;
+            e = NULL;
+        }
+        free(e);
+    }
+    double *copy = NULL;
+#pragma omp critical(mp_econ_cache)
+    if ((copy = malloc((size_t)c->env_nr * sizeof *copy))) {
+        memcpy(copy, c->env, (size_t)c->env_nr * sizeof *copy);
+        *nr = c->env_nr;
+    }
+    return copy;
 }
 
 void mp_econ_cache_hand_grid(mp_econ_cache *from, mp_econ_cache *to)

@@ -577,6 +577,13 @@ void mp_econ_cache_free(mp_econ_cache *c);
  * (the pipeline's second pass) builds the new grid in the old one's
  * pages. */
 void mp_econ_cache_hand_grid(mp_econ_cache *from, mp_econ_cache *to);
+/* mp_econ_envelope: a copy of model m's crop envelope (mp_prf_envelope,
+ * the caller frees it), measured once per cache while m is the cache's
+ * own model (its PSF, DRF and sinc half-width; a variable PSF's costs 225
+ * renders, and every frame fit and residual of a run crops by it); any
+ * other model's, or with c NULL, measured afresh.  NULL when out of
+ * memory. */
+double *mp_econ_envelope(mp_econ_cache *c, const mp_prf_model *m, int *nr);
 
 /* ---- The fit --------------------------------------------------------------- */
 
@@ -982,10 +989,11 @@ int mp_fit_residual(const mp_frame *f, const mp_prf_model *m, const mp_table *t,
  * at most gemax painted from the phase grid (economy, fit/prf_cache.c: the
  * PRF within its bound of 0.1 σ of such a star's fit, as the fit's own
  * paints of the neighbours draw it), in the cheaper modes of tiers (NULL:
- * cubic); grid NULL: exact renders. */
+ * cubic); grid NULL: exact renders.  The crop's envelope is cache's
+ * (mp_econ_envelope; NULL: measured here). */
 int mp_fit_residual_grid(const mp_frame *f, const mp_prf_model *m, const mp_table *t,
-                         double cropfrac, const mp_prf_cache *grid, double gemax,
-                         const mp_prf_tiers *tiers, float *res, char *err);
+                         double cropfrac, mp_econ_cache *cache, const mp_prf_cache *grid,
+                         double gemax, const mp_prf_tiers *tiers, float *res, char *err);
 
 /* ---- The run report ------------------------------------------------------ */
 

@@ -334,7 +334,7 @@ static int set_rules(frame_fit *F, const mp_frame_opts *o, mp_frame_report *rep,
 {
     F->alone = F->ng <= 1;
     F->passes = F->alone ? 1 : (o->passes < 1 ? 1 : o->passes);
-    if (!F->alone && ff_crop_init(F->f, F->m, o->cropfrac, &F->crop)) {
+    if (!F->alone && ff_crop_init(F->f, F->m, o->cropfrac, o->cache, &F->crop)) {
         snprintf(err, MP_ERRLEN, "out of memory");
         return 1;
     }

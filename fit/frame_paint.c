@@ -227,21 +227,27 @@ float *ff_all_stars(const mp_frame *f, const mp_prf_model *m, const star_state *
     return all;
 }
 
-/* The crop rule of a frame: no envelope (whole boxes) when cropfrac is 0. */
-int ff_crop_init(const mp_frame *f, const mp_prf_model *m, double cropfrac, crop_rule *c)
+/* The crop rule of a frame: no envelope (whole boxes) when cropfrac is 0;
+ * else the rule's fields as mp_prf_crop_init sets them, its envelope the
+ * cache's. */
+int ff_crop_init(const mp_frame *f, const mp_prf_model *m, double cropfrac, mp_econ_cache *cache,
+                 crop_rule *c)
 {
-    return mp_prf_crop_init(m, cropfrac, f->rdnoise, c);
+    if (mp_prf_crop_init(m, 0.0, f->rdnoise, c) || !(cropfrac > 0))
+        return 0;
+    c->frac = cropfrac;
+    return !(c->env = mp_econ_envelope(cache, m, &c->nr));
 }
 
 int mp_fit_residual(const mp_frame *f, const mp_prf_model *m, const mp_table *t,
                     double cropfrac, float *res, char *err)
 {
-    return mp_fit_residual_grid(f, m, t, cropfrac, NULL, 0.0, NULL, res, err);
+    return mp_fit_residual_grid(f, m, t, cropfrac, NULL, NULL, 0.0, NULL, res, err);
 }
 
 int mp_fit_residual_grid(const mp_frame *f, const mp_prf_model *m, const mp_table *t,
-                         double cropfrac, const mp_prf_cache *grid, double gemax,
-                         const mp_prf_tiers *tiers, float *res, char *err)
+                         double cropfrac, mp_econ_cache *cache, const mp_prf_cache *grid,
+                         double gemax, const mp_prf_tiers *tiers, float *res, char *err)
 {
     long nx = f->im.nx, ny = f->im.ny;
     int cx = mp_table_col(t, "XPSF_IMAGE"), cy = mp_table_col(t, "YPSF_IMAGE");
@@ -257,7 +263,7 @@ int mp_fit_residual_grid(const mp_frame *f, const mp_prf_model *m, const mp_tabl
     mp_star *st = malloc((n ? n : 1) * sizeof *st);
     const mp_star **ps = malloc((n ? n : 1) * sizeof *ps);
     crop_rule crop = {0};
-    int rc = !st || !ps || ff_crop_init(f, m, cropfrac, &crop);
+    int rc = !st || !ps || ff_crop_init(f, m, cropfrac, cache, &crop);
     for (size_t r = 0; !rc && r < n; r++) {
         st[r] = (mp_star){.x = mp_table_get(t, r, cx), .y = mp_table_get(t, r, cy),
                           .flux = mp_table_get(t, r, cf),

@@ -159,14 +159,16 @@ const mp_prf_cache *ff_group_grid(const frame_rules *R, const mp_prf_cache *g, i
                                   double *emax, mp_prf_tiers *tiers, mp_frame_report *cost);
 int ff_kernel_for(const kernel_rule *k, int hwfull, double e, mp_frame_report *cost);
 
-/* frame_paint.c.  ff_crop_init: the crop rule of cropfrac (nonzero when
- * out of memory).  ff_crop_radius: how far star s is painted.
+/* frame_paint.c.  ff_crop_init: the crop rule of cropfrac, its envelope
+ * cache's (mp_econ_envelope; NULL: measured here; nonzero when out of
+ * memory).  ff_crop_radius: how far star s is painted.
  * ff_paint: star s times sign added to img (a window at (x0, y0), w × h)
  * out to rad; ff_painted: whether it paints anything at all (a finite,
  * nonzero flux at a sane place).  ff_all_stars: every live star with a flux painted on one
  * image (lent, or allocated; NULL when out of memory), the cropped
  * paints counted in *cut. */
-int ff_crop_init(const mp_frame *f, const mp_prf_model *m, double cropfrac, crop_rule *c);
+int ff_crop_init(const mp_frame *f, const mp_prf_model *m, double cropfrac, mp_econ_cache *cache,
+                 crop_rule *c);
 double ff_crop_radius(const crop_rule *c, const mp_star *s);
 int ff_painted(const mp_star *s);
 int ff_paint(const mp_prf_model *m, const mp_star *s, double sign, double rad, float *img,

@@ -252,8 +252,8 @@ int mp_run_group_and_fit(run_state *s, int round, int once, char *err)
     double gemax;
     mp_prf_tiers tiers;
     const mp_prf_cache *grid = mp_run_phase_grid(s, &gemax, NULL, &tiers);
-    if (mp_fit_residual_grid(&s->f, &s->fit->model, &s->t, s->fit->opts.cropfrac, grid, gemax,
-                             &tiers, s->res, err))
+    if (mp_fit_residual_grid(&s->f, &s->fit->model, &s->t, s->fit->opts.cropfrac,
+                             s->fit->opts.cache, grid, gemax, &tiers, s->res, err))
         return 1;
     s->rep->t_fit += mp_seconds() - t0;
     count_fit(s->rep, &fr, s->t.nrow);
@@ -550,8 +550,8 @@ static int redraw_residual(run_state *s, double sum1, char *err)
     mp_prf_tiers tiers;
     const mp_prf_cache *grid = mp_run_phase_grid(s, &gemax, NULL, &tiers);
     s->grid = grid;             /* the residual search's, as a fit's would be */
-    int rc = mp_fit_residual_grid(&s->f, &s->fit->model, &s->t, s->fit->opts.cropfrac, grid,
-                                  gemax, &tiers, s->res, err);
+    int rc = mp_fit_residual_grid(&s->f, &s->fit->model, &s->t, s->fit->opts.cropfrac,
+                                  s->fit->opts.cache, grid, gemax, &tiers, s->res, err);
     s->rep->t_fit += mp_seconds() - t0;
     return rc;
 }

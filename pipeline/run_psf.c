@@ -320,8 +320,8 @@ static int held_out_frame(run_state *s, const mp_table *rest, float *pix, char *
     double gemax;
     mp_prf_tiers tiers;
     const mp_prf_cache *grid = mp_run_phase_grid(s, &gemax, NULL, &tiers);
-    if (mp_fit_residual_grid(&s->f, &s->fit->model, rest, s->fit->opts.cropfrac, grid, gemax,
-                             &tiers, pix, err))
+    if (mp_fit_residual_grid(&s->f, &s->fit->model, rest, s->fit->opts.cropfrac,
+                             s->fit->opts.cache, grid, gemax, &tiers, pix, err))
         return 1;
     size_t npix = (size_t)s->f.im.nx * (size_t)s->f.im.ny;
     for (size_t i = 0; i < npix; i++)

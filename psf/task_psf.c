@@ -141,7 +141,7 @@ static int fit_all(const mp_frame *f, const psf_task *t, mp_table *found,
     }
     /* Its flux limit on no sky (the safe side: less sky, lower limit). */
     if (!rc)
-        rc = grid ? mp_fit_residual_grid(f, m, found, 0.0, grid,
+        rc = grid ? mp_fit_residual_grid(f, m, found, 0.0, NULL, grid,
                                          mp_prf_cache_limit(grid, 0.0, f->rdnoise, fo.sincfrac),
                                          NULL, res, err)
                   : mp_fit_residual(f, m, found, 0.0, res, err);

@@ -410,6 +410,48 @@ static void test_envelope_bounds_prf(void **state)
     mp_psf_free(&t);
 }
 
+/* The run's envelope (mp_econ_envelope) is the model's own, measured
+ * once: for the cache's model each copy holds mp_prf_envelope's values
+ * bit for bit, the second served from the memo; a table the cache was
+ * not offered (another width) gets its own envelope, not the memo, and a
+ * NULL cache measures afresh.  Exact: the same renders. */
+static void test_envelope_kept_per_model(void **state)
+{
+    (void)state;
+    char err[MP_ERRLEN];
+    mp_psf a, b;
+    assert_int_equal(mp_psf_gauss_table(FWHM, 2, 12.0, &a, err), 0);
+    assert_int_equal(mp_psf_gauss_table(2.0 * FWHM, 2, 12.0, &b, err), 0);
+    mp_prf_model ma = {&a, NULL, 10}, mb = {&b, NULL, 10};
+    int na, nb, n1, n2, n3, n4;
+    double *ea = mp_prf_envelope(&ma, &na), *eb = mp_prf_envelope(&mb, &nb);
+    mp_econ_cache *c = mp_econ_cache_new();
+    assert_non_null(c);
+    assert_int_equal(mp_econ_offer(c, &ma, 0, NULL, 0, MP_PRF_CACHE_G), 0);
+    double *e1 = mp_econ_envelope(c, &ma, &n1), *e2 = mp_econ_envelope(c, &ma, &n2);
+    double *e3 = mp_econ_envelope(c, &mb, &n3), *e4 = mp_econ_envelope(NULL, &mb, &n4);
+    assert_true(ea && eb && e1 && e2 && e3 && e4 && e1 != e2);
+    assert_int_equal(n1, na);
+    assert_int_equal(n2, na);
+    assert_memory_equal(e1, ea, (size_t)na * sizeof *ea);
+    assert_memory_equal(e2, ea, (size_t)na * sizeof *ea);
+    assert_int_equal(n3, nb);
+    assert_int_equal(n4, nb);
+    assert_memory_equal(e3, eb, (size_t)nb * sizeof *eb);
+    assert_memory_equal(e4, eb, (size_t)nb * sizeof *eb);
+    /* the wider table's envelope is not the memo's */
+    assert_true(nb != na || memcmp(eb, ea, (size_t)na * sizeof *ea) != 0);
+    free(ea);
+    free(eb);
+    free(e1);
+    free(e2);
+    free(e3);
+    free(e4);
+    mp_econ_cache_free(c);
+    mp_psf_free(&a);
+    mp_psf_free(&b);
+}
+
 /* The kernel length per group (economy, fit/sinc_choice.c): on a 1x table
  * of FWHM 3 the groups of these 5e3–3e4 e- stars get a kernel shorter than
  * sinchw 10, counted in the report, and the fluxes differ from the full
@@ -853,6 +895,7 @@ int main(void)
         cmocka_unit_test(test_plan_prices_measured_windows),
         cmocka_unit_test(test_grid_handed_on),
         cmocka_unit_test(test_report_names_grid),
+        cmocka_unit_test(test_envelope_kept_per_model),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }

@@ -191,7 +191,7 @@ static void summed_case(bound_case *c)
     c->m = (mp_prf_model){&c->p, NULL, 10};
     scene(&c->f, c->st, c->gs, &c->ng, &c->gone);
     memcpy(c->before, c->st, sizeof c->st);
-    assert_int_equal(ff_crop_init(&c->f, &c->m, 0.02, &c->crop), 0);
+    assert_int_equal(ff_crop_init(&c->f, &c->m, 0.02, NULL, &c->crop), 0);
     paint_rule now = rule(NULL, NAN, 0.0, 1), held = now;
     assert_int_equal(ff_update_bounds(&c->f, &c->m, &c->crop, &now, &held, FITRAD, INFINITY, c->st,
                                       NST, c->gs, c->ng, &c->gone, 1), 0);

@@ -15,7 +15,7 @@
 # Writes $REPORT (default bench/REAL.md).
 #
 #     sh tests/bench/real/real.sh        (from the top of the tree, after make)
-# Environment: REPS=3, FRAMES="tuc tucb glimpse glimpseb" (tucb, glimpseb: the
+# Environment: REPS=3, FRAMES="tuc tucb glimpse glimpseb decam decamb" (tucb, glimpseb, decamb: the
 # same frames with no psf=, the PSF built from the frame), REALDATA=../shared/data/real,
 # MATPHOT_THREADS=1 (IRAF uses one core), SAME=1 (the phase-grid accuracy
 # fits; 0 skips them), SEC (an image section, e.g. "[1:128,1:128]", for a
@@ -30,7 +30,7 @@ B=${BUILD:-build}
 [ -f "$B/libmatphot.a" ] || die "$B/libmatphot.a not found: run make first"
 REALDATA=${REALDATA:-../shared/data/real}
 REPS=${REPS:-3}
-FRAMES=${FRAMES:-tuc tucb glimpse glimpseb}
+FRAMES=${FRAMES:-tuc tucb glimpse glimpseb decam decamb}
 THREADS=${MATPHOT_THREADS:-1}
 SAME=${SAME:-1}
 SEC=${SEC:-}
@@ -90,6 +90,22 @@ frame() {
         PSFARG=""
         DESC="Spitzer IRAC 4.5 um GLIMPSE 1025x513, PSF built from the frame"
         NEED="$D/spitzer_example_image.fits";;
+    decam)
+        # validate/PSF_FILES.md's frame: sparse (9 stars), legacypipe's
+        # PSFEx model; DAOPHOT's radii from the header's FWHM (3.69 px)
+        D=$REALDATA/decam_legacypipe_tc4
+        IMG="$D/c4d_170316_062107_ooi_z_ls9.N2.fits[1]$SEC"
+        IRAFIMG=$IMG
+        PSFARG="psf=$D/c4d_170316_062107_ooi_z_ls9-psfex.fits"
+        MPARGS="gain=3.87 rdnoise=6.0 dqmask=$D/c4d_170316_062107_ood_z_ls9.N2.fits[1] dqbad=255"
+        GAIN=3.87; RON=6.0; DMAX=INDEF; FWHM=3.69; PSFRAD=15; FITRAD=3.69
+        DESC="DECam z 251x245 cutout (legacypipe), sparse, its PSFEx model"
+        NEED="$D/c4d_170316_062107_ooi_z_ls9.N2.fits $D/c4d_170316_062107_ooi_z_ls9-psfex.fits $D/c4d_170316_062107_ood_z_ls9.N2.fits";;
+    decamb)
+        frame decam
+        PSFARG=""
+        DESC="DECam z 251x245 cutout (legacypipe), sparse, PSF built from the frame"
+        NEED="$D/c4d_170316_062107_ooi_z_ls9.N2.fits $D/c4d_170316_062107_ood_z_ls9.N2.fits";;
     glimpse)
         D=$REALDATA/spitzer_irac_glimpse
         IMG="$D/spitzer_example_image.fits$SEC"
