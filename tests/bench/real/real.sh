@@ -126,8 +126,25 @@ cl_head() {
     echo "pstselect.maxnpsf = 25"
 }
 
-# dao_run DIR SIGMA: the chain in four timed CL runs (find, psf, als1,
-# refind); each must end by printing CL_OK.
+# refind_cl DIR SIGMA K: the CL script of detection pass K+1: daofind on
+# allstar pass K's residual, phot, pfmerge with pass K's stars, allstar.
+refind_cl() {
+    k=$3
+    n=$((k + 1))
+    cl_head "$1" "$2"
+    cat <<EOF
+daofind ("im.sub$k.fits", output="im.coo$n", starmap="", skymap="", interactive=no, verify=no, verbose=no)
+phot ("im.fits", coords="im.coo$n", output="im.mag$n", interactive=no, verify=no, verbose=no)
+pfmerge ("im.als$k,im.mag$n", "im.mrg$n", verbose=no)
+prenumber ("im.mrg$n")
+allstar ("im.fits", "im.mrg$n", "im.dpsf", "im.als$n", "im.arj$n", "im.sub$n", verify=no, verbose=no)
+print ("CL_OK")
+logout
+EOF
+}
+
+# dao_run DIR SIGMA: the chain in five timed CL runs (find, psf, als1,
+# refind, refind3); each must end by printing CL_OK.
 dao_run() {
     d=$1
     { cl_head "$d" "$2"; cat <<EOF
@@ -154,28 +171,10 @@ print ("CL_OK")
 logout
 EOF
     } > "$d/als1.cl"
-    { cl_head "$d" "$2"; cat <<EOF
-daofind ("im.sub1.fits", output="im.coo2", starmap="", skymap="", interactive=no, verify=no, verbose=no)
-phot ("im.fits", coords="im.coo2", output="im.mag2", interactive=no, verify=no, verbose=no)
-pfmerge ("im.als1,im.mag2", "im.mrg2", verbose=no)
-prenumber ("im.mrg2")
-allstar ("im.fits", "im.mrg2", "im.dpsf", "im.als2", "im.arj2", "im.sub2", verify=no, verbose=no)
-print ("CL_OK")
-logout
-EOF
-    } > "$d/refind.cl"
-    # A third pass, as matphot's default niter = 3 rounds: timed apart, so
-    # that the chain above (the issue's) is still measured on its own.
-    { cl_head "$d" "$2"; cat <<EOF
-daofind ("im.sub2.fits", output="im.coo3", starmap="", skymap="", interactive=no, verify=no, verbose=no)
-phot ("im.fits", coords="im.coo3", output="im.mag3", interactive=no, verify=no, verbose=no)
-pfmerge ("im.als2,im.mag3", "im.mrg3", verbose=no)
-prenumber ("im.mrg3")
-allstar ("im.fits", "im.mrg3", "im.dpsf", "im.als3", "im.arj3", "im.sub3", verify=no, verbose=no)
-print ("CL_OK")
-logout
-EOF
-    } > "$d/refind3.cl"
+    # pass 2 (the issue's chain ends there) and a third, as matphot's
+    # default niter = 3 rounds, timed apart
+    refind_cl "$d" "$2" 1 > "$d/refind.cl"
+    refind_cl "$d" "$2" 2 > "$d/refind3.cl"
     for s in find psf als1 refind refind3; do
         ( cd "$d" && rm -rf h && mkdir -p h/uparm h/imdir h/cache &&
           HOME="$d/h" timed "$d/time.$s" timeout 3600 irafcl -f "$s.cl" < /dev/null > "$s.log" 2>&1 )
