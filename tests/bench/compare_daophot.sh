@@ -165,15 +165,8 @@ EOF
   { cl_head "$d" "$3" "$4" "$5" "$6" "$vo"
     k=1
     while [ "$k" -lt "$NITER" ]; do
-      n=$((k + 1))
-      cat <<EOF
-daofind ("$im.sub$k.fits", output="$im.coo$n", starmap="", skymap="", interactive=no, verify=no, verbose=no)
-phot ("$im.fits", coords="$im.coo$n", output="$im.mag$n", interactive=no, verify=no, verbose=no)
-pfmerge ("$im.als$k,$im.mag$n", "$im.mrg$n", verbose=no)
-prenumber ("$im.mrg$n")
-allstar ("$im.fits", "$im.mrg$n", "$im.dpsf", "$im.als$n", "$im.arj$n", "$im.sub$n", verify=no, verbose=no)
-EOF
-      k=$n
+      cl_refind "$im" "$k"
+      k=$((k + 1))
     done
     echo 'print ("CL_OK")'
     echo 'logout'

@@ -55,6 +55,20 @@ daopars.maxgroup = 60
 EOF2
 }
 
+# cl_refind IM K: the CL lines of detection pass K+1 on IM.fits: daofind
+# on allstar pass K's residual (IM.subK), phot, pfmerge with pass K's
+# stars, prenumber, allstar with the PSF IM.dpsf.
+cl_refind() {
+  n=$(($2 + 1))
+  cat <<EOF2
+daofind ("$1.sub$2.fits", output="$1.coo$n", starmap="", skymap="", interactive=no, verify=no, verbose=no)
+phot ("$1.fits", coords="$1.coo$n", output="$1.mag$n", interactive=no, verify=no, verbose=no)
+pfmerge ("$1.als$2,$1.mag$n", "$1.mrg$n", verbose=no)
+prenumber ("$1.mrg$n")
+allstar ("$1.fits", "$1.mrg$n", "$1.dpsf", "$1.als$n", "$1.arj$n", "$1.sub$n", verify=no, verbose=no)
+EOF2
+}
+
 # cl_chain IMAGE MAXNPSF FIELDS OUT: DAOPHOT's whole chain in one CL run on
 # IMAGE (copied to im.fits): daofind, phot, pstselect MAXNPSF stars, psf,
 # nstar + substar of the PSF stars' neighbours, psf again, allstar, one

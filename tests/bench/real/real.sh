@@ -129,18 +129,9 @@ cl_head() {
 # refind_cl DIR SIGMA K: the CL script of detection pass K+1: daofind on
 # allstar pass K's residual, phot, pfmerge with pass K's stars, allstar.
 refind_cl() {
-    k=$3
-    n=$((k + 1))
     cl_head "$1" "$2"
-    cat <<EOF
-daofind ("im.sub$k.fits", output="im.coo$n", starmap="", skymap="", interactive=no, verify=no, verbose=no)
-phot ("im.fits", coords="im.coo$n", output="im.mag$n", interactive=no, verify=no, verbose=no)
-pfmerge ("im.als$k,im.mag$n", "im.mrg$n", verbose=no)
-prenumber ("im.mrg$n")
-allstar ("im.fits", "im.mrg$n", "im.dpsf", "im.als$n", "im.arj$n", "im.sub$n", verify=no, verbose=no)
-print ("CL_OK")
-logout
-EOF
+    cl_refind im "$3"
+    printf 'print ("CL_OK")\nlogout\n'
 }
 
 # dao_run DIR SIGMA: the chain in five timed CL runs (find, psf, als1,
