@@ -149,18 +149,65 @@ static int half_tables(mp_epsf_star *s, size_t n, const mp_epsf_opts *o, mp_epsf
     return rc;
 }
 
-/* OVERSAMP auto: the ×4 table (the halves' mean, half_tables; built from
- * a Gaussian when there are too few stars to halve) smoothed as its
- * noise needs (the Wiener filter of the halves' measured draw of that
+/* The finest sampling n stars determine: a table of OVERSAMP os holds os²
+ * elements per detector pixel, and n stars give n samples of each
+ * pixel's PRF, one at each star's subpixel phase, so a finer table's
+ * extra elements hold its start and its noise, not the data's light. */
+static int finest_os(size_t n)
+{
+    return n >= 16 ? 4 : n >= 4 ? 2 : 1;
+}
+
+/* The OVERSAMP decision (choose_os) said into rep->what: the table it was
+ * measured on (os0: ×4, the halves' mean smoothed by their measured
+ * noise; else the finest its n stars determine, its noise not
+ * measured), each coarser sampling's aliasing error. */
+static void say_os_choice(mp_epsf_report *rep, const mp_epsf *e, int pick, double E, int os0,
+                          int halved, size_t n)
+{
+    size_t l = strlen(rep->what);
+    if (!halved && os0 < 4) {
+        snprintf(rep->what + l, sizeof rep->what - l,
+                 "OVERSAMP %d (%zu PSF stars, too few to halve and so to measure the table's noise: "
+                 "x%d, the finest they determine (x4 holds 16 elements a pixel)", pick, n, os0);
+        for (int os = os0 / 2; os >= 1; os /= 2) {
+            l = strlen(rep->what);
+            snprintf(rep->what + l, sizeof rep->what - l, "; x%d's aliasing error for the "
+                     "brightest star, %.3g e-, %.2g sigma", os, E, rep->oserr[os]);
+        }
+        l = strlen(rep->what);
+        snprintf(rep->what + l, sizeof rep->what - l, "); ");
+        return;
+    }
+    int band = 0;
+    while (band < MP_EPSF_NWBIN && e->wiener[band] >= 0.5)
+        band++;
+    char x1[48] = "not tried (x2 is above 1 already)";
+    if (!isnan(rep->oserr[1]))
+        snprintf(x1, sizeof x1, "%.2g sigma", rep->oserr[1]);
+    snprintf(rep->what + l, sizeof rep->what - l,
+             "OVERSAMP %d (aliasing error for the brightest star, %.3g e-, of the x4 table "
+             "smoothed as its noise needs (S/N > 1 out to %.2f cycles/px%s): x2 %.2g sigma, x1 %s; "
+             "the coarsest below 1); ", pick, E, band * MP_EPSF_WBIN,
+             e->have_wiener ? "" : ", not measured", rep->oserr[2], x1);
+}
+
+/* OVERSAMP auto: the ×4 table (the halves' mean, half_tables) smoothed as
+ * its noise needs (the Wiener filter of the halves' measured draw of that
  * noise); then the coarsest of ×1, ×2 whose aliasing error on that table,
- * for the brightest PSF star, is below 1 σ of its noise, else ×4. */
+ * for the brightest PSF star, is below 1 σ of its noise, else ×4.  With
+ * too few stars to halve, the table is built from a Gaussian at the
+ * finest sampling its stars determine (finest_os): the aliasing of a
+ * finer one, its noise unmeasured, measures that noise (the DECam
+ * cutout's four stars: ×2 "120 σ" on a ×4 table of 241² elements). */
 static int choose_os(mp_epsf_star *s, size_t n, const mp_epsf_opts *o, const mp_frame *f,
                      mp_epsf *e, mp_epsf_report *rep, char *err)
 {
     mp_epsf noise;
     memset(&noise, 0, sizeof noise);
     int halved = n >= 6 && half_tables(s, n, o, e, &noise, err) == 0;
-    if (!halved && mp_epsf_rounds(s, n, o, 4, 0, e, err)) {
+    int os0 = halved ? 4 : finest_os(n);
+    if (!halved && mp_epsf_rounds(s, n, o, os0, 0, e, err)) {
         mp_epsf_free(&noise);
         return 1;
     }
@@ -173,34 +220,24 @@ static int choose_os(mp_epsf_star *s, size_t n, const mp_epsf_opts *o, const mp_
         mp_epsf_normalise(e, o->fwhm, o->support);
     }
     mp_epsf_free(&noise);
-    int pick = 4;
+    int pick = os0;
     rep->oserr[1] = rep->oserr[2] = NAN; /* NaN: not tried (a finer one failed) */
-    for (int os = 2; os >= 1; os /= 2) {
+    for (int os = os0 / 2; os >= 1; os /= 2) {
         rep->oserr[os] = mp_epsf_oversamp_error(e, os, E, B, f->rdnoise);
         if (rep->oserr[os] < 1.0)
             pick = os;
         else
             break;
     }
-    int band = 0;
-    while (band < MP_EPSF_NWBIN && e->wiener[band] >= 0.5)
-        band++;
-    char x1[48] = "not tried (x2 is above 1 already)";
-    if (!isnan(rep->oserr[1]))
-        snprintf(x1, sizeof x1, "%.2g sigma", rep->oserr[1]);
-    snprintf(rep->what + strlen(rep->what), sizeof rep->what - strlen(rep->what),
-             "OVERSAMP %d (aliasing error for the brightest star, %.3g e-, of the x4 table "
-             "smoothed as its noise needs (S/N > 1 out to %.2f cycles/px%s): x2 %.2g sigma, x1 %s; "
-             "the coarsest below 1); ", pick, E, band * MP_EPSF_WBIN,
-             e->have_wiener ? "" : ", not measured", rep->oserr[2], x1);
-    /* The coarser table is the ×4 one block-summed: the decision bounds
+    say_os_choice(rep, e, pick, E, os0, halved, n);
+    /* The coarser table is the finer one block-summed: the decision bounds
      * its error for the brightest star, and the second pass builds at
      * its sampling from it (a build here as well cost a fifth of the
      * first pass).  The stars are fitted with the table kept, as
      * filtered and sampled. */
-    if (pick < 4) {
+    if (pick < os0) {
         mp_epsf c;
-        if (mp_epsf_rebin(e, 4 / pick, &c, err))
+        if (mp_epsf_rebin(e, os0 / pick, &c, err))
             return 1;
         mp_epsf_free(e);
         *e = c;

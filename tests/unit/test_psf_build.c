@@ -1225,6 +1225,46 @@ static void test_round_drop_over_kept_stars(void **state)
     assert_true(mp_epsf_common_drop(s, 3, again, last) == -2.0);
 }
 
+/* OVERSAMP auto with too few stars to halve (fewer than 6): the table is
+ * built at the finest sampling its stars determine, os² ≤ n — ×2 from 4
+ * or 5 stars, ×1 from 3 — and the report says so; its coarser samplings
+ * are still judged by their aliasing.  (Before, the ×4 table was built
+ * and its unmeasured noise read as aliasing.) */
+static void test_few_stars_finest_sampling(void **state)
+{
+    (void)state;
+    const double rad = 6.0;
+    mp_frame f;
+    tstar ts[NSTAR];
+    mp_epsf_opts o;
+    mp_epsf e;
+    mp_epsf_star *s = scene_stars(11, 0.0, 0, rad, &f, ts, &o, &e);
+    mp_epsf_stars_free(s, NSTAR);
+    const int ns[3] = {3, 4, 5}, finest[3] = {1, 2, 2};
+    for (int c = 0; c < 3; c++) {
+        double x[NSTAR], y[NSTAR], fl[NSTAR];
+        char err[MP_ERRLEN], want[64];
+        starts_of(ts, ns[c], x, y, fl);
+        mp_epsf_opts oc = o;
+        oc.os = 0;
+        oc.order = 0;
+        mp_epsf ec;
+        mp_epsf_report rep;
+        memset(&ec, 0, sizeof ec);
+        memset(&rep, 0, sizeof rep);
+        assert_int_equal(mp_epsf_pass(&f, f.im.pix, 0, NULL, NULL, x, y, fl, (size_t)ns[c], &oc,
+                                      &ec, &rep, NULL, err), 0);
+        snprintf(want, sizeof want, "too few to halve and so to measure the table's noise: x%d,",
+                 finest[c]);
+        print_message("%d stars: %.160s\n", ns[c], rep.what);
+        assert_non_null(strstr(rep.what, want));
+        assert_true(ec.os <= finest[c]);
+        mp_epsf_free(&ec);
+    }
+    free(f.im.pix);
+    free(f.mask);
+}
+
 /* The selection median is the sorted one, exactly, and every k-th
  * smallest is the sorted array's k-th with the values left partitioned
  * about it (v[0..k) ≤ v[k] ≤ v[k+1..n)): sizes 1..200, values drawn from
@@ -1326,6 +1366,7 @@ int main(void)
 {
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(test_round_drop_over_kept_stars),
+        cmocka_unit_test(test_few_stars_finest_sampling),
         cmocka_unit_test(test_median_select_is_the_median),
         cmocka_unit_test(test_median_parallel_is_the_median),
         cmocka_unit_test(test_recovers_constant_table),
