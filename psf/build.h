@@ -67,7 +67,9 @@ typedef struct {
 /* How the table is built. */
 typedef struct {
     int os;            /* OVERSAMP 1..4; 0: the coarsest whose aliasing
-                        * error is below the noise of the brightest star */
+                        * error is below the noise of the brightest star
+                        * (with fewer than 6 stars, no finer than they
+                        * determine: os² ≤ their number) */
     double psfrad;     /* table half-size [px] */
     double support;    /* elements farther than this from the centre [px]
                         * are zero: the light the stacks could not
