@@ -60,14 +60,15 @@ trap 'exit 130' INT TERM
 cp ./matphot "$W/matphot" || die "cannot copy ./matphot"
 MP="$W/matphot"
 
-# The helper (tests/bench/daophot/compare.c): PSF-star selection, matching
-# to the truth, statistics and the report.
+# The helpers' build: this one's (tests/bench/daophot/compare.c: PSF-star
+# selection, matching to the truth, statistics and the report) and the
+# crowded validation's simulators (frames G and V, validate_frame).
+HELP_CFLAGS="-std=c17 -Wall -Wextra -Werror -O2 -fopenmp -D_XOPEN_SOURCE=700 -I. $(pkg-config --cflags wcslib)"
+HELP_LIBS="$LIBMP -lcfitsio $(pkg-config --libs wcslib) -lcsv -llapacke -lopenblas -lm -fopenmp"
 CMP="$W/compare"
-# shellcheck disable=SC2046
-${CC:-cc} -std=c17 -Wall -Wextra -Werror -O2 -D_XOPEN_SOURCE=700 -I. $(pkg-config --cflags wcslib) \
-  -o "$CMP" tests/bench/daophot/compare.c tests/bench/daophot/report.c \
-  "$LIBMP" -lcfitsio $(pkg-config --libs wcslib) -lcsv -llapacke -lopenblas -lm -fopenmp \
-  || die "cannot build tests/bench/daophot/compare.c"
+# shellcheck disable=SC2086
+${CC:-cc} $HELP_CFLAGS -o "$CMP" tests/bench/daophot/compare.c tests/bench/daophot/report.c \
+  $HELP_LIBS || die "cannot build tests/bench/daophot/compare.c"
 
 # timed OUT CMD...: run CMD, append "wall user sys" to OUT.  /usr/bin/time
 # when there is one (Debian package time), else date + the shell's times.
@@ -193,19 +194,17 @@ frame_spec() {
 }
 MAGMIN=-13; MAGMAX=-7; SKY=100; RON=3; GAIN=1
 
-# The crowded validation's helpers (frames G and V), built when asked for.
-VAL_CFLAGS="-std=c17 -Wall -Wextra -Werror -O2 -fopenmp -D_XOPEN_SOURCE=700 -I. $(pkg-config --cflags wcslib)"
-VAL_LIBS="-fopenmp $LIBMP -lcfitsio $(pkg-config --libs wcslib) -lcsv -llapacke -lopenblas -lm"
 # validate_frame F DIR: draw frame G or V into DIR/F.fits, DIR/F.psf.fits
 # and DIR/F.truth (its truth.dat with X_IMAGE, Y_IMAGE for X_TRUE,
 # Y_TRUE, as compare.c reads a truth); DIR/F.pst.truth the same without
 # the stars that saturate alone (SAT_SELF), DAOPHOT's PSF-star pool.
 validate_frame() {
+  # (the simulator built on first need)
   case $1 in G) src=crowded.c; prog=crowded;; *) src=segmented.c; prog=crowdseg;; esac
   if [ ! -x "$W/$prog" ]; then
     # shellcheck disable=SC2086
-    ${CC:-cc} $VAL_CFLAGS -o "$W/$prog" "tests/validate/crowded/$src" \
-      tests/validate/crowded/joint_bound.c $VAL_LIBS || die "cannot build tests/validate/crowded/$src"
+    ${CC:-cc} $HELP_CFLAGS -o "$W/$prog" "tests/validate/crowded/$src" \
+      tests/validate/crowded/joint_bound.c $HELP_LIBS || die "cannot build tests/validate/crowded/$src"
   fi
   mkdir -p "$2/val" && "$W/$prog" sim "$2/val" >"$2/sim.log" 2>&1 || return 1
   mv "$2/val/frame.fits" "$2/$1.fits" && mv "$2/val/psf.fits" "$2/$1.psf.fits" || return 1

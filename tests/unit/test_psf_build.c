@@ -191,20 +191,26 @@ static mp_epsf_star *scene_stars(uint64_t seed, double grad, int kind, double ra
     return stars_of(f, ts, o);
 }
 
-/* varorder=auto through mp_epsf_pass on the first n stars of ts (frame
- * f, options o as the test's, os BOS): the field in *e (emptied first),
- * the pass's report in *rep. */
-static void auto_pass(const mp_frame *f, const tstar *ts, int n, mp_epsf_opts o, mp_epsf *e,
-                      mp_epsf_report *rep)
+/* mp_epsf_pass (a first pass) on the first n stars of ts (frame f,
+ * options o): the field in *e (emptied first), the report in *rep. */
+static void first_pass(const mp_frame *f, const tstar *ts, int n, const mp_epsf_opts *o,
+                       mp_epsf *e, mp_epsf_report *rep)
 {
     double x[NSTAR], y[NSTAR], fl[NSTAR];
     char err[MP_ERRLEN];
     starts_of(ts, n, x, y, fl);
+    memset(e, 0, sizeof *e);
+    assert_int_equal(mp_epsf_pass(f, f->im.pix, 0, NULL, NULL, x, y, fl, (size_t)n, o, e, rep,
+                                  NULL, err), 0);
+}
+
+/* varorder=auto through first_pass (options o as the test's, os BOS). */
+static void auto_pass(const mp_frame *f, const tstar *ts, int n, mp_epsf_opts o, mp_epsf *e,
+                      mp_epsf_report *rep)
+{
     o.os = BOS;
     o.order = -1;
-    memset(e, 0, sizeof *e);
-    assert_int_equal(mp_epsf_pass(f, f->im.pix, 0, NULL, NULL, x, y, fl, n, &o, e, rep, NULL,
-                                  err), 0);
+    first_pass(f, ts, n, &o, e, rep);
 }
 
 /* χ² of the built PRF against the true one at a pixel centre and a half-
@@ -1236,24 +1242,17 @@ static void test_few_stars_finest_sampling(void **state)
     const double rad = 6.0;
     mp_frame f;
     tstar ts[NSTAR];
-    mp_epsf_opts o;
-    mp_epsf e;
-    mp_epsf_star *s = scene_stars(11, 0.0, 0, rad, &f, ts, &o, &e);
-    mp_epsf_stars_free(s, NSTAR);
+    make_frame(11, 0.0, 0, rad, &f, ts);
+    mp_epsf_opts o = test_opts(rad);
+    o.os = 0;           /* OVERSAMP auto */
+    o.order = 0;
     const int ns[3] = {3, 4, 5}, finest[3] = {1, 2, 2};
     for (int c = 0; c < 3; c++) {
-        double x[NSTAR], y[NSTAR], fl[NSTAR];
-        char err[MP_ERRLEN], want[64];
-        starts_of(ts, ns[c], x, y, fl);
-        mp_epsf_opts oc = o;
-        oc.os = 0;
-        oc.order = 0;
+        char want[64];
         mp_epsf ec;
         mp_epsf_report rep;
-        memset(&ec, 0, sizeof ec);
         memset(&rep, 0, sizeof rep);
-        assert_int_equal(mp_epsf_pass(&f, f.im.pix, 0, NULL, NULL, x, y, fl, (size_t)ns[c], &oc,
-                                      &ec, &rep, NULL, err), 0);
+        first_pass(&f, ts, ns[c], &o, &ec, &rep);
         snprintf(want, sizeof want, "too few to halve and so to measure the table's noise: x%d,",
                  finest[c]);
         print_message("%d stars: %.160s\n", ns[c], rep.what);
