@@ -330,16 +330,29 @@ typedef struct {
     char why[400];     /* one line for the run report */
 } mp_epsf_rad;
 
+/* What a ring of noise alone gives the ring test (mp_epsf_profile_hi), in
+ * units of its median error s: its 0.9 quantile at kq·s on average, with
+ * sampling error s·√(kz²/m + k0²) for m values (k0: an error every value
+ * of the ring shares); s taken no lower than sfloor.  Normal theory, for
+ * a stack of many stars (s the medians' sd): MP_EPSF_RING_NORMAL, the 0.9
+ * quantile of m normal values of sd σ at 1.2816 σ with sampling error
+ * √(0.09)/φ(1.2816) σ/√m = 1.709 σ/√m.  A stack of few stars measures its
+ * own (psf/tablerad.c small_stack_null). */
+typedef struct {
+    double kq, kz, k0, sfloor;
+} mp_epsf_ringnull;
+#define MP_EPSF_RING_NORMAL ((mp_epsf_ringnull){1.2816, 1.709, 0.0, 0.0})
+
 /* mp_epsf_profile_hi: the high-quantile profile of a stacked star image
  * (med, sig: (2hw+1)² values per unit flux and their errors, NaN where
  * unmeasured) on 1-px rings r = 0..hw (distance of the offset in [r, r+1)):
- * q[r] the ring's 0.9 quantile over azimuth less 1.2816 × the ring's
- * median error (what noise alone gives that quantile), so a spike that
- * fills a tenth of the ring counts at its own height where a median or a
- * mean would dilute it; z[r] = q[r] over that quantile's sampling error
- * for noise alone (1.709 σ/√m, m values).  NaN for rings with fewer than
- * 8 values.  Nonzero on out of memory. */
-int mp_epsf_profile_hi(const double *med, const double *sig, int hw, double *q, double *z);
+ * q[r] the ring's 0.9 quantile over azimuth less what noise alone gives
+ * that quantile (nz), so a spike that fills a tenth of the ring counts at
+ * its own height where a median or a mean would dilute it; z[r] = q[r]
+ * over that quantile's sampling error for noise alone (nz).  NaN for
+ * rings with fewer than 8 values.  Nonzero on out of memory. */
+int mp_epsf_profile_hi(const double *med, const double *sig, int hw, const mp_epsf_ringnull *nz,
+                       double *q, double *z);
 
 /* mp_epsf_radius_rule: 1 + the largest ring r < nr whose light is
  * measured (z[r] ≥ MP_EPSF_RADZ) and, for a star of flux fmax, reaches

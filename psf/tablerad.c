@@ -6,6 +6,7 @@
 #include <stdlib.h>
 #include <string.h>
 #include "psf/build_priv.h"
+#include "sim/sim.h"
 
 /* A stack: per offset (dx, dy) within ±hw px of the stars' nearest
  * pixel, the median over stars of their light per unit flux, and the
@@ -13,12 +14,23 @@
 typedef struct {
     int hw, w, n;          /* half-width, 2hw+1, stars stacked */
     double *med, *sig;     /* w*w each; NaN where fewer than 3 stars */
+    mp_epsf_ringnull nz;   /* what noise alone gives its rings (small_stack_null) */
 } stack;
 
 static int cmp_d(const void *a, const void *b)
 {
     double x = *(const double *)a, y = *(const double *)b;
     return (x > y) - (x < y);
+}
+
+/* The p quantile of v[0..m) (sorted here), interpolated between order
+ * statistics. */
+static double quantile_of(double *v, size_t m, double p)
+{
+    qsort(v, m, sizeof *v, cmp_d);
+    double t = p * (double)(m - 1);
+    size_t i0 = (size_t)t;
+    return i0 + 1 < m ? v[i0] + (t - (double)i0) * (v[i0 + 1] - v[i0]) : v[m - 1];
 }
 
 static void stack_free(stack *s)
@@ -34,7 +46,7 @@ static void stack_free(stack *s)
  * thins the ring, it does not cut it as an edge does.)  tmp: (2r1+1)²
  * values. */
 static double ring_median(const mp_frame *f, const float *img, long cx, long cy, double r0,
-                          double r1, double *tmp)
+                          double r1, double *tmp, size_t *nused)
 {
     long h = (long)ceil(r1);
     size_t m = 0, all = 0, avail = 0;
@@ -53,6 +65,8 @@ static double ring_median(const mp_frame *f, const float *img, long cx, long cy,
             if (isfinite(img[o]))
                 tmp[m++] = img[o];
         }
+    if (nused)
+        *nused = m;
     return m >= 8 && 2 * avail >= all ? mp_median_select(tmp, m) : NAN;
 }
 
@@ -111,6 +125,117 @@ static int stack_combine(const double *im, int n, stack *s)
     return failed;
 }
 
+/* The small-stack Monte Carlo (small_stack_null): draws of one offset's
+ * median, rings of such medians and their size, and its seed. */
+#define NOISE_NDRAW 4000
+#define NOISE_NQUANT 20000
+#define NOISE_NRING 400
+#define NOISE_RING 64
+#define NOISE_SEED 20261205u
+
+/* The median of m draws of N(0, sd[k]²) into *med and its error as the
+ * stack gives it (1.2533 × 1.4826 MAD / √m) into *err; x: m values. */
+static void draw_median(mp_rng *r, const double *sd, int m, double *x, double *med, double *err)
+{
+    for (int k = 0; k < m; k++)
+        x[k] = sd[k] * mp_rng_normal(r);
+    double mm = mp_median_select(x, (size_t)m);
+    for (int k = 0; k < m; k++)
+        x[k] = fabs(x[k] - mm);
+    *med = mm;
+    *err = 1.2533 * 1.4826 * mp_median_select(x, (size_t)m) / sqrt((double)m);
+}
+
+/* Whether the stack's errors understate its medians' scatter for m stars
+ * of noise sd[0..m): NOISE_NDRAW medians drawn into med, their sd over
+ * the median of their errors (as the ring test reads them, *me) above 1
+ * by 3 of its own sampling errors (an sd's from N draws 1/√(2N), a
+ * median's 1.2533 × spread/√N).  A large stack's ratio is 1 + ~0.5/m, so
+ * this is few stars' case.  err: NOISE_NDRAW values, x: m. */
+static int errors_run_low(mp_rng *r, const double *sd, int m, double *med, double *err,
+                          double *x, double *me)
+{
+    double ss = 0.0, se = 0.0, se2 = 0.0;
+    for (int d = 0; d < NOISE_NDRAW; d++) {
+        draw_median(r, sd, m, x, &med[d], &err[d]);
+        ss += med[d] * med[d];
+        se += err[d];
+        se2 += err[d] * err[d];
+    }
+    double mean = se / NOISE_NDRAW, spread = sqrt(fmax(se2 / NOISE_NDRAW - mean * mean, 0.0));
+    *me = mp_median_select(err, NOISE_NDRAW);
+    double f = sqrt(ss / NOISE_NDRAW) / *me;
+    double rel = sqrt(0.5 / NOISE_NDRAW + pow(1.2533 * spread / *me, 2) / NOISE_NDRAW);
+    return *me > 0 && f > 1.0 + 3.0 * rel * f;
+}
+
+/* Over NOISE_NRING rings of NOISE_RING medians of m stars of noise sd,
+ * each ring with its own sky errors N(0, skysd[k]²): the spread of the
+ * ring's 0.9 quantile without them (*sq) and of what they add to it
+ * (*sd0).  ra, rb: NOISE_RING values each; x, y, off: m. */
+static void ring_spreads(mp_rng *r, const double *sd, const double *skysd, int m, double *ra,
+                         double *rb, double *x, double *y, double *off, double *sq, double *sd0)
+{
+    double s1 = 0, s2 = 0, d1 = 0, d2 = 0;
+    for (int k = 0; k < NOISE_NRING; k++) {
+        for (int j = 0; j < m; j++)
+            off[j] = skysd[j] * mp_rng_normal(r);
+        for (int i = 0; i < NOISE_RING; i++) {
+            for (int j = 0; j < m; j++) {
+                x[j] = sd[j] * mp_rng_normal(r);
+                y[j] = x[j] + off[j];
+            }
+            ra[i] = mp_median_select(x, (size_t)m);
+            rb[i] = mp_median_select(y, (size_t)m);
+        }
+        double qa = quantile_of(ra, NOISE_RING, 0.9), qb = quantile_of(rb, NOISE_RING, 0.9);
+        s1 += qa;
+        s2 += qa * qa;
+        d1 += qb - qa;
+        d2 += (qb - qa) * (qb - qa);
+    }
+    double qm = s1 / NOISE_NRING, dm = d1 / NOISE_NRING;
+    *sq = sqrt(fmax(s2 / NOISE_NRING - qm * qm, 0.0));
+    *sd0 = sqrt(fmax(d2 / NOISE_NRING - dm * dm, 0.0));
+}
+
+/* What noise alone gives the ring test (mp_epsf_ringnull) for m stars of
+ * noise sd[0..m) per unit flux (a sky pixel's) whose skies are off by
+ * N(0, skysd[k]²).  Normal theory (MP_EPSF_RING_NORMAL) holds for many
+ * stars.  Few break it: their MAD runs low (Croux & Rousseeuw 1992: ×1.36
+ * at 4 stars of equal noise), stars of unequal flux give the median
+ * heavier tails, each star's sky error moves every offset of its image
+ * (an error the ring's values share), and the ring's own median error s,
+ * noisy itself, makes z a t-like statistic with heavier tails still.  On
+ * the DECam cutout's 4 stars normal theory read noise rings 18–30 px at z
+ * up to 4.7 and took the table to the cap, 30 px.  So where the errors
+ * run low (errors_run_low), a seeded Monte Carlo sets them, in units of
+ * the median error me the draws give: kq from the 0.9 quantile of
+ * NOISE_NQUANT medians (the population's, as 1.2816 is), kz and k0 from
+ * ring_spreads (kz ×√NOISE_RING), and sfloor = me.
+ * tmp: NOISE_NQUANT + NOISE_NDRAW + 3m values. */
+static void small_stack_null(const double *sd, const double *skysd, int m, double *tmp,
+                             mp_epsf_ringnull *nz)
+{
+    *nz = MP_EPSF_RING_NORMAL;
+    if (m < 3)
+        return;
+    double *med = tmp, *err = tmp + NOISE_NQUANT, *x = tmp + NOISE_NQUANT + NOISE_NDRAW;
+    double *y = x + m, *off = y + m, me, e, sq, sd0;
+    mp_rng r;
+    mp_rng_seed(&r, NOISE_SEED);
+    if (!errors_run_low(&r, sd, m, med, err, x, &me))
+        return;
+    for (int d = NOISE_NDRAW; d < NOISE_NQUANT; d++)
+        draw_median(&r, sd, m, x, &med[d], &e);
+    /* err's room, read, for the rings' medians */
+    ring_spreads(&r, sd, skysd, m, err, err + NOISE_RING, x, y, off, &sq, &sd0);
+    nz->kq = quantile_of(med, NOISE_NQUANT, 0.9) / me;
+    nz->kz = sq * sqrt((double)NOISE_RING) / me;
+    nz->k0 = sd0 / me;
+    nz->sfloor = me;
+}
+
 /* The PSF stars' stack: each normalised by its light within 2 fwhm (its
  * sky the median of the ring hw..hw+4 px). */
 static int psf_stack(const mp_frame *f, const float *img, const double *x, const double *y,
@@ -118,10 +243,10 @@ static int psf_stack(const mp_frame *f, const float *img, const double *x, const
 {
     size_t nel = (size_t)s->w * s->w;
     double *im = malloc((n + 1) * nel * sizeof *im), *skies = malloc((n + 1) * sizeof *skies);
-    double *area = malloc((n + 1) * sizeof *area);
+    double *area = malloc((n + 1) * sizeof *area), *nsky = malloc((n + 1) * sizeof *nsky);
     int ns = 0, rc = 1, failed = 0;
     *fbig = 0.0;
-    if (!im || !skies || !area)
+    if (!im || !skies || !area || !nsky)
         goto done;
     double ra = 2.0 * fwhm;
     /* Each star into its own slot in parallel (area NaN: not usable),
@@ -134,7 +259,8 @@ static int psf_stack(const mp_frame *f, const float *img, const double *x, const
         for (size_t k = 0; k < n; k++) {
             area[k] = NAN;
             long cx = lround(x[k]), cy = lround(y[k]);
-            double sky = tmp ? ring_median(f, img, cx, cy, s->hw, s->hw + 4.0, tmp) : NAN;
+            size_t nsk = 0;
+            double sky = tmp ? ring_median(f, img, cx, cy, s->hw, s->hw + 4.0, tmp, &nsk) : NAN;
             if (!isfinite(sky))
                 continue;
             double *v = im + k * nel, A = 0.0;
@@ -153,6 +279,7 @@ static int psf_stack(const mp_frame *f, const float *img, const double *x, const
                 v[e] /= A;
             area[k] = A;
             skies[k] = sky;
+            nsky[k] = (double)nsk;
         }
         free(tmp);
     }
@@ -163,14 +290,31 @@ static int psf_stack(const mp_frame *f, const float *img, const double *x, const
             if ((size_t)ns != k)
                 memcpy(im + (size_t)ns * nel, im + k * nel, nel * sizeof *im);
             *fbig = fmax(*fbig, area[k]);
+            area[ns] = area[k];
+            nsky[ns] = nsky[k];
             skies[ns++] = skies[k];
         }
     *skymed = ns ? mp_epsf_median(skies, (size_t)ns) : NAN;
     rc = stack_combine(im, ns, s);
+    /* the ring test's constants for these stars' noise: a sky pixel's
+     * per unit flux each, and their sky's (the median of nsky pixels) */
+    double *tmp = rc ? NULL : malloc((NOISE_NQUANT + NOISE_NDRAW + 5 * (size_t)ns + 1) * sizeof *tmp);
+    if (!rc && !tmp)
+        rc = 1;
+    if (!rc) {
+        double *sd = tmp + NOISE_NQUANT + NOISE_NDRAW + 3 * (size_t)ns, *skysd = sd + ns;
+        for (int k = 0; k < ns; k++) {
+            sd[k] = sqrt(fmax(skies[k], 0.0) + f->rdnoise * f->rdnoise) / area[k];
+            skysd[k] = 1.2533 * sd[k] / sqrt(fmax(nsky[k], 1.0));
+        }
+        small_stack_null(sd, skysd, ns, tmp, &s->nz);
+    }
+    free(tmp);
 done:
     free(im);
     free(skies);
     free(area);
+    free(nsky);
     return rc;
 }
 
@@ -232,7 +376,7 @@ static int bright_flux(const mp_frame *f, const float *img, const double *x, con
             if (!tmp)
                 continue;
             long cx = lround(x[k]), cy = lround(y[k]);
-            double sky = ring_median(f, img, cx, cy, p->hw, p->hw + 4.0, tmp);
+            double sky = ring_median(f, img, cx, cy, p->hw, p->hw + 4.0, tmp, NULL);
             double F = isfinite(sky) ? wing_flux(f, img, cx, cy, sky, p, tmp) : NAN;
             if (F > 0) {
                 big = F > big ? F : big;
@@ -246,7 +390,8 @@ static int bright_flux(const mp_frame *f, const float *img, const double *x, con
     return failed;
 }
 
-int mp_epsf_profile_hi(const double *med, const double *sig, int hw, double *q, double *z)
+int mp_epsf_profile_hi(const double *med, const double *sig, int hw, const mp_epsf_ringnull *nz,
+                       double *q, double *z)
 {
     int w = 2 * hw + 1;
     double *v = malloc((size_t)w * w * sizeof *v), *e = malloc((size_t)w * w * sizeof *e);
@@ -270,16 +415,15 @@ int mp_epsf_profile_hi(const double *med, const double *sig, int hw, double *q, 
             q[r] = z[r] = NAN;
             continue;
         }
-        /* The ring's 0.9 quantile less what noise alone gives it (1.2816
-         * σ), over that quantile's sampling error for noise alone
-         * (√(0.09)/φ(1.2816) σ/√m = 1.709 σ/√m). */
-        double s = mp_epsf_median(e, m);
-        qsort(v, m, sizeof *v, cmp_d);
-        double p = 0.9 * (double)(m - 1);
-        size_t i0 = (size_t)p;
-        double q9 = i0 + 1 < m ? v[i0] + (p - (double)i0) * (v[i0 + 1] - v[i0]) : v[m - 1];
-        q[r] = q9 - 1.2816 * s;
-        z[r] = s > 0 ? q[r] / (1.709 * s / sqrt((double)m)) : (q[r] > 0 ? INFINITY : 0.0);
+        /* The ring's 0.9 quantile less what noise alone gives it, over
+         * that quantile's sampling error for noise alone (nz; normal
+         * theory: 1.2816 σ, 1.709 σ/√m). */
+        double s = fmax(mp_epsf_median(e, m), nz->sfloor);
+        double q9 = quantile_of(v, m, 0.9);
+        q[r] = q9 - nz->kq * s;
+        double err = nz->k0 > 0 ? s * sqrt(nz->kz * nz->kz / (double)m + nz->k0 * nz->k0)
+                                : nz->kz * s / sqrt((double)m);
+        z[r] = s > 0 ? q[r] / err : (q[r] > 0 ? INFINITY : 0.0);
     }
     free(v);
     free(e);
@@ -313,7 +457,7 @@ static int stack_radius(const stack *s, double fmax, double level, double *rad)
     if (s->n < 3)
         return 0;
     double *q = malloc(((size_t)s->hw + 1) * sizeof *q), *z = malloc(((size_t)s->hw + 1) * sizeof *z);
-    int rc = !q || !z || mp_epsf_profile_hi(s->med, s->sig, s->hw, q, z);
+    int rc = !q || !z || mp_epsf_profile_hi(s->med, s->sig, s->hw, &s->nz, q, z);
     if (!rc)
         *rad = mp_epsf_radius_rule(q, z, s->hw + 1, fmax, level);
 
@@ -350,11 +494,12 @@ int mp_epsf_tablerad(const mp_frame *f, const float *img, const double *x, const
         out->reach = r;
         snprintf(out->why, sizeof out->why,
                  "tablerad %.1f px (PSF light per pixel, 0.9 quantile over azimuth of %d PSF "
-                 "stars, measured (z >= %.2f, then the rings after at z >= %.0f) and above "
+                 "stars, measured (z >= %.2f, then the rings after at z >= %.0f%s) and above "
                  "%.2g sigma of a sky pixel for the brightest star (%.3g e- within 2 fwhm%s): "
                  "to %.0f px; within %.1f..%.1f px)",
-                 out->rad, p.n, MP_EPSF_RADZ, MP_EPSF_RADKEEP, o->frac, out->fmax,
-                 fb > fp ? ", by its wings" : "", r, o->rmin, o->rmax);
+                 out->rad, p.n, MP_EPSF_RADZ, MP_EPSF_RADKEEP,
+                 p.nz.sfloor > 0 ? "; so few stars' noise by Monte Carlo" : "", o->frac,
+                 out->fmax, fb > fp ? ", by its wings" : "", r, o->rmin, o->rmax);
     }
     stack_free(&p);
     return rc;
