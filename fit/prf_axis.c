@@ -93,6 +93,32 @@ static int reserve(mp_prf_axis *a, int w, int bw, int deriv)
     return 0;
 }
 
+/* Each pixel's run of weights cut to where they are not zero: without
+ * the derivative, the two elements a side its five-point stencil reads
+ * weigh nothing (2 of a 22-tap ×2 row's 26 each side).  Leading zeros go
+ * in pairs, so every weight keeps its place's parity and the two-lane
+ * sums of mp_prf_axis_rows add the same terms in the same lanes; a zero
+ * term added to a sum leaves it as it was (a sum from +0 is never −0),
+ * so every render and adjoint keeps its bits. */
+static void trim_zeros(mp_prf_axis *a)
+{
+    for (int q = 0; q < a->w; q++) {
+        double *v = a->v + (size_t)q * a->bw;
+        int lead = 0, len = a->len[q];
+        while (lead + 2 <= len && v[lead] == 0.0 && v[lead + 1] == 0.0)
+            lead += 2;
+        if (lead > 0) {
+            memmove(v, v + lead, (size_t)(len - lead) * sizeof *v);
+            memset(v + len - lead, 0, (size_t)lead * sizeof *v);
+            a->lo[q] += lead;
+            len -= lead;
+        }
+        while (len > 0 && v[len - 1] == 0.0)
+            len--;
+        a->len[q] = len;
+    }
+}
+
 /* Whether a's operator was last refilled with these arguments. */
 static int same_refill(const mp_prf_axis *a, int n, int os, double offset, double x, double xr,
                        long wp0, long ww, int hw, int deriv)
@@ -161,6 +187,8 @@ int mp_prf_axis_refill(int n, int os, double offset, double x, double xr, long w
         if (inner)
             have = q;
     }
+    if (!deriv)
+        trim_zeros(a);
     a->last.n = n;
     a->last.os = os;
     a->last.hw = hw_given;

@@ -42,7 +42,9 @@ int mp_prf_axis_build(int n, int os, double offset, double x, double xr, long wp
 
 /* mp_prf_axis_refill: the same into a, whose arrays are kept and grown as
  * needed (a zeroed mp_prf_axis, or one built before); the derivative's
- * weights only with deriv (a->d NULL without).  Arguments equal to the
+ * weights only with deriv (a->d NULL without; then each pixel's run
+ * [lo, lo + len) leaves out the zero weights at its ends, the same sums
+ * bit for bit in mp_prf_axis_rows and _cols).  Arguments equal to the
  * last refill's leave a as it is (the PSF build's SIRT renders and
  * projects each star at one place through a run's steps).  Nonzero when
  * out of memory. */

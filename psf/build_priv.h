@@ -29,6 +29,10 @@ typedef struct {
     double chi2;           /* Σ W ρ² of the last step */
     double ridge;          /* added to each element's normal equations */
     int steps;             /* steps taken by the last mp_epsf_sirt_run */
+    int per_element;       /* 1: every element's update by the clipped
+                            * combination's code, even where fewer than 5
+                            * stars leave nothing to clip (sirt.c
+                            * combine_few's check; mp_epsf_sirt_init: 0) */
 } mp_epsf_sirt;
 
 /* Bits of mp_epsf_sirt.mask per star and element: left out of the

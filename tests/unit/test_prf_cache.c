@@ -977,6 +977,46 @@ static void test_axis_refill_kept_only_when_same(void **state)
     mp_prf_axis_free(&b);
 }
 
+/* Without the derivative an operator's runs leave out the zeros at their
+ * ends (the five-point stencil's margins: 2 a side): every run no longer
+ * than with the derivative, the inner ones 4 shorter, and the rows and
+ * the columns it gives the bits the full runs give (d set aside, so
+ * both go through the same two-lane sums).  A run cut one weight short
+ * fails it. */
+static void test_axis_trimmed_same_bits(void **state)
+{
+    (void)state;
+    enum { N = 41, NY = N };      /* the table square: both axes' operator */
+    const double a[9] = {N, 2, 0.0, 20.37, 20.37, 12, 14, 10, 0};
+    double b[9];
+    memcpy(b, a, sizeof b);
+    b[8] = 1;
+    mp_prf_axis t = {0}, full = {0};
+    refill_with(a, &t);
+    refill_with(b, &full);
+    assert_int_equal(t.w, full.w);
+    int shorter = 0;
+    for (int q = 0; q < t.w; q++) {
+        assert_true(t.lo[q] >= full.lo[q]);
+        assert_true(t.lo[q] + t.len[q] <= full.lo[q] + full.len[q]);
+        shorter += t.len[q] == full.len[q] - 4;
+    }
+    assert_true(shorter > 0);
+    double *d = full.d, T[N * NY], At[NY * 16], Af[NY * 16], ot[16 * 16], of[16 * 16];
+    full.d = NULL;
+    for (int k = 0; k < N * NY; k++)
+        T[k] = sin(0.37 * k) + 0.1 * cos(1.3 * k);
+    mp_prf_axis_rows(T, N, 0, NY, &t, At, NULL);
+    mp_prf_axis_rows(T, N, 0, NY, &full, Af, NULL);
+    assert_memory_equal(At, Af, sizeof(double) * NY * (size_t)t.w);
+    mp_prf_axis_cols(&t, 0, At, 0, t.w, 1.0, ot, 0, 0, t.w);
+    mp_prf_axis_cols(&full, 0, Af, 0, t.w, 1.0, of, 0, 0, t.w);
+    assert_memory_equal(ot, of, sizeof(double) * (size_t)t.w * (size_t)t.w);
+    full.d = d;
+    mp_prf_axis_free(&t);
+    mp_prf_axis_free(&full);
+}
+
 static void test_grid_limits_cached(void **state)
 {
     (void)state;
@@ -1025,6 +1065,7 @@ int main(void)
         cmocka_unit_test(test_tier_modes),
         cmocka_unit_test(test_grid_limits_cached),
         cmocka_unit_test(test_axis_refill_kept_only_when_same),
+        cmocka_unit_test(test_axis_trimmed_same_bits),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }
