@@ -498,7 +498,7 @@ int mp_epsf_tablerad(const mp_frame *f, const float *img, const double *x, const
                  "%.2g sigma of a sky pixel for the brightest star (%.3g e- within 2 fwhm%s): "
                  "to %.0f px; within %.1f..%.1f px)",
                  out->rad, p.n, MP_EPSF_RADZ, MP_EPSF_RADKEEP,
-                 p.nz.sfloor > 0 ? "; so few stars' noise by Monte Carlo" : "", o->frac,
+                 p.nz.sfloor > 0 ? "; the stack's noise by Monte Carlo" : "", o->frac,
                  out->fmax, fb > fp ? ", by its wings" : "", r, o->rmin, o->rmax);
     }
     stack_free(&p);

@@ -179,27 +179,34 @@ static mp_frame sky_frame(long n)
 #define NS 36
 #define CUTR 13.5
 
-static void test_tablerad_finds_where_the_light_ends(void **state)
+/* A star of flux e at the pixel centre (x, y) of f (nx wide): a Moffat of
+ * the given FWHM (β 2) cut at CUTR px and normalised to e there. */
+static void add_cut_moffat(mp_frame *f, long nx, double x, double y, double e, double fwhm)
 {
-    (void)state;
-    mp_frame f = sky_frame(NXF);
-    double alpha = 3.0 / (2.0 * sqrt(pow(2.0, 0.5) - 1.0)), norm = 0.0;
+    double alpha = fwhm / (2.0 * sqrt(pow(2.0, 0.5) - 1.0)), norm = 0.0;
     int h = (int)CUTR;
     for (int j = -h; j <= h; j++)
         for (int i = -h; i <= h; i++)
             if (hypot(i, j) <= CUTR)
                 norm += pow(1.0 + (i * i + j * j) / (alpha * alpha), -2.0);
+    for (int j = -h; j <= h; j++)
+        for (int i = -h; i <= h; i++)
+            if (hypot(i, j) <= CUTR) {
+                size_t o = (size_t)(y + j - 1) * (size_t)nx + (size_t)(x + i - 1);
+                f->im.pix[o] += (float)(e * pow(1.0 + (i * i + j * j) / (alpha * alpha), -2.0) /
+                                        norm);
+            }
+}
+
+static void test_tablerad_finds_where_the_light_ends(void **state)
+{
+    (void)state;
+    mp_frame f = sky_frame(NXF);
     double x[NS], y[NS];
     for (int k = 0; k < NS; k++) {
         x[k] = 30.0 + 39.0 * (k % 6);
         y[k] = 30.0 + 39.0 * (k / 6);
-        for (int j = -h; j <= h; j++)
-            for (int i = -h; i <= h; i++)
-                if (hypot(i, j) <= CUTR) {
-                    size_t o = (size_t)(y[k] + j - 1) * NXF + (size_t)(x[k] + i - 1);
-                    f.im.pix[o] += (float)(1e5 * pow(1.0 + (i * i + j * j) / (alpha * alpha),
-                                                     -2.0) / norm);
-                }
+        add_cut_moffat(&f, NXF, x[k], y[k], 1e5, 3.0);
     }
     mp_rng r;
     mp_rng_seed(&r, 20261125);
@@ -242,23 +249,11 @@ static double few_star_radius(uint64_t seed)
     for (size_t k = 0; k < (size_t)NXD * NXD; k++)
         f.im.pix[k] = 1.2e4f;
     const double flux[4] = {8e5, 1.2e5, 8e4, 7e4}, fw = 3.7;
-    double alpha = fw / (2.0 * sqrt(pow(2.0, 0.5) - 1.0)), norm = 0.0;
-    int h = (int)CUTR;
-    for (int j = -h; j <= h; j++)
-        for (int i = -h; i <= h; i++)
-            if (hypot(i, j) <= CUTR)
-                norm += pow(1.0 + (i * i + j * j) / (alpha * alpha), -2.0);
     double x[4], y[4];
     for (int k = 0; k < 4; k++) {
         x[k] = 64.0 + 128.0 * (k % 2);
         y[k] = 64.0 + 128.0 * (k / 2);
-        for (int j = -h; j <= h; j++)
-            for (int i = -h; i <= h; i++)
-                if (hypot(i, j) <= CUTR) {
-                    size_t o = (size_t)(y[k] + j - 1) * NXD + (size_t)(x[k] + i - 1);
-                    f.im.pix[o] += (float)(flux[k] * pow(1.0 + (i * i + j * j) / (alpha * alpha),
-                                                         -2.0) / norm);
-                }
+        add_cut_moffat(&f, NXD, x[k], y[k], flux[k], fw);
     }
     mp_rng r;
     mp_rng_seed(&r, seed);
