@@ -10,14 +10,16 @@
 #     sh tests/bench/compare_daophot.sh
 # Environment:
 #     CC=cc, BUILD=build   compiler of the helper, where libmatphot.a is
-#     FRAMES="A B C S G V" which frames (A: 512^2 1000 stars FWHM 3; B:
+#     FRAMES="A B C S G V X" which frames (A: 512^2 1000 stars FWHM 3; B:
 #                      1024^2 5000 stars FWHM 2.5; C: 512^2 3000 stars FWHM
 #                      3; S: 512^2 1250 stars, a segmented mirror's PSF, the
 #                      crowded validation's kind; G and V: the crowded
 #                      frames of make validate themselves, drawn by
 #                      tests/validate/crowded's crowded.c and segmented.c
 #                      with their seeds (validate/CROWDED.md): saturated
-#                      stars, DAOPHOT given datamax = their SATURATE)
+#                      stars, DAOPHOT given datamax = their SATURATE;
+#                      X: S's kind at 1024^2 with 4200 stars, the frame
+#                      issue 12's table names)
 #     REPS=3           timed runs per tool and frame (interleaved)
 #     NITER=3          detection rounds of both (matphot niter; DAOPHOT
 #                      daofind on the allstar residual + phot + pfmerge +
@@ -43,7 +45,7 @@ if ! command -v irafcl >/dev/null 2>&1; then
   exit 0
 fi
 
-FRAMES=${FRAMES:-A B C S G V}
+FRAMES=${FRAMES:-A B C S G V X}
 REPS=${REPS:-3}
 NITER=${NITER:-3}
 MATPHOT_THREADS=${MATPHOT_THREADS:-1}
@@ -187,9 +189,10 @@ frame_spec() {
     B) echo "1024 1024 5000 2.5 2 1024x1024, 5000 stars, FWHM 2.5 px";;
     C) echo "512 512 3000 3.0 3 512x512, 3000 stars, FWHM 3 px (dense: many blends)";;
     S) echo "512 512 1250 2.3 4 512x512, 1250 stars, segmented mirror (18 hexagons, lambda/D 2 px, 50 % band; FWHM about 2.3 px)";;
+    X) echo "1024 1024 4200 2.3 5 1024x1024, 4200 stars, segmented mirror drawn at x4, as S (issue 12's own simulated frame: 1024^2, segmented mirror, x4 table, 4200 stars)";;
     G) echo "1024 1024 5000 3.0 - make validate's crowded frame (validate/CROWDED.md): 1024x1024, 5000 stars (200 close pairs, 20 saturated), Gaussian FWHM 3 px, sky a plane 100-150 e-";;
     V) echo "512 512 1258 2.2 - make validate's segmented scene (validate/CROWDED.md): 512x512, 1258 stars (8 saturated with bleed trails), segmented mirror, lambda/D 2 px, FWHM about 2.2 px";;
-    *) die "unknown frame $1 (A, B, C, S, G or V)";;
+    *) die "unknown frame $1 (A, B, C, S, G, V or X)";;
   esac
 }
 MAGMIN=-13; MAGMAX=-7; SKY=100; RON=3; GAIN=1
@@ -240,7 +243,7 @@ for F in $FRAMES; do
   set -- $(frame_spec "$F")
   nx=$1; ny=$2; ns=$3; fw=$4; seed=$5; shift 5; desc="$*"
   FD="$W/$F"; mkdir -p "$FD/cat"
-  pupil="psfos=2"; [ "$F" = S ] && pupil="pupil=segmented lod=2 band=0.5 psfos=4"
+  pupil="psfos=2"; case $F in S|X) pupil="pupil=segmented lod=2 band=0.5 psfos=4";; esac
   simcmd="matphot sim $F.fits nx=$nx ny=$ny mode=crowded nstars=$ns fwhm=$fw magmin=$MAGMIN magmax=$MAGMAX sky=$SKY rdnoise=$RON gain=$GAIN seed=$seed psfout=$F.psf.fits $pupil"
   fmin=$MAGMIN; fmax=$MAGMAX; DATAMAX=INDEF; pst=$FD/$F.truth; skyv=$SKY
   say "frame $F: $desc"
