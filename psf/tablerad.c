@@ -89,8 +89,21 @@ static void star_image(const mp_frame *f, const float *img, long cx, long cy, do
         }
 }
 
+/* The median of x[0..m) (m ≥ 3) into *med, and its error, returned:
+ * 1.2533 × 1.4826 MAD / √m, the median of m normal values' (x is left
+ * holding the absolute deviations).  The stack's per offset, and the
+ * small-stack Monte Carlo's (draw_median), which must read its errors as
+ * the stack gives them. */
+static double median_error(double *x, size_t m, double *med)
+{
+    *med = mp_median_select(x, m);
+    for (size_t q = 0; q < m; q++)
+        x[q] = fabs(x[q] - *med);
+    return 1.2533 * 1.4826 * mp_median_select(x, m) / sqrt((double)m);
+}
+
 /* The median over the n star images (n × w*w) per offset, and its error
- * (1.2533 × 1.4826 MAD / √m: the median of m normal values). */
+ * (median_error). */
 static int stack_combine(const double *im, int n, stack *s)
 {
     size_t nel = (size_t)s->w * s->w;
@@ -113,11 +126,9 @@ static int stack_combine(const double *im, int n, stack *s)
             for (int k = 0; k < n; k++)
                 if (isfinite(im[(size_t)k * nel + e]))
                     col[m++] = im[(size_t)k * nel + e];
-            double med = m >= 3 ? mp_median_select(col, m) : NAN;
-            for (size_t q = 0; q < m; q++)
-                col[q] = fabs(col[q] - med);
-            s->med[e] = med;
-            s->sig[e] = m >= 3 ? 1.2533 * 1.4826 * mp_median_select(col, m) / sqrt((double)m) : NAN;
+            s->med[e] = s->sig[e] = NAN;
+            if (m >= 3)
+                s->sig[e] = median_error(col, m, &s->med[e]);
         }
         free(col);
     }
@@ -134,16 +145,12 @@ static int stack_combine(const double *im, int n, stack *s)
 #define NOISE_SEED 20261205u
 
 /* The median of m draws of N(0, sd[k]²) into *med and its error as the
- * stack gives it (1.2533 × 1.4826 MAD / √m) into *err; x: m values. */
+ * stack gives it (median_error) into *err; x: m values. */
 static void draw_median(mp_rng *r, const double *sd, int m, double *x, double *med, double *err)
 {
     for (int k = 0; k < m; k++)
         x[k] = sd[k] * mp_rng_normal(r);
-    double mm = mp_median_select(x, (size_t)m);
-    for (int k = 0; k < m; k++)
-        x[k] = fabs(x[k] - mm);
-    *med = mm;
-    *err = 1.2533 * 1.4826 * mp_median_select(x, (size_t)m) / sqrt((double)m);
+    *err = median_error(x, (size_t)m, med);
 }
 
 /* Whether the stack's errors understate its medians' scatter for m stars
