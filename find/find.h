@@ -155,12 +155,16 @@ int mp_bkg_noise_from_model(mp_bkg *b, const mp_frame *f, const float *res, doub
  * spikes of a segmented-mirror frame's bright stars with its PSF built).
  *
  * Stars of one class share it (the pipeline: 0 the stars fitted whole,
- * 1 those whose fit left saturated pixels out).  Around the nb brightest
- * of each class of the n stars (x, y 0-based pixels, F their fluxes [e−],
- * cls their classes 0..ncls−1, brightest first), per 1-px ring r of
- * distance below rmax [px], over the unmasked pixels: z the residual less
- * the sky over the noise so far; the largest tenth of the ring's z² is
- * left out (a star not yet found, a cosmic ray: few pixels of a ring,
+ * 1 those whose fit left saturated pixels out; a higher class's misfit
+ * reaches further).  It is measured around the nb brightest stars of each
+ * class of the n stars (x, y 0-based pixels, F their fluxes [e−], cls
+ * their classes 0..ncls−1, brightest first) that measure it: usable[s]
+ * (NULL: all; the pipeline leaves out fits flagged not converged or
+ * merged/degenerate) and no star of a higher class within rmax (its
+ * misfit fills their rings).  Per 1-px ring r of distance below rmax
+ * [px], over the unmasked pixels: z the residual less the sky over the
+ * noise so far; the largest tenth of the ring's z² is left out (a star
+ * not yet found, a cosmic ray: few pixels of a ring,
  * where a misfit PSF's rings and spikes fill much of it), and over the
  * rest S = Σ (z² − c₁), A = Σ F²/σ², c₁ = E[z² | |z| ≤ 1.645] for noise
  * alone (0.623, the same trim), whose variance c₂ − c₁² (0.461) gives S's
@@ -177,8 +181,8 @@ int mp_bkg_noise_from_model(mp_bkg *b, const mp_frame *f, const float *res, doub
 #define MP_BKG_EXCESS_NSTAR 10
 #define MP_BKG_EXCESS_FLOOR 0.01
 int mp_bkg_star_excess(mp_bkg *b, const mp_frame *f, const double *x, const double *y,
-                       const double *F, const int *cls, size_t n, int ncls, size_t nb,
-                       double rmax, int *nring, size_t *nkept, char *err);
+                       const double *F, const int *cls, const unsigned char *usable, size_t n,
+                       int ncls, size_t nb, double rmax, int *nring, size_t *nkept, char *err);
 
 /* mp_bkg_free: release the maps; safe on a zeroed or freed mp_bkg. */
 void mp_bkg_free(mp_bkg *b);

@@ -194,16 +194,42 @@ static int keep_stars(mp_bkg *b, const mp_frame *f, const double *x, const doubl
     return index_cells(b, xs, m);
 }
 
-/* v of class c into v[0..nr-1]; its rings kept. */
+/* Whether star s measures its class's excess: usable (NULL: every star),
+ * a positive flux, and none of the nh stars of a higher class (higher,
+ * their indices) within the rings' reach nr of it.  The classes go up with how far a star's misfit reaches (the
+ * pipeline: 1, a saturated star's flux from its wings); such a star's
+ * misfit fills the rings of every star near it, and is its own class's
+ * excess, added around it.  (V, the segmented scene with its PSF built:
+ * the ten brightest stars fitted whole in round 1 were fits in the wings
+ * of its saturated stars, fluxes 10⁶–10¹¹ e⁻ traded against the sky; the
+ * 4·10⁵ e⁻ stars fitted well were not among them.) */
+static int measures(const double *x, const double *y, const double *F,
+                    const unsigned char *usable, const size_t *higher, size_t nh, size_t s,
+                    int nr)
+{
+    if (!(F[s] > 0) || (usable && !usable[s]))
+        return 0;
+    for (size_t h = 0; h < nh; h++)
+        if (hypot(x[higher[h]] - x[s], y[higher[h]] - y[s]) < nr)
+            return 0;
+    return 1;
+}
+
+/* v of class c into v[0..nr-1] (the rings of its nb brightest stars that
+ * measure it); its rings kept. */
 static int class_excess(const mp_bkg *b, const mp_frame *f, const double *x, const double *y,
-                        const double *F, const int *cls, size_t n, int c, size_t nb, int nr,
-                        double *v, int *kept)
+                        const double *F, const int *cls, const unsigned char *usable, size_t n,
+                        int c, size_t nb, int nr, double *v, int *kept)
 {
     ring *g = calloc((size_t)nr, sizeof *g);
-    int rc = !g;
+    size_t *higher = malloc((n + 1) * sizeof *higher), nh = 0;
+    int rc = !g || !higher;
+    for (size_t s = 0; !rc && s < n; s++)
+        if (cls[s] > c)
+            higher[nh++] = s;
     size_t used = 0;
     for (size_t s = 0; !rc && s < n && used < nb; s++)
-        if (cls[s] == c && F[s] > 0) {
+        if (cls[s] == c && measures(x, y, F, usable, higher, nh, s, nr)) {
             rc = ring_pixels(b, f, x[s], y[s], F[s], nr, g);
             used++;
         }
@@ -220,13 +246,14 @@ static int class_excess(const mp_bkg *b, const mp_frame *f, const double *x, con
     for (int r = 0; g && r < nr; r++)
         free(g[r].p);
     free(g);
+    free(higher);
     free(tmp);
     return rc;
 }
 
 int mp_bkg_star_excess(mp_bkg *b, const mp_frame *f, const double *x, const double *y,
-                       const double *F, const int *cls, size_t n, int ncls, size_t nb,
-                       double rmax, int *nring, size_t *nkept, char *err)
+                       const double *F, const int *cls, const unsigned char *usable, size_t n,
+                       int ncls, size_t nb, double rmax, int *nring, size_t *nkept, char *err)
 {
     *nring = 0;
     *nkept = 0;
@@ -241,7 +268,7 @@ int mp_bkg_star_excess(mp_bkg *b, const mp_frame *f, const double *x, const doub
     int rc = !v;
     for (int c = 0; !rc && c < ncls; c++) {
         int kept;
-        rc = class_excess(b, f, x, y, F, cls, n, c, nb, nr, v + (size_t)c * nr, &kept);
+        rc = class_excess(b, f, x, y, F, cls, usable, n, c, nb, nr, v + (size_t)c * nr, &kept);
         *nring += kept;
     }
     if (!rc && *nring > 0) {

@@ -92,6 +92,7 @@ static void group_free(group *G)
     free(G->step);
     free(G->psave);
     free(G->sx);
+    free(G->rk);
     mp_prf_work_free(&G->work);
 }
 

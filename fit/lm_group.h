@@ -80,6 +80,8 @@ typedef struct {
                                  * (levmar.c, LM_SKY_STALL) */
     int paired;                 /* the last loop brought two stars within
                                  * o->stop_pair (levmar.c) */
+    double *rk;                 /* n: each star's fitting radius
+                                 * (lm_pixels.c, star_radius) */
     double *sx;                 /* npmax: the step while a longer or shorter
                                  * one is tried (levmar.c, step_length) */
     double *psave;              /* npmax: a converged state kept while a

@@ -71,10 +71,12 @@ int mp_pl_star_excess(const mp_frame *f, mp_bkg *b, const mp_table *t, const mp_
     mp_pl_star *s = mp_pl_stars_by_flux(t, 0, &n);
     double *x = malloc((3 * n + 1) * sizeof *x);
     int *cls = malloc((n + 1) * sizeof *cls);
-    if (!s || !x || !cls) {
+    unsigned char *usable = malloc(n + 1);
+    if (!s || !x || !cls || !usable) {
         free(s);
         free(x);
         free(cls);
+        free(usable);
         snprintf(err, MP_ERRLEN, "out of memory for the residual noise map");
         return 1;
     }
@@ -85,13 +87,17 @@ int mp_pl_star_excess(const mp_frame *f, mp_bkg *b, const mp_table *t, const mp_
         F[k] = s[k].e;
         /* a fit without its saturated pixels: a flux from the wings */
         cls[k] = (s[k].flags & MP_FLAG_SATURATED) != 0;
+        /* a fit flagged not converged, or merged/degenerate (a blend
+         * fitted as one), misfits on its own account */
+        usable[k] = !(s[k].flags & (MP_FLAG_NOCONV | MP_FLAG_MERGED));
     }
     /* as far as a star's model reaches: the table's half-size and the
      * pixel a shift and a block sum add */
     double rmax = 0.5 * (double)(m->psf->nx - 1) / m->psf->os + 1.0;
-    int rc = mp_bkg_star_excess(b, f, x, y, F, cls, n, 2, MP_BKG_EXCESS_NSTAR, rmax, nring,
-                                nkept, err);
+    int rc = mp_bkg_star_excess(b, f, x, y, F, cls, usable, n, 2, MP_BKG_EXCESS_NSTAR, rmax,
+                                nring, nkept, err);
     free(cls);
+    free(usable);
     free(s);
     free(x);
     return rc;

@@ -1085,7 +1085,7 @@ static void test_star_excess(void **state)
         double before = mp_bkg_rms(&b, peak);
         int nring;
         size_t nkept;
-        assert_int_equal(mp_bkg_star_excess(&b, &f, x, y, fl, cls, 9, 1, 10, 11.0, &nring,
+        assert_int_equal(mp_bkg_star_excess(&b, &f, x, y, fl, cls, NULL, 9, 1, 10, 11.0, &nring,
                                             &nkept, err), 0);
         if (!misfit) {
             printf("# excess, noise alone: %d rings\n", nring);
@@ -1147,6 +1147,85 @@ static void test_star_excess(void **state)
     free(res);
     frame_drop(&f);
 }
+
+/* Which stars measure their class's excess (mp_bkg_star_excess): a star
+ * of class 1 (a saturated one, 10⁷ e⁻) whose misfit is a broad halo
+ * (200 e⁻ at its centre, σ 6 px) with four stars of class 0 (10⁶ e⁻)
+ * 8.5 px from it, inside their rings' reach; five more of class 0 far
+ * off, the first of them with six lobes of 600 e⁻ at 6 px on itself, its
+ * fit flagged as failed (usable 0).  Class 0's rings stay at zero: the
+ * residual of the stars that measure it is noise (each ring a one-sided
+ * 1.35e-3 false alarm, ~1.5 % for the 11, fixed seed), and class 1 gets
+ * the halo.  All counted as class 0, the halo and the lobes made its
+ * rings significant (the V scene: stars in a saturated star's wings set
+ * class 0's excess for every star). */
+static double halo(double dx, double dy)
+{
+    return 200.0 * exp(-0.5 * (dx * dx + dy * dy) / 36.0);
+}
+
+static void test_star_excess_own_class(void **state)
+{
+    (void)state;
+    const long nx = 200, ny = 200;
+    const double sky = 100.0, ron = 3.0, F = 1e6;
+    mp_frame f;
+    frame_make(&f, nx, ny, ron);
+    double *stars = calloc((size_t)(nx * ny), sizeof *stars);
+    float *res = malloc((size_t)(nx * ny) * sizeof *res);
+    assert_non_null(stars);
+    assert_non_null(res);
+    mp_sim_prf p = gauss_prf(3.0);
+    /* brightest first: the saturated star, its four neighbours, the far five */
+    double x[10] = {100.3, 94.3, 106.3, 94.3, 106.3, 30.3, 170.3, 30.3, 170.3, 100.3};
+    double y[10] = {100.6, 94.6, 94.6, 106.6, 106.6, 30.6, 30.6, 170.6, 170.6, 30.6};
+    double fl[10];
+    int cls[10] = {1, 0, 0, 0, 0, 0, 0, 0, 0, 0};
+    unsigned char usable[10] = {1, 1, 1, 1, 1, 0, 1, 1, 1, 1};
+    for (int k = 0; k < 10; k++) {
+        fl[k] = k ? F : 1e7;
+        assert_int_equal(mp_sim_add_star(&p, x[k] + 1.0, y[k] + 1.0, fl[k], stars, nx, ny), 0);
+    }
+    noise_frame(&f, stars, res, sky, 1.0, 0.0, 0, 93);
+    for (long j = 0; j < ny; j++)
+        for (long i = 0; i < nx; i++) {
+            double l = halo((double)i - x[0], (double)j - y[0]) +
+                       10.0 * lobes((double)i - x[5], (double)j - y[5]);
+            res[j * nx + i] += (float)l;
+            f.im.pix[j * nx + i] += (float)l;
+        }
+    char err[MP_ERRLEN];
+    for (int own = 0; own < 2; own++) {
+        mp_bkg b;
+        double k, eps;
+        assert_int_equal(mp_bkg_estimate(&f, 64, 3, &b, err), 0);
+        assert_int_equal(mp_bkg_set_flat(&b, nx, ny, sky, 0.0), 0);
+        assert_int_equal(mp_bkg_noise_from_model(&b, &f, res, 3.0, 1.5, &k, &eps, err), 0);
+        int nring;
+        size_t nkept;
+        /* own 0: every star counts for its class (the sample before) */
+        int same[10] = {0};
+        assert_int_equal(mp_bkg_star_excess(&b, &f, x, y, fl, own ? cls : same,
+                                            own ? usable : NULL, 10, 2, 10, 11.0, &nring, &nkept,
+                                            err), 0);
+        int zero = 0;
+        for (int r = 0; r < b.nxv; r++)
+            zero += b.xv[r] == 0.0;
+        printf("# excess %s: class 0 %d of %d rings zero, class 1 at 6 px %.3g\n",
+               own ? "by class" : "all as class 0", zero, b.nxv, own ? b.xv[b.nxv + 6] : NAN);
+        if (own) {
+            assert_int_equal(zero, b.nxv);
+            assert_true(b.xv[b.nxv + 6] > 0);
+        } else {
+            assert_true(zero < b.nxv);     /* the scene can fail the test */
+        }
+        mp_bkg_free(&b);
+    }
+    free(stars);
+    free(res);
+    frame_drop(&f);
+}
+
 
 /* ---------- memory: no plane of the frame's size (issue 14) ---------- */
 
@@ -1290,6 +1369,7 @@ int main(void)
         cmocka_unit_test(test_saturated_star),
         cmocka_unit_test(test_noise_from_model),
         cmocka_unit_test(test_star_excess),
+        cmocka_unit_test(test_star_excess_own_class),
         cmocka_unit_test(test_nan_columns),
         cmocka_unit_test(test_star_sharpness),
         cmocka_unit_test(test_append_and_errors),

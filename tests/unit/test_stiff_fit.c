@@ -51,10 +51,13 @@ static void test_bright_1e8(void **state)
  * there, as a detector does, then read back through io (mp_frame_read):
  * io marks the clipped pixels MP_MASK_SATURATED, the fit leaves them out
  * and flags the star 1, and the flux comes from the wings within 4σ of
- * the truth, σ from the covariance of the wings-only fit. */
-static void test_saturated_wings(void **state)
+ * the truth, σ from the covariance of the wings-only fit.  The core is
+ * saturated out to ~3.3 px: with fitrad 10, and with fitrad = FWHM
+ * (DAOPHOT's convention), a disc the plateau covers whole, whose star's
+ * radius then grows to the wings (fit/lm_pixels.c star_radius; without
+ * it the star had no pixel of its own). */
+static void saturated_wings(double fitrad)
 {
-    (void)state;
     char err[MP_ERRLEN];
     const double sat = 65535.0;
     mp_psf p;
@@ -86,18 +89,47 @@ static void test_saturated_wings(void **state)
     assert_true(nclip > 0);
     mp_fit_opts o;
     mp_fit_opts_default(&o);
-    o.fitrad = 10.0;   /* the core is saturated out to ~3.3 px */
+    o.fitrad = fitrad;
     mp_star st = {.x = x + 0.3, .y = y - 0.2, .flux = NAN};
     assert_int_equal(mp_fit_group(&f, &m, &o, NAN, &st, 1, err), 0);
-    print_message("saturated: nclip=%ld E=%.6g eflux=%.4g rel %.2e z=%.2f dx=%.3g ex=%.3g flags=%d\n",
-                  nclip, st.flux, st.eflux, st.eflux / E, (st.flux - E) / st.eflux, st.x - x,
-                  st.ex, st.flags);
+    print_message("saturated, fitrad %g: nclip=%ld E=%.6g eflux=%.4g rel %.2e z=%.2f dx=%.3g "
+                  "ex=%.3g flags=%d\n", fitrad, nclip, st.flux, st.eflux, st.eflux / E,
+                  (st.flux - E) / st.eflux, st.x - x, st.ex, st.flags);
     assert_true(st.flags & MP_FLAG_SATURATED);
     assert_int_equal(st.flags & MP_FLAG_NOCONV, 0);
     assert_true(isfinite(st.eflux) && st.eflux > sqrt(E));
     assert_true(fabs(st.flux - E) < 4 * st.eflux);
     assert_true(fabs(st.x - x) < 4 * st.ex && fabs(st.y - y) < 4 * st.ey);
+    /* its disc holds at least as many pixels as an unsaturated star's;
+     * a star 5 px off, beside the plateau but not on it, keeps its own
+     * disc's unsaturated pixels (its disc not grown into the wings) */
+    mp_star nb = {.x = x + 5.0, .y = y, .flux = 1000.0};
+    assert_int_equal(mp_fit_group(&f, &m, &o, NAN, &nb, 1, err), 0);
+    long full = 0, open = 0;
+    for (long j = 1; j <= 60; j++)
+        for (long i = 1; i <= 60; i++) {
+            double d2 = (i - x) * (i - x) + (j - y) * (j - y);
+            double e2 = (i - (x + 5.0)) * (i - (x + 5.0)) + (j - y) * (j - y);
+            full += d2 <= fitrad * fitrad;
+            open += e2 <= fitrad * fitrad && !f.mask[(j - 1) * 60 + (i - 1)];
+        }
+    print_message("  its pixels %d (a full disc %ld); the star beside it %d (its disc's open "
+                  "pixels %ld at the start)\n", st.npix, full, nb.npix, open);
+    assert_true(st.npix >= full);
+    assert_true(open > 0 && nb.npix == open);
     mp_frame_free(&f);   /* read through io: header too */
+}
+
+static void test_saturated_wings(void **state)
+{
+    (void)state;
+    saturated_wings(10.0);
+}
+
+static void test_saturated_core_covers_fitrad(void **state)
+{
+    (void)state;
+    saturated_wings(FWHM);
 }
 
 /* A star of 10⁻³ of the sky noise, i.e. E = 1e-3·sqrt(β(B + RON²)) ≈ 0.05
@@ -351,6 +383,7 @@ int main(void)
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(test_bright_1e8),
         cmocka_unit_test(test_saturated_wings),
+        cmocka_unit_test(test_saturated_core_covers_fitrad),
         cmocka_unit_test(test_faint_and_negative),
         cmocka_unit_test(test_close_pairs),
         cmocka_unit_test(test_edges_and_corners),
