@@ -1040,17 +1040,37 @@ static double lobes(double dx, double dy)
     return 60.0 * exp(-0.5 * (r - 6.0) * (r - 6.0) / 0.49) * 0.5 * (1.0 + cos(6.0 * t));
 }
 
+/* The excess tests' scene: a 200² frame of read noise 3, its stars'
+ * light and residual buffers (zeroed, unset). */
+static void excess_scene(mp_frame *f, double **stars, float **res)
+{
+    frame_make(f, 200, 200, 3.0);
+    *stars = calloc((size_t)200 * 200, sizeof **stars);
+    *res = malloc((size_t)200 * 200 * sizeof **res);
+    assert_non_null(*stars);
+    assert_non_null(*res);
+}
+
+/* b: the noise model of residual res on f, its sky flat at sky (as the
+ * pipeline's, before the flux-squared error). */
+static void excess_noise_model(const mp_frame *f, const float *res, double sky, mp_bkg *b)
+{
+    char err[MP_ERRLEN];
+    double k, eps;
+    assert_int_equal(mp_bkg_estimate(f, 64, 3, b, err), 0);
+    assert_int_equal(mp_bkg_set_flat(b, f->im.nx, f->im.ny, sky, 0.0), 0);
+    assert_int_equal(mp_bkg_noise_from_model(b, f, res, 3.0, 1.5, &k, &eps, err), 0);
+}
+
 static void test_star_excess(void **state)
 {
     (void)state;
     const long nx = 200, ny = 200;
-    const double sky = 100.0, ron = 3.0, F = 1e6;
+    const double sky = 100.0, F = 1e6;
     mp_frame f;
-    frame_make(&f, nx, ny, ron);
-    double *stars = calloc((size_t)(nx * ny), sizeof *stars);
-    float *res = malloc((size_t)(nx * ny) * sizeof *res);
-    assert_non_null(stars);
-    assert_non_null(res);
+    double *stars;
+    float *res;
+    excess_scene(&f, &stars, &res);
     mp_sim_prf p = gauss_prf(3.0);
     double x[9], y[9], fl[9];
     int cls[9] = {0};
@@ -1077,10 +1097,7 @@ static void test_star_excess(void **state)
                 }
         want /= npx;
         mp_bkg b;
-        double k, eps;
-        assert_int_equal(mp_bkg_estimate(&f, 64, 3, &b, err), 0);
-        assert_int_equal(mp_bkg_set_flat(&b, nx, ny, sky, 0.0), 0);
-        assert_int_equal(mp_bkg_noise_from_model(&b, &f, res, 3.0, 1.5, &k, &eps, err), 0);
+        excess_noise_model(&f, res, sky, &b);
         size_t peak = (size_t)lround(y[4]) * (size_t)nx + (size_t)lround(x[4] + 6.0);
         double before = mp_bkg_rms(&b, peak);
         int nring;
@@ -1168,13 +1185,11 @@ static void test_star_excess_own_class(void **state)
 {
     (void)state;
     const long nx = 200, ny = 200;
-    const double sky = 100.0, ron = 3.0, F = 1e6;
+    const double sky = 100.0, F = 1e6;
     mp_frame f;
-    frame_make(&f, nx, ny, ron);
-    double *stars = calloc((size_t)(nx * ny), sizeof *stars);
-    float *res = malloc((size_t)(nx * ny) * sizeof *res);
-    assert_non_null(stars);
-    assert_non_null(res);
+    double *stars;
+    float *res;
+    excess_scene(&f, &stars, &res);
     mp_sim_prf p = gauss_prf(3.0);
     /* brightest first: the saturated star, its four neighbours, the far five */
     double x[10] = {100.3, 94.3, 106.3, 94.3, 106.3, 30.3, 170.3, 30.3, 170.3, 100.3};
@@ -1197,10 +1212,7 @@ static void test_star_excess_own_class(void **state)
     char err[MP_ERRLEN];
     for (int own = 0; own < 2; own++) {
         mp_bkg b;
-        double k, eps;
-        assert_int_equal(mp_bkg_estimate(&f, 64, 3, &b, err), 0);
-        assert_int_equal(mp_bkg_set_flat(&b, nx, ny, sky, 0.0), 0);
-        assert_int_equal(mp_bkg_noise_from_model(&b, &f, res, 3.0, 1.5, &k, &eps, err), 0);
+        excess_noise_model(&f, res, sky, &b);
         int nring;
         size_t nkept;
         /* own 0: every star counts for its class (the sample before) */
