@@ -104,9 +104,9 @@ static void disc_count(const mp_frame *f, double x, double y, double r, long *al
         }
 }
 
-/* Star s's fitting radius: fitrad r; for a saturated star (its centre's
- * pixel saturated) the smallest radius (in steps of half a pixel, at most
- * rmax, half its PRF's box) whose disc holds as many pixels not saturated
+/* Star s's fitting radius in G: fitrad r; for a saturated star (its
+ * centre's pixel saturated) the smallest radius (in steps of half a pixel,
+ * at most half its PRF's box) whose disc holds as many pixels not saturated
  * as the fitrad disc holds in all.  Its flux comes from its wings (paper
  * §5's stars are not saturated; ALLSTAR leaves such a star out), and a
  * plateau that covers the fitrad disc left it no pixel of its own: with
@@ -116,12 +116,17 @@ static void disc_count(const mp_frame *f, double x, double y, double r, long *al
  * a plateau: its disc grown into a saturated star's wings took in their
  * misfit (the segmented scene at the default fitrad 5, three draws: 13
  * fewer stars found with its PSF built). */
-static double star_radius(const mp_frame *f, const mp_star *s, double r, double rmax)
+static double star_radius(const group *G, const mp_star *s, double r)
 {
+    const mp_frame *f = G->f;
     long all, open, px = lround(s->x), py = lround(s->y);
     if (!f->mask || px < 1 || py < 1 || px > f->im.nx || py > f->im.ny ||
         !(f->mask[(size_t)(py - 1) * f->im.nx + (size_t)(px - 1)] & MP_MASK_SATURATED))
         return r;
+    long bx, by;
+    int bw, bh;
+    mp_prf_box(G->m, s->x, s->y, &bx, &by, &bw, &bh);
+    double rmax = fmax(r, 0.5 * (bw < bh ? bw : bh));
     disc_count(f, s->x, s->y, r, &all, &open);
     long want = all;
     double q = r;
@@ -149,11 +154,7 @@ int lm_select_pixels(group *G, const mp_fit_opts *o, mp_star *st)
     } else {
         double xa = INFINITY, xb = -INFINITY, ya = INFINITY, yb = -INFINITY;
         for (int k = 0; k < G->n; k++) {
-            long bx, by;
-            int bw, bh;
-            mp_prf_box(G->m, st[k].x, st[k].y, &bx, &by, &bw, &bh);
-            double reach = 0.5 * (bw < bh ? bw : bh);
-            double rk = G->rk[k] = star_radius(f, &st[k], r, fmax(r, reach));
+            double rk = G->rk[k] = star_radius(G, &st[k], r);
             xa = fmin(xa, st[k].x - rk);
             xb = fmax(xb, st[k].x + rk);
             ya = fmin(ya, st[k].y - rk);

@@ -308,6 +308,22 @@ static int masked_above(const elem_block *b, size_t i, const double *all, double
     return 0;
 }
 
+/* The order-0 solution from an element's Σg and Σh, in wls's arithmetic
+ * bit for bit: Marquardt's factor and the ridge, and the 1×1 Cholesky's
+ * two divisions by √A; *c Σg, and 1 returned, when A is not positive (as
+ * wls leaves it).  wls0's and combine_few's. */
+static int solve0(double sg, double sh, double ridge, double *c)
+{
+    *c = sg;
+    double a = sh * (1.0 + 1e-3);
+    a += ridge;
+    if (!(a > 0))
+        return 1;
+    a = sqrt(a);
+    *c = sg / a / a;
+    return 0;
+}
+
 /* wls of the order-0 table (one term, 1 at every star) in its own
  * arithmetic, bit for bit: Σg and Σh over the stars the mask leaves, in
  * their order (a star left out adds +0, which no such sum can tell: it
@@ -329,15 +345,7 @@ static int wls0(const float *h, const float *g, const unsigned char *mk, size_t 
     }
     *m = k;
     c[0] = sg;
-    if (k == 0)
-        return 0;
-    double a = sh * (1.0 + 1e-3);
-    a += ridge;
-    if (!(a > 0))
-        return 1;
-    a = sqrt(a);
-    c[0] = sg / a / a;
-    return 0;
+    return k == 0 ? 0 : solve0(sg, sh, ridge, c);
 }
 
 /* Every star's deviation from the fit c at the block's element i
@@ -449,8 +457,8 @@ static void null_filter(double *u, int nx, int ny, int os, double *tmp)
 
 /* Fewer used stars than an element's clip needs (combine_element: 5): each
  * element's order-0 update is wls0's, nothing clipped.  Summed here a row
- * of elements at a time, star by star in their order (the same sums, in
- * wls0's arithmetic, bit for bit), where the blocks' transposes and the
+ * of elements at a time, star by star in their order (the same sums,
+ * solved by solve0 as wls0 solves them, bit for bit), where the blocks' transposes and the
  * per-element calls were 11 % of the DECam cutout's run with its four PSF
  * stars. */
 static int combine_few(const mp_epsf_sirt *w, const mp_epsf_star *s, size_t n,
@@ -483,16 +491,8 @@ static int combine_few(const mp_epsf_sirt *w, const mp_epsf_star *s, size_t n,
             }
             for (int x = 0; x < nx; x++) {
                 double dx = x - (nx - 1) / 2, dy = y - (e->ny - 1) / 2;
-                if (!mp_within(dx, dy, rmax) || cnt[x] == 0)
-                    continue;
-                double a = sh[x] * (1.0 + 1e-3);
-                a += w->ridge;
-                if (!(a > 0)) {
-                    upd[r0 + x] = sg[x];
-                    continue;
-                }
-                a = sqrt(a);
-                upd[r0 + x] = sg[x] / a / a;
+                if (mp_within(dx, dy, rmax) && cnt[x] > 0)
+                    solve0(sg[x], sh[x], w->ridge, &upd[r0 + x]);
             }
         }
         free(sg);
