@@ -17,10 +17,14 @@ typedef struct {
                             * each element reads every star's, and at ×4
                             * these arrays are tens of MB a step) */
     double *R;             /* nstar × nR: each star's W·ρ on its box */
+    double *W;             /* nstar × nR: each box pixel's W (0: none) */
+    double *Rn;            /* nstar × nR: W·ρ of a draw of pure noise
+                            * (noise_drop; allocated when first drawn) */
     size_t nR;             /* the largest box's pixels */
     double *geo;           /* nstar × 6: the box (x0, y0, w, h) and the
                             * star (x, y) in its cut-out's coordinates */
     double *chi2s;         /* nstar: each star's Σ W ρ², summed in order */
+    double *npix;          /* nstar: each star's pixels with weight */
     struct mp_prf_axes_s **axes;  /* nstar: each star's render operators
                             * (fit/prf.c), made at its first render of a
                             * run and read by every step after */
@@ -29,6 +33,9 @@ typedef struct {
     double chi2;           /* Σ W ρ² of the last step */
     double ridge;          /* added to each element's normal equations */
     int steps;             /* steps taken by the last mp_epsf_sirt_run */
+    double noise_drop;     /* the χ² drop a step takes from pure noise
+                            * (sirt.c noise_drop; NaN: not drawn yet) */
+    int noise_fresh;       /* noise_drop drawn in this mp_epsf_sirt_run */
     int per_element;       /* 1: every element's update by the clipped
                             * combination's code, even where fewer than 5
                             * stars leave nothing to clip (sirt.c
@@ -117,9 +124,33 @@ int mp_epsf_sirt_dilate(mp_epsf_sirt *w, const mp_epsf *e, size_t n, double rd);
 void mp_epsf_sirt_free(mp_epsf_sirt *w);
 
 /* mp_epsf_sirt_run: up to o->sirt steps on e's planes from the used stars'
- * current fits; stops when a step lowers χ² by less than one. */
+ * current fits; stops when a step lowers χ² by less than one, or by no
+ * more than a step made from pure noise would (w->noise_drop, drawn where
+ * it could be the larger: sirt.c step_floor). */
 int mp_epsf_sirt_run(mp_epsf_sirt *w, const mp_epsf_star *s, size_t n, const mp_epsf_opts *o,
                      mp_epsf *e, char *err);
+
+/* mp_epsf_sirt_noise: the χ² drop a step from e would take from pure
+ * noise of the used stars' weights at their current fits, into
+ * w->noise_drop: a draw of that noise (mp_epsf_sirt_noise_draw), the step
+ * made from it as mp_epsf_sirt_run makes one from the data, and the drop
+ * it makes on the draw.  e's elements beyond the run's disc are zeroed,
+ * as a run does.  Nonzero with err when out of memory. */
+int mp_epsf_sirt_noise(mp_epsf_sirt *w, const mp_epsf_star *s, size_t n, const mp_epsf_opts *o,
+                       mp_epsf *e, char *err);
+
+/* mp_epsf_sirt_noise_draw: into w->Rn, W·ρ of pure noise on each used
+ * star's box (ρ = z/√W, z ~ N(0, 1), where the pixel has weight W),
+ * star k's z from a generator seeded by k: the same draw on any number of
+ * threads (sirt_noise.c). */
+void mp_epsf_sirt_noise_draw(mp_epsf_sirt *w, const mp_epsf_star *s, size_t n);
+
+/* mp_epsf_sirt_update_sums: an update eu (nterms planes) rendered at each
+ * used star's place as a step renders the table (its operators
+ * w->axes), *a = Σ ⟨Rn, A u⟩ and *b = Σ ‖A u‖²_W over the stars' boxes,
+ * summed in the stars' order.  Nonzero when out of memory. */
+int mp_epsf_sirt_update_sums(mp_epsf_sirt *w, const mp_epsf_star *s, size_t n,
+                             const mp_epsf *eu, double *a, double *b);
 
 /* mp_epsf_normalise: plane 0 to sum 1, the other planes to sum 0 (a
  * star's flux means the same everywhere), and the windowed centroid of

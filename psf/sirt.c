@@ -23,13 +23,16 @@ int mp_epsf_sirt_init(mp_epsf_sirt *w, const mp_epsf *e, size_t nstar, char *err
     w->G = malloc(nstar * w->nel * sizeof *w->G);
     w->H = malloc(nstar * w->nel * sizeof *w->H);
     w->R = malloc(nstar * w->nR * sizeof *w->R);
+    w->W = malloc(nstar * w->nR * sizeof *w->W);
+    w->noise_drop = NAN;
     w->geo = malloc(6 * (nstar + 1) * sizeof *w->geo);
     w->chi2s = malloc((nstar + 1) * sizeof *w->chi2s);
+    w->npix = malloc((nstar + 1) * sizeof *w->npix);
     w->axes = calloc(nstar + 1, sizeof *w->axes);
     w->tmp = malloc(w->nel * sizeof *w->tmp);
     w->mask = calloc(nstar * w->nel + 1, 1);
-    if (!w->G || !w->H || !w->R || !w->geo || !w->chi2s || !w->axes || !w->tmp ||
-        !w->mask) {
+    if (!w->G || !w->H || !w->R || !w->W || !w->geo || !w->chi2s || !w->npix || !w->axes ||
+        !w->tmp || !w->mask) {
         mp_epsf_sirt_free(w);
         snprintf(err, MP_ERRLEN, "psf build: out of memory");
         return 1;
@@ -42,8 +45,11 @@ void mp_epsf_sirt_free(mp_epsf_sirt *w)
     free(w->G);
     free(w->H);
     free(w->R);
+    free(w->W);
+    free(w->Rn);
     free(w->geo);
     free(w->chi2s);
+    free(w->npix);
     for (size_t k = 0; w->axes && k < w->nstar; k++) {
         mp_prf_work own = {0};
         own.axes = w->axes[k];
@@ -92,7 +98,8 @@ static void axis_of(int n, int os, double x, long *n0, double *delta)
  * until a step is taken: the pass that ends a run is read only for its
  * χ².  1 when out of memory. */
 static int backproject(scratch *w, const mp_epsf_star *s, const mp_epsf *e, double psfrad,
-                       double *R, double *geo, float *H, double *chi2)
+                       double *R, double *Wp, double *geo, float *H, double *chi2,
+                       double *npix)
 {
     char err[MP_ERRLEN];
     if (!(w->tab0 && e->nterms == 1) && mp_epsf_table(e, s->x, s->y, &w->tab, err))
@@ -123,8 +130,10 @@ static int backproject(scratch *w, const mp_epsf_star *s, const mp_epsf *e, doub
     memcpy(geo, g, sizeof g);
     size_t nel = (size_t)nx * ny;
     memset(R, 0, nb * sizeof *R);
+    memset(Wp, 0, nb * sizeof *Wp);
     memset(H, 0, nel * sizeof *H);
     *chi2 = 0.0;
+    *npix = 0.0;
     const mp_frame *f = &s->f;
     double ron2 = fmax(f->rdnoise * f->rdnoise, 1e-2), F = s->flux, sky = fmax(s->sky, 0.0);
     for (int j = 0; j < bh; j++) {
@@ -144,6 +153,8 @@ static int backproject(scratch *w, const mp_epsf_star *s, const mp_epsf *e, doub
             double W = F * F / var, rho = r / F;
             *chi2 += r * r / var;
             R[(size_t)j * bw + i] = W * rho;
+            Wp[(size_t)j * bw + i] = W;
+            *npix += 1.0;
             for (int sy = 0; sy < os; sy++) {
                 long my = os * (py - 1) + sy + n0y;
                 if (my < 0 || my >= ny)
@@ -200,8 +211,9 @@ static int stars_pass(mp_epsf_sirt *w, const mp_epsf_star *s, size_t n, const mp
             if (project)
                 failed = projected(&c, e, w->R + k * w->nR, w->geo + 6 * k, w->G + k * nel);
             else
-                failed = backproject(&c, &s[k], e, psfrad, w->R + k * w->nR, w->geo + 6 * k,
-                                     w->H + k * nel, &w->chi2s[k]);
+                failed = backproject(&c, &s[k], e, psfrad, w->R + k * w->nR, w->W + k * w->nR,
+                                     w->geo + 6 * k, w->H + k * nel, &w->chi2s[k],
+                                     &w->npix[k]);
             w->axes[k] = c.pw.axes;
             c.pw.axes = NULL;
         }
@@ -505,7 +517,7 @@ static int combine_few(const mp_epsf_sirt *w, const mp_epsf_star *s, size_t n,
  * parallel by blocks of elements, and the ridge it is solved with; 1 when
  * out of memory. */
 static int combine_elements(mp_epsf_sirt *w, const mp_epsf_star *s, size_t n, const mp_epsf *e,
-                            const double *terms, double rmax, double rcore, double *upd)
+                            const double *terms, double rmax, double rcore, int hits, double *upd)
 {
     size_t nel = w->nel, nblk = (nel + ELEM_BLOCK - 1) / ELEM_BLOCK;
     int nt = e->nterms, failed = 0;
@@ -555,7 +567,8 @@ static int combine_elements(mp_epsf_sirt *w, const mp_epsf_star *s, size_t n, co
                 if (!mp_within(dx, dy, rmax))
                     continue;
                 double c[MP_EPSF_MAXT];
-                combine_element(w, el, &b, i, terms, nt, idx, dev, c, !mp_within(dx, dy, rcore));
+                combine_element(w, el, &b, i, terms, nt, idx, dev, c,
+                                hits && !mp_within(dx, dy, rcore));
                 for (int t = 0; t < nt; t++)
                     upd[(size_t)t * nel + el] = c[t];
             }
@@ -570,37 +583,145 @@ static int combine_elements(mp_epsf_sirt *w, const mp_epsf_star *s, size_t n, co
     return failed;
 }
 
+/* A run's constants (mp_epsf_sirt_run, mp_epsf_sirt_noise): each star's
+ * polynomial terms, room for a step's update, the disc of elements a step
+ * moves (rmax, in elements; those beyond are zeroed) and how many values
+ * it holds, the core within which no hit is flagged, the step size. */
+typedef struct {
+    double *terms, *upd;
+    double rmax, rcore, nfree, step;
+} run_consts;
+
+static void run_end(run_consts *c)
+{
+    free(c->terms);
+    free(c->upd);
+}
+
+/* run_consts of a run on e's planes (its elements beyond rmax zeroed);
+ * 1 with err when out of memory. */
+static int run_start(const mp_epsf_star *s, size_t n, const mp_epsf_opts *o, mp_epsf *e,
+                     run_consts *c, char *err)
+{
+    int nt = e->nterms;
+    size_t nel = (size_t)e->nx * e->ny;
+    c->terms = malloc(n * MP_EPSF_MAXT * sizeof *c->terms);
+    c->upd = malloc((size_t)nt * nel * sizeof *c->upd);
+    if (!c->terms || !c->upd) {
+        run_end(c);
+        snprintf(err, MP_ERRLEN, "psf build: out of memory");
+        return 1;
+    }
+    for (size_t k = 0; k < n; k++)
+        mp_epsf_terms(e, s[k].x, s[k].y, c->terms + k * MP_EPSF_MAXT);
+    /* Elements beyond psfrad (less the half pixel a block reaches) hold
+     * nothing: the table is defined on the disc its stars' pixels cover,
+     * the light beyond is PSFSUM's (growth.c); so do those beyond the
+     * support (mp_epsf_opts), which mp_epsf_normalise zeroes. */
+    c->rmax = (o->psfrad - 0.5) * e->os;
+    if (o->support > 0 && o->support * e->os < c->rmax)
+        c->rmax = o->support * e->os;
+    /* Neighbours are masked beyond the core only: within a FWHM every
+     * star's own fit (its centre's error) varies from star to star. */
+    c->rcore = o->fwhm * e->os;
+    c->nfree = 0.0;
+    for (int j = 0; j < e->ny; j++)
+        for (int i = 0; i < e->nx; i++) {
+            if (hypot(i - (e->nx - 1) / 2, j - (e->ny - 1) / 2) <= c->rmax) {
+                c->nfree += nt;
+                continue;
+            }
+            for (int t = 0; t < nt; t++)
+                e->planes[(size_t)t * nel + (size_t)j * e->nx + i] = 0.0;
+        }
+    c->step = 1.0 / ((double)e->os * e->os);
+    return 0;
+}
+
+/* The χ² drop a step takes from pure noise, into w->noise_drop: the
+ * step (the stars' back-projection, the clipped combination, the null
+ * filter) made from a draw of noise on the stars' weights, and the drop
+ * 2s⟨Rn, A u⟩ − s²‖A u‖²_W that step u of size s makes on that draw.  A
+ * step whose drop on the data is no larger fits only noise: its
+ * direction is made from the data, so it lowers χ² by more than the one
+ * a single parameter fitted to noise would.  1 when out of memory. */
+static int noise_drop(mp_epsf_sirt *w, const mp_epsf_star *s, size_t n, const mp_epsf *e,
+                      const run_consts *c)
+{
+    if (!w->Rn && !(w->Rn = malloc(w->nstar * w->nR * sizeof *w->Rn)))
+        return 1;
+    mp_epsf_sirt_noise_draw(w, s, n);
+    double *R = w->R;
+    w->R = w->Rn;
+    int failed = stars_pass(w, s, n, e, 0.0, 1);
+    w->R = R;
+    double *upd = c->upd;
+    if (failed || combine_elements(w, s, n, e, c->terms, c->rmax, c->rcore, 0, upd))
+        return 1;
+    for (int t = 0; t < e->nterms; t++)
+        null_filter(upd + (size_t)t * w->nel, e->nx, e->ny, e->os, w->tmp);
+    mp_epsf eu = *e;
+    eu.planes = upd;
+    double a, b;
+    if (mp_epsf_sirt_update_sums(w, s, n, &eu, &a, &b))
+        return 1;
+    w->noise_drop = 2.0 * c->step * a - c->step * c->step * b;
+    return 0;
+}
+
+/* The least χ² drop that takes the step after step it (drop: the last
+ * step's): one, or pure noise's (noise_drop) where a draw of it could
+ * reach the drop.  A draw's drop is at most the part of its χ² (Σ z²,
+ * z ~ N(0, 1)) that the best change of the table's elements removes, a
+ * χ² of as many degrees of freedom as the fewer of the stars' pixels
+ * with weight and the elements' values (q): a drop above q + 5√(2q)
+ * needs no draw.  Below, it is drawn on this round's stars and weights,
+ * unless the drop is twice the last round's draw: from round to round
+ * that moved by 17 % at most (frames S and X, their PSF built).  1 when
+ * out of memory. */
+static int step_floor(mp_epsf_sirt *w, const mp_epsf_star *s, size_t n, const mp_epsf *e,
+                      const run_consts *c, double drop, double *floor)
+{
+    *floor = 1.0;
+    double q = 0.0;
+    for (size_t k = 0; k < n; k++)
+        q += s[k].used ? w->npix[k] : 0.0;
+    q = fmin(q, c->nfree);
+    if (!(drop >= 1.0) || drop >= q + 5.0 * sqrt(2.0 * q))
+        return 0;
+    if (!w->noise_fresh && !(drop >= 2.0 * w->noise_drop)) {
+        if (noise_drop(w, s, n, e, c))
+            return 1;
+        w->noise_fresh = 1;
+    }
+    *floor = fmax(1.0, w->noise_drop);
+    return 0;
+}
+
+int mp_epsf_sirt_noise(mp_epsf_sirt *w, const mp_epsf_star *s, size_t n, const mp_epsf_opts *o,
+                       mp_epsf *e, char *err)
+{
+    run_consts c;
+    if (run_start(s, n, o, e, &c, err))
+        return 1;
+    int rc = stars_pass(w, s, n, e, o->psfrad, 0) || noise_drop(w, s, n, e, &c);
+    if (rc)
+        snprintf(err, MP_ERRLEN, "psf build: out of memory");
+    run_end(&c);
+    return rc;
+}
+
 int mp_epsf_sirt_run(mp_epsf_sirt *w, const mp_epsf_star *s, size_t n, const mp_epsf_opts *o,
                      mp_epsf *e, char *err)
 {
     int nt = e->nterms, rc = 1;
     size_t nel = w->nel;
-    double *terms = malloc(n * MP_EPSF_MAXT * sizeof *terms);
-    double *upd = malloc((size_t)nt * nel * sizeof *upd);
-    if (!terms || !upd) {
-        snprintf(err, MP_ERRLEN, "psf build: out of memory");
-        goto done;
-    }
-    for (size_t k = 0; k < n; k++)
-        mp_epsf_terms(e, s[k].x, s[k].y, terms + k * MP_EPSF_MAXT);
-    /* Elements beyond psfrad (less the half pixel a block reaches) hold
-     * nothing: the table is defined on the disc its stars' pixels cover,
-     * the light beyond is PSFSUM's (growth.c); so do those beyond the
-     * support (mp_epsf_opts), which mp_epsf_normalise zeroes. */
-    double rmax = (o->psfrad - 0.5) * e->os;
-    if (o->support > 0 && o->support * e->os < rmax)
-        rmax = o->support * e->os;
-    /* Neighbours are masked beyond the core only: within a FWHM every
-     * star's own fit (its centre's error) varies from star to star. */
-    double rcore = o->fwhm * e->os;
-    for (int j = 0; j < e->ny; j++)
-        for (int i = 0; i < e->nx; i++)
-            if (hypot(i - (e->nx - 1) / 2, j - (e->ny - 1) / 2) > rmax)
-                for (int t = 0; t < nt; t++)
-                    e->planes[(size_t)t * nel + (size_t)j * e->nx + i] = 0.0;
+    run_consts c;
+    if (run_start(s, n, o, e, &c, err))
+        return 1;
     double prev = INFINITY;
-    double step = 1.0 / ((double)e->os * e->os);
     w->steps = 0;
+    w->noise_fresh = 0;
     for (int it = 0; it <= o->sirt; it++) {
         if (stars_pass(w, s, n, e, o->psfrad, 0)) {
             snprintf(err, MP_ERRLEN, "psf build: out of memory");
@@ -610,29 +731,35 @@ int mp_epsf_sirt_run(mp_epsf_sirt *w, const mp_epsf_star *s, size_t n, const mp_
         for (size_t k = 0; k < n; k++)
             chi2 += s[k].used ? w->chi2s[k] : 0.0;
         w->chi2 = chi2;
-        /* A step that no longer lowers χ² by one fits only noise. */
-        if (it == o->sirt || prev - chi2 < 1.0)
+        /* A step that no longer lowers χ² by more than pure noise's
+         * (step_floor) fits only noise. */
+        double floor = 1.0;
+        if (it > 0 && it < o->sirt && step_floor(w, s, n, e, &c, prev - chi2, &floor)) {
+            snprintf(err, MP_ERRLEN, "psf build: out of memory");
+            goto done;
+        }
+        if (it == o->sirt || prev - chi2 < floor)
             break;
         prev = chi2;
         if (stars_pass(w, s, n, e, o->psfrad, 1)) {
             snprintf(err, MP_ERRLEN, "psf build: out of memory");
             goto done;
         }
-        if (combine_elements(w, s, n, e, terms, rmax, rcore, upd) ||
+        if (combine_elements(w, s, n, e, c.terms, c.rmax, c.rcore, 1, c.upd) ||
             mp_epsf_sirt_dilate(w, e, n, 0.75 * o->fwhm * e->os)) {
             snprintf(err, MP_ERRLEN, "psf build: out of memory");
             goto done;
         }
         for (int t = 0; t < nt; t++) {
-            null_filter(upd + (size_t)t * nel, e->nx, e->ny, e->os, w->tmp);
+            double *u = c.upd + (size_t)t * nel;
+            null_filter(u, e->nx, e->ny, e->os, w->tmp);
             for (size_t el = 0; el < nel; el++)
-                e->planes[(size_t)t * nel + el] += step * upd[(size_t)t * nel + el];
+                e->planes[(size_t)t * nel + el] += c.step * u[el];
         }
         w->steps++;
     }
     rc = 0;
 done:
-    free(terms);
-    free(upd);
+    run_end(&c);
     return rc;
 }

@@ -640,6 +640,80 @@ static void test_order_test_false_raise(void **state)
     free(f.mask);
 }
 
+/* One SIRT step from the table the frame was drawn with fits only noise,
+ * and the floor of mp_epsf_sirt_run's stop is the drop such a step
+ * takes (sirt.c step_floor): over NTRIAL frames drawn with the fit's
+ * own renderer from one table (drawn_stars: the table exactly right, each
+ * star at its true place, flux and sky), the χ² drop D of one step from
+ * that table and the drop Δ of the same step made from a draw of pure
+ * noise on the stars' weights (mp_epsf_sirt_noise) are draws of one law,
+ * so their means agree within 4.5 σ of the difference, σ² = (s²_D +
+ * s²_Δ)/NTRIAL from the samples' spreads (a t of 2·NTRIAL − 2 = 38 dof:
+ * false failure 6e-5).  A floor of one step's 2s⟨g, u⟩ alone (its
+ * second-order term left out) or of a single parameter's drop (one)
+ * fails it.  From that table a build's run stops at its first check
+ * that its step is no larger than the floor (the drop of the step after
+ * the first is a fraction of it); the old floor of one ran on. */
+static void test_noise_drop_is_a_noise_step(void **state)
+{
+    (void)state;
+    enum { NTRIAL = 20, NS = 48 };
+    const double rad = 6.0;
+    char err[MP_ERRLEN];
+    mp_psf g;
+    assert_int_equal(mp_psf_gauss_table(2.6, BOS, rad, &g, err), 0);
+    size_t nel = (size_t)g.nx * g.ny;
+    mp_frame f;
+    blank_frame(&f);
+    mp_prf_model m = {&g, NULL, 10};
+    mp_epsf_opts o = test_opts(rad);
+    double sd = 0, sd2 = 0, sn = 0, sn2 = 0;
+    int steps = 0, most = 0;
+    for (int t = 0; t < NTRIAL; t++) {
+        mp_epsf_star *s = drawn_stars(&f, &m, NULL, 7000 + (uint64_t)t, NS, rad);
+        mp_epsf e0 = order0_of(&g), e;
+        mp_epsf_sirt w;
+        double c[3];
+        for (int run = 0; run < 3; run++) {
+            assert_int_equal(mp_epsf_copy(&e0, &e), 0);
+            assert_int_equal(mp_epsf_sirt_init(&w, &e, NS, err), 0);
+            if (run == 2) {
+                assert_int_equal(mp_epsf_sirt_noise(&w, s, NS, &o, &e, err), 0);
+                c[2] = w.noise_drop;
+            } else {
+                o.sirt = run;           /* no step: χ² of the table; one step */
+                assert_int_equal(mp_epsf_sirt_run(&w, s, NS, &o, &e, err), 0);
+                c[run] = w.chi2;
+            }
+            mp_epsf_sirt_free(&w);
+            mp_epsf_free(&e);
+        }
+        double d = c[0] - c[1];
+        sd += d, sd2 += d * d, sn += c[2], sn2 += c[2] * c[2];
+        assert_int_equal(mp_epsf_copy(&e0, &e), 0);
+        assert_int_equal(mp_epsf_sirt_init(&w, &e, NS, err), 0);
+        o.sirt = 30;
+        assert_int_equal(mp_epsf_sirt_run(&w, s, NS, &o, &e, err), 0);
+        steps += w.steps;
+        most = w.steps > most ? w.steps : most;
+        mp_epsf_sirt_free(&w);
+        mp_epsf_free(&e);
+        mp_epsf_stars_free(s, NS);
+    }
+    double md = sd / NTRIAL, mn = sn / NTRIAL;
+    double vd = (sd2 - NTRIAL * md * md) / (NTRIAL - 1);
+    double vn = (sn2 - NTRIAL * mn * mn) / (NTRIAL - 1);
+    double sig = sqrt((vd + vn) / NTRIAL);
+    printf("# one step from the true table, %d frames of %d stars (%zu elements): drop %.1f +- "
+           "%.1f, pure noise's %.1f +- %.1f; runs from it: %.2f steps, at most %d\n", NTRIAL, NS,
+           nel, md, sqrt(vd), mn, sqrt(vn), (double)steps / NTRIAL, most);
+    assert_true(fabs(md - mn) <= 4.5 * sig);
+    assert_true(most <= 2);
+    mp_psf_free(&g);
+    free(f.im.pix);
+    free(f.mask);
+}
+
 /* The permuted null (psf/varorder.c): every star drawn with one of two
  * tables at random (FWHM 2.45 or 2.75 px), fitted with the one between
  * (2.6), so each star's misfit is coherent over its pixels but does not
@@ -1417,6 +1491,7 @@ int main(void)
         cmocka_unit_test(test_cubic_variation),
         cmocka_unit_test(test_quadratic_and_star_count),
         cmocka_unit_test(test_order_test_false_raise),
+        cmocka_unit_test(test_noise_drop_is_a_noise_step),
         cmocka_unit_test(test_cutout_add_reads_field_at_star),
         cmocka_unit_test(test_order_test_permuted_null),
         cmocka_unit_test(test_neighbours_fitted),
