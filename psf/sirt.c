@@ -638,6 +638,20 @@ static int run_start(const mp_epsf_star *s, size_t n, const mp_epsf_opts *o, mp_
     return 0;
 }
 
+/* A step's update into c->upd from the stars' G (their residuals
+ * projected): the clipped combination (hits: flag the stars above the
+ * clip for the next step's mask) and the null filter, the same for the
+ * data's steps and noise_drop's draw.  1 when out of memory. */
+static int step_update(mp_epsf_sirt *w, const mp_epsf_star *s, size_t n, const mp_epsf *e,
+                       const run_consts *c, int hits)
+{
+    if (combine_elements(w, s, n, e, c->terms, c->rmax, c->rcore, hits, c->upd))
+        return 1;
+    for (int t = 0; t < e->nterms; t++)
+        null_filter(c->upd + (size_t)t * w->nel, e->nx, e->ny, e->os, w->tmp);
+    return 0;
+}
+
 /* The χ² drop a step takes from pure noise, into w->noise_drop: the
  * step (the stars' back-projection, the clipped combination, the null
  * filter) made from a draw of noise on the stars' weights, and the drop
@@ -655,13 +669,10 @@ static int noise_drop(mp_epsf_sirt *w, const mp_epsf_star *s, size_t n, const mp
     w->R = w->Rn;
     int failed = stars_pass(w, s, n, e, 0.0, 1);
     w->R = R;
-    double *upd = c->upd;
-    if (failed || combine_elements(w, s, n, e, c->terms, c->rmax, c->rcore, 0, upd))
+    if (failed || step_update(w, s, n, e, c, 0))
         return 1;
-    for (int t = 0; t < e->nterms; t++)
-        null_filter(upd + (size_t)t * w->nel, e->nx, e->ny, e->os, w->tmp);
     mp_epsf eu = *e;
-    eu.planes = upd;
+    eu.planes = c->upd;
     double a, b;
     if (mp_epsf_sirt_update_sums(w, s, n, &eu, &a, &b))
         return 1;
@@ -745,17 +756,13 @@ int mp_epsf_sirt_run(mp_epsf_sirt *w, const mp_epsf_star *s, size_t n, const mp_
             snprintf(err, MP_ERRLEN, "psf build: out of memory");
             goto done;
         }
-        if (combine_elements(w, s, n, e, c.terms, c.rmax, c.rcore, 1, c.upd) ||
+        if (step_update(w, s, n, e, &c, 1) ||
             mp_epsf_sirt_dilate(w, e, n, 0.75 * o->fwhm * e->os)) {
             snprintf(err, MP_ERRLEN, "psf build: out of memory");
             goto done;
         }
-        for (int t = 0; t < nt; t++) {
-            double *u = c.upd + (size_t)t * nel;
-            null_filter(u, e->nx, e->ny, e->os, w->tmp);
-            for (size_t el = 0; el < nel; el++)
-                e->planes[(size_t)t * nel + el] += c.step * u[el];
-        }
+        for (size_t i = 0; i < (size_t)nt * nel; i++)
+            e->planes[i] += c.step * c.upd[i];
         w->steps++;
     }
     rc = 0;
