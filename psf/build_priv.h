@@ -130,6 +130,15 @@ void mp_epsf_sirt_free(mp_epsf_sirt *w);
 int mp_epsf_sirt_run(mp_epsf_sirt *w, const mp_epsf_star *s, size_t n, const mp_epsf_opts *o,
                      mp_epsf *e, char *err);
 
+/* mp_epsf_sirt_floor: the least χ² drop (into *floor) that is more than
+ * noise after a drop of drop, by mp_epsf_sirt_run's own rule: one, or
+ * what a step made from pure noise of the stars' weights lowers χ² by
+ * (w->noise_drop: the run's draw, drawn now where it could decide).  For
+ * a round of the build (mp_epsf_rounds) after its run.  Nonzero with err
+ * when out of memory. */
+int mp_epsf_sirt_floor(mp_epsf_sirt *w, const mp_epsf_star *s, size_t n, const mp_epsf_opts *o,
+                       const mp_epsf *e, double drop, double *floor, char *err);
+
 /* mp_epsf_sirt_noise: the χ² drop a step from e would take from pure
  * noise of the used stars' weights at their current fits, into
  * w->noise_drop: a draw of that noise (mp_epsf_sirt_noise_draw), the step

@@ -330,12 +330,19 @@ int mp_epsf_rounds(mp_epsf_star *s, size_t n, const mp_epsf_opts *o, int os, int
         mp_epsf_normalise(e, o->fwhm, o->support);
         /* The SIRT's own rule, one level up: once the stars' clip has run,
          * a round of fits and steps that no longer lowers the χ² of the
-         * stars it kept by one fits only noise.  From a Gaussian that is
+         * stars it kept by more than a step made from pure noise would
+         * (mp_epsf_sirt_floor) fits only noise.  From a Gaussian that is
          * tested from round 2 on (against round 1, whose neighbours were
          * fitted), from a table already made from round 1 (against round
-         * 0, held as well): such a build mostly stops there. */
-        double drop = mp_epsf_common_drop(s, n, w.chi2s, last);
-        if (it >= stop_from && !(drop >= 1.0))
+         * 0, held as well): such a build mostly stops there.  Against one
+         * (the floor before 2026-12-05), a build from the table its stars
+         * were drawn with ran every round to o->outer: a round's drop on
+         * noise, 6-29, never falls below one (test_psf_build's
+         * test_rounds_stop_on_noise). */
+        double drop = mp_epsf_common_drop(s, n, w.chi2s, last), floor = 1.0;
+        if (it >= stop_from && mp_epsf_sirt_floor(&w, s, n, o, e, drop, &floor, err))
+            goto done;
+        if (it >= stop_from && !(drop >= floor))
             break;
     }
     e->filtered = 0;

@@ -598,10 +598,18 @@ static void run_end(run_consts *c)
     free(c->upd);
 }
 
-/* run_consts of a run on e's planes (its elements beyond rmax zeroed);
- * 1 with err when out of memory. */
-static int run_start(const mp_epsf_star *s, size_t n, const mp_epsf_opts *o, mp_epsf *e,
-                     run_consts *c, char *err)
+/* Whether element (i, j) of e lies on the disc of radius rmax elements
+ * about the table's centre. */
+static int on_disc(const mp_epsf *e, int i, int j, double rmax)
+{
+    return hypot(i - (e->nx - 1) / 2, j - (e->ny - 1) / 2) <= rmax;
+}
+
+/* run_consts of a run on e's planes, e as it is (mp_epsf_sirt_floor: a
+ * round's floor leaves the table alone); 1 with err when out of
+ * memory. */
+static int run_consts_of(const mp_epsf_star *s, size_t n, const mp_epsf_opts *o,
+                         const mp_epsf *e, run_consts *c, char *err)
 {
     int nt = e->nterms;
     size_t nel = (size_t)e->nx * e->ny;
@@ -626,15 +634,24 @@ static int run_start(const mp_epsf_star *s, size_t n, const mp_epsf_opts *o, mp_
     c->rcore = o->fwhm * e->os;
     c->nfree = 0.0;
     for (int j = 0; j < e->ny; j++)
-        for (int i = 0; i < e->nx; i++) {
-            if (hypot(i - (e->nx - 1) / 2, j - (e->ny - 1) / 2) <= c->rmax) {
-                c->nfree += nt;
-                continue;
-            }
-            for (int t = 0; t < nt; t++)
-                e->planes[(size_t)t * nel + (size_t)j * e->nx + i] = 0.0;
-        }
+        for (int i = 0; i < e->nx; i++)
+            c->nfree += on_disc(e, i, j, c->rmax) ? nt : 0;
     c->step = 1.0 / ((double)e->os * e->os);
+    return 0;
+}
+
+/* run_consts of a run on e's planes, its elements beyond rmax zeroed. */
+static int run_start(const mp_epsf_star *s, size_t n, const mp_epsf_opts *o, mp_epsf *e,
+                     run_consts *c, char *err)
+{
+    if (run_consts_of(s, n, o, e, c, err))
+        return 1;
+    size_t nel = (size_t)e->nx * e->ny;
+    for (int j = 0; j < e->ny; j++)
+        for (int i = 0; i < e->nx; i++)
+            if (!on_disc(e, i, j, c->rmax))
+                for (int t = 0; t < e->nterms; t++)
+                    e->planes[(size_t)t * nel + (size_t)j * e->nx + i] = 0.0;
     return 0;
 }
 
@@ -707,6 +724,19 @@ static int step_floor(mp_epsf_sirt *w, const mp_epsf_star *s, size_t n, const mp
     }
     *floor = fmax(1.0, w->noise_drop);
     return 0;
+}
+
+int mp_epsf_sirt_floor(mp_epsf_sirt *w, const mp_epsf_star *s, size_t n, const mp_epsf_opts *o,
+                       const mp_epsf *e, double drop, double *floor, char *err)
+{
+    run_consts c;
+    if (run_consts_of(s, n, o, e, &c, err))
+        return 1;
+    int rc = step_floor(w, s, n, e, &c, drop, floor);
+    if (rc)
+        snprintf(err, MP_ERRLEN, "psf build: out of memory");
+    run_end(&c);
+    return rc;
 }
 
 int mp_epsf_sirt_noise(mp_epsf_sirt *w, const mp_epsf_star *s, size_t n, const mp_epsf_opts *o,

@@ -7,6 +7,7 @@
  * position on its grid (no fitter code), Poisson + read noise, fixed
  * seeds.  The build runs at ×2; the truth at ×2 is the ×6 table
  * block-summed by 3 (odd: exact, star still centred). */
+#include <limits.h>
 #include <math.h>
 #include <setjmp.h>
 #include <stdarg.h>
@@ -710,6 +711,57 @@ static void test_noise_drop_is_a_noise_step(void **state)
     assert_true(fabs(md - mn) <= 4.5 * sig);
     assert_true(most <= 2);
     mp_psf_free(&g);
+    free(f.im.pix);
+    free(f.mask);
+}
+
+/* A build's rounds stop once a round fits only noise (epsf_build.c
+ * mp_epsf_rounds, its floor mp_epsf_sirt_floor): over NTRIAL frames drawn
+ * with the fit's own renderer from one table, a build started from that
+ * table (nothing left to learn) ends at its first round that may end it,
+ * round 1, in every frame: its drop (6-29 measured) lies far below a
+ * noise step's floor (65-110), so the chance that any of the 20 runs on
+ * is negligible.  Under the old floor of one every run went on to
+ * o->outer (5) rounds.  Started from a table too narrow (FWHM 2.3 for
+ * 2.6), the rounds do go on: round 1 still lowers χ² by far more than
+ * noise would (the second half of the test), so the rule does not stop
+ * a build that is still learning. */
+static void test_rounds_stop_on_noise(void **state)
+{
+    (void)state;
+    enum { NTRIAL = 20, NS = 48 };
+    const double rad = 6.0;
+    char err[MP_ERRLEN];
+    mp_psf g, gn;
+    assert_int_equal(mp_psf_gauss_table(2.6, BOS, rad, &g, err), 0);
+    assert_int_equal(mp_psf_gauss_table(2.3, BOS, rad, &gn, err), 0);
+    mp_frame f;
+    blank_frame(&f);
+    mp_prf_model m = {&g, NULL, 10};
+    mp_epsf_opts o = test_opts(rad);
+    long most = 0, least = LONG_MAX;
+    for (int t = 0; t < NTRIAL; t++) {
+        mp_epsf_star *s = drawn_stars(&f, &m, NULL, 7000 + (uint64_t)t, NS, rad);
+        for (int wrong = 0; wrong < 2; wrong++) {
+            mp_epsf e0 = order0_of(wrong ? &gn : &g), e;
+            assert_int_equal(mp_epsf_copy(&e0, &e), 0);
+            e.fits = 0;
+            assert_int_equal(mp_epsf_rounds(s, NS, &o, BOS, 0, &e, err), 0);
+            if (wrong)      /* fits: NS a round, less those clipped */
+                least = e.fits < least ? e.fits : least;
+            else
+                most = e.fits > most ? e.fits : most;
+            mp_epsf_free(&e);
+        }
+        mp_epsf_stars_free(s, NS);
+    }
+    printf("# rounds of a build from the true table, %d frames of %d stars: star fits at most "
+           "%ld (two rounds: %d); from a table too narrow at least %ld\n", NTRIAL, NS, most,
+           2 * NS, least);
+    assert_true(most <= 2 * NS);
+    assert_true(least > 2 * NS);
+    mp_psf_free(&g);
+    mp_psf_free(&gn);
     free(f.im.pix);
     free(f.mask);
 }
@@ -1492,6 +1544,7 @@ int main(void)
         cmocka_unit_test(test_quadratic_and_star_count),
         cmocka_unit_test(test_order_test_false_raise),
         cmocka_unit_test(test_noise_drop_is_a_noise_step),
+        cmocka_unit_test(test_rounds_stop_on_noise),
         cmocka_unit_test(test_cutout_add_reads_field_at_star),
         cmocka_unit_test(test_order_test_permuted_null),
         cmocka_unit_test(test_neighbours_fitted),
