@@ -142,8 +142,9 @@ static int has_err_ext(const char *name)
 
 /* The error plane's variance beyond the Poisson noise and RON² (io.h,
  * mp_frame.xvar), after the pixels are in electrons and masked.  An
- * infinite or NaN error (cfitsio reads an IEEE infinity as NaN) is no
- * weight: the pixel is masked bad. */
+ * infinite or NaN error (cfitsio reads an IEEE infinity as NaN), or one
+ * whose variance overflows a float, is no weight: the pixel is masked
+ * bad. */
 static int apply_err(const char *name, const mp_datapars *dp, mp_frame *f, char *err)
 {
     mp_image e;
@@ -159,18 +160,18 @@ static int apply_err(const char *name, const mp_datapars *dp, mp_frame *f, char 
         f->xvar[i] = 0.0f;
         if (f->mask[i] & MP_MASK_BAD)
             continue;
+        double x = s * s - (d > 0 ? d : 0.0) - ron2;
         if (s < 0) {
             snprintf(err, MP_ERRLEN, "errplane: %.400s: pixel (%ld, %ld) holds %g, not an error >= 0",
                      dp->errplane, (long)(i % (size_t)f->im.nx) + 1,
                      (long)(i / (size_t)f->im.nx) + 1, e.pix[i]);
             rc = 1;
-        } else if (!isfinite(s)) {
+        } else if (!isfinite((float)x)) {   /* also a variance beyond a float's range */
             f->nsat -= (f->mask[i] & MP_MASK_SATURATED) != 0;
             f->mask[i] = MP_MASK_BAD;
             f->im.pix[i] = 0.0;
             f->nbad++;
         } else {
-            double x = s * s - (d > 0 ? d : 0.0) - ron2;
             f->xvar[i] = x > 0 ? (float)x : 0.0f;
         }
     }
@@ -320,9 +321,10 @@ static int resolve_datapars(const char *name, const mp_datapars *dp, mp_frame *f
     return 0;
 }
 
-/* The mask: the DQ plane's flags, non-finite pixels bad (and zero), the
- * pixels at SATURATE (judged in ADU, as it is given) saturated, grown
- * along bleeds and around; the pixels scaled to electrons. */
+/* The mask: the DQ plane's flags, non-finite pixels bad (and zero; so are
+ * those whose electrons overflow a float), the pixels at SATURATE (judged
+ * in ADU, as it is given) saturated, grown along bleeds and around; the
+ * pixels scaled to electrons. */
 static int mask_pixels(const char *name, const mp_datapars *dp, mp_frame *f, char *err)
 {
     size_t n = (size_t)f->im.nx * (size_t)f->im.ny;
@@ -339,7 +341,8 @@ static int mask_pixels(const char *name, const mp_datapars *dp, mp_frame *f, cha
 #pragma omp parallel for schedule(static) reduction(+ : nbad, nsat) if (n > 65536)
     for (size_t i = 0; i < n; i++) {
         double adu = f->im.pix[i];
-        if (!isfinite(adu) || (f->mask[i] & MP_MASK_BAD)) {
+        /* a value whose electrons a float cannot hold is no number either */
+        if (!isfinite((float)(adu * f->gain)) || (f->mask[i] & MP_MASK_BAD)) {
             f->mask[i] = MP_MASK_BAD;
             f->im.pix[i] = 0.0;
             nbad++;

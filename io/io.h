@@ -179,7 +179,9 @@ typedef struct {
  * mp_image_read, plus non-positive gain, negative read noise, and for
  * dqmask/errplane an image of another size, and in the error plane a
  * negative value on a pixel that is not masked (an infinite or NaN
- * error masks the pixel as bad). */
+ * error masks the pixel as bad).  A pixel whose value, or whose error
+ * plane's variance, in electrons overflows a float is masked bad too, as
+ * a NaN is. */
 int mp_frame_read(const char *name, const mp_datapars *dp, mp_frame *f, char *err);
 void mp_frame_free(mp_frame *f);
 

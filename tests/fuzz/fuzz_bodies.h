@@ -189,11 +189,12 @@ static inline int fuzz_table_body(const uint8_t *data, size_t size)
     return 0;
 }
 
-/* ---- PSF and DRF files (mp_psf_read, mp_drf_read) ------------------------- */
+/* ---- PSF, kernel and DRF files (mp_psf_read, mp_psf_kernel_read, mp_drf_read) */
 
 /* The bytes as a FITS file read as a PSF table (with and without
- * normalisation) and as a DRF; a PSF that loads is rendered once at an
- * arbitrary position, which must give finite values. */
+ * normalisation), as a detector kernel (its image, and Tiny Tim's COMMENT
+ * cards) and as a DRF; a PSF that loads is rendered once at an arbitrary
+ * position, which must give finite values. */
 static inline int fuzz_psf_body(const uint8_t *data, size_t size)
 {
     char path[256], err[MP_ERRLEN] = "", warn[MP_ERRLEN] = "";
@@ -226,6 +227,22 @@ static inline int fuzz_psf_body(const uint8_t *data, size_t size)
             mp_prf_work_free(&work);
         }
         mp_psf_free(&p);
+    }
+    /* A detector kernel: Tiny Tim's COMMENT cards, or the image itself. */
+    for (int hdr = 0; hdr < 2; hdr++) {
+        mp_psf k;
+        err[0] = '\0';
+        if (mp_psf_kernel_read(hdr ? "header" : path, path, &k, err)) {
+            fuzz_check_err("mp_psf_kernel_read", err);
+            continue;
+        }
+        double sum = 0.0;
+        for (int i = 0; i < k.nx * k.ny; i++)
+            sum += k.t[i];
+        if (k.nx % 2 == 0 || k.ny % 2 == 0 || k.nx > 99 || k.ny > 99 || !(sum > 0) ||
+            !isfinite(sum))
+            fuzz_fail("mp_psf_kernel_read", "accepted a kernel it promises to refuse");
+        mp_psf_free(&k);
     }
     for (int os = 1; os <= 4; os++) {
         mp_drf d;
@@ -314,6 +331,75 @@ static inline int fuzz_psf_field_body(const uint8_t *data, size_t size)
         }
         free(st);
         mp_psf_field_free(&f);
+    }
+    unlink(path);
+    return 0;
+}
+
+/* ---- Frames (mp_frame_read) ----------------------------------------------- */
+
+/* What an accepted frame promises (io.h): positive finite gain, read noise
+ * >= 0, a mask whose counts are nbad and nsat, a bad pixel 0, every other
+ * pixel finite, and the error plane's extra variance finite and >= 0. */
+static inline void fuzz_frame_check(const mp_frame *f)
+{
+    if (f->im.nx < 1 || f->im.ny < 1 || !f->im.pix || !f->mask)
+        fuzz_fail("mp_frame_read", "accepted a frame without pixels or mask");
+    if (!(f->gain > 0) || !isfinite(f->gain) || !(f->rdnoise >= 0) || !isfinite(f->rdnoise))
+        fuzz_fail("mp_frame_read", "accepted a gain or read noise it promises to refuse");
+    size_t n = (size_t)f->im.nx * (size_t)f->im.ny;
+    long nbad = 0, nsat = 0;
+    for (size_t i = 0; i < n; i++) {
+        uint8_t m = f->mask[i];
+        nbad += (m & MP_MASK_BAD) != 0;
+        nsat += m == MP_MASK_SATURATED;
+        if ((m & MP_MASK_BAD) && f->im.pix[i] != 0.0f)
+            fuzz_fail("mp_frame_read", "a bad pixel that is not 0");
+        if (!isfinite(f->im.pix[i]))
+            fuzz_fail("mp_frame_read", "a pixel that is not finite");
+        if (f->xvar && !(f->xvar[i] >= 0.0f && isfinite(f->xvar[i])))
+            fuzz_fail("mp_frame_read", "an error plane's variance not finite and >= 0");
+    }
+    if (nbad != f->nbad || nsat != f->nsat)
+        fuzz_fail("mp_frame_read", "nbad or nsat is not the mask's count");
+}
+
+/* Read as a frame three ways: alone; with the DQ, ERR and growth options of
+ * an HST FLT (the DQ and ERR planes as extensions of the same file); and
+ * its first extension with the detector numbers given. */
+static inline int fuzz_frame_body(const uint8_t *data, size_t size)
+{
+    char path[256], name[300], err[MP_ERRLEN];
+    fuzz_tmp_path("frame", ".fits", path, sizeof path);
+    if (fuzz_write_file(path, data, size))
+        return 0;
+    for (int v = 0; v < 3; v++) {
+        mp_datapars dp = {NAN, NAN, NAN, NAN, "", 0, 0, 0, "", 0, 0};
+        snprintf(name, sizeof name, "%s%s", path, v == 2 ? "[1]" : "");
+        if (v == 1) {
+            snprintf(dp.dqmask, sizeof dp.dqmask, "[DQ]");
+            snprintf(dp.errplane, sizeof dp.errplane, "auto");
+            dp.dqsat = 256 | 2048;
+            dp.dqbad = 4 | 16 | 32 | 64 | 128 | 4096 | 8192;
+            dp.satgrow = 1;
+            dp.bleedgrow = 2;
+            dp.badgrow = 1;
+        } else if (v == 2) {
+            dp.gain = 2.5;
+            dp.rdnoise = 4.0;
+            dp.saturate = 1000.0;
+            snprintf(dp.dqmask, sizeof dp.dqmask, "[2]");
+            snprintf(dp.errplane, sizeof dp.errplane, "[3]");
+            dp.dqbad = 1;
+        }
+        mp_frame f;
+        err[0] = '\0';
+        if (mp_frame_read(name, &dp, &f, err)) {
+            fuzz_check_err("mp_frame_read", err);
+            continue;
+        }
+        fuzz_frame_check(&f);
+        mp_frame_free(&f);
     }
     unlink(path);
     return 0;

@@ -574,6 +574,7 @@ static void test_frame_err(void **state)
     e[2] = INFINITY;                    /* no weight */
     pix[3] = -50.0;                     /* a negative pixel: no Poisson part */
     e[3] = 10.0;                        /* 400 - 9 = 391 e-² */
+    e[4] = 1e20;                        /* 4e40 e-²: beyond a float, no weight */
     const char *path = in_dir(s, "err.fits");
     char name[700];
     snprintf(name, sizeof name, "!%s", path);
@@ -605,8 +606,9 @@ static void test_frame_err(void **state)
     assert_float_equal(f.xvar[NX * NY - 1], 91.0, 1e-3);
     assert_true(f.xvar[1] == 0.0f);
     assert_int_equal(f.mask[2], MP_MASK_BAD);
-    assert_int_equal(f.nbad, 1);
-    assert_true(f.xvar[2] == 0.0f);
+    assert_int_equal(f.mask[4], MP_MASK_BAD);
+    assert_int_equal(f.nbad, 2);
+    assert_true(f.xvar[2] == 0.0f && f.xvar[4] == 0.0f);
     assert_float_equal(f.xvar[3], 391.0, 1e-3);
     mp_frame_free(&f);
     assert_null(f.xvar);
@@ -756,6 +758,21 @@ static void test_frame(void **state)
     assert_int_equal(mp_image_write(negp, pix, NX, NY, -32, text, 1, err), 0);
     assert_int_not_equal(mp_frame_read(negp, &none, &f, err), 0);
     assert_non_null(strstr(err, "RDNOISE"));
+    /* A value whose electrons a float cannot hold (1e30 ADU at 1e10
+     * e-/ADU) is masked bad as a NaN is, not passed on as infinite (the
+     * frame fuzzer's finding); the others are scaled as ever. */
+    double big[NX * NY];
+    pattern(big);
+    big[4] = 1e30;
+    const char *bigp = in_dir(s, "big.fits");
+    assert_int_equal(mp_image_write(bigp, big, NX, NY, -32, NULL, 0, err), 0);
+    const mp_datapars huge = {1e10, NAN, NAN, NAN, "", 0, 0, 0, "", 0, 0};
+    assert_int_equal(mp_frame_read(bigp, &huge, &f, err), 0);
+    assert_int_equal(f.nbad, 1);
+    assert_int_equal(f.mask[4], MP_MASK_BAD);
+    assert_true(f.im.pix[4] == 0.0f);
+    assert_true(f.im.pix[5] == (float)(1e10 * big[5]));
+    mp_frame_free(&f);
     /* Read errors pass through. */
     assert_int_not_equal(mp_frame_read(in_dir(s, "nope.fits"), &none, &f, err), 0);
     assert_non_null(strstr(err, "nope.fits"));
