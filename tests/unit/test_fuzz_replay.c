@@ -72,7 +72,7 @@ static void replay(const char *target, body_fn fn, int min_regressions)
 static void test_replay_params(void **state) { (void)state; replay("params", fuzz_params_body, 1); }
 static void test_replay_table(void **state) { (void)state; replay("table", fuzz_table_body, 1); }
 static void test_replay_psf(void **state) { (void)state; replay("psf", fuzz_psf_body, 1); }
-static void test_replay_frame(void **state) { (void)state; replay("frame", fuzz_frame_body, 0); }
+static void test_replay_frame(void **state) { (void)state; replay("frame", fuzz_frame_body, 1); }
 static void test_replay_psf_field(void **state)
 {
     (void)state;
