@@ -175,8 +175,8 @@ static void excess_at(const mp_frame *f, long x, long y, double s, double *t, do
  * between stars; in a crowd, under the mode), and no higher than bb, the
  * sky of the mesh there, nor than the least pixel of p's 3 × 3 (where the
  * sky dips under the box's, as on a mosaic's uneven background, a pixel
- * above its lower neighbours would pass for a hit).  v: room for
- * (2 (side / 2) + 1)² values. */
+ * above its lower neighbours would pass for a hit).  v: room for that
+ * box clipped to the frame. */
 static double sky_below(const mp_frame *f, double bb, long x, long y, int side, double *v)
 {
     long nx = f->im.nx, ny = f->im.ny, h = side / 2;
@@ -274,8 +274,10 @@ long mp_pl_mask_cosmics(mp_frame *f, const mp_bkg *b, float *res, const mp_pl_cr
     int failed = 0;
 #pragma omp parallel reduction(+ : nc) reduction(| : failed)
     {
+        /* sky_below's box, clipped to the frame (mesh may be any size) */
         size_t box = 2 * (size_t)(ct->side / 2) + 1;
-        double *v = malloc(box * box * sizeof *v);
+        size_t bw = box < (size_t)nx ? box : (size_t)nx, bh = box < (size_t)ny ? box : (size_t)ny;
+        double *v = malloc(bw * bh * sizeof *v);
         failed |= !v;
 #pragma omp for schedule(dynamic, 16)
         for (long y = 1; y < ny - 1; y++)

@@ -68,6 +68,15 @@ typedef struct {
     unsigned char *in;
 } window_room;
 
+/* The side of linear_snr's window for fitrad on frame f: the pixels within
+ * fitrad, clipped to the frame (fitrad may be any size: 100000 asked for
+ * 320 GB a thread). */
+static long window_side(const mp_frame *f, double fitrad)
+{
+    long n = f->im.nx > f->im.ny ? f->im.nx : f->im.ny;
+    return 2 * (long)ceil(fmin(fitrad, (double)n)) + 3;
+}
+
 static int room_alloc(window_room *w, long side)
 {
     w->prf = malloc((size_t)(side * side) * sizeof *w->prf);
@@ -125,8 +134,7 @@ long mp_pl_prescreen(const mp_frame *f, const mp_bkg *b, const float *res,
     int fs = mp_table_add_col(found, MP_PL_SNR_COL);
     if (fs < 0)
         return -1;
-    /* the window linear_snr renders: the pixels within fitrad */
-    long side = 2 * (long)ceil(fitrad) + 3;
+    long side = window_side(f, fitrad);
     long dropped = 0, nrow = (long)found->nrow;
     int failed = 0;
 #pragma omp parallel reduction(+ : dropped) reduction(| : failed)
@@ -169,7 +177,7 @@ long mp_pl_prescreen(const mp_frame *f, const mp_bkg *b, const float *res,
 int mp_pl_screen_sieve(void *ctx, mp_find_cand *c, size_t n)
 {
     mp_pl_screen *sc = ctx;
-    long side = 2 * (long)ceil(sc->fitrad) + 3, dropped = 0;
+    long side = window_side(sc->f, sc->fitrad), dropped = 0;
     int failed = 0;
     /* as mp_pl_prescreen does to each row */
 #pragma omp parallel reduction(+ : dropped) reduction(| : failed)

@@ -369,6 +369,14 @@ int mp_pipeline_run_any(const char *image, const char *root, const mp_pipeline_o
     long margin = o->tilemargin >= 0 ? o->tilemargin
                 : (long)ceil(2.0 * (o->group.fitrad + o->group.psfrad) + 2.0 * fwhm);
     long ts = o->tilesize;
+    /* A core smaller than twice its margin reads mostly margins (tilesize=1
+     * on a 512² frame: 262 144 tiles of 59² pixels each), as maxmem's
+     * tiles may not either. */
+    if (ts > 0 && ts < 2 * margin && (ts < nx || ts < ny)) {
+        snprintf(err, MP_ERRLEN, "tilesize: %ld px is less than twice the tile margin, %ld px "
+                 "(a larger tilesize, or a smaller tilemargin)", ts, margin);
+        return 1;
+    }
     if (ts < 0) {      /* from the budget: whole when it fits, else tiles that do */
         double per = MP_PL_BYTES_PER_PIXEL / 1048576.0;
         if ((double)nx * (double)ny * per <= o->maxmem)

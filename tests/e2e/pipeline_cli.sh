@@ -105,4 +105,20 @@ rm -f "$T/f.cat" "$T/g.cat"
 "$M" pipeline @"$T/im.lis" "$P" niter=1 2>/dev/null || no "pipeline @list"
 [ -s "$T/f.cat" ] && [ -s "$T/g.cat" ] || no "@list outputs not named after the images"
 
+# Radii and sizes at their parameters' limits (the edge sweep of session
+# 65): a fitrad or psfrad beyond the frame's diagonal is named, exit 1, no
+# output; a mesh larger than the frame is one mesh (it ran out of memory
+# in the cosmic-ray test's box), a tilesize below twice its margin named.
+for a in fitrad=100000 psfrad=100000 tilesize=1; do
+    w=${a%%=*}
+    "$M" pipeline "$T/f.fits" "$P" root="$T/edge" $a >/dev/null 2>"$T/elog"
+    rc=$?
+    [ "$rc" -eq 1 ] || no "$a: exit $rc, want 1"
+    [ "$(wc -l <"$T/elog")" -eq 1 ] && grep -q "^matphot pipeline: $w: " "$T/elog" ||
+        no "$a: not one line naming $w: $(cat "$T/elog")"
+    [ -z "$(ls "$T" | grep '^edge\.')" ] || no "$a: left output files"
+done
+"$M" pipeline "$T/f.fits" "$P" root="$T/mesh" mesh=100000 niter=1 2>"$T/mesh.log" &&
+    [ -s "$T/mesh.cat" ] || no "mesh=100000: $(tail -n 1 "$T/mesh.log")"
+
 [ "$fails" -eq 0 ]
