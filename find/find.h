@@ -310,13 +310,16 @@ int mp_find_stars(const mp_frame *f, const mp_bkg *b, const mp_find_opts *o,
 /*
  * mp_find_sharpness: the SHARPNESS mp_find_stars would measure of the star
  * in img (nx × ny, row-major, sky-free and noiseless) with o's kernel: at
- * the pixel of largest h among those whose footprint lies inside img.
- * What the shape cut sees of a PSF itself, phase by phase: a PSF sharper
- * than the kernel's Gaussian (an undersampled one) can exceed sharphi at
- * some phases with no noise at all (pipeline/sharp_limits.c).  Errors:
- * a bad kernel, out of memory, no positive h.
+ * the pixel of largest h among those whose footprint lies inside img and,
+ * with reach > 0, that lie within reach of img's centre pixel (nx/2,
+ * ny/2) on both axes (each pixel costs the kernel's area: a whole window
+ * of a 200-px FWHM kernel took hours).  What the shape cut sees of a PSF
+ * itself, phase by phase: a PSF sharper than the kernel's Gaussian (an
+ * undersampled one) can exceed sharphi at some phases with no noise at
+ * all (pipeline/sharp_limits.c).  Errors: a bad kernel, out of memory, no
+ * positive h.
  */
-int mp_find_sharpness(const double *img, long nx, long ny, const mp_find_opts *o,
+int mp_find_sharpness(const double *img, long nx, long ny, const mp_find_opts *o, long reach,
                       double *sharp, char *err);
 
 /* The `matphot find` task: IMAGE → table (params/find.par).  argv[0] is

@@ -21,7 +21,7 @@ static double height_at(const double *img, long nx, const mpf_kernel *k, long px
     return h;
 }
 
-int mp_find_sharpness(const double *img, long nx, long ny, const mp_find_opts *o,
+int mp_find_sharpness(const double *img, long nx, long ny, const mp_find_opts *o, long reach,
                       double *sharp, char *err)
 {
     mpf_kernel k;
@@ -29,8 +29,15 @@ int mp_find_sharpness(const double *img, long nx, long ny, const mp_find_opts *o
         return 1;
     double hmax = -HUGE_VAL;
     *sharp = NAN;
-    for (long py = k.nh; py < ny - k.nh; py++)
-        for (long px = k.nh; px < nx - k.nh; px++) {
+    long x0 = k.nh, x1 = nx - k.nh, y0 = k.nh, y1 = ny - k.nh;
+    if (reach > 0) {
+        x0 = x0 > nx / 2 - reach ? x0 : nx / 2 - reach;
+        x1 = x1 < nx / 2 + reach + 1 ? x1 : nx / 2 + reach + 1;
+        y0 = y0 > ny / 2 - reach ? y0 : ny / 2 - reach;
+        y1 = y1 < ny / 2 + reach + 1 ? y1 : ny / 2 + reach + 1;
+    }
+    for (long py = y0; py < y1; py++)
+        for (long px = x0; px < x1; px++) {
             double s, h = height_at(img, nx, &k, px, py, &s);
             if (h > hmax) {
                 hmax = h;

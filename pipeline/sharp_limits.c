@@ -16,6 +16,12 @@
 
 #define PHASES 8            /* per axis: offsets −1/2, −3/8, …, 3/8 px */
 
+/* How far from the star's pixel the kernel's peak is sought: it lies
+ * within a pixel of a centred PSF's own.  Up to FWHM 4.7 px (nsigma 1.5)
+ * that is the whole window, as before; a wider kernel scanned its whole
+ * window at the cost of its area a pixel (fwhm=200: hours). */
+#define PEAK_REACH 8
+
 /* The range [*lo, *hi] of SHARPNESS of m's noiseless star at (x, y) plus
  * every phase.  Only a window of the star is drawn (mp_prf_render_window:
  * the values of the whole render there): the kernel's footprint around
@@ -50,7 +56,7 @@ static int sharpness_range(const mp_prf_model *m, double x, double y, const mp_f
             for (int u = 0; u < pw; u++)
                 img[(y0 - wy0 + v) * side + x0 - wx0 + u] = prf[v * pw + u];
         double s;
-        if (mp_find_sharpness(img, side, side, o, &s, err)) {
+        if (mp_find_sharpness(img, side, side, o, PEAK_REACH, &s, err)) {
             rc = 2;             /* not measurable: the limits stay */
             break;
         }

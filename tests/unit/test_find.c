@@ -409,7 +409,8 @@ static void test_noiseless_star(void **state)
 
 /* mp_find_sharpness: (a) a star all in one pixel has SHARPNESS 1/w₀, w₀
  * the lowered kernel's central weight (ref_kernel, derived apart); (b) on
- * a noiseless star at three phases it is what mp_find_stars writes;
+ * a noiseless star at three phases it is what mp_find_stars writes, and
+ * the same when sought within 8 px of the centre (reach);
  * (c) an image with no star is an error. */
 static void test_star_sharpness(void **state)
 {
@@ -426,7 +427,7 @@ static void test_star_sharpness(void **state)
     for (int t = 0; t < k.n; t++)
         if (!k.dx[t] && !k.dy[t])
             w0 = k.w[t];
-    assert_int_equal(mp_find_sharpness(img, S, S, &o, &sh, err), 0);
+    assert_int_equal(mp_find_sharpness(img, S, S, &o, 0, &sh, err), 0);
     assert_true(fabs(sh * w0 - 1.0) < 1e-12);
 
     const double off[][2] = {{0.0, 0.0}, {0.3, -0.2}, {-0.45, 0.45}};
@@ -447,16 +448,35 @@ static void test_star_sharpness(void **state)
         mp_table t;
         run_find(&f, &nc, &b, &t);
         assert_int_equal(t.nrow, 1);
-        assert_int_equal(mp_find_sharpness(star, 64, 64, &o, &sh, err), 0);
+        assert_int_equal(mp_find_sharpness(star, 64, 64, &o, 0, &sh, err), 0);
         double want = mp_table_get(&t, 0, col(&t, "SHARPNESS"));
         assert_true(fabs(sh - want) < 1e-5 * want);   /* float pixels */
+        /* sought within 8 px of the centre, the same peak; with a star
+         * 10 times brighter 20 px off, whose peak a whole scan takes,
+         * still this one's */
+        double near, far;
+        assert_int_equal(mp_find_sharpness(star, 64, 64, &o, 8, &near, err), 0);
+        assert_true(near == sh);
+        mp_frame g;
+        frame_make(&g, 64, 64, 0.0);
+        assert_int_equal(mp_sim_add_star_float(&p, 12.3, 31.4, 2e5, g.im.pix, 64, 64), 0);
+        double *two = malloc(64 * 64 * sizeof *two);
+        assert_non_null(two);
+        for (long i = 0; i < 64 * 64; i++)
+            two[i] = star[i] + g.im.pix[i];
+        assert_int_equal(mp_find_sharpness(two, 64, 64, &o, 8, &near, err), 0);
+        assert_int_equal(mp_find_sharpness(two, 64, 64, &o, 0, &far, err), 0);
+        assert_true(fabs(near - sh) < 1e-9 * sh);
+        assert_true(fabs(far - sh) > 1e-3 * sh);
+        free(two);
+        frame_drop(&g);
         mp_table_free(&t);
         mp_bkg_free(&b);
         frame_drop(&f);
         free(star);
     }
     memset(img, 0, sizeof img);
-    assert_int_equal(mp_find_sharpness(img, S, S, &o, &sh, err), 1);
+    assert_int_equal(mp_find_sharpness(img, S, S, &o, 0, &sh, err), 1);
     assert_non_null(strstr(err, "sharpness"));
 }
 
