@@ -6,6 +6,7 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <unistd.h>
 #include "pipeline/run_state.h"
 
 static int state_init(run_state *s, const char *image, const char *root,
@@ -49,6 +50,31 @@ static void state_free(run_state *s)
     mp_bkg_free(&s->bkg);
     mp_coupling_free(&s->coupling);
     mp_frame_free(&s->f);
+}
+
+/* The products a run writes: root + each, run_state.written's bits. */
+static const char *const product_ext[] = {".coo", ".psf.fits", ".grp", ".fit",
+                                          ".res.fits", ".cat", ".reg", ".report"};
+
+void mp_run_writes(run_state *s, const char *ext)
+{
+    for (size_t i = 0; i < sizeof product_ext / sizeof *product_ext; i++)
+        if (!strcmp(ext, product_ext[i]))
+            s->written |= 1u << i;
+}
+
+/* A failed run leaves none of the products it began to write: bad input
+ * found late (no usable PSF star, after root.coo was written) left
+ * root.coo behind.  The file of that name a previous run wrote goes too:
+ * this one was replacing it. */
+static void remove_products(const run_state *s)
+{
+    for (size_t i = 0; i < sizeof product_ext / sizeof *product_ext; i++) {
+        char *p = (s->written >> i & 1u) ? mp_name_after(s->root, product_ext[i]) : NULL;
+        if (p)
+            unlink(p);
+        free(p);
+    }
 }
 
 /* A radius beyond the frame's diagonal reaches no more pixels than the
@@ -149,6 +175,7 @@ static int find_stars(run_state *s, char *err)
     /* Written first: a failed write is the run's only stderr line. */
     if (s->quiet)
         return 0;
+    mp_run_writes(s, ".coo");
     if (mp_pl_write_named(s->root, ".coo", &s->t, s->o->fit.fmt, NULL, NULL, err))
         return 1;
     fprintf(stderr, "matphot pipeline: %s: %zu stars found (%ld candidates below the screen's "
@@ -443,6 +470,10 @@ static int write_products(run_state *s, char *err)
 {
     double t0 = mp_seconds();
     mp_text_kept *grp_text = NULL;
+    const char *ext[] = {s->quiet ? "" : ".grp", ".fit", ".res.fits", ".cat",
+                         s->o->regions ? ".reg" : "", ".report"};
+    for (size_t i = 0; i < sizeof ext / sizeof *ext; i++)
+        mp_run_writes(s, ext[i]);
     int rc = (!s->quiet &&
               mp_pl_write_named(s->root, ".grp", &s->grp, s->o->fit.fmt, NULL, &grp_text, err)) ||
              mp_pl_write_named(s->root, ".fit", &s->t, s->o->fit.fmt, grp_text, NULL, err);
@@ -663,6 +694,8 @@ int mp_pipeline_run(const char *image, const char *root, const mp_pipeline_opts 
         rc = rounds(&s, err) || mp_run_heldout_order(&s, err) || honest_errors(&s, err);
     if (!rc)
         rc = write_products(&s, err);
+    if (rc)
+        remove_products(&s);
     state_free(&s);
     return rc;
 }
@@ -730,6 +763,8 @@ int mp_pl_psf_on(const char *section, const char *root, const mp_pipeline_opts *
     if (!rc && s.have_own && mp_run_heldout_applies(&s))
         rc = mp_run_group_and_fit(&s, 1, 0, err) || mp_run_heldout_order(&s, err);
     *built = !rc && s.have_own;
+    if (rc)
+        remove_products(&s);
     state_free(&s);
     return rc;
 }

@@ -225,6 +225,7 @@ int mp_run_build_psf(run_state *s, int pass, char *err)
     if (pass > 1)
         count_halo_light(s, &s->psf, &rep, used);
     char *path = mp_name_after(s->root, ".psf.fits");
+    mp_run_writes(s, ".psf.fits");
     int rc = !path ? oom(err)
                    : write_psf_file(s, &s->psf, used, path, err) || adopt_psf(s, path, err);
     if (!rc) {

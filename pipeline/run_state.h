@@ -55,6 +55,8 @@ typedef struct {
                            * changes (adopt_psf) */
     const mp_prf_cache *grid;  /* the phase grid the last fit drew from */
     double win;           /* the window side economy priced the last fit on */
+    unsigned written;     /* the products this run set out to write
+                           * (mp_run_writes' bits) */
 } run_state;
 
 static inline int oom(char *err)
@@ -64,6 +66,11 @@ static inline int oom(char *err)
 }
 
 /* ---- run.c -------------------------------------------------------------- */
+
+/* mp_run_writes: the run is about to write root + ext (".coo",
+ * ".psf.fits", ...): should it fail, that product goes (a failed run
+ * leaves none). */
+void mp_run_writes(run_state *s, const char *ext);
 
 /* mp_run_group_and_fit: group the stars (kept for root.grp, written with
  * the products), fit every group (in one pass when once) and draw the

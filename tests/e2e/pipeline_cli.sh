@@ -120,5 +120,11 @@ for a in fitrad=100000 psfrad=100000 tilesize=1; do
 done
 "$M" pipeline "$T/f.fits" "$P" root="$T/mesh" mesh=100000 niter=1 2>"$T/mesh.log" &&
     [ -s "$T/mesh.cat" ] || no "mesh=100000: $(tail -n 1 "$T/mesh.log")"
+# Bad input found late: too few PSF stars to build from, found after
+# root.coo was written.  Exit 1, and no root.* left (root.coo was).
+"$M" pipeline "$T/f.fits" root="$T/np" maxnpsf=1 >/dev/null 2>"$T/nplog"
+rc=$?
+[ "$rc" -eq 1 ] && grep -q "usable PSF star" "$T/nplog" || no "maxnpsf=1: exit $rc: $(cat "$T/nplog")"
+[ -z "$(ls "$T" | grep '^np\.')" ] || no "maxnpsf=1: left $(ls "$T" | grep '^np\.')"
 
 [ "$fails" -eq 0 ]
