@@ -20,6 +20,7 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <unistd.h>
 
 #include "pipeline/pipeline_priv.h"
 
@@ -350,6 +351,8 @@ static int tiles_with_built_psf(const char *image, const char *root, const mp_pi
     }
     if (!rc)
         rc = mp_pipeline_run_tiled(image, root, lo, ts, margin, rep, err);
+    if (rc && have && path)
+        unlink(path);            /* a failed run leaves no product (run.c) */
     if (own)
         mp_fit_setup_free(&lo->fit);
     free(lo);
