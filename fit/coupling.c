@@ -202,7 +202,6 @@ int mp_coupling_build(const mp_prf_model *m, double fitrad, double crit, double 
     c->crit = crit;
     c->fitrad = fitrad;
     mp_coupling_at(c, sky, ron);
-    c->nd = (int)ceil(crit / DSTEP) + 1;
     c->na = NA;
     c->dstep = DSTEP;
     c->a0 = A0;
@@ -211,7 +210,18 @@ int mp_coupling_build(const mp_prf_model *m, double fitrad, double crit, double 
     const mp_psf_field *fd = m->psf ? m->psf->field : NULL;
     double xc = fd && fd->order > 0 ? round(fd->x0) : 100.0;
     double yc = fd && fd->order > 0 ? round(fd->y0) : 100.0;
-    int H = (int)ceil(crit + fitrad) + 2, W = 2 * H + 1;
+    /* Separations and the window need reach no further than the PRF's
+     * box (reach: from the star to its farthest corner): the gradients
+     * are zero beyond it, and so are their terms in every sum; two stars
+     * whose boxes cannot meet have κ = 0, as the last node then says for
+     * every d up to crit (psfrad or fitrad of 100000 asked for a window
+     * 200 000 pixels a side). */
+    long bx, by;
+    int bw, bh;
+    mp_prf_box(m, xc, yc, &bx, &by, &bw, &bh);
+    double reach = 0.5 * hypot(bw, bh) + 1.0, span = fmin(crit, 2.0 * reach + DSTEP);
+    c->nd = (int)ceil(span / DSTEP) + 1;
+    int H = (int)ceil(span + fmin(fitrad, reach)) + 2, W = 2 * H + 1;
     long wx0 = (long)xc - H, wy0 = (long)yc - H;
     size_t n = (size_t)W * W;
     double *ga = malloc(3 * n * sizeof *ga), *tmp = malloc(3 * n * sizeof *tmp);

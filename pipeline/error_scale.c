@@ -303,7 +303,12 @@ int mp_pl_error_scale(const mp_frame *f, const float *res, const mp_table *t,
     long side = 2 * (long)ceil(fitrad) + 1;
     double *px = NULL, *py = NULL;
     size_t n = grid_places(f, t, side, MP_PL_ESCALE_REX * fwhm, &px, &py);
-    double *z = n == (size_t)-1 ? NULL : malloc(4 * (n ? n : 1) * sizeof *z);
+    if (n == 0) {               /* no window fits the frame: k stays 1 */
+        free(px);
+        free(py);
+        return 0;
+    }
+    double *z = n == (size_t)-1 ? NULL : malloc(4 * n * sizeof *z);
     if (!z || places_z(f, res, m, fitrad, side, px, py, n, z)) {
         free(px);
         free(py);

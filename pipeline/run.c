@@ -77,29 +77,11 @@ static void remove_products(const run_state *s)
     }
 }
 
-/* A radius beyond the frame's diagonal reaches no more pixels than the
- * diagonal does, but windows and overlaps are sized by it (fitrad=100000
- * ran out of memory measuring the stars' coupling): named, not run. */
-static int check_radii(const run_state *s, char *err)
-{
-    double diag = hypot((double)s->f.im.nx, (double)s->f.im.ny);
-    const char *name[2] = {"fitrad", "psfrad"};
-    double r[2] = {s->o->fit.opts.fit.fitrad, s->o->group.psfrad};
-    for (int i = 0; i < 2; i++)
-        if (r[i] > diag) {
-            snprintf(err, MP_ERRLEN, "%s: %g px is larger than the frame %s (%ld x %ld pixels): "
-                     "at most its diagonal, %.0f px", name[i], r[i], s->image, s->f.im.nx,
-                     s->f.im.ny, floor(diag));
-            return 1;
-        }
-    return 0;
-}
-
 /* The frame. */
 static int read_frame(run_state *s, char *err)
 {
     double t0 = mp_seconds();
-    if (mp_frame_read(s->image, &s->o->fit.dp, &s->f, err) || check_radii(s, err))
+    if (mp_frame_read(s->image, &s->o->fit.dp, &s->f, err))
         return 1;
     s->rep->t_read = mp_seconds() - t0;
     s->rep->rdnoise = s->f.rdnoise;

@@ -459,6 +459,16 @@ int mp_epsf_pass(const mp_frame *f, const float *img, int residual, const mp_tab
     if (residual &&
         mp_epsf_growth(f, img, fitted, m, s, n, mp_epsf_growth_rin(o), 2.0 * o->psfrad, e, err))
         goto done;
+    /* A table with no light is no PSF: psfrad 64 on a 128² frame wrote
+     * one of zeros, PSFSUM 0, that every reader then refused. */
+    double tot = 0.0;
+    for (size_t i = 0; i < (size_t)e->nx * (size_t)e->ny; i++)
+        tot += e->planes[i];
+    if (!(tot > 0) || !(e->sum > 0)) {
+        snprintf(err, MP_ERRLEN, "psf build: the table holds no light (its elements sum to %g, "
+                 "PSFSUM %g; psfrad %g px)", tot, e->sum, o->psfrad);
+        goto done;
+    }
     rep->nused = (size_t)e->nstar;
     rep->chi2 = median_chi2(s, n);
     size_t l = strlen(rep->what);

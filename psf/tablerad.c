@@ -70,6 +70,15 @@ static double ring_median(const mp_frame *f, const float *img, long cx, long cy,
     return m >= 8 && 2 * avail >= all ? mp_median_select(tmp, m) : NAN;
 }
 
+/* The room ring_median needs for a ring out to r1 px, or least values
+ * when more: a table of half-width 0-3 px has fewer than (2 r1 + 1)²
+ * elements at 4 or 5 a pixel (fwhm=0.1 wrote past its work array). */
+static size_t ring_room(double r1, size_t least)
+{
+    size_t s = 2 * (size_t)ceil(r1) + 1;
+    return s * s > least ? s * s : least;
+}
+
 /* One star's light per unit flux around the pixel (cx, cy) into v (w*w,
  * NaN where masked or off the frame): (img − sky)/F. */
 static void star_image(const mp_frame *f, const float *img, long cx, long cy, double sky,
@@ -260,7 +269,7 @@ static int psf_stack(const mp_frame *f, const float *img, const double *x, const
      * then the usable ones packed in order. */
 #pragma omp parallel reduction(| : failed)
     {
-        double *tmp = malloc(nel * 4 * sizeof *tmp);
+        double *tmp = malloc(ring_room(s->hw + 4.0, nel * 4) * sizeof *tmp);
         failed = !tmp;
 #pragma omp for schedule(dynamic)
         for (size_t k = 0; k < n; k++) {
@@ -376,7 +385,7 @@ static int bright_flux(const mp_frame *f, const float *img, const double *x, con
     double big = *fbig;
 #pragma omp parallel reduction(| : failed) reduction(+ : count) reduction(max : big)
     {
-        double *tmp = malloc(nel * 5 * sizeof *tmp);
+        double *tmp = malloc(ring_room(p->hw + 4.0, nel * 5) * sizeof *tmp);
         failed = !tmp;
 #pragma omp for schedule(dynamic)
         for (size_t k = 0; k < n; k++) {

@@ -46,6 +46,13 @@ bad "list off the frame" "row 2: star at (500, 20) is outside" "$T/f.fits" stars
 printf '#   1 NUMBER                 Running object number\n 1\n' >"$T/nopos.lis"
 bad "list without positions" "no X_IMAGE/Y_IMAGE" "$T/f.fits" stars="$T/nopos.lis"
 bad "unknown varorder" "varorder" "$T/f.fits" varorder=4
+# psfrad as wide as the frame: the table holds no light (it was written,
+# all zeros, PSFSUM 0: session 65).  The first pass's line comes first.
+"$M" psf "$T/f.fits" stars="$T/f.coo" psfrad=80 output="$T/out.psf.fits" >"$T/o" 2>"$T/e"
+rc=$?
+[ "$rc" -eq 1 ] && tail -n 1 "$T/e" | grep -q "^matphot psf: .*holds no light" ||
+    no "psfrad=80: exit $rc: $(tail -n 1 "$T/e")"
+ls "$T" | grep -q 'out\.psf' && no "psfrad=80: an output file was left: $(ls "$T")"
 
 [ "$fails" -eq 0 ] || exit 1
 echo "psf_cli: ok"
