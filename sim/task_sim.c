@@ -273,6 +273,16 @@ static int wcs_cards(const sim_config *c, mp_card *k)
 static int write_frame(const sim_config *c, const mp_sim_prf *prf, double volume,
                        const double *adu, char *err)
 {
+    /* A pixel a float (a noisy frame's BITPIX -32) cannot hold, or none
+     * can, is no frame: sky=1e300 wrote one of +inf. */
+    for (size_t i = 0; i < (size_t)c->nx * (size_t)c->ny; i++)
+        if (!isfinite(c->noise ? (float)adu[i] : adu[i])) {
+            snprintf(err, MP_ERRLEN, "%s: pixel (%ld, %ld) would hold %g ADU, beyond a %s (sky, "
+                     "rdnoise, gain, the stars' magnitudes or crenergy out of scale)", c->output,
+                     (long)(i % (size_t)c->nx) + 1, (long)(i / (size_t)c->nx) + 1, adu[i],
+                     c->noise ? "float" : "double");
+            return 1;
+        }
     mp_card cards[28];          /* 13 at most, and the WCS's 12 */
     int nc = 0;
     cards[nc++] = (mp_card){"BUNIT", 0, "ADU", "pixel unit"};

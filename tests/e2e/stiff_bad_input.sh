@@ -108,6 +108,8 @@ bad sim "text for number" magmin      -- s.fits magmin=bright
 bad sim "unwritable dir"  ro/s.fits   -- ro/s.fits
 bad sim "missing psf"     nopsf.fits  -- s.fits psf=nopsf.fits
 bad sim "bad enumeration" mode        -- s.fits mode=sparse
+# pixels beyond a float (they were written as +inf: session 65's sweep)
+bad sim "sky out of scale" "beyond a float" -- s.fits nx=32 ny=32 sky=1e300
 
 # Accepted: CRLF line ends, a very long line, a frame with no keywords at all
 # (GAIN 1, RDNOISE 0, no SATURATE: the documented defaults).
