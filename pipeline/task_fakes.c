@@ -84,9 +84,16 @@ static int base_stars(const mp_frame *f, mp_pipeline_opts *o, mp_fakes_opts *fo,
         fo->magmin = lo;
     if (!isfinite(fo->magmax))
         fo->magmax = hi + 1.0;
+    if (!(lo <= hi) && !(isfinite(fo->magmin) && isfinite(fo->magmax))) {
+        /* INDEF's range from no star: say so, not inf and -inf */
+        snprintf(err, MP_ERRLEN, "magmin, magmax: INDEF takes them from the stars the frame's "
+                 "reduction finds, and it found none (give both, or see why no star passes: "
+                 "threshold, minsnr, gain, saturate)");
+        return 1;
+    }
     if (!(fo->magmax > fo->magmin)) {
-        snprintf(err, MP_ERRLEN, "magmin, magmax: no range of magnitudes (%g, %g; INDEF takes "
-                 "them from the stars found, and none was)", fo->magmin, fo->magmax);
+        snprintf(err, MP_ERRLEN, "magmin, magmax: no range of magnitudes (%g, %g)", fo->magmin,
+                 fo->magmax);
         return 1;
     }
     return 0;

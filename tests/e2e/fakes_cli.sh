@@ -58,4 +58,11 @@ done
 grep -q "psf: required" "$T/err" || no "no psf: $(cat "$T/err")"
 ls "$T"/bad* >/dev/null 2>&1 && no "a failed run left output"
 
+# No star found to take the magnitudes from: said so (it printed "inf, -inf"
+# and blamed magmin, magmax: session 65's sweep).
+"$M" fakes "$T/f.fits" "$P" nfake=4 minsnr=1000 root="$T/none" >/dev/null 2>"$T/nlog"
+rc=$?
+[ "$rc" -eq 1 ] && grep -q "found none" "$T/nlog" && ! grep -q "inf" "$T/nlog" ||
+    no "no star found: exit $rc: $(cat "$T/nlog")"
+
 [ "$fails" -eq 0 ]
