@@ -355,7 +355,8 @@ static int write_psf(const sim_config *c, const mp_sim_prf *prf, char *err)
     fine.volume = 1.0;
     double *t = calloc((size_t)n * n, sizeof *t);
     if (!t) {
-        snprintf(err, MP_ERRLEN, "%s: out of memory", c->psfout);
+        snprintf(err, MP_ERRLEN, "%s: out of memory for a table of %d x %d elements (fwhm %g at "
+                 "psfos %d)", c->psfout, n, n, c->fwhm, os);
         return 1;
     }
     int rc = mp_sim_add_star(&fine, h + 1.0, h + 1.0, 1.0, t, n, n);
