@@ -52,6 +52,20 @@ static int read_opts(const mp_parset *ps, psf_task *t, char *err)
     return 0;
 }
 
+/* A table wider than the frame holds no star whole: psfrad=200 on a 128²
+ * frame ran out of memory after a minute, psfrad=80 on 160² built a
+ * table of no light. */
+static int table_fits(const psf_task *t, const mp_frame *f, char *err)
+{
+    long n = f->im.nx > f->im.ny ? f->im.nx : f->im.ny;
+    if (2.0 * t->o.psfrad + 1.0 <= (double)n)
+        return 0;
+    snprintf(err, MP_ERRLEN, "psfrad: %g px makes a table %g px across, wider than the frame "
+             "%s (%ld x %ld pixels)", t->o.psfrad, 2.0 * t->o.psfrad + 1.0, t->image, f->im.nx,
+             f->im.ny);
+    return 1;
+}
+
 /* The stars given as a list: X_IMAGE/Y_IMAGE (or XPSF_/YPSF_), every one
  * on the frame. */
 static int stars_from_list(const psf_task *t, const mp_frame *f, double **x, double **y,
@@ -292,7 +306,8 @@ static int run(psf_task *t, char *err)
     int rc = 1;
     mp_epsf_report rep;
     memset(&rep, 0, sizeof rep);
-    if (mp_frame_read(t->image, &t->dp, &f, err) || detect(t, &f, &b, &found, err))
+    if (mp_frame_read(t->image, &t->dp, &f, err) || table_fits(t, &f, err) ||
+        detect(t, &f, &b, &found, err))
         goto done;
     if (t->stars && t->stars[0] ? stars_from_list(t, &f, &x, &y, &fl, &n, err)
                                 : stars_selected(t, &f, &found, &x, &y, &fl, &n, err))
