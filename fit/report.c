@@ -155,9 +155,12 @@ static void report_lines(FILE *fp, const char *prefix, const mp_run_report *r)
     fprintf(fp, "%s  stars: %ld fitted in %ld groups, %ld iterations, %ld merged, %ld rejected, "
             "%ld not converged\n", prefix, r->nstars, r->ngroups, r->iterations, r->merged,
             r->rejected, r->noconv);
-    fprintf(fp, "%s  error: median chi2/dof %.4f, median FLUXERR_PSF/FLUXERR_MODEL %.4f, "
-            "median ERRX_PSF/POSERR_MODEL %.4f\n", prefix, r->chi2_median, r->errratio_median,
-            r->poserr_median);
+    if (r->nstars > 0)
+        fprintf(fp, "%s  error: median chi2/dof %.4f, median FLUXERR_PSF/FLUXERR_MODEL %.4f, "
+                "median ERRX_PSF/POSERR_MODEL %.4f\n", prefix, r->chi2_median,
+                r->errratio_median, r->poserr_median);
+    else        /* no median of nothing (it read nan or 0) */
+        fprintf(fp, "%s  error: no star fitted\n", prefix);
     fprintf(fp, "%s  model parts used: %s\n", prefix, r->used[0] ? r->used : "-");
     fprintf(fp, "%s  model parts left out: %s\n", prefix, r->left[0] ? r->left : "-");
     int nd = r->ndecisions + (r->sky[0] != '\0');
