@@ -1,4 +1,5 @@
 /* outfile.c — atomic output files and "-" inputs (io.h). */
+#define _GNU_SOURCE             /* copy_file_range */
 #include "io/io.h"
 
 #include <ctype.h>
@@ -233,6 +234,30 @@ int mp_out_commit(mp_outfile *o, char *err)
     return 0;
 }
 
+/* in's bytes onto out (both just opened): in the kernel where it can
+ * (copy_file_range: a 60 000-star root.cat, 21 MB, was 0.26 % of the
+ * run's CPU, serial, through a user buffer), else through one.  1 on a
+ * write error (a read error is ferror(in)'s). */
+static int copy_bytes(FILE *in, FILE *out)
+{
+#ifdef __linux__
+    off_t done = 0;
+    ssize_t k;
+    while ((k = copy_file_range(fileno(in), NULL, fileno(out), NULL, (size_t)1 << 30, 0)) > 0)
+        done += k;
+    if (k == 0)
+        return 0;
+    if (done > 0)               /* failed part way: no going back */
+        return 1;
+#endif
+    char buf[65536];
+    size_t n;
+    int bad = 0;
+    while (!bad && (n = fread(buf, 1, sizeof buf, in)) > 0)
+        bad = fwrite(buf, 1, n, out) != n;
+    return bad;
+}
+
 int mp_out_copy(const char *from, const char *to, char *err)
 {
     FILE *in = fopen(from, "rb");
@@ -245,11 +270,7 @@ int mp_out_copy(const char *from, const char *to, char *err)
         fclose(in);
         return 1;
     }
-    char buf[65536];
-    size_t n;
-    int bad = 0;
-    while (!bad && (n = fread(buf, 1, sizeof buf, in)) > 0)
-        bad = fwrite(buf, 1, n, o.fp) != n;
+    int bad = copy_bytes(in, o.fp);
     int rerr = ferror(in);
     fclose(in);
     if (rerr || bad) {
