@@ -51,9 +51,15 @@ bad "unknown varorder" "varorder" "$T/f.fits" varorder=4
 # never a table of no light (psfrad=80 wrote one of zeros, PSFSUM 0, that
 # every reader refused: session 65), and a failure leaves no file.
 bad "psfrad wider than the frame" "wider than the frame" "$T/f.fits" stars="$T/f.coo" psfrad=80
+case $M in
+*valgrind*) rc=skip ;;      # a 561-px table's build: minutes under memcheck
+*)
 "$M" psf "$T/f.fits" stars="$T/f.coo" psfrad=70 output="$T/out.psf.fits" >"$T/o" 2>"$T/e"
-rc=$?
-if [ "$rc" -eq 0 ]; then
+rc=$? ;;
+esac
+if [ "$rc" = skip ]; then
+    :
+elif [ "$rc" -eq 0 ]; then
     "$M" fit "$T/f.fits" "$T/f.coo" psf="$T/out.psf.fits" output="$T/w.fit" 2>"$T/we" ||
         no "psfrad=70: the table written does not fit: $(tail -n 1 "$T/we")"
 else
