@@ -241,13 +241,13 @@ int mp_out_commit(mp_outfile *o, char *err)
 static int copy_bytes(FILE *in, FILE *out)
 {
 #ifdef __linux__
-    off_t done = 0;
+    int copied = 0;
     ssize_t k;
     while ((k = copy_file_range(fileno(in), NULL, fileno(out), NULL, (size_t)1 << 30, 0)) > 0)
-        done += k;
+        copied = 1;
     if (k == 0)
         return 0;
-    if (done > 0)               /* failed part way: no going back */
+    if (copied)                 /* failed part way: no going back */
         return 1;
 #endif
     char buf[65536];

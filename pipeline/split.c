@@ -397,8 +397,7 @@ long mp_pl_split_candidates(const mp_frame *f, const mp_bkg *b, const float *res
     if (tx < 0 || ty < 0 || tf < 0 || te < 0 || !(snrmin > 0) || t->nrow == 0)
         return 0;
     const double rings[NRING] = {rmin, 0.5 * (rmin + rmax), rmax};
-    long side = 2 * (long)ceil(fmin(fitrad, (double)(f->im.nx + f->im.ny))) + 3;
-    long nrow = (long)t->nrow;
+    long side = 2 * (long)ceil(fitrad) + 3, nrow = (long)t->nrow;
     if (side > f->im.nx || side > f->im.ny)
         return 0;               /* no window fits: every star is left to find */
     size_t n = (size_t)(side * side);
