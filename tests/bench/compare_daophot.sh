@@ -220,6 +220,9 @@ validate_frame() {
 
 HOSTN=$(uname -n 2>/dev/null || echo "?")
 NCPU=$(nproc 2>/dev/null || echo "?")
+# the ratios move with the processor (2026-12-05: 47 Tuc built 0.96 of
+# DAOPHOT's CPU on a Xeon, 1.21 on an AMD EPYC of family 23)
+CPUM=$(grep -m1 'model name' /proc/cpuinfo 2>/dev/null | sed 's/.*: //')
 LOAD=$(cut -d' ' -f1-3 /proc/loadavg 2>/dev/null || echo "?")
 IRAFV=$(irafcl -v 2>/dev/null | head -n 1)
 MPV=$("$MP" --version 2>/dev/null | head -n 1)
@@ -230,6 +233,7 @@ MPV="$MPV (tree $GITV, ./matphot sha256 $MPSUM...)"
 {
   printf 'date\t%s\n' "$(date -u '+%Y-%m-%d %H:%M UTC')"
   printf 'host\t%s\n' "$HOSTN"; printf 'ncpu\t%s\n' "$NCPU"; printf 'load\t%s\n' "$LOAD"
+  printf 'cpu\t%s\n' "${CPUM:-?}"
   printf 'iraf\tIRAF %s (Debian iraf %s)\n' "$IRAFV" \
     "$(dpkg-query -W -f='${Version}' iraf 2>/dev/null || echo '?')"
   printf 'matphot\t%s\n' "$MPV"; printf 'reps\t%s\n' "$REPS"; printf 'niter\t%s\n' "$NITER"

@@ -490,10 +490,11 @@ int cmp_report(const char *stats_path, const char *out)
     char b1[64], b2[64], b3[64], b4[64], b5[64];
     el(&A, "# matphot against IRAF DAOPHOT on the same simulated frames\n");
     el(&A, "Written by `tests/bench/compare_daophot.sh` on %s: %s against %s; "
-           "%d timed runs per program and frame; machine %s with %s CPUs, load "
-           "average at the start %s.\n", cmp_stats_meta(s, "date", "?"),
+           "%d timed runs per program and frame; machine %s with %s CPUs (%s), "
+           "load average at the start %s.\n", cmp_stats_meta(s, "date", "?"),
        cmp_stats_meta(s, "matphot", "?"), iraf, reps, cmp_stats_meta(s, "host", "?"),
-       cmp_stats_meta(s, "ncpu", "?"), cmp_stats_meta(s, "load", "?"));
+       cmp_stats_meta(s, "ncpu", "?"), cmp_stats_meta(s, "cpu", "?"),
+       cmp_stats_meta(s, "load", "?"));
     el(&B, setup_fmt(), n, n - 1, th, clean, iraf, reps);
     for (size_t fi = 0; fi < s->nframe; fi++) {
         const cmp_frame *F = &s->frames[fi];
