@@ -130,8 +130,17 @@ static int find_opts_for_model(run_state *s, mp_find_opts *fo, char *err)
 {
     *fo = s->o->find;
     fo->fwhm = s->fwhm;
-    return mp_pl_sharp_limits(&s->fit->model, s->f.im.nx, s->f.im.ny, fo, s->rep->sharp,
-                              sizeof s->rep->sharp, err);
+    if (!s->sharp_known) {
+        if (mp_pl_sharp_limits(&s->fit->model, s->f.im.nx, s->f.im.ny, fo, s->rep->sharp,
+                               sizeof s->rep->sharp, err))
+            return 1;
+        s->sharp_known = 1;
+        s->sharplo = fo->sharplo;
+        s->sharphi = fo->sharphi;
+    }
+    fo->sharplo = s->sharplo;
+    fo->sharphi = s->sharphi;
+    return 0;
 }
 
 /* Sky and noise maps, the first detection, root.coo. */

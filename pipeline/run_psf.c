@@ -146,6 +146,7 @@ static int adopt_psf(run_state *s, const char *path, char *err)
     if (!rc) {
         s->fit = mp_fit_setup_local(&s->own, (double)s->offx, (double)s->offy, &s->local);
         s->fwhm = mp_prf_fwhm(&s->own.model);
+        s->sharp_known = 0;
         mp_fit_memory_forget(s->mem);
         mp_coupling_free(&s->coupling);     /* the last model's */
     }

@@ -53,6 +53,13 @@ typedef struct {
     mp_coupling coupling; /* the κ table of the fit's model (mp_pl_group),
                            * kept from round to round; freed when the model
                            * changes (adopt_psf) */
+    int sharp_known;      /* find's sharpness limits for the fit's model,
+                           * measured (mp_pl_sharp_limits) until the model
+                           * changes (adopt_psf): each search of a residual
+                           * measured them again on the same model, 2 of the
+                           * 3 measurements on the DECam cutout with its
+                           * PSFEx model (a tenth of its run) */
+    double sharplo, sharphi;
     const mp_prf_cache *grid;  /* the phase grid the last fit drew from */
     double win;           /* the window side economy priced the last fit on */
     unsigned written;     /* the products this run set out to write
