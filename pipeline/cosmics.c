@@ -58,32 +58,29 @@ static double render_ratio(const double *prf, int w, int h, double s)
  * edge and its corner, where a symmetric PSF's ratio is least). */
 #define CR_NPH 5
 
-/* A render of the PSF, w × h values. */
-typedef struct {
-    double *p;
-    int w, h;
-} cr_render;
-
-/* The PSF rendered for a star at place q (of 3 × 3 over the nx × ny
- * frame) and phase (a, b), into *out (its values allocated). */
-static int render_at(const mp_prf_model *m, long nx, long ny, int q, int a, int b,
-                     mp_prf_work *wk, cr_render *out)
+/* The ratio (s < 0) or the excess (s >= 0) of render_ratio for a star at
+ * place q (of 3 × 3 over the nx × ny frame) and phase (a, b), into *out. */
+static int ratio_at(const mp_prf_model *m, long nx, long ny, int q, int a, int b, double s,
+                    double **prf, mp_prf_work *wk, double *out)
 {
     double x = (double)(1 + (q % 3) * (nx - 1) / 2) + (double)a / (CR_NPH - 1) - 0.5;
     double y = (double)(1 + (q / 3) * (ny - 1) / 2) + (double)b / (CR_NPH - 1) - 0.5;
     long bx, by;
-    mp_prf_box(m, x, y, &bx, &by, &out->w, &out->h);
-    int w = out->w > 0 ? out->w : 1, h = out->h > 0 ? out->h : 1;
-    out->p = malloc((size_t)w * (size_t)h * sizeof *out->p);
-    return !out->p || mp_prf_render(m, x, y, out->p, NULL, NULL, wk);
+    int w, h;
+    mp_prf_box(m, x, y, &bx, &by, &w, &h);
+    double *p = realloc(*prf, (size_t)(w > 0 ? w : 1) * (size_t)(h > 0 ? h : 1) * sizeof *p);
+    if (!p)
+        return 1;
+    *prf = p;
+    if (mp_prf_render(m, x, y, p, NULL, NULL, wk))
+        return 1;
+    *out = render_ratio(p, w, h, s);
+    return 0;
 }
 
 int mp_pl_cr_bound(const mp_prf_model *m, long nx, long ny, double *s, double *D, char *err)
 {
-    /* each render kept for both passes: rendered again for the excess,
-     * a variable PSF's 450 renders were a tenth of the DECam cutout's run */
-    cr_render r[9][CR_NPH * CR_NPH];
-    memset(r, 0, sizeof r);
+    double *prf = NULL, r[CR_NPH][CR_NPH];
     mp_prf_work wk = {0};
     int rc = 0;
     *s = 4.0;
@@ -94,28 +91,28 @@ int mp_pl_cr_bound(const mp_prf_model *m, long nx, long ny, double *s, double *D
      * the PSF varies (else the centre's, place 4, is every place's) */
     int q0 = m->psf && m->psf->field ? 0 : 4, q1 = q0 ? 5 : 9;
     for (int q = q0; q < q1 && !rc; q++) {
-        double lo = 4.0, step = 0.0, v[CR_NPH][CR_NPH];
+        double lo = 4.0, step = 0.0;
         for (int b = 0; b < CR_NPH && !rc; b++)
             for (int a = 0; a < CR_NPH && !rc; a++) {
-                cr_render *o = &r[q][b * CR_NPH + a];
-                if ((rc = render_at(m, nx, ny, q, a, b, &wk, o)))
+                if ((rc = ratio_at(m, nx, ny, q, a, b, -1.0, &prf, &wk, &r[b][a])))
                     break;
-                v[b][a] = render_ratio(o->p, o->w, o->h, -1.0);
-                lo = fmin(lo, v[b][a]);
-                if (a > 0)
-                    step = fmax(step, fabs(v[b][a] - v[b][a - 1]));
-                if (b > 0)
-                    step = fmax(step, fabs(v[b][a] - v[b - 1][a]));
+                lo = fmin(lo, r[b][a]);
+                if (!rc && a > 0)
+                    step = fmax(step, fabs(r[b][a] - r[b][a - 1]));
+                if (!rc && b > 0)
+                    step = fmax(step, fabs(r[b][a] - r[b - 1][a]));
             }
         *s = fmin(*s, lo - 0.5 * step);
     }
     *s = fmax(*s, 0.0);
     for (int q = q0; q < q1 && !rc; q++)
-        for (int k = 0; k < CR_NPH * CR_NPH; k++)
-            *D = fmax(*D, render_ratio(r[q][k].p, r[q][k].w, r[q][k].h, *s));
-    for (int q = 0; q < 9; q++)
-        for (int k = 0; k < CR_NPH * CR_NPH; k++)
-            free(r[q][k].p);
+        for (int b = 0; b < CR_NPH && !rc; b++)
+            for (int a = 0; a < CR_NPH && !rc; a++) {
+                double e = 0.0;
+                rc = ratio_at(m, nx, ny, q, a, b, *s, &prf, &wk, &e);
+                *D = fmax(*D, e);
+            }
+    free(prf);
     mp_prf_work_free(&wk);
     if (rc)
         snprintf(err, MP_ERRLEN, "cosmic rays: out of memory for the PSF's renders");
