@@ -58,7 +58,7 @@ typedef struct {
                            * changes (adopt_psf): each search of a residual
                            * measured them again on the same model, 2 of the
                            * 3 measurements on the DECam cutout with its
-                           * PSFEx model (a tenth of its run) */
+                           * PSFEx model, 9 % of its CPU */
     double sharplo, sharphi;
     const mp_prf_cache *grid;  /* the phase grid the last fit drew from */
     double win;           /* the window side economy priced the last fit on */
