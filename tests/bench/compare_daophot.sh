@@ -221,7 +221,7 @@ validate_frame() {
 HOSTN=$(uname -n 2>/dev/null || echo "?")
 NCPU=$(nproc 2>/dev/null || echo "?")
 # the ratios move with the processor (2026-12-05: 47 Tuc built 0.96 of
-# DAOPHOT's CPU on a Xeon, 1.21 on an AMD EPYC of family 23)
+# DAOPHOT's CPU on a Xeon, 1.21-1.27 on an AMD EPYC of family 23)
 CPUM=$(grep -m1 'model name' /proc/cpuinfo 2>/dev/null | sed 's/.*: //')
 LOAD=$(cut -d' ' -f1-3 /proc/loadavg 2>/dev/null || echo "?")
 IRAFV=$(irafcl -v 2>/dev/null | head -n 1)
