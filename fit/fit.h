@@ -1031,7 +1031,7 @@ typedef struct {
     long pairs_close, pairs_coupled;  /* the pipeline's grouping: pairs within
                                 * psfrad + fitrad, and of them coupled (0 0:
                                 * DAOPHOT GROUP's rule) */
-    char detection[1024];       /* the pipeline's detection limit in words ("": no
+    char detection[1536];       /* the pipeline's detection limit in words ("": no
                                 * line; pipeline/outputs.c fills it) */
 } mp_run_report;
 

@@ -200,6 +200,8 @@ static void detection_line(const mp_fit_setup *fit, const mp_pipeline_report *re
                       ">= %g", cut);
     if (k > 0 && (size_t)k < n && rep->sharp[0])
         k += snprintf(run->detection + k, n - (size_t)k, "; %s", rep->sharp);
+    if (k > 0 && (size_t)k < n && rep->stars_fwhm[0])
+        k += snprintf(run->detection + k, n - (size_t)k, "; %s", rep->stars_fwhm);
     if (k > 0 && (size_t)k < n && (rep->escale[0] != 1.0 || rep->escale[1] != 1.0))
         k += snprintf(run->detection + k, n - (size_t)k, "; the catalog's errors are the "
                       "fit's x %.3g (flux), x %.3g (position), what the residual holds at the "

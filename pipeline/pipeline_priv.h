@@ -29,6 +29,18 @@ int mp_pl_opts_read(mp_parset *ps, mp_pipeline_opts *o, char *err);
 int mp_pl_sharp_limits(const mp_prf_model *m, long nx, long ny, mp_find_opts *o, char *why,
                        size_t nwhy, char *err);
 
+/* ---- fwhm_check.c ------------------------------------------------------ */
+
+/* mp_pl_check_fwhm: the FWHM of the stars of t (the first detection) on f
+ * measured (mp_epsf_stars_fwhm) into *m and against fwhm; why: one line
+ * for the report.  2 with err naming fwhm when fwhm is more than 3 σ of
+ * the measure off it and the Gaussian of fwhm's flux bias on the stars
+ * exceeds the median detection's flux error (fwhm_check.c says why): an
+ * error where that Gaussian is the model.  1 with err: a table without
+ * find's columns, out of memory. */
+int mp_pl_check_fwhm(const mp_frame *f, const mp_table *t, double fwhm, mp_stars_fwhm *m,
+                     char *why, size_t nwhy, char *err);
+
 /* ---- bright_stars.c ---------------------------------------------------- */
 
 /* A fitted star: position, flux (e-), FLAGS and sky (SKY_PSF; NaN: none). */

@@ -143,6 +143,27 @@ static int find_opts_for_model(run_state *s, mp_find_opts *fo, char *err)
     return 0;
 }
 
+/* The first detection's stars measured against the Gaussian of fwhm,
+ * when that is the model (psf=gauss) or where the PSF build starts: said
+ * in the report; psf=gauss with a fwhm far off the stars' is an error
+ * (fwhm_check.c), and so is a build that falls back on that Gaussian
+ * (run_psf.c). */
+static int check_fwhm(run_state *s, char *err)
+{
+    const mp_psf *p = s->fit->model.psf;
+    if (!p || p->kind != MP_PSF_GAUSS || p->field)
+        return 0;
+    int rc = mp_pl_check_fwhm(&s->f, &s->t, 2.3548200450309493 * p->sigma, &s->stars_fwhm,
+                              s->rep->stars_fwhm, sizeof s->rep->stars_fwhm, s->gauss_wrong);
+    if (rc == 1 || (rc == 2 && !s->o->build_psf)) {
+        snprintf(err, MP_ERRLEN, "%s: %.400s", s->image, s->gauss_wrong);
+        return 1;
+    }
+    if (rc != 2)
+        s->gauss_wrong[0] = '\0';
+    return 0;
+}
+
 /* Sky and noise maps, the first detection, root.coo. */
 static int find_stars(run_state *s, char *err)
 {
@@ -161,6 +182,8 @@ static int find_stars(run_state *s, char *err)
     mp_pl_drop_unset(&s->t);
     if (mp_table_shrink(&s->t))  /* the candidates' rows given back (issue 14) */
         return oom(err);
+    if (check_fwhm(s, err))
+        return 1;
     s->rep->t_find += mp_seconds() - t0;
     s->rep->found = (long)s->t.nrow;
     /* Written first: a failed write is the run's only stderr line. */

@@ -193,6 +193,32 @@ static mp_epsf_opts pass_opts(const run_state *s)
     return po;
 }
 
+/* A first build that failed (too few PSF stars): when the stars' FWHM
+ * measured on the first detection (s->stars_fwhm) is more than 3 σ off
+ * fwhm and the selection would have found enough stars with it (its
+ * fitrad 2 fwhm, and its psfrad 4 fwhm unless tablerad was given), err
+ * says so, naming fwhm: a start far off the stars' (fwhm=12 on stars of
+ * FWHM 3) leaves too few alone, and one far below them (0.1) fits none. */
+static void fwhm_hint(const run_state *s, char *err)
+{
+    const mp_stars_fwhm *m = &s->stars_fwhm;
+    mp_epsf_opts po = s->o->psfb;
+    if (m->n < 3 || !(fabs(m->fwhm - po.fwhm) > 3.0 * m->err))
+        return;
+    po.fitrad = 2.0 * m->fwhm;
+    if (s->o->tablerad_auto)
+        po.psfrad = 4.0 * m->fwhm;
+    size_t *idx = malloc((size_t)(po.maxnpsf + 1) * sizeof *idx), n = 0;
+    char e2[MP_ERRLEN];
+    int rc = !idx || mp_epsf_select(&s->f, &s->t, &po, idx, &n, e2);
+    free(idx);
+    size_t l = strlen(err);
+    if (!rc && n >= 3 && l < MP_ERRLEN)
+        snprintf(err + l, MP_ERRLEN - l, "; the stars' FWHM is %.3g +- %.1g px (measured on %d "
+                 "lone stars), not fwhm=%g: with fwhm=%.3g, %zu PSF stars are selected",
+                 m->fwhm, m->err, m->n, po.fwhm, m->fwhm, n);
+}
+
 /* Build (pass 1: the frame as it is) or rebuild (pass 2: every fitted
  * star but the PSF stars' own subtracted) the PSF, write root.psf.fits,
  * and set the fit up from it as `fit psf=root.psf.fits` would be; every
@@ -208,6 +234,11 @@ int mp_run_build_psf(run_state *s, int pass, char *err)
      * crowd of saturated stars) is still reduced: with the Gaussian of
      * fwhm, as psf=gauss, said on stderr and in the report. */
     if (s->np == 0) {
+        if (pass == 1 && s->gauss_wrong[0]) {    /* that Gaussian is far off the stars' */
+            snprintf(err, MP_ERRLEN, "%s: no usable PSF star, and %.400s", s->image,
+                     s->gauss_wrong);
+            return 1;
+        }
         if (pass == 1 && s->t.nrow > 0)
             fprintf(stderr, "matphot pipeline: %s: warning: no usable PSF star among %zu "
                     "detections; fitting with the Gaussian of fwhm (psf=gauss)\n", s->image,
@@ -220,7 +251,9 @@ int mp_run_build_psf(run_state *s, int pass, char *err)
     mp_psf_star *used = NULL;        /* the file's PSFSTARS */
     if (mp_epsf_pass(&s->f, pass == 1 ? s->f.im.pix : s->res, pass > 1, &s->t, &s->fit->model,
                      s->px, s->py, s->pf, s->np, &po, &s->psf, &rep, &used, e2)) {
-        snprintf(err, MP_ERRLEN, "%s: PSF: %.400s", s->image, e2);
+        snprintf(err, MP_ERRLEN, "%s: PSF: %.300s", s->image, e2);
+        if (pass == 1)
+            fwhm_hint(s, err);
         return 1;
     }
     if (pass > 1)

@@ -162,6 +162,27 @@ int mp_epsf_table(const mp_epsf *e, double x, double y, mp_psf *p, char *err);
 int mp_epsf_select(const mp_frame *f, const mp_table *found, const mp_epsf_opts *o,
                    size_t *idx, size_t *n, char *err);
 
+/* ---- The stars' FWHM (psf/star_fwhm.c) ------------------------------------ */
+
+/* The FWHM of a frame's stars, measured (mp_epsf_stars_fwhm). */
+typedef struct {
+    double fwhm;       /* the half-sample mode over the stars measured [px] */
+    double err;        /* its error, by bootstrap (∞ for one star) */
+    int n;             /* stars measured (0: none; fwhm and err are then 0) */
+} mp_stars_fwhm;
+
+/* mp_epsf_stars_fwhm: the FWHM of the Gaussian (pixel-integrated, as
+ * psf=gauss's) that fits each of up to nmax of the brightest detections
+ * of t (X_IMAGE, Y_IMAGE, FLUX, BACKGROUND; FLAGS 0 when present) that
+ * are lone (no detection of a tenth of their flux within the window),
+ * clear of masked pixels and the frame's edge; each fitted alone with a
+ * flat sky on a window of twice its half-maximum width read off the
+ * pixels, so that the measure does not depend on any FWHM given.  Of
+ * the first 400 detections by flux; out->n = 0 when none qualifies (not
+ * an error).  Nonzero with err: t lacks a column, out of memory. */
+int mp_epsf_stars_fwhm(const mp_frame *f, const mp_table *t, int nmax, mp_stars_fwhm *out,
+                       char *err);
+
 /* ---- Cut-outs (psf/cutout.c) ---------------------------------------------- */
 
 /* mp_epsf_cutouts: a star per (x[k], y[k], flux[k], sky[k]), its cut-out

@@ -140,5 +140,20 @@ for a in maxnpsf=1 fwhm=0.1; do
     [ "$rc" -eq 1 ] && grep -q "usable PSF star" "$T/nplog" || no "$a: exit $rc: $(cat "$T/nplog")"
     [ -z "$(ls "$T" | grep '^np\.')" ] || no "$a: left $(ls "$T" | grep '^np\.')"
 done
+# A fwhm far off the stars' (FWHM 2.5 here) is bad input where the Gaussian
+# of fwhm is the model (psf=gauss): one line naming fwhm and the stars'
+# measured FWHM, exit 1, no root.* left; with the right one the report
+# says the measure.  A build that fails for too few PSF stars names fwhm
+# when the stars' FWHM would have selected enough (fwhm=0.1 above).
+"$M" pipeline "$T/f.fits" root="$T/gw" psf=gauss fwhm=6 >/dev/null 2>"$T/gwlog"
+rc=$?
+[ "$rc" -eq 1 ] && [ "$(wc -l <"$T/gwlog")" -eq 1 ] &&
+    grep -q "fwhm=6 is not the stars': .* measure FWHM 2\.5 " "$T/gwlog" ||
+    no "psf=gauss fwhm=6: exit $rc: $(cat "$T/gwlog")"
+[ -z "$(ls "$T" | grep '^gw\.')" ] || no "psf=gauss fwhm=6: left $(ls "$T" | grep '^gw\.')"
+"$M" pipeline "$T/f.fits" root="$T/gw" psf=gauss fwhm=2.5 niter=1 >/dev/null 2>"$T/gwlog" &&
+    grep -q "the stars' FWHM 2\.5 +- " "$T/gw.report" || no "psf=gauss fwhm=2.5: $(cat "$T/gwlog")"
+grep -q "the stars' FWHM is 2\.5 +- .*, not fwhm=0\.1: with fwhm=2\.5, [0-9]* PSF stars" \
+    "$T/nplog" || no "fwhm=0.1: the stars' FWHM not named: $(cat "$T/nplog")"
 
 [ "$fails" -eq 0 ]

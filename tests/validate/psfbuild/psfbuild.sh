@@ -65,7 +65,10 @@ done
 run segmented true psf="$OUT/segmented/true.psf.fits"
 run segmented built
 run segmented ideal psf="$OUT/segmented/ideal.psf.fits"
-run segmented gauss psf=gauss fwhm=2.2
+# The Gaussian nearest the segmented PSF: its stars measure FWHM 2.38 px
+# (the report's detection line); fwhm=2.2, the row before session 67,
+# is refused now, its fluxes 7 % off the best Gaussian's.
+run segmented gauss psf=gauss fwhm=2.38
 run variable built
 run variable built2 varorder=2
 run variable floor2 psf="$OUT/variable/floor2.psf.fits"
