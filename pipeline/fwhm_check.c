@@ -23,7 +23,6 @@
 #include "psf/build.h"
 
 #define NMEASURE 25         /* stars measured at most */
-#define NEED 3              /* stars measured at least for a verdict */
 #define FWHM_SIGMA 2.3548200450309493
 
 /* s² of a pixel-integrated Gaussian of FWHM w: σ² + 1/12. */
@@ -58,7 +57,7 @@ done:
 /* Whether m measured a FWHM more than 3 σ of the measure off fwhm. */
 static int off(const mp_stars_fwhm *m, double fwhm)
 {
-    return m->n >= NEED && fabs(fwhm - m->fwhm) > 3.0 * m->err;
+    return m->n >= MP_PL_FWHM_NEED && fabs(fwhm - m->fwhm) > 3.0 * m->err;
 }
 
 int mp_pl_check_fwhm(const mp_frame *f, const mp_table *t, double fwhm, mp_stars_fwhm *mo,
@@ -68,9 +67,9 @@ int mp_pl_check_fwhm(const mp_frame *f, const mp_table *t, double fwhm, mp_stars
     if (mp_epsf_stars_fwhm(f, t, NMEASURE, mo, err))
         return 1;
     mp_stars_fwhm m = *mo;
-    if (m.n < NEED) {
+    if (m.n < MP_PL_FWHM_NEED) {
         snprintf(why, nwhy, "the stars' FWHM not measured (%d lone, clean detections of %d "
-                 "needed)", m.n, NEED);
+                 "needed)", m.n, MP_PL_FWHM_NEED);
         return 0;
     }
     double g2 = s2(fwhm), bias = 2.0 * g2 / (g2 + s2(m.fwhm)) - 1.0;

@@ -31,6 +31,9 @@ int mp_pl_sharp_limits(const mp_prf_model *m, long nx, long ny, mp_find_opts *o,
 
 /* ---- fwhm_check.c ------------------------------------------------------ */
 
+/* Stars measured at least for a verdict on fwhm. */
+#define MP_PL_FWHM_NEED 3
+
 /* mp_pl_check_fwhm: the FWHM of the stars of t (the first detection) on f
  * measured (mp_epsf_stars_fwhm) into *m and against fwhm; why: one line
  * for the report.  2 with err naming fwhm when fwhm is more than 3 σ of

@@ -147,14 +147,31 @@ static int find_opts_for_model(run_state *s, mp_find_opts *fo, char *err)
  * when that is the model (psf=gauss) or where the PSF build starts: said
  * in the report; psf=gauss with a fwhm far off the stars' is an error
  * (fwhm_check.c), and so is a build that falls back on that Gaussian
- * (run_psf.c). */
-static int check_fwhm(run_state *s, char *err)
+ * (run_psf.c).  A kernel far wider than the stars blends them (fwhm=20
+ * on stars of FWHM 3: 2 lone detections, fwhm=200: none): with too few
+ * measured, find looks again with a kernel a quarter as wide, down to
+ * 1 px, its shape cuts open, for the measure alone (fo: the first
+ * detection's options; s->bkg its maps). */
+static int check_fwhm(run_state *s, const mp_find_opts *fo, char *err)
 {
     const mp_psf *p = s->fit->model.psf;
     if (!p || p->kind != MP_PSF_GAUSS || p->field)
         return 0;
-    int rc = mp_pl_check_fwhm(&s->f, &s->t, 2.3548200450309493 * p->sigma, &s->stars_fwhm,
-                              s->rep->stars_fwhm, sizeof s->rep->stars_fwhm, s->gauss_wrong);
+    double fwhm = 2.3548200450309493 * p->sigma;
+    int rc = mp_pl_check_fwhm(&s->f, &s->t, fwhm, &s->stars_fwhm, s->rep->stars_fwhm,
+                              sizeof s->rep->stars_fwhm, s->gauss_wrong);
+    mp_find_opts narrow = *fo;
+    narrow.sharplo = narrow.sharphi = narrow.roundlo = narrow.roundhi = NAN;
+    for (narrow.fwhm = 0.25 * fo->fwhm; !rc && s->stars_fwhm.n < MP_PL_FWHM_NEED &&
+                                        narrow.fwhm >= 1.0; narrow.fwhm *= 0.25) {
+        mp_table alt;
+        mp_table_init(&alt);
+        rc = mp_find_stars(&s->f, &s->bkg, &narrow, &alt, s->gauss_wrong);
+        if (!rc)
+            rc = mp_pl_check_fwhm(&s->f, &alt, fwhm, &s->stars_fwhm, s->rep->stars_fwhm,
+                                  sizeof s->rep->stars_fwhm, s->gauss_wrong);
+        mp_table_free(&alt);
+    }
     if (rc == 1 || (rc == 2 && !s->o->build_psf)) {
         snprintf(err, MP_ERRLEN, "%s: %.400s", s->image, s->gauss_wrong);
         return 1;
@@ -178,12 +195,12 @@ static int find_stars(run_state *s, char *err)
     s->rep->threshold = s->o->find.threshold;
     if (screen(s, &s->f, s->f.im.pix, &s->t))
         return oom(err);
-    mp_bkg_free(&s->bkg);        /* the fit needs no map: memory for its model */
     mp_pl_drop_unset(&s->t);
+    if (check_fwhm(s, &fo, err))
+        return 1;
+    mp_bkg_free(&s->bkg);        /* the fit needs no map: memory for its model */
     if (mp_table_shrink(&s->t))  /* the candidates' rows given back (issue 14) */
         return oom(err);
-    if (check_fwhm(s, err))
-        return 1;
     s->rep->t_find += mp_seconds() - t0;
     s->rep->found = (long)s->t.nrow;
     /* Written first: a failed write is the run's only stderr line. */

@@ -155,5 +155,14 @@ rc=$?
     grep -q "the stars' FWHM 2\.5 +- " "$T/gw.report" || no "psf=gauss fwhm=2.5: $(cat "$T/gwlog")"
 grep -q "the stars' FWHM is 2\.5 +- .*, not fwhm=0\.1: with fwhm=2\.5, [0-9]* PSF stars" \
     "$T/nplog" || no "fwhm=0.1: the stars' FWHM not named: $(cat "$T/nplog")"
+# A start so wide that find blends every star (fwhm=20: no PSF star, and
+# the build fell back on that Gaussian, exit 0 with 26 stars before):
+# measured on a narrower kernel's detections, the run ends naming fwhm.
+rm -f "$T"/gw.*
+"$M" pipeline "$T/f.fits" root="$T/gw" fwhm=20 >/dev/null 2>"$T/gwlog"
+rc=$?
+[ "$rc" -eq 1 ] && grep -q "fwhm=20 is not the stars': .* measure FWHM 2\.5 " "$T/gwlog" ||
+    no "fwhm=20: exit $rc: $(cat "$T/gwlog")"
+[ -z "$(ls "$T" | grep '^gw\.')" ] || no "fwhm=20: left $(ls "$T" | grep '^gw\.')"
 
 [ "$fails" -eq 0 ]
