@@ -19,24 +19,6 @@ typedef struct {
     mp_table_format fmt;
 } find_setup;
 
-static int need_real(const mp_parset *ps, const char *name, double *v, char *err)
-{
-    if (mp_par_real(ps, name, v) || !isfinite(*v)) {
-        snprintf(err, MP_ERRLEN, "%s: INDEF is not allowed; give a number", name);
-        return 1;
-    }
-    return 0;
-}
-
-static int need_int(const mp_parset *ps, const char *name, int *v, char *err)
-{
-    if (mp_par_int(ps, name, v) || *v == MP_PAR_INDEF_INT) {
-        snprintf(err, MP_ERRLEN, "%s: INDEF is not allowed; give a number", name);
-        return 1;
-    }
-    return 0;
-}
-
 /* A shape limit; INDEF (NaN) means none. */
 static double limit(const mp_parset *ps, const char *name)
 {
@@ -49,10 +31,11 @@ static int setup_of(const mp_parset *ps, find_setup *s, char *err)
 {
     memset(s, 0, sizeof *s);
     mp_find_opts_default(&s->opts);
-    if (need_real(ps, "fwhm", &s->opts.fwhm, err) ||
-        need_real(ps, "threshold", &s->opts.threshold, err) ||
-        need_real(ps, "nsigma", &s->opts.nsigma, err) ||
-        need_int(ps, "mesh", &s->mesh, err) || need_int(ps, "filter", &s->filter, err))
+    if (mp_par_need_real(ps, "fwhm", &s->opts.fwhm, err) ||
+        mp_par_need_real(ps, "threshold", &s->opts.threshold, err) ||
+        mp_par_need_real(ps, "nsigma", &s->opts.nsigma, err) ||
+        mp_par_need_int(ps, "mesh", &s->mesh, err) ||
+        mp_par_need_int(ps, "filter", &s->filter, err))
         return 1;
     s->opts.sharplo = limit(ps, "sharplo");
     s->opts.sharphi = limit(ps, "sharphi");

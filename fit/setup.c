@@ -249,7 +249,8 @@ static int setup_psf(const mp_parset *ps, mp_fit_setup *s, char *err)
             return 1;
         }
         double fwhm;
-        mp_par_real(ps, "fwhm", &fwhm);
+        if (mp_par_need_real(ps, "fwhm", &fwhm, err))
+            return 1;       /* NaN: a Gaussian of no width ("out of memory") */
         mp_psf_gauss(fwhm, &s->psf);
         return 0;
     }

@@ -12,25 +12,15 @@
 #include "group/group.h"
 #include "params/params.h"
 
-static int need_real(const mp_parset *ps, const char *name, double *v, char *err)
-{
-    if (mp_par_real(ps, name, v) || !isfinite(*v)) {
-        snprintf(err, MP_ERRLEN, "%s: INDEF is not allowed; give a number", name);
-        return 1;
-    }
-    return 0;
-}
-
 static int read_opts(const mp_parset *ps, mp_group_opts *o, mp_table_format *fmt,
                      int *verbose, char *err)
 {
     mp_group_opts_default(o);
-    if (need_real(ps, "fitrad", &o->fitrad, err) || need_real(ps, "psfrad", &o->psfrad, err))
+    if (mp_par_need_real(ps, "fitrad", &o->fitrad, err) ||
+        mp_par_need_real(ps, "psfrad", &o->psfrad, err))
         return 1;
-    if (mp_par_int(ps, "maxgroup", &o->maxgroup) || o->maxgroup == MP_PAR_INDEF_INT) {
-        snprintf(err, MP_ERRLEN, "maxgroup: INDEF is not allowed; give a number");
+    if (mp_par_need_int(ps, "maxgroup", &o->maxgroup, err))
         return 1;
-    }
     if (mp_par_bool(ps, "verbose", verbose)) {
         snprintf(err, MP_ERRLEN, "verbose: give yes or no");
         return 1;

@@ -342,6 +342,24 @@ int mp_par_real(const mp_parset *ps, const char *name, double *v)
     return parse_real(p->value, v);
 }
 
+int mp_par_need_real(const mp_parset *ps, const char *name, double *v, char *err)
+{
+    if (mp_par_real(ps, name, v) || !isfinite(*v)) {
+        mpp_errf(err, "%s: INDEF is not allowed; give a number", name);
+        return 1;
+    }
+    return 0;
+}
+
+int mp_par_need_int(const mp_parset *ps, const char *name, int *v, char *err)
+{
+    if (mp_par_int(ps, name, v) || *v == MP_PAR_INDEF_INT) {
+        mpp_errf(err, "%s: INDEF is not allowed; give a number", name);
+        return 1;
+    }
+    return 0;
+}
+
 const char *mp_par_string(const mp_parset *ps, const char *name)
 {
     const mp_par *p = mpp_find(ps, name);

@@ -106,6 +106,12 @@ int mp_par_int(const mp_parset *ps, const char *name, int *v);
 int mp_par_real(const mp_parset *ps, const char *name, double *v);
 const char *mp_par_string(const mp_parset *ps, const char *name);
 
+/* mp_par_need_real / mp_par_need_int: a real (int) parameter that must be
+ * a number: nonzero with err "NAME: INDEF is not allowed; give a number"
+ * when it is INDEF (or not of that type). */
+int mp_par_need_real(const mp_parset *ps, const char *name, double *v, char *err);
+int mp_par_need_int(const mp_parset *ps, const char *name, int *v, char *err);
+
 void mp_params_free(mp_parset *ps);
 
 /* mp_params_list: expand an IRAF list argument: "@file" gives its

@@ -22,7 +22,8 @@ static int read_opts(const mp_parset *ps, psf_task *t, char *err)
     memset(t, 0, sizeof *t);
     double fwhm = 3.0, psfrad = NAN, fitrad = NAN;
     int os = MP_PAR_INDEF_INT;
-    mp_par_real(ps, "fwhm", &fwhm);
+    if (mp_par_need_real(ps, "fwhm", &fwhm, err))
+        return 1;
     mp_par_real(ps, "psfrad", &psfrad);
     mp_par_real(ps, "fitrad", &fitrad);
     mp_par_int(ps, "oversamp", &os);

@@ -26,24 +26,6 @@ typedef struct {
     uint64_t seed;
 } sim_config;
 
-static int need_int(const mp_parset *ps, const char *name, int *v, char *err)
-{
-    if (mp_par_int(ps, name, v) || *v == MP_PAR_INDEF_INT) {
-        snprintf(err, MP_ERRLEN, "%s: INDEF is not allowed; give a number", name);
-        return 1;
-    }
-    return 0;
-}
-
-static int need_real(const mp_parset *ps, const char *name, double *v, char *err)
-{
-    if (mp_par_real(ps, name, v) || !isfinite(*v)) {
-        snprintf(err, MP_ERRLEN, "%s: INDEF is not allowed; give a number", name);
-        return 1;
-    }
-    return 0;
-}
-
 /* The field and its WCS: a frame is a window (x0, y0) on a field of
  * fieldnx x fieldny whose stars one seed draws, so frames with the same
  * seed and other offsets overlap on the same stars (and, with ra/dec, on
@@ -51,9 +33,9 @@ static int need_real(const mp_parset *ps, const char *name, double *v, char *err
 static int read_field(const mp_parset *ps, sim_config *c, char *err)
 {
     if (mp_par_int(ps, "fieldnx", &c->fieldnx) || mp_par_int(ps, "fieldny", &c->fieldny) ||
-        need_int(ps, "x0", &c->x0, err) || need_int(ps, "y0", &c->y0, err) ||
+        mp_par_need_int(ps, "x0", &c->x0, err) || mp_par_need_int(ps, "y0", &c->y0, err) ||
         mp_par_real(ps, "ra", &c->ra) || mp_par_real(ps, "dec", &c->dec) ||
-        need_real(ps, "pixscale", &c->pixscale, err)) {
+        mp_par_need_real(ps, "pixscale", &c->pixscale, err)) {
         if (!*err)
             snprintf(err, MP_ERRLEN, "sim.par: a field parameter is missing from the defaults");
         return 1;
@@ -73,16 +55,20 @@ static int read_field(const mp_parset *ps, sim_config *c, char *err)
 /* The numeric parameters, each one a number. */
 static int read_numbers(const mp_parset *ps, sim_config *c, char *err)
 {
-    return need_int(ps, "nx", &c->nx, err) || need_int(ps, "ny", &c->ny, err) ||
-           need_int(ps, "nstars", &c->nstars, err) ||
-           need_real(ps, "magmin", &c->magmin, err) || need_real(ps, "magmax", &c->magmax, err) ||
-           need_real(ps, "sky", &c->sky, err) || need_real(ps, "rdnoise", &c->rdnoise, err) ||
-           need_real(ps, "gain", &c->gain, err) || need_real(ps, "fwhm", &c->fwhm, err) ||
-           need_real(ps, "volume", &c->volume, err) || need_int(ps, "psfos", &c->psfos, err) ||
-           need_real(ps, "lod", &c->lod, err) || need_real(ps, "band", &c->band, err) ||
-           need_int(ps, "ncosrays", &c->ncosrays, err) ||
-           need_real(ps, "crenergy", &c->crenergy, err) ||
-           need_real(ps, "fwhmvar", &c->fwhmvar, err) || need_real(ps, "stretch", &c->stretch, err);
+    static const char *const reals[] = {"magmin", "magmax", "sky",  "rdnoise", "gain",
+                                        "fwhm",   "volume", "lod",  "band",    "crenergy",
+                                        "fwhmvar", "stretch"};
+    double *rv[] = {&c->magmin, &c->magmax, &c->sky,  &c->rdnoise,  &c->gain,    &c->fwhm,
+                    &c->volume, &c->lod,    &c->band, &c->crenergy, &c->fwhmvar, &c->stretch};
+    if (mp_par_need_int(ps, "nx", &c->nx, err) || mp_par_need_int(ps, "ny", &c->ny, err) ||
+        mp_par_need_int(ps, "nstars", &c->nstars, err) ||
+        mp_par_need_int(ps, "psfos", &c->psfos, err) ||
+        mp_par_need_int(ps, "ncosrays", &c->ncosrays, err))
+        return 1;
+    for (size_t k = 0; k < sizeof reals / sizeof *reals; k++)
+        if (mp_par_need_real(ps, reals[k], rv[k], err))
+            return 1;
+    return 0;
 }
 
 /* pupil=: gaussian, or segmented (which draws its own PSF). */

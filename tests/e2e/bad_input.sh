@@ -44,6 +44,19 @@ bad "out of range"      fitrad        -- "$T/ok.fits" "$T/ok.truth" fitrad=-3
 bad "not a number"      maxiter       -- "$T/ok.fits" "$T/ok.truth" maxiter=ten
 bad "bad enumeration"   skymodel      -- "$T/ok.fits" "$T/ok.truth" skymodel=quadric
 bad "missing psf"       nopsf.fits    -- "$T/ok.fits" "$T/ok.truth" psf="$T/nopsf.fits"
+bad "INDEF fwhm"        fwhm          -- "$T/ok.fits" "$T/ok.truth" fwhm=INDEF
+# The same through every task that takes fwhm (it said "out of memory" in
+# fit, fakes and pipeline, "psfrad: nan px" in psf): one line naming it.
+for task in find psf fakes pipeline sim; do
+    case $task in sim) in="$T/new.fits" ;; *) in="$T/ok.fits" ;; esac
+    "$M" $task "$in" fwhm=INDEF >"$T/stdout" 2>"$T/err"
+    rc=$?
+    [ "$rc" -eq 1 ] && [ "$(wc -l <"$T/err")" -eq 1 ] &&
+        grep -q "^matphot $task: fwhm: INDEF is not allowed" "$T/err" ||
+        no "$task fwhm=INDEF: exit $rc: $(cat "$T/err")"
+done
+[ ! -e "$T/new.fits" ] && [ ! -e "$T/ok.coo" ] && [ ! -e "$T/ok.cat" ] ||
+    no "fwhm=INDEF: left an output file"
 
 # Tables: text in a number, no position columns, an empty file, CRLF is fine.
 sed '$ s/30\.[0-9]*/abc/' "$T/ok.truth" >"$T/text.coo"
