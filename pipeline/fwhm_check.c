@@ -87,3 +87,44 @@ int mp_pl_check_fwhm(const mp_frame *f, const mp_table *t, double fwhm, mp_stars
     }
     return 0;
 }
+
+/* The stars of f measured on find's detections with a kernel of FWHM
+ * w and the given options' other settings, shape cuts open (a kernel
+ * far off the stars' would cut them). */
+static int measure_with(const mp_frame *f, const mp_bkg *b, const mp_find_opts *fo, double w,
+                        mp_stars_fwhm *m, char *err)
+{
+    mp_find_opts o = *fo;
+    o.fwhm = w;
+    o.sharplo = o.sharphi = o.roundlo = o.roundhi = NAN;
+    mp_table t;
+    mp_table_init(&t);
+    int rc = mp_find_stars(f, b, &o, &t, err) || mp_epsf_stars_fwhm(f, &t, NMEASURE, m, err);
+    mp_table_free(&t);
+    return rc;
+}
+
+int mp_pl_frame_fwhm(const char *image, const mp_pipeline_opts *o, mp_stars_fwhm *m, char *err)
+{
+    /* The kernels tried in turn: the parameter file's default, then wider
+     * (a narrow kernel breaks a wide star's top into peaks no test calls
+     * lone). */
+    static const double kernels[] = {3.0, 12.0, 48.0};
+    mp_frame f;
+    mp_bkg b;
+    memset(&b, 0, sizeof b);
+    memset(m, 0, sizeof *m);
+    if (mp_frame_read(image, &o->fit.dp, &f, err))
+        return 1;
+    int rc = mp_bkg_estimate(&f, o->mesh, o->filter, &b, err);
+    for (size_t k = 0; !rc && m->n < MP_PL_FWHM_NEED && k < sizeof kernels / sizeof *kernels; k++)
+        rc = measure_with(&f, &b, &o->find, kernels[k], m, err);
+    if (!rc && m->n < MP_PL_FWHM_NEED) {
+        snprintf(err, MP_ERRLEN, "fwhm: INDEF, and %s has too few stars to measure it (%d lone "
+                 "stars of S/N >= 20, %d needed): give fwhm", image, m->n, MP_PL_FWHM_NEED);
+        rc = 1;
+    }
+    mp_bkg_free(&b);
+    mp_frame_free(&f);
+    return rc;
+}

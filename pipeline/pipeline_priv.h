@@ -44,6 +44,14 @@ int mp_pl_sharp_limits(const mp_prf_model *m, long nx, long ny, mp_find_opts *o,
 int mp_pl_check_fwhm(const mp_frame *f, const mp_table *t, double fwhm, mp_stars_fwhm *m,
                      char *why, size_t nwhy, char *err);
 
+/* mp_pl_frame_fwhm: the FWHM of image's stars (fwhm=INDEF): the frame
+ * read with o's datapars, its sky and noise maps as o's, and the stars
+ * measured (mp_epsf_stars_fwhm) on find's detections with a kernel of
+ * FWHM 3, else 12, else 48 px, shape cuts open, until MP_PL_FWHM_NEED
+ * are measured.  Errors: the frame's, too few stars (naming fwhm), out of
+ * memory. */
+int mp_pl_frame_fwhm(const char *image, const mp_pipeline_opts *o, mp_stars_fwhm *m, char *err);
+
 /* ---- bright_stars.c ---------------------------------------------------- */
 
 /* A fitted star: position, flux (e-), FLAGS and sky (SKY_PSF; NaN: none). */

@@ -95,6 +95,28 @@ int mp_pl_opts_read(mp_parset *ps, mp_pipeline_opts *o, char *err)
     return 0;
 }
 
+/* fwhm=INDEF: each image's stars' FWHM measured (mp_pl_frame_fwhm), set
+ * as fwhm and the options read again with it (the Gaussian, find's
+ * kernel, the build's start and radii); said on stderr. */
+static int fwhm_of_image(mp_parset *ps, mp_pipeline_opts *o, const char *image, char *err)
+{
+    mp_stars_fwhm m;
+    char v[32];
+    if (mp_pl_frame_fwhm(image, o, &m, err))
+        return 1;
+    snprintf(v, sizeof v, "%.4g", m.fwhm);
+    mp_sweeps *sw = o->sweeps;
+    mp_fit_setup_free(&o->fit);
+    if (mp_params_set(ps, "fwhm", v, err) || mp_pl_opts_read(ps, o, err)) {
+        o->sweeps = sw;
+        return 1;
+    }
+    o->sweeps = sw;
+    fprintf(stderr, "matphot pipeline: %s: fwhm %s (INDEF: the stars' FWHM, +- %.2g px on %d "
+            "lone stars)\n", image, v, m.err, m.n);
+    return 0;
+}
+
 int mp_task_pipeline(int argc, char **argv)
 {
     mp_parset ps;
@@ -106,7 +128,10 @@ int mp_task_pipeline(int argc, char **argv)
     char **im = NULL;
     size_t nim = 0;
     int rc = 1;
-    if (mp_pl_opts_read(&ps, &o, err))
+    double fw = NAN;
+    mp_par_real(&ps, "fwhm", &fw);
+    int measure = !isfinite(fw);     /* INDEF: measured on each image */
+    if ((measure && mp_params_set(&ps, "fwhm", "3", err)) || mp_pl_opts_read(&ps, &o, err))
         goto done;
     if (!(o.sweeps = mp_sweeps_new())) {
         snprintf(err, MP_ERRLEN, "out of memory");
@@ -127,6 +152,10 @@ int mp_task_pipeline(int argc, char **argv)
             goto done;
         }
         mp_pipeline_report r;
+        if (measure && fwhm_of_image(&ps, &o, im[i], err)) {
+            free(named);
+            goto done;
+        }
         int prc = mp_pipeline_run_any(im[i], root[0] ? root : named, &o, &r, err);
         free(named);
         if (prc)

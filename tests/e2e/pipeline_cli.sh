@@ -164,5 +164,18 @@ rc=$?
 [ "$rc" -eq 1 ] && grep -q "fwhm=20 is not the stars': .* measure FWHM 2\.5 " "$T/gwlog" ||
     no "fwhm=20: exit $rc: $(cat "$T/gwlog")"
 [ -z "$(ls "$T" | grep '^gw\.')" ] || no "fwhm=20: left $(ls "$T" | grep '^gw\.')"
+# fwhm=INDEF: the stars' FWHM measured on each frame and used as fwhm
+# (2.5 here), said on stderr; a frame without stars to measure ends
+# naming fwhm, exit 1, no output (one star: 3 needed).
+"$M" pipeline "$T/f.fits" root="$T/ind" fwhm=INDEF niter=1 >/dev/null 2>"$T/indlog" &&
+    grep -q "^matphot pipeline: .*f.fits: fwhm 2\.[45][0-9]* (INDEF: the stars' FWHM" \
+        "$T/indlog" && [ -s "$T/ind.cat" ] || no "fwhm=INDEF: $(cat "$T/indlog")"
+"$M" sim "$T/one.fits" nx=64 ny=64 >/dev/null 2>&1 || no "sim one.fits"
+"$M" pipeline "$T/one.fits" root="$T/one" fwhm=INDEF >/dev/null 2>"$T/indlog"
+rc=$?
+[ "$rc" -eq 1 ] && [ "$(wc -l <"$T/indlog")" -eq 1 ] &&
+    grep -q "fwhm: INDEF, and .*one.fits has too few stars" "$T/indlog" ||
+    no "fwhm=INDEF on a one-star frame: exit $rc: $(cat "$T/indlog")"
+[ -z "$(ls "$T" | grep '^one\.' | grep -v 'fits$\|truth$')" ] || no "fwhm=INDEF: left output"
 
 [ "$fails" -eq 0 ]
