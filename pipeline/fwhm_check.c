@@ -80,8 +80,9 @@ int mp_pl_check_fwhm(const mp_frame *f, const mp_table *t, double fwhm, mp_stars
     if (off(&m, fwhm) && fabs(bias) > e) {
         snprintf(err, MP_ERRLEN, "fwhm=%g is not the stars': %d lone stars measure FWHM %.3g "
                  "+- %.2g px, and the Gaussian of fwhm=%g puts their fluxes %+.0f %% off, "
-                 "more than the median star's error (%.1f %%); give fwhm=%.3g, or build the "
-                 "PSF from the frame (psf= empty)", fwhm, m.n, m.fwhm, m.err, fwhm,
+                 "more than the median star's error (%.1f %%); give fwhm=%.3g (INDEF: "
+                 "measured on each frame), or build the PSF (psf= empty)", fwhm, m.n, m.fwhm,
+                 m.err, fwhm,
                  100.0 * bias, 100.0 * e, m.fwhm);
         return 2;
     }

@@ -2,14 +2,18 @@
  * (pipeline/sharp_limits.c, mp_pl_sharp_limits): a PSF of the kernel's
  * own shape leaves DAOPHOT's limits as they are; an undersampled one
  * widens them just enough that a noiseless star of it, at the phase where
- * it is sharpest, is detected where DAOPHOT's limits cut it. */
+ * it is sharpest, is detected where DAOPHOT's limits cut it; and a run
+ * that builds its PSF searches its residual with that PSF's limits, not
+ * its start's (the limits are kept per model, run_state.sharp_known). */
 #include <setjmp.h>
 #include <stdarg.h>
 #include <stddef.h>
 #include <cmocka.h>
 #include <math.h>
+#include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include "io/io.h"
 #include "pipeline/pipeline_priv.h"
 #include "sim/sim.h"
 
@@ -100,11 +104,107 @@ static void test_undersampled_widened(void **state)
     assert_non_null(strstr(why, "as given"));
 }
 
+/* The limits are measured once per PSF model (run_state.sharp_known) and
+ * measured again when the model changes (adopt_psf).  A run that builds
+ * its PSF from a frame of Moffat stars (β 2.5, FWHM 3: a sharper core
+ * than the start's Gaussian of fwhm 3) searches the residual with the
+ * built PSF, and the report's sharpness line must be that PSF's: exactly
+ * mp_pl_sharp_limits on the written root.psf.fits.  Were the limits kept
+ * across the change, the line would be the start Gaussian's, which the
+ * test first shows to differ from the built PSF's. */
+#define NM 192
+#define NGM 7
+
+static void add_moffat(float *img, double x, double y, double e)
+{
+    const double beta = 2.5, fwhm = 3.0, rcut = 15.0;
+    double a = fwhm / (2.0 * sqrt(pow(2.0, 1.0 / beta) - 1.0));
+    double norm = (beta - 1.0) / (M_PI * a * a);   /* unit integral (to infinity) */
+    for (long j = (long)(y - rcut); j <= (long)(y + rcut); j++)
+        for (long i = (long)(x - rcut); i <= (long)(x + rcut); i++) {
+            double r2 = (i - x) * (i - x) + (j - y) * (j - y);
+            if (i >= 1 && j >= 1 && i <= NM && j <= NM && r2 <= rcut * rcut)
+                img[(size_t)(j - 1) * NM + (size_t)(i - 1)] +=
+                    (float)(e * norm * pow(1.0 + r2 / (a * a), -beta));
+        }
+}
+
+/* The report's sharpness line the model in psf (a file, or "gauss") gives
+ * with the pipeline's find options, into why. */
+static void limits_of(const char *psf, char *why, size_t n)
+{
+    char err[MP_ERRLEN];
+    mp_parset ps;
+    mp_pipeline_opts o;
+    memset(&o, 0, sizeof o);
+    if (mp_params_defaults("pipeline", &ps, err) || mp_params_set(&ps, "psf", psf, err) ||
+        mp_pl_opts_read(&ps, &o, err))
+        fail_msg("options: %s", err);
+    mp_find_opts fo = o.find;
+    fo.fwhm = mp_prf_fwhm(&o.fit.model);
+    assert_int_equal(mp_pl_sharp_limits(&o.fit.model, NM, NM, &fo, why, n, err), 0);
+    mp_fit_setup_free(&o.fit);
+    mp_params_free(&ps);
+}
+
+static void test_limits_follow_the_built_psf(void **state)
+{
+    (void)state;
+    char dir[512], img[600], root[600], path[620], err[MP_ERRLEN];
+    const char *tmp = getenv("TMPDIR");
+    snprintf(dir, sizeof dir, "%s/test_sharp_limits.XXXXXX", tmp && *tmp ? tmp : "/tmp");
+    assert_non_null(mkdtemp(dir));
+    float *pix = malloc((size_t)NM * NM * sizeof *pix);
+    assert_non_null(pix);
+    for (size_t k = 0; k < (size_t)NM * NM; k++)
+        pix[k] = 100.0f;
+    for (int k = 0; k < NGM * NGM; k++)
+        add_moffat(pix, 18.3 + 26.0 * (k % NGM) + 0.37 * (k % 3),
+                   17.8 + 26.0 * (k / NGM) + 0.29 * (k % 4), 2e4 * (1.0 + (k * 7) % 5));
+    mp_rng r;
+    mp_rng_seed(&r, 2025);
+    mp_sim_add_noise_float(&r, pix, (long)NM * NM, 3.0);
+    double *d = malloc((size_t)NM * NM * sizeof *d);
+    assert_non_null(d);
+    for (size_t k = 0; k < (size_t)NM * NM; k++)
+        d[k] = pix[k];
+    mp_card c[2] = {{"GAIN", 1.0, NULL, "e-/ADU"}, {"RDNOISE", 3.0, NULL, "e-"}};
+    snprintf(img, sizeof img, "%s/m.fits", dir);
+    assert_int_equal(mp_image_write(img, d, NM, NM, -32, c, 2, err), 0);
+    free(d);
+    free(pix);
+
+    mp_parset ps;
+    mp_pipeline_opts o;
+    memset(&o, 0, sizeof o);
+    if (mp_params_defaults("pipeline", &ps, err) || mp_params_set(&ps, "varorder", "0", err) ||
+        mp_pl_opts_read(&ps, &o, err))
+        fail_msg("options: %s", err);
+    snprintf(root, sizeof root, "%s/m", dir);
+    mp_pipeline_report rep;
+    if (mp_pipeline_run(img, root, &o, &rep, err))
+        fail_msg("pipeline: %s", err);
+    mp_fit_setup_free(&o.fit);
+    mp_params_free(&ps);
+
+    char built[200], start[200];
+    snprintf(path, sizeof path, "%s.psf.fits", root);
+    limits_of(path, built, sizeof built);
+    limits_of("gauss", start, sizeof start);
+    fprintf(stderr, "report: %s\nbuilt:  %s\nstart:  %s\n", rep.sharp, built, start);
+    assert_string_not_equal(built, start);
+    assert_string_equal(rep.sharp, built);
+    char cmd[600];
+    snprintf(cmd, sizeof cmd, "rm -rf '%s'", dir);
+    assert_int_equal(system(cmd), 0);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(test_kernel_shape_unchanged),
         cmocka_unit_test(test_undersampled_widened),
+        cmocka_unit_test(test_limits_follow_the_built_psf),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }
