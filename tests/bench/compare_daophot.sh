@@ -102,6 +102,7 @@ timed() {
 # in logout; the last line it prints is CL_OK, the check that every task
 # ran (a failing task ends the CL before it, with exit status 0).
 . tests/bench/daophot/cl_env.sh
+. tests/bench/host.sh
 cl_head() {
   fw=$2; fitrad=$2
   psfrad=$(awk -v f="$fw" 'BEGIN { printf "%.2f", 4*f }')
@@ -222,7 +223,7 @@ HOSTN=$(uname -n 2>/dev/null || echo "?")
 NCPU=$(nproc 2>/dev/null || echo "?")
 # the ratios move with the processor (2026-12-05: 47 Tuc built 0.96 of
 # DAOPHOT's CPU on a Xeon, 1.21-1.27 on an AMD EPYC of family 23)
-CPUM=$(grep -m1 'model name' /proc/cpuinfo 2>/dev/null | sed 's/.*: //')
+CPUM=$(cpu_name)
 LOAD=$(cut -d' ' -f1-3 /proc/loadavg 2>/dev/null || echo "?")
 IRAFV=$(irafcl -v 2>/dev/null | head -n 1)
 MPV=$("$MP" --version 2>/dev/null | head -n 1)

@@ -21,7 +21,8 @@ VARIANTS=${VARIANTS:-"def sp1k bind"}
 ROUNDS=${ROUNDS:-3}
 log() { echo "$@" | tee -a "$S"; }
 el() { echo $(($(date +%s) - T0)); }
-log "host: $(nproc) cpus; $(grep -m1 'model name' /proc/cpuinfo); load $(cut -d' ' -f1-3 /proc/loadavg)"
+. tests/bench/host.sh
+log "host: $(nproc) cpus; $(cpu_name); load $(cut -d' ' -f1-3 /proc/loadavg)"
 W=/tmp/scaling
 mkdir -p $W && cd $W || exit 1
 args_of() {

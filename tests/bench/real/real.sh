@@ -57,6 +57,7 @@ ${CC:-cc} $CFLAGS -o "$W/realcmp" tests/bench/real/realcmp.c $LIBS || die "canno
 # shellcheck disable=SC2086
 ${CC:-cc} $CFLAGS -o "$W/real" tests/validate/real/real.c $LIBS || die "cannot build real.c"
 . tests/bench/daophot/cl_env.sh
+. tests/bench/host.sh
 OPENBLAS_NUM_THREADS=1
 export OPENBLAS_NUM_THREADS
 
@@ -184,7 +185,7 @@ rss_of() { tail -n 1 "$1" | awk '{print $4}'; }
 {
 echo "# matphot against IRAF DAOPHOT on real frames"
 echo
-echo "Generated $(date -u '+%Y-%m-%d %H:%M UTC') by \`tests/bench/real/real.sh\` (part of \`make bench\`; \`REPS=$REPS\`), $(nproc) processors ($(grep -m1 'model name' /proc/cpuinfo 2>/dev/null | sed 's/.*: //')), load before $(cut -d' ' -f1-3 /proc/loadavg).  matphot $(git rev-parse --short HEAD 2>/dev/null || echo '?'), \`OMP_NUM_THREADS=$THREADS\`; IRAF $(irafcl -v 2>/dev/null | head -n 1) (Debian iraf $(dpkg-query -W -f='${Version}' iraf 2>/dev/null || echo '?')).  Data: \`$REALDATA\` (MANIFEST.md)${SEC:+; only the section $SEC of each frame}."
+echo "Generated $(date -u '+%Y-%m-%d %H:%M UTC') by \`tests/bench/real/real.sh\` (part of \`make bench\`; \`REPS=$REPS\`), $(nproc) processors ($(cpu_name)), load before $(cut -d' ' -f1-3 /proc/loadavg).  matphot $(git rev-parse --short HEAD 2>/dev/null || echo '?'), \`OMP_NUM_THREADS=$THREADS\`; IRAF $(irafcl -v 2>/dev/null | head -n 1) (Debian iraf $(dpkg-query -W -f='${Version}' iraf 2>/dev/null || echo '?')).  Data: \`$REALDATA\` (MANIFEST.md)${SEC:+; only the section $SEC of each frame}."
 echo
 echo "CPU = user + sys seconds of the whole process (\`/usr/bin/time\`), the median of $REPS runs, matphot and DAOPHOT interleaved; peak RSS the largest resident size of any run (DAOPHOT: of its largest CL run).  matphot reduces each frame with the instrument's PSF table (validate/REAL.md's commands, nothing tuned) and, in the rows ending in b, with the PSF it builds from the frame (no psf=; the build counted in its CPU); DAOPHOT builds its PSF from the frame (25 stars by pstselect, psf, nstar + substar of their neighbours, psf again), then allstar, daofind on the residual, phot, pfmerge, allstar (\`function = gauss\`, \`varorder = 0\`: a look-up table; fitrad ≈ FWHM, psfrad as below): two detection passes, the chain issue 12 names.  matphot's default \`niter = 3\` makes three, so the second ratio counts DAOPHOT's third pass as well (daofind on the second allstar's residual, phot, pfmerge, allstar: CL run refind3, timed apart in the same runs): the same number of passes each.  The stage seconds are wall clock."
 echo

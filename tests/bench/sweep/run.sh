@@ -104,7 +104,8 @@ else
     plots="no gnuplot: the PNGs were not drawn (make deps installs gnuplot-nox)"
 fi
 
-cpu=$(grep -m1 'model name' /proc/cpuinfo 2>/dev/null | sed 's/.*: //')
+. tests/bench/host.sh
+cpu=$(cpu_name)
 cpu_of() {  # CPU seconds of a scene from its log ("... done in W s wall, C s CPU")
     sed -n 's/.* wall, \([0-9.]*\) s CPU$/\1/p' "$W/$1.log" 2>/dev/null | tail -n 1
 }
