@@ -34,15 +34,29 @@ int mp_pl_sharp_limits(const mp_prf_model *m, long nx, long ny, mp_find_opts *o,
 /* Stars measured at least for a verdict on fwhm. */
 #define MP_PL_FWHM_NEED 3
 
-/* mp_pl_check_fwhm: the FWHM of the stars of t (the first detection) on f
- * measured (mp_epsf_stars_fwhm) into *m and against fwhm; why: one line
- * for the report.  2 with err naming fwhm when fwhm is more than 3 σ of
- * the measure off it and the Gaussian of fwhm's flux bias on the stars
- * exceeds the median detection's flux error (fwhm_check.c says why): an
- * error where that Gaussian is the model.  1 with err: a table without
- * find's columns, out of memory. */
-int mp_pl_check_fwhm(const mp_frame *f, const mp_table *t, double fwhm, mp_stars_fwhm *m,
-                     char *why, size_t nwhy, char *err);
+/* mp_pl_stars_fwhm: the FWHM of the stars of t (a detection) on f
+ * measured (mp_epsf_stars_fwhm, up to 25 stars) into *m; why: the
+ * report's words for it.  Errors: a table without find's columns, out of
+ * memory. */
+int mp_pl_stars_fwhm(const mp_frame *f, const mp_table *t, mp_stars_fwhm *m, char *why,
+                     size_t nwhy, char *err);
+
+/* mp_pl_gauss_verdict: 2 with err naming fwhm when the Gaussian of fwhm
+ * is more than 3 σ of the measure m off the stars and its flux bias on
+ * them exceeds the median detection's (t's) flux error (fwhm_check.c says
+ * why); 0 otherwise, and when m measured too few stars.  Adds the bias to
+ * why. */
+int mp_pl_gauss_verdict(const mp_frame *f, const mp_table *t, double fwhm,
+                        const mp_stars_fwhm *m, char *why, size_t nwhy, char *err);
+
+/* mp_pl_table_verdict: 2 with err naming oversamp when the table's own
+ * star (model at (x, y), read at OVERSAMP os; mp_epsf_model_fwhm) is more
+ * than 3 σ of the measure m off the stars and nearer in log to twice or
+ * half their width than to it; 0 otherwise, and when m measured too few
+ * stars; 1 with err when the table cannot be measured.  Adds the table's
+ * width to why. */
+int mp_pl_table_verdict(const mp_prf_model *model, int os, double x, double y,
+                        const mp_stars_fwhm *m, char *why, size_t nwhy, char *err);
 
 /* mp_pl_frame_fwhm: the FWHM of image's stars (fwhm=INDEF): the frame
  * read with o's datapars, its sky and noise maps as o's, and the stars

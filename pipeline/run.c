@@ -143,36 +143,52 @@ static int find_opts_for_model(run_state *s, mp_find_opts *fo, char *err)
     return 0;
 }
 
-/* The first detection's stars measured against the Gaussian of fwhm,
- * when that is the model (psf=gauss) or where the PSF build starts: said
- * in the report; psf=gauss with a fwhm far off the stars' is an error
- * (fwhm_check.c), and so is a build that falls back on that Gaussian
- * (run_psf.c).  A kernel far wider than the stars blends them (fwhm=20
- * on stars of FWHM 3: 2 lone detections, fwhm=200: none): with too few
- * measured, find looks again with a kernel a quarter as wide, down to
- * 1 px, its shape cuts open, for the measure alone (fo: the first
- * detection's options; s->bkg its maps). */
-static int check_fwhm(run_state *s, const mp_find_opts *fo, char *err)
+/* The first detection's stars' FWHM (s->stars_fwhm): with too few
+ * measured (a kernel far wider than the stars blends them: fwhm=20 on
+ * stars of FWHM 3, 2 lone detections; fwhm=200, none), find looks again
+ * with a kernel a quarter as wide, down to 1 px, its shape cuts open,
+ * for the measure alone (fo: the first detection's options; s->bkg its
+ * maps). */
+static int measure_stars(run_state *s, const mp_find_opts *fo, char *err)
 {
-    const mp_psf *p = s->fit->model.psf;
-    if (!p || p->kind != MP_PSF_GAUSS || p->field)
-        return 0;
-    double fwhm = 2.3548200450309493 * p->sigma;
-    int rc = mp_pl_check_fwhm(&s->f, &s->t, fwhm, &s->stars_fwhm, s->rep->stars_fwhm,
-                              sizeof s->rep->stars_fwhm, s->gauss_wrong);
+    char *why = s->rep->stars_fwhm;
+    size_t nwhy = sizeof s->rep->stars_fwhm;
+    int rc = mp_pl_stars_fwhm(&s->f, &s->t, &s->stars_fwhm, why, nwhy, err);
     mp_find_opts narrow = *fo;
     narrow.sharplo = narrow.sharphi = narrow.roundlo = narrow.roundhi = NAN;
     for (narrow.fwhm = 0.25 * fo->fwhm; !rc && s->stars_fwhm.n < MP_PL_FWHM_NEED &&
                                         narrow.fwhm >= 1.0; narrow.fwhm *= 0.25) {
         mp_table alt;
         mp_table_init(&alt);
-        rc = mp_find_stars(&s->f, &s->bkg, &narrow, &alt, s->gauss_wrong);
-        if (!rc)
-            rc = mp_pl_check_fwhm(&s->f, &alt, fwhm, &s->stars_fwhm, s->rep->stars_fwhm,
-                                  sizeof s->rep->stars_fwhm, s->gauss_wrong);
+        rc = mp_find_stars(&s->f, &s->bkg, &narrow, &alt, err) ||
+             mp_pl_stars_fwhm(&s->f, &alt, &s->stars_fwhm, why, nwhy, err);
         mp_table_free(&alt);
     }
-    if (rc == 1 || (rc == 2 && !s->o->build_psf)) {
+    return rc;
+}
+
+/* The model checked against the stars' width (fwhm_check.c), said in the
+ * report: the Gaussian of fwhm where it is the model (psf=gauss: one far
+ * off is an error naming fwhm) or where the build starts (an error only
+ * when the build falls back on it, run_psf.c); a table given, read at an
+ * OVERSAMP that makes its stars twice or half as wide or more (an error
+ * naming oversamp). */
+static int check_fwhm(run_state *s, const mp_find_opts *fo, char *err)
+{
+    const mp_psf *p = s->fit->model.psf;
+    int gauss = p && p->kind == MP_PSF_GAUSS && !p->field;
+    if (!p || (!gauss && s->o->build_psf))
+        return 0;               /* a table built here, from these stars */
+    if (measure_stars(s, fo, err))
+        return 1;
+    char *why = s->rep->stars_fwhm;
+    size_t nwhy = sizeof s->rep->stars_fwhm;
+    int rc = gauss ? mp_pl_gauss_verdict(&s->f, &s->t, 2.3548200450309493 * p->sigma,
+                                         &s->stars_fwhm, why, nwhy, s->gauss_wrong)
+                   : mp_pl_table_verdict(&s->fit->model, p->os, 0.5 * (double)(s->f.im.nx + 1),
+                                         0.5 * (double)(s->f.im.ny + 1), &s->stars_fwhm, why,
+                                         nwhy, s->gauss_wrong);
+    if (rc == 1 || (rc == 2 && !(gauss && s->o->build_psf))) {
         snprintf(err, MP_ERRLEN, "%s: %.400s", s->image, s->gauss_wrong);
         return 1;
     }

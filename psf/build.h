@@ -183,6 +183,13 @@ typedef struct {
 int mp_epsf_stars_fwhm(const mp_frame *f, const mp_table *t, int nmax, mp_stars_fwhm *out,
                        char *err);
 
+/* mp_epsf_model_fwhm: the FWHM of the Gaussian that fits a noiseless star
+ * of model m at frame position (x, y), measured as mp_epsf_stars_fwhm
+ * measures a star (the mean over four subpixel phases), so that the two
+ * compare: a table read at the wrong OVERSAMP is that many times too wide
+ * or narrow.  Errors: no render, no core within 60 px, out of memory. */
+int mp_epsf_model_fwhm(const mp_prf_model *m, double x, double y, double *fwhm, char *err);
+
 /* ---- Cut-outs (psf/cutout.c) ---------------------------------------------- */
 
 /* mp_epsf_cutouts: a star per (x[k], y[k], flux[k], sky[k]), its cut-out

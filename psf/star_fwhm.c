@@ -325,3 +325,68 @@ int mp_epsf_stars_fwhm(const mp_frame *f, const mp_table *t, int nmax, mp_stars_
     free(w);
     return 0;
 }
+
+int mp_epsf_model_fwhm(const mp_prf_model *m, double x, double y, double *fwhm, char *err)
+{
+    /* A noiseless star of 1e6 e- on a sky of 0 (read noise 1 e-: the
+     * weights the stars' fits give) at four subpixel phases; the window
+     * twice the half-maximum width the first render shows, as a star's. */
+    enum { HW = RMAX, SIDE = 2 * RMAX + 1 };
+    const double E = 1e6;
+    float *pix = malloc((size_t)SIDE * SIDE * sizeof *pix);
+    uint8_t *mask = calloc((size_t)SIDE * SIDE, 1);
+    double *prf = malloc((size_t)SIDE * SIDE * sizeof *prf);
+    mp_prf_work wk;
+    memset(&wk, 0, sizeof wk);
+    int rc = !pix || !mask || !prf, n = 0;
+    double sum = 0.0;
+    if (rc)
+        snprintf(err, MP_ERRLEN, "the PSF's FWHM: out of memory");
+    mp_frame f;
+    memset(&f, 0, sizeof f);
+    f.im.nx = f.im.ny = SIDE, f.im.pix = pix, f.mask = mask, f.rdnoise = 1.0, f.gain = 1.0;
+    for (int ph = 0; !rc && ph < 4; ph++) {
+        /* The star near the window's centre pixel (HW + 1, HW + 1). */
+        double sx = (double)(HW + 1) + 0.5 * (ph & 1), sy = (double)(HW + 1) + 0.5 * (ph >> 1);
+        long x0, y0;
+        int pw, phh;
+        memset(pix, 0, (size_t)SIDE * SIDE * sizeof *pix);
+        if (mp_prf_render_window(m, x + sx - (double)(HW + 1), y + sy - (double)(HW + 1),
+                                 lround(x) - HW, lround(y) - HW, SIDE, SIDE, &x0, &y0, &pw, &phh,
+                                 prf, NULL, NULL, &wk)) {
+            snprintf(err, MP_ERRLEN, "the PSF's FWHM: no render at (%g, %g)", x, y);
+            rc = 1;
+            break;
+        }
+        for (int v = 0; v < phh; v++)
+            for (int u = 0; u < pw; u++)
+                pix[(size_t)(y0 - (lround(y) - HW) + v) * SIDE + (size_t)(x0 - (lround(x) - HW) + u)] =
+                    (float)(E * prf[v * pw + u]);
+        long i = HW + 1, j = HW + 1;
+        if (climb(&f, &i, &j))
+            continue;
+        double r[4] = {half_reach(&f, i, j, 1, 0, 0.0), half_reach(&f, i, j, -1, 0, 0.0),
+                       half_reach(&f, i, j, 0, 1, 0.0), half_reach(&f, i, j, 0, -1, 0.0)};
+        if (r[0] < 0 || r[1] < 0 || r[2] < 0 || r[3] < 0)
+            continue;
+        double w0 = 0.5 * (r[0] + r[1] + r[2] + r[3]);
+        long R = (long)ceil(fmax(3.0, 2.0 * w0));
+        if (R > HW)
+            continue;
+        window w = {&f, i - R, i + R, j - R, j + R, 0, {0}, {0}, 1.0};
+        double s0 = fmax(w0, 0.5) / 2.3548200450309493;
+        double p[NPAR] = {E, (double)i, (double)j, s0, 0.0};
+        if (!fit_star(&w, p))
+            sum += 2.3548200450309493 * p[3], n++;
+    }
+    mp_prf_work_free(&wk);
+    free(pix);
+    free(mask);
+    free(prf);
+    if (!rc && n == 0) {
+        snprintf(err, MP_ERRLEN, "the PSF's FWHM: no Gaussian fits its core within %d px", HW);
+        rc = 1;
+    }
+    *fwhm = rc ? NAN : sum / n;
+    return rc;
+}

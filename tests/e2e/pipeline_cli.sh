@@ -164,6 +164,21 @@ rc=$?
 [ "$rc" -eq 1 ] && grep -q "fwhm=20 is not the stars': .* measure FWHM 2\.5 " "$T/gwlog" ||
     no "fwhm=20: exit $rc: $(cat "$T/gwlog")"
 [ -z "$(ls "$T" | grep '^gw\.')" ] || no "fwhm=20: left $(ls "$T" | grep '^gw\.')"
+# A table read at the wrong OVERSAMP (psf.fits is x2; a file without the
+# card, here the card renamed, reads as oversamp= says, INDEF: x1) makes
+# stars twice or half as wide as the frame's: one line naming oversamp and
+# the power of two the widths give, exit 1, no root.*.
+LC_ALL=C sed 's/OVERSAMP= /OVERSAMQ= /' "$T/psf.fits" >"$T/nocard.fits"
+for a in INDEF:1 4:4; do
+    os=${a%%:*} read=${a#*:}
+    "$M" pipeline "$T/f.fits" psf="$T/nocard.fits" oversamp="$os" root="$T/os" >/dev/null \
+        2>"$T/oslog"
+    rc=$?
+    [ "$rc" -eq 1 ] && [ "$(wc -l <"$T/oslog")" -eq 1 ] &&
+        grep -q "oversamp: the table read at OVERSAMP $read makes .*is its OVERSAMP 2 " \
+            "$T/oslog" || no "oversamp=$os: exit $rc: $(cat "$T/oslog")"
+    [ -z "$(ls "$T" | grep '^os\.')" ] || no "oversamp=$os: left $(ls "$T" | grep '^os\.')"
+done
 # fwhm=INDEF: the stars' FWHM measured on each frame and used as fwhm
 # (2.5 here), said on stderr; a frame without stars to measure ends
 # naming fwhm, exit 1, no output (one star: 3 needed).

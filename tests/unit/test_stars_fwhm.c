@@ -24,6 +24,7 @@
 #include <string.h>
 #include "io/io.h"
 #include "psf/build.h"
+#include "psf/psf.h"
 #include "sim/sim.h"
 
 #define N 256
@@ -117,10 +118,35 @@ static void test_needs_background(void **state)
     mp_frame_free(&f);
 }
 
+/* A model's own star measured as the stars are (mp_epsf_model_fwhm): the
+ * analytic Gaussian of FWHM 2.5 and its ×4 table come out 2.5 (noiseless:
+ * only the four phases' fits, to 1e-3 here; 1 % asserted), and the table
+ * read at OVERSAMP 1 four times as wide, as the pipeline's oversamp check
+ * assumes (3.5 to 4.5 times: each element then a pixel). */
+static void test_model_widths(void **state)
+{
+    (void)state;
+    char err[MP_ERRLEN] = "";
+    mp_psf g, t;
+    mp_psf_gauss(2.5, &g);
+    assert_int_equal(mp_psf_gauss_table(2.5, 4, 12.0, &t, err), 0);
+    mp_prf_model mg = {&g, NULL, 10}, mt = {&t, NULL, 10};
+    double wg, wt, w1;
+    assert_int_equal(mp_epsf_model_fwhm(&mg, 100.0, 80.0, &wg, err), 0);
+    assert_int_equal(mp_epsf_model_fwhm(&mt, 100.0, 80.0, &wt, err), 0);
+    t.os = 1;
+    assert_int_equal(mp_epsf_model_fwhm(&mt, 100.0, 80.0, &w1, err), 0);
+    fprintf(stderr, "model FWHM: Gaussian %.4f, x4 table %.4f, read at x1 %.4f\n", wg, wt, w1);
+    assert_true(fabs(wg - 2.5) < 0.025 && fabs(wt - 2.5) < 0.025);
+    assert_true(w1 / wt > 3.5 && w1 / wt < 4.5);
+    mp_psf_free(&t);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(test_widths),
+        cmocka_unit_test(test_model_widths),
         cmocka_unit_test(test_faint_none),
         cmocka_unit_test(test_needs_background),
     };
