@@ -9,6 +9,7 @@
 #include "catalog/catalog.h"
 #include "fit/fit.h"
 #include "params/params.h"
+#include "psf/build.h"
 
 /* The residual of t's fits on f written to residual, in ADU as the input
  * (GAIN and RDNOISE in its header).  Nonzero with err on failure. */
@@ -31,6 +32,35 @@ static int write_residual(const mp_frame *f, const mp_fit_setup *s, const mp_tab
     return rc;
 }
 
+/* The model against the width of the listed stars (psf/model_check.c),
+ * when the list is find's (X_IMAGE, Y_IMAGE, FLUX, BACKGROUND; a truth or
+ * hand list is taken as it is): psf=gauss with a fwhm far off them, or a
+ * table read at the wrong OVERSAMP, is an error naming the parameter. */
+static int check_model_width(const mp_fit_setup *s, const mp_frame *f, const mp_table *t,
+                             const char *image, char *err)
+{
+    static const char *const cols[] = {"X_IMAGE", "Y_IMAGE", "FLUX", "BACKGROUND"};
+    const mp_psf *p = s->model.psf;
+    for (size_t k = 0; k < sizeof cols / sizeof *cols; k++)
+        if (mp_table_col(t, cols[k]) < 0)
+            return 0;
+    mp_stars_fwhm m;
+    char why[400] = "", e[MP_ERRLEN];
+    if (mp_epsf_stars_fwhm(f, t, 25, &m, e)) {
+        snprintf(err, MP_ERRLEN, "%s: %.400s", image, e);
+        return 1;
+    }
+    int gauss = p->kind == MP_PSF_GAUSS && !p->field;
+    int rc = gauss ? mp_epsf_gauss_verdict(f, t, 2.3548200450309493 * p->sigma, &m, why,
+                                           sizeof why, e)
+                   : mp_epsf_table_verdict(&s->model, p->os, 0.5 * (double)(f->im.nx + 1),
+                                           0.5 * (double)(f->im.ny + 1), &m, why, sizeof why, e);
+    if (rc)
+        snprintf(err, MP_ERRLEN, "%s: %.400s%s", image, e, rc == 2 && gauss ? ", or give the "
+                 "PSF as a table (psf=)" : "");
+    return rc != 0;
+}
+
 /* Fit one image with one coordinate table; write the table and residual.
  * nframes: the run's frames, so that economy plans its tables for the
  * whole @list (this table's stars in every frame, fit/econ_plan.c). */
@@ -49,7 +79,7 @@ static int fit_one(const mp_fit_setup *s, const char *image, const char *coords,
     double t0 = mp_seconds();
     if (mp_frame_read(image, &s->dp, &f, err))
         goto done;
-    if (mp_table_read(coords, &t, err))
+    if (mp_table_read(coords, &t, err) || check_model_width(s, &f, &t, image, err))
         goto done;
     run.t_read = mp_seconds() - t0;
     char e[MP_ERRLEN];

@@ -31,9 +31,6 @@ int mp_pl_sharp_limits(const mp_prf_model *m, long nx, long ny, mp_find_opts *o,
 
 /* ---- fwhm_check.c ------------------------------------------------------ */
 
-/* Stars measured at least for a verdict on fwhm. */
-#define MP_PL_FWHM_NEED 3
-
 /* mp_pl_stars_fwhm: the FWHM of the stars of t (a detection) on f
  * measured (mp_epsf_stars_fwhm, up to 25 stars) into *m; why: the
  * report's words for it.  Errors: a table without find's columns, out of
@@ -41,27 +38,10 @@ int mp_pl_sharp_limits(const mp_prf_model *m, long nx, long ny, mp_find_opts *o,
 int mp_pl_stars_fwhm(const mp_frame *f, const mp_table *t, mp_stars_fwhm *m, char *why,
                      size_t nwhy, char *err);
 
-/* mp_pl_gauss_verdict: 2 with err naming fwhm when the Gaussian of fwhm
- * is more than 3 σ of the measure m off the stars and its flux bias on
- * them exceeds the median detection's (t's) flux error (fwhm_check.c says
- * why); 0 otherwise, and when m measured too few stars.  Adds the bias to
- * why. */
-int mp_pl_gauss_verdict(const mp_frame *f, const mp_table *t, double fwhm,
-                        const mp_stars_fwhm *m, char *why, size_t nwhy, char *err);
-
-/* mp_pl_table_verdict: 2 with err naming oversamp when the table's own
- * star (model at (x, y), read at OVERSAMP os; mp_epsf_model_fwhm) is more
- * than 3 σ of the measure m off the stars and nearer in log to twice or
- * half their width than to it; 0 otherwise, and when m measured too few
- * stars; 1 with err when the table cannot be measured.  Adds the table's
- * width to why. */
-int mp_pl_table_verdict(const mp_prf_model *model, int os, double x, double y,
-                        const mp_stars_fwhm *m, char *why, size_t nwhy, char *err);
-
 /* mp_pl_frame_fwhm: the FWHM of image's stars (fwhm=INDEF): the frame
  * read with o's datapars, its sky and noise maps as o's, and the stars
  * measured (mp_epsf_stars_fwhm) on find's detections with a kernel of
- * FWHM 3, else 12, else 48 px, shape cuts open, until MP_PL_FWHM_NEED
+ * FWHM 3, else 12, else 48 px, shape cuts open, until MP_EPSF_FWHM_NEED
  * are measured.  Errors: the frame's, too few stars (naming fwhm), out of
  * memory. */
 int mp_pl_frame_fwhm(const char *image, const mp_pipeline_opts *o, mp_stars_fwhm *m, char *err);

@@ -156,7 +156,7 @@ static int measure_stars(run_state *s, const mp_find_opts *fo, char *err)
     int rc = mp_pl_stars_fwhm(&s->f, &s->t, &s->stars_fwhm, why, nwhy, err);
     mp_find_opts narrow = *fo;
     narrow.sharplo = narrow.sharphi = narrow.roundlo = narrow.roundhi = NAN;
-    for (narrow.fwhm = 0.25 * fo->fwhm; !rc && s->stars_fwhm.n < MP_PL_FWHM_NEED &&
+    for (narrow.fwhm = 0.25 * fo->fwhm; !rc && s->stars_fwhm.n < MP_EPSF_FWHM_NEED &&
                                         narrow.fwhm >= 1.0; narrow.fwhm *= 0.25) {
         mp_table alt;
         mp_table_init(&alt);
@@ -183,11 +183,15 @@ static int check_fwhm(run_state *s, const mp_find_opts *fo, char *err)
         return 1;
     char *why = s->rep->stars_fwhm;
     size_t nwhy = sizeof s->rep->stars_fwhm;
-    int rc = gauss ? mp_pl_gauss_verdict(&s->f, &s->t, 2.3548200450309493 * p->sigma,
+    int rc = gauss ? mp_epsf_gauss_verdict(&s->f, &s->t, 2.3548200450309493 * p->sigma,
                                          &s->stars_fwhm, why, nwhy, s->gauss_wrong)
-                   : mp_pl_table_verdict(&s->fit->model, p->os, 0.5 * (double)(s->f.im.nx + 1),
+                   : mp_epsf_table_verdict(&s->fit->model, p->os, 0.5 * (double)(s->f.im.nx + 1),
                                          0.5 * (double)(s->f.im.ny + 1), &s->stars_fwhm, why,
                                          nwhy, s->gauss_wrong);
+    size_t l = strlen(s->gauss_wrong);
+    if (rc == 2 && gauss && l < sizeof s->gauss_wrong)
+        snprintf(s->gauss_wrong + l, sizeof s->gauss_wrong - l, " (INDEF: measured on each "
+                 "frame), or build the PSF (psf= empty)");
     if (rc == 1 || (rc == 2 && !(gauss && s->o->build_psf))) {
         snprintf(err, MP_ERRLEN, "%s: %.400s", s->image, s->gauss_wrong);
         return 1;

@@ -203,7 +203,7 @@ static void fwhm_hint(const run_state *s, char *err)
 {
     const mp_stars_fwhm *m = &s->stars_fwhm;
     mp_epsf_opts po = s->o->psfb;
-    if (m->n < MP_PL_FWHM_NEED || !(fabs(m->fwhm - po.fwhm) > 3.0 * m->err))
+    if (m->n < MP_EPSF_FWHM_NEED || !(fabs(m->fwhm - po.fwhm) > 3.0 * m->err))
         return;
     po.fitrad = 2.0 * m->fwhm;
     if (s->o->tablerad_auto)

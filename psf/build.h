@@ -183,6 +183,26 @@ typedef struct {
 int mp_epsf_stars_fwhm(const mp_frame *f, const mp_table *t, int nmax, mp_stars_fwhm *out,
                        char *err);
 
+/* Stars measured at least for a verdict on the model's width. */
+#define MP_EPSF_FWHM_NEED 3
+
+/* mp_epsf_gauss_verdict: 2 with err naming fwhm when the Gaussian of fwhm
+ * is more than 3 σ of the measure m off the stars of f and its flux bias
+ * on them exceeds the median detection's (t's FLUX, BACKGROUND) flux
+ * error (psf/model_check.c says why); 0 otherwise, and when m measured
+ * too few stars.  Adds the bias to why (nwhy bytes). */
+int mp_epsf_gauss_verdict(const mp_frame *f, const mp_table *t, double fwhm,
+                          const mp_stars_fwhm *m, char *why, size_t nwhy, char *err);
+
+/* mp_epsf_table_verdict: 2 with err naming oversamp when the table's own
+ * star (model at (x, y), read at OVERSAMP os; mp_epsf_model_fwhm) is more
+ * than 3 σ of the measure m off the stars and nearer in log to twice or
+ * half their width than to it; 0 otherwise, and when m measured too few
+ * stars; 1 with err when the table cannot be measured.  Adds the table's
+ * width to why. */
+int mp_epsf_table_verdict(const mp_prf_model *model, int os, double x, double y,
+                          const mp_stars_fwhm *m, char *why, size_t nwhy, char *err);
+
 /* mp_epsf_model_fwhm: the FWHM of the Gaussian that fits a noiseless star
  * of model m at frame position (x, y), measured as mp_epsf_stars_fwhm
  * measures a star (the mean over four subpixel phases), so that the two

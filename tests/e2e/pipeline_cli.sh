@@ -24,6 +24,15 @@ P="psf=$T/psf.fits"
 "$M" fit "$T/f.fits" "$T/f.grp" "$P" output="$T/f.fit" 2>/dev/null || no "fit to a file"
 "$M" catalog "$T/f.fit" image="$T/f.fits" output="$T/file.cat" || no "catalog to a file"
 cmp -s "$T/pipe.cat" "$T/file.cat" || no "pipe and file chains differ"
+# fit checks its model against the stars find listed (FWHM 2.5): the
+# Gaussian of fwhm=4 is named, exit 1, no output; fwhm=2.5 fits.
+"$M" fit "$T/f.fits" "$T/f.grp" psf=gauss fwhm=4 output="$T/g4.fit" >/dev/null 2>"$T/g4log"
+rc=$?
+[ "$rc" -eq 1 ] && [ "$(wc -l <"$T/g4log")" -eq 1 ] &&
+    grep -q "^matphot fit: .*fwhm=4 is not the stars': .* FWHM 2\.5 " "$T/g4log" &&
+    [ ! -e "$T/g4.fit" ] || no "fit psf=gauss fwhm=4: exit $rc: $(cat "$T/g4log")"
+"$M" fit "$T/f.fits" "$T/f.grp" psf=gauss fwhm=2.5 output="$T/g4.fit" 2>"$T/g4log" ||
+    no "fit psf=gauss fwhm=2.5: $(cat "$T/g4log")"
 
 # The pipeline: its files, and the stars found against the truth.
 "$M" pipeline "$T/f.fits" "$P" 2>"$T/log" || no "pipeline: $(cat "$T/log")"
