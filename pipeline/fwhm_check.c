@@ -1,5 +1,5 @@
 /* fwhm_check.c — the stars' width measured for the pipeline
- * (pipeline_priv.h: mp_pl_stars_fwhm, mp_pl_frame_fwhm): in the words of
+ * (pipeline_priv.h: mp_pl_stars_why, mp_pl_frame_fwhm): in the words of
  * the report, and on a frame of its own for fwhm=INDEF.  The verdicts on
  * the model (psf=gauss's fwhm, a table's OVERSAMP) and why are in
  * psf/model_check.c. */
@@ -11,20 +11,16 @@
 #include "pipeline/pipeline_priv.h"
 #include "psf/build.h"
 
-#define NMEASURE 25         /* stars measured at most */
+#define NMEASURE MP_PL_FWHM_STARS
 
-int mp_pl_stars_fwhm(const mp_frame *f, const mp_table *t, mp_stars_fwhm *m, char *why,
-                     size_t nwhy, char *err)
+void mp_pl_stars_why(const mp_stars_fwhm *m, char *why, size_t nwhy)
 {
-    if (mp_epsf_stars_fwhm(f, t, NMEASURE, m, err))
-        return 1;
     if (m->n < MP_EPSF_FWHM_NEED)
         snprintf(why, nwhy, "the stars' FWHM not measured (%d lone, clean detections of %d "
                  "needed)", m->n, MP_EPSF_FWHM_NEED);
     else
         snprintf(why, nwhy, "the stars' FWHM %.3g +- %.2g px (a Gaussian fitted to each of %d "
                  "lone detections)", m->fwhm, m->err, m->n);
-    return 0;
 }
 
 /* The stars of f measured on find's detections with a kernel of FWHM

@@ -31,12 +31,11 @@ int mp_pl_sharp_limits(const mp_prf_model *m, long nx, long ny, mp_find_opts *o,
 
 /* ---- fwhm_check.c ------------------------------------------------------ */
 
-/* mp_pl_stars_fwhm: the FWHM of the stars of t (a detection) on f
- * measured (mp_epsf_stars_fwhm, up to 25 stars) into *m; why: the
- * report's words for it.  Errors: a table without find's columns, out of
- * memory. */
-int mp_pl_stars_fwhm(const mp_frame *f, const mp_table *t, mp_stars_fwhm *m, char *why,
-                     size_t nwhy, char *err);
+/* Stars the pipeline measures at most for their FWHM. */
+#define MP_PL_FWHM_STARS 25
+
+/* mp_pl_stars_why: the report's words for the stars' FWHM measured (m). */
+void mp_pl_stars_why(const mp_stars_fwhm *m, char *why, size_t nwhy);
 
 /* mp_pl_frame_fwhm: the FWHM of image's stars (fwhm=INDEF): the frame
  * read with o's datapars, its sky and noise maps as o's, and the stars

@@ -143,28 +143,15 @@ static int find_opts_for_model(run_state *s, mp_find_opts *fo, char *err)
     return 0;
 }
 
-/* The first detection's stars' FWHM (s->stars_fwhm): with too few
- * measured (a kernel far wider than the stars blends them: fwhm=20 on
- * stars of FWHM 3, 2 lone detections; fwhm=200, none), find looks again
- * with a kernel a quarter as wide, down to 1 px, its shape cuts open,
- * for the measure alone (fo: the first detection's options; s->bkg its
- * maps). */
+/* The first detection's stars' FWHM (s->stars_fwhm; fo: the first
+ * detection's options, s->bkg its maps), in the report's words. */
 static int measure_stars(run_state *s, const mp_find_opts *fo, char *err)
 {
-    char *why = s->rep->stars_fwhm;
-    size_t nwhy = sizeof s->rep->stars_fwhm;
-    int rc = mp_pl_stars_fwhm(&s->f, &s->t, &s->stars_fwhm, why, nwhy, err);
-    mp_find_opts narrow = *fo;
-    narrow.sharplo = narrow.sharphi = narrow.roundlo = narrow.roundhi = NAN;
-    for (narrow.fwhm = 0.25 * fo->fwhm; !rc && s->stars_fwhm.n < MP_EPSF_FWHM_NEED &&
-                                        narrow.fwhm >= 1.0; narrow.fwhm *= 0.25) {
-        mp_table alt;
-        mp_table_init(&alt);
-        rc = mp_find_stars(&s->f, &s->bkg, &narrow, &alt, err) ||
-             mp_pl_stars_fwhm(&s->f, &alt, &s->stars_fwhm, why, nwhy, err);
-        mp_table_free(&alt);
-    }
-    return rc;
+    if (mp_epsf_stars_fwhm_found(&s->f, &s->bkg, fo, &s->t, MP_PL_FWHM_STARS, &s->stars_fwhm,
+                                 err))
+        return 1;
+    mp_pl_stars_why(&s->stars_fwhm, s->rep->stars_fwhm, sizeof s->rep->stars_fwhm);
+    return 0;
 }
 
 /* The model checked against the stars' width (fwhm_check.c), said in the

@@ -25,6 +25,7 @@
 #define MATPHOT_PSF_BUILD_H
 
 #include "catalog/catalog.h"
+#include "find/find.h"
 #include "fit/fit.h"
 #include "io/io.h"
 
@@ -185,6 +186,16 @@ int mp_epsf_stars_fwhm(const mp_frame *f, const mp_table *t, int nmax, mp_stars_
 
 /* Stars measured at least for a verdict on the model's width. */
 #define MP_EPSF_FWHM_NEED 3
+
+/* mp_epsf_stars_fwhm_found: mp_epsf_stars_fwhm on t, find's detections
+ * with options fo on f (b: its sky and noise maps); with fewer than
+ * MP_EPSF_FWHM_NEED stars measured (a kernel far wider than the stars
+ * blends them: fwhm=20 on stars of FWHM 3, 2 lone detections; fwhm=200,
+ * none), find looks again with a kernel a quarter as wide, down to 1 px,
+ * its shape cuts open, for the measure alone.  Errors: find's, t's
+ * columns, out of memory. */
+int mp_epsf_stars_fwhm_found(const mp_frame *f, const mp_bkg *b, const mp_find_opts *fo,
+                             const mp_table *t, int nmax, mp_stars_fwhm *m, char *err);
 
 /* mp_epsf_gauss_verdict: 2 with err naming fwhm when the Gaussian of fwhm
  * is more than 3 σ of the measure m off the stars of f and its flux bias

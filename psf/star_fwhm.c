@@ -390,3 +390,19 @@ int mp_epsf_model_fwhm(const mp_prf_model *m, double x, double y, double *fwhm, 
     *fwhm = rc ? NAN : sum / n;
     return rc;
 }
+
+int mp_epsf_stars_fwhm_found(const mp_frame *f, const mp_bkg *b, const mp_find_opts *fo,
+                             const mp_table *t, int nmax, mp_stars_fwhm *m, char *err)
+{
+    int rc = mp_epsf_stars_fwhm(f, t, nmax, m, err);
+    mp_find_opts narrow = *fo;
+    narrow.sharplo = narrow.sharphi = narrow.roundlo = narrow.roundhi = NAN;
+    for (narrow.fwhm = 0.25 * fo->fwhm; !rc && m->n < MP_EPSF_FWHM_NEED && narrow.fwhm >= 1.0;
+         narrow.fwhm *= 0.25) {
+        mp_table alt;
+        mp_table_init(&alt);
+        rc = mp_find_stars(f, b, &narrow, &alt, err) || mp_epsf_stars_fwhm(f, &alt, nmax, m, err);
+        mp_table_free(&alt);
+    }
+    return rc;
+}

@@ -164,6 +164,34 @@ static int fit_all(const mp_frame *f, const psf_task *t, mp_table *found,
     return rc;
 }
 
+/* find's options for the PSF stars' detection: DAOPHOT's, the kernel of
+ * fwhm, the task's threshold. */
+static mp_find_opts find_opts(const psf_task *t)
+{
+    mp_find_opts fo;
+    mp_find_opts_default(&fo);
+    fo.fwhm = t->o.fwhm;
+    fo.threshold = t->threshold;
+    return fo;
+}
+
+/* After err (a build short of stars): the stars' FWHM measured on the
+ * detections, when more than 3 σ off fwhm (psfrad and fitrad follow it:
+ * a start far off the stars' leaves none alone, or fits none). */
+static void fwhm_hint(const psf_task *t, const mp_frame *f, const mp_bkg *b,
+                      const mp_table *found, char *err)
+{
+    mp_stars_fwhm m;
+    mp_find_opts fo = find_opts(t);
+    char e2[MP_ERRLEN];
+    size_t l = strlen(err);
+    if (mp_epsf_stars_fwhm_found(f, b, &fo, found, 25, &m, e2) || m.n < MP_EPSF_FWHM_NEED ||
+        !(fabs(m.fwhm - t->o.fwhm) > 3.0 * m.err) || l >= MP_ERRLEN)
+        return;
+    snprintf(err + l, MP_ERRLEN - l, "; the stars' FWHM is %.3g +- %.1g px (%d lone stars), "
+             "not fwhm=%g", m.fwhm, m.err, m.n, t->o.fwhm);
+}
+
 /* The find table's rows picked by mp_epsf_select as arrays. */
 static int stars_selected(const psf_task *t, const mp_frame *f, const mp_table *found,
                           double **x, double **y, double **fl, size_t *n, char *err)
@@ -210,10 +238,7 @@ static int detect(psf_task *t, const mp_frame *f, mp_bkg *b, mp_table *found, ch
     t->o.y0 = 0.5 * (double)(f->im.ny + 1);
     t->o.xs = f->im.nx > 1 ? 0.5 * (double)f->im.nx : 1.0;
     t->o.ys = f->im.ny > 1 ? 0.5 * (double)f->im.ny : 1.0;
-    mp_find_opts fo;
-    mp_find_opts_default(&fo);
-    fo.fwhm = t->o.fwhm;
-    fo.threshold = t->threshold;
+    mp_find_opts fo = find_opts(t);
     return mp_bkg_estimate(f, t->mesh, t->filter, b, err) || mp_find_stars(f, b, &fo, found, err);
 }
 
@@ -310,19 +335,26 @@ static int run(psf_task *t, char *err)
     if (mp_frame_read(t->image, &t->dp, &f, err) || table_fits(t, &f, err) ||
         detect(t, &f, &b, &found, err))
         goto done;
-    if (t->stars && t->stars[0] ? stars_from_list(t, &f, &x, &y, &fl, &n, err)
-                                : stars_selected(t, &f, &found, &x, &y, &fl, &n, err))
+    int listed = t->stars && t->stars[0];
+    if (listed ? stars_from_list(t, &f, &x, &y, &fl, &n, err)
+               : stars_selected(t, &f, &found, &x, &y, &fl, &n, err)) {
+        if (!listed && n == 0)
+            fwhm_hint(t, &f, &b, &found, err);
         goto done;
+    }
     char e2[MP_ERRLEN];
     /* The PSF stars used go into the file (PSFSTARS): the last pass's. */
     if (mp_epsf_pass(&f, f.im.pix, 0, &found, NULL, x, y, fl, n, &t->o, &e, &rep,
                      t->passes > 1 ? NULL : &ps, e2)) {
-        snprintf(err, MP_ERRLEN, "%s: %.400s", t->image, e2);
+        snprintf(err, MP_ERRLEN, "%s: %.300s", t->image, e2);
+        fwhm_hint(t, &f, &b, &found, err);
         goto done;
     }
     fprintf(stderr, "matphot psf: %s: pass 1: %s\n", t->image, rep.what);
-    if (t->passes > 1 && second_pass(t, &f, &found, x, y, fl, n, &e, &rep, &ps, err))
+    if (t->passes > 1 && second_pass(t, &f, &found, x, y, fl, n, &e, &rep, &ps, err)) {
+        fwhm_hint(t, &f, &b, &found, err);
         goto done;
+    }
     rc = write_psf(t, &e, ps, n, err);
 done:
     free(ps);

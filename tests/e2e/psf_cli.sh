@@ -68,5 +68,12 @@ else
 fi
 rm -f "$T"/out.psf*
 
+# A start far off the stars' (FWHM 2.5 in f.fits) that leaves too few PSF
+# stars names the stars' measured FWHM beside fwhm.
+"$M" psf "$T/f.fits" fwhm=12 output="$T/w12.psf.fits" >/dev/null 2>"$T/w12log"
+rc=$?
+[ "$rc" -eq 1 ] && grep -q "the stars' FWHM is 2\.[5-9][0-9]* .*, not fwhm=12" "$T/w12log" &&
+    [ ! -e "$T/w12.psf.fits" ] || no "psf fwhm=12: exit $rc: $(cat "$T/w12log")"
+
 [ "$fails" -eq 0 ] || exit 1
 echo "psf_cli: ok"
