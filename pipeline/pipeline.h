@@ -75,7 +75,7 @@ typedef struct {
     char sharp[200];              /* find's last sharpness limits and why
                                    * (mp_pl_sharp_limits), for that line too */
     char stars_fwhm[400];         /* the first detection's stars' FWHM
-                                   * against fwhm (mp_pl_check_fwhm), for
+                                   * against the model (run.c's check_fwhm), for
                                    * that line too; "": not measured */
     double escale[2], escale_raw[3];  /* the errors' factors (flux, position) from
                                    * the residual at the PSF's scale, and as

@@ -154,8 +154,8 @@ static int measure_stars(run_state *s, const mp_find_opts *fo, char *err)
     return 0;
 }
 
-/* The model checked against the stars' width (fwhm_check.c), said in the
- * report: the Gaussian of fwhm where it is the model (psf=gauss: one far
+/* The model checked against the stars' width (psf/model_check.c), said
+ * in the report: the Gaussian of fwhm where it is the model (psf=gauss: one far
  * off is an error naming fwhm) or where the build starts (an error only
  * when the build falls back on it, run_psf.c); a table given, read at an
  * OVERSAMP that makes its stars twice or half as wide or more (an error

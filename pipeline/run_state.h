@@ -61,11 +61,11 @@ typedef struct {
                            * PSFEx model, 9 % of its CPU */
     double sharplo, sharphi;
     mp_stars_fwhm stars_fwhm;  /* the first detection's stars' FWHM
-                           * (mp_pl_check_fwhm; n = 0: not measured), which
+                           * (mp_epsf_stars_fwhm_found; n = 0: not measured), which
                            * a build short of PSF stars names */
     char gauss_wrong[MP_ERRLEN];  /* why the Gaussian of fwhm is not the
-                           * stars' (mp_pl_check_fwhm's verdict), which
-                           * ends a build that falls back on it; "": fit */
+                           * stars' (mp_epsf_gauss_verdict), which ends a
+                           * build that falls back on it; "": it fits */
     const mp_prf_cache *grid;  /* the phase grid the last fit drew from */
     double win;           /* the window side economy priced the last fit on */
     unsigned written;     /* the products this run set out to write
