@@ -170,11 +170,11 @@ static int check_fwhm(run_state *s, const mp_find_opts *fo, char *err)
         return 1;
     char *why = s->rep->stars_fwhm;
     size_t nwhy = sizeof s->rep->stars_fwhm;
+    double cx = 0.5 * (double)(s->f.im.nx + 1), cy = 0.5 * (double)(s->f.im.ny + 1);
     int rc = gauss ? mp_epsf_gauss_verdict(&s->f, &s->t, 2.3548200450309493 * p->sigma,
-                                         &s->stars_fwhm, why, nwhy, s->gauss_wrong)
-                   : mp_epsf_table_verdict(&s->fit->model, p->os, 0.5 * (double)(s->f.im.nx + 1),
-                                         0.5 * (double)(s->f.im.ny + 1), &s->stars_fwhm, why,
-                                         nwhy, s->gauss_wrong);
+                                           &s->stars_fwhm, why, nwhy, s->gauss_wrong)
+                   : mp_epsf_table_verdict(&s->fit->model, p->os, cx, cy, &s->stars_fwhm, why,
+                                           nwhy, s->gauss_wrong);
     size_t l = strlen(s->gauss_wrong);
     if (rc == 2 && gauss && l < sizeof s->gauss_wrong)
         snprintf(s->gauss_wrong + l, sizeof s->gauss_wrong - l, " (INDEF: measured on each "

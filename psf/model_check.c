@@ -74,7 +74,7 @@ static int off(const mp_stars_fwhm *m, double fwhm)
 }
 
 int mp_epsf_gauss_verdict(const mp_frame *f, const mp_table *t, double fwhm,
-                        const mp_stars_fwhm *m, char *why, size_t nwhy, char *err)
+                          const mp_stars_fwhm *m, char *why, size_t nwhy, char *err)
 {
     if (m->n < MP_EPSF_FWHM_NEED)
         return 0;
@@ -94,7 +94,7 @@ int mp_epsf_gauss_verdict(const mp_frame *f, const mp_table *t, double fwhm,
 }
 
 int mp_epsf_table_verdict(const mp_prf_model *model, int os, double x, double y,
-                        const mp_stars_fwhm *m, char *why, size_t nwhy, char *err)
+                          const mp_stars_fwhm *m, char *why, size_t nwhy, char *err)
 {
     if (m->n < MP_EPSF_FWHM_NEED)
         return 0;
