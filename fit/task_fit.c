@@ -40,24 +40,16 @@ static int check_model_width(const mp_fit_setup *s, const mp_frame *f, const mp_
                              const char *image, char *err)
 {
     static const char *const cols[] = {"X_IMAGE", "Y_IMAGE", "FLUX", "BACKGROUND"};
-    const mp_psf *p = s->model.psf;
     for (size_t k = 0; k < sizeof cols / sizeof *cols; k++)
         if (mp_table_col(t, cols[k]) < 0)
             return 0;
     mp_stars_fwhm m;
     char why[400] = "", e[MP_ERRLEN];
-    if (mp_epsf_stars_fwhm(f, t, 25, &m, e)) {
-        snprintf(err, MP_ERRLEN, "%s: %.400s", image, e);
-        return 1;
-    }
-    int gauss = p->kind == MP_PSF_GAUSS && !p->field;
-    int rc = gauss ? mp_epsf_gauss_verdict(f, t, 2.3548200450309493 * p->sigma, &m, why,
-                                           sizeof why, e)
-                   : mp_epsf_table_verdict(&s->model, p->os, 0.5 * (double)(f->im.nx + 1),
-                                           0.5 * (double)(f->im.ny + 1), &m, why, sizeof why, e);
+    int rc = mp_epsf_stars_fwhm(f, t, MP_EPSF_FWHM_STARS, &m, e) ||
+             mp_epsf_model_verdict(f, t, &s->model, &m, why, sizeof why, e);
     if (rc)
-        snprintf(err, MP_ERRLEN, "%s: %.400s%s", image, e, rc == 2 && gauss ? ", or give the "
-                 "PSF as a table (psf=)" : "");
+        snprintf(err, MP_ERRLEN, "%s: %.400s%s", image, e,
+                 mp_epsf_model_is_gauss(&s->model) ? ", or give the PSF as a table (psf=)" : "");
     return rc != 0;
 }
 

@@ -97,9 +97,9 @@ int mp_pl_cr_bound(const mp_prf_model *m, long nx, long ny, double *s, double *D
                 if ((rc = ratio_at(m, nx, ny, q, a, b, -1.0, &prf, &wk, &r[b][a])))
                     break;
                 lo = fmin(lo, r[b][a]);
-                if (!rc && a > 0)
+                if (a > 0)
                     step = fmax(step, fabs(r[b][a] - r[b][a - 1]));
-                if (!rc && b > 0)
+                if (b > 0)
                     step = fmax(step, fabs(r[b][a] - r[b - 1][a]));
             }
         *s = fmin(*s, lo - 0.5 * step);

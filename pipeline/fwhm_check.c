@@ -11,8 +11,6 @@
 #include "pipeline/pipeline_priv.h"
 #include "psf/build.h"
 
-#define NMEASURE MP_PL_FWHM_STARS
-
 void mp_pl_stars_why(const mp_stars_fwhm *m, char *why, size_t nwhy)
 {
     if (m->n < MP_EPSF_FWHM_NEED)
@@ -21,22 +19,6 @@ void mp_pl_stars_why(const mp_stars_fwhm *m, char *why, size_t nwhy)
     else
         snprintf(why, nwhy, "the stars' FWHM %.3g +- %.2g px (a Gaussian fitted to each of %d "
                  "lone detections)", m->fwhm, m->err, m->n);
-}
-
-/* The stars of f measured on find's detections with a kernel of FWHM
- * w and the given options' other settings, shape cuts open (a kernel
- * far off the stars' would cut them). */
-static int measure_with(const mp_frame *f, const mp_bkg *b, const mp_find_opts *fo, double w,
-                        mp_stars_fwhm *m, char *err)
-{
-    mp_find_opts o = *fo;
-    o.fwhm = w;
-    o.sharplo = o.sharphi = o.roundlo = o.roundhi = NAN;
-    mp_table t;
-    mp_table_init(&t);
-    int rc = mp_find_stars(f, b, &o, &t, err) || mp_epsf_stars_fwhm(f, &t, NMEASURE, m, err);
-    mp_table_free(&t);
-    return rc;
 }
 
 int mp_pl_frame_fwhm(const char *image, const mp_pipeline_opts *o, mp_stars_fwhm *m, char *err)
@@ -53,7 +35,7 @@ int mp_pl_frame_fwhm(const char *image, const mp_pipeline_opts *o, mp_stars_fwhm
         return 1;
     int rc = mp_bkg_estimate(&f, o->mesh, o->filter, &b, err);
     for (size_t k = 0; !rc && m->n < MP_EPSF_FWHM_NEED && k < sizeof kernels / sizeof *kernels; k++)
-        rc = measure_with(&f, &b, &o->find, kernels[k], m, err);
+        rc = mp_epsf_stars_fwhm_kernel(&f, &b, &o->find, kernels[k], MP_EPSF_FWHM_STARS, m, err);
     if (!rc && m->n < MP_EPSF_FWHM_NEED) {
         snprintf(err, MP_ERRLEN, "fwhm: INDEF, and %s has too few stars to measure it (%d lone "
                  "stars of S/N >= 20, %d needed): give fwhm", image, m->n, MP_EPSF_FWHM_NEED);

@@ -31,9 +31,6 @@ int mp_pl_sharp_limits(const mp_prf_model *m, long nx, long ny, mp_find_opts *o,
 
 /* ---- fwhm_check.c ------------------------------------------------------ */
 
-/* Stars the pipeline measures at most for their FWHM. */
-#define MP_PL_FWHM_STARS 25
-
 /* mp_pl_stars_why: the report's words for the stars' FWHM measured (m). */
 void mp_pl_stars_why(const mp_stars_fwhm *m, char *why, size_t nwhy);
 

@@ -147,7 +147,7 @@ static int find_opts_for_model(run_state *s, mp_find_opts *fo, char *err)
  * detection's options, s->bkg its maps), in the report's words. */
 static int measure_stars(run_state *s, const mp_find_opts *fo, char *err)
 {
-    if (mp_epsf_stars_fwhm_found(&s->f, &s->bkg, fo, &s->t, MP_PL_FWHM_STARS, &s->stars_fwhm,
+    if (mp_epsf_stars_fwhm_found(&s->f, &s->bkg, fo, &s->t, MP_EPSF_FWHM_STARS, &s->stars_fwhm,
                                  err))
         return 1;
     mp_pl_stars_why(&s->stars_fwhm, s->rep->stars_fwhm, sizeof s->rep->stars_fwhm);
@@ -162,19 +162,13 @@ static int measure_stars(run_state *s, const mp_find_opts *fo, char *err)
  * naming oversamp). */
 static int check_fwhm(run_state *s, const mp_find_opts *fo, char *err)
 {
-    const mp_psf *p = s->fit->model.psf;
-    int gauss = p && p->kind == MP_PSF_GAUSS && !p->field;
-    if (!p || (!gauss && s->o->build_psf))
+    int gauss = mp_epsf_model_is_gauss(&s->fit->model);
+    if (!s->fit->model.psf || (!gauss && s->o->build_psf))
         return 0;               /* a table built here, from these stars */
     if (measure_stars(s, fo, err))
         return 1;
-    char *why = s->rep->stars_fwhm;
-    size_t nwhy = sizeof s->rep->stars_fwhm;
-    double cx = 0.5 * (double)(s->f.im.nx + 1), cy = 0.5 * (double)(s->f.im.ny + 1);
-    int rc = gauss ? mp_epsf_gauss_verdict(&s->f, &s->t, 2.3548200450309493 * p->sigma,
-                                           &s->stars_fwhm, why, nwhy, s->gauss_wrong)
-                   : mp_epsf_table_verdict(&s->fit->model, p->os, cx, cy, &s->stars_fwhm, why,
-                                           nwhy, s->gauss_wrong);
+    int rc = mp_epsf_model_verdict(&s->f, &s->t, &s->fit->model, &s->stars_fwhm,
+                                   s->rep->stars_fwhm, sizeof s->rep->stars_fwhm, s->gauss_wrong);
     size_t l = strlen(s->gauss_wrong);
     if (rc == 2 && gauss && l < sizeof s->gauss_wrong)
         snprintf(s->gauss_wrong + l, sizeof s->gauss_wrong - l, " (INDEF: measured on each "

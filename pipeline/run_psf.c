@@ -203,7 +203,7 @@ static void fwhm_hint(const run_state *s, char *err)
 {
     const mp_stars_fwhm *m = &s->stars_fwhm;
     mp_epsf_opts po = s->o->psfb;
-    if (m->n < MP_EPSF_FWHM_NEED || !(fabs(m->fwhm - po.fwhm) > 3.0 * m->err))
+    if (!mp_epsf_fwhm_off(m, po.fwhm))
         return;
     po.fitrad = 2.0 * m->fwhm;
     if (s->o->tablerad_auto)
@@ -213,7 +213,7 @@ static void fwhm_hint(const run_state *s, char *err)
     int rc = !idx || mp_epsf_select(&s->f, &s->t, &po, idx, &n, e2);
     free(idx);
     size_t l = strlen(err);
-    if (!rc && n >= 3 && l < MP_ERRLEN)
+    if (!rc && n >= 3 && l < MP_ERRLEN)     /* an order-0 PSF's 2 + 1 (epsf_build.c) */
         snprintf(err + l, MP_ERRLEN - l, "; the stars' FWHM is %.3g +- %.1g px (measured on %d "
                  "lone stars), not fwhm=%g: with fwhm=%.3g, %zu PSF stars are selected",
                  m->fwhm, m->err, m->n, po.fwhm, m->fwhm, n);

@@ -64,7 +64,7 @@ typedef struct {
                            * (mp_epsf_stars_fwhm_found; n = 0: not measured), which
                            * a build short of PSF stars names */
     char gauss_wrong[MP_ERRLEN];  /* why the Gaussian of fwhm is not the
-                           * stars' (mp_epsf_gauss_verdict), which ends a
+                           * stars' (mp_epsf_model_verdict), which ends a
                            * build that falls back on it; "": it fits */
     const mp_prf_cache *grid;  /* the phase grid the last fit drew from */
     double win;           /* the window side economy priced the last fit on */

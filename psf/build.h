@@ -197,21 +197,35 @@ int mp_epsf_stars_fwhm(const mp_frame *f, const mp_table *t, int nmax, mp_stars_
 int mp_epsf_stars_fwhm_found(const mp_frame *f, const mp_bkg *b, const mp_find_opts *fo,
                              const mp_table *t, int nmax, mp_stars_fwhm *m, char *err);
 
-/* mp_epsf_gauss_verdict: 2 with err naming fwhm when the Gaussian of fwhm
- * is more than 3 σ of the measure m off the stars of f and its flux bias
- * on them exceeds the median detection's (t's FLUX, BACKGROUND) flux
- * error (psf/model_check.c says why); 0 otherwise, and when m measured
- * too few stars.  Adds the bias to why (nwhy bytes). */
-int mp_epsf_gauss_verdict(const mp_frame *f, const mp_table *t, double fwhm,
-                          const mp_stars_fwhm *m, char *why, size_t nwhy, char *err);
+/* Stars measured at most for their FWHM (the pipeline, fit, psf). */
+#define MP_EPSF_FWHM_STARS 25
 
-/* mp_epsf_table_verdict: 2 with err naming oversamp when the table's own
- * star (model at (x, y), read at OVERSAMP os; mp_epsf_model_fwhm) is more
- * than 3 σ of the measure m off the stars and nearer in log to twice or
- * half their width than to it; 0 otherwise, and when m measured too few
- * stars; 1 with err when the table cannot be measured.  Adds the table's
- * width to why. */
-int mp_epsf_table_verdict(const mp_prf_model *model, int os, double x, double y,
+/* mp_epsf_fwhm_off: whether m measured at least MP_EPSF_FWHM_NEED stars
+ * and fwhm lies more than 3 σ of the measure off their FWHM. */
+int mp_epsf_fwhm_off(const mp_stars_fwhm *m, double fwhm);
+
+/* mp_epsf_stars_fwhm_kernel: mp_epsf_stars_fwhm on find's detections on
+ * f (b: its sky and noise maps) with fo's options but a kernel of FWHM
+ * kernel and the shape cuts open (a kernel far off the stars' would cut
+ * them).  Errors: find's, out of memory. */
+int mp_epsf_stars_fwhm_kernel(const mp_frame *f, const mp_bkg *b, const mp_find_opts *fo,
+                              double kernel, int nmax, mp_stars_fwhm *m, char *err);
+
+/* mp_epsf_model_is_gauss: whether model is an analytic Gaussian that does
+ * not vary (psf=gauss, or the start of a build): its width is fwhm. */
+int mp_epsf_model_is_gauss(const mp_prf_model *model);
+
+/* mp_epsf_model_verdict: model against the stars' width m measured on f
+ * (psf/model_check.c says why), its figures added to why (nwhy bytes).
+ * The Gaussian of fwhm (mp_epsf_model_is_gauss): 2 with err naming fwhm
+ * when it is more than 3 σ of the measure off the stars and its flux bias
+ * on them exceeds the median detection's flux error (t's FLUX,
+ * BACKGROUND).  A table: 2 with err naming oversamp when its own star
+ * (mp_epsf_model_fwhm at the frame's centre, read at its OVERSAMP) is
+ * more than 3 σ off and nearer in log to twice or half their width than
+ * to it; 1 with err when it cannot be measured.  0 otherwise, and when m
+ * measured too few stars. */
+int mp_epsf_model_verdict(const mp_frame *f, const mp_table *t, const mp_prf_model *model,
                           const mp_stars_fwhm *m, char *why, size_t nwhy, char *err);
 
 /* mp_epsf_model_fwhm: the FWHM of the Gaussian that fits a noiseless star

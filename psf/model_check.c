@@ -1,5 +1,5 @@
 /* model_check.c — the fit's model checked against the width of the
- * frame's stars (mp_epsf_gauss_verdict, mp_epsf_table_verdict, build.h),
+ * frame's stars (mp_epsf_model_verdict, build.h),
  * by the pipeline (pipeline/fwhm_check.c) and `matphot fit`.
  *
  * With psf=gauss the Gaussian of fwhm is the model every star is fitted
@@ -67,14 +67,11 @@ done:
     return med;
 }
 
-/* Whether m measured a FWHM more than 3 σ of the measure off fwhm. */
-static int off(const mp_stars_fwhm *m, double fwhm)
-{
-    return m->n >= MP_EPSF_FWHM_NEED && fabs(fwhm - m->fwhm) > 3.0 * m->err;
-}
-
-int mp_epsf_gauss_verdict(const mp_frame *f, const mp_table *t, double fwhm,
-                          const mp_stars_fwhm *m, char *why, size_t nwhy, char *err)
+/* psf=gauss's verdict: 2 with err naming fwhm when the Gaussian of fwhm
+ * is off the stars and its flux bias on them exceeds the median
+ * detection's flux error; the bias added to why. */
+static int gauss_verdict(const mp_frame *f, const mp_table *t, double fwhm,
+                         const mp_stars_fwhm *m, char *why, size_t nwhy, char *err)
 {
     if (m->n < MP_EPSF_FWHM_NEED)
         return 0;
@@ -84,7 +81,7 @@ int mp_epsf_gauss_verdict(const mp_frame *f, const mp_table *t, double fwhm,
     if (l < nwhy)
         snprintf(why + l, nwhy - l, "; fwhm %g puts a Gaussian star's flux %+.1f %% off, the "
                  "median detection's error %.1f %%", fwhm, 100.0 * bias, 100.0 * e);
-    if (!(off(m, fwhm) && fabs(bias) > e))
+    if (!(mp_epsf_fwhm_off(m, fwhm) && fabs(bias) > e))
         return 0;
     snprintf(err, MP_ERRLEN, "fwhm=%g is not the stars': %d lone stars measure FWHM %.3g +- %.2g "
              "px, and the Gaussian of fwhm=%g puts their fluxes %+.0f %% off, more than the "
@@ -93,8 +90,12 @@ int mp_epsf_gauss_verdict(const mp_frame *f, const mp_table *t, double fwhm,
     return 2;
 }
 
-int mp_epsf_table_verdict(const mp_prf_model *model, int os, double x, double y,
-                          const mp_stars_fwhm *m, char *why, size_t nwhy, char *err)
+/* A table's verdict: 2 with err naming oversamp when its own star (at
+ * (x, y), read at OVERSAMP os) is off the stars and nearer in log to
+ * twice or half their width than to it; 1 when it cannot be measured;
+ * its width added to why. */
+static int table_verdict(const mp_prf_model *model, int os, double x, double y,
+                         const mp_stars_fwhm *m, char *why, size_t nwhy, char *err)
 {
     if (m->n < MP_EPSF_FWHM_NEED)
         return 0;
@@ -106,7 +107,7 @@ int mp_epsf_table_verdict(const mp_prf_model *model, int os, double x, double y,
     if (l < nwhy)
         snprintf(why + l, nwhy - l, "; the table's own star %.3g px, %.3g times as wide", wt,
                  ratio);
-    if (!(off(m, wt) && fabs(log2(ratio)) > 0.5))
+    if (!(mp_epsf_fwhm_off(m, wt) && fabs(log2(ratio)) > 0.5))
         return 0;
     /* The power of two the widths' ratio is nearest (a table sharper
      * than the stars by a fifth, as Tiny Tim's on 47 Tuc, still names
@@ -116,4 +117,19 @@ int mp_epsf_table_verdict(const mp_prf_model *model, int os, double x, double y,
              "px, %.2g times the frame's (%.3g +- %.2g px, %d lone stars); is its OVERSAMP %g "
              "(oversamp=%g)?", os, wt, ratio, m->fwhm, m->err, m->n, k, k);
     return 2;
+}
+
+int mp_epsf_model_verdict(const mp_frame *f, const mp_table *t, const mp_prf_model *model,
+                          const mp_stars_fwhm *m, char *why, size_t nwhy, char *err)
+{
+    const mp_psf *p = model->psf;
+    if (mp_epsf_model_is_gauss(model))
+        return gauss_verdict(f, t, FWHM_SIGMA * p->sigma, m, why, nwhy, err);
+    return table_verdict(model, p->os, 0.5 * (double)(f->im.nx + 1),
+                         0.5 * (double)(f->im.ny + 1), m, why, nwhy, err);
+}
+
+int mp_epsf_model_is_gauss(const mp_prf_model *model)
+{
+    return model->psf && model->psf->kind == MP_PSF_GAUSS && !model->psf->field;
 }

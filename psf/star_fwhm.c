@@ -68,6 +68,26 @@ static double half_reach(const mp_frame *f, long i, long j, int di, int dj, doub
     return -1.0;
 }
 
+/* The star's half-maximum width [px] at its peak (i, j) above sky: the
+ * mean of its two diameters along the axes, into *w0.  Nonzero when a
+ * walk meets a masked pixel or the frame's edge first. */
+static int half_width(const mp_frame *f, long i, long j, double sky, double *w0)
+{
+    double r[4] = {half_reach(f, i, j, 1, 0, sky), half_reach(f, i, j, -1, 0, sky),
+                   half_reach(f, i, j, 0, 1, sky), half_reach(f, i, j, 0, -1, sky)};
+    if (r[0] < 0 || r[1] < 0 || r[2] < 0 || r[3] < 0)
+        return 1;
+    *w0 = 0.5 * (r[0] + r[1] + r[2] + r[3]);
+    return 0;
+}
+
+/* The fit window's radius for a star of half-maximum width w0: twice
+ * it, 3 px at least. */
+static long window_radius(double w0)
+{
+    return (long)ceil(fmax(3.0, 2.0 * w0));
+}
+
 /* The pixel-integrated unit Gaussian along one axis at pixel i (centre
  * x, σ s): g, and its derivatives by x and by s. */
 static void gauss_pixel(long i, double x, double s, double *g, double *gx, double *gs)
@@ -169,6 +189,16 @@ static int fit_star(const window *w, double *p)
     return 1;
 }
 
+/* The star at peak (i, j) fitted on w from its half-maximum width w0,
+ * flux F0 and sky: p = (flux, x, y, σ, sky); fit_star's verdict. */
+static int fit_from(const window *w, long i, long j, double w0, double F0, double sky,
+                    double *p)
+{
+    p[0] = F0, p[1] = (double)i, p[2] = (double)j;
+    p[3] = fmax(w0, 0.5) / 2.3548200450309493, p[4] = sky;
+    return fit_star(w, p);
+}
+
 /* The table's columns this reads (−1: absent). */
 typedef struct { int x, y, f, b, g; } cols;
 
@@ -202,21 +232,18 @@ static int measure_row(const mp_frame *f, const mp_table *t, const cols *k, size
     long i = lround(x), j = lround(y);
     if (!isfinite(x) || !isfinite(y) || !isfinite(sky) || climb(f, &i, &j))
         return 1;
-    double r[4] = {half_reach(f, i, j, 1, 0, sky), half_reach(f, i, j, -1, 0, sky),
-                   half_reach(f, i, j, 0, 1, sky), half_reach(f, i, j, 0, -1, sky)};
-    if (r[0] < 0 || r[1] < 0 || r[2] < 0 || r[3] < 0)
+    double w0, p[NPAR];
+    if (half_width(f, i, j, sky, &w0))
         return 1;
-    double w0 = 0.5 * (r[0] + r[1] + r[2] + r[3]);
-    long R = (long)ceil(fmax(3.0, 2.0 * w0));
+    long R = window_radius(w0);
     window w = {f, i - R, i + R, j - R, j + R, 0, {0}, {0}, fmax(w0, 1.5)};
     if (R > RMAX || !lone(t, k, q, (double)R, &w))
         return 1;
     if (w.x0 < 1 || w.y0 < 1 || w.x1 > f->im.nx || w.y1 > f->im.ny)
         return 1;
     double s0 = fmax(w0, 0.5) / 2.3548200450309493;
-    double p[NPAR] = {(pix(f, i, j) - sky) * 2.0 * M_PI * (s0 * s0 + 1.0 / 12.0), (double)i,
-                      (double)j, s0, sky};
-    if (fit_star(&w, p))
+    if (fit_from(&w, i, j, w0, (pix(f, i, j) - sky) * 2.0 * M_PI * (s0 * s0 + 1.0 / 12.0), sky,
+                 p))
         return 1;
     /* S/N ≥ 20 by its fit, as a PSF star's (select.c): a fainter peak's
      * width is noise (the DECam cutout: widths of 0.1–2 px among its
@@ -253,7 +280,9 @@ static double half_sample_mode(double *v, size_t n)
     }
     if (n == 3) {
         double a = v[lo + 1] - v[lo], b = v[lo + 2] - v[lo + 1];
-        return a < b ? 0.5 * (v[lo] + v[lo + 1]) : a > b ? 0.5 * (v[lo + 1] + v[lo + 2]) : v[lo + 1];
+        return a < b   ? 0.5 * (v[lo] + v[lo + 1])
+               : a > b ? 0.5 * (v[lo + 1] + v[lo + 2])
+                       : v[lo + 1];
     }
     return n == 2 ? 0.5 * (v[lo] + v[lo + 1]) : v[lo];
 }
@@ -345,38 +374,28 @@ int mp_epsf_model_fwhm(const mp_prf_model *m, double x, double y, double *fwhm, 
     mp_frame f;
     memset(&f, 0, sizeof f);
     f.im.nx = f.im.ny = SIDE, f.im.pix = pix, f.mask = mask, f.rdnoise = 1.0, f.gain = 1.0;
+    long wx0 = lround(x) - HW, wy0 = lround(y) - HW;    /* the window's pixel (1, 1) */
     for (int ph = 0; !rc && ph < 4; ph++) {
-        /* The star near the window's centre pixel (HW + 1, HW + 1). */
-        double sx = (double)(HW + 1) + 0.5 * (ph & 1), sy = (double)(HW + 1) + 0.5 * (ph >> 1);
         long x0, y0;
         int pw, phh;
         memset(pix, 0, (size_t)SIDE * SIDE * sizeof *pix);
-        if (mp_prf_render_window(m, x + sx - (double)(HW + 1), y + sy - (double)(HW + 1),
-                                 lround(x) - HW, lround(y) - HW, SIDE, SIDE, &x0, &y0, &pw, &phh,
-                                 prf, NULL, NULL, &wk)) {
+        if (mp_prf_render_window(m, x + 0.5 * (ph & 1), y + 0.5 * (ph >> 1), wx0, wy0, SIDE, SIDE,
+                                 &x0, &y0, &pw, &phh, prf, NULL, NULL, &wk)) {
             snprintf(err, MP_ERRLEN, "the PSF's FWHM: no render at (%g, %g)", x, y);
             rc = 1;
             break;
         }
         for (int v = 0; v < phh; v++)
             for (int u = 0; u < pw; u++)
-                pix[(size_t)(y0 - (lround(y) - HW) + v) * SIDE + (size_t)(x0 - (lround(x) - HW) + u)] =
+                pix[(size_t)(y0 - wy0 + v) * SIDE + (size_t)(x0 - wx0 + u)] =
                     (float)(E * prf[v * pw + u]);
         long i = HW + 1, j = HW + 1;
-        if (climb(&f, &i, &j))
+        double w0, p[NPAR];
+        if (climb(&f, &i, &j) || half_width(&f, i, j, 0.0, &w0))
             continue;
-        double r[4] = {half_reach(&f, i, j, 1, 0, 0.0), half_reach(&f, i, j, -1, 0, 0.0),
-                       half_reach(&f, i, j, 0, 1, 0.0), half_reach(&f, i, j, 0, -1, 0.0)};
-        if (r[0] < 0 || r[1] < 0 || r[2] < 0 || r[3] < 0)
-            continue;
-        double w0 = 0.5 * (r[0] + r[1] + r[2] + r[3]);
-        long R = (long)ceil(fmax(3.0, 2.0 * w0));
-        if (R > HW)
-            continue;
+        long R = window_radius(w0);
         window w = {&f, i - R, i + R, j - R, j + R, 0, {0}, {0}, 1.0};
-        double s0 = fmax(w0, 0.5) / 2.3548200450309493;
-        double p[NPAR] = {E, (double)i, (double)j, s0, 0.0};
-        if (!fit_star(&w, p))
+        if (R <= HW && !fit_from(&w, i, j, w0, E, 0.0, p))
             sum += 2.3548200450309493 * p[3], n++;
     }
     mp_prf_work_free(&wk);
@@ -391,18 +410,29 @@ int mp_epsf_model_fwhm(const mp_prf_model *m, double x, double y, double *fwhm, 
     return rc;
 }
 
+int mp_epsf_stars_fwhm_kernel(const mp_frame *f, const mp_bkg *b, const mp_find_opts *fo,
+                              double kernel, int nmax, mp_stars_fwhm *m, char *err)
+{
+    mp_find_opts o = *fo;
+    o.fwhm = kernel;
+    o.sharplo = o.sharphi = o.roundlo = o.roundhi = NAN;
+    mp_table t;
+    mp_table_init(&t);
+    int rc = mp_find_stars(f, b, &o, &t, err) || mp_epsf_stars_fwhm(f, &t, nmax, m, err);
+    mp_table_free(&t);
+    return rc;
+}
+
 int mp_epsf_stars_fwhm_found(const mp_frame *f, const mp_bkg *b, const mp_find_opts *fo,
                              const mp_table *t, int nmax, mp_stars_fwhm *m, char *err)
 {
     int rc = mp_epsf_stars_fwhm(f, t, nmax, m, err);
-    mp_find_opts narrow = *fo;
-    narrow.sharplo = narrow.sharphi = narrow.roundlo = narrow.roundhi = NAN;
-    for (narrow.fwhm = 0.25 * fo->fwhm; !rc && m->n < MP_EPSF_FWHM_NEED && narrow.fwhm >= 1.0;
-         narrow.fwhm *= 0.25) {
-        mp_table alt;
-        mp_table_init(&alt);
-        rc = mp_find_stars(f, b, &narrow, &alt, err) || mp_epsf_stars_fwhm(f, &alt, nmax, m, err);
-        mp_table_free(&alt);
-    }
+    for (double k = 0.25 * fo->fwhm; !rc && m->n < MP_EPSF_FWHM_NEED && k >= 1.0; k *= 0.25)
+        rc = mp_epsf_stars_fwhm_kernel(f, b, fo, k, nmax, m, err);
     return rc;
+}
+
+int mp_epsf_fwhm_off(const mp_stars_fwhm *m, double fwhm)
+{
+    return m->n >= MP_EPSF_FWHM_NEED && fabs(fwhm - m->fwhm) > 3.0 * m->err;
 }

@@ -185,8 +185,8 @@ static void fwhm_hint(const psf_task *t, const mp_frame *f, const mp_bkg *b,
     mp_find_opts fo = find_opts(t);
     char e2[MP_ERRLEN];
     size_t l = strlen(err);
-    if (mp_epsf_stars_fwhm_found(f, b, &fo, found, 25, &m, e2) || m.n < MP_EPSF_FWHM_NEED ||
-        !(fabs(m.fwhm - t->o.fwhm) > 3.0 * m.err) || l >= MP_ERRLEN)
+    if (mp_epsf_stars_fwhm_found(f, b, &fo, found, MP_EPSF_FWHM_STARS, &m, e2) ||
+        !mp_epsf_fwhm_off(&m, t->o.fwhm) || l >= MP_ERRLEN)
         return;
     snprintf(err + l, MP_ERRLEN - l, "; the stars' FWHM is %.3g +- %.1g px (%d lone stars), "
              "not fwhm=%g", m.fwhm, m.err, m.n, t->o.fwhm);
