@@ -122,7 +122,9 @@ static void test_needs_background(void **state)
  * analytic Gaussian of FWHM 2.5 and its ×4 table come out 2.5 (noiseless:
  * only the four phases' fits, to 1e-3 here; 1 % asserted), and the table
  * read at OVERSAMP 1 four times as wide, as the pipeline's oversamp check
- * assumes (3.5 to 4.5 times: each element then a pixel). */
+ * assumes: each element, the Gaussian integrated over a quarter pixel,
+ * then a pixel, it is the pixel-integrated Gaussian of FWHM 10 exactly,
+ * so 10 within the same 1 %. */
 static void test_model_widths(void **state)
 {
     (void)state;
@@ -138,7 +140,7 @@ static void test_model_widths(void **state)
     assert_int_equal(mp_epsf_model_fwhm(&mt, 100.0, 80.0, &w1, err), 0);
     fprintf(stderr, "model FWHM: Gaussian %.4f, x4 table %.4f, read at x1 %.4f\n", wg, wt, w1);
     assert_true(fabs(wg - 2.5) < 0.025 && fabs(wt - 2.5) < 0.025);
-    assert_true(w1 / wt > 3.5 && w1 / wt < 4.5);
+    assert_true(fabs(w1 - 10.0) < 0.1);
     mp_psf_free(&t);
 }
 
