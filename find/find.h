@@ -322,6 +322,18 @@ int mp_find_stars(const mp_frame *f, const mp_bkg *b, const mp_find_opts *o,
 int mp_find_sharpness(const double *img, long nx, long ny, const mp_find_opts *o, long reach,
                       double *sharp, char *err);
 
+/*
+ * mp_find_why_none: why f holds no star to find, into why (n bytes), for
+ * the one line a frame with no usable star ends with (find, fit,
+ * pipeline).  1 when the frame itself holds none: no good pixel (all NaN,
+ * blank, masked or saturated), fewer good pixels than a star's 4
+ * parameters, or a noise of 0 on every good pixel (a constant frame; b
+ * the frame's estimated background, or NULL: not told).  0 when it could:
+ * why then says no source rose above threshold [sigma].
+ */
+int mp_find_why_none(const mp_frame *f, const mp_bkg *b, double threshold, char *why,
+                     size_t n);
+
 /* The `matphot find` task: IMAGE → table (params/find.par).  argv[0] is
  * "find".  Returns the exit status: 0, 1 (error, one line on stderr),
  * 2 (usage). */

@@ -92,8 +92,12 @@ static int find_one(const find_setup *s, const char *image, const char *output, 
         snprintf(err, MP_ERRLEN, "%.200s: %.300s", image, e);
         goto done;
     }
-    if (f.nbad == f.im.nx * f.im.ny)
-        fprintf(stderr, "matphot find: warning: %s: no good pixel; no stars found\n", image);
+    if (t.nrow == 0) {          /* a frame with no usable star: bad input */
+        char why[300];
+        mp_find_why_none(&f, &b, s->opts.threshold, why, sizeof why);
+        snprintf(err, MP_ERRLEN, "%.200s: no star found: %.290s", image, why);
+        goto done;
+    }
     if (mp_table_write(output, &t, s->fmt, err))
         goto done;
     rc = 0;

@@ -7,6 +7,7 @@
 #include <string.h>
 #include <time.h>
 #include "catalog/catalog.h"
+#include "find/find.h"
 #include "fit/fit.h"
 #include "params/params.h"
 #include "psf/build.h"
@@ -71,8 +72,20 @@ static int fit_one(const mp_fit_setup *s, const char *image, const char *coords,
     double t0 = mp_seconds();
     if (mp_frame_read(image, &s->dp, &f, err))
         goto done;
-    if (mp_table_read(coords, &t, err) || check_model_width(s, &f, &t, image, err))
+    char why[320];
+    if (mp_find_why_none(&f, NULL, 0, why, sizeof why)) {
+        snprintf(err, MP_ERRLEN, "%.180s: no usable star: %.310s", image, why);
         goto done;
+    }
+    if (mp_table_read(coords, &t, err))
+        goto done;
+    if (t.nrow == 0) {          /* a frame with no usable star: bad input */
+        snprintf(err, MP_ERRLEN, "%.400s: no star to fit (the table has no row)", coords);
+        goto done;
+    }
+    if (check_model_width(s, &f, &t, image, err))
+        goto done;
+    size_t given = t.nrow;
     run.t_read = mp_seconds() - t0;
     char e[MP_ERRLEN];
     mp_frame_report rep;
@@ -91,6 +104,12 @@ static int fit_one(const mp_fit_setup *s, const char *image, const char *coords,
         goto done;
     }
     run.t_fit = mp_seconds() - t0;
+    if (t.nrow == 0) {
+        snprintf(err, MP_ERRLEN, "%.160s: no usable star: all %zu stars of %.160s rejected by "
+                 "their fits (S/N FLUX_PSF/FLUXERR_PSF < minsnr %g) or merged", image, given,
+                 coords, s->opts.minsnr);
+        goto done;
+    }
     t0 = mp_seconds();
     if (residual && residual[0] && write_residual(&f, s, &t, residual, err))
         goto done;

@@ -24,6 +24,26 @@ int mp_pl_write_named(const char *root, const char *ext, const mp_table *t,
     return rc;
 }
 
+int mp_pl_no_star(const char *image, const char *none_why, const mp_pipeline_opts *o,
+                  const mp_pipeline_report *rep, char *err)
+{
+    char why[320];
+    long seen = rep->found + rep->added;
+    double th = rep->threshold > 0 ? rep->threshold : o->find.threshold;
+    if (seen == 0 && rep->screened == 0 && none_why[0])
+        snprintf(why, sizeof why, "%s", none_why);
+    else if (seen == 0 && rep->screened == 0)
+        snprintf(why, sizeof why, "no source above threshold %g sigma of the kernel's amplitude",
+                 th);
+    else
+        snprintf(why, sizeof why, "%ld detection%s and %ld candidate%s below the screen's S/N, "
+                 "none kept by its fit (S/N FLUX_PSF/FLUXERR_PSF >= minsnr %g, not merged)",
+                 seen, seen == 1 ? "" : "s", rep->screened, rep->screened == 1 ? "" : "s",
+                 o->fit.opts.minsnr);
+    snprintf(err, MP_ERRLEN, "%.180s: no usable star: %.310s", image, why);
+    return 1;
+}
+
 /* Does the header have a CTYPE1 card (a WCS to try)? */
 static int has_wcs(const mp_image *im)
 {

@@ -194,6 +194,8 @@ static int find_stars(run_state *s, char *err)
     if (find_opts_for_model(s, &fo, err) || mp_find_stars(&s->f, &s->bkg, &fo, &s->t, err))
         return 1;
     s->rep->threshold = s->o->find.threshold;
+    if (s->t.nrow == 0)          /* said should no later round find one */
+        mp_find_why_none(&s->f, &s->bkg, fo.threshold, s->none_why, sizeof s->none_why);
     if (screen(s, &s->f, s->f.im.pix, &s->t))
         return oom(err);
     mp_pl_drop_unset(&s->t);
@@ -724,6 +726,8 @@ int mp_pipeline_run(const char *image, const char *root, const mp_pipeline_opts 
     int rc = read_frame(&s, err) || find_stars(&s, err) || (o->build_psf && mp_run_build_psf(&s, 1, err));
     if (!rc)
         rc = rounds(&s, err) || mp_run_heldout_order(&s, err) || honest_errors(&s, err);
+    if (!rc && s.t.nrow == 0)
+        rc = mp_pl_no_star(image, s.none_why, o, rep, err);
     if (!rc)
         rc = write_products(&s, err);
     if (rc)

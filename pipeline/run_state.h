@@ -68,6 +68,9 @@ typedef struct {
                            * build that falls back on it; "": it fits */
     const mp_prf_cache *grid;  /* the phase grid the last fit drew from */
     double win;           /* the window side economy priced the last fit on */
+    char none_why[320];   /* why the first detection found nothing
+                           * (mp_find_why_none), said when the run keeps
+                           * no star; "": it found some */
     unsigned written;     /* the products this run set out to write
                            * (mp_run_writes' bits) */
 } run_state;

@@ -145,6 +145,9 @@ int mp_task_pipeline(int argc, char **argv)
                  "output is named after its image", nim);
         goto done;
     }
+    /* A frame's bad input (no usable star, a corrupt file) is its own
+     * line: the @list's other frames are reduced, the status 1. */
+    int failed = 0;
     for (size_t i = 0; i < nim; i++) {
         char *named = root[0] ? NULL : mp_name_after(im[i], "");
         if (!root[0] && !named) {
@@ -152,18 +155,17 @@ int mp_task_pipeline(int argc, char **argv)
             goto done;
         }
         mp_pipeline_report r;
-        if (measure && fwhm_of_image(&ps, &o, im[i], err)) {
-            free(named);
-            goto done;
-        }
-        int prc = mp_pipeline_run_any(im[i], root[0] ? root : named, &o, &r, err);
+        int prc = (measure && fwhm_of_image(&ps, &o, im[i], err)) ||
+                  mp_pipeline_run_any(im[i], root[0] ? root : named, &o, &r, err);
         free(named);
         if (prc)
-            goto done;
+            fprintf(stderr, "matphot pipeline: %s\n", err);
+        failed |= prc;
     }
-    rc = 0;
+    rc = failed;
+    err[0] = '\0';             /* each said where it happened */
 done:
-    if (rc)
+    if (rc && err[0])
         fprintf(stderr, "matphot pipeline: %s\n", err);
     mp_list_free(im, nim);
     mp_sweeps_free(o.sweeps);

@@ -1,12 +1,16 @@
 #!/bin/sh
 # stiff_frames.sh — extreme frames through find, fit and pipeline (issue 4,
-# tests/stiff/README.md): an all-NaN frame, a constant frame, a 1×1 frame,
-# a 20000×20 frame of 300 stars.  Every run exits 0, writes its outputs,
-# and no output holds NaN or inf; empty frames give empty tables.  Then an
-# interrupted run: `sim` killed by SIGTERM while it writes leaves neither
-# its output nor a temporary.
+# tests/stiff/README.md).  A 20000×20 frame of 300 stars: every run exits
+# 0, writes its outputs, and no output holds NaN or inf.  A frame with no
+# usable star is bad input (README): an all-NaN frame, a constant frame, a
+# 1×1 frame and a frame of noise alone each end find, fit and pipeline
+# with one line naming the frame and why, exit 1 and no output; in an
+# @list the other frames are reduced.  Then an interrupted run: `sim`
+# killed by SIGTERM while it writes leaves neither its output nor a
+# temporary.
 M=${MATPHOT:-./matphot}
 [ -x "$M" ] || { echo "stiff_frames: $M not built"; exit 77; }
+case $M in /*) ;; *) M=$(pwd)/$M ;; esac     # the @list runs in its own directory
 T=$(mktemp -d "${TMPDIR:-/tmp}/stiff_frames.XXXXXX") || exit 1
 trap 'rm -rf "$T"' EXIT INT TERM
 fails=0
@@ -36,32 +40,79 @@ mkfits "$T/const.fits" 8 'd' 50 50            # every pixel 100
 "$M" sim "$T/wide.fits" nx=20000 ny=20 mode=crowded nstars=300 magmin=-12 magmax=-9 \
     seed=2 >/dev/null || no "sim 20000x20"
 
-for f in nan const one wide; do
-    "$M" find "$T/$f.fits" output="$T/$f.coo" 2>"$T/err" || no "find $f: $(cat "$T/err")"
-    clean "$T/$f.coo" || no "find $f: NaN or inf in the table"
-    "$M" fit "$T/$f.fits" "$T/$f.coo" output="$T/$f.fit" 2>"$T/err" || no "fit $f: $(cat "$T/err")"
-    clean "$T/$f.fit" || no "fit $f: NaN or inf in the table"
-    "$M" pipeline "$T/$f.fits" root="$T/p$f" 2>"$T/err" || no "pipeline $f: $(cat "$T/err")"
-    for e in coo grp fit cat; do
-        [ -f "$T/p$f.$e" ] || no "pipeline $f: no p$f.$e"
-    done
-    # (.grp is the grouping of the last round: rows found on the residual
-    # carry NaN in the fit's columns until fitted; the results are clean.)
-    for e in coo fit cat; do
-        clean "$T/p$f.$e" || no "pipeline $f: NaN or inf in p$f.$e"
-    done
-    [ -f "$T/p$f.res.fits" ] || no "pipeline $f: no residual"
-done
-for f in nan const one; do
-    [ "$(rows "$T/$f.coo")" -eq 0 ] || no "find $f: stars found on an empty frame"
-    [ "$(rows "$T/p$f.cat")" -eq 0 ] || no "pipeline $f: stars in the catalog of an empty frame"
-done
+"$M" sim "$T/noise.fits" nx=128 ny=128 mode=crowded nstars=1 magmin=5 magmax=5.1 seed=3 \
+    >/dev/null || no "sim noise"
+"$M" sim "$T/ok.fits" nx=128 ny=128 mode=crowded nstars=20 magmin=-12 magmax=-10 seed=4 \
+    >/dev/null || no "sim ok"
+printf '%s\n' '#   1 NUMBER                 Running object number' \
+    '#   2 X_IMAGE                Object position along x                                    [pixel]' \
+    '#   3 Y_IMAGE                Object position along y                                    [pixel]' \
+    '         1   25.000   25.000' >"$T/star.coo"
+grep '^#' "$T/star.coo" >"$T/none.coo"
+
 # The wide frame: stars found and fitted all along its 20000 columns.
+f=wide
+"$M" find "$T/$f.fits" output="$T/$f.coo" 2>"$T/err" || no "find $f: $(cat "$T/err")"
+clean "$T/$f.coo" || no "find $f: NaN or inf in the table"
+"$M" fit "$T/$f.fits" "$T/$f.coo" output="$T/$f.fit" 2>"$T/err" || no "fit $f: $(cat "$T/err")"
+clean "$T/$f.fit" || no "fit $f: NaN or inf in the table"
+"$M" pipeline "$T/$f.fits" root="$T/p$f" 2>"$T/err" || no "pipeline $f: $(cat "$T/err")"
+for e in coo grp fit cat; do
+    [ -f "$T/p$f.$e" ] || no "pipeline $f: no p$f.$e"
+done
+# (.grp is the grouping of the last round: rows found on the residual
+# carry NaN in the fit's columns until fitted; the results are clean.)
+for e in coo fit cat; do
+    clean "$T/p$f.$e" || no "pipeline $f: NaN or inf in p$f.$e"
+done
+[ -f "$T/p$f.res.fits" ] || no "pipeline $f: no residual"
 n=$(rows "$T/pwide.cat")
 [ "$n" -ge 150 ] || no "pipeline wide: only $n stars of 300"
-"$M" fit "$T/one.fits" "$T/one.truth" output="$T/one.tfit" 2>"$T/err" \
-    || no "fit of the 1x1 truth: $(cat "$T/err")"
-clean "$T/one.tfit" || no "fit 1x1 truth: NaN or inf"
+
+# refused TASK FRAME WHY ARGS...: exit 1, the last stderr line the task's,
+# naming the frame and WHY (a grep pattern), and no file in $T but those
+# there before.
+refused() {
+    task=$1 fr=$2 why=$3
+    shift 3
+    ls -A "$T" | grep -v '^err$' >"$T/before.ls"
+    "$M" "$task" "$@" >/dev/null 2>"$T/err"
+    rc=$?
+    [ "$rc" -eq 1 ] || no "$task $fr: exit $rc, want 1"
+    tail -n 1 "$T/err" | grep -q "matphot $task: $T/$fr.fits: $why" ||
+        no "$task $fr: want '$fr.fits: $why', got: $(tail -n 1 "$T/err")"
+    ls -A "$T" | grep -v '^err$' | cmp -s - "$T/before.ls" ||
+        no "$task $fr: left $(ls -A "$T" | grep -v '^err$' | grep -vxFf "$T/before.ls" | tr '\n' ' ')"
+}
+# Each frame: why find, fit and pipeline say they end.
+for f in nan const one noise; do
+    coo=$T/star.coo
+    case $f in
+    nan) wf="no good pixel"; wt=$wf; wp=$wf;;
+    const) wf="its noise is 0 on every good pixel"; wt="all 1 stars of $coo rejected"; wp=$wf;;
+    one) wf="1 good pixel of 1 x 1, fewer than a star's 4 parameters"; wt=$wf; wp=$wf
+         coo=$T/one.truth;;
+    noise) coo=$T/noise.truth
+           wf="no source above threshold 4 sigma"; wt="all 1 stars of $coo rejected"
+           # the pipeline's threshold, 2 sigma, finds noise peaks; its fits keep none
+           wp="[0-9]* detections and .*, none kept by its fit";;
+    esac
+    refused find $f "no star found: $wf" "$T/$f.fits" output="$T/$f.coo"
+    refused fit $f "no usable star: $wt" "$T/$f.fits" "$coo" output="$T/$f.fit" \
+        residual="$T/$f.res.fits"
+    refused pipeline $f "no usable star: $wp" "$T/$f.fits" root="$T/p$f"
+done
+"$M" fit "$T/ok.fits" "$T/none.coo" output="$T/none.fit" 2>"$T/err"
+[ $? -eq 1 ] && grep -qF "none.coo: no star to fit" "$T/err" && [ ! -e "$T/none.fit" ] ||
+    no "fit of an empty table: $(cat "$T/err")"
+# An @list: the frame of noise said and skipped, the frames around it reduced.
+(cd "$T" && mkdir l && cp ok.fits l/a.fits && cp noise.fits l/b.fits && cp ok.fits l/c.fits &&
+    printf 'a.fits\nb.fits\nc.fits\n' >l/f.lis)
+(cd "$T/l" && "$M" pipeline @f.lis psf=gauss fwhm=3 2>"$T/err")
+[ $? -eq 1 ] || no "@list with a starless frame: exit 0, want 1"
+grep -q "matphot pipeline: b.fits: no usable star" "$T/err" || no "@list: b.fits not said"
+[ -s "$T/l/a.cat" ] && [ -s "$T/l/c.cat" ] || no "@list: a.fits and c.fits not both reduced"
+[ -z "$(ls "$T/l" | grep '^b\.' | grep -v '^b\.fits$')" ] || no "@list: b.fits left $(ls "$T/l" | grep '^b\.')"
 
 # An interrupted run: SIGTERM while sim writes a 4000x4000 BITPIX -64 frame
 # (128 MB), caught as soon as its temporary appears.

@@ -1,0 +1,34 @@
+/* no_star.c — why a frame holds no star to find (find.h mp_find_why_none):
+ * a frame with no usable star is bad input (one line, exit 1), and the
+ * line says which of its faults it is. */
+#include <math.h>
+#include <stdio.h>
+#include "find/find.h"
+
+int mp_find_why_none(const mp_frame *f, const mp_bkg *b, double threshold, char *why,
+                     size_t n)
+{
+    long nx = f->im.nx, ny = f->im.ny, npix = nx * ny, good = 0;
+    double rms = 0.0;
+    for (long i = 0; i < npix; i++)
+        if (!f->mask || !f->mask[i]) {
+            good++;
+            if (b)
+                rms = fmax(rms, mp_bkg_rms(b, (size_t)i));
+        }
+    if (good == 0)
+        snprintf(why, n, "no good pixel (every one of its %ld x %ld is NaN, blank, masked or "
+                 "saturated)", nx, ny);
+    else if (good < 4)
+        snprintf(why, n, "%ld good pixel%s of %ld x %ld, fewer than a star's 4 parameters (flux, "
+                 "x, y, sky)", good, good == 1 ? "" : "s", nx, ny);
+    else if (b && rms <= 0.0)
+        snprintf(why, n, "its noise is 0 on every good pixel (a constant frame, %ld x %ld)",
+                 nx, ny);
+    else {
+        snprintf(why, n, "no source above threshold %g sigma of the kernel's amplitude "
+                 "(%ld good pixels of %ld x %ld)", threshold, good, nx, ny);
+        return 0;
+    }
+    return 1;
+}
