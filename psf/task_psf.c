@@ -239,7 +239,15 @@ static int detect(psf_task *t, const mp_frame *f, mp_bkg *b, mp_table *found, ch
     t->o.xs = f->im.nx > 1 ? 0.5 * (double)f->im.nx : 1.0;
     t->o.ys = f->im.ny > 1 ? 0.5 * (double)f->im.ny : 1.0;
     mp_find_opts fo = find_opts(t);
-    return mp_bkg_estimate(f, t->mesh, t->filter, b, err) || mp_find_stars(f, b, &fo, found, err);
+    if (mp_bkg_estimate(f, t->mesh, t->filter, b, err) || mp_find_stars(f, b, &fo, found, err))
+        return 1;
+    if (found->nrow == 0) {     /* a frame with no usable star: said as find says it */
+        char why[320];
+        mp_find_why_none(f, b, fo.threshold, why, sizeof why);
+        snprintf(err, MP_ERRLEN, "%.180s: no usable star: %.310s", t->image, why);
+        return 1;
+    }
+    return 0;
 }
 
 /* The second pass (DAOPHOT's): every detection fitted with the first

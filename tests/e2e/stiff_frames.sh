@@ -1,9 +1,9 @@
 #!/bin/sh
-# stiff_frames.sh — extreme frames through find, fit and pipeline (issue 4,
+# stiff_frames.sh — extreme frames through find, fit, pipeline and psf (issue 4,
 # tests/stiff/README.md).  A 20000×20 frame of 300 stars: every run exits
 # 0, writes its outputs, and no output holds NaN or inf.  A frame with no
 # usable star is bad input (README): an all-NaN frame, a constant frame, a
-# 1×1 frame and a frame of noise alone each end find, fit and pipeline
+# 1×1 frame and a frame of noise alone each end find, fit, pipeline and psf
 # with one line naming the frame and why, exit 1 and no output; in an
 # @list the other frames are reduced.  Then an interrupted run: `sim`
 # killed by SIGTERM while it writes leaves neither its output nor a
@@ -101,6 +101,8 @@ for f in nan const one noise; do
     refused fit $f "no usable star: $wt" "$T/$f.fits" "$coo" output="$T/$f.fit" \
         residual="$T/$f.res.fits"
     refused pipeline $f "no usable star: $wp" "$T/$f.fits" root="$T/p$f"
+    # (psf on the 1x1 frame: its table is wider than the frame, psf_cli.sh)
+    [ $f = one ] || refused psf $f "no usable star: $wf" "$T/$f.fits" output="$T/$f.psf.fits"
 done
 "$M" fit "$T/ok.fits" "$T/none.coo" output="$T/none.fit" 2>"$T/err"
 [ $? -eq 1 ] && grep -qF "none.coo: no star to fit" "$T/err" && [ ! -e "$T/none.fit" ] ||
