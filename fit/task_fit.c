@@ -54,6 +54,52 @@ static int check_model_width(const mp_fit_setup *s, const mp_frame *f, const mp_
     return rc != 0;
 }
 
+/* The frame and its stars, refused when they hold no usable star (bad
+ * input: an unusable frame, an empty table) or a model far off the
+ * stars' width. */
+static int read_inputs(const mp_fit_setup *s, const char *image, const char *coords,
+                       mp_frame *f, mp_table *t, char *err)
+{
+    char why[320];
+    if (mp_frame_read(image, &s->dp, f, err))
+        return 1;
+    if (mp_find_why_none(f, NULL, 0, why, sizeof why)) {
+        snprintf(err, MP_ERRLEN, "%.180s: no usable star: %.310s", image, why);
+        return 1;
+    }
+    if (mp_table_read(coords, t, err))
+        return 1;
+    if (t->nrow == 0) {
+        snprintf(err, MP_ERRLEN, "%.400s: no star to fit (the table has no row)", coords);
+        return 1;
+    }
+    return check_model_width(s, f, t, image, err);
+}
+
+/* The run report, beside a named output as frame.report (a piped run
+ * reports on stderr). */
+static int report_fit(const mp_fit_setup *s, const mp_table *t, const mp_frame_report *rep,
+                      mp_run_report *run, const char *output, char *err)
+{
+    char *report = NULL;
+    run->nstars = (long)t->nrow;
+    mp_report_counts(rep, run);
+    char tables[512];
+    mp_econ_summary(s->cache, rep->ops_render, tables, sizeof tables);
+    run->tables = tables;
+    mp_report_from_table(t, run);
+    mp_report_parts(&s->model, &s->opts, rep, run);
+    run->decisions = s->decisions;
+    run->ndecisions = s->ndecisions;
+    if (output && output[0] && strcmp(output, "-") != 0 && !(report = mp_name_after(output, ".report"))) {
+        snprintf(err, MP_ERRLEN, "out of memory");
+        return 1;
+    }
+    int rc = mp_report_write(report, "fit", run, err);
+    free(report);
+    return rc;
+}
+
 /* Fit one image with one coordinate table; write the table and residual.
  * nframes: the run's frames, so that economy plans its tables for the
  * whole @list (this table's stars in every frame, fit/econ_plan.c). */
@@ -65,25 +111,11 @@ static int fit_one(const mp_fit_setup *s, const char *image, const char *coords,
     mp_table t;
     mp_table_init(&t);
     int rc = 1;
-    char *report = NULL;
     mp_run_report run;
     memset(&run, 0, sizeof run);
     run.image = image;
     double t0 = mp_seconds();
-    if (mp_frame_read(image, &s->dp, &f, err))
-        goto done;
-    char why[320];
-    if (mp_find_why_none(&f, NULL, 0, why, sizeof why)) {
-        snprintf(err, MP_ERRLEN, "%.180s: no usable star: %.310s", image, why);
-        goto done;
-    }
-    if (mp_table_read(coords, &t, err))
-        goto done;
-    if (t.nrow == 0) {          /* a frame with no usable star: bad input */
-        snprintf(err, MP_ERRLEN, "%.400s: no star to fit (the table has no row)", coords);
-        goto done;
-    }
-    if (check_model_width(s, &f, &t, image, err))
+    if (read_inputs(s, image, coords, &f, &t, err))
         goto done;
     size_t given = t.nrow;
     run.t_read = mp_seconds() - t0;
@@ -104,37 +136,19 @@ static int fit_one(const mp_fit_setup *s, const char *image, const char *coords,
         goto done;
     }
     run.t_fit = mp_seconds() - t0;
-    if (t.nrow == 0) {
+    if (t.nrow == 0) {          /* a frame with no usable star: bad input */
         snprintf(err, MP_ERRLEN, "%.160s: no usable star: all %zu stars of %.160s rejected by "
                  "their fits (S/N FLUX_PSF/FLUXERR_PSF < minsnr %g) or merged", image, given,
                  coords, s->opts.minsnr);
         goto done;
     }
     t0 = mp_seconds();
-    if (residual && residual[0] && write_residual(&f, s, &t, residual, err))
-        goto done;
-    if (mp_table_write(output, &t, s->fmt, err))
+    if ((residual && residual[0] && write_residual(&f, s, &t, residual, err)) ||
+        mp_table_write(output, &t, s->fmt, err))
         goto done;
     run.t_write = mp_seconds() - t0;
-    run.nstars = (long)t.nrow;
-    mp_report_counts(&rep, &run);
-    char tables[512];
-    mp_econ_summary(s->cache, rep.ops_render, tables, sizeof tables);
-    run.tables = tables;
-    mp_report_from_table(&t, &run);
-    mp_report_parts(&s->model, &s->opts, &rep, &run);
-    run.decisions = s->decisions;
-    run.ndecisions = s->ndecisions;
-    /* Beside a named output, as frame.report; a piped run reports on stderr. */
-    if (output && output[0] && strcmp(output, "-") != 0 && !(report = mp_name_after(output, ".report"))) {
-        snprintf(err, MP_ERRLEN, "out of memory");
-        goto done;
-    }
-    if (mp_report_write(report, "fit", &run, err))
-        goto done;
-    rc = 0;
+    rc = report_fit(s, &t, &rep, &run, output, err);
 done:
-    free(report);
     mp_table_free(&t);
     mp_frame_free(&f);
     return rc;

@@ -69,22 +69,24 @@ done
 n=$(rows "$T/pwide.cat")
 [ "$n" -ge 150 ] || no "pipeline wide: only $n stars of 300"
 
+# $T's files but refused's own (err, before.ls).
+listing() { ls -A "$T" | grep -vxE 'err|before\.ls'; }
 # refused TASK FRAME WHY ARGS...: exit 1, the last stderr line the task's,
 # naming the frame and WHY (a grep pattern), and no file in $T but those
 # there before.
 refused() {
     task=$1 fr=$2 why=$3
     shift 3
-    ls -A "$T" | grep -v '^err$' >"$T/before.ls"
+    listing >"$T/before.ls"
     "$M" "$task" "$@" >/dev/null 2>"$T/err"
     rc=$?
     [ "$rc" -eq 1 ] || no "$task $fr: exit $rc, want 1"
     tail -n 1 "$T/err" | grep -q "matphot $task: $T/$fr.fits: $why" ||
         no "$task $fr: want '$fr.fits: $why', got: $(tail -n 1 "$T/err")"
-    ls -A "$T" | grep -v '^err$' | cmp -s - "$T/before.ls" ||
-        no "$task $fr: left $(ls -A "$T" | grep -v '^err$' | grep -vxFf "$T/before.ls" | tr '\n' ' ')"
+    listing | cmp -s - "$T/before.ls" ||
+        no "$task $fr: left $(listing | grep -vxFf "$T/before.ls" | tr '\n' ' ')"
 }
-# Each frame: why find, fit and pipeline say they end.
+# Each frame: why find, fit, pipeline and psf say they end.
 for f in nan const one noise; do
     coo=$T/star.coo
     case $f in
