@@ -195,10 +195,12 @@ static mp_epsf_opts pass_opts(const run_state *s)
 
 /* A first build that failed (too few PSF stars): when the stars' FWHM
  * measured on the first detection (s->stars_fwhm) is more than 3 σ off
- * fwhm and the selection would have found enough stars with it (its
- * fitrad 2 fwhm, and its psfrad 4 fwhm unless tablerad was given), err
- * says so, naming fwhm: a start far off the stars' (fwhm=12 on stars of
- * FWHM 3) leaves too few alone, and one far below them (0.1) fits none. */
+ * fwhm, err says so, naming fwhm: a start far off the stars' (fwhm=12 on
+ * stars of FWHM 3) leaves too few alone, and one far below them (0.1)
+ * fits none.  And when the selection among these detections would have
+ * found enough stars with it (its fitrad 2 fwhm, and its psfrad 4 fwhm
+ * unless tablerad was given), how many (a kernel far too wide, fwhm=50,
+ * found blends, which no selection makes stars). */
 static void fwhm_hint(const run_state *s, char *err)
 {
     const mp_stars_fwhm *m = &s->stars_fwhm;
@@ -213,10 +215,13 @@ static void fwhm_hint(const run_state *s, char *err)
     int rc = !idx || mp_epsf_select(&s->f, &s->t, &po, idx, &n, e2);
     free(idx);
     size_t l = strlen(err);
+    if (l < MP_ERRLEN)
+        l += (size_t)snprintf(err + l, MP_ERRLEN - l, "; the stars' FWHM is %.3g +- %.1g px "
+                              "(measured on %d lone stars), not fwhm=%g", m->fwhm, m->err, m->n,
+                              po.fwhm);
     if (!rc && n >= 3 && l < MP_ERRLEN)     /* an order-0 PSF's 2 + 1 (epsf_build.c) */
-        snprintf(err + l, MP_ERRLEN - l, "; the stars' FWHM is %.3g +- %.1g px (measured on %d "
-                 "lone stars), not fwhm=%g: with fwhm=%.3g, %zu PSF stars are selected",
-                 m->fwhm, m->err, m->n, po.fwhm, m->fwhm, n);
+        snprintf(err + l, MP_ERRLEN - l, ": with fwhm=%.3g, %zu PSF stars are selected",
+                 m->fwhm, n);
 }
 
 /* Build (pass 1: the frame as it is) or rebuild (pass 2: every fitted

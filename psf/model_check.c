@@ -80,12 +80,12 @@ static int gauss_verdict(const mp_frame *f, const mp_table *t, double fwhm,
     size_t l = strlen(why);
     if (l < nwhy)
         snprintf(why + l, nwhy - l, "; fwhm %g puts a Gaussian star's flux %+.1f %% off, the "
-                 "median detection's error %.1f %%", fwhm, 100.0 * bias, 100.0 * e);
+                 "median detection's error %.2g %%", fwhm, 100.0 * bias, 100.0 * e);
     if (!(mp_epsf_fwhm_off(m, fwhm) && fabs(bias) > e))
         return 0;
     snprintf(err, MP_ERRLEN, "fwhm=%g is not the stars': %d lone stars measure FWHM %.3g +- %.2g "
              "px, and the Gaussian of fwhm=%g puts their fluxes %+.0f %% off, more than the "
-             "median star's error (%.1f %%); give fwhm=%.3g", fwhm, m->n, m->fwhm, m->err,
+             "median star's error (%.2g %%); give fwhm=%.3g", fwhm, m->n, m->fwhm, m->err,
              fwhm, 100.0 * bias, 100.0 * e, m->fwhm);
     return 2;
 }

@@ -164,6 +164,16 @@ rc=$?
     grep -q "the stars' FWHM 2\.5 +- " "$T/gw.report" || no "psf=gauss fwhm=2.5: $(cat "$T/gwlog")"
 grep -q "the stars' FWHM is 2\.5 +- .*, not fwhm=0\.1: with fwhm=2\.5, [0-9]* PSF stars" \
     "$T/nplog" || no "fwhm=0.1: the stars' FWHM not named: $(cat "$T/nplog")"
+# fwhm=14: its wide kernel's detections are blends, of which no selection
+# makes PSF stars, so the run cannot say how many the stars' FWHM would
+# select; it names that FWHM still (it said only "only 1 usable PSF stars").
+rm -f "$T"/gw.*
+"$M" pipeline "$T/f.fits" root="$T/gw" fwhm=14 >/dev/null 2>"$T/gwlog"
+rc=$?
+[ "$rc" -eq 1 ] && tail -n 1 "$T/gwlog" |
+    grep -q "only 1 usable PSF stars .*; the stars' FWHM is 2\.5 +- .*, not fwhm=14\$" ||
+    no "fwhm=14: exit $rc: $(tail -n 1 "$T/gwlog")"
+[ -z "$(ls "$T" | grep '^gw\.')" ] || no "fwhm=14: left $(ls "$T" | grep '^gw\.')"
 # A start so wide that find blends every star (fwhm=20: no PSF star, and
 # the build fell back on that Gaussian, exit 0 with 26 stars before):
 # measured on a narrower kernel's detections, the run ends naming fwhm.
