@@ -459,6 +459,16 @@ int mp_epsf_pass(const mp_frame *f, const float *img, int residual, const mp_tab
     if (residual &&
         mp_epsf_growth(f, img, fitted, m, s, n, mp_epsf_growth_rin(o), 2.0 * o->psfrad, e, err))
         goto done;
+    /* Its stars' last fit, with the table kept, is the build's verdict
+     * too: `psf fwhm=0.5` on stars of FWHM 2.5 built a table of psfrad
+     * 2 px that fitted none of them, and wrote it ("0 of 100 stars
+     * used"). */
+    if (e->nstar < 2 * e->nterms + 1) {
+        snprintf(err, MP_ERRLEN, "psf build: only %d usable PSF stars (an order-%d PSF needs %d; "
+                 "%zu fitted with the table built, psfrad %g px, fitrad %g px)", e->nstar,
+                 e->order, 2 * e->nterms + 1, n, o->psfrad, o->fitrad);
+        goto done;
+    }
     /* A table with no light is no PSF: psfrad 64 on a 128² frame wrote
      * one of zeros, PSFSUM 0, that every reader then refused. */
     double tot = 0.0;
