@@ -269,6 +269,72 @@ static size_t count_used(const mp_epsf_star *s, size_t n)
     return m;
 }
 
+/* A build's rounds (mp_epsf_rounds): what each holds across rounds. */
+typedef struct {
+    mp_epsf_sirt w;
+    mp_epsf_fitter z;
+    int held_from;         /* the round from which the neighbours are held
+                            * and the stars' clip runs */
+    int stop_from;         /* the first round the χ² rule may end */
+    double *tmp, *last;    /* scratch; each star's χ² in the last round */
+} rounds_state;
+
+/* Round it of a build: the stars fitted with the table, clipped, the
+ * SIRT's steps.  0: go on; 2: the round fitted only noise (the rounds
+ * end); 1: an error in err. */
+static int one_round(mp_epsf_star *s, size_t n, const mp_epsf_opts *o, int it, mp_epsf *e,
+                     rounds_state *r, char *err)
+{
+    int held = it >= r->held_from;
+    if (mp_epsf_fitter_set(&r->z, e, s, n, held, err))
+        return 1;
+    /* The neighbours are fitted with their star while the table is
+     * far from made (the first two rounds from a Gaussian: held from
+     * its round 1, a bright companion's fit to the Gaussian spoils the
+     * table, test_psf_build's test_neighbours_fitted) and in the
+     * stars' last fit (mp_epsf_refit); the rounds between hold them.
+     * A build from a table already made (the second pass, an order
+     * raised) holds them from its first round: their last fit was
+     * with that table (the frame's fit, or the last build's stars'
+     * last fit), and fitting them again there was a quarter of 47
+     * Tuc's second pass.  Placed by the frame's fit (o->frame_nb),
+     * they are held in the stars' last fit as well: a fit of each
+     * with its star on the cut-out, as good at best, was another
+     * quarter (its fits five times the held ones').  So are they in
+     * a first pass (o->first_pass), whose last fit only its order
+     * test reads: fitted there, they were 3 % of 47 Tuc's run. */
+    if (fit_stars(s, n, e, o, &r->z, held, !held, err))
+        return 1;
+    if (held)
+        reject_chi2(s, n, r->tmp);
+    size_t m = count_used(s, n);
+    if (m < (size_t)(2 * e->nterms + 1)) {
+        snprintf(err, MP_ERRLEN, "psf build: only %zu usable PSF stars (an order-%d PSF "
+                 "needs %d)", m, e->order, 2 * e->nterms + 1);
+        return 1;
+    }
+    if (mp_epsf_sirt_run(&r->w, s, n, o, e, err))
+        return 1;
+    mp_epsf_normalise(e, o->fwhm, o->support);
+    /* The SIRT's own rule, one level up: once the stars' clip has run,
+     * a round of fits and steps that no longer lowers the χ² of the
+     * stars it kept by more than a step made from pure noise would
+     * (mp_epsf_sirt_floor) fits only noise.  From a Gaussian that is
+     * tested from round 2 on (against round 1, whose neighbours were
+     * fitted), from a table already made from round 1 (against round
+     * 0, held as well): such a build mostly stops there.  Against one
+     * (the floor before 2026-12-05), a build from the table its stars
+     * were drawn with ran every round to o->outer: a round's drop on
+     * noise, 6-29, never falls below one (test_psf_build's
+     * test_rounds_stop_on_noise). */
+    double drop = mp_epsf_common_drop(s, n, r->w.chi2s, r->last), floor = 1.0;
+    if (it < r->stop_from)
+        return 0;
+    if (mp_epsf_sirt_floor(&r->w, s, n, o, e, drop, &floor, err))
+        return 1;
+    return drop >= floor ? 0 : 2;
+}
+
 int mp_epsf_rounds(mp_epsf_star *s, size_t n, const mp_epsf_opts *o, int os, int order,
                    mp_epsf *e, char *err)
 {
@@ -279,82 +345,39 @@ int mp_epsf_rounds(mp_epsf_star *s, size_t n, const mp_epsf_opts *o, int os, int
     int cold;
     if (start_planes(o, os, order, e, &cold, err))
         return 1;
-    /* The round from which the neighbours are held and the stars' clip
-     * runs, and the first the χ² rule may end (below). */
-    int held_from = cold ? 2 : 0, stop_from = cold ? 2 : 1;
+    rounds_state r;
+    memset(&r, 0, sizeof r);
+    r.held_from = cold ? 2 : 0;
+    r.stop_from = cold ? 2 : 1;
     for (size_t k = 0; k < n; k++)
         s[k].used = !s[k].skip;
-    mp_epsf_sirt w;
-    if (mp_epsf_sirt_init(&w, e, n, err))
+    if (mp_epsf_sirt_init(&r.w, e, n, err))
         return 1;
-    mp_epsf_fitter z;
-    mp_epsf_fitter_start(&z, o->grid, o->spare);
+    mp_epsf_fitter_start(&r.z, o->grid, o->spare);
     int rc = 1;
-    double *tmp = malloc((n + 1) * sizeof *tmp), *last = malloc((n + 1) * sizeof *last);
-    if (!tmp || !last) {
+    r.tmp = malloc((n + 1) * sizeof *r.tmp);
+    r.last = malloc((n + 1) * sizeof *r.last);
+    if (!r.tmp || !r.last) {
         oom(err);
         goto done;
     }
     for (size_t k = 0; k < n; k++)
-        last[k] = NAN;      /* no round yet */
-    for (int it = 0; it < o->outer; it++) {
-        if (mp_epsf_fitter_set(&z, e, s, n, it >= held_from, err))
-            goto done;
-        /* The neighbours are fitted with their star while the table is
-         * far from made (the first two rounds from a Gaussian: held from
-         * its round 1, a bright companion's fit to the Gaussian spoils the
-         * table, test_psf_build's test_neighbours_fitted) and in the
-         * stars' last fit (mp_epsf_refit); the rounds between hold them.
-         * A build from a table already made (the second pass, an order
-         * raised) holds them from its first round: their last fit was
-         * with that table (the frame's fit, or the last build's stars'
-         * last fit), and fitting them again there was a quarter of 47
-         * Tuc's second pass.  Placed by the frame's fit (o->frame_nb),
-         * they are held in the stars' last fit as well: a fit of each
-         * with its star on the cut-out, as good at best, was another
-         * quarter (its fits five times the held ones').  So are they in
-         * a first pass (o->first_pass), whose last fit only its order
-         * test reads: fitted there, they were 3 % of 47 Tuc's run. */
-        if (fit_stars(s, n, e, o, &z, it >= held_from, it < held_from, err))
-            goto done;
-        if (it >= held_from)
-            reject_chi2(s, n, tmp);
-        size_t m = count_used(s, n);
-        if (m < (size_t)(2 * e->nterms + 1)) {
-            snprintf(err, MP_ERRLEN, "psf build: only %zu usable PSF stars (an order-%d PSF "
-                     "needs %d)", m, order, 2 * e->nterms + 1);
-            goto done;
-        }
-        if (mp_epsf_sirt_run(&w, s, n, o, e, err))
-            goto done;
-        mp_epsf_normalise(e, o->fwhm, o->support);
-        /* The SIRT's own rule, one level up: once the stars' clip has run,
-         * a round of fits and steps that no longer lowers the χ² of the
-         * stars it kept by more than a step made from pure noise would
-         * (mp_epsf_sirt_floor) fits only noise.  From a Gaussian that is
-         * tested from round 2 on (against round 1, whose neighbours were
-         * fitted), from a table already made from round 1 (against round
-         * 0, held as well): such a build mostly stops there.  Against one
-         * (the floor before 2026-12-05), a build from the table its stars
-         * were drawn with ran every round to o->outer: a round's drop on
-         * noise, 6-29, never falls below one (test_psf_build's
-         * test_rounds_stop_on_noise). */
-        double drop = mp_epsf_common_drop(s, n, w.chi2s, last), floor = 1.0;
-        if (it >= stop_from && mp_epsf_sirt_floor(&w, s, n, o, e, drop, &floor, err))
-            goto done;
-        if (it >= stop_from && !(drop >= floor))
-            break;
-    }
+        r.last[k] = NAN;    /* no round yet */
+    rc = 0;
+    for (int it = 0; it < o->outer && rc == 0; it++)
+        rc = one_round(s, n, o, it, e, &r, err);
+    if (rc == 1)
+        goto done;
     e->filtered = 0;
     e->nstar = (int)count_used(s, n);
     rc = 0;
 done:
-    free(tmp);
-    free(last);
-    e->fits += z.fits;
-    e->fits_grid += z.fits_grid;
-    mp_epsf_fitter_done(&z, o->spare);
-    mp_epsf_sirt_free(&w);
+    free(r.tmp);
+    free(r.last);
+    e->fits += r.z.fits;
+    e->fits_grid += r.z.fits_grid;
+    mp_epsf_fitter_done(&r.z, o->spare);
+    mp_epsf_sirt_free(&r.w);
     return rc;
 }
 
