@@ -252,6 +252,56 @@ static void small_stack_null(const double *sd, const double *skysd, int m, doubl
     nz->sfloor = me;
 }
 
+/* One PSF star's image into v (w² elements, w = 2 hw + 1) normalised by
+ * its light within ra px: *A that light (NaN: not usable), its sky the
+ * median of the ring hw..hw+4 px into *sky over *nsk pixels. */
+static void normalised_star(const mp_frame *f, const float *img, double x, double y, int hw,
+                            double ra, double *tmp, double *v, double *A, double *sky,
+                            size_t *nsk)
+{
+    int w = 2 * hw + 1;
+    long cx = lround(x), cy = lround(y);
+    *A = NAN;
+    *nsk = 0;
+    *sky = tmp ? ring_median(f, img, cx, cy, hw, hw + 4.0, tmp, nsk) : NAN;
+    if (!isfinite(*sky))
+        return;
+    star_image(f, img, cx, cy, *sky, 1.0, hw, v);
+    double a = 0.0;
+    int bad = 0;
+    for (int j = 0; j < w; j++)
+        for (int i = 0; i < w; i++)
+            if (mp_within(i - hw, j - hw, ra)) {
+                double u = v[(size_t)j * w + i];
+                bad |= !isfinite(u);
+                a += u;
+            }
+    if (bad || !(a > 0))
+        return;
+    for (size_t e = 0; e < (size_t)w * w; e++)
+        v[e] /= a;
+    *A = a;
+}
+
+/* The ring test's constants for the stack's ns stars' noise (s->nz): a
+ * sky pixel's per unit flux each, and their sky's (the median of nsky
+ * pixels).  1 when out of memory. */
+static int stack_noise(const mp_frame *f, const double *skies, const double *area,
+                       const double *nsky, int ns, stack *s)
+{
+    double *tmp = malloc((NOISE_NQUANT + NOISE_NDRAW + 5 * (size_t)ns + 1) * sizeof *tmp);
+    if (!tmp)
+        return 1;
+    double *sd = tmp + NOISE_NQUANT + NOISE_NDRAW + 3 * (size_t)ns, *skysd = sd + ns;
+    for (int k = 0; k < ns; k++) {
+        sd[k] = sqrt(fmax(skies[k], 0.0) + f->rdnoise * f->rdnoise) / area[k];
+        skysd[k] = 1.2533 * sd[k] / sqrt(fmax(nsky[k], 1.0));
+    }
+    small_stack_null(sd, skysd, ns, tmp, &s->nz);
+    free(tmp);
+    return 0;
+}
+
 /* The PSF stars' stack: each normalised by its light within 2 fwhm (its
  * sky the median of the ring hw..hw+4 px). */
 static int psf_stack(const mp_frame *f, const float *img, const double *x, const double *y,
@@ -264,7 +314,6 @@ static int psf_stack(const mp_frame *f, const float *img, const double *x, const
     *fbig = 0.0;
     if (!im || !skies || !area || !nsky)
         goto done;
-    double ra = 2.0 * fwhm;
     /* Each star into its own slot in parallel (area NaN: not usable),
      * then the usable ones packed in order. */
 #pragma omp parallel reduction(| : failed)
@@ -273,28 +322,9 @@ static int psf_stack(const mp_frame *f, const float *img, const double *x, const
         failed = !tmp;
 #pragma omp for schedule(dynamic)
         for (size_t k = 0; k < n; k++) {
-            area[k] = NAN;
-            long cx = lround(x[k]), cy = lround(y[k]);
-            size_t nsk = 0;
-            double sky = tmp ? ring_median(f, img, cx, cy, s->hw, s->hw + 4.0, tmp, &nsk) : NAN;
-            if (!isfinite(sky))
-                continue;
-            double *v = im + k * nel, A = 0.0;
-            star_image(f, img, cx, cy, sky, 1.0, s->hw, v);
-            int bad = 0;
-            for (int j = 0; j < s->w; j++)
-                for (int i = 0; i < s->w; i++)
-                    if (mp_within(i - s->hw, j - s->hw, ra)) {
-                        double u = v[(size_t)j * s->w + i];
-                        bad |= !isfinite(u);
-                        A += u;
-                    }
-            if (bad || !(A > 0))
-                continue;
-            for (size_t e = 0; e < nel; e++)
-                v[e] /= A;
-            area[k] = A;
-            skies[k] = sky;
+            size_t nsk;
+            normalised_star(f, img, x[k], y[k], s->hw, 2.0 * fwhm, tmp, im + k * nel, &area[k],
+                            &skies[k], &nsk);
             nsky[k] = (double)nsk;
         }
         free(tmp);
@@ -311,21 +341,7 @@ static int psf_stack(const mp_frame *f, const float *img, const double *x, const
             skies[ns++] = skies[k];
         }
     *skymed = ns ? mp_epsf_median(skies, (size_t)ns) : NAN;
-    rc = stack_combine(im, ns, s);
-    /* the ring test's constants for these stars' noise: a sky pixel's
-     * per unit flux each, and their sky's (the median of nsky pixels) */
-    double *tmp = rc ? NULL : malloc((NOISE_NQUANT + NOISE_NDRAW + 5 * (size_t)ns + 1) * sizeof *tmp);
-    if (!rc && !tmp)
-        rc = 1;
-    if (!rc) {
-        double *sd = tmp + NOISE_NQUANT + NOISE_NDRAW + 3 * (size_t)ns, *skysd = sd + ns;
-        for (int k = 0; k < ns; k++) {
-            sd[k] = sqrt(fmax(skies[k], 0.0) + f->rdnoise * f->rdnoise) / area[k];
-            skysd[k] = 1.2533 * sd[k] / sqrt(fmax(nsky[k], 1.0));
-        }
-        small_stack_null(sd, skysd, ns, tmp, &s->nz);
-    }
-    free(tmp);
+    rc = stack_combine(im, ns, s) || stack_noise(f, skies, area, nsky, ns, s);
 done:
     free(im);
     free(skies);
