@@ -366,6 +366,45 @@ static void test_background_degenerate(void **state)
     frame_drop(&f);
 }
 
+/* Why a frame holds no star (mp_find_why_none): the frame's own fault
+ * (1: no good pixel, fewer good pixels than a star's 4 parameters, zero
+ * noise on a constant frame) before the threshold's (0: a frame of noise
+ * that could hold one). */
+static void test_why_none(void **state)
+{
+    (void)state;
+    char err[MP_ERRLEN], why[320];
+    mp_bkg b;
+    mp_frame f;
+    mp_rng r;
+    mp_rng_seed(&r, 105);
+    frame_make(&f, 40, 30, 0.0);
+    fill(&f, 100.0);
+    gauss_noise(&f, &r, 10.0);
+    assert_int_equal(mp_bkg_estimate(&f, 16, 3, &b, err), 0);
+    assert_int_equal(mp_find_why_none(&f, &b, 4.0, why, sizeof why), 0);
+    assert_non_null(strstr(why, "no source above threshold 4 sigma"));
+    assert_non_null(strstr(why, "1200 good pixels of 40 x 30"));
+    mp_bkg_free(&b);
+    /* three good pixels left: fewer than flux, x, y and sky */
+    memset(f.mask, MP_MASK_BAD, 1200);
+    f.mask[0] = f.mask[600] = f.mask[1199] = 0;
+    assert_int_equal(mp_find_why_none(&f, NULL, 4.0, why, sizeof why), 1);
+    assert_non_null(strstr(why, "3 good pixels of 40 x 30, fewer than a star's 4 parameters"));
+    f.mask[5] = 0;              /* four: the frame may hold one (no map: not told) */
+    assert_int_equal(mp_find_why_none(&f, NULL, 4.0, why, sizeof why), 0);
+    memset(f.mask, MP_MASK_SATURATED, 1200);
+    assert_int_equal(mp_find_why_none(&f, NULL, 4.0, why, sizeof why), 1);
+    assert_non_null(strstr(why, "no good pixel"));
+    memset(f.mask, 0, 1200);
+    fill(&f, 100.0);            /* constant: its map's noise is 0 */
+    assert_int_equal(mp_bkg_estimate(&f, 16, 3, &b, err), 0);
+    assert_int_equal(mp_find_why_none(&f, &b, 4.0, why, sizeof why), 1);
+    assert_non_null(strstr(why, "its noise is 0 on every good pixel"));
+    mp_bkg_free(&b);
+    frame_drop(&f);
+}
+
 /* ---------- detection ---------- */
 
 /* Noiseless stars: the kernel amplitude and the marginal centroids are
@@ -1389,6 +1428,7 @@ int main(void)
 {
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(test_background_plane),
+        cmocka_unit_test(test_why_none),
         cmocka_unit_test(test_find_strips),
         cmocka_unit_test(test_bkg_rows_points),
         cmocka_unit_test(test_background_poisson),
