@@ -114,6 +114,16 @@ echo "stars with masked pixels in their fit: whole $fw, tiled $ft"
 # measures its table's radius): all of them are left to the native run;
 # the builder itself is memchecked by psf_cli.sh, the pipeline's build
 # (no psf=) by stiff_frames.sh.
+# A frame of noise alone in tiles: no usable star in any tile is bad input,
+# as on the whole frame (stiff_frames.sh): one line, exit 1, no product.
+"$M" sim "$T/n.fits" nx=160 ny=160 mode=crowded nstars=1 magmin=5 magmax=5.1 seed=3 >/dev/null ||
+    no "sim noise"
+"$M" pipeline "$T/n.fits" psf=gauss fwhm=3 tilesize=80 root="$T/nt" >/dev/null 2>"$T/ntlog"
+rc=$?
+[ "$rc" -eq 1 ] && tail -n 1 "$T/ntlog" | grep -q "n.fits: no usable star: .*none kept by its fit" ||
+    no "tiles of noise: exit $rc: $(tail -n 1 "$T/ntlog")"
+[ -z "$(ls "$T" | grep '^nt\.')" ] || no "tiles of noise: left $(ls "$T" | grep '^nt\.')"
+
 case $M in
 *valgrind*) echo "memcheck: the built-PSF runs left to the native run" ;;
 *)
