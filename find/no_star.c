@@ -16,7 +16,10 @@ int mp_find_why_none(const mp_frame *f, const mp_bkg *b, double threshold, char 
             if (b)
                 rms = fmax(rms, mp_bkg_rms(b, (size_t)i));
         }
-    if (good == 0)
+    if (good == 0 && f->nsat > 0)
+        snprintf(why, n, "no good pixel (%ld of its %ld x %ld at or above saturate %g ADU, the "
+                 "rest NaN, blank or masked)", f->nsat, nx, ny, f->saturate);
+    else if (good == 0)
         snprintf(why, n, "no good pixel (every one of its %ld x %ld is NaN, blank, masked or "
                  "saturated)", nx, ny);
     else if (good < 4)

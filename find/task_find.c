@@ -92,9 +92,11 @@ static int find_one(const find_setup *s, const char *image, const char *output, 
         snprintf(err, MP_ERRLEN, "%.200s: %.300s", image, e);
         goto done;
     }
-    if (t.nrow == 0) {          /* a frame with no usable star: bad input */
-        char why[300];
-        mp_find_why_none(&f, &b, s->opts.threshold, why, sizeof why);
+    /* A frame with no usable star is bad input: none found, or all its
+     * pixels bad or saturated (saturate=0 found the frame as one star). */
+    char why[300];
+    if ((t.nrow == 0 || f.nbad + f.nsat >= f.im.nx * f.im.ny) &&
+        (mp_find_why_none(&f, &b, s->opts.threshold, why, sizeof why) || t.nrow == 0)) {
         snprintf(err, MP_ERRLEN, "%.200s: no star found: %.290s", image, why);
         goto done;
     }

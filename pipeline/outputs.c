@@ -24,13 +24,15 @@ int mp_pl_write_named(const char *root, const char *ext, const mp_table *t,
     return rc;
 }
 
-int mp_pl_no_star(const char *image, const char *none_why, const mp_pipeline_opts *o,
-                  const mp_pipeline_report *rep, char *err)
+int mp_pl_no_star(const char *image, const mp_frame *f, const char *none_why,
+                  const mp_pipeline_opts *o, const mp_pipeline_report *rep, char *err)
 {
     char why[320];
     long seen = rep->found + rep->added;
     double th = rep->threshold > 0 ? rep->threshold : o->find.threshold;
-    if (seen == 0 && rep->screened == 0 && none_why[0])
+    if (f && mp_find_why_none(f, NULL, th, why, sizeof why))
+        ;                       /* the frame's own fault, whatever was detected */
+    else if (seen == 0 && rep->screened == 0 && none_why[0])
         snprintf(why, sizeof why, "%s", none_why);
     else if (seen == 0 && rep->screened == 0)
         snprintf(why, sizeof why, "no source above threshold %g sigma of the kernel's amplitude",

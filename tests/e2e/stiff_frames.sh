@@ -106,6 +106,12 @@ for f in nan const one noise; do
     # (psf on the 1x1 frame: its table is wider than the frame, psf_cli.sh)
     [ $f = one ] || refused psf $f "no usable star: $wf" "$T/$f.fits" output="$T/$f.psf.fits"
 done
+# A frame whose every pixel is at or above saturate (saturate=0 found it
+# as one saturated star and went on): no good pixel, saturate named.
+w="no good pixel (16384 of its 128 x 128 at or above saturate 0 ADU"
+refused find ok "no star found: $w" "$T/ok.fits" saturate=0 output="$T/sat.coo"
+refused fit ok "no usable star: $w" "$T/ok.fits" "$T/star.coo" saturate=0 output="$T/sat.fit"
+refused pipeline ok "no usable star: $w" "$T/ok.fits" saturate=0 psf=gauss fwhm=3 root="$T/sat"
 "$M" fit "$T/ok.fits" "$T/none.coo" output="$T/none.fit" 2>"$T/err"
 [ $? -eq 1 ] && grep -qF "none.coo: no star to fit" "$T/err" && [ ! -e "$T/none.fit" ] ||
     no "fit of an empty table: $(cat "$T/err")"
