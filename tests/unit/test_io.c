@@ -406,7 +406,8 @@ static void test_bad_inputs(void **state)
 
 /* A frame with a DQ plane (HST layout: SCI and DQ image extensions): the
  * dqbad bits carry no weight, the dqsat bits count as saturated, other bits
- * and dqmask="" change nothing; a DQ plane of another shape is refused. */
+ * and dqmask="" change nothing; a DQ plane of another shape is refused, and
+ * so is a dqmask with neither dqbad nor dqsat bits. */
 static void test_frame_dq(void **state)
 {
     scratch *s = *state;
@@ -489,6 +490,13 @@ static void test_frame_dq(void **state)
     snprintf(dp.dqmask, sizeof dp.dqmask, "[NOPE]");
     assert_int_not_equal(mp_frame_read(sci, &dp, &f, err), 0);
     assert_non_null(strstr(err, "NOPE"));
+    /* A mask named with no bit selected would mask nothing: refused,
+     * naming dqmask, whatever the file (here one that does not exist). */
+    snprintf(dp.dqmask, sizeof dp.dqmask, "nosuch.fits");
+    dp.dqsat = dp.dqbad = 0;
+    assert_int_not_equal(mp_frame_read(sci, &dp, &f, err), 0);
+    assert_non_null(strstr(err, "dqmask: nosuch.fits is given, but dqbad and dqsat select no bit"));
+    assert_null(f.mask);
 }
 
 /* A pixel both saturated and flagged by a dqbad bit (AstroDrizzle marks
