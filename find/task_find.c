@@ -137,6 +137,9 @@ int mp_task_find(int argc, char **argv)
         goto done;
     }
     sw = mp_sweeps_new();        /* each output directory swept once */
+    /* A frame's bad input is its own line: the list's other frames go on,
+     * the status 1 (as pipeline's). */
+    int failed = 0;
     for (size_t i = 0; i < nim; i++) {
         char *named = NULL;
         const char *o = nout ? out[i] : "-";
@@ -151,11 +154,13 @@ int mp_task_find(int argc, char **argv)
         int r = find_one(&s, im[i], o, err);
         free(named);
         if (r)
-            goto done;
+            fprintf(stderr, "matphot find: %s\n", err);
+        failed |= r;
     }
-    rc = 0;
+    rc = failed;
+    err[0] = '\0';             /* each said where it happened */
 done:
-    if (rc)
+    if (rc && err[0])
         fprintf(stderr, "matphot find: %s\n", err);
     mp_list_free(im, nim);
     mp_list_free(out, nout);

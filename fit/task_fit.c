@@ -179,6 +179,7 @@ int mp_task_fit(int argc, char **argv)
                  "for %zu images: lists must pair line by line", nco, nout, nrs, nim);
         goto done;
     }
+    int failed = 0;
     for (size_t i = 0; i < nim; i++) {
         char *named = NULL;
         const char *o = nout ? out[i] : "-";
@@ -194,12 +195,14 @@ int mp_task_fit(int argc, char **argv)
             mp_tmp_sweep(sw, rs[i]);
         int r = fit_one(&s, im[i], co[i], o, nrs ? rs[i] : NULL, nim, err);
         free(named);
-        if (r)
-            goto done;
+        if (r)      /* its own line: the list's other frames go on (pipeline's) */
+            fprintf(stderr, "matphot fit: %s\n", err);
+        failed |= r;
     }
-    rc = 0;
+    rc = failed;
+    err[0] = '\0';             /* each said where it happened */
 done:
-    if (rc)
+    if (rc && err[0])
         fprintf(stderr, "matphot fit: %s\n", err);
     mp_list_free(im, nim);
     mp_list_free(co, nco);

@@ -5,9 +5,9 @@
 # usable star is bad input (README): an all-NaN frame, a constant frame, a
 # 1×1 frame and a frame of noise alone each end find, fit, pipeline and psf
 # with one line naming the frame and why, exit 1 and no output; in an
-# @list the other frames are reduced.  Then an interrupted run: `sim`
-# killed by SIGTERM while it writes leaves neither its output nor a
-# temporary.
+# @list (pipeline, find, fit) the other frames are reduced.  Then an
+# interrupted run: `sim` killed by SIGTERM while it writes leaves neither
+# its output nor a temporary.
 M=${MATPHOT:-./matphot}
 [ -x "$M" ] || { echo "stiff_frames: $M not built"; exit 77; }
 case $M in /*) ;; *) M=$(pwd)/$M ;; esac     # the @list runs in its own directory
@@ -123,6 +123,16 @@ refused pipeline ok "no usable star: $w" "$T/ok.fits" saturate=0 psf=gauss fwhm=
 grep -q "matphot pipeline: b.fits: no usable star" "$T/err" || no "@list: b.fits not said"
 [ -s "$T/l/a.cat" ] && [ -s "$T/l/c.cat" ] || no "@list: a.fits and c.fits not both reduced"
 [ -z "$(ls "$T/l" | grep '^b\.' | grep -v '^b\.fits$')" ] || no "@list: b.fits left $(ls "$T/l" | grep '^b\.')"
+# find and fit take an @list the same way.
+rm -f "$T"/l/*.coo "$T"/l/*.fit
+(cd "$T/l" && "$M" find @f.lis 2>"$T/err")
+[ $? -eq 1 ] && grep -q "matphot find: b.fits: no star found" "$T/err" && [ -s "$T/l/a.coo" ] &&
+    [ -s "$T/l/c.coo" ] && [ ! -e "$T/l/b.coo" ] || no "find @list: $(cat "$T/err")"
+cp "$T/noise.truth" "$T/l/b.coo"
+(cd "$T/l" && printf 'a.coo\nb.coo\nc.coo\n' >c.lis &&
+    "$M" fit @f.lis coords=@c.lis psf=gauss fwhm=3 2>"$T/err")
+[ $? -eq 1 ] && grep -q "matphot fit: b.fits: no usable star" "$T/err" && [ -s "$T/l/a.fit" ] &&
+    [ -s "$T/l/c.fit" ] && [ ! -e "$T/l/b.fit" ] || no "fit @list: $(grep -v '^matphot fit:  ' "$T/err")"
 
 # An interrupted run: SIGTERM while sim writes a 4000x4000 BITPIX -64 frame
 # (128 MB), caught as soon as its temporary appears.
