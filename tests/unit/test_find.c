@@ -63,6 +63,17 @@ static void gauss_noise(mp_frame *f, mp_rng *r, double sigma)
         f->im.pix[i] += sigma * mp_rng_normal(r);
 }
 
+/* A flat frame of sky with Gaussian noise of sigma, drawn from seed. */
+static void flat_noise_frame(mp_frame *f, long nx, long ny, double sky, double sigma,
+                             uint64_t seed)
+{
+    mp_rng r;
+    mp_rng_seed(&r, seed);
+    frame_make(f, nx, ny, 0.0);
+    fill(f, sky);
+    gauss_noise(f, &r, sigma);
+}
+
 static mp_sim_prf gauss_prf(double fwhm)
 {
     mp_sim_prf p;
@@ -316,12 +327,8 @@ static void test_background_degenerate(void **state)
     char err[MP_ERRLEN];
     mp_bkg b;
     mp_frame f;
-    mp_rng r;
-    mp_rng_seed(&r, 104);
 
-    frame_make(&f, 20, 15, 0.0);
-    fill(&f, 50.0);
-    gauss_noise(&f, &r, 5.0);
+    flat_noise_frame(&f, 20, 15, 50.0, 5.0, 104);
     assert_int_equal(mp_bkg_estimate(&f, 64, 3, &b, err), 0);
     assert_int_equal(b.nx, 20);
     assert_int_equal(b.ny, 15);
@@ -376,11 +383,7 @@ static void test_why_none(void **state)
     char err[MP_ERRLEN], why[320];
     mp_bkg b;
     mp_frame f;
-    mp_rng r;
-    mp_rng_seed(&r, 105);
-    frame_make(&f, 40, 30, 0.0);
-    fill(&f, 100.0);
-    gauss_noise(&f, &r, 10.0);
+    flat_noise_frame(&f, 40, 30, 100.0, 10.0, 105);
     assert_int_equal(mp_bkg_estimate(&f, 16, 3, &b, err), 0);
     assert_int_equal(mp_find_why_none(&f, &b, 4.0, why, sizeof why), 0);
     assert_non_null(strstr(why, "no source above threshold 4 sigma"));
@@ -573,11 +576,7 @@ static void test_false_detections(void **state)
     (void)state;
     const long N = 1024;
     mp_frame f;
-    frame_make(&f, N, N, 0.0);
-    fill(&f, 1000.0);
-    mp_rng r;
-    mp_rng_seed(&r, 105);
-    gauss_noise(&f, &r, 10.0);
+    flat_noise_frame(&f, N, N, 1000.0, 10.0, 105);
     ref_kernel k;
     ref_kernel_make(3.0, 1.5, &k);
     mp_find_opts o;
