@@ -13,8 +13,8 @@ int mp_find_why_none(const mp_frame *f, const mp_bkg *b, double threshold, char 
     for (long i = 0; i < npix; i++)
         if (!f->mask || !f->mask[i]) {
             good++;
-            if (b)
-                rms = fmax(rms, mp_bkg_rms(b, (size_t)i));
+            if (b && rms <= 0.0)    /* one pixel of noise says enough */
+                rms = mp_bkg_rms(b, (size_t)i);
         }
     if (good == 0 && f->nsat > 0)
         snprintf(why, n, "no good pixel (%ld of its %ld x %ld at or above saturate %g ADU, the "
