@@ -92,65 +92,30 @@ static int start_planes(const mp_epsf_opts *o, int os, int order, mp_epsf *e, in
  * come after (the χ² stopping rule from round 2, OVERSAMP, the order). */
 #define EARLY_TOL 0.1
 
-/* Fit one star (centre, flux; the sky its annulus's) with its table at
- * its place (z's model: star_model.c), together with its neighbours on
- * the cut-out as cut; then the cut-out less the neighbours' models
- * (mp_epsf_clean).  With hold, the neighbours keep their last fit: the
- * cut-out less their models drawn with this table first, then the star
- * alone on it (with them it is a group fit of up to 13 stars).  tab is
- * z's table at order 0, else the caller's own (the table at the star's
- * place is drawn into it); *grid is raised when the phase grid served
- * the fit.  early: a round before the stars' clip (EARLY_TOL).  1 when
- * out of memory. */
-static int fit_star(mp_epsf_star *s, const mp_epsf *e, const mp_epsf_opts *o,
-                    const mp_epsf_fitter *z, mp_psf *tab, int hold, int early, long *grid)
+/* The fit's options for a PSF star: the phase grid where z's bound lets
+ * it serve the star, its crop, fitrad; the sky the annulus's. */
+static void star_fit_opts(const mp_epsf_star *s, const mp_epsf_opts *o, const mp_epsf_fitter *z,
+                          int early, mp_fit_opts *fo)
 {
-    char err[MP_ERRLEN];
-    if (!z->order0 && mp_epsf_table(e, s->x, s->y, tab, err))
-        return 1;
-    mp_prf_model m = {tab, NULL, 10};
-    mp_fit_opts fo;
-    mp_fit_opts_default(&fo);
-    fo.grid = mp_epsf_fitter_grid(z, s);
-    if (fo.grid)
-        fo.grid_tiers = z->tiers;
+    mp_fit_opts_default(fo);
+    fo->grid = mp_epsf_fitter_grid(z, s);
+    if (fo->grid)
+        fo->grid_tiers = z->tiers;
     if (early)
-        fo.tol = EARLY_TOL;
-    fo.crop = z->order0 && z->crop.env ? &z->crop : NULL;
-    /* the neighbours taken off the cut-out from the grid, each by its own
-     * flux's bound (mp_epsf_clean) */
-    const mp_prf_cache *nbgrid = z->order0 && z->grid.G > 0 ? &z->grid : NULL;
-    *grid += fo.grid != NULL;
-    fo.sky_order = 0;
-    fo.fitrad = o->fitrad;
-    fo.fit_sky = 0;             /* the annulus's (mp_epsf_cutouts) */
-    fo.stats = 0;               /* its PRF's statistics and model errors unread
+        fo->tol = EARLY_TOL;
+    fo->crop = z->order0 && z->crop.env ? &z->crop : NULL;
+    fo->sky_order = 0;
+    fo->fitrad = o->fitrad;
+    fo->fit_sky = 0;            /* the annulus's (mp_epsf_cutouts) */
+    fo->stats = 0;              /* its PRF's statistics and model errors unread
                                  * here: an exact render of each star a fit */
-    mp_star st[1 + MP_EPSF_MAXNB];
-    memset(st, 0, sizeof st);
-    double ox = (double)(s->x0 - 1), oy = (double)(s->y0 - 1);
-    st[0].x = s->x - ox;
-    st[0].y = s->y - oy;
-    st[0].flux = s->flux;
-    for (int j = 0; j < s->nnb; j++) {
-        st[1 + j].x = s->nbx[j] - ox;
-        st[1 + j].y = s->nby[j] - oy;
-        st[1 + j].flux = s->nbf[j];
-    }
-    mp_frame raw = s->f;
-    int nfit = 1 + s->nnb;
-    if (hold && s->raw) {
-        if (mp_epsf_clean(s, tab, nbgrid, o->psfrad))
-            return 1;
-        nfit = 1;
-    } else if (s->raw) {
-        raw.im.pix = s->raw;
-    }
-    char e2[MP_ERRLEN];
-    if (mp_fit_group(&raw, &m, &fo, s->sky, st, nfit, e2)) {
-        s->used = 0;
-        return 0;
-    }
+}
+
+/* The star's fit (st[0], its neighbours st[1..nfit-1], cut-out
+ * coordinates, offset ox, oy) kept in s: 0 when it is not a star the
+ * table describes (s->used cleared). */
+static int keep_fit(mp_epsf_star *s, const mp_star *st, int nfit, double ox, double oy)
+{
     double nx = st[0].x + ox, ny = st[0].y + oy;
     /* A fit that strays from where the star was found, or loses its light,
      * is not a star this table describes. */
@@ -176,6 +141,59 @@ static int fit_star(mp_epsf_star *s, const mp_epsf *e, const mp_epsf_opts *o,
             s->nbf[j] = st[1 + j].flux;
         }
     }
+    return 1;
+}
+
+/* Fit one star (centre, flux; the sky its annulus's) with its table at
+ * its place (z's model: star_model.c), together with its neighbours on
+ * the cut-out as cut; then the cut-out less the neighbours' models
+ * (mp_epsf_clean).  With hold, the neighbours keep their last fit: the
+ * cut-out less their models drawn with this table first, then the star
+ * alone on it (with them it is a group fit of up to 13 stars).  tab is
+ * z's table at order 0, else the caller's own (the table at the star's
+ * place is drawn into it); *grid is raised when the phase grid served
+ * the fit.  early: a round before the stars' clip (EARLY_TOL).  1 when
+ * out of memory. */
+static int fit_star(mp_epsf_star *s, const mp_epsf *e, const mp_epsf_opts *o,
+                    const mp_epsf_fitter *z, mp_psf *tab, int hold, int early, long *grid)
+{
+    char err[MP_ERRLEN];
+    if (!z->order0 && mp_epsf_table(e, s->x, s->y, tab, err))
+        return 1;
+    mp_prf_model m = {tab, NULL, 10};
+    mp_fit_opts fo;
+    star_fit_opts(s, o, z, early, &fo);
+    *grid += fo.grid != NULL;
+    /* the neighbours taken off the cut-out from the grid, each by its own
+     * flux's bound (mp_epsf_clean) */
+    const mp_prf_cache *nbgrid = z->order0 && z->grid.G > 0 ? &z->grid : NULL;
+    mp_star st[1 + MP_EPSF_MAXNB];
+    memset(st, 0, sizeof st);
+    double ox = (double)(s->x0 - 1), oy = (double)(s->y0 - 1);
+    st[0].x = s->x - ox;
+    st[0].y = s->y - oy;
+    st[0].flux = s->flux;
+    for (int j = 0; j < s->nnb; j++) {
+        st[1 + j].x = s->nbx[j] - ox;
+        st[1 + j].y = s->nby[j] - oy;
+        st[1 + j].flux = s->nbf[j];
+    }
+    mp_frame raw = s->f;
+    int nfit = 1 + s->nnb;
+    if (hold && s->raw) {
+        if (mp_epsf_clean(s, tab, nbgrid, o->psfrad))
+            return 1;
+        nfit = 1;
+    } else if (s->raw) {
+        raw.im.pix = s->raw;
+    }
+    char e2[MP_ERRLEN];
+    if (mp_fit_group(&raw, &m, &fo, s->sky, st, nfit, e2)) {
+        s->used = 0;
+        return 0;
+    }
+    if (!keep_fit(s, st, nfit, ox, oy))
+        return 0;
     return nfit > 1 && mp_epsf_clean(s, tab, nbgrid, o->psfrad);
 }
 
