@@ -91,6 +91,22 @@ static void axis_of(int n, int os, double x, long *n0, double *delta)
     *delta = c0 - (double)*n0;
 }
 
+/* W added to the os × os elements of H (nx × ny) a pixel is drawn from,
+ * (mx0, my0) its first (the unshifted axes: H only normalises). */
+static inline void add_weight(float *H, int nx, int ny, int os, long mx0, long my0, double W)
+{
+    for (int sy = 0; sy < os; sy++) {
+        long my = my0 + sy;
+        if (my < 0 || my >= ny)
+            continue;
+        for (int sx = 0; sx < os; sx++) {
+            long mx = mx0 + sx;
+            if (mx >= 0 && mx < nx)
+                H[(size_t)my * nx + mx] += (float)W;
+        }
+    }
+}
+
 /* One star: R = W ρ on its box (ρ the residual per unit flux, W = F²/σ²
  * its information; zero where masked or beyond psfrad) and its box in
  * geo, H = Aᵀ W (the weight each element gets, unshifted: it only
@@ -155,17 +171,7 @@ static int backproject(scratch *w, const mp_epsf_star *s, const mp_epsf *e, doub
             R[(size_t)j * bw + i] = W * rho;
             Wp[(size_t)j * bw + i] = W;
             *npix += 1.0;
-            for (int sy = 0; sy < os; sy++) {
-                long my = os * (py - 1) + sy + n0y;
-                if (my < 0 || my >= ny)
-                    continue;
-                for (int sx = 0; sx < os; sx++) {
-                    long mx = os * (px - 1) + sx + n0x;
-                    if (mx < 0 || mx >= nx)
-                        continue;
-                    H[(size_t)my * nx + mx] += (float)W;
-                }
-            }
+            add_weight(H, nx, ny, os, os * (px - 1) + n0x, os * (py - 1) + n0y, W);
         }
     }
     return 0;
