@@ -414,6 +414,31 @@ static int build_raised(mp_epsf_star *s, size_t n, const mp_epsf_opts *o, mp_eps
     return 0;
 }
 
+/* A table built is a PSF only when its stars' last fit, with the table
+ * kept, leaves as many as its order needs (`psf fwhm=0.5` on stars of
+ * FWHM 2.5 built a 2-px table that fitted none of them, and wrote it: "0
+ * of 100 stars used"), and it holds light (psfrad 64 on a 128² frame
+ * wrote one of zeros, PSFSUM 0, that every reader then refused).  1 with
+ * err when not. */
+static int built_verdict(const mp_epsf *e, size_t n, const mp_epsf_opts *o, char *err)
+{
+    if (e->nstar < 2 * e->nterms + 1) {
+        snprintf(err, MP_ERRLEN, "psf build: only %d usable PSF stars (an order-%d PSF needs %d; "
+                 "%zu fitted with the table built, psfrad %g px, fitrad %g px)", e->nstar,
+                 e->order, 2 * e->nterms + 1, n, o->psfrad, o->fitrad);
+        return 1;
+    }
+    double tot = 0.0;
+    for (size_t i = 0; i < (size_t)e->nx * (size_t)e->ny; i++)
+        tot += e->planes[i];
+    if (!(tot > 0) || !(e->sum > 0)) {
+        snprintf(err, MP_ERRLEN, "psf build: the table holds no light (its elements sum to %g, "
+                 "PSFSUM %g; psfrad %g px)", tot, e->sum, o->psfrad);
+        return 1;
+    }
+    return 0;
+}
+
 int mp_epsf_pass(const mp_frame *f, const float *img, int residual, const mp_table *fitted,
                  const mp_prf_model *m, const double *x, const double *y, const double *flux,
                  size_t n, const mp_epsf_opts *oin, mp_epsf *e, mp_epsf_report *rep,
@@ -459,26 +484,8 @@ int mp_epsf_pass(const mp_frame *f, const float *img, int residual, const mp_tab
     if (residual &&
         mp_epsf_growth(f, img, fitted, m, s, n, mp_epsf_growth_rin(o), 2.0 * o->psfrad, e, err))
         goto done;
-    /* Its stars' last fit, with the table kept, is the build's verdict
-     * too: `psf fwhm=0.5` on stars of FWHM 2.5 built a table of psfrad
-     * 2 px that fitted none of them, and wrote it ("0 of 100 stars
-     * used"). */
-    if (e->nstar < 2 * e->nterms + 1) {
-        snprintf(err, MP_ERRLEN, "psf build: only %d usable PSF stars (an order-%d PSF needs %d; "
-                 "%zu fitted with the table built, psfrad %g px, fitrad %g px)", e->nstar,
-                 e->order, 2 * e->nterms + 1, n, o->psfrad, o->fitrad);
+    if (built_verdict(e, n, o, err))
         goto done;
-    }
-    /* A table with no light is no PSF: psfrad 64 on a 128² frame wrote
-     * one of zeros, PSFSUM 0, that every reader then refused. */
-    double tot = 0.0;
-    for (size_t i = 0; i < (size_t)e->nx * (size_t)e->ny; i++)
-        tot += e->planes[i];
-    if (!(tot > 0) || !(e->sum > 0)) {
-        snprintf(err, MP_ERRLEN, "psf build: the table holds no light (its elements sum to %g, "
-                 "PSFSUM %g; psfrad %g px)", tot, e->sum, o->psfrad);
-        goto done;
-    }
     rep->nused = (size_t)e->nstar;
     rep->chi2 = median_chi2(s, n);
     size_t l = strlen(rep->what);
