@@ -23,24 +23,14 @@ void mp_pl_stars_why(const mp_stars_fwhm *m, char *why, size_t nwhy)
 
 int mp_pl_frame_fwhm(const char *image, const mp_pipeline_opts *o, mp_stars_fwhm *m, char *err)
 {
-    /* The kernels tried in turn: the parameter file's default, then wider
-     * (a narrow kernel breaks a wide star's top into peaks no test calls
-     * lone). */
-    static const double kernels[] = {3.0, 12.0, 48.0};
     mp_frame f;
     mp_bkg b;
     memset(&b, 0, sizeof b);
     memset(m, 0, sizeof *m);
     if (mp_frame_read(image, &o->fit.dp, &f, err))
         return 1;
-    int rc = mp_bkg_estimate(&f, o->mesh, o->filter, &b, err);
-    for (size_t k = 0; !rc && m->n < MP_EPSF_FWHM_NEED && k < sizeof kernels / sizeof *kernels; k++)
-        rc = mp_epsf_stars_fwhm_kernel(&f, &b, &o->find, kernels[k], MP_EPSF_FWHM_STARS, m, err);
-    if (!rc && m->n < MP_EPSF_FWHM_NEED) {
-        snprintf(err, MP_ERRLEN, "fwhm: INDEF, and %s has too few stars to measure it (%d lone "
-                 "stars of S/N >= 20, %d needed): give fwhm", image, m->n, MP_EPSF_FWHM_NEED);
-        rc = 1;
-    }
+    int rc = mp_bkg_estimate(&f, o->mesh, o->filter, &b, err) ||
+             mp_epsf_frame_fwhm(&f, &b, &o->find, image, m, err);
     mp_bkg_free(&b);
     mp_frame_free(&f);
     return rc;

@@ -211,6 +211,15 @@ int mp_epsf_fwhm_off(const mp_stars_fwhm *m, double fwhm);
 int mp_epsf_stars_fwhm_kernel(const mp_frame *f, const mp_bkg *b, const mp_find_opts *fo,
                               double kernel, int nmax, mp_stars_fwhm *m, char *err);
 
+/* mp_epsf_frame_fwhm: the stars' FWHM of f measured with no FWHM given
+ * (fwhm=INDEF: pipeline, psf): mp_epsf_stars_fwhm_kernel with kernels of
+ * FWHM 3, 12 and 48 px in turn until MP_EPSF_FWHM_NEED stars are
+ * measured (a narrow kernel breaks a wide star's top into peaks no test
+ * calls lone).  With fewer (m->n) err names fwhm and image: nonzero.
+ * Errors: find's, out of memory. */
+int mp_epsf_frame_fwhm(const mp_frame *f, const mp_bkg *b, const mp_find_opts *fo,
+                       const char *image, mp_stars_fwhm *m, char *err);
+
 /* mp_epsf_model_is_gauss: whether model is an analytic Gaussian that does
  * not vary (psf=gauss, or the start of a build): its width is fwhm. */
 int mp_epsf_model_is_gauss(const mp_prf_model *model);

@@ -423,6 +423,22 @@ int mp_epsf_stars_fwhm_kernel(const mp_frame *f, const mp_bkg *b, const mp_find_
     return rc;
 }
 
+int mp_epsf_frame_fwhm(const mp_frame *f, const mp_bkg *b, const mp_find_opts *fo,
+                       const char *image, mp_stars_fwhm *m, char *err)
+{
+    static const double kernels[] = {3.0, 12.0, 48.0};
+    memset(m, 0, sizeof *m);
+    int rc = 0;
+    for (size_t k = 0; !rc && m->n < MP_EPSF_FWHM_NEED && k < sizeof kernels / sizeof *kernels; k++)
+        rc = mp_epsf_stars_fwhm_kernel(f, b, fo, kernels[k], MP_EPSF_FWHM_STARS, m, err);
+    if (!rc && m->n < MP_EPSF_FWHM_NEED) {
+        snprintf(err, MP_ERRLEN, "fwhm: INDEF, and %s has too few stars to measure it (%d lone "
+                 "stars of S/N >= 20, %d needed): give fwhm", image, m->n, MP_EPSF_FWHM_NEED);
+        rc = 1;
+    }
+    return rc;
+}
+
 int mp_epsf_stars_fwhm_found(const mp_frame *f, const mp_bkg *b, const mp_find_opts *fo,
                              const mp_table *t, int nmax, mp_stars_fwhm *m, char *err)
 {

@@ -14,26 +14,35 @@ typedef struct {
     mp_datapars dp;
     int passes, mesh, filter;
     double threshold;
+    int measure;               /* fwhm=INDEF: the stars' FWHM measured */
+    double psfrad, fitrad;     /* as given (NaN: INDEF, from fwhm) */
     const char *image, *stars, *output;
 } psf_task;
+
+/* What follows fwhm: the table's and the stars' fit's radii, unless
+ * given. */
+static void set_fwhm(psf_task *t, double fwhm)
+{
+    t->o.fwhm = fwhm;
+    t->o.psfrad = isfinite(t->psfrad) ? t->psfrad : 4.0 * fwhm;
+    t->o.fitrad = isfinite(t->fitrad) ? t->fitrad : 2.0 * fwhm;
+    t->o.fitrad = fmin(t->o.fitrad, t->o.psfrad);
+}
 
 static int read_opts(const mp_parset *ps, psf_task *t, char *err)
 {
     memset(t, 0, sizeof *t);
-    double fwhm = 3.0, psfrad = NAN, fitrad = NAN;
+    double fwhm = NAN;
     int os = MP_PAR_INDEF_INT;
-    if (mp_par_need_real(ps, "fwhm", &fwhm, err))
-        return 1;
-    mp_par_real(ps, "psfrad", &psfrad);
-    mp_par_real(ps, "fitrad", &fitrad);
+    mp_par_real(ps, "fwhm", &fwhm);
+    t->measure = !isfinite(fwhm);
+    t->psfrad = t->fitrad = NAN;
+    mp_par_real(ps, "psfrad", &t->psfrad);
+    mp_par_real(ps, "fitrad", &t->fitrad);
     mp_par_int(ps, "oversamp", &os);
-    mp_epsf_opts_default(fwhm, 1, 1, &t->o);
+    mp_epsf_opts_default(3.0, 1, 1, &t->o);
+    set_fwhm(t, t->measure ? 3.0 : fwhm);   /* INDEF: measured on the frame (run) */
     t->o.os = os == MP_PAR_INDEF_INT ? 0 : os;
-    if (isfinite(psfrad))
-        t->o.psfrad = psfrad;
-    if (isfinite(fitrad))
-        t->o.fitrad = fitrad;
-    t->o.fitrad = fmin(t->o.fitrad, t->o.psfrad);
     const char *vo = mp_par_string(ps, "varorder");
     t->o.order = !strcmp(vo, "auto") ? -1 : atoi(vo);
     mp_par_real(ps, "alpha", &t->o.alpha);
@@ -322,6 +331,26 @@ done:
     return rc;
 }
 
+/* fwhm=INDEF: the stars' FWHM measured on the frame (mp_epsf_frame_fwhm),
+ * as pipeline measures it, and what follows it set from it. */
+static int measure_fwhm(psf_task *t, const mp_frame *f, char *err)
+{
+    mp_bkg b;
+    memset(&b, 0, sizeof b);
+    mp_stars_fwhm m;
+    mp_find_opts fo = find_opts(t);
+    int rc = mp_bkg_estimate(f, t->mesh, t->filter, &b, err) ||
+             mp_epsf_frame_fwhm(f, &b, &fo, t->image, &m, err);
+    mp_bkg_free(&b);
+    if (rc)
+        return 1;
+    set_fwhm(t, m.fwhm);
+    fprintf(stderr, "matphot psf: %s: fwhm INDEF: the stars' FWHM %.3g +- %.2g px (a Gaussian "
+            "fitted to each of %d lone detections); psfrad %g px, fitrad %g px\n", t->image,
+            m.fwhm, m.err, m.n, t->o.psfrad, t->o.fitrad);
+    return 0;
+}
+
 /* matphot psf: read, detect, pick the PSF stars (or take the list), build
  * (pass 1, and pass 2 with the neighbours subtracted), write. */
 static int run(psf_task *t, char *err)
@@ -340,8 +369,8 @@ static int run(psf_task *t, char *err)
     int rc = 1;
     mp_epsf_report rep;
     memset(&rep, 0, sizeof rep);
-    if (mp_frame_read(t->image, &t->dp, &f, err) || table_fits(t, &f, err) ||
-        detect(t, &f, &b, &found, err))
+    if (mp_frame_read(t->image, &t->dp, &f, err) || (t->measure && measure_fwhm(t, &f, err)) ||
+        table_fits(t, &f, err) || detect(t, &f, &b, &found, err))
         goto done;
     int listed = t->stars && t->stars[0];
     if (listed ? stars_from_list(t, &f, &x, &y, &fl, &n, err)

@@ -83,6 +83,18 @@ rc=$?
 [ "$rc" -eq 1 ] && tail -n 1 "$T/w07log" | grep -q "f.fits: psf build: only [0-2] usable PSF stars (an \
 order-0 PSF needs 3; [0-9]* fitted with the table built, .*; the stars' FWHM is 2\.[45][0-9]* .*, \
 not fwhm=0\.7" && [ ! -e "$T/w07.psf.fits" ] || no "psf fwhm=0.7: exit $rc: $(cat "$T/w07log")"
+# fwhm=INDEF: the stars' FWHM (2.5 here) measured on the frame, as the
+# pipeline measures it, and the table built from it; a frame of noise
+# has no star to measure it on.
+"$M" psf "$T/f.fits" fwhm=INDEF output="$T/wi.psf.fits" >/dev/null 2>"$T/wilog"
+rc=$?
+[ "$rc" -eq 0 ] && grep -Eq "fwhm INDEF: the stars' FWHM 2\.[45][0-9]* \+- .*; psfrad (9\.[89]|10\.[01])[0-9]* px" \
+    "$T/wilog" && [ -s "$T/wi.psf.fits" ] || no "psf fwhm=INDEF: exit $rc: $(cat "$T/wilog")"
+"$M" sim "$T/n.fits" mode=crowded nx=128 ny=128 nstars=1 magmin=5 magmax=5.1 seed=3 >/dev/null 2>&1
+"$M" psf "$T/n.fits" fwhm=INDEF output="$T/ni.psf.fits" >/dev/null 2>"$T/nilog"
+rc=$?
+[ "$rc" -eq 1 ] && grep -q "fwhm: INDEF, and .*n.fits has too few stars to measure it" "$T/nilog" &&
+    [ ! -e "$T/ni.psf.fits" ] || no "psf fwhm=INDEF on noise: exit $rc: $(cat "$T/nilog")"
 
 [ "$fails" -eq 0 ] || exit 1
 echo "psf_cli: ok"
