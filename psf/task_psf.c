@@ -186,7 +186,9 @@ static mp_find_opts find_opts(const psf_task *t)
 
 /* After err (a build short of stars): the stars' FWHM measured on the
  * detections, when more than 3 σ off fwhm (psfrad and fitrad follow it:
- * a start far off the stars' leaves none alone, or fits none). */
+ * a start far off the stars' leaves none alone, or fits none).  Where
+ * they give too few (a kernel below 1 px, or found's rows refitted by
+ * the second pass with the failing table), as fwhm=INDEF measures it. */
 static void fwhm_hint(const psf_task *t, const mp_frame *f, const mp_bkg *b,
                       const mp_table *found, char *err)
 {
@@ -194,8 +196,11 @@ static void fwhm_hint(const psf_task *t, const mp_frame *f, const mp_bkg *b,
     mp_find_opts fo = find_opts(t);
     char e2[MP_ERRLEN];
     size_t l = strlen(err);
-    if (mp_epsf_stars_fwhm_found(f, b, &fo, found, MP_EPSF_FWHM_STARS, &m, e2) ||
-        !mp_epsf_fwhm_off(&m, t->o.fwhm) || l >= MP_ERRLEN)
+    if (mp_epsf_stars_fwhm_found(f, b, &fo, found, MP_EPSF_FWHM_STARS, &m, e2))
+        return;
+    if (m.n < MP_EPSF_FWHM_NEED && mp_epsf_frame_fwhm(f, b, &fo, t->image, &m, e2))
+        return;
+    if (!mp_epsf_fwhm_off(&m, t->o.fwhm) || l >= MP_ERRLEN)
         return;
     snprintf(err + l, MP_ERRLEN - l, "; the stars' FWHM is %.3g +- %.1g px (%d lone stars), "
              "not fwhm=%g", m.fwhm, m.err, m.n, t->o.fwhm);

@@ -77,12 +77,14 @@ rc=$?
     [ ! -e "$T/w12.psf.fits" ] || no "psf fwhm=12: exit $rc: $(cat "$T/w12log")"
 # One far below them (fwhm=0.7: psfrad 2.8 px, fitrad 1.4 px) builds a
 # table that fits one star of the 44 it was built from: refused at that
-# build, naming the stars' FWHM (its second pass failed before, without).
+# build (with clang's -O1, 7 of 44 pass there and its second pass fails),
+# naming the stars' FWHM (its second pass failed before, without).
 "$M" psf "$T/f.fits" fwhm=0.7 output="$T/w07.psf.fits" >/dev/null 2>"$T/w07log"
 rc=$?
-[ "$rc" -eq 1 ] && tail -n 1 "$T/w07log" | grep -q "f.fits: psf build: only [0-2] usable PSF stars (an \
-order-0 PSF needs 3; [0-9]* fitted with the table built, .*; the stars' FWHM is 2\.[45][0-9]* .*, \
-not fwhm=0\.7" && [ ! -e "$T/w07.psf.fits" ] || no "psf fwhm=0.7: exit $rc: $(cat "$T/w07log")"
+[ "$rc" -eq 1 ] && tail -n 1 "$T/w07log" | grep -q "f.fits: .*psf build: only [0-9] usable PSF stars (an \
+order-0 PSF needs 3.*; the stars' FWHM is 2\.[45][0-9]* .*, not fwhm=0\.7" &&
+    [ ! -e "$T/w07.psf.fits" ] || no "psf fwhm=0.7: exit $rc: $(cat "$T/w07log")"
+
 # fwhm=INDEF: the stars' FWHM (2.5 here) measured on the frame, as the
 # pipeline measures it, and the table built from it; a frame of noise
 # has no star to measure it on.
