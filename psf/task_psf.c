@@ -245,7 +245,7 @@ static int stars_selected(const psf_task *t, const mp_frame *f, const mp_table *
 }
 
 /* The frame's polynomial origin and scales (its centre and half-sizes),
- * and its detections into found (the sky map into b). */
+ * and its detections into found (b: its sky and noise maps, estimated). */
 static int detect(psf_task *t, const mp_frame *f, mp_bkg *b, mp_table *found, char *err)
 {
     t->o.x0 = 0.5 * (double)(f->im.nx + 1);
@@ -253,7 +253,7 @@ static int detect(psf_task *t, const mp_frame *f, mp_bkg *b, mp_table *found, ch
     t->o.xs = f->im.nx > 1 ? 0.5 * (double)f->im.nx : 1.0;
     t->o.ys = f->im.ny > 1 ? 0.5 * (double)f->im.ny : 1.0;
     mp_find_opts fo = find_opts(t);
-    if (mp_bkg_estimate(f, t->mesh, t->filter, b, err) || mp_find_stars(f, b, &fo, found, err))
+    if (mp_find_stars(f, b, &fo, found, err))
         return 1;
     if (found->nrow == 0) {     /* a frame with no usable star: said as find says it */
         char why[320];
@@ -338,16 +338,11 @@ done:
 
 /* fwhm=INDEF: the stars' FWHM measured on the frame (mp_epsf_frame_fwhm),
  * as pipeline measures it, and what follows it set from it. */
-static int measure_fwhm(psf_task *t, const mp_frame *f, char *err)
+static int measure_fwhm(psf_task *t, const mp_frame *f, const mp_bkg *b, char *err)
 {
-    mp_bkg b;
-    memset(&b, 0, sizeof b);
     mp_stars_fwhm m;
     mp_find_opts fo = find_opts(t);
-    int rc = mp_bkg_estimate(f, t->mesh, t->filter, &b, err) ||
-             mp_epsf_frame_fwhm(f, &b, &fo, t->image, &m, err);
-    mp_bkg_free(&b);
-    if (rc)
+    if (mp_epsf_frame_fwhm(f, b, &fo, t->image, &m, err))
         return 1;
     set_fwhm(t, m.fwhm);
     fprintf(stderr, "matphot psf: %s: fwhm INDEF: the stars' FWHM %.3g +- %.2g px (a Gaussian "
@@ -374,8 +369,11 @@ static int run(psf_task *t, char *err)
     int rc = 1;
     mp_epsf_report rep;
     memset(&rep, 0, sizeof rep);
-    if (mp_frame_read(t->image, &t->dp, &f, err) || (t->measure && measure_fwhm(t, &f, err)) ||
-        table_fits(t, &f, err) || detect(t, &f, &b, &found, err))
+    /* the sky and noise maps once, for the measure and the detection */
+    if (mp_frame_read(t->image, &t->dp, &f, err) ||
+        mp_bkg_estimate(&f, t->mesh, t->filter, &b, err) ||
+        (t->measure && measure_fwhm(t, &f, &b, err)) || table_fits(t, &f, err) ||
+        detect(t, &f, &b, &found, err))
         goto done;
     int listed = t->stars && t->stars[0];
     if (listed ? stars_from_list(t, &f, &x, &y, &fl, &n, err)
