@@ -235,11 +235,16 @@ void mpf_measure_plateau(const mp_frame *f, const mp_bkg *b, const mpf_kernel *k
     long nx = f->im.nx, ny = f->im.ny;
     memset(s, 0, sizeof *s);
     double sx = 0.0, sy = 0.0, dmax = -HUGE_VAL;
+    long x0 = nx, x1 = -1, y0 = ny, y1 = -1;
     int edge = 0;
     for (size_t i = 0; i < n; i++) {
         long x = idx[i] % nx, y = idx[i] / nx;
         sx += (double)x;
         sy += (double)y;
+        x0 = x < x0 ? x : x0;
+        x1 = x > x1 ? x : x1;
+        y0 = y < y0 ? y : y0;
+        y1 = y > y1 ? y : y1;
         double d = f->im.pix[idx[i]] - mp_bkg_sky(b, idx[i]);
         if (d > dmax)
             dmax = d;
@@ -252,11 +257,16 @@ void mpf_measure_plateau(const mp_frame *f, const mp_bkg *b, const mpf_kernel *k
     s->background = mp_bkg_sky(b, (size_t)cy * (size_t)nx + (size_t)cx);
     s->flux_max = dmax;
     /* A Gaussian of peak A clipped at level S is flat out to radius r_s
-     * with A·exp(−r_s²/2σ²) = S; the plateau's area gives r_s² = n/π.  σ
-     * includes the pixel's own width (σ² + 1/12).  Capped: a bleed trail
-     * is no Gaussian, and the fit refines this anyway. */
+     * with A·exp(−r_s²/2σ²) = S; the plateau's area gives r_s² = n/π,
+     * unless its narrower side is shorter: a bleed trail adds area along
+     * a column, not radius (frame V: a 9e6 e- star with its trail was
+     * offered at 4e18 e-, a start its fit did not always come back from).
+     * σ includes the pixel's own width (σ² + 1/12).  Capped all the same:
+     * the fit refines this. */
     double se2 = k->sigma * k->sigma + 1.0 / 12.0;
-    double e = (double)n / M_PI / (2.0 * se2);
+    double side = 0.5 * (double)((x1 - x0 < y1 - y0 ? x1 - x0 : y1 - y0) + 1);
+    double r2 = (double)n / M_PI < side * side ? (double)n / M_PI : side * side;
+    double e = r2 / (2.0 * se2);
     s->flux = dmax > 0.0 ? 2.0 * M_PI * se2 * dmax * exp(e < 30.0 ? e : 30.0) : 0.0;
     s->flags = MP_FIND_SATURATED | (edge ? MP_FIND_EDGE : 0);
     s->ok = 1;
