@@ -275,6 +275,36 @@ static int pays(econ_cost k, double fits, double learned, double full)
     return k.save > 0 && (plan + done >= k.build + k.decide || done >= k.real + k.decide);
 }
 
+/* What the model's phase grid would have saved on the exact paints the
+ * run has done (mp_econ_learn_paint): a paint draws no derivatives and
+ * reads 16 of the grid's values a pixel (ff_paint, cubic), against an
+ * exact render of the whole box (the crop cuts both alike).  The
+ * neighbours' light is painted on every star's whole crop radius, far
+ * beyond the fit's window: on frame S at fitrad = FWHM (compare_daophot.sh)
+ * the exact paints were half the run's samples, and the fits alone, on
+ * coarser tables, never paid for the grid. */
+static double paint_saved(const mp_econ_cache *c, int hw)
+{
+    if (!(c->paint_done > 0))
+        return 0.0;
+    int rs = RSEP(c);
+    double full = psf_ops(&c->psf0, hw, 0, INFINITY, rs) +
+                  field_ops(&c->psf0, c->field, hw, INFINITY);
+    double grid = 16.0 * box_pixels(&c->psf0) * (c->field ? c->field->nterms : 1);
+    return full > grid ? c->paint_done * (full - grid) / full : 0.0;
+}
+
+/* pays, with the paints' saving (painted) learned beside the fits'. */
+static int pays_painted(econ_cost k, double fits, double learned, double full, double painted)
+{
+    if (!(painted > 0))
+        return pays(k, fits, learned, full);
+    double plan = k.save > 0 ? fits * MP_ECON_RENDERS_PER_FIT * k.save : 0.0, done = painted;
+    if (learned > 0 && full > 0 && k.save > 0)
+        done += learned * k.save / full;
+    return plan + done >= k.build + k.decide || done >= k.real + k.decide;
+}
+
 /* ---- Building ------------------------------------------------------------ */
 
 static int build_sinc(mp_econ_cache *c, char *err)
@@ -407,8 +437,10 @@ static int choose_locked(mp_econ_cache *c, double fits, double fitrad, mp_frame_
      * with the grid built a level and its tables pay on those alone
      * (47 Tuc with Tiny Tim's table: every group served by the grid, the
      * levels' tables 15 % of the run and 110 MB for nothing). */
+    double painted = o->learn ? paint_saved(c, hw) : 0.0;
     if (!o->grid && c->grid_g > 0 &&
-        pays(cost_grid(&c->psf0, SEP(c), rs, c->grid_g, hw, fits, W, c->field), fits, learned, full)) {
+        pays_painted(cost_grid(&c->psf0, SEP(c), rs, c->grid_g, hw, fits, W, c->field), fits,
+                     learned, full, painted)) {
         if (build_grid(c, fitrad, err))
             return 1;
         o->grid = c->grid.G > 0 ? &c->grid : NULL;
@@ -477,12 +509,23 @@ void mp_econ_learn(mp_econ_cache *c, double ops)
     c->ops_done += ops;
 }
 
+void mp_econ_learn_paint(mp_econ_cache *c, double ops)
+{
+    if (!c || !(ops > 0))
+        return;
+#pragma omp critical(mp_econ_cache)
+    c->paint_done += ops;
+}
+
 void mp_econ_forget(mp_econ_cache *c)
 {
     if (!c)
         return;
 #pragma omp critical(mp_econ_cache)
-    c->ops_done = 0.0;
+    {
+        c->ops_done = 0.0;
+        c->paint_done = 0.0;
+    }
 }
 
 double mp_econ_render_ops(const mp_prf_model *m, int hw, double fitrad)

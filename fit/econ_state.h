@@ -39,6 +39,8 @@ struct mp_econ_cache {
     double spent;                  /* multiply-adds spent building tables */
     double fits_max;               /* the most star fits a frame was planned for */
     double ops_done;               /* exact-render work the run's fits did (mp_econ_learn) */
+    double paint_done;             /* exact-render work the run's paints did
+                                    * (mp_econ_learn_paint) */
     double *env;                   /* the model's crop envelope (mp_econ_envelope), NULL
                                     * until a frame needs it */
     int env_nr;

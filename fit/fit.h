@@ -863,6 +863,12 @@ int mp_econ_grid_limits(mp_econ_cache *cache, const mp_prf_cache *g, double sky,
  * a render the table saves, would have paid for it (at most twice the
  * work of knowing the run's length in advance). */
 void mp_econ_learn(mp_econ_cache *c, double ops);
+/* mp_econ_learn_paint: add ops (multiply-adds of the exact renders the
+ * run has painted neighbours' light and residuals with) to what
+ * mp_econ_choose counts for the model's phase grid, which serves the
+ * paints too (fit/frame_paint.c), at the fraction of a whole-box render
+ * it saves. */
+void mp_econ_learn_paint(mp_econ_cache *c, double ops);
 
 /* mp_econ_forget: the learned work back to 0, for a run whose every frame
  * must come out as it would alone (the pipeline: an @list's frame is

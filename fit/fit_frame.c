@@ -364,8 +364,10 @@ static int set_rules(frame_fit *F, const mp_frame_opts *o, mp_frame_report *rep,
 static int bounds_now(frame_fit *F, char *err)
 {
     paint_rule now = {F->oc.grid, F->R.gemax, F->R.gtiers, 1};
+    double ops = 0.0;
     int rc = ff_update_bounds(F->f, F->m, &F->crop, &now, &F->held, F->oc.fit.fitrad,
-                              F->oc.refittol, F->st, F->n, F->gs, F->ng, F->gone, F->ngone);
+                              F->oc.refittol, F->st, F->n, F->gs, F->ng, F->gone, F->ngone, &ops);
+    mp_econ_learn_paint(F->oc.cache, ops);
     free(F->gone);
     F->gone = NULL;
     F->ngone = 0;

@@ -308,14 +308,15 @@ static int increments_of(const mp_frame *f, const mp_prf_model *m, const crop_ru
 static int add_changes(const mp_frame *f, const mp_prf_model *m, const crop_rule *crop,
                        const paint_rule *now, double r, double tol, star_state *st, size_t n,
                        const size_t *gs, size_t ng, const star_state *gone,
-                       const star_cells *C, const size_t *who, size_t nch)
+                       const star_cells *C, const size_t *who, size_t nch, double *ops)
 {
     increment *inc[CHUNK];
     size_t ninc[CHUNK];
     int nomem = 0;
+    double work = 0.0;
     for (size_t c0 = 0; c0 < nch && !nomem; c0 += CHUNK) {
         size_t c1 = nch - c0 < CHUNK ? nch : c0 + CHUNK;
-#pragma omp parallel reduction(| : nomem)
+#pragma omp parallel reduction(| : nomem) reduction(+ : work)
         {
             mp_prf_work wk = {0};
             wk.grid = now->grid;
@@ -333,6 +334,7 @@ static int add_changes(const mp_frame *f, const mp_prf_model *m, const crop_rule
             }
             free(buf);
             free(win);
+            work += wk.ops;
             mp_prf_work_free(&wk);
         }
         for (size_t c = c0; c < c1; c++) {
@@ -341,13 +343,14 @@ static int add_changes(const mp_frame *f, const mp_prf_model *m, const crop_rule
             free(inc[c - c0]);
         }
     }
+    *ops += work;
     return nomem;
 }
 
 int ff_update_bounds(const mp_frame *f, const mp_prf_model *m, const crop_rule *crop,
                      const paint_rule *now, paint_rule *held, double r, double tol,
                      star_state *st, size_t n, const size_t *gs, size_t ng,
-                     const star_state *gone, size_t ngone)
+                     const star_state *gone, size_t ngone, double *ops)
 {
     int same = same_rule(now, held, st, n, gone, ngone), any = 0;
     size_t nch = ngone;
@@ -369,7 +372,7 @@ int ff_update_bounds(const mp_frame *f, const mp_prf_model *m, const crop_rule *
                 who[q++] = k;
         for (size_t k = 0; k < ngone; k++)
             who[q++] = n + k;
-        rc = add_changes(f, m, crop, now, r, tol, st, n, gs, ng, gone, &C, who, nch);
+        rc = add_changes(f, m, crop, now, r, tol, st, n, gs, ng, gone, &C, who, nch, ops);
     }
     for (size_t k = 0; k < n; k++) {
         st[k].moved = 0;

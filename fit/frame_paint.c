@@ -120,10 +120,12 @@ static void star_rows(const mp_prf_model *m, const mp_star *s, double rad, long 
  * threads: the image does not depend on it.  A star across a band's edge
  * is rendered once per band, clipped (as the crop clips it).  proto: the
  * phase grid to use (its grid and grid_emax; may be zeroed).  *ncut
- * counts the stars the crop cut.  Returns 1 when out of memory. */
+ * counts the stars the crop cut, *ops adds the exact renders' work
+ * (multiply-adds, whole numbers: the sum does not depend on the threads).
+ * Returns 1 when out of memory. */
 static int paint_frame(const mp_prf_model *m, const mp_star *const *s, size_t n,
                        const crop_rule *crop, double sign, const mp_prf_work *proto, float *img,
-                       long nx, long ny, long *ncut)
+                       long nx, long ny, long *ncut, double *ops)
 {
     long nb = (ny + PAINT_BAND - 1) / PAINT_BAND;
     size_t *cnt = calloc((size_t)nb + 1, sizeof *cnt), *idx = NULL;
@@ -156,7 +158,8 @@ static int paint_frame(const mp_prf_model *m, const mp_star *const *s, size_t n,
             for (long b = b0[k]; b <= b1[k]; b++)
                 idx[fill[b]++] = k;
     }
-#pragma omp parallel if (!nomem)
+    double work = 0.0;
+#pragma omp parallel if (!nomem) reduction(+ : work)
     {
         mp_prf_work wk = {0};
         wk.grid = proto->grid;
@@ -180,8 +183,10 @@ static int paint_frame(const mp_prf_model *m, const mp_star *const *s, size_t n,
             }
         }
         free(buf);
+        work += wk.ops;
         mp_prf_work_free(&wk);
     }
+    *ops += work;
     for (size_t k = 0; !nomem && k < n; k++)
         *ncut += cut[k];
     free(cnt);
@@ -217,12 +222,14 @@ float *ff_all_stars(const mp_frame *f, const mp_prf_model *m, const star_state *
     proto.grid = o->grid;
     proto.grid_emax = R->gemax;
     proto.grid_tiers = R->gtiers;
+    double ops = 0.0;
     if (all && (!live || paint_frame(m, live, nl, crop, +1.0, &proto, all, f->im.nx, f->im.ny,
-                                     ncut))) {
+                                     ncut, &ops))) {
         if (!lent)
             free(all);
         all = NULL;
     }
+    mp_econ_learn_paint(o->cache, ops);
     free(live);
     return all;
 }
@@ -276,7 +283,9 @@ int mp_fit_residual_grid(const mp_frame *f, const mp_prf_model *m, const mp_tabl
     if (tiers)
         proto.grid_tiers = *tiers;
     long ncut = 0;
-    rc = rc || paint_frame(m, ps, n, &crop, -1.0, &proto, res, nx, ny, &ncut);
+    double ops = 0.0;
+    rc = rc || paint_frame(m, ps, n, &crop, -1.0, &proto, res, nx, ny, &ncut, &ops);
+    mp_econ_learn_paint(cache, ops);
     free(st);
     free(ps);
     free(crop.env);

@@ -210,11 +210,13 @@ int ff_fit_group_local(const mp_frame *f, const mp_prf_model *m, const mp_frame_
  * group whatever is added to it (group_kept): it becomes INFINITY and
  * takes no more (a change that reaches only such stars is not painted), so
  * every bound ends below tol, exactly as summed, or INFINITY.  Stars
- * sorted by group as gs says (ng groups).  Nonzero when out of memory. */
+ * sorted by group as gs says (ng groups).  *ops adds the exact renders'
+ * work of the changes painted (economy learns it, mp_econ_learn_paint).
+ * Nonzero when out of memory. */
 int ff_update_bounds(const mp_frame *f, const mp_prf_model *m, const crop_rule *crop,
                      const paint_rule *now, paint_rule *held, double r, double tol,
                      star_state *st, size_t n, const size_t *gs, size_t ng,
-                     const star_state *gone, size_t ngone);
+                     const star_state *gone, size_t ngone, double *ops);
 
 /* frame_memory.c.  ff_max_number: the table's largest NUMBER, or -1 when
  * it has none (or one not a whole number ≥ 0).  ff_recall: each star's

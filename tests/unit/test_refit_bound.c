@@ -108,8 +108,10 @@ static int bounds_kept(const mp_frame *f, const mp_prf_model *m, const crop_rule
     double before[NST];
     for (int k = 0; k < NST; k++)
         before[k] = st[k].bound;
-    assert_int_equal(
-        ff_update_bounds(f, m, crop, &now, &held, FITRAD, INFINITY, st, NST, gs, ng, NULL, 0), 0);
+    double ops = 0.0;
+    assert_int_equal(ff_update_bounds(f, m, crop, &now, &held, FITRAD, INFINITY, st, NST, gs, ng,
+                                      NULL, 0, &ops),
+                     0);
     assert_ptr_equal(held.grid, now.grid);
     assert_true(held.gemax == now.gemax || (isnan(held.gemax) && isnan(now.gemax)));
     assert_memory_equal(&held.tiers, &now.tiers, sizeof now.tiers);
@@ -193,8 +195,9 @@ static void summed_case(bound_case *c)
     memcpy(c->before, c->st, sizeof c->st);
     assert_int_equal(ff_crop_init(&c->f, &c->m, 0.02, NULL, &c->crop), 0);
     paint_rule now = rule(NULL, NAN, 0.0, 1), held = now;
+    double ops = 0.0;
     assert_int_equal(ff_update_bounds(&c->f, &c->m, &c->crop, &now, &held, FITRAD, INFINITY, c->st,
-                                      NST, c->gs, c->ng, &c->gone, 1), 0);
+                                      NST, c->gs, c->ng, &c->gone, 1, &ops), 0);
 }
 
 static void case_free(bound_case *c)
@@ -278,8 +281,9 @@ static void test_bound_capped_at_tol(void **state)
             b[j - 1] = t;
         }
     double tol = b[nb / 2];
+    double ops = 0.0;
     assert_int_equal(ff_update_bounds(&c.f, &c.m, &c.crop, &now, &held, FITRAD, tol, capped, NST,
-                                      c.gs, c.ng, &c.gone, 1), 0);
+                                      c.gs, c.ng, &c.gone, 1, &ops), 0);
     int below = 0, above = 0;
     for (int k = 0; k < NST; k++) {
         if (!st[k].alive)
