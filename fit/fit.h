@@ -889,8 +889,10 @@ void mp_econ_summary(const mp_econ_cache *c, double ops_render, char *buf, size_
 /* Why a group's LM fit ran again within its frame fit (fit/frame_group.c):
  * a pair merged, stars rejected below minsnr, a merge or rejection that
  * the fit at its tol left pending decided at the deciding tol, a fit cut
- * short on a close pair that proved two stars fitted to its end. */
-enum { MP_REFIT_MERGE, MP_REFIT_REJECT, MP_REFIT_DECIDE, MP_REFIT_UNSTOPPED, MP_REFIT_CAUSES };
+ * short on a close pair that proved two stars fitted to its end, a star
+ * fitted brighter than economy's choices for the group held. */
+enum { MP_REFIT_MERGE, MP_REFIT_REJECT, MP_REFIT_DECIDE, MP_REFIT_UNSTOPPED, MP_REFIT_BRIGHTER,
+       MP_REFIT_CAUSES };
 
 /* What a frame fit did, for the run report. */
 typedef struct {

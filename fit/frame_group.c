@@ -251,26 +251,81 @@ static int stopped_on_pair(const mp_star *s, int n, double r)
     return 0;
 }
 
-/* One LM fit of the live stars live[0..nl-1] of a group (on f, whose
- * coordinates are the frame's shifted by (dx, dy)), with economy's
- * choices for its brightest star: the coarsest table and the shortest
- * sinc kernel its bias bound allows, and the phase grid when the bound
- * serves it; stopped on a pair within mergerad unless unstopped; to tol.
- * What it did is added to rep.  Nonzero with err on failure. */
-static int fit_live(const mp_frame *f, const mp_prf_model *m, const mp_frame_opts *o,
-                    double mergerad, int unstopped, double tol, const frame_rules *R,
-                    mp_star *live, int nl, double dx, double dy, mp_frame_report *rep, char *err)
+/* Economy's choices for a group whose brightest star has flux e: the
+ * table (level l, R->nss for the model's own), its sinc half-width, and
+ * the phase grid with its per-star flux limit and tiers. */
+typedef struct {
+    double e;               /* the flux they were made for */
+    int l, hw;
+    const mp_prf_cache *grid;
+    double gemax;
+    mp_prf_tiers tiers;
+} group_choice;
+
+static group_choice choice_for(const mp_prf_model *m, const mp_frame_opts *o, const frame_rules *R,
+                               double e, mp_frame_report *rep)
 {
-    double sky0 = nl == 1 ? live[0].sky : NAN;
-    double e = 0.0;
-    for (int k = 0; k < nl; k++)
-        e = isfinite(live[k].flux) && live[k].flux > e ? live[k].flux : e;
+    group_choice c;
+    c.e = e;
     /* A group the model's phase grid serves whole is drawn from it: as
      * cheap as a coarser level's grid, and from the finer table.  The
      * coarser levels are for the brighter groups. */
-    int l = ff_grid_serves(R, o->grid, e, rep) ? R->nss : 0;
-    while (l < R->nss && !ff_level_serves(&R->level[l], e, rep))
-        l++;
+    c.l = ff_grid_serves(R, o->grid, e, rep) ? R->nss : 0;
+    while (c.l < R->nss && !ff_level_serves(&R->level[c.l], e, rep))
+        c.l++;
+    c.hw = ff_kernel_for(&R->kern[c.l], c.l < R->nss ? R->ss[c.l].model.sinc_hw : m->sinc_hw, e,
+                         rep);
+    c.grid = ff_group_grid(R, o->grid, c.l, e, &c.gemax, &c.tiers, rep);
+    return c;
+}
+
+/* Whether the fit of live[0..nl-1] (from start[map[k]]) ended with a star
+ * brighter than the choices it was fitted with (used) hold: its fitted
+ * flux would choose a finer table, a longer kernel or exact renders, or a
+ * star drawn from the grid ended above the grid's limit.  Each choice's bias
+ * bound holds for the flux it was made for only, and a start flux can be
+ * far off: on frame V of validate/CROWDED.md stars found at 1e4 e- on a
+ * saturated star's wings were fitted to 5e8 e- with a 7-tap kernel from
+ * the grid.  *e takes the brightest fitted flux, if brighter. */
+static int beyond_choice(const mp_prf_model *m, const mp_frame_opts *o, const frame_rules *R,
+                         const group_choice *used, const mp_star *start, const int *map,
+                         const mp_star *live, int nl, double *e, mp_frame_report *rep)
+{
+    int beyond = 0;
+    double e1 = 0.0;
+    for (int k = 0; k < nl; k++) {
+        double a = fabs(start[map[k]].flux), b = fabs(live[k].flux);
+        e1 = isfinite(b) && b > e1 ? b : e1;
+        beyond |= used->grid && !(a > used->gemax) && b > used->gemax;
+    }
+    *e = e1 > *e ? e1 : *e;
+    if (!(e1 > used->e))
+        return beyond;
+    /* More exact only: a group fitted with no start flux had the safe
+     * side's choices (the table as given, the full kernel, no grid). */
+    group_choice c = choice_for(m, o, R, e1, rep);
+    return beyond || c.l > used->l ||
+           (c.l == used->l && (c.hw > used->hw || (used->grid && !c.grid)));
+}
+
+/* One LM fit of the live stars live[0..nl-1] of a group (on f, whose
+ * coordinates are the frame's shifted by (dx, dy)), with economy's
+ * choices for its brightest star (at least efloor): the coarsest table
+ * and the shortest sinc kernel its bias bound allows, and the phase grid
+ * when the bound serves it (choice_for; *used receives them); stopped on
+ * a pair within mergerad unless unstopped; to tol.  What it did is added
+ * to rep.  Nonzero with err on failure. */
+static int fit_live(const mp_frame *f, const mp_prf_model *m, const mp_frame_opts *o,
+                    double mergerad, int unstopped, double tol, const frame_rules *R,
+                    mp_star *live, int nl, double dx, double dy, double efloor,
+                    group_choice *used, mp_frame_report *rep, char *err)
+{
+    double sky0 = nl == 1 ? live[0].sky : NAN;
+    double e = efloor;
+    for (int k = 0; k < nl; k++)
+        e = isfinite(live[k].flux) && live[k].flux > e ? live[k].flux : e;
+    *used = choice_for(m, o, R, e, rep);
+    int l = used->l;
     mp_prf_model mh = l < R->nss ? R->ss[l].model : *m;
     /* The group is fitted on a sub-image offset by (dx, dy): a variable
      * PSF must still be read at each star's frame position (a run's
@@ -282,12 +337,14 @@ static int fit_live(const mp_frame *f, const mp_prf_model *m, const mp_frame_opt
         mp_psf_local(mh.psf, dx + ox, dy + oy, &lp, &lf);
         mh.psf = &lp;
     }
-    mh.sinc_hw = ff_kernel_for(&R->kern[l], mh.sinc_hw, e, rep);
+    mh.sinc_hw = used->hw;
     rep->kcoarse += l < R->nss;
     mp_fit_opts fo = o->fit;
     fo.tol = tol;
     fo.stop_pair = mergerad > 0 && !unstopped ? mergerad : 0.0;   /* merged by the caller */
-    fo.grid = ff_group_grid(R, o->grid, l, e, &fo.grid_emax, &fo.grid_tiers, rep);
+    fo.grid = used->grid;
+    fo.grid_emax = used->gemax;
+    fo.grid_tiers = used->tiers;
     int cached = mp_prf_cache_usable(fo.grid, &mh);
     rep->kcache += cached;
     rep->kcalls++;
@@ -349,6 +406,8 @@ typedef struct {
     double tol, decide;     /* the fits' tol now; the deciding one */
     int paired;             /* the last fit stopped on a close pair */
     int unstopped;          /* fitted on past one */
+    double ebright;         /* the brightest flux a fit of it reached */
+    int nbright;            /* fits again for it (beyond_choice) */
 } group_loop;
 
 /* What follows a fit of the group's stars s[0..n): the fit again — to
@@ -423,9 +482,10 @@ int ff_fit_one_group(const mp_frame *f, const mp_prf_model *m, const mp_frame_op
         .decide = o->decidetol > 0 ? fmin(o->fit.tol, o->decidetol) : o->fit.tol,
     };
     /* Each round removes a star or ends (one more may refit unstopped,
-     * one more to the run's tol), so n + 3 rounds suffice. */
+     * one more to the run's tol, two more fitted brighter), so n + 5
+     * rounds suffice. */
     int cause = -1;                 /* why this fit is one again (MP_REFIT_*) */
-    for (int round = 0; round <= n + 2; round++) {
+    for (int round = 0; round <= n + 4; round++) {
         int nl = live_of(s, alive, n, live, map);
         if (nl == 0)
             break;
@@ -438,17 +498,29 @@ int ff_fit_one_group(const mp_frame *f, const mp_prf_model *m, const mp_frame_op
         for (int k = 0; L.paired && k < nl; k++)
             live[k].flags &= ~MP_FLAG_NOCONV;
         long steps = rep->iterations;
-        if (fit_live(f, m, o, mergerad, L.unstopped, L.tol, R, live, nl, dx, dy, rep, err))
+        group_choice used;
+        if (fit_live(f, m, o, mergerad, L.unstopped, L.tol, R, live, nl, dx, dy, L.ebright, &used,
+                     rep, err))
             goto done;
         if (cause >= 0) {
             rep->refits[cause]++;
             rep->refit_steps[cause] += rep->iterations - steps;
         }
+        /* Fitted brighter than its choices hold: again, with the fitted
+         * flux's (each more exact; twice at most), before any merge or
+         * rejection is decided on it. */
+        int again = beyond_choice(m, o, R, &used, s, map, live, nl, &L.ebright, rep) &&
+                    L.nbright < 2;
         L.paired = mergerad > 0 && !L.unstopped && stopped_on_pair(live, nl, mergerad);
         for (int k = 0; k < nl; k++) {
             int keep = s[map[k]].flags & MP_FLAG_MERGED;
             s[map[k]] = live[k];
             s[map[k]].flags |= keep;
+        }
+        if (again) {
+            L.nbright++;
+            cause = MP_REFIT_BRIGHTER;
+            continue;
         }
         if ((cause = next_fit(&L, s, alive, n, rep)) < 0)
             break;

@@ -182,10 +182,12 @@ static void report_lines(FILE *fp, const char *prefix, const mp_run_report *r)
         fprintf(fp, "%s  refits: %ld of the LM fits were a group's again within its fit: %ld "
                 "after merges (%ld LM steps), %ld after rejections (%ld), %ld to decide a pending "
                 "merge or rejection at the deciding tol (%ld), %ld fitted on past a close pair "
-                "(%ld)\n", prefix, nre, r->refits[MP_REFIT_MERGE], r->refit_steps[MP_REFIT_MERGE],
+                "(%ld), %ld with a star fitted brighter than economy's choices held (%ld)\n",
+                prefix, nre, r->refits[MP_REFIT_MERGE], r->refit_steps[MP_REFIT_MERGE],
                 r->refits[MP_REFIT_REJECT], r->refit_steps[MP_REFIT_REJECT],
                 r->refits[MP_REFIT_DECIDE], r->refit_steps[MP_REFIT_DECIDE],
-                r->refits[MP_REFIT_UNSTOPPED], r->refit_steps[MP_REFIT_UNSTOPPED]);
+                r->refits[MP_REFIT_UNSTOPPED], r->refit_steps[MP_REFIT_UNSTOPPED],
+                r->refits[MP_REFIT_BRIGHTER], r->refit_steps[MP_REFIT_BRIGHTER]);
     if (r->pairs_close > 0)
         fprintf(fp, "%s  groups: components above maxgroup cut at their weakest couplings "
                 "(%ld pairs within psfrad + fitrad, %ld of them coupled), summed over rounds\n",

@@ -498,6 +498,78 @@ static void test_short_kernel_per_group(void **state)
     sf_frame_drop(&f);
 }
 
+/* The paper's setup: one star of E e- at (30.3, 29.8) on a 60×60 frame
+ * (noise drawn from r, seeded), a ×1 Gaussian table (FWHM, ±15 px) as
+ * model m, its kernel choice c, and economy's options with it for a
+ * whole-frame fit (fitrad INDEF). */
+typedef struct {
+    mp_psf p;
+    mp_prf_model m;
+    mp_sinc_choice c;
+    mp_frame_opts eco;
+    mp_frame f;
+    mp_rng r;
+    double x, y;
+} lone_star;
+
+static void lone_star_make(lone_star *L, double E, uint64_t seed)
+{
+    char err[MP_ERRLEN];
+    assert_int_equal(mp_psf_gauss_table(FWHM, 1, 15.0, &L->p, err), 0);
+    L->m = (mp_prf_model){&L->p, NULL, 10};
+    assert_int_equal(mp_sinc_choice_build(&L->m, &L->c, err), 0);
+    mp_frame_opts_default(&L->eco);
+    L->eco.sinc = &L->c;
+    L->eco.fit.fitrad = NAN;
+    sf_frame_make(&L->f, 60, 60, 3.0);
+    mp_rng_seed(&L->r, seed);
+    L->x = 30.3;
+    L->y = 29.8;
+    sf_render(&L->f, 100.0, FWHM, &L->x, &L->y, &E, 1, &L->r, 3.0);
+}
+
+/* A star offered far below its flux (a saturated star's plateau, a
+ * detection on a bright star's wings) is fitted with the kernel its start
+ * flux allows, and that kernel's bias bound holds for that flux only: the
+ * group is fitted again with the kernel its fitted flux chooses (once:
+ * MP_REFIT_BRIGHTER), and ends where a fit offered the true flux ends.
+ * One star of 10^6 e- offered at 10^3 on a 60×60 frame, whole-frame fit.
+ * The bounds: the first kernel mp_sinc_choice_hw gives for 10^3 is
+ * shorter than the one for the fitted flux (else the test is void, and
+ * fails); both fits stop at tol = 0.1 of the flux's σ from the same
+ * minimum, so they agree within 0.2 σ (deterministic: fixed seed). */
+static void test_refit_when_fitted_brighter(void **state)
+{
+    (void)state;
+    char err[MP_ERRLEN];
+    double E = 1e6, low = 1e3;
+    lone_star L;
+    lone_star_make(&L, E, 79);
+    int hlow = mp_sinc_choice_hw(&L.c, low, 0.0, 3.0, L.eco.sincfrac);
+    int hfit = mp_sinc_choice_hw(&L.c, E, 0.0, 3.0, L.eco.sincfrac);
+    assert_true(hlow < hfit);
+    mp_table a, b;
+    sf_table(&a, &L.x, &L.y, &low, 1, 0);
+    sf_table(&b, &L.x, &L.y, &E, 1, 0);
+    mp_frame_report ra, rb;
+    assert_int_equal(mp_fit_table(&L.f, &L.m, &L.eco, &a, &ra, err), 0);
+    assert_int_equal(mp_fit_table(&L.f, &L.m, &L.eco, &b, &rb, err), 0);
+    print_message("offered 1e3: %ld LM fits (%ld again, fitted brighter), last half-width %.0f; "
+                  "offered 1e6: %ld\n", ra.kcalls, ra.refits[MP_REFIT_BRIGHTER],
+                  ra.khw - hlow, rb.kcalls);
+    assert_int_equal(ra.refits[MP_REFIT_BRIGHTER], 1);
+    assert_int_equal(rb.refits[MP_REFIT_BRIGHTER], 0);
+    double sa = get(&b, 0, "FLUXERR_PSF");
+    assert_true(fabs(get(&a, 0, "FLUX_PSF") - get(&b, 0, "FLUX_PSF")) < 0.2 * sa);
+    assert_true(fabs(get(&a, 0, "XPSF_IMAGE") - get(&b, 0, "XPSF_IMAGE")) <
+                0.2 * get(&b, 0, "ERRX_PSF"));
+    mp_table_free(&a);
+    mp_table_free(&b);
+    mp_sinc_choice_free(&L.c);
+    mp_psf_free(&L.p);
+    sf_frame_drop(&L.f);
+}
+
 /* Economy's own cost is bounded by counts (issue 10.3; never a time): a
  * whole-frame fit (fitrad INDEF, the paper's setup: one 60×60 frame, one
  * star) builds no crop envelope (nobody else's light to crop) and spends at
@@ -513,33 +585,27 @@ static void test_whole_frame_overhead_counted(void **state)
 {
     (void)state;
     char err[MP_ERRLEN];
-    mp_psf p;
-    assert_int_equal(mp_psf_gauss_table(FWHM, 1, 15.0, &p, err), 0);
-    mp_prf_model m = {&p, NULL, 10};
-    mp_sinc_choice c;
-    assert_int_equal(mp_sinc_choice_build(&m, &c, err), 0);
-    mp_frame_opts eco;
-    mp_frame_opts_default(&eco);
-    eco.sinc = &c;
-    eco.fit.fitrad = NAN;
     /* One star, whole frame. */
-    mp_frame f;
-    sf_frame_make(&f, 60, 60, 3.0);
-    mp_rng r;
-    mp_rng_seed(&r, 77);
-    double x = 30.3, y = 29.8, E = 2e4, E0 = 1.2 * E;
-    sf_render(&f, 100.0, FWHM, &x, &y, &E, 1, &r, 3.0);
+    double E = 2e4, E0 = 1.2 * E;
+    lone_star L;
+    lone_star_make(&L, E, 77);
+    mp_frame_opts eco = L.eco;
+    mp_sinc_choice *c = &L.c;
+    mp_prf_model m = L.m;
+    mp_frame f = L.f;
+    mp_rng r = L.r;
+    double x = L.x, y = L.y;
     mp_table t;
     sf_table(&t, &x, &y, &E0, 1, 0);
     mp_frame_report rep;
     assert_int_equal(mp_fit_table(&f, &m, &eco, &t, &rep, err), 0);
     assert_int_equal(rep.envelopes, 0);
     assert_int_equal(rep.kcalls, 1);
-    int hw = mp_sinc_choice_hw(&c, E0, 0.0, 3.0, eco.sincfrac);
-    assert_true(hw < c.hwmax);                  /* a decision was taken... */
+    int hw = mp_sinc_choice_hw(c, E0, 0.0, 3.0, eco.sincfrac);
+    assert_true(hw < c->hwmax);                  /* a decision was taken... */
     assert_int_equal((int)rep.khw, hw);         /* ...the one the bound gives */
     assert_int_equal(rep.kbounds, hw + 1);      /* at hw + 1 evaluations */
-    assert_true(rep.kbounds <= (long)c.hwmax * rep.kcalls);
+    assert_true(rep.kbounds <= (long)c->hwmax * rep.kcalls);
     mp_table_free(&t);
     sf_frame_drop(&f);
     /* 70 lone stars 20 px apart, fitrad 5: 70 groups > 62, limits once. */
@@ -559,7 +625,7 @@ static void test_whole_frame_overhead_counted(void **state)
     print_message("70 groups: %ld LM fits, %ld bound evaluations, %ld envelopes\n", rep.kcalls,
                   rep.kbounds, rep.envelopes);
     assert_int_equal(rep.ngroups, NN);
-    assert_int_equal(rep.kbounds, (long)c.hwmax * MP_SINC_LIMITS_EVALS);
+    assert_int_equal(rep.kbounds, (long)c->hwmax * MP_SINC_LIMITS_EVALS);
     assert_int_equal(rep.envelopes, 1);
     mp_table_free(&t);
     sf_frame_drop(&f);
@@ -575,14 +641,14 @@ static void test_whole_frame_overhead_counted(void **state)
         sf_render(&f, 100.0, FWHM, &x, &y, &E, 1, &r, 3.0);
         sf_table(&t, &x, &y, &E0, 1, 0);
         assert_int_equal(mp_fit_table(&f, &m, &eco, &t, &rep, err), 0);
-        assert_int_equal(rep.kbounds, k == 0 ? (long)c.hwmax * MP_SINC_LIMITS_EVALS : 0);
+        assert_int_equal(rep.kbounds, k == 0 ? (long)c->hwmax * MP_SINC_LIMITS_EVALS : 0);
         assert_int_equal((int)rep.khw, hw);     /* the same choice as without */
         mp_table_free(&t);
         sf_frame_drop(&f);
     }
     mp_econ_cache_free(eco.cache);
-    mp_sinc_choice_free(&c);
-    mp_psf_free(&p);
+    mp_sinc_choice_free(c);
+    mp_psf_free(&L.p);
 }
 
 /* The supersampling choice per group (issue 10.2, fit/ss_choice.c): on a
@@ -757,23 +823,34 @@ static void test_tables_pay_for_themselves(void **state)
  * ×2 table of 41 px (econ_plan.c's render_ops: 266e3 against 50e3 ops);
  * on powers of 2, 4 or 8.  A plan that ignored win gives 1.
  * Deterministic: no false-failure rate. */
-static long grid_threshold(const mp_prf_model *m, double win)
+/* paint_ops > 0: instead, a run planned for one fit that has painted n
+ * whole boxes of paint_ops multiply-adds each (mp_econ_learn_paint), its
+ * options' learn as given; the smallest such n. */
+static long grid_threshold_of(const mp_prf_model *m, double win, double paint_ops, int learn)
 {
-    for (long fits = 1; fits <= (1L << 24); fits *= 2) {
+    for (long n = 1; n <= (1L << 24); n *= 2) {
         char err[MP_ERRLEN];
         mp_frame_opts o;
         mp_frame_opts_default(&o);
         o.win = win;
+        o.learn = learn;
         mp_econ_cache *c = mp_econ_cache_new();
         assert_non_null(c);
         assert_int_equal(mp_econ_offer(c, m, 0, NULL, 0, MP_PRF_CACHE_G), 0);
-        assert_int_equal(mp_econ_choose(c, (double)fits, o.fit.fitrad, &o, NULL, err), 0);
+        mp_econ_learn_paint(c, (double)n * paint_ops);
+        double fits = paint_ops > 0 ? 1.0 : (double)n;
+        assert_int_equal(mp_econ_choose(c, fits, o.fit.fitrad, &o, NULL, err), 0);
         int built = o.grid != NULL;
         mp_econ_cache_free(c);
         if (built)
-            return fits;
+            return n;
     }
     return -1;
+}
+
+static long grid_threshold(const mp_prf_model *m, double win)
+{
+    return grid_threshold_of(m, win, 0.0, 0);
 }
 
 static void test_plan_prices_measured_windows(void **state)
@@ -787,6 +864,76 @@ static void test_plan_prices_measured_windows(void **state)
     print_message("grid built from %ld fits (13-px windows), %ld (40-px)\n", lone, wide);
     assert_true(lone > 0 && wide > 0);
     assert_true(lone >= 4 * wide && lone <= 8 * wide);
+    mp_psf_free(&p);
+}
+
+/* The exact paints of a run's neighbours' light pay for the model's
+ * phase grid, which draws them too (fit/frame_paint.c): a run planned for
+ * one star fit builds no grid, but once it has painted enough whole
+ * boxes exactly (mp_econ_learn_paint, counted as the paints count their
+ * work: mp_prf_work.ops of a render without derivatives) a run that
+ * learns (a pipeline frame's) builds it; one that does not learn never
+ * does.  On frame S of compare_daophot.sh at fitrad = FWHM, whose fits
+ * took coarser tables that never paid for the grid, the exact paints were
+ * half the run's samples.  Deterministic: no false-failure rate. */
+static void test_paints_pay_for_grid(void **state)
+{
+    (void)state;
+    char err[MP_ERRLEN];
+    mp_psf p;
+    assert_int_equal(mp_psf_gauss_table(FWHM, 2, 20.0, &p, err), 0);
+    mp_prf_model m = {&p, NULL, 10};
+    long x0, y0;
+    int w, h;
+    mp_prf_box(&m, 50.3, 50.6, &x0, &y0, &w, &h);
+    double *prf = malloc((size_t)w * h * sizeof *prf);
+    assert_non_null(prf);
+    mp_prf_work wk = {0};
+    assert_int_equal(mp_prf_render(&m, 50.3, 50.6, prf, NULL, NULL, &wk), 0);
+    double ops = wk.ops;
+    mp_prf_work_free(&wk);
+    free(prf);
+    assert_true(ops > 0);
+    long learned = grid_threshold_of(&m, 0.0, ops, 1), unlearned = grid_threshold_of(&m, 0.0, ops, 0);
+    long fits = grid_threshold(&m, 0.0);
+    print_message("grid built after %ld whole-box paints (%.0f multiply-adds each), from %ld "
+                  "planned fits\n", learned, ops, fits);
+    assert_true(learned > 0);
+    assert_int_equal(unlearned, -1);
+    /* The residual's paints reach the cache: 64 stars painted 2·learned/64
+     * times build the grid, a cache that painted none does not. */
+    mp_frame f;
+    sf_frame_make(&f, 160, 160, 3.0);
+    enum { NP = 64 };
+    double xs[NP], ys[NP], es[NP];
+    for (int k = 0; k < NP; k++) {
+        xs[k] = 12.3 + 19.0 * (k % 8);
+        ys[k] = 12.7 + 19.0 * (k / 8);
+        es[k] = 1e4;
+    }
+    mp_table t;
+    sf_fitted_table(&t, xs, ys, es, 100.0, NP);
+    float *res = malloc(160 * 160 * sizeof *res);
+    assert_non_null(res);
+    mp_econ_cache *c = mp_econ_cache_new(), *none = mp_econ_cache_new();
+    assert_true(c && none);
+    assert_int_equal(mp_econ_offer(c, &m, 0, NULL, 0, MP_PRF_CACHE_G), 0);
+    assert_int_equal(mp_econ_offer(none, &m, 0, NULL, 0, MP_PRF_CACHE_G), 0);
+    for (long k = 0; k < 2 * learned / NP + 1; k++)
+        assert_int_equal(mp_fit_residual_grid(&f, &m, &t, 0.0, c, NULL, 0.0, NULL, res, err), 0);
+    mp_frame_opts o, on;
+    mp_frame_opts_default(&o);
+    o.learn = 1;
+    on = o;
+    assert_int_equal(mp_econ_choose(c, 1.0, o.fit.fitrad, &o, NULL, err), 0);
+    assert_int_equal(mp_econ_choose(none, 1.0, on.fit.fitrad, &on, NULL, err), 0);
+    assert_non_null(o.grid);
+    assert_null(on.grid);
+    mp_econ_cache_free(c);
+    mp_econ_cache_free(none);
+    free(res);
+    mp_table_free(&t);
+    sf_frame_drop(&f);
     mp_psf_free(&p);
 }
 
@@ -890,9 +1037,11 @@ int main(void)
         cmocka_unit_test(test_envelope_bounds_prf),
         cmocka_unit_test(test_short_kernel_per_group),
         cmocka_unit_test(test_whole_frame_overhead_counted),
+        cmocka_unit_test(test_refit_when_fitted_brighter),
         cmocka_unit_test(test_coarse_table_per_group),
         cmocka_unit_test(test_tables_pay_for_themselves),
         cmocka_unit_test(test_plan_prices_measured_windows),
+        cmocka_unit_test(test_paints_pay_for_grid),
         cmocka_unit_test(test_grid_handed_on),
         cmocka_unit_test(test_report_names_grid),
         cmocka_unit_test(test_envelope_kept_per_model),
