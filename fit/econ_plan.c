@@ -266,13 +266,17 @@ static econ_cost cost_grid(const mp_psf *p, int sep, int rsep, int G, int hw, do
 }
 
 /* learned: the exact-render work already done in a sequential run, of
- * which the table would have saved the fraction save/full. */
-static int pays(econ_cost k, double fits, double learned, double full)
+ * which the table would have saved the fraction save/full; painted: what
+ * the exact paints already done would have saved (paint_saved: the
+ * model's phase grid only, 0 for every other table). */
+static int pays(econ_cost k, double fits, double learned, double full, double painted)
 {
-    double plan = fits * MP_ECON_RENDERS_PER_FIT * k.save, done = 0.0;
+    double save = k.save > 0 ? k.save : 0.0;
+    double plan = fits * MP_ECON_RENDERS_PER_FIT * save, done = painted;
     if (learned > 0 && full > 0)
-        done = learned * k.save / full;
-    return k.save > 0 && (plan + done >= k.build + k.decide || done >= k.real + k.decide);
+        done += learned * save / full;
+    return (save > 0 || painted > 0) &&
+           (plan + done >= k.build + k.decide || done >= k.real + k.decide);
 }
 
 /* What the model's phase grid would have saved on the exact paints the
@@ -292,17 +296,6 @@ static double paint_saved(const mp_econ_cache *c, int hw)
                   field_ops(&c->psf0, c->field, hw, INFINITY);
     double grid = 16.0 * box_pixels(&c->psf0) * (c->field ? c->field->nterms : 1);
     return full > grid ? c->paint_done * (full - grid) / full : 0.0;
-}
-
-/* pays, with the paints' saving (painted) learned beside the fits'. */
-static int pays_painted(econ_cost k, double fits, double learned, double full, double painted)
-{
-    if (!(painted > 0))
-        return pays(k, fits, learned, full);
-    double plan = k.save > 0 ? fits * MP_ECON_RENDERS_PER_FIT * k.save : 0.0, done = painted;
-    if (learned > 0 && full > 0 && k.save > 0)
-        done += learned * k.save / full;
-    return plan + done >= k.build + k.decide || done >= k.real + k.decide;
 }
 
 /* ---- Building ------------------------------------------------------------ */
@@ -425,7 +418,7 @@ static int choose_locked(mp_econ_cache *c, double fits, double fitrad, mp_frame_
     c->fits_max = fits > c->fits_max ? fits : c->fits_max;
     int hw = c->model0.sinc_hw;
     if (c->want_sinc && !o->sinc &&
-        pays(cost_sinc(&c->psf0, hw, fits, W, rs), fits, learned, full)) {
+        pays(cost_sinc(&c->psf0, hw, fits, W, rs), fits, learned, full, 0.0)) {
         if (build_sinc(c, err))
             return 1;
         o->sinc = c->sinc.nph > 0 ? &c->sinc : NULL;
@@ -437,10 +430,9 @@ static int choose_locked(mp_econ_cache *c, double fits, double fitrad, mp_frame_
      * with the grid built a level and its tables pay on those alone
      * (47 Tuc with Tiny Tim's table: every group served by the grid, the
      * levels' tables 15 % of the run and 110 MB for nothing). */
-    double painted = o->learn ? paint_saved(c, hw) : 0.0;
     if (!o->grid && c->grid_g > 0 &&
-        pays_painted(cost_grid(&c->psf0, SEP(c), rs, c->grid_g, hw, fits, W, c->field), fits,
-                     learned, full, painted)) {
+        pays(cost_grid(&c->psf0, SEP(c), rs, c->grid_g, hw, fits, W, c->field), fits, learned,
+             full, o->learn ? paint_saved(c, hw) : 0.0)) {
         if (build_grid(c, fitrad, err))
             return 1;
         o->grid = c->grid.G > 0 ? &c->grid : NULL;
@@ -451,13 +443,13 @@ static int choose_locked(mp_econ_cache *c, double fits, double fitrad, mp_frame_
      * kernel choice pays or not on its own table, as the model's does. */
     if (!o->ss && c->nlev > 0) {
         int n = 0, bits = 0;
-        while (n < c->nlev && pays(cost_level(c, n, fits, W), lfits, learned, full)) {
+        while (n < c->nlev && pays(cost_level(c, n, fits, W), lfits, learned, full, 0.0)) {
             if (build_level(c, n, err))
                 return 1;
             /* Decided for this frame, like every table: one built for an
              * earlier frame serves only where this frame's count pays. */
             if (c->want_sinc &&
-                pays(cost_sinc(&c->ss[n].psf, hw, fits, W, rs), lfits, learned, full)) {
+                pays(cost_sinc(&c->ss[n].psf, hw, fits, W, rs), lfits, learned, full, 0.0)) {
                 if (build_level_sinc(c, n, err))
                     return 1;
                 bits |= 1 << n;
@@ -475,7 +467,7 @@ static int choose_locked(mp_econ_cache *c, double fits, double fitrad, mp_frame_
     for (int l = 0; o->ss == c->ss && l < o->nss && c->grid_g > 0; l++)
         if (!((o->ss_grid >> l) & 1) &&
             pays(cost_grid(&c->ss[l].psf, SEP(c), rs, c->grid_g, hw, fits, W, c->field), lfits,
-                 learned, full)) {
+                 learned, full, 0.0)) {
             if (build_level_grid(c, l, fitrad, err))
                 return 1;
             o->ss_grid |= (c->ss[l].grid->G > 0) << l;
