@@ -660,6 +660,11 @@ typedef struct {
                                 * loop's exact pass (fit/lm_normal.c
                                 * NE_REUSE); 0: sums them again (tests
                                 * compare: the same bytes) */
+    int weak_pairs;            /* 1, the default: a fit's later exact passes
+                                * keep the sums of the pairs its earlier one
+                                * found weakly coupled (fit/lm_normal.c
+                                * pairs_kept_weak); 0: sums every pair (tests
+                                * compare) */
     int stats;                 /* 1, the default: each star's PRF statistics
                                 * and model errors (st, fluxerr_model,
                                 * poserr_model) set; 0: left for the caller

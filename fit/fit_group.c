@@ -25,6 +25,7 @@ void mp_fit_opts_default(mp_fit_opts *o)
     memset(&o->grid_tiers, 0, sizeof o->grid_tiers);
     o->work = NULL;
     o->exact_lm = 0;
+    o->weak_pairs = 1;
     o->settle = 1;
     o->refresh_movers = 1;
     o->reuse_pairs = 1;
@@ -63,6 +64,8 @@ static void group_free(group *G)
     free(G->pl);
     free(G->tail);
     free(G->pfull);
+    free(G->pk2);
+    free(G->ppos);
     free(G->stail);
     free(G->cx0);
     free(G->cx1);
@@ -530,6 +533,7 @@ static void group_setup(group *G, const mp_frame *f, const mp_prf_model *m, cons
     G->crop = isfinite(o->fitrad) ? o->crop : NULL;
     G->work.grid = o->grid;     /* every render of the group through G->work */
     G->stats = o->stats;
+    G->weak_pairs = o->weak_pairs;
     G->crop_min = o->fitrad + 1.0;
     G->core_hw = G->crop_min;   /* NaN (whole frame): every pass exact */
     G->n = n;

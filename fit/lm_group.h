@@ -111,6 +111,11 @@ typedef struct {
     int *pk, *pl;
     double *tail;
     double *pfull;              /* 9 a pair: its whole sums (NE_REUSE) */
+    double *pk2;                /* a pair: its largest normalised coupling²
+                                 * when last summed exactly (lm_normal.c) */
+    double *ppos;               /* 4 a pair: both stars' x, y then */
+    int pairs_known;            /* an exact pass listed the pairs in this fit */
+    int weak_pairs;             /* mp_fit_opts.weak_pairs */
     double *stail;              /* 27 a star: its sky and self sums outside its core */
     int *cx0, *cx1, *cy0, *cy1;
     double core_hw;

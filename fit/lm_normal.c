@@ -378,9 +378,59 @@ static int pair_sums_core(const group *G, const rstar *rk, const rstar *rl, int 
     return 1;
 }
 
+/* The pair list's room for one more (G->cappair); nonzero when out of
+ * memory. */
+static int pairs_room(group *G)
+{
+    if (G->npair < G->cappair)
+        return 0;
+    int cap = G->cappair ? 2 * G->cappair : 64;
+    int *a = realloc(G->pk, (size_t)cap * sizeof *a);
+    if (a)
+        G->pk = a;
+    int *b = realloc(G->pl, (size_t)cap * sizeof *b);
+    if (b)
+        G->pl = b;
+    double *t = realloc(G->tail, (size_t)cap * 9 * sizeof *t);
+    if (t)
+        G->tail = t;
+    double *u = realloc(G->pfull, (size_t)cap * 9 * sizeof *u);
+    if (u)
+        G->pfull = u;
+    double *v = realloc(G->pk2, (size_t)cap * sizeof *v);
+    if (v)
+        G->pk2 = v;
+    double *w = realloc(G->ppos, (size_t)cap * 4 * sizeof *w);
+    if (w)
+        G->ppos = w;
+    if (!a || !b || !t || !u || !v || !w)
+        return 1;
+    G->cappair = cap;
+    return 0;
+}
+
+/* The largest normalised coupling² of stars k and l in A, over their
+ * three columns each: A_ka,lb² / (A_ka,ka · A_lb,lb), the squared
+ * correlation of the two parameters' estimates were they alone (star_terms
+ * set the diagonal before the pairs are summed). */
+static double pair_coupling2(const group *G, int k, int l)
+{
+    int np = G->np;
+    double c2 = 0.0;
+    for (int a = 0; a < 3; a++)
+        for (int b = 0; b < 3; b++) {
+            double v = G->A[(size_t)(3 * k + a) * np + 3 * l + b];
+            double d = G->A[(size_t)(3 * k + a) * np + 3 * k + a] *
+                       G->A[(size_t)(3 * l + b) * np + 3 * l + b];
+            c2 = d > 0 && v * v > c2 * d ? v * v / d : c2;
+        }
+    return c2;
+}
+
 /* Pair k < l summed exactly into A when their windows meet, and listed
  * with its sums outside its core in G->tail (when G->core_hw > 0: the
- * cores as set_core fixed them).  Nonzero when out of memory. */
+ * cores as set_core fixed them), its whole sums, its coupling and where
+ * both stars stood.  Nonzero when out of memory. */
 static int pair_exact(group *G, const double *p, const rstar *r, int k, int l)
 {
     double s[3][3], c[3][3];
@@ -394,43 +444,98 @@ static int pair_exact(group *G, const double *p, const rstar *r, int k, int l)
     if (!pair_sums_core(G, &r[k], &r[l], x0, x1, y0, y1, s, c))
         return 0;
     put_pair(G, p, k, l, s);
-    if (G->npair == G->cappair) {
-        int cap = G->cappair ? 2 * G->cappair : 64;
-        int *a = realloc(G->pk, (size_t)cap * sizeof *a);
-        if (a)
-            G->pk = a;
-        int *b = realloc(G->pl, (size_t)cap * sizeof *b);
-        if (b)
-            G->pl = b;
-        double *t = realloc(G->tail, (size_t)cap * 9 * sizeof *t);
-        if (t)
-            G->tail = t;
-        double *u = realloc(G->pfull, (size_t)cap * 9 * sizeof *u);
-        if (u)
-            G->pfull = u;
-        if (!a || !b || !t || !u)
-            return 1;
-        G->cappair = cap;
-    }
-    double *t = G->tail + (size_t)G->npair * 9, *u = G->pfull + (size_t)G->npair * 9;
+    if (pairs_room(G))
+        return 1;
+    size_t q = (size_t)G->npair;
+    double *t = G->tail + q * 9, *u = G->pfull + q * 9, *x = G->ppos + q * 4;
     for (int a = 0; a < 9; a++) {
         t[a] = s[a / 3][a % 3] - c[a / 3][a % 3];
         u[a] = s[a / 3][a % 3];
     }
-    G->pk[G->npair] = k;
+    G->pk2[q] = pair_coupling2(G, k, l);
+    x[0] = p[3 * k + 1];
+    x[1] = p[3 * k + 2];
+    x[2] = p[3 * l + 1];
+    x[3] = p[3 * l + 2];
+    G->pk[q] = k;
     G->pl[G->npair++] = l;
     return 0;
 }
 
-/* The exact pass's pairs: every pair of open stars whose windows meet.
- * Nonzero when out of memory. */
+/* A pair too weakly coupled to be summed again at a later exact pass of
+ * the same fit: its largest normalised coupling² below LM_WEAK_C2 when it
+ * was summed, and neither star moved LM_WEAK_MOVE px since.  κ < 0.001:
+ * at κ < 0.01 (1e-4) the frozen-wings scene's fit took another path to
+ * D's resolution and ended 0.054 σ from the exact one's
+ * (test_levmar.c test_weak_pairs_same_fit); 47 Tuc built gained 6 %
+ * of its CPU with it, 4 % with this. */
+#define LM_WEAK_C2 1e-6
+#define LM_WEAK_MOVE 0.1
+/* The largest group whose pairs are marked in an n² table of bytes
+ * (256 kB); a larger one sums every pair. */
+#define LM_KNOWN_MAX 512
+static int pair_stays_weak(const group *G, const double *p, int q)
+{
+    const double *x = G->ppos + (size_t)q * 4;
+    int k = G->pk[q], l = G->pl[q];
+    return G->pk2[q] < LM_WEAK_C2 && fabs(p[3 * k + 1] - x[0]) < LM_WEAK_MOVE &&
+           fabs(p[3 * k + 2] - x[1]) < LM_WEAK_MOVE && fabs(p[3 * l + 1] - x[2]) < LM_WEAK_MOVE &&
+           fabs(p[3 * l + 2] - x[3]) < LM_WEAK_MOVE;
+}
+
+/* List entry q moved to entry m (m ≤ q). */
+static void pair_move(group *G, int m, int q)
+{
+    G->pk[m] = G->pk[q];
+    G->pl[m] = G->pl[q];
+    G->pk2[m] = G->pk2[q];
+    memmove(G->tail + (size_t)m * 9, G->tail + (size_t)q * 9, 9 * sizeof *G->tail);
+    memmove(G->pfull + (size_t)m * 9, G->pfull + (size_t)q * 9, 9 * sizeof *G->pfull);
+    memmove(G->ppos + (size_t)m * 4, G->ppos + (size_t)q * 4, 4 * sizeof *G->ppos);
+}
+
+/* The pairs of the last exact pass that stay weak (pair_stays_weak), both
+ * stars open, kept at the list's front with their whole sums put into A
+ * as they were; their count.  known[k·n + l] marks them (k < l).  A pair
+ * this weak moves a star's variance by a second-order term or by the
+ * product of two other couplings (A only steers the steps; the covariance
+ * comes from the last exact pass): measured in bench/PROFILE.md. */
+static int pairs_kept_weak(group *G, const double *p, unsigned char *known)
+{
+    int m = 0, n = G->n;
+    for (int q = 0; q < G->npair; q++) {
+        int k = G->pk[q], l = G->pl[q];
+        if (G->settled[k] || G->settled[l] || !pair_stays_weak(G, p, q))
+            continue;
+        pair_move(G, m, q);
+        double s[3][3];
+        memcpy(s, G->pfull + (size_t)m * 9, sizeof s);
+        put_pair(G, p, k, l, s);
+        known[(size_t)k * n + l] = 1;
+        m++;
+    }
+    return m;
+}
+
+/* The exact pass's pairs: every pair of open stars whose windows meet,
+ * summed — but for the weak pairs a fit's earlier exact pass summed
+ * (pairs_kept_weak).  Nonzero when out of memory. */
 static int pairs_exact(group *G, const double *p, const rstar *r)
 {
-    G->npair = 0;
-    for (int k = 0; k < G->n; k++)
-        for (int l = k + 1; l < G->n; l++)
-            if (!G->settled[k] && !G->settled[l] && pair_exact(G, p, r, k, l))
+    int n = G->n;
+    unsigned char *known = G->weak_pairs && G->pairs_known && n <= LM_KNOWN_MAX
+                               ? calloc((size_t)n * n, 1)
+                               : NULL;
+    G->npair = known ? pairs_kept_weak(G, p, known) : 0;
+    for (int k = 0; k < n; k++)
+        for (int l = k + 1; l < n; l++)
+            if (!G->settled[k] && !G->settled[l] && !(known && known[(size_t)k * n + l]) &&
+                pair_exact(G, p, r, k, l)) {
+                free(known);
                 return 1;
+            }
+    free(known);
+    G->pairs_known = 1;
     return 0;
 }
 
@@ -465,29 +570,32 @@ static void pairs_reuse(group *G, const double *p)
 
 /* After the movers (G->moved) were redrawn (lm_refresh_movers): the
  * other pairs as between exact passes, every pair with a mover summed
- * exactly and listed afresh (its windows may meet others now).  Nonzero
- * when out of memory. */
+ * exactly and listed afresh (its windows may meet others now) — but a
+ * weak one (below LM_WEAK_C2 when last summed), kept as between exact
+ * passes too: this pass only steers, and the next exact pass sums it
+ * again, its star having moved (pair_stays_weak).  Nonzero when out of
+ * memory. */
 static int pairs_movers(group *G, const double *p, const rstar *r)
 {
-    int m = 0;
+    int m = 0, n = G->n;
+    unsigned char *known = G->weak_pairs && n <= LM_KNOWN_MAX ? calloc((size_t)n * n, 1) : NULL;
     for (int q = 0; q < G->npair; q++) {
         int k = G->pk[q], l = G->pl[q];
-        if (G->moved[k] || G->moved[l])
+        if ((G->moved[k] || G->moved[l]) && !(known && G->pk2[q] < LM_WEAK_C2))
             continue;
-        G->pk[m] = k;
-        G->pl[m] = l;
-        memmove(G->tail + (size_t)m * 9, G->tail + (size_t)q * 9, 9 * sizeof *G->tail);
-        memmove(G->pfull + (size_t)m * 9, G->pfull + (size_t)q * 9, 9 * sizeof *G->pfull);
-        m++;
+        if (known)
+            known[(size_t)k * n + l] = 1;
+        pair_move(G, m++, q);
     }
     G->npair = m;
     pairs_core(G, p, r);
-    for (int k = 0; k < G->n; k++)
-        for (int l = k + 1; l < G->n; l++)
-            if ((G->moved[k] || G->moved[l]) && !G->settled[k] && !G->settled[l] &&
-                pair_exact(G, p, r, k, l))
-                return 1;
-    return 0;
+    int rc = 0;
+    for (int k = 0; k < n && !rc; k++)
+        for (int l = k + 1; l < n && !rc; l++)
+            rc = (G->moved[k] || G->moved[l]) && !G->settled[k] && !G->settled[l] &&
+                 !(known && known[(size_t)k * n + l]) && pair_exact(G, p, r, k, l);
+    free(known);
+    return rc;
 }
 
 /* Star k's rows of g and A: its data terms, its coupling with the sky and

@@ -363,10 +363,13 @@ static double wing_flux(const mp_frame *f, const float *img, long cx, long cy, d
     for (int r = 2; r < p->hw && nr < 4; r++) {
         size_t m = 0, all = 0, ms = 0;
         double se = 0.0;
-        for (int j = 0; j < p->w; j++)
-            for (int i = 0; i < p->w; i++) {
-                double d = hypot(i - p->hw, j - p->hw);
-                if (d < r || d >= r + 1)
+        /* the ring's pixels, r ≤ d < r + 1, in its own box and by d²
+         * (integers: exact), in the box's order as before */
+        int a = p->hw - r - 1 > 0 ? p->hw - r - 1 : 0, b = p->hw + r + 2 < p->w ? p->hw + r + 2 : p->w;
+        for (int j = a; j < b; j++)
+            for (int i = a; i < b; i++) {
+                int d2 = (i - p->hw) * (i - p->hw) + (j - p->hw) * (j - p->hw);
+                if (d2 < r * r || d2 >= (r + 1) * (r + 1))
                     continue;
                 all++;
                 long xx = cx + i - p->hw, yy = cy + j - p->hw;
@@ -434,11 +437,13 @@ int mp_epsf_profile_hi(const double *med, const double *sig, int hw, const mp_ep
     }
     for (int r = 0; r <= hw; r++) {
         size_t m = 0;
-        for (int j = 0; j < w; j++)
-            for (int i = 0; i < w; i++) {
-                double d = hypot(i - hw, j - hw);
+        /* ring r's elements in its own box, by d² (integers: exact) */
+        int a = hw - r - 1 > 0 ? hw - r - 1 : 0, b = hw + r + 2 < w ? hw + r + 2 : w;
+        for (int j = a; j < b; j++)
+            for (int i = a; i < b; i++) {
+                int d2 = (i - hw) * (i - hw) + (j - hw) * (j - hw);
                 size_t o = (size_t)j * w + i;
-                if (d >= r && d < r + 1 && isfinite(med[o]) && isfinite(sig[o])) {
+                if (d2 >= r * r && d2 < (r + 1) * (r + 1) && isfinite(med[o]) && isfinite(sig[o])) {
                     v[m] = med[o];
                     e[m++] = sig[o];
                 }
