@@ -242,6 +242,7 @@ void mp_bkg_free(mp_bkg *b)
     free(b->cx);
     free(b->vals);
     free(b->xv);
+    free(b->xvd);
     free(b->xs);
     free(b->cell0);
     memset(b, 0, sizeof *b);
@@ -254,7 +255,8 @@ size_t mp_bkg_bytes(const mp_bkg *b)
      * index of 8 bytes per nxv² px and v per class and ring */
     size_t ex = b->nxs * MP_BKG_XS * sizeof(double) +
                 (b->cell0 ? ((size_t)b->ncx * (size_t)b->ncy + 1) * sizeof *b->cell0 : 0) +
-                (b->xv ? (size_t)b->nxc * (size_t)b->nxv * sizeof *b->xv : 0);
+                (b->xv ? (size_t)b->nxc * (size_t)b->nxv * sizeof *b->xv : 0) +
+                (b->xvd ? (size_t)b->nxc * (size_t)b->nxv * MP_BKG_NSECT * sizeof *b->xvd : 0);
     return ex + (b->cx ? (size_t)b->nbx * sizeof *b->cx * (1 + (b->model ? 2 : 4) * (size_t)b->ny)
                        : 0);
 }

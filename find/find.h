@@ -50,6 +50,12 @@ typedef struct {
      * cell0[c] .. cell0[c + 1] − 1 of xs, cells ncx a row. */
     double *xv;
     int nxv, nxc;         /* rings, classes */
+    /* v per class, ring and direction (MP_BKG_NSECT equal turns about the
+     * star, counter-clockwise from +x): the ring's v, or the cell's where
+     * most of the class's stars hold a significant excess in it (a
+     * table's spikes: mp_bkg_star_excess); NULL when no cell does */
+    double *xvd;
+    int nxd;              /* the cells with their own v */
     double *xs;
     size_t nxs;
     size_t *cell0;
@@ -175,9 +181,22 @@ int mp_bkg_noise_from_model(mp_bkg *b, const mp_frame *f, const float *res, doub
  * to the variance of the pixels (mp_bkg_rms, mp_bkg_rows) out to the
  * last ring where it reaches MP_BKG_EXCESS_FLOOR of its sky pixel's
  * variance (a term below that changes the noise by under 0.5 %).
+ * The trim keeps a ring's v from what few of its pixels hold, and so
+ * from a PSF's spikes, which a built table may leave out (beyond the
+ * radius its light per pixel reaches at 0.9 of the directions: frame V of
+ * validate/CROWDED.md, its saturated stars' spikes at the table's edge
+ * found as stars).  So each ring is also cut into MP_BKG_NSECT turns of
+ * direction: a star's cell estimate is S/A over its pixels there with
+ * every z² (null σ √(2m)/A, m pixels); a cell where at least three of the
+ * class's stars have pixels and more than half of those are above 3 of
+ * their σ gets the median of their estimates, when above the ring's v (in
+ * b->xvd, b->nxd such cells).  A table's misfit repeats at the same place
+ * about every star of a class; a companion, a cosmic ray, a star not yet
+ * found lie about one.
  * *nring, *nkept: the rings (all classes) and stars that got it.  Nothing
  * changes without the noise model (b->model 0).  Errors: out of memory.
  */
+#define MP_BKG_NSECT 32
 #define MP_BKG_EXCESS_NSTAR 10
 #define MP_BKG_EXCESS_FLOOR 0.01
 int mp_bkg_star_excess(mp_bkg *b, const mp_frame *f, const double *x, const double *y,

@@ -19,6 +19,14 @@ static long cell_of(double v, int size, long n)
     return c < 0 ? 0 : c >= n ? n - 1 : c;
 }
 
+/* The direction cell of an offset (dx, dy) from a star: MP_BKG_NSECT
+ * equal turns counter-clockwise from +x. */
+static int sector_of(double dx, double dy)
+{
+    int k = (int)floor(atan2(dy, dx) * (MP_BKG_NSECT / (2.0 * M_PI)));
+    return k < 0 ? k + MP_BKG_NSECT : k >= MP_BKG_NSECT ? k - MP_BKG_NSECT : k;
+}
+
 void mp_bkg_excess_span(const mp_bkg *b, long y, long x0, long x1, double *v)
 {
     for (long x = x0; x < x1; x++)
@@ -45,19 +53,26 @@ void mp_bkg_excess_span(const mp_bkg *b, long y, long x0, long x1, double *v)
                     lo = lo < a ? a : lo;
                     hi = hi > e ? e : hi;
                     const double *xv = b->xv + (size_t)st[3] * (size_t)b->nxv;
+                    const double *xd = b->xvd ? b->xvd + (size_t)st[3] * (size_t)b->nxv * MP_BKG_NSECT
+                                              : NULL;
                     for (long x = lo; x < hi; x++) {
                         double dx = (double)x - st[0], d2 = dx * dx + dy2;
-                        if (d2 < st[4])
-                            v[x - x0] += st[2] * xv[(size_t)sqrt(d2)];
+                        if (!(d2 < st[4]))
+                            continue;
+                        size_t r = (size_t)sqrt(d2);
+                        v[x - x0] += st[2] * (xd ? xd[r * MP_BKG_NSECT + (size_t)sector_of(dx, dy)]
+                                                 : xv[r]);
                     }
                 }
             }
     }
 }
 
-/* A ring's pixels: z² and F²/σ² each. */
+/* A ring's pixels: z² and F²/σ² each, the star's place among those that
+ * measure the class and the pixel's direction cell about it. */
 typedef struct {
     double z2, w;
+    int star, sect;
 } ring_px;
 
 typedef struct {
@@ -65,7 +80,7 @@ typedef struct {
     size_t n, cap;
 } ring;
 
-static int ring_push(ring *g, double z2, double w)
+static int ring_push(ring *g, double z2, double w, int star, int sect)
 {
     if (g->n == g->cap) {
         size_t cap = g->cap ? 2 * g->cap : 64;
@@ -75,13 +90,13 @@ static int ring_push(ring *g, double z2, double w)
         g->p = a;
         g->cap = cap;
     }
-    g->p[g->n++] = (ring_px){z2, w};
+    g->p[g->n++] = (ring_px){z2, w, star, sect};
     return 0;
 }
 
-/* The unmasked pixels around one star, by ring. */
+/* The unmasked pixels around one star (the class's star-th), by ring. */
 static int ring_pixels(const mp_bkg *b, const mp_frame *f, double xs, double ys, double F,
-                       int nr, ring *g)
+                       int nr, int star, ring *g)
 {
     long nx = f->im.nx, ny = f->im.ny;
     long x0 = (long)floor(xs - nr), x1 = (long)ceil(xs + nr);
@@ -96,7 +111,8 @@ static int ring_pixels(const mp_bkg *b, const mp_frame *f, double xs, double ys,
             if (!(rms > 0))
                 continue;
             double z = (b->res[i] - mp_bkg_sky(b, i)) / rms;
-            if (ring_push(&g[(int)d], z * z, F * F / (rms * rms)))
+            if (ring_push(&g[(int)d], z * z, F * F / (rms * rms), star,
+                          sector_of((double)x - xs, (double)y - ys)))
                 return 1;
         }
     return 0;
@@ -123,6 +139,46 @@ static double ring_excess(ring *g, double *tmp)
             m += 1.0;
         }
     return A > 0 && S > 3.0 * sqrt(m * (c2 - c1 * c1)) ? S / A : 0.0;
+}
+
+/* A ring's direction cells (mp_bkg_star_excess, find.h) into
+ * vd[0..MP_BKG_NSECT-1]: the median of the nstar stars' estimates where
+ * at least three have pixels and more than half of those are above 3 of
+ * their null σ, when above the ring's own v; else v.  Their number into
+ * *nd.  Nonzero when out of memory. */
+static int ring_cells(const ring *g, int nstar, double v, double *vd, int *nd)
+{
+    size_t nc = (size_t)nstar * MP_BKG_NSECT;
+    double *S = calloc(3 * nc + (size_t)nstar + 1, sizeof *S), *A = S + nc, *M = A + nc;
+    if (!S)
+        return 1;
+    double *est = M + nc;
+    for (size_t i = 0; i < g->n; i++) {
+        size_t k = (size_t)g->p[i].star * MP_BKG_NSECT + (size_t)g->p[i].sect;
+        S[k] += g->p[i].z2 - 1.0;
+        A[k] += g->p[i].w;
+        M[k] += 1.0;
+    }
+    for (int c = 0; c < MP_BKG_NSECT; c++) {
+        size_t ne = 0, nsig = 0;
+        for (int j = 0; j < nstar; j++) {
+            size_t k = (size_t)j * MP_BKG_NSECT + (size_t)c;
+            if (!(M[k] > 0 && A[k] > 0))
+                continue;
+            est[ne++] = S[k] / A[k];
+            nsig += S[k] > 3.0 * sqrt(2.0 * M[k]);
+        }
+        vd[c] = v;
+        if (ne >= 3 && 2 * nsig > ne) {
+            double med = mp_median_select(est, ne);
+            if (med > v) {
+                vd[c] = med;
+                (*nd)++;
+            }
+        }
+    }
+    free(S);
+    return 0;
 }
 
 /* The kept stars (MP_BKG_XS values each; m of them) by cell into b. */
@@ -178,10 +234,15 @@ static int keep_stars(mp_bkg *b, const mp_frame *f, const double *x, const doubl
         size_t i = (size_t)py * (size_t)f->im.nx + (size_t)px;
         double var = b->k * b->k * (fmax(mp_bkg_sky(b, i), 0.0) + b->ron2);
         const double *v = b->xv + (size_t)cls[s] * (size_t)b->nxv;
+        const double *vd = b->xvd ? b->xvd + (size_t)cls[s] * (size_t)b->nxv * MP_BKG_NSECT : NULL;
         int reach = 0;
-        for (int r = 0; r < b->nxv; r++)
-            if (F[s] * F[s] * v[r] >= MP_BKG_EXCESS_FLOOR * var)
+        for (int r = 0; r < b->nxv; r++) {
+            double vr = v[r];
+            for (int c = 0; vd && c < MP_BKG_NSECT; c++)
+                vr = fmax(vr, vd[(size_t)r * MP_BKG_NSECT + (size_t)c]);
+            if (F[s] * F[s] * vr >= MP_BKG_EXCESS_FLOOR * var)
                 reach = r + 1;
+        }
         if (reach > 0) {
             double *st = xs + MP_BKG_XS * m++;
             st[0] = x[s];
@@ -216,10 +277,11 @@ static int measures(const double *x, const double *y, const double *F,
 }
 
 /* v of class c into v[0..nr-1] (the rings of its nb brightest stars that
- * measure it); its rings kept. */
+ * measure it) and its rings' direction cells into vd (ring_cells); its
+ * rings kept, its cells with their own v added to *nd. */
 static int class_excess(const mp_bkg *b, const mp_frame *f, const double *x, const double *y,
                         const double *F, const int *cls, const unsigned char *usable, size_t n,
-                        int c, size_t nb, int nr, double *v, int *kept)
+                        int c, size_t nb, int nr, double *v, double *vd, int *kept, int *nd)
 {
     ring *g = calloc((size_t)nr, sizeof *g);
     size_t *higher = malloc((n + 1) * sizeof *higher), nh = 0;
@@ -230,7 +292,7 @@ static int class_excess(const mp_bkg *b, const mp_frame *f, const double *x, con
     size_t used = 0;
     for (size_t s = 0; !rc && s < n && used < nb; s++)
         if (cls[s] == c && measures(x, y, F, usable, higher, nh, s, nr)) {
-            rc = ring_pixels(b, f, x[s], y[s], F[s], nr, g);
+            rc = ring_pixels(b, f, x[s], y[s], F[s], nr, (int)used, g);
             used++;
         }
     size_t big = 0;
@@ -242,6 +304,7 @@ static int class_excess(const mp_bkg *b, const mp_frame *f, const double *x, con
     for (int r = 0; !rc && r < nr; r++) {
         v[r] = ring_excess(&g[r], tmp);
         *kept += v[r] > 0;
+        rc = ring_cells(&g[r], (int)used, v[r], vd + (size_t)r * MP_BKG_NSECT, nd);
     }
     for (int r = 0; g && r < nr; r++)
         free(g[r].p);
@@ -261,25 +324,35 @@ int mp_bkg_star_excess(mp_bkg *b, const mp_frame *f, const double *x, const doub
     if (!b->model || nr < 1 || n == 0 || ncls < 1)
         return 0;
     free(b->xv);
+    free(b->xvd);
     free(b->xs);
     free(b->cell0);
-    b->xv = NULL, b->xs = NULL, b->cell0 = NULL, b->nxv = 0, b->nxs = 0;
+    b->xv = NULL, b->xvd = NULL, b->xs = NULL, b->cell0 = NULL, b->nxv = 0, b->nxs = 0;
+    b->nxd = 0;
     double *v = calloc((size_t)ncls * (size_t)nr, sizeof *v);
-    int rc = !v;
+    double *vd = calloc((size_t)ncls * (size_t)nr * MP_BKG_NSECT, sizeof *vd);
+    int rc = !v || !vd, nd = 0;
     for (int c = 0; !rc && c < ncls; c++) {
         int kept;
-        rc = class_excess(b, f, x, y, F, cls, usable, n, c, nb, nr, v + (size_t)c * nr, &kept);
+        rc = class_excess(b, f, x, y, F, cls, usable, n, c, nb, nr, v + (size_t)c * nr,
+                          vd + (size_t)c * nr * MP_BKG_NSECT, &kept, &nd);
         *nring += kept;
     }
-    if (!rc && *nring > 0) {
+    if (!rc && (*nring > 0 || nd > 0)) {
         b->xv = v;
         b->nxv = nr;
         b->nxc = ncls;
         v = NULL;
+        if (nd > 0) {       /* else every cell is its ring: the rings alone */
+            b->xvd = vd;
+            b->nxd = nd;
+            vd = NULL;
+        }
         rc = keep_stars(b, f, x, y, F, cls, n);
         *nkept = b->nxs;
     }
     free(v);
+    free(vd);
     if (rc)
         snprintf(err, MP_ERRLEN, "out of memory for the residual noise map");
     return rc;

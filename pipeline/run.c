@@ -350,6 +350,7 @@ typedef struct {
     double kscale, proferr;  /* × Poisson (NaN: the residual's mesh map); profile error */
     int nring;               /* rings of the flux-squared error */
     size_t nexcess;          /* stars it is added around */
+    int ndir;                /* direction cells above their rings (mp_bkg.nxd) */
 } residual_noise;
 
 /* The round's line on stderr: the new stars, the noise they were found on. */
@@ -358,8 +359,9 @@ static void say_new_stars(const run_state *s, int round, long added, const resid
     if (isfinite(nz->kscale))
         fprintf(stderr, "matphot pipeline: %s: round %d: %ld new stars on the residual "
                 "(noise: %.3f x Poisson, profile error %.1f %%, the error growing as flux "
-                "squared on %d rings around %zu stars)\n", s->image, round, added, nz->kscale,
-                100.0 * nz->proferr, nz->nring, nz->nexcess);
+                "squared on %d rings and %d direction cells above them around %zu stars)\n",
+                s->image, round, added, nz->kscale, 100.0 * nz->proferr, nz->nring, nz->ndir,
+                nz->nexcess);
     else
         fprintf(stderr, "matphot pipeline: %s: round %d: %ld new stars on the residual "
                 "(noise: the residual's mesh map)\n", s->image, round, added);
@@ -451,12 +453,13 @@ static int find_on_residual(run_state *s, int round, long *added, char *err)
     mp_table_free(&s->found);
     mp_table_init(&s->found);
     mp_bkg_free(&s->bkg);
-    residual_noise nz = {NAN, 0.0, 0, 0};
+    residual_noise nz = {NAN, 0.0, 0, 0, 0};
     if (mp_bkg_estimate(&R, o->mesh, o->filter, &s->bkg, err) ||
         mp_bkg_noise_from_model(&s->bkg, &s->f, s->res, s->fwhm, o->find.nsigma,
                                 &nz.kscale, &nz.proferr, err) ||
         mp_pl_star_excess(&s->f, &s->bkg, &s->t, &s->fit->model, &nz.nring, &nz.nexcess, err))
         return 1;
+    nz.ndir = s->bkg.nxd;
     double gemax, glemax;
     const mp_prf_cache *grid = mp_run_phase_grid(s, &gemax, &glemax, NULL);
     if (residual_detections(s, &R, grid, gemax, err) ||

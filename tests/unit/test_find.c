@@ -1137,12 +1137,45 @@ static void test_noise_from_model(void **state)
  * misfit's mean square there, low by what the trim leaves out (the top
  * tenth of a ring's z², at most a quarter of six lobes' power, (1 + cos
  * 6θ)²/4's top tenth) and within a few of its sampling errors (~5 % over
- * ~340 pixels): 0.6 .. 1.15 of it; and the noise at a lobe's peak then
- * carries it. */
+ * ~340 pixels): 0.6 .. 1.15 of it.  The lobes repeat about every star:
+ * the ring's direction cells (MP_BKG_NSECT) at a lobe's peak get their
+ * own v, whose F²·v estimates the lobes' mean square over that cell's
+ * pixels (the same about each star: their places share a phase) — the
+ * median of nine stars' estimates from a pixel or two each, z² ≈ 33 ± 8
+ * apiece: within 0.7 .. 1.3 of it (3 of its ~10 % error) — while a cell
+ * between two lobes (cos 6θ = −1) keeps its ring's v.  With pure noise no
+ * cell gets its own v (five of nine stars above 3 σ: ~1e-12 a cell).  The
+ * noise at a lobe's peak then carries its cell's term. */
 static double lobes(double dx, double dy)
 {
     double r = hypot(dx, dy), t = atan2(dy, dx);
     return 60.0 * exp(-0.5 * (r - 6.0) * (r - 6.0) / 0.49) * 0.5 * (1.0 + cos(6.0 * t));
+}
+
+/* The direction cell of an offset (find.h, mp_bkg_star_excess: equal
+ * turns counter-clockwise from +x), from its definition. */
+static int cell_of_offset(double dx, double dy)
+{
+    double t = atan2(dy, dx);
+    t = t < 0 ? t + 2.0 * M_PI : t;
+    int c = (int)(t / (2.0 * M_PI) * MP_BKG_NSECT);
+    return c < MP_BKG_NSECT ? c : MP_BKG_NSECT - 1;
+}
+
+/* The lobes' mean square over the pixels of ring d and direction cell c
+ * about a star at (xs, ys) (0-based). */
+static double excess_cell_mean_square(double xs, double ys, int d, int c)
+{
+    double s = 0.0, n = 0.0;
+    for (long j = (long)ys - d - 2; j <= (long)ys + d + 2; j++)
+        for (long i = (long)xs - d - 2; i <= (long)xs + d + 2; i++) {
+            double dx = (double)i - xs, dy = (double)j - ys;
+            if ((int)hypot(dx, dy) != d || cell_of_offset(dx, dy) != c)
+                continue;
+            s += lobes(dx, dy) * lobes(dx, dy);
+            n += 1.0;
+        }
+    return n > 0 ? s / n : 0.0;
 }
 
 /* The excess tests' scene: a 200² frame of read noise 3, its stars'
@@ -1210,19 +1243,28 @@ static void test_star_excess(void **state)
         assert_int_equal(mp_bkg_star_excess(&b, &f, x, y, fl, cls, NULL, 9, 1, 10, 11.0, &nring,
                                             &nkept, err), 0);
         if (!misfit) {
-            printf("# excess, noise alone: %d rings\n", nring);
+            printf("# excess, noise alone: %d rings, %d cells\n", nring, b.nxd);
             assert_int_equal(nring, 0);
+            assert_int_equal(b.nxd, 0);
+            assert_null(b.xvd);
             assert_true(mp_bkg_rms(&b, peak) == before);
         } else {
             double got = F * F * b.xv[6];
-            printf("# excess, six lobes: %d rings, %zu stars; v F^2 at 6 px %.1f against "
-                   "the lobes' mean square %.1f; noise at a lobe %.1f -> %.1f\n", nring, nkept,
-                   got, want, before, (double)mp_bkg_rms(&b, peak));
+            /* the peak pixel's ring and cell: its offset from the star */
+            double px = lround(x[4] + 6.0) - x[4], py = lround(y[4]) - y[4];
+            int d = (int)hypot(px, py), c = cell_of_offset(px, py);
+            double cw = excess_cell_mean_square(x[4], y[4], d, c);
+            double gotc = F * F * b.xvd[d * MP_BKG_NSECT + c];
+            int ct = cell_of_offset(cos(M_PI / 6.0), sin(M_PI / 6.0));   /* between two lobes */
+            printf("# excess, six lobes: %d rings, %d cells, %zu stars; v F^2 at 6 px %.1f "
+                   "against the lobes' mean square %.1f; at the peak's cell %.1f against %.1f; "
+                   "noise at a lobe %.1f -> %.1f\n", nring, b.nxd, nkept, got, want, gotc, cw,
+                   before, (double)mp_bkg_rms(&b, peak));
             assert_int_equal(nkept, 9);
             assert_true(got > 0.6 * want && got < 1.15 * want);
-            /* the peak pixel's own ring: its distance from the star */
-            double d = hypot(lround(x[4] + 6.0) - x[4], lround(y[4]) - y[4]);
-            double add = F * F * b.xv[(int)d], after = mp_bkg_rms(&b, peak);
+            assert_true(gotc > 0.7 * cw && gotc < 1.3 * cw);
+            assert_true(b.xvd[6 * MP_BKG_NSECT + ct] == b.xv[6]);
+            double add = gotc, after = mp_bkg_rms(&b, peak);
             assert_true(add > 0);
             assert_true(fabs(after * after - before * before - add) < 1e-3 * after * after);
         }
@@ -1245,8 +1287,12 @@ static void test_star_excess(void **state)
             for (size_t q = 0; q < b.nxs; q++) {
                 const double *st = b.xs + 5 * q;
                 double d2 = (px - st[0]) * (px - st[0]) + (py - st[1]) * (py - st[1]);
-                if (d2 < st[4])
-                    add += st[2] * b.xv[(size_t)st[3] * (size_t)b.nxv + (size_t)sqrt(d2)];
+                if (!(d2 < st[4]))
+                    continue;
+                size_t rc = (size_t)st[3] * (size_t)b.nxv + (size_t)sqrt(d2);
+                add += st[2] * (b.xvd ? b.xvd[rc * MP_BKG_NSECT +
+                                              (size_t)cell_of_offset(px - st[0], py - st[1])]
+                                      : b.xv[rc]);
             }
             double mo = fmax(f.im.pix[i] - res[i], 0.0);
             double want = sqrt(b.k * b.k * (fmax(mp_bkg_sky(&b, (size_t)i), 0.0) + mo + b.ron2) +
@@ -1284,6 +1330,53 @@ static void test_star_excess(void **state)
 static double halo(double dx, double dy)
 {
     return 200.0 * exp(-0.5 * (dx * dx + dy * dy) / 36.0);
+}
+
+/* A companion beside one star is not its class's misfit: test_star_excess's
+ * nine stars in pure noise, and on one of them only the six lobes (as a
+ * star not yet found, 60 e⁻ a lobe): its cells are significant about that
+ * star alone, one of nine, so no direction cell gets its own v — where
+ * the same lobes about all nine gave 26 (test_star_excess).  The noise at
+ * a lobe of it keeps its ring's term.  Fixed seed. */
+static void test_star_excess_companion_alone(void **state)
+{
+    (void)state;
+    const long nx = 200, ny = 200;
+    const double sky = 100.0, F = 1e6;
+    mp_frame f;
+    double *stars;
+    float *res;
+    excess_scene(&f, &stars, &res);
+    mp_sim_prf p = gauss_prf(3.0);
+    double x[9], y[9], fl[9];
+    int cls[9] = {0};
+    for (int k = 0; k < 9; k++) {
+        x[k] = 40.3 + 60.0 * (k % 3);
+        y[k] = 40.6 + 60.0 * (k / 3);
+        fl[k] = F;
+        assert_int_equal(mp_sim_add_star(&p, x[k] + 1.0, y[k] + 1.0, F, stars, nx, ny), 0);
+    }
+    noise_frame(&f, stars, res, sky, 1.0, 0.0, 0, 92);
+    for (long j = 0; j < ny; j++)
+        for (long i = 0; i < nx; i++) {
+            double l = lobes((double)i - x[4], (double)j - y[4]);
+            res[j * nx + i] += (float)l;
+            f.im.pix[j * nx + i] += (float)l;
+        }
+    mp_bkg b;
+    excess_noise_model(&f, res, sky, &b);
+    int nring;
+    size_t nkept;
+    char err[MP_ERRLEN];
+    assert_int_equal(mp_bkg_star_excess(&b, &f, x, y, fl, cls, NULL, 9, 1, 10, 11.0, &nring, &nkept,
+                                        err), 0);
+    printf("# excess, lobes about one star of nine: %d rings, %d cells\n", nring, b.nxd);
+    assert_int_equal(b.nxd, 0);
+    assert_null(b.xvd);
+    mp_bkg_free(&b);
+    free(stars);
+    free(res);
+    frame_drop(&f);
 }
 
 static void test_star_excess_own_class(void **state)
@@ -1488,6 +1581,7 @@ int main(void)
         cmocka_unit_test(test_saturated_trail),
         cmocka_unit_test(test_noise_from_model),
         cmocka_unit_test(test_star_excess),
+        cmocka_unit_test(test_star_excess_companion_alone),
         cmocka_unit_test(test_star_excess_own_class),
         cmocka_unit_test(test_nan_columns),
         cmocka_unit_test(test_star_sharpness),
