@@ -1189,6 +1189,21 @@ static void excess_scene(mp_frame *f, double **stars, float **res)
     assert_non_null(*res);
 }
 
+/* The excess tests' nine stars of flux F (FWHM 3) on a 60-px grid, drawn
+ * into the scene's stars; their places (0-based: the sim takes x + 1)
+ * and fluxes.  Their subpixel phases are alike: their rings share their
+ * pixels' places. */
+static void excess_stars(double *stars, double F, double x[9], double y[9], double fl[9])
+{
+    mp_sim_prf p = gauss_prf(3.0);
+    for (int k = 0; k < 9; k++) {
+        x[k] = 40.3 + 60.0 * (k % 3);
+        y[k] = 40.6 + 60.0 * (k / 3);
+        fl[k] = F;
+        assert_int_equal(mp_sim_add_star(&p, x[k] + 1.0, y[k] + 1.0, F, stars, 200, 200), 0);
+    }
+}
+
 /* b: the noise model of residual res on f, its sky flat at sky (as the
  * pipeline's, before the flux-squared error). */
 static void excess_noise_model(const mp_frame *f, const float *res, double sky, mp_bkg *b)
@@ -1209,15 +1224,9 @@ static void test_star_excess(void **state)
     double *stars;
     float *res;
     excess_scene(&f, &stars, &res);
-    mp_sim_prf p = gauss_prf(3.0);
     double x[9], y[9], fl[9];
     int cls[9] = {0};
-    for (int k = 0; k < 9; k++) {
-        x[k] = 40.3 + 60.0 * (k % 3);   /* 0-based; the sim takes x + 1 */
-        y[k] = 40.6 + 60.0 * (k / 3);
-        fl[k] = F;
-        assert_int_equal(mp_sim_add_star(&p, x[k] + 1.0, y[k] + 1.0, F, stars, nx, ny), 0);
-    }
+    excess_stars(stars, F, x, y, fl);
     char err[MP_ERRLEN];
     for (int misfit = 0; misfit < 2; misfit++) {
         noise_frame(&f, stars, res, sky, 1.0, 0.0, 0, 91 + (uint64_t)misfit);
@@ -1336,8 +1345,7 @@ static double halo(double dx, double dy)
  * nine stars in pure noise, and on one of them only the six lobes (as a
  * star not yet found, 60 e⁻ a lobe): its cells are significant about that
  * star alone, one of nine, so no direction cell gets its own v — where
- * the same lobes about all nine gave 26 (test_star_excess).  The noise at
- * a lobe of it keeps its ring's term.  Fixed seed. */
+ * the same lobes about all nine gave 26 (test_star_excess).  Fixed seed. */
 static void test_star_excess_companion_alone(void **state)
 {
     (void)state;
@@ -1347,15 +1355,9 @@ static void test_star_excess_companion_alone(void **state)
     double *stars;
     float *res;
     excess_scene(&f, &stars, &res);
-    mp_sim_prf p = gauss_prf(3.0);
     double x[9], y[9], fl[9];
     int cls[9] = {0};
-    for (int k = 0; k < 9; k++) {
-        x[k] = 40.3 + 60.0 * (k % 3);
-        y[k] = 40.6 + 60.0 * (k / 3);
-        fl[k] = F;
-        assert_int_equal(mp_sim_add_star(&p, x[k] + 1.0, y[k] + 1.0, F, stars, nx, ny), 0);
-    }
+    excess_stars(stars, F, x, y, fl);
     noise_frame(&f, stars, res, sky, 1.0, 0.0, 0, 92);
     for (long j = 0; j < ny; j++)
         for (long i = 0; i < nx; i++) {
