@@ -378,34 +378,35 @@ static int pair_sums_core(const group *G, const rstar *rk, const rstar *rl, int 
     return 1;
 }
 
+/* *a grown to n values (realloc; left as it was when out of memory);
+ * nonzero when out of memory. */
+static int grow_ints(int **a, size_t n)
+{
+    int *q = realloc(*a, n * sizeof *q);
+    *a = q ? q : *a;
+    return !q;
+}
+
+static int grow_doubles(double **a, size_t n)
+{
+    double *q = realloc(*a, n * sizeof *q);
+    *a = q ? q : *a;
+    return !q;
+}
+
 /* The pair list's room for one more (G->cappair); nonzero when out of
  * memory. */
 static int pairs_room(group *G)
 {
     if (G->npair < G->cappair)
         return 0;
-    int cap = G->cappair ? 2 * G->cappair : 64;
-    int *a = realloc(G->pk, (size_t)cap * sizeof *a);
-    if (a)
-        G->pk = a;
-    int *b = realloc(G->pl, (size_t)cap * sizeof *b);
-    if (b)
-        G->pl = b;
-    double *t = realloc(G->tail, (size_t)cap * 9 * sizeof *t);
-    if (t)
-        G->tail = t;
-    double *u = realloc(G->pfull, (size_t)cap * 9 * sizeof *u);
-    if (u)
-        G->pfull = u;
-    double *v = realloc(G->pk2, (size_t)cap * sizeof *v);
-    if (v)
-        G->pk2 = v;
-    double *w = realloc(G->ppos, (size_t)cap * 4 * sizeof *w);
-    if (w)
-        G->ppos = w;
-    if (!a || !b || !t || !u || !v || !w)
+    size_t cap = G->cappair ? 2 * (size_t)G->cappair : 64;
+    int bad = grow_ints(&G->pk, cap) | grow_ints(&G->pl, cap) | grow_doubles(&G->tail, 9 * cap) |
+              grow_doubles(&G->pfull, 9 * cap) | grow_doubles(&G->pk2, cap) |
+              grow_doubles(&G->ppos, 4 * cap);
+    if (bad)
         return 1;
-    G->cappair = cap;
+    G->cappair = (int)cap;
     return 0;
 }
 
@@ -483,6 +484,15 @@ static int pair_stays_weak(const group *G, const double *p, int q)
            fabs(p[3 * l + 2] - x[3]) < LM_WEAK_MOVE;
 }
 
+/* List entry q's whole sums, as its exact pass made them, put into A
+ * (its stars' fluxes as they are now). */
+static void put_listed(group *G, const double *p, int q)
+{
+    double s[3][3];
+    memcpy(s, G->pfull + (size_t)q * 9, sizeof s);
+    put_pair(G, p, G->pk[q], G->pl[q], s);
+}
+
 /* List entry q moved to entry m (m ≤ q). */
 static void pair_move(group *G, int m, int q)
 {
@@ -508,11 +518,8 @@ static int pairs_kept_weak(group *G, const double *p, unsigned char *known)
         if (G->settled[k] || G->settled[l] || !pair_stays_weak(G, p, q))
             continue;
         pair_move(G, m, q);
-        double s[3][3];
-        memcpy(s, G->pfull + (size_t)m * 9, sizeof s);
-        put_pair(G, p, k, l, s);
+        put_listed(G, p, m++);
         known[(size_t)k * n + l] = 1;
-        m++;
     }
     return m;
 }
@@ -561,11 +568,8 @@ static void pairs_core(group *G, const double *p, const rstar *r)
  * renders, weights and fluxes unchanged since: NE_REUSE). */
 static void pairs_reuse(group *G, const double *p)
 {
-    for (int q = 0; q < G->npair; q++) {
-        double s[3][3];
-        memcpy(s, G->pfull + (size_t)q * 9, sizeof s);
-        put_pair(G, p, G->pk[q], G->pl[q], s);
-    }
+    for (int q = 0; q < G->npair; q++)
+        put_listed(G, p, q);
 }
 
 /* After the movers (G->moved) were redrawn (lm_refresh_movers): the
