@@ -95,6 +95,11 @@ typedef struct {
     double *a, *b, *c, *d;
     size_t ne;
     double *e;             /* the star's own table, when the model has a field */
+    int single;            /* separable renders in single precision
+                            * (fit/prf_axis.h mp_prf_axis_rows_single): for
+                            * light drawn once and held, never the LM's */
+    size_t nf;
+    float *f;              /* their A, A' and table rows */
     long nshift, nskip;    /* table renders: axes shifted, and of those skipped
                             * because the shift is on the grid (mp_shift_on_grid) */
     double ops;            /* multiply-adds of the exact table renders done

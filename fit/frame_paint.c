@@ -165,6 +165,7 @@ static int paint_frame(const mp_prf_model *m, const mp_star *const *s, size_t n,
         wk.grid = proto->grid;
         wk.grid_emax = proto->grid_emax;
         wk.grid_tiers = proto->grid_tiers;
+        wk.single = 1;          /* light painted and held (fit/prf_axis.h) */
         double *buf = NULL;
         size_t cap = 0;
 #pragma omp for schedule(dynamic)

@@ -25,7 +25,22 @@ void mp_prf_work_free(mp_prf_work *w)
     free(w->c);
     free(w->d);
     free(w->e);
+    free(w->f);
     memset(w, 0, sizeof *w);
+}
+
+/* w->f grown to n floats (kept, as work_reserve's); nonzero when out of
+ * memory. */
+static int single_reserve(mp_prf_work *w, size_t n)
+{
+    if (w->nf >= n)
+        return 0;
+    float *f = realloc(w->f, n * sizeof *f);
+    if (!f)
+        return 1;
+    w->f = f;
+    w->nf = n;
+    return 0;
 }
 
 static int work_reserve(mp_prf_work *w, size_t n)
@@ -246,17 +261,28 @@ static int render_sep(const mp_prf_model *m, double x, double y, double xr, doub
     if (j1 <= j0 || i1 <= i0)
         return 0;
     size_t na = (size_t)(j1 - j0) * ax->w;
-    if (work_reserve(w, na > (size_t)nx * p->ny ? na : (size_t)nx * p->ny))
+    if (work_reserve(w, na > (size_t)nx * p->ny ? na : (size_t)nx * p->ny) ||
+        (w->single && single_reserve(w, 2 * na + MP_PRF_AXIS_TF(nx))))
         return 1;
     const double *T = star_table(m, x, y, i0, i1, j0, j1, w);
     if (!T)
         return 1;
-    double *A = w->c, *Ad = w->d;
-    mp_prf_axis_rows(T, nx, j0, j1, ax, A, ddx ? Ad : NULL);
     w->ops += mp_prf_axis_ops(nx, p->ny, p->os, hw, deriv, (double)ax->w, (double)ay->w, 1);
     double scale = drf_weight(m->drf, p->os, 0, 0);
     long oy = ay->p0 - bx.y0, ox = ax->p0 - bx.x0;
     w->nskip += (ax->bw == p->os + 4) + (ay->bw == p->os + 4);   /* shifts on the grid */
+    if (w->single) {
+        float *A = w->f, *Ad = A + na;
+        mp_prf_axis_rows_single(T, nx, j0, j1, ax, A, ddx ? Ad : NULL, Ad + na);
+        mp_prf_axis_cols_single(ay, 0, A, j0, ax->w, scale, prf, oy, ox, bx.w);
+        if (ddx)
+            mp_prf_axis_cols_single(ay, 0, Ad, j0, ax->w, scale, ddx, oy, ox, bx.w);
+        if (ddy)
+            mp_prf_axis_cols_single(ay, 1, A, j0, ax->w, scale, ddy, oy, ox, bx.w);
+        return 0;
+    }
+    double *A = w->c, *Ad = w->d;
+    mp_prf_axis_rows(T, nx, j0, j1, ax, A, ddx ? Ad : NULL);
     mp_prf_axis_cols(ay, 0, A, j0, ax->w, scale, prf, oy, ox, bx.w);
     if (ddx)
         mp_prf_axis_cols(ay, 0, Ad, j0, ax->w, scale, ddx, oy, ox, bx.w);

@@ -38,6 +38,7 @@ void mp_prf_axis_free(mp_prf_axis *a)
     free(a->lo);
     free(a->len);
     free(a->v);
+    free(a->vf);
     memset(a, 0, sizeof *a);
 }
 
@@ -84,7 +85,17 @@ static int reserve(mp_prf_axis *a, int w, int bw, int deriv)
         a->v = v;
         a->capv = nv;
     }
+    a->bwf = (bw + MP_PRF_LANES - 1) / MP_PRF_LANES * MP_PRF_LANES;
+    size_t nf = 2 * nw * (size_t)a->bwf;
+    if (nf > a->capf) {
+        float *vf = realloc(a->vf, nf * sizeof *vf);
+        if (!vf)
+            return 1;
+        a->vf = vf;
+        a->capf = nf;
+    }
     a->d = deriv ? a->v + nw * (size_t)bw : NULL;
+    a->df = deriv ? a->vf + nw * (size_t)a->bwf : NULL;
     if (w <= 0) {           /* no pixel: the one row there is, zero */
         memset(a->v, 0, (size_t)bw * sizeof *a->v);
         if (a->d)
@@ -116,6 +127,24 @@ static void trim_zeros(mp_prf_axis *a)
         while (len > 0 && v[len - 1] == 0.0)
             len--;
         a->len[q] = len;
+    }
+}
+
+/* a's weights in single precision (vf, df), each pixel's run zero beyond
+ * its len to the row's end (mp_prf_axis_rows_single reads whole lanes). */
+static void single_weights(mp_prf_axis *a)
+{
+    for (int q = 0; q < a->w; q++) {
+        const double *v = a->v + (size_t)q * a->bw;
+        float *f = a->vf + (size_t)q * a->bwf;
+        for (int i = 0; i < a->bwf; i++)
+            f[i] = i < a->len[q] ? (float)v[i] : 0.0f;
+        if (!a->d)
+            continue;
+        v = a->d + (size_t)q * a->bw;
+        f = a->df + (size_t)q * a->bwf;
+        for (int i = 0; i < a->bwf; i++)
+            f[i] = i < a->len[q] ? (float)v[i] : 0.0f;
     }
 }
 
@@ -189,6 +218,7 @@ int mp_prf_axis_refill(int n, int os, double offset, double x, double xr, long w
     }
     if (!deriv)
         trim_zeros(a);
+    single_weights(a);
     a->last.n = n;
     a->last.os = os;
     a->last.hw = hw_given;
@@ -315,6 +345,122 @@ void mp_prf_axis_cols(const mp_prf_axis *ay, int deriv, const double *A, long ro
             for (int k = 0; k < ay->len[q]; k++)
                 s += w[k] * a0[(size_t)k * ax_w + i];
             o[i] = s * scale;
+        }
+    }
+}
+
+/* MP_PRF_LANES floats, as one vector (GNU C's vector extension, which gcc
+ * and clang share: the lanes' sums stay in their lanes, so the order of
+ * every addition is the code's, not the vectoriser's). */
+typedef float lanes __attribute__((vector_size(MP_PRF_LANES * sizeof(float))));
+
+static inline lanes lanes_at(const float *p)
+{
+    lanes x;
+    memcpy(&x, p, sizeof x);
+    return x;
+}
+
+/* A vector's lanes summed, in one order: (0 + 2) + (1 + 3). */
+static inline float lanes_sum(lanes x)
+{
+    return (x[0] + x[2]) + (x[1] + x[3]);
+}
+
+/* Σ t0[i]·v[i] and Σ t1[i]·v[i] over i < len rounded up to MP_PRF_LANES
+ * (v zero beyond len) into *a0, *a1, in lanes; two rows share the
+ * weights' loads and run two chains of additions at once. */
+static void rows_pair_single(const float *t0, const float *t1, const float *v, int len,
+                             float *a0, float *a1)
+{
+    lanes s0 = {0}, s1 = {0};
+    for (int i = 0; i < len; i += MP_PRF_LANES) {
+        lanes w = lanes_at(v + i);
+        s0 += lanes_at(t0 + i) * w;
+        s1 += lanes_at(t1 + i) * w;
+    }
+    *a0 = lanes_sum(s0);
+    *a1 = lanes_sum(s1);
+}
+
+/* Σ t[i]·v[i] and Σ t[i]·d[i] (as rows_pair_single) into *a, *ad. */
+static void row_deriv(const float *t, const float *v, const float *d, int len, float *a, float *ad)
+{
+    lanes sv = {0}, sd = {0};
+    for (int i = 0; i < len; i += MP_PRF_LANES) {
+        lanes x = lanes_at(t + i);
+        sv += x * lanes_at(v + i);
+        sd += x * lanes_at(d + i);
+    }
+    *a = lanes_sum(sv);
+    *ad = lanes_sum(sd);
+}
+
+/* Table row r's elements [c0, c1) into tf at the same places, zero from c1
+ * for a lane's room (the padded runs read up to MP_PRF_LANES − 1 past it). */
+static void row_single(const double *r, long c0, long c1, float *tf)
+{
+    for (long i = c0; i < c1; i++)
+        tf[i] = (float)r[i];
+    for (int k = 0; k < MP_PRF_LANES; k++)
+        tf[c1 + k] = 0.0f;
+}
+
+void mp_prf_axis_rows_single(const double *T, int nx, long j0, long j1, const mp_prf_axis *ax,
+                             float *A, float *Ad, float *tf)
+{
+    if (ax->w <= 0)
+        return;
+    long c0 = ax->lo[0], c1 = ax->lo[ax->w - 1] + ax->len[ax->w - 1];
+    if (!Ad) {
+        float *t1 = tf + MP_PRF_AXIS_TF(nx) / 2;
+        for (long j = j0; j < j1; j += 2) {
+            long j2 = j + 1 < j1 ? j + 1 : j;    /* an odd last row: twice */
+            row_single(T + (size_t)j * nx, c0, c1, tf);
+            row_single(T + (size_t)j2 * nx, c0, c1, t1);
+            float *a = A + (size_t)(j - j0) * ax->w, *b = A + (size_t)(j2 - j0) * ax->w;
+            for (int q = 0; q < ax->w; q++)
+                rows_pair_single(tf + ax->lo[q], t1 + ax->lo[q], ax->vf + (size_t)q * ax->bwf,
+                                 ax->len[q], &a[q], &b[q]);
+        }
+        return;
+    }
+    for (long j = j0; j < j1; j++) {
+        row_single(T + (size_t)j * nx, c0, c1, tf);
+        float *a = A + (size_t)(j - j0) * ax->w, *ad = Ad + (size_t)(j - j0) * ax->w;
+        for (int q = 0; q < ax->w; q++)
+            row_deriv(tf + ax->lo[q], ax->vf + (size_t)q * ax->bwf, ax->df + (size_t)q * ax->bwf,
+                      ax->len[q], &a[q], &ad[q]);
+    }
+}
+
+void mp_prf_axis_cols_single(const mp_prf_axis *ay, int deriv, const float *A, long row0,
+                             int ax_w, double scale, double *out, long oy, long ox, long ostride)
+{
+    const float *W = deriv ? ay->df : ay->vf;
+    for (int q = 0; q < ay->w; q++) {
+        double *o = out + (size_t)(oy + q) * ostride + ox;
+        const float *w = W + (size_t)q * ay->bwf;
+        const float *a0 = A + (size_t)(ay->lo[q] - row0) * ax_w;
+        /* eight outputs at a time summed in registers, each over k in
+         * order (the sums were read and written back at every k) */
+        int i = 0;
+        for (; i + 8 <= ax_w; i += 8) {
+            float s[8] = {0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f};
+            for (int k = 0; k < ay->len[q]; k++) {
+                const float *a = a0 + (size_t)k * ax_w + i;
+                float c = w[k];
+                for (int u = 0; u < 8; u++)
+                    s[u] += c * a[u];
+            }
+            for (int u = 0; u < 8; u++)
+                o[i + u] = (double)s[u] * scale;
+        }
+        for (; i < ax_w; i++) {
+            float s = 0.0f;
+            for (int k = 0; k < ay->len[q]; k++)
+                s += w[k] * a0[(size_t)k * ax_w + i];
+            o[i] = (double)s * scale;
         }
     }
 }

@@ -553,9 +553,22 @@ static void product(const mp_prf_cache *c, const mp_prf_axis *ax, const mp_prf_a
                      ax->p0 - REF - c->ux0, c->uw);
 }
 
+/* The same from mp_prf_axis_rows_single's A, in single precision: the
+ * nodes are held as floats, and a node's rounding is fixed, so the PRF
+ * interpolated between nodes stays smooth in the star's phase (what the
+ * LM needs of it: fit/prf_axis.h). */
+static void product_single(const mp_prf_cache *c, const mp_prf_axis *ax, const mp_prf_axis *ay,
+                           int yderiv, const float *A, double scale, double *img)
+{
+    memset(img, 0, c->npix * sizeof *img);
+    mp_prf_axis_cols_single(ay, yderiv, A, 0, ax->w, scale, img, ay->p0 - REF - c->uy0,
+                            ax->p0 - REF - c->ux0, c->uw);
+}
+
 /* Every node: per x node A = T·Xᵀ and T·X'ᵀ, then per y node the PRF
  * Y·A, ∂/∂x Y·(T·X'ᵀ) and ∂/∂y Y'·A.  The x nodes in parallel (their
- * planes are disjoint), each thread with its own npix + 2·ny·uw: built
+ * planes are disjoint), each thread with its own npix doubles and 2·ny·uw
+ * floats (and a row's: mp_prf_axis_rows_single, in single precision): built
  * serially, the grids were a quarter of the frame fit's serial time
  * (issue 14, bench/SCALING.md). */
 static int nodes_sep(const mp_prf_model *m, mp_prf_cache *c)
@@ -571,20 +584,23 @@ static int nodes_sep(const mp_prf_model *m, mp_prf_cache *c)
 #pragma omp parallel if (!rc) reduction(| : rc)
     {
         mp_prf_axis ax = {0};
-        double *buf = malloc((np + 2 * nA) * sizeof *buf), *A = buf + np, *Ad = A + nA;
-        rc |= !buf;
+        double *buf = malloc(np * sizeof *buf);
+        float *A = malloc((2 * nA + MP_PRF_AXIS_TF(m->psf->nx)) * sizeof *A);
+        float *Ad = A ? A + nA : NULL;
+        int bad = !buf || !A;
+        rc |= bad;
 #pragma omp for schedule(dynamic)
         for (int X = 0; X < NA; X++) {
-            if (!buf || axis_op(m, c, 0, ref_coord(c, X / na, (X % na - 1.0) / c->gb),
-                                ref_coord(c, X / na, 0.5), &ax)) {
+            if (bad || axis_op(m, c, 0, ref_coord(c, X / na, (X % na - 1.0) / c->gb),
+                               ref_coord(c, X / na, 0.5), &ax)) {
                 rc = 1;
                 continue;
             }
-            mp_prf_axis_rows(m->psf->t, m->psf->nx, 0, m->psf->ny, &ax, A, Ad);
+            mp_prf_axis_rows_single(m->psf->t, m->psf->nx, 0, m->psf->ny, &ax, A, Ad, Ad + nA);
             for (int Y = 0; Y < NA; Y++) {
                 float *pl = c->img + 3 * ((size_t)Y * NA + (size_t)X) * np;
                 for (int k = 0; k < 3; k++) {
-                    product(c, &ax, &ay[Y], k == 2, k == 1 ? Ad : A, scale, buf);
+                    product_single(c, &ax, &ay[Y], k == 2, k == 1 ? Ad : A, scale, buf);
                     for (size_t i = 0; i < np; i++)
                         pl[k * np + i] = (float)buf[i];
                 }
@@ -593,6 +609,7 @@ static int nodes_sep(const mp_prf_model *m, mp_prf_cache *c)
         }
         mp_prf_axis_free(&ax);
         free(buf);
+        free(A);
     }
     for (int Y = 0; ay && Y < NA; Y++)
         mp_prf_axis_free(&ay[Y]);
@@ -600,9 +617,11 @@ static int nodes_sep(const mp_prf_model *m, mp_prf_cache *c)
     return rc;
 }
 
-/* The cells' exact renders (natural alignment) the same way, then the
- * error as measure() takes it; the x cells in parallel, each thread with
- * its own 2·npix + ny·uw. */
+/* The cells' exact renders (natural alignment) the same way, in double
+ * (they measure the grid's error: its float nodes' rounding, mp_prf_axis_
+ * rows_single's, is part of what they see), then the error as measure()
+ * takes it; the x cells in parallel, each thread with its own 2·npix +
+ * ny·uw. */
 static int measure_sep(const mp_prf_model *m, mp_prf_cache *c)
 {
     int ng = c->os * c->gb, rc = 0;

@@ -194,6 +194,7 @@ int mp_epsf_cutout_add(mp_epsf_star *s, const mp_prf_model *m, double x, double 
     double *prf = malloc((size_t)bw * bh * sizeof *prf);
     mp_prf_work w;
     memset(&w, 0, sizeof w);
+    w.single = 1;               /* light taken off and held (fit/prf_axis.h) */
     if (!prf || mp_prf_render(&lm, xs, ys, prf, NULL, NULL, &w)) {
         free(prf);
         mp_prf_work_free(&w);
@@ -302,6 +303,7 @@ int mp_epsf_clean(mp_epsf_star *s, const mp_psf *tab, const mp_prf_cache *grid, 
     mp_prf_model m = {tab, NULL, 10};
     mp_prf_work w;
     memset(&w, 0, sizeof w);
+    w.single = 1;               /* light taken off and held (fit/prf_axis.h) */
     double *prf = NULL, *buf = malloc(2 * np * sizeof *buf);
     size_t nprf = 0;
     int rc = !buf;

@@ -224,6 +224,7 @@ int mp_epsf_growth(const mp_frame *f, const float *img, const mp_table *fitted,
     double *u = malloc((size_t)MP_EPSF_NGROWTH * w * w * sizeof *u);
     mp_prf_work wk;
     memset(&wk, 0, sizeof wk);
+    wk.single = 1;              /* light taken off and held (fit/prf_axis.h) */
     mp_psf tab;
     memset(&tab, 0, sizeof tab);
     int rc = 1;

@@ -85,6 +85,7 @@ int mp_epsf_sirt_update_sums(mp_epsf_sirt *w, const mp_epsf_star *s, size_t n,
     {
         scratch c;
         memset(&c, 0, sizeof c);
+        c.pw.single = 1;        /* χ² to 1 is all a step needs (fit/prf_axis.h) */
 #pragma omp for schedule(dynamic)
         for (size_t k = 0; k < n; k++)
             if (!failed && s[k].used)

@@ -296,11 +296,13 @@ static void test_grid_only_for_its_model(void **state)
 /* The separable build (fit/prf_axis.c: the render as Y·T·Xᵀ) against the
  * render of every node and cell by fit/prf.c, on a lopsided table (a
  * Gaussian plus an off-centre one, so that no symmetry hides a sign), ×3
- * and ×2, with and without a uniform DRF: the two differ only in the order
- * of the sums (double, ~1e-15 of the peak), so each float node is the same
- * or one rounding apart, |Δ| ≤ FLT_EPSILON·peak; the measured δP, read
- * through 16 Lagrange weights (Σ|L| ≤ 1.6 a plane), within 4·FLT_EPSILON·
- * peak; and the flux limit at 0.1 σ within 1 %. */
+ * and ×2, with and without a uniform DRF.  The build's nodes are summed in
+ * single precision (mp_prf_axis_rows_single), the exact ones in double:
+ * each node within single_bound of the other (and one rounding of its
+ * float, FLT_EPSILON·peak); the cells' P, rendered in double by both, the
+ * same or one rounding apart; the measured δP, read through 16 Lagrange
+ * weights (Σ|L| ≤ 1.6 an axis), within 2.56 nodes' bounds and
+ * 4·FLT_EPSILON·peak; and the flux limit at 0.1 σ within 1 %. */
 static void lopsided(int os, mp_psf *p)
 {
     char err[MP_ERRLEN];
@@ -311,6 +313,28 @@ static void lopsided(int os, mp_psf *p)
             double dx = (i - c - 1.3 * os) / os, dy = (j - c + 0.7 * os) / os;
             p->t[(size_t)j * p->nx + i] += 0.2 * exp(-0.5 * (dx * dx + dy * dy) / 1.1) / os / os;
         }
+}
+
+/* The largest error of a render in single precision (fit/prf_axis.h:
+ * (l_x + l_y + 4)·2⁻²⁴ of |Y|·|T|·|X|ᵀ, l ≤ os + 2hw + 4 a run) on table
+ * p, half-width hw: |T| ≤ max|T|, and a pixel's weights sum in |·| to at
+ * most os·S (os elements, each S = the most Σ|damped sinc| over the 2hw +
+ * 1 taps takes at any shift), or 1.5·os²·S for the five-point derivative's
+ * (|−1, 8, −8, 1|·os/12 of four shifted rows); deriv: a derivative plane. */
+static double single_bound(const mp_psf *p, int hw, int deriv)
+{
+    double S = 0.0, tmax = 0.0;
+    for (int i = 0; i <= 100; i++) {
+        double a = 0.0;
+        for (int k = -hw; k <= hw; k++)
+            a += fabs(mp_damped_sinc(k - i / 100.0));
+        S = fmax(S, a);
+    }
+    for (size_t i = 0; i < (size_t)p->nx * p->ny; i++)
+        tmax = fmax(tmax, fabs(p->t[i]));
+    double l = p->os + 2.0 * hw + 4.0, gamma = (2.0 * l + 4.0) * ldexp(1.0, -24);
+    double wx = p->os * S, wd = 1.5 * p->os * p->os * S;
+    return gamma * tmax * wx * (deriv ? wd : wx);
 }
 
 static double peak_of(const float *v, size_t n)
@@ -337,17 +361,23 @@ static void test_separable_build_is_exact(void **state)
         assert_true(a.G == b.G && a.npix == b.npix && a.nph == b.nph && a.G > 0);
         int NA = a.os * (a.gb + 3);
         size_t ni = 3 * (size_t)NA * NA * a.npix, nc = (size_t)a.nph * a.npix;
-        double peak = peak_of(b.img, ni), dimg = 0.0, dp = 0.0, dd = 0.0;
-        for (size_t i = 0; i < ni; i++)
-            dimg = fmax(dimg, fabs((double)a.img[i] - b.img[i]));
+        double peak = peak_of(b.img, ni), dimg[2] = {0.0, 0.0}, dp = 0.0, dd = 0.0;
+        for (size_t i = 0; i < ni; i++) {
+            int deriv = (i / a.npix) % 3 != 0;       /* a node's planes: P, ∂x, ∂y */
+            dimg[deriv] = fmax(dimg[deriv], fabs((double)a.img[i] - b.img[i]));
+        }
         for (size_t i = 0; i < nc; i++) {
             dp = fmax(dp, fabs((double)a.p[i] - b.p[i]));
             dd = fmax(dd, fabs(sqrt((double)a.d2[i]) - sqrt((double)b.d2[i])));
         }
+        double scale = t == 2 ? d.volume : 1.0, e0 = scale * single_bound(&p, 10, 0);
         assert_true(peak > 0);
-        assert_true(dimg <= FLT_EPSILON * peak);
+        assert_true(dimg[0] <= e0 + FLT_EPSILON * peak);
+        assert_true(dimg[1] <= scale * single_bound(&p, 10, 1) + FLT_EPSILON * peak);
         assert_true(dp <= FLT_EPSILON * peak);
-        assert_true(dd <= 4.0 * FLT_EPSILON * peak);
+        assert_true(dd <= 2.56 * e0 + 4.0 * FLT_EPSILON * peak);
+        print_message("separable build, table %d: nodes %.2g (bound %.2g) of the peak\n", t,
+                      dimg[0] / peak, e0 / peak);
         double ea = mp_prf_cache_limit(&a, 100.0, 3.0, 0.1), eb = mp_prf_cache_limit(&b, 100.0, 3.0, 0.1);
         assert_true(eb > 0 && fabs(ea / eb - 1.0) <= 0.01);
         mp_prf_cache_free(&a);
@@ -416,7 +446,10 @@ static void test_rebuild_in_spare_blocks(void **state)
  * table at ×2, ×3, ×4, constant and as an order-1 field, whole and through
  * a window cut at the star, with and without the derivatives: the values
  * agree to 1e-12 of the peak (the order of the sums), and the axis path
- * was taken (its counted work is less). */
+ * was taken (its counted work is less).  In single precision
+ * (mp_prf_work.single) the axis path's values are within single_bound of
+ * them, derivatives too (the constant tables: a field's local table is
+ * not p's). */
 static void test_render_paths_agree(void **state)
 {
     (void)state;
@@ -442,7 +475,9 @@ static void test_render_paths_agree(void **state)
         double *a = malloc(3 * cap * sizeof *a), *b = malloc(3 * cap * sizeof *b);
         assert_non_null(a);
         assert_non_null(b);
-        double worst = 0.0, peak = 0.0;
+        double *c = malloc(3 * cap * sizeof *c);
+        assert_non_null(c);
+        double worst = 0.0, peak = 0.0, wsingle[2] = {0.0, 0.0};
         int nsep = 0;
         for (int k = 0; k < 24; k++) {
             double x = 50.0 + 0.137 * k, y = 40.0 + 0.291 * k;
@@ -463,9 +498,15 @@ static void test_render_paths_agree(void **state)
                       mp_prf_axis_ops(p.nx, p.ny, p.os, 10, deriv, w0, h0, 0);
             assert_true(sep ? ws.ops < wd.ops : ws.ops == wd.ops);
             nsep += sep;
+            mp_prf_work wf = {.single = 1};
+            assert_int_equal(mp_prf_render_window(&ms, x, y, wx0, wy0, ww, ww, &x1, &y1, &w1, &h1,
+                                                  c, deriv ? c + cap : NULL,
+                                                  deriv ? c + 2 * cap : NULL, &wf), 0);
+            mp_prf_work_free(&wf);
             for (int pl = 0; pl < (deriv ? 3 : 1); pl++)
                 for (size_t i = 0; i < (size_t)w0 * h0; i++) {
                     worst = fmax(worst, fabs(a[pl * cap + i] - b[pl * cap + i]));
+                    wsingle[pl > 0] = fmax(wsingle[pl > 0], fabs(c[pl * cap + i] - b[pl * cap + i]));
                     peak = fmax(peak, fabs(b[i]));
                 }
             mp_prf_work_free(&ws);
@@ -474,8 +515,14 @@ static void test_render_paths_agree(void **state)
         assert_true(peak > 0.01);
         assert_true(worst <= 1e-12 * peak);
         assert_true(nsep >= 6);
+        if (t < 3) {
+            assert_true(wsingle[0] <= single_bound(&p, 10, 0) + 1e-12 * peak);
+            assert_true(wsingle[1] <= single_bound(&p, 10, 1) + 1e-12 * peak);
+            assert_true(wsingle[0] > 0.0);          /* the single path ran */
+        }
         free(a);
         free(b);
+        free(c);
         if (t == 3)
             mp_psf_field_free(&f);
         mp_psf_free(&p);
