@@ -445,16 +445,18 @@ void mp_prf_axis_cols_single(const mp_prf_axis *ay, int deriv, const float *A, l
         /* eight outputs at a time summed in registers, each over k in
          * order (the sums were read and written back at every k) */
         int i = 0;
-        for (; i + 8 <= ax_w; i += 8) {
-            float s[8] = {0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f};
+        for (; i + 2 * MP_PRF_LANES <= ax_w; i += 2 * MP_PRF_LANES) {
+            lanes s0 = {0}, s1 = {0};
             for (int k = 0; k < ay->len[q]; k++) {
                 const float *a = a0 + (size_t)k * ax_w + i;
                 float c = w[k];
-                for (int u = 0; u < 8; u++)
-                    s[u] += c * a[u];
+                s0 += c * lanes_at(a);
+                s1 += c * lanes_at(a + MP_PRF_LANES);
             }
-            for (int u = 0; u < 8; u++)
-                o[i + u] = (double)s[u] * scale;
+            for (int u = 0; u < MP_PRF_LANES; u++) {
+                o[i + u] = (double)s0[u] * scale;
+                o[i + MP_PRF_LANES + u] = (double)s1[u] * scale;
+            }
         }
         for (; i < ax_w; i++) {
             float s = 0.0f;

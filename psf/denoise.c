@@ -6,6 +6,7 @@
  * beyond the PSF's band is never kept.  It is stored per cycles/pixel so
  * that a table of another sampling takes the same filter. */
 #include <complex.h>
+#include <fftw3.h>      /* after complex.h: fftw_complex is double complex */
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -13,59 +14,24 @@
 #include "psf/build_priv.h"
 
 /* In-place 2-D DFT of a (ny × nx, row-major), sign −1 forward, +1 back
- * (unnormalised): separable 1-D DFTs, O(n³) — tables are ≤ ~200 wide.
- * The rows (then the columns) in parallel, each into its own buffer: 1 %
- * of 47 Tuc built ran here on one thread (bench/SCALING.md); every value
- * is summed in the same order on any threads. */
+ * (unnormalised), by FFTW: O(n² log n) where the separable sums were
+ * O(n³), 5 % of frame S's run with its PSF built (its ×4 table 241
+ * elements a side, a prime).  FFTW's planner is not thread-safe, so plans
+ * are made and destroyed one at a time; FFTW_ESTIMATE times nothing and
+ * a is from fftw_malloc (aligned as the plan assumes), so a plan and its
+ * sums are the same on every run and thread.  Nonzero when FFTW cannot
+ * plan it (out of memory). */
 static int dft2(double complex *a, int nx, int ny, int sign)
 {
-    int n = nx > ny ? nx : ny, failed = 0;
-    double complex *tw = malloc((size_t)n * sizeof *tw);
-    if (!tw)
+    fftw_plan p;
+#pragma omp critical(mp_fftw_planner)
+    p = fftw_plan_dft_2d(ny, nx, a, a, sign < 0 ? FFTW_FORWARD : FFTW_BACKWARD, FFTW_ESTIMATE);
+    if (!p)
         return 1;
-    for (int pass = 0; pass < 2 && !failed; pass++) {
-        int len = pass ? ny : nx, cnt = pass ? nx : ny;
-        for (int k = 0; k < len; k++)
-            tw[k] = cexp(sign * 2.0 * M_PI * I * k / len);
-#pragma omp parallel reduction(| : failed)
-        {
-            double complex *row = malloc((size_t)n * sizeof *row);
-            failed = !row;
-#pragma omp for schedule(static)
-            for (int c = 0; c < cnt; c++) {
-                if (!row)
-                    continue;
-                for (int k = 0; k < len; k++) {
-                    double sr = 0.0, si = 0.0;
-                    /* the twiddle's index j·k mod len, stepped by k (no
-                     * division a term: it was most of the transform);
-                     * each product as C's complex one forms it for finite
-                     * values (re = ac − bd, im = ad + bc), without its
-                     * test for an infinite part a term */
-                    for (int j = 0, t = 0; j < len; j++) {
-                        double complex v = pass ? a[(size_t)j * nx + c] : a[(size_t)c * nx + j];
-                        double vr = creal(v), vi = cimag(v), tr = creal(tw[t]), ti = cimag(tw[t]);
-                        sr += vr * tr - vi * ti;
-                        si += vr * ti + vi * tr;
-                        t += k;
-                        t -= t >= len ? len : 0;
-                    }
-                    double *rk = (double *)&row[k];  /* C11 6.2.5: re, im */
-                    rk[0] = sr;
-                    rk[1] = si;
-                }
-                for (int k = 0; k < len; k++) {
-                    if (pass)
-                        a[(size_t)k * nx + c] = row[k];
-                    else
-                        a[(size_t)c * nx + k] = row[k];
-                }
-            }
-            free(row);
-        }
-    }
-    free(tw);
-    return failed;
+    fftw_execute(p);
+#pragma omp critical(mp_fftw_planner)
+    fftw_destroy_plan(p);
+    return 0;
 }
 
 /* Frequency of DFT index k of n, cycles per element. */
@@ -78,7 +44,7 @@ int mp_epsf_wiener_measure(const mp_epsf *e, const mp_epsf *noise, double *w, in
 {
     int nx = e->nx, ny = e->ny;
     size_t nel = (size_t)nx * ny;
-    double complex *T = malloc(nel * sizeof *T), *N = malloc(nel * sizeof *N);
+    double complex *T = fftw_malloc(nel * sizeof *T), *N = fftw_malloc(nel * sizeof *N);
     double *pt = calloc((size_t)nbin, sizeof *pt), *pn = calloc((size_t)nbin, sizeof *pn);
     long *cnt = calloc((size_t)nbin, sizeof *cnt);
     int rc = 1;
@@ -114,8 +80,8 @@ int mp_epsf_wiener_measure(const mp_epsf *e, const mp_epsf *noise, double *w, in
     }
     rc = 0;
 done:
-    free(T);
-    free(N);
+    fftw_free(T);
+    fftw_free(N);
     free(pt);
     free(pn);
     free(cnt);
@@ -126,7 +92,7 @@ int mp_epsf_wiener_apply(mp_epsf *e, const double *w, int nbin)
 {
     int nx = e->nx, ny = e->ny;
     size_t nel = (size_t)nx * ny;
-    double complex *T = malloc(nel * sizeof *T);
+    double complex *T = fftw_malloc(nel * sizeof *T);
     if (!T)
         return 1;
     for (int t = 0; t < e->nterms; t++) {
@@ -134,7 +100,7 @@ int mp_epsf_wiener_apply(mp_epsf *e, const double *w, int nbin)
         for (size_t i = 0; i < nel; i++)
             T[i] = p[i];
         if (dft2(T, nx, ny, -1)) {
-            free(T);
+            fftw_free(T);
             return 1;
         }
         for (int j = 0; j < ny; j++)
@@ -155,12 +121,12 @@ int mp_epsf_wiener_apply(mp_epsf *e, const double *w, int nbin)
                 T[(size_t)j * nx + i] *= wv;
             }
         if (dft2(T, nx, ny, +1)) {
-            free(T);
+            fftw_free(T);
             return 1;
         }
         for (size_t i = 0; i < nel; i++)
             p[i] = creal(T[i]) / (double)nel;
     }
-    free(T);
+    fftw_free(T);
     return 0;
 }
