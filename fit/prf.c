@@ -689,6 +689,18 @@ static double *gauss_envelope(const mp_prf_model *m, int *nr)
     return env;
 }
 
+/* The field's point q of 3 × 3: its origin and the points ±POLSCAL/2
+ * from it, on a pixel's centre. */
+static double place_x(const mp_psf_field *fd, int q)
+{
+    return floor(fd->x0 + (q % 3 - 1) * 0.5 * fd->xscale);
+}
+
+static double place_y(const mp_psf_field *fd, int q)
+{
+    return floor(fd->y0 + (q / 3 - 1) * 0.5 * fd->yscale);
+}
+
 /* The largest |PRF| per whole-pixel distance bin (nb bins, the last
  * holding all beyond) over 5×5 subpixel phases (steps of ¼ px) at one
  * point, or, for a variable PSF, at its origin and the eight points
@@ -700,9 +712,25 @@ static int phase_maxima(const mp_prf_model *m, size_t cap, double *bin, int nb)
 {
     const mp_psf_field *fd = m->psf->field;
     int npt = fd && fd->order > 0 ? 9 : 1, bad = 0;
+    /* A variable PSF evaluated once a point and that table shifted to its
+     * 25 phases (a field per render was a quarter of the DECam cutout's
+     * run): within half a pixel its table moves by 0.5 px/POLSCAL of its
+     * change across the field (~1e-3 or less), far inside the envelope's
+     * factor 2. */
+    mp_psf tab[9] = {0};
+    mp_prf_model mq[9];
+    for (int q = 0; q < npt; q++) {
+        char err[MP_ERRLEN];
+        mq[q] = *m;
+        if (npt > 1 && !bad) {
+            bad = mp_psf_field_eval(fd, place_x(fd, q), place_y(fd, q), &tab[q], err);
+            mq[q].psf = &tab[q];
+        }
+    }
     /* The phases in parallel, each thread's largest merged after: a
      * maximum is the same in any order (the renders were 0.6 % of 47 Tuc
      * built, serial, bench/SCALING.md). */
+    if (!bad)
 #pragma omp parallel reduction(| : bad)
     {
         mp_prf_work w = {0};
@@ -712,13 +740,13 @@ static int phase_maxima(const mp_prf_model *m, size_t cap, double *bin, int nb)
         for (int pt = 0; pt < npt * 25; pt++) {
             int sx = pt % 5, sy = pt / 5 % 5, q = pt / 25, bw, bh;
             long x0, y0;
-            double cx = npt > 1 ? floor(fd->x0 + (q % 3 - 1) * 0.5 * fd->xscale) : 100.0;
-            double cy = npt > 1 ? floor(fd->y0 + (q / 3 - 1) * 0.5 * fd->yscale) : 100.0;
+            double cx = npt > 1 ? place_x(fd, q) : 100.0;
+            double cy = npt > 1 ? place_y(fd, q) : 100.0;
             double x = cx - 0.5 + 0.25 * sx, y = cy - 0.5 + 0.25 * sy;
             if (bad)
                 continue;
-            mp_prf_box(m, x, y, &x0, &y0, &bw, &bh);
-            if ((size_t)bw * bh > cap || mp_prf_render(m, x, y, prf, NULL, NULL, &w)) {
+            mp_prf_box(&mq[q], x, y, &x0, &y0, &bw, &bh);
+            if ((size_t)bw * bh > cap || mp_prf_render(&mq[q], x, y, prf, NULL, NULL, &w)) {
                 bad = 1;
                 continue;
             }
@@ -737,6 +765,8 @@ static int phase_maxima(const mp_prf_model *m, size_t cap, double *bin, int nb)
         free(mine);
         mp_prf_work_free(&w);
     }
+    for (int q = 0; q < npt; q++)
+        mp_psf_free(&tab[q]);
     return bad;
 }
 

@@ -58,43 +58,103 @@ static double render_ratio(const double *prf, int w, int h, double s)
  * edge and its corner, where a symmetric PSF's ratio is least). */
 #define CR_NPH 5
 
-/* The ratio (s < 0) or the excess (s >= 0) of render_ratio for a star at
- * place q (of 3 × 3 over the nx × ny frame) and phase (a, b), into *out. */
-static int ratio_at(const mp_prf_model *m, long nx, long ny, int q, int a, int b, double s,
-                    double **prf, mp_prf_work *wk, double *out)
+/* The place q of 3 × 3 over the nx × ny frame, at phase (a, b): a star's
+ * position. */
+static void place_at(long nx, long ny, int q, int a, int b, double *x, double *y)
 {
-    double x = (double)(1 + (q % 3) * (nx - 1) / 2) + (double)a / (CR_NPH - 1) - 0.5;
-    double y = (double)(1 + (q / 3) * (ny - 1) / 2) + (double)b / (CR_NPH - 1) - 0.5;
+    *x = (double)(1 + (q % 3) * (nx - 1) / 2) + (double)a / (CR_NPH - 1) - 0.5;
+    *y = (double)(1 + (q / 3) * (ny - 1) / 2) + (double)b / (CR_NPH - 1) - 0.5;
+}
+
+/* The renders of mp_pl_cr_bound, kept from its first sweep for its second
+ * when they fit in CR_KEEP_BYTES (else rendered again: the same values).
+ * A variable PSF is evaluated once a place, at its phase (0, 0), and that
+ * table shifted to the 25 phases: within half a pixel its table moves by
+ * 0.5 px/POLSCAL of its change across the field (~1e-3 or less), far
+ * below the slack the bound's step term adds.  (Rendered twice, a field
+ * evaluated per render, the bound was a fifth of the DECam cutout's run.) */
+#define CR_KEEP_BYTES ((size_t)64 << 20)
+typedef struct {
+    const mp_prf_model *m;
+    long nx, ny;
+    int q0, nq;
+    mp_psf tab;                 /* a variable PSF's table at the place */
+    mp_prf_model mq;            /* m, or m with tab at the place */
+    int tabq;                   /* the place tab holds, −1 none */
+    double **keep;              /* nq · CR_NPH² renders, or NULL */
+    double *prf;                /* a render not kept */
+    mp_prf_work wk;
+} cr_sweep;
+
+/* The model for place q: m, or m's field evaluated at the place. */
+static const mp_prf_model *model_at(cr_sweep *c, int q)
+{
+    if (!c->m->psf || !c->m->psf->field)
+        return c->m;
+    if (c->tabq != q) {
+        double x, y;
+        char err[MP_ERRLEN];
+        mp_psf_free(&c->tab);
+        c->tabq = -1;
+        place_at(c->nx, c->ny, q, CR_NPH / 2, CR_NPH / 2, &x, &y);
+        if (mp_psf_field_eval(c->m->psf->field, x, y, &c->tab, err))
+            return NULL;
+        c->mq = *c->m;
+        c->mq.psf = &c->tab;
+        c->tabq = q;
+    }
+    return &c->mq;
+}
+
+/* The ratio (s < 0) or the excess (s >= 0) of render_ratio for a star at
+ * place q and phase (a, b), into *out. */
+static int ratio_at(cr_sweep *c, int q, int a, int b, double s, double *out)
+{
+    double x, y;
     long bx, by;
     int w, h;
+    const mp_prf_model *m = model_at(c, q);
+    if (!m)
+        return 1;
+    place_at(c->nx, c->ny, q, a, b, &x, &y);
     mp_prf_box(m, x, y, &bx, &by, &w, &h);
-    double *p = realloc(*prf, (size_t)(w > 0 ? w : 1) * (size_t)(h > 0 ? h : 1) * sizeof *p);
-    if (!p)
-        return 1;
-    *prf = p;
-    if (mp_prf_render(m, x, y, p, NULL, NULL, wk))
-        return 1;
-    *out = render_ratio(p, w, h, s);
+    size_t n = (size_t)(w > 0 ? w : 1) * (size_t)(h > 0 ? h : 1);
+    double **slot = c->keep ? &c->keep[((q - c->q0) * CR_NPH + b) * CR_NPH + a] : &c->prf;
+    if (!*slot || !c->keep) {
+        double *p = realloc(*slot, n * sizeof *p);
+        if (!p)
+            return 1;
+        *slot = p;
+        if (mp_prf_render(m, x, y, p, NULL, NULL, &c->wk))
+            return 1;
+    }
+    *out = render_ratio(*slot, w, h, s);
     return 0;
 }
 
 int mp_pl_cr_bound(const mp_prf_model *m, long nx, long ny, double *s, double *D, char *err)
 {
-    double *prf = NULL, r[CR_NPH][CR_NPH];
-    mp_prf_work wk = {0};
-    int rc = 0;
+    double r[CR_NPH][CR_NPH];
+    /* at the 3 × 3 places only when the PSF varies (else the centre's,
+     * place 4, is every place's) */
+    int q0 = m->psf && m->psf->field ? 0 : 4, q1 = q0 ? 5 : 9, rc = 0;
+    cr_sweep c = {.m = m, .nx = nx, .ny = ny, .q0 = q0, .nq = q1 - q0, .tabq = -1};
+    long bx, by;
+    int w, h;
+    mp_prf_box(m, 0.5 * (double)nx, 0.5 * (double)ny, &bx, &by, &w, &h);
+    size_t nk = (size_t)c.nq * CR_NPH * CR_NPH;
+    if ((size_t)(w + 1) * (size_t)(h + 1) * sizeof(double) * nk <= CR_KEEP_BYTES)
+        c.keep = calloc(nk, sizeof *c.keep);
     *s = 4.0;
     *D = 0.0;
     /* the least ratio over the phase grid, less half its largest step
      * between neighbouring phases: the ratio between grid phases can dip
-     * below the nodes by about that much; at the 3 × 3 places only when
-     * the PSF varies (else the centre's, place 4, is every place's) */
-    int q0 = m->psf && m->psf->field ? 0 : 4, q1 = q0 ? 5 : 9;
+     * below the nodes by about that much */
     for (int q = q0; q < q1 && !rc; q++) {
         double lo = 4.0, step = 0.0;
         for (int b = 0; b < CR_NPH && !rc; b++)
             for (int a = 0; a < CR_NPH && !rc; a++) {
-                if ((rc = ratio_at(m, nx, ny, q, a, b, -1.0, &prf, &wk, &r[b][a])))
+                if ((rc = ratio_at(&c, q, a, b, -1.0, &r[b][a])))
                     break;
                 lo = fmin(lo, r[b][a]);
                 if (a > 0)
@@ -109,11 +169,15 @@ int mp_pl_cr_bound(const mp_prf_model *m, long nx, long ny, double *s, double *D
         for (int b = 0; b < CR_NPH && !rc; b++)
             for (int a = 0; a < CR_NPH && !rc; a++) {
                 double e = 0.0;
-                rc = ratio_at(m, nx, ny, q, a, b, *s, &prf, &wk, &e);
+                rc = ratio_at(&c, q, a, b, *s, &e);
                 *D = fmax(*D, e);
             }
-    free(prf);
-    mp_prf_work_free(&wk);
+    for (size_t k = 0; c.keep && k < nk; k++)
+        free(c.keep[k]);
+    free(c.keep);
+    free(c.prf);
+    mp_psf_free(&c.tab);
+    mp_prf_work_free(&c.wk);
     if (rc)
         snprintf(err, MP_ERRLEN, "cosmic rays: out of memory for the PSF's renders");
     return rc;
