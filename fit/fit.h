@@ -142,6 +142,24 @@ double mp_merge_sig(double minsnr);
  * sharpness, paper §2.4.2); what find's kernel and the merge radius use. */
 double mp_prf_fwhm(const mp_prf_model *m);
 
+/* mp_prf_phase: where mp_prf_render_phases puts phase k of n along an
+ * axis: c + k/(n − 1) − ½ (c for n = 1), a pixel's width in n steps
+ * about c. */
+double mp_prf_phase(double c, int k, int n);
+
+/* mp_prf_render_phases: mp_prf_render of a star at the n × n phases about
+ * (x, y) — (mp_prf_phase(x, a, n), mp_prf_phase(y, b, n)) into out[b·n + a],
+ * each on its own box (mp_prf_box), no derivatives — for the PSF's
+ * measured bounds (the crop envelope, the cosmic-ray test's).  A variable
+ * PSF is evaluated once, at (x, y): within half a pixel its table moves by
+ * 0.5 px/POLSCAL of its change across the field.  Where a table is shifted
+ * element by element (fit/prf.c render_table), the x-pass of a column of
+ * phases is made once for its n rows.  The values are those of the
+ * one-by-one renders of that table up to the order of the sums.  Nonzero
+ * when out of memory. */
+int mp_prf_render_phases(const mp_prf_model *m, double x, double y, int n, double *const *out,
+                         mp_prf_work *w);
+
 /* mp_prf_render_window: as mp_prf_render, on the part of the star's box
  * inside the window [wx0, wx0+ww) × [wy0, wy0+wh) only — the box rendered
  * comes back in *x0, *y0, *w, *h (w or h 0 when they do not meet).  The

@@ -659,6 +659,108 @@ int mp_prf_render_window(const mp_prf_model *m, double x, double y,
     return render(m, x, y, b, prf, dprf_dx, dprf_dy, work);
 }
 
+double mp_prf_phase(double c, int k, int n)
+{
+    return n > 1 ? c + (double)k / (n - 1) - 0.5 : c;
+}
+
+/* Whether render_table shifts the table element by element (shift_rows,
+ * shift_cols) for box bx: the axis operators cost more. */
+static int shifts_elements(const mp_prf_model *m, box bx)
+{
+    const mp_psf *p = m->psf;
+    int hw = m->sinc_hw > 0 ? (m->sinc_hw < 64 ? m->sinc_hw : 64) : 0;
+    return !(mp_prf_axes_apply(m) &&
+             mp_prf_axis_ops(p->nx, p->ny, p->os, hw, 0, (double)bx.w, (double)bx.h, 1) <
+                 mp_prf_axis_ops(p->nx, p->ny, p->os, hw, 0, (double)bx.w, (double)bx.h, 0));
+}
+
+static box box_of(const mp_prf_model *m, double x, double y)
+{
+    box b;
+    int bw, bh;
+    mp_prf_box(m, x, y, &b.x0, &b.y0, &bw, &bh);
+    b.w = bw;
+    b.h = bh;
+    return b;
+}
+
+/* The n phases of column a (x = xa) of mp_prf_render_phases by the
+ * element shifts: one x-pass over every row the y-passes may read, then
+ * each phase's y-pass and block-sum (render_table's steps). */
+static void phase_column(const mp_prf_model *m, const double *T, double xa, double y, int a,
+                         int n, double *const *out, mp_prf_work *w)
+{
+    const mp_psf *p = m->psf;
+    int hw = m->sinc_hw > 0 ? (m->sinc_hw < 64 ? m->sinc_hw : 64) : 0;
+    axis_geom ax = table_axis(p->nx, p->os, xa - p->offset);
+    table_span r[64];
+    int any = 0;
+    for (int b = 0; b < n; b++) {
+        double yb = mp_prf_phase(y, b, n);
+        box bx = box_of(m, xa, yb);
+        axis_geom ay = table_axis(p->ny, p->os, yb - p->offset);
+        memset(out[b * n + a], 0, (size_t)bx.w * (size_t)bx.h * sizeof *out[0]);
+        r[b].mi0 = -1;
+        if (bx.w > 0 && bx.h > 0 && span_of(p, bx, ax.n0, ay.n0, hw, &r[b]))
+            any = 1;
+        else
+            r[b].mi0 = -1;
+    }
+    if (!any)
+        return;
+    table_span rows = {0};
+    for (int b = 0; b < n; b++)
+        if (r[b].mi0 >= 0)
+            rows = r[b];            /* the columns: the same for every b */
+    rows.tj0 = 0;
+    rows.tj1 = p->ny;
+    shift_rows(T, w->b, p->nx, &rows, hw, ax.delta);
+    for (int b = 0; b < n; b++) {
+        if (r[b].mi0 < 0)
+            continue;
+        double yb = mp_prf_phase(y, b, n);
+        axis_geom ay = table_axis(p->ny, p->os, yb - p->offset);
+        shift_cols(w->b, w->a, p->nx, p->ny, &r[b], hw, ay.delta);
+        block_sum(m, w->a, &r[b], ax.n0, ay.n0, box_of(m, xa, yb), out[b * n + a], NULL, NULL);
+    }
+}
+
+int mp_prf_render_phases(const mp_prf_model *m, double x, double y, int n, double *const *out,
+                         mp_prf_work *w)
+{
+    const mp_psf *p = m->psf;
+    if (p->kind != MP_PSF_TABLE || n < 1 || n > 64) {
+        for (int k = 0; k < n * n; k++)
+            if (mp_prf_render(m, mp_prf_phase(x, k % n, n), mp_prf_phase(y, k / n, n), out[k],
+                              NULL, NULL, w))
+                return 1;
+        return 0;
+    }
+    if (work_reserve(w, (size_t)p->nx * p->ny))
+        return 1;
+    const double *T = star_table(m, x, y, 0, p->nx, 0, p->ny, w);
+    if (!T)
+        return 1;
+    /* the table at (x, y) for every phase (w->e holds a field's) */
+    mp_psf fz = *p;
+    fz.t = (double *)T;
+    fz.field = NULL;
+    mp_prf_model mf = *m;
+    mf.psf = &fz;
+    if (!shifts_elements(&mf, box_of(&mf, x, y))) {
+        for (int k = 0; k < n * n; k++) {
+            double xa = mp_prf_phase(x, k % n, n), yb = mp_prf_phase(y, k / n, n);
+            if (render_table(&mf, xa, yb, xa, yb, box_of(&mf, xa, yb), out[k], NULL, NULL, w))
+                return 1;
+        }
+        return 0;
+    }
+    for (int a = 0; a < n; a++)
+        phase_column(&mf, T, mp_prf_phase(x, a, n), y, a, n, out, w);
+    return 0;
+}
+
 /* The largest QE a subpixel can have relative to a perfect detector. */
 static double drf_max(const mp_drf *d)
 {
@@ -706,67 +808,61 @@ static double place_y(const mp_psf_field *fd, int q)
  * point, or, for a variable PSF, at its origin and the eight points
  * ±POLSCAL/2 from it (PSFEx's and matphot's scale is the PSF stars'
  * range, so these are the field's corners and edge midpoints); a render
- * holds cap values at most.  Nonzero when a render fails or memory runs
- * out. */
+ * holds cap values at most.  The 25 phases of a point are rendered
+ * together (mp_prf_render_phases: a field evaluated and the x-passes made
+ * once, where they were a quarter of the DECam cutout's run one by one).
+ * Nonzero when a render fails or memory runs out. */
+#define ENV_NPH 5
 static int phase_maxima(const mp_prf_model *m, size_t cap, double *bin, int nb)
 {
     const mp_psf_field *fd = m->psf->field;
     int npt = fd && fd->order > 0 ? 9 : 1, bad = 0;
-    /* A variable PSF evaluated once a point and that table shifted to its
-     * 25 phases (a field per render was a quarter of the DECam cutout's
-     * run): within half a pixel its table moves by 0.5 px/POLSCAL of its
-     * change across the field (~1e-3 or less), far inside the envelope's
-     * factor 2. */
-    mp_psf tab[9] = {0};
-    mp_prf_model mq[9];
-    for (int q = 0; q < npt; q++) {
-        char err[MP_ERRLEN];
-        mq[q] = *m;
-        if (npt > 1 && !bad) {
-            bad = mp_psf_field_eval(fd, place_x(fd, q), place_y(fd, q), &tab[q], err);
-            mq[q].psf = &tab[q];
-        }
-    }
-    /* The phases in parallel, each thread's largest merged after: a
+    /* The points in parallel, each thread's largest merged after: a
      * maximum is the same in any order (the renders were 0.6 % of 47 Tuc
      * built, serial, bench/SCALING.md). */
-    if (!bad)
 #pragma omp parallel reduction(| : bad)
     {
         mp_prf_work w = {0};
-        double *prf = malloc(cap * sizeof *prf), *mine = calloc((size_t)nb, sizeof *mine);
-        bad = !prf || !mine;
+        double *prf[ENV_NPH * ENV_NPH], *mine = calloc((size_t)nb, sizeof *mine);
+        bad = !mine;
+        for (int k = 0; k < ENV_NPH * ENV_NPH; k++)
+            bad |= !(prf[k] = malloc(cap * sizeof *prf[k]));
 #pragma omp for schedule(dynamic)
-        for (int pt = 0; pt < npt * 25; pt++) {
-            int sx = pt % 5, sy = pt / 5 % 5, q = pt / 25, bw, bh;
-            long x0, y0;
+        for (int q = 0; q < npt; q++) {
             double cx = npt > 1 ? place_x(fd, q) : 100.0;
             double cy = npt > 1 ? place_y(fd, q) : 100.0;
-            double x = cx - 0.5 + 0.25 * sx, y = cy - 0.5 + 0.25 * sy;
-            if (bad)
-                continue;
-            mp_prf_box(&mq[q], x, y, &x0, &y0, &bw, &bh);
-            if ((size_t)bw * bh > cap || mp_prf_render(&mq[q], x, y, prf, NULL, NULL, &w)) {
-                bad = 1;
-                continue;
+            for (int k = 0; k < ENV_NPH * ENV_NPH && !bad; k++) {
+                long x0, y0;
+                int bw, bh;
+                mp_prf_box(m, mp_prf_phase(cx, k % ENV_NPH, ENV_NPH),
+                           mp_prf_phase(cy, k / ENV_NPH, ENV_NPH), &x0, &y0, &bw, &bh);
+                bad = (size_t)bw * bh > cap;
             }
-            for (int j = 0; j < bh; j++)
-                for (int i = 0; i < bw; i++) {
-                    int b = (int)hypot(x0 + i - x, y0 + j - y);
-                    double v = fabs(prf[(size_t)j * bw + i]);
-                    b = b < nb ? b : nb - 1;
-                    mine[b] = v > mine[b] ? v : mine[b];
-                }
+            if (bad || (bad = mp_prf_render_phases(m, cx, cy, ENV_NPH, prf, &w)))
+                continue;
+            for (int k = 0; k < ENV_NPH * ENV_NPH; k++) {
+                double x = mp_prf_phase(cx, k % ENV_NPH, ENV_NPH);
+                double y = mp_prf_phase(cy, k / ENV_NPH, ENV_NPH);
+                long x0, y0;
+                int bw, bh;
+                mp_prf_box(m, x, y, &x0, &y0, &bw, &bh);
+                for (int j = 0; j < bh; j++)
+                    for (int i = 0; i < bw; i++) {
+                        int b = (int)hypot(x0 + i - x, y0 + j - y);
+                        double v = fabs(prf[k][(size_t)j * bw + i]);
+                        b = b < nb ? b : nb - 1;
+                        mine[b] = v > mine[b] ? v : mine[b];
+                    }
+            }
         }
 #pragma omp critical(mp_prf_phase_maxima)
         for (int b = 0; mine && b < nb; b++)
             bin[b] = mine[b] > bin[b] ? mine[b] : bin[b];
-        free(prf);
+        for (int k = 0; k < ENV_NPH * ENV_NPH; k++)
+            free(prf[k]);
         free(mine);
         mp_prf_work_free(&w);
     }
-    for (int q = 0; q < npt; q++)
-        mp_psf_free(&tab[q]);
     return bad;
 }
 

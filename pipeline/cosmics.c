@@ -58,52 +58,55 @@ static double render_ratio(const double *prf, int w, int h, double s)
  * edge and its corner, where a symmetric PSF's ratio is least). */
 #define CR_NPH 5
 
-/* The place q of 3 × 3 over the nx × ny frame, at phase (a, b): a star's
- * position. */
-static void place_at(long nx, long ny, int q, int a, int b, double *x, double *y)
+/* The centre of place q of 3 × 3 over the nx × ny frame: its phases are
+ * mp_prf_phase's about it. */
+static void place_at(long nx, long ny, int q, double *x, double *y)
 {
-    *x = (double)(1 + (q % 3) * (nx - 1) / 2) + (double)a / (CR_NPH - 1) - 0.5;
-    *y = (double)(1 + (q / 3) * (ny - 1) / 2) + (double)b / (CR_NPH - 1) - 0.5;
+    *x = (double)(1 + (q % 3) * (nx - 1) / 2);
+    *y = (double)(1 + (q / 3) * (ny - 1) / 2);
 }
 
-/* The renders of mp_pl_cr_bound, kept from its first sweep for its second
- * when they fit in CR_KEEP_BYTES (else rendered again: the same values).
- * A variable PSF is evaluated once a place, at its phase (0, 0), and that
- * table shifted to the 25 phases: within half a pixel its table moves by
- * 0.5 px/POLSCAL of its change across the field (~1e-3 or less), far
- * below the slack the bound's step term adds.  (Rendered twice, a field
- * evaluated per render, the bound was a fifth of the DECam cutout's run.) */
+/* The renders of mp_pl_cr_bound: a place's phases rendered together
+ * (mp_prf_render_phases: a variable PSF evaluated and the x-passes made
+ * once a place; one by one, twice over, the bound was a fifth of the DECam
+ * cutout's run), and kept from the first sweep for the second when they
+ * fit in CR_KEEP_BYTES (else rendered again: the same values). */
 #define CR_KEEP_BYTES ((size_t)64 << 20)
+#define CR_NR (CR_NPH * CR_NPH)
 typedef struct {
     const mp_prf_model *m;
     long nx, ny;
-    int q0, nq;
-    mp_psf tab;                 /* a variable PSF's table at the place */
-    mp_prf_model mq;            /* m, or m with tab at the place */
-    int tabq;                   /* the place tab holds, −1 none */
-    double **keep;              /* nq · CR_NPH² renders, or NULL */
-    double *prf;                /* a render not kept */
+    int q0;
+    double **keep;              /* CR_NR a place from q0, or NULL */
+    double *cur[CR_NR];         /* place curq's, when not kept */
+    int curq;
     mp_prf_work wk;
 } cr_sweep;
 
-/* The model for place q: m, or m's field evaluated at the place. */
-static const mp_prf_model *model_at(cr_sweep *c, int q)
+/* Place q's renders (phase (a, b) at [b·CR_NPH + a]); NULL when out of
+ * memory. */
+static double *const *place_renders(cr_sweep *c, int q)
 {
-    if (!c->m->psf || !c->m->psf->field)
-        return c->m;
-    if (c->tabq != q) {
-        double x, y;
-        char err[MP_ERRLEN];
-        mp_psf_free(&c->tab);
-        c->tabq = -1;
-        place_at(c->nx, c->ny, q, CR_NPH / 2, CR_NPH / 2, &x, &y);
-        if (mp_psf_field_eval(c->m->psf->field, x, y, &c->tab, err))
+    double **r = c->keep ? c->keep + (size_t)(q - c->q0) * CR_NR : c->cur;
+    if (c->keep ? r[0] != NULL : c->curq == q)
+        return r;
+    double x, y;
+    place_at(c->nx, c->ny, q, &x, &y);
+    for (int k = 0; k < CR_NR; k++) {
+        long bx, by;
+        int w, h;
+        mp_prf_box(c->m, mp_prf_phase(x, k % CR_NPH, CR_NPH), mp_prf_phase(y, k / CR_NPH, CR_NPH),
+                   &bx, &by, &w, &h);
+        double *p = realloc(r[k], (size_t)(w > 0 ? w : 1) * (size_t)(h > 0 ? h : 1) * sizeof *p);
+        if (!p)
             return NULL;
-        c->mq = *c->m;
-        c->mq.psf = &c->tab;
-        c->tabq = q;
+        r[k] = p;
     }
-    return &c->mq;
+    c->curq = -1;
+    if (mp_prf_render_phases(c->m, x, y, CR_NPH, r, &c->wk))
+        return NULL;
+    c->curq = q;
+    return r;
 }
 
 /* The ratio (s < 0) or the excess (s >= 0) of render_ratio for a star at
@@ -113,22 +116,12 @@ static int ratio_at(cr_sweep *c, int q, int a, int b, double s, double *out)
     double x, y;
     long bx, by;
     int w, h;
-    const mp_prf_model *m = model_at(c, q);
-    if (!m)
+    double *const *r = place_renders(c, q);
+    if (!r)
         return 1;
-    place_at(c->nx, c->ny, q, a, b, &x, &y);
-    mp_prf_box(m, x, y, &bx, &by, &w, &h);
-    size_t n = (size_t)(w > 0 ? w : 1) * (size_t)(h > 0 ? h : 1);
-    double **slot = c->keep ? &c->keep[((q - c->q0) * CR_NPH + b) * CR_NPH + a] : &c->prf;
-    if (!*slot || !c->keep) {
-        double *p = realloc(*slot, n * sizeof *p);
-        if (!p)
-            return 1;
-        *slot = p;
-        if (mp_prf_render(m, x, y, p, NULL, NULL, &c->wk))
-            return 1;
-    }
-    *out = render_ratio(*slot, w, h, s);
+    place_at(c->nx, c->ny, q, &x, &y);
+    mp_prf_box(c->m, mp_prf_phase(x, a, CR_NPH), mp_prf_phase(y, b, CR_NPH), &bx, &by, &w, &h);
+    *out = render_ratio(r[b * CR_NPH + a], w, h, s);
     return 0;
 }
 
@@ -138,11 +131,11 @@ int mp_pl_cr_bound(const mp_prf_model *m, long nx, long ny, double *s, double *D
     /* at the 3 × 3 places only when the PSF varies (else the centre's,
      * place 4, is every place's) */
     int q0 = m->psf && m->psf->field ? 0 : 4, q1 = q0 ? 5 : 9, rc = 0;
-    cr_sweep c = {.m = m, .nx = nx, .ny = ny, .q0 = q0, .nq = q1 - q0, .tabq = -1};
+    cr_sweep c = {.m = m, .nx = nx, .ny = ny, .q0 = q0, .curq = -1};
     long bx, by;
     int w, h;
     mp_prf_box(m, 0.5 * (double)nx, 0.5 * (double)ny, &bx, &by, &w, &h);
-    size_t nk = (size_t)c.nq * CR_NPH * CR_NPH;
+    size_t nk = (size_t)(q1 - q0) * CR_NR;
     if ((size_t)(w + 1) * (size_t)(h + 1) * sizeof(double) * nk <= CR_KEEP_BYTES)
         c.keep = calloc(nk, sizeof *c.keep);
     *s = 4.0;
@@ -175,8 +168,8 @@ int mp_pl_cr_bound(const mp_prf_model *m, long nx, long ny, double *s, double *D
     for (size_t k = 0; c.keep && k < nk; k++)
         free(c.keep[k]);
     free(c.keep);
-    free(c.prf);
-    mp_psf_free(&c.tab);
+    for (int k = 0; k < CR_NR; k++)
+        free(c.cur[k]);
     mp_prf_work_free(&c.wk);
     if (rc)
         snprintf(err, MP_ERRLEN, "cosmic rays: out of memory for the PSF's renders");
