@@ -68,15 +68,21 @@ static void place_at(long nx, long ny, int q, double *x, double *y)
 
 /* The renders of mp_pl_cr_bound: a place's phases rendered together
  * (mp_prf_render_phases: a variable PSF evaluated and the x-passes made
- * once a place; one by one, a field evaluated per render, the bound was a
- * fifth of the DECam cutout's run), one place's at a time, again for the
- * second sweep (kept for it, the 225 boxes raised the cutout's peak RSS
- * 19.3 → 23.5 MB for 5 ms of its 209). */
+ * once a place; one by one, twice over, the bound was a fifth of the DECam
+ * cutout's run), and kept from the first sweep for the second when they
+ * fit in CR_KEEP_BYTES (else rendered again: the same values).  Kept, the
+ * cutout's 225 boxes raise its peak RSS 19.3 → 23.5 MB and save 5 ms of
+ * its ~205, where DAOPHOT's whole chain takes 200–220: the CPU is what
+ * that frame's budget is short of (ceaed85 kept them, 254264d took that
+ * back for the RSS when the run was 260 ms). */
+#define CR_KEEP_BYTES ((size_t)64 << 20)
 #define CR_NR (CR_NPH * CR_NPH)
 typedef struct {
     const mp_prf_model *m;
     long nx, ny;
-    double *cur[CR_NR];         /* place curq's renders */
+    int q0;
+    double **keep;              /* CR_NR a place from q0, or NULL */
+    double *cur[CR_NR];         /* place curq's, when not kept */
     int curq;
     mp_prf_work wk;
 } cr_sweep;
@@ -85,8 +91,9 @@ typedef struct {
  * memory. */
 static double *const *place_renders(cr_sweep *c, int q)
 {
-    if (c->curq == q)
-        return c->cur;
+    double **r = c->keep ? c->keep + (size_t)(q - c->q0) * CR_NR : c->cur;
+    if (c->keep ? r[0] != NULL : c->curq == q)
+        return r;
     double x, y;
     place_at(c->nx, c->ny, q, &x, &y);
     for (int k = 0; k < CR_NR; k++) {
@@ -94,16 +101,16 @@ static double *const *place_renders(cr_sweep *c, int q)
         int w, h;
         mp_prf_box(c->m, mp_prf_phase(x, k % CR_NPH, CR_NPH), mp_prf_phase(y, k / CR_NPH, CR_NPH),
                    &bx, &by, &w, &h);
-        double *p = realloc(c->cur[k], (size_t)(w > 0 ? w : 1) * (size_t)(h > 0 ? h : 1) * sizeof *p);
+        double *p = realloc(r[k], (size_t)(w > 0 ? w : 1) * (size_t)(h > 0 ? h : 1) * sizeof *p);
         if (!p)
             return NULL;
-        c->cur[k] = p;
+        r[k] = p;
     }
     c->curq = -1;
-    if (mp_prf_render_phases(c->m, x, y, CR_NPH, c->cur, &c->wk))
+    if (mp_prf_render_phases(c->m, x, y, CR_NPH, r, &c->wk))
         return NULL;
     c->curq = q;
-    return c->cur;
+    return r;
 }
 
 /* The ratio (s < 0) or the excess (s >= 0) of render_ratio for a star at
@@ -128,7 +135,13 @@ int mp_pl_cr_bound(const mp_prf_model *m, long nx, long ny, double *s, double *D
     /* at the 3 × 3 places only when the PSF varies (else the centre's,
      * place 4, is every place's) */
     int q0 = m->psf && m->psf->field ? 0 : 4, q1 = q0 ? 5 : 9, rc = 0;
-    cr_sweep c = {.m = m, .nx = nx, .ny = ny, .curq = -1};
+    cr_sweep c = {.m = m, .nx = nx, .ny = ny, .q0 = q0, .curq = -1};
+    long bx, by;
+    int w, h;
+    mp_prf_box(m, 0.5 * (double)nx, 0.5 * (double)ny, &bx, &by, &w, &h);
+    size_t nk = (size_t)(q1 - q0) * CR_NR;
+    if ((size_t)(w + 1) * (size_t)(h + 1) * sizeof(double) * nk <= CR_KEEP_BYTES)
+        c.keep = calloc(nk, sizeof *c.keep);
     *s = 4.0;
     *D = 0.0;
     /* the least ratio over the phase grid, less half its largest step
@@ -156,6 +169,9 @@ int mp_pl_cr_bound(const mp_prf_model *m, long nx, long ny, double *s, double *D
                 rc = ratio_at(&c, q, a, b, *s, &e);
                 *D = fmax(*D, e);
             }
+    for (size_t k = 0; c.keep && k < nk; k++)
+        free(c.keep[k]);
+    free(c.keep);
     for (int k = 0; k < CR_NR; k++)
         free(c.cur[k]);
     mp_prf_work_free(&c.wk);
