@@ -450,6 +450,21 @@ static void test_rebuild_in_spare_blocks(void **state)
  * (mp_prf_work.single) the axis path's values are within single_bound of
  * them, derivatives too (the constant tables: a field's local table is
  * not p's). */
+/* An order-1 field about (60, 40), scale 50, whose planes are p's table
+ * and two scrambled copies of it; p->field points to it. */
+static void lopsided_field(mp_psf *p, mp_psf_field *f)
+{
+    char err[MP_ERRLEN];
+    assert_int_equal(mp_psf_field_new(1, p->nx, p->ny, p->os, 60.0, 40.0, 50.0, 50.0, f, err), 0);
+    size_t nel = (size_t)p->nx * p->ny;
+    for (size_t i = 0; i < nel; i++) {
+        f->planes[i] = p->t[i];
+        f->planes[nel + i] = 0.1 * p->t[(i * 7) % nel];
+        f->planes[2 * nel + i] = -0.05 * p->t[(i * 3) % nel];
+    }
+    p->field = f;
+}
+
 /* mp_prf_render_phases against mp_prf_render at each phase of the same
  * table: the element shifts (×1) with the x-pass shared, the axis
  * operators (×2, ×4) one by one, and a variable PSF's table evaluated
@@ -467,15 +482,7 @@ static void test_render_phases_as_one_by_one(void **state)
         double x = 50.3, y = 40.7;
         mp_prf_model m = {&p, NULL, 10}, mt = m;
         if (t == 3) {           /* a field, and its table at (x, y) */
-            assert_int_equal(mp_psf_field_new(1, p.nx, p.ny, p.os, 60.0, 40.0, 50.0, 50.0, &f,
-                                              err), 0);
-            size_t nel = (size_t)p.nx * p.ny;
-            for (size_t i = 0; i < nel; i++) {
-                f.planes[i] = p.t[i];
-                f.planes[nel + i] = 0.1 * p.t[(i * 7) % nel];
-                f.planes[2 * nel + i] = -0.05 * p.t[(i * 3) % nel];
-            }
-            p.field = &f;
+            lopsided_field(&p, &f);
             assert_int_equal(mp_psf_field_eval(&f, x, y, &tab, err), 0);
             mt.psf = &tab;
         }
@@ -519,23 +526,14 @@ static void test_render_phases_as_one_by_one(void **state)
 static void test_render_paths_agree(void **state)
 {
     (void)state;
-    char err[MP_ERRLEN];
     double one = 1.0;
     mp_drf d1 = {1, &one, 1.0};
     for (int t = 0; t < 4; t++) {
         mp_psf p;
         lopsided(t < 3 ? t + 2 : 4, &p);
         mp_psf_field f;
-        if (t == 3) {
-            assert_int_equal(mp_psf_field_new(1, p.nx, p.ny, p.os, 60.0, 40.0, 50.0, 50.0, &f, err), 0);
-            size_t nel = (size_t)p.nx * p.ny;
-            for (size_t i = 0; i < nel; i++) {
-                f.planes[i] = p.t[i];
-                f.planes[nel + i] = 0.1 * p.t[(i * 7) % nel];
-                f.planes[2 * nel + i] = -0.05 * p.t[(i * 3) % nel];
-            }
-            p.field = &f;
-        }
+        if (t == 3)
+            lopsided_field(&p, &f);
         mp_prf_model ms = {&p, NULL, 10}, md = {&p, &d1, 10};
         size_t cap = (size_t)(p.nx + 4) * (p.ny + 4);
         double *a = malloc(3 * cap * sizeof *a), *b = malloc(3 * cap * sizeof *b);
