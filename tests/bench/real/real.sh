@@ -61,11 +61,21 @@ ${CC:-cc} $CFLAGS -o "$W/real" tests/validate/real/real.c $LIBS || die "cannot b
 OPENBLAS_NUM_THREADS=1
 export OPENBLAS_NUM_THREADS
 
-# timed OUT CMD...: run CMD; "wall user sys maxrss_kB" on the last line of OUT.
+# timed OUT CMD...: run CMD; "wall user sys maxrss_kB" on the last line of
+# OUT — the CPU of CMD and the children it waited for (getrusage
+# RUSAGE_CHILDREN, as /usr/bin/time's wait4), to the microsecond:
+# /usr/bin/time prints 10 ms, a twentieth of the DECam cutout's run.
 timed() {
     out=$1
     shift
-    /usr/bin/time -f '%e %U %S %M' -o "$out" "$@"
+    /usr/bin/python3 -c '
+import resource, subprocess, sys, time
+t = time.monotonic()
+rc = subprocess.call(sys.argv[2:])
+u = resource.getrusage(resource.RUSAGE_CHILDREN)
+with open(sys.argv[1], "w") as f:
+    f.write("%.3f %.6f %.6f %d\n" % (time.monotonic() - t, u.ru_utime, u.ru_stime, u.ru_maxrss))
+sys.exit(rc)' "$out" "$@"
 }
 
 # The frames: name, image, matphot's arguments, DAOPHOT's datapars (fwhm,
@@ -179,7 +189,7 @@ EOF
 
 # med: the median of the numbers on stdin.
 med() { sort -g | awk '{v[NR] = $1} END {if (NR == 0) print "nan"; else if (NR % 2) print v[(NR + 1) / 2]; else print (v[NR / 2] + v[NR / 2 + 1]) / 2}'; }
-cpu_of() { tail -n 1 "$1" | awk '{printf "%.2f\n", $2 + $3}'; }
+cpu_of() { tail -n 1 "$1" | awk '{printf "%.3f\n", $2 + $3}'; }
 rss_of() { tail -n 1 "$1" | awk '{print $4}'; }
 
 {
@@ -187,7 +197,7 @@ echo "# matphot against IRAF DAOPHOT on real frames"
 echo
 echo "Generated $(date -u '+%Y-%m-%d %H:%M UTC') by \`tests/bench/real/real.sh\` (part of \`make bench\`; \`REPS=$REPS\`), $(nproc) processors ($(cpu_name)), load before $(cut -d' ' -f1-3 /proc/loadavg).  matphot $(git rev-parse --short HEAD 2>/dev/null || echo '?'), \`OMP_NUM_THREADS=$THREADS\`; IRAF $(irafcl -v 2>/dev/null | head -n 1) (Debian iraf $(dpkg-query -W -f='${Version}' iraf 2>/dev/null || echo '?')).  Data: \`$REALDATA\` (MANIFEST.md)${SEC:+; only the section $SEC of each frame}."
 echo
-echo "CPU = user + sys seconds of the whole process (\`/usr/bin/time\`), the median of $REPS runs, matphot and DAOPHOT interleaved; peak RSS the largest resident size of any run (DAOPHOT: of its largest CL run).  matphot reduces each frame with the instrument's PSF table (validate/REAL.md's commands, nothing tuned) and, in the rows ending in b, with the PSF it builds from the frame (no psf=; the build counted in its CPU); DAOPHOT builds its PSF from the frame (25 stars by pstselect, psf, nstar + substar of their neighbours, psf again), then allstar, daofind on the residual, phot, pfmerge, allstar (\`function = gauss\`, \`varorder = 0\`: a look-up table; fitrad ≈ FWHM, psfrad as below): two detection passes, the chain issue 12 names.  matphot's default \`niter = 3\` makes three, so the second ratio counts DAOPHOT's third pass as well (daofind on the second allstar's residual, phot, pfmerge, allstar: CL run refind3, timed apart in the same runs): the same number of passes each.  The stage seconds are wall clock."
+echo "CPU = user + sys seconds of the whole process and the children it waited for (getrusage, to the microsecond; \`/usr/bin/time\` printed 10 ms), the median of $REPS runs, matphot and DAOPHOT interleaved; peak RSS the largest resident size of any run (DAOPHOT: of its largest CL run).  matphot reduces each frame with the instrument's PSF table (validate/REAL.md's commands, nothing tuned) and, in the rows ending in b, with the PSF it builds from the frame (no psf=; the build counted in its CPU); DAOPHOT builds its PSF from the frame (25 stars by pstselect, psf, nstar + substar of their neighbours, psf again), then allstar, daofind on the residual, phot, pfmerge, allstar (\`function = gauss\`, \`varorder = 0\`: a look-up table; fitrad ≈ FWHM, psfrad as below): two detection passes, the chain issue 12 names.  matphot's default \`niter = 3\` makes three, so the second ratio counts DAOPHOT's third pass as well (daofind on the second allstar's residual, phot, pfmerge, allstar: CL run refind3, timed apart in the same runs): the same number of passes each.  The stage seconds are wall clock."
 echo
 } > "$W/head.md"
 : > "$W/summary.md"
@@ -215,8 +225,8 @@ for F in $FRAMES; do
             { tail -n 5 "$RD/mp/run.log" >&2; die "matphot pipeline failed on $F"; }
         dao_run "$RD/dao" "$SIGMA"
         mc=$(cpu_of "$RD/mp/time")
-        dc=$(for s in find psf als1 refind; do cpu_of "$RD/dao/time.$s"; done | awk '{t += $1} END {printf "%.2f", t}')
-        dc3=$(echo "$dc $(cpu_of "$RD/dao/time.refind3")" | awk '{printf "%.2f", $1 + $2}')
+        dc=$(for s in find psf als1 refind; do cpu_of "$RD/dao/time.$s"; done | awk '{t += $1} END {printf "%.3f", t}')
+        dc3=$(echo "$dc $(cpu_of "$RD/dao/time.refind3")" | awk '{printf "%.3f", $1 + $2}')
         echo "$mc $dc $dc3" >> "$FD/cpu"
         say "frame $F run $r/$REPS: matphot $mc s, DAOPHOT $dc s CPU (3 passes $dc3 s)"
         r=$((r + 1))
