@@ -169,6 +169,36 @@ static double dens(double a, double sigma)
 /* A detector box [x0, x0+w) × [y0, y0+h), 1-based. */
 typedef struct { long x0, y0, w, h; } box;
 
+/* The box of mp_prf_box for a star at (x, y). */
+static box box_of(const mp_prf_model *m, double x, double y)
+{
+    box b;
+    int bw, bh;
+    mp_prf_box(m, x, y, &b.x0, &b.y0, &bw, &bh);
+    b.w = bw;
+    b.h = bh;
+    return b;
+}
+
+/* The damped sinc's half-width a table render uses (0: no shift; at most
+ * 64 taps a side). */
+static int sinc_halfwidth(const mp_prf_model *m)
+{
+    return m->sinc_hw > 0 ? (m->sinc_hw < 64 ? m->sinc_hw : 64) : 0;
+}
+
+/* Whether render_table shifts the table element by element (shift_rows,
+ * shift_cols) for box bx: the axis operators cost more, or do not apply
+ * (a DRF that varies within the pixel is not a product of two axes). */
+static int shifts_elements(const mp_prf_model *m, box bx, int deriv)
+{
+    const mp_psf *p = m->psf;
+    int hw = sinc_halfwidth(m);
+    return !(mp_prf_axes_apply(m) &&
+             mp_prf_axis_ops(p->nx, p->ny, p->os, hw, deriv, (double)bx.w, (double)bx.h, 1) <
+                 mp_prf_axis_ops(p->nx, p->ny, p->os, hw, deriv, (double)bx.w, (double)bx.h, 0));
+}
+
 /* The part of box a inside box b (possibly empty). */
 static box box_and(box a, const box *b)
 {
@@ -427,7 +457,7 @@ static int render_table(const mp_prf_model *m, double x, double y, double xr, do
 {
     const mp_psf *p = m->psf;
     int os = p->os, nx = p->nx, ny = p->ny;
-    int hw = m->sinc_hw > 0 ? (m->sinc_hw < 64 ? m->sinc_hw : 64) : 0;
+    int hw = sinc_halfwidth(m);
     size_t nb = (size_t)bx.w * bx.h;
     memset(prf, 0, nb * sizeof *prf);
     if (ddx)
@@ -437,11 +467,8 @@ static int render_table(const mp_prf_model *m, double x, double y, double xr, do
     if (nb == 0)
         return 0;
     /* The axis operators where they cost less than the shift of the
-     * table's elements (OVERSAMP ≥ 2 on all but the smallest boxes; a DRF
-     * that varies within the pixel is not a product of two axes). */
-    if (mp_prf_axes_apply(m) &&
-        mp_prf_axis_ops(nx, ny, os, hw, ddx || ddy, (double)bx.w, (double)bx.h, 1) <
-            mp_prf_axis_ops(nx, ny, os, hw, ddx || ddy, (double)bx.w, (double)bx.h, 0)) {
+     * table's elements (OVERSAMP ≥ 2 on all but the smallest boxes). */
+    if (!shifts_elements(m, bx, ddx || ddy)) {
         w->nshift += 2;
         return render_sep(m, x, y, xr, yr, bx, hw, prf, ddx, ddy, w);
     }
@@ -526,7 +553,7 @@ static int adjoint_sep(const mp_prf_model *m, double x, double y, box bx, const 
                        double *g, mp_prf_work *w)
 {
     const mp_psf *p = m->psf;
-    int nx = p->nx, hw = m->sinc_hw > 0 ? (m->sinc_hw < 64 ? m->sinc_hw : 64) : 0;
+    int nx = p->nx, hw = sinc_halfwidth(m);
     if (!w->axes && !(w->axes = calloc(1, sizeof *w->axes)))
         return 1;
     mp_prf_axis *ax = &w->axes->x, *ay = &w->axes->y;
@@ -615,12 +642,7 @@ int mp_prf_render_branch(const mp_prf_model *m, double x, double y, double xr, d
                          long wx0, long wy0, long ww, long wh, long *x0, long *y0, int *w,
                          int *h, double *prf, double *ddx, double *ddy, mp_prf_work *work)
 {
-    box b, win = {wx0, wy0, ww, wh};
-    int bw, bh;
-    mp_prf_box(m, xr, yr, &b.x0, &b.y0, &bw, &bh);
-    b.w = bw;
-    b.h = bh;
-    b = box_and(b, &win);
+    box win = {wx0, wy0, ww, wh}, b = box_and(box_of(m, xr, yr), &win);
     *x0 = b.x0;
     *y0 = b.y0;
     *w = (int)b.w;
@@ -633,12 +655,7 @@ int mp_prf_render_branch(const mp_prf_model *m, double x, double y, double xr, d
 int mp_prf_render(const mp_prf_model *m, double x, double y,
                   double *prf, double *dprf_dx, double *dprf_dy, mp_prf_work *w)
 {
-    box b;
-    int bw, bh;
-    mp_prf_box(m, x, y, &b.x0, &b.y0, &bw, &bh);
-    b.w = bw;
-    b.h = bh;
-    return render(m, x, y, b, prf, dprf_dx, dprf_dy, w);
+    return render(m, x, y, box_of(m, x, y), prf, dprf_dx, dprf_dy, w);
 }
 
 int mp_prf_render_window(const mp_prf_model *m, double x, double y,
@@ -646,12 +663,7 @@ int mp_prf_render_window(const mp_prf_model *m, double x, double y,
                          long *x0, long *y0, int *w, int *h,
                          double *prf, double *dprf_dx, double *dprf_dy, mp_prf_work *work)
 {
-    box b, win = {wx0, wy0, ww, wh};
-    int bw, bh;
-    mp_prf_box(m, x, y, &b.x0, &b.y0, &bw, &bh);
-    b.w = bw;
-    b.h = bh;
-    b = box_and(b, &win);
+    box win = {wx0, wy0, ww, wh}, b = box_and(box_of(m, x, y), &win);
     *x0 = b.x0;
     *y0 = b.y0;
     *w = (int)b.w;
@@ -664,27 +676,6 @@ double mp_prf_phase(double c, int k, int n)
     return n > 1 ? c + (double)k / (n - 1) - 0.5 : c;
 }
 
-/* Whether render_table shifts the table element by element (shift_rows,
- * shift_cols) for box bx: the axis operators cost more. */
-static int shifts_elements(const mp_prf_model *m, box bx)
-{
-    const mp_psf *p = m->psf;
-    int hw = m->sinc_hw > 0 ? (m->sinc_hw < 64 ? m->sinc_hw : 64) : 0;
-    return !(mp_prf_axes_apply(m) &&
-             mp_prf_axis_ops(p->nx, p->ny, p->os, hw, 0, (double)bx.w, (double)bx.h, 1) <
-                 mp_prf_axis_ops(p->nx, p->ny, p->os, hw, 0, (double)bx.w, (double)bx.h, 0));
-}
-
-static box box_of(const mp_prf_model *m, double x, double y)
-{
-    box b;
-    int bw, bh;
-    mp_prf_box(m, x, y, &b.x0, &b.y0, &bw, &bh);
-    b.w = bw;
-    b.h = bh;
-    return b;
-}
-
 /* The n phases of column a (x = xa) of mp_prf_render_phases by the
  * element shifts: one x-pass over every row the y-passes may read, then
  * each phase's y-pass and block-sum (render_table's steps). */
@@ -692,17 +683,17 @@ static void phase_column(const mp_prf_model *m, const double *T, double xa, doub
                          int n, double *const *out, mp_prf_work *w)
 {
     const mp_psf *p = m->psf;
-    int hw = m->sinc_hw > 0 ? (m->sinc_hw < 64 ? m->sinc_hw : 64) : 0;
-    axis_geom ax = table_axis(p->nx, p->os, xa - p->offset);
+    int hw = sinc_halfwidth(m);
+    axis_geom ax = table_axis(p->nx, p->os, xa - p->offset), ay[64];
     table_span r[64];
+    box bx[64];
     int any = 0;
     for (int b = 0; b < n; b++) {
         double yb = mp_prf_phase(y, b, n);
-        box bx = box_of(m, xa, yb);
-        axis_geom ay = table_axis(p->ny, p->os, yb - p->offset);
-        memset(out[b * n + a], 0, (size_t)bx.w * (size_t)bx.h * sizeof *out[0]);
-        r[b].mi0 = -1;
-        if (bx.w > 0 && bx.h > 0 && span_of(p, bx, ax.n0, ay.n0, hw, &r[b]))
+        bx[b] = box_of(m, xa, yb);
+        ay[b] = table_axis(p->ny, p->os, yb - p->offset);
+        memset(out[b * n + a], 0, (size_t)bx[b].w * (size_t)bx[b].h * sizeof *out[0]);
+        if (bx[b].w > 0 && bx[b].h > 0 && span_of(p, bx[b], ax.n0, ay[b].n0, hw, &r[b]))
             any = 1;
         else
             r[b].mi0 = -1;
@@ -719,10 +710,8 @@ static void phase_column(const mp_prf_model *m, const double *T, double xa, doub
     for (int b = 0; b < n; b++) {
         if (r[b].mi0 < 0)
             continue;
-        double yb = mp_prf_phase(y, b, n);
-        axis_geom ay = table_axis(p->ny, p->os, yb - p->offset);
-        shift_cols(w->b, w->a, p->nx, p->ny, &r[b], hw, ay.delta);
-        block_sum(m, w->a, &r[b], ax.n0, ay.n0, box_of(m, xa, yb), out[b * n + a], NULL, NULL);
+        shift_cols(w->b, w->a, p->nx, p->ny, &r[b], hw, ay[b].delta);
+        block_sum(m, w->a, &r[b], ax.n0, ay[b].n0, bx[b], out[b * n + a], NULL, NULL);
     }
 }
 
@@ -748,7 +737,7 @@ int mp_prf_render_phases(const mp_prf_model *m, double x, double y, int n, doubl
     fz.field = NULL;
     mp_prf_model mf = *m;
     mf.psf = &fz;
-    if (!shifts_elements(&mf, box_of(&mf, x, y))) {
+    if (!shifts_elements(&mf, box_of(&mf, x, y), 0)) {
         for (int k = 0; k < n * n; k++) {
             double xa = mp_prf_phase(x, k % n, n), yb = mp_prf_phase(y, k / n, n);
             if (render_table(&mf, xa, yb, xa, yb, box_of(&mf, xa, yb), out[k], NULL, NULL, w))
