@@ -439,17 +439,6 @@ static void test_rebuild_in_spare_blocks(void **state)
     mp_psf_free(&r);
 }
 
-/* fit/prf.c's two exact renders: the table's elements shifted then
- * block-summed, and the axis operators (Y·T·Xᵀ), which render_table takes
- * where they cost fewer multiply-adds (a DRF with a QE map forces the
- * first: one QE of 1 a pixel is the perfect detector).  On the lopsided
- * table at ×2, ×3, ×4, constant and as an order-1 field, whole and through
- * a window cut at the star, with and without the derivatives: the values
- * agree to 1e-12 of the peak (the order of the sums), and the axis path
- * was taken (its counted work is less).  In single precision
- * (mp_prf_work.single) the axis path's values are within single_bound of
- * them, derivatives too (the constant tables: a field's local table is
- * not p's). */
 /* An order-1 field about (60, 40), scale 50, whose planes are p's table
  * and two scrambled copies of it; p->field points to it. */
 static void lopsided_field(mp_psf *p, mp_psf_field *f)
@@ -523,6 +512,17 @@ static void test_render_phases_as_one_by_one(void **state)
     }
 }
 
+/* fit/prf.c's two exact renders: the table's elements shifted then
+ * block-summed, and the axis operators (Y·T·Xᵀ), which render_table takes
+ * where they cost fewer multiply-adds (a DRF with a QE map forces the
+ * first: one QE of 1 a pixel is the perfect detector).  On the lopsided
+ * table at ×2, ×3, ×4, constant and as an order-1 field, whole and through
+ * a window cut at the star, with and without the derivatives: the values
+ * agree to 1e-12 of the peak (the order of the sums), and the axis path
+ * was taken (its counted work is less).  In single precision
+ * (mp_prf_work.single) the axis path's values are within single_bound of
+ * them, derivatives too (the constant tables: a field's local table is
+ * not p's). */
 static void test_render_paths_agree(void **state)
 {
     (void)state;

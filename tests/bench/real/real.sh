@@ -62,20 +62,13 @@ OPENBLAS_NUM_THREADS=1
 export OPENBLAS_NUM_THREADS
 
 # timed OUT CMD...: run CMD; "wall user sys maxrss_kB" on the last line of
-# OUT — the CPU of CMD and the children it waited for (getrusage
-# RUSAGE_CHILDREN, as /usr/bin/time's wait4), to the microsecond:
-# /usr/bin/time prints 10 ms, a twentieth of the DECam cutout's run.
+# OUT (realcmp timed: the CPU of CMD and the children it waited for, to the
+# microsecond; /usr/bin/time prints 10 ms, a twentieth of the DECam
+# cutout's run).
 timed() {
     out=$1
     shift
-    /usr/bin/python3 -c '
-import resource, subprocess, sys, time
-t = time.monotonic()
-rc = subprocess.call(sys.argv[2:])
-u = resource.getrusage(resource.RUSAGE_CHILDREN)
-with open(sys.argv[1], "w") as f:
-    f.write("%.3f %.6f %.6f %d\n" % (time.monotonic() - t, u.ru_utime, u.ru_stime, u.ru_maxrss))
-sys.exit(rc)' "$out" "$@"
+    "$W/realcmp" timed "$out" "$@"
 }
 
 # The frames: name, image, matphot's arguments, DAOPHOT's datapars (fwhm,

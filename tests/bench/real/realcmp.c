@@ -16,12 +16,22 @@
  *                                     in both (FLAGS 8, 16 clear)
  *   realcmp truth A.fit T.truth       a fit of simulated stars against the
  *                                     truth: normalised errors in E and X
+ *   realcmp timed OUT CMD...          run CMD; "wall user sys maxrss_kB" into
+ *                                     OUT: the CPU of CMD and the children it
+ *                                     waited for (getrusage RUSAGE_CHILDREN,
+ *                                     as /usr/bin/time's wait4) to the
+ *                                     microsecond, where /usr/bin/time prints
+ *                                     10 ms; exits with CMD's status
  * One line on stdout each, "key value" pairs for the report. */
 #include <errno.h>
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/resource.h>
+#include <sys/wait.h>
+#include <time.h>
+#include <unistd.h>
 #include "catalog/catalog.h"
 #include "io/io.h"
 
@@ -367,8 +377,49 @@ static int cmd_truth(const char *pf, const char *pt)
     return rc;
 }
 
+static double now_s(void)
+{
+    struct timespec t;
+    clock_gettime(CLOCK_MONOTONIC, &t);
+    return (double)t.tv_sec + 1e-9 * (double)t.tv_nsec;
+}
+
+/* realcmp timed: cmd[0..] run as a child, its times into out. */
+static int cmd_timed(const char *out, char **cmd)
+{
+    double t0 = now_s();
+    pid_t pid = fork();
+    if (pid < 0) {
+        perror("realcmp timed: fork");
+        return 2;
+    }
+    if (pid == 0) {
+        execvp(cmd[0], cmd);
+        perror(cmd[0]);
+        _exit(127);
+    }
+    int st;
+    while (waitpid(pid, &st, 0) < 0)
+        if (errno != EINTR) {
+            perror("realcmp timed: waitpid");
+            return 2;
+        }
+    struct rusage u;
+    getrusage(RUSAGE_CHILDREN, &u);
+    FILE *f = fopen(out, "w");
+    if (!f || fprintf(f, "%.3f %ld.%06ld %ld.%06ld %ld\n", now_s() - t0, (long)u.ru_utime.tv_sec,
+                      (long)u.ru_utime.tv_usec, (long)u.ru_stime.tv_sec,
+                      (long)u.ru_stime.tv_usec, u.ru_maxrss) < 0 || fclose(f)) {
+        fprintf(stderr, "realcmp timed: cannot write %s\n", out);
+        return 2;
+    }
+    return WIFEXITED(st) ? WEXITSTATUS(st) : 128 + WTERMSIG(st);
+}
+
 int main(int argc, char **argv)
 {
+    if (argc >= 4 && strcmp(argv[1], "timed") == 0)
+        return cmd_timed(argv[2], argv + 3);
     if (argc == 4 && strcmp(argv[1], "truth") == 0)
         return cmd_truth(argv[2], argv[3]);
     if (argc == 5 && strcmp(argv[1], "sky") == 0)
@@ -377,6 +428,7 @@ int main(int argc, char **argv)
         return cmd_dao(argv[2], argv[3], atof(argv[4]));
     if (argc == 4 && strcmp(argv[1], "same") == 0)
         return cmd_same(argv[2], argv[3], 0) || cmd_same(argv[2], argv[3], 1);
-    fprintf(stderr, "usage: realcmp sky IMAGE GAIN RON | dao A.cat B.als RADIUS | same A.fit B.fit\n");
+    fprintf(stderr, "usage: realcmp sky IMAGE GAIN RON | dao A.cat B.als RADIUS | same A.fit "
+            "B.fit | truth A.fit T.truth | timed OUT CMD...\n");
     return 2;
 }
