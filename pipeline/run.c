@@ -170,9 +170,9 @@ static int check_fwhm(run_state *s, const mp_find_opts *fo, char *err)
     int rc = mp_epsf_model_verdict(&s->f, &s->t, &s->fit->model, &s->stars_fwhm,
                                    s->rep->stars_fwhm, sizeof s->rep->stars_fwhm, s->gauss_wrong);
     size_t l = strlen(s->gauss_wrong);
-    if (rc == 2 && gauss && l < sizeof s->gauss_wrong)
+    if (rc == 2 && gauss && l < sizeof s->gauss_wrong)     /* (building, it is the start) */
         snprintf(s->gauss_wrong + l, sizeof s->gauss_wrong - l, " (INDEF: measured on each "
-                 "frame), or build the PSF (psf= empty)");
+                 "frame)%s", s->o->build_psf ? "" : ", or build the PSF (psf= empty)");
     if (rc == 1 || (rc == 2 && !(gauss && s->o->build_psf))) {
         snprintf(err, MP_ERRLEN, "%s: %.400s", s->image, s->gauss_wrong);
         return 1;

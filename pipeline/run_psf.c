@@ -9,7 +9,15 @@
 #include <string.h>
 #include "pipeline/run_state.h"
 
-/* The PSF's stars, picked from the first detections (psf/build.h). */
+/* The fewest PSF stars a table is built from: an order-0 build's 2 + 1
+ * (psf/frame_build.c built_verdict). */
+enum { PL_PSF_MIN_STARS = 3 };
+
+/* The PSF's stars, picked from the first detections (psf/build.h).  A
+ * frame that holds fewer fit to be PSF stars than a table needs (a sparse
+ * field's one or two bright stars) is reduced as one that holds none:
+ * with the Gaussian of fwhm (mp_run_build_psf), not refused; fewer
+ * because maxnpsf allows no more stays the build's error. */
 static int psf_stars(run_state *s, char *err)
 {
     size_t *idx = malloc((size_t)(s->o->psfb.maxnpsf + 1) * sizeof *idx);
@@ -17,6 +25,10 @@ static int psf_stars(run_state *s, char *err)
         return oom(err);
     mp_epsf_opts po = s->o->psfb;
     int rc = mp_epsf_select(&s->f, &s->t, &po, idx, &s->np, err);
+    if (!rc && s->np < PL_PSF_MIN_STARS && s->np < (size_t)po.maxnpsf) {
+        s->np_few = s->np;
+        s->np = 0;
+    }
     if (!rc && s->np == 0) {
         free(idx);
         return 0;
@@ -239,15 +251,17 @@ int mp_run_build_psf(run_state *s, int pass, char *err)
      * crowd of saturated stars) is still reduced: with the Gaussian of
      * fwhm, as psf=gauss, said on stderr and in the report. */
     if (s->np == 0) {
+        char few[96] = "no usable PSF star";
+        if (s->np_few)
+            snprintf(few, sizeof few, "only %zu usable PSF star%s (a table needs %d)", s->np_few,
+                     s->np_few == 1 ? "" : "s", PL_PSF_MIN_STARS);
         if (pass == 1 && s->gauss_wrong[0]) {    /* that Gaussian is far off the stars' */
-            snprintf(err, MP_ERRLEN, "%s: no usable PSF star, and %.400s", s->image,
-                     s->gauss_wrong);
+            snprintf(err, MP_ERRLEN, "%s: %s, and %.400s", s->image, few, s->gauss_wrong);
             return 1;
         }
         if (pass == 1 && s->t.nrow > 0)
-            fprintf(stderr, "matphot pipeline: %s: warning: no usable PSF star among %zu "
-                    "detections; fitting with the Gaussian of fwhm (psf=gauss)\n", s->image,
-                    s->t.nrow);
+            fprintf(stderr, "matphot pipeline: %s: warning: %s among %zu detections; fitting "
+                    "with the Gaussian of fwhm (psf=gauss)\n", s->image, few, s->t.nrow);
         return 0;
     }
     mp_epsf_report rep;

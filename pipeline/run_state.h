@@ -36,6 +36,8 @@ typedef struct {
     mp_epsf psf;          /* the PSF built from the frame (build_psf) */
     double *px, *py, *pf; /* its stars */
     size_t np;
+    size_t np_few;        /* PSF stars selected, too few for a table (then
+                           * np = 0: the Gaussian of fwhm, run_psf.c) */
     double tabrad;        /* its table's radius [px], measured in pass 1
                            * with tablerad=INDEF (0: the option's) */
     double tabsupport;    /* the reach measured when short of tabrad (the

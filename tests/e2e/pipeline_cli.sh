@@ -164,14 +164,16 @@ rc=$?
     grep -q "the stars' FWHM 2\.5 +- " "$T/gw.report" || no "psf=gauss fwhm=2.5: $(cat "$T/gwlog")"
 grep -q "the stars' FWHM is 2\.5 +- .*, not fwhm=0\.1: with fwhm=2\.5, [0-9]* PSF stars" \
     "$T/nplog" || no "fwhm=0.1: the stars' FWHM not named: $(cat "$T/nplog")"
-# fwhm=14: its wide kernel's detections are blends, of which no selection
-# makes PSF stars, so the run cannot say how many the stars' FWHM would
-# select; it names that FWHM still (it said only "only 1 usable PSF stars").
+# fwhm=14: its wide kernel's detections are blends, of which the selection
+# keeps one PSF star, too few for a table, so the run would fall back on
+# the Gaussian of fwhm (as with none); that Gaussian is far off the stars',
+# so it ends naming fwhm and the stars' FWHM (it said only "only 1 usable
+# PSF stars" once).
 rm -f "$T"/gw.*
 "$M" pipeline "$T/f.fits" root="$T/gw" fwhm=14 >/dev/null 2>"$T/gwlog"
 rc=$?
 [ "$rc" -eq 1 ] && tail -n 1 "$T/gwlog" |
-    grep -q "only 1 usable PSF stars .*; the stars' FWHM is 2\.5 +- .*, not fwhm=14\$" ||
+    grep -q "only 1 usable PSF star (a table needs 3), and fwhm=14 is not the stars': .* measure FWHM 2\.5 .*(INDEF: measured on each frame)\$" ||
     no "fwhm=14: exit $rc: $(tail -n 1 "$T/gwlog")"
 [ -z "$(ls "$T" | grep '^gw\.')" ] || no "fwhm=14: left $(ls "$T" | grep '^gw\.')"
 # A start so wide that find blends every star (fwhm=20: no PSF star, and
@@ -211,5 +213,18 @@ rc=$?
     grep -q "fwhm: INDEF, and .*one.fits has too few stars" "$T/indlog" ||
     no "fwhm=INDEF on a one-star frame: exit $rc: $(cat "$T/indlog")"
 [ -z "$(ls "$T" | grep '^one\.' | grep -v 'fits$\|truth$')" ] || no "fwhm=INDEF: left output"
+# The same frame with the PSF built: one PSF star, fewer than a table needs
+# (3), is reduced as a frame with none, with the Gaussian of fwhm (3, the
+# simulator's), not refused (it ended "only 1 usable PSF stars", exit 1);
+# its star's flux within 4 of its sigma of the truth (deterministic: a
+# fixed seed; 6e-5 two-sided for a fit on the bound).
+"$M" pipeline "$T/one.fits" root="$T/one1" >/dev/null 2>"$T/one1log" &&
+    grep -q "warning: only 1 usable PSF star (a table needs 3) among [0-9]* detections; fitting with the Gaussian of fwhm" "$T/one1log" ||
+    no "one PSF star: $(tail -n 1 "$T/one1log")"
+awk 'NR == FNR { if ($0 !~ /^#/) F = $4; next }
+     /^#/ { if ($3 == "FLUX_PSF") cf = $2; if ($3 == "FLUXERR_PSF") ce = $2; next }
+     { n++; d = $cf - F; if (d < 0) d = -d; ok = d < 4 * $ce }
+     END { exit !(n == 1 && ok) }' "$T/one.truth" "$T/one1.cat" ||
+    no "one PSF star: not its one star at the true flux: $(grep -v '^#' "$T/one1.cat")"
 
 [ "$fails" -eq 0 ]
