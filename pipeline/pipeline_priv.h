@@ -491,6 +491,13 @@ int mp_pl_error_scale(const mp_frame *f, const float *res, const mp_table *t,
                       const mp_prf_model *m, double fitrad, double fwhm, mp_pl_escale *e,
                       char *err);
 
+/* mp_pl_escale_unused: whether e's measured scatter differs from 1 (as
+ * above) where too few places (MP_PL_ESCALE_MINPLACES) let it scale the
+ * errors: the catalog's errors are then the fit's, and say less than the
+ * residual does (a frame whose noise is not its model's: a wrong gain, its
+ * sky subtracted without an error plane). */
+int mp_pl_escale_unused(const mp_pl_escale *e);
+
 /* mp_pl_apply_error_scale: t's FLUXERR_PSF and MAGERR_PSF times k[0],
  * ERRX_PSF and ERRY_PSF times k[1] (the columns t has). */
 void mp_pl_apply_error_scale(mp_table *t, const mp_pl_escale *e);

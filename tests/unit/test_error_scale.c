@@ -10,7 +10,9 @@
  * doubled (the data noisier than its Poisson model, or structure the
  * stars do not describe): 2, and the errors doubled.  Places within 1
  * FWHM of a listed star are left out, as many as the test counts from the
- * definition.  The columns are scaled as stated. */
+ * definition.  The columns are scaled as stated.  On a frame of 8² places,
+ * fewer than MP_PL_ESCALE_MINPLACES, neither error is scaled, the doubled
+ * noise is said (mp_pl_escale_unused) and Poisson noise is not. */
 #include <setjmp.h>
 #include <stdarg.h>
 #include <stddef.h>
@@ -39,23 +41,28 @@ typedef struct {
 
 /* Data = residual = sky + scale × Poisson noise (no star: the model is
  * the sky alone, whose Poisson variance the noise exceeds scale² times). */
-static void scene_make(scene *s, double scale, uint64_t seed)
+static void scene_make_n(scene *s, long n, double scale, uint64_t seed)
 {
     memset(s, 0, sizeof *s);
-    sf_frame_make(&s->f, N, N, RON);
-    s->res = malloc(sizeof(float) * N * N);
+    sf_frame_make(&s->f, n, n, RON);
+    s->res = malloc(sizeof(float) * (size_t)(n * n));
     assert_non_null(s->res);
-    for (long i = 0; i < N * N; i++)
+    for (long i = 0; i < n * n; i++)
         s->f.im.pix[i] = (float)SKY;
     mp_rng r;
     mp_rng_seed(&r, seed);
-    mp_sim_add_noise_float(&r, s->f.im.pix, N * N, RON);
-    for (long i = 0; i < N * N; i++) {
+    mp_sim_add_noise_float(&r, s->f.im.pix, (size_t)(n * n), RON);
+    for (long i = 0; i < n * n; i++) {
         s->f.im.pix[i] = (float)(SKY + scale * (s->f.im.pix[i] - SKY));
         s->res[i] = s->f.im.pix[i];
     }
     mp_psf_gauss(FWHM, &s->psf);
     s->m = (mp_prf_model){&s->psf, NULL, 10};
+}
+
+static void scene_make(scene *s, double scale, uint64_t seed)
+{
+    scene_make_n(s, N, scale, seed);
 }
 
 static void scene_drop(scene *s)
@@ -90,6 +97,32 @@ static void test_noise_and_doubled(void **state)
             assert_true(fabs(e.k[1] - sqrt(0.5 * (e.raw[1] * e.raw[1] + e.raw[2] * e.raw[2]))) <
                         1e-12);
         }
+        mp_table_free(&t);
+        scene_drop(&s);
+    }
+}
+
+/* 8² places (an 88² frame), fewer than MP_PL_ESCALE_MINPLACES: the
+ * errors stay the fit's for x and y as for the flux (the position's k,
+ * over 128 values, was applied before), and the doubled noise is said. */
+static void test_too_few_places(void **state)
+{
+    (void)state;
+    const double scales[2] = {1.0, 2.0};
+    for (int c = 0; c < 2; c++) {
+        scene s;
+        scene_make_n(&s, 88, scales[c], 177 + (uint64_t)c);
+        mp_table t;
+        sf_fitted_table(&t, NULL, NULL, NULL, NAN, 0);
+        mp_pl_escale e;
+        char err[MP_ERRLEN];
+        assert_int_equal(mp_pl_error_scale(&s.f, s.res, &t, &s.m, FITRAD, FWHM, &e, err), 0);
+        printf("# 88^2, scale %g: %zu places, raw %.4f %.4f %.4f, k %.4f %.4f, unused %d\n",
+               scales[c], e.nplace, e.raw[0], e.raw[1], e.raw[2], e.k[0], e.k[1],
+               mp_pl_escale_unused(&e));
+        assert_int_equal(e.nplace, 64);
+        assert_true(e.k[0] == 1.0 && e.k[1] == 1.0);
+        assert_int_equal(mp_pl_escale_unused(&e), c == 1);
         mp_table_free(&t);
         scene_drop(&s);
     }
@@ -154,6 +187,7 @@ int main(void)
 {
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(test_noise_and_doubled),
+        cmocka_unit_test(test_too_few_places),
         cmocka_unit_test(test_places_near_stars_left_out),
         cmocka_unit_test(test_columns_scaled),
     };
