@@ -393,8 +393,12 @@ static int start_state(group *G, const mp_star *stars, double sky)
         G->p[a] = 0.0;
     if (lm_render_all(G, G->p, G->cur, RENDER_ALL))
         return 1;
+    /* A start flux the fit could not take (none, not positive, or beyond
+     * the largest it allows, emax: a table's FLUX of 1e30 on a 5e4 e-
+     * star ended rejected, 1e200 overflowed its normal equations) is the
+     * data's own. */
     for (int k = 0; k < n; k++)
-        if (!(isfinite(G->p[3 * k]) && G->p[3 * k] > 0))
+        if (!(isfinite(G->p[3 * k]) && G->p[3 * k] > 0 && G->p[3 * k] <= G->emax))
             G->p[3 * k] = start_flux(G, &G->cur[k], sky);
     return 0;
 }

@@ -47,6 +47,41 @@ static void test_bright_1e8(void **state)
     sf_frame_drop(&f);
 }
 
+/* A start flux the fit cannot take (a coordinate table's FLUX of 1e30 or
+ * 1e300 for a 5e4 e- star; emax, the largest flux a step may reach, is
+ * 1e5 times the window's light) starts from the data, as no flux does:
+ * the same fit to the last bit as from NaN, converged, within 4σ of the
+ * truth (it ended rejected at 1e30, and its normal equations overflowed
+ * into "out of memory" at 1e300). */
+static void test_absurd_start_flux(void **state)
+{
+    (void)state;
+    char err[MP_ERRLEN];
+    mp_psf p;
+    mp_psf_gauss(FWHM, &p);
+    mp_prf_model m = {&p, NULL, 10};
+    mp_frame f;
+    sf_frame_make(&f, 40, 40, RON);
+    mp_rng r;
+    mp_rng_seed(&r, 409);
+    double x = 20.31, y = 19.77, E = 5e4;
+    sf_render(&f, B_SKY, FWHM, &x, &y, &E, 1, &r, RON);
+    mp_fit_opts o;
+    mp_fit_opts_default(&o);
+    const double start[3] = {NAN, 1e30, 1e300};
+    mp_star st[3];
+    for (int k = 0; k < 3; k++) {
+        st[k] = (mp_star){.x = x + 0.3, .y = y - 0.2, .flux = start[k]};
+        assert_int_equal(mp_fit_group(&f, &m, &o, NAN, &st[k], 1, err), 0);
+        print_message("start flux %g: E=%.6g eflux=%.4g flags=%d niter=%d\n", start[k],
+                      st[k].flux, st[k].eflux, st[k].flags, st[k].niter);
+        assert_int_equal(st[k].flags & MP_FLAG_NOCONV, 0);
+        assert_true(fabs(st[k].flux - E) < 4 * st[k].eflux);
+        assert_true(st[k].flux == st[0].flux && st[k].x == st[0].x && st[k].eflux == st[0].eflux);
+    }
+    sf_frame_drop(&f);
+}
+
 /* The same star saturated: written with SATURATE = 65535 ADU and clipped
  * there, as a detector does, then read back through io (mp_frame_read):
  * io marks the clipped pixels MP_MASK_SATURATED, the fit leaves them out
@@ -388,6 +423,7 @@ int main(void)
         cmocka_unit_test(test_close_pairs),
         cmocka_unit_test(test_edges_and_corners),
         cmocka_unit_test(test_nan_and_masked_column),
+        cmocka_unit_test(test_absurd_start_flux),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }
