@@ -24,7 +24,7 @@ int mp_pl_write_named(const char *root, const char *ext, const mp_table *t,
     return rc;
 }
 
-int mp_pl_no_star(const char *image, const mp_frame *f, const char *none_why,
+int mp_pl_no_star(const char *image, const mp_frame *f, const char *none_why, double fwhm,
                   const mp_pipeline_opts *o, const mp_pipeline_report *rep, char *err)
 {
     char why[320];
@@ -37,11 +37,19 @@ int mp_pl_no_star(const char *image, const mp_frame *f, const char *none_why,
     else if (seen == 0 && rep->screened == 0)
         snprintf(why, sizeof why, "no source above threshold %g sigma of the kernel's amplitude",
                  th);
-    else
+    else {
+        /* A disc narrower than the star cannot tell its light from the sky
+         * (fitrad=1 on stars of FWHM 3: 5 pixels, every flux error huge). */
+        double fr = o->fit.opts.fit.fitrad;
+        char narrow[128] = "";
+        if (fr > 0 && fwhm > 0 && fr < fwhm)
+            snprintf(narrow, sizeof narrow, "; fitrad %.3g px is under the PSF's FWHM %.3g px: "
+                     "a disc that narrow cannot tell a star from its sky", fr, fwhm);
         snprintf(why, sizeof why, "%ld detection%s and %ld candidate%s below the screen's S/N, "
-                 "none kept by its fit (S/N FLUX_PSF/FLUXERR_PSF >= minsnr %g, not merged)",
+                 "none kept by its fit (S/N FLUX_PSF/FLUXERR_PSF >= minsnr %g, not merged)%s",
                  seen, seen == 1 ? "" : "s", rep->screened, rep->screened == 1 ? "" : "s",
-                 o->fit.opts.minsnr);
+                 o->fit.opts.minsnr, narrow);
+    }
     snprintf(err, MP_ERRLEN, "%.180s: no usable star: %.310s", image, why);
     return 1;
 }

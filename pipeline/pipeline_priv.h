@@ -425,8 +425,9 @@ int mp_pl_write_named(const char *root, const char *ext, const mp_table *t,
  * err: the frame's own fault when it has one (f, mp_find_why_none: no good
  * pixel, every pixel saturated, too few; f NULL: not told, a tiled run),
  * else none_why, why its first detection found nothing, when it is not ""
- * and no round found a star; else the detections' count.  Returns 1. */
-int mp_pl_no_star(const char *image, const mp_frame *f, const char *none_why,
+ * and no round found a star; else the detections' count, and that fitrad
+ * is under the PSF's FWHM fwhm when it is (NaN: not told).  Returns 1. */
+int mp_pl_no_star(const char *image, const mp_frame *f, const char *none_why, double fwhm,
                   const mp_pipeline_opts *o, const mp_pipeline_report *rep, char *err);
 
 /* mp_pl_write_catalog: root.cat (sky positions when the frame has a WCS;

@@ -736,7 +736,7 @@ int mp_pipeline_run(const char *image, const char *root, const mp_pipeline_opts 
     if (!rc)
         rc = rounds(&s, err) || mp_run_heldout_order(&s, err) || honest_errors(&s, err);
     if (!rc && s.t.nrow == 0)
-        rc = mp_pl_no_star(image, &s.f, s.none_why, o, rep, err);
+        rc = mp_pl_no_star(image, &s.f, s.none_why, s.fwhm, o, rep, err);
     if (!rc)
         rc = write_products(&s, err);
     if (rc)

@@ -300,7 +300,7 @@ int mp_pipeline_run_tiled(const char *image, const char *root, const mp_pipeline
     if (!rc && settle_edges(&g))
         rc = oom(err);
     if (!rc && g.all.nrow == 0)
-        rc = mp_pl_no_star(image, NULL, "", o, &g.rep, err);
+        rc = mp_pl_no_star(image, NULL, "", NAN, o, &g.rep, err);
     if (!rc)
         rc = write_tiled(&g, image, root, err);
     if (g.res)

@@ -149,6 +149,15 @@ for a in maxnpsf=1 fwhm=0.1; do
     [ "$rc" -eq 1 ] && grep -q "usable PSF star" "$T/nplog" || no "$a: exit $rc: $(cat "$T/nplog")"
     [ -z "$(ls "$T" | grep '^np\.')" ] || no "$a: left $(ls "$T" | grep '^np\.')"
 done
+# fitrad=1 on stars of FWHM 2.5: a 5-pixel disc cannot tell a star from its
+# sky, so no fit keeps one; the error says fitrad is under the PSF's FWHM
+# (it said only that no star was kept).
+"$M" pipeline "$T/f.fits" "$P" root="$T/nr" fitrad=1 >/dev/null 2>"$T/nrlog"
+rc=$?
+[ "$rc" -eq 1 ] && tail -n 1 "$T/nrlog" |
+    grep -q "no usable star: .*; fitrad 1 px is under the PSF's FWHM 2\.[0-9]* px" ||
+    no "fitrad=1: exit $rc: $(tail -n 1 "$T/nrlog")"
+[ -z "$(ls "$T" | grep '^nr\.')" ] || no "fitrad=1: left $(ls "$T" | grep '^nr\.')"
 # A fwhm far off the stars' (FWHM 2.5 here) is bad input where the Gaussian
 # of fwhm is the model (psf=gauss): one line naming fwhm and the stars'
 # measured FWHM, exit 1, no root.* left; with the right one the report
