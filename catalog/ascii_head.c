@@ -276,15 +276,21 @@ static int format_rows(const void *ctx, size_t r0, size_t r1, mp_text *b)
     const rows_ctx *x = ctx;
     const mp_table *t = x->t;
     char buf[512];
+    size_t kc = mp_text_kept_ncol(x->prev);
     for (size_t r = r0; r < r1; r++) {
         const char *s;
-        size_t len;
+        size_t len, c0 = 0;
         if (x->prev && mp_text_kept_row(x->prev, t, x->cnum, r, &s, &len)) {
-            if (mp_text_put(b, s, len))
+            /* its first kc columns as kept, the separator its newline was
+             * (the rest, t's columns after them, formatted below) */
+            int more = kc < t->ncol;
+            if (mp_text_put(b, s, len - (size_t)more) || (more && mp_text_put(b, " ", 1)))
                 return 1;
-            continue;
+            if (!more)
+                continue;
+            c0 = kc;
         }
-        for (size_t c = 0; c < t->ncol; c++) {
+        for (size_t c = c0; c < t->ncol; c++) {
             int w = mp_format_value(&t->cols[c], mp_table_get(t, r, (int)c), buf, sizeof buf);
             size_t n = w < 0 ? 0 : (size_t)w < sizeof buf ? (size_t)w : strlen(buf);
             /* a separator even when a value overflows its width (n < 512:

@@ -103,9 +103,11 @@ int mp_table_write(const char *path, const mp_table *t, mp_table_format fmt, cha
 typedef struct mp_text_kept mp_text_kept;
 
 /* mp_table_write_kept: mp_table_write, the same bytes, for tables written
- * one after another with the same columns (root.grp, then root.fit): a
- * row whose NUMBER prev (NULL: none) holds with the same values, bit for
- * bit, is copied from there rather than formatted again.  With keep, *keep
+ * one after another with the same columns (root.grp, then root.fit), or
+ * with prev's columns first and more after (root.fit, then root.cat with
+ * sky positions): a row whose NUMBER prev (NULL: none) holds with the same
+ * values in prev's columns, bit for bit, is copied from there rather than
+ * formatted again (its columns after, formatted).  With keep, *keep
  * then holds t's rows (a copy of its values and its text; NULL unless
  * ASCII_HEAD) until mp_text_kept_free. */
 int mp_table_write_kept(const char *path, const mp_table *t, mp_table_format fmt,

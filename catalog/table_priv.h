@@ -89,14 +89,17 @@ int mp_ascii_head_write(FILE *fp, const char *name, const mp_table *t, char *err
 int mp_ascii_head_write_kept(FILE *fp, const char *name, const mp_table *t,
                              const mp_text_kept *prev, mp_text_kept **out, char *err);
 
-/* text_kept.c.  mp_text_kept_fits: whether k's columns are t's (names,
- * formats), and k can be looked up by NUMBER.  mp_text_kept_row: row r of
- * t (NUMBER in column cnum) as k wrote it, when k holds that NUMBER with
- * the same values bit for bit: its text into *s, *len (with its newline).
+/* text_kept.c.  mp_text_kept_fits: whether k's columns are t's first
+ * ones (names, formats; all of them, or t's with columns after), and k can
+ * be looked up by NUMBER.  mp_text_kept_ncol: k's columns.
+ * mp_text_kept_row: row r of t (NUMBER in column cnum) as k wrote it,
+ * when k holds that NUMBER with the same values bit for bit in k's
+ * columns: its text into *s, *len (with its newline).
  * mp_text_kept_make: *out for t from its rows' text (len bytes, taken
  * over); left NULL when the text is not one line a row; nonzero when out
  * of memory. */
 int mp_text_kept_fits(const mp_text_kept *k, const mp_table *t);
+size_t mp_text_kept_ncol(const mp_text_kept *k);
 int mp_text_kept_row(const mp_text_kept *k, const mp_table *t, int cnum, size_t r,
                      const char **s, size_t *len);
 int mp_text_kept_make(mp_text_kept **out, const mp_table *t, char *text, size_t len);

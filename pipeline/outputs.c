@@ -67,7 +67,7 @@ static int has_wcs(const mp_image *im)
  * frame's header as SExtractor's does) and the DS9 regions root.reg;
  * root.fit holds t in o->fit.fmt (written just before). */
 int mp_pl_write_catalog(const char *root, const mp_frame *f, mp_table *t,
-                         const mp_pipeline_opts *o, char *err)
+                         const mp_pipeline_opts *o, const mp_text_kept *fit_text, char *err)
 {
     char e[MP_ERRLEN];
     mp_image hv = mp_fimage_header(&f->im);
@@ -101,7 +101,8 @@ int mp_pl_write_catalog(const char *root, const mp_frame *f, mp_table *t,
         }
         free(fit);
     } else {
-        rc = mp_pl_write_named(root, ".cat", t, o->catfmt, NULL, NULL, err);
+        rc = mp_pl_write_named(root, ".cat", t, o->catfmt,
+                               o->catfmt == o->fit.fmt ? fit_text : NULL, NULL, err);
     }
     if (!rc && o->regions) {
         mp_region_opts ro = {3.0, 0, 1};

@@ -433,9 +433,10 @@ int mp_pl_no_star(const char *image, const mp_frame *f, const char *none_why, do
 /* mp_pl_write_catalog: root.cat (sky positions when the frame has a WCS;
  * FITS_LDAC carries the frame's header) and, with o->regions, root.reg.
  * root.fit must hold t, written in o->fit.fmt: a root.cat of the same
- * text is its copy. */
+ * text is its copy; with sky positions, its rows' text as root.fit's write
+ * kept it (fit_text; NULL: none) and the positions after. */
 int mp_pl_write_catalog(const char *root, const mp_frame *f, mp_table *t,
-                        const mp_pipeline_opts *o, char *err);
+                        const mp_pipeline_opts *o, const mp_text_kept *fit_text, char *err);
 
 /* The residual image root.res.fits (BITPIX -32, GAIN and RDNOISE of f),
  * in ADU, NaN where the frame is masked bad; written whole by

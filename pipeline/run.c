@@ -512,17 +512,19 @@ static int honest_errors(run_state *s, char *err)
 static int write_products(run_state *s, char *err)
 {
     double t0 = mp_seconds();
-    mp_text_kept *grp_text = NULL;
+    mp_text_kept *grp_text = NULL, *fit_text = NULL;
     const char *ext[] = {s->quiet ? "" : ".grp", ".fit", ".res.fits", ".cat",
                          s->o->regions ? ".reg" : "", ".report"};
     for (size_t i = 0; i < sizeof ext / sizeof *ext; i++)
         mp_run_writes(s, ext[i]);
     int rc = (!s->quiet &&
               mp_pl_write_named(s->root, ".grp", &s->grp, s->o->fit.fmt, NULL, &grp_text, err)) ||
-             mp_pl_write_named(s->root, ".fit", &s->t, s->o->fit.fmt, grp_text, NULL, err);
+             mp_pl_write_named(s->root, ".fit", &s->t, s->o->fit.fmt, grp_text, &fit_text, err);
     mp_text_kept_free(grp_text);
-    if (rc || mp_pl_write_residual(s->root, &s->f, s->res, err) ||
-        mp_pl_write_catalog(s->root, &s->f, &s->t, s->o, err))
+    rc = rc || mp_pl_write_residual(s->root, &s->f, s->res, err) ||
+         mp_pl_write_catalog(s->root, &s->f, &s->t, s->o, fit_text, err);
+    mp_text_kept_free(fit_text);
+    if (rc)
         return 1;
     s->rep->t_write = mp_seconds() - t0;
     return mp_pl_write_report(s->image, s->root, s->fit, s->rep, &s->t, err);

@@ -261,7 +261,7 @@ static int write_tiled(tiling *g, const char *image, const char *root, char *err
     snprintf(one, n, "%s[1:1,1:1]", image);
     int rc = mp_pl_write_named(root, ".fit", &g->all, g->o->fit.fmt, NULL, NULL, err) ||
              mp_frame_read(one, &g->o->fit.dp, &hf, err) ||
-             mp_pl_write_catalog(root, &hf, &g->all, g->o, err) ||
+             mp_pl_write_catalog(root, &hf, &g->all, g->o, NULL, err) ||
              mp_pl_write_report(image, root, &g->o->fit, &g->rep, &g->all, err);
     mp_frame_free(&hf);
     free(one);

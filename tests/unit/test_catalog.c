@@ -575,6 +575,62 @@ static void test_write_kept_same_bytes(void **state)
     mp_table_free(&c1);
 }
 
+/* A table with the kept one's columns first and more after (root.fit,
+ * then root.cat with its sky positions) copies the kept text of its rows
+ * whose values in those columns are the same, bit for bit, and formats
+ * the columns after: the same bytes as written alone, one row's flux one
+ * ulp away formatted whole.  (Before, no row of it was copied.) */
+static void test_write_kept_prefix(void **state)
+{
+    fixture *f = *state;
+    char pa[512], pb[512], pc[512], err[MP_ERRLEN] = "";
+    path_in(f, "p.fit", pa, sizeof pa);
+    path_in(f, "p.cat", pb, sizeof pb);
+    path_in(f, "p.alone", pc, sizeof pc);
+    mp_table a, b, s;
+    sample_table(&b);
+    size_t na = b.ncol - 2;             /* a: b's columns but the last two */
+    mp_table_init(&a);
+    mp_table_init(&s);                  /* s: one column fewer than a */
+    for (size_t c = 0; c < na; c++) {
+        assert_int_equal(mp_table_add_col(&a, b.cols[c].name), (int)c);
+        if (c + 1 < na)
+            assert_int_equal(mp_table_add_col(&s, b.cols[c].name), (int)c);
+    }
+    for (size_t r = 0; r < b.nrow; r++) {
+        assert_int_equal(mp_table_add_row(&a), (long)r);
+        for (size_t c = 0; c < na; c++)
+            mp_table_set(&a, r, (int)c, mp_table_get(&b, r, (int)c));
+    }
+    int cn = mp_table_col(&b, "NUMBER"), cf = mp_table_col(&b, "FLUX_PSF");
+    assert_true(cn >= 0 && cf >= 0 && (size_t)cf < na);
+    static const double num[4] = {5, 3, 9, 1};
+    for (size_t r = 0; r < 4; r++) {
+        mp_table_set(&a, r, cn, num[r]);
+        mp_table_set(&b, r, cn, num[r]);
+    }
+    mp_table_set(&b, 2, cf, nextafter(mp_table_get(&b, 2, cf), INFINITY));
+    mp_text_kept *k = NULL;
+    assert_int_equal(mp_table_write_kept(pa, &a, MP_TAB_ASCII_HEAD, NULL, &k, err), 0);
+    assert_non_null(k);
+    assert_true(mp_text_kept_fits(k, &b));
+    assert_false(mp_text_kept_fits(k, &s));
+    const char *txt;
+    size_t len;
+    for (size_t q = 0; q < 4; q++)
+        assert_int_equal(mp_text_kept_row(k, &b, cn, q, &txt, &len), q != 2);
+    assert_int_equal(mp_table_write_kept(pb, &b, MP_TAB_ASCII_HEAD, k, NULL, err), 0);
+    assert_int_equal(mp_table_write(pc, &b, MP_TAB_ASCII_HEAD, err), 0);
+    char *with = slurp(pb), *alone = slurp(pc);
+    assert_string_equal(with, alone);
+    free(with);
+    free(alone);
+    mp_text_kept_free(k);
+    mp_table_free(&a);
+    mp_table_free(&b);
+    mp_table_free(&s);
+}
+
 static void test_round_trip_ascii(void **state) { round_trip(*state, MP_TAB_ASCII_HEAD, "rt.cat"); }
 static void test_round_trip_csv(void **state) { round_trip(*state, MP_TAB_CSV, "rt.csv"); }
 
@@ -981,6 +1037,7 @@ int main(void)
         cmocka_unit_test(test_integer_columns),
         cmocka_unit_test(test_float_columns),
         cmocka_unit_test_setup_teardown(test_write_kept_same_bytes, setup, teardown),
+        cmocka_unit_test_setup_teardown(test_write_kept_prefix, setup, teardown),
         cmocka_unit_test(test_sample_out),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
