@@ -135,6 +135,26 @@ static int image_shape(fitsfile *fp, const char *name, int *bitpix, int *naxis, 
     return 0;
 }
 
+/* The bytes of the HDU's data as its header sizes them: the image's
+ * pixels, or for a tile-compressed image (fpack's .fz, stored as a binary
+ * table) the table's rows and heap, NAXIS1 · NAXIS2 + PCOUNT, not the
+ * pixels it expands to (which called every such file truncated). */
+static LONGLONG data_bytes(fitsfile *fp, int bitpix, int naxis, const long naxes[9])
+{
+    int status = 0;
+    if (fits_is_compressed_image(fp, &status)) {
+        LONGLONG w = 0, h = 0, heap = 0;
+        fits_read_key_lnglng(fp, "NAXIS1", &w, NULL, &status);
+        fits_read_key_lnglng(fp, "NAXIS2", &h, NULL, &status);
+        fits_read_key_lnglng(fp, "PCOUNT", &heap, NULL, &status);
+        return status ? 0 : w * h + heap;
+    }
+    LONGLONG nbytes = (LONGLONG)(bitpix < 0 ? -bitpix : bitpix) / 8;
+    for (int k = 0; k < naxis; k++)
+        nbytes *= naxes[k];
+    return nbytes;
+}
+
 /* A file cut short inside its data: say so before reading, since cfitsio
  * would otherwise convert bytes past the end of the file. */
 static int check_complete(fitsfile *fp, const char *name, int bitpix, int naxis,
@@ -143,9 +163,7 @@ static int check_complete(fitsfile *fp, const char *name, int bitpix, int naxis,
     int status = 0;
     LONGLONG hstart, dstart, dend;
     fits_get_hduaddrll(fp, &hstart, &dstart, &dend, &status);
-    LONGLONG nbytes = (LONGLONG)(bitpix < 0 ? -bitpix : bitpix) / 8;
-    for (int k = 0; k < naxis; k++)
-        nbytes *= naxes[k];
+    LONGLONG nbytes = data_bytes(fp, bitpix, naxis, naxes);
     if (!status && dstart + nbytes > fp->Fptr->logfilesize) {
         snprintf(err, MP_ERRLEN, "%s: truncated FITS file (the data end before the header says)",
                  name);

@@ -304,6 +304,50 @@ static void expect_read_error(const char *name, const char *file, const char *wo
     assert_null(im.hdr);
 }
 
+/* A tile-compressed image (fpack's .fz: a binary table of compressed
+ * tiles after an empty primary), as cfitsio writes it with RICE_1 from 16-bit
+ * integers (lossless): read as the image it holds, by its extension and by
+ * the bare name (cfitsio moves past the empty primary), the same pixels as
+ * the plain file; cut in its tiles, "truncated" (every such file was
+ * called truncated before: the check sized its data as the pixels). */
+static void test_compressed_image(void **state)
+{
+    scratch *s = *state;
+    char path[700], name[720], err[MP_ERRLEN];
+    snprintf(path, sizeof path, "%s", in_dir(s, "tiles.fits"));
+    int status = 0;
+    fitsfile *fp;
+    long naxes[2] = {120, 90};
+    short v[120 * 90];
+    for (int i = 0; i < 120 * 90; i++)
+        v[i] = (short)((i * 37) % 5000 - 1000);
+    fits_create_file(&fp, path, &status);
+    fits_create_img(fp, SHORT_IMG, 0, NULL, &status);
+    fits_set_compression_type(fp, RICE_1, &status);
+    fits_create_img(fp, SHORT_IMG, 2, naxes, &status);
+    fits_write_key_str(fp, "EXTNAME", "SCI", NULL, &status);
+    fits_write_img(fp, TSHORT, 1, 120 * 90, v, &status);
+    fits_close_file(fp, &status);
+    assert_int_equal(status, 0);
+    const char *names[2] = {"%s[SCI]", "%s"};
+    for (int k = 0; k < 2; k++) {
+        mp_image im;
+        snprintf(name, sizeof name, names[k], path);
+        if (mp_image_read(name, &im, err) != 0)
+            fail_msg("%s: %s", name, err);
+        assert_int_equal(im.nx, 120);
+        assert_int_equal(im.ny, 90);
+        for (int i = 0; i < 120 * 90; i++)
+            assert_true(im.pix[i] == (double)v[i]);
+        mp_image_free(&im);
+    }
+    struct stat st;
+    assert_int_equal(stat(path, &st), 0);
+    assert_int_equal(truncate(path, st.st_size - 2000), 0);
+    snprintf(name, sizeof name, "%s[SCI]", path);
+    expect_read_error(name, "tiles.fits", "truncated");
+}
+
 static void test_bad_inputs(void **state)
 {
     scratch *s = *state;
@@ -1108,6 +1152,7 @@ int main(void)
         cmocka_unit_test_setup_teardown(test_round_trip, setup, teardown),
         cmocka_unit_test(test_header_parsing),
         cmocka_unit_test_setup_teardown(test_sections_and_hdus, setup, teardown),
+        cmocka_unit_test_setup_teardown(test_compressed_image, setup, teardown),
         cmocka_unit_test_setup_teardown(test_bad_inputs, setup, teardown),
         cmocka_unit_test_setup_teardown(test_frame, setup, teardown),
         cmocka_unit_test_setup_teardown(test_frame_dq, setup, teardown),
