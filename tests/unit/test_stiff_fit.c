@@ -21,6 +21,16 @@
  * read noise add (β(B+RON²)/E) ≈ 2e-5 of it; the 5-px fitting radius keeps
  * 1 − exp(−r²/2σ²) = 0.99951 of the light; fitting sky and position with
  * it inflates σ_E by < 1 %), so σ_E/sqrt(E) must lie in [1, 1.05]. */
+/* An n × n frame of sky B_SKY and read noise RON holding one star of E e-
+ * at (x, y), drawn with the seed. */
+static void one_star_frame(mp_frame *f, long n, uint64_t seed, double x, double y, double E)
+{
+    sf_frame_make(f, n, n, RON);
+    mp_rng r;
+    mp_rng_seed(&r, seed);
+    sf_render(f, B_SKY, FWHM, &x, &y, &E, 1, &r, RON);
+}
+
 static void test_bright_1e8(void **state)
 {
     (void)state;
@@ -29,11 +39,8 @@ static void test_bright_1e8(void **state)
     mp_psf_gauss(FWHM, &p);
     mp_prf_model m = {&p, NULL, 10};
     mp_frame f;
-    sf_frame_make(&f, 60, 60, RON);
-    mp_rng r;
-    mp_rng_seed(&r, 401);
     double x = 30.31, y = 29.77, E = 1e8;
-    sf_render(&f, B_SKY, FWHM, &x, &y, &E, 1, &r, RON);
+    one_star_frame(&f, 60, 401, x, y, E);
     mp_fit_opts o;
     mp_fit_opts_default(&o);
     mp_star st = {.x = x + 0.3, .y = y - 0.2, .flux = NAN};
@@ -61,11 +68,8 @@ static void test_absurd_start_flux(void **state)
     mp_psf_gauss(FWHM, &p);
     mp_prf_model m = {&p, NULL, 10};
     mp_frame f;
-    sf_frame_make(&f, 40, 40, RON);
-    mp_rng r;
-    mp_rng_seed(&r, 409);
     double x = 20.31, y = 19.77, E = 5e4;
-    sf_render(&f, B_SKY, FWHM, &x, &y, &E, 1, &r, RON);
+    one_star_frame(&f, 40, 409, x, y, E);
     mp_fit_opts o;
     mp_fit_opts_default(&o);
     const double start[3] = {NAN, 1e30, 1e300};
