@@ -1,6 +1,7 @@
 /* image_read.c — mp_image_read and mp_image_free (io.h). */
 #include "io/io.h"
 
+#include <limits.h>
 #include <math.h>
 #include <stdint.h>
 #include <stdio.h>
@@ -147,7 +148,10 @@ static LONGLONG data_bytes(fitsfile *fp, int bitpix, int naxis, const long naxes
         fits_read_key_lnglng(fp, "NAXIS1", &w, NULL, &status);
         fits_read_key_lnglng(fp, "NAXIS2", &h, NULL, &status);
         fits_read_key_lnglng(fp, "PCOUNT", &heap, NULL, &status);
-        return status ? 0 : w * h + heap;
+        if (status || w < 0 || h < 0 || heap < 0)
+            return 0;
+        /* a header's sizes past any file: more than the file holds */
+        return h > 0 && w > (LLONG_MAX - heap) / h ? LLONG_MAX : w * h + heap;
     }
     LONGLONG nbytes = (LONGLONG)(bitpix < 0 ? -bitpix : bitpix) / 8;
     for (int k = 0; k < naxis; k++)
