@@ -313,6 +313,14 @@ int mp_pl_escale_unused(const mp_pl_escale *e)
            (differs(e->raw[0], e->nplace) || differs(position_k(e), 2 * e->nplace));
 }
 
+void mp_pl_escale_unused_why(const mp_pl_escale *e, char *why, size_t n)
+{
+    snprintf(why, n, "the catalog's errors are the fit's, but the residual fitted as a star "
+             "scatters by %.3g (flux), %.3g, %.3g (x, y) of their sigma at %zu places, fewer "
+             "than the %d that scale them", e->raw[0], e->raw[1], e->raw[2], e->nplace,
+             MP_PL_ESCALE_MINPLACES);
+}
+
 int mp_pl_error_scale(const mp_frame *f, const float *res, const mp_table *t,
                       const mp_prf_model *m, double fitrad, double fwhm, mp_pl_escale *e,
                       char *err)

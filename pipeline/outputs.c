@@ -240,11 +240,11 @@ static void detection_line(const mp_fit_setup *fit, const mp_pipeline_report *re
     mp_pl_escale es = {{rep->escale[0], rep->escale[1]},
                        {rep->escale_raw[0], rep->escale_raw[1], rep->escale_raw[2]},
                        rep->escale_places > 0 ? (size_t)rep->escale_places : 0};
-    if (k > 0 && (size_t)k < n && mp_pl_escale_unused(&es))
-        k += snprintf(run->detection + k, n - (size_t)k, "; the catalog's errors are the "
-                      "fit's, but the residual fitted as a star scatters by %.3g (flux), %.3g, "
-                      "%.3g (x, y) of their sigma at %zu places, fewer than the %d that scale "
-                      "them", es.raw[0], es.raw[1], es.raw[2], es.nplace, MP_PL_ESCALE_MINPLACES);
+    if (k > 0 && (size_t)k < n && mp_pl_escale_unused(&es)) {
+        char why[320];
+        mp_pl_escale_unused_why(&es, why, sizeof why);
+        k += snprintf(run->detection + k, n - (size_t)k, "; %s", why);
+    }
     if (k > 0 && (size_t)k < n && rep->cr_k > 0)
         k += snprintf(run->detection + k, n - (size_t)k, "; %ld pixels masked as cosmic rays "
                       "or hot pixels around %ld that no sum of stars makes (crmask: side "

@@ -500,6 +500,10 @@ int mp_pl_error_scale(const mp_frame *f, const float *res, const mp_table *t,
  * sky subtracted without an error plane). */
 int mp_pl_escale_unused(const mp_pl_escale *e);
 
+/* mp_pl_escale_unused_why: what such a scatter says, one clause into why
+ * (n bytes), for the warning and the report's detection line. */
+void mp_pl_escale_unused_why(const mp_pl_escale *e, char *why, size_t n);
+
 /* mp_pl_apply_error_scale: t's FLUXERR_PSF and MAGERR_PSF times k[0],
  * ERRX_PSF and ERRY_PSF times k[1] (the columns t has). */
 void mp_pl_apply_error_scale(mp_table *t, const mp_pl_escale *e);

@@ -497,12 +497,12 @@ static int honest_errors(run_state *s, char *err)
                 "(flux), %.3g, %.3g (x, y) of its sigma (used when beyond %.0f of its sampling "
                 "errors), %.2f s\n", s->image, e.k[0], e.k[1], e.nplace, e.raw[0], e.raw[1],
                 e.raw[2], MP_PL_ESCALE_Z, mp_seconds() - t0);
-    if (!s->quiet && mp_pl_escale_unused(&e))
-        fprintf(stderr, "matphot pipeline: %s: warning: the catalog's errors are the fit's, "
-                "but the residual fitted as a star scatters by %.3g (flux), %.3g, %.3g (x, y) "
-                "of their sigma: %zu places, fewer than the %d that scale them (is the frame's "
-                "noise its model's? gain, rdnoise, errplane)\n", s->image, e.raw[0], e.raw[1],
-                e.raw[2], e.nplace, MP_PL_ESCALE_MINPLACES);
+    if (!s->quiet && mp_pl_escale_unused(&e)) {
+        char why[320];
+        mp_pl_escale_unused_why(&e, why, sizeof why);
+        fprintf(stderr, "matphot pipeline: %s: warning: %s (is the frame's noise its model's? "
+                "gain, rdnoise, errplane)\n", s->image, why);
+    }
     return 0;
 }
 

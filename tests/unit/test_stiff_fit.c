@@ -16,11 +16,6 @@
 #define RON 3.0
 #define FWHM 3.0
 
-/* A 10⁸ e⁻ star: the fit converges, its flux and position lie within 4σ of
- * the truth, and σ_E is the photon noise of the star, sqrt(E) (sky and
- * read noise add (β(B+RON²)/E) ≈ 2e-5 of it; the 5-px fitting radius keeps
- * 1 − exp(−r²/2σ²) = 0.99951 of the light; fitting sky and position with
- * it inflates σ_E by < 1 %), so σ_E/sqrt(E) must lie in [1, 1.05]. */
 /* An n × n frame of sky B_SKY and read noise RON holding one star of E e-
  * at (x, y), drawn with the seed. */
 static void one_star_frame(mp_frame *f, long n, uint64_t seed, double x, double y, double E)
@@ -31,6 +26,11 @@ static void one_star_frame(mp_frame *f, long n, uint64_t seed, double x, double 
     sf_render(f, B_SKY, FWHM, &x, &y, &E, 1, &r, RON);
 }
 
+/* A 10⁸ e⁻ star: the fit converges, its flux and position lie within 4σ of
+ * the truth, and σ_E is the photon noise of the star, sqrt(E) (sky and
+ * read noise add (β(B+RON²)/E) ≈ 2e-5 of it; the 5-px fitting radius keeps
+ * 1 − exp(−r²/2σ²) = 0.99951 of the light; fitting sky and position with
+ * it inflates σ_E by < 1 %), so σ_E/sqrt(E) must lie in [1, 1.05]. */
 static void test_bright_1e8(void **state)
 {
     (void)state;
