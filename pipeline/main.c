@@ -64,23 +64,25 @@ static void usage(FILE *fp)
             "`matphot fit img.fits img.coo @my.par fitrad=4` uses them.\n");
 }
 
-/* Blocks of 1 MiB and more mapped on their own, so that freeing one gives
- * its pages back: glibc's default threshold rises to the largest block
- * freed (up to 32 MiB), after which the tables, star arrays and maps of
- * one stage stay in the heap, holding their pages after they are freed
- * (issue 14: peak RSS at 2048^2, 15 600 stars, 89.4 -> 81.4 MiB, the
- * heap's own peak being 70.6 MB; CPU unchanged within 1 %).  A fixed
- * threshold also fixes the trim threshold, as mallopt(3) says, at 128 KiB:
- * the heap then gave back and faulted in again 320 MB of pages on 47 Tuc
- * 512^2 (82 000 of its 148 000 page faults; at 16 threads 5 s of system
- * time, the faults serialised on the process's memory map).  Up to 4 MiB
- * of free heap is kept instead: 66 000 faults, system time 0.7 -> 0.2 s,
- * peak RSS +0.8 MB (bench/SCALING.md, session of 2026-11-30 20:55). */
+/* Blocks up to 32 MiB (glibc's largest fixed threshold) come from the
+ * heap, and up to 16 MiB of free heap is kept, so that a block freed is
+ * reused, not given back and faulted in again.  The PSF build's per-star
+ * arrays (G, H, the mask: 23 MB each on frame S's ×4 half-tables, one
+ * set a half and a pass) and the phase grids were mapped afresh each
+ * time above the 1 MiB threshold of 2026-11-25 (which took the 2048²
+ * frame's peak RSS 89.4 -> 81.4 MiB): on this project's virtual
+ * machines a page fault costs ~5 µs of system time.  One thread, five
+ * interleaved pairs (bench/PROFILE.md, session of 2026-12-07 00:50):
+ * frame S built 52 200 -> 26 400 faults, CPU 2.86 -> 2.52 s; 47 Tuc
+ * built 27 600 -> 12 500, 4.10 -> 3.98 s; peak RSS +3 %, +4 %, the
+ * 2048² frame +6 % (91.8 -> 97.3 MB; built, two threads, 110 -> 120).
+ * A fixed threshold also fixes the trim threshold (mallopt(3)), so both
+ * are set.  Every output the same bytes. */
 static void malloc_policy(void)
 {
 #ifdef __GLIBC__
-    (void)mallopt(M_MMAP_THRESHOLD, 1 << 20);
-    (void)mallopt(M_TRIM_THRESHOLD, 4 << 20);
+    (void)mallopt(M_MMAP_THRESHOLD, 32 << 20);
+    (void)mallopt(M_TRIM_THRESHOLD, 16 << 20);
 #endif
 }
 
