@@ -303,11 +303,26 @@ static int format_rows(const void *ctx, size_t r0, size_t r1, mp_text *b)
     return 0;
 }
 
-/* t's rows written to fp; with out, through a buffer kept there as t's
- * rows (mp_text_kept_make).  Nonzero when out of memory. */
+/* Whether t's rows may be kept as text: up to 16 MiB of it, at 12 bytes
+ * a value (root.fit's rows are 11.1).  The pipeline's writes keep
+ * root.grp's text for root.fit and root.fit's for root.cat while the
+ * frame, residual and mask are still held; kept whole, they took the
+ * 8192² run's peak RSS from 825 to 1047 MiB (3.22 to 4.09 times the
+ * frame's floats, where the goal is 3: bench/SCALING.md, 2026-12-07).  47
+ * Tuc's 3 800 rows are 1.5 MB, a 2048² frame's 15 600 6 MB; a 4096² frame's
+ * 61 600 (24 MB) are formatted again. */
+static int keep_within_budget(const mp_table *t)
+{
+    return (double)t->nrow * (double)t->ncol * 12.0 <= 16.0 * 1024 * 1024;
+}
+
+/* t's rows written to fp; with out, and when they fit the budget
+ * (keep_within_budget), through a buffer kept there as t's rows
+ * (mp_text_kept_make; else *out is left as it is).  Nonzero when out of
+ * memory. */
 static int write_rows(FILE *fp, const rows_ctx *x, mp_text_kept **out)
 {
-    if (!out)
+    if (!out || !keep_within_budget(x->t))
         return mp_rows_write(fp, x->t->nrow, format_rows, x);
     char *text = NULL;
     size_t len = 0;

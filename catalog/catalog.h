@@ -109,7 +109,9 @@ typedef struct mp_text_kept mp_text_kept;
  * values in prev's columns, bit for bit, is copied from there rather than
  * formatted again (its columns after, formatted).  With keep, *keep
  * then holds t's rows (a copy of its values and its text; NULL unless
- * ASCII_HEAD) until mp_text_kept_free. */
+ * ASCII_HEAD, and unless their text fits 16 MiB at 12 bytes a value: a
+ * large frame's tables are formatted again, for its peak RSS) until
+ * mp_text_kept_free. */
 int mp_table_write_kept(const char *path, const mp_table *t, mp_table_format fmt,
                         const mp_text_kept *prev, mp_text_kept **keep, char *err);
 void mp_text_kept_free(mp_text_kept *k);

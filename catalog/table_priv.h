@@ -84,7 +84,8 @@ int mp_csv_read(mp_lines *L, mp_table *t, char *err);
  * written in that format. Stream errors are found by the caller at commit.
  * mp_ascii_head_write_kept: with prev (NULL: none), a row it holds the
  * same (mp_text_kept_row) copied from it; with out, the rows' text kept
- * there for the next table (NULL when it cannot be). */
+ * there for the next table (NULL when it cannot be, or is above the
+ * budget: keep_within_budget). */
 int mp_ascii_head_write(FILE *fp, const char *name, const mp_table *t, char *err);
 int mp_ascii_head_write_kept(FILE *fp, const char *name, const mp_table *t,
                              const mp_text_kept *prev, mp_text_kept **out, char *err);

@@ -278,6 +278,25 @@ const mp_prf_cache *mp_run_phase_grid(run_state *s, double *gemax, double *glema
     return oe.grid;
 }
 
+/* root.grp's rows, the grouped table: held (s->grp) and written once
+ * with the other products when its values take up to 8 MiB, else
+ * written now, each round (the last round's stands).  Held, a copy cost
+ * 256 bytes a star at the run's peak: 63 MB of the 8192² frame's (3.7
+ * 10⁻³ stars a pixel: a quarter of its floats, where the goal is 3 times
+ * them; bench/SCALING.md, 2026-12-07); written each round, a table that
+ * size costs 1-3 % of the run more. */
+static int keep_grouped(run_state *s, char *err)
+{
+    mp_table_free(&s->grp);
+    if ((double)s->t.nrow * (double)s->t.ncol * sizeof *s->t.v <= 8.0 * 1024 * 1024)
+        return mp_pl_rows_of(&s->t, NULL, 1, &s->grp) ? oom(err) : 0;
+    double t0 = mp_seconds();
+    mp_run_writes(s, ".grp");
+    int rc = mp_pl_write_named(s->root, ".grp", &s->t, s->o->fit.fmt, NULL, NULL, err);
+    s->rep->t_write += mp_seconds() - t0;
+    return rc;
+}
+
 /* Group the stars (kept as s->grp for root.grp), fit every group, and draw
  * the residual.
  * once: in one pass, not the fit's passes, where a later fit takes the
@@ -302,11 +321,8 @@ int mp_run_group_and_fit(run_state *s, int round, int once, char *err)
     s->rep->pairs_close += close;
     s->rep->pairs_coupled += coupled;
     s->rep->t_group += mp_seconds() - t0;
-    if (!s->quiet) {
-        mp_table_free(&s->grp);
-        if (mp_pl_rows_of(&s->t, NULL, 1, &s->grp))
-            return oom(err);
-    }
+    if (!s->quiet && keep_grouped(s, err))
+        return 1;
     t0 = mp_seconds();
     mp_frame_report fr;
     if (mp_pl_positions_of(&s->t, &s->before))
@@ -517,7 +533,7 @@ static int write_products(run_state *s, char *err)
                          s->o->regions ? ".reg" : "", ".report"};
     for (size_t i = 0; i < sizeof ext / sizeof *ext; i++)
         mp_run_writes(s, ext[i]);
-    int rc = (!s->quiet &&
+    int rc = (!s->quiet && s->grp.ncol > 0 &&
               mp_pl_write_named(s->root, ".grp", &s->grp, s->o->fit.fmt, NULL, &grp_text, err)) ||
              mp_pl_write_named(s->root, ".fit", &s->t, s->o->fit.fmt, grp_text, &fit_text, err);
     mp_text_kept_free(grp_text);
@@ -526,7 +542,7 @@ static int write_products(run_state *s, char *err)
     mp_text_kept_free(fit_text);
     if (rc)
         return 1;
-    s->rep->t_write = mp_seconds() - t0;
+    s->rep->t_write += mp_seconds() - t0;
     return mp_pl_write_report(s->image, s->root, s->fit, s->rep, &s->t, err);
 }
 

@@ -631,6 +631,37 @@ static void test_write_kept_prefix(void **state)
     mp_table_free(&s);
 }
 
+/* A table whose text would pass the budget (16 MiB at 12 bytes a value:
+ * 699 051 rows of two values) is written the same bytes, but its rows are
+ * not kept: the 8192² run held 227 MB of them at its writes.  (Before,
+ * every table's were.) */
+static void test_write_kept_budget(void **state)
+{
+    fixture *f = *state;
+    char pa[512], pb[512], err[MP_ERRLEN] = "";
+    path_in(f, "b.grp", pa, sizeof pa);
+    path_in(f, "b.alone", pb, sizeof pb);
+    mp_table t;
+    mp_table_init(&t);
+    assert_true(mp_table_add_col(&t, "NUMBER") == 0 && mp_table_add_col(&t, "FLUX_PSF") == 1);
+    size_t n = (size_t)(16.0 * 1024 * 1024 / 24.0) + 1;
+    assert_int_equal(mp_table_reserve(&t, n), 0);
+    for (size_t r = 0; r < n; r++) {
+        assert_int_equal(mp_table_add_row(&t), (long)r);
+        mp_table_set(&t, r, 0, (double)(r + 1));
+        mp_table_set(&t, r, 1, 1000.0 + (double)r);
+    }
+    mp_text_kept *k = NULL;
+    assert_int_equal(mp_table_write_kept(pa, &t, MP_TAB_ASCII_HEAD, NULL, &k, err), 0);
+    assert_null(k);
+    assert_int_equal(mp_table_write(pb, &t, MP_TAB_ASCII_HEAD, err), 0);
+    char *kept = slurp(pa), *alone = slurp(pb);
+    assert_string_equal(kept, alone);
+    free(kept);
+    free(alone);
+    mp_table_free(&t);
+}
+
 static void test_round_trip_ascii(void **state) { round_trip(*state, MP_TAB_ASCII_HEAD, "rt.cat"); }
 static void test_round_trip_csv(void **state) { round_trip(*state, MP_TAB_CSV, "rt.csv"); }
 
@@ -1038,6 +1069,7 @@ int main(void)
         cmocka_unit_test(test_float_columns),
         cmocka_unit_test_setup_teardown(test_write_kept_same_bytes, setup, teardown),
         cmocka_unit_test_setup_teardown(test_write_kept_prefix, setup, teardown),
+        cmocka_unit_test_setup_teardown(test_write_kept_budget, setup, teardown),
         cmocka_unit_test(test_sample_out),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
