@@ -65,24 +65,26 @@ static void usage(FILE *fp)
 }
 
 /* Blocks up to 32 MiB (glibc's largest fixed threshold) come from the
- * heap, and up to 16 MiB of free heap is kept, so that a block freed is
- * reused, not given back and faulted in again.  The PSF build's per-star
- * arrays (G, H, the mask: 23 MB each on frame S's ×4 half-tables, one
- * set a half and a pass) and the phase grids were mapped afresh each
- * time above the 1 MiB threshold of 2026-11-25 (which took the 2048²
- * frame's peak RSS 89.4 -> 81.4 MiB): on this project's virtual
- * machines a page fault costs ~5 µs of system time.  One thread, five
- * interleaved pairs (bench/PROFILE.md, session of 2026-12-07 00:50):
- * frame S built 52 200 -> 26 400 faults, CPU 2.86 -> 2.52 s; 47 Tuc
- * built 27 600 -> 12 500, 4.10 -> 3.98 s; peak RSS +3 %, +4 %, the
- * 2048² frame +6 % (91.8 -> 97.3 MB; built, two threads, 110 -> 120).
- * A fixed threshold also fixes the trim threshold (mallopt(3)), so both
- * are set.  Every output the same bytes. */
+ * heap, so that a block freed is reused, not given back and faulted in
+ * again; up to 4 MiB of free heap is kept, as before.  The PSF build's
+ * per-star arrays (G, H, the mask: 23 MB each on frame S's ×4
+ * half-tables, one set a half and a pass) and the phase grids were mapped
+ * afresh each time above the 1 MiB threshold of 2026-11-25 (which took
+ * the 2048² frame's peak RSS 89.4 -> 81.4 MiB): on this project's
+ * virtual machines a page fault costs ~5 µs of system time.  One thread,
+ * five interleaved pairs (bench/PROFILE.md, session of 2026-12-07
+ * 00:50): frame S built 52 200 -> 29 500 faults, CPU 2.88 -> 2.55 s; 47
+ * Tuc built 27 600 -> 12 500, 3.96 -> 3.75 s.  Peak RSS: S +0.9 %, 47 Tuc
+ * +0.7 %, the simulated 2048², 4096² and 8192² frames whole +6, +2.6 and
+ * +2.1 % (the last 2.96 -> 3.02 times its floats, where the goal is 3;
+ * 16 MiB of free heap kept as well: 3.07).  A fixed threshold also fixes
+ * the trim threshold (mallopt(3)), so both are set.  Every output the
+ * same bytes. */
 static void malloc_policy(void)
 {
 #ifdef __GLIBC__
     (void)mallopt(M_MMAP_THRESHOLD, 32 << 20);
-    (void)mallopt(M_TRIM_THRESHOLD, 16 << 20);
+    (void)mallopt(M_TRIM_THRESHOLD, 4 << 20);
 #endif
 }
 
