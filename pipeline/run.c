@@ -280,11 +280,11 @@ const mp_prf_cache *mp_run_phase_grid(run_state *s, double *gemax, double *glema
 
 /* root.grp's rows, the grouped table: held (s->grp) and written once
  * with the other products when its values take up to 8 MiB, else
- * written now, each round (the last round's stands).  Held, a copy cost
- * 256 bytes a star at the run's peak: 63 MB of the 8192² frame's (3.7
- * 10⁻³ stars a pixel: a quarter of its floats, where the goal is 3 times
- * them; bench/SCALING.md, 2026-12-07); written each round, a table that
- * size costs 1-3 % of the run more. */
+ * written now, each round (the last round's stands).  Held, the copy
+ * cost ~280 bytes a star at the run's peak: 67 MiB of the 8192² frame's
+ * (3.7·10⁻³ stars a pixel: a quarter of its floats, where the goal is 3
+ * times them; bench/SCALING.md, 2026-12-07); written each round, it
+ * costs that run ~3 % more (its writes 3.7 -> 6.6 s of ~95). */
 static int keep_grouped(run_state *s, char *err)
 {
     mp_table_free(&s->grp);
@@ -297,7 +297,7 @@ static int keep_grouped(run_state *s, char *err)
     return rc;
 }
 
-/* Group the stars (kept as s->grp for root.grp), fit every group, and draw
+/* Group the stars (root.grp: keep_grouped), fit every group, and draw
  * the residual.
  * once: in one pass, not the fit's passes, where a later fit takes the
  * groups up again (the fit's memory refits every group whose neighbours'

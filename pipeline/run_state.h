@@ -22,7 +22,9 @@ typedef struct {
     mp_table grp;      /* the stars as the last grouping left them: root.grp,
                         * written with the products (each round's grouping
                         * replaces the last's; its text, written every round,
-                        * was 1 % of 47 Tuc's CPU) */
+                        * was 1 % of 47 Tuc's CPU); empty when its values
+                        * pass 8 MiB: then written each round (run.c
+                        * keep_grouped) */
     float *res;        /* residual [e-], nx*ny, single precision as the frame */
     mp_fit_memory *mem;   /* what every group was fitted against, so a round
                            * refits only the groups new stars reach */
@@ -91,8 +93,8 @@ static inline int oom(char *err)
 void mp_run_writes(run_state *s, const char *ext);
 
 /* mp_run_group_and_fit: group the stars (kept for root.grp, written with
- * the products), fit every group (in one pass when once) and draw the
- * residual. */
+ * the products, or written now when large), fit every group (in one pass
+ * when once) and draw the residual. */
 int mp_run_group_and_fit(run_state *s, int round, int once, char *err);
 
 /* mp_run_phase_grid: the phase grid the fit draws its groups' PRFs from,
