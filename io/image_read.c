@@ -159,11 +159,36 @@ static LONGLONG data_bytes(fitsfile *fp, int bitpix, int naxis, const long naxes
     return nbytes;
 }
 
+/* cfitsio's own RICE_1 decoder reads on past a corrupt tile while it
+ * meets zero bytes (the frame fuzzer's crash in fits_rdecomp_short,
+ * 2026-12-07); its HCOMPRESS_1 and PLIO_1 decoders bound their reads no
+ * better.  Bad input must end in an error, so only zlib's tiles are
+ * expanded (io.h). */
+int mp_fits_codec_ok(void *vfp, const char *name, char *err)
+{
+    fitsfile *fp = vfp;
+    int status = 0;
+    if (!fits_is_compressed_image(fp, &status))
+        return 0;
+    char cmp[FLEN_VALUE] = "";
+    fits_read_key_str(fp, "ZCMPTYPE", cmp, NULL, &status);
+    if (!status && (!strcmp(cmp, "GZIP_1") || !strcmp(cmp, "GZIP_2") ||
+                    !strcmp(cmp, "NOCOMPRESS")))
+        return 0;
+    fits_clear_errmsg();
+    snprintf(err, MP_ERRLEN, "%s: tile-compressed with %s, which matphot does not expand "
+             "(cfitsio's decoder for it can read past a corrupt tile): funpack it first, or "
+             "fpack -g (GZIP)", name, status ? "no ZCMPTYPE" : cmp);
+    return 1;
+}
+
 /* A file cut short inside its data: say so before reading, since cfitsio
  * would otherwise convert bytes past the end of the file. */
 static int check_complete(fitsfile *fp, const char *name, int bitpix, int naxis,
                           const long naxes[9], char *err)
 {
+    if (mp_fits_codec_ok(fp, name, err))
+        return 1;
     int status = 0;
     LONGLONG hstart, dstart, dend;
     fits_get_hduaddrll(fp, &hstart, &dstart, &dend, &status);

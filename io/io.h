@@ -276,6 +276,14 @@ int mp_fits_guard_mem(const void *b, size_t n, char *why);
  * refused, 0 otherwise. */
 int mp_fits_guard_named(const char *path, const char *name, char *err);
 
+/* mp_fits_codec_ok: 0 unless fp's current HDU is a tile-compressed image
+ * whose tiles cfitsio would expand with its own RICE_1, HCOMPRESS_1 or
+ * PLIO_1 decoder, which do not bound their reads by a tile's bytes (a
+ * corrupt RICE_1 tile: a crash in fits_rdecomp_short, found by
+ * tests/fuzz); then 1, with "name: ..." in err (MP_ERRLEN).  GZIP_1,
+ * GZIP_2 (zlib) and NOCOMPRESS tiles are read.  fp is a fitsfile *. */
+int mp_fits_codec_ok(void *fp, const char *name, char *err);
+
 /* mp_fits_key_number: the value of keyword key of fp's current HDU as a
  * number, parsed here from the card's value (fits_read_keyword), so that
  * cfitsio never converts it: cfitsio 4.2.0 overflows a buffer in ffc2j

@@ -260,6 +260,9 @@ static int open_image(const char *name, fitsfile **fp, int *naxis, long naxes[3]
     fits_get_hdu_type(*fp, &type, &status);
     if (!status && type != IMAGE_HDU)
         return 0;
+    char err[MP_ERRLEN];
+    if (!status && mp_fits_codec_ok(*fp, name, err))
+        status = DATA_DECOMPRESSION_ERR;    /* io/'s reader says why */
     fits_get_img_dim(*fp, naxis, &status);
     naxes[0] = naxes[1] = naxes[2] = 1;
     if (!status && *naxis >= 1 && *naxis <= 3)
