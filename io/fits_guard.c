@@ -6,7 +6,8 @@
  * everything else is left to cfitsio.  The walk reads header records only:
  * data areas are skipped by their size, computed as FITS 4.0 §4.4.1.1 and
  * §7.3.1 define it (|BITPIX|/8 · GCOUNT · (PCOUNT + Π NAXISn)).  Compressed
- * files are not walked; their stated size is checked instead. */
+ * files are not walked; their stated size is checked instead.  A
+ * tile-compressed image HDU (ZIMAGE = T) is refused. */
 #include <fitsio.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -72,6 +73,17 @@ static int scan_record(const unsigned char *r, hdu_sizes *h, char *bad)
             }
         if (c[8] != '=')
             continue;
+        /* A tile-compressed image: cfitsio parses its tiling as it moves
+         * to the HDU and divides by a ZTILE or ZVAL of 0 (an FPE in
+         * imcomp_get_compressed_image_par, found by tests/fuzz), and its
+         * decoders read past a corrupt tile: refused (io.h). */
+        if (memcmp(c, "ZIMAGE  ", 8) == 0) {
+            int i = 10;
+            while (i < 80 && c[i] == ' ')
+                i++;
+            if (i < 80 && c[i] == 'T')
+                return -2;
+        }
         if (memcmp(c, "BITPIX  ", 8) == 0)
             h->bitpix = card_int(c);
         else if (memcmp(c, "PCOUNT  ", 8) == 0)
@@ -135,7 +147,7 @@ static int walk(record_fn get, void *ctx, char *bad)
             off += 2880;
             end = scan_record(rec, &h, bad);
             if (end < 0)
-                return 1;
+                return end == -2 ? 2 : 1;
         }
         long long d = data_bytes(&h);
         if (d < 0)
@@ -233,6 +245,11 @@ static int compressed_name_ok(const char *path, int gzip, char *why)
  * tests/fuzz). */
 static void key_why(const char *badkey, char *why)
 {
+    if (!badkey) {
+        snprintf(why, MP_GUARD_LEN, "a tile-compressed image (fpack's .fz: cfitsio's tile "
+                 "decoders do not hold a corrupt tile to its bytes): funpack it first");
+        return;
+    }
     char key[9];
     size_t i = 0;
     for (; i < 8 && badkey[i]; i++)
@@ -246,9 +263,10 @@ int mp_fits_guard_mem(const void *b, size_t n, char *why)
 {
     mem_ctx m = {b, n};
     char badkey[9];
-    if (!walk(mem_record, &m, badkey))
+    int rc = walk(mem_record, &m, badkey);
+    if (!rc)
         return 0;
-    key_why(badkey, why);
+    key_why(rc == 2 ? NULL : badkey, why);
     return 1;
 }
 
@@ -273,7 +291,7 @@ int mp_fits_guard_file(const char *name, char *why)
         if (gzip || zip)
             rc = !compressed_name_ok(path, gzip, why) || !compressed_size_ok(fp, gzip, why);
         else if ((rc = walk(file_record, fp, badkey)))
-            key_why(badkey, why);
+            key_why(rc == 2 ? NULL : badkey, why);
     }
     fclose(fp);
     return rc;

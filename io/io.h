@@ -265,7 +265,11 @@ char *mp_name_after(const char *image, const char *ext);
  *  - a gzip or PKZIP file stating an uncompressed size more than deflate
  *    can make of its bytes (1032:1): cfitsio allocates that size first;
  *  - a gzip or PKZIP file whose path holds ".Z" or ".bz2" (a folder's name
- *    too): cfitsio inflates it as Unix compress or bzip2 and fails.
+ *    too): cfitsio inflates it as Unix compress or bzip2 and fails;
+ *  - a tile-compressed image HDU (ZIMAGE = T, fpack's .fz) in a plain
+ *    file: cfitsio divides by its tiling as it moves there (an FPE on a
+ *    ZTILE of 0) and its decoders read past a corrupt tile (mp_fits_codec_ok
+ *    refuses what the walk does not see).
  * 0 otherwise. */
 #define MP_GUARD_LEN 160
 int mp_fits_guard_file(const char *name, char *why);
@@ -277,11 +281,10 @@ int mp_fits_guard_mem(const void *b, size_t n, char *why);
 int mp_fits_guard_named(const char *path, const char *name, char *err);
 
 /* mp_fits_codec_ok: 0 unless fp's current HDU is a tile-compressed image
- * whose tiles cfitsio would expand with its own RICE_1, HCOMPRESS_1 or
- * PLIO_1 decoder, which do not bound their reads by a tile's bytes (a
- * corrupt RICE_1 tile: a crash in fits_rdecomp_short, found by
- * tests/fuzz); then 1, with "name: ..." in err (MP_ERRLEN).  GZIP_1,
- * GZIP_2 (zlib) and NOCOMPRESS tiles are read.  fp is a fitsfile *. */
+ * (fpack's .fz), which cfitsio would expand with decoders that do not
+ * hold a corrupt tile to its bytes (tests/fuzz found a RICE_1 crash, a
+ * GZIP tile growing for 20 s and more, a leak); then 1, with "name: ..."
+ * naming its ZCMPTYPE in err (MP_ERRLEN).  fp is a fitsfile *. */
 int mp_fits_codec_ok(void *fp, const char *name, char *err);
 
 /* mp_fits_key_number: the value of keyword key of fp's current HDU as a

@@ -330,37 +330,27 @@ static void write_tiles(const char *path, int cmp, short *v)
     assert_int_equal(status, 0);
 }
 
-/* A GZIP tile-compressed image is read, by name and by its extension,
- * to the plain file's pixels; cut in its tiles it is "truncated".  One
- * with RICE_1 tiles is refused, naming its codec: cfitsio's RICE_1
- * decoder reads past a corrupt tile (the frame fuzzer's crash in
- * fits_rdecomp_short), and bad input must end in an error. */
+/* A tile-compressed image is refused, by name and by its extension, with
+ * RICE_1 (fpack's default) tiles or GZIP_1 ones, before cfitsio parses
+ * it (io/fits_guard.c): its decoders do not hold a corrupt tile to its
+ * bytes and it divides by a tiling of 0 (the frame fuzzer: a crash in
+ * fits_rdecomp_short, a GZIP tile growing for 20 s, an FPE in
+ * imcomp_get_compressed_image_par). */
 static void test_compressed_image(void **state)
 {
     scratch *s = *state;
-    char path[700], name[720], err[MP_ERRLEN];
+    char path[700], name[720];
     snprintf(path, sizeof path, "%s", in_dir(s, "tiles.fits"));
     static short v[120 * 90];
-    write_tiles(path, GZIP_1, v);
+    const int cmp[2] = {RICE_1, GZIP_1};
     const char *names[2] = {"%s[SCI]", "%s"};
-    for (int k = 0; k < 2; k++) {
-        mp_image im;
-        snprintf(name, sizeof name, names[k], path);
-        if (mp_image_read(name, &im, err) != 0)
-            fail_msg("%s: %s", name, err);
-        assert_int_equal(im.nx, 120);
-        assert_int_equal(im.ny, 90);
-        for (int i = 0; i < 120 * 90; i++)
-            assert_true(im.pix[i] == (double)v[i]);
-        mp_image_free(&im);
+    for (int c = 0; c < 2; c++) {
+        write_tiles(path, cmp[c], v);
+        for (int k = 0; k < 2; k++) {
+            snprintf(name, sizeof name, names[k], path);
+            expect_read_error(name, "tiles.fits", "tile-compressed");
+        }
     }
-    struct stat st;
-    assert_int_equal(stat(path, &st), 0);
-    assert_int_equal(truncate(path, st.st_size - 2000), 0);
-    snprintf(name, sizeof name, "%s[SCI]", path);
-    expect_read_error(name, "tiles.fits", "truncated");
-    write_tiles(path, RICE_1, v);
-    expect_read_error(name, "tiles.fits", "RICE_1");
 }
 
 static void test_bad_inputs(void **state)
