@@ -136,23 +136,11 @@ static int image_shape(fitsfile *fp, const char *name, int *bitpix, int *naxis, 
     return 0;
 }
 
-/* The bytes of the HDU's data as its header sizes them: the image's
- * pixels, or for a tile-compressed image (fpack's .fz, stored as a binary
- * table) the table's rows and heap, NAXIS1 · NAXIS2 + PCOUNT, not the
- * pixels it expands to (which called every such file truncated). */
-static LONGLONG data_bytes(fitsfile *fp, int bitpix, int naxis, const long naxes[9])
+/* The bytes of the HDU's pixels as its header sizes them (a
+ * tile-compressed image, whose data are a table's, is refused before:
+ * mp_fits_refuse_tiled). */
+static LONGLONG data_bytes(int bitpix, int naxis, const long naxes[9])
 {
-    int status = 0;
-    if (fits_is_compressed_image(fp, &status)) {
-        LONGLONG w = 0, h = 0, heap = 0;
-        fits_read_key_lnglng(fp, "NAXIS1", &w, NULL, &status);
-        fits_read_key_lnglng(fp, "NAXIS2", &h, NULL, &status);
-        fits_read_key_lnglng(fp, "PCOUNT", &heap, NULL, &status);
-        if (status || w < 0 || h < 0 || heap < 0)
-            return 0;
-        /* a header's sizes past any file: more than the file holds */
-        return h > 0 && w > (LLONG_MAX - heap) / h ? LLONG_MAX : w * h + heap;
-    }
     LONGLONG nbytes = (LONGLONG)(bitpix < 0 ? -bitpix : bitpix) / 8;
     for (int k = 0; k < naxis; k++)
         nbytes *= naxes[k];
@@ -166,7 +154,7 @@ static LONGLONG data_bytes(fitsfile *fp, int bitpix, int naxis, const long naxes
  * error; HCOMPRESS_1 and PLIO_1 are hand-written decoders of the same
  * kind (the frame fuzzer, 2026-12-07).  Bad input must end in an error,
  * so no tile-compressed image is expanded (io.h). */
-int mp_fits_codec_ok(void *vfp, const char *name, char *err)
+int mp_fits_refuse_tiled(void *vfp, const char *name, char *err)
 {
     fitsfile *fp = vfp;
     int status = 0;
@@ -186,12 +174,12 @@ int mp_fits_codec_ok(void *vfp, const char *name, char *err)
 static int check_complete(fitsfile *fp, const char *name, int bitpix, int naxis,
                           const long naxes[9], char *err)
 {
-    if (mp_fits_codec_ok(fp, name, err))
+    if (mp_fits_refuse_tiled(fp, name, err))
         return 1;
     int status = 0;
     LONGLONG hstart, dstart, dend;
     fits_get_hduaddrll(fp, &hstart, &dstart, &dend, &status);
-    LONGLONG nbytes = data_bytes(fp, bitpix, naxis, naxes);
+    LONGLONG nbytes = data_bytes(bitpix, naxis, naxes);
     if (!status && dstart + nbytes > fp->Fptr->logfilesize) {
         snprintf(err, MP_ERRLEN, "%s: truncated FITS file (the data end before the header says)",
                  name);

@@ -268,7 +268,7 @@ char *mp_name_after(const char *image, const char *ext);
  *    too): cfitsio inflates it as Unix compress or bzip2 and fails;
  *  - a tile-compressed image HDU (ZIMAGE = T, fpack's .fz) in a plain
  *    file: cfitsio divides by its tiling as it moves there (an FPE on a
- *    ZTILE of 0) and its decoders read past a corrupt tile (mp_fits_codec_ok
+ *    ZTILE of 0) and its decoders read past a corrupt tile (mp_fits_refuse_tiled
  *    refuses what the walk does not see).
  * 0 otherwise. */
 #define MP_GUARD_LEN 160
@@ -280,12 +280,12 @@ int mp_fits_guard_mem(const void *b, size_t n, char *why);
  * refused, 0 otherwise. */
 int mp_fits_guard_named(const char *path, const char *name, char *err);
 
-/* mp_fits_codec_ok: 0 unless fp's current HDU is a tile-compressed image
+/* mp_fits_refuse_tiled: 0 unless fp's current HDU is a tile-compressed image
  * (fpack's .fz), which cfitsio would expand with decoders that do not
  * hold a corrupt tile to its bytes (tests/fuzz found a RICE_1 crash, a
  * GZIP tile growing for 20 s and more, a leak); then 1, with "name: ..."
  * naming its ZCMPTYPE in err (MP_ERRLEN).  fp is a fitsfile *. */
-int mp_fits_codec_ok(void *fp, const char *name, char *err);
+int mp_fits_refuse_tiled(void *fp, const char *name, char *err);
 
 /* mp_fits_key_number: the value of keyword key of fp's current HDU as a
  * number, parsed here from the card's value (fits_read_keyword), so that

@@ -261,7 +261,7 @@ static int open_image(const char *name, fitsfile **fp, int *naxis, long naxes[3]
     if (!status && type != IMAGE_HDU)
         return 0;
     char err[MP_ERRLEN];
-    if (!status && mp_fits_codec_ok(*fp, name, err))
+    if (!status && mp_fits_refuse_tiled(*fp, name, err))
         status = DATA_DECOMPRESSION_ERR;    /* io/'s reader says why */
     fits_get_img_dim(*fp, naxis, &status);
     naxes[0] = naxes[1] = naxes[2] = 1;
