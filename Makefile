@@ -21,7 +21,7 @@ CPPFLAGS += -D_XOPEN_SOURCE=700 -I. $(shell pkg-config --cflags wcslib 2>/dev/nu
 # may vectorise a loop with sqrt (sqrtpd rounds as sqrtsd: the same bits).
 CFLAGS  += $(CSTD) $(WARN) $(OPT) -fno-math-errno -fopenmp $(SAN)
 LDLIBS  += -lcfitsio $(shell pkg-config --libs wcslib 2>/dev/null || echo -lwcs) \
-           -lcsv -llapacke -lopenblas -lfftw3 -lm
+           -lcsv -llapacke -lopenblas -lfftw3 -lz -lm
 LDFLAGS += -fopenmp $(SAN)
 
 # Library code: every .c under these folders except the tests.

@@ -125,6 +125,14 @@ static int sniff(FILE **fp, const char *name, char **mem, size_t *mlen, char *er
     int c0 = getc(*fp);
     if (c0 != EOF)
         ungetc(c0, *fp);
+    if (c0 == 0x1f) {
+        /* gzip's or compress's first byte, never a text table's: read as
+         * text it was refused by a line of its binary bytes */
+        snprintf(err, MP_ERRLEN, "%s: a compressed file (gzip or compress: its first byte is "
+                 "0x1f); a table is read uncompressed: gzip -dc it to a file, or pipe it in as -",
+                 name);
+        return 1;
+    }
     if (c0 != 'S')
         return 0;
     int bad = slurp(*fp, name, mem, mlen, err);

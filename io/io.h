@@ -261,13 +261,15 @@ char *mp_name_after(const char *image, const char *ext);
  *  - a structural string keyword (XTENSION, EXTNAME, TFORMn, TTYPEn, TUNITn,
  *    TDISPn, TDIMn) whose value is not a well-formed quoted string:
  *    cfitsio 4.2.0 overflows a buffer and aborts on such a card.  Plain
- *    files' and memory's headers are walked; compressed files' are not;
+ *    files', gzip files' (as zlib inflates them: once more than cfitsio
+ *    does) and memory's headers are walked; PKZIP files', which cfitsio
+ *    4.2 does not open as FITS, are not;
  *  - a gzip or PKZIP file stating an uncompressed size more than deflate
  *    can make of its bytes (1032:1): cfitsio allocates that size first;
  *  - a gzip or PKZIP file whose path holds ".Z" or ".bz2" (a folder's name
  *    too): cfitsio inflates it as Unix compress or bzip2 and fails;
- *  - a tile-compressed image HDU (ZIMAGE = T, fpack's .fz) in a plain
- *    file: cfitsio divides by its tiling as it moves there (an FPE on a
+ *  - a tile-compressed image HDU (ZIMAGE = T, fpack's .fz) in a plain or
+ *    gzip file: cfitsio divides by its tiling as it moves there (an FPE on a
  *    ZTILE of 0) and its decoders read past a corrupt tile (mp_fits_refuse_tiled
  *    refuses what the walk does not see).
  * 0 otherwise. */

@@ -1,7 +1,7 @@
 #!/bin/sh
 # Install the Debian packages matphot needs, only those that are missing.
 set -e
-PKGS="gcc clang make pkg-config libcfitsio-dev wcslib-dev libcsv-dev liblapacke-dev
+PKGS="gcc clang make pkg-config libcfitsio-dev zlib1g-dev wcslib-dev libcsv-dev liblapacke-dev
 libopenblas-dev libfftw3-dev libomp-dev libcmocka-dev gnuplot-nox python3-astropy valgrind
 libclang-rt-14-dev"
 # `make bench` also compares with IRAF DAOPHOT, and `make validate`'s PSF

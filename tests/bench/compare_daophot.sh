@@ -66,7 +66,7 @@ MP="$W/matphot"
 # selection, matching to the truth, statistics and the report) and the
 # crowded validation's simulators (frames G and V, validate_frame).
 HELP_CFLAGS="-std=c17 -Wall -Wextra -Werror -O2 -fopenmp -D_XOPEN_SOURCE=700 -I. $(pkg-config --cflags wcslib)"
-HELP_LIBS="$LIBMP -lcfitsio $(pkg-config --libs wcslib) -lcsv -llapacke -lopenblas -lfftw3 -lm -fopenmp"
+HELP_LIBS="$LIBMP -lcfitsio $(pkg-config --libs wcslib) -lcsv -llapacke -lopenblas -lfftw3 -lz -lm -fopenmp"
 CMP="$W/compare"
 # shellcheck disable=SC2086
 ${CC:-cc} $HELP_CFLAGS -o "$CMP" tests/bench/daophot/compare.c tests/bench/daophot/report.c \

@@ -6,7 +6,7 @@ B=${BUILD:-build}
 mkdir -p "$B/bench"
 ${CC:-cc} -std=c17 -Wall -Wextra -Werror -O2 -fopenmp -D_XOPEN_SOURCE=700 -I. \
   $(pkg-config --cflags wcslib) -o "$B/bench/bench_fit" tests/bench/bench_fit.c \
-  "$B/libmatphot.a" -lcfitsio $(pkg-config --libs wcslib) -lcsv -llapacke -lopenblas -lfftw3 -lm
+  "$B/libmatphot.a" -lcfitsio $(pkg-config --libs wcslib) -lcsv -llapacke -lopenblas -lfftw3 -lz -lm
 OMP_NUM_THREADS=1 "$B/bench/bench_fit" "${BENCH_N:-400}" "${BENCH_REPS:-7}"
 # Error against run time (issue 5): the fit's knobs swept on fixed scenes,
 # bench/REPORT.md and bench/*.png (BENCH_QUICK=1: a 1-2 minute version).

@@ -967,6 +967,15 @@ static void test_errors(void **state)
     write_text(path, "\n  \r\n\n", 6);
     expect_read_error(path, msg);
 
+    /* Gzipped (a FITS table's or a text table's bytes alike): one line
+     * naming it, not its binary bytes quoted as a number. */
+    path_in(f, "stars.cat.gz", path, sizeof path);
+    write_text(path, "\x1f\x8b\x08\x00\x00\x00\x00\x00\x00\x03+.I,*V\x00", 18);
+    snprintf(msg, sizeof msg, "%s: a compressed file (gzip or compress: its first byte is "
+             "0x1f); a table is read uncompressed: gzip -dc it to a file, or pipe it in as -",
+             path);
+    expect_read_error(path, msg);
+
     /* Missing. */
     path_in(f, "missing.coo", path, sizeof path);
     snprintf(msg, sizeof msg, "%s: cannot open: No such file or directory", path);

@@ -304,12 +304,6 @@ static void expect_read_error(const char *name, const char *file, const char *wo
     assert_null(im.hdr);
 }
 
-/* A tile-compressed image (fpack's .fz: a binary table of compressed
- * tiles after an empty primary), as cfitsio writes it with RICE_1 from 16-bit
- * integers (lossless): read as the image it holds, by its extension and by
- * the bare name (cfitsio moves past the empty primary), the same pixels as
- * the plain file; cut in its tiles, "truncated" (every such file was
- * called truncated before: the check sized its data as the pixels). */
 /* A tile-compressed image (fpack's .fz: RICE_1 is its default) written
  * with codec cmp, its header's EXTNAME SCI; v its 120 x 90 pixels. */
 static void write_tiles(const char *path, int cmp, short *v)
@@ -330,26 +324,98 @@ static void write_tiles(const char *path, int cmp, short *v)
     assert_int_equal(status, 0);
 }
 
+/* The value of path's ZTILE1 card set to 0 in place (the frame fuzzer's
+ * ztile-zero-divides.fits). */
+static void zero_ztile1(const char *path)
+{
+    FILE *fp = fopen(path, "r+b");
+    assert_non_null(fp);
+    static char b[4 * 2880];
+    size_t n = fread(b, 1, sizeof b, fp);
+    size_t k = 0;
+    while (k + 80 <= n && memcmp(b + k, "ZTILE1  =", 9) != 0)
+        k += 80;
+    assert_true(k + 80 <= n);
+    memcpy(b + k + 10, "                   0", 20);
+    assert_int_equal(fseek(fp, (long)k, SEEK_SET), 0);
+    assert_int_equal(fwrite(b + k, 1, 80, fp), 80);
+    fclose(fp);
+}
+
 /* A tile-compressed image is refused, by name and by its extension, with
- * RICE_1 (fpack's default) tiles or GZIP_1 ones, before cfitsio parses
- * it (io/fits_guard.c): its decoders do not hold a corrupt tile to its
+ * RICE_1 (fpack's default) tiles or GZIP_1 ones or a tiling of 0, plain
+ * or gzipped, before cfitsio parses it (io/fits_guard.c): its decoders do not hold a corrupt tile to its
  * bytes and it divides by a tiling of 0 (the frame fuzzer: a crash in
  * fits_rdecomp_short, a GZIP tile growing for 20 s, an FPE in
  * imcomp_get_compressed_image_par). */
 static void test_compressed_image(void **state)
 {
     scratch *s = *state;
-    char path[700], name[720];
+    char path[700], name[720], gz[700], cmd[1500];
     snprintf(path, sizeof path, "%s", in_dir(s, "tiles.fits"));
+    snprintf(gz, sizeof gz, "%s", in_dir(s, "tiles.fits.gz"));
     static short v[120 * 90];
     const int cmp[2] = {RICE_1, GZIP_1};
     const char *names[2] = {"%s[SCI]", "%s"};
-    for (int c = 0; c < 2; c++) {
-        write_tiles(path, cmp[c], v);
-        for (int k = 0; k < 2; k++) {
-            snprintf(name, sizeof name, names[k], path);
-            expect_read_error(name, "tiles.fits", "tile-compressed");
+    for (int c = 0; c < 3; c++) {
+        write_tiles(path, cmp[c % 2], v);
+        if (c == 2)
+            zero_ztile1(path);
+        /* gzipped as well: cfitsio inflates the file and parses the same
+         * tiling (a gzipped ZTILE1 of 0 was a SIGFPE as cfitsio opened it) */
+        snprintf(cmd, sizeof cmd, "gzip -c '%s' > '%s'", path, gz);
+        assert_int_equal(system(cmd), 0);
+        for (int k = 0; k < 4; k++) {
+            snprintf(name, sizeof name, names[k % 2], k < 2 ? path : gz);
+            expect_read_error(name, k < 2 ? "tiles.fits" : "tiles.fits.gz", "tile-compressed");
         }
+    }
+}
+
+/* A gzipped file's headers are walked as a plain file's are (io/fits_guard.c
+ * walk_gzip): a table extension whose TTYPE1 is not a quoted string, behind
+ * an image primary, is refused by name, by its extension and as a PSF
+ * file's guard sees it, where cfitsio 4.2.0 overflowed a buffer on it and
+ * glibc aborted the process; the same bytes plain are refused alike. */
+static void test_gzip_headers_walked(void **state)
+{
+    scratch *s = *state;
+    static unsigned char b[4 * 2880];
+    memset(b, ' ', sizeof b);
+    const char *cards[] = {"SIMPLE  =                    T", "BITPIX  =                  -32",
+                           "NAXIS   =                    2", "NAXIS1  =                   10",
+                           "NAXIS2  =                   10", "EXTEND  =                    T", "END",
+                           "XTENSION= 'BINTABLE'", "BITPIX  =                    8",
+                           "NAXIS   =                    2", "NAXIS1  =                    4",
+                           "NAXIS2  =                    1", "PCOUNT  =                    0",
+                           "GCOUNT  =                    1", "TFIELDS =                    1",
+                           "TTYPE1  = FLUX_NOT_A_QUOTED_STRING_AND_LONGER_THAN_SEVENTY_BYTES_OF_VALUE",
+                           "TFORM1  = '1E      '", "END"};
+    for (size_t c = 0, rec = 0, k = 0; c < sizeof cards / sizeof cards[0]; c++, k++) {
+        memcpy(b + rec * 2880 + 80 * k, cards[c], strlen(cards[c]));
+        if (strcmp(cards[c], "END") == 0) {
+            rec += 2;                           /* the header, then its data's record */
+            k = (size_t)-1;
+        }
+    }
+    memset(b + 2880, 0, 2880);                  /* the image's 400 bytes, zeros */
+    char plain[700], gz[700], cmd[1500], why[MP_GUARD_LEN];
+    snprintf(plain, sizeof plain, "%s", in_dir(s, "badtab.fits"));
+    snprintf(gz, sizeof gz, "%s", in_dir(s, "badtab.fits.gz"));
+    FILE *fp = fopen(plain, "wb");
+    assert_non_null(fp);
+    assert_int_equal(fwrite(b, 1, sizeof b, fp), sizeof b);
+    fclose(fp);
+    snprintf(cmd, sizeof cmd, "gzip -c '%s' > '%s'", plain, gz);
+    assert_int_equal(system(cmd), 0);
+    for (int k = 0; k < 2; k++) {
+        const char *f = k ? gz : plain;
+        char name[720];
+        expect_read_error(f, k ? "badtab.fits.gz" : "badtab.fits", "malformed header card TTYPE1");
+        snprintf(name, sizeof name, "%s[1]", f);
+        expect_read_error(name, k ? "badtab.fits.gz" : "badtab.fits", "malformed header card");
+        assert_int_equal(mp_fits_guard_file(f, why), 1);
+        assert_non_null(strstr(why, "TTYPE1"));
     }
 }
 
@@ -1158,6 +1224,7 @@ int main(void)
         cmocka_unit_test(test_header_parsing),
         cmocka_unit_test_setup_teardown(test_sections_and_hdus, setup, teardown),
         cmocka_unit_test_setup_teardown(test_compressed_image, setup, teardown),
+        cmocka_unit_test_setup_teardown(test_gzip_headers_walked, setup, teardown),
         cmocka_unit_test_setup_teardown(test_bad_inputs, setup, teardown),
         cmocka_unit_test_setup_teardown(test_frame, setup, teardown),
         cmocka_unit_test_setup_teardown(test_frame_dq, setup, teardown),

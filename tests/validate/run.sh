@@ -18,7 +18,7 @@ fi
 mkdir -p "$OUT" validate || exit 1
 touch validate/.gitkeep 2>/dev/null
 CFLAGS="-std=c17 -Wall -Wextra -Werror -O2 -fopenmp -D_XOPEN_SOURCE=700 -I. -I/usr/include/wcslib"
-LIBS="-fopenmp $LIB -lcfitsio -lwcs -lcsv -llapacke -lopenblas -lfftw3 -lm"
+LIBS="-fopenmp $LIB -lcfitsio -lwcs -lcsv -llapacke -lopenblas -lfftw3 -lz -lm"
 SRC="tests/validate/validate.c tests/validate/cases.c tests/validate/stats.c \
 tests/validate/report.c tests/validate/plot.c"
 # shellcheck disable=SC2086

@@ -51,7 +51,7 @@ trap 'exit 130' INT TERM
 cp ./matphot "$W/matphot" || die "cannot copy ./matphot"
 MP="$W/matphot"
 CFLAGS="-std=c17 -Wall -Wextra -Werror -O2 -fopenmp -D_XOPEN_SOURCE=700 -I. $(pkg-config --cflags wcslib)"
-LIBS="$B/libmatphot.a -lcfitsio $(pkg-config --libs wcslib) -lcsv -llapacke -lopenblas -lfftw3 -lm -fopenmp"
+LIBS="$B/libmatphot.a -lcfitsio $(pkg-config --libs wcslib) -lcsv -llapacke -lopenblas -lfftw3 -lz -lm -fopenmp"
 # shellcheck disable=SC2086
 ${CC:-cc} $CFLAGS -o "$W/realcmp" tests/bench/real/realcmp.c $LIBS || die "cannot build realcmp"
 # shellcheck disable=SC2086

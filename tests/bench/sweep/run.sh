@@ -46,7 +46,7 @@ $CC -std=c17 -Wall -Wextra -Werror -O2 -fopenmp -D_XOPEN_SOURCE=700 -I. \
     tests/bench/sweep/scenes.c tests/bench/sweep/run.c tests/bench/sweep/stats.c \
     tests/bench/sweep/report.c tests/bench/sweep/export.c tests/bench/sweep/econ.c "$LIB" -lcfitsio \
     $(pkg-config --libs wcslib) -lcsv \
-    -llapacke -lopenblas -lfftw3 -lm || { echo "sweep: build failed" >&2; exit 1; }
+    -llapacke -lopenblas -lfftw3 -lz -lm || { echo "sweep: build failed" >&2; exit 1; }
 
 if [ "${BENCH_QUICK:-0}" = 1 ]; then
     MODE="quick (BENCH_QUICK=1)"

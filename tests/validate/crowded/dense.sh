@@ -18,7 +18,7 @@ OUT="$BUILD/validate/dense"
 REP=validate/DENSE.md
 mkdir -p "$OUT" validate || exit 1
 CFLAGS="-std=c17 -Wall -Wextra -Werror -O2 -fopenmp -D_XOPEN_SOURCE=700 -I. -I/usr/include/wcslib"
-LIBS="-fopenmp $LIB -lcfitsio -lwcs -lcsv -llapacke -lopenblas -lfftw3 -lm"
+LIBS="-fopenmp $LIB -lcfitsio -lwcs -lcsv -llapacke -lopenblas -lfftw3 -lz -lm"
 # shellcheck disable=SC2086
 $CC $CFLAGS -o "$OUT/dense" tests/validate/crowded/dense.c $LIBS ||
     { echo "dense: build failed" >&2; exit 1; }

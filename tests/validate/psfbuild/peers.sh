@@ -26,7 +26,7 @@ mkdir -p "$OUT" validate || exit 1
 CFLAGS="-std=c17 -Wall -Wextra -Werror -O2 -fopenmp -D_XOPEN_SOURCE=700 -I. -I/usr/include/wcslib"
 # shellcheck disable=SC2086
 $CC $CFLAGS -o "$OUT/psfb" tests/validate/psfbuild/psfb.c tests/validate/crowded/joint_bound.c -fopenmp "$BUILD/libmatphot.a" \
-    -lcfitsio -lwcs -lcsv -llapacke -lopenblas -lfftw3 -lm || { say "build failed" >&2; exit 1; }
+    -lcfitsio -lwcs -lcsv -llapacke -lopenblas -lfftw3 -lz -lm || { say "build failed" >&2; exit 1; }
 OUT=$(cd "$OUT" && pwd)
 PSFB="$OUT/psfb"
 HAVE_IRAF=""; command -v irafcl > /dev/null 2>&1 && HAVE_IRAF=yes

@@ -20,7 +20,7 @@ mkdir -p "$OUT/segmented" "$OUT/variable" "$OUT/gauss" validate || exit 1
 CFLAGS="-std=c17 -Wall -Wextra -Werror -O2 -fopenmp -D_XOPEN_SOURCE=700 -I. -I/usr/include/wcslib"
 # shellcheck disable=SC2086
 $CC $CFLAGS -o "$OUT/psfb" tests/validate/psfbuild/psfb.c tests/validate/crowded/joint_bound.c -fopenmp "$BUILD/libmatphot.a" \
-    -lcfitsio -lwcs -lcsv -llapacke -lopenblas -lfftw3 -lm || { echo "psfbuild: build failed" >&2; exit 1; }
+    -lcfitsio -lwcs -lcsv -llapacke -lopenblas -lfftw3 -lz -lm || { echo "psfbuild: build failed" >&2; exit 1; }
 OPENBLAS_NUM_THREADS=1
 DRAWS=${DRAWS:-"2001 2002 2003 2004 2005 2006 2007 2008"}
 export OPENBLAS_NUM_THREADS DRAWS

@@ -36,7 +36,7 @@ mkdir -p "$OUT" validate || exit 1
 REALDATA0=$REALDATA
 [ -d "$REALDATA" ] && REALDATA=$(cd "$REALDATA" && pwd)
 CFLAGS="-std=c17 -Wall -Wextra -Werror -O2 -fopenmp -D_XOPEN_SOURCE=700 -I. -I/usr/include/wcslib"
-LIBS="-fopenmp $BUILD/libmatphot.a -lcfitsio -lwcs -lcsv -llapacke -lopenblas -lfftw3 -lm"
+LIBS="-fopenmp $BUILD/libmatphot.a -lcfitsio -lwcs -lcsv -llapacke -lopenblas -lfftw3 -lz -lm"
 # shellcheck disable=SC2086
 { $CC $CFLAGS -o "$OUT/psfb" tests/validate/psfbuild/psfb.c tests/validate/crowded/joint_bound.c $LIBS &&
   $CC $CFLAGS -o "$OUT/real" tests/validate/real/real.c $LIBS &&

@@ -26,7 +26,7 @@ if [ ! -f "$LIB" ] || [ ! -x "$MATPHOT" ]; then
 fi
 mkdir -p "$OUT" validate || exit 1
 CFLAGS="-std=c17 -Wall -Wextra -Werror -O2 -fopenmp -D_XOPEN_SOURCE=700 -I. -I/usr/include/wcslib"
-LIBS="-fopenmp $LIB -lcfitsio -lwcs -lcsv -llapacke -lopenblas -lfftw3 -lm"
+LIBS="-fopenmp $LIB -lcfitsio -lwcs -lcsv -llapacke -lopenblas -lfftw3 -lz -lm"
 # shellcheck disable=SC2086
 $CC $CFLAGS -o "$OUT/real" tests/validate/real/real.c $LIBS ||
     { echo "real: build failed" >&2; exit 1; }
