@@ -353,8 +353,11 @@ int mp_task_catalog(int argc, char **argv)
     mp_table_init(&r.t);
     mp_table_init(&sel);
     int rc = 1, wrote_regions = 0;
-    if (setup_of(&ps, &s, err) || read_inputs(&s, &r, err) || apply_magzero(&s, &r, err) ||
-        add_sky(&s, &r, err))
+    if (setup_of(&ps, &s, err))
+        goto done;
+    const char *in[2] = {s.input, s.image};
+    if (mp_out_overwrites(s.output, in, 2, err) || mp_out_overwrites(s.regions, in, 2, err) ||
+        read_inputs(&s, &r, err) || apply_magzero(&s, &r, err) || add_sky(&s, &r, err))
         goto done;
     const mp_table *cat = &r.t;
     if (s.columns[0]) {

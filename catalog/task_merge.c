@@ -116,6 +116,9 @@ int mp_task_merge(int argc, char **argv)
         snprintf(err, MP_ERRLEN, "input: no catalog given");
         goto done;
     }
+    if (mp_out_overwrites(s.output, (const char *const *)cats, ncat, err) ||
+        mp_out_overwrites(s.detections, (const char *const *)cats, ncat, err))
+        goto done;
     if (!(m = mp_merge_new(&s.o))) {
         snprintf(err, MP_ERRLEN, "out of memory");
         goto done;

@@ -150,8 +150,12 @@ int mp_task_find(int argc, char **argv)
             }
             o = named;
         }
-        mp_tmp_sweep(sw, o);
-        int r = find_one(&s, im[i], o, err);
+        const char *in[3] = {im[i], s.dp.dqmask, s.dp.errplane};
+        int r = mp_out_overwrites(o, in, 3, err);
+        if (!r) {
+            mp_tmp_sweep(sw, o);
+            r = find_one(&s, im[i], o, err);
+        }
         free(named);
         if (r)
             fprintf(stderr, "matphot find: %s\n", err);

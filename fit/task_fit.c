@@ -190,10 +190,15 @@ int mp_task_fit(int argc, char **argv)
             }
             o = named;
         }
-        mp_tmp_sweep(sw, o);
-        if (nrs)
-            mp_tmp_sweep(sw, rs[i]);
-        int r = fit_one(&s, im[i], co[i], o, nrs ? rs[i] : NULL, nim, err);
+        const char *in[6] = {im[i], co[i], mp_par_string(&ps, "psf"), mp_par_string(&ps, "drf"),
+                             s.dp.dqmask, s.dp.errplane};
+        int r = mp_out_overwrites(o, in, 6, err) || (nrs && mp_out_overwrites(rs[i], in, 6, err));
+        if (!r) {
+            mp_tmp_sweep(sw, o);
+            if (nrs)
+                mp_tmp_sweep(sw, rs[i]);
+            r = fit_one(&s, im[i], co[i], o, nrs ? rs[i] : NULL, nim, err);
+        }
         free(named);
         if (r)      /* its own line: the list's other frames go on (pipeline's) */
             fprintf(stderr, "matphot fit: %s\n", err);

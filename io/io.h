@@ -204,6 +204,16 @@ void mp_out_abort(mp_outfile *o);              /* close, unlink temporary */
  * root.fit's text).  0, or nonzero with err naming the file. */
 int mp_out_copy(const char *from, const char *to, char *err);
 
+/* mp_out_overwrites: 1 with err naming both when output path is an
+ * existing file that one of the run's n input names in[] reads (a
+ * cfitsio name's [extension] or section ignored; "-", empty, INDEF and
+ * URLs skipped), told by device and inode, so another spelling or a link
+ * of it is caught too; 0 otherwise.  A task asks before it writes each
+ * output: `find f.fits output=f.fits` wrote its table over the frame, as
+ * `fit f.fits f.coo output=f.coo` over its coordinates (IRAF refuses an
+ * output that exists; here outputs are replaced, inputs never). */
+int mp_out_overwrites(const char *path, const char *const *in, size_t n, char *err);
+
 /* mp_tmp_name: the temporary name used for path, "<dir>/.<base>.tmp.<host>.<pid>"
  * (caller frees; NULL when out of memory).  A name only: the temporaries
  * of killed runs are swept by mp_tmp_sweep. */

@@ -9,6 +9,7 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/stat.h>
 #include <unistd.h>
 
 /* This host's name as it goes into a temporary's name: letters, digits
@@ -332,4 +333,42 @@ char *mp_name_after(const char *image, const char *ext)
         strcpy(s + n, ext);
     }
     return s;
+}
+
+/* The file an input name reads (a cfitsio name's [extension] or section
+ * cut) stat'ed into st; 0 when it names none: "-", empty, INDEF, a URL, a
+ * frame's own extension ("[DQ]"), or no such file. */
+static int input_file(const char *name, struct stat *st)
+{
+    if (!name || strstr(name, "://"))
+        return 0;
+    size_t n = strcspn(name, "[");
+    char path[4096];
+    if (n == 0 || n >= sizeof path)
+        return 0;
+    memcpy(path, name, n);
+    path[n] = '\0';
+    if (strcmp(path, "-") == 0 || strcmp(path, "INDEF") == 0)
+        return 0;
+    return stat(path, st) == 0;
+}
+
+int mp_out_overwrites(const char *path, const char *const *in, size_t n, char *err)
+{
+    struct stat so, si;
+    if (!path || !path[0] || strcmp(path, "-") == 0 || stat(path, &so) != 0)
+        return 0;
+    for (size_t k = 0; k < n; k++)
+        if (input_file(in[k], &si) && si.st_dev == so.st_dev && si.st_ino == so.st_ino) {
+            if (strcmp(path, in[k]) == 0)
+                snprintf(err, MP_ERRLEN, "%.200s: named as an output, but it is this run's "
+                         "input: a run does not write over what it reads (name another output)",
+                         path);
+            else
+                snprintf(err, MP_ERRLEN, "%.160s: named as an output, but it is this run's "
+                         "input %.160s (the same file): a run does not write over what it reads "
+                         "(name another output)", path, in[k]);
+            return 1;
+        }
+    return 0;
 }

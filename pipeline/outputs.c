@@ -24,6 +24,23 @@ int mp_pl_write_named(const char *root, const char *ext, const mp_table *t,
     return rc;
 }
 
+int mp_pl_outputs_clear(const char *root, const char *const *ext, size_t next,
+                        const char *const *in, size_t nin, char *err)
+{
+    for (size_t k = 0; k < next; k++) {
+        char *path = mp_name_after(root, ext[k]);
+        if (!path) {
+            snprintf(err, MP_ERRLEN, "out of memory");
+            return 1;
+        }
+        int rc = mp_out_overwrites(path, in, nin, err);
+        free(path);
+        if (rc)
+            return 1;
+    }
+    return 0;
+}
+
 int mp_pl_no_star(const char *image, const mp_frame *f, const char *none_why, double fwhm,
                   const mp_pipeline_opts *o, const mp_pipeline_report *rep, char *err)
 {

@@ -154,8 +154,16 @@ int mp_task_pipeline(int argc, char **argv)
             snprintf(err, MP_ERRLEN, "out of memory");
             goto done;
         }
+        /* root.psf.fits and root.psfk.fits only when the run builds them:
+         * psf=root.psf.fits of an earlier run is read, not written */
+        static const char *const ext[] = {".coo", ".grp", ".fit", ".cat", ".res.fits", ".reg",
+                                          ".report", ".psf.fits", ".psfk.fits"};
+        const char *in[5] = {im[i], mp_par_string(&ps, "psf"), mp_par_string(&ps, "drf"),
+                             o.fit.dp.dqmask, o.fit.dp.errplane};
         mp_pipeline_report r;
-        int prc = (measure && fwhm_of_image(&ps, &o, im[i], err)) ||
+        int prc = mp_pl_outputs_clear(root[0] ? root : named, ext, o.build_psf ? 9 : 7, in, 5,
+                                      err) ||
+                  (measure && fwhm_of_image(&ps, &o, im[i], err)) ||
                   mp_pipeline_run_any(im[i], root[0] ? root : named, &o, &r, err);
         free(named);
         if (prc)

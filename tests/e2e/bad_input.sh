@@ -84,6 +84,46 @@ bad "bleedgrow range"   bleedgrow     -- "$T/ok.fits" "$T/ok.truth" bleedgrow=51
 "$M" fit "$T/ok.fits" "$T/ok.truth" errplane="$T/ok.fits" output="$T/err.fit" >/dev/null 2>"$T/err" &&
     [ -s "$T/err.fit" ] || no "errplane refused: $(cat "$T/err")"
 
+# An output that is one of the run's inputs (io.h mp_out_overwrites): the
+# frame, the coordinates, the PSF, by another spelling or a link, through
+# each task that writes one; refused in one line naming it, the input the
+# same bytes after (`find f.fits output=f.fits` wrote its table over the
+# frame, exit 0, before session 76).
+cp "$T/ok.fits" "$T/keep.fits"
+ln -s "$T/keep.fits" "$T/link.fits"
+sum0=$(cksum <"$T/keep.fits")
+cp "$T/ok.truth" "$T/keep.coo"
+sumc=$(cksum <"$T/keep.coo")
+same() {
+    what=$1 word=$2 task=$3
+    shift 3
+    "$M" "$task" "$@" >"$T/stdout" 2>"$T/err"
+    rc=$?
+    [ "$rc" -eq 1 ] || no "$what: exit $rc, want 1"
+    [ "$(wc -l <"$T/err")" -eq 1 ] || no "$what: want one stderr line, got: $(cat "$T/err")"
+    grep -qF -- "$word: named as an output, but it is this run's input" "$T/err" ||
+        no "$what: message: $(cat "$T/err")"
+    [ "$(cksum <"$T/keep.fits")" = "$sum0" ] && [ "$(cksum <"$T/keep.coo")" = "$sumc" ] ||
+        no "$what: an input was written over"
+}
+same "find over its frame"     keep.fits find "$T/keep.fits" output="$T/keep.fits"
+same "find over a link of it"  keep.fits find "$T/link.fits" output="$T/./keep.fits"
+same "fit over its coords"     keep.coo  fit "$T/keep.fits" "$T/keep.coo" output="$T/keep.coo"
+same "fit residual over frame" keep.fits fit "$T/keep.fits" "$T/keep.coo" output="$T/o.fit" \
+    residual="$T/keep.fits"
+same "group over its input"    keep.coo  group "$T/keep.coo" output="$T/keep.coo"
+same "catalog over its image"  keep.fits catalog "$T/keep.coo" image="$T/keep.fits" \
+    output="$T/keep.fits"
+same "merge over its input"    keep.coo  merge "$T/keep.coo" output="$T/keep.coo"
+same "sim over its psf"        keep.fits sim "$T/keep.fits" psf="$T/keep.fits"
+cp "$T/keep.fits" "$T/r.res.fits"
+sum0=$(cksum <"$T/keep.fits")
+same "pipeline residual over its frame" r.res.fits pipeline "$T/r.res.fits" root="$T/r"
+"$M" sim "$T/p.fits" nx=64 ny=64 nstars=3 psfout="$T/k.fakes.cat" >/dev/null 2>&1 ||
+    no "sim of a PSF table"
+same "fakes over its psf"      k.fakes.cat fakes "$T/keep.fits" psf="$T/k.fakes.cat" root="$T/k"
+[ ! -e "$T/o.fit" ] || no "fit residual over frame: left its table"
+
 # An output directory that cannot be written.
 rm -f "$T/err"
 "$M" fit "$T/ok.fits" "$T/ok.truth" output="$T/nodir/out.fit" >/dev/null 2>"$T/err"

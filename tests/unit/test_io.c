@@ -1149,6 +1149,41 @@ static void test_guard_misplaced_equals(void **state)
     }
 }
 
+/* An output is refused when it is one of the run's inputs, by any
+ * spelling (an [extension], "./", a hard link); not when it does not
+ * exist yet, is stdout, or is another file; inputs "-", "", INDEF and a
+ * frame's own "[DQ]" name no file. */
+static void test_out_overwrites(void **state)
+{
+    scratch *s = *state;
+    char a[700], b[700], hl[700], dot[720], ext[720], missing[700], err[MP_ERRLEN];
+    snprintf(a, sizeof a, "%s", in_dir(s, "a.fits"));
+    snprintf(b, sizeof b, "%s", in_dir(s, "b.fits"));
+    snprintf(hl, sizeof hl, "%s", in_dir(s, "hard.fits"));
+    snprintf(missing, sizeof missing, "%s", in_dir(s, "new.fits"));
+    snprintf(dot, sizeof dot, "%s/./a.fits", s->dir);
+    snprintf(ext, sizeof ext, "%s[SCI][1:10,1:10]", a);
+    double px[4] = {1, 2, 3, 4};
+    assert_int_equal(mp_image_write(a, px, 2, 2, -32, NULL, 0, err), 0);
+    assert_int_equal(mp_image_write(b, px, 2, 2, -32, NULL, 0, err), 0);
+    assert_int_equal(link(a, hl), 0);
+    const char *in[5] = {"-", "", "INDEF", "[DQ]", ext};
+    err[0] = '\0';
+    assert_int_equal(mp_out_overwrites(a, in, 4, err), 0);      /* none names a file */
+    assert_int_equal(mp_out_overwrites(b, in, 5, err), 0);      /* another file */
+    assert_int_equal(mp_out_overwrites(missing, in, 5, err), 0);
+    assert_int_equal(mp_out_overwrites("-", in, 5, err), 0);
+    assert_string_equal(err, "");
+    assert_int_equal(mp_out_overwrites(a, in, 5, err), 1);
+    assert_non_null(strstr(err, "(the same file)"));
+    assert_null(strchr(err, '\n'));
+    assert_int_equal(mp_out_overwrites(dot, in, 5, err), 1);
+    assert_int_equal(mp_out_overwrites(hl, in, 5, err), 1);
+    const char *same[1] = {a};
+    assert_int_equal(mp_out_overwrites(a, same, 1, err), 1);
+    assert_non_null(strstr(err, "a.fits: named as an output, but it is this run's input: "));
+}
+
 static void test_key_number(void **state)
 {
     (void)state;
@@ -1225,6 +1260,7 @@ int main(void)
         cmocka_unit_test_setup_teardown(test_sections_and_hdus, setup, teardown),
         cmocka_unit_test_setup_teardown(test_compressed_image, setup, teardown),
         cmocka_unit_test_setup_teardown(test_gzip_headers_walked, setup, teardown),
+        cmocka_unit_test_setup_teardown(test_out_overwrites, setup, teardown),
         cmocka_unit_test_setup_teardown(test_bad_inputs, setup, teardown),
         cmocka_unit_test_setup_teardown(test_frame, setup, teardown),
         cmocka_unit_test_setup_teardown(test_frame_dq, setup, teardown),
