@@ -214,8 +214,20 @@ int mp_out_copy(const char *from, const char *to, char *err);
  * output that exists; here outputs are replaced, inputs never). */
 int mp_out_overwrites(const char *path, const char *const *in, size_t n, char *err);
 
+/* mp_out_in_place: whether output path is written in place rather than
+ * replaced: an existing device, FIFO or socket, or a name under /dev/ or
+ * /proc/ (/dev/stdout, /dev/fd/N).  Renamed over, `output=/dev/null` run
+ * as root replaced the system's /dev/null with a regular file; as
+ * another user it could not create its temporary beside it.
+ * mp_out_place: the finished temporary tmp put at path: renamed there
+ * (atomic), or for an output written in place its bytes appended to
+ * path and tmp removed; 0, or −1 with errno as rename(2). */
+int mp_out_in_place(const char *path);
+int mp_out_place(const char *tmp, const char *path);
+
 /* mp_tmp_name: the temporary name used for path, "<dir>/.<base>.tmp.<host>.<pid>"
- * (caller frees; NULL when out of memory).  A name only: the temporaries
+ * (an output written in place: <dir> is $TMPDIR, else /tmp; caller frees;
+ * NULL when out of memory).  A name only: the temporaries
  * of killed runs are swept by mp_tmp_sweep. */
 char *mp_tmp_name(const char *path);
 

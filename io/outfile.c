@@ -135,26 +135,39 @@ int mp_tmp_sweep(mp_sweeps *s, const char *path)
     return 1;
 }
 
+int mp_out_in_place(const char *path)
+{
+    struct stat st;
+    if (strncmp(path, "/dev/", 5) == 0 || strncmp(path, "/proc/", 6) == 0)
+        return 1;
+    return stat(path, &st) == 0 && (S_ISCHR(st.st_mode) || S_ISBLK(st.st_mode) ||
+                                    S_ISFIFO(st.st_mode) || S_ISSOCK(st.st_mode));
+}
+
 char *mp_tmp_name(const char *path)
 {
     /* "<dir>/.<base>.tmp.<host>.<pid>": same directory so rename() is
      * atomic, hidden so a directory listing during a run stays clean,
      * host and pid so two runs writing the same output do not share a
-     * temporary, and a killed run's can be told stale (mp_tmp_sweep). */
+     * temporary, and a killed run's can be told stale (mp_tmp_sweep).
+     * An output written in place (a device, a FIFO) has its temporary in
+     * TMPDIR: beside /dev/null it would need root, and be renamed over
+     * the device. */
     const char *slash = strrchr(path, '/');
-    size_t dlen = slash ? (size_t)(slash - path) + 1 : 0;
-    const char *base = path + dlen;
-    char host[64], tag[128];
+    int dlen = slash ? (int)(slash - path) + 1 : 0;
+    const char *base = path + dlen, *dir = path, *sep = "";
+    if (mp_out_in_place(path)) {
+        const char *tdir = getenv("TMPDIR");
+        dir = tdir && tdir[0] == '/' ? tdir : "/tmp";
+        dlen = (int)strlen(dir);
+        sep = "/";
+    }
+    char host[64];
     host_tag(host, sizeof host);
-    snprintf(tag, sizeof tag, ".tmp.%s.", host);
-    size_t n = dlen + 1 + strlen(base) + strlen(tag) + 24;
+    size_t n = (size_t)dlen + strlen(base) + strlen(host) + 40;
     char *t = malloc(n);
-    if (!t)
-        return NULL;
-    memcpy(t, path, dlen);
-    snprintf(t + dlen, n - dlen, ".%s%s", base, tag);
-    size_t l = strlen(t);
-    snprintf(t + l, n - l, "%ld", (long)getpid());
+    if (t)
+        snprintf(t, n, "%.*s%s.%s.tmp.%s.%ld", dlen, dir, sep, base, host, (long)getpid());
     return t;
 }
 
@@ -224,7 +237,7 @@ int mp_out_commit(mp_outfile *o, char *err)
         reset(o);
         return 1;
     }
-    if (rename(o->tmp_path, o->final_path) != 0) {
+    if (mp_out_place(o->tmp_path, o->final_path) != 0) {
         snprintf(err, MP_ERRLEN, "%s: cannot rename the temporary file into place: %s",
                  o->final_path, strerror(errno));
         unlink(o->tmp_path);
@@ -257,6 +270,23 @@ static int copy_bytes(FILE *in, FILE *out)
     while (!bad && (n = fread(buf, 1, sizeof buf, in)) > 0)
         bad = fwrite(buf, 1, n, out) != n;
     return bad;
+}
+
+int mp_out_place(const char *tmp, const char *path)
+{
+    if (!mp_out_in_place(path))
+        return rename(tmp, path);
+    FILE *in = fopen(tmp, "rb"), *out = in ? fopen(path, "ab") : NULL;
+    int bad = !in || !out || copy_bytes(in, out) || ferror(in), e = errno;
+    if (out && fclose(out) != 0 && !bad) {
+        bad = 1;
+        e = errno;
+    }
+    if (in)
+        fclose(in);
+    unlink(tmp);
+    errno = e;
+    return bad ? -1 : 0;
 }
 
 int mp_out_copy(const char *from, const char *to, char *err)

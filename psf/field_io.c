@@ -538,7 +538,7 @@ int mp_psf_field_write(const char *path, const mp_psf_field *f, const mp_psf_sta
         fits_close_file(fp, status ? &s2 : &status);
     if (status) {
         psf_fits_msg(path, "cannot write the PSF file", status, err);
-    } else if (rename(tmp, path)) {
+    } else if (mp_out_place(tmp, path)) {
         snprintf(err, MP_ERRLEN, "%s: cannot rename the temporary file into place", path);
         status = 1;
     }
