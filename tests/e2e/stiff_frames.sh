@@ -112,6 +112,13 @@ w="no good pixel (16384 of its 128 x 128 at or above saturate 0 ADU"
 refused find ok "no star found: $w" "$T/ok.fits" saturate=0 output="$T/sat.coo"
 refused fit ok "no usable star: $w" "$T/ok.fits" "$T/star.coo" saturate=0 output="$T/sat.fit"
 refused pipeline ok "no usable star: $w" "$T/ok.fits" saturate=0 psf=gauss fwhm=3 root="$T/sat"
+# A gain that overflows every pixel in electrons, or rounds every one to
+# 0: the gain named (it said "NaN, blank, masked or saturated" and "a
+# constant frame").
+refused find ok "no star found: no good pixel (every one of its 128 x 128 is NaN, blank, masked or saturated, or in electrons at gain 1e+300 beyond" \
+    "$T/ok.fits" gain=1e300 output="$T/g.coo"
+refused find ok "no star found: its noise is 0 on every good pixel (a constant frame in electrons at gain [0-9.]*e-3[0-9]*, 128 x 128)" \
+    "$T/ok.fits" gain=1e-320 output="$T/g.coo"
 "$M" fit "$T/ok.fits" "$T/none.coo" output="$T/none.fit" 2>"$T/err"
 [ $? -eq 1 ] && grep -qF "none.coo: no star to fit" "$T/err" && [ ! -e "$T/none.fit" ] ||
     no "fit of an empty table: $(cat "$T/err")"
