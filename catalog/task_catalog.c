@@ -355,9 +355,9 @@ int mp_task_catalog(int argc, char **argv)
     int rc = 1, wrote_regions = 0;
     if (setup_of(&ps, &s, err))
         goto done;
-    const char *in[2] = {s.input, s.image};
-    if (mp_out_overwrites(s.output, in, 2, err) || mp_out_overwrites(s.regions, in, 2, err) ||
-        read_inputs(&s, &r, err) || apply_magzero(&s, &r, err) || add_sky(&s, &r, err))
+    const char *in[2] = {s.input, s.image}, *out[2] = {s.output, s.regions};
+    if (mp_outputs_clear(in, 2, out, 2, err) || read_inputs(&s, &r, err) ||
+        apply_magzero(&s, &r, err) || add_sky(&s, &r, err))
         goto done;
     const mp_table *cat = &r.t;
     if (s.columns[0]) {

@@ -116,8 +116,8 @@ int mp_task_merge(int argc, char **argv)
         snprintf(err, MP_ERRLEN, "input: no catalog given");
         goto done;
     }
-    if (mp_out_overwrites(s.output, (const char *const *)cats, ncat, err) ||
-        mp_out_overwrites(s.detections, (const char *const *)cats, ncat, err))
+    const char *out[2] = {s.output, s.detections};
+    if (mp_outputs_clear((const char *const *)cats, ncat, out, 2, err))
         goto done;
     if (!(m = mp_merge_new(&s.o))) {
         snprintf(err, MP_ERRLEN, "out of memory");

@@ -122,6 +122,7 @@ int mp_task_find(int argc, char **argv)
     size_t nim = 0, nout = 0;
     int rc = 1;
     mp_sweeps *sw = NULL;
+    mp_inputs *ins = NULL;
     if (setup_of(&ps, &s, err))
         goto done;
     if (mp_params_list(mp_par_string(&ps, "image"), &im, &nim, err) ||
@@ -137,6 +138,13 @@ int mp_task_find(int argc, char **argv)
         goto done;
     }
     sw = mp_sweeps_new();        /* each output directory swept once */
+    /* every frame of the list: an output of the first may be the input
+     * of a later one */
+    if (!(ins = mp_inputs_of((const char *const *)im, nim)) ||
+        mp_inputs_add(ins, s.dp.dqmask) || mp_inputs_add(ins, s.dp.errplane)) {
+        snprintf(err, MP_ERRLEN, "out of memory");
+        goto done;
+    }
     /* A frame's bad input is its own line: the list's other frames go on,
      * the status 1 (as pipeline's). */
     int failed = 0;
@@ -150,8 +158,7 @@ int mp_task_find(int argc, char **argv)
             }
             o = named;
         }
-        const char *in[3] = {im[i], s.dp.dqmask, s.dp.errplane};
-        int r = mp_out_overwrites(o, in, 3, err);
+        int r = mp_out_overwrites(ins, o, err);
         if (!r) {
             mp_tmp_sweep(sw, o);
             r = find_one(&s, im[i], o, err);
@@ -169,6 +176,7 @@ done:
     mp_list_free(im, nim);
     mp_list_free(out, nout);
     mp_sweeps_free(sw);
+    mp_inputs_free(ins);
     mp_params_free(&ps);
     return rc;
 }

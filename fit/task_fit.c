@@ -167,6 +167,7 @@ int mp_task_fit(int argc, char **argv)
     int rc = 1;
     /* Killed runs' temporaries: each output directory swept once. */
     mp_sweeps *sw = mp_sweeps_new();
+    mp_inputs *ins = NULL;
     if (mp_fit_setup_read(&ps, &s, err))
         goto done;
     if (mp_params_list(mp_par_string(&ps, "image"), &im, &nim, err) ||
@@ -177,6 +178,17 @@ int mp_task_fit(int argc, char **argv)
     if (nco != nim || (nout && nout != nim) || (nrs && nrs != nim)) {
         snprintf(err, MP_ERRLEN, "coords: %zu coordinate tables, output %zu, residual %zu "
                  "for %zu images: lists must pair line by line", nco, nout, nrs, nim);
+        goto done;
+    }
+    /* every frame and table of the lists: an output of the first may be
+     * the input of a later one */
+    const char *more[4] = {mp_par_string(&ps, "psf"), mp_par_string(&ps, "drf"), s.dp.dqmask,
+                           s.dp.errplane};
+    int bad = !(ins = mp_inputs_of((const char *const *)im, nim));
+    for (size_t i = 0; i < nco + 4 && !bad; i++)
+        bad = mp_inputs_add(ins, i < nco ? co[i] : more[i - nco]);
+    if (bad) {
+        snprintf(err, MP_ERRLEN, "out of memory");
         goto done;
     }
     int failed = 0;
@@ -190,9 +202,7 @@ int mp_task_fit(int argc, char **argv)
             }
             o = named;
         }
-        const char *in[6] = {im[i], co[i], mp_par_string(&ps, "psf"), mp_par_string(&ps, "drf"),
-                             s.dp.dqmask, s.dp.errplane};
-        int r = mp_out_overwrites(o, in, 6, err) || (nrs && mp_out_overwrites(rs[i], in, 6, err));
+        int r = mp_out_overwrites(ins, o, err) || (nrs && mp_out_overwrites(ins, rs[i], err));
         if (!r) {
             mp_tmp_sweep(sw, o);
             if (nrs)
@@ -214,6 +224,7 @@ done:
     mp_list_free(out, nout);
     mp_list_free(rs, nrs);
     mp_sweeps_free(sw);
+    mp_inputs_free(ins);
     mp_fit_setup_free(&s);
     mp_params_free(&ps);
     return rc;

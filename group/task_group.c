@@ -86,7 +86,7 @@ int mp_task_group(int argc, char **argv)
         snprintf(err, MP_ERRLEN, "input: no input table named");
         goto done;
     }
-    if (mp_out_overwrites(output, &input, 1, err) || mp_table_read(input, &t, err))
+    if (mp_outputs_clear(&input, 1, &output, 1, err) || mp_table_read(input, &t, err))
         goto done;
     char e[MP_ERRLEN];
     if (mp_group_table(&t, &o, e)) {

@@ -204,15 +204,29 @@ void mp_out_abort(mp_outfile *o);              /* close, unlink temporary */
  * root.fit's text).  0, or nonzero with err naming the file. */
 int mp_out_copy(const char *from, const char *to, char *err);
 
-/* mp_out_overwrites: 1 with err naming both when output path is an
- * existing file that one of the run's n input names in[] reads (a
- * cfitsio name's [extension] or section ignored; "-", empty, INDEF and
- * URLs skipped), told by device and inode, so another spelling or a link
- * of it is caught too; 0 otherwise.  A task asks before it writes each
- * output: `find f.fits output=f.fits` wrote its table over the frame, as
- * `fit f.fits f.coo output=f.coo` over its coordinates (IRAF refuses an
+/* A run's input files, each stat'ed once as it is added (an @list of
+ * thousands of frames is asked once per output, not once per pair):
+ * mp_inputs_add takes a cfitsio name (its [extension] or section cut;
+ * "-", empty, INDEF, URLs, a frame's own "[DQ]" and names of no file are
+ * skipped) and keeps the pointer for messages, so name must outlive s;
+ * 1 when out of memory (or s NULL).  mp_out_overwrites: 1 with err
+ * naming both when output path is an existing file that is one of s's,
+ * told by device and inode, so another spelling or a link of it is
+ * caught too; 0 otherwise.  A task asks before it writes each output:
+ * `find f.fits output=f.fits` wrote its table over the frame, as `fit
+ * f.fits f.coo output=f.coo` over its coordinates (IRAF refuses an
  * output that exists; here outputs are replaced, inputs never). */
-int mp_out_overwrites(const char *path, const char *const *in, size_t n, char *err);
+typedef struct mp_inputs mp_inputs;
+mp_inputs *mp_inputs_new(void);          /* NULL when out of memory */
+mp_inputs *mp_inputs_of(const char *const *names, size_t n);   /* each added; NULL: OOM */
+int mp_inputs_add(mp_inputs *s, const char *name);
+void mp_inputs_free(mp_inputs *s);
+int mp_out_overwrites(const mp_inputs *s, const char *path, char *err);
+/* mp_outputs_clear: mp_out_overwrites of each of out[0..nout) against the
+ * inputs in[0..nin); 1 with err at the first that is one (or when out of
+ * memory), 0 otherwise. */
+int mp_outputs_clear(const char *const *in, size_t nin, const char *const *out, size_t nout,
+                     char *err);
 
 /* mp_out_in_place: whether output path is written in place rather than
  * replaced: an existing device, FIFO or socket, or a name under /dev/ or

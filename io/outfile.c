@@ -383,22 +383,101 @@ static int input_file(const char *name, struct stat *st)
     return stat(path, st) == 0;
 }
 
-int mp_out_overwrites(const char *path, const char *const *in, size_t n, char *err)
+struct mp_inputs {
+    dev_t *dev;
+    ino_t *ino;
+    const char **name;     /* the caller's strings */
+    size_t n, cap;
+};
+
+mp_inputs *mp_inputs_new(void)
 {
-    struct stat so, si;
-    if (!path || !path[0] || strcmp(path, "-") == 0 || stat(path, &so) != 0)
+    return calloc(1, sizeof(mp_inputs));
+}
+
+void mp_inputs_free(mp_inputs *s)
+{
+    if (!s)
+        return;
+    free(s->dev);
+    free(s->ino);
+    free(s->name);
+    free(s);
+}
+
+int mp_inputs_add(mp_inputs *s, const char *name)
+{
+    struct stat st;
+    if (!s)
+        return 1;
+    if (!input_file(name, &st))
         return 0;
-    for (size_t k = 0; k < n; k++)
-        if (input_file(in[k], &si) && si.st_dev == so.st_dev && si.st_ino == so.st_ino) {
-            if (strcmp(path, in[k]) == 0)
-                snprintf(err, MP_ERRLEN, "%.200s: named as an output, but it is this run's "
-                         "input: a run does not write over what it reads (name another output)",
-                         path);
-            else
-                snprintf(err, MP_ERRLEN, "%.160s: named as an output, but it is this run's "
-                         "input %.160s (the same file): a run does not write over what it reads "
-                         "(name another output)", path, in[k]);
+    if (s->n == s->cap) {
+        size_t cap = s->cap ? 2 * s->cap : 8;
+        dev_t *d = realloc(s->dev, cap * sizeof *d);
+        if (d)
+            s->dev = d;
+        ino_t *i = realloc(s->ino, cap * sizeof *i);
+        if (i)
+            s->ino = i;
+        const char **nm = realloc(s->name, cap * sizeof *nm);
+        if (nm)
+            s->name = nm;
+        if (!d || !i || !nm)
             return 1;
-        }
+        s->cap = cap;
+    }
+    s->dev[s->n] = st.st_dev;
+    s->ino[s->n] = st.st_ino;
+    s->name[s->n++] = name;
+    return 0;
+}
+
+mp_inputs *mp_inputs_of(const char *const *names, size_t n)
+{
+    mp_inputs *s = mp_inputs_new();
+    int bad = !s;
+    for (size_t k = 0; k < n && !bad; k++)
+        bad = mp_inputs_add(s, names[k]);
+    if (bad) {
+        mp_inputs_free(s);
+        return NULL;
+    }
+    return s;
+}
+
+int mp_outputs_clear(const char *const *in, size_t nin, const char *const *out, size_t nout,
+                     char *err)
+{
+    mp_inputs *s = mp_inputs_of(in, nin);
+    if (!s) {
+        snprintf(err, MP_ERRLEN, "out of memory");
+        return 1;
+    }
+    int rc = 0;
+    for (size_t k = 0; k < nout && !rc; k++)
+        rc = mp_out_overwrites(s, out[k], err);
+    mp_inputs_free(s);
+    return rc;
+}
+
+int mp_out_overwrites(const mp_inputs *s, const char *path, char *err)
+{
+    struct stat so;
+    if (!s || !path || !path[0] || strcmp(path, "-") == 0 || stat(path, &so) != 0)
+        return 0;
+    for (size_t k = 0; k < s->n; k++) {
+        if (s->dev[k] != so.st_dev || s->ino[k] != so.st_ino)
+            continue;
+        if (strcmp(path, s->name[k]) == 0)
+            snprintf(err, MP_ERRLEN, "%.200s: named as an output, but it is this run's "
+                     "input: a run does not write over what it reads (name another output)",
+                     path);
+        else
+            snprintf(err, MP_ERRLEN, "%.160s: named as an output, but it is this run's "
+                     "input %.160s (the same file): a run does not write over what it reads "
+                     "(name another output)", path, s->name[k]);
+        return 1;
+    }
     return 0;
 }

@@ -25,7 +25,7 @@ int mp_pl_write_named(const char *root, const char *ext, const mp_table *t,
 }
 
 int mp_pl_outputs_clear(const char *root, const char *const *ext, size_t next,
-                        const char *const *in, size_t nin, char *err)
+                        const mp_inputs *in, char *err)
 {
     for (size_t k = 0; k < next; k++) {
         char *path = mp_name_after(root, ext[k]);
@@ -33,7 +33,7 @@ int mp_pl_outputs_clear(const char *root, const char *const *ext, size_t next,
             snprintf(err, MP_ERRLEN, "out of memory");
             return 1;
         }
-        int rc = mp_out_overwrites(path, in, nin, err);
+        int rc = mp_out_overwrites(in, path, err);
         free(path);
         if (rc)
             return 1;

@@ -414,10 +414,10 @@ long mp_pl_split_candidates(const mp_frame *f, const mp_bkg *b, const float *res
 /* ---- outputs.c --------------------------------------------------------- */
 
 /* mp_pl_outputs_clear: 1 with err when one of root + ext[k] (k < next)
- * is one of the run's input files in[0..nin) (io.h mp_out_overwrites):
+ * is one of the run's input files in (io.h mp_out_overwrites):
  * `pipeline f.res.fits root=f` would write its residual over its frame. */
 int mp_pl_outputs_clear(const char *root, const char *const *ext, size_t next,
-                        const char *const *in, size_t nin, char *err);
+                        const mp_inputs *in, char *err);
 
 /* mp_pl_write_named: t written atomically to root + ext in format fmt;
  * the rows prev holds the same copied, t's rows kept into *keep when keep

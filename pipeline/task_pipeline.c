@@ -127,6 +127,7 @@ int mp_task_pipeline(int argc, char **argv)
     mp_pipeline_opts o;
     char **im = NULL;
     size_t nim = 0;
+    mp_inputs *ins = NULL;
     int rc = 1;
     double fw = NAN;
     mp_par_real(&ps, "fwhm", &fw);
@@ -145,6 +146,17 @@ int mp_task_pipeline(int argc, char **argv)
                  "output is named after its image", nim);
         goto done;
     }
+    /* every frame of the list: an output of the first may be the input
+     * of a later one */
+    const char *more[4] = {mp_par_string(&ps, "psf"), mp_par_string(&ps, "drf"), o.fit.dp.dqmask,
+                           o.fit.dp.errplane};
+    int bad = !(ins = mp_inputs_of((const char *const *)im, nim));
+    for (int k = 0; k < 4 && !bad; k++)
+        bad = mp_inputs_add(ins, more[k]);
+    if (bad) {
+        snprintf(err, MP_ERRLEN, "out of memory");
+        goto done;
+    }
     /* A frame's bad input (no usable star, a corrupt file) is its own
      * line: the @list's other frames are reduced, the status 1. */
     int failed = 0;
@@ -158,10 +170,8 @@ int mp_task_pipeline(int argc, char **argv)
          * psf=root.psf.fits of an earlier run is read, not written */
         static const char *const ext[] = {".coo", ".grp", ".fit", ".cat", ".res.fits", ".reg",
                                           ".report", ".psf.fits", ".psfk.fits"};
-        const char *in[5] = {im[i], mp_par_string(&ps, "psf"), mp_par_string(&ps, "drf"),
-                             o.fit.dp.dqmask, o.fit.dp.errplane};
         mp_pipeline_report r;
-        int prc = mp_pl_outputs_clear(root[0] ? root : named, ext, o.build_psf ? 9 : 7, in, 5,
+        int prc = mp_pl_outputs_clear(root[0] ? root : named, ext, o.build_psf ? 9 : 7, ins,
                                       err) ||
                   (measure && fwhm_of_image(&ps, &o, im[i], err)) ||
                   mp_pipeline_run_any(im[i], root[0] ? root : named, &o, &r, err);
@@ -177,6 +187,7 @@ done:
         fprintf(stderr, "matphot pipeline: %s\n", err);
     mp_list_free(im, nim);
     mp_sweeps_free(o.sweeps);
+    mp_inputs_free(ins);
     mp_fit_setup_free(&o.fit);
     mp_params_free(&ps);
     return rc;

@@ -325,7 +325,7 @@ static int write_psf(const psf_task *t, const mp_epsf *e, const mp_psf_star *ps,
         out = named;
     }
     const char *in[2] = {t->image, t->stars};
-    if (mp_out_overwrites(out, in, 2, err))
+    if (mp_outputs_clear(in, 2, &out, 1, err))
         goto done;
     mp_tmp_sweep(NULL, out);         /* killed runs' temporaries */
     if (mp_psf_field_write(out, &fld, ps, (int)n, err))

@@ -111,6 +111,10 @@ same "find over a link of it"  keep.fits find "$T/link.fits" output="$T/./keep.f
 same "fit over its coords"     keep.coo  fit "$T/keep.fits" "$T/keep.coo" output="$T/keep.coo"
 same "fit residual over frame" keep.fits fit "$T/keep.fits" "$T/keep.coo" output="$T/o.fit" \
     residual="$T/keep.fits"
+# an @list: the first frame's output is the second frame's input
+printf '%s\n%s\n' "$T/ok.fits" "$T/keep.fits" >"$T/in.lis"
+printf '%s\n%s\n' "$T/keep.fits" "$T/second.coo" >"$T/out.lis"
+same "find over a later frame" keep.fits find "@$T/in.lis" output="@$T/out.lis"
 same "group over its input"    keep.coo  group "$T/keep.coo" output="$T/keep.coo"
 same "catalog over its image"  keep.fits catalog "$T/keep.coo" image="$T/keep.fits" \
     output="$T/keep.fits"

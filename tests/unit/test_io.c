@@ -1168,20 +1168,26 @@ static void test_out_overwrites(void **state)
     assert_int_equal(mp_image_write(b, px, 2, 2, -32, NULL, 0, err), 0);
     assert_int_equal(link(a, hl), 0);
     const char *in[5] = {"-", "", "INDEF", "[DQ]", ext};
+    mp_inputs *none = mp_inputs_of(in, 4), *all = mp_inputs_of(in, 5);
+    assert_non_null(none);
+    assert_non_null(all);
     err[0] = '\0';
-    assert_int_equal(mp_out_overwrites(a, in, 4, err), 0);      /* none names a file */
-    assert_int_equal(mp_out_overwrites(b, in, 5, err), 0);      /* another file */
-    assert_int_equal(mp_out_overwrites(missing, in, 5, err), 0);
-    assert_int_equal(mp_out_overwrites("-", in, 5, err), 0);
+    assert_int_equal(mp_out_overwrites(none, a, err), 0);      /* none names a file */
+    assert_int_equal(mp_out_overwrites(all, b, err), 0);       /* another file */
+    assert_int_equal(mp_out_overwrites(all, missing, err), 0);
+    assert_int_equal(mp_out_overwrites(all, "-", err), 0);
     assert_string_equal(err, "");
-    assert_int_equal(mp_out_overwrites(a, in, 5, err), 1);
+    assert_int_equal(mp_out_overwrites(all, a, err), 1);
     assert_non_null(strstr(err, "(the same file)"));
     assert_null(strchr(err, '\n'));
-    assert_int_equal(mp_out_overwrites(dot, in, 5, err), 1);
-    assert_int_equal(mp_out_overwrites(hl, in, 5, err), 1);
-    const char *same[1] = {a};
-    assert_int_equal(mp_out_overwrites(a, same, 1, err), 1);
+    assert_int_equal(mp_out_overwrites(all, dot, err), 1);
+    assert_int_equal(mp_out_overwrites(all, hl, err), 1);
+    const char *same[1] = {a}, *outs[3] = {missing, b, a};
+    assert_int_equal(mp_outputs_clear(same, 1, outs, 2, err), 0);
+    assert_int_equal(mp_outputs_clear(same, 1, outs, 3, err), 1);
     assert_non_null(strstr(err, "a.fits: named as an output, but it is this run's input: "));
+    mp_inputs_free(none);
+    mp_inputs_free(all);
 }
 
 static void test_key_number(void **state)
