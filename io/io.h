@@ -248,7 +248,8 @@ char *mp_tmp_name(const char *path);
 /* Killed runs' temporaries.  SIGKILL cannot be caught (cleanup.c's
  * handler never runs: a node's OOM killer, a job's time limit), so a
  * task sweeps the directory of each output before writing it:
- * mp_tmp_sweep removes from path's directory every temporary that a run
+ * mp_tmp_sweep removes from the directory of path's temporaries (its own;
+ * TMPDIR for an output written in place) every temporary that a run
  * on this host left (".<base>.tmp.<host>.<pid>", any base, the pid no
  * longer alive), so a resubmitted job leaves its directory as a clean
  * run does.  Another host's temporaries (a shared file system) and live

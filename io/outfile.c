@@ -102,12 +102,37 @@ static void sweep_dir(const char *dir)
         closedir(d);
 }
 
+int mp_out_in_place(const char *path)
+{
+    struct stat st;
+    if (strncmp(path, "/dev/", 5) == 0 || strncmp(path, "/proc/", 6) == 0)
+        return 1;
+    return stat(path, &st) == 0 && (S_ISCHR(st.st_mode) || S_ISBLK(st.st_mode) ||
+                                    S_ISFIFO(st.st_mode) || S_ISSOCK(st.st_mode));
+}
+
+/* The folder a temporary for path goes to, with its '/' ("./" for a bare
+ * name): path's own, so rename() is atomic, or TMPDIR (else /tmp) for an
+ * output written in place: beside /dev/null it would need root, and be
+ * renamed over the device.  NULL when out of memory. */
+static char *tmp_dir(const char *path)
+{
+    const char *slash = strrchr(path, '/'), *t = getenv("TMPDIR");
+    if (!mp_out_in_place(path))
+        return slash ? strndup(path, (size_t)(slash - path) + 1) : strdup("./");
+    const char *d = t && t[0] == '/' ? t : "/tmp";
+    size_t n = strlen(d) + 2;
+    char *dir = malloc(n);
+    if (dir)
+        snprintf(dir, n, "%s/", d);
+    return dir;
+}
+
 int mp_tmp_sweep(mp_sweeps *s, const char *path)
 {
     if (!path || !*path || strcmp(path, "-") == 0)
         return 0;
-    const char *slash = strrchr(path, '/');
-    char *dir = slash ? strndup(path, (size_t)(slash - path) + 1) : strdup("./");
+    char *dir = tmp_dir(path);
     if (!dir)
         return 0;                    /* out of memory: a stale file stays, harmlessly */
     for (size_t i = 0; s && i < s->n; i++)
@@ -135,39 +160,24 @@ int mp_tmp_sweep(mp_sweeps *s, const char *path)
     return 1;
 }
 
-int mp_out_in_place(const char *path)
-{
-    struct stat st;
-    if (strncmp(path, "/dev/", 5) == 0 || strncmp(path, "/proc/", 6) == 0)
-        return 1;
-    return stat(path, &st) == 0 && (S_ISCHR(st.st_mode) || S_ISBLK(st.st_mode) ||
-                                    S_ISFIFO(st.st_mode) || S_ISSOCK(st.st_mode));
-}
 
 char *mp_tmp_name(const char *path)
 {
-    /* "<dir>/.<base>.tmp.<host>.<pid>": same directory so rename() is
-     * atomic, hidden so a directory listing during a run stays clean,
-     * host and pid so two runs writing the same output do not share a
-     * temporary, and a killed run's can be told stale (mp_tmp_sweep).
-     * An output written in place (a device, a FIFO) has its temporary in
-     * TMPDIR: beside /dev/null it would need root, and be renamed over
-     * the device. */
-    const char *slash = strrchr(path, '/');
-    int dlen = slash ? (int)(slash - path) + 1 : 0;
-    const char *base = path + dlen, *dir = path, *sep = "";
-    if (mp_out_in_place(path)) {
-        const char *tdir = getenv("TMPDIR");
-        dir = tdir && tdir[0] == '/' ? tdir : "/tmp";
-        dlen = (int)strlen(dir);
-        sep = "/";
-    }
-    char host[64];
+    /* "<dir>/.<base>.tmp.<host>.<pid>" (tmp_dir): hidden so a directory
+     * listing during a run stays clean, host and pid so two runs writing
+     * the same output do not share a temporary, and a killed run's can be
+     * told stale (mp_tmp_sweep). */
+    const char *slash = strrchr(path, '/'), *base = slash ? slash + 1 : path;
+    char *dir = tmp_dir(path), host[64];
+    if (!dir)
+        return NULL;
     host_tag(host, sizeof host);
-    size_t n = (size_t)dlen + strlen(base) + strlen(host) + 40;
+    size_t n = strlen(dir) + strlen(base) + strlen(host) + 40;
     char *t = malloc(n);
     if (t)
-        snprintf(t, n, "%.*s%s.%s.tmp.%s.%ld", dlen, dir, sep, base, host, (long)getpid());
+        snprintf(t, n, "%s.%s.tmp.%s.%ld", strcmp(dir, "./") ? dir : "", base, host,
+                 (long)getpid());
+    free(dir);
     return t;
 }
 

@@ -1190,6 +1190,47 @@ static void test_out_overwrites(void **state)
     mp_inputs_free(all);
 }
 
+/* Where a temporary goes: beside its output (rename() is atomic there),
+ * but in TMPDIR for an output written in place (a device, a FIFO, a
+ * name under /dev/), whose folder it would need root to write to and
+ * whose device it would be renamed over. */
+static void test_tmp_name_in_place(void **state)
+{
+    scratch *s = *state;
+    char fifo[700], reg[700], want[800];
+    snprintf(fifo, sizeof fifo, "%s", in_dir(s, "pipe"));
+    snprintf(reg, sizeof reg, "%s", in_dir(s, "plain.coo"));
+    assert_int_equal(mkfifo(fifo, 0600), 0);
+    FILE *fp = fopen(reg, "w");
+    assert_non_null(fp);
+    fclose(fp);
+    assert_int_equal(mp_out_in_place("/dev/null"), 1);
+    assert_int_equal(mp_out_in_place("/dev/stdout"), 1);
+    assert_int_equal(mp_out_in_place(fifo), 1);
+    assert_int_equal(mp_out_in_place(reg), 0);
+    assert_int_equal(mp_out_in_place("not/yet/written.coo"), 0);
+    char *old = getenv("TMPDIR") ? strdup(getenv("TMPDIR")) : NULL;
+    assert_int_equal(setenv("TMPDIR", s->dir, 1), 0);
+    const char *paths[4] = {"/dev/null", fifo, "dir/f.coo", "f.coo"};
+    for (int k = 0; k < 4; k++) {
+        char *t = mp_tmp_name(paths[k]);
+        assert_non_null(t);
+        if (k < 2)
+            snprintf(want, sizeof want, "%s/.%s.tmp.", s->dir, k ? "pipe" : "null");
+        else
+            snprintf(want, sizeof want, "%s.f.coo.tmp.", k == 2 ? "dir/" : "");
+        if (strncmp(t, want, strlen(want)) != 0)
+            print_error("mp_tmp_name(%s) = %s, want %s...\n", paths[k], t, want);
+        assert_int_equal(strncmp(t, want, strlen(want)), 0);
+        free(t);
+    }
+    if (old)
+        setenv("TMPDIR", old, 1);
+    else
+        unsetenv("TMPDIR");
+    free(old);
+}
+
 static void test_key_number(void **state)
 {
     (void)state;
@@ -1267,6 +1308,7 @@ int main(void)
         cmocka_unit_test_setup_teardown(test_compressed_image, setup, teardown),
         cmocka_unit_test_setup_teardown(test_gzip_headers_walked, setup, teardown),
         cmocka_unit_test_setup_teardown(test_out_overwrites, setup, teardown),
+        cmocka_unit_test_setup_teardown(test_tmp_name_in_place, setup, teardown),
         cmocka_unit_test_setup_teardown(test_bad_inputs, setup, teardown),
         cmocka_unit_test_setup_teardown(test_frame, setup, teardown),
         cmocka_unit_test_setup_teardown(test_frame_dq, setup, teardown),
