@@ -393,10 +393,14 @@ static int input_file(const char *name, struct stat *st)
     return stat(path, st) == 0;
 }
 
+typedef struct {
+    dev_t dev;
+    ino_t ino;
+    const char *name;      /* the caller's string */
+} input_id;
+
 struct mp_inputs {
-    dev_t *dev;
-    ino_t *ino;
-    const char **name;     /* the caller's strings */
+    input_id *id;
     size_t n, cap;
 };
 
@@ -407,11 +411,8 @@ mp_inputs *mp_inputs_new(void)
 
 void mp_inputs_free(mp_inputs *s)
 {
-    if (!s)
-        return;
-    free(s->dev);
-    free(s->ino);
-    free(s->name);
+    if (s)
+        free(s->id);
     free(s);
 }
 
@@ -424,22 +425,13 @@ int mp_inputs_add(mp_inputs *s, const char *name)
         return 0;
     if (s->n == s->cap) {
         size_t cap = s->cap ? 2 * s->cap : 8;
-        dev_t *d = realloc(s->dev, cap * sizeof *d);
-        if (d)
-            s->dev = d;
-        ino_t *i = realloc(s->ino, cap * sizeof *i);
-        if (i)
-            s->ino = i;
-        const char **nm = realloc(s->name, cap * sizeof *nm);
-        if (nm)
-            s->name = nm;
-        if (!d || !i || !nm)
+        input_id *id = realloc(s->id, cap * sizeof *id);
+        if (!id)
             return 1;
+        s->id = id;
         s->cap = cap;
     }
-    s->dev[s->n] = st.st_dev;
-    s->ino[s->n] = st.st_ino;
-    s->name[s->n++] = name;
+    s->id[s->n++] = (input_id){st.st_dev, st.st_ino, name};
     return 0;
 }
 
@@ -477,16 +469,16 @@ int mp_out_overwrites(const mp_inputs *s, const char *path, char *err)
     if (!s || !path || !path[0] || strcmp(path, "-") == 0 || stat(path, &so) != 0)
         return 0;
     for (size_t k = 0; k < s->n; k++) {
-        if (s->dev[k] != so.st_dev || s->ino[k] != so.st_ino)
+        if (s->id[k].dev != so.st_dev || s->id[k].ino != so.st_ino)
             continue;
-        if (strcmp(path, s->name[k]) == 0)
+        if (strcmp(path, s->id[k].name) == 0)
             snprintf(err, MP_ERRLEN, "%.200s: named as an output, but it is this run's "
                      "input: a run does not write over what it reads (name another output)",
                      path);
         else
             snprintf(err, MP_ERRLEN, "%.160s: named as an output, but it is this run's "
                      "input %.160s (the same file): a run does not write over what it reads "
-                     "(name another output)", path, s->name[k]);
+                     "(name another output)", path, s->id[k].name);
         return 1;
     }
     return 0;
