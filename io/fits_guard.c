@@ -301,16 +301,40 @@ int mp_fits_guard_mem(const void *b, size_t n, char *why)
     return 1;
 }
 
+/* The file a cfitsio name reads into path (cfitsio's own parse, ffrtnm;
+ * a file:// URL's path): 0; 1 with why for standard input and other URLs,
+ * whose bytes no walk can see before cfitsio parses them (`find -` and
+ * `find file://bad.fits` reached cfitsio's buffer overflow unwalked);
+ * -1 for a name cfitsio cannot parse (it says so itself). */
+static int local_file(const char *name, char *path, size_t len, char *why)
+{
+    char root[FLEN_FILENAME];
+    int st = 0;
+    if (strlen(name) >= FLEN_FILENAME || ffrtnm((char *)name, root, &st) || !root[0])
+        return -1;
+    const char *p = strncmp(root, "file://", 7) == 0 ? root + 7 : root;
+    /* "-", "-[1]"; "stdin://" comes as "-://" (a file "-x.fits" is a file) */
+    if (strcmp(p, "-") == 0 || strncmp(p, "-://", 4) == 0) {
+        snprintf(why, MP_GUARD_LEN, "a FITS image or PSF from standard input, which matphot "
+                 "does not read: write it to a file (tables are read from -)");
+        return 1;
+    }
+    if (strstr(p, "://")) {
+        snprintf(why, MP_GUARD_LEN, "a URL, which matphot does not read: download it first");
+        return 1;
+    }
+    if (strlen(p) >= len)
+        return -1;
+    snprintf(path, len, "%s", p);
+    return 0;
+}
+
 int mp_fits_guard_file(const char *name, char *why)
 {
-    /* The file part of a cfitsio extended name; URLs and stdin are left to
-     * cfitsio. */
-    char path[4096];
-    size_t n = strcspn(name, "[");
-    if (n == 0 || n >= sizeof path || strstr(name, "://") || strcmp(name, "-") == 0)
-        return 0;
-    memcpy(path, name, n);
-    path[n] = '\0';
+    char path[FLEN_FILENAME];
+    int local = local_file(name, path, sizeof path, why);
+    if (local)
+        return local > 0;
     FILE *fp = fopen(path, "rb");
     if (!fp)
         return 0;

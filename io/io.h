@@ -291,10 +291,12 @@ int mp_cleanup_install(void);
  * caller frees; NULL when out of memory. */
 char *mp_name_after(const char *image, const char *ext);
 
-/* mp_fits_guard_file / mp_fits_guard_mem: look at a FITS file (URLs and
- * stdin are left alone) or at bytes in memory before cfitsio parses them,
+/* mp_fits_guard_file / mp_fits_guard_mem: look at a FITS file (a
+ * file:// URL's too) or at bytes in memory before cfitsio parses them,
  * and return 1 with why (MP_GUARD_LEN bytes; the file's name not in it)
  * when cfitsio would abort or run away on it:
+ *  - standard input ("-", "-[1]", "stdin://") and other URLs: no walk
+ *    sees their bytes first (`cat bad.fits | matphot find -` aborted);
  *  - a structural string keyword (XTENSION, EXTNAME, TFORMn, TTYPEn, TUNITn,
  *    TDISPn, TDIMn) whose value is not a well-formed quoted string:
  *    cfitsio 4.2.0 overflows a buffer and aborts on such a card.  Plain

@@ -416,7 +416,21 @@ static void test_gzip_headers_walked(void **state)
         expect_read_error(name, k ? "badtab.fits.gz" : "badtab.fits", "malformed header card");
         assert_int_equal(mp_fits_guard_file(f, why), 1);
         assert_non_null(strstr(why, "TTYPE1"));
+        /* as a file:// URL, cfitsio's disk driver: walked the same */
+        snprintf(name, sizeof name, "file://%s", f);
+        expect_read_error(name, "badtab.fits", "malformed header card TTYPE1");
     }
+    /* Standard input and other URLs: no walk sees their bytes before
+     * cfitsio parses them, so they are refused by name (`cat bad.fits |
+     * matphot find -` aborted in cfitsio); a file named "-x.fits" is a
+     * file. */
+    const char *unseen[4] = {"-", "-[1]", "stdin://", "http://127.0.0.1:9/f.fits"};
+    for (int k = 0; k < 4; k++) {
+        assert_int_equal(mp_fits_guard_file(unseen[k], why), 1);
+        assert_non_null(strstr(why, k < 3 ? "standard input" : "a URL"));
+        expect_read_error(unseen[k], unseen[k], k < 3 ? "standard input" : "a URL");
+    }
+    assert_int_equal(mp_fits_guard_file("-x.fits", why), 0);
 }
 
 static void test_bad_inputs(void **state)
