@@ -301,12 +301,10 @@ int mp_fits_guard_mem(const void *b, size_t n, char *why)
     return 1;
 }
 
-/* The file a cfitsio name reads into path (cfitsio's own parse, ffrtnm;
- * a file:// URL's path): 0; 1 with why for standard input and other URLs,
- * whose bytes no walk can see before cfitsio parses them (`find -` and
- * `find file://bad.fits` reached cfitsio's buffer overflow unwalked);
- * -1 for a name cfitsio cannot parse (it says so itself). */
-static int local_file(const char *name, char *path, size_t len, char *why)
+/* io.h; standard input and URLs other than file:// are refused because
+ * no walk sees their bytes before cfitsio parses them (`find -` and `find
+ * file://bad.fits` reached cfitsio's buffer overflow unwalked). */
+int mp_fits_local_file(const char *name, char *path, size_t len, char *why)
 {
     char root[FLEN_FILENAME];
     int st = 0;
@@ -332,7 +330,7 @@ static int local_file(const char *name, char *path, size_t len, char *why)
 int mp_fits_guard_file(const char *name, char *why)
 {
     char path[FLEN_FILENAME];
-    int local = local_file(name, path, sizeof path, why);
+    int local = mp_fits_local_file(name, path, sizeof path, why);
     if (local)
         return local > 0;
     FILE *fp = fopen(path, "rb");

@@ -316,6 +316,13 @@ char *mp_name_after(const char *image, const char *ext);
 int mp_fits_guard_file(const char *name, char *why);
 int mp_fits_guard_mem(const void *b, size_t n, char *why);
 
+/* mp_fits_local_file: the local file a cfitsio name reads (cfitsio's own
+ * parse of its [extension], section and (copy) parts; a file:// URL's
+ * path) into path (len bytes): 0; 1 with why (MP_GUARD_LEN) for standard
+ * input ("-", "-[1]", "stdin://") and other URLs; −1 for a name cfitsio
+ * cannot parse or a path longer than len. */
+int mp_fits_local_file(const char *name, char *path, size_t len, char *why);
+
 /* mp_fits_guard_named: mp_fits_guard_file on path, its refusal written to
  * err (MP_ERRLEN) as "name: why", the way readers report a file; 1 when
  * refused, 0 otherwise. */

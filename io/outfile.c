@@ -160,7 +160,6 @@ int mp_tmp_sweep(mp_sweeps *s, const char *path)
     return 1;
 }
 
-
 char *mp_tmp_name(const char *path)
 {
     /* "<dir>/.<base>.tmp.<host>.<pid>" (tmp_dir): hidden so a directory
@@ -375,20 +374,15 @@ char *mp_name_after(const char *image, const char *ext)
     return s;
 }
 
-/* The file an input name reads (a cfitsio name's [extension] or section
- * cut) stat'ed into st; 0 when it names none: "-", empty, INDEF, a URL, a
- * frame's own extension ("[DQ]"), or no such file. */
+/* The local file an input name reads (a cfitsio name's [extension],
+ * section or copy cut: mp_fits_local_file) stat'ed into st; 0 when it
+ * names none: "-", empty, INDEF, a URL but file://, a frame's own
+ * extension ("[DQ]"), or no such file. */
 static int input_file(const char *name, struct stat *st)
 {
-    if (!name || strstr(name, "://"))
-        return 0;
-    size_t n = strcspn(name, "[");
-    char path[4096];
-    if (n == 0 || n >= sizeof path)
-        return 0;
-    memcpy(path, name, n);
-    path[n] = '\0';
-    if (strcmp(path, "-") == 0 || strcmp(path, "INDEF") == 0)
+    char path[4096], why[MP_GUARD_LEN];
+    if (!name || !name[0] || mp_fits_local_file(name, path, sizeof path, why) ||
+        strcmp(path, "INDEF") == 0)
         return 0;
     return stat(path, st) == 0;
 }
