@@ -527,8 +527,10 @@ int mp_task_sim(int argc, char **argv)
     sim_config c;
     char err[MP_ERRLEN];
     rc = read_config(&ps, &c, err);
-    const char *in[2] = {c.psf, c.drf}, *out[3] = {c.output, c.psfout, c.truth};
-    rc = rc || mp_outputs_clear(in, 2, out, 3, err);
+    if (!rc) {
+        const char *in[2] = {c.psf, c.drf}, *out[3] = {c.output, c.psfout, c.truth};
+        rc = mp_outputs_clear(in, 2, out, 3, err);
+    }
     if (!rc) {                   /* killed runs' temporaries, once a directory */
         mp_sweeps *sw = mp_sweeps_new();
         mp_tmp_sweep(sw, c.output);
