@@ -211,14 +211,16 @@ static inline int fuzz_table_body(const uint8_t *data, size_t size)
  * position, which must give finite values. */
 static inline int fuzz_psf_body(const uint8_t *data, size_t size)
 {
-    char path[256], err[MP_ERRLEN] = "", warn[MP_ERRLEN] = "";
+    char path[256], gz[256], err[MP_ERRLEN] = "", warn[MP_ERRLEN] = "";
     fuzz_tmp_path("psf", ".fits", path, sizeof path);
-    if (fuzz_write_file(path, data, size))
+    fuzz_tmp_path("psf", ".fits.gz", gz, sizeof gz);
+    if (fuzz_write_file(path, data, size) || fuzz_write_gzip(gz, data, size))
         return 0;
-    for (int norm = 0; norm < 2; norm++) {
+    /* v 2: the same bytes gzipped (fuzz_write_gzip), read as v 0 */
+    for (int v = 0; v < 3; v++) {
         mp_psf p;
         err[0] = '\0';
-        if (mp_psf_read(path, norm, 0, &p, warn, err)) {
+        if (mp_psf_read(v == 2 ? gz : path, v == 1, 0, &p, warn, err)) {
             fuzz_check_err("mp_psf_read", err);
             continue;
         }
@@ -270,6 +272,7 @@ static inline int fuzz_psf_body(const uint8_t *data, size_t size)
         mp_drf_free(&d);
     }
     unlink(path);
+    unlink(gz);
     return 0;
 }
 
