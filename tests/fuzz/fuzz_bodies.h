@@ -282,17 +282,20 @@ static inline int fuzz_psf_body(const uint8_t *data, size_t size)
  * PRFs at a few positions, and write and read back to the same planes. */
 static inline int fuzz_psf_field_body(const uint8_t *data, size_t size)
 {
-    char path[256], back[256], err[MP_ERRLEN] = "", warn[MP_ERRLEN] = "";
+    char path[256], gz[256], back[256], err[MP_ERRLEN] = "", warn[MP_ERRLEN] = "";
     fuzz_tmp_path("psffield", ".fits", path, sizeof path);
+    fuzz_tmp_path("psffield", ".fits.gz", gz, sizeof gz);
     fuzz_tmp_path("psffield_back", ".fits", back, sizeof back);
-    if (fuzz_write_file(path, data, size))
+    if (fuzz_write_file(path, data, size) || fuzz_write_gzip(gz, data, size))
         return 0;
-    for (int norm = 0; norm < 2; norm++) {
+    /* v 2: the same bytes gzipped (fuzz_write_gzip), read as v 0 */
+    for (int v = 0; v < 3; v++) {
+        int norm = v == 1;
         mp_psf_field f;
         mp_psf_star *st = NULL;
         int ns = 0;
         err[0] = '\0';
-        if (mp_psf_field_read(path, norm, 0, &f, &st, &ns, warn, err)) {
+        if (mp_psf_field_read(v == 2 ? gz : path, norm, 0, &f, &st, &ns, warn, err)) {
             fuzz_check_err("mp_psf_field_read", err);
             continue;
         }
@@ -350,6 +353,7 @@ static inline int fuzz_psf_field_body(const uint8_t *data, size_t size)
         mp_psf_field_free(&f);
     }
     unlink(path);
+    unlink(gz);
     return 0;
 }
 
