@@ -305,6 +305,26 @@ done:
     return rc;
 }
 
+/* 1 with err when the PSF file (output=, or the image's name with
+ * .psf.fits) is one of the task's inputs (io.h mp_out_overwrites): asked
+ * before the build, not after it. */
+static int output_clear(const psf_task *t, char *err)
+{
+    char *named = NULL;
+    const char *out = t->output;
+    if (!out || !out[0]) {
+        if (!(named = mp_name_after(t->image, ".psf.fits"))) {
+            snprintf(err, MP_ERRLEN, "out of memory");
+            return 1;
+        }
+        out = named;
+    }
+    const char *in[4] = {t->image, t->stars, t->dp.dqmask, t->dp.errplane};
+    int rc = mp_outputs_clear(in, 4, &out, 1, err);
+    free(named);
+    return rc;
+}
+
 /* The table e written as the PSF file (output=, or the image's name with
  * .psf.fits), with its PSF stars ps[0..n). */
 static int write_psf(const psf_task *t, const mp_epsf *e, const mp_psf_star *ps, size_t n,
@@ -324,9 +344,6 @@ static int write_psf(const psf_task *t, const mp_epsf *e, const mp_psf_star *ps,
         }
         out = named;
     }
-    const char *in[2] = {t->image, t->stars};
-    if (mp_outputs_clear(in, 2, &out, 1, err))
-        goto done;
     mp_tmp_sweep(NULL, out);         /* killed runs' temporaries */
     if (mp_psf_field_write(out, &fld, ps, (int)n, err))
         goto done;
@@ -373,7 +390,7 @@ static int run(psf_task *t, char *err)
     mp_epsf_report rep;
     memset(&rep, 0, sizeof rep);
     /* the sky and noise maps once, for the measure and the detection */
-    if (mp_frame_read(t->image, &t->dp, &f, err) ||
+    if (output_clear(t, err) || mp_frame_read(t->image, &t->dp, &f, err) ||
         mp_bkg_estimate(&f, t->mesh, t->filter, &b, err) ||
         (t->measure && measure_fwhm(t, &f, &b, err)) || table_fits(t, &f, err) ||
         detect(t, &f, &b, &found, err))

@@ -120,6 +120,7 @@ same "catalog over its image"  keep.fits catalog "$T/keep.coo" image="$T/keep.fi
     output="$T/keep.fits"
 same "merge over its input"    keep.coo  merge "$T/keep.coo" output="$T/keep.coo"
 same "sim over its psf"        keep.fits sim "$T/keep.fits" psf="$T/keep.fits"
+same "psf over its frame"      keep.fits psf "$T/keep.fits" output="$T/keep.fits"
 cp "$T/keep.fits" "$T/r.res.fits"
 sum0=$(cksum <"$T/keep.fits")
 same "pipeline residual over its frame" r.res.fits pipeline "$T/r.res.fits" root="$T/r"
