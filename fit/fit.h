@@ -1115,6 +1115,11 @@ typedef struct {
  * stderr when the PSF table is too coarse for the data (paper §5.4). */
 int mp_fit_setup_read(const mp_parset *ps, mp_fit_setup *s, char *err);
 void mp_fit_setup_free(mp_fit_setup *s);
+/* mp_fit_setup_inputs: the files a setup read from ps (psf, drf) and those
+ * its frames' reads take (datapars dqmask, errplane) added to in (io.h),
+ * for the outputs that may not be written over them; 1 when out of
+ * memory, with err. */
+int mp_fit_setup_inputs(const mp_parset *ps, const mp_fit_setup *s, mp_inputs *in, char *err);
 /* mp_fit_setup_local: the setup to reduce a sub-image whose pixel (1, 1)
  * is frame pixel (1 + dx, 1 + dy) with (a tile's section, a fake's box):
  * s itself when the PSF does not vary; else *out, a view of s (sharing its

@@ -357,6 +357,18 @@ static void variable_psf_decision(mp_fit_setup *s)
     decide(s, why);
 }
 
+int mp_fit_setup_inputs(const mp_parset *ps, const mp_fit_setup *s, mp_inputs *in, char *err)
+{
+    const char *name[4] = {mp_par_string(ps, "psf"), mp_par_string(ps, "drf"), s->dp.dqmask,
+                           s->dp.errplane};
+    for (int k = 0; k < 4; k++)
+        if (mp_inputs_add(in, name[k])) {
+            snprintf(err, MP_ERRLEN, "out of memory");
+            return 1;
+        }
+    return 0;
+}
+
 int mp_fit_setup_read(const mp_parset *ps, mp_fit_setup *s, char *err)
 {
     memset(s, 0, sizeof *s);

@@ -182,15 +182,15 @@ int mp_task_fit(int argc, char **argv)
     }
     /* every frame and table of the lists: an output of the first may be
      * the input of a later one */
-    const char *more[4] = {mp_par_string(&ps, "psf"), mp_par_string(&ps, "drf"), s.dp.dqmask,
-                           s.dp.errplane};
     int bad = !(ins = mp_inputs_of((const char *const *)im, nim));
-    for (size_t i = 0; i < nco + 4 && !bad; i++)
-        bad = mp_inputs_add(ins, i < nco ? co[i] : more[i - nco]);
+    for (size_t i = 0; i < nco && !bad; i++)
+        bad = mp_inputs_add(ins, co[i]);
     if (bad) {
         snprintf(err, MP_ERRLEN, "out of memory");
         goto done;
     }
+    if (mp_fit_setup_inputs(&ps, &s, ins, err))
+        goto done;
     int failed = 0;
     for (size_t i = 0; i < nim; i++) {
         char *named = NULL;

@@ -114,27 +114,27 @@ static int read_aux(const char *name, const char *par, const char *aux, const mp
 
 /* errplane=auto: does the frame's own file hold an image extension named
  * ERR (HST FLT/FLC/DRZ, JWST)?  Any failure to tell is no: the frame's own
- * read reports a broken file. */
+ * read reports a broken file.  Asked after that read, whose header guard
+ * walked every HDU of this file (io.h): walked again here, a gzipped
+ * frame was inflated once more for nothing. */
 static int has_err_ext(const char *name)
 {
     size_t n = strcspn(name, "[");
-    char *base = malloc(n + 1), why[MP_GUARD_LEN];
+    char *base = malloc(n + 1);
     if (!base)
         return 0;
     memcpy(base, name, n);
     base[n] = '\0';
     fitsfile *fp = NULL;
     int status = 0, found = 0;
-    if (!mp_fits_guard_file(base, why)) {
-        fits_open_file(&fp, base, READONLY, &status);
-        if (!status) {
-            fits_movnam_hdu(fp, IMAGE_HDU, "ERR", 0, &status);
-            found = !status;
-        }
-        if (fp) {
-            int s2 = 0;
-            fits_close_file(fp, &s2);
-        }
+    fits_open_file(&fp, base, READONLY, &status);
+    if (!status) {
+        fits_movnam_hdu(fp, IMAGE_HDU, "ERR", 0, &status);
+        found = !status;
+    }
+    if (fp) {
+        int s2 = 0;
+        fits_close_file(fp, &s2);
     }
     free(base);
     return found;

@@ -127,12 +127,11 @@ int mp_task_fakes(int argc, char **argv)
         goto done;
     }
     static const char *const ext[] = {".fakes.cat", ".fakes.md", ".fakes.dat", ".fakes.png"};
-    const char *in[5] = {image, mp_par_string(&ps, "psf"), mp_par_string(&ps, "drf"),
-                         o.fit.dp.dqmask, o.fit.dp.errplane};
-    mp_inputs *ins = mp_inputs_of(in, 5);
+    mp_inputs *ins = mp_inputs_of(&image, 1);
     if (!ins)
         snprintf(err, MP_ERRLEN, "out of memory");
-    int same = !ins || mp_pl_outputs_clear(root, ext, 4, ins, err);
+    int same = !ins || mp_fit_setup_inputs(&ps, &o.fit, ins, err) ||
+               mp_pl_outputs_clear(root, ext, 4, ins, err);
     mp_inputs_free(ins);
     if (same || mp_frame_read(image, &o.fit.dp, &f, err) || base_stars(&f, &o, &fo, &base, err))
         goto done;

@@ -148,15 +148,12 @@ int mp_task_pipeline(int argc, char **argv)
     }
     /* every frame of the list: an output of the first may be the input
      * of a later one */
-    const char *more[4] = {mp_par_string(&ps, "psf"), mp_par_string(&ps, "drf"), o.fit.dp.dqmask,
-                           o.fit.dp.errplane};
-    int bad = !(ins = mp_inputs_of((const char *const *)im, nim));
-    for (int k = 0; k < 4 && !bad; k++)
-        bad = mp_inputs_add(ins, more[k]);
-    if (bad) {
+    if (!(ins = mp_inputs_of((const char *const *)im, nim))) {
         snprintf(err, MP_ERRLEN, "out of memory");
         goto done;
     }
+    if (mp_fit_setup_inputs(&ps, &o.fit, ins, err))
+        goto done;
     /* A frame's bad input (no usable star, a corrupt file) is its own
      * line: the @list's other frames are reduced, the status 1. */
     int failed = 0;
