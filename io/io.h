@@ -206,9 +206,9 @@ int mp_out_copy(const char *from, const char *to, char *err);
 
 /* A run's input files, each stat'ed once as it is added (an @list of
  * thousands of frames is asked once per output, not once per pair):
- * mp_inputs_add takes a cfitsio name (its [extension] or section cut;
- * "-", empty, INDEF, URLs, a frame's own "[DQ]" and names of no file are
- * skipped) and keeps the pointer for messages, so name must outlive s;
+ * mp_inputs_add takes a cfitsio name (read as mp_fits_local_file reads
+ * it: a file:// URL is its path; "-", empty, INDEF, other URLs, a frame's
+ * own "[DQ]" and names of no file are skipped) and keeps the pointer for messages, so name must outlive s;
  * 1 when out of memory (or s NULL).  mp_out_overwrites: 1 with err
  * naming both when output path is an existing file that is one of s's,
  * told by device and inode, so another spelling or a link of it is

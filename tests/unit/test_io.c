@@ -344,10 +344,10 @@ static void zero_ztile1(const char *path)
 
 /* A tile-compressed image is refused, by name and by its extension, with
  * RICE_1 (fpack's default) tiles or GZIP_1 ones or a tiling of 0, plain
- * or gzipped, before cfitsio parses it (io/fits_guard.c): its decoders do not hold a corrupt tile to its
- * bytes and it divides by a tiling of 0 (the frame fuzzer: a crash in
- * fits_rdecomp_short, a GZIP tile growing for 20 s, an FPE in
- * imcomp_get_compressed_image_par). */
+ * or gzipped, before cfitsio parses it (io/fits_guard.c): its decoders do
+ * not hold a corrupt tile to its bytes and it divides by a tiling of 0
+ * (the frame fuzzer: a crash in fits_rdecomp_short, a GZIP tile growing
+ * for 20 s, an FPE in imcomp_get_compressed_image_par). */
 static void test_compressed_image(void **state)
 {
     scratch *s = *state;
