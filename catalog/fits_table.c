@@ -290,9 +290,7 @@ static int write_and_rename(const char *tmp, const char *path, const mp_table *t
         unlink(tmp);
         return 1;
     }
-    if (mp_out_place(tmp, path) != 0) {
-        snprintf(err, MP_ERRLEN, "%s: cannot rename the temporary file into place: %s",
-                 path, strerror(errno));
+    if (mp_out_place(tmp, path, err) != 0) {
         unlink(tmp);
         return 1;
     }

@@ -180,6 +180,9 @@ int mp_task_fit(int argc, char **argv)
                  "for %zu images: lists must pair line by line", nco, nout, nrs, nim);
         goto done;
     }
+    for (size_t i = 0; i < nrs; i++)
+        if (mp_out_fits_named("residual", rs[i], err))
+            goto done;
     /* every frame and table of the lists: an output of the first may be
      * the input of a later one */
     int bad = !(ins = mp_inputs_of((const char *const *)im, nim));

@@ -123,9 +123,7 @@ int mp_image_out_close(mp_image_out *o, int commit, char *err)
     if (commit && status) {
         mp_fits_error(o->path, "write", status, err);
         rc = 1;
-    } else if (commit && mp_out_place(o->tmp, o->path) != 0) {
-        snprintf(err, MP_ERRLEN, "%s: cannot rename the temporary file into place: %s",
-                 o->path, strerror(errno));
+    } else if (commit && mp_out_place(o->tmp, o->path, err) != 0) {
         rc = 1;
     }
     if (!commit || rc)

@@ -93,9 +93,7 @@ static int write_typed(const char *path, int datatype, const void *pix, long nx,
         free(tmp);
         return 1;
     }
-    if (mp_out_place(tmp, path) != 0) {
-        snprintf(err, MP_ERRLEN, "%s: cannot rename the temporary file into place: %s",
-                 path, strerror(errno));
+    if (mp_out_place(tmp, path, err) != 0) {
         unlink(tmp);
         mp_tmp_unregister(tmp);
         free(tmp);

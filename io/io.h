@@ -228,6 +228,12 @@ int mp_out_overwrites(const mp_inputs *s, const char *path, char *err);
 int mp_outputs_clear(const char *const *in, size_t nin, const char *const *out, size_t nout,
                      char *err);
 
+/* mp_out_fits_named: 0, or 1 with err naming parameter param when the
+ * FITS output it names, path, is "-": text tables go to standard output
+ * by that name, a FITS file (its header rewritten as it is finished)
+ * cannot, and its writers would make a file named "-". */
+int mp_out_fits_named(const char *param, const char *path, char *err);
+
 /* mp_out_in_place: whether output path is written in place rather than
  * replaced: an existing device, FIFO or socket, or a name under /dev/ or
  * /proc/ (/dev/stdout, /dev/fd/N).  Renamed over, `output=/dev/null` run
@@ -235,9 +241,10 @@ int mp_outputs_clear(const char *const *in, size_t nin, const char *const *out, 
  * another user it could not create its temporary beside it.
  * mp_out_place: the finished temporary tmp put at path: renamed there
  * (atomic), or for an output written in place its bytes appended to
- * path and tmp removed; 0, or −1 with errno as rename(2). */
+ * path and tmp removed; 0, or 1 with err (when not NULL) naming path and
+ * what failed: the rename, or the write into it. */
 int mp_out_in_place(const char *path);
-int mp_out_place(const char *tmp, const char *path);
+int mp_out_place(const char *tmp, const char *path, char *err);
 
 /* mp_tmp_name: the temporary name used for path, "<dir>/.<base>.tmp.<host>.<pid>"
  * (an output written in place: <dir> is $TMPDIR, else /tmp; caller frees;

@@ -246,9 +246,7 @@ int mp_out_commit(mp_outfile *o, char *err)
         reset(o);
         return 1;
     }
-    if (mp_out_place(o->tmp_path, o->final_path) != 0) {
-        snprintf(err, MP_ERRLEN, "%s: cannot rename the temporary file into place: %s",
-                 o->final_path, strerror(errno));
+    if (mp_out_place(o->tmp_path, o->final_path, err) != 0) {
         unlink(o->tmp_path);
         reset(o);
         return 1;
@@ -281,10 +279,25 @@ static int copy_bytes(FILE *in, FILE *out)
     return bad;
 }
 
-int mp_out_place(const char *tmp, const char *path)
+int mp_out_fits_named(const char *param, const char *path, char *err)
 {
-    if (!mp_out_in_place(path))
-        return rename(tmp, path);
+    if (!path || strcmp(path, "-") != 0)
+        return 0;
+    snprintf(err, MP_ERRLEN, "%s: '-' names standard output, where a FITS file cannot go "
+             "(name a file)", param);
+    return 1;
+}
+
+int mp_out_place(const char *tmp, const char *path, char *err)
+{
+    if (!mp_out_in_place(path)) {
+        if (rename(tmp, path) == 0)
+            return 0;
+        if (err)
+            snprintf(err, MP_ERRLEN, "%s: cannot rename the temporary file into place: %s", path,
+                     strerror(errno));
+        return 1;
+    }
     FILE *in = fopen(tmp, "rb"), *out = in ? fopen(path, "ab") : NULL;
     int bad = !in || !out || copy_bytes(in, out) || ferror(in), e = errno;
     if (out && fclose(out) != 0 && !bad) {
@@ -294,8 +307,10 @@ int mp_out_place(const char *tmp, const char *path)
     if (in)
         fclose(in);
     unlink(tmp);
-    errno = e;
-    return bad ? -1 : 0;
+    if (bad && err)
+        snprintf(err, MP_ERRLEN, "%s: cannot write into it (a device, FIFO or socket, written in "
+                 "place): %s", path, strerror(e));
+    return bad;
 }
 
 int mp_out_copy(const char *from, const char *to, char *err)

@@ -204,7 +204,7 @@ static int plot(const char *dat, const char *png, char *err)
             "set yrange [*:*]\nplot '%s' u 1:4:5 w yerrorlines t 'bias +- rsigma'\n"
             "unset multiplot\n", tmp, dat, dat);
     int rc = pclose(gp);
-    if (rc == 0 && mp_out_place(tmp, png) == 0) {
+    if (rc == 0 && mp_out_place(tmp, png, NULL) == 0) {
         free(tmp);
         return 0;
     }

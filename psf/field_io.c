@@ -536,12 +536,10 @@ int mp_psf_field_write(const char *path, const mp_psf_field *f, const mp_psf_sta
     int s2 = 0;
     if (fp)
         fits_close_file(fp, status ? &s2 : &status);
-    if (status) {
+    if (status)
         psf_fits_msg(path, "cannot write the PSF file", status, err);
-    } else if (mp_out_place(tmp, path)) {
-        snprintf(err, MP_ERRLEN, "%s: cannot rename the temporary file into place", path);
+    else if (mp_out_place(tmp, path, err))
         status = 1;
-    }
     if (status)
         unlink(tmp);
     mp_tmp_unregister(tmp);

@@ -59,7 +59,7 @@ static int read_opts(const mp_parset *ps, psf_task *t, char *err)
         snprintf(err, MP_ERRLEN, "image: no image given");
         return 1;
     }
-    return 0;
+    return mp_out_fits_named("output", t->output, err);
 }
 
 /* A table wider than the frame holds no star whole: psfrad=200 on a 128²

@@ -186,6 +186,8 @@ static int read_config(const mp_parset *ps, sim_config *c, char *err)
         snprintf(err, MP_ERRLEN, "output: no output frame named");
         return 1;
     }
+    if (mp_out_fits_named("output", c->output, err) || mp_out_fits_named("psfout", c->psfout, err))
+        return 1;
     /* The order of the checks is the order of the messages a user with
      * several mistakes sees first. */
     return read_numbers(ps, c, err) || read_pupil(ps, c, err) ||

@@ -134,4 +134,35 @@ rm -f "$T/err"
 "$M" fit "$T/ok.fits" "$T/ok.truth" output="$T/nodir/out.fit" >/dev/null 2>"$T/err"
 [ $? -eq 1 ] && grep -q "nodir/out.fit" "$T/err" || no "unwritable output: $(cat "$T/err")"
 
+# A FITS output named "-" (standard output, which takes text tables):
+# sim, psf and fit's residual wrote a file named "-" or failed late
+# before session 77.  Refused in one line naming the parameter, no file.
+case $M in */*) MA=$(cd "$(dirname "$M")" && pwd)/$(basename "$M") ;; *) MA=$M ;; esac
+dash() {
+    what=$1 param=$2
+    shift 2
+    (cd "$T" && "$MA" "$@" >"$T/stdout" 2>"$T/err")
+    rc=$?
+    [ "$rc" -eq 1 ] && [ "$(wc -l <"$T/err")" -eq 1 ] &&
+        grep -qF "$param: '-' names standard output, where a FITS file cannot go" "$T/err" ||
+        no "$what: exit $rc: $(cat "$T/err")"
+    [ -z "$(ls -A "$T" | grep '^-')" ] || no "$what: wrote a file named after '-'"
+    [ ! -s "$T/stdout" ] || no "$what: wrote to stdout"
+}
+dash "sim to -"          output   sim - nx=64 ny=64 nstars=2
+dash "sim psfout -"      psfout   sim "$T/new.fits" nx=64 ny=64 nstars=2 psfout=-
+dash "psf to -"          output   psf "$T/ok.fits" output=-
+dash "fit residual to -" residual fit "$T/ok.fits" "$T/ok.truth" output="$T/o.fit" residual=-
+[ ! -e "$T/new.fits" ] && [ ! -e "$T/o.fit" ] || no "a FITS output to -: left another output"
+
+# A device that refuses the bytes (/dev/full, written in place: io.h
+# mp_out_in_place): one line naming it and the write, not "cannot rename".
+if [ -c /dev/full ]; then
+    "$M" find "$T/ok.fits" output=/dev/full >/dev/null 2>"$T/err"
+    rc=$?
+    [ "$rc" -eq 1 ] && [ "$(wc -l <"$T/err")" -eq 1 ] &&
+        grep -q "^matphot find: /dev/full: cannot write into it" "$T/err" ||
+        no "find to /dev/full: exit $rc: $(cat "$T/err")"
+fi
+
 [ "$fails" -eq 0 ]
