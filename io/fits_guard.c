@@ -321,6 +321,15 @@ int mp_fits_local_file(const char *name, char *path, size_t len, char *why)
         snprintf(why, MP_GUARD_LEN, "a URL, which matphot does not read: download it first");
         return 1;
     }
+    /* "in.fits(out.fits)": cfitsio copies the input to out.fits as it
+     * opens it, a write no output check of the run sees */
+    char type[FLEN_FILENAME], in[FLEN_FILENAME], out[FLEN_FILENAME], ext[FLEN_FILENAME],
+        rows[FLEN_FILENAME], bin[FLEN_FILENAME], col[FLEN_FILENAME];
+    if (ffiurl((char *)name, type, in, out, ext, rows, bin, col, &st) == 0 && out[0]) {
+        snprintf(why, MP_GUARD_LEN, "names a copy for cfitsio to write (%.60s), which matphot "
+                 "does not make: copy the file first", out);
+        return 1;
+    }
     if (strlen(p) >= len)
         return -1;
     snprintf(path, len, "%s", p);

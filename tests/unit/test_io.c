@@ -431,6 +431,15 @@ static void test_gzip_headers_walked(void **state)
         expect_read_error(unseen[k], unseen[k], k < 3 ? "standard input" : "a URL");
     }
     assert_int_equal(mp_fits_guard_file("-x.fits", why), 0);
+    /* cfitsio's "in(out)" copy: refused before cfitsio writes out (it
+     * wrote copy.fits, exit 0, before session 77) */
+    char copy[700], name[1500];
+    snprintf(copy, sizeof copy, "%s", in_dir(s, "copy.fits"));
+    snprintf(name, sizeof name, "%s(%s)", plain, copy);
+    assert_int_equal(mp_fits_guard_file(name, why), 1);
+    assert_non_null(strstr(why, "names a copy for cfitsio to write"));
+    expect_read_error(name, "badtab.fits", "names a copy");
+    assert_int_equal(access(copy, F_OK), -1);
 }
 
 static void test_bad_inputs(void **state)
