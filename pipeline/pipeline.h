@@ -53,6 +53,9 @@ typedef struct {
     mp_sweeps *sweeps;       /* the directories this run (every frame of an
                               * @list) has swept of killed runs' temporaries
                               * (io.h mp_tmp_sweep); NULL: each frame sweeps */
+    double grp_hold;         /* root.grp's values held to the end up to this
+                              * many bytes, else written each round
+                              * (run.c keep_grouped; mp_pl_opts_read: 8 MiB) */
     double escale[2];        /* the errors' factors (flux, position) given,
                               * not measured (fakes: the frame's own); 0:
                               * measured on the residual (pipeline/error_scale.c) */

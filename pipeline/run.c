@@ -279,7 +279,8 @@ const mp_prf_cache *mp_run_phase_grid(run_state *s, double *gemax, double *glema
 }
 
 /* root.grp's rows, the grouped table: held (s->grp) and written once
- * with the other products when its values take up to 8 MiB, else
+ * with the other products when its values take up to o->grp_hold
+ * bytes (8 MiB), else
  * written now, each round (the last round's stands).  Held, the copy
  * cost ~280 bytes a star at the run's peak: 67 MiB of the 8192² frame's
  * (3.7·10⁻³ stars a pixel: a quarter of its floats, where the goal is 3
@@ -288,7 +289,7 @@ const mp_prf_cache *mp_run_phase_grid(run_state *s, double *gemax, double *glema
 static int keep_grouped(run_state *s, char *err)
 {
     mp_table_free(&s->grp);
-    if ((double)s->t.nrow * (double)s->t.ncol * sizeof *s->t.v <= 8.0 * 1024 * 1024)
+    if ((double)s->t.nrow * (double)s->t.ncol * sizeof *s->t.v <= s->o->grp_hold)
         return mp_pl_rows_of(&s->t, NULL, 1, &s->grp) ? oom(err) : 0;
     double t0 = mp_seconds();
     mp_run_writes(s, ".grp");

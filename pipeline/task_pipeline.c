@@ -37,6 +37,7 @@ int mp_pl_opts_read(mp_parset *ps, mp_pipeline_opts *o, char *err)
         return 1;
     psf_build_opts(ps, o);
     mp_find_opts_default(&o->find);
+    o->grp_hold = 8.0 * 1024 * 1024;
     o->find.fwhm = mp_prf_fwhm(&o->fit.model);   /* the PSF's own width */
     mp_par_real(ps, "threshold", &o->find.threshold);
     mp_par_real(ps, "nsigma", &o->find.nsigma);
