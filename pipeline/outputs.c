@@ -7,6 +7,9 @@
 #include <string.h>
 #include "pipeline/pipeline_priv.h"
 
+const char *const mp_pl_products[MP_PL_NPRODUCT] = {".coo", ".grp", ".fit", ".res.fits",
+                                                    ".cat", ".reg", ".report", ".psf.fits"};
+
 /* root + ext, written atomically in format fmt. */
 int mp_pl_write_named(const char *root, const char *ext, const mp_table *t,
                       mp_table_format fmt, const mp_text_kept *prev, mp_text_kept **keep,

@@ -413,6 +413,13 @@ long mp_pl_split_candidates(const mp_frame *f, const mp_bkg *b, const float *res
 
 /* ---- outputs.c --------------------------------------------------------- */
 
+/* mp_pl_products: the files a run writes, root + each; the last,
+ * .psf.fits, only when it builds the PSF (psf=root.psf.fits of an
+ * earlier run is read, not written).  What a run checks against its
+ * inputs before it starts and removes when it fails. */
+#define MP_PL_NPRODUCT 8
+extern const char *const mp_pl_products[MP_PL_NPRODUCT];
+
 /* mp_pl_outputs_clear: 1 with err when one of root + ext[k] (k < next)
  * is one of the run's input files in (io.h mp_out_overwrites):
  * `pipeline f.res.fits root=f` would write its residual over its frame. */

@@ -52,14 +52,11 @@ static void state_free(run_state *s)
     mp_frame_free(&s->f);
 }
 
-/* The products a run writes: root + each, run_state.written's bits. */
-static const char *const product_ext[] = {".coo", ".psf.fits", ".grp", ".fit",
-                                          ".res.fits", ".cat", ".reg", ".report"};
-
+/* run_state.written's bits: mp_pl_products'. */
 void mp_run_writes(run_state *s, const char *ext)
 {
-    for (size_t i = 0; i < sizeof product_ext / sizeof *product_ext; i++)
-        if (!strcmp(ext, product_ext[i]))
+    for (size_t i = 0; i < MP_PL_NPRODUCT; i++)
+        if (!strcmp(ext, mp_pl_products[i]))
             s->written |= 1u << i;
 }
 
@@ -69,8 +66,8 @@ void mp_run_writes(run_state *s, const char *ext)
  * this one was replacing it. */
 static void remove_products(const run_state *s)
 {
-    for (size_t i = 0; i < sizeof product_ext / sizeof *product_ext; i++) {
-        char *p = (s->written >> i & 1u) ? mp_name_after(s->root, product_ext[i]) : NULL;
+    for (size_t i = 0; i < MP_PL_NPRODUCT; i++) {
+        char *p = (s->written >> i & 1u) ? mp_name_after(s->root, mp_pl_products[i]) : NULL;
         if (p)
             unlink(p);
         free(p);

@@ -164,13 +164,9 @@ int mp_task_pipeline(int argc, char **argv)
             snprintf(err, MP_ERRLEN, "out of memory");
             goto done;
         }
-        /* root.psf.fits and root.psfk.fits only when the run builds them:
-         * psf=root.psf.fits of an earlier run is read, not written */
-        static const char *const ext[] = {".coo", ".grp", ".fit", ".cat", ".res.fits", ".reg",
-                                          ".report", ".psf.fits", ".psfk.fits"};
         mp_pipeline_report r;
-        int prc = mp_pl_outputs_clear(root[0] ? root : named, ext, o.build_psf ? 9 : 7, ins,
-                                      err) ||
+        int prc = mp_pl_outputs_clear(root[0] ? root : named, mp_pl_products,
+                                      MP_PL_NPRODUCT - !o.build_psf, ins, err) ||
                   (measure && fwhm_of_image(&ps, &o, im[i], err)) ||
                   mp_pipeline_run_any(im[i], root[0] ? root : named, &o, &r, err);
         free(named);
