@@ -28,7 +28,10 @@ int mp_params_load_file(mp_parset *ps, const char *path, char *err)
     for (size_t i = 0; i < f.n && !rc; i++) {
         const mp_par *q = &f.p[i];
         const mp_par *p = mpp_find(ps, q->name);
-        if (q->type == MP_PAR_PSET || (p && p->type == MP_PAR_PSET))
+        /* IRAF's files end with the task's mode (`mode,s,h,"ql"`), the
+         * CL's, which no task of ours reads but sim's own mode */
+        if (q->type == MP_PAR_PSET || (p && p->type == MP_PAR_PSET) ||
+            (!p && !strcmp(q->name, "mode")))
             continue;
         if (p && mpp_is_query(p) && mpp_undefined(q->value))
             continue;
@@ -56,6 +59,39 @@ static size_t name_len(const char *w)
     return k;
 }
 
+/* The parameter w[0..k) names on the command line into name (room for
+ * cap bytes): the one so called, else the one parameter whose name it
+ * begins (IRAF's minimum match: `imhead l+` is longheader=yes), of the
+ * booleans alone when switch_ (a word "f-" that switches none is a bare
+ * word, a file name); 1 with err when it begins two or more (naming
+ * them), 0 otherwise (an unknown name is left to the caller). */
+static int resolve_name(const mp_parset *ps, const char *w, size_t k, int switch_, char *name,
+                        size_t cap, char *err)
+{
+    snprintf(name, cap, "%.*s", (int)k, w);
+    if (mpp_find(ps, name))
+        return 0;
+    const mp_par *hit = NULL;
+    char names[MP_ERRLEN] = "";
+    size_t len = 0, nhit = 0;
+    for (size_t j = 0; j < ps->n; j++)
+        if (!strncmp(ps->p[j].name, name, k) && (!switch_ || ps->p[j].type == MP_PAR_BOOL)) {
+            hit = &ps->p[j];
+            if (len < sizeof names)
+                len += (size_t)snprintf(names + len, sizeof names - len, "%s%s",
+                                        nhit ? ", " : "", hit->name);
+            nhit++;
+        }
+    if (nhit > 1) {
+        mpp_errf(err, "%s: an abbreviation of %zu parameters of task %s (%s): give more of the "
+                 "name", name, nhit, ps->task, names);
+        return 1;
+    }
+    if (hit)
+        snprintf(name, cap, "%s", hit->name);
+    return 0;
+}
+
 static int is_parfile(const char *w)
 {
     size_t n = strlen(w);
@@ -75,29 +111,25 @@ int mpp_apply(mp_parset *ps, int argc, char **argv, int check_required, char *er
         size_t k = name_len(w);
         if (is_parfile(w))
             continue;
+        char name[128];
         if (k > 0 && w[k] == '=') {
-            char name[128];
             if (k >= sizeof name) {
                 mpp_errf(err, "%.40s...: unknown parameter of task %s", w, ps->task);
                 return 1;
             }
-            memcpy(name, w, k);
-            name[k] = '\0';
-            if (mp_params_set(ps, name, w + k + 1, err))
+            if (resolve_name(ps, w, k, 0, name, sizeof name, err) ||
+                mp_params_set(ps, name, w + k + 1, err))
                 return 1;
             continue;
         }
-        if (k > 0 && (w[k] == '+' || w[k] == '-') && w[k + 1] == '\0') {
-            char name[128];
+        if (k > 0 && k < sizeof name && (w[k] == '+' || w[k] == '-') && w[k + 1] == '\0') {
             const mp_par *p;
-            if (k < sizeof name) {
-                memcpy(name, w, k);
-                name[k] = '\0';
-                if ((p = mpp_find(ps, name)) && p->type == MP_PAR_BOOL) {
-                    if (mp_params_set(ps, name, w[k] == '+' ? "yes" : "no", err))
-                        return 1;
-                    continue;
-                }
+            if (resolve_name(ps, w, k, 1, name, sizeof name, err))
+                return 1;
+            if ((p = mpp_find(ps, name)) && p->type == MP_PAR_BOOL) {
+                if (mp_params_set(ps, name, w[k] == '+' ? "yes" : "no", err))
+                    return 1;
+                continue;
             }
         }
         /* A bare word: the next query parameter not named on the line. */

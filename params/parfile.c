@@ -162,6 +162,14 @@ static void set_task(mp_parset *ps, const char *origin)
     ps->task[n] = '\0';
 }
 
+/* `$nargs`, a line of the CL's own that IRAF's learned (uparm) files
+ * carry and no task reads (the other, the task's `mode`, is a name:
+ * mp_params_load_file). */
+static int cl_own(const char *s)
+{
+    return !strncmp(s, "$nargs", 6) && strchr(" \t,", s[6]);
+}
+
 int mpp_parse(const char *text, const char *origin, mp_parset *ps, int **lines, char *err)
 {
     int *ln = NULL;
@@ -187,7 +195,7 @@ int mpp_parse(const char *text, const char *origin, mp_parset *ps, int **lines, 
         const char *s = line;
         while (is_blank(*s))
             s++;
-        if (*s == '\0' || *s == '#')
+        if (*s == '\0' || *s == '#' || cl_own(s))
             continue;
         mp_par p;
         if (parse_line(s, &p, err)) {

@@ -428,6 +428,46 @@ static void test_unknown(void **state)
     mp_params_free(&ps);
 }
 
+/* IRAF's minimum match: a name's unique beginning names it, a switch's
+ * among the booleans alone; a whole name wins over longer ones it
+ * begins; two or more begun refused, naming them. */
+static void test_abbreviations(void **state)
+{
+    (void)state;
+    mp_parset ps;
+    char err[MP_ERRLEN] = "";
+    parse_ok(TEXT, &ps);
+    char *a1[] = { "i.fits", "c.coo", "fit=4", "verb-", "mo=crowded", "ga=2" };
+    if (mp_params_cmdline(&ps, 6, a1, err))
+        fail_msg("%s", err);
+    assert_string_equal(mp_par_string(&ps, "fitrad"), "4");
+    assert_string_equal(mp_par_string(&ps, "verbose"), "no");
+    assert_string_equal(mp_par_string(&ps, "mode"), "crowded");
+    assert_string_equal(mp_par_string(&ps, "gain"), "2");
+    mp_params_free(&ps);
+    parse_ok(TEXT, &ps);
+    char *a2[] = { "i.fits", "c.coo", "n=3" };
+    assert_int_not_equal(mp_params_cmdline(&ps, 3, a2, err), 0);
+    assert_err(err, "n: an abbreviation of 2 parameters of task t (nx, note): give more of the "
+               "name");
+    mp_params_free(&ps);
+    /* "no-" switches no boolean: a bare word, the image's name */
+    parse_ok(TEXT, &ps);
+    char *a3[] = { "no-", "c.coo" };
+    if (mp_params_cmdline(&ps, 2, a3, err))
+        fail_msg("%s", err);
+    assert_string_equal(mp_par_string(&ps, "image"), "no-");
+    assert_string_equal(mp_par_string(&ps, "note"), "plain");
+    mp_params_free(&ps);
+    parse_ok("psf,s,h,gauss\npsfrad,r,h,10\n", &ps);
+    char *a4[] = { "psf=table.fits", "psfr=12" };
+    if (mp_params_cmdline(&ps, 2, a4, err))
+        fail_msg("%s", err);
+    assert_string_equal(mp_par_string(&ps, "psf"), "table.fits");
+    assert_string_equal(mp_par_string(&ps, "psfrad"), "12");
+    mp_params_free(&ps);
+}
+
 static void test_at_file(void **state)
 {
     mp_parset ps;
@@ -458,6 +498,15 @@ static void test_at_file(void **state)
     path = put_file(state, "bad3.par", "fitrad,r,h,4\nfitrad r h 4\n");
     assert_int_not_equal(mp_params_load_file(&ps, path, err), 0);
     assert_true(ends_with(err, "bad3.par:2: malformed line (expected name,type,mode,value,min,max,prompt)"));
+    /* IRAF's own lines, `$nargs` and the task's mode, read past where the
+     * task has no mode of its own; where it has (t's), a value for it */
+    path = put_file(state, "iraf.par", "fitrad,r,h,5\n$nargs,i,h,0\nmode,s,h,\"ql\"\n");
+    assert_int_not_equal(mp_params_load_file(&ps, path, err), 0);
+    assert_non_null(strstr(err, "iraf.par:3: mode"));
+    mp_params_free(&ps);
+    parse_ok("fitrad,r,h,3.0,0,1000\n", &ps);
+    assert_int_equal(mp_params_load_file(&ps, path, err), 0);
+    assert_string_equal(mp_par_string(&ps, "fitrad"), "5");
     snprintf(word, sizeof word, "@%s/missing.par", ((scratch *)*state)->dir);
     char *a2[] = { word };
     assert_int_not_equal(mp_params_cmdline(&ps, 1, a2, err), 0);
@@ -614,6 +663,7 @@ int main(void)
         cmocka_unit_test(test_overrides),
         cmocka_unit_test(test_positional),
         cmocka_unit_test(test_unknown),
+        cmocka_unit_test(test_abbreviations),
         cmocka_unit_test_setup_teardown(test_at_file, setup, teardown),
         cmocka_unit_test_setup_teardown(test_write_then_load, setup, teardown),
         cmocka_unit_test(test_defaults),
