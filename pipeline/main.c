@@ -93,6 +93,34 @@ static int is_help(const char *s)
     return !strcmp(s, "-h") || !strcmp(s, "--help");
 }
 
+/* The task word names: the one so called, else the one whose name it
+ * begins (IRAF's minimum match: `matphot pipe`); NTASKS, said on stderr,
+ * when it names none or begins two or more. */
+static size_t task_of(const char *word)
+{
+    size_t hit = NTASKS, nhit = 0, k = strlen(word);
+    for (size_t i = 0; i < NTASKS; i++) {
+        if (!strcmp(word, tasks[i].name))
+            return i;
+        if (k > 0 && !strncmp(word, tasks[i].name, k)) {
+            hit = i;
+            nhit++;
+        }
+    }
+    if (nhit == 1)
+        return hit;
+    if (nhit == 0) {
+        fprintf(stderr, "matphot: unknown task '%s' (matphot --help lists the tasks)\n", word);
+        return NTASKS;
+    }
+    fprintf(stderr, "matphot: '%s' begins the names of %zu tasks (", word, nhit);
+    for (size_t i = 0, n = 0; i < NTASKS; i++)
+        if (!strncmp(word, tasks[i].name, k))
+            fprintf(stderr, "%s%s", n++ ? ", " : "", tasks[i].name);
+    fprintf(stderr, "): give more of the name\n");
+    return NTASKS;
+}
+
 int main(int argc, char **argv)
 {
     /* An interrupted run (SIGINT, SIGTERM, SIGHUP, SIGQUIT) removes the
@@ -112,19 +140,17 @@ int main(int argc, char **argv)
         printf("matphot %s\n", MATPHOT_VERSION);
         return 0;
     }
-    for (size_t i = 0; i < NTASKS; i++) {
-        if (strcmp(argv[1], tasks[i].name))
-            continue;
-        /* `matphot TASK --help` is answered here from the task's .par, so
-         * every task has it without code of its own. */
-        if (argc == 3 && is_help(argv[2]) && strcmp(tasks[i].name, "params")) {
-            printf("matphot %s: %s\n", tasks[i].name, tasks[i].what);
-            if (mp_task_usage(tasks[i].name, stdout))
-                printf("usage: matphot %s ...\n", tasks[i].name);
-            return 0;
-        }
-        return tasks[i].run(argc - 1, argv + 1);
+    size_t i = task_of(argv[1]);
+    if (i == NTASKS)
+        return 2;
+    argv[1] = (char *)tasks[i].name;     /* the task's whole name from here on */
+    /* `matphot TASK --help` is answered here from the task's .par, so
+     * every task has it without code of its own. */
+    if (argc == 3 && is_help(argv[2]) && strcmp(tasks[i].name, "params")) {
+        printf("matphot %s: %s\n", tasks[i].name, tasks[i].what);
+        if (mp_task_usage(tasks[i].name, stdout))
+            printf("usage: matphot %s ...\n", tasks[i].name);
+        return 0;
     }
-    fprintf(stderr, "matphot: unknown task '%s' (matphot --help lists the tasks)\n", argv[1]);
-    return 2;
+    return tasks[i].run(argc - 1, argv + 1);
 }

@@ -32,6 +32,12 @@ grep -q '^matphot [0-9]' "$T/out" || no "--version: $(cat "$T/out")"
 "$M" nosuchtask >/dev/null 2>"$T/err"; rc=$?
 [ "$rc" -eq 2 ] || no "unknown task: exit $rc, want 2"
 grep -q "^matphot: unknown task 'nosuchtask'" "$T/err" || no "unknown task: $(cat "$T/err")"
+# IRAF's minimum match: a task's unique beginning names it, two refused.
+expect 0 "" -- "$M" pipe --help
+grep -q '^matphot pipeline: ' "$T/out" || no "pipe --help: $(cat "$T/out")"
+"$M" fi x.fits >/dev/null 2>"$T/err"; rc=$?
+[ "$rc" -eq 2 ] && grep -q "^matphot: 'fi' begins the names of 2 tasks (find, fit)" "$T/err" ||
+    no "ambiguous task: exit $rc: $(cat "$T/err")"
 
 # matphot params: the task list, then parseable defaults.
 expect 0 "" -- "$M" params
