@@ -109,9 +109,15 @@ static int image_shape(fitsfile *fp, const char *name, int *bitpix, int *naxis, 
         snprintf(err, MP_ERRLEN, "%s: unsupported BITPIX %d", name, bp);
         return 1;
     }
+    if (na == 0 && !strchr(name, '[')) {
+        /* opened as an image, the file's first image HDU: there is none */
+        snprintf(err, MP_ERRLEN, "%s: holds no image (its primary HDU is empty and none of its "
+                 "extensions is an image)", name);
+        return 1;
+    }
     if (na == 0) {
-        snprintf(err, MP_ERRLEN, "%s: no image here (NAXIS = 0); "
-                 "name an image extension like %s[1]", name, name);
+        snprintf(err, MP_ERRLEN, "%s: no image here (NAXIS = 0); name an image extension",
+                 name);
         return 1;
     }
     if (na > 9) {

@@ -527,7 +527,23 @@ static void test_bad_inputs(void **state)
     assert_int_equal(mp_image_read(cube, &im, err), 0);
     mp_image_free(&im);
 
+    /* No image at all (an empty primary and a table): said so, not "name
+     * an image extension like f.fits[1]", which is the table */
+    char tab[700];
+    snprintf(tab, sizeof tab, "%s", in_dir(s, "table_only.fits"));
+    fitsfile *tf;
+    int st = 0;
+    char *tt[] = {"A"}, *tform[] = {"E"};
+    unlink(tab);
+    fits_create_file(&tf, tab, &st);
+    fits_create_img(tf, 8, 0, NULL, &st);
+    fits_create_tbl(tf, BINARY_TBL, 0, 1, tt, tform, NULL, "T", &st);
+    fits_close_file(tf, &st);
+    assert_int_equal(st, 0);
+    expect_read_error(tab, "table_only.fits", "holds no image (its primary HDU is empty");
+
     /* A directory, a bad section. */
+    cube = in_dir(s, "cube.fits");
     expect_read_error(s->dir, "test_io_", "directory");
     snprintf(name, sizeof name, "%s[1:2,x]", cube);
     expect_read_error(name, "cube.fits", NULL);
