@@ -53,6 +53,9 @@ static int setup_of(const mp_parset *ps, cat_setup *s, char *err)
                  "stdout: give output=NAME", format);
         return 1;
     }
+    if ((s->fmt == MP_TAB_FITS || s->fmt == MP_TAB_LDAC) &&
+        mp_out_fits_named("output", s->output, err))
+        return 1;
     if (s->regions[0] && strcmp(s->regions, "-") == 0 &&
         (!s->output[0] || strcmp(s->output, "-") == 0)) {
         snprintf(err, MP_ERRLEN, "regions: stdout already takes the catalogue; give a file name");

@@ -229,9 +229,10 @@ int mp_outputs_clear(const char *const *in, size_t nin, const char *const *out, 
                      char *err);
 
 /* mp_out_fits_named: 0, or 1 with err naming parameter param when the
- * FITS output it names, path, is "-": text tables go to standard output
- * by that name, a FITS file (its header rewritten as it is finished)
- * cannot, and its writers would make a file named "-". */
+ * FITS output it names, path, is "-" (text tables go to standard output
+ * by that name, a FITS file cannot, and its writers made a file named
+ * "-") or holds '[' (written as named, `sim o[1].fits`, it could not be
+ * read back: cfitsio takes o.fits's extension 1). */
 int mp_out_fits_named(const char *param, const char *path, char *err);
 
 /* mp_out_in_place: whether output path is written in place rather than

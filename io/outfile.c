@@ -281,11 +281,20 @@ static int copy_bytes(FILE *in, FILE *out)
 
 int mp_out_fits_named(const char *param, const char *path, char *err)
 {
-    if (!path || strcmp(path, "-") != 0)
+    if (!path)
         return 0;
-    snprintf(err, MP_ERRLEN, "%s: '-' names standard output, where a FITS file cannot go "
-             "(name a file)", param);
-    return 1;
+    if (strcmp(path, "-") == 0) {
+        snprintf(err, MP_ERRLEN, "%s: '-' names standard output, where a FITS file cannot go "
+                 "(name a file)", param);
+        return 1;
+    }
+    if (strchr(path, '[')) {
+        snprintf(err, MP_ERRLEN, "%s: '%.200s' holds '[', which cfitsio reads as an extension or "
+                 "a section: the file could not be read back by its name (name it without)",
+                 param, path);
+        return 1;
+    }
+    return 0;
 }
 
 int mp_out_place(const char *tmp, const char *path, char *err)

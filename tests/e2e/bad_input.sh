@@ -154,6 +154,19 @@ dash "sim psfout -"      psfout   sim "$T/new.fits" nx=64 ny=64 nstars=2 psfout=
 dash "psf to -"          output   psf "$T/ok.fits" output=-
 dash "fit residual to -" residual fit "$T/ok.fits" "$T/ok.truth" output="$T/o.fit" residual=-
 [ ! -e "$T/new.fits" ] && [ ! -e "$T/o.fit" ] || no "a FITS output to -: left another output"
+# A FITS output whose name holds '[': written as named, cfitsio could not
+# read it back by that name (`sim o[1].fits`, the pipeline's root.psf.fits).
+for c in "output sim $T/b[1].fits nx=64 ny=64 nstars=2" "root pipeline $T/ok.fits root=$T/b[1]" \
+    "output catalog $T/ok.truth output=$T/b[1].fits format=fits"; do
+    set -- $c
+    param=$1
+    shift
+    "$M" "$@" >/dev/null 2>"$T/err"
+    rc=$?
+    [ "$rc" -eq 1 ] && [ "$(wc -l <"$T/err")" -eq 1 ] &&
+        grep -qF "$param: '$T/b[1]" "$T/err" || no "$1 with '[': exit $rc: $(cat "$T/err")"
+done
+[ -z "$(ls -A "$T" | grep "^b\\[")" ] || no "an output named with '[': left a file"
 
 # A device that refuses the bytes (/dev/full, written in place: io.h
 # mp_out_in_place): one line naming it and the write, not "cannot rename".
