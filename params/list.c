@@ -34,6 +34,10 @@ int mp_params_list(const char *arg, char ***items, size_t *n, char *err)
         *n = 1;
         return 0;
     }
+    if (!arg[1]) {
+        mpp_errf(err, "@: names no list file (@frames.lis: one name a line)");
+        return 1;
+    }
     if (mpp_read_file(arg + 1, &text, err))
         return 1;
     for (s = text; *s;) {

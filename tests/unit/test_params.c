@@ -621,6 +621,9 @@ static void test_list(void **state)
     char **v;
     size_t n;
     char err[MP_ERRLEN] = "", word[160];
+    /* "@" alone names no file (it said ": cannot open") */
+    assert_int_not_equal(mp_params_list("@", &v, &n, err), 0);
+    assert_err(err, "@: names no list file (@frames.lis: one name a line)");
     assert_int_equal(mp_params_list("frame.fits[1]", &v, &n, err), 0);
     assert_int_equal(n, 1);
     assert_string_equal(v[0], "frame.fits[1]");
