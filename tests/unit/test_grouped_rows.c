@@ -74,9 +74,8 @@ static int teardown(void **state)
     scratch *s = *state;
     char path[160];
     for (int held = 0; held < 2; held++)
-        for (size_t k = 0; k < NPRODUCT + 1; k++) {
-            snprintf(path, sizeof path, "%s/%c%s", s->dir, held ? 'h' : 'w',
-                     k < NPRODUCT ? products[k] : ".report");
+        for (size_t k = 0; k < MP_PL_NPRODUCT; k++) {
+            snprintf(path, sizeof path, "%s/%c%s", s->dir, held ? 'h' : 'w', mp_pl_products[k]);
             unlink(path);
         }
     unlink(s->image);
