@@ -112,6 +112,10 @@ static int read_text(mp_lines *L, mp_table *t, char *err)
     const char *p = L->line;
     while (*p == ' ' || *p == '\t')
         p++;
+    /* IRAF's text databases open with "#K" keywords or "#N" names;
+     * ASCII_HEAD's lines are "#   1 NAME" */
+    if (p[0] == '#' && (p[1] == 'K' || p[1] == 'N') && (p[2] == ' ' || p[2] == '\t'))
+        return mp_iraf_text_read(L, t, err);
     return *p == '#' ? mp_ascii_head_read(L, t, err) : mp_csv_read(L, t, err);
 }
 

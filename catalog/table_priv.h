@@ -78,6 +78,9 @@ int mp_lines_next(mp_lines *L, char *err);
 /* Readers: read the stream after table_io.c peeked at its first non-blank
  * line (left pending in L) into an empty table t. */
 int mp_ascii_head_read(mp_lines *L, mp_table *t, char *err);
+/* mp_iraf_text_read: IRAF's text database (DAOPHOT's and APPHOT's
+ * tables: "#K", "#N", "#U", "#F" headers, records continued by '\'). */
+int mp_iraf_text_read(mp_lines *L, mp_table *t, char *err);
 int mp_csv_read(mp_lines *L, mp_table *t, char *err);
 
 /* Writers: write t to fp; nonzero (err set, naming `name`) when t cannot be

@@ -839,6 +839,78 @@ static void test_sextractor_vectors(void **state)
     mp_table_free(&t);
 }
 
+/* IRAF's text databases (catalog/iraf_text.c), as DAOPHOT writes them:
+ * allstar's .als (two lines a record, a string field), phot's .mag
+ * (MAG and MERR written into each other, INDEF), and their errors. */
+static void test_iraf_text(void **state)
+{
+    fixture *f = *state;
+    char path[512], err[MP_ERRLEN];
+    path_in(f, "im.als", path, sizeof path);
+    const char *als =
+        "#K IRAF       = CommunityIRAFV2.17      version    %-23s     \n"
+        "#K TASK       = allstar                 name       %-23s     \n"
+        "#\n"
+        "#N ID    XCENTER   YCENTER   MAG         MERR          MSKY           NITER    \\\n"
+        "#U ##    pixels    pixels    magnitudes  magnitudes    counts         ##       \\\n"
+        "#F %-9d  %-10.3f   %-10.3f   %-12.3f     %-14.3f       %-15.7g        %-6d      \n"
+        "#\n"
+        "#N         SHARPNESS   CHI         PIER  PERROR                                \\\n"
+        "#U         ##          ##          ##    perrors                               \\\n"
+        "#F         %-23.3f     %-12.3f     %-6d  %-13s                                  \n"
+        "#\n"
+        "1        21.152    19.481    -13.144     0.017         98.24342       4        \\\n"
+        "           -0.152      2.634       0     No_error                               \n"
+        "47       230.482   63.008    INDEF       0.026         100.2233       4        \\\n"
+        "           -0.130      0.866       0     No_error                               \n";
+    write_text(path, als, strlen(als));
+    mp_table t;
+    if (mp_table_read(path, &t, err) != 0)
+        fail_msg("%s", err);
+    assert_int_equal(t.nrow, 2);
+    assert_int_equal(t.ncol, 10);           /* PERROR, a string, left out */
+    int cx = mp_table_col(&t, "X_IMAGE"), cn = mp_table_col(&t, "NUMBER");
+    assert_true(cx >= 0 && cn >= 0 && mp_table_col(&t, "PERROR") < 0);
+    assert_true(mp_table_get(&t, 1, cx) == 230.482);
+    assert_true(mp_table_get(&t, 1, cn) == 47);
+    assert_true(isnan(mp_table_get(&t, 1, mp_table_col(&t, "MAG"))));
+    assert_true(mp_table_get(&t, 0, mp_table_col(&t, "CHI")) == 2.634);
+    assert_string_equal(t.cols[cx].unit, "pixels");
+    mp_table_free(&t);
+
+    /* fields written into each other: read at their widths */
+    path_in(f, "im.mag", path, sizeof path);
+    const char *mag =
+        "#N RAPERT   SUM           AREA       FLUX          MAG    MERR   PIER PERROR   \\\n"
+        "#F %-12.2f  %-14.7g       %-11.7g    %-14.7g       %-7.3f %-6.3f %-5d %-9s      \n"
+        "   3.00     84982.69      28.49881   82145.09      -12.2860.004 0    NoError    \n";
+    write_text(path, mag, strlen(mag));
+    if (mp_table_read(path, &t, err) != 0)
+        fail_msg("%s", err);
+    assert_true(mp_table_get(&t, 0, mp_table_col(&t, "MAG")) == -12.286);
+    assert_true(mp_table_get(&t, 0, mp_table_col(&t, "MERR")) == 0.004);
+    assert_true(mp_table_get(&t, 0, mp_table_col(&t, "FLUX")) == 82145.09);
+    mp_table_free(&t);
+
+    /* a record cut short; a header without its formats; not a number */
+    path_in(f, "cut.als", path, sizeof path);
+    write_text(path, als, strlen(als) - 81);
+    char want[700];
+    snprintf(want, sizeof want, "%s:14: the last record ends in '\\' (truncated)", path);
+    expect_read_error(path, want);
+    path_in(f, "nofmt.coo", path, sizeof path);
+    const char *nofmt = "#N XCENTER YCENTER ID\n   1.0 2.0 3\n";
+    write_text(path, nofmt, strlen(nofmt));
+    snprintf(want, sizeof want, "%s: an IRAF text table whose header does not give a format to "
+             "each name (3 names on 1 #N lines, 0 formats on 0 #F lines)", path);
+    expect_read_error(path, want);
+    path_in(f, "bad.coo", path, sizeof path);
+    const char *bad = "#N XCENTER YCENTER ID\n#F %-10.3f %-10.3f %-6d\n   1.0 abc 3\n";
+    write_text(path, bad, strlen(bad));
+    snprintf(want, sizeof want, "%s:3: 'abc' in field YCENTER is not a number", path);
+    expect_read_error(path, want);
+}
+
 static void test_csv_quoted_header(void **state)
 {
     fixture *f = *state;
@@ -1072,6 +1144,7 @@ int main(void)
         cmocka_unit_test_setup_teardown(test_sextractor_vectors, setup, teardown),
         cmocka_unit_test_setup_teardown(test_bom_blank_first_line, setup, teardown),
         cmocka_unit_test_setup_teardown(test_csv_quoted_header, setup, teardown),
+        cmocka_unit_test_setup_teardown(test_iraf_text, setup, teardown),
         cmocka_unit_test_setup_teardown(test_errors, setup, teardown),
         cmocka_unit_test_setup_teardown(test_atomic_write, setup, teardown),
         cmocka_unit_test(test_integer_columns),
