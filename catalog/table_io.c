@@ -116,6 +116,9 @@ static int read_text(mp_lines *L, mp_table *t, char *err)
      * ASCII_HEAD's lines are "#   1 NAME" */
     if (p[0] == '#' && (p[1] == 'K' || p[1] == 'N') && (p[2] == ' ' || p[2] == '\t'))
         return mp_iraf_text_read(L, t, err);
+    /* DAOPHOT II's open with " NL    NX    NY  LOWBAD ..." */
+    if (p[0] == 'N' && p[1] == 'L' && (p[2] == ' ' || p[2] == '\t'))
+        return mp_daophot2_read(L, t, err);
     return *p == '#' ? mp_ascii_head_read(L, t, err) : mp_csv_read(L, t, err);
 }
 

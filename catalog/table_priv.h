@@ -81,6 +81,9 @@ int mp_ascii_head_read(mp_lines *L, mp_table *t, char *err);
 /* mp_iraf_text_read: IRAF's text database (DAOPHOT's and APPHOT's
  * tables: "#K", "#N", "#U", "#F" headers, records continued by '\'). */
 int mp_iraf_text_read(mp_lines *L, mp_table *t, char *err);
+/* mp_daophot2_read: Stetson's DAOPHOT II tables (the "NL NX NY ..."
+ * header, Fortran's fixed columns: ID X Y MAG ...). */
+int mp_daophot2_read(mp_lines *L, mp_table *t, char *err);
 int mp_csv_read(mp_lines *L, mp_table *t, char *err);
 
 /* Writers: write t to fp; nonzero (err set, naming `name`) when t cannot be

@@ -911,6 +911,82 @@ static void test_iraf_text(void **state)
     expect_read_error(path, want);
 }
 
+/* Stetson's DAOPHOT II tables (catalog/daophot2.c): ALLSTAR's .als (NL
+ * 1, an X of 10⁴ px touching its ID), PHOTOMETRY's .ap (NL 2, two lines a
+ * star), GROUP's .grp (NL 3, groups parted by blank lines), and errors. */
+static void test_daophot2(void **state)
+{
+    fixture *f = *state;
+    char path[512], err[MP_ERRLEN], want[700];
+    const char *head = " NL    NX    NY  LOWBAD HIGHBAD  THRESH     AP1  PH/ADU  RNOISE    FRAD\n";
+    char text[2048];
+    path_in(f, "f.als", path, sizeof path);
+    snprintf(text, sizeof text, "%s%s", head,
+             "  1 20480  4096   129.5 32766.5   28.56    3.00    1.70    4.68    2.00\n\n"
+             "     1   64.700   64.600  -13.000   0.0050  100.000     4.    0.970   0.010\n"
+             "    2012345.678   40.110   -9.500   0.0450  100.120     5.    1.020  -0.050\n");
+    write_text(path, text, strlen(text));
+    mp_table t;
+    if (mp_table_read(path, &t, err) != 0)
+        fail_msg("%s", err);
+    assert_int_equal(t.ncol, 9);
+    assert_int_equal(t.nrow, 2);
+    assert_string_equal(t.cols[8].name, "SHARPNESS");
+    assert_true(mp_table_get(&t, 1, mp_table_col(&t, "NUMBER")) == 20);
+    assert_true(mp_table_get(&t, 1, mp_table_col(&t, "X_IMAGE")) == 12345.678);
+    assert_true(mp_table_get(&t, 1, mp_table_col(&t, "CHI")) == 1.02);
+    mp_table_free(&t);
+
+    path_in(f, "f.ap", path, sizeof path);
+    snprintf(text, sizeof text, "%s%s", head,
+             "  2   512   512   129.5 32766.5   28.56    3.00    1.70    4.68    2.00\n\n"
+             "     1   64.700   64.600   13.000   13.500\n"
+             "     100.000  5.20  0.10   0.0050   0.0060\n\n"
+             "     2   30.210   40.110   16.500   16.900\n"
+             "     100.120  5.10  0.05   0.0450   0.0500\n");
+    write_text(path, text, strlen(text));
+    if (mp_table_read(path, &t, err) != 0)
+        fail_msg("%s", err);
+    assert_int_equal(t.nrow, 2);
+    assert_int_equal(t.ncol, 10);
+    assert_true(mp_table_get(&t, 1, mp_table_col(&t, "MAG_1")) == 16.9);
+    assert_true(mp_table_get(&t, 1, mp_table_col(&t, "MSKY")) == 100.12);
+    assert_true(mp_table_get(&t, 1, mp_table_col(&t, "MERR_1")) == 0.05);
+    mp_table_free(&t);
+    /* cut after a record's first line */
+    write_text(path, text, strlen(text) - 43);
+    snprintf(want, sizeof want, "%s:7: the last record has its first line only (truncated)",
+             path);
+    expect_read_error(path, want);
+
+    path_in(f, "f.grp", path, sizeof path);
+    snprintf(text, sizeof text, "%s%s", head,
+             "  3   512   512   129.5 32766.5   28.56    3.00    1.70    4.68    2.00\n\n"
+             "     1   64.700   64.600   13.000   0.0050  100.000\n"
+             "     5   66.700   64.600   15.000   0.0050  100.000\n\n\n"
+             "     2   30.210   40.110   16.500   0.0450  100.120\n");
+    write_text(path, text, strlen(text));
+    if (mp_table_read(path, &t, err) != 0)
+        fail_msg("%s", err);
+    int cg = mp_table_col(&t, "GROUP_ID");
+    assert_true(cg >= 0);
+    assert_true(mp_table_get(&t, 1, cg) == 1 && mp_table_get(&t, 2, cg) == 2);
+    mp_table_free(&t);
+
+    path_in(f, "bad.als", path, sizeof path);
+    snprintf(text, sizeof text, "%s%s", head,
+             "  5   512   512   129.5 32766.5   28.56    3.00    1.70    4.68    2.00\n\n");
+    write_text(path, text, strlen(text));
+    snprintf(want, sizeof want, "%s:2: a DAOPHOT II header whose NL is not 1, 2 or 3", path);
+    expect_read_error(path, want);
+    snprintf(text, sizeof text, "%s%s", head,
+             "  1   512   512   129.5 32766.5   28.56    3.00    1.70    4.68    2.00\n\n"
+             "     1   64.700   64.600  -13.000\n     2   30.210   40.110\n");
+    write_text(path, text, strlen(text));
+    snprintf(want, sizeof want, "%s:5: a record of 3 fields, where the first had 4", path);
+    expect_read_error(path, want);
+}
+
 static void test_csv_quoted_header(void **state)
 {
     fixture *f = *state;
@@ -1145,6 +1221,7 @@ int main(void)
         cmocka_unit_test_setup_teardown(test_bom_blank_first_line, setup, teardown),
         cmocka_unit_test_setup_teardown(test_csv_quoted_header, setup, teardown),
         cmocka_unit_test_setup_teardown(test_iraf_text, setup, teardown),
+        cmocka_unit_test_setup_teardown(test_daophot2, setup, teardown),
         cmocka_unit_test_setup_teardown(test_errors, setup, teardown),
         cmocka_unit_test_setup_teardown(test_atomic_write, setup, teardown),
         cmocka_unit_test(test_integer_columns),
