@@ -8,11 +8,13 @@
  * its first column (phot's "%-7.3f%-6.3f" writes -12.2860.004 for MAG and
  * MERR): split at blanks when that gives the line's number of fields,
  * else at the widths.  The numeric fields (%d %f %g %e) are read, INDEF
- * as NaN; the strings (%s: IMAGE, PERROR) are left out.  ID, XCENTER,
- * YCENTER and GROUP are read as NUMBER, X_IMAGE, Y_IMAGE and GROUP_ID:
- * IRAF's pixel coordinates put the first pixel's centre at 1.0, as
- * SExtractor's do (design.md), so a DAOPHOT star list is a coordinate
- * table as it is.
+ * as NaN; the strings (%s: IMAGE, PERROR) are left out.  phot's last
+ * line comes once an aperture, marked '*': the second aperture's fields
+ * are read as RAPERT_1, MAG_1, ... (as SExtractor's MAG_APER_1).  ID,
+ * XCENTER, YCENTER and GROUP are read as NUMBER, X_IMAGE, Y_IMAGE and
+ * GROUP_ID: IRAF's pixel coordinates put the first pixel's centre at
+ * 1.0, as SExtractor's do (design.md), so a DAOPHOT star list is a
+ * coordinate table as it is.
  */
 #include <stdlib.h>
 #include <string.h>
@@ -78,6 +80,8 @@ static int words_line(words *v, const char *s)
 typedef struct {
     words name, unit, fmt;
     int *col, *width;
+    int *apcol, nap;    /* the last line's columns for apertures 2 .. nap + 1
+                         * (phot's .mag: that line once an aperture, '*') */
 } header;
 
 static const char *our_name(const char *iraf)
@@ -166,9 +170,10 @@ static void field_text(const header *h, size_t i, const char *line, size_t len, 
     snprintf(f, cap, "%.*s", (int)(k < cap ? k : cap - 1), s);
 }
 
-/* Record line li (line, len bytes without its final backslash) into row. */
-static int record_line(const header *h, int li, const char *line, size_t len, mp_table *t,
-                       long row, const char *fname, long lineno, char *err)
+/* Record line li (line, len bytes without its final backslash and
+ * marker) into row, field j into column cols[j] (−1: not kept). */
+static int record_line(const header *h, int li, const int *cols, const char *line, size_t len,
+                       mp_table *t, long row, const char *fname, long lineno, char *err)
 {
     size_t i0 = h->name.at[li], nf = h->name.at[li + 1] - i0, nw = 0, pos = 0;
     char *cp = strndup(line, len), **w = malloc((nf + 1) * sizeof *w);
@@ -190,27 +195,71 @@ static int record_line(const header *h, int li, const char *line, size_t len, mp
         char f[64];
         double x;
         field_text(h, i, line, len, split ? w[j] : NULL, &pos, f, sizeof f);
-        if (h->col[i] < 0)
+        if (cols[j] < 0)
             continue;
         if ((rc = mp_parse_value(f, &x) != 0))
             snprintf(err, MP_ERRLEN, "%s:%ld: '%.*s' in field %s is not a number", fname, lineno,
                      QUOTE_MAX, f, h->name.w[i]);
         else
-            mp_table_set(t, (size_t)row, h->col[i], x);
+            mp_table_set(t, (size_t)row, cols[j], x);
     }
     free(cp);
     free(w);
     return rc;
 }
 
-/* The length of line s without a final '\' (and the blanks before it);
- * *more when it had one. */
-static size_t record_len(const char *s, size_t n, int *more)
+/* The length of line s without a final '\' (*more when it had one) and
+ * an aperture's '*' before it (*array), and the blanks before each. */
+static size_t record_len(const char *s, size_t n, int *more, int *array)
 {
     while (n && (s[n - 1] == ' ' || s[n - 1] == '\t'))
         n--;
-    *more = n && s[n - 1] == '\\';
-    return *more ? n - 1 : n;
+    if ((*more = n && s[n - 1] == '\\'))
+        n--;
+    while (n && (s[n - 1] == ' ' || s[n - 1] == '\t'))
+        n--;
+    if ((*array = n && s[n - 1] == '*'))
+        n--;
+    return n;
+}
+
+/* The columns of aperture a (1: the second) of the last line's numeric
+ * fields, NAME_a, added to t when first met. */
+static const int *aperture_cols(header *h, int a, mp_table *t, const char *fname, char *err)
+{
+    size_t i0 = h->name.at[h->name.nline - 1], nf = h->name.n - i0;
+    if (a > IRAF_MAXFIELD / (int)(nf ? nf : 1)) {
+        snprintf(err, MP_ERRLEN, "%s: more than %d fields", fname, IRAF_MAXFIELD);
+        return NULL;
+    }
+    for (; h->nap < a; h->nap++) {
+        int *c = realloc(h->apcol, (size_t)(h->nap + 1) * nf * sizeof *c);
+        if (!c)
+            goto oom;
+        h->apcol = c;
+        for (size_t j = 0; j < nf; j++) {
+            char name[64], unit[sizeof t->cols[0].unit];
+            int *cj = &h->apcol[(size_t)h->nap * nf + j];
+            *cj = -1;
+            if (h->col[i0 + j] < 0)
+                continue;
+            const mp_col *base = &t->cols[h->col[i0 + j]];
+            snprintf(name, sizeof name, "%s_%d", base->name, h->nap + 1);
+            memcpy(unit, base->unit, sizeof unit);
+            if (strlen(name) >= sizeof t->cols[0].name || mp_table_col(t, name) >= 0) {
+                snprintf(err, MP_ERRLEN, "%s: aperture %d's %.40s is too long a name, or a "
+                         "field's", fname, h->nap + 2, name);
+                return NULL;
+            }
+            if ((*cj = mp_table_add_col(t, name)) < 0)
+                goto oom;
+            memcpy(t->cols[*cj].unit, unit, sizeof unit);
+        }
+    }
+    return h->apcol + (size_t)(a - 1) * nf;
+oom:
+    snprintf(err, MP_ERRLEN, "%s: out of memory", fname);
+    return NULL;
 }
 
 static int read_lines(mp_lines *L, header *h, mp_table *t, char *err)
@@ -240,15 +289,17 @@ static int read_lines(mp_lines *L, header *h, mp_table *t, char *err)
                 return 1;
             }
         }
-        int more;
-        size_t len = record_len(L->line, (size_t)L->len, &more);
-        if (li == h->name.nline || (!more && li + 1 != h->name.nline)) {
-            snprintf(err, MP_ERRLEN, "%s:%ld: a record of %s lines than the header's %d (a .mag "
-                     "of several apertures: txdump the fields you need)", L->name, start,
-                     li == h->name.nline ? "more" : "fewer", h->name.nline);
+        int more, array, last = h->name.nline - 1;
+        size_t len = record_len(L->line, (size_t)L->len, &more, &array);
+        if ((li > last && !array) || (!more && li < last)) {
+            snprintf(err, MP_ERRLEN, "%s:%ld: a record of %s lines than the header's %d", L->name,
+                     start, li > last ? "more" : "fewer", h->name.nline);
             return 1;
         }
-        if (record_line(h, li, L->line, len, t, row, L->name, L->lineno, err))
+        const int *cols = li <= last ? h->col + h->name.at[li]
+                                     : aperture_cols(h, li - last, t, L->name, err);
+        if (!cols || record_line(h, li < last ? li : last, cols, L->line, len, t, row, L->name,
+                                 L->lineno, err))
             return 1;
         li = more ? li + 1 : 0;
     }
@@ -272,5 +323,6 @@ int mp_iraf_text_read(mp_lines *L, mp_table *t, char *err)
     words_free(&h.fmt);
     free(h.col);
     free(h.width);
+    free(h.apcol);
     return rc;
 }

@@ -5,8 +5,9 @@
 # `matphot catalog` reads them.  The daofind stars are fitted where
 # daofind put them (X_IMAGE, Y_IMAGE = XCENTER, YCENTER: the same pixel
 # convention), and phot's MAG and MERR, which it writes into each other
-# when MAG fills its width, are read as txdump reads them.  Exit 77 (skip)
-# without IRAF (`irafcl`, Debian's iraf and iraf-noao: tools/deps.sh bench).
+# when MAG fills its width, are read as txdump reads them, for each
+# aperture.  Exit 77 (skip) without IRAF (`irafcl`, Debian's iraf and
+# iraf-noao: tools/deps.sh bench).
 M=${MATPHOT:-./matphot}
 [ -x "$M" ] || { echo "iraf_tables: $M not built"; exit 77; }
 command -v irafcl >/dev/null 2>&1 || { echo "skip: no irafcl"; exit 77; }
@@ -20,7 +21,7 @@ no() { echo "FAIL: $*"; fails=$((fails + 1)); }
     seed=11 >/dev/null 2>&1 || { echo "iraf_tables: sim failed"; exit 1; }
 {
     cl_env "$T"
-    cl_pars 3.0 10.5 3 1 INDEF 3.0 gauss 0 12 3
+    cl_pars 3.0 10.5 3 1 INDEF "3,5" gauss 0 12 3
     cat <<EOF
 daofind ("im.fits", output="im.coo", starmap="", skymap="", interactive=no, verify=no, verbose=no)
 phot ("im.fits", coords="im.coo", output="im.mag", interactive=no, verify=no, verbose=no)
@@ -50,16 +51,18 @@ awk -v n="$ncoo" '
               exit 1 } }
 ' "$T/coo.cat" "$T/coo.fit" || no "the .coo's stars as fitted"
 
-# the .mag as a coordinate table, and its MAG, MERR as txdump reads them
+# the .mag (two apertures) as a coordinate table, and its MAG, MERR
+# (MAG_1, MERR_1: the second aperture's) as txdump reads them
 "$M" fit "$T/im.fits" "$T/im.mag" psf=gauss fwhm=3 output="$T/mag.fit" 2>"$T/err" ||
     no "fit of the .mag: $(tail -1 "$T/err")"
-"$M" catalog "$T/im.mag" columns=X_IMAGE,Y_IMAGE,MAG,MERR output="$T/mag.cat" 2>"$T/err" ||
+"$M" catalog "$T/im.mag" columns=X_IMAGE,Y_IMAGE,MAG,MAG_1,MERR,MERR_1 \
+    output="$T/mag.cat" 2>"$T/err" ||
     no "catalog of the .mag: $(cat "$T/err")"
-grep -v '^#' "$T/mag.cat" | awk '{ print $1 + 0, $2 + 0, $3, $4 }' >"$T/ours.txt"
-awk '{ print $1 + 0, $2 + 0, ($3 == "INDEF" ? "nan" : $3), ($4 == "INDEF" ? "nan" : $4) }' \
+grep -v '^#' "$T/mag.cat" | awk '{ print $1 + 0, $2 + 0, $3, $4, $5, $6 }' >"$T/ours.txt"
+awk '{ for (i = 3; i <= 6; i++) if ($i == "INDEF") $i = "nan"; print $1 + 0, $2 + 0, $3, $4, $5, $6 }' \
     "$T/mag.txt" >"$T/theirs.txt"
 awk 'NR == FNR { a[FNR] = $0; n++; next }
-     { split(a[FNR], o, " "); for (i = 1; i <= 4; i++) if (o[i] != $i && !(o[i] ~ /nan/ && $i ~ /nan/) &&
+     { split(a[FNR], o, " "); for (i = 1; i <= 6; i++) if (o[i] != $i && !(o[i] ~ /nan/ && $i ~ /nan/) &&
            (o[i] - $i > 1e-9 || $i - o[i] > 1e-9)) { bad++; break } }
      END { if (bad || n != FNR) { print bad + 0, "rows differ of", n, FNR; exit 1 } }' \
     "$T/ours.txt" "$T/theirs.txt" || no "the .mag's values against txdump's"

@@ -892,6 +892,28 @@ static void test_iraf_text(void **state)
     assert_true(mp_table_get(&t, 0, mp_table_col(&t, "FLUX")) == 82145.09);
     mp_table_free(&t);
 
+    /* phot's last line once an aperture, marked '*': MAG_1, MERR_1 ... */
+    path_in(f, "ap3.mag", path, sizeof path);
+    const char *ap3 =
+        "#N ID    XCENTER   \\\n"
+        "#F %-6d %-10.3f   \n"
+        "#N RAPERT   SUM           AREA       FLUX          MAG    MERR   PIER PERROR   \\\n"
+        "#F %-12.2f  %-14.7g       %-11.7g    %-14.7g       %-7.3f %-6.3f %-5d %-9s      \n"
+        "1      218.849     \\\n"
+        "   3.00     84982.69      28.49881   82145.09      -12.2860.004 0    NoError  *\\\n"
+        "   5.00     97097.8       78.8533    89246.45      -12.3760.004 0    NoError  *\\\n"
+        "   7.00     104796.4      154.4323   89419.69      INDEF  INDEF  0    NoError  * \n";
+    write_text(path, ap3, strlen(ap3));
+    if (mp_table_read(path, &t, err) != 0)
+        fail_msg("%s", err);
+    assert_int_equal(t.nrow, 1);
+    assert_true(mp_table_get(&t, 0, mp_table_col(&t, "MAG")) == -12.286);
+    assert_true(mp_table_get(&t, 0, mp_table_col(&t, "MAG_1")) == -12.376);
+    assert_true(mp_table_get(&t, 0, mp_table_col(&t, "RAPERT_2")) == 7);
+    assert_true(isnan(mp_table_get(&t, 0, mp_table_col(&t, "MERR_2"))));
+    assert_true(mp_table_col(&t, "PERROR_1") < 0);
+    mp_table_free(&t);
+
     /* a record cut short; a header without its formats; not a number */
     path_in(f, "cut.als", path, sizeof path);
     write_text(path, als, strlen(als) - 81);
