@@ -278,7 +278,7 @@ static int open_image(const char *name, fitsfile **fp, int *naxis, long naxes[3]
     return 0;
 }
 
-enum { FMT_NONE, FMT_PSFEX, FMT_WEBBPSF, FMT_GRID, FMT_STDPSF };
+enum { FMT_NONE, FMT_PSFEX, FMT_WEBBPSF, FMT_GRID, FMT_STDPSF, FMT_DAOPHOT };
 
 static int has_key(fitsfile *fp, const char *key)
 {
@@ -294,6 +294,8 @@ static int has_key(fitsfile *fp, const char *key)
  * (DET_SAMP). */
 static int image_format(fitsfile *fp, int naxis)
 {
+    if (has_key(fp, "FUNCTION") && has_key(fp, "PSFHEIGH") && has_key(fp, "PSFRAD"))
+        return FMT_DAOPHOT;
     if (naxis == 3 && has_key(fp, "DET_YX0"))
         return FMT_GRID;
     if (naxis == 3 && has_key(fp, "NXPSFS"))
@@ -424,6 +426,32 @@ static int read_own(fitsfile *fp, const char *name, int naxis, const long naxes[
     return rc || !stars || !fp ? rc : read_stars(fp, name, stars, nstars, err);
 }
 
+/* IRAF DAOPHOT's PSF (its keywords FUNCTION, PSFHEIGH, PSFRAD): the file
+ * psf writes holds the analytic function's parameters and a look-up table
+ * of its residuals at half-pixel steps, 2 (2 PSFRAD + 1) + 1 elements a
+ * side, which matphot does not evaluate; seepsf renders it, the star on
+ * the central pixel of a (2 PSFRAD + 1)² image, as the image shows it
+ * (pixel-integrated: an ×1 table), scaled to a star of PSFMAG, so it is
+ * read as a table summing to 1.  Read as a plain table, the look-up
+ * table was refused for its sum (14457 on the 256² test frame) or, with
+ * psfnorm=yes, taken for a PSF. */
+static int read_daophot(fitsfile *fp, const char *name, int naxis, const long naxes[3],
+                        mp_psf_field *f, mp_psf_star **stars, int *nstars, char *warn,
+                        char *err)
+{
+    double rad = 0;
+    int st = 0;
+    fits_read_key_dbl(fp, "PSFRAD", &rad, NULL, &st);
+    fits_clear_errmsg();
+    long side = isfinite(rad) && rad > 0 && rad < 1e4 ? 2 * lround(rad) + 1 : -1;
+    if (!st && naxis == 2 && naxes[0] == side && naxes[1] == side)
+        return read_own(fp, name, naxis, naxes, 1, 1, f, stars, nstars, warn, err);
+    snprintf(err, MP_ERRLEN, "%s: an IRAF DAOPHOT PSF (an analytic function and its look-up "
+             "table), which matphot does not evaluate: render it with DAOPHOT's seepsf (seepsf "
+             "%.60s psfimage) and give psf=psfimage.fits", name, name);
+    return 1;
+}
+
 int mp_psf_field_read(const char *name, int normalize, int oversamp, mp_psf_field *f,
                       mp_psf_star **stars, int *nstars, char *warn, char *err)
 {
@@ -442,6 +470,8 @@ int mp_psf_field_read(const char *name, int normalize, int oversamp, mp_psf_fiel
     int img = !kind && fp ? image_format(fp, naxis) : FMT_NONE;
     if (kind)          /* another program's PSF file, recognised from its content */
         rc = read_other(kind, fp, name, f, warn, err) || check_range(name, f, err);
+    else if (img == FMT_DAOPHOT)
+        rc = read_daophot(fp, name, naxis, naxes, f, stars, nstars, warn, err);
     else if (img != FMT_NONE)
         rc = read_gridded(fp, name, img, naxes, normalize, f, warn, err);
     else

@@ -6,7 +6,8 @@
 # daofind put them (X_IMAGE, Y_IMAGE = XCENTER, YCENTER: the same pixel
 # convention), and phot's MAG and MERR, which it writes into each other
 # when MAG fills its width, are read as txdump reads them, for each
-# aperture.  Exit 77 (skip) without IRAF (`irafcl`, Debian's iraf and
+# aperture; DAOPHOT's PSF file is refused naming seepsf, and seepsf's
+# image of it fits as the true PSF does.  Exit 77 (skip) without IRAF (`irafcl`, Debian's iraf and
 # iraf-noao: tools/deps.sh bench).
 M=${MATPHOT:-./matphot}
 [ -x "$M" ] || { echo "iraf_tables: $M not built"; exit 77; }
@@ -26,6 +27,9 @@ no() { echo "FAIL: $*"; fails=$((fails + 1)); }
 daofind ("im.fits", output="im.coo", starmap="", skymap="", interactive=no, verify=no, verbose=no)
 phot ("im.fits", coords="im.coo", output="im.mag", interactive=no, verify=no, verbose=no)
 txdump ("im.mag", "XCENTER,YCENTER,MAG,MERR", yes, headers=no, parameters=no, > "mag.txt")
+pstselect ("im.fits", "im.mag", "im.pst", maxnpsf=15, interactive=no, verify=no, verbose=no)
+psf ("im.fits", "im.mag", "im.pst", "im.dpsf", "im.pst2", "im.psg", matchbyid=yes, interactive=no, showplots=no, plotfile="", verify=no, verbose=no)
+seepsf ("im.dpsf.fits", "seen.fits")
 print ("CL_OK")
 logout
 EOF
@@ -67,5 +71,33 @@ awk 'NR == FNR { a[FNR] = $0; n++; next }
      END { if (bad || n != FNR) { print bad + 0, "rows differ of", n, FNR; exit 1 } }' \
     "$T/ours.txt" "$T/theirs.txt" || no "the .mag's values against txdump's"
 
+# DAOPHOT's PSF: its file (a function and a look-up table) refused in one
+# line naming seepsf; seepsf's image of it read as an ×1 table summing to
+# 1, whose fits put the stars where the true Gaussian's do (a table read
+# half a pixel off would move every star by 0.5 px; measured 0.001 px)
+# on the same flux scale to within the two models' few per cent (measured
+# 1.03; a table left at a PSFMAG star's counts would be ~10⁵ off)
+"$M" fit "$T/im.fits" "$T/im.coo" psf="$T/im.dpsf.fits" output="$T/d.fit" >/dev/null 2>"$T/err"
+rc=$?
+[ "$rc" -eq 1 ] && [ "$(wc -l <"$T/err")" -eq 1 ] && grep -q "an IRAF DAOPHOT PSF.*seepsf" "$T/err" ||
+    no "DAOPHOT's PSF file: exit $rc: $(cat "$T/err")"
+"$M" fit "$T/im.fits" "$T/im.coo" psf="$T/seen.fits" output="$T/seen.fit" 2>"$T/err" ||
+    no "fit with seepsf's PSF: $(tail -1 "$T/err")"
+"$M" fit "$T/im.fits" "$T/im.coo" psf=gauss fwhm=3 output="$T/gauss.fit" 2>"$T/err" ||
+    no "fit with the true Gaussian: $(tail -1 "$T/err")"
+awk 'FNR == 1 { f++ }
+     /^#/ { c[f, $3] = $2; next }
+     { id = $c[f, "NUMBER"]; x[f, id] = $c[f, "XPSF_IMAGE"]; y[f, id] = $c[f, "YPSF_IMAGE"]
+       e[f, id] = $c[f, "FLUX_PSF"]; if (f == 2) ids[id] = 1 }
+     END { for (id in ids) if ((1, id) in x && e[2, id] > 5000)
+               print sqrt((x[1, id] - x[2, id]) ^ 2 + (y[1, id] - y[2, id]) ^ 2), e[1, id] / e[2, id] }' \
+    "$T/seen.fit" "$T/gauss.fit" >"$T/pairs.txt"
+n=$(wc -l <"$T/pairs.txt")
+mid=$(((n + 1) / 2))
+dmed=$(cut -d' ' -f1 "$T/pairs.txt" | sort -g | awk -v m="$mid" 'NR == m')
+rmed=$(cut -d' ' -f2 "$T/pairs.txt" | sort -g | awk -v m="$mid" 'NR == m')
+[ "$n" -ge 10 ] && awk -v d="$dmed" -v r="$rmed" 'BEGIN { exit !(d < 0.05 && r > 0.8 && r < 1.25) }' ||
+    no "seepsf's PSF against the true Gaussian: median offset $dmed px, flux ratio $rmed, $n stars"
+
 [ "$fails" -eq 0 ] || { echo "$fails check(s) failed"; exit 1; }
-echo "all checks passed ($ncoo daofind stars)"
+echo "all checks passed ($ncoo daofind stars; seepsf's PSF: median offset $dmed px, flux ratio $rmed)"

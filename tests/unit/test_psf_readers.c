@@ -514,9 +514,59 @@ static void test_grid_stdpsf_mock(void **state)
     mp_psf_field_free(&f);
 }
 
+/* An image with DAOPHOT's PSF keywords (FUNCTION, PSFHEIGH, PSFRAD 3)
+ * of side n, Gaussian values scaled as a star of 10⁵ counts. */
+static void write_daophot(const char *path, long n)
+{
+    fitsfile *fp;
+    int st = 0;
+    long ax[2] = {n, n};
+    double *v = malloc((size_t)(n * n) * sizeof *v), rad = 3.0, h = 2e4;
+    assert_non_null(v);
+    for (long j = 0; j < n; j++)
+        for (long i = 0; i < n; i++)
+            v[j * n + i] = h * exp(-0.5 * ((i - n / 2) * (i - n / 2) + (j - n / 2) * (j - n / 2)) /
+                                   1.6);
+    unlink(path);
+    fits_create_file(&fp, path, &st);
+    fits_create_img(fp, DOUBLE_IMG, 2, ax, &st);
+    fits_write_key_str(fp, "FUNCTION", "gauss", "", &st);
+    fits_write_key_dbl(fp, "PSFHEIGH", h, -8, "", &st);
+    fits_write_key_dbl(fp, "PSFRAD", rad, -8, "", &st);
+    fits_write_img(fp, TDOUBLE, 1, (LONGLONG)(n * n), v, &st);
+    fits_close_file(fp, &st);
+    assert_int_equal(st, 0);
+    free(v);
+}
+
+/* IRAF DAOPHOT's PSF file (its look-up table, 2 (2 PSFRAD + 1) + 1 a
+ * side) is refused naming seepsf; what seepsf renders of it (2 PSFRAD + 1
+ * a side, counts of a PSFMAG star) is an ×1 table summing to 1.  Read
+ * as a plain table, the first was taken for a PSF with psfnorm=yes. */
+static void test_daophot_psf(void **state)
+{
+    (void)state;
+    char path[] = "/tmp/test_psf_readers_daophot.fits", err[MP_ERRLEN], warn[MP_ERRLEN];
+    mp_psf_field f;
+    write_daophot(path, 15);
+    expect_error(path, "an IRAF DAOPHOT PSF");
+    assert_int_not_equal(mp_psf_field_read(path, 1, 0, &f, NULL, NULL, warn, err), 0);
+    write_daophot(path, 7);
+    assert_int_equal(mp_psf_field_read(path, 0, 0, &f, NULL, NULL, warn, err), 0);
+    assert_int_equal(f.os, 1);
+    assert_int_equal(f.nx, 7);
+    double s = 0;
+    for (int i = 0; i < 49; i++)
+        s += f.planes[i];
+    assert_true(fabs(s - 1.0) < 1e-12);
+    mp_psf_field_free(&f);
+    unlink(path);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
+        cmocka_unit_test(test_daophot_psf),
         cmocka_unit_test(test_psfex_legacypipe),
         cmocka_unit_test(test_psfex_des),
         cmocka_unit_test(test_psfex_synthetic),
