@@ -5,8 +5,8 @@ PKGS="gcc clang make pkg-config libcfitsio-dev zlib1g-dev wcslib-dev libcsv-dev 
 libopenblas-dev libfftw3-dev libomp-dev libcmocka-dev gnuplot-nox python3-astropy valgrind
 libclang-rt-14-dev"
 # `make bench` also compares with IRAF DAOPHOT, and `make validate`'s PSF
-# part with SExtractor + PSFEx: `sh tools/deps.sh bench`.
-BENCH_PKGS="iraf iraf-noao time linux-perf source-extractor psfex"
+# part with SExtractor + PSFEx and photutils: `sh tools/deps.sh bench`.
+BENCH_PKGS="iraf iraf-noao time linux-perf source-extractor psfex python3-photutils"
 # `make test-slurm` starts a one-node Slurm cluster: `sh tools/deps.sh slurm`.
 SLURM_PKGS="slurm-wlm munge"
 [ "${1:-}" = bench ] && PKGS="$PKGS $BENCH_PKGS"
