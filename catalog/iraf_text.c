@@ -25,6 +25,7 @@
  * aperture has 33): a bound on what a corrupt header can ask for. */
 #define IRAF_MAXFIELD 4096
 #define IRAF_MAXLINE 64
+#define IRAF_MAXWIDTH 4096     /* a field's width, as its format gives it */
 #define QUOTE_MAX 40
 
 /* A header line's words (names, units or formats), appended line by line;
@@ -100,8 +101,10 @@ static int field_column(header *h, size_t i, mp_table *t, const char *fname, cha
 {
     const char *f = h->fmt.w[i];
     size_t k = strlen(f);
+    long w = f[0] == '%' ? strtol(f + 1, NULL, 10) : 0;    /* "%-9d": 9 */
+    w = w < 0 ? (w < -IRAF_MAXWIDTH ? IRAF_MAXWIDTH : -w) : (w > IRAF_MAXWIDTH ? IRAF_MAXWIDTH : w);
     h->col[i] = -1;
-    h->width[i] = f[0] == '%' ? abs(atoi(f + 1)) : 0;
+    h->width[i] = (int)w;
     if (f[0] != '%' || !strchr("dfgeDFGE", f[k - 1]))
         return 0;                       /* %s, %b: text, not a number */
     const char *name = our_name(h->name.w[i]);
