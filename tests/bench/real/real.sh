@@ -261,6 +261,17 @@ for F in $FRAMES; do
     echo
     echo "Star by star, matphot's catalog against DAOPHOT's (mutual nearest within 1 px): \`$cmpdao\`."
     } >> "$W/detail.md"
+    # photutils on 47 Tuc (its ePSF built from the frame, as tucb's PSF
+    # is): once, beside the runs (its chain takes minutes on GLIMPSE)
+    if [ "$F" = tucb ] && [ -z "$SEC" ] && /usr/bin/python3 -c 'import photutils' 2> /dev/null; then
+        timed "$FD/pu.time" /usr/bin/python3 tests/validate/psfbuild/photutils_peer.py "$IMG" \
+            "$FWHM" 1 > "$FD/pu.txt" 2> "$FD/pu.log" &&
+        awk '$3 > 0' "$FD/pu.txt" | awk 'BEGIN { n = split("NUMBER XPSF_IMAGE YPSF_IMAGE FLUX_PSF MAG_PSF MAGERR_PSF", c)
+                for (i = 1; i <= n; i++) printf "#%4d %s\n", i, c[i] }
+            { printf "%10d %12.5f %12.5f %14.6g %10.4f %8.4f\n", ++k, $1, $2, $3, -2.5 * log($3) / log(10), 0 }' \
+            > "$FD/pu.cat" &&
+        { echo; echo "photutils $(/usr/bin/python3 -c 'import photutils; print(photutils.__version__)') on the same pixels, one run (tests/validate/psfbuild/photutils_peer.py: DAOStarFinder at 4 sigma, its ePSF built from the frame at oversampling 1, DAOPhotPSFPhotometry, fwhm $FWHM; no DQ plane): CPU $(cpu_of "$FD/pu.time") s; against DAOPHOT's two-pass catalog (\`realcmp dao\`, its first count photutils' stars): \`$("$W/realcmp" dao "$FD/pu.cat" "$R1/dao/im.als2" 1.0)\`."; } >> "$W/detail.md"
+    fi
     if [ "$F" = glimpse ] || [ "$F" = glimpseb ]; then
         "$W/real" glimpse "$R1/mp/m.cat" "$D/glimpse_catalog_subset.csv" "$GAIN" "$FD/gcmp" > "$FD/gcmp.txt" 2>&1 &&
             { echo; echo "Against the GLIMPSE point-source catalog (tests/validate/real/real.c): $(cat "$FD/gcmp.txt")"; } >> "$W/detail.md"

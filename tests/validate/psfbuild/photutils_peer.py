@@ -7,7 +7,7 @@ DAOPHOT-like iterative find, group, fit and subtract, two passes).  Prints
 "x y flux" lines (1-based pixels, the flux in the frame's units) for
 peers.sh to score with psfb match.
 
-    /usr/bin/python3 photutils_peer.py FRAME FWHM [OS]      (OS: 2)
+    /usr/bin/python3 photutils_peer.py FRAME[EXT] FWHM [OS]      (OS: 2)
 """
 import sys
 import warnings
@@ -26,7 +26,11 @@ warnings.simplefilter("ignore")
 
 frame, fwhm = sys.argv[1], float(sys.argv[2])
 OS = int(sys.argv[3]) if len(sys.argv) > 3 else 2
-data = fits.getdata(frame).astype(float)
+ext = 0                         # "f.fits[SCI]", "f.fits[1]": that HDU
+if frame.endswith("]") and "[" in frame:
+    frame, ext = frame[:-1].split("[", 1)
+    ext = int(ext) if ext.isdigit() else ext
+data = fits.getdata(frame, ext).astype(float)
 sky = MMMBackground()(data)
 _, _, sigma = sigma_clipped_stats(data, sigma=3.0)
 img = data - sky
