@@ -130,16 +130,18 @@ static int add_record(const d2 *d, int n, mp_table *t, const char *fname, long l
 static int read_header(mp_lines *L, d2 *d, char *err)
 {
     char v[D2_MAXFIELD][32];
+    double nl = 0;
     int got = mp_lines_next(L, err);        /* the names, peeked */
     if (got == 1)
         got = mp_lines_next(L, err);
-    if (got != 1 || line_fields(L->line, 0, v) < 1 || mp_parse_value(v[0], &(double){0}) ||
-        (d->nl = atoi(v[0])) < 1 || d->nl > 3) {
+    if (got != 1 || line_fields(L->line, 0, v) < 1 || mp_parse_value(v[0], &nl) ||
+        !(nl == 1 || nl == 2 || nl == 3)) {
         if (got >= 0)
             snprintf(err, MP_ERRLEN, "%s:2: a DAOPHOT II header whose NL is not 1, 2 or 3",
                      L->name);
         return 1;
     }
+    d->nl = (int)nl;
     return 0;
 }
 

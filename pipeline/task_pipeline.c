@@ -147,8 +147,9 @@ int mp_task_pipeline(int argc, char **argv)
                  "output is named after its image", nim);
         goto done;
     }
-    if (mp_out_fits_named("root", strchr(root, '[') ? root : NULL, err))
-        goto done;              /* root.res.fits, root.psf.fits: read back */
+    /* root.res.fits and root.psf.fits are read back ('-' names a file here) */
+    if (strchr(root, '[') && mp_out_fits_named("root", root, err))
+        goto done;
     /* every frame of the list: an output of the first may be the input
      * of a later one */
     if (!(ins = mp_inputs_of((const char *const *)im, nim))) {
