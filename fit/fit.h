@@ -706,6 +706,18 @@ typedef struct {
                                 * pipeline's later rounds) then skips the
                                 * loops that raised the order from
                                 * constant the time before */
+    double sky_known;          /* the lowest sky the group's stars were
+                                * found on (find's BACKGROUND), whence the
+                                * sky's floor, 10 σ below it (levmar.c
+                                * sky_floor); a frame fit sets it per
+                                * group.  NaN here: the lowest of the
+                                * stars' own skies, which for a star
+                                * fitted before is that fit's: a blend's,
+                                * raised by its unresolved companion's
+                                * light (frame X of the DAOPHOT bench: 37
+                                * of 4025 stars at 150-1000 e- on a sky of
+                                * 100), held the next round's group far
+                                * above the sky */
 } mp_fit_opts;
 
 void mp_fit_opts_default(mp_fit_opts *o);

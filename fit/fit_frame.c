@@ -94,6 +94,7 @@ static int read_stars(const mp_table *t, int whole, double maxnum, star_state *s
         return 1;
     }
     int cf = col_any(t, "FLUX_PSF", "FLUX"), cs = col_any(t, "SKY_PSF", "BACKGROUND");
+    int cb = mp_table_col(t, "BACKGROUND");
     int cg = mp_table_col(t, "GROUP_ID"), cn = mp_table_col(t, "NUMBER");
     int co = mp_table_col(t, "SKYORD_PSF"), cfl = mp_table_col(t, "FLAGS");
     size_t n = t->nrow;
@@ -127,6 +128,7 @@ static int read_stars(const mp_table *t, int whole, double maxnum, star_state *s
         st[k].s.y = mp_table_get(t, i, cy);
         st[k].s.flux = cf >= 0 ? mp_table_get(t, i, cf) : NAN;
         st[k].s.sky = cs >= 0 ? mp_table_get(t, i, cs) : NAN;
+        st[k].sky_found = cb >= 0 ? mp_table_get(t, i, cb) : NAN;
         st[k].s.sky_order = table_sky_order(t, i, co, cfl);
         st[k].number = maxnum >= 0 ? mp_table_get(t, i, cn) : (double)i;
         st[k].bound = INFINITY;          /* not fitted yet */

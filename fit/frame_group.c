@@ -308,20 +308,34 @@ static int beyond_choice(const mp_prf_model *m, const mp_frame_opts *o, const fr
            (c.l == used->l && (c.hw > used->hw || (used->grid && !c.grid)));
 }
 
+/* A group's merge-and-reject loop (ff_fit_one_group): its rules and
+ * where it stands. */
+typedef struct {
+    double mergerad, sig, sepind, minsnr;
+    double tol, decide;     /* the fits' tol now; the deciding one */
+    int paired;             /* the last fit stopped on a close pair */
+    int unstopped;          /* fitted on past one */
+    double ebright;         /* the brightest flux a fit of it reached */
+    int nbright;            /* fits again for it (beyond_choice) */
+    double skyfound;        /* the lowest sky its members were found on
+                             * (mp_fit_opts.sky_known) */
+} group_loop;
+
 /* One LM fit of the live stars live[0..nl-1] of a group (on f, whose
  * coordinates are the frame's shifted by (dx, dy)), with economy's
- * choices for its brightest star (at least efloor): the coarsest table
- * and the shortest sinc kernel its bias bound allows, and the phase grid
- * when the bound serves it (choice_for; *used receives them); stopped on
- * a pair within mergerad unless unstopped; to tol.  What it did is added
- * to rep.  Nonzero with err on failure. */
+ * choices for its brightest star (at least L's ebright): the coarsest
+ * table and the shortest sinc kernel its bias bound allows, and the phase
+ * grid when the bound serves it (choice_for; *used receives them);
+ * stopped on a pair within mergerad unless L's unstopped; to L's tol, on
+ * the sky its members were found on.  What it did is added to rep.
+ * Nonzero with err on failure. */
 static int fit_live(const mp_frame *f, const mp_prf_model *m, const mp_frame_opts *o,
-                    double mergerad, int unstopped, double tol, const frame_rules *R,
-                    mp_star *live, int nl, double dx, double dy, double efloor,
-                    group_choice *used, mp_frame_report *rep, char *err)
+                    double mergerad, const group_loop *L, const frame_rules *R, mp_star *live,
+                    int nl, double dx, double dy, group_choice *used, mp_frame_report *rep,
+                    char *err)
 {
     double sky0 = nl == 1 ? live[0].sky : NAN;
-    double e = efloor;
+    double e = L->ebright;
     for (int k = 0; k < nl; k++)
         e = isfinite(live[k].flux) && live[k].flux > e ? live[k].flux : e;
     *used = choice_for(m, o, R, e, rep);
@@ -340,8 +354,9 @@ static int fit_live(const mp_frame *f, const mp_prf_model *m, const mp_frame_opt
     mh.sinc_hw = used->hw;
     rep->kcoarse += l < R->nss;
     mp_fit_opts fo = o->fit;
-    fo.tol = tol;
-    fo.stop_pair = mergerad > 0 && !unstopped ? mergerad : 0.0;   /* merged by the caller */
+    fo.tol = L->tol;
+    fo.stop_pair = mergerad > 0 && !L->unstopped ? mergerad : 0.0;   /* merged by the caller */
+    fo.sky_known = L->skyfound;
     fo.grid = used->grid;
     fo.grid_emax = used->gemax;
     fo.grid_tiers = used->tiers;
@@ -399,16 +414,15 @@ static void store_back(star_state *st, const mp_star *s, const int *alive, int n
     }
 }
 
-/* A group's merge-and-reject loop (ff_fit_one_group): its rules and
- * where it stands. */
-typedef struct {
-    double mergerad, sig, sepind, minsnr;
-    double tol, decide;     /* the fits' tol now; the deciding one */
-    int paired;             /* the last fit stopped on a close pair */
-    int unstopped;          /* fitted on past one */
-    double ebright;         /* the brightest flux a fit of it reached */
-    int nbright;            /* fits again for it (beyond_choice) */
-} group_loop;
+/* The lowest sky the live members st[map[0..nl-1]] were found on, NaN
+ * when none was (fit_group.c known_sky). */
+static double found_sky(const star_state *st, const int *map, int nl)
+{
+    double s = INFINITY;
+    for (int k = 0; k < nl; k++)
+        s = st[map[k]].sky_found < s ? st[map[k]].sky_found : s;
+    return isfinite(s) ? s : NAN;
+}
 
 /* What follows a fit of the group's stars s[0..n): the fit again — to
  * the deciding tol, after merges, after rejections, or past a close pair
@@ -489,6 +503,7 @@ int ff_fit_one_group(const mp_frame *f, const mp_prf_model *m, const mp_frame_op
         int nl = live_of(s, alive, n, live, map);
         if (nl == 0)
             break;
+        L.skyfound = found_sky(st, map, nl);
         /* A fit cut short on a close pair was not a failed one: the fit
          * after it (the pair merged, a star rejected, or unstopped) starts
          * at the sky order it had, not from constant (fit_group.c
@@ -499,8 +514,7 @@ int ff_fit_one_group(const mp_frame *f, const mp_prf_model *m, const mp_frame_op
             live[k].flags &= ~MP_FLAG_NOCONV;
         long steps = rep->iterations;
         group_choice used;
-        if (fit_live(f, m, o, mergerad, L.unstopped, L.tol, R, live, nl, dx, dy, L.ebright, &used,
-                     rep, err))
+        if (fit_live(f, m, o, mergerad, &L, R, live, nl, dx, dy, &used, rep, err))
             goto done;
         if (cause >= 0) {
             rep->refits[cause]++;

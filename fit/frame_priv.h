@@ -17,6 +17,7 @@ typedef struct {
     double id;          /* group id */
     long row;
     double number;      /* NUMBER (the memory's key across calls), or row */
+    double sky_found;   /* BACKGROUND: the sky find saw it on (NaN: none) */
     int alive;
     /* Economy (frame_bound.c): an upper bound of √Σ((others' light now −
      * then)/σ)² over its fitting region (the frame's pixels within fitrad

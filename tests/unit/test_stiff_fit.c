@@ -417,6 +417,55 @@ static void test_nan_and_masked_column(void **state)
     mp_frame_free(&f);   /* read through io: header too */
 }
 
+/* A group whose stars carry an earlier fit's sky far above the sky they
+ * were found on, as a blend's SKY_PSF holds its unresolved companion's
+ * light (frame X of the DAOPHOT bench at fitrad = FWHM: 37 of 4025 stars
+ * at 150-1000 e- on a sky of 100).  The group's sky floor comes from
+ * BACKGROUND, the sky find saw (mp_fit_opts.sky_known): the fit reaches
+ * the sky, each star's flux and sky within 4σ of the truth (6 checks at
+ * 6e-5 each).  With the floor 10σ below the 500 e- carried (the rule
+ * before), the sky stayed at 274 e- and the first star's flux fell 21σ
+ * short. */
+static void test_blend_sky_not_a_floor(void **state)
+{
+    (void)state;
+    char err[MP_ERRLEN];
+    mp_psf p;
+    mp_psf_gauss(FWHM, &p);
+    mp_prf_model m = {&p, NULL, 10};
+    double x[3] = {20.3, 25.1, 29.8}, y[3] = {20.2, 21.4, 19.7}, E[3] = {2e4, 8e3, 3e4};
+    mp_frame f;
+    sf_frame_make(&f, 50, 40, RON);
+    mp_rng r;
+    mp_rng_seed(&r, 411);
+    sf_render(&f, B_SKY, FWHM, x, y, E, 3, &r, RON);
+    mp_table t;
+    sf_fitted_table(&t, x, y, E, 500.0, 3);
+    int cb = mp_table_add_col(&t, "BACKGROUND"), cg = mp_table_add_col(&t, "GROUP_ID");
+    assert_true(cb >= 0 && cg >= 0);
+    for (size_t k = 0; k < 3; k++) {
+        mp_table_set(&t, k, cb, B_SKY);
+        mp_table_set(&t, k, cg, 1.0);
+    }
+    mp_frame_opts fo;
+    mp_frame_opts_default(&fo);
+    fo.fit.fitrad = FWHM;
+    mp_frame_report rep;
+    assert_int_equal(mp_fit_table(&f, &m, &fo, &t, &rep, err), 0);
+    assert_int_equal(t.nrow, 3);
+    for (size_t k = 0; k < 3; k++) {
+        double F = sf_get(&t, k, "FLUX_PSF"), eF = sf_get(&t, k, "FLUXERR_PSF");
+        double B = sf_get(&t, k, "SKY_PSF"), eB = sf_get(&t, k, "SKYERR_PSF");
+        print_message("star %zu: E %.1f +- %.1f (true %.0f), sky %.2f +- %.2f\n", k, F, eF, E[k],
+                      B, eB);
+        assert_int_equal((int)sf_get(&t, k, "FLAGS") & MP_FLAG_NOCONV, 0);
+        assert_true(fabs(F - E[k]) < 4 * eF);
+        assert_true(fabs(B - B_SKY) < 4 * eB);
+    }
+    mp_table_free(&t);
+    sf_frame_drop(&f);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
@@ -428,6 +477,7 @@ int main(void)
         cmocka_unit_test(test_edges_and_corners),
         cmocka_unit_test(test_nan_and_masked_column),
         cmocka_unit_test(test_absurd_start_flux),
+        cmocka_unit_test(test_blend_sky_not_a_floor),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }
