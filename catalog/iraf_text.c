@@ -102,7 +102,7 @@ static int field_column(header *h, size_t i, mp_table *t, const char *fname, cha
     const char *f = h->fmt.w[i];
     size_t k = strlen(f);
     long w = f[0] == '%' ? strtol(f + 1, NULL, 10) : 0;    /* "%-9d": 9 */
-    w = w < 0 ? (w < -IRAF_MAXWIDTH ? IRAF_MAXWIDTH : -w) : (w > IRAF_MAXWIDTH ? IRAF_MAXWIDTH : w);
+    w = w < -IRAF_MAXWIDTH || w > IRAF_MAXWIDTH ? IRAF_MAXWIDTH : labs(w);
     h->col[i] = -1;
     h->width[i] = (int)w;
     if (f[0] != '%' || !strchr("dfgeDFGE", f[k - 1]))
