@@ -28,6 +28,16 @@ static float rms_with(const mp_bkg *b, size_t i, float sky, double x)
     return (float)sqrt(b->k * b->k * v + b->eps * b->eps * m * m + x);
 }
 
+double mp_bkg_white_var(const mp_bkg *b, size_t i, float sky)
+{
+    if (!b->model) {
+        double r = mp_bkg_rms(b, i);
+        return r * r;
+    }
+    double m = mpf_nonneg(b->pix[i] - b->res[i]);
+    return b->k * b->k * (mpf_nonneg(sky) + m + b->ron2);
+}
+
 /* The model rms of pixels [x0, x1) of row y into r, from their sky s
  * (s[x − x0]; NULL: each pixel's mp_bkg_sky), the stars' excess a span of
  * pixels at a time (mp_bkg_excess_span). */

@@ -1,8 +1,8 @@
-/* convolve.c — the lowered-kernel amplitude h of every pixel (DAOFIND's
+/* convolve.c — the kernel amplitude h of every pixel (DAOFIND's
  * convolved image, Stetson 1987).  Where the footprint is whole and clean
- * (almost everywhere) h is one fixed zero-sum kernel applied row by row;
- * near masked pixels and the image edge the kernel is lowered and
- * normalised again over the good pixels, pixel by pixel. */
+ * (almost everywhere) h is one fixed kernel applied row by row; near
+ * masked pixels and the image edge the kernel is lowered (unless the sky
+ * is known) and normalised again over the good pixels, pixel by pixel. */
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -39,10 +39,10 @@ static double h_slow(const mp_frame *f, const sky_rows *b, const mpf_kernel *k, 
     }
     if (n < k->nmin)
         return MPF_NO_H;
-    double denom = sgg - sg * sg / n;
+    double denom = k->known ? sgg : sgg - sg * sg / n;
     if (!(denom > 1e-12 * k->denom))
         return MPF_NO_H;
-    return (sgd - sg * sd / n) / denom;
+    return k->known ? sgd / denom : (sgd - sg * sd / n) / denom;
 }
 
 /* o[x] += w·(p[x] − s[x]) for x in [0, n): one tap over one row, the

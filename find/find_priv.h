@@ -55,6 +55,13 @@ void mpf_spline_row(const double *x, const double *y, const double *d2, int n,
  * pixel, was 5.6 % of a 1024² simulated frame's run). */
 void mp_bkg_excess_span(const mp_bkg *b, long y, long x0, long x1, double *v);
 
+/* mp_bkg_white_var: the part of pixel i's variance (its sky given) that
+ * is independent from pixel to pixel: k²·(sky + M + RON²) of the
+ * residual's noise model (bkg_eval.c rms_with), all of it for a mesh map.
+ * The rest of rms² is the model's own error (ε²M², the stars'
+ * flux-squared error), smooth over a star's few pixels. */
+double mp_bkg_white_var(const mp_bkg *b, size_t i, float sky);
+
 /* mpf_spline_at: out[t] of mpf_spline_row for one t, bit for bit. */
 float mpf_spline_at(const double *x, const double *y, const double *d2, int n, long t,
                     int clamp0);
@@ -67,11 +74,15 @@ float mpf_spline_at(const double *x, const double *y, const double *d2, int n, l
 /* The DAOFIND kernel: taps (dx[t], dy[t]) with r ≤ radius, in raster
  * order, Gaussian values g[t]; over the full footprint its mean gbar and
  * denom = Σ (g − gbar)², and the lowered, normalised weights
- * kl[t] = (g[t] − gbar)/denom; relerr = 1/sqrt(denom). */
+ * kl[t] = (g[t] − gbar)/denom; relerr = 1/sqrt(denom).  With known set
+ * (the sky map is the sky itself, mp_find_opts.sky_known) the kernel is
+ * not lowered: gbar = 0, denom = Σ g², kl[t] = g[t]/denom, the
+ * least-squares amplitude of a Gaussian star with no constant beside it. */
 typedef struct {
     double sigma, radius;
     int nh;                  /* box half-width: floor(radius) */
     int n;                   /* taps */
+    int known;               /* not lowered: the sky is known */
     int *dx, *dy;
     double *g, *kl;
     double gbar, denom, relerr;
@@ -79,7 +90,10 @@ typedef struct {
     int nmin;                /* good taps a footprint needs: ceil(n/2) */
 } mpf_kernel;
 
-int mpf_kernel_make(double fwhm, double nsigma, mpf_kernel *k, char *err);
+/* mpf_kernel_make: the kernel of a Gaussian of fwhm [px] out to nsigma σ
+ * (at least 2 px), lowered unless known.  Errors: fwhm or nsigma not
+ * positive, a kernel wider than MPF_MAX_HALF, out of memory. */
+int mpf_kernel_make(double fwhm, double nsigma, int known, mpf_kernel *k, char *err);
 void mpf_kernel_free(mpf_kernel *k);
 
 /* mpf_kernel_response: Σ_t w[t]·P_t with P the pixel-integrated Gaussian
@@ -95,8 +109,9 @@ typedef struct {
 } mpf_foot;
 
 /* mpf_footprint: the footprint of the kernel centred on pixel (px, py)
- * (0-based); when w is not NULL, w[t] receives the lowered weights over
- * the good taps ((g − gbar)/denom, 0 for unusable taps). */
+ * (0-based); when w is not NULL, w[t] receives the kernel's weights over
+ * the good taps ((g − gbar)/denom, lowered unless k->known; 0 for
+ * unusable taps). */
 void mpf_footprint(const mp_frame *f, const mpf_kernel *k, long px, long py,
                    mpf_foot *fp, double *w);
 
@@ -105,8 +120,8 @@ void mpf_footprint(const mp_frame *f, const mpf_kernel *k, long px, long py,
 /* Value of h where the footprint has too few good pixels. */
 #define MPF_NO_H (-HUGE_VAL)
 
-/* mpf_convolve_rows: h of the rows [y0, y1) (the lowered-kernel amplitude
- * of the background-subtracted frame, MPF_NO_H where undefined) into
+/* mpf_convolve_rows: h of the rows [y0, y1) (the kernel's amplitude of
+ * the background-subtracted frame, MPF_NO_H where undefined) into
  * h[(y − y0)·nx + x]; sky holds the sky map's rows from s0 (row y at
  * sky + (y − s0)·nx), at least [y0 − nh, y1 + nh) within the image; bad:
  * mpf_any_bad(f).  A row's h depends on nothing else, so a frame done in

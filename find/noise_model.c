@@ -314,7 +314,7 @@ int mp_bkg_noise_from_model(mp_bkg *b, const mp_frame *f, const float *res, doub
     *proferr = 0.0;
     size_t npix = (size_t)f->im.nx * (size_t)f->im.ny;
     mpf_kernel kern;
-    if (mpf_kernel_make(fwhm, nsigma, &kern, err))
+    if (mpf_kernel_make(fwhm, nsigma, 0, &kern, err))
         return 1;
     /* A regular subsample keeps the sorts cheap on large frames; 2·10⁵
      * pixels pin k to ~0.3 % (the MAD's relative error 1.166/√n). */

@@ -25,7 +25,7 @@ int mp_find_sharpness(const double *img, long nx, long ny, const mp_find_opts *o
                       double *sharp, char *err)
 {
     mpf_kernel k;
-    if (mpf_kernel_make(o->fwhm, o->nsigma, &k, err))
+    if (mpf_kernel_make(o->fwhm, o->nsigma, 0, &k, err))
         return 1;
     double hmax = -HUGE_VAL;
     *sharp = NAN;

@@ -245,7 +245,8 @@ static void detection_line(const mp_fit_setup *fit, const mp_pipeline_report *re
         return;
     if (rep->threshold > 0)
         k += snprintf(run->detection + k, n - (size_t)k, "; find offers peaks above %g sigma "
-                      "of its kernel's amplitude (threshold)", rep->threshold);
+                      "of its kernel's amplitude (threshold; on the residual also, where that "
+                      "stays below it, of the amplitude over the fitted sky)", rep->threshold);
     if (k > 0 && (size_t)k < n && s > 0 && cut > 0)
         k += snprintf(run->detection + k, n - (size_t)k, ", a linear fit at each keeps S/N "
                       ">= %g", cut);

@@ -384,9 +384,11 @@ static void say_new_stars(const run_state *s, int round, long added, const resid
 /* The residual R's detections into s->found: find with the model's
  * sharpness limits, the roundness relaxed (a star half-hidden by a
  * neighbour's fit leaves a lopsided residual peak; the fit then keeps or
- * rejects what was found, by its significance), and the screen as
- * detection goes (its candidates never all held), its PRFs from the phase
- * grid the fit drew from, as the one-or-two test's.  Nonzero with err. */
+ * rejects what was found, by its significance), the sky known (the
+ * fitted one: DAOFIND's kernel, which fits a constant too, lost stars of
+ * S/N 9-16 isolated on frame X's residual), and the screen as detection
+ * goes (its candidates never all held), its PRFs from the phase grid the
+ * fit drew from, as the one-or-two test's.  Nonzero with err. */
 static int residual_detections(run_state *s, const mp_frame *R, const mp_prf_cache *grid,
                                double gemax, char *err)
 {
@@ -395,6 +397,7 @@ static int residual_detections(run_state *s, const mp_frame *R, const mp_prf_cac
         return 1;
     ro.roundlo = fmin(ro.roundlo, -2.0);
     ro.roundhi = fmax(ro.roundhi, 2.0);
+    ro.sky_known = 1;
     double cut = s->fit->opts.minsnr - MP_PL_SCREEN_SLACK;
     mp_pl_screen sc = {.f = R, .b = &s->bkg, .res = s->res, .m = &s->fit->model,
                        .fitrad = s->fit->opts.fit.fitrad, .snrmin = cut, .grid = grid,

@@ -602,6 +602,26 @@ static void test_false_detections(void **state)
     frame_drop(&f);
 }
 
+/* A frame of N² px (N ≥ 500): sky B, read noise RON, and 225 Gaussian
+ * stars of FWHM and flux F on a 15 × 15 grid 32 px apart (each placed at
+ * random within its pixel, positions into tx, ty), Poisson and read
+ * noise drawn from seed. */
+static void grid_stars(mp_frame *f, long N, double B, double RON, double FWHM, double F,
+                       uint64_t seed, double *tx, double *ty)
+{
+    frame_make(f, N, N, RON);
+    fill(f, B);
+    mp_rng r;
+    mp_rng_seed(&r, seed);
+    mp_sim_prf p = gauss_prf(FWHM);
+    for (int s = 0; s < 225; s++) {
+        tx[s] = 20.0 + 32.0 * (s % 15) + mp_rng_uniform(&r);
+        ty[s] = 20.0 + 32.0 * (s / 15) + mp_rng_uniform(&r);
+        assert_int_equal(mp_sim_add_star_float(&p, tx[s], ty[s], F, f->im.pix, N, N), 0);
+    }
+    mp_sim_add_noise_float(&r, f->im.pix, N * N, RON);
+}
+
 /* Isolated stars at 10σ (expected amplitude h = 10 σ_h, 2.5× the default
  * threshold) on a Poisson sky: every star is found within 1 px once the
  * shape cuts are off, and the positions have an rms error < 0.2 px.  (The
@@ -620,17 +640,7 @@ static void test_isolated_stars(void **state)
     enum { NS = 225 };
     double tx[NS], ty[NS];
     mp_frame f;
-    frame_make(&f, N, N, RON);
-    fill(&f, B);
-    mp_rng r;
-    mp_rng_seed(&r, 106);
-    mp_sim_prf p = gauss_prf(FWHM);
-    for (int s = 0; s < NS; s++) {
-        tx[s] = 20.0 + 32.0 * (s % 15) + mp_rng_uniform(&r);
-        ty[s] = 20.0 + 32.0 * (s / 15) + mp_rng_uniform(&r);
-        assert_int_equal(mp_sim_add_star_float(&p, tx[s], ty[s], F, f.im.pix, N, N), 0);
-    }
-    mp_sim_add_noise_float(&r, f.im.pix, N * N, RON);
+    grid_stars(&f, N, B, RON, FWHM, F, 106, tx, ty);
 
     mp_find_opts o;
     mp_find_opts_default(&o);
@@ -671,6 +681,171 @@ static void test_isolated_stars(void **state)
     assert_true(found >= 0.97 * NS);
     mp_table_free(&t);
     mp_bkg_free(&b);
+    frame_drop(&f);
+}
+
+/* The known sky's kernel (find.h step 4b): K as DAOFIND's, not lowered,
+ * w = K/ΣK², the least-squares amplitude of a Gaussian with no constant;
+ * its noise is σ/sqrt(ΣK²).  *resp: its amplitude for a unit-flux
+ * pixel-integrated Gaussian centred on the pixel. */
+static double known_relerr(double fwhm, double *resp)
+{
+    ref_kernel k;
+    ref_kernel_make(fwhm, 1.5, &k);
+    double s = M_SQRT2 * k.sigma, sgg = 0.0, r = 0.0;
+    for (int t = 0; t < k.n; t++) {
+        double g = exp(-(k.dx[t] * k.dx[t] + k.dy[t] * k.dy[t]) / (2 * k.sigma * k.sigma));
+        double px = 0.5 * (erf((k.dx[t] + 0.5) / s) - erf((k.dx[t] - 0.5) / s));
+        double py = 0.5 * (erf((k.dy[t] + 0.5) / s) - erf((k.dy[t] - 0.5) / s));
+        sgg += g * g;
+        r += g * px * py;
+    }
+    *resp = r / sgg;
+    return 1.0 / sqrt(sgg);
+}
+
+/* sky_known (find.h step 4b) on a flat sky, FWHM 3, no shape cuts.  225
+ * isolated stars whose expected known-sky amplitude is 6 of its σ: in
+ * DAOFIND's lowered h they are 6/2.78 = 2.2 σ (the constant it fits
+ * costs that factor at FWHM 3, 13 taps), above the default 4 σ with
+ * probability Q(1.8) = 0.036: 8 expected, and we require at most 0.15 of
+ * them (34; Poisson's 5 σ above 8 is 22).  With sky_known each is above
+ * 4 σ in hu with probability 1 − Q(2) = 0.977, measured unless its h at
+ * the peak is ≤ 0 (Q(2.2) = 0.014): ≈ 216 expected, and we require 0.85
+ * (191; the binomial sd is ~3, so 191 is 7 sd below).  On the same
+ * noise without stars, sky_known adds false detections only where hu
+ * exceeds 4 of its σ: at most Q(4)·N² pixels (33 on 1024², local maxima
+ * fewer), so the count stays within DAOFIND's expectation plus that and
+ * Z_TOL of their Poisson error. */
+static void test_sky_known(void **state)
+{
+    (void)state;
+    const long N = 512;
+    const double B = 100.0, RON = 5.0, FWHM = 3.0, sd = sqrt(B + RON * RON);
+    double resp, relerr = known_relerr(FWHM, &resp);
+    const double F = 6.0 * sd * relerr / resp;
+    enum { NS = 225 };
+    double tx[NS], ty[NS];
+    mp_frame f;
+    grid_stars(&f, N, B, RON, FWHM, F, 111, tx, ty);
+    mp_find_opts o;
+    mp_find_opts_default(&o);
+    no_cuts(&o);
+    mp_bkg b;
+    mp_table t[2];
+    run_find(&f, &o, &b, &t[0]);
+    o.sky_known = 1;
+    char err[MP_ERRLEN];
+    mp_table_init(&t[1]);
+    assert_int_equal(mp_find_stars(&f, &b, &o, &t[1], err), 0);
+    int found[2] = {0, 0};
+    for (int k = 0; k < 2; k++) {
+        assert_all_finite(&t[k]);
+        for (int s = 0; s < NS; s++) {
+            double d;
+            nearest(&t[k], tx[s], ty[s], &d);
+            found[k] += d < 1.0;
+        }
+        mp_table_free(&t[k]);
+    }
+    if (found[0] > 0.15 * NS || found[1] < 0.85 * NS)
+        fail_msg("found %d of %d stars with DAOFIND's kernel, %d with the known sky's",
+                 found[0], NS, found[1]);
+    mp_bkg_free(&b);
+    frame_drop(&f);
+
+    const long M = 1024;
+    flat_noise_frame(&f, M, M, 1000.0, 10.0, 105);
+    ref_kernel k;
+    ref_kernel_make(FWHM, 1.5, &k);
+    double e = (false_rate(&k, 4.0) + 0.5 * erfc(4.0 / M_SQRT2)) * (double)(M * M);
+    mp_find_opts_default(&o);
+    no_cuts(&o);
+    o.sky_known = 1;
+    run_find(&f, &o, &b, &t[0]);
+    if ((double)t[0].nrow > e + Z_TOL * sqrt(e))
+        fail_msg("%zu detections on pure noise, %.1f at most expected", t[0].nrow, e);
+    mp_table_free(&t[0]);
+    mp_bkg_free(&b);
+    frame_drop(&f);
+}
+
+/* sky_known where the residual holds the model's own error: 400 stars
+ * of 3·10⁵ e⁻ (FWHM 3) on a grid, each left in the residual as z·ε times
+ * itself (ε = 0.05, one normal z a star: a table's misfit, smooth over
+ * the star), which mp_bkg_noise_from_model takes for its profile error
+ * ε̂²M² (ε̂ = 0.035 here: its estimator's, on 400 shared errors).  hu at
+ * a star is z·εA.  Counted as white, the error's σ in hu would be
+ * ε̂A·relerr_u = ε̂A·0.463 (FWHM 3): a peak above 4 σ where z > 1.3, 10 %
+ * of the stars, 39 expected.  Taken whole over the footprint (detect.c
+ * above_model_errors) it is ε̂A·Σw = ε̂A·1.56: above 4 σ where z > 4.4,
+ * 6·10⁻⁶ a star, 0.002 expected.  hu adds candidates only where DAOFIND's
+ * h stays below threshold, so with sky_known the detections near the
+ * stars are DAOFIND's alone (the few its h gives, z > 3.6 there). */
+static void test_sky_known_model_errors(void **state)
+{
+    (void)state;
+    const long nx = 300, ny = 300;
+    const double sky = 100.0, ron = 3.0, eps = 0.05;
+    mp_frame f;
+    frame_make(&f, nx, ny, ron);
+    double *stars = calloc((size_t)(nx * ny), sizeof *stars), *one = calloc((size_t)(nx * ny), sizeof *one);
+    float *res = malloc((size_t)(nx * ny) * sizeof *res);
+    assert_non_null(stars);
+    assert_non_null(one);
+    assert_non_null(res);
+    mp_sim_prf p = gauss_prf(3.0);
+    mp_rng r;
+    mp_rng_seed(&r, 4243);
+    for (long i = 0; i < nx * ny; i++)
+        res[i] = (float)(sky + sqrt(sky + ron * ron) * mp_rng_normal(&r));
+    enum { NG = 20 };
+    double sx[NG * NG], sy[NG * NG];
+    for (int k = 0; k < NG * NG; k++) {
+        sx[k] = 7.0 + 14.5 * (k % NG) + mp_rng_uniform(&r);
+        sy[k] = 7.0 + 14.5 * (k / NG) + mp_rng_uniform(&r);
+        memset(one, 0, (size_t)(nx * ny) * sizeof *one);
+        assert_int_equal(mp_sim_add_star(&p, sx[k], sy[k], 3e5, one, nx, ny), 0);
+        double z = eps * mp_rng_normal(&r);
+        for (long i = 0; i < nx * ny; i++) {
+            stars[i] += one[i];
+            res[i] += (float)(z * one[i]);
+        }
+    }
+    for (long i = 0; i < nx * ny; i++)
+        f.im.pix[i] = res[i] + (float)stars[i];
+    mp_bkg b;
+    char err[MP_ERRLEN];
+    double k, e;
+    assert_int_equal(mp_bkg_estimate(&f, 64, 3, &b, err), 0);
+    assert_int_equal(mp_bkg_set_flat(&b, nx, ny, sky, 0.0), 0);
+    assert_int_equal(mp_bkg_noise_from_model(&b, &f, res, 3.0, 1.5, &k, &e, err), 0);
+    assert_true(e > 0.5 * eps);          /* the noise model holds the error */
+    mp_frame R = f;
+    R.im.pix = res;
+    mp_find_opts o;
+    mp_find_opts_default(&o);
+    o.fwhm = 3.0;
+    no_cuts(&o);
+    int near[2] = {0, 0};
+    for (o.sky_known = 0; o.sky_known < 2; o.sky_known++) {
+        mp_table t;
+        mp_table_init(&t);
+        assert_int_equal(mp_find_stars(&R, &b, &o, &t, err), 0);
+        int cx = col(&t, "X_IMAGE"), cy = col(&t, "Y_IMAGE");
+        for (size_t i = 0; i < t.nrow; i++)
+            for (int s = 0; s < NG * NG; s++)
+                near[o.sky_known] += hypot(mp_table_get(&t, i, cx) - sx[s],
+                                           mp_table_get(&t, i, cy) - sy[s]) < 2.0;
+        mp_table_free(&t);
+    }
+    if (near[1] != near[0])
+        fail_msg("%d detections within 2 px of a star whose misfit the noise model holds, "
+                 "%d of them DAOFIND's", near[1], near[0]);
+    mp_bkg_free(&b);
+    free(stars);
+    free(one);
+    free(res);
     frame_drop(&f);
 }
 
@@ -1475,6 +1650,35 @@ static void assert_tables_equal(const mp_table *a, const mp_table *b)
             fail_msg("value %zu: %.17g against %.17g", i, a->v[i], b->v[i]);
 }
 
+/* The detections of fr in strips of several sizes equal those of fr
+ * whole, and strips hold less than the frame. */
+static void whole_equals_strips(const mp_frame *fr, const mp_bkg *b, const mp_find_opts *o)
+{
+    long nx = fr->im.nx, ny = fr->im.ny;
+    char err[MP_ERRLEN];
+    mp_table whole, part;
+    mp_table_init(&whole);
+    size_t wwhole = 0, wpart = 0;
+    assert_int_equal(mpf_find_stars_strips(fr, b, o, ny, &whole, &wwhole, err), 0);
+    assert_true(whole.nrow >= 60);      /* the frame tests something */
+    int sat = 0;
+    for (size_t r = 0; r < whole.nrow; r++)
+        sat |= (int)mp_table_get(&whole, r, col(&whole, "FLAGS")) & MP_FIND_SATURATED;
+    assert_true(sat);
+    const long rows[] = {1, 7, 16, MPF_STRIP};
+    for (size_t c = 0; c < sizeof rows / sizeof rows[0]; c++) {
+        mp_table_init(&part);
+        assert_int_equal(mpf_find_stars_strips(fr, b, o, rows[c], &part, &wpart, err), 0);
+        assert_tables_equal(&whole, &part);
+        mp_table_free(&part);
+        if (rows[c] == 16) {
+            assert_true(wwhole >= (size_t)(nx * ny) * sizeof(float));
+            assert_true(2 * wpart < (size_t)(nx * ny) * sizeof(float));
+        }
+    }
+    mp_table_free(&whole);
+}
+
 /* Detection in strips of rows equals detection on the whole convolved
  * image bit for bit (a row's h depends on its own rows only; candidates
  * compare h across a strip's border through its margins), for strips of
@@ -1492,27 +1696,8 @@ static void test_find_strips(void **state)
     assert_int_equal(mp_bkg_estimate(&f, 32, 3, &b, err), 0);
     mp_find_opts o;
     mp_find_opts_default(&o);
-    mp_table whole, part;
-    mp_table_init(&whole);
-    size_t wwhole = 0, wpart = 0;
-    assert_int_equal(mpf_find_stars_strips(&f, &b, &o, ny, &whole, &wwhole, err), 0);
-    assert_true(whole.nrow >= 60);      /* the frame tests something */
-    int sat = 0;
-    for (size_t r = 0; r < whole.nrow; r++)
-        sat |= (int)mp_table_get(&whole, r, col(&whole, "FLAGS")) & MP_FIND_SATURATED;
-    assert_true(sat);
-    const long rows[] = {1, 7, 16, MPF_STRIP};
-    for (size_t c = 0; c < sizeof rows / sizeof rows[0]; c++) {
-        mp_table_init(&part);
-        assert_int_equal(mpf_find_stars_strips(&f, &b, &o, rows[c], &part, &wpart, err), 0);
-        assert_tables_equal(&whole, &part);
-        mp_table_free(&part);
-        if (rows[c] == 16) {
-            assert_true(wwhole >= (size_t)(nx * ny) * sizeof(float));
-            assert_true(2 * wpart < (size_t)(nx * ny) * sizeof(float));
-        }
-    }
-    mp_table_free(&whole);
+    for (o.sky_known = 0; o.sky_known < 2; o.sky_known++)
+        whole_equals_strips(&f, &b, &o);
     mp_bkg_free(&b);
     frame_drop(&f);
 }
@@ -1579,6 +1764,8 @@ int main(void)
         cmocka_unit_test(test_false_detections),
         cmocka_unit_test(test_isolated_stars),
         cmocka_unit_test(test_completeness),
+        cmocka_unit_test(test_sky_known),
+        cmocka_unit_test(test_sky_known_model_errors),
         cmocka_unit_test(test_saturated_star),
         cmocka_unit_test(test_saturated_trail),
         cmocka_unit_test(test_noise_from_model),
