@@ -163,6 +163,35 @@ static int fit_marginal(const marginal *mg, double sigma, double *d_out, double 
     return 0;
 }
 
+/* σ of SHARPNESS s = N/h at pixel (px, py), N = d₀ − (the m others'
+ * mean), h = Σ w·d, each good tap's d of variance v = rms² + max(d, 0):
+ * the map's noise at the peak and the star's own photons (electrons; the
+ * map's rms holds the sky's, and a candidate's light is in no model yet).
+ * var N = v₀ + Σ v/m², var h = Σ w²v, cov(N, h) = w₀v₀ − Σ w v/m, and by
+ * the delta method var s = (var N − 2s·cov + s²·var h)/h². */
+static double sharp_noise(const mp_frame *f, const mp_bkg *b, const mpf_kernel *k,
+                          const double *w, int m, long px, long py, double s, double h)
+{
+    long nx = f->im.nx;
+    size_t ic = (size_t)py * (size_t)nx + (size_t)px;
+    double rms = mp_bkg_rms(b, ic), r2 = rms * rms;
+    double vn = 0.0, vh = 0.0, cov = 0.0;
+    for (int t = 0; t < k->n; t++) {
+        long x = px + k->dx[t], y = py + k->dy[t];
+        if (x < 0 || x >= nx || y < 0 || y >= f->im.ny)
+            continue;
+        size_t q = (size_t)y * (size_t)nx + (size_t)x;
+        if (mpf_bad(f, q))
+            continue;         /* in neither N nor h */
+        double v = r2 + mpf_nonneg(f->im.pix[q] - mp_bkg_sky(b, q));
+        int centre = k->dx[t] == 0 && k->dy[t] == 0;
+        vn += centre ? v : v / ((double)m * m);
+        vh += w[t] * w[t] * v;
+        cov += centre ? w[t] * v : -w[t] * v / m;
+    }
+    return sqrt(fmax(vn - 2.0 * s * cov + s * s * vh, 0.0)) / h;
+}
+
 void mpf_measure(const mp_frame *f, const mp_bkg *b, const mpf_kernel *k,
                  long px, long py, double h, double *w, mpf_star *s)
 {
@@ -194,6 +223,7 @@ void mpf_measure(const mp_frame *f, const mp_bkg *b, const mpf_kernel *k,
         return;
     double d0 = f->im.pix[ic] - mp_bkg_sky(b, ic);
     s->sharp = (d0 - others / nothers) / h;
+    s->sharp_sd = sharp_noise(f, b, k, w, nothers, px, py, s->sharp, h);
 
     marginal mg;
     double ddx, ddy, hx, hy;

@@ -23,6 +23,7 @@ void mp_find_opts_default(mp_find_opts *o)
     o->sharphi = 1.0;
     o->roundlo = -1.0;
     o->roundhi = 1.0;
+    o->sharpsig = 0.0;
     o->sky_known = 0;
     o->sieve = NULL;
 }
@@ -487,7 +488,8 @@ static int measure_and_cut(const mp_frame *f, const mp_bkg *b, const mpf_kernel 
     size_t n0 = l->n;
     for (size_t i = 0; i < nc && !nomem; i++) {
         const mpf_star *s = &l->meas[i];
-        if (!s->ok || !within(s->sharp, o->sharplo, o->sharphi) ||
+        double lo = o->sharplo - (o->sharpsig > 0.0 ? o->sharpsig * s->sharp_sd : 0.0);
+        if (!s->ok || !within(s->sharp, lo, o->sharphi) ||
             !within(s->round, o->roundlo, o->roundhi))
             continue;
         if (l->n == l->cap) {

@@ -215,6 +215,10 @@ typedef struct {
     double threshold;  /* threshold in σ of the kernel amplitude (4.0) */
     double nsigma;     /* kernel radius in Gaussian σ, at least 2 px (1.5) */
     double sharplo, sharphi;  /* sharpness limits (0.2, 1.0) */
+    /* sharplo lowered, candidate by candidate, by this many σ of its own
+     * SHARPNESS (its pixels' noise; step 6 below).  0, the default:
+     * DAOFIND's fixed limit. */
+    double sharpsig;
     double roundlo, roundhi;  /* roundness limits (−1.0, 1.0) */
     /* The sky map is the sky itself (a fitted model's residual, its sky
      * kept): where DAOFIND's h stays below threshold, peaks of the
@@ -320,7 +324,12 @@ enum {
  *   6. Cuts: sharplo ≤ SHARPNESS ≤ sharphi, roundlo ≤ ROUNDNESS ≤ roundhi.
  *      (A star of the kernel's FWHM has SHARPNESS ≈ 0.47 for FWHM 3; its
  *      noise at 10σ is ≈ 0.12, so DAOPHOT's sharplo = 0.2 costs ~1 % of
- *      10σ stars, more of fainter ones.)
+ *      10σ stars, more of fainter ones: ~8 % at 4.5σ.)  With sharpsig > 0
+ *      the low limit is sharplo − sharpsig·σ_s, σ_s the candidate's own
+ *      SHARPNESS noise from its pixels' (the rms map at the peak; the
+ *      delta method on (d₀ − mean of the others)/h, their covariance
+ *      through the shared pixels): a candidate goes only when its
+ *      sharpness lies that far below the limit.
  *
  * On white noise h is nearly uncorrelated beyond one pixel (the lowering
  * makes ρ ≈ 0.08 at lag 1, −0.34 at lag 2 for FWHM 3), so the false

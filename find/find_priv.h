@@ -151,6 +151,7 @@ typedef struct {
     int flags;
     int ok;                  /* passed the fits (shape cuts not yet applied) */
     double snr;              /* a sieve's (mp_find_opts.sieve), else NaN */
+    double sharp_sd;         /* σ of sharp from the pixels' noise (find.h step 6) */
 } mpf_star;
 
 /* mpf_sieve: stars[n0..*n-1] (and their keys) offered to o->sieve (none:

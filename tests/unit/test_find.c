@@ -602,21 +602,21 @@ static void test_false_detections(void **state)
     frame_drop(&f);
 }
 
-/* A frame of N² px (N ≥ 500): sky B, read noise RON, and 225 Gaussian
- * stars of FWHM and flux F on a 15 × 15 grid 32 px apart (each placed at
- * random within its pixel, positions into tx, ty), Poisson and read
- * noise drawn from seed. */
-static void grid_stars(mp_frame *f, long N, double B, double RON, double FWHM, double F,
-                       uint64_t seed, double *tx, double *ty)
+/* A frame of N² px (N ≥ 32·side): sky B, read noise RON, and side²
+ * Gaussian stars of FWHM and flux F on a grid 32 px apart (each moved by
+ * up to jitter px at random on each axis, positions into tx, ty), Poisson
+ * and read noise drawn from seed. */
+static void grid_stars(mp_frame *f, long N, int side, double jitter, double B, double RON,
+                       double FWHM, double F, uint64_t seed, double *tx, double *ty)
 {
     frame_make(f, N, N, RON);
     fill(f, B);
     mp_rng r;
     mp_rng_seed(&r, seed);
     mp_sim_prf p = gauss_prf(FWHM);
-    for (int s = 0; s < 225; s++) {
-        tx[s] = 20.0 + 32.0 * (s % 15) + mp_rng_uniform(&r);
-        ty[s] = 20.0 + 32.0 * (s / 15) + mp_rng_uniform(&r);
+    for (int s = 0; s < side * side; s++) {
+        tx[s] = 20.0 + 32.0 * (s % side) + jitter * mp_rng_uniform(&r);
+        ty[s] = 20.0 + 32.0 * (s / side) + jitter * mp_rng_uniform(&r);
         assert_int_equal(mp_sim_add_star_float(&p, tx[s], ty[s], F, f->im.pix, N, N), 0);
     }
     mp_sim_add_noise_float(&r, f->im.pix, N * N, RON);
@@ -640,7 +640,7 @@ static void test_isolated_stars(void **state)
     enum { NS = 225 };
     double tx[NS], ty[NS];
     mp_frame f;
-    grid_stars(&f, N, B, RON, FWHM, F, 106, tx, ty);
+    grid_stars(&f, N, 15, 1.0, B, RON, FWHM, F, 106, tx, ty);
 
     mp_find_opts o;
     mp_find_opts_default(&o);
@@ -727,7 +727,7 @@ static void test_sky_known(void **state)
     enum { NS = 225 };
     double tx[NS], ty[NS];
     mp_frame f;
-    grid_stars(&f, N, B, RON, FWHM, F, 111, tx, ty);
+    grid_stars(&f, N, 15, 1.0, B, RON, FWHM, F, 111, tx, ty);
     mp_find_opts o;
     mp_find_opts_default(&o);
     no_cuts(&o);
@@ -846,6 +846,94 @@ static void test_sky_known_model_errors(void **state)
     free(stars);
     free(one);
     free(res);
+    frame_drop(&f);
+}
+
+static int cmp_double(const void *a, const void *b)
+{
+    double x = *(const double *)a, y = *(const double *)b;
+    return (x > y) - (x < y);
+}
+
+/* Of the stars of tx, ty (n) found within 1 px with options o0, those
+ * not found with o1 (the same frame and map). */
+static int lost_to(const mp_frame *f, const mp_bkg *b, const mp_find_opts *o0,
+                   const mp_find_opts *o1, const double *tx, const double *ty, int n)
+{
+    mp_table t0, t1;
+    char err[MP_ERRLEN];
+    mp_table_init(&t0);
+    mp_table_init(&t1);
+    assert_int_equal(mp_find_stars(f, b, o0, &t0, err), 0);
+    assert_int_equal(mp_find_stars(f, b, o1, &t1, err), 0);
+    int lost = 0;
+    for (int s = 0; s < n; s++) {
+        double d0, d1;
+        nearest(&t0, tx[s], ty[s], &d0);
+        nearest(&t1, tx[s], ty[s], &d1);
+        lost += d0 < 1.0 && !(d1 < 1.0);
+    }
+    mp_table_free(&t0);
+    mp_table_free(&t1);
+    return lost;
+}
+
+/* sharpsig (find.h step 6): the low sharpness limit lowered by each
+ * candidate's own σ_s.  (a) Its σ_s is the sharpness's noise: 900 stars
+ * at 30 σ of h (FWHM 3), all at one subpixel phase (a star's own
+ * sharpness moves with its phase) and bright enough that the peak is
+ * the star's own pixel (at 8 σ a neighbour's h wins for many, and the
+ * sharpness there is lower), the limit put at their median sharpness
+ * with sharpsig 2: a star goes when its sharpness lies 2 of its σ_s
+ * below the median, Φ(−2) = 2.3 % of them, 21 expected, and we require
+ * 5..45 (σ_s half the truth would take 16 %, 144; twice it, 0.003 %;
+ * without the star's own photons in σ_s, 147 went).
+ * (b) DAOPHOT's sharplo 0.2 at 4.5 σ, where σ_s ≈ 0.19 around 0.47: it
+ * takes Φ(−1.4) ≈ 8 % of the stars found (~48 of ~620), and we require
+ * at least 20; at sharpsig 2 a star goes only below 0.2 − 0.38, Φ(−3.4)
+ * ≈ 3·10⁻⁴ of them (0.2 expected), and we allow 4. */
+static void test_sharpness_noise(void **state)
+{
+    (void)state;
+    const long N = 1024;
+    const double B = 100.0, RON = 5.0, FWHM = 3.0, sd = sqrt(B + RON * RON);
+    enum { SIDE = 30, NS = SIDE * SIDE };
+    double tx[NS], ty[NS];
+    mp_frame f;
+    mp_bkg b;
+    mp_table t;
+    mp_find_opts o0, o1;
+    mp_find_opts_default(&o0);
+    no_cuts(&o0);
+    grid_stars(&f, N, SIDE, 0.0, B, RON, FWHM, flux_at_sigma(FWHM, 30.0, sd), 112, tx, ty);
+    run_find(&f, &o0, &b, &t);
+    double *sh = malloc(t.nrow * sizeof *sh);
+    assert_non_null(sh);
+    for (size_t i = 0; i < t.nrow; i++)
+        sh[i] = mp_table_get(&t, i, col(&t, "SHARPNESS"));
+    qsort(sh, t.nrow, sizeof *sh, cmp_double);
+    o1 = o0;
+    o1.sharplo = sh[t.nrow / 2];
+    o1.sharpsig = 2.0;
+    free(sh);
+    mp_table_free(&t);
+    int lost = lost_to(&f, &b, &o0, &o1, tx, ty, NS);
+    if (lost < 5 || lost > 45)
+        fail_msg("%d of %d stars at 8 sigma 2 sigma below their median sharpness", lost, NS);
+    mp_bkg_free(&b);
+    frame_drop(&f);
+
+    grid_stars(&f, N, SIDE, 1.0, B, RON, FWHM, flux_at_sigma(FWHM, 4.5, sd), 113, tx, ty);
+    run_find(&f, &o0, &b, &t);
+    mp_table_free(&t);
+    o1 = o0;
+    o1.sharplo = 0.2;
+    int fixed = lost_to(&f, &b, &o0, &o1, tx, ty, NS);
+    o1.sharpsig = 2.0;
+    lost = lost_to(&f, &b, &o0, &o1, tx, ty, NS);
+    if (fixed < 20 || lost > 4)
+        fail_msg("sharplo 0.2 took %d stars at 4.5 sigma, %d with sharpsig 2", fixed, lost);
+    mp_bkg_free(&b);
     frame_drop(&f);
 }
 
@@ -1766,6 +1854,7 @@ int main(void)
         cmocka_unit_test(test_completeness),
         cmocka_unit_test(test_sky_known),
         cmocka_unit_test(test_sky_known_model_errors),
+        cmocka_unit_test(test_sharpness_noise),
         cmocka_unit_test(test_saturated_star),
         cmocka_unit_test(test_saturated_trail),
         cmocka_unit_test(test_noise_from_model),
