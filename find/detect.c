@@ -136,9 +136,9 @@ static int quiet_footprint(const mp_frame *f, const strip *st, const mpf_kernel 
  * DAOFIND's zero-sum h cancels a constant error; hu, whose weights w have
  * one sign, takes it whole, so its noise is bounded as if that error were
  * one value over the footprint: σ² = white·Σw² + rest·(Σw)², Σw the
- * kernel's klsum (its weights positive).  (Counted
- * as white, as h's is, hu offered 13 more false entries on the segmented
- * scene built, on its bright stars' features.) */
+ * kernel's klsum (its weights positive).  (Counted as white, as h's is,
+ * hu offered 13 more false entries on the segmented scene built, on its
+ * bright stars' features.) */
 static int above_model_errors(const mp_bkg *b, const strip *st, const mpf_kernel *ku,
                               double thresh, long nx, long x, long y)
 {

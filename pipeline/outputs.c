@@ -251,7 +251,9 @@ static void detection_line(const mp_fit_setup *fit, const mp_pipeline_report *re
         k += snprintf(run->detection + k, n - (size_t)k, ", a linear fit at each keeps S/N "
                       ">= %g", cut);
     if (k > 0 && (size_t)k < n && rep->sharp[0])
-        k += snprintf(run->detection + k, n - (size_t)k, "; %s", rep->sharp);
+        k += snprintf(run->detection + k, n - (size_t)k, "; %s; on the residual the low limit "
+                      "less %g of each candidate's own sharpness sigma", rep->sharp,
+                      MP_PL_SHARP_SIGMA);
     if (k > 0 && (size_t)k < n && rep->stars_fwhm[0])
         k += snprintf(run->detection + k, n - (size_t)k, "; %s", rep->stars_fwhm);
     if (k > 0 && (size_t)k < n && (rep->escale[0] != 1.0 || rep->escale[1] != 1.0))

@@ -345,6 +345,11 @@ void mp_pl_drop_unset(mp_table *t);
  * them. */
 #define MP_PL_SCREEN_SLACK 2.0
 
+/* A residual candidate's sharpness goes below sharplo only when it lies
+ * this many of its own σ below (mp_find_opts.sharpsig): a star whose
+ * true sharpness sits at the limit is kept with probability 0.977. */
+#define MP_PL_SHARP_SIGMA 2.0
+
 /* The LM's tol (× each parameter's σ) in the fit with the PSF's first
  * pass (round 1 when the PSF is built): what it leaves places the
  * neighbours the second pass takes off and is the next fit's start, and

@@ -392,11 +392,6 @@ static void say_new_stars(const run_state *s, int round, long added, const resid
  * S/N 9-16 isolated on frame X's residual), and the screen as detection
  * goes (its candidates never all held), its PRFs from the phase grid the
  * fit drew from, as the one-or-two test's.  Nonzero with err. */
-/* A residual candidate's sharpness goes below sharplo only when it lies
- * 2 of its own σ below: a star whose true sharpness sits at the limit is
- * kept with probability 0.977. */
-#define MP_PL_SHARP_SIGMA 2.0
-
 static int residual_detections(run_state *s, const mp_frame *R, const mp_prf_cache *grid,
                                double gemax, char *err)
 {
