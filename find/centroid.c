@@ -163,32 +163,24 @@ static int fit_marginal(const marginal *mg, double sigma, double *d_out, double 
     return 0;
 }
 
-/* σ of SHARPNESS s = N/h at pixel (px, py), N = d₀ − (the m others'
+/* The variance sums of SHARPNESS s = N/h, N = d₀ − (the m others'
  * mean), h = Σ w·d, each good tap's d of variance v = rms² + max(d, 0):
  * the map's noise at the peak and the star's own photons (electrons; the
  * map's rms holds the sky's, and a candidate's light is in no model yet).
- * var N = v₀ + Σ v/m², var h = Σ w²v, cov(N, h) = w₀v₀ − Σ w v/m, and by
- * the delta method var s = (var N − 2s·cov + s²·var h)/h². */
-static double sharp_noise(const mp_frame *f, const mp_bkg *b, const mpf_kernel *k,
-                          const double *w, int m, long px, long py, double s, double h)
+ * v0, w0: the centre's; vo, wvo, wwvo: Σ v, Σ w·v, Σ w²·v over the
+ * others. */
+typedef struct {
+    double v0, w0, vo, wvo, wwvo;
+} sharp_var;
+
+/* σ of s from its sums: var N = v₀ + Σv/m², var h = Σ w²v,
+ * cov(N, h) = w₀v₀ − Σ w v/m, and by the delta method
+ * var s = (var N − 2s·cov + s²·var h)/h². */
+static double sharp_noise(const sharp_var *sv, int m, double s, double h)
 {
-    long nx = f->im.nx;
-    size_t ic = (size_t)py * (size_t)nx + (size_t)px;
-    double rms = mp_bkg_rms(b, ic), r2 = rms * rms;
-    double vn = 0.0, vh = 0.0, cov = 0.0;
-    for (int t = 0; t < k->n; t++) {
-        long x = px + k->dx[t], y = py + k->dy[t];
-        if (x < 0 || x >= nx || y < 0 || y >= f->im.ny)
-            continue;
-        size_t q = (size_t)y * (size_t)nx + (size_t)x;
-        if (mpf_bad(f, q))
-            continue;         /* in neither N nor h */
-        double v = r2 + mpf_nonneg(f->im.pix[q] - mp_bkg_sky(b, q));
-        int centre = k->dx[t] == 0 && k->dy[t] == 0;
-        vn += centre ? v : v / ((double)m * m);
-        vh += w[t] * w[t] * v;
-        cov += centre ? w[t] * v : -w[t] * v / m;
-    }
+    double vn = sv->v0 + sv->vo / ((double)m * m);
+    double vh = sv->w0 * sv->w0 * sv->v0 + sv->wwvo;
+    double cov = sv->w0 * sv->v0 - sv->wvo / m;
     return sqrt(fmax(vn - 2.0 * s * cov + s * s * vh, 0.0)) / h;
 }
 
@@ -207,23 +199,31 @@ void mpf_measure(const mp_frame *f, const mp_bkg *b, const mpf_kernel *k,
 
     /* DAOFIND's sharpness: the central pixel above the mean of the rest of
      * the footprint, in units of the fitted height. */
-    double others = 0.0;
+    double others = 0.0, rms = mp_bkg_rms(b, ic), r2 = rms * rms;
     int nothers = 0;
+    sharp_var sv = {0};
     for (int t = 0; t < k->n; t++) {
         long x = px + k->dx[t], y = py + k->dy[t];
+        if (k->dx[t] == 0 && k->dy[t] == 0)
+            sv.w0 = w[t];
         if ((k->dx[t] == 0 && k->dy[t] == 0) || x < 0 || x >= nx || y < 0 || y >= ny)
             continue;
         size_t q = (size_t)y * (size_t)nx + (size_t)x;
         if (mpf_bad(f, q))
             continue;
-        others += f->im.pix[q] - mp_bkg_sky(b, q);
+        double d = f->im.pix[q] - mp_bkg_sky(b, q), v = r2 + mpf_nonneg(d);
+        others += d;
         nothers++;
+        sv.vo += v;
+        sv.wvo += w[t] * v;
+        sv.wwvo += w[t] * w[t] * v;
     }
     if (nothers == 0)
         return;
     double d0 = f->im.pix[ic] - mp_bkg_sky(b, ic);
+    sv.v0 = r2 + mpf_nonneg(d0);
     s->sharp = (d0 - others / nothers) / h;
-    s->sharp_sd = sharp_noise(f, b, k, w, nothers, px, py, s->sharp, h);
+    s->sharp_sd = sharp_noise(&sv, nothers, s->sharp, h);
 
     marginal mg;
     double ddx, ddy, hx, hy;

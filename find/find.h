@@ -223,7 +223,7 @@ typedef struct {
     /* The sky map is the sky itself (a fitted model's residual, its sky
      * kept): where DAOFIND's h stays below threshold, peaks of the
      * Gaussian's amplitude with no constant beside it are offered too
-     * (step 3b below).  0, the default: DAOFIND's alone. */
+     * (step 4b below).  0, the default: DAOFIND's alone. */
     int sky_known;
     /* A screen of the detections as they are made (NULL, the default:
      * none): see mp_find_sieve_fn. */
