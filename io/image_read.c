@@ -295,3 +295,26 @@ void mp_image_free(mp_image *im)
     im->nx = im->ny = 0;
     im->nkeys = 0;
 }
+
+int mp_image_header_read(const char *name, mp_image *im, char *err)
+{
+    memset(im, 0, sizeof *im);
+    fitsfile *fp;
+    if (!name || !*name) {
+        snprintf(err, MP_ERRLEN, "(no name): no image file given");
+        return 1;
+    }
+    if (open_image(name, &fp, err))
+        return 1;
+    int status = 0;
+    if (copy_header(fp, &im->hdr, &im->nkeys, &status))
+        mp_fits_error(name, "read the header of", status, err);
+    int s2 = 0;
+    fits_close_file(fp, &s2);
+    fits_clear_errmsg();
+    if (status) {
+        mp_image_free(im);
+        return 1;
+    }
+    return 0;
+}

@@ -41,6 +41,12 @@ typedef struct {
  * section), unsupported BITPIX. */
 int mp_image_read(const char *name, mp_image *im, char *err);
 
+/* mp_image_header_read: the header alone of the image HDU name names (as
+ * mp_image_read opens it: the first HDU with an image, or the one or the
+ * section named), into im->hdr and im->nkeys; im->pix NULL, nx = ny = 0.
+ * Errors as mp_image_read's opening. */
+int mp_image_header_read(const char *name, mp_image *im, char *err);
+
 /* mp_image_free: release what mp_image_read allocated; safe on a zeroed or
  * already freed image. */
 void mp_image_free(mp_image *im);

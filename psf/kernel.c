@@ -47,24 +47,25 @@ static int card_numbers(const char *txt, size_t len, double *v, int max)
     return k;
 }
 
-/* Tiny Tim: "…convolve it with the following kernel :" then one COMMENT
- * card per row. */
-static int kernel_from_header(const mp_image *im, const char *name, mp_psf *k, char *err)
+/* The card after Tiny Tim's "…convolve it with the following kernel :"
+ * (its kernel, one COMMENT card a row), or -1 when the header has none. */
+static int header_kernel_start(const mp_image *im)
 {
-    int start = -1;
-    for (int c = 0; c < im->nkeys && start < 0; c++) {
+    for (int c = 0; c < im->nkeys; c++) {
         const char *card = im->hdr + (size_t)c * 80;
         char buf[81];
         memcpy(buf, card, 80);
         buf[80] = '\0';
         if (!strncmp(buf, "COMMENT", 7) && strstr(buf, "following kernel"))
-            start = c + 1;
+            return c + 1;
     }
-    if (start < 0) {
-        snprintf(err, MP_ERRLEN, "%s: psfkernel=header: no kernel in the header's COMMENT "
-                 "cards (Tiny Tim's \"convolve it with the following kernel\")", name);
-        return 1;
-    }
+    return -1;
+}
+
+/* Tiny Tim's kernel from the COMMENT cards from start on. */
+static int kernel_from_header(const mp_image *im, int start, const char *name, mp_psf *k,
+                              char *err)
+{
     double v[9][9];
     int rows = 0, cols = 0;
     for (int c = start; c < im->nkeys && rows < 9; c++) {
@@ -96,33 +97,12 @@ static int kernel_from_header(const mp_image *im, const char *name, mp_psf *k, c
     return 0;
 }
 
-int mp_psf_kernel_read(const char *spec, const char *psfname, mp_psf *k, char *err)
+/* A kernel read (k->t, nx, ny) checked finite with a positive sum and
+ * made an OVERSAMP-1 table; freed with 1 and err when not. */
+static int kernel_checked(const char *name, mp_psf *k, char *err)
 {
-    memset(k, 0, sizeof *k);
-    int from_header = !strcmp(spec, "header");
-    const char *name = from_header ? psfname : spec;
-    if (from_header && (!psfname || !psfname[0])) {
-        snprintf(err, MP_ERRLEN, "psfkernel: header: there is no PSF file to read it from");
-        return 1;
-    }
-    mp_image im = {0};
-    if (mp_image_read(name, &im, err))
-        return 1;
-    int rc = 0;
-    if (from_header) {
-        rc = kernel_from_header(&im, name, k, err);
-    } else if (im.nx % 2 == 0 || im.ny % 2 == 0 || im.nx > 99 || im.ny > 99) {
-        snprintf(err, MP_ERRLEN, "%s: detector kernel is %ldx%ld; its sizes must be odd, at "
-                 "most 99", name, im.nx, im.ny);
-        rc = 1;
-    } else {
-        k->t = im.pix;
-        im.pix = NULL;
-        k->nx = (int)im.nx;
-        k->ny = (int)im.ny;
-    }
-    mp_image_free(&im);
     double s = 0.0;
+    int rc = 0;
     for (int i = 0; !rc && i < k->nx * k->ny; i++) {
         if (!isfinite(k->t[i])) {
             snprintf(err, MP_ERRLEN, "%s: detector kernel holds NaN or infinite values", name);
@@ -142,6 +122,67 @@ int mp_psf_kernel_read(const char *spec, const char *psfname, mp_psf *k, char *e
     k->os = 1;
     k->sum = s;
     return 0;
+}
+
+/* Tiny Tim's kernel from psfname's header (psfkernel=header; auto: none,
+ * k->t NULL, when the header has no kernel or the file does not open as an
+ * image — a PSFEx table, whose PSF was read before). */
+static int kernel_header(const char *psfname, int need, mp_psf *k, char *err)
+{
+    if (need && (!psfname || !psfname[0])) {
+        snprintf(err, MP_ERRLEN, "psfkernel: header: there is no PSF file to read it from");
+        return 1;
+    }
+    mp_image im = {0};
+    char e2[MP_ERRLEN];
+    if (!psfname || !psfname[0] || mp_image_header_read(psfname, &im, need ? err : e2))
+        return need;
+    int start = header_kernel_start(&im), rc = 0;
+    if (start >= 0) {
+        rc = kernel_from_header(&im, start, psfname, k, err);
+    } else if (need) {
+        snprintf(err, MP_ERRLEN, "%s: psfkernel=header: no kernel in the header's COMMENT "
+                 "cards (Tiny Tim's \"convolve it with the following kernel\")", psfname);
+        rc = 1;
+    }
+    mp_image_free(&im);
+    return rc;
+}
+
+/* A kernel given as a FITS image (odd sizes ≤ 99). */
+static int kernel_file(const char *name, mp_psf *k, char *err)
+{
+    mp_image im = {0};
+    if (mp_image_read(name, &im, err))
+        return 1;
+    int rc = 0;
+    if (im.nx % 2 == 0 || im.ny % 2 == 0 || im.nx > 99 || im.ny > 99) {
+        snprintf(err, MP_ERRLEN, "%s: detector kernel is %ldx%ld; its sizes must be odd, at "
+                 "most 99", name, im.nx, im.ny);
+        rc = 1;
+    } else {
+        k->t = im.pix;
+        im.pix = NULL;
+        k->nx = (int)im.nx;
+        k->ny = (int)im.ny;
+    }
+    mp_image_free(&im);
+    return rc;
+}
+
+int mp_psf_kernel_read(const char *spec, const char *psfname, mp_psf *k, char *err)
+{
+    memset(k, 0, sizeof *k);
+    if (!spec[0] || !strcmp(spec, "none"))
+        return 0;
+    int is_auto = !strcmp(spec, "auto");
+    int rc = is_auto || !strcmp(spec, "header") ? kernel_header(psfname, !is_auto, k, err)
+                                                : kernel_file(spec, k, err);
+    if (rc)
+        mp_psf_free(k);
+    if (rc || !k->t)
+        return rc;
+    return kernel_checked(is_auto || !strcmp(spec, "header") ? psfname : spec, k, err);
 }
 
 /* out (nx + 2·os·rx) × (ny + 2·os·ry) = in ∗ K↑. */
@@ -181,5 +222,21 @@ int mp_psf_field_fold_kernel(mp_psf_field *f, const mp_psf *k, char *err)
     f->nx = mx;
     f->ny = my;
     f->sum *= k->sum;
+    return 0;
+}
+
+int mp_psf_table_fold_kernel(double **t, int *nx, int *ny, int os, const mp_psf *k, char *err)
+{
+    int mx = *nx + 2 * os * (k->nx / 2), my = *ny + 2 * os * (k->ny / 2);
+    double *out = malloc((size_t)mx * my * sizeof *out);
+    if (!out) {
+        snprintf(err, MP_ERRLEN, "detector kernel: out of memory");
+        return 1;
+    }
+    fold_plane(*t, *nx, *ny, os, k, out);
+    free(*t);
+    *t = out;
+    *nx = mx;
+    *ny = my;
     return 0;
 }

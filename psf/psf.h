@@ -210,9 +210,11 @@ void mp_psf_field_free(mp_psf_field *f);
 
 /* mp_psf_kernel_read: the kernel spec names — "header": Tiny Tim's kernel
  * in the COMMENT cards of psfname's header ("…convolve it with the
- * following kernel", one card a row); else a FITS image (odd sizes ≤ 99)
- * — as an OVERSAMP-1 table k (sum kept as given, k->sum).  It acts on
- * detector pixels, after the block-sum. */
+ * following kernel", one card a row; an error when there is none);
+ * "auto": that kernel when the header carries one, else none; "" or
+ * "none": none; else a FITS image (odd sizes ≤ 99) — as an OVERSAMP-1
+ * table k (sum kept as given, k->sum).  It acts on detector pixels, after
+ * the block-sum.  No kernel: 0 with k->t NULL. */
 int mp_psf_kernel_read(const char *spec, const char *psfname, mp_psf *k, char *err);
 
 /* mp_psf_field_fold_kernel: every plane convolved with k placed at
@@ -221,5 +223,10 @@ int mp_psf_kernel_read(const char *spec, const char *psfname, mp_psf *k, char *e
  * PRF convolved with k on detector pixels, at every shift and for any DRF
  * (kernel.c says why); f->sum scales by k's sum. */
 int mp_psf_field_fold_kernel(mp_psf_field *f, const mp_psf *k, char *err);
+
+/* mp_psf_table_fold_kernel: the same for one table *t (nx × ny elements,
+ * OVERSAMP os, malloc'ed), replaced by its folded and padded copy, *nx and
+ * *ny by its sizes; its sum times k's is the folded table's. */
+int mp_psf_table_fold_kernel(double **t, int *nx, int *ny, int os, const mp_psf *k, char *err);
 
 #endif

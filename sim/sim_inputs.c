@@ -1,16 +1,19 @@
 /* sim_inputs.c — PSF table and DRF files for `matphot sim` (sim_inputs.h). */
 #include "sim/sim_inputs.h"
 
+#include "psf/psf.h"
+
 #include <math.h>
 #include <stdio.h>
 #include <string.h>
 
-int sim_load_psf(const char *path, sim_inputs *in, mp_sim_prf *prf, char *err)
+int sim_load_psf(const char *path, int hos, const char *kspec, sim_inputs *in, mp_sim_prf *prf,
+                 char *err)
 {
     if (mp_image_read(path, &in->psf, err))
         return 1;
     const mp_image *im = &in->psf;
-    double os = 1.0;
+    double os = hos > 0 ? hos : 1.0;
     int h = mp_header_double(im, "OVERSAMP", &os);
     if (h == 2 || (h == 0 && (os < 1 || os > 1000 || os != floor(os)))) {
         snprintf(err, MP_ERRLEN, "%s: OVERSAMP must be a positive integer", path);
@@ -41,6 +44,19 @@ int sim_load_psf(const char *path, sim_inputs *in, mp_sim_prf *prf, char *err)
     }
     if (nneg)
         fprintf(stderr, "matphot sim: warning: %s: %ld negative PSF elements\n", path, nneg);
+    /* The detector kernel as the fit folds it (fit/setup.c): a star is
+     * drawn from the same table the fit is given. */
+    mp_psf k;
+    if (mp_psf_kernel_read(kspec, path, &k, err))
+        return 1;
+    int nx = (int)im->nx, ny = (int)im->ny;
+    int rc = k.t && mp_psf_table_fold_kernel(&in->psf.pix, &nx, &ny, (int)os, &k, err);
+    in->kernel = k.t ? k.nx : 0;
+    mp_psf_free(&k);
+    if (rc)
+        return 1;
+    in->psf.nx = nx;
+    in->psf.ny = ny;
     prf->kind = MP_SIM_TABLE;
     prf->tab = im->pix;
     prf->tnx = (int)im->nx;

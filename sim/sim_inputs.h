@@ -12,12 +12,16 @@
 typedef struct {
     mp_image psf, drf;
     double drf_mean;        /* the PRF volume the DRF implies */
+    int kernel;             /* the detector kernel folded into psf: its size, 0 none */
 } sim_inputs;
 
 /* sim_load_psf: read a PSF table (odd sizes, OVERSAMP integer >= 1, absent
- * = 1; no NaN; sum <= 1.01) into in->psf and point prf at it.  Negative
- * elements only warn (on stderr, prefixed "matphot sim: warning: "). */
-int sim_load_psf(const char *path, sim_inputs *in, mp_sim_prf *prf, char *err);
+ * = hos when > 0, else 1; no NaN; sum <= 1.01) into in->psf, fold in the detector kernel
+ * kspec names (psf/psf.h mp_psf_kernel_read: auto, header, none or a
+ * file), and point prf at it.  Negative elements only warn (on stderr,
+ * prefixed "matphot sim: warning: "). */
+int sim_load_psf(const char *path, int hos, const char *kspec, sim_inputs *in, mp_sim_prf *prf,
+                 char *err);
 
 /* sim_load_drf: read a k×k DRF (QE in [0,1]) into in->drf and point prf at
  * it; for a table PSF, k must divide its OVERSAMP. */

@@ -16,9 +16,10 @@
 
 /* Everything the task needs from its parameters, checked. */
 typedef struct {
-    const char *output, *psf, *drf, *psfout;
+    const char *output, *psf, *drf, *psfout, *psfkernel;
     char *truth;                      /* owned */
     int nx, ny, crowded, nstars, noise, psfos, segmented, ncosrays;
+    int oversamp;                     /* psf='s OVERSAMP when its header has none; 0 */
     int fieldnx, fieldny, x0, y0;     /* the field the frame looks at */
     double magmin, magmax, sky, rdnoise, gain, fwhm, volume, saturate, lod, band, crenergy;
     double ra, dec, pixscale;         /* TAN WCS at the field's centre; ra NaN: none */
@@ -65,6 +66,10 @@ static int read_numbers(const mp_parset *ps, sim_config *c, char *err)
         mp_par_need_int(ps, "psfos", &c->psfos, err) ||
         mp_par_need_int(ps, "ncosrays", &c->ncosrays, err))
         return 1;
+    c->oversamp = MP_PAR_INDEF_INT;
+    mp_par_int(ps, "oversamp", &c->oversamp);
+    if (c->oversamp == MP_PAR_INDEF_INT)
+        c->oversamp = 0;
     for (size_t k = 0; k < sizeof reals / sizeof *reals; k++)
         if (mp_par_need_real(ps, reals[k], rv[k], err))
             return 1;
@@ -176,9 +181,10 @@ static int read_config(const mp_parset *ps, sim_config *c, char *err)
     c->psf = mp_par_string(ps, "psf");
     c->drf = mp_par_string(ps, "drf");
     c->psfout = mp_par_string(ps, "psfout");
+    c->psfkernel = mp_par_string(ps, "psfkernel");
     const char *truth = mp_par_string(ps, "truth");
     const char *mode = mp_par_string(ps, "mode");
-    if (!c->output || !c->psf || !c->drf || !truth || !mode) {
+    if (!c->output || !c->psf || !c->drf || !c->psfkernel || !truth || !mode) {
         snprintf(err, MP_ERRLEN, "sim.par: a parameter is missing from the defaults");
         return 1;
     }
@@ -188,6 +194,11 @@ static int read_config(const mp_parset *ps, sim_config *c, char *err)
     }
     if (mp_out_fits_named("output", c->output, err) || mp_out_fits_named("psfout", c->psfout, err))
         return 1;
+    const char *k = c->psfkernel;
+    if (!*c->psf && *k && strcmp(k, "auto") && strcmp(k, "none")) {
+        snprintf(err, MP_ERRLEN, "psfkernel: %s: a detector kernel needs a PSF table (psf=)", k);
+        return 1;
+    }
     /* The order of the checks is the order of the messages a user with
      * several mistakes sees first. */
     return read_numbers(ps, c, err) || read_pupil(ps, c, err) ||
@@ -258,7 +269,7 @@ static int wcs_cards(const sim_config *c, mp_card *k)
     return n;
 }
 
-static int write_frame(const sim_config *c, const mp_sim_prf *prf, double volume,
+static int write_frame(const sim_config *c, const mp_sim_prf *prf, double volume, int kernel,
                        const double *adu, char *err)
 {
     /* A pixel a float (a noisy frame's BITPIX -32) cannot hold, or none
@@ -271,7 +282,7 @@ static int write_frame(const sim_config *c, const mp_sim_prf *prf, double volume
                      c->noise ? "float" : "double");
             return 1;
         }
-    mp_card cards[28];          /* 13 at most, and the WCS's 12 */
+    mp_card cards[28];          /* 14 at most, and the WCS's 12 */
     int nc = 0;
     cards[nc++] = (mp_card){"BUNIT", 0, "ADU", "pixel unit"};
     cards[nc++] = (mp_card){"GAIN", c->gain, NULL, "[e-/ADU] gain"};
@@ -286,6 +297,8 @@ static int write_frame(const sim_config *c, const mp_sim_prf *prf, double volume
     else
         cards[nc++] = (mp_card){"PSF", 0, c->segmented ? "segmented mirror" : c->psf,
                                 "simulated PSF table"};
+    if (kernel)
+        cards[nc++] = (mp_card){"PSFKERN", 0, c->psfkernel, "detector kernel folded into PSF"};
     if (c->fwhmvar != 0.0 || c->stretch != 0.0) {
         cards[nc++] = (mp_card){"FWHMVAR", c->fwhmvar, NULL, "FWHM x (1 + FWHMVAR u) across x"};
         cards[nc++] = (mp_card){"STRETCH", c->stretch, NULL, "x (1+S v^2) along x, (1+S u^2) y"};
@@ -384,7 +397,7 @@ static int setup_prf(const sim_config *c, sim_inputs *in, mp_sim_prf *prf, doubl
     *prf = (mp_sim_prf){.kind = MP_SIM_GAUSS, .volume = c->volume,
                         .sigma = c->fwhm / (2.0 * sqrt(2.0 * log(2.0)))};
     *volume = c->volume;
-    if (*c->psf && sim_load_psf(c->psf, in, prf, err))
+    if (*c->psf && sim_load_psf(c->psf, c->oversamp, c->psfkernel, in, prf, err))
         return 1;
     if (c->segmented) {
         /* The segmented mirror's table at psfos, drawn as any table star. */
@@ -483,9 +496,9 @@ static double *draw_frame(const sim_config *c, const mp_sim_prf *prf, const mp_t
 /* The frame, its truth (the stars on it) and the PSF table asked for: all
  * of them or none (a failed write removes the ones written). */
 static int write_outputs(const sim_config *c, const mp_sim_prf *prf, double volume,
-                         const double *img, mp_table *t, char *err)
+                         int kernel, const double *img, mp_table *t, char *err)
 {
-    if (write_frame(c, prf, volume, img, err))
+    if (write_frame(c, prf, volume, kernel, img, err))
         return 1;
     keep_on_frame(t, c->nx, c->ny);
     if (mp_table_write(c->truth, t, MP_TAB_ASCII_HEAD, err)) {
@@ -512,7 +525,7 @@ static int run(const sim_config *c, char *err)
     mp_rng_seed(&rng, c->seed);
     int rc = setup_prf(c, &in, &prf, &volume, &seg, err) || make_truth(c, &prf, &rng, &t, err) ||
              !(img = draw_frame(c, &prf, &t, &rng, err)) ||
-             write_outputs(c, &prf, volume, img, &t, err);
+             write_outputs(c, &prf, volume, in.kernel, img, &t, err);
     free(seg);
     free(img);
     mp_table_free(&t);

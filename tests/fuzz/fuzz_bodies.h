@@ -244,14 +244,18 @@ static inline int fuzz_psf_body(const uint8_t *data, size_t size)
         }
         mp_psf_free(&p);
     }
-    /* A detector kernel: Tiny Tim's COMMENT cards, or the image itself. */
-    for (int hdr = 0; hdr < 2; hdr++) {
+    /* A detector kernel: the image itself, Tiny Tim's COMMENT cards (header),
+     * or those cards when there are any (auto: none is no error). */
+    for (int spec = 0; spec < 3; spec++) {
         mp_psf k;
         err[0] = '\0';
-        if (mp_psf_kernel_read(hdr ? "header" : path, path, &k, err)) {
+        if (mp_psf_kernel_read(spec == 0 ? path : spec == 1 ? "header" : "auto", path, &k,
+                               err)) {
             fuzz_check_err("mp_psf_kernel_read", err);
             continue;
         }
+        if (!k.t && spec == 2)
+            continue;
         double sum = 0.0;
         for (int i = 0; i < k.nx * k.ny; i++)
             sum += k.t[i];

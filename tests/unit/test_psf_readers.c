@@ -304,6 +304,39 @@ static void test_kernel_tinytim_header(void **state)
     assert_non_null(strstr(err, "no kernel in the header"));
 }
 
+/* psfkernel=auto (the default): the same kernel, from the same cards, when
+ * the header carries it (a section of the sub4 file keeps its header, as
+ * the pipeline's runs name it); none, and no error, for Tiny Tim's sub1
+ * table (its kernel already applied: no cards), for a PSFEx file (no image
+ * to hold a header) and for "none". */
+static void test_kernel_auto(void **state)
+{
+    (void)state;
+    char err[MP_ERRLEN], psfex[256];
+    const char *tmp = getenv("TMPDIR");
+    mp_psf k, h;
+    snprintf(psfex, sizeof psfex, "%s/test_kernel_auto_%ld.psf", tmp && *tmp ? tmp : "/tmp",
+             (long)getpid());
+    write_psfex(psfex, 1, 3, 1, 1.0);
+    assert_int_equal(mp_psf_kernel_read("auto", psfex, &k, err), 0);
+    assert_null(k.t);
+    assert_int_not_equal(mp_psf_kernel_read("header", psfex, &k, err), 0);
+    unlink(psfex);
+    if (!have(TINYTIM))
+        skip();
+    assert_int_equal(mp_psf_kernel_read("auto", TINYTIM "[132:452,132:452]", &k, err), 0);
+    assert_int_equal(mp_psf_kernel_read("header", TINYTIM, &h, err), 0);
+    assert_int_equal(k.nx, 3);
+    assert_memory_equal(k.t, h.t, 9 * sizeof *k.t);
+    mp_psf_free(&k);
+    mp_psf_free(&h);
+    assert_int_equal(mp_psf_kernel_read("auto", REAL "hst_acs_hrc_47tuc/"
+                                        "tinytim_acs_hrc_f606w_x512y512_sub1.fits", &k, err), 0);
+    assert_null(k.t);
+    assert_int_equal(mp_psf_kernel_read("none", TINYTIM, &k, err), 0);
+    assert_null(k.t);
+}
+
 /* Folding is exact (psf/kernel.c): the PRF of the folded table equals the
  * unfolded PRF convolved with the kernel on detector pixels, at any
  * subpixel position and with a non-uniform DRF, to rounding. */
@@ -571,6 +604,7 @@ int main(void)
         cmocka_unit_test(test_psfex_des),
         cmocka_unit_test(test_psfex_synthetic),
         cmocka_unit_test(test_kernel_tinytim_header),
+        cmocka_unit_test(test_kernel_auto),
         cmocka_unit_test(test_kernel_fold_is_exact),
         cmocka_unit_test(test_webbpsf),
         cmocka_unit_test(test_grid_webbpsf_mock),

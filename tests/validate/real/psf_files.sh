@@ -70,10 +70,10 @@ chi2() {    # median and quartiles of CHI2_PSF, stars, not converged
         awk '{ v[NR] = $1; nc += $2 } END { printf "%d stars, median CHI2_PSF %.2f (quartiles %.2f, %.2f), %d not converged", NR, v[int((NR + 1) / 2)], v[int(NR / 4)], v[int(3 * NR / 4)], nc }'
 }
 if [ "${PSF_FILES_SKIP_TUC:-}" != 1 ] || [ ! -f "$OUT/tuc_kernel_os2.fit" ]; then
-    tuc tuc_nokernel
-    tuc tuc_kernel psfkernel=header
-    tuc tuc_kernel_os2 psfkernel=header psfos=2
-    tuc tuc_nokernel_os2 psfos=2
+    tuc tuc_nokernel psfkernel=none
+    tuc tuc_kernel
+    tuc tuc_kernel_os2 psfos=2
+    tuc tuc_nokernel_os2 psfkernel=none psfos=2
 fi
 
 {
@@ -104,10 +104,10 @@ fi
     echo "## 47 Tuc crop $TUC_CROP, Tiny Tim ×4, with and without its charge-diffusion kernel"
     echo
     echo '```'
-    echo "./matphot pipeline '$TUC_IMG' root=... $TUC_ARGS [psfkernel=header] [psfos=2]"
+    echo "./matphot pipeline '$TUC_IMG' root=... $TUC_ARGS [psfkernel=none] [psfos=2]"
     echo '```'
     echo
-    echo "\`psfkernel=header\` reads the 3×3 kernel from the sub4 file's COMMENT cards and folds it into the ×4 table (exact, psf/kernel.c).  A crop, not the whole frame, so that the four runs stay within minutes (CPU seconds user+sys in brackets)."
+    echo "The default \`psfkernel=auto\` reads the 3×3 kernel from the sub4 file's COMMENT cards (Tiny Tim: \"the charge diffusion kernel was NOT applied\") and folds it into the ×4 table (exact, psf/kernel.c); \`psfkernel=none\` leaves it out.  A crop, not the whole frame, so that the four runs stay within minutes (CPU seconds user+sys in brackets)."
     echo
     for r in tuc_nokernel tuc_kernel tuc_nokernel_os2 tuc_kernel_os2; do
         echo "- $r [$(awk '{ printf "%.0f", $1 + $2 }' "$OUT/$r.time") s]: $(chi2 $r)"

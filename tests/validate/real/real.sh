@@ -133,7 +133,7 @@ if [ -f "$TF" ] && [ -f "$TP" ]; then
         echo '```'
         echo
         echo "- Frame: \`j8bt06nyq_flt_sip_crop512.fits[SCI]\`, 512×512, electrons, so **gain=1**; **rdnoise=4.71** e− (READNSEC); no SATURATE card: saturation from the DQ plane, **dqmask=[DQ] dqsat=2304** (bits 256 full well + 2048 A/D, MANIFEST), and **saturate=151553.98** e− (the SCI header's GOODMAX, which with gain 1 is in ADU = e−).  Other DQ bits are not masked: cosmic rays (a single exposure) are fitted as data."
-        echo "- PSF: \`tinytim_acs_hrc_f606w_x512y512_sub4.fits\` (Tiny Tim 7.5, 4× supersampled, no OVERSAMP card → **oversamp=4**; the file is 582×582, even), $PSFNOTE.  Tiny Tim's charge-diffusion kernel is not applied to the sub4 table (MANIFEST), so the model PSF is somewhat sharper than the data's."
+        echo "- PSF: \`tinytim_acs_hrc_f606w_x512y512_sub4.fits\` (Tiny Tim 7.5, 4× supersampled, no OVERSAMP card → **oversamp=4**; the file is 582×582, even), $PSFNOTE.  Tiny Tim's charge-diffusion kernel, left out of the sub4 table and given in its COMMENT cards (MANIFEST), is folded in by the default \`psfkernel=auto\` (the run report's first economy decision; without it, \`psfkernel=none\`, the median χ²/dof was 18.3 against 5.1 on 2026-12-07)."
         echo
         echo "Run report (\`tuc.report\`):"
         echo
