@@ -518,6 +518,15 @@ static int honest_errors(run_state *s, char *err)
                 "(flux), %.3g, %.3g (x, y) of its sigma (used when beyond %.0f of its sampling "
                 "errors), %.2f s\n", s->image, e.k[0], e.k[1], e.nplace, e.raw[0], e.raw[1],
                 e.raw[2], MP_PL_ESCALE_Z, mp_seconds() - t0);
+    /* Below its model the noise cannot be, in electrons: k < 1 is the
+     * frame's calibration (a flux scale of k² in the fit's weights). */
+    if (!s->quiet && e.k[0] < 1.0)
+        fprintf(stderr, "matphot pipeline: %s: warning: away from the stars the residual "
+                "scatters by %.3g of its noise model (flux; %.3g, %.3g on x, y), below it: is the "
+                "bias subtracted, the gain the frame's (the noise says about %.2g, not %g), "
+                "the frame not resampled (correlated pixels)?  The catalog's errors are scaled "
+                "by it\n", s->image, e.raw[0], e.raw[1], e.raw[2],
+                s->f.gain / (e.raw[0] * e.raw[0]), s->f.gain);
     if (!s->quiet && mp_pl_escale_unused(&e)) {
         char why[320];
         mp_pl_escale_unused_why(&e, why, sizeof why);

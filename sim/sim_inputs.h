@@ -16,10 +16,10 @@ typedef struct {
 } sim_inputs;
 
 /* sim_load_psf: read a PSF table (odd sizes, OVERSAMP integer >= 1, absent
- * = hos when > 0, else 1; no NaN; sum <= 1.01) into in->psf, fold in the detector kernel
- * kspec names (psf/psf.h mp_psf_kernel_read: auto, header, none or a
- * file), and point prf at it.  Negative elements only warn (on stderr,
- * prefixed "matphot sim: warning: "). */
+ * = hos when > 0, else 1; no NaN; sum <= 1.01) into in->psf, fold in the
+ * detector kernel kspec names (psf/psf.h mp_psf_kernel_read: auto, header,
+ * none or a file), and point prf at it.  Negative elements only warn (on
+ * stderr, prefixed "matphot sim: warning: "). */
 int sim_load_psf(const char *path, int hos, const char *kspec, sim_inputs *in, mp_sim_prf *prf,
                  char *err);
 
