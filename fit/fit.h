@@ -1121,11 +1121,20 @@ typedef struct {
     char decisions[4096];   /* economy decisions and their reasons (a variable
                              * PSF built from the frame: ~2.6 KB) */
     int ndecisions;
+    char warn[1024];        /* what reading the PSF noticed, a line each (a
+                             * table too coarse for the data, paper §5.4;
+                             * negative elements; a conversion's cost), for
+                             * the task to say (mp_fit_setup_warn) */
 } mp_fit_setup;
 
-/* mp_fit_setup_read: read the PSF (and DRF) files and the options; warns on
- * stderr when the PSF table is too coarse for the data (paper §5.4). */
+/* mp_fit_setup_read: read the PSF (and DRF) files and the options; what
+ * the PSF's reading noticed goes to s->warn, not to stderr (the pipeline's
+ * own tables need no warning). */
 int mp_fit_setup_read(const mp_parset *ps, mp_fit_setup *s, char *err);
+
+/* mp_fit_setup_warn: s->warn on stderr, a line each, as "matphot TASK:
+ * warning: ...". */
+void mp_fit_setup_warn(const mp_fit_setup *s, const char *task);
 void mp_fit_setup_free(mp_fit_setup *s);
 /* mp_fit_setup_inputs: the files a setup read from ps (psf, drf) and those
  * its frames' reads take (datapars dqmask, errplane) added to in (io.h),

@@ -28,20 +28,38 @@ void mp_fit_setup_free(mp_fit_setup *s)
     mp_econ_cache_free(s->cache);
 }
 
+/* A warning line added to s->warn (dropped when full). */
+static void add_warning(mp_fit_setup *s, const char *w)
+{
+    size_t l = strlen(s->warn);
+    if (l + strlen(w) + 2 <= sizeof s->warn)
+        snprintf(s->warn + l, sizeof s->warn - l, "%s%s", l ? "\n" : "", w);
+}
+
 /* Paper §5.4: a discrete PSF needs β ≥ 21 in its own (super)pixels, or
  * bright stars alias.  β·V² = 1/sharpness keeps the test independent of
  * the detector's efficiency. */
-static void warn_undersampled(const mp_fit_setup *s)
+static void warn_undersampled(mp_fit_setup *s)
 {
     mp_prf_stats st;
     if (s->psf.kind != MP_PSF_TABLE || mp_prf_stats_at(&s->model, 1000.0, 1000.0, &st, NULL))
         return;
     double b = st.sharp > 0 ? 1.0 / st.sharp : 0.0, bs = b * s->psf.os * s->psf.os;
+    char w[MP_ERRLEN];
+    snprintf(w, sizeof w, "PSF undersampled: beta = %.1f px^2 < 21, and its OVERSAMP %d gives "
+             "%.1f < 21 table px^2; bright stars will alias (use a table supersampled %dx or "
+             "more)", b, s->psf.os, bs, (int)ceil(sqrt(21.0 / b)));
     if (b < 21.0 && bs < 21.0)
-        fprintf(stderr, "matphot fit: warning: PSF undersampled: beta = %.1f px^2 < 21, "
-                "and its OVERSAMP %d gives %.1f < 21 table px^2; bright stars will alias "
-                "(use a table supersampled %dx or more)\n",
-                b, s->psf.os, bs, (int)ceil(sqrt(21.0 / b)));
+        add_warning(s, w);
+}
+
+void mp_fit_setup_warn(const mp_fit_setup *s, const char *task)
+{
+    for (const char *p = s->warn; *p;) {
+        size_t n = strcspn(p, "\n");
+        fprintf(stderr, "matphot %s: warning: %.*s\n", task, (int)n, p);
+        p += n + (p[n] == '\n');
+    }
 }
 
 /* Block-sum the table and the field alike by factor (the block-sum is
@@ -263,7 +281,7 @@ static int setup_psf(const mp_parset *ps, mp_fit_setup *s, char *err)
     if (read_psf(s, psf, norm, hos == MP_PAR_INDEF_INT ? 0 : hos, kspec ? kspec : "", warn, err))
         return 1;
     if (warn[0])
-        fprintf(stderr, "matphot fit: warning: %s\n", warn);
+        add_warning(s, warn);
     mp_par_int(ps, "psfos", &os);
     if (os == MP_PAR_INDEF_INT || os == s->psf.os)
         return 0;

@@ -170,6 +170,7 @@ int mp_task_fit(int argc, char **argv)
     mp_inputs *ins = NULL;
     if (mp_fit_setup_read(&ps, &s, err))
         goto done;
+    mp_fit_setup_warn(&s, "fit");
     if (mp_params_list(mp_par_string(&ps, "image"), &im, &nim, err) ||
         mp_params_list(mp_par_string(&ps, "coords"), &co, &nco, err) ||
         mp_params_list(mp_par_string(&ps, "output"), &out, &nout, err) ||

@@ -118,6 +118,7 @@ int mp_task_fakes(int argc, char **argv)
     const char *image = mp_par_string(&ps, "image");
     if (mp_pl_opts_read(&ps, &o, err) || fakes_opts(&ps, &o, &fo, &lo, &hi, err))
         goto done;
+    mp_fit_setup_warn(&o.fit, "fakes");
     const char *r = mp_par_string(&ps, "root");
     root = r[0] ? strdup(r) : mp_name_after(image, "");
     cat = root ? mp_name_after(root, ".fakes.cat") : NULL;

@@ -135,6 +135,7 @@ int mp_task_pipeline(int argc, char **argv)
     int measure = !isfinite(fw);     /* INDEF: measured on each image */
     if ((measure && mp_params_set(&ps, "fwhm", "3", err)) || mp_pl_opts_read(&ps, &o, err))
         goto done;
+    mp_fit_setup_warn(&o.fit, "pipeline");
     if (!(o.sweeps = mp_sweeps_new())) {
         snprintf(err, MP_ERRLEN, "out of memory");
         goto done;

@@ -65,6 +65,9 @@ recovered "$T/f.cat" || no "pipeline recovered too few stars or too many (matche
 # with the true table.
 "$M" pipeline "$T/f.fits" root="$T/b" 2>"$T/blog" || no "built: $(tail -n 1 "$T/blog")"
 grep -q "PSF pass 2" "$T/blog" || no "built: no second PSF pass"
+# The tables it builds are its own: no warning on their noisy wings'
+# negative elements, nor a file name of its (a temporary one, before).
+! grep -q "warning: .*negative PSF elements" "$T/blog" || no "built: $(grep warning "$T/blog")"
 [ "$(grep -c 'round 1: .* stars fitted' "$T/blog")" -eq 1 ] || no "built: round 1 fitted again"
 recovered "$T/b.cat" || no "built: too few stars or too many: $(cat "$T/match")"
 # halo=auto (the default): measured when the PSF is built, not with a table
