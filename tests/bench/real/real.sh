@@ -185,6 +185,41 @@ med() { sort -g | awk '{v[NR] = $1} END {if (NR == 0) print "nan"; else if (NR %
 cpu_of() { tail -n 1 "$1" | awk '{printf "%.3f\n", $2 + $3}'; }
 rss_of() { tail -n 1 "$1" | awk '{print $4}'; }
 
+# sexpsfex DIR FRAME: SExtractor + PSFEx on FRAME (DAOPHOT's copy of the
+# pixels), as validate/PSFPEERS.md runs them (4 sigma, no filter, minarea
+# 3; PSFEx at its own sampling, PSFVAR_DEGREES 2, its default; the PSF fit
+# by SExtractor), with the frame's gain and saturation: DIR/sp.cat, in
+# matphot's column names (ERRX_PSF from ERRX2PSF_IMAGE), rows with a PSF
+# flux; DIR/sp.time, the three runs' CPU summed.  Nonzero on failure.
+SEX=$(command -v source-extractor || command -v sex || true)
+sexpsfex() {
+    d=$1
+    mkdir -p "$d" || return 1
+    dia=$(awk -v f="$FWHM" 'BEGIN { printf "%.1f", 3 * f }')
+    sat=$([ "$DMAX" = INDEF ] && echo 1e9 || echo "$DMAX")
+    printf '%s\n' X_IMAGE Y_IMAGE XWIN_IMAGE YWIN_IMAGE FLUX_APER FLUXERR_APER FLUX_RADIUS \
+        ELONGATION FLAGS SNR_WIN FLUX_MAX 'VIGNET(25,25)' > "$d/pre.param"
+    printf '%s\n' NUMBER XPSF_IMAGE YPSF_IMAGE FLUX_PSF FLUXERR_PSF MAG_PSF MAGERR_PSF CHI2_PSF \
+        ERRX2PSF_IMAGE ERRY2PSF_IMAGE FLAGS > "$d/psf.param"
+    common="-GAIN $GAIN -SATUR_LEVEL $sat -FILTER N -DETECT_THRESH 4 -DETECT_MINAREA 3 \
+-BACK_SIZE 64 -PHOT_APERTURES $dia -SEEING_FWHM $FWHM -PIXEL_SCALE 1 -VERBOSE_TYPE QUIET \
+-CHECKIMAGE_TYPE NONE -WRITE_XML N"
+    # shellcheck disable=SC2086
+    ( cd "$d" && timed t1 "$SEX" "$2" $common -PARAMETERS_NAME pre.param -CATALOG_TYPE FITS_LDAC \
+          -CATALOG_NAME pre.cat > sex1.log 2>&1 &&
+      timed t2 psfex pre.cat -PSFVAR_DEGREES 2 -PSFVAR_KEYS X_IMAGE,Y_IMAGE -PSF_SIZE 25,25 \
+          -PSF_SAMPLING 0 -PHOTFLUX_KEY 'FLUX_APER(1)' -PHOTFLUXERR_KEY 'FLUXERR_APER(1)' \
+          -CHECKPLOT_TYPE NONE -CHECKIMAGE_TYPE NONE -WRITE_XML N > psfex.log 2>&1 &&
+      timed t3 "$SEX" "$2" $common -PSF_NAME pre.psf -PARAMETERS_NAME psf.param \
+          -CATALOG_TYPE ASCII_HEAD -CATALOG_NAME psf.cat > sex2.log 2>&1 ) || return 1
+    awk 'BEGIN { n = split("NUMBER XPSF_IMAGE YPSF_IMAGE FLUX_PSF FLUXERR_PSF MAG_PSF MAGERR_PSF CHI2_PSF ERRX_PSF ERRY_PSF FLAGS", c)
+                 for (i = 1; i <= n; i++) printf "#%4d %s\n", i, c[i] }
+         !/^#/ && $4 > 0 { print ++k, $2, $3, $4, $5, $6, $7, $8, sqrt($9), sqrt($10), $11 }' \
+        "$d/psf.cat" > "$d/sp.cat" || return 1
+    cat "$d/t1" "$d/t2" "$d/t3" | awk '{ u += $2; s += $3 } END { printf "0 %.3f %.3f\n", u, s }' \
+        > "$d/sp.time"
+}
+
 {
 echo "# matphot against IRAF DAOPHOT on real frames"
 echo
@@ -271,6 +306,18 @@ for F in $FRAMES; do
             { printf "%10d %12.5f %12.5f %14.6g %10.4f %8.4f\n", ++k, $1, $2, $3, -2.5 * log($3) / log(10), 0 }' \
             > "$FD/pu.cat" &&
         { echo; echo "photutils $(/usr/bin/python3 -c 'import photutils; print(photutils.__version__)') on the same pixels, one run (tests/validate/psfbuild/photutils_peer.py: DAOStarFinder at 4 sigma, its ePSF built from the frame at oversampling 1, DAOPhotPSFPhotometry, fwhm $FWHM; no DQ plane): CPU $(cpu_of "$FD/pu.time") s; against DAOPHOT's two-pass catalog (\`realcmp dao\`, its first count photutils' stars): \`$("$W/realcmp" dao "$FD/pu.cat" "$R1/dao/im.als2" 1.0)\`."; } >> "$W/detail.md"
+    fi
+    # SExtractor + PSFEx (its PSF built from the frame too), once
+    if { [ "$F" = tucb ] || [ "$F" = glimpseb ]; } && [ -z "$SEC" ] && [ -n "$SEX" ] &&
+        command -v psfex > /dev/null 2>&1 && [ -f "$R1/dao/im.fits" ]; then
+        if sexpsfex "$FD/sp" "$R1/dao/im.fits"; then
+            { echo; echo "SExtractor + PSFEx on the same pixels, one run ($("$SEX" -v 2>/dev/null | head -n 1), $(psfex -v 2>/dev/null | head -n 1); validate/PSFPEERS.md's chain: 4 sigma, no filter, minarea 3, PSFEx at its own sampling, PSFVAR_DEGREES 2; gain $GAIN; no DQ plane): CPU $(cpu_of "$FD/sp/sp.time") s, $(grep -vc '^#' "$FD/sp/sp.cat") stars with a PSF flux; against DAOPHOT's two-pass catalog (\`realcmp dao\`, its first count SExtractor's stars): \`$("$W/realcmp" dao "$FD/sp/sp.cat" "$R1/dao/im.als2" 1.0)\`."
+              [ "$F" = glimpseb ] && "$W/real" glimpse "$FD/sp/sp.cat" "$D/glimpse_catalog_subset.csv" \
+                  "$GAIN" "$FD/sp/gcmp" > "$FD/sp/gcmp.txt" 2>&1 &&
+                  echo "Its catalog against the GLIMPSE catalog (its fluxes in the image's units, MJy/sr summed, so its flux scale is theirs): $(cat "$FD/sp/gcmp.txt")"; } >> "$W/detail.md"
+        else
+            say "SExtractor + PSFEx failed on $F (see $FD/sp)"
+        fi
     fi
     if [ "$F" = glimpse ] || [ "$F" = glimpseb ]; then
         "$W/real" glimpse "$R1/mp/m.cat" "$D/glimpse_catalog_subset.csv" "$GAIN" "$FD/gcmp" > "$FD/gcmp.txt" 2>&1 &&
