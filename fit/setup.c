@@ -236,14 +236,14 @@ static int read_psf(mp_fit_setup *s, const char *name, int norm, int os, const c
     if (mp_psf_kernel_read(kspec, name, &k, err))
         return 1;
     if (k.t) {
-        int rc = mp_psf_field_fold_kernel(&s->field, &k, err), hdr = !strcmp(kspec, "auto") ||
-                                                                    !strcmp(kspec, "header");
+        int rc = mp_psf_field_fold_kernel(&s->field, &k, err);
+        mp_kernel_spec ks = mp_psf_kernel_spec(kspec);
         char why[320];
         snprintf(why, sizeof why, "detector kernel: %dx%d (sum %.6g) from %s folded into the x%d "
                  "table (exact: it commutes with the shift, the DRF and the block-sum)%s", k.nx,
-                 k.ny, k.sum, hdr ? "the PSF file's header" : kspec, s->field.os,
-                 strcmp(kspec, "auto") ? "" : "; psfkernel=auto: Tiny Tim's subsampled table "
-                 "says its charge diffusion was not applied (none leaves it out)");
+                 k.ny, k.sum, ks == MP_KERNEL_FILE ? kspec : "the PSF file's header",
+                 s->field.os, ks != MP_KERNEL_AUTO ? "" : "; psfkernel=auto: Tiny Tim's "
+                 "subsampled table says its charge diffusion was not applied (none leaves it out)");
         mp_psf_free(&k);
         if (rc)
             return 1;
@@ -263,7 +263,7 @@ static int setup_psf(const mp_parset *ps, mp_fit_setup *s, char *err)
     const char *psf = mp_par_string(ps, "psf");
     const char *kspec = mp_par_string(ps, "psfkernel");
     if (!psf[0] || strcmp(psf, "gauss") == 0) {
-        if (kspec && kspec[0] && strcmp(kspec, "auto") && strcmp(kspec, "none")) {
+        if (mp_psf_kernel_spec(kspec) >= MP_KERNEL_HEADER) {
             snprintf(err, MP_ERRLEN, "psfkernel: %s: a detector kernel needs a PSF table (psf=)",
                      kspec);
             return 1;

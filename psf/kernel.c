@@ -129,13 +129,14 @@ static int kernel_checked(const char *name, mp_psf *k, char *err)
  * image — a PSFEx table, whose PSF was read before). */
 static int kernel_header(const char *psfname, int need, mp_psf *k, char *err)
 {
-    if (need && (!psfname || !psfname[0])) {
-        snprintf(err, MP_ERRLEN, "psfkernel: header: there is no PSF file to read it from");
-        return 1;
+    if (!psfname || !psfname[0]) {
+        if (need)
+            snprintf(err, MP_ERRLEN, "psfkernel: header: there is no PSF file to read it from");
+        return need;
     }
     mp_image im = {0};
     char e2[MP_ERRLEN];
-    if (!psfname || !psfname[0] || mp_image_header_read(psfname, &im, need ? err : e2))
+    if (mp_image_header_read(psfname, &im, need ? err : e2))
         return need;
     int start = header_kernel_start(&im), rc = 0;
     if (start >= 0) {
@@ -170,19 +171,27 @@ static int kernel_file(const char *name, mp_psf *k, char *err)
     return rc;
 }
 
+mp_kernel_spec mp_psf_kernel_spec(const char *spec)
+{
+    return !spec || !spec[0] || !strcmp(spec, "none") ? MP_KERNEL_NONE
+           : !strcmp(spec, "auto")                    ? MP_KERNEL_AUTO
+           : !strcmp(spec, "header")                  ? MP_KERNEL_HEADER
+                                                      : MP_KERNEL_FILE;
+}
+
 int mp_psf_kernel_read(const char *spec, const char *psfname, mp_psf *k, char *err)
 {
     memset(k, 0, sizeof *k);
-    if (!spec[0] || !strcmp(spec, "none"))
+    mp_kernel_spec ks = mp_psf_kernel_spec(spec);
+    if (ks == MP_KERNEL_NONE)
         return 0;
-    int is_auto = !strcmp(spec, "auto");
-    int rc = is_auto || !strcmp(spec, "header") ? kernel_header(psfname, !is_auto, k, err)
-                                                : kernel_file(spec, k, err);
+    int rc = ks == MP_KERNEL_FILE ? kernel_file(spec, k, err)
+                                  : kernel_header(psfname, ks == MP_KERNEL_HEADER, k, err);
     if (rc)
         mp_psf_free(k);
     if (rc || !k->t)
         return rc;
-    return kernel_checked(is_auto || !strcmp(spec, "header") ? psfname : spec, k, err);
+    return kernel_checked(ks == MP_KERNEL_FILE ? spec : psfname, k, err);
 }
 
 /* out (nx + 2·os·rx) × (ny + 2·os·ry) = in ∗ K↑. */

@@ -217,6 +217,11 @@ void mp_psf_field_free(mp_psf_field *f);
  * the block-sum.  No kernel: 0 with k->t NULL. */
 int mp_psf_kernel_read(const char *spec, const char *psfname, mp_psf *k, char *err);
 
+/* What a psfkernel spec names: none ("" or "none"), auto, header, or a
+ * file; the last two need a PSF table. */
+typedef enum { MP_KERNEL_NONE, MP_KERNEL_AUTO, MP_KERNEL_HEADER, MP_KERNEL_FILE } mp_kernel_spec;
+mp_kernel_spec mp_psf_kernel_spec(const char *spec);
+
 /* mp_psf_field_fold_kernel: every plane convolved with k placed at
  * whole-pixel steps (os elements) and padded by os·r a side, so that the
  * renderer's block-summed PRF of the folded field is exactly the unfolded

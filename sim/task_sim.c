@@ -11,6 +11,7 @@
 #include "catalog/catalog.h"
 #include "io/io.h"
 #include "params/params.h"
+#include "psf/psf.h"
 #include "sim/sim.h"
 #include "sim/sim_inputs.h"
 
@@ -194,9 +195,9 @@ static int read_config(const mp_parset *ps, sim_config *c, char *err)
     }
     if (mp_out_fits_named("output", c->output, err) || mp_out_fits_named("psfout", c->psfout, err))
         return 1;
-    const char *k = c->psfkernel;
-    if (!*c->psf && *k && strcmp(k, "auto") && strcmp(k, "none")) {
-        snprintf(err, MP_ERRLEN, "psfkernel: %s: a detector kernel needs a PSF table (psf=)", k);
+    if (!*c->psf && mp_psf_kernel_spec(c->psfkernel) >= MP_KERNEL_HEADER) {
+        snprintf(err, MP_ERRLEN, "psfkernel: %s: a detector kernel needs a PSF table (psf=)",
+                 c->psfkernel);
         return 1;
     }
     /* The order of the checks is the order of the messages a user with

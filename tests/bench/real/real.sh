@@ -186,32 +186,18 @@ cpu_of() { tail -n 1 "$1" | awk '{printf "%.3f\n", $2 + $3}'; }
 rss_of() { tail -n 1 "$1" | awk '{print $4}'; }
 
 # sexpsfex DIR FRAME: SExtractor + PSFEx on FRAME (DAOPHOT's copy of the
-# pixels), as validate/PSFPEERS.md runs them (4 sigma, no filter, minarea
-# 3; PSFEx at its own sampling, PSFVAR_DEGREES 2, its default; the PSF fit
-# by SExtractor), with the frame's gain and saturation: DIR/sp.cat, in
-# matphot's column names (ERRX_PSF from ERRX2PSF_IMAGE), rows with a PSF
-# flux; DIR/sp.time, the three runs' CPU summed.  Nonzero on failure.
+# pixels), validate/PSFPEERS.md's chain (tests/validate/psfbuild/sexpsfex.sh:
+# PSFVAR_DEGREES 2, its default) with the frame's gain and saturation:
+# DIR/sp.cat, in matphot's column names (ERRX_PSF from ERRX2PSF_IMAGE), rows
+# with a PSF flux; DIR/sp.time, the three runs' CPU summed.  Nonzero on
+# failure.
 SEX=$(command -v source-extractor || command -v sex || true)
+. tests/validate/psfbuild/sexpsfex.sh
 sexpsfex() {
     d=$1
     mkdir -p "$d" || return 1
-    dia=$(awk -v f="$FWHM" 'BEGIN { printf "%.1f", 3 * f }')
-    sat=$([ "$DMAX" = INDEF ] && echo 1e9 || echo "$DMAX")
-    printf '%s\n' X_IMAGE Y_IMAGE XWIN_IMAGE YWIN_IMAGE FLUX_APER FLUXERR_APER FLUX_RADIUS \
-        ELONGATION FLAGS SNR_WIN FLUX_MAX 'VIGNET(25,25)' > "$d/pre.param"
-    printf '%s\n' NUMBER XPSF_IMAGE YPSF_IMAGE FLUX_PSF FLUXERR_PSF MAG_PSF MAGERR_PSF CHI2_PSF \
-        ERRX2PSF_IMAGE ERRY2PSF_IMAGE FLAGS > "$d/psf.param"
-    common="-GAIN $GAIN -SATUR_LEVEL $sat -FILTER N -DETECT_THRESH 4 -DETECT_MINAREA 3 \
--BACK_SIZE 64 -PHOT_APERTURES $dia -SEEING_FWHM $FWHM -PIXEL_SCALE 1 -VERBOSE_TYPE QUIET \
--CHECKIMAGE_TYPE NONE -WRITE_XML N"
-    # shellcheck disable=SC2086
-    ( cd "$d" && timed t1 "$SEX" "$2" $common -PARAMETERS_NAME pre.param -CATALOG_TYPE FITS_LDAC \
-          -CATALOG_NAME pre.cat > sex1.log 2>&1 &&
-      timed t2 psfex pre.cat -PSFVAR_DEGREES 2 -PSFVAR_KEYS X_IMAGE,Y_IMAGE -PSF_SIZE 25,25 \
-          -PSF_SAMPLING 0 -PHOTFLUX_KEY 'FLUX_APER(1)' -PHOTFLUXERR_KEY 'FLUXERR_APER(1)' \
-          -CHECKPLOT_TYPE NONE -CHECKIMAGE_TYPE NONE -WRITE_XML N > psfex.log 2>&1 &&
-      timed t3 "$SEX" "$2" $common -PSF_NAME pre.psf -PARAMETERS_NAME psf.param \
-          -CATALOG_TYPE ASCII_HEAD -CATALOG_NAME psf.cat > sex2.log 2>&1 ) || return 1
+    sexpsfex_chain "$d" "$2" "$GAIN" "$([ "$DMAX" = INDEF ] && echo 1e9 || echo "$DMAX")" "$FWHM" 2 \
+        timed || return 1
     awk 'BEGIN { n = split("NUMBER XPSF_IMAGE YPSF_IMAGE FLUX_PSF FLUXERR_PSF MAG_PSF MAGERR_PSF CHI2_PSF ERRX_PSF ERRY_PSF FLAGS", c)
                  for (i = 1; i <= n; i++) printf "#%4d %s\n", i, c[i] }
          !/^#/ && $4 > 0 { print ++k, $2, $3, $4, $5, $6, $7, $8, sqrt($9), sqrt($10), $11 }' \

@@ -39,6 +39,7 @@ done
 HAVE_PSFEX=""; command -v psfex > /dev/null 2>&1 && [ -n "$SEX" ] && HAVE_PSFEX=yes
 HAVE_PU=""; /usr/bin/python3 -c 'import photutils' > /dev/null 2>&1 && HAVE_PU=yes
 . tests/bench/daophot/cl_env.sh
+. tests/validate/psfbuild/sexpsfex.sh
 rc=0
 
 # The scenes' detector and PSF (tests/validate/psfbuild/psfb.c): gain 1,
@@ -81,34 +82,17 @@ dao() {
 
 # sexpsfex SCENE DEGREE: SExtractor (LDAC with vignets) → PSFEx
 # (PSFVAR_DEGREES DEGREE, PSF_SAMPLING 0 = PSFEx's own choice) →
-# SExtractor's PSF fit (XPSF_IMAGE, YPSF_IMAGE, FLUX_PSF).
+# SExtractor's PSF fit (XPSF_IMAGE, YPSF_IMAGE, FLUX_PSF): sexpsfex.sh's chain.
+ptime() { o=$1; shift; /usr/bin/time -f 'cpu %e %U %S' -o "$o" "$@"; }
 sexpsfex() {
     s=$1 dg=$2 d="$OUT/$1/psfex$2"
     fw=$(fwhm_of "$s")
     rm -rf "$d" && mkdir -p "$d" || return 1
-    # PSFEx normalises its model to the aperture flux FLUX_APER(1): the
-    # radius DAOPHOT's photometry uses (1.5 FWHM).
-    dia=$(awk -v f="$fw" 'BEGIN { printf "%.1f", 3 * f }')
-    printf '%s\n' X_IMAGE Y_IMAGE XWIN_IMAGE YWIN_IMAGE FLUX_APER FLUXERR_APER FLUX_RADIUS \
-        ELONGATION FLAGS SNR_WIN FLUX_MAX 'VIGNET(25,25)' > "$d/pre.param"
-    printf '%s\n' XPSF_IMAGE YPSF_IMAGE FLUX_PSF FLUXERR_PSF FLAGS > "$d/psf.param"
-    common="-GAIN 1 -SATUR_LEVEL 1e9 -FILTER N -DETECT_THRESH 4 -DETECT_MINAREA 3 \
--BACK_SIZE 64 -PHOT_APERTURES $dia -SEEING_FWHM $fw -PIXEL_SCALE 1 -VERBOSE_TYPE QUIET \
--CHECKIMAGE_TYPE NONE -WRITE_XML N"
-    (
-        cd "$d" || exit 1
-        # shellcheck disable=SC2086
-        /usr/bin/time -f 'cpu %e %U %S' -o t1 $SEX "$OUT/$s/frame.fits" $common \
-            -PARAMETERS_NAME pre.param -CATALOG_TYPE FITS_LDAC -CATALOG_NAME pre.cat > sex1.log 2>&1 &&
-        /usr/bin/time -f 'cpu %e %U %S' -o t2 psfex pre.cat -PSFVAR_DEGREES "$dg" -PSFVAR_KEYS X_IMAGE,Y_IMAGE \
-            -PSF_SIZE 25,25 -PSF_SAMPLING 0 -PHOTFLUX_KEY 'FLUX_APER(1)' -PHOTFLUXERR_KEY 'FLUXERR_APER(1)' \
-            -CHECKPLOT_TYPE NONE -CHECKIMAGE_TYPE NONE -WRITE_XML N -VERBOSE_TYPE NORMAL > psfex.log 2>&1 &&
-        /usr/bin/time -f 'cpu %e %U %S' -o t3 $SEX "$OUT/$s/frame.fits" $common -PSF_NAME pre.psf \
-            -PARAMETERS_NAME psf.param -CATALOG_TYPE ASCII_HEAD -CATALOG_NAME psf.cat > sex2.log 2>&1
-    ) || { tail -n 5 "$d"/*.log >&2; say "SExtractor/PSFEx failed on $s (degree $dg)" >&2; return 1; }
+    sexpsfex_chain "$d" "$OUT/$s/frame.fits" 1 1e9 "$fw" "$dg" ptime ||
+        { tail -n 5 "$d"/*.log >&2; say "SExtractor/PSFEx failed on $s (degree $dg)" >&2; return 1; }
     # Rows with no PSF fit (FLUX_PSF 0 or negative) are not stars found.
-    awk '!/^#/ && $3 > 0 { print $1, $2, $3 }' "$d/psf.cat" | ascii_head "$OUT/$s/psfex$dg.cat"
-    echo "SExtractor (4 sigma, no filter, PHOT_APERTURES $dia) -> PSFEx (PSFVAR_DEGREES $dg, PSF_SAMPLING 0, PSF_SIZE 25) -> SExtractor PSF fit" > "$OUT/$s/psfex$dg.cmd"
+    awk '!/^#/ && $4 > 0 { print $2, $3, $4 }' "$d/psf.cat" | ascii_head "$OUT/$s/psfex$dg.cat"
+    echo "SExtractor (4 sigma, no filter, PHOT_APERTURES $(awk -v f="$fw" 'BEGIN { printf "%.1f", 3 * f }')) -> PSFEx (PSFVAR_DEGREES $dg, PSF_SAMPLING 0, PSF_SIZE 25) -> SExtractor PSF fit" > "$OUT/$s/psfex$dg.cmd"
     cat "$d/t1" "$d/t2" "$d/t3" | awk '/^cpu/ { w += $2; u += $3; s += $4 } END { print "cpu", w, u, s }' > "$OUT/$s/psfex$dg.time"
     grep -h 'sampling\|Sampling\|chi2' "$d/psfex.log" | tail -n 2 | tr -s ' ' > "$OUT/$s/psfex$dg.note" || true
 }
